@@ -1,0 +1,215 @@
+"""Static bias eps0: the mean gyro rate at standstill over Tbias (paper Sec. 2, Eq. 2).
+
+Pure estimation (:func:`estimate_bias`) plus an atomic YAML bias file
+(:func:`save_bias`, :func:`load_bias`). The paper averages Tbias = 30 s "with the gyro held
+completely motionless" (20 s in its drives) and notes that "just one second ... is
+sufficient" for usable results (Sec. 6).
+
+The standstill test rejects a window whose samples say the vehicle moved:
+- spread: the sample standard deviation exceeds ``max_std_dps`` (a turn, or rough motion);
+- trend: the means of the window's first and last thirds differ by more than
+  ``max_trend_dps`` (a slow turn or a creeping drift that the mean would absorb);
+- excursion: any sample is further than ``max_excursion_dps`` from the median (a bump).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+__all__ = [
+    "T_BIAS_S",
+    "BiasRecord",
+    "MotionDetected",
+    "BiasFileError",
+    "StandstillLimits",
+    "estimate_bias",
+    "save_bias",
+    "load_bias",
+    "atomic_write_text",
+]
+
+T_BIAS_S = 30.0
+"""Static bias averaging time Tbias, s (paper Sec. 2: "Tbias = 30 seconds")."""
+
+
+class MotionDetected(ValueError):
+    """The calibration window does not look like standstill; the message says why."""
+
+
+class BiasFileError(ValueError):
+    """A bias file is missing, unreadable, truncated or holds invalid values."""
+
+
+@dataclass(frozen=True, slots=True)
+class StandstillLimits:
+    """Thresholds of the standstill test, deg/s. A parked car with its engine running shows
+    vibration well below these; any turn or a drive through a bend exceeds them."""
+
+    max_std_dps: float = 0.5
+    max_trend_dps: float = 0.2
+    max_excursion_dps: float = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class BiasRecord:
+    """A static bias measurement.
+
+    bias_dps: eps0, mean raw rate at standstill, deg/s (+ = CCW). std_dps: sample standard
+    deviation, deg/s. n: samples averaged. duration_s: device time spanned, s. temp_c: mean
+    board temperature, deg C, or None if not fitted. time: when it was measured, UNIX s.
+    """
+
+    bias_dps: float
+    std_dps: float
+    n: int
+    duration_s: float
+    temp_c: float | None = None
+    time: float = 0.0
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        return asdict(self)
+
+
+def estimate_bias(
+    omega_dps: npt.ArrayLike,
+    t_s: npt.ArrayLike | None = None,
+    *,
+    temp_c: npt.ArrayLike | None = None,
+    limits: StandstillLimits = StandstillLimits(),
+    when: float = 0.0,
+) -> BiasRecord:
+    """Static bias eps0 from raw standstill samples (deg/s); raises MotionDetected on motion.
+
+    t_s: sample times in seconds (for the duration); when absent, the duration is unknown
+    and reported as 0. temp_c: board temperatures, deg C (NaN = unknown). when: the UNIX time
+    to stamp the record with (the caller owns the clock).
+    """
+    w = np.asarray(omega_dps, dtype=np.float64)
+    n = int(w.shape[0])
+    if n < 2:
+        raise MotionDetected(f"only {n} sample(s): at least 2 are needed to measure the bias")
+    if not np.all(np.isfinite(w)):
+        raise MotionDetected("non-finite samples in the calibration window")
+    mean = float(np.mean(w))
+    std = float(np.std(w, ddof=1))
+    if std > limits.max_std_dps:
+        raise MotionDetected(
+            f"vehicle moved: rate spread {std:.3f} deg/s > {limits.max_std_dps} deg/s allowed"
+        )
+    third = max(n // 3, 1)
+    trend = float(np.mean(w[-third:]) - np.mean(w[:third]))
+    if abs(trend) > limits.max_trend_dps:
+        raise MotionDetected(
+            f"vehicle moved: rate trend {trend:+.3f} deg/s between the window's first and last "
+            f"thirds > {limits.max_trend_dps} deg/s allowed"
+        )
+    excursion = float(np.max(np.abs(w - np.median(w))))
+    if excursion > limits.max_excursion_dps:
+        raise MotionDetected(
+            f"vehicle moved: a sample {excursion:.2f} deg/s from the median "
+            f"> {limits.max_excursion_dps} deg/s allowed"
+        )
+    duration = 0.0
+    if t_s is not None:
+        t = np.asarray(t_s, dtype=np.float64)
+        duration = float(t[-1] - t[0]) if t.shape[0] else 0.0
+    temp: float | None = None
+    if temp_c is not None:
+        tc = np.asarray(temp_c, dtype=np.float64)
+        tc = tc[np.isfinite(tc)]
+        temp = float(np.mean(tc)) if tc.shape[0] else None
+    return BiasRecord(mean, std, n, duration, temp, when)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+
+    Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    dfd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+_BIAS_HEADER = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
+
+
+def save_bias(path: str | os.PathLike[str], record: BiasRecord) -> None:
+    """Write a bias record as YAML, atomically, mode 0644."""
+    body = yaml.safe_dump(record.to_dict(), sort_keys=False)
+    atomic_write_text(path, _BIAS_HEADER + body + "# end\n")
+
+
+def load_bias(path: str | os.PathLike[str]) -> BiasRecord:
+    """Read a bias file; BiasFileError (naming the file and the problem) if it is not whole
+    and valid. A truncated file lacks the ``# end`` trailer and is refused."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise BiasFileError(f"bias file {p}: not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
+    if not text.rstrip().endswith("# end"):
+        raise BiasFileError(f"bias file {p}: truncated (no '# end' line); run `hdrd calibrate`")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise BiasFileError(f"bias file {p}: not valid YAML: {e}".splitlines()[0]) from None
+    if not isinstance(data, dict):
+        raise BiasFileError(f"bias file {p}: expected a mapping of bias_dps, std_dps, n, ...")
+    try:
+        record = BiasRecord(
+            bias_dps=_finite(data, "bias_dps"),
+            std_dps=_finite(data, "std_dps"),
+            n=int(data["n"]),
+            duration_s=_finite(data, "duration_s"),
+            temp_c=None if data.get("temp_c") is None else _finite(data, "temp_c"),
+            time=_finite(data, "time"),
+        )
+    except KeyError as e:
+        raise BiasFileError(f"bias file {p}: missing key {e.args[0]}") from None
+    except (TypeError, ValueError) as e:
+        raise BiasFileError(f"bias file {p}: {e}") from None
+    if record.n < 1 or record.std_dps < 0 or record.duration_s < 0:
+        raise BiasFileError(f"bias file {p}: n, std_dps and duration_s must not be negative")
+    return record
+
+
+def _finite(data: dict[str, object], key: str) -> float:
+    v = data[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{key} = {v!r} is not a finite number")
+    return float(v)
+
+
+def now() -> float:
+    """UNIX time, for callers at the edge that stamp records (kept out of the pure functions)."""
+    return time.time()

@@ -1,0 +1,422 @@
+"""Configuration: YAML -> frozen dataclasses, every key validated.
+
+Pure apart from :func:`load_config` reading the file. An invalid value raises
+:class:`ConfigError`, whose one-line message names the key, the value and what is allowed;
+the CLI turns it into exit status 78 (EX_CONFIG, sysexits.h). Defaults are the paper's
+(Table III, Tbias = 30 s, T = 1 s; see :mod:`hdrd.hdr` and :mod:`hdrd.calibrate`) and the
+CRS03-04's (:mod:`hdrd.sensor`); ``config/hdrd.yaml`` ships them with comments, and a test
+keeps that file and these defaults equal.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+from hdrd.calibrate import T_BIAS_S
+from hdrd.hdr import HdrParams
+from hdrd.sensor import SensorModel
+
+__all__ = [
+    "EX_CONFIG",
+    "DEFAULT_CONFIG_PATH",
+    "ConfigError",
+    "Config",
+    "DeviceConfig",
+    "CalibrationConfig",
+    "OutputConfig",
+    "LogConfig",
+    "SimulateConfig",
+    "GpsdConfig",
+    "load_config",
+    "parse_config",
+    "apply_overrides",
+    "parse_hostport",
+]
+
+EX_CONFIG = 78
+"""sysexits.h: configuration error."""
+DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
+
+PROTOCOLS = ("hdr-bin", "hdr-text")
+METHODS = ("none", "hdr", "hdr+")
+DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
+
+
+class ConfigError(ValueError):
+    """An invalid configuration. ``str()`` is the one line shown to the user."""
+
+    def __init__(self, key: str, value: Any, allowed: str, source: str | None = None) -> None:
+        self.key, self.value, self.allowed, self.source = key, value, allowed, source
+        where = f" in {source}" if source else ""
+        shown = _show(value)
+        super().__init__(f"config error{where}: {key} = {shown}: {allowed}")
+
+    def with_source(self, source: str) -> ConfigError:
+        return ConfigError(self.key, self.value, self.allowed, source)
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, (str, float)):
+        return repr(value)
+    text = yaml.safe_dump(value, default_flow_style=True).strip()
+    text = text.removesuffix("...").strip()
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
+    if not isinstance(text, str) or ":" not in text:
+        raise ValueError("expected HOST:PORT")
+    host, _, port_s = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not port_s.isdigit() or not 0 < int(port_s) < 65536:
+        raise ValueError("port must be 1..65535")
+    if any(c.isspace() for c in host):
+        raise ValueError("host must not contain spaces")
+    return host or default_host, int(port_s)
+
+
+# -- sections ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceConfig:
+    """Where the gyro's ADC is and how it talks."""
+
+    port: str = "/dev/hdrd-gyro"
+    """pyserial URL or device path (the udev rule in systemd/ makes /dev/hdrd-gyro)."""
+    protocol: str = "hdr-bin"
+    baud: int = 115200
+    reconnect_min_s: float = 0.5
+    """First wait before reopening a lost device, s; doubles up to reconnect_max_s."""
+    reconnect_max_s: float = 10.0
+    stale_after_s: float = 3.0
+    """No sample for this long (wall clock) -> status "stale", s."""
+
+
+@dataclass(frozen=True, slots=True)
+class HdrConfig:
+    """Drift reduction: the method and the HDR parameters (paper Table III defaults)."""
+
+    method: str = "hdr"
+    """none: static bias only; hdr: the paper's HDR; hdr+: hdrd's improved reducer."""
+    params: HdrParams = HdrParams()
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationConfig:
+    """Static bias eps0 (paper Sec. 2)."""
+
+    bias_file: str = ""
+    """Bias file from `hdrd calibrate`; empty = $STATE_DIRECTORY/bias.yaml or
+    /var/lib/hdrd/bias.yaml."""
+    t_bias_s: float = T_BIAS_S
+    """`hdrd calibrate` averaging time, s (paper: Tbias = 30 s)."""
+    startup_s: float = 1.0
+    """With no bias file, the daemon averages this long at start, s (paper Sec. 6: 1 s)."""
+    on_bad_bias_file: str = "error"
+    """error: refuse to start on a corrupt bias file; calibrate: measure at start instead."""
+    max_std_dps: float = 0.5
+    max_trend_dps: float = 0.2
+    max_excursion_dps: float = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class OutputConfig:
+    """Publishers."""
+
+    heading0_deg: float = 0.0
+    """Compass heading at start, deg; heading = (heading0 - yaw) mod 360."""
+    stdout: bool = False
+    udp: tuple[str, ...] = ()
+    """HOST:PORT destinations of JSON lines."""
+    nmea_udp: tuple[str, ...] = ()
+    """HOST:PORT destinations of NMEA 0183 ($HNHDT, $HNROT)."""
+    nmea_ths: bool = False
+    """Also send $HNTHS."""
+
+
+@dataclass(frozen=True, slots=True)
+class LogConfig:
+    level: str = "info"
+    format: str = "auto"
+    """auto: JSON when stderr is not a terminal, console otherwise."""
+    bad_frame_interval_s: float = 10.0
+    """At most one bad-frames log event per this many seconds."""
+
+
+@dataclass(frozen=True, slots=True)
+class SimulateConfig:
+    """The built-in simulated gyro (`hdrd run --simulate`)."""
+
+    drive: str = "mixed"
+    seed: int = 1
+    rate_hz: float = 10.0
+    """Sample rate of the simulated ADC, Hz (paper: 10 Hz)."""
+    speedup: float = 1.0
+    """1 = real time; larger plays the drive faster."""
+
+
+@dataclass(frozen=True, slots=True)
+class GpsdConfig:
+    """Optional GPS aiding through gpsd's JSON protocol."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 2947
+    min_speed_mps: float = 5.0
+    """Course from GPS is trusted above this speed, m/s."""
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    device: DeviceConfig = DeviceConfig()
+    sensor: SensorModel = SensorModel()
+    hdr: HdrConfig = HdrConfig()
+    calibration: CalibrationConfig = CalibrationConfig()
+    output: OutputConfig = OutputConfig()
+    log: LogConfig = LogConfig()
+    simulate: SimulateConfig = SimulateConfig()
+    gpsd: GpsdConfig = GpsdConfig()
+
+
+# -- rules ------------------------------------------------------------------------------
+
+Check = Callable[[Any], bool]
+
+
+def _num(lo: float | None = None, hi: float | None = None, lo_open: bool = False, hi_open: bool = False) -> tuple[Check, str]:
+    parts = []
+    if lo is not None:
+        parts.append(f"{'>' if lo_open else '>='} {lo:g}")
+    if hi is not None:
+        parts.append(f"{'<' if hi_open else '<='} {hi:g}")
+    desc = "a finite number" + (" " + " and ".join(parts) if parts else "")
+
+    def check(v: float) -> bool:
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            return False
+        if hi is not None and (v >= hi if hi_open else v > hi):
+            return False
+        return True
+
+    return check, desc
+
+
+def _choice(*options: Any) -> tuple[Check, str]:
+    return (lambda v: v in options), "one of " + ", ".join(str(o) for o in options)
+
+
+def _hostports(v: tuple[str, ...]) -> bool:
+    try:
+        for item in v:
+            parse_hostport(item)
+    except ValueError:
+        return False
+    return True
+
+
+_POS = _num(0, lo_open=True)
+_NONNEG = _num(0)
+RULES: dict[str, tuple[Check, str]] = {
+    "device.port": ((lambda v: bool(v.strip())), "a non-empty device path or pyserial URL"),
+    "device.protocol": _choice(*PROTOCOLS),
+    "device.baud": _num(50, 20_000_000),
+    "device.reconnect_min_s": _POS,
+    "device.reconnect_max_s": _POS,
+    "device.stale_after_s": _POS,
+    "sensor.adc_bits": _num(8, 32),
+    "sensor.vref_v": _POS,
+    "sensor.null_v": _NONNEG,
+    "sensor.scale_v_per_dps": _POS,
+    "sensor.polarity": _choice(1, -1),
+    "sensor.range_dps": _POS,
+    "sensor.ref_divider": _POS,
+    "sensor.supply_nominal_v": _POS,
+    "hdr.method": _choice(*METHODS),
+    "hdr.i_c": _NONNEG,
+    "hdr.tau": _NONNEG,
+    "hdr.theta_w": _POS,
+    "hdr.c1": _NONNEG,
+    "hdr.c2": _NONNEG,
+    "hdr.T": _num(0.01, 60),
+    "calibration.t_bias_s": _POS,
+    "calibration.startup_s": _POS,
+    "calibration.on_bad_bias_file": _choice("error", "calibrate"),
+    "calibration.max_std_dps": _POS,
+    "calibration.max_trend_dps": _POS,
+    "calibration.max_excursion_dps": _POS,
+    "output.heading0_deg": _num(0, 360, hi_open=True),
+    "output.udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
+    "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
+    "log.level": _choice("debug", "info", "warning", "error"),
+    "log.format": _choice("auto", "json", "console"),
+    "log.bad_frame_interval_s": _POS,
+    "simulate.drive": _choice(*DRIVES),
+    "simulate.seed": _num(0),
+    "simulate.rate_hz": _num(1, 10_000),
+    "simulate.speedup": _POS,
+    "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
+    "gpsd.port": _num(1, 65535),
+    "gpsd.min_speed_mps": _NONNEG,
+}
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    """Check the YAML value's type against the default's type; return it in that type."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(key, value, "must be true or false")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(key, value, "must be an integer")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(key, value, "must be a number")
+        if not math.isfinite(value):
+            raise ConfigError(key, value, "must be a finite number")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(key, value, "must be a string")
+        return value
+    if isinstance(default, tuple):
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise ConfigError(key, value, "must be a list of strings")
+        return tuple(value)
+    raise AssertionError(f"no coercion for {key}")  # pragma: no cover - a programming error
+
+
+def _check(key: str, value: Any) -> None:
+    rule = RULES.get(key)
+    if rule is not None and not rule[0](value):
+        raise ConfigError(key, value, f"must be {rule[1]}")
+
+
+def _build(cls: type, data: Any, prefix: str) -> Any:
+    """A section dataclass from a YAML mapping, every key checked."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(prefix, data, "must be a mapping of keys")
+    defaults = cls()
+    names = [f.name for f in fields(cls)]
+    # hdr's parameters live flat in the YAML section beside `method`.
+    flat = {f.name: f for f in fields(HdrParams)} if cls is HdrConfig else {}
+    allowed = [n for n in names if n != "params"] + list(flat)
+    values: dict[str, Any] = {}
+    params: dict[str, Any] = {}
+    for k, v in data.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        if k in flat:
+            v = _coerce(key, v, getattr(defaults.params, k))
+            _check(key, v)
+            params[k] = v
+        elif k in names and k != "params":
+            default = getattr(defaults, k)
+            if is_dataclass(default):
+                v = _build(type(default), v, key)
+            else:
+                v = _coerce(key, v, default)
+                _check(key, v)
+            values[k] = v
+        else:
+            what = "unknown key" if prefix else "unknown section"
+            raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(allowed) + ")")
+    if flat:
+        values["params"] = replace(defaults.params, **params)
+    return replace(defaults, **values)
+
+
+def parse_config(data: Any, source: str | None = None) -> Config:
+    """A validated :class:`Config` from parsed YAML (a mapping of sections)."""
+    try:
+        if data is None:
+            raise ConfigError("(file)", "", "is empty; expected a mapping of sections")
+        if not isinstance(data, dict):
+            raise ConfigError("(file)", data, "expected a mapping of sections")
+        cfg: Config = _build(Config, data, "")
+        _cross_check(cfg)
+        return cfg
+    except ConfigError as e:
+        raise e.with_source(source) if source else e
+
+
+def _cross_check(cfg: Config) -> None:
+    if cfg.device.reconnect_max_s < cfg.device.reconnect_min_s:
+        raise ConfigError(
+            "device.reconnect_max_s", cfg.device.reconnect_max_s, "must be >= device.reconnect_min_s"
+        )
+
+
+def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str]:
+    """Load and validate a config file; returns (config, where it came from).
+
+    path None: DEFAULT_CONFIG_PATH if it exists, else the built-in defaults (which equal the
+    shipped config/hdrd.yaml). An explicit path that does not exist is an error.
+    """
+    if path is None:
+        if not DEFAULT_CONFIG_PATH.exists():
+            return Config(), "built-in defaults"
+        path = DEFAULT_CONFIG_PATH
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError("(file)", str(p), "not found", str(p)) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError("(file)", str(p), f"cannot be read ({e.__class__.__name__})", str(p)) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        at = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        problem = getattr(e, "problem", None) or "syntax error"
+        raise ConfigError("(yaml)", at, f"YAML syntax error: {problem}", str(p)) from None
+    return parse_config(data, str(p)), str(p)
+
+
+def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
+    """Return cfg with 'section.key' values replaced (command-line flags), each validated."""
+    for dotted, value in overrides.items():
+        if value is None:
+            continue
+        section, _, key = dotted.partition(".")
+        sec = getattr(cfg, section)
+        data = {key: list(value) if isinstance(value, tuple) else value}
+        if section == "hdr":
+            merged = {"method": sec.method, **sec.params.as_dict(), **data}
+            new = _build(HdrConfig, merged, section)
+        else:
+            merged = {f.name: getattr(sec, f.name) for f in fields(sec)}
+            merged = {k: list(v) if isinstance(v, tuple) else v for k, v in merged.items()}
+            merged.update(data)
+            new = _build(type(sec), merged, section)
+        cfg = replace(cfg, **{section: new})
+    _cross_check(cfg)
+    return cfg
+
+
+def config_field_keys() -> list[str]:
+    """Every 'section.key' the config accepts (for docs and the table-driven tests)."""
+    keys: list[str] = []
+    for sec in fields(Config):
+        default = getattr(Config(), sec.name)
+        for f in fields(default):
+            if f.name == "params":
+                keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
+            else:
+                keys.append(f"{sec.name}.{f.name}")
+    return keys
+

@@ -1,0 +1,172 @@
+"""The drive log: one CSV row per gyro sample, with optional ground truth (docs/drive-format.md).
+
+Columns (header required, any order, unknown columns are an error):
+
+=============== ======== ===============================================================
+t               s        monotonic sample time (required)
+omega           deg/s    raw gyro rate, + = CCW (left turn), bias NOT removed (required)
+temp_c          deg C    board/cabin temperature (optional)
+heading_truth   deg      compass heading, clockwise from north, [0, 360); empty = unknown
+omega_truth     deg/s    true yaw rate, + = CCW (optional)
+speed           m/s      vehicle speed (optional)
+=============== ======== ===============================================================
+
+Empty cells are NaN in memory ("unknown"), never 0.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["COLUMNS", "OPTIONAL", "DriveLog", "DriveLogError", "read_drive", "write_drive"]
+
+COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed")
+REQUIRED = ("t", "omega")
+OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed")
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class DriveLogError(ValueError):
+    """A drive log that does not follow docs/drive-format.md; the message says where."""
+
+
+@dataclass(frozen=True)
+class DriveLog:
+    """A drive's samples. Optional columns are None when absent, NaN where a cell is empty."""
+
+    t: FloatArray
+    omega: FloatArray
+    temp_c: FloatArray | None = None
+    heading_truth: FloatArray | None = None
+    omega_truth: FloatArray | None = None
+    speed: FloatArray | None = None
+    name: str = ""
+    meta: dict[str, str] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self) else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        """Median sample rate, Hz."""
+        return float(1.0 / np.median(np.diff(self.t))) if len(self) > 1 else 0.0
+
+    def columns(self) -> list[str]:
+        return [c for c in COLUMNS if getattr(self, c) is not None]
+
+    def slice(self, start: int, stop: int | None = None) -> DriveLog:
+        """Rows [start, stop)."""
+        kw = {c: getattr(self, c)[start:stop] for c in self.columns()}
+        return replace(self, **kw)
+
+
+def _parse_float(text: str, path: str, line: int, col: str) -> float:
+    if text == "" or text.lower() == "nan":
+        return math.nan
+    try:
+        v = float(text)
+    except ValueError:
+        raise DriveLogError(f"{path}:{line}: column {col}: {text!r} is not a number") from None
+    if math.isinf(v):
+        raise DriveLogError(f"{path}:{line}: column {col}: {text!r} is not finite")
+    return v
+
+
+def read_drive(path: str | os.PathLike[str] | io.TextIOBase, name: str | None = None) -> DriveLog:
+    """Read a drive log CSV. Lines starting with '#' before the header are metadata
+    (``# key: value``). Raises DriveLogError naming the file, line and column on bad input."""
+    if isinstance(path, (str, os.PathLike)):
+        label = str(path)
+        with open(path, newline="", encoding="utf-8") as f:
+            return _read(f, label, name or Path(path).stem)
+    return _read(path, "<stream>", name or "")
+
+
+def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
+    meta: dict[str, str] = {}
+    lines = iter(f)
+    header_line = None
+    lineno = 0
+    for raw in lines:
+        lineno += 1
+        s = raw.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            k, _, v = s[1:].partition(":")
+            if v:
+                meta[k.strip()] = v.strip()
+            continue
+        header_line = s
+        break
+    if header_line is None:
+        raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+    header = [h.strip() for h in next(csv.reader([header_line]))]
+    for h in header:
+        if h not in COLUMNS:
+            raise DriveLogError(f"{label}:{lineno}: unknown column {h!r} (allowed: {', '.join(COLUMNS)})")
+    for r in REQUIRED:
+        if r not in header:
+            raise DriveLogError(f"{label}:{lineno}: missing required column {r!r}")
+    if len(set(header)) != len(header):
+        raise DriveLogError(f"{label}:{lineno}: repeated column in header")
+    cols: dict[str, list[float]] = {h: [] for h in header}
+    for row in csv.reader(lines):
+        lineno += 1
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(row) != len(header):
+            raise DriveLogError(f"{label}:{lineno}: {len(row)} fields, header has {len(header)}")
+        for h, cell in zip(header, row):
+            cols[h].append(_parse_float(cell.strip(), label, lineno, h))
+    arrays = {h: np.asarray(v, dtype=np.float64) for h, v in cols.items()}
+    t = arrays["t"]
+    if t.shape[0] == 0:
+        raise DriveLogError(f"{label}: no data rows")
+    for c in REQUIRED:
+        if np.isnan(arrays[c]).any():
+            raise DriveLogError(f"{label}: column {c} has empty cells; it is required in every row")
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise DriveLogError(f"{label}: column t is not strictly increasing (data row {bad + 2})")
+    return DriveLog(name=name, meta=meta, **arrays)  # type: ignore[arg-type]
+
+
+def _fmt(v: float, digits: int) -> str:
+    return "" if math.isnan(v) else f"{v:.{digits}f}"
+
+
+_DIGITS = {"t": 4, "omega": 5, "temp_c": 3, "heading_truth": 3, "omega_truth": 5, "speed": 3}
+
+
+def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
+    """Write a drive log CSV (metadata as leading '# key: value' lines)."""
+    if isinstance(path, (str, os.PathLike)):
+        with open(path, "w", newline="", encoding="utf-8") as f:
+            _write(f, log)
+    else:
+        _write(path, log)
+
+
+def _write(f: io.TextIOBase, log: DriveLog) -> None:
+    for k, v in log.meta.items():
+        f.write(f"# {k}: {v}\n")
+    cols = log.columns()
+    f.write(",".join(cols) + "\n")
+    data = [getattr(log, c).tolist() for c in cols]
+    digits = [_DIGITS[c] for c in cols]
+    for row in zip(*data):
+        f.write(",".join(_fmt(v, d) for v, d in zip(row, digits)) + "\n")

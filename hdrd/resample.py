@@ -1,0 +1,233 @@
+"""Block averaging of raw gyro samples into one value per step T (paper Eq. 11).
+
+Pure. Blocks are cut by the device's timestamps, not by counting frames: step i averages
+the samples whose device time falls in [t0 + i*T, t0 + (i+1)*T), t0 being the first sample's
+time. A dropped frame only shortens its block; a block without samples is reported as
+:class:`Missing`, never as a zero rate. The device clock is a 32-bit microsecond counter that
+wraps every 2**32 us (71.6 min); :class:`DeviceClock` unwraps it into a monotonic integer
+count so block edges are exact integers.
+
+Two forms give bit-identical block means: the streaming :class:`BlockAverager` (the live
+daemon, one sample at a time, sums in arrival order) and :func:`block_means` (whole
+captures; ``numpy.bincount`` also sums in order).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "CLOCK_WRAP_US",
+    "DeviceClock",
+    "Block",
+    "Missing",
+    "BlockAverager",
+    "unwrap_us",
+    "block_means",
+    "block_average_seconds",
+]
+
+CLOCK_WRAP_US = 1 << 32
+_HALF_WRAP = 1 << 31
+RESET_THRESHOLD_US = 1_000_000
+"""A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
+
+
+class DeviceClock:
+    """Unwraps the 32-bit microsecond device clock into a monotonic integer (us).
+
+    A forward step of less than half the wrap period is time passing (including across the
+    wrap). A backward step of up to 1 s is a repeated or reordered sample: rejected
+    (``unwrap`` returns None, counted in ``rejected``). A larger backward step is a device
+    reset: time resumes 1 us after the last accepted sample (counted in ``resets``), because
+    the real time elapsed across a reset cannot be known from the device clock.
+    """
+
+    __slots__ = ("_last_raw", "_last", "wraps", "rejected", "resets")
+
+    def __init__(self) -> None:
+        self._last_raw: int | None = None
+        self._last = 0
+        self.wraps = 0
+        self.rejected = 0
+        self.resets = 0
+
+    def unwrap(self, t_us: int) -> int | None:
+        """Monotonic device time in us for a raw 32-bit timestamp, or None if rejected."""
+        if self._last_raw is None:
+            self._last_raw = t_us
+            self._last = t_us
+            return t_us
+        d = (t_us - self._last_raw) % CLOCK_WRAP_US
+        if d == 0 or d >= _HALF_WRAP:
+            back = (CLOCK_WRAP_US - d) % CLOCK_WRAP_US
+            if back <= RESET_THRESHOLD_US:
+                self.rejected += 1
+                return None
+            self.resets += 1
+            d = 1
+        elif t_us < self._last_raw:
+            self.wraps += 1
+        self._last_raw = t_us
+        self._last += d
+        return self._last
+
+
+def unwrap_us(t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    """Vectorised :class:`DeviceClock`: (unwrapped times, accepted mask) for a whole capture.
+
+    Identical to feeding ``DeviceClock.unwrap`` in order; rejected samples get time -1.
+    """
+    raw = np.asarray(t_us, dtype=np.int64)
+    n = raw.shape[0]
+    if n == 0:
+        return np.empty(0, np.int64), np.empty(0, bool)
+    d = np.diff(raw) % CLOCK_WRAP_US
+    if np.all((d > 0) & (d < _HALF_WRAP)):
+        out = np.empty(n, np.int64)
+        out[0] = raw[0]
+        np.cumsum(d, out=out[1:])
+        out[1:] += raw[0]
+        return out, np.ones(n, bool)
+    # Rare: repeats, reordering or resets. Take the exact streaming path.
+    clock = DeviceClock()
+    out = np.full(n, -1, np.int64)
+    for i, t in enumerate(raw.tolist()):
+        u = clock.unwrap(t)
+        if u is not None:
+            out[i] = u
+    return out, out >= 0
+
+
+@dataclass(frozen=True, slots=True)
+class Block:
+    """One step's averaged rate (Eq. 11).
+
+    index: step number i since t0. t_start, t_end: the block's edges in device seconds since
+    the first sample. mean: mean of the samples, in the unit fed (deg/s for the gyro). n:
+    number of samples. temp_c: mean board temperature, deg C, None if unknown. saturated:
+    how many samples were flagged saturated.
+    """
+
+    index: int
+    t_start: float
+    t_end: float
+    mean: float
+    n: int
+    temp_c: float | None = None
+    saturated: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Missing:
+    """A run of ``count`` steps, from step ``first``, in which no sample arrived."""
+
+    first: int
+    count: int
+    t_start: float
+    t_end: float
+
+
+class BlockAverager:
+    """Streaming block averager: ``feed`` samples, get closed blocks back.
+
+    A block closes when the first sample of a later block arrives (that sample's arrival is
+    the moment the step can be published). Times are unwrapped device microseconds
+    (see :class:`DeviceClock`); ``T_s`` is the step period (paper: 1 s).
+    """
+
+    def __init__(self, T_s: float = 1.0) -> None:
+        if not T_s > 0:
+            raise ValueError(f"T must be > 0 s, got {T_s!r}")
+        self.T_us = round(T_s * 1_000_000)
+        self.t0_us: int | None = None
+        self._index = 0
+        self._sum = 0.0
+        self._n = 0
+        self._temp_sum = 0.0
+        self._temp_n = 0
+        self._sat = 0
+        self.late = 0  # samples older than the open block (cannot happen with DeviceClock)
+
+    def _edges(self, index: int, count: int = 1) -> tuple[float, float]:
+        T = self.T_us
+        return index * T / 1e6, (index + count) * T / 1e6
+
+    def _close(self) -> Block:
+        t_start, t_end = self._edges(self._index)
+        temp = self._temp_sum / self._temp_n if self._temp_n else None
+        block = Block(self._index, t_start, t_end, self._sum / self._n, self._n, temp, self._sat)
+        self._sum = 0.0
+        self._n = 0
+        self._temp_sum = 0.0
+        self._temp_n = 0
+        self._sat = 0
+        return block
+
+    def feed(
+        self, t_us: int, value: float, temp_c: float | None = None, saturated: bool = False
+    ) -> list[Block | Missing]:
+        """Add one sample at unwrapped device time t_us; return the blocks this closed."""
+        if self.t0_us is None:
+            self.t0_us = t_us
+        index = (t_us - self.t0_us) // self.T_us
+        out: list[Block | Missing] = []
+        if index < self._index:
+            self.late += 1
+            return out
+        if index > self._index:
+            if self._n:
+                out.append(self._close())
+                first = self._index + 1
+            else:
+                first = self._index
+            if index > first:
+                out.append(Missing(first, index - first, *self._edges(first, index - first)))
+            self._index = index
+        self._sum += value
+        self._n += 1
+        if temp_c is not None:
+            self._temp_sum += temp_c
+            self._temp_n += 1
+        self._sat += bool(saturated)
+        return out
+
+    def flush(self) -> list[Block | Missing]:
+        """Close the open block at end of input (a partial block is still a block)."""
+        return [self._close()] if self._n else []
+
+
+def block_means(
+    t_us: npt.NDArray[np.int64], values: npt.NDArray[np.float64], T_s: float = 1.0
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Vectorised :class:`BlockAverager` over unwrapped, increasing device times (us).
+
+    Returns (index, mean, n) of the non-empty blocks, in order, the last (partial) block
+    included as ``flush`` would. Means are bit-identical to the streaming form.
+    """
+    if t_us.shape[0] == 0:
+        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
+    T_us = round(T_s * 1_000_000)
+    idx = (t_us - t_us[0]) // T_us
+    sums = np.bincount(idx, weights=values)
+    counts = np.bincount(idx)
+    keep = np.flatnonzero(counts)
+    return keep.astype(np.int64), sums[keep] / counts[keep], counts[keep].astype(np.int64)
+
+
+def block_average_seconds(
+    t_s: npt.ArrayLike, values: npt.ArrayLike, T_s: float = 1.0
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Block means of samples timed in seconds (drive logs): (index, mean, n), non-empty only.
+
+    Step i holds the samples with t in [t[0] + i*T, t[0] + (i+1)*T).
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if t.shape[0] == 0:
+        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
+    t_us = np.rint((t - t[0]) * 1e6).astype(np.int64)
+    return block_means(t_us, v, T_s)

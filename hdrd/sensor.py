@@ -1,0 +1,98 @@
+"""The Silicon Sensing CRS03-04 rate gyro read through an ADC: counts <-> deg/s.
+
+Pure. The CRS03-04 (shared/paper/HDR-NOTES.md, "The sensor"; paper Table I) outputs a
+voltage centred on half its supply (2.5 V at 5 V) with 10 mV per deg/s, ratiometric to the
+supply, over +/-200 deg/s. Read by a unipolar ADC with reference ``vref_v``::
+
+    volts = counts * vref_v / 2**adc_bits
+    omega = polarity * (volts - null_v * k) / (scale_v_per_dps * k)      deg/s, + = CCW
+
+where k = supply / supply_nominal_v when a supply-monitor channel is wired (ref counts > 0;
+supply = ref_counts * vref_v / 2**adc_bits * ref_divider) and k = 1 otherwise. Polarity +1
+means the gyro's positive output is counter-clockwise seen from above (a left turn); use -1
+for a gyro mounted upside down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import overload
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["SensorModel"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class SensorModel:
+    """ADC and gyro constants; defaults are the CRS03-04 on a 16-bit, 5 V unipolar ADC."""
+
+    adc_bits: int = 16
+    """ADC resolution, bits (counts 0 .. 2**adc_bits - 1)."""
+    vref_v: float = 5.0
+    """ADC full-scale reference, V."""
+    null_v: float = 2.5
+    """Gyro output at zero rate at the nominal supply, V (CRS03-04: half of 5 V)."""
+    scale_v_per_dps: float = 0.010
+    """Scale factor at the nominal supply, V per deg/s (CRS03-04: 10 mV/(deg/s))."""
+    polarity: int = 1
+    """+1: positive output = counter-clockwise (left turn); -1: mounted upside down."""
+    range_dps: float = 200.0
+    """Specified measurement range, +/- deg/s; beyond it a sample is flagged saturated."""
+    ref_divider: float = 2.0
+    """Divider ratio in front of the supply-monitor ADC channel (supply = ref volts * this)."""
+    supply_nominal_v: float = 5.0
+    """Supply voltage at which null_v and scale_v_per_dps hold, V."""
+
+    @property
+    def full_scale(self) -> int:
+        """Largest ADC count."""
+        return (1 << self.adc_bits) - 1
+
+    @property
+    def lsb_dps(self) -> float:
+        """One ADC count in deg/s at the nominal supply (quantisation step)."""
+        return self.vref_v / (1 << self.adc_bits) / self.scale_v_per_dps
+
+    def supply_v(self, ref_counts: npt.ArrayLike) -> FloatArray | float:
+        """Supply voltage from the supply-monitor counts, V (nominal where not wired, ref = 0)."""
+        ref = np.asarray(ref_counts, dtype=np.float64)
+        v = np.where(
+            ref > 0, ref * self.vref_v / (1 << self.adc_bits) * self.ref_divider, self.supply_nominal_v
+        )
+        return float(v) if v.ndim == 0 else v
+
+    @overload
+    def to_dps(self, rate_counts: int, ref_counts: int = 0) -> float: ...
+    @overload
+    def to_dps(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike = 0) -> FloatArray: ...
+    def to_dps(self, rate_counts, ref_counts=0):  # type: ignore[no-untyped-def]
+        """Yaw rate in deg/s (+ = CCW) from ADC counts; ref_counts 0 = supply not monitored."""
+        counts = np.asarray(rate_counts, dtype=np.float64)
+        volts = counts * self.vref_v / (1 << self.adc_bits)
+        k = np.asarray(self.supply_v(ref_counts), dtype=np.float64) / self.supply_nominal_v
+        omega = self.polarity * (volts - self.null_v * k) / (self.scale_v_per_dps * k)
+        return float(omega) if omega.ndim == 0 else omega
+
+    def to_counts(self, omega_dps: npt.ArrayLike, supply_v: float | None = None) -> npt.NDArray[np.int64]:
+        """ADC counts a yaw rate produces (rounded, clipped to the ADC's rails); inverse of to_dps."""
+        k = (self.supply_nominal_v if supply_v is None else supply_v) / self.supply_nominal_v
+        omega = np.asarray(omega_dps, dtype=np.float64)
+        volts = self.null_v * k + self.polarity * omega * self.scale_v_per_dps * k
+        counts = np.rint(volts * (1 << self.adc_bits) / self.vref_v)
+        return np.clip(counts, 0, self.full_scale).astype(np.int64)
+
+    def ref_counts_for(self, supply_v: float) -> int:
+        """Supply-monitor counts that a given supply voltage produces (for encoders and fakes)."""
+        counts = round(supply_v / self.ref_divider * (1 << self.adc_bits) / self.vref_v)
+        return int(min(max(counts, 1), self.full_scale))
+
+    def saturated(self, rate_counts: npt.ArrayLike, omega_dps: npt.ArrayLike) -> npt.NDArray[np.bool_] | bool:
+        """True where a sample is at an ADC rail or beyond the gyro's specified range."""
+        c = np.asarray(rate_counts)
+        w = np.asarray(omega_dps, dtype=np.float64)
+        sat = (c <= 0) | (c >= self.full_scale) | (np.abs(w) >= self.range_dps)
+        return bool(sat) if sat.ndim == 0 else sat
