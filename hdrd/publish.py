@@ -1,0 +1,749 @@
+"""Publishers: where each HDR step's message goes, and ``hdrd tail``, which prints it.
+
+A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
+"Published messages"): ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
+Yaw rates are deg/s, positive counter-clockwise seen from above (a left turn); yaw is degrees
+CCW since start; heading is compass degrees, clockwise from north, in [0, 360). A value that
+is not known is absent from the dict, never None or 0; keys we do not know are passed through.
+
+Two layers, as in pyubx2 (pure codec) and python-can (listeners):
+
+- pure formatting: :func:`format_json` (one JSON line), :func:`nmea_sentences` ($HNHDT,
+  $HNROT, optional $HNTHS) and :func:`nmea_checksum`; :func:`parse_nmea` for the reader side;
+- sinks with the python-can listener shape (``on_message(msg)``, ``on_error(exc)``,
+  ``stop()`` that flushes): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
+  :class:`StdoutPublisher`.
+
+A UDP destination that is down, refuses (ICMP port unreachable), is unreachable or whose
+name does not resolve never blocks the caller and never raises: the failure is counted per
+destination (:meth:`UdpPublisher.stats`) for the daemon to log. Standard output is
+different: when its reader goes away (``hdrd run --stdout | head``) :class:`StdoutPublisher`
+raises :class:`OutputClosed` so that the daemon ends cleanly with exit status 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import json
+import math
+import os
+import signal
+import socket
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, BinaryIO, Protocol, TextIO
+
+from hdrd.config import parse_hostport
+
+__all__ = [
+    "MESSAGE_CLASS",
+    "SCHEMA_VERSION",
+    "DEFAULT_TAIL_LISTEN",
+    "RATE_VALID_STATUSES",
+    "OutputClosed",
+    "Publisher",
+    "format_json",
+    "nmea_checksum",
+    "nmea_sentence",
+    "nmea_sentences",
+    "parse_nmea",
+    "DestinationStats",
+    "UdpPublisher",
+    "UdpJsonPublisher",
+    "UdpNmeaPublisher",
+    "StdoutPublisher",
+    "TailFormatter",
+    "tail_main",
+]
+
+MESSAGE_CLASS = "HDR"
+"""The ``"class"`` of a per-step message (gpsd style: every object names its class)."""
+SCHEMA_VERSION = 1
+"""The ``"v"`` of a per-step message; bumped only for incompatible changes."""
+DEFAULT_TAIL_LISTEN = "127.0.0.1:10110"
+"""Where ``hdrd tail`` listens by default (10110: the registered NMEA-0183 port)."""
+RATE_VALID_STATUSES = frozenset({"ok", "turning", "aided", "dead-reckoning"})
+"""Statuses in which the published rate is trusted: $HNROT says A (valid), else V."""
+NMEA_TALKER = "HN"
+"""NMEA 0183 talker: heading, non-north-seeking gyro."""
+
+
+class OutputClosed(Exception):
+    """The reader of an output stream went away (EPIPE): the daemon should end, exit 0."""
+
+
+class Publisher(Protocol):
+    """A sink for per-step messages (the python-can ``Listener`` shape)."""
+
+    def on_message(self, msg: Mapping[str, Any]) -> None: ...
+
+    def on_error(self, exc: BaseException) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+# -- JSON ---------------------------------------------------------------------------------
+
+_DROP = object()
+
+
+def _clean(value: Any) -> Any:
+    """A JSON-safe copy of *value*, or ``_DROP`` when it has no valid JSON form.
+
+    None, NaN and +-inf are dropped (an unknown value is absent, never null); a dict loses
+    such keys; a list holding one is dropped whole (positions would shift otherwise).
+    numpy scalars become Python numbers.
+    """
+    if value is None:
+        return _DROP
+    if isinstance(value, (str, bool, int)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else _DROP
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            c = _clean(v)
+            if c is not _DROP:
+                out[str(k)] = c
+        return out
+    if isinstance(value, (list, tuple)):
+        items = [_clean(v) for v in value]
+        return _DROP if any(c is _DROP for c in items) else items
+    item = getattr(value, "item", None)  # numpy scalar (float32, int64, bool_)
+    if callable(item):
+        try:
+            return _clean(item())
+        except (TypeError, ValueError):
+            return _DROP
+    return _DROP
+
+
+def format_json(msg: Mapping[str, Any]) -> bytes:
+    """One message -> one line of compact JSON, UTF-8, ending in ``\\n``.
+
+    Keys keep the order given. Keys whose value is None, NaN or infinite are left out, so
+    the output is always valid JSON (RFC 8259 has no NaN) and never says null.
+    """
+    clean = _clean(msg)
+    if clean is _DROP or not isinstance(clean, dict):
+        raise TypeError(f"a message must be a mapping, not {type(msg).__name__}")
+    text = json.dumps(clean, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+    # json escapes control characters, so the line has exactly one \n: the terminator.
+    return text.encode("utf-8", "replace") + b"\n"
+
+
+# -- NMEA 0183 ----------------------------------------------------------------------------
+
+
+def nmea_checksum(body: str) -> str:
+    """NMEA 0183 checksum of the characters between ``$`` and ``*``: XOR of their bytes,
+    as two uppercase hex digits."""
+    x = 0
+    for b in body.encode("ascii"):
+        x ^= b
+    return f"{x:02X}"
+
+
+def nmea_sentence(body: str) -> bytes:
+    """``body`` (without ``$`` and ``*hh``) -> ``$body*hh\\r\\n``."""
+    return f"${body}*{nmea_checksum(body)}\r\n".encode("ascii")
+
+
+def _finite(msg: Mapping[str, Any], key: str) -> float | None:
+    v = msg.get(key)
+    if isinstance(v, bool) or v is None:
+        return None
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _heading_field(heading: float) -> str:
+    # Round first, then wrap: 359.996 would otherwise print as 360.00, outside [0, 360).
+    h = round(heading % 360.0, 2)
+    return f"{0.0 if h >= 360.0 else h:.2f}"
+
+
+def nmea_sentences(msg: Mapping[str, Any], ths: bool = False) -> list[bytes]:
+    """One message -> NMEA 0183 sentences, each ``$...*hh\\r\\n``.
+
+    - ``$HNHDT,<heading>,T``: heading, degrees true (compass, 2 decimals). Left out when the
+      heading is unknown (HDT has no validity flag).
+    - ``$HNROT,<rate>,A|V``: rate of turn in deg/min, negative = turning to port (left).
+      Our omega is + CCW = left turn, so ROT = -omega * 60 (1 decimal). A when the status is
+      one of :data:`RATE_VALID_STATUSES`, V (invalid) otherwise or when omega is unknown.
+    - with *ths*: ``$HNTHS,<heading>,E|V``: true heading with mode E (estimated, dead
+      reckoning), V when the status is not valid.
+    """
+    out: list[bytes] = []
+    status = msg.get("status")
+    valid = status in RATE_VALID_STATUSES
+    heading = _finite(msg, "heading")
+    if heading is not None:
+        out.append(nmea_sentence(f"{NMEA_TALKER}HDT,{_heading_field(heading)},T"))
+    omega = _finite(msg, "omega")
+    if omega is None:
+        out.append(nmea_sentence(f"{NMEA_TALKER}ROT,,V"))
+    else:
+        rot = round(-omega * 60.0, 1) + 0.0  # + 0.0 turns -0.0 into 0.0
+        out.append(nmea_sentence(f"{NMEA_TALKER}ROT,{rot:.1f},{'A' if valid else 'V'}"))
+    if ths and heading is not None:
+        out.append(nmea_sentence(f"{NMEA_TALKER}THS,{_heading_field(heading)},{'E' if valid else 'V'}"))
+    return out
+
+
+def parse_nmea(line: bytes | str) -> tuple[str, list[str]]:
+    """``$TTSSS,f1,f2*hh`` -> (``"TTSSS"``, [``"f1"``, ``"f2"``]); checks the checksum.
+
+    Raises ValueError with the reason for anything else (no ``$``/``!``, no ``*hh``,
+    a wrong checksum, non-ASCII bytes).
+    """
+    text = line.decode("ascii") if isinstance(line, bytes) else line
+    text = text.strip("\r\n")
+    if not text or text[0] not in "$!":
+        raise ValueError("an NMEA sentence starts with $ or !")
+    body, star, cs = text[1:].rpartition("*")
+    if not star or len(cs) != 2:
+        raise ValueError("no *hh checksum")
+    if cs.upper() != nmea_checksum(body):
+        raise ValueError(f"checksum {cs}, computed {nmea_checksum(body)}")
+    fields_ = body.split(",")
+    return fields_[0], fields_[1:]
+
+
+# -- UDP ----------------------------------------------------------------------------------
+
+# Linux: IP_RECVERR / IPV6_RECVERR queue ICMP errors (port unreachable, ...) on the socket's
+# error queue together with the destination that caused them. Without it Linux reports no
+# ICMP error on an unconnected UDP socket at all; with it, the pending error also fails the
+# *next* sendto, whatever its destination, so we drain the queue and retry (see _send).
+_RECVERR = {socket.AF_INET: (socket.IPPROTO_IP, 11), socket.AF_INET6: (socket.IPPROTO_IPV6, 25)}
+_HAVE_RECVERR = sys.platform.startswith("linux")
+_ASYNC_ERRNOS = frozenset(
+    {errno.ECONNREFUSED, errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.EMSGSIZE}
+)
+
+
+def _errname(e: int | None) -> str:
+    return errno.errorcode.get(e or 0, f"errno {e}")
+
+
+@dataclass(slots=True)
+class DestinationStats:
+    """Counters of one UDP destination since the publisher started.
+
+    sent: datagrams handed to the kernel. errors: failures (a send refused or impossible,
+    an ICMP error reported back, a name that did not resolve); by_error counts them by kind
+    ("ECONNREFUSED", "EHOSTUNREACH", "resolve", ...). dropped: datagrams not sent because
+    the name was not resolved (yet). address: the resolved IP address, or None.
+    """
+
+    host: str
+    port: int
+    address: str | None = None
+    sent: int = 0
+    errors: int = 0
+    dropped: int = 0
+    by_error: dict[str, int] = field(default_factory=dict)
+    last_error: str | None = None
+
+    def count(self, kind: str, detail: str) -> None:
+        self.errors += 1
+        self.by_error[kind] = self.by_error.get(kind, 0) + 1
+        self.last_error = detail
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "dest": f"{self.host}:{self.port}",
+            "address": self.address,
+            "sent": self.sent,
+            "errors": self.errors,
+            "dropped": self.dropped,
+            "by_error": dict(self.by_error),
+            "last_error": self.last_error,
+        }
+
+
+@dataclass(slots=True)
+class _Destination:
+    stats: DestinationStats
+    family: int | None = None
+    sockaddr: tuple[Any, ...] | None = None
+    retry_at: float = 0.0
+    retry_wait: float = 0.0
+    resolving: bool = False
+
+
+Formatter = Callable[[Mapping[str, Any]], "bytes | Sequence[bytes]"]
+
+
+class UdpPublisher:
+    """Sends each message, formatted by *formatter* (bytes = one datagram, or a sequence of
+    datagrams), to every destination ``(host, port)``.
+
+    One non-blocking UDP socket per address family, unconnected. Host names are resolved
+    once, here; a name resolving to both IPv4 and IPv6 is sent to its IPv4 address (where
+    ``hdrd tail`` listens by default), write ``[::1]:PORT`` for IPv6. A name that does not
+    resolve is counted and tried again in a background thread after *resolve_retry_s*
+    (doubling up to 10 minutes), so a slow DNS never delays a step. Send errors are counted
+    per destination and swallowed: :meth:`on_message` never blocks and never raises an
+    OSError.
+    """
+
+    def __init__(
+        self,
+        destinations: Iterable[tuple[str, int]],
+        formatter: Formatter,
+        *,
+        resolve_retry_s: float = 30.0,
+    ) -> None:
+        self._formatter = formatter
+        self._resolve_retry_s = resolve_retry_s
+        self._lock = threading.Lock()
+        self._socks: dict[int, socket.socket | None] = {}
+        self._dests = [_Destination(DestinationStats(h, int(p))) for h, p in destinations]
+        self._stopped = False
+        self.last_exception: BaseException | None = None
+        """The last exception passed to :meth:`on_error` (kept for the daemon's log)."""
+        for d in self._dests:
+            self._resolve(d)
+
+    # -- name resolution --
+    def _resolve(self, d: _Destination) -> None:
+        """Blocking getaddrinfo; on the constructor's thread or a background one."""
+        try:
+            infos = socket.getaddrinfo(
+                d.stats.host, d.stats.port, type=socket.SOCK_DGRAM, proto=socket.IPPROTO_UDP
+            )
+            infos = [i for i in infos if i[0] in (socket.AF_INET, socket.AF_INET6)]
+            if not infos:
+                raise socket.gaierror(f"no IPv4 or IPv6 address for {d.stats.host}")
+            best = next((i for i in infos if i[0] == socket.AF_INET), infos[0])
+        except (OSError, UnicodeError) as e:  # gaierror is an OSError
+            with self._lock:
+                d.stats.count("resolve", f"resolve {d.stats.host}: {e}")
+                d.retry_wait = min(max(2 * d.retry_wait, self._resolve_retry_s), 600.0)
+                d.retry_at = time.monotonic() + d.retry_wait
+                d.resolving = False
+            return
+        with self._lock:
+            d.family, d.sockaddr = best[0], best[4]
+            d.stats.address = str(best[4][0])
+            d.resolving = False
+
+    def _retry_resolution(self) -> None:
+        now = time.monotonic()
+        for d in self._dests:
+            with self._lock:
+                due = d.sockaddr is None and not d.resolving and now >= d.retry_at
+                if due:
+                    d.resolving = True
+            if due:
+                threading.Thread(
+                    target=self._resolve, args=(d,), name="hdrd-resolve", daemon=True
+                ).start()
+
+    # -- sockets --
+    def _socket(self, family: int) -> socket.socket | None:
+        if family not in self._socks:
+            try:
+                s = socket.socket(family, socket.SOCK_DGRAM)
+                s.setblocking(False)
+                if _HAVE_RECVERR:
+                    level, opt = _RECVERR[family]
+                    try:
+                        s.setsockopt(level, opt, 1)
+                    except OSError:
+                        pass  # no error reports then; sends still work
+                self._socks[family] = s
+            except OSError:
+                self._socks[family] = None  # e.g. IPv6 disabled; counted per send below
+        return self._socks[family]
+
+    def _drain_errors(self, sock: socket.socket) -> int:
+        """Read the socket's ICMP error queue, counting each report against the destination
+        whose datagram caused it. Returns the number of reports."""
+        if not _HAVE_RECVERR:
+            return 0
+        n = 0
+        while True:
+            try:
+                _, anc, _, addr = sock.recvmsg(1, 512, socket.MSG_ERRQUEUE | socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                return n
+            except OSError:
+                return n
+            n += 1
+            code = 0
+            for level, kind, data in anc:
+                if (level, kind) in _RECVERR.values() and len(data) >= 4:
+                    code = struct.unpack_from("=I", data)[0]
+            key = (str(addr[0]), int(addr[1])) if addr else None
+            for d in self._dests:
+                if d.sockaddr is not None and (str(d.sockaddr[0]), int(d.sockaddr[1])) == key:
+                    name = _errname(code)
+                    d.stats.count(name, f"{name} from {key[0]}:{key[1]} ({os.strerror(code)})")
+                    break
+
+    def _drain_all(self) -> None:
+        for s in self._socks.values():
+            if s is not None:
+                self._drain_errors(s)
+
+    def _send(self, d: _Destination, datagram: bytes) -> None:
+        assert d.family is not None and d.sockaddr is not None
+        sock = self._socket(d.family)
+        if sock is None:
+            d.stats.count("socket", f"cannot open a socket of family {d.family}")
+            return
+        for attempt in (0, 1):
+            try:
+                sock.sendto(datagram, d.sockaddr)
+                d.stats.sent += 1
+                return
+            except OSError as e:
+                # A pending ICMP error from an earlier datagram (maybe to another
+                # destination) fails this send: account it to its owner and retry once.
+                if attempt == 0 and e.errno in _ASYNC_ERRNOS and self._drain_errors(sock):
+                    continue
+                name = _errname(e.errno)
+                d.stats.count(name, f"send to {d.stats.host}:{d.stats.port}: {e.strerror or e}")
+                return
+
+    # -- listener interface --
+    def on_message(self, msg: Mapping[str, Any]) -> None:
+        """Format *msg* and send it to every resolved destination; never raises OSError."""
+        if self._stopped:
+            return
+        out = self._formatter(msg)
+        datagrams = [out] if isinstance(out, (bytes, bytearray)) else list(out)
+        self._retry_resolution()
+        self._drain_all()
+        for d in self._dests:
+            with self._lock:
+                ready = d.sockaddr is not None
+            if not ready:
+                d.stats.dropped += len(datagrams)
+                continue
+            for dg in datagrams:
+                self._send(d, bytes(dg))
+
+    def on_error(self, exc: BaseException) -> None:
+        """Remember *exc*; a UDP sink has nothing to tell its peers about it."""
+        self.last_exception = exc
+
+    def stop(self) -> None:
+        """Collect the last error reports and close the sockets (idempotent)."""
+        if self._stopped:
+            return
+        self._drain_all()
+        self._stopped = True
+        for s in self._socks.values():
+            if s is not None:
+                s.close()
+        self._socks.clear()
+
+    def stats(self) -> list[DestinationStats]:
+        """A snapshot of every destination's counters (ICMP reports read first)."""
+        if not self._stopped:
+            self._drain_all()
+        with self._lock:
+            return [replace(d.stats, by_error=dict(d.stats.by_error)) for d in self._dests]
+
+    @property
+    def errors(self) -> int:
+        """Total failures over all destinations."""
+        return sum(s.errors for s in self.stats())
+
+    def __enter__(self) -> UdpPublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def __repr__(self) -> str:
+        dests = ", ".join(f"{d.stats.host}:{d.stats.port}" for d in self._dests)
+        return f"{type(self).__name__}([{dests}])"
+
+
+class UdpJsonPublisher(UdpPublisher):
+    """JSON lines (:func:`format_json`), one datagram per message."""
+
+    def __init__(self, destinations: Iterable[tuple[str, int]], **kw: Any) -> None:
+        super().__init__(destinations, format_json, **kw)
+
+
+class UdpNmeaPublisher(UdpPublisher):
+    """NMEA 0183 (:func:`nmea_sentences`), one datagram per sentence, as OpenCPN and gpsd's
+    ``udp://`` source expect."""
+
+    def __init__(self, destinations: Iterable[tuple[str, int]], ths: bool = False, **kw: Any) -> None:
+        self.ths = ths
+        super().__init__(destinations, lambda m: nmea_sentences(m, ths=self.ths), **kw)
+
+
+# -- stdout -------------------------------------------------------------------------------
+
+_CLOSED_ERRNOS = frozenset({errno.EPIPE, errno.ECONNRESET})
+
+
+class StdoutPublisher:
+    """JSON lines on a binary stream (default: standard output), flushed per message.
+
+    When the reader goes away (EPIPE) :meth:`on_message` raises :class:`OutputClosed`; the
+    stream's descriptor is then pointed at /dev/null so that no later flush (at interpreter
+    exit) prints a traceback. Other write errors (a full disk) are counted and swallowed.
+    """
+
+    def __init__(self, stream: BinaryIO | None = None) -> None:
+        self._stream: BinaryIO = stream if stream is not None else sys.stdout.buffer
+        self.closed = False
+        self.written = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self.last_exception: BaseException | None = None
+
+    def _closed(self) -> OutputClosed:
+        self.closed = True
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, self._stream.fileno())
+            finally:
+                os.close(devnull)
+        except (OSError, ValueError, AttributeError):
+            pass
+        return OutputClosed("the reader of standard output went away")
+
+    def on_message(self, msg: Mapping[str, Any]) -> None:
+        if self.closed:
+            raise OutputClosed("the reader of standard output went away")
+        line = format_json(msg)
+        try:
+            self._stream.write(line)
+            self._stream.flush()
+            self.written += 1
+        except BrokenPipeError:
+            raise self._closed() from None
+        except ValueError:  # the stream object was closed
+            raise self._closed() from None
+        except OSError as e:
+            if e.errno in _CLOSED_ERRNOS:
+                raise self._closed() from None
+            self.errors += 1
+            self.last_error = f"{_errname(e.errno)}: {e.strerror or e}"
+
+    def on_error(self, exc: BaseException) -> None:
+        self.last_exception = exc
+
+    def stop(self) -> None:
+        """Flush; a reader that went away is not an error here."""
+        if self.closed:
+            return
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed()
+        except (OSError, ValueError):
+            pass
+
+
+# -- hdrd tail ----------------------------------------------------------------------------
+
+_COLUMNS: tuple[tuple[str, str, int, str], ...] = (
+    # (title, key, width, format); a missing value prints as "-"
+    ("time", "time", 8, "time"),
+    ("step", "step", 6, "d"),
+    ("status", "status", 11, "s"),
+    ("heading", "heading", 7, ".2f"),
+    ("yaw", "yaw", 9, ".2f"),
+    ("omega", "omega", 8, ".3f"),
+    ("I", "I", 8, ".4f"),
+    ("W", "W", 1, "d"),
+    ("r", "r", 4, "d"),
+    ("bias", "bias", 8, ".4f"),
+    ("samples", "samples", 7, "d"),
+    ("bad", "bad_frames", 5, "d"),
+)
+
+
+class TailFormatter:
+    """Turns received datagrams into printable lines for ``hdrd tail`` (pure, no I/O).
+
+    :meth:`lines` returns (stdout lines, stderr notes, messages counted). In table mode the
+    first HDR message is preceded by a header; NMEA sentences are printed as received with
+    their decoded meaning; other JSON objects as received. With *raw*, everything valid is
+    printed exactly as received (like ``gpspipe -w``).
+    """
+
+    def __init__(self, raw: bool = False) -> None:
+        self.raw = raw
+        self._header_done = False
+
+    @staticmethod
+    def header() -> str:
+        return " ".join(
+            f"{t:<{w}}" if f in ("s", "time") else f"{t:>{w}}" for t, _, w, f in _COLUMNS
+        ).rstrip()
+
+    @staticmethod
+    def row(msg: Mapping[str, Any]) -> str:
+        cells = []
+        for _, key, w, f in _COLUMNS:
+            v = msg.get(key)
+            try:
+                if v is None:
+                    cell = "-"
+                elif f == "time":
+                    cell = time.strftime("%H:%M:%S", time.localtime(float(v)))
+                elif f == "d":
+                    cell = f"{int(v):d}"
+                elif f == "s":
+                    cell = str(v)
+                else:
+                    cell = format(float(v), f)
+            except (TypeError, ValueError, OverflowError, OSError):
+                cell = "?"
+            cells.append(f"{cell:<{w}}" if f in ("s", "time") else f"{cell:>{w}}")
+        return " ".join(cells).rstrip()
+
+    @staticmethod
+    def describe_nmea(kind: str, fields_: list[str]) -> str:
+        sentence = kind[-3:]
+        if sentence == "HDT" and fields_:
+            return f"heading {fields_[0]} deg true"
+        if sentence == "ROT" and len(fields_) >= 2:
+            valid = "valid" if fields_[1] == "A" else "invalid"
+            return f"rate of turn {fields_[0] or '-'} deg/min ({valid}; - = to port)"
+        if sentence == "THS" and len(fields_) >= 2:
+            mode = {"E": "estimated", "V": "invalid", "A": "autonomous"}.get(fields_[1], fields_[1])
+            return f"heading {fields_[0]} deg true ({mode})"
+        return ""
+
+    def lines(self, data: bytes, sender: str = "?") -> tuple[list[str], list[str], int]:
+        out: list[str] = []
+        notes: list[str] = []
+        count = 0
+        for raw_line in data.split(b"\n"):
+            raw_line = raw_line.rstrip(b"\r")
+            if not raw_line.strip():
+                continue
+            shown = raw_line[:60].decode("utf-8", "replace")
+            try:
+                text = raw_line.decode("utf-8")
+            except UnicodeDecodeError:
+                notes.append(f"hdrd tail: ignored non-UTF-8 data from {sender}: {shown!r}")
+                continue
+            if text.startswith(("$", "!")):
+                try:
+                    kind, fields_ = parse_nmea(text)
+                except ValueError as e:
+                    notes.append(f"hdrd tail: ignored a bad NMEA sentence from {sender}: {e}: {shown!r}")
+                    continue
+                count += 1
+                what = "" if self.raw else self.describe_nmea(kind, fields_)
+                out.append(f"{text}    # {what}" if what else text)
+                continue
+            try:
+                msg = json.loads(text)
+            except (json.JSONDecodeError, RecursionError) as e:
+                notes.append(f"hdrd tail: ignored malformed data from {sender}: {e.msg if hasattr(e, 'msg') else e}: {shown!r}")
+                continue
+            if not isinstance(msg, dict):
+                notes.append(f"hdrd tail: ignored a JSON value that is not an object from {sender}: {shown!r}")
+                continue
+            count += 1
+            if self.raw or msg.get("class") != MESSAGE_CLASS:
+                out.append(text)
+                continue
+            if not self._header_done:
+                out.append(self.header())
+                self._header_done = True
+            out.append(self.row(msg))
+        return out, notes, count
+
+
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum: int, frame: object) -> None:
+    raise _Stop
+
+
+def _write(stream: TextIO, lines: Sequence[str]) -> None:
+    if lines:
+        stream.write("".join(f"{line}\n" for line in lines))
+        stream.flush()
+
+
+def tail_main(args: argparse.Namespace) -> int:
+    """``hdrd tail [--listen HOST:PORT] [--raw] [--count N]``: print what the daemon sends.
+
+    Binds a UDP socket (default 127.0.0.1:10110) and prints a table row per HDR step, or the
+    JSON lines / NMEA sentences as received with ``--raw``. Malformed data gets a note on
+    stderr and is skipped. SIGINT, SIGTERM, ``--count`` reached, or the reader of stdout
+    going away (``| head``) end it with status 0.
+    """
+    listen = getattr(args, "listen", None) or DEFAULT_TAIL_LISTEN
+    count_max: int | None = getattr(args, "count", None)
+    if count_max is not None and count_max < 1:
+        print("hdrd tail: --count must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        host, port = parse_hostport(listen)
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE)
+    except (ValueError, OSError, UnicodeError) as e:
+        print(f"hdrd tail: bad --listen {listen!r}: {e}", file=sys.stderr)
+        return 2
+    family, _, _, _, sockaddr = infos[0]
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind(sockaddr)
+    except OSError as e:
+        sock.close()
+        print(f"hdrd tail: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
+        return 1
+    formatter = TailFormatter(raw=bool(getattr(args, "raw", False)))
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_stop) if in_main else None
+    seen = 0
+    try:
+        while count_max is None or seen < count_max:
+            data, addr = sock.recvfrom(65535)
+            out, notes, n = formatter.lines(data, sender=f"{addr[0]}:{addr[1]}")
+            if count_max is not None and seen + n > count_max:
+                out = out[: len(out) - (seen + n - count_max)]
+            _write(sys.stderr, notes)
+            _write(sys.stdout, out)
+            seen += n
+        return 0
+    except (KeyboardInterrupt, _Stop):
+        return 0
+    except BrokenPipeError:
+        _silence(sys.stdout)
+        return 0
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+        sock.close()
+
+
+def _silence(stream: TextIO) -> None:
+    """Point *stream*'s descriptor at /dev/null so the exit-time flush cannot fail."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, stream.fileno())
+        finally:
+            os.close(devnull)
+    except (OSError, ValueError):
+        pass
