@@ -80,6 +80,13 @@ class HdrParams:
     attenuator: bool = True
     enabled: bool = True
 
+    def __post_init__(self) -> None:
+        # Plain Python scalars: numpy scalars (e.g. from a tuning grid) would make the sign
+        # test a numpy-bool subtraction, and do not serialise to YAML.
+        for f in fields(self):
+            kind = bool if f.type in ("bool", bool) else float
+            object.__setattr__(self, f.name, kind(getattr(self, f.name)))
+
     @classmethod
     def basic(cls, **kw: float) -> HdrParams:
         """Basic HDR (Sec. 3.1): the binary I-controller alone, no enhancements."""
@@ -138,7 +145,7 @@ def attenuation(r: int, c1: float = C1, c2: float = C2) -> float:
 
 
 def _sign(v: float) -> int:
-    return (v > 0.0) - (v < 0.0)
+    return 1 if v > 0.0 else (-1 if v < 0.0 else 0)
 
 
 def step(state: HdrState, u: float, params: HdrParams = HdrParams()) -> tuple[HdrState, HdrOutput]:
@@ -213,14 +220,15 @@ def run_batch(
         params.attenuator,
         params.enabled,
     )
-    x, I, yaw, r, s_prev = state.x, state.I, state.yaw, state.r, state.s  # noqa: E741
+    x, I, yaw = float(state.x), float(state.I), float(state.yaw)  # noqa: E741
+    r, s_prev = int(state.r), int(state.s)
     pow_ = math.pow
     for i, ui in enumerate(uu.tolist()):
         x = (T * ui + tau * x) / (T + tau) if lowpass else ui
         y = x + I
         omega = ui + I
         yaw = yaw + omega * T
-        s = (y > 0.0) - (y < 0.0)
+        s = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
         r = r + 1 if s == s_prev else 1
         R = (1.0 + c1) / (1.0 + c1 * pow_(r, c2)) if attenuator else 1.0
         W = 1 if (not turn_switch or abs(y) <= theta_w) else 0
