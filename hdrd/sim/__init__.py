@@ -1,0 +1,1 @@
+"""Seeded simulation of drives and of the gyro's errors (placeholder while being built)."""
