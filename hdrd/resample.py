@@ -75,6 +75,42 @@ class DeviceClock:
         self._last += d
         return self._last
 
+    def unwrap_many(self, t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """:meth:`unwrap` over an array, continuing this clock's state: (times, accepted).
+
+        Identical to calling :meth:`unwrap` in order (rejected samples get time -1); numpy
+        when every step is forward (the normal case), the scalar path otherwise.
+        """
+        raw = np.asarray(t_us, dtype=np.int64)
+        n = raw.shape[0]
+        if n == 0:
+            return np.empty(0, np.int64), np.empty(0, bool)
+        if self._last_raw is None:
+            d = np.diff(raw) % CLOCK_WRAP_US
+            start = int(raw[0])
+            head = 1
+        else:
+            d = np.diff(raw, prepend=self._last_raw) % CLOCK_WRAP_US
+            start = self._last
+            head = 0
+        if np.all((d > 0) & (d < _HALF_WRAP)):
+            out = np.empty(n, np.int64)
+            if head:
+                out[0] = start
+            np.cumsum(d, out=out[head:])
+            out[head:] += start
+            prev = np.concatenate(([self._last_raw], raw[:-1])) if not head else raw[:-1]
+            self.wraps += int(np.count_nonzero(raw[head:] < prev))
+            self._last_raw = int(raw[-1])
+            self._last = int(out[-1])
+            return out, np.ones(n, bool)
+        out = np.full(n, -1, np.int64)
+        for i, t in enumerate(raw.tolist()):
+            u = self.unwrap(t)
+            if u is not None:
+                out[i] = u
+        return out, out >= 0
+
 
 def unwrap_us(t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
     """Vectorised :class:`DeviceClock`: (unwrapped times, accepted mask) for a whole capture.
@@ -150,7 +186,7 @@ class BlockAverager:
         self._temp_sum = 0.0
         self._temp_n = 0
         self._sat = 0
-        self.late = 0  # samples older than the open block (cannot happen with DeviceClock)
+        self.late = 0  # samples in a step already closed (only after flush, with DeviceClock)
 
     def _edges(self, index: int, count: int = 1) -> tuple[float, float]:
         T = self.T_us
@@ -174,19 +210,10 @@ class BlockAverager:
         if self.t0_us is None:
             self.t0_us = t_us
         index = (t_us - self.t0_us) // self.T_us
-        out: list[Block | Missing] = []
         if index < self._index:
             self.late += 1
-            return out
-        if index > self._index:
-            if self._n:
-                out.append(self._close())
-                first = self._index + 1
-            else:
-                first = self._index
-            if index > first:
-                out.append(Missing(first, index - first, *self._edges(first, index - first)))
-            self._index = index
+            return []
+        out = self._advance(index)
         self._sum += value
         self._n += 1
         if temp_c is not None:
@@ -195,9 +222,93 @@ class BlockAverager:
         self._sat += bool(saturated)
         return out
 
+    def feed_many(
+        self,
+        t_us: npt.NDArray[np.int64],
+        values: npt.NDArray[np.float64],
+        temp_c: npt.NDArray[np.float64] | None = None,
+        saturated: npt.NDArray[np.bool_] | None = None,
+    ) -> list[tuple[int, Block | Missing]]:
+        """:meth:`feed` over arrays of increasing unwrapped times; bit-identical results.
+
+        Returns (position of the sample that closed it, block) pairs. temp_c: NaN = unknown.
+        Samples joining the open block are added one by one (sequential sums); the blocks
+        after it are summed with ``numpy.bincount``, which also adds in order from 0.0.
+        """
+        n = t_us.shape[0]
+        out: list[tuple[int, Block | Missing]] = []
+        if n == 0:
+            return out
+        temps = np.full(n, np.nan) if temp_c is None else np.asarray(temp_c, np.float64)
+        sat = np.zeros(n, bool) if saturated is None else np.asarray(saturated, bool)
+        if self.t0_us is None:
+            self.t0_us = int(t_us[0])
+        idx = (t_us - self.t0_us) // self.T_us
+        # Samples up to the first one beyond the open block take the scalar path (few).
+        j = int(np.searchsorted(idx, self._index, side="right"))
+        if j == n or np.any(np.diff(idx[j:]) < 0):
+            for i in range(n):
+                tc = float(temps[i])
+                for b in self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i])):
+                    out.append((i, b))
+            return out
+        for i in range(j):
+            tc = float(temps[i])
+            self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]))
+        rel = idx[j:] - idx[j]
+        sums = np.bincount(rel, weights=values[j:])
+        counts = np.bincount(rel)
+        has_t = ~np.isnan(temps[j:])
+        tsum = np.bincount(rel, weights=np.where(has_t, temps[j:], 0.0))
+        tn = np.bincount(rel, weights=has_t.astype(np.float64))
+        sn = np.bincount(rel, weights=sat[j:].astype(np.float64))
+        nonempty = np.flatnonzero(counts)
+        first_pos = j + np.searchsorted(rel, nonempty)
+        base = int(idx[j])
+        # Close the block that was open before these samples (as the j-th sample's feed would).
+        closer = j
+        for k, b in enumerate(nonempty.tolist()):
+            index = base + b
+            for item in self._advance(index):
+                out.append((closer, item))
+            if k == len(nonempty) - 1:
+                self._sum = float(sums[b])
+                self._n = int(counts[b])
+                self._temp_sum = float(tsum[b])
+                self._temp_n = int(tn[b])
+                self._sat = int(sn[b])
+            else:
+                self._sum, self._n = float(sums[b]), int(counts[b])
+                self._temp_sum, self._temp_n, self._sat = float(tsum[b]), int(tn[b]), int(sn[b])
+                closer = int(first_pos[k + 1])
+        return out
+
+    def _advance(self, index: int) -> list[Block | Missing]:
+        """Move the open block to ``index`` (> the open one): close it, report the gap."""
+        out: list[Block | Missing] = []
+        if index <= self._index:
+            return out
+        if self._n:
+            out.append(self._close())
+            first = self._index + 1
+        else:
+            first = self._index
+        if index > first:
+            out.append(Missing(first, index - first, *self._edges(first, index - first)))
+        self._index = index
+        return out
+
     def flush(self) -> list[Block | Missing]:
-        """Close the open block at end of input (a partial block is still a block)."""
-        return [self._close()] if self._n else []
+        """Close the open block at end of input (a partial block is still a block).
+
+        The flushed block is final: a later sample in the same step counts as ``late``, and
+        one in a later step reports only the steps after it as missing.
+        """
+        if not self._n:
+            return []
+        block = self._close()
+        self._index += 1
+        return [block]
 
 
 def block_means(

@@ -71,11 +71,38 @@ class SensorModel:
     def to_dps(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike = 0) -> FloatArray: ...
     def to_dps(self, rate_counts, ref_counts=0):  # type: ignore[no-untyped-def]
         """Yaw rate in deg/s (+ = CCW) from ADC counts; ref_counts 0 = supply not monitored."""
-        counts = np.asarray(rate_counts, dtype=np.float64)
-        volts = counts * self.vref_v / (1 << self.adc_bits)
-        k = np.asarray(self.supply_v(ref_counts), dtype=np.float64) / self.supply_nominal_v
-        omega = self.polarity * (volts - self.null_v * k) / (self.scale_v_per_dps * k)
+        omega = self.to_dps_array(rate_counts, ref_counts)
         return float(omega) if omega.ndim == 0 else omega
+
+    def to_dps_scalar(self, rate_counts: int, ref_counts: int = 0) -> float:
+        """:meth:`to_dps` for one sample in plain floats (the live daemon's hot path).
+
+        Same operations in the same order as :meth:`to_dps_array`, so bit-identical to it.
+        """
+        scale = 1 << self.adc_bits
+        volts = rate_counts * self.vref_v / scale
+        if ref_counts > 0:
+            k = ref_counts * self.vref_v / scale * self.ref_divider / self.supply_nominal_v
+        else:
+            k = self.supply_nominal_v / self.supply_nominal_v
+        return self.polarity * (volts - self.null_v * k) / (self.scale_v_per_dps * k)
+
+    def to_dps_array(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike) -> FloatArray:
+        """:meth:`to_dps` over arrays (whole captures); bit-identical to :meth:`to_dps_scalar`."""
+        scale = 1 << self.adc_bits
+        rate = np.asarray(rate_counts, dtype=np.float64)
+        ref = np.asarray(ref_counts, dtype=np.float64)
+        volts = rate * self.vref_v / scale
+        k = np.where(
+            ref > 0,
+            ref * self.vref_v / scale * self.ref_divider / self.supply_nominal_v,
+            self.supply_nominal_v / self.supply_nominal_v,
+        )
+        return self.polarity * (volts - self.null_v * k) / (self.scale_v_per_dps * k)
+
+    def saturated_scalar(self, rate_counts: int, omega_dps: float) -> bool:
+        """:meth:`saturated` for one sample."""
+        return rate_counts <= 0 or rate_counts >= self.full_scale or abs(omega_dps) >= self.range_dps
 
     def to_counts(self, omega_dps: npt.ArrayLike, supply_v: float | None = None) -> npt.NDArray[np.int64]:
         """ADC counts a yaw rate produces (rounded, clipped to the ADC's rails); inverse of to_dps."""

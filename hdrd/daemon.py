@@ -1,0 +1,553 @@
+"""``hdrd run`` and ``hdrd calibrate``: the edge that wires source -> pipeline -> publishers.
+
+Everything with a clock, a port, a socket or a signal lives here; the stages it wires are
+pure (:mod:`hdrd.pipeline`). Behaviour under trouble, as gpsd does it: a lost device is
+reported ("stale") and reopened with backoff, the heading carrying on; a publisher that
+fails never stops the loop; SIGTERM/SIGINT end it cleanly (exit 0) within a second; SIGHUP
+reloads the configuration, keeping the heading, and keeps the old one if the new one is
+invalid; systemd is told READY=1, STATUS= and WATCHDOG=1 through ``$NOTIFY_SOCKET``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import structlog
+
+from hdrd.calibrate import (
+    BiasFileError,
+    BiasRecord,
+    MotionDetected,
+    StandstillLimits,
+    estimate_bias,
+    load_bias,
+    save_bias,
+)
+from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
+
+__all__ = ["main", "calibrate_main", "SdNotifier", "default_bias_path", "config_from_args"]
+
+log = structlog.get_logger("hdrd")
+
+# -- systemd notification -------------------------------------------------------------------
+
+
+class SdNotifier:
+    """sd_notify(3) over $NOTIFY_SOCKET (path or @abstract); silent no-op outside systemd."""
+
+    def __init__(self, env: dict[str, str] | None = None) -> None:
+        env = dict(os.environ) if env is None else env
+        self._addr: str | bytes | None = None
+        self._sock: socket.socket | None = None
+        addr = env.get("NOTIFY_SOCKET", "")
+        if addr:
+            self._addr = "\0" + addr[1:] if addr.startswith("@") else addr
+            try:
+                self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            except OSError:
+                self._sock = None
+        usec = env.get("WATCHDOG_USEC", "")
+        pid = env.get("WATCHDOG_PID", "")
+        self.watchdog_s: float | None = None
+        if usec.isdigit() and int(usec) > 0 and (not pid or pid == str(os.getpid())):
+            self.watchdog_s = int(usec) / 1e6 / 2  # ping at half of WatchdogSec
+        self.sent: int = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self._sock is not None
+
+    def notify(self, text: str) -> None:
+        if self._sock is None or self._addr is None:
+            return
+        try:
+            self._sock.sendto(text.encode("utf-8", "replace"), self._addr)
+            self.sent += 1
+        except OSError:
+            pass  # systemd gone or socket full: never a reason to stop publishing
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+# -- logging ------------------------------------------------------------------------------
+
+
+def setup_logging(level: str = "info", fmt: str = "auto") -> None:
+    """structlog to stderr: JSON lines when not on a terminal (journald), console otherwise."""
+    use_json = fmt == "json" or (fmt == "auto" and not sys.stderr.isatty())
+    renderer: Any = structlog.processors.JSONRenderer() if use_json else structlog.dev.ConsoleRenderer(colors=False)
+    structlog.configure(
+        processors=[
+            structlog.processors.add_log_level,
+            structlog.processors.TimeStamper(fmt="iso", utc=True),
+            renderer,
+        ],
+        wrapper_class=structlog.make_filtering_bound_logger(getattr(logging, level.upper())),
+        logger_factory=structlog.PrintLoggerFactory(file=sys.stderr),
+        cache_logger_on_first_use=False,
+    )
+
+
+# -- configuration from the command line ----------------------------------------------------
+
+
+def default_bias_path() -> Path:
+    """$STATE_DIRECTORY/bias.yaml under systemd (StateDirectory=hdrd), else /var/lib/hdrd."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return Path(state or "/var/lib/hdrd") / "bias.yaml"
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    g = lambda name: getattr(args, name, None)  # noqa: E731
+    o: dict[str, Any] = {
+        "device.port": g("port"),
+        "device.protocol": g("protocol"),
+        "device.baud": g("baud"),
+        "output.stdout": g("stdout"),
+        "output.nmea_ths": g("nmea_ths"),
+        "output.heading0_deg": g("heading0"),
+        "hdr.method": g("method"),
+        "log.format": g("log_format"),
+        "simulate.drive": g("drive"),
+        "simulate.speedup": g("speedup"),
+        "calibration.bias_file": g("bias_file"),
+    }
+    if g("udp"):
+        o["output.udp"] = tuple(args.udp)
+    if g("nmea_udp"):
+        o["output.nmea_udp"] = tuple(args.nmea_udp)
+    if g("gpsd"):
+        host, _, port = args.gpsd.rpartition(":")
+        o["gpsd.enabled"] = True
+        o["gpsd.host"] = host or "127.0.0.1"
+        o["gpsd.port"] = int(port) if port.isdigit() else -1
+    return o
+
+
+def config_from_args(args: argparse.Namespace) -> tuple[Config, str]:
+    """Load --config (or the default) and apply the command-line overrides; ConfigError."""
+    cfg, where = load_config(getattr(args, "config", None))
+    try:
+        cfg = apply_overrides(cfg, _overrides(args))
+    except ConfigError as e:
+        raise e.with_source("command line") from None
+    return cfg, where
+
+
+# -- bias ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BiasChoice:
+    record: BiasRecord | None  # None: measure at start-up
+    source: str  # "--bias", the file path, or "startup"
+
+
+def choose_bias(cfg: Config, bias_arg: float | None) -> BiasChoice:
+    """Where eps0 comes from: --bias, else the bias file, else a start-up measurement.
+
+    A bias file named explicitly must exist. A corrupt or truncated file is an error
+    (BiasFileError) unless calibration.on_bad_bias_file is "calibrate".
+    """
+    if bias_arg is not None:
+        return BiasChoice(BiasRecord(bias_arg, 0.0, 0, 0.0), "--bias")
+    explicit = bool(cfg.calibration.bias_file)
+    path = Path(cfg.calibration.bias_file) if explicit else default_bias_path()
+    if not explicit and not path.exists():
+        return BiasChoice(None, "startup")
+    try:
+        return BiasChoice(load_bias(path), str(path))
+    except BiasFileError as e:
+        if cfg.calibration.on_bad_bias_file == "calibrate" and not (explicit and not path.exists()):
+            log.warning("bias_file_rejected", path=str(path), error=str(e), fallback="startup calibration")
+            return BiasChoice(None, "startup")
+        raise
+
+
+# -- the daemon ------------------------------------------------------------------------------
+
+
+class _Signals:
+    """Signal handlers only set flags; the loop acts on them."""
+
+    def __init__(self) -> None:
+        self.stop = False
+        self.reload = False
+        self._old: dict[int, Any] = {}
+
+    def install(self) -> None:
+        for sig, handler in ((signal.SIGTERM, self._on_stop), (signal.SIGINT, self._on_stop), (signal.SIGHUP, self._on_hup)):
+            self._old[sig] = signal.signal(sig, handler)
+
+    def restore(self) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def _on_stop(self, signum: int, frame: FrameType | None) -> None:
+        self.stop = True
+
+    def _on_hup(self, signum: int, frame: FrameType | None) -> None:
+        self.reload = True
+
+
+def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
+    from hdrd.pipeline import PipelineConfig
+
+    c = cfg.calibration
+    return PipelineConfig(
+        sensor=cfg.sensor,
+        params=cfg.hdr.params,
+        method=cfg.hdr.method,
+        bias_dps=None if bias is None else bias.bias_dps,
+        startup_s=c.startup_s,
+        limits=StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps),
+        heading0_deg=cfg.output.heading0_deg,
+    )
+
+
+def open_source(cfg: Config, simulate: bool) -> Any:
+    """The configured input: the serial device, or the built-in simulated gyro."""
+    from hdrd import source
+
+    if simulate:
+        s = cfg.simulate
+        return source.SimulatedSource(drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor)
+    d = cfg.device
+    return source.SerialSource(
+        d.port,
+        protocol=d.protocol,
+        baud=d.baud,
+        reconnect_min_s=d.reconnect_min_s,
+        reconnect_max_s=d.reconnect_max_s,
+    )
+
+
+def build_publishers(cfg: Config) -> list[Any]:
+    """Publishers for the configured outputs; stdout when nothing else is configured."""
+    from hdrd import publish
+    from hdrd.config import parse_hostport
+
+    o = cfg.output
+    pubs: list[Any] = []
+    if o.udp:
+        pubs.append(publish.UdpJsonPublisher([parse_hostport(a) for a in o.udp]))
+    if o.nmea_udp:
+        pubs.append(publish.UdpNmeaPublisher([parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths))
+    if o.stdout or not pubs:
+        pubs.append(publish.StdoutPublisher())
+    return pubs
+
+
+def _stop_all(pubs: list[Any]) -> None:
+    for p in pubs:
+        try:
+            p.stop()
+        except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
+            log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd run``."""
+    try:
+        cfg, where = config_from_args(args)
+    except ConfigError as e:
+        print(f"hdrd: {e}", file=sys.stderr)
+        return EX_CONFIG
+    setup_logging(cfg.log.level, cfg.log.format)
+    try:
+        bias = choose_bias(cfg, getattr(args, "bias", None))
+    except BiasFileError as e:
+        log.error("bias_file_invalid", error=str(e))
+        print(f"hdrd: {e}", file=sys.stderr)
+        return 1
+    return Daemon(cfg, where, args, bias).run()
+
+
+class Daemon:
+    """The run loop. Construct, then :meth:`run` (returns the exit status)."""
+
+    RECV_TIMEOUT_S = 0.1
+
+    def __init__(self, cfg: Config, where: str, args: argparse.Namespace, bias: BiasChoice) -> None:
+        from hdrd.pipeline import Pipeline
+
+        self.cfg = cfg
+        self.where = where
+        self.args = args
+        self.simulate = bool(getattr(args, "simulate", False))
+        self.bias_choice = bias
+        self.pipeline = Pipeline(_pipeline_config(cfg, bias.record))
+        self.signals = _Signals()
+        self.notifier = SdNotifier()
+        self.publishers: list[Any] = []
+        self.ready = False
+        self.status = ""
+        self.steps = 0
+        self.reconnects = 0
+
+    # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
+    def _set_status(self, text: str) -> None:
+        if text != self.status:
+            self.status = text
+            self.notifier.notify(f"STATUS={text}")
+
+    def _publish(self, msgs: list[dict[str, Any]], steps: bool = True) -> None:
+        from hdrd.publish import OutputClosed
+
+        for m in msgs:
+            for p in self.publishers:
+                try:
+                    p.on_message(m)
+                except OutputClosed:
+                    raise
+                except Exception as e:  # noqa: BLE001 - one bad sink must not stop the others
+                    log.warning("publish_failed", publisher=type(p).__name__, error=str(e))
+        if steps:
+            self.steps += len(msgs)
+
+    def _reload(self) -> None:
+        try:
+            cfg, where = config_from_args(self.args)
+        except ConfigError as e:
+            log.error("config_reload_failed", error=str(e), kept=self.where)
+            return
+        from hdrd.pipeline import PipelineConfig
+
+        old = self.cfg
+        if cfg.device != old.device and not self.simulate:
+            log.warning("config_reload_partial", reason="device settings need a restart", kept=str(old.device.port))
+            cfg = replace(cfg, device=old.device)
+        if cfg.hdr.params.T != old.hdr.params.T:
+            log.warning("config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T)
+            cfg = replace(cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T)))
+        pc: PipelineConfig = _pipeline_config(cfg, self.pipeline.bias)
+        self.pipeline.reconfigure(pc)
+        if cfg.output != old.output:
+            _stop_all(self.publishers)
+            self.publishers = build_publishers(cfg)
+        self.cfg, self.where = cfg, where
+        log.info("config_reloaded", source=where, method=cfg.hdr.method, **cfg.hdr.params.as_dict())
+
+    def _drain_events(self) -> None:
+        for name, fields in self.pipeline.events:
+            if name == "calibrated":
+                log.info("calibrated", **fields)
+            else:
+                log.warning(name, **fields)
+        self.pipeline.events.clear()
+
+    def run(self) -> int:
+        from hdrd.publish import OutputClosed
+        from hdrd.source import DeviceBack, DeviceLost, EndOfInput
+
+        self.signals.install()
+        self.publishers = build_publishers(self.cfg)
+        src_name = "simulated gyro" if self.simulate else self.cfg.device.port
+        log.info(
+            "start",
+            config=self.where,
+            source=src_name,
+            protocol=self.cfg.device.protocol,
+            method=self.cfg.hdr.method,
+            bias=self.bias_choice.source,
+            bias_dps=None if self.bias_choice.record is None else self.bias_choice.record.bias_dps,
+        )
+        if self.bias_choice.record is None:
+            self._set_status(f"calibrating: measuring the bias over {self.cfg.calibration.startup_s:g} s at standstill")
+        src = open_source(self.cfg, self.simulate)
+        T = self.cfg.hdr.params.T
+        mono = time.monotonic
+        last_data = mono()
+        lost_at: float | None = None
+        last_stale = 0.0
+        next_watchdog = mono()
+        last_bad = 0
+        last_bad_log = 0.0
+        try:
+            while not self.signals.stop:
+                if self.signals.reload:
+                    self.signals.reload = False
+                    self._reload()
+                item = src.recv(self.RECV_TIMEOUT_S)
+                now_m = mono()
+                bad = int(src.stats.bad_frames)
+                msgs: list[dict[str, Any]] = []
+                got_frame = False
+                if item is None:
+                    pass
+                elif isinstance(item, DeviceLost):
+                    lost_at = now_m
+                    log.warning("device_lost", port=src_name, reason=item.reason)
+                    self._set_status(f"stale: {src_name} lost ({item.reason}); reconnecting")
+                elif isinstance(item, DeviceBack):
+                    gap = now_m - (lost_at if lost_at is not None else last_data)
+                    self.reconnects += 1
+                    log.info("device_back", port=src_name, gap_s=round(gap, 3), reconnects=self.reconnects)
+                    msgs = self.pipeline.resync(gap, bad, time.time())
+                    lost_at = None
+                elif isinstance(item, EndOfInput):
+                    msgs = self.pipeline.finish(bad, time.time())
+                    self._publish(msgs)
+                    log.info("end_of_input", source=src_name)
+                    break
+                else:
+                    last_data = now_m
+                    got_frame = True
+                    msgs = self.pipeline.feed(item, bad, time.time())
+                if msgs:
+                    self._drain_events()
+                    self._publish(msgs)
+                    last = msgs[-1]
+                    if not self.ready and self.pipeline.bias is not None:
+                        self.ready = True
+                        self.notifier.notify("READY=1")
+                    if self.pipeline.bias is not None:
+                        self._set_status(
+                            f"{last['status']}: heading {last.get('heading', float('nan')):.1f} deg, "
+                            f"bias {self.pipeline.bias.bias_dps:+.4f} deg/s, bad frames {bad}"
+                        )
+                elif self.pipeline.events:
+                    self._drain_events()
+                if not self.ready and self.bias_choice.record is not None and got_frame:
+                    self.ready = True  # bias known and the port delivers
+                    self.notifier.notify("READY=1")
+                silent = now_m - last_data
+                if silent > self.cfg.device.stale_after_s and now_m - last_stale >= T:
+                    last_stale = now_m
+                    self._publish_stale(silent, bad)
+                if bad > last_bad and now_m - last_bad_log >= self.cfg.log.bad_frame_interval_s:
+                    log.warning("bad_frames", total=bad, new=bad - last_bad)
+                    last_bad, last_bad_log = bad, now_m
+                if self.notifier.watchdog_s and now_m >= next_watchdog:
+                    self.notifier.notify("WATCHDOG=1")
+                    next_watchdog = now_m + self.notifier.watchdog_s
+        except OutputClosed:
+            log.info("output_closed", reason="stdout reader went away")
+        finally:
+            self.notifier.notify("STOPPING=1")
+            try:
+                self._publish(self.pipeline.finish(int(src.stats.bad_frames), time.time()))
+            except OutputClosed:
+                pass
+            src.close()
+            _stop_all(self.publishers)
+            log.info("stop", steps=self.steps, bad_frames=int(src.stats.bad_frames), reconnects=self.reconnects)
+            self.notifier.close()
+            self.signals.restore()
+        return 0
+
+    def _publish_stale(self, silent: float, bad: int) -> None:
+        msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
+        self._set_status(f"stale: no data for {silent:.0f} s")
+        self._publish([msg], steps=False)  # a stale report is not a step
+
+
+# -- hdrd calibrate ---------------------------------------------------------------------------
+
+
+def calibrate_main(args: argparse.Namespace) -> int:
+    """``hdrd calibrate``: static bias over --seconds at standstill, saved atomically."""
+    try:
+        cfg, _ = config_from_args(args)
+    except ConfigError as e:
+        print(f"hdrd: {e}", file=sys.stderr)
+        return EX_CONFIG
+    setup_logging(cfg.log.level, cfg.log.format)
+    seconds = args.seconds if args.seconds is not None else cfg.calibration.t_bias_s
+    if not seconds > 0:
+        print(f"hdrd: --seconds must be > 0, got {seconds}", file=sys.stderr)
+        return 2
+    path = Path(args.bias_file) if args.bias_file else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
+    signals = _Signals()
+    signals.install()
+    from hdrd.resample import DeviceClock
+    from hdrd.source import DeviceBack, DeviceLost, EndOfInput
+
+    src = open_source(cfg, bool(getattr(args, "simulate", False)))
+    clock = DeviceClock()
+    omega: list[float] = []
+    temps: list[float] = []
+    t0: int | None = None
+    t_last = 0
+    next_report = 1.0
+    print(f"calibrating: keep the vehicle still for {seconds:g} s", flush=True)
+    try:
+        while not signals.stop:
+            item = src.recv(0.1)
+            if item is None:
+                continue
+            if isinstance(item, DeviceLost):
+                print(f"device lost ({item.reason}); waiting for it to come back", file=sys.stderr, flush=True)
+                continue
+            if isinstance(item, DeviceBack):
+                print("device back; restarting the measurement", file=sys.stderr, flush=True)
+                clock, omega, temps, t0, next_report = DeviceClock(), [], [], None, 1.0
+                continue
+            if isinstance(item, EndOfInput):
+                break
+            t = clock.unwrap(item.t_us)
+            if t is None:
+                continue
+            if t0 is None:
+                t0 = t
+            elapsed = (t - t0) / 1e6
+            if elapsed >= seconds:
+                t_last = t
+                break
+            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
+            omega.append(w)
+            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
+            t_last = t
+            if elapsed >= next_report:
+                print(f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}", flush=True)
+                next_report += 1.0
+    finally:
+        src.close()
+        signals.restore()
+    if signals.stop:
+        print("calibration interrupted; bias file not written", file=sys.stderr)
+        return 0
+    c = cfg.calibration
+    duration = 0.0 if t0 is None else (t_last - t0) / 1e6
+    if duration < seconds * 0.99:
+        print(f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written", file=sys.stderr)
+        return 1
+    try:
+        import numpy as np
+
+        rec = estimate_bias(
+            np.asarray(omega),
+            temp_c=np.asarray(temps),
+            limits=StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps),
+            when=time.time(),
+        )
+    except MotionDetected as e:
+        print(f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr)
+        return 1
+    rec = replace(rec, duration_s=duration)
+    try:
+        save_bias(path, rec)
+    except OSError as e:
+        print(f"hdrd calibrate: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+        return 1
+    print(
+        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
+        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
+        + f") written to {path}",
+        flush=True,
+    )
+    log.info("calibrated", bias_dps=rec.bias_dps, std_dps=rec.std_dps, samples=rec.n, path=str(path), source="calibrate")
+    return 0

@@ -1,0 +1,336 @@
+"""The daemon's pipeline, pure: frames -> deg/s -> blocks of T -> HDR -> messages.
+
+One :class:`Pipeline` serves ``hdrd run`` (a frame at a time, :meth:`Pipeline.feed`) and
+``hdrd replay`` (a whole decoded capture, :meth:`Pipeline.feed_array`). Both give
+bit-identical messages for the same bytes: the array path uses the same formulas elementwise
+(:meth:`hdrd.sensor.SensorModel.to_dps_array`) and sums each block in the same order
+(:meth:`hdrd.resample.BlockAverager.feed_many`).
+
+Stages: counts -> deg/s, + = CCW (:mod:`hdrd.sensor`); block means over T by device time
+(Eq. 11, :mod:`hdrd.resample`); static bias eps0 removed (Eq. 2; given, or measured over the
+first ``startup_s`` at standstill, paper Sec. 6); one HDR step per block (Eqs. 3-10,
+:mod:`hdrd.hdr`). The caller owns the clock: the UNIX ``time`` of a message is passed in, and
+``None`` leaves it out (as replay does, having no wall clock for recorded bytes).
+
+Message fields are documented in docs/protocol.md ("Published messages"). An unknown value
+is left out, never sent as null or 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd import hdr
+from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd.hdr import HdrParams, HdrState
+from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
+from hdrd.sensor import SensorModel
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "Message",
+    "PipelineConfig",
+    "Pipeline",
+    "heading_from_yaw",
+    "method_params",
+]
+
+SCHEMA_VERSION = 1
+Message = dict[str, Any]
+TEMP_NOT_FITTED = -32768
+
+
+class FrameLike(Protocol):
+    t_us: int
+    rate: int
+    ref: int
+
+    @property
+    def temp_c(self) -> float | None: ...
+
+
+def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
+    """Compass heading (deg clockwise from north, [0, 360)) from yaw (deg CCW since start)."""
+    h = (heading0_deg - yaw_deg) % 360.0
+    return 0.0 if h >= 360.0 else h
+
+
+def method_params(method: str, params: HdrParams) -> HdrParams:
+    """The HDR parameters a drift-reduction method runs with ("none" freezes I at 0)."""
+    if method == "none":
+        return replace(params, enabled=False)
+    if method == "hdr":
+        return params
+    raise ValueError(f"unknown method {method!r} (allowed: none, hdr)")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything the pipeline needs; the edges build it from :class:`hdrd.config.Config`."""
+
+    sensor: SensorModel = SensorModel()
+    params: HdrParams = HdrParams()
+    method: str = "hdr"
+    bias_dps: float | None = None
+    """Static bias eps0, deg/s; None = measure it over the first startup_s at standstill."""
+    startup_s: float = 1.0
+    """Start-up calibration window, s, rounded up to whole steps (paper Sec. 6: 1 s)."""
+    limits: StandstillLimits = StandstillLimits()
+    heading0_deg: float = 0.0
+    """Compass heading at start, deg."""
+
+
+class Pipeline:
+    """Frames in, one message per closed step out. Pure; not thread-safe.
+
+    ``events`` collects state changes for the edge to log ("calibrated",
+    "calibration_rejected"); the edge drains it.
+    """
+
+    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+        self.config = config
+        self._params = method_params(config.method, config.params)
+        self._clock = DeviceClock()
+        self._avg = BlockAverager(config.params.T)
+        self._state: HdrState = hdr.INITIAL_STATE
+        self._step_offset = 0  # step numbers continue across a device resync
+        self._t_offset = 0.0  # device seconds continue across a device resync
+        self._last_step: int | None = None
+        self._t_last = 0.0
+        self._pending_gap_s = 0.0
+        self.bias: BiasRecord | None = None
+        self._cal_blocks = max(1, math.ceil(config.startup_s / config.params.T - 1e-9))
+        self._cal_omega: list[float] = []  # per-sample rates of the calibration window
+        self._cal_temp: list[float] = []
+        self._cal_done_blocks = 0
+        self.calibration_attempts = 0
+        if config.bias_dps is not None:
+            self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+        self.events: list[tuple[str, dict[str, Any]]] = []
+
+    # -- state ---------------------------------------------------------------------------
+
+    @property
+    def calibrating(self) -> bool:
+        """True until the static bias is known."""
+        return self.bias is None
+
+    @property
+    def hdr_state(self) -> HdrState:
+        return self._state
+
+    @property
+    def heading(self) -> float:
+        """Current compass heading, deg."""
+        return heading_from_yaw(self.config.heading0_deg, self._state.yaw)
+
+    @property
+    def clock(self) -> DeviceClock:
+        return self._clock
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """New parameters, method, heading0 or bias (SIGHUP), keeping heading and controller
+        state. T cannot change while running: it defines the block edges."""
+        if config.params.T != self.config.params.T:
+            raise ValueError("hdr.T cannot change while running; restart the daemon")
+        if config.bias_dps is not None and (self.bias is None or config.bias_dps != self.bias.bias_dps):
+            self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+        self.config = config
+        self._params = method_params(config.method, config.params)
+
+    # -- input ---------------------------------------------------------------------------
+
+    def feed(self, frame: FrameLike, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+        """One frame; the messages of the steps it closed (usually none, at most a few).
+
+        bad_frames: corrupt frames counted so far, published as is. now: UNIX time to stamp.
+        """
+        t = self._clock.unwrap(frame.t_us)
+        if t is None:
+            return []
+        sensor = self.config.sensor
+        omega = sensor.to_dps_scalar(frame.rate, frame.ref)
+        sat = sensor.saturated_scalar(frame.rate, omega)
+        temp = frame.temp_c
+        closed = self._avg.feed(t, omega, temp, sat)
+        out = self._on_blocks(closed, bad_frames, now) if closed else []
+        if self.bias is None:
+            self._cal_omega.append(omega)
+            self._cal_temp.append(math.nan if temp is None else temp)
+        return out
+
+    def feed_array(
+        self,
+        frames: npt.NDArray[Any],
+        bad_before: npt.ArrayLike | None = None,
+        now: Callable[[], float] | None = None,
+    ) -> list[Message]:
+        """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
+        -32768 = not fitted), as :func:`hdrd.frames.decode_capture` gives.
+
+        Same messages as :meth:`feed` frame by frame. bad_before[i]: corrupt frames seen
+        before frame i in the byte stream.
+        """
+        n = frames.shape[0]
+        bad = np.zeros(n, np.int64) if bad_before is None else np.asarray(bad_before, np.int64)
+        out: list[Message] = []
+        i = 0
+        # The start-up calibration gathers per-sample rates: take it a frame at a time.
+        while self.bias is None and i < n:
+            f = frames[i]
+            temp = None if int(f["temp"]) == TEMP_NOT_FITTED else int(f["temp"]) / 100
+            out.extend(self.feed(_Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp), int(bad[i]), now() if now else None))
+            i += 1
+        if i >= n:
+            return out
+        rest = frames[i:]
+        t_us, ok = self._clock.unwrap_many(rest["t_us"])
+        keep = np.flatnonzero(ok) + i
+        rest = frames[keep]
+        t_us = t_us[ok]
+        rate = rest["rate"].astype(np.int64)
+        ref = rest["ref"].astype(np.int64)
+        sensor = self.config.sensor
+        omega = sensor.to_dps_array(rate, ref)
+        sat = np.asarray(sensor.saturated(rate, omega), bool)
+        raw_temp = rest["temp"].astype(np.int64)
+        temp = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
+        for pos, item in self._avg.feed_many(t_us, omega, temp, sat):
+            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), now() if now else None))
+        return out
+
+    def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+        """End of input: close the open, partial block."""
+        return self._on_blocks(self._avg.flush(), bad_frames, now)
+
+    def resync(self, gap_s: float | None = None, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+        """The device went away and is back (its clock may have restarted from zero).
+
+        Closes the open block, then cuts new block edges from the next sample; heading, the
+        controller, step numbers and device time ``t`` carry on. ``gap_s`` (wall-clock
+        seconds without data) is reported in the next step's message; the steps missed are
+        not invented.
+        """
+        out = self.finish(bad_frames, now)
+        if self._last_step is not None:
+            self._step_offset = self._last_step + 1
+            self._t_offset = self._t_last
+        self._clock = DeviceClock()
+        self._avg = BlockAverager(self.config.params.T)
+        if gap_s:
+            self._pending_gap_s += gap_s
+        if self.bias is None:  # a calibration window must be contiguous
+            self._cal_omega.clear()
+            self._cal_temp.clear()
+            self._cal_done_blocks = 0
+        return out
+
+    # -- steps ---------------------------------------------------------------------------
+
+    def _on_blocks(self, items: tuple[Block | Missing, ...] | list[Block | Missing], bad_frames: int, now: float | None) -> list[Message]:
+        out: list[Message] = []
+        for item in items:
+            if isinstance(item, Missing):
+                self._pending_gap_s += item.t_end - item.t_start
+            else:
+                out.append(self._on_block(item, bad_frames, now))
+        return out
+
+    def _on_block(self, block: Block, bad_frames: int, now: float | None) -> Message:
+        step = block.index + self._step_offset
+        self._last_step = step
+        self._t_last = self._t_offset + block.t_end
+        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        msg["t"] = self._t_last
+        msg["step"] = step
+        msg["omega_raw"] = block.mean
+        bias = self.bias
+        if bias is None:
+            status = "calibrating"
+            self._calibration_step(block)
+        else:
+            self._state, o = hdr.step(self._state, block.mean - bias.bias_dps, self._params)
+            msg["omega"] = o.omega
+            msg["yaw"] = o.yaw
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, o.yaw)
+            msg["I"] = o.I
+            msg["W"] = o.W
+            msg["R"] = o.R
+            msg["r"] = o.r
+            msg["bias"] = bias.bias_dps
+            status = "ok" if o.W else "turning"
+        msg["samples"] = block.n
+        msg["bad_frames"] = bad_frames
+        msg["status"] = status
+        if block.temp_c is not None:
+            msg["temp"] = block.temp_c
+        if self._pending_gap_s:
+            msg["gap_s"] = self._pending_gap_s
+            self._pending_gap_s = 0.0
+        if block.saturated:
+            msg["saturated"] = block.saturated
+        return msg
+
+    def _calibration_step(self, block: Block) -> None:
+        """A calibration block closed: its samples are in _cal_*, minus none (the closing
+        sample is appended after this runs). Measure once the window is complete."""
+        self._cal_done_blocks += 1
+        if self._cal_done_blocks < self._cal_blocks:
+            return
+        self.calibration_attempts += 1
+        w = np.asarray(self._cal_omega)
+        temps = np.asarray(self._cal_temp)
+        T = self.config.params.T
+        try:
+            rec = estimate_bias(w, temp_c=temps, limits=self.config.limits)
+        except MotionDetected as e:
+            self.events.append(("calibration_rejected", {"reason": str(e), "attempt": self.calibration_attempts}))
+            self._cal_omega.clear()
+            self._cal_temp.clear()
+            self._cal_done_blocks = 0
+            return
+        self.bias = replace(rec, duration_s=self._cal_blocks * T)
+        self._cal_omega = []
+        self._cal_temp = []
+        self.events.append(
+            (
+                "calibrated",
+                {"bias_dps": rec.bias_dps, "std_dps": rec.std_dps, "samples": rec.n, "source": "startup"},
+            )
+        )
+
+    # -- while no data arrives -------------------------------------------------------------
+
+    def stale_message(self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale") -> Message:
+        """What to publish while no sample arrives: no new step, the heading held."""
+        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        if self._last_step is not None:
+            msg["step"] = self._last_step
+        if self.bias is not None and self._last_step is not None:
+            msg["yaw"] = self._state.yaw
+            msg["heading"] = self.heading
+            msg["bias"] = self.bias.bias_dps
+        msg["bad_frames"] = bad_frames
+        msg["status"] = status
+        msg["stale_s"] = silent_s
+        return msg
+
+
+@dataclass(frozen=True, slots=True)
+class _Row:
+    """One row of a decoded capture, shaped like a frame for :meth:`Pipeline.feed`."""
+
+    t_us: int
+    rate: int
+    ref: int
+    temp_c: float | None

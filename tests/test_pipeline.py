@@ -1,0 +1,237 @@
+"""The pure pipeline: frames -> deg/s -> blocks -> HDR -> messages."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd import hdr
+from hdrd.hdr import HdrParams
+from hdrd.pipeline import Pipeline, PipelineConfig, heading_from_yaw
+from hdrd.sensor import SensorModel
+
+CAPTURE_DTYPE = np.dtype([("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")])
+
+
+@dataclass(frozen=True)
+class F:
+    seq: int
+    t_us: int
+    rate: int
+    ref: int = 0
+    temp_cc: int | None = None
+
+    @property
+    def temp_c(self) -> float | None:
+        return None if self.temp_cc is None else self.temp_cc / 100
+
+
+def make_frames(omega_dps: np.ndarray, hz: float = 10.0, t0_us: int = 0, temp_cc: int | None = None) -> list[F]:
+    counts = SensorModel().to_counts(omega_dps)
+    dt = round(1e6 / hz)
+    return [F(i & 0xFFFF, (t0_us + i * dt) % 2**32, int(c), 0, temp_cc) for i, c in enumerate(counts)]
+
+
+def to_array(frames: list[F]) -> np.ndarray:
+    a = np.zeros(len(frames), CAPTURE_DTYPE)
+    a["seq"] = [f.seq for f in frames]
+    a["t_us"] = [f.t_us for f in frames]
+    a["rate"] = [f.rate for f in frames]
+    a["ref"] = [f.ref for f in frames]
+    a["temp"] = [-32768 if f.temp_cc is None else f.temp_cc for f in frames]
+    return a
+
+
+def run_live(p: Pipeline, frames: list[F], bad: list[int] | None = None) -> list[dict]:
+    out: list[dict] = []
+    for i, f in enumerate(frames):
+        out.extend(p.feed(f, bad[i] if bad else 0))
+    out.extend(p.finish(bad[-1] if bad else 0))
+    return out
+
+
+def test_known_profile_matches_hdr_core():
+    rng = np.random.default_rng(4)
+    bias = 0.8
+    omega = bias + rng.normal(0, 0.3, 600)  # 60 s at 10 Hz, straight with drift
+    omega[300:330] += 15.0  # a 3 s turn
+    frames = make_frames(omega)
+    p = Pipeline(PipelineConfig(bias_dps=bias, heading0_deg=90.0))
+    msgs = run_live(p, frames)
+    assert [m["step"] for m in msgs] == list(range(60))
+    sensor = SensorModel()
+    w = sensor.to_dps(np.array([f.rate for f in frames]))
+    means = w.reshape(60, 10).mean(axis=1)
+    np.testing.assert_allclose([m["omega_raw"] for m in msgs], means, rtol=0, atol=1e-12)
+    trace = hdr.run_batch(np.array([m["omega_raw"] for m in msgs]) - bias)
+    assert [m["yaw"] for m in msgs] == trace.yaw.tolist()
+    assert [m["I"] for m in msgs] == trace.I.tolist()
+    assert [m["W"] for m in msgs] == trace.W.tolist()
+    assert [m["heading"] for m in msgs] == [heading_from_yaw(90.0, y) for y in trace.yaw]
+    assert all(m["samples"] == 10 for m in msgs)
+    assert {m["status"] for m in msgs[30:34]} == {"turning"}
+    assert msgs[0]["t"] == 1.0 and msgs[-1]["t"] == 60.0
+    for m in msgs:
+        assert "time" not in m  # no clock given: left out, never null
+        assert m["class"] == "HDR" and m["v"] == 1
+        assert "temp" not in m  # not fitted: left out
+
+
+def test_startup_calibration_then_steps():
+    rng = np.random.default_rng(1)
+    bias = -0.37
+    omega = bias + rng.normal(0, 0.05, 200)
+    frames = make_frames(omega, temp_cc=2150)
+    p = Pipeline(PipelineConfig(bias_dps=None, startup_s=2.0))
+    msgs = run_live(p, frames)
+    assert [m["status"] for m in msgs[:2]] == ["calibrating", "calibrating"]
+    for m in msgs[:2]:
+        for key in ("omega", "yaw", "heading", "I", "bias"):
+            assert key not in m  # unknown while calibrating: left out
+    w = SensorModel().to_dps(np.array([f.rate for f in frames[:20]]))
+    assert p.bias is not None
+    assert p.bias.bias_dps == pytest.approx(float(np.mean(w)), abs=1e-12)
+    assert msgs[2]["bias"] == p.bias.bias_dps
+    assert msgs[2]["yaw"] == msgs[2]["omega"]  # first HDR step starts from yaw 0
+    assert msgs[2]["temp"] == pytest.approx(21.5)
+    assert ("calibrated", ) == tuple(e[0] for e in p.events)
+
+
+def test_startup_calibration_rejects_motion_and_retries():
+    omega = np.concatenate([np.linspace(0, 20, 10), np.full(10, 0.2)])  # turning, then still
+    p = Pipeline(PipelineConfig(bias_dps=None, startup_s=1.0))
+    msgs = run_live(p, make_frames(omega) + make_frames(np.full(10, 0.2), t0_us=2_000_000))
+    assert msgs[0]["status"] == "calibrating"
+    assert p.events[0][0] == "calibration_rejected"
+    assert "moved" in p.events[0][1]["reason"]
+    assert p.bias is not None and p.bias.bias_dps == pytest.approx(0.2, abs=0.01)
+    assert msgs[-1]["status"] == "ok"
+
+
+def test_gap_reported_and_steps_not_invented():
+    omega = np.zeros(100)
+    frames = make_frames(omega)
+    frames = frames[:30] + frames[65:]  # 3.5 s of frames lost
+    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    msgs = run_live(p, frames)
+    steps = [m["step"] for m in msgs]
+    assert steps == [0, 1, 2, 6, 7, 8, 9]
+    assert msgs[3]["gap_s"] == pytest.approx(3.0)
+    assert "gap_s" not in msgs[4]
+    assert msgs[3]["samples"] == 5  # a dropped frame shortens its block
+
+
+def test_clock_wrap_inside_capture():
+    omega = np.full(50, 1.5)
+    frames = make_frames(omega, t0_us=2**32 - 1_250_000)
+    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams.off()))
+    msgs = run_live(p, frames)
+    assert [m["step"] for m in msgs] == [0, 1, 2, 3, 4]
+    assert all(m["samples"] == 10 for m in msgs)
+    assert p.clock.wraps == 1
+
+
+def test_resync_keeps_heading_and_numbers():
+    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams.off()))
+    first = run_live_no_finish(p, make_frames(np.full(31, 2.0)))
+    resumed = p.resync(gap_s=7.5)
+    # the device comes back with its clock restarted
+    after = run_live(p, make_frames(np.full(21, 2.0), t0_us=123))
+    msgs = first + resumed + after
+    steps = [m["step"] for m in msgs]
+    assert steps == list(range(len(steps)))
+    yaws = [m["yaw"] for m in msgs]
+    assert all(b > a for a, b in zip(yaws, yaws[1:]))  # heading continuous, no reset
+    assert after[0]["gap_s"] == 7.5
+    ts = [m["t"] for m in msgs]
+    assert all(b > a for a, b in zip(ts, ts[1:]))
+
+
+def run_live_no_finish(p: Pipeline, frames: list[F]) -> list[dict]:
+    out: list[dict] = []
+    for f in frames:
+        out.extend(p.feed(f))
+    return out
+
+
+def test_stale_message_holds_heading_without_a_step():
+    p = Pipeline(PipelineConfig(bias_dps=0.0, heading0_deg=10.0))
+    run_live(p, make_frames(np.full(30, -3.0)))
+    m = p.stale_message(now=1234.5, silent_s=4.2, bad_frames=3)
+    assert m["status"] == "stale" and m["stale_s"] == 4.2 and m["time"] == 1234.5
+    assert m["heading"] == p.heading
+    assert "omega" not in m
+
+
+def test_saturation_is_flagged():
+    omega = np.full(20, 250.0)  # beyond the CRS03-04's 200 deg/s
+    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    msgs = run_live(p, make_frames(omega))
+    assert msgs[0]["saturated"] == 10
+
+
+def test_method_none_is_plain_integration():
+    omega = np.full(100, 0.5)
+    p = Pipeline(PipelineConfig(bias_dps=0.0, method="none"))
+    msgs = run_live(p, make_frames(omega))
+    assert all(m["I"] == 0.0 for m in msgs)
+    w = SensorModel().to_dps(np.array(make_frames(omega)[0].rate))
+    assert msgs[-1]["yaw"] == pytest.approx(10 * w)
+
+
+def test_reconfigure_keeps_state_and_refuses_new_T():
+    p = Pipeline(PipelineConfig(bias_dps=0.1))
+    run_live_no_finish(p, make_frames(np.full(50, 0.4)))
+    before = p.hdr_state
+    p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(i_c=0.1)))
+    assert p.hdr_state == before
+    with pytest.raises(ValueError, match="T"):
+        p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(T=2.0)))
+
+
+@st.composite
+def captures(draw):
+    n = draw(st.integers(1, 400))
+    hz = draw(st.sampled_from([5.0, 10.0, 50.0, 100.0]))
+    dt = round(1e6 / hz)
+    t0 = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31)))
+    steps = np.full(n, dt, np.int64)
+    # occasional gaps (lost frames / unplugged) and jitter
+    gaps = rng.random(n) < 0.02
+    steps[gaps] += rng.integers(dt, 5_000_000, int(gaps.sum()))
+    steps += rng.integers(-dt // 10, dt // 10 + 1, n)
+    t = (t0 + np.cumsum(steps) - steps[0]) % 2**32
+    rate = rng.integers(0, 65536, n)
+    ref = np.where(rng.random(n) < 0.3, rng.integers(20000, 40000, n), 0)
+    temp = np.where(rng.random(n) < 0.5, rng.integers(-2000, 6000, n), -32768)
+    a = np.zeros(n, CAPTURE_DTYPE)
+    a["seq"] = np.arange(n) & 0xFFFF
+    a["t_us"], a["rate"], a["ref"], a["temp"] = t, rate, ref, temp
+    bad = np.cumsum(rng.random(n) < 0.05)
+    bias = draw(st.one_of(st.none(), st.floats(-3, 3)))
+    startup = draw(st.sampled_from([0.5, 1.0, 3.0]))
+    return a, bad, bias, startup
+
+
+@settings(max_examples=60, deadline=None)
+@given(captures())
+def test_array_path_is_bit_identical_to_live(cap):
+    a, bad, bias, startup = cap
+    limits_loose = PipelineConfig().limits.__class__(1e9, 1e9, 1e9)
+    cfg = PipelineConfig(bias_dps=bias, startup_s=startup, limits=limits_loose)
+    live = Pipeline(cfg)
+    frames = [F(int(r["seq"]), int(r["t_us"]), int(r["rate"]), int(r["ref"]), None if r["temp"] == -32768 else int(r["temp"])) for r in a]
+    expected = run_live(live, frames, bad.tolist())
+    fast = Pipeline(cfg)
+    got = fast.feed_array(a, bad)
+    got.extend(fast.finish(int(bad[-1])))
+    assert got == expected
+    for m in got:
+        for v in m.values():
+            assert not (isinstance(v, float) and math.isnan(v))
