@@ -1,0 +1,160 @@
+"""Heading-error metrics of the paper's Sec. 5.2: Eψ (Eq. 12) and NEψ (Eq. 13).
+
+Pure. Conventions (``shared/paper/HDR-NOTES.md``):
+
+- gyro yaw ψ: degrees counter-clockwise since the start of the drive (HDR's output, Eq. 3);
+- truth heading: compass degrees, clockwise from north, NaN where unknown;
+- the gyro has no absolute reference, so its yaw is turned into a compass heading by aligning
+  it to the truth at the first step where both exist (index k)::
+
+      heading_gyro_i = truth_k - (yaw_i - yaw_k)        (CCW yaw -> CW heading: minus sign)
+
+- the momentary error is wrapped to [-180, 180) before the absolute value, so 359° vs 1° is
+  a 2° error, not 358°;
+- Eψ is the mean of |error| over the steps where truth exists (Eq. 12); NEψ = Eψ / Td with Td
+  the drive's duration in minutes (Eq. 13), in deg/min.
+
+Truth usually comes at 1 Hz (GPS) in a 10 Hz log, with empty cells between fixes and at low
+speed. :func:`truth_at` samples it at the HDR step ends by linear interpolation of the
+unwrapped heading between neighbouring fixes no further apart than ``max_gap_s``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "wrap180",
+    "wrap360",
+    "align_index",
+    "gyro_heading",
+    "heading_error",
+    "e_psi",
+    "ne_psi",
+    "truth_at",
+    "improvement",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def wrap180(d: npt.ArrayLike) -> FloatArray:
+    """Angle difference(s) in degrees wrapped to [-180, 180)."""
+    return np.mod(np.asarray(d, dtype=np.float64) + 180.0, 360.0) - 180.0
+
+
+def wrap360(h: npt.ArrayLike) -> FloatArray:
+    """Heading(s) in degrees wrapped to [0, 360)."""
+    return np.mod(np.asarray(h, dtype=np.float64), 360.0)
+
+
+def align_index(yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike) -> int | None:
+    """Index of the first step where both the gyro yaw (first column if 2-D) and the truth are
+    finite, or None if there is no such step."""
+    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    y0 = yaw.reshape(yaw.shape[0], -1)[:, 0] if yaw.ndim > 1 else yaw
+    ok = np.flatnonzero(np.isfinite(truth) & np.isfinite(y0))
+    return int(ok[0]) if ok.shape[0] else None
+
+
+def gyro_heading(
+    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+) -> FloatArray:
+    """The gyro's compass heading (deg CW, NOT wrapped: continuous for plots), aligned to the
+    truth at step k (default: the first step where both exist). All NaN if never aligned.
+
+    yaw has shape (n,) or (n, P) (P candidate runs); truth has shape (n,).
+    """
+    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    if yaw.shape[0] != truth.shape[0]:
+        raise ValueError(f"yaw has {yaw.shape[0]} steps, truth {truth.shape[0]}")
+    if k is None:
+        k = align_index(yaw, truth)
+    if k is None:
+        return np.full(yaw.shape, np.nan)
+    return truth[k] - (yaw - yaw[k])
+
+
+def heading_error(
+    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+) -> FloatArray:
+    """Signed momentary heading error gyro - truth, deg, wrapped to [-180, 180); NaN where the
+    truth is unknown. The gyro's yaw is aligned to the truth at step k (default: the first
+    step where both exist), so the error there is 0.
+
+    yaw: deg CCW since start, shape (n,) or (n, P). truth: compass deg CW, shape (n,).
+    """
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    h = gyro_heading(yaw_deg_ccw, truth, k)
+    t = truth.reshape((-1,) + (1,) * (h.ndim - 1))
+    return wrap180(h - t)
+
+
+def e_psi(
+    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+) -> float | FloatArray:
+    """Average heading error Eψ, deg (paper Eq. 12): mean |gyro - truth| over the steps where
+    truth exists. A float for yaw of shape (n,), an array (P,) for (n, P). NaN if no truth."""
+    err = heading_error(yaw_deg_ccw, heading_truth_deg_cw, k)
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    valid = np.isfinite(truth)
+    if not valid.any() or align_index(yaw_deg_ccw, truth) is None:
+        out = np.full(err.shape[1:], np.nan)
+        return float(out) if out.ndim == 0 else out
+    m = np.mean(np.abs(err[valid]), axis=0)
+    return float(m) if np.ndim(m) == 0 else m
+
+
+def ne_psi(e_psi_deg: float | FloatArray, duration_min: float) -> float | FloatArray:
+    """Normalized average heading error NEψ = Eψ / Td, deg/min (paper Eq. 13); Td in minutes."""
+    if not duration_min > 0:
+        raise ValueError(f"drive duration must be > 0 min, got {duration_min!r}")
+    return e_psi_deg / duration_min
+
+
+def improvement(e_without: float, e_with: float) -> float:
+    """Relative HDR improvement Eψ(without) / Eψ(with) (paper Table II); inf if e_with is 0."""
+    if e_with == 0.0:
+        return float("inf") if e_without > 0.0 else float("nan")
+    return float(e_without / e_with)
+
+
+def truth_at(
+    t_truth_s: npt.ArrayLike,
+    heading_truth_deg_cw: npt.ArrayLike,
+    t_query_s: npt.ArrayLike,
+    max_gap_s: float = 2.0,
+) -> FloatArray:
+    """Truth heading (compass deg, [0, 360)) at the query times, NaN where unknown.
+
+    Rows with NaN heading are not fixes. A query is answered by linear interpolation of the
+    unwrapped heading between the fixes just before and just after it, if they are at most
+    ``max_gap_s`` apart (or by a fix exactly at the query time); otherwise NaN, so a GPS
+    outage or the low-speed blanking is never bridged by a guess.
+    """
+    t = np.asarray(t_truth_s, dtype=np.float64)
+    h = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    q = np.asarray(t_query_s, dtype=np.float64)
+    ok = np.isfinite(h) & np.isfinite(t)
+    tt, hh = t[ok], h[ok]
+    out = np.full(q.shape, np.nan)
+    if tt.shape[0] == 0:
+        return out
+    # Unwrapping between neighbouring fixes takes the short way round (< 180° per gap).
+    hu = np.unwrap(hh, period=360.0)
+    j = np.searchsorted(tt, q, side="right")  # tt[j-1] <= q < tt[j]
+    exact = (j >= 1) & (tt[np.clip(j - 1, 0, None)] == q)
+    inside = (j >= 1) & (j < tt.shape[0])
+    lo = np.clip(j - 1, 0, tt.shape[0] - 1)
+    hi = np.clip(j, 0, tt.shape[0] - 1)
+    gap = tt[hi] - tt[lo]
+    interp = inside & (gap <= max_gap_s) & (gap > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(interp, (q - tt[lo]) / np.where(gap > 0, gap, 1.0), 0.0)
+    val = hu[lo] + frac * (hu[hi] - hu[lo])
+    out[interp] = val[interp]
+    out[exact] = hu[lo][exact]
+    return wrap360(out)

@@ -1,0 +1,445 @@
+"""Tuning HDR's parameters on training drives, checked on test drives (paper Sec. 5.2.3).
+
+The paper hand-tuned one parameter set (Table III) "to minimize the bottom line in Table II,
+and specifically the Average of all Normalized Average Heading Errors", then applied it
+unchanged to five further drives: 9.2x better than no HDR on the nine training drives,
+6.9x on the test drives. :func:`tune` does the same search automatically:
+
+1. random search: ``n_candidates * (1 - refine_fraction)`` parameter sets (i_c, τ, Θw, c1,
+   c2), each drawn log-uniformly from :data:`RANGES` (factors of 4-10 around Table III),
+   rounded to three significant digits (the paper's precision), plus the starting set itself;
+2. local refinement: the rest of the budget, in ``refine_rounds`` rounds, perturbs the best
+   ``top_k`` sets so far by log-normal factors (spread 1.5, then smaller each round);
+3. objective: the mean NEψ (Eq. 13, deg/min) over the training drives, smaller is better.
+
+Every candidate is scored with :func:`hdrd.hdr.run_many`, which steps thousands of
+parameter sets together as numpy arrays; the winner and the starting set are then re-run
+with the scalar :func:`hdrd.hdr.run_batch` (:mod:`hdrd.analysis.evaluate`) for the reported
+numbers, so they are exactly what ``hdrd evaluate`` prints. Reproducible by seed.
+
+Pure except for the optional progress callback; :func:`main` is the ``hdrd tune`` edge.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.analysis.evaluate import (
+    DEFAULT_CALIBRATE_S,
+    DriveResult,
+    EvaluationError,
+    PreparedDrive,
+    Summary,
+    evaluate_prepared,
+    prepare_drive,
+    summarize,
+)
+from hdrd.analysis.metrics import e_psi
+from hdrd.drivelog import DriveLog
+from hdrd.hdr import HdrParams, run_many
+
+__all__ = [
+    "PARAM_NAMES",
+    "RANGES",
+    "Progress",
+    "TuneResult",
+    "sample_candidates",
+    "refine_candidates",
+    "score_candidates",
+    "tune",
+    "params_yaml",
+    "format_report",
+    "main",
+]
+
+FloatArray = npt.NDArray[np.float64]
+Candidates = dict[str, FloatArray]
+Progress = Callable[[int, int], None]
+"""progress(done, total): work units (steps x parameter sets) done so far, of total."""
+
+PARAM_NAMES = ("i_c", "tau", "theta_w", "c1", "c2")
+RANGES: dict[str, tuple[float, float]] = {
+    "i_c": (0.0042, 0.21),  # deg/s per step; Table III 0.0422, /10 .. x5
+    "tau": (0.075, 7.5),  # s; Table III 0.75, /10 .. x10
+    "theta_w": (0.11, 2.8),  # deg/s; Table III 0.564, /5 .. x5
+    "c1": (0.016, 1.6),  # -; Table III 0.16, /10 .. x10
+    "c2": (0.45, 5.4),  # -; Table III 1.80, /4 .. x3
+}
+"""Log-uniform search ranges of the random phase (refinement may step outside them)."""
+
+CHUNK_ELEMENTS = 1 << 22
+"""Largest (steps x parameter sets) block scored at once: bounds memory to ~32 MB per array."""
+
+
+def _sig3(a: FloatArray) -> FloatArray:
+    """Round to three significant digits (clean decimals in the YAML snippet)."""
+    return np.array([float(f"{v:.3g}") for v in a.tolist()], dtype=np.float64)
+
+
+def sample_candidates(
+    rng: np.random.Generator, n: int, ranges: dict[str, tuple[float, float]] = RANGES
+) -> Candidates:
+    """n parameter sets drawn log-uniformly from ``ranges``, three significant digits."""
+    out: Candidates = {}
+    for name in PARAM_NAMES:
+        lo, hi = ranges[name]
+        out[name] = _sig3(np.exp(rng.uniform(math.log(lo), math.log(hi), n)))
+    return out
+
+
+def refine_candidates(
+    rng: np.random.Generator, centres: Candidates, n: int, spread: float
+) -> Candidates:
+    """n parameter sets around the given centres (taken in turn): each parameter multiplied
+    by exp(N(0, ln spread)), three significant digits."""
+    m = centres[PARAM_NAMES[0]].shape[0]
+    pick = np.arange(n) % m
+    sigma = math.log(spread)
+    return {
+        name: _sig3(centres[name][pick] * np.exp(rng.normal(0.0, sigma, n))) for name in PARAM_NAMES
+    }
+
+
+def _concat(a: Candidates, b: Candidates) -> Candidates:
+    return {k: np.concatenate([a[k], b[k]]) for k in PARAM_NAMES}
+
+
+def _take(c: Candidates, idx: npt.NDArray[np.int64]) -> Candidates:
+    return {k: c[k][idx] for k in PARAM_NAMES}
+
+
+def score_candidates(
+    drives: Sequence[PreparedDrive],
+    cand: Candidates,
+    T: float = 1.0,
+    progress: Progress | None = None,
+    done0: int = 0,
+    total: int | None = None,
+) -> FloatArray:
+    """Eψ (deg, Eq. 12) of every parameter set on every drive: shape (drives, sets).
+
+    Runs :func:`hdrd.hdr.run_many` (all three enhancements on) over blocks of parameter sets
+    small enough to bound memory.
+    """
+    P = cand[PARAM_NAMES[0]].shape[0]
+    out = np.empty((len(drives), P))
+    if P == 0 or not drives:
+        return out
+    longest = max(d.steps.u.shape[0] for d in drives)
+    chunk = max(16, CHUNK_ELEMENTS // max(longest, 1))
+    steps_all = sum(d.steps.u.shape[0] for d in drives)
+    total = total if total is not None else steps_all * P
+    done = done0
+    for a in range(0, P, chunk):
+        b = min(P, a + chunk)
+        args = [cand[k][a:b] for k in PARAM_NAMES]
+        for j, d in enumerate(drives):
+            yaw = run_many(d.steps.u, *args, T=T)
+            out[j, a:b] = e_psi(yaw, d.truth, d.k)
+            done += d.steps.u.shape[0] * (b - a)
+            if progress is not None:
+                progress(done, total)
+    return out
+
+
+def _objective(e: FloatArray, drives: Sequence[PreparedDrive]) -> FloatArray:
+    """Mean NEψ over drives (deg/min) for each parameter set, from Eψ of shape (drives, sets)."""
+    td = np.array([d.duration_min for d in drives])[:, None]
+    return np.mean(e / td, axis=0)
+
+
+def _params(base: HdrParams, c: Candidates, i: int) -> HdrParams:
+    return replace(base, **{k: float(c[k][i]) for k in PARAM_NAMES})
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """Outcome of :func:`tune`.
+
+    baseline: the starting parameters (default: the paper's Table III). best: the tuned set.
+    train, test: per label ("baseline", "tuned") the evaluated drives (scalar run_batch).
+    objective_baseline, objective_best: mean training NEψ (deg/min) as scored by run_many.
+    n_evaluated: parameter sets scored (the starting set included). top: the best few sets
+    with their objective, best first.
+    """
+
+    baseline: HdrParams
+    best: HdrParams
+    train: dict[str, list[DriveResult]]
+    test: dict[str, list[DriveResult]]
+    objective_baseline: float
+    objective_best: float
+    n_evaluated: int
+    seed: int
+    top: list[tuple[HdrParams, float]]
+
+    def summary(self, which: str, label: str) -> Summary | None:
+        results = (self.train if which == "train" else self.test)[label]
+        return summarize(results) if results else None
+
+
+def _prepare(
+    logs: Sequence[DriveLog | PreparedDrive], bias: float | None, calibrate_seconds: float, T: float
+) -> list[PreparedDrive]:
+    return [
+        d if isinstance(d, PreparedDrive) else prepare_drive(d, bias, calibrate_seconds, T)
+        for d in logs
+    ]
+
+
+def tune(
+    train_logs: Sequence[DriveLog | PreparedDrive],
+    test_logs: Sequence[DriveLog | PreparedDrive] = (),
+    n_candidates: int = 2000,
+    seed: int = 0,
+    *,
+    base: HdrParams = HdrParams(),
+    bias: float | None = None,
+    calibrate_seconds: float = DEFAULT_CALIBRATE_S,
+    ranges: dict[str, tuple[float, float]] = RANGES,
+    refine_fraction: float = 0.3,
+    refine_rounds: int = 2,
+    top_k: int = 10,
+    progress: Progress | None = None,
+) -> TuneResult:
+    """Search i_c, τ, Θw, c1, c2 minimising the mean NEψ over the training drives.
+
+    n_candidates: parameter sets scored in all (the starting set ``base`` is one of them, so
+    the result is never worse than it on the training drives). bias/calibrate_seconds: the
+    static bias, as in :func:`hdrd.analysis.evaluate.prepare_drive`. Raises EvaluationError
+    for a drive that cannot be evaluated, ValueError for a bad budget.
+    """
+    if not train_logs:
+        raise ValueError("tuning needs at least one training drive")
+    if n_candidates < 1:
+        raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
+    if not (base.lowpass and base.turn_switch and base.attenuator and base.enabled):
+        raise ValueError("tuning searches the full HDR (all three enhancements on)")
+    train = _prepare(train_logs, bias, calibrate_seconds, base.T)
+    test = _prepare(test_logs, bias, calibrate_seconds, base.T)
+    rng = np.random.default_rng(seed)
+
+    n_refine = int(round((n_candidates - 1) * refine_fraction)) if n_candidates > 1 else 0
+    n_random = n_candidates - 1 - n_refine
+    rounds = max(1, refine_rounds) if n_refine else 0
+    per_round = [n_refine // rounds + (1 if r < n_refine % rounds else 0) for r in range(rounds)]
+    steps_all = sum(d.steps.u.shape[0] for d in train)
+    total = steps_all * n_candidates
+
+    start = {k: np.array([getattr(base, k)], dtype=np.float64) for k in PARAM_NAMES}
+    cand = _concat(start, sample_candidates(rng, n_random, ranges))
+    obj = _objective(score_candidates(train, cand, base.T, progress, 0, total), train)
+    done = steps_all * cand["i_c"].shape[0]
+    spread = 1.5
+    for n_r in per_round:
+        if n_r == 0:
+            continue
+        order = np.argsort(obj, kind="stable")[: max(1, top_k)]
+        new = refine_candidates(rng, _take(cand, order), n_r, spread)
+        e_new = score_candidates(train, new, base.T, progress, done, total)
+        done += steps_all * n_r
+        cand = _concat(cand, new)
+        obj = np.concatenate([obj, _objective(e_new, train)])
+        spread = 1.0 + (spread - 1.0) / 2.5
+
+    order = np.argsort(obj, kind="stable")
+    best_i = int(order[0])
+    best = _params(base, cand, best_i)
+    top = [(_params(base, cand, int(i)), float(obj[i])) for i in order[:10]]
+
+    def run(drives: list[PreparedDrive], p: HdrParams) -> list[DriveResult]:
+        return [evaluate_prepared(d, p, ("none", "hdr")) for d in drives]
+
+    return TuneResult(
+        baseline=base,
+        best=best,
+        train={"baseline": run(train, base), "tuned": run(train, best)},
+        test={"baseline": run(test, base), "tuned": run(test, best)},
+        objective_baseline=float(obj[0]),
+        objective_best=float(obj[best_i]),
+        n_evaluated=int(cand["i_c"].shape[0]),
+        seed=seed,
+        top=top,
+    )
+
+
+def params_yaml(params: HdrParams, comment: Sequence[str] = ()) -> str:
+    """The ``hdr:`` section of an hdrd config (config/hdrd.yaml) holding these parameters."""
+    import yaml
+
+    body = {"hdr": {"method": "hdr", **{k: float(getattr(params, k)) for k in PARAM_NAMES}}}
+    head = "".join(f"# {c}\n" for c in comment)
+    return head + yaml.safe_dump(body, sort_keys=False)
+
+
+def _cell(s: Summary | None, method: str) -> str:
+    if s is None:
+        return f"{'-':>8} {'-':>8} {'-':>17}"
+    imp = s.improvement_of[method]
+    imp_s = "-" if method == "none" else f"{imp[0]:.2f}x" + (f" (σ {imp[1]:.2f})" if math.isfinite(imp[1]) else "")
+    return f"{s.ne_psi[method]:>8.3f} {s.e_psi[method]:>8.2f} {imp_s:>17}"
+
+
+def format_report(r: TuneResult, seconds: float | None = None) -> str:
+    """Training and test side by side, the paper's Table III set as the baseline row."""
+    n_tr = len(r.train["baseline"])
+    n_te = len(r.test["baseline"])
+    lines = []
+    took = f", {seconds:.1f} s" if seconds is not None else ""
+    lines.append(f"HDR tuning: {r.n_evaluated} parameter sets (seed {r.seed}), "
+                 f"{n_tr} training drive(s), {n_te} test drive(s){took}")
+    lines.append("")
+    lines.append(f"{'parameters':<18}" + "".join(f"{k:>9}" for k in PARAM_NAMES))
+    for label, p in (("paper Table III", r.baseline), ("tuned", r.best)):
+        lines.append(f"{label:<18}" + "".join(f"{getattr(p, k):>9.4g}" for k in PARAM_NAMES))
+    lines.append("")
+    half = f"{'NEpsi':>8} {'Epsi':>8} {'improvement':>17}"
+    lines.append(f"{'':<18}{'training (' + str(n_tr) + ')':^36} | {'test (' + str(n_te) + ')':^36}")
+    lines.append(f"{'':<18}{half} | {half}")
+    rows = (("without HDR", "baseline", "none"), ("paper Table III", "baseline", "hdr"), ("tuned", "tuned", "hdr"))
+    for label, which, method in rows:
+        tr = r.summary("train", which)
+        te = r.summary("test", which)
+        lines.append(f"{label:<18}{_cell(tr, method)} | {_cell(te, method)}")
+    lines.append("")
+    lines.append("NEpsi: mean over drives, deg/min (the objective, training); Epsi: mean, deg; "
+                 "improvement: mean of per-drive Epsi ratios (σ: sample std)")
+    lines.append("the paper (Table III set): 9.2x on its nine training drives, 6.9x on five test drives")
+    return "\n".join(lines)
+
+
+def to_json(r: TuneResult, seconds: float | None = None) -> dict[str, Any]:
+    """The tuning result as plain JSON data (means per split and row, per-drive NEψ)."""
+
+    def block(which: str) -> dict[str, Any] | None:
+        res = r.train if which == "train" else r.test
+        if not res["baseline"]:
+            return None
+        out: dict[str, Any] = {"drives": [d.name for d in res["baseline"]]}
+        for label, key, method in (("none", "baseline", "none"), ("baseline", "baseline", "hdr"), ("tuned", "tuned", "hdr")):
+            s = summarize(res[key])
+            imp, std = s.improvement_of[method]
+            out[label] = {
+                "mean_NE_psi": s.ne_psi[method],
+                "mean_E_psi": s.e_psi[method],
+                "improvement": imp if math.isfinite(imp) else None,
+                "improvement_std": std if math.isfinite(std) else None,
+                "NE_psi": [d.ne_psi[method] for d in res[key]],
+            }
+        return out
+
+    return {
+        "seed": r.seed,
+        "candidates": r.n_evaluated,
+        "seconds": seconds,
+        "params": {
+            "baseline": {k: getattr(r.baseline, k) for k in PARAM_NAMES},
+            "tuned": {k: getattr(r.best, k) for k in PARAM_NAMES},
+        },
+        "objective": {"baseline": r.objective_baseline, "tuned": r.objective_best},
+        "train": block("train"),
+        "test": block("test"),
+    }
+
+
+# -- the command-line edge --------------------------------------------------------------
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr, redrawn at most every 0.1 s (1 s off a terminal)."""
+
+    def __init__(self, label: str, stream: Any = None, width: int = 30) -> None:
+        self.label = label
+        self.stream = stream if stream is not None else sys.stderr
+        self.width = width
+        self.t0 = time.monotonic()
+        self._last = 0.0
+        self._drawn = False
+        # Into a log file (not a terminal) a redraw every second is plenty.
+        isatty = getattr(self.stream, "isatty", None)
+        self.interval = 0.1 if (isatty is not None and isatty()) else 1.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if done < total and now - self._last < self.interval:
+            return
+        self._last = now
+        frac = done / total if total else 1.0
+        fill = int(round(frac * self.width))
+        elapsed = now - self.t0
+        eta = elapsed / frac - elapsed if frac > 0 else 0.0
+        self.stream.write(f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
+                          f"{frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:4.0f} s left ")
+        self.stream.flush()
+        self._drawn = True
+
+    def close(self) -> None:
+        if self._drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _err(msg: str) -> None:
+    print(f"hdrd tune: error: {msg}", file=sys.stderr)
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd tune TRAIN.csv... --test TEST.csv... [--candidates N] [--seed S]
+    [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]``."""
+    from hdrd.analysis.evaluate import load_drives
+    from hdrd.calibrate import atomic_write_text
+
+    calibrate_s = args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
+    if args.candidates < 1:
+        _err(f"--candidates must be >= 1, got {args.candidates}")
+        return 2
+    bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
+    t0 = time.monotonic()
+    try:
+        train = load_drives(args.train)
+        test = load_drives(args.test or [])
+        result = tune(train, test, args.candidates, args.seed, calibrate_seconds=calibrate_s,
+                      progress=bar)
+    except EvaluationError as e:
+        if bar is not None:
+            bar.close()
+        _err(str(e))
+        return 1
+    if bar is not None:
+        bar.close()
+    seconds = time.monotonic() - t0
+    print(format_report(result, seconds))
+    if args.out:
+        s_tr = result.summary("train", "tuned")
+        s_te = result.summary("test", "tuned")
+        comment = [
+            f"HDR parameters tuned by `hdrd tune` (seed {args.seed}, {result.n_evaluated} sets) on "
+            f"{len(train)} training drive(s): " + ", ".join(d.name for d in train),
+            f"training: mean NEpsi {s_tr.ne_psi['hdr']:.3f} deg/min, {s_tr.improvement:.2f}x"
+            if s_tr else "",
+            (f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
+             f"on {len(test)} drive(s)") if s_te else "no test drives",
+            "paste into /etc/hdrd/hdrd.yaml (replacing its hdr: section)",
+        ]
+        try:
+            atomic_write_text(args.out, params_yaml(result.best, [c for c in comment if c]))
+        except OSError as e:
+            _err(f"cannot write {args.out}: {e.strerror or e}")
+            return 1
+    if args.json:
+        try:
+            atomic_write_text(args.json, json.dumps(to_json(result, seconds), indent=2) + "\n")
+        except OSError as e:
+            _err(f"cannot write {args.json}: {e.strerror or e}")
+            return 1
+    return 0
