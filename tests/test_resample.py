@@ -1,0 +1,300 @@
+"""Block averaging by device time (hdrd/resample.py; paper Eq. 11, HDR-NOTES "Conventions").
+
+Step i averages the samples whose device time is in [t0 + iT, t0 + (i+1)T); a dropped frame
+shortens a block, an empty block is Missing (never a zero rate), the 32-bit microsecond clock
+wraps every 2**32 us.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd.resample import (
+    CLOCK_WRAP_US,
+    Block,
+    BlockAverager,
+    DeviceClock,
+    Missing,
+    block_average_seconds,
+    block_means,
+    unwrap_us,
+)
+
+S = 1_000_000  # us per s
+
+
+def run_stream(
+    raw_us: list[int], values: list[float], T_s: float = 1.0, flush: bool = True
+) -> tuple[list[Block | Missing], DeviceClock, BlockAverager]:
+    clock, avg = DeviceClock(), BlockAverager(T_s)
+    out: list[Block | Missing] = []
+    for t, v in zip(raw_us, values):
+        u = clock.unwrap(t)
+        if u is not None:
+            out += avg.feed(u, v)
+    if flush:
+        out += avg.flush()
+    return out, clock, avg
+
+
+def blocks(items: list[Block | Missing]) -> list[Block]:
+    return [b for b in items if isinstance(b, Block)]
+
+
+def test_ten_hz_into_one_hz_eq_11() -> None:
+    t = [5_000 + k * 100_000 for k in range(30)]  # 10 Hz for 3 s
+    v = [float(k) for k in range(30)]
+    out, _, _ = run_stream(t, v)
+    assert out == [
+        Block(0, 0.0, 1.0, sum(range(0, 10)) / 10, 10),
+        Block(1, 1.0, 2.0, sum(range(10, 20)) / 10, 10),
+        Block(2, 2.0, 3.0, sum(range(20, 30)) / 10, 10),
+    ]
+
+
+def test_block_edges_are_half_open() -> None:
+    # A sample exactly at t0 + 1 s belongs to step 1, not step 0.
+    out, _, _ = run_stream([0, 999_999, 1_000_000], [1.0, 3.0, 7.0])
+    assert [(b.index, b.mean, b.n) for b in blocks(out)] == [(0, 2.0, 2), (1, 7.0, 1)]
+
+
+def test_a_block_closes_when_the_next_one_starts() -> None:
+    avg = BlockAverager()
+    assert avg.feed(0, 1.0) == []
+    assert avg.feed(900_000, 2.0) == []
+    closed = avg.feed(1_000_000, 5.0)
+    assert closed == [Block(0, 0.0, 1.0, 1.5, 2)]
+
+
+def test_dropped_frames_shorten_a_block() -> None:
+    t = [k * 100_000 for k in range(20)]
+    v = [float(k % 10) for k in range(20)]
+    keep = [k for k in range(20) if k not in (3, 4, 15)]
+    out, _, _ = run_stream([t[k] for k in keep], [v[k] for k in keep])
+    b0, b1 = blocks(out)
+    assert (b0.n, b1.n) == (8, 9)
+    assert b0.mean == (0 + 1 + 2 + 5 + 6 + 7 + 8 + 9) / 8  # not divided by 10
+    assert b1.mean == (0 + 1 + 2 + 3 + 4 + 6 + 7 + 8 + 9) / 9
+    assert not any(isinstance(x, Missing) for x in out)
+
+
+def test_an_empty_block_is_missing_never_zero() -> None:
+    # 10 Hz, then nothing from 1.0 s to 4.3 s, then 10 Hz again.
+    t = [k * 100_000 for k in range(10)] + [4_300_000 + k * 100_000 for k in range(7)]
+    v = [0.5] * 10 + [0.7] * 7
+    out, _, _ = run_stream(t, v)
+    assert out == [
+        Block(0, 0.0, 1.0, 0.5, 10),
+        Missing(first=1, count=3, t_start=1.0, t_end=4.0),
+        Block(4, 4.0, 5.0, pytest.approx(0.7), 7),  # type: ignore[arg-type]
+    ]
+    assert all(b.mean != 0.0 for b in blocks(out))
+
+
+def test_one_missing_step_between_two_blocks() -> None:
+    out, _, _ = run_stream([0, 2_500_000], [1.0, 2.0])
+    assert out[1] == Missing(1, 1, 1.0, 2.0)
+    assert [b.index for b in blocks(out)] == [0, 2]
+
+
+def test_clock_wrap_in_the_middle_of_a_block() -> None:
+    start = CLOCK_WRAP_US - 450_000  # wraps 0.45 s into the first block
+    raw = [(start + k * 100_000) % CLOCK_WRAP_US for k in range(25)]
+    assert raw[4] > raw[5]  # the raw counter did wrap inside block 0
+    out, clock, _ = run_stream(raw, [1.0] * 10 + [2.0] * 10 + [3.0] * 5)
+    assert clock.wraps == 1 and clock.rejected == 0 and clock.resets == 0
+    assert [(b.index, b.mean, b.n) for b in blocks(out)] == [(0, 1.0, 10), (1, 2.0, 10), (2, 3.0, 5)]
+    assert not any(isinstance(x, Missing) for x in out)
+
+
+def test_device_clock_unwraps_monotonically_across_wraps() -> None:
+    clock = DeviceClock()
+    t = CLOCK_WRAP_US - 10
+    assert clock.unwrap(t) == t
+    assert clock.unwrap(5) == CLOCK_WRAP_US + 5
+    # Forward jumps of less than half the wrap period (35.8 min) are time passing.
+    assert clock.unwrap((1 << 31) - 1) == CLOCK_WRAP_US + (1 << 31) - 1
+    assert clock.unwrap(CLOCK_WRAP_US - 2) == 2 * CLOCK_WRAP_US - 2
+    assert clock.unwrap(3) == 2 * CLOCK_WRAP_US + 3
+    assert clock.wraps == 2
+    # 2**32 - 6 us "forward" is 6 us back: a reordered sample, rejected.
+    assert clock.unwrap(CLOCK_WRAP_US - 3) is None
+
+
+@pytest.mark.parametrize("back_us", [0, 1, 50_000, 1_000_000])
+def test_repeated_and_out_of_order_timestamps_are_rejected(back_us: int) -> None:
+    clock = DeviceClock()
+    assert clock.unwrap(2_000_000) == 2_000_000
+    assert clock.unwrap(2_100_000) == 2_100_000
+    assert clock.unwrap(2_100_000 - back_us) is None
+    assert clock.rejected == 1 and clock.resets == 0
+    assert clock.unwrap(2_200_000) == 2_200_000  # resumes as if the bad one never came
+
+
+def test_rejected_sample_across_the_wrap() -> None:
+    clock = DeviceClock()
+    clock.unwrap(10)
+    assert clock.unwrap(CLOCK_WRAP_US - 100) is None  # 110 us back, across the wrap
+    assert clock.unwrap(20) == 20
+
+
+def test_device_reset_resumes_after_the_last_sample() -> None:
+    clock = DeviceClock()
+    assert clock.unwrap(50_000_000) == 50_000_000
+    assert clock.unwrap(50_100_000) == 50_100_000
+    # The device rebooted: its clock starts again near 0 (more than 1 s back).
+    assert clock.unwrap(1_000) == 50_100_001
+    assert clock.resets == 1 and clock.rejected == 0
+    assert clock.unwrap(101_000) == 50_200_001  # then time passes normally
+
+
+def test_device_reset_in_the_resampler() -> None:
+    raw = [k * 100_000 for k in range(15)] + [500 + k * 100_000 for k in range(10)]
+    out, clock, _ = run_stream(raw, [1.0] * 15 + [2.0] * 10)
+    assert clock.resets == 1
+    # Time resumed 1 us after the last sample (1.4 s): the ten samples after the reset land at
+    # 1.400001 .. 2.300001 s, six in step 1 and four in step 2; no step invented or missing.
+    got = [(b.index, b.n) for b in blocks(out)]
+    assert got == [(0, 10), (1, 5 + 6), (2, 4)]
+    assert blocks(out)[1].mean == pytest.approx((5 * 1.0 + 6 * 2.0) / 11)
+    assert not any(isinstance(x, Missing) for x in out)
+
+
+def test_flush() -> None:
+    avg = BlockAverager()
+    assert avg.flush() == []  # nothing fed
+    avg.feed(0, 1.0)
+    avg.feed(300_000, 2.0, temp_c=20.0, saturated=True)
+    avg.feed(600_000, 4.0, temp_c=22.0)
+    assert avg.flush() == [Block(0, 0.0, 1.0, 7.0 / 3, 3, 21.0, 1)]
+    assert avg.flush() == []  # idempotent
+
+
+def test_feeding_after_flush_neither_repeats_nor_invents() -> None:
+    avg = BlockAverager()
+    avg.feed(0, 1.0)
+    assert [b.index for b in avg.flush()] == [0]
+    # A late sample in the flushed step cannot change what was already published.
+    assert avg.feed(500_000, 9.0) == [] and avg.late == 1
+    # The next step continues normally ...
+    assert avg.feed(1_200_000, 2.0) == []
+    # ... and a gap after a flush reports only the steps really missed.
+    avg2 = BlockAverager()
+    avg2.feed(0, 1.0)
+    avg2.flush()
+    assert avg2.feed(3_100_000, 2.0) == [Missing(1, 2, 1.0, 3.0)]
+    assert avg2.flush() == [Block(3, 3.0, 4.0, 2.0, 1)]
+
+
+def test_temperature_and_saturation_are_aggregated() -> None:
+    avg = BlockAverager()
+    avg.feed(0, 0.0, temp_c=None)
+    avg.feed(100_000, 0.0, temp_c=30.0, saturated=True)
+    avg.feed(200_000, 0.0, temp_c=40.0, saturated=True)
+    (b,) = avg.feed(1_000_000, 0.0)
+    assert (b.temp_c, b.saturated, b.n) == (35.0, 2, 3)
+    (b,) = avg.flush()
+    assert b.temp_c is None and b.saturated == 0
+
+
+def test_other_step_periods() -> None:
+    t = [k * 100_000 for k in range(10)]
+    out, _, _ = run_stream(t, [float(k) for k in range(10)], T_s=0.5)
+    assert [(b.index, b.t_start, b.t_end, b.mean) for b in blocks(out)] == [
+        (0, 0.0, 0.5, 2.0),
+        (1, 0.5, 1.0, 7.0),
+    ]
+    with pytest.raises(ValueError, match="T must be > 0"):
+        BlockAverager(0.0)
+    with pytest.raises(ValueError):
+        BlockAverager(float("nan"))
+
+
+# -- the vectorised forms agree bit for bit with the streaming ones ------------------------------
+
+
+@st.composite
+def capture(draw: st.DrawFn) -> tuple[list[int], list[float]]:
+    """A raw 32-bit device-time sequence with jitter, drops, gaps, wraps, repeats, reorders,
+    resets; and sample values."""
+    t = draw(st.sampled_from([0, 123_456, CLOCK_WRAP_US - 2_000_000, CLOCK_WRAP_US - 1]))
+    n = draw(st.integers(0, 150))
+    events = st.sampled_from(["ok"] * 12 + ["drop", "gap", "repeat", "back", "reset"])
+    raw: list[int] = []
+    for _ in range(n):
+        ev = draw(events)
+        if ev == "ok":
+            t += 100_000 + draw(st.integers(-3_000, 3_000))
+        elif ev == "drop":
+            t += 200_000
+        elif ev == "gap":
+            t += draw(st.integers(1_000_000, 20_000_000))
+        elif ev == "back":
+            t -= draw(st.integers(1, 1_000_000))
+        elif ev == "reset":
+            t = draw(st.integers(0, 5_000))
+        # "repeat": same t
+        raw.append(t % CLOCK_WRAP_US)
+    values = draw(
+        st.lists(
+            st.floats(-300, 300, allow_nan=False, allow_infinity=False),
+            min_size=n, max_size=n,
+        )
+    )  # fmt: skip
+    return raw, values
+
+
+@settings(max_examples=300, deadline=None)
+@given(cap=capture(), T_s=st.sampled_from([1.0, 0.5, 2.0, 0.1]))
+def test_vectorised_equals_streaming(cap: tuple[list[int], list[float]], T_s: float) -> None:
+    raw, values = cap
+    # unwrap_us == DeviceClock, sample by sample
+    clock = DeviceClock()
+    stream_t = [clock.unwrap(x) for x in raw]
+    t_us, ok = unwrap_us(np.array(raw, dtype=np.int64))
+    assert ok.tolist() == [x is not None for x in stream_t]
+    assert t_us[ok].tolist() == [x for x in stream_t if x is not None]
+    if len(raw):
+        assert np.all(np.diff(t_us[ok]) > 0)
+    # block_means == BlockAverager (+ flush), bit for bit
+    out, _, _ = run_stream(raw, values, T_s)
+    idx, mean, n = block_means(t_us[ok], np.array(values, dtype=np.float64)[ok], T_s)
+    bs = blocks(out)
+    assert idx.tolist() == [b.index for b in bs]
+    assert n.tolist() == [b.n for b in bs]
+    assert mean.tolist() == [b.mean for b in bs]  # exact float equality
+    # Missing runs cover exactly the empty steps between the blocks.
+    covered = sorted(
+        [b.index for b in bs]
+        + [m.first + k for m in out if isinstance(m, Missing) for k in range(m.count)]
+    )
+    assert covered == list(range(len(covered)))
+
+
+def test_unwrap_us_empty_and_fast_path() -> None:
+    t, ok = unwrap_us([])
+    assert t.shape == (0,) and ok.shape == (0,)
+    raw = np.array([CLOCK_WRAP_US - 5, 2, 10])
+    t, ok = unwrap_us(raw)
+    assert ok.all() and t.tolist() == [CLOCK_WRAP_US - 5, CLOCK_WRAP_US + 2, CLOCK_WRAP_US + 10]
+
+
+def test_block_means_empty() -> None:
+    idx, mean, n = block_means(np.empty(0, np.int64), np.empty(0))
+    assert idx.shape == mean.shape == n.shape == (0,)
+
+
+def test_block_average_seconds_for_drive_logs() -> None:
+    t = 100.0 + np.arange(35) * 0.1  # 10 Hz in seconds, first sample at 100 s
+    v = np.arange(35, dtype=np.float64)
+    idx, mean, n = block_average_seconds(t, v)
+    assert idx.tolist() == [0, 1, 2, 3]
+    assert n.tolist() == [10, 10, 10, 5]
+    assert mean.tolist() == pytest.approx([4.5, 14.5, 24.5, 32.0])
+    # A gap leaves its steps out (callers see the index jump).
+    idx, _, _ = block_average_seconds([0.0, 0.5, 3.2], [1.0, 1.0, 2.0])
+    assert idx.tolist() == [0, 3]
+    assert block_average_seconds([], [])[0].shape == (0,)
