@@ -1,0 +1,463 @@
+"""Publishers: JSON lines, NMEA 0183, UDP delivery and failures, stdout and its reader."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hdrd.publish import (
+    OutputClosed,
+    StdoutPublisher,
+    UdpJsonPublisher,
+    UdpNmeaPublisher,
+    UdpPublisher,
+    format_json,
+    nmea_checksum,
+    nmea_sentence,
+    nmea_sentences,
+    parse_nmea,
+)
+
+RECV_TIMEOUT_S = 10.0  # a guard against hanging, not a timing assertion
+
+
+def full_message(**over: Any) -> dict[str, Any]:
+    msg: dict[str, Any] = {
+        "class": "HDR",
+        "v": 1,
+        "time": 1700000000.25,
+        "t": 125.0,
+        "step": 125,
+        "omega_raw": 0.7421,
+        "omega": 0.5,
+        "yaw": 12.5,
+        "heading": 347.5,
+        "I": -0.0422,
+        "W": 1,
+        "R": 0.745,
+        "r": 2,
+        "bias": 0.2421,
+        "samples": 10,
+        "bad_frames": 0,
+        "status": "ok",
+        "temp": 24.5,
+    }
+    msg.update(over)
+    return msg
+
+
+def strict_loads(line: bytes) -> Any:
+    """json.loads that rejects NaN/Infinity, as RFC 8259 parsers (jq, browsers) do."""
+
+    def reject(name: str) -> None:
+        raise ValueError(f"non-standard JSON constant {name}")
+
+    return json.loads(line.decode("utf-8"), parse_constant=reject)
+
+
+# -- format_json ----------------------------------------------------------------------------
+
+
+def test_json_is_one_compact_utf8_line_in_the_given_order() -> None:
+    msg = full_message()
+    line = format_json(msg)
+    assert line.endswith(b"\n") and line.count(b"\n") == 1
+    assert b", " not in line and b": " not in line  # compact separators
+    parsed = strict_loads(line)
+    assert parsed == msg
+    assert list(parsed) == list(msg)
+
+
+def test_json_non_ascii_is_utf8() -> None:
+    line = format_json({"class": "HDR", "status": "étalonnage°"})
+    assert "étalonnage°".encode() in line
+    assert strict_loads(line)["status"] == "étalonnage°"
+
+
+def test_json_newline_in_a_value_stays_one_line() -> None:
+    line = format_json({"class": "HDR", "note": "a\nb"})
+    assert line.count(b"\n") == 1
+    assert strict_loads(line)["note"] == "a\nb"
+
+
+@pytest.mark.parametrize("missing", ["heading", "temp", "omega", "bias", "I"])
+def test_unknown_value_is_absent_never_null_or_zero(missing: str) -> None:
+    msg = full_message()
+    del msg[missing]
+    line = format_json(msg)
+    parsed = strict_loads(line)
+    assert missing not in parsed
+    assert f'"{missing}"'.encode() not in line
+    assert b"null" not in line
+
+
+def test_none_value_is_dropped_not_null() -> None:
+    parsed = strict_loads(format_json(full_message(heading=None, temp=None)))
+    assert "heading" not in parsed and "temp" not in parsed
+    assert parsed["yaw"] == 12.5
+
+
+def test_zero_heading_is_kept() -> None:
+    assert strict_loads(format_json(full_message(heading=0.0)))["heading"] == 0.0
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, np.float64("nan"), np.float32("inf")])
+def test_non_finite_values_are_dropped(bad: float) -> None:
+    line = format_json(full_message(omega=bad, gap_s=bad))
+    parsed = strict_loads(line)  # raises on NaN/Infinity
+    assert "omega" not in parsed and "gap_s" not in parsed
+    assert parsed["heading"] == 347.5
+
+
+def test_extra_keys_pass_through_in_order() -> None:
+    msg = full_message(gap_s=5.25, mode="hdr+", zupt=True, aid={"src": "gpsd", "hdop": 0.9})
+    parsed = strict_loads(format_json(msg))
+    assert parsed["gap_s"] == 5.25 and parsed["mode"] == "hdr+" and parsed["zupt"] is True
+    assert parsed["aid"] == {"src": "gpsd", "hdop": 0.9}
+    assert list(parsed)[-4:] == ["gap_s", "mode", "zupt", "aid"]
+
+
+def test_nested_non_finite_is_dropped() -> None:
+    parsed = strict_loads(format_json({"class": "HDR", "aid": {"a": math.nan, "b": 1.0}, "l": [1.0, math.inf]}))
+    assert parsed == {"class": "HDR", "aid": {"b": 1.0}}
+
+
+def test_numpy_scalars_become_json_numbers() -> None:
+    msg = {"class": "HDR", "step": np.int64(7), "omega": np.float32(0.5), "W": np.int8(1)}
+    assert strict_loads(format_json(msg)) == {"class": "HDR", "step": 7, "omega": 0.5, "W": 1}
+
+
+def test_non_mapping_is_a_clear_error() -> None:
+    with pytest.raises(TypeError):
+        format_json([1, 2])  # type: ignore[arg-type]
+
+
+json_values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**53), 2**53),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=20),
+)
+
+
+@given(st.dictionaries(st.text(min_size=1, max_size=10), json_values, max_size=20))
+def test_json_property_valid_one_line_only_known_values(msg: dict[str, Any]) -> None:
+    line = format_json(msg)
+    assert line.endswith(b"\n") and line.count(b"\n") == 1
+    parsed = strict_loads(line)
+    expected = {
+        k: v for k, v in msg.items() if v is not None and not (isinstance(v, float) and not math.isfinite(v))
+    }
+    assert parsed == expected
+    assert list(parsed) == list(expected)
+
+
+# -- NMEA -----------------------------------------------------------------------------------
+
+
+def test_checksum_by_hand() -> None:
+    assert nmea_checksum("A") == "41"  # 'A' = 0x41
+    assert nmea_checksum("AB") == "03"  # 0x41 ^ 0x42
+    assert nmea_checksum("HNHDT,0.00,T") == format(
+        0x48 ^ 0x4E ^ 0x48 ^ 0x44 ^ 0x54 ^ 0x2C ^ 0x30 ^ 0x2E ^ 0x30 ^ 0x30 ^ 0x2C ^ 0x54, "02X"
+    )
+
+
+@pytest.mark.parametrize(
+    "sentence",
+    [
+        # The classic examples of the NMEA 0183 references (gpsinformation.org, Wikipedia).
+        "$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A",
+        "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47",
+        "$GPGGA,092750.000,5321.6802,N,00630.3372,W,1,8,1.03,61.7,M,55.2,M,,*76",
+    ],
+)
+def test_checksum_of_published_sentences(sentence: str) -> None:
+    body, _, cs = sentence[1:].partition("*")
+    assert nmea_checksum(body) == cs
+    assert parse_nmea(sentence)[0] == body.split(",")[0]
+
+
+def test_parse_nmea_rejects_bad_checksum_and_garbage() -> None:
+    with pytest.raises(ValueError, match="checksum"):
+        parse_nmea("$HNHDT,10.00,T*00")
+    with pytest.raises(ValueError):
+        parse_nmea("HNHDT,10.00,T*00")
+    with pytest.raises(ValueError):
+        parse_nmea("$HNHDT,10.00,T")
+
+
+def decode(sentences: list[bytes]) -> dict[str, list[str]]:
+    out = {}
+    for s in sentences:
+        assert s.endswith(b"\r\n") and s.startswith(b"$HN")
+        kind, fields = parse_nmea(s)
+        out[kind] = fields
+    return out
+
+
+def test_hdt_and_rot_of_a_left_turn() -> None:
+    s = nmea_sentences(full_message(heading=123.456, omega=2.0))
+    assert s[0] == nmea_sentence("HNHDT,123.46,T")
+    d = decode(s)
+    assert d == {"HNHDT": ["123.46", "T"], "HNROT": ["-120.0", "A"]}  # left turn = to port = -
+
+
+def test_rot_of_a_right_turn_is_positive() -> None:
+    assert decode(nmea_sentences(full_message(omega=-1.5, status="turning")))["HNROT"] == ["90.0", "A"]
+
+
+def test_rot_of_straight_driving_has_no_negative_zero() -> None:
+    assert decode(nmea_sentences(full_message(omega=0.0001)))["HNROT"] == ["0.0", "A"]
+
+
+@pytest.mark.parametrize("status", ["stale", "calibrating", "error", None])
+def test_rot_invalid_status_says_v(status: str | None) -> None:
+    msg = full_message(status=status)
+    if status is None:
+        del msg["status"]
+    assert decode(nmea_sentences(msg))["HNROT"][1] == "V"
+
+
+@pytest.mark.parametrize("status", ["ok", "turning", "aided", "dead-reckoning"])
+def test_rot_valid_status_says_a(status: str) -> None:
+    assert decode(nmea_sentences(full_message(status=status)))["HNROT"][1] == "A"
+
+
+def test_rot_without_omega_is_empty_and_invalid() -> None:
+    msg = full_message()
+    del msg["omega"]
+    assert decode(nmea_sentences(msg))["HNROT"] == ["", "V"]
+
+
+def test_no_heading_no_heading_sentences() -> None:
+    msg = full_message()
+    del msg["heading"]
+    assert set(decode(nmea_sentences(msg, ths=True))) == {"HNROT"}
+    assert set(decode(nmea_sentences(full_message(heading=math.nan), ths=True))) == {"HNROT"}
+
+
+def test_ths_option() -> None:
+    assert "HNTHS" not in decode(nmea_sentences(full_message()))
+    d = decode(nmea_sentences(full_message(heading=10.0), ths=True))
+    assert d["HNTHS"] == ["10.00", "E"]
+    assert decode(nmea_sentences(full_message(status="stale"), ths=True))["HNTHS"][1] == "V"
+
+
+def test_heading_rounding_stays_below_360() -> None:
+    assert decode(nmea_sentences(full_message(heading=359.999)))["HNHDT"][0] == "0.00"
+
+
+@given(
+    st.floats(-500, 500, allow_nan=False),
+    st.floats(-1000, 1000, allow_nan=False),
+    st.booleans(),
+)
+def test_nmea_property(omega: float, heading: float, ths: bool) -> None:
+    d = decode(nmea_sentences(full_message(omega=omega, heading=heading), ths=ths))
+    h = float(d["HNHDT"][0])
+    assert 0.0 <= h < 360.0
+    assert math.isclose(h, heading % 360.0, abs_tol=0.006) or math.isclose(abs(h - heading % 360.0), 360.0, abs_tol=0.006)
+    rot = float(d["HNROT"][0])
+    assert math.isclose(rot, -omega * 60.0, abs_tol=0.051)
+    if abs(omega * 60.0) >= 0.05:
+        assert math.copysign(1.0, rot) == -math.copysign(1.0, omega)
+    assert ("HNTHS" in d) == ths
+
+
+# -- UDP ------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def receiver() -> Iterator[socket.socket]:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.settimeout(RECV_TIMEOUT_S)
+    yield s
+    s.close()
+
+
+def closed_udp_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return int(port)
+
+
+def test_udp_json_delivers_one_datagram_per_message(receiver: socket.socket) -> None:
+    port = receiver.getsockname()[1]
+    with UdpJsonPublisher([("127.0.0.1", port)]) as pub:
+        msgs = [full_message(step=i) for i in range(3)]
+        for m in msgs:
+            pub.on_message(m)
+        got = [receiver.recv(65535) for _ in msgs]
+        assert got == [format_json(m) for m in msgs]
+        (st_,) = pub.stats()
+        assert st_.sent == 3 and st_.errors == 0 and st_.address == "127.0.0.1"
+
+
+def test_udp_to_several_destinations(receiver: socket.socket) -> None:
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.1", 0))
+    other.settimeout(RECV_TIMEOUT_S)
+    try:
+        with UdpJsonPublisher([("127.0.0.1", receiver.getsockname()[1]), ("127.0.0.1", other.getsockname()[1])]) as pub:
+            pub.on_message(full_message())
+            assert receiver.recv(65535) == other.recv(65535) == format_json(full_message())
+    finally:
+        other.close()
+
+
+def test_udp_nmea_one_sentence_per_datagram(receiver: socket.socket) -> None:
+    with UdpNmeaPublisher([("127.0.0.1", receiver.getsockname()[1])], ths=True) as pub:
+        pub.on_message(full_message(omega=1.0, heading=90.0))
+        got = [receiver.recv(65535) for _ in range(3)]
+    assert decode(got) == {"HNHDT": ["90.00", "T"], "HNROT": ["-60.0", "A"], "HNTHS": ["90.00", "E"]}
+
+
+def test_udp_ipv6_destination() -> None:
+    try:
+        r = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        r.bind(("::1", 0))
+    except OSError:
+        pytest.skip("no IPv6 loopback on this machine")
+    r.settimeout(RECV_TIMEOUT_S)
+    try:
+        with UdpJsonPublisher([("::1", r.getsockname()[1])]) as pub:
+            pub.on_message(full_message())
+            assert r.recv(65535) == format_json(full_message())
+    finally:
+        r.close()
+
+
+def test_localhost_name_goes_to_ipv4(receiver: socket.socket) -> None:
+    # "localhost" often resolves to ::1 first; hdrd tail listens on 127.0.0.1 by default.
+    with UdpJsonPublisher([("localhost", receiver.getsockname()[1])]) as pub:
+        pub.on_message(full_message())
+        assert receiver.recv(65535) == format_json(full_message())
+
+
+def test_refusing_destination_is_counted_and_never_stops_the_others(receiver: socket.socket) -> None:
+    dead = closed_udp_port()
+    good = receiver.getsockname()[1]
+    pub = UdpJsonPublisher([("127.0.0.1", dead), ("127.0.0.1", good)])
+    n = 0
+    # ICMP port unreachable arrives asynchronously: publish until it has been seen.
+    while n < 200:
+        pub.on_message(full_message(step=n))  # must never raise
+        n += 1
+        if n >= 5 and pub.stats()[0].errors > 0:
+            break
+    dead_stats, good_stats = pub.stats()
+    assert dead_stats.errors > 0
+    assert dead_stats.by_error.get("ECONNREFUSED", 0) > 0
+    assert "ECONNREFUSED" in (dead_stats.last_error or "")
+    # The pending error on the shared socket cost the good destination nothing.
+    assert good_stats.errors == 0 and good_stats.sent == n
+    got = [strict_loads(receiver.recv(65535))["step"] for _ in range(n)]
+    assert got == list(range(n))
+    pub.stop()
+    pub.stop()  # idempotent
+    pub.on_message(full_message())  # after stop: ignored, no error
+
+
+def test_unresolvable_host_is_counted_and_not_fatal(receiver: socket.socket) -> None:
+    # .invalid never resolves (RFC 6761).
+    pub = UdpJsonPublisher([("no-such-host.invalid", 10110), ("127.0.0.1", receiver.getsockname()[1])])
+    bad, _ = pub.stats()
+    assert bad.errors >= 1 and bad.by_error["resolve"] >= 1 and bad.address is None
+    assert "no-such-host.invalid" in (bad.last_error or "")
+    pub.on_message(full_message())
+    pub.on_message(full_message())
+    bad, good = pub.stats()
+    assert bad.dropped == 2 and bad.sent == 0
+    assert good.sent == 2
+    assert receiver.recv(65535) == format_json(full_message())
+    assert pub.errors >= 1
+    assert bad.to_dict()["dest"] == "no-such-host.invalid:10110"
+    pub.stop()
+
+
+def test_formatter_returning_a_list(receiver: socket.socket) -> None:
+    with UdpPublisher([("127.0.0.1", receiver.getsockname()[1])], lambda m: [b"a", b"b"]) as pub:
+        pub.on_message({})
+        assert [receiver.recv(10), receiver.recv(10)] == [b"a", b"b"]
+
+
+def test_on_error_is_remembered() -> None:
+    with UdpJsonPublisher([]) as pub:
+        exc = RuntimeError("device lost")
+        pub.on_error(exc)
+        assert pub.last_exception is exc
+
+
+# -- stdout ---------------------------------------------------------------------------------
+
+
+def test_stdout_publisher_writes_lines() -> None:
+    r, w = os.pipe()
+    with os.fdopen(r, "rb") as rf, os.fdopen(w, "wb") as wf:
+        pub = StdoutPublisher(wf)
+        pub.on_message(full_message(step=1))
+        pub.on_message(full_message(step=2))  # flushed per message: readable now
+        assert rf.readline() == format_json(full_message(step=1))
+        assert rf.readline() == format_json(full_message(step=2))
+        pub.stop()
+        assert pub.written == 2
+
+
+def test_stdout_publisher_raises_output_closed_when_the_reader_goes_away() -> None:
+    r, w = os.pipe()
+    os.close(r)
+    wf = os.fdopen(w, "wb")
+    pub = StdoutPublisher(wf)
+    with pytest.raises(OutputClosed):
+        pub.on_message(full_message())
+    assert pub.closed
+    with pytest.raises(OutputClosed):
+        pub.on_message(full_message())
+    pub.stop()  # no error
+    wf.close()  # nor here: the descriptor now points at /dev/null
+
+
+def test_stdout_closed_by_head_exits_without_traceback() -> None:
+    code = textwrap.dedent(
+        """
+        import sys
+        from hdrd.publish import OutputClosed, StdoutPublisher
+        pub = StdoutPublisher()
+        try:
+            for i in range(1_000_000):
+                pub.on_message({"class": "HDR", "step": i})
+        except OutputClosed:
+            pub.stop()
+            sys.exit(0)
+        sys.exit(3)
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    first = proc.stdout.readline()
+    proc.stdout.close()  # what `| head -1` does
+    rc = proc.wait(timeout=60)
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert strict_loads(first) == {"class": "HDR", "step": 0}
+    assert rc == 0, err
+    assert "Traceback" not in err and "Exception ignored" not in err
