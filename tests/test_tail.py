@@ -1,0 +1,218 @@
+"""``hdrd tail``: the table, --raw, --count, malformed data, signals, ``| head``."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from hdrd.publish import TailFormatter, format_json, nmea_sentences
+
+GUARD_S = 30.0  # generous guards against a hang; no test asserts a duration
+
+
+def hdr(step: int, **over: Any) -> dict[str, Any]:
+    msg: dict[str, Any] = {
+        "class": "HDR", "v": 1, "time": 1700000000.0 + step, "t": float(step), "step": step,
+        "omega_raw": 0.3, "omega": 0.0581, "yaw": -1.25, "heading": 1.25, "I": -0.0422, "W": 1,
+        "R": 1.0, "r": 1, "bias": 0.2419, "samples": 10, "bad_frames": 3, "status": "ok",
+    }
+    msg.update(over)
+    return msg
+
+
+# -- the formatter (pure) -------------------------------------------------------------------
+
+
+def test_header_once_then_rows() -> None:
+    f = TailFormatter()
+    out, notes, n = f.lines(format_json(hdr(1)) + format_json(hdr(2)))
+    assert n == 2 and notes == []
+    assert out[0].split() == ["time", "step", "status", "heading", "yaw", "omega", "I", "W", "r", "bias", "samples", "bad"]
+    row = out[1].split()
+    assert row[1:] == ["1", "ok", "1.25", "-1.25", "0.058", "-0.0422", "1", "1", "0.2419", "10", "3"]
+    out2, _, _ = f.lines(format_json(hdr(3)))
+    assert len(out2) == 1 and out2[0].split()[1] == "3"
+
+
+def test_missing_values_print_as_dash() -> None:
+    msg = hdr(4, status="calibrating")
+    for k in ("heading", "I", "bias"):
+        del msg[k]
+    out, _, _ = TailFormatter().lines(format_json(msg))
+    assert out[1].split()[3] == "-" and out[1].split()[6] == "-" and out[1].split()[9] == "-"
+
+
+def test_malformed_data_gives_notes_and_is_skipped() -> None:
+    f = TailFormatter()
+    data = b"not json\n{\"class\":\n[1,2]\n\xff\xfe\n$HNHDT,1.00,T*00\n" + format_json(hdr(5))
+    out, notes, n = f.lines(data, sender="127.0.0.1:9")
+    assert n == 1 and out[-1].split()[1] == "5"
+    assert len(notes) == 5 and all("127.0.0.1:9" in note for note in notes)
+
+
+def test_nmea_printed_raw_and_decoded() -> None:
+    sentences = b"".join(nmea_sentences(hdr(6, omega=1.0, heading=90.0), ths=True))
+    out, notes, n = TailFormatter().lines(sentences)
+    assert n == 3 and notes == []
+    assert out[0].startswith("$HNHDT,90.00,T*") and "heading 90.00" in out[0]
+    assert out[1].startswith("$HNROT,-60.0,A*") and "-60.0 deg/min" in out[1]
+    raw, _, _ = TailFormatter(raw=True).lines(sentences)
+    assert [line.encode() + b"\r\n" for line in raw] == nmea_sentences(hdr(6, omega=1.0, heading=90.0), ths=True)
+
+
+def test_raw_mode_passes_lines_through() -> None:
+    lines = [format_json(hdr(7)), b'{"class":"ERROR","message":"x"}\n']
+    out, _, n = TailFormatter(raw=True).lines(b"".join(lines))
+    assert n == 2 and [o.encode() + b"\n" for o in out] == lines
+
+
+def test_other_classes_print_as_received_in_table_mode() -> None:
+    out, _, n = TailFormatter().lines(b'{"class":"VERSION","release":"0.1.0"}')
+    assert n == 1 and out == ['{"class":"VERSION","release":"0.1.0"}']
+
+
+# -- end to end, in a subprocess ------------------------------------------------------------
+
+
+def free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = int(s.getsockname()[1])
+    s.close()
+    return port
+
+
+def wait_bound(proc: subprocess.Popen[bytes], port: int) -> None:
+    """Wait until the subprocess holds the UDP port (our bind then fails with EADDRINUSE)."""
+    deadline = time.monotonic() + GUARD_S
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as e:
+            if e.errno == errno.EADDRINUSE:
+                return
+            raise
+        finally:
+            s.close()
+        time.sleep(0.02)
+    pytest.fail("hdrd tail did not bind its port")
+
+
+def start_tail(*extra: str, stdout: int = subprocess.PIPE) -> tuple[subprocess.Popen[bytes], int]:
+    port = free_port()
+    env = dict(os.environ, TZ="UTC")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "tail", "--listen", f"127.0.0.1:{port}", *extra],
+        stdout=stdout, stderr=subprocess.PIPE, env=env,
+    )
+    wait_bound(proc, port)
+    return proc, port
+
+
+@pytest.fixture
+def sender() -> Iterator[socket.socket]:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    yield s
+    s.close()
+
+
+def test_tail_table_end_to_end(sender: socket.socket) -> None:
+    proc, port = start_tail("--count", "3")
+    sender.sendto(b"garbage \x00\x01", ("127.0.0.1", port))
+    for i in (1, 2, 3):
+        sender.sendto(format_json(hdr(i)), ("127.0.0.1", port))
+    out, err = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0, err
+    lines = out.decode().splitlines()
+    assert lines[0].split()[:3] == ["time", "step", "status"]
+    assert [line.split()[1] for line in lines[1:]] == ["1", "2", "3"]
+    assert lines[1].split()[0] == time.strftime("%H:%M:%S", time.gmtime(1700000001.0))
+    assert "malformed" in err.decode() and "Traceback" not in err.decode()
+
+
+def test_tail_raw_end_to_end(sender: socket.socket) -> None:
+    proc, port = start_tail("--raw", "--count", "4")
+    sent = [format_json(hdr(i)) for i in (1, 2)]
+    for d in sent:
+        sender.sendto(d, ("127.0.0.1", port))
+    nmea = nmea_sentences(hdr(3))
+    sender.sendto(nmea[0], ("127.0.0.1", port))
+    sender.sendto(nmea[1], ("127.0.0.1", port))
+    out, err = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0, err
+    lines = out.splitlines(keepends=True)
+    assert lines[:2] == sent
+    assert [json.loads(line) for line in lines[:2]] == [hdr(1), hdr(2)]
+    assert [line.rstrip(b"\n") + b"\r\n" for line in lines[2:]] == nmea
+
+
+def test_tail_count_stops_mid_datagram(sender: socket.socket) -> None:
+    proc, port = start_tail("--raw", "--count", "2")
+    sender.sendto(b"".join(format_json(hdr(i)) for i in (1, 2, 3)), ("127.0.0.1", port))
+    out, _ = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0
+    assert [json.loads(line)["step"] for line in out.splitlines()] == [1, 2]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_tail_signal_exits_zero(sig: int, sender: socket.socket) -> None:
+    proc, port = start_tail()
+    sender.sendto(format_json(hdr(1)), ("127.0.0.1", port))
+    assert proc.stdout is not None
+    proc.stdout.readline()  # header: it is running its loop
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0, err
+    assert b"Traceback" not in err
+
+
+def test_tail_into_head_exits_zero_without_traceback(sender: socket.socket) -> None:
+    proc, port = start_tail("--raw")
+    assert proc.stdout is not None and proc.stderr is not None
+    sender.sendto(format_json(hdr(1)), ("127.0.0.1", port))
+    assert json.loads(proc.stdout.readline())["step"] == 1
+    proc.stdout.close()  # the reader went away, like `| head -1`
+    deadline = time.monotonic() + GUARD_S
+    step = 2
+    while proc.poll() is None and time.monotonic() < deadline:
+        sender.sendto(format_json(hdr(step)), ("127.0.0.1", port))
+        step += 1
+        time.sleep(0.01)
+    rc = proc.wait(timeout=GUARD_S)
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert rc == 0, err
+    assert b"Traceback" not in err and b"Exception ignored" not in err
+
+
+def test_tail_bad_listen_address() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "hdrd", "tail", "--listen", "nonsense"],
+        capture_output=True, timeout=GUARD_S,
+    )
+    assert r.returncode == 2 and b"--listen" in r.stderr and b"Traceback" not in r.stderr
+
+
+def test_tail_port_in_use() -> None:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    try:
+        r = subprocess.run(
+            [sys.executable, "-m", "hdrd", "tail", "--listen", f"127.0.0.1:{s.getsockname()[1]}"],
+            capture_output=True, timeout=GUARD_S,
+        )
+    finally:
+        s.close()
+    assert r.returncode == 1 and b"cannot listen" in r.stderr and b"Traceback" not in r.stderr
