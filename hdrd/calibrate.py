@@ -189,7 +189,7 @@ def load_bias(path: str | os.PathLike[str]) -> BiasRecord:
         record = BiasRecord(
             bias_dps=_finite(data, "bias_dps"),
             std_dps=_finite(data, "std_dps"),
-            n=int(data["n"]),
+            n=_count(data, "n"),
             duration_s=_finite(data, "duration_s"),
             temp_c=None if data.get("temp_c") is None else _finite(data, "temp_c"),
             time=_finite(data, "time"),
@@ -208,6 +208,13 @@ def _finite(data: dict[str, object], key: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise ValueError(f"{key} = {v!r} is not a finite number")
     return float(v)
+
+
+def _count(data: dict[str, object], key: str) -> int:
+    v = data[key]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"{key} = {v!r} is not an integer")
+    return v
 
 
 def now() -> float:

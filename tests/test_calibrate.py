@@ -1,0 +1,291 @@
+"""Static bias eps0 (hdrd/calibrate.py; paper Sec. 2, Eq. 2) and the atomic bias file."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd import calibrate
+from hdrd.calibrate import (
+    T_BIAS_S,
+    BiasFileError,
+    BiasRecord,
+    MotionDetected,
+    StandstillLimits,
+    estimate_bias,
+    load_bias,
+    save_bias,
+)
+
+HZ = 10.0  # the paper's sample rate
+
+
+def standstill(seconds: float = T_BIAS_S, bias: float = 0.8, sigma: float = 0.05, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    n = int(seconds * HZ)
+    t = np.arange(n) / HZ
+    return bias + sigma * rng.standard_normal(n), t
+
+
+def test_tbias_is_the_papers() -> None:
+    assert T_BIAS_S == 30.0
+
+
+def test_bias_on_standstill_samples() -> None:
+    w, t = standstill()
+    temp = np.full(w.shape, 21.0)
+    temp[::3] = np.nan  # unknown readings are skipped, not averaged in
+    rec = estimate_bias(w, t, temp_c=temp, when=1_700_000_000.0)
+    assert rec.bias_dps == float(np.mean(w))
+    assert rec.bias_dps == pytest.approx(0.8, abs=0.02)
+    assert rec.std_dps == pytest.approx(0.05, rel=0.15)
+    assert rec.n == 300
+    assert rec.duration_s == pytest.approx(29.9)
+    assert rec.temp_c == 21.0
+    assert rec.time == 1_700_000_000.0
+
+
+def test_bias_without_times_or_temperature() -> None:
+    w, _ = standstill(1.0)  # paper Sec. 6: one second is enough for usable results
+    rec = estimate_bias(w)
+    assert rec.n == 10 and rec.duration_s == 0.0 and rec.temp_c is None
+    all_nan = estimate_bias(w, temp_c=np.full(10, np.nan))
+    assert all_nan.temp_c is None
+
+
+def test_negative_bias() -> None:
+    w, t = standstill(bias=-1.432)  # the paper's Highway 1 drive had eps0 = 1.432 deg/s
+    assert estimate_bias(w, t).bias_dps == pytest.approx(-1.432, abs=0.02)
+
+
+def test_rejects_spread() -> None:
+    w, t = standstill()
+    w[100:160] += 15.0  # a 6 s turn at 15 deg/s
+    with pytest.raises(MotionDetected, match=r"vehicle moved: rate spread .* > 0.5 deg/s"):
+        estimate_bias(w, t)
+
+
+def test_rejects_trend() -> None:
+    w, t = standstill()
+    w = w + np.linspace(0.0, 0.6, w.shape[0])  # a slow creep: std ~0.18 passes, trend does not
+    assert np.std(w, ddof=1) < 0.5
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.\d+ deg/s .* first and last thirds"):
+        estimate_bias(w, t)
+
+
+def test_rejects_excursion() -> None:
+    w, t = standstill()
+    w[150] += 6.0  # one bump: spread and trend stay small
+    assert np.std(w, ddof=1) < 0.5
+    with pytest.raises(MotionDetected, match=r"a sample \d+\.\d+ deg/s from the median > 3.0"):
+        estimate_bias(w, t)
+
+
+def test_limits_are_configurable() -> None:
+    w, t = standstill(sigma=0.3)
+    estimate_bias(w, t)
+    with pytest.raises(MotionDetected, match="spread"):
+        estimate_bias(w, t, limits=StandstillLimits(max_std_dps=0.1))
+
+
+@pytest.mark.parametrize("w", [[], [0.5], [0.1, float("nan"), 0.2], [0.1, float("inf")]])
+def test_rejects_too_few_or_non_finite_samples(w: list[float]) -> None:
+    with pytest.raises(MotionDetected):
+        estimate_bias(w)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    bias=st.floats(-5, 5),
+    sigma=st.floats(0.0, 0.2),
+    seed=st.integers(0, 1000),
+    turn=st.floats(5.0, 100.0),
+    at=st.floats(0.0, 0.9),
+)
+def test_any_turn_in_the_window_is_rejected(bias: float, sigma: float, seed: int, turn: float, at: float) -> None:
+    w, t = standstill(bias=bias, sigma=sigma, seed=seed)
+    estimate_bias(w, t)  # standstill passes
+    k = int(at * w.shape[0])
+    w[k : k + 20] += turn  # a 2 s turn of >= 5 deg/s somewhere in the window
+    with pytest.raises(MotionDetected, match="vehicle moved"):
+        estimate_bias(w, t)
+
+
+# -- the bias file --------------------------------------------------------------------------------
+
+REC = BiasRecord(bias_dps=0.8123456789012345, std_dps=0.0512, n=300, duration_s=29.9, temp_c=21.5, time=1_700_000_000.25)
+
+
+def test_save_load_round_trip(tmp_path: Path) -> None:
+    p = tmp_path / "state" / "bias.yaml"  # the directory is created
+    save_bias(p, REC)
+    assert load_bias(p) == REC
+    text = p.read_text()
+    assert text.startswith("# hdrd static bias") and text.endswith("# end\n")
+    no_temp = BiasRecord(-0.25, 0.01, 10, 1.0, None, 0.0)
+    save_bias(p, no_temp)
+    assert load_bias(p) == no_temp
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    bias=st.floats(-200, 200, allow_nan=False),
+    std=st.floats(0, 10),
+    n=st.integers(1, 10**7),
+    temp=st.one_of(st.none(), st.floats(-40, 85)),
+)
+def test_round_trip_is_exact(tmp_path_factory: pytest.TempPathFactory, bias: float, std: float, n: int, temp: float | None) -> None:
+    p = tmp_path_factory.mktemp("rt") / "bias.yaml"
+    rec = BiasRecord(bias, std, n, 30.0, temp, 1.5)
+    save_bias(p, rec)
+    assert load_bias(p) == rec
+
+
+def test_file_mode_is_0644_whatever_the_umask(tmp_path: Path) -> None:
+    p = tmp_path / "bias.yaml"
+    p.write_text("old")
+    os.chmod(p, 0o600)
+    old = os.umask(0o077)
+    try:
+        save_bias(p, REC)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644
+
+
+def _leftovers(d: Path) -> list[str]:
+    return sorted(x.name for x in d.iterdir() if x.name != "bias.yaml")
+
+
+@pytest.mark.parametrize("fail_in", ["replace", "fsync", "write"])
+def test_failed_write_leaves_old_file_whole_and_no_temp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fail_in: str) -> None:
+    p = tmp_path / "bias.yaml"
+    save_bias(p, REC)
+    before = p.read_bytes()
+
+    def boom(*a: object, **k: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    if fail_in == "replace":
+        monkeypatch.setattr(calibrate.os, "replace", boom)
+    elif fail_in == "fsync":
+        monkeypatch.setattr(calibrate.os, "fsync", boom)
+    else:
+        real_fdopen = os.fdopen
+
+        class HalfWriter:
+            """A file object that writes half of the text, then fails (a power cut)."""
+
+            def __init__(self, f):  # type: ignore[no-untyped-def]
+                self.f = f
+
+            def __enter__(self):  # type: ignore[no-untyped-def]
+                return self
+
+            def __exit__(self, *exc):  # type: ignore[no-untyped-def]
+                self.f.close()
+
+            def write(self, text: str) -> None:
+                self.f.write(text[: len(text) // 2])
+                self.f.flush()
+                raise OSError(5, "Input/output error")
+
+        monkeypatch.setattr(calibrate.os, "fdopen", lambda fd, *a, **k: HalfWriter(real_fdopen(fd, *a, **k)))
+    with pytest.raises(OSError):
+        save_bias(p, BiasRecord(5.0, 0.1, 10, 1.0))
+    assert p.read_bytes() == before
+    assert load_bias(p) == REC
+    assert _leftovers(tmp_path) == []
+
+
+def test_interrupt_during_write_leaves_no_temp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # SIGTERM/Ctrl-C (a BaseException) between fsync and rename: the old file stays, no temp.
+    p = tmp_path / "bias.yaml"
+    save_bias(p, REC)
+
+    def interrupted(*a: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        save_bias(p, BiasRecord(5.0, 0.1, 10, 1.0))
+    assert load_bias(p) == REC and _leftovers(tmp_path) == []
+
+
+def test_missing_bias_file(tmp_path: Path) -> None:
+    p = tmp_path / "nope.yaml"
+    with pytest.raises(BiasFileError, match=r"bias file .*nope\.yaml: not found"):
+        load_bias(p)
+
+
+def test_every_truncation_is_refused(tmp_path: Path) -> None:
+    # A file cut anywhere (a power cut without atomic replace) never loads as a wrong bias.
+    good = tmp_path / "good.yaml"
+    save_bias(good, REC)
+    data = good.read_bytes()
+    p = tmp_path / "bias.yaml"
+    for k in range(len(data.rstrip(b"\n"))):
+        p.write_bytes(data[:k])
+        with pytest.raises(BiasFileError, match="truncated"):
+            load_bias(p)
+    p.write_bytes(data.rstrip(b"\n"))  # only the final newline lost: still whole
+    assert load_bias(p) == REC
+
+
+def _body(**changes: object) -> str:
+    d: dict[str, object] = {"bias_dps": 0.5, "std_dps": 0.05, "n": 300, "duration_s": 30.0, "temp_c": None, "time": 1.0}
+    d.update(changes)
+    lines = [f"{k}: {'null' if v is None else v}" for k, v in d.items() if v is not ...]
+    return "\n".join(lines) + "\n# end\n"
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (_body(bias_dps="abc"), r"bias_dps = 'abc' is not a finite number"),
+        (_body(bias_dps=".nan"), r"bias_dps = nan is not a finite number"),
+        (_body(bias_dps=".inf"), r"bias_dps = inf is not a finite number"),
+        (_body(bias_dps="true"), r"bias_dps = True is not a finite number"),
+        (_body(bias_dps=...), r"missing key bias_dps"),
+        (_body(n=...), r"missing key n"),
+        (_body(time=...), r"missing key time"),
+        (_body(n="3.5"), r"n = 3.5 is not an integer"),
+        (_body(n="true"), r"n = True is not an integer"),
+        (_body(n='"300"'), r"n = '300' is not an integer"),
+        (_body(n="0"), r"must not be negative"),
+        (_body(std_dps="-0.1"), r"must not be negative"),
+        (_body(temp_c="warm"), r"temp_c = 'warm' is not a finite number"),
+        ("- 0.5\n- 0.1\n# end\n", r"expected a mapping"),
+        ("bias_dps: [0.5\n# end\n", r"not valid YAML"),
+        ("# end\n", r"expected a mapping"),
+    ],
+)
+def test_corrupted_bias_file(tmp_path: Path, text: str, match: str) -> None:
+    p = tmp_path / "bias.yaml"
+    p.write_text(text)
+    with pytest.raises(BiasFileError, match=match) as e:
+        load_bias(p)
+    assert str(p) in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_binary_garbage_and_directory(tmp_path: Path) -> None:
+    p = tmp_path / "bias.yaml"
+    p.write_bytes(b"\xff\xfe\x00garbage\x80# end\n")
+    with pytest.raises(BiasFileError, match="cannot be read"):
+        load_bias(p)
+    with pytest.raises(BiasFileError, match="cannot be read"):
+        load_bias(tmp_path)
+
+
+def test_a_well_formed_body_loads(tmp_path: Path) -> None:
+    # The hand-written form above is accepted as it is: the corruption tests do test corruption.
+    p = tmp_path / "bias.yaml"
+    p.write_text(_body())
+    assert load_bias(p) == BiasRecord(0.5, 0.05, 300, 30.0, None, 1.0)
