@@ -1,0 +1,321 @@
+"""Evaluation against ground truth (Table II) on small synthetic drives, and `hdrd evaluate`."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrd.analysis import evaluate as ev
+from hdrd.analysis.evaluate import (
+    METHODS,
+    EvaluationError,
+    StepInputs,
+    evaluate_drive,
+    prepare_drive,
+    summarize,
+    to_json,
+)
+from hdrd.cli import main as cli_main
+from hdrd.drivelog import DriveLog, write_drive
+from hdrd.hdr import HdrParams, run_batch
+
+
+def make_drive(
+    minutes: float = 6.0,
+    drift_dps: float = 0.0,
+    *,
+    bias0_dps: float = 0.8,
+    noise_dps: float = 0.02,
+    turns: Sequence[tuple[float, float, float]] = (),
+    sway_dps: float = 0.0,
+    hz: float = 10.0,
+    calib_s: float = 30.0,
+    heading0: float = 80.0,
+    seed: int = 0,
+    name: str = "synthetic",
+) -> DriveLog:
+    """A drive log: standstill for calib_s, then driving.
+
+    The gyro reads true rate + bias0 + noise, and bias0 + drift_dps once the calibration
+    window is over (a warmed-up gyro: the residual drift HDR must remove). turns: (start s,
+    duration s, rate deg/s CCW). sway_dps: amplitude of a slow weave (period ~40 s). Truth
+    heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(round(minutes * 60 * hz))
+    t = np.arange(n) / hz
+    w = np.zeros(n)
+    for start, dur, rate in turns:
+        w[(t >= start) & (t < start + dur)] += rate
+    w += sway_dps * np.sin(2 * np.pi * t / 40.0) * (t >= calib_s)
+    omega = w + bias0_dps + np.where(t >= calib_s, drift_dps, 0.0) + rng.normal(0, noise_dps, n)
+    yaw_true = np.cumsum(w) / hz  # rotation up to and including each sample
+    truth = np.mod(heading0 - yaw_true, 360.0)
+    whole = np.abs(t - np.round(t)) < 1e-6
+    truth = np.where((t >= calib_s) & whole, truth, np.nan)
+    return DriveLog(t=t + 1000.0, omega=omega, heading_truth=truth, name=name)
+
+
+CITY_TURNS = [(60, 9, 10.0), (120, 9, -10.0), (200, 18, 10.0), (260, 9, -10.0)]
+
+
+def test_straight_drive_with_constant_drift_hdr_beats_no_hdr() -> None:
+    log = make_drive(drift_dps=0.1)
+    r = evaluate_drive(log)
+    assert r.methods == ("none", "hdr")
+    # Uncorrected, a residual 0.1 deg/s grows to 30 deg in 5 min: Eψ about 15 deg.
+    assert 12.0 < r.e_psi["none"] < 18.0
+    assert r.e_psi["hdr"] < r.e_psi["none"] / 5
+    assert r.improvement > 5
+    assert r.ne_psi["hdr"] == pytest.approx(r.e_psi["hdr"] / r.duration_min)
+
+
+def test_drift_with_turns_hdr_still_helps() -> None:
+    r = evaluate_drive(make_drive(drift_dps=-0.08, turns=CITY_TURNS, sway_dps=0.3))
+    assert r.e_psi["hdr"] < r.e_psi["none"] / 3
+
+
+def test_zero_drift_both_near_zero() -> None:
+    r = evaluate_drive(make_drive(drift_dps=0.0, turns=CITY_TURNS))
+    assert r.e_psi["none"] < 0.5
+    assert r.e_psi["hdr"] < 1.5
+
+
+def test_uncorrected_error_matches_hand_computation() -> None:
+    # No noise, bias given exactly, a 0.05 deg/s residual: the error at step end j is
+    # 0.05 * (t_j - t_k) deg, t_k the first step end with truth (t = 30 s). The last step
+    # end (240 s) is after the last fix (239 s): not compared.
+    log = make_drive(minutes=4.0, drift_dps=0.05, noise_dps=0.0)
+    r = evaluate_drive(log, bias=0.8)
+    t_ends = np.arange(30, 240, dtype=float)
+    expected = np.mean(0.05 * (t_ends - 30.0))
+    assert expected == pytest.approx(5.225)
+    assert r.e_psi["none"] == pytest.approx(expected, rel=1e-9)
+    assert r.n_compared == 210
+    assert r.duration_min == 4.0
+    assert r.bias_source == "given"
+
+
+def test_calibrated_bias_is_the_mean_of_the_first_seconds() -> None:
+    log = make_drive(drift_dps=0.1, noise_dps=0.05, seed=4)
+    prep = prepare_drive(log, calibrate_seconds=20.0)
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[:200])), rel=1e-12)
+    assert prep.bias_source == "first 20 s"
+    # u is the block mean minus that bias (Eqs. 2, 11).
+    assert prep.steps.u[0] == pytest.approx(np.mean(log.omega[:10]) - prep.steps.bias_dps)
+
+
+def test_hdr_column_is_run_batch() -> None:
+    log = make_drive(drift_dps=0.1, turns=CITY_TURNS)
+    p = HdrParams(i_c=0.03)
+    prep = prepare_drive(log)
+    r = ev.evaluate_prepared(prep, p)
+    yaw = run_batch(prep.steps.u, p).yaw
+    assert r.heading["hdr"][prep.k] == prep.truth[prep.k]
+    assert r.heading["hdr"] == pytest.approx(prep.truth[prep.k] - (yaw - yaw[prep.k]))
+
+
+def test_motion_during_calibration_is_reported() -> None:
+    log = make_drive(turns=[(5, 10, 15.0)])
+    with pytest.raises(EvaluationError, match="cannot measure the static bias.*--bias"):
+        evaluate_drive(log)
+    # With the bias given the drive evaluates.
+    assert evaluate_drive(log, bias=0.8).n_steps == 360
+
+
+def test_no_truth_is_an_error() -> None:
+    log = make_drive()
+    no_truth = DriveLog(t=log.t, omega=log.omega, name="blind")
+    with pytest.raises(EvaluationError, match="blind: no truth heading"):
+        evaluate_drive(no_truth)
+    empty = DriveLog(t=log.t, omega=log.omega, heading_truth=np.full(len(log), np.nan), name="e")
+    with pytest.raises(EvaluationError, match="no truth heading"):
+        evaluate_drive(empty)
+
+
+def test_truth_outage_is_not_compared() -> None:
+    log = make_drive(drift_dps=0.1)
+    full = evaluate_drive(log)
+    h = log.heading_truth.copy()
+    rel = log.t - log.t[0]
+    h[(rel > 100) & (rel < 160)] = np.nan  # a 60 s GPS outage
+    cut = evaluate_drive(DriveLog(t=log.t, omega=log.omega, heading_truth=h, name="outage"))
+    assert cut.n_compared == full.n_compared - 59
+    assert np.isnan(cut.truth[120])
+
+
+def test_gap_in_gyro_samples_is_counted_and_held() -> None:
+    log = make_drive(drift_dps=0.1)
+    rel = log.t - log.t[0]
+    keep = ~((rel >= 100.0) & (rel < 103.0))
+    holed = DriveLog(t=log.t[keep], omega=log.omega[keep], heading_truth=log.heading_truth[keep], name="holed")
+    prep = prepare_drive(holed)
+    assert prep.missing_steps == 3
+    assert prep.steps.n_samples[100:103].tolist() == [0, 0, 0]
+    assert prep.steps.u[100] == prep.steps.u[99]
+
+
+def test_summary_is_the_papers_bottom_line() -> None:
+    rs = [evaluate_drive(make_drive(drift_dps=d, turns=CITY_TURNS, seed=i, name=f"d{i}"))
+          for i, d in enumerate((0.1, -0.05, 0.2))]
+    s = summarize(rs)
+    imps = [r.e_psi["none"] / r.e_psi["hdr"] for r in rs]
+    assert s.improvement == pytest.approx(np.mean(imps))
+    assert s.improvement_std == pytest.approx(np.std(imps, ddof=1))  # the paper's sigma
+    assert s.ne_psi["hdr"] == pytest.approx(np.mean([r.ne_psi["hdr"] for r in rs]))
+    assert s.total_min == pytest.approx(18.0)
+
+
+def test_json_shape_is_exactly_the_issues() -> None:
+    rs = [evaluate_drive(make_drive(drift_dps=0.1, name="a")), evaluate_drive(make_drive(drift_dps=0.05, name="b"))]
+    doc = to_json(rs)
+    keys = ["name", "duration_min", "E_psi_raw", "E_psi_hdr", "NE_psi_raw", "NE_psi_hdr", "improvement"]
+    assert list(doc) == ["drives", "mean"]
+    assert [list(d) for d in doc["drives"]] == [keys, keys]
+    assert list(doc["mean"]) == keys[1:]
+    assert doc["drives"][1]["name"] == "b"
+    assert doc["mean"]["E_psi_hdr"] == pytest.approx((rs[0].e_psi["hdr"] + rs[1].e_psi["hdr"]) / 2)
+    json.dumps(doc, allow_nan=False)  # strict JSON
+
+
+def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) -> None:
+    # How hdr+ will plug in: one entry in METHODS; evaluate and the JSON pick it up.
+    def perfect_bias(steps: StepInputs, params: HdrParams) -> np.ndarray:
+        return np.cumsum((steps.u - 0.1) * params.T)
+
+    monkeypatch.setitem(METHODS, "hdr+", perfect_bias)
+    r = evaluate_drive(make_drive(drift_dps=0.1, noise_dps=0.0), methods=("hdr", "hdr+"))
+    assert r.methods == ("none", "hdr", "hdr+")
+    assert r.e_psi["hdr+"] < 1e-6 < r.e_psi["hdr"]
+    doc = to_json([r])
+    assert {"E_psi_raw", "E_psi_hdr", "E_psi_hdr+", "NE_psi_hdr+", "improvement_hdr", "improvement_hdr+"} <= set(doc["drives"][0])
+    with pytest.raises(EvaluationError, match="not available"):
+        evaluate_drive(make_drive(), methods=("kalman",))
+
+
+# -- the command line --------------------------------------------------------------------
+
+
+def _write(tmp_path: Path, log: DriveLog, name: str) -> str:
+    p = tmp_path / f"{name}.csv"
+    write_drive(p, log)
+    return str(p)
+
+
+def test_cli_table_and_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = _write(tmp_path, make_drive(drift_dps=0.1, turns=CITY_TURNS), "city")
+    b = _write(tmp_path, make_drive(drift_dps=-0.06, seed=2), "rural")
+    out = tmp_path / "res.json"
+    assert cli_main(["evaluate", a, b, "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    assert lines[0].split()[:3] == ["drive", "min", "bias"]
+    assert any(line.startswith("city ") for line in lines)
+    assert any(line.startswith("rural ") for line in lines)
+    assert any(line.startswith("mean (2)") and "σ" in line for line in lines)
+    doc = json.loads(out.read_text())
+    assert [d["name"] for d in doc["drives"]] == ["city", "rural"]
+    assert doc["drives"][0]["E_psi_hdr"] < doc["drives"][0]["E_psi_raw"]
+    assert f"{doc['drives'][0]['E_psi_raw']:.2f}" in text
+
+
+def test_cli_bias_and_calibrate_seconds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = _write(tmp_path, make_drive(drift_dps=0.1), "a")
+    j1, j2 = tmp_path / "1.json", tmp_path / "2.json"
+    assert cli_main(["evaluate", a, "--bias", "0.9", "--json", str(j1)]) == 0
+    assert cli_main(["evaluate", a, "--calibrate-seconds", "10", "--json", str(j2)]) == 0
+    capsys.readouterr()
+    # Bias 0.9 = the true bias after warm-up: nothing left to correct.
+    assert json.loads(j1.read_text())["drives"][0]["E_psi_raw"] < 1.0
+    assert json.loads(j2.read_text())["drives"][0]["E_psi_raw"] > 10.0
+
+
+def test_cli_method_none(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = _write(tmp_path, make_drive(drift_dps=0.1), "a")
+    j = tmp_path / "n.json"
+    assert cli_main(["evaluate", a, "--method", "none", "--json", str(j)]) == 0
+    capsys.readouterr()
+    d = json.loads(j.read_text())["drives"][0]
+    assert list(d) == ["name", "duration_min", "E_psi_raw", "NE_psi_raw", "improvement"]
+    assert d["improvement"] == 1.0
+
+
+def test_cli_config_parameters_are_used(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = _write(tmp_path, make_drive(drift_dps=0.1, turns=CITY_TURNS), "a")
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("hdr:\n  method: hdr\n  i_c: 0.001\n")
+    j0, j1 = tmp_path / "0.json", tmp_path / "1.json"
+    assert cli_main(["evaluate", a, "--json", str(j0)]) == 0
+    assert cli_main(["evaluate", a, "--config", str(cfg), "--json", str(j1)]) == 0
+    capsys.readouterr()
+    e0 = json.loads(j0.read_text())["drives"][0]["E_psi_hdr"]
+    e1 = json.loads(j1.read_text())["drives"][0]["E_psi_hdr"]
+    assert e1 > 2 * e0  # a 40x smaller increment cannot follow 0.1 deg/s of drift in time
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("hdr:\n  i_c: -1\n")
+    assert cli_main(["evaluate", a, "--config", str(bad)]) == 78
+    assert "hdr.i_c" in capsys.readouterr().err
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], *parts: str) -> None:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("hdrd evaluate: error: ")
+    for p in parts:
+        assert p in err
+
+
+def test_cli_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli_main(["evaluate", str(tmp_path / "nope.csv")]) == 1
+    _one_line_error(capsys, "nope.csv", "no such file")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,omega\n0.0,0.1\n0.1,zebra\n")
+    assert cli_main(["evaluate", str(bad)]) == 1
+    _one_line_error(capsys, "bad.csv:3", "zebra")
+    log = make_drive()
+    blind = _write(tmp_path, DriveLog(t=log.t, omega=log.omega, name="blind"), "blind")
+    assert cli_main(["evaluate", blind]) == 1
+    _one_line_error(capsys, "no truth heading")
+    moving = _write(tmp_path, make_drive(turns=[(5, 10, 15.0)]), "moving")
+    assert cli_main(["evaluate", moving]) == 1
+    _one_line_error(capsys, "moving", "--bias")
+    assert cli_main(["evaluate", str(tmp_path)]) == 1
+    _one_line_error(capsys, "directory")
+
+
+def test_cli_plot_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("matplotlib")
+    a = _write(tmp_path, make_drive(drift_dps=0.1, turns=CITY_TURNS), "a")
+    b = _write(tmp_path, make_drive(drift_dps=0.05, seed=3), "b")
+    png = tmp_path / "fig.png"
+    assert cli_main(["evaluate", a, b, "--plot", str(png)]) == 0
+    capsys.readouterr()
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_cli_plot_without_matplotlib(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    a = _write(tmp_path, make_drive(drift_dps=0.1), "a")
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
+    assert cli_main(["evaluate", a, "--plot", str(tmp_path / "x.png")]) == 1
+    err = capsys.readouterr().err
+    assert "matplotlib" in err and "pip install" in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_nonfinite_improvement_is_null_in_json() -> None:
+    r = evaluate_drive(make_drive(drift_dps=0.1))
+    perfect = dataclasses.replace(r, e_psi={"none": r.e_psi["none"], "hdr": 0.0})
+    assert perfect.improvement == math.inf
+    doc = to_json([perfect])
+    assert doc["drives"][0]["improvement"] is None
+    assert doc["mean"]["improvement"] is None
+    json.dumps(doc, allow_nan=False)
