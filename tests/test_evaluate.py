@@ -70,7 +70,7 @@ def test_straight_drive_with_constant_drift_hdr_beats_no_hdr() -> None:
     log = make_drive(drift_dps=0.1)
     r = evaluate_drive(log)
     assert r.methods == ("none", "hdr")
-    # Uncorrected, a residual 0.1 deg/s grows to 30 deg in 5 min: Eψ about 15 deg.
+    # Uncorrected, a residual 0.1 deg/s grows to 33 deg in 5.5 min: Eψ about 16 deg.
     assert 12.0 < r.e_psi["none"] < 18.0
     assert r.e_psi["hdr"] < r.e_psi["none"] / 5
     assert r.improvement > 5
@@ -99,7 +99,7 @@ def test_uncorrected_error_matches_hand_computation() -> None:
     assert expected == pytest.approx(5.225)
     assert r.e_psi["none"] == pytest.approx(expected, rel=1e-9)
     assert r.n_compared == 210
-    assert r.duration_min == 4.0
+    assert r.duration_min == 4.0  # the bias was given: the whole log is the drive
     assert r.bias_source == "given"
 
 
@@ -108,8 +108,10 @@ def test_calibrated_bias_is_the_mean_of_the_first_seconds() -> None:
     prep = prepare_drive(log, calibrate_seconds=20.0)
     assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[:200])), rel=1e-12)
     assert prep.bias_source == "first 20 s"
-    # u is the block mean minus that bias (Eqs. 2, 11).
-    assert prep.steps.u[0] == pytest.approx(np.mean(log.omega[:10]) - prep.steps.bias_dps)
+    # u is the block mean minus that bias (Eqs. 2, 11); the drive starts after 20 s.
+    assert prep.start_s == 20.0 and prep.duration_min == pytest.approx(5 + 2 / 3)
+    assert prep.steps.u[0] == pytest.approx(np.mean(log.omega[200:210]) - prep.steps.bias_dps)
+    assert prep.steps.t_end[0] == 21.0
 
 
 def test_hdr_column_is_run_batch() -> None:
@@ -130,6 +132,11 @@ def test_motion_during_calibration_is_reported() -> None:
     assert evaluate_drive(log, bias=0.8).n_steps == 360
 
 
+def test_calibration_window_longer_than_the_drive() -> None:
+    with pytest.raises(EvaluationError, match="nothing left to evaluate"):
+        prepare_drive(make_drive(minutes=1.0, calib_s=70.0), calibrate_seconds=60.0)
+
+
 def test_no_truth_is_an_error() -> None:
     log = make_drive()
     no_truth = DriveLog(t=log.t, omega=log.omega, name="blind")
@@ -148,7 +155,7 @@ def test_truth_outage_is_not_compared() -> None:
     h[(rel > 100) & (rel < 160)] = np.nan  # a 60 s GPS outage
     cut = evaluate_drive(DriveLog(t=log.t, omega=log.omega, heading_truth=h, name="outage"))
     assert cut.n_compared == full.n_compared - 59
-    assert np.isnan(cut.truth[120])
+    assert np.isnan(cut.truth[120 - 30])
 
 
 def test_gap_in_gyro_samples_is_counted_and_held() -> None:
@@ -158,8 +165,9 @@ def test_gap_in_gyro_samples_is_counted_and_held() -> None:
     holed = DriveLog(t=log.t[keep], omega=log.omega[keep], heading_truth=log.heading_truth[keep], name="holed")
     prep = prepare_drive(holed)
     assert prep.missing_steps == 3
-    assert prep.steps.n_samples[100:103].tolist() == [0, 0, 0]
-    assert prep.steps.u[100] == prep.steps.u[99]
+    assert prep.start_s == 30.0  # the drive starts after the calibration window
+    assert prep.steps.n_samples[70:73].tolist() == [0, 0, 0]
+    assert prep.steps.u[70] == prep.steps.u[69]
 
 
 def test_summary_is_the_papers_bottom_line() -> None:
@@ -170,7 +178,9 @@ def test_summary_is_the_papers_bottom_line() -> None:
     assert s.improvement == pytest.approx(np.mean(imps))
     assert s.improvement_std == pytest.approx(np.std(imps, ddof=1))  # the paper's sigma
     assert s.ne_psi["hdr"] == pytest.approx(np.mean([r.ne_psi["hdr"] for r in rs]))
-    assert s.total_min == pytest.approx(18.0)
+    # Td: the drive after the 30 s calibration window.
+    assert s.total_min == pytest.approx(3 * 5.5)
+    assert [r.duration_min for r in rs] == [5.5, 5.5, 5.5]
 
 
 def test_json_shape_is_exactly_the_issues() -> None:

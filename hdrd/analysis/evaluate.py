@@ -15,15 +15,18 @@ How a drive log becomes Table II numbers:
    [t0 + iT, t0 + (i+1)T). Only complete steps are kept: n = floor((t_last - t0 + dt) / T),
    dt the median sample period. A step without samples (a gap in the log) repeats the
    previous step's rate and is counted in ``missing_steps``.
-3. u_i = block mean - eps0 (Eqs. 2, 11) goes through each method (``none``: static bias
-   only; ``hdr``: :func:`hdrd.hdr.run_batch` with the given parameters), giving the yaw at
-   each step's END, t0 + (i+1)T.
-4. The truth heading is sampled at those same step ends (:func:`hdrd.analysis.metrics.truth_at`,
+3. The drive starts where the calibration ends: when the bias is measured over the first S
+   seconds, the steps before ceil(S / T) are dropped (the daemon, too, calibrates and then
+   runs HDR); when the bias is given, the whole log is the drive.
+4. u_i = block mean - eps0 (Eqs. 2, 11) goes through each method (``none``: static bias
+   only; ``hdr``: :func:`hdrd.hdr.run_batch` with the given parameters) from yaw 0 at the
+   drive's start, giving the yaw at each step's END, t0 + (i+1)T.
+5. The truth heading is sampled at those same step ends (:func:`hdrd.analysis.metrics.truth_at`,
    interpolating between fixes at most 2 s apart), the yaw is aligned to the truth at the
    first step end where truth exists, and Eψ (Eq. 12) is the mean |error| over the step ends
    where truth exists.
-5. Td, the drive's duration in minutes for NEψ (Eq. 13), is n * T / 60: the time covered by
-   the evaluated steps (the whole log, calibration standstill included).
+6. Td, the drive's duration in minutes for NEψ (Eq. 13), is (number of drive steps) * T / 60:
+   the time from the drive's start (end of calibration) to the last complete step.
 
 Methods are dispatched through :data:`METHODS` (name -> function of the per-step inputs and
 the HDR parameters, returning yaw), the one place a new drift reducer is registered.
@@ -130,6 +133,8 @@ class PreparedDrive:
     truth: compass heading, deg CW, at each step end (NaN where unknown). k: the step where
     the gyro is aligned to the truth. duration_min: Td of Eq. 13. bias_source: "given" or
     "first S s". bias_std_dps: spread of the calibration samples, deg/s (NaN if given).
+    start_s: where the evaluated drive starts, s after the log's first sample (the end of
+    the calibration window, 0 if the bias was given).
     """
 
     name: str
@@ -140,6 +145,7 @@ class PreparedDrive:
     bias_source: str
     bias_std_dps: float
     missing_steps: int
+    start_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -258,22 +264,39 @@ def prepare_drive(
 
     t_end = (np.arange(n_steps) + 1.0) * T
     truth = truth_at(t - t0, log.heading_truth, t_end, truth_max_gap_s)
-    k = align_index(np.zeros(n_steps), truth)
+    # The drive starts when the calibration ends (the daemon, too, calibrates, then runs).
+    first = int(math.ceil(calibrate_seconds / T - 1e-9)) if bias is None else 0
+    if n_steps - first < 2:
+        raise EvaluationError(
+            f"{name}: nothing left to evaluate after the {calibrate_seconds:g} s calibration window"
+        )
+    sl = slice(first, None)
+    k = align_index(np.zeros(n_steps - first), truth[sl])
     if k is None:
         raise EvaluationError(
-            f"{name}: no truth heading at any step end (fixes further than "
-            f"{truth_max_gap_s:g} s apart)"
+            f"{name}: no truth heading at any step end after the start (fixes further than "
+            f"{truth_max_gap_s:g} s apart, or only during calibration)"
         )
-    steps = StepInputs(u, t_end, T, bias_dps, n_samples, speed, temp, omega_std)
+    steps = StepInputs(
+        u[sl],
+        t_end[sl],
+        T,
+        bias_dps,
+        n_samples[sl],
+        None if speed is None else speed[sl],
+        None if temp is None else temp[sl],
+        omega_std[sl],
+    )
     return PreparedDrive(
         name=name,
         steps=steps,
-        truth=truth,
+        truth=truth[sl],
         k=k,
-        duration_min=n_steps * T / 60.0,
+        duration_min=(n_steps - first) * T / 60.0,
         bias_source=bias_source,
         bias_std_dps=bias_std,
-        missing_steps=int(np.count_nonzero(n_samples == 0)),
+        missing_steps=int(np.count_nonzero(n_samples[sl] == 0)),
+        start_s=first * T,
     )
 
 
