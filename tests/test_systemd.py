@@ -1,0 +1,230 @@
+"""systemd/hdrd.service and systemd/99-hdrd.rules: systemd-analyze verify and security, the
+directives the daemon relies on, the udev rule, and the sandbox's effect on Python + numpy."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from hdrd.config import DeviceConfig
+
+ROOT = Path(__file__).resolve().parent.parent
+UNIT = ROOT / "systemd" / "hdrd.service"
+RULES = ROOT / "systemd" / "99-hdrd.rules"
+README = ROOT / "README.md"
+MAX_EXPOSURE = 2.0  # systemd-analyze's "OK" band ends here
+
+needs_analyze = pytest.mark.skipif(
+    shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed on this machine"
+)
+
+
+def parse_unit(text: str) -> dict[str, list[tuple[str, str]]]:
+    """Unit file -> {section: [(key, value), ...]}; keys may repeat, as systemd allows."""
+    sections: dict[str, list[tuple[str, str]]] = {}
+    current = None
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line[0] in "#;":
+            continue
+        if line.startswith("[") and line.endswith("]"):
+            current = sections.setdefault(line[1:-1], [])
+            continue
+        assert current is not None, f"directive outside a section: {line}"
+        key, sep, value = line.partition("=")
+        assert sep, f"not KEY=VALUE: {line}"
+        current.append((key.strip(), value.strip()))
+    return sections
+
+
+def values(unit: dict[str, list[tuple[str, str]]], key: str, section: str = "Service") -> list[str]:
+    return [v for k, v in unit[section] if k == key]
+
+
+def hdrd_executable() -> str:
+    found = shutil.which("hdrd") or str(Path(sys.executable).parent / "hdrd")
+    if not os.access(found, os.X_OK):
+        pytest.skip("the hdrd command is not installed (pip install -e .)")
+    return str(Path(found).resolve())
+
+
+def unit_copy(tmp_path: Path, exec_path: str) -> Path:
+    """The unit with ExecStart pointing at *exec_path* (verify checks that it exists)."""
+    text = UNIT.read_text()
+    assert "ExecStart=/usr/local/bin/hdrd run\n" in text
+    out = tmp_path / "hdrd.service"
+    out.write_text(text.replace("ExecStart=/usr/local/bin/hdrd ", f"ExecStart={exec_path} "))
+    return out
+
+
+# -- the directives -------------------------------------------------------------------------
+
+
+def test_unit_has_what_the_daemon_relies_on() -> None:
+    unit = parse_unit(UNIT.read_text())
+    one = {k: v for k, v in unit["Service"]}
+    assert one["Type"] == "notify" and one["NotifyAccess"] == "main"
+    assert one["WatchdogSec"] == "10"
+    assert one["ExecStart"] == "/usr/local/bin/hdrd run"
+    assert "-HUP" in one["ExecReload"] and "$MAINPID" in one["ExecReload"]
+    assert one["Restart"] == "on-failure"
+    assert "78" in one["RestartPreventExitStatus"]  # EX_CONFIG does not fix itself
+    assert one["DynamicUser"] == "yes" and one["SupplementaryGroups"] == "dialout"
+    assert one["StateDirectory"] == "hdrd" and one["ConfigurationDirectory"] == "hdrd"
+    assert one["UMask"] == "0022"  # the bias file is 0644
+    assert one["DevicePolicy"] == "closed"
+    assert sorted(values(unit, "DeviceAllow")) == ["char-ttyACM rw", "char-ttyUSB rw"]
+    assert "PrivateDevices" not in one  # it would hide the tty
+    assert one["MemoryDenyWriteExecute"] == "yes" and one["NoNewPrivileges"] == "yes"
+    assert one["CapabilityBoundingSet"] == ""
+    assert set(one["RestrictAddressFamilies"].split()) == {"AF_UNIX", "AF_INET", "AF_INET6"}
+    assert one["ProtectSystem"] == "strict"
+    assert one["IPAddressDeny"] == "any" and "localhost" in one["IPAddressAllow"].split()
+    assert values(unit, "WantedBy", "Install") == ["multi-user.target"]
+
+
+# -- systemd-analyze ------------------------------------------------------------------------
+
+
+@needs_analyze
+def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
+    r = subprocess.run(
+        ["systemd-analyze", "verify", str(unit_copy(tmp_path, hdrd_executable()))],
+        capture_output=True, text=True, timeout=60,
+    )
+    complaints = [line for line in (r.stdout + r.stderr).splitlines() if "hdrd.service" in line]
+    assert r.returncode == 0 and not complaints, r.stdout + r.stderr
+
+
+@needs_analyze
+def test_systemd_analyze_verify_really_checks(tmp_path: Path) -> None:
+    # The same check fails for a unit whose program does not exist: the test above can fail.
+    r = subprocess.run(
+        ["systemd-analyze", "verify", str(unit_copy(tmp_path, str(tmp_path / "no-such-hdrd")))],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert r.returncode != 0
+
+
+def exposure(tmp_path: Path) -> float:
+    r = subprocess.run(
+        ["systemd-analyze", "security", "--offline=true", str(unit_copy(tmp_path, hdrd_executable()))],
+        capture_output=True, text=True, timeout=60,
+    )
+    m = re.search(r"Overall exposure level for hdrd\.service:\s*([0-9.]+)", r.stdout)
+    if m is None and "--offline" in r.stderr:
+        pytest.skip(f"this systemd-analyze has no --offline: {r.stderr.strip()}")
+    assert m, r.stdout + r.stderr
+    return float(m.group(1))
+
+
+@needs_analyze
+def test_security_exposure_is_ok_and_recorded_in_readme(tmp_path: Path) -> None:
+    score = exposure(tmp_path)
+    assert score <= MAX_EXPOSURE
+    # README records the score with the systemd version it was measured with.
+    m = re.search(r"exposure \*\*([0-9.]+) OK\*\* \(systemd (\d+)\)", README.read_text())
+    assert m, "README does not record the systemd-analyze security exposure"
+    recorded, version = float(m.group(1)), int(m.group(2))
+    assert recorded <= MAX_EXPOSURE
+    v = subprocess.run(["systemd-analyze", "--version"], capture_output=True, text=True, timeout=60)
+    here = re.search(r"systemd (\d+)", v.stdout)
+    if here and int(here.group(1)) == version:
+        assert score == recorded, f"README says {recorded}, systemd-analyze says {score}"
+
+
+# -- udev rule ------------------------------------------------------------------------------
+
+UDEV_PAIR = re.compile(r'^\s*([A-Z_]+(?:\{[^}]+\})?)\s*(==|!=|\+=|-=|:=|=)\s*"([^"]*)"\s*$')
+
+
+def udev_rules() -> list[dict[str, tuple[str, str]]]:
+    rules = []
+    for line in RULES.read_text().splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        rule = {}
+        for part in line.split(","):
+            m = UDEV_PAIR.match(part)
+            assert m, f"not a udev KEY op \"value\": {part!r}"
+            rule[m.group(1)] = (m.group(2), m.group(3))
+        rules.append(rule)
+    return rules
+
+
+def test_udev_rule_names_the_default_port() -> None:
+    (rule,) = udev_rules()
+    assert rule["SUBSYSTEM"] == ("==", "tty")
+    assert re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idVendor}"][1]) and rule["ATTRS{idVendor}"][0] == "=="
+    assert re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idProduct}"][1]) and rule["ATTRS{idProduct}"][0] == "=="
+    assert rule["SYMLINK"] == ("+=", "hdrd-gyro")
+    assert DeviceConfig().port == "/dev/" + rule["SYMLINK"][1]
+    assert rule["GROUP"] == ("=", "dialout") and rule["MODE"] == ("=", "0660")
+    assert rule["ENV{SYSTEMD_WANTS}"][1] == UNIT.name and rule["TAG"] == ("+=", "systemd")
+
+
+def test_udev_commented_alternatives_are_valid_too() -> None:
+    alternatives = [
+        line.lstrip("#") for line in RULES.read_text().splitlines() if line.startswith("#SUBSYSTEM")
+    ]
+    assert alternatives
+    for line in alternatives:
+        for part in line.split(","):
+            assert UDEV_PAIR.match(part), part
+
+
+# -- the sandbox and Python -----------------------------------------------------------------
+
+SANDBOXED = textwrap.dedent(
+    """
+    import ctypes, importlib, json, mmap, pkgutil, sys
+    if sys.argv[1] == "mdwe":
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(65, 1, 0, 0, 0) != 0:  # PR_SET_MDWE, PR_MDWE_REFUSE_EXEC_GAIN (Linux 6.3)
+            sys.exit(77)
+        try:
+            mmap.mmap(-1, 4096, prot=mmap.PROT_READ | mmap.PROT_WRITE | mmap.PROT_EXEC)
+            sys.exit(3)  # the restriction is not in force: the test would prove nothing
+        except PermissionError:
+            pass
+    import numpy as np
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(64, 64))
+    checks = [float((a @ a).sum()), float(np.abs(np.fft.rfft(a[0])).sum()),
+              float(np.linalg.solve(a + 64 * np.eye(64), a[0]).sum())]
+    import hdrd, hdrd.hdr
+    checks.append(float(hdrd.hdr.run_batch(rng.normal(0.1, 0.3, 600)).omega.sum()))
+    failures = {}
+    for m in pkgutil.walk_packages(hdrd.__path__, "hdrd."):
+        try:
+            importlib.import_module(m.name)
+        except BaseException as e:
+            failures[m.name] = type(e).__name__
+    print(json.dumps({"checks": checks, "failures": failures}))
+    """
+)
+
+
+def test_numpy_and_hdrd_run_under_memory_deny_write_execute() -> None:
+    """MemoryDenyWriteExecute=yes forbids W+X mappings. The kernel's PR_SET_MDWE applies the
+    same rule to a process: numpy and every hdrd module must work the same under it."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("PR_SET_MDWE is Linux-only")
+    runs = {}
+    for mode in ("plain", "mdwe"):
+        r = subprocess.run(
+            [sys.executable, "-c", SANDBOXED, mode], capture_output=True, text=True, timeout=120, cwd=ROOT
+        )
+        if r.returncode == 77:
+            pytest.skip("this kernel has no PR_SET_MDWE (Linux >= 6.3)")
+        assert r.returncode == 0, r.stderr
+        runs[mode] = json.loads(r.stdout.splitlines()[-1])
+    assert runs["mdwe"] == runs["plain"]
