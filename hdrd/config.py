@@ -55,7 +55,9 @@ class ConfigError(ValueError):
         self.key, self.value, self.allowed, self.source = key, value, allowed, source
         where = f" in {source}" if source else ""
         shown = _show(value)
-        super().__init__(f"config error{where}: {key} = {shown}: {allowed}")
+        # One line always: a key or a value read from YAML may hold line breaks.
+        name = key if key.isprintable() else repr(key)
+        super().__init__(f"config error{where}: {name} = {shown}: {allowed}")
 
     def with_source(self, source: str) -> ConfigError:
         return ConfigError(self.key, self.value, self.allowed, source)
@@ -63,9 +65,15 @@ class ConfigError(ValueError):
 
 def _show(value: Any) -> str:
     if isinstance(value, (str, float)):
-        return repr(value)
-    text = yaml.safe_dump(value, default_flow_style=True).strip()
-    text = text.removesuffix("...").strip()
+        text = repr(value)
+    else:
+        try:
+            text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30).strip()
+            text = text.removesuffix("...").strip()
+        except yaml.YAMLError:
+            text = repr(value)
+        if not text.isprintable():  # a quoted scalar folded over lines
+            text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
@@ -282,9 +290,13 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(key, value, "must be a number")
-        if not math.isfinite(value):
+        try:
+            number = float(value)
+        except OverflowError:  # an integer too large for a float
+            raise ConfigError(key, value, "must be a finite number") from None
+        if not math.isfinite(number):
             raise ConfigError(key, value, "must be a finite number")
-        return float(value)
+        return number
     if isinstance(default, str):
         if not isinstance(value, str):
             raise ConfigError(key, value, "must be a string")
@@ -387,12 +399,19 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
     return parse_config(data, str(p)), str(p)
 
 
+_SECTIONS = tuple(f.name for f in fields(Config))
+
+
 def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
     """Return cfg with 'section.key' values replaced (command-line flags), each validated."""
     for dotted, value in overrides.items():
         if value is None:
             continue
         section, _, key = dotted.partition(".")
+        if section not in _SECTIONS:
+            raise ConfigError(
+                dotted, value, "unknown section (allowed: " + ", ".join(_SECTIONS) + ")"
+            )
         sec = getattr(cfg, section)
         data = {key: list(value) if isinstance(value, tuple) else value}
         if section == "hdr":

@@ -1,0 +1,436 @@
+"""Configuration (hdrd/config.py) and the shipped config/hdrd.yaml.
+
+Every key is validated (type, range, finite, known key); a bad file fails with one line that
+names the key, the value and what is allowed (issue 2 item 7, issue 7 item 4).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd import config as config_mod
+from hdrd.config import (
+    EX_CONFIG,
+    Config,
+    ConfigError,
+    apply_overrides,
+    config_field_keys,
+    load_config,
+    parse_config,
+    parse_hostport,
+)
+from hdrd.hdr import HdrParams
+
+SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
+NAN, INF = math.nan, math.inf
+
+
+def get(cfg: Config, key: str) -> Any:
+    section, name = key.split(".")
+    sec = getattr(cfg, section)
+    if section == "hdr" and name != "method":
+        return getattr(sec.params, name)
+    return getattr(sec, name)
+
+
+def nested(key: str, value: Any) -> dict[str, Any]:
+    section, name = key.split(".")
+    return {section: {name: value}}
+
+
+# One row per key: a valid non-default value (to show it lands in the right place) and bad
+# values of each kind that applies: wrong type, out of range, NaN/inf.
+TABLE: dict[str, tuple[Any, list[Any]]] = {
+    "device.port": ("/dev/ttyUSB0", [123, "", "   ", None, ["/dev/ttyUSB0"], True]),
+    "device.protocol": ("hdr-text", ["hdr-xml", "", 1, None]),
+    "device.baud": (9600, [49, 20_000_001, 0, -9600, 9600.5, 9600.0, "9600", True, NAN]),
+    "device.reconnect_min_s": (1, [0, -1.0, NAN, INF, "1", True, None]),
+    "device.reconnect_max_s": (30.0, [0, -1, NAN, INF, "30", [30]]),
+    "device.stale_after_s": (5.0, [0.0, -0.1, NAN, -INF, "5s"]),
+    "sensor.adc_bits": (12, [7, 33, 0, 16.0, "16", True, NAN]),
+    "sensor.vref_v": (3.3, [0, -5.0, NAN, INF, 10**400, "5V"]),
+    "sensor.null_v": (1.65, [-0.1, NAN, INF, "2.5"]),
+    "sensor.scale_v_per_dps": (0.0066, [0, -0.01, NAN, INF, None]),
+    "sensor.polarity": (-1, [0, 2, -2, 1.0, "up", True, NAN]),
+    "sensor.range_dps": (100.0, [0, -200.0, INF, NAN, "200"]),
+    "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF]),
+    "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF]),
+    "hdr.method": ("none", ["kalman", "HDR", 1, None]),
+    "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", True]),
+    "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75]]),
+    "hdr.theta_w": (1.0, [0.0, -0.564, NAN, INF, "0.564"]),
+    "hdr.c1": (0.2, [-0.16, NAN, INF]),
+    "hdr.c2": (2.0, [-1.8, NAN, -INF]),
+    "hdr.T": (0.5, [0.0, 0.005, 61.0, -1.0, NAN, INF, "1s"]),
+    "hdr.lowpass": (False, ["yes", 1, 0.0, None]),
+    "hdr.turn_switch": (False, ["true", 0]),
+    "hdr.attenuator": (False, ["false", 1.0]),
+    "hdr.enabled": (False, ["off", 0]),
+    "calibration.bias_file": ("/var/lib/hdrd/bias.yaml", [5, ["bias.yaml"], True, {"a": 1}]),
+    "calibration.t_bias_s": (20, [0, -30.0, NAN, INF, "30"]),
+    "calibration.startup_s": (2.0, [0.0, -1.0, INF, NAN]),
+    "calibration.on_bad_bias_file": ("calibrate", ["ignore", "", 1, True]),
+    "calibration.max_std_dps": (1.0, [0.0, -0.5, NAN, INF]),
+    "calibration.max_trend_dps": (0.5, [0.0, -1.0, NAN, INF]),
+    "calibration.max_excursion_dps": (5.0, [0.0, -3.0, NAN, INF]),
+    "output.heading0_deg": (359.5, [-1.0, -0.001, 360, 360.0, 720.0, NAN, INF, "90"]),
+    "output.stdout": (True, ["no", 1, None]),
+    "output.udp": (
+        ["127.0.0.1:10110", "[::1]:10111"],
+        ["localhost", ["host:0"], ["host:65536"], [":abc"], [1], {"a": 1}, ["a b:10"], 5],
+    ),
+    "output.nmea_udp": (["192.168.1.5:10110"], ["x", ["h:0"], [None], ["h:"]]),
+    "output.nmea_ths": (True, [1, "true"]),
+    "log.level": ("debug", ["verbose", "INFO", 3, None]),
+    "log.format": ("json", ["xml", True]),
+    "log.bad_frame_interval_s": (60.0, [0.0, -10.0, NAN, INF]),
+    "simulate.drive": ("highway", ["moon", "", 1]),
+    "simulate.seed": (42, [-1, 1.5, "1", True, NAN]),
+    "simulate.rate_hz": (100.0, [0.5, 10_001.0, 0, NAN, INF]),
+    "simulate.speedup": (60.0, [0.0, -1.0, INF, NAN]),
+    "gpsd.enabled": (True, ["true", 1]),
+    "gpsd.host": ("gps.local", ["", " ", 127, None]),
+    "gpsd.port": (2948, [0, 65536, -1, 2947.0, "2947", NAN]),
+    "gpsd.min_speed_mps": (0.0, [-1.0, NAN, INF]),
+}
+
+BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]
+
+
+def test_table_covers_every_key() -> None:
+    assert sorted(TABLE) == sorted(config_field_keys())
+    assert len(config_field_keys()) == len(set(config_field_keys()))
+
+
+def check_error(e: ConfigError, key: str, source: str | None = None) -> str:
+    msg = str(e)
+    assert "\n" not in msg and "\r" not in msg, msg
+    assert e.key == key
+    where = f" in {source}" if source else ""
+    shown_key = key if key.isprintable() else repr(key)
+    assert msg.startswith(f"config error{where}: {shown_key} = "), msg
+    assert re.search(r" = .+: .+", msg), msg
+    return msg
+
+
+@pytest.mark.parametrize("key, value", BAD_CASES, ids=[f"{k}={v!r}" for k, v in BAD_CASES])
+def test_bad_value_in_a_file(tmp_path: Path, key: str, value: Any) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(yaml.safe_dump(nested(key, value)))
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = check_error(ei.value, key, str(p))
+    assert re.search(r": must (be|not) ", msg), msg  # says what is allowed
+
+
+@pytest.mark.parametrize("key, value", BAD_CASES, ids=[f"{k}={v!r}" for k, v in BAD_CASES])
+def test_bad_value_as_an_override(key: str, value: Any) -> None:
+    if value is None:
+        # None means "flag not given" to apply_overrides: skipped, the config unchanged.
+        assert apply_overrides(Config(), {key: None}) == Config()
+        return
+    with pytest.raises(ConfigError) as ei:
+        apply_overrides(Config(), {key: value})
+    check_error(ei.value, key)
+
+
+@pytest.mark.parametrize("key", sorted(TABLE))
+def test_good_value_lands_on_its_key(key: str) -> None:
+    good = TABLE[key][0]
+    cfg = parse_config(nested(key, good))
+    want = tuple(good) if isinstance(good, list) else good
+    assert get(cfg, key) == want and type(get(cfg, key)) is type(get(Config(), key))
+    # ... and nothing else changed.
+    for other in config_field_keys():
+        if other != key:
+            assert get(cfg, other) == get(Config(), other), other
+    over = apply_overrides(Config(), {key: tuple(good) if isinstance(good, list) else good})
+    assert over == cfg
+
+
+@pytest.mark.parametrize("key", sorted(TABLE))
+def test_default_value_written_out_is_accepted(key: str) -> None:
+    default = get(Config(), key)
+    value = list(default) if isinstance(default, tuple) else default
+    assert parse_config(nested(key, value)) == Config()
+
+
+def test_float_keys_take_integers_as_floats() -> None:
+    cfg = parse_config({"calibration": {"t_bias_s": 20}, "hdr": {"T": 2}})
+    assert cfg.calibration.t_bias_s == 20.0 and isinstance(cfg.calibration.t_bias_s, float)
+    assert cfg.hdr.params == HdrParams(T=2.0)
+
+
+def test_a_single_destination_may_be_a_string() -> None:
+    cfg = parse_config({"output": {"udp": "127.0.0.1:10110"}})
+    assert cfg.output.udp == ("127.0.0.1:10110",)
+
+
+# -- unknown keys, sections and file-level errors ----------------------------------------------
+
+
+@pytest.mark.parametrize("section", [f.name for f in fields(Config)])
+def test_unknown_key_in_each_section(tmp_path: Path, section: str) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(f"{section}:\n  bogus_key: 1\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = check_error(ei.value, f"{section}.bogus_key", str(p))
+    assert "unknown key (allowed: " in msg
+    # The allowed list names the section's real keys.
+    real = [k.split(".")[1] for k in config_field_keys() if k.startswith(section + ".")]
+    assert all(k in msg for k in real)
+
+
+def test_hdr_params_is_not_a_key() -> None:
+    with pytest.raises(ConfigError, match=r"hdr\.params = .*unknown key"):
+        parse_config({"hdr": {"params": {"i_c": 0.05}}})
+
+
+def test_unknown_section(tmp_path: Path) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text("devices:\n  port: /dev/ttyUSB0\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = check_error(ei.value, "devices", str(p))
+    assert "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd)" in msg
+
+
+@pytest.mark.parametrize("value", [5, "x", [1, 2], True])
+def test_section_must_be_a_mapping(value: Any) -> None:
+    with pytest.raises(ConfigError) as ei:
+        parse_config({"sensor": value})
+    assert "must be a mapping of keys" in check_error(ei.value, "sensor")
+
+
+def test_empty_section_keeps_defaults() -> None:
+    assert parse_config({"device": None, "hdr": {}}) == Config()
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n", "---\n", "null\n"])
+def test_empty_file(tmp_path: Path, text: str) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert "is empty" in check_error(ei.value, "(file)", str(p))
+
+
+@pytest.mark.parametrize("text", ["- device\n- sensor\n", "just a string\n", "42\n"])
+def test_file_that_is_not_a_mapping(tmp_path: Path, text: str) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert "expected a mapping of sections" in check_error(ei.value, "(file)", str(p))
+
+
+@pytest.mark.parametrize(
+    "text, line",
+    [
+        ("device:\n  port: [/dev/ttyUSB0\n", 3),
+        ("device:\n  port: a\n   baud: 9600\n", 3),
+        ("hdr:\n\ti_c: 0.05\n", 2),
+        ("device: {port: x\n", 2),
+        ("---\na: 1\n---\nb: 2\n", 3),
+    ],
+)
+def test_yaml_syntax_error(tmp_path: Path, text: str, line: int) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = check_error(ei.value, "(yaml)", str(p))
+    assert "YAML syntax error" in msg and f"line {line}," in msg
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    p = tmp_path / "nope.yaml"
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert msg_ends(check_error(ei.value, "(file)", str(p)), "not found")
+
+
+def msg_ends(msg: str, tail: str) -> bool:
+    return msg.endswith(tail)
+
+
+def test_unreadable_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as ei:
+        load_config(tmp_path)  # a directory
+    assert "cannot be read" in check_error(ei.value, "(file)", str(tmp_path))
+    p = tmp_path / "latin1.yaml"
+    p.write_bytes(b"device:\n  port: /dev/tty\xe9\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert "cannot be read (UnicodeDecodeError)" in check_error(ei.value, "(file)", str(p))
+
+
+def test_no_path_uses_etc_or_builtin_defaults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(config_mod, "DEFAULT_CONFIG_PATH", tmp_path / "absent.yaml")
+    assert load_config() == (Config(), "built-in defaults")
+    etc = tmp_path / "hdrd.yaml"
+    etc.write_text("hdr:\n  method: none\n")
+    monkeypatch.setattr(config_mod, "DEFAULT_CONFIG_PATH", etc)
+    cfg, source = load_config()
+    assert cfg.hdr.method == "none" and source == str(etc)
+
+
+def test_cross_check_reconnect_times() -> None:
+    bad = {"device": {"reconnect_min_s": 5.0, "reconnect_max_s": 1.0}}
+    with pytest.raises(ConfigError) as ei:
+        parse_config(bad)
+    assert "must be >= device.reconnect_min_s" in check_error(ei.value, "device.reconnect_max_s")
+    with pytest.raises(ConfigError, match="reconnect_max_s"):
+        apply_overrides(Config(), {"device.reconnect_min_s": 60.0})
+
+
+def test_error_carries_key_value_and_allowed() -> None:
+    with pytest.raises(ConfigError) as ei:
+        parse_config({"hdr": {"tau": -1}}, source="/etc/hdrd/hdrd.yaml")
+    e = ei.value
+    assert (e.key, e.value, e.source) == ("hdr.tau", -1.0, "/etc/hdrd/hdrd.yaml")
+    assert str(e) == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0"
+    assert isinstance(e, ValueError) and EX_CONFIG == 78
+
+
+def test_values_and_keys_with_line_breaks_stay_on_one_line() -> None:
+    for data, key in [
+        ({"device": {"port": ["a\nb"]}}, "device.port"),
+        ({"device": {"baud": {"k": "x" * 30 + "\n\n" + "y"}}}, "device.baud"),
+        ({"device": {"a\nb": 1}}, "device.a\nb"),
+        ({"log": {"level": "info\r\nwarning"}}, "log.level"),
+    ]:
+        with pytest.raises(ConfigError) as ei:
+            parse_config(data)
+        assert "\n" not in str(ei.value) and "\r" not in str(ei.value)
+        assert ei.value.key == key
+
+
+def test_long_values_are_shortened() -> None:
+    with pytest.raises(ConfigError) as ei:
+        parse_config({"device": {"baud": list(range(1000))}})
+    assert len(str(ei.value)) < 200 and "..." in str(ei.value)
+
+
+# -- apply_overrides ----------------------------------------------------------------------------
+
+
+def test_apply_overrides() -> None:
+    cfg = apply_overrides(
+        Config(),
+        {
+            "device.port": "loop://",
+            "hdr.method": "none",
+            "hdr.i_c": 0.05,
+            "output.udp": ("127.0.0.1:10110",),
+            "output.heading0_deg": None,  # a flag not given: skipped
+        },
+    )
+    assert cfg.device.port == "loop://" and cfg.hdr.method == "none"
+    assert cfg.hdr.params == HdrParams(i_c=0.05)
+    assert cfg.output.udp == ("127.0.0.1:10110",) and cfg.output.heading0_deg == 0.0
+    # Overrides stack on a loaded config and keep what they do not touch.
+    again = apply_overrides(cfg, {"hdr.tau": 1.0})
+    assert again.hdr.params == HdrParams(i_c=0.05, tau=1.0) and again.hdr.method == "none"
+
+
+@pytest.mark.parametrize("dotted", ["bogus.key", "device.bogus", "hdr.params", "device"])
+def test_apply_overrides_unknown(dotted: str) -> None:
+    with pytest.raises(ConfigError) as ei:
+        apply_overrides(Config(), {dotted: 1})
+    assert "unknown" in str(ei.value) and "\n" not in str(ei.value)
+
+
+# -- the shipped config/hdrd.yaml --------------------------------------------------------------
+
+
+def test_shipped_config_equals_builtin_defaults() -> None:
+    cfg, source = load_config(SHIPPED)
+    assert cfg == Config()
+    assert source == str(SHIPPED)
+
+
+def test_shipped_config_names_every_key() -> None:
+    data = yaml.safe_load(SHIPPED.read_text())
+    written = {f"{s}.{k}" for s, sec in data.items() for k in sec}
+    assert written == set(config_field_keys())
+
+
+def test_shipped_config_comments_every_key() -> None:
+    lines = SHIPPED.read_text().splitlines()
+    seen = set()
+    section = None
+    for i, line in enumerate(lines):
+        m = re.match(r"^(\w+):\s*$", line)
+        if m:
+            section = m.group(1)
+            continue
+        m = re.match(r"^  (\w+):", line)
+        if m:
+            key = f"{section}.{m.group(1)}"
+            seen.add(key)
+            assert lines[i - 1].lstrip().startswith("#"), f"{key} has no comment above it"
+    assert seen == set(config_field_keys())
+
+
+def test_shipped_config_cites_the_paper_values() -> None:
+    text = SHIPPED.read_text()
+    for cite in ("Table III: 0.0422", "Table III: 0.75", "Table III: 0.564", "Table III: 0.16",
+                 "Table III: 1.80", "Ti = 1 sec", "Tbias = 30 seconds", "10 mV/(deg/s)",
+                 "+/-200 deg/s", "10 Hz"):  # fmt: skip
+        assert cite in text, cite
+
+
+# -- fuzz: whatever YAML holds, the answer is a Config or a one-line ConfigError ------------------
+
+names = st.sampled_from(
+    [k.split(".")[1] for k in config_field_keys()] + ["bogus", "", "a\nb", "params"]
+)
+sections = st.sampled_from([f.name for f in fields(Config)] + ["bogus"])
+scalars = st.one_of(
+    st.none(), st.booleans(), st.integers(-(10**30), 10**30), st.floats(), st.text(max_size=20)
+)
+values = st.recursive(scalars, lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=5), c, max_size=3), max_leaves=6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.one_of(values, st.dictionaries(sections, st.one_of(values, st.dictionaries(names, values, max_size=4)), max_size=4)))
+def test_fuzz_config_or_one_line_error(data: Any) -> None:
+    try:
+        cfg = parse_config(data, source="fuzz.yaml")
+    except ConfigError as e:
+        assert "\n" not in str(e) and str(e).startswith("config error in fuzz.yaml: ")
+    else:
+        assert isinstance(cfg, Config)
+
+
+# -- parse_hostport ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text, want",
+    [
+        ("127.0.0.1:10110", ("127.0.0.1", 10110)),
+        ("[::1]:10110", ("::1", 10110)),
+        (":10110", ("127.0.0.1", 10110)),
+        ("gps.local:2947", ("gps.local", 2947)),
+    ],
+)
+def test_parse_hostport(text: str, want: tuple[str, int]) -> None:
+    assert parse_hostport(text) == want
+
+
+@pytest.mark.parametrize("text", ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5])
+def test_parse_hostport_rejects(text: Any) -> None:
+    with pytest.raises(ValueError):
+        parse_hostport(text)
