@@ -36,28 +36,31 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, BinaryIO, Protocol, TextIO
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TextIO
 
 from hdrd.config import parse_hostport
 
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing.Self from Python 3.11
+
 __all__ = [
-    "MESSAGE_CLASS",
-    "SCHEMA_VERSION",
     "DEFAULT_TAIL_LISTEN",
+    "MESSAGE_CLASS",
     "RATE_VALID_STATUSES",
+    "SCHEMA_VERSION",
+    "DestinationStats",
     "OutputClosed",
     "Publisher",
+    "StdoutPublisher",
+    "TailFormatter",
+    "UdpJsonPublisher",
+    "UdpNmeaPublisher",
+    "UdpPublisher",
     "format_json",
     "nmea_checksum",
     "nmea_sentence",
     "nmea_sentences",
     "parse_nmea",
-    "DestinationStats",
-    "UdpPublisher",
-    "UdpJsonPublisher",
-    "UdpNmeaPublisher",
-    "StdoutPublisher",
-    "TailFormatter",
     "tail_main",
 ]
 
@@ -225,7 +228,7 @@ def parse_nmea(line: bytes | str) -> tuple[str, list[str]]:
 # error queue together with the destination that caused them. Without it Linux reports no
 # ICMP error on an unconnected UDP socket at all; with it, the pending error also fails the
 # *next* sendto, whatever its destination, so we drain the queue and retry (see _send).
-_RECVERR = {socket.AF_INET: (socket.IPPROTO_IP, 11), socket.AF_INET6: (socket.IPPROTO_IPV6, 25)}
+_RECVERR: dict[int, tuple[int, int]] = {socket.AF_INET: (socket.IPPROTO_IP, 11), socket.AF_INET6: (socket.IPPROTO_IPV6, 25)}
 _HAVE_RECVERR = sys.platform.startswith("linux")
 _ASYNC_ERRNOS = frozenset(
     {errno.ECONNREFUSED, errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.EMSGSIZE}
@@ -463,7 +466,7 @@ class UdpPublisher:
         """Total failures over all destinations."""
         return sum(s.errors for s in self.stats())
 
-    def __enter__(self) -> UdpPublisher:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -98,7 +98,7 @@ def test_unit_has_what_the_daemon_relies_on() -> None:
 def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
     r = subprocess.run(
         ["systemd-analyze", "verify", str(unit_copy(tmp_path, hdrd_executable()))],
-        capture_output=True, text=True, timeout=60,
+        check=False, capture_output=True, text=True, timeout=60,
     )
     complaints = [line for line in (r.stdout + r.stderr).splitlines() if "hdrd.service" in line]
     assert r.returncode == 0 and not complaints, r.stdout + r.stderr
@@ -109,7 +109,7 @@ def test_systemd_analyze_verify_really_checks(tmp_path: Path) -> None:
     # The same check fails for a unit whose program does not exist: the test above can fail.
     r = subprocess.run(
         ["systemd-analyze", "verify", str(unit_copy(tmp_path, str(tmp_path / "no-such-hdrd")))],
-        capture_output=True, text=True, timeout=60,
+        check=False, capture_output=True, text=True, timeout=60,
     )
     assert r.returncode != 0
 
@@ -117,7 +117,7 @@ def test_systemd_analyze_verify_really_checks(tmp_path: Path) -> None:
 def exposure(tmp_path: Path) -> float:
     r = subprocess.run(
         ["systemd-analyze", "security", "--offline=true", str(unit_copy(tmp_path, hdrd_executable()))],
-        capture_output=True, text=True, timeout=60,
+        check=False, capture_output=True, text=True, timeout=60,
     )
     m = re.search(r"Overall exposure level for hdrd\.service:\s*([0-9.]+)", r.stdout)
     if m is None and "--offline" in r.stderr:
@@ -135,7 +135,7 @@ def test_security_exposure_is_ok_and_recorded_in_readme(tmp_path: Path) -> None:
     assert m, "README does not record the systemd-analyze security exposure"
     recorded, version = float(m.group(1)), int(m.group(2))
     assert recorded <= MAX_EXPOSURE
-    v = subprocess.run(["systemd-analyze", "--version"], capture_output=True, text=True, timeout=60)
+    v = subprocess.run(["systemd-analyze", "--version"], check=False, capture_output=True, text=True, timeout=60)
     here = re.search(r"systemd (\d+)", v.stdout)
     if here and int(here.group(1)) == version:
         assert score == recorded, f"README says {recorded}, systemd-analyze says {score}"
@@ -221,7 +221,7 @@ def test_numpy_and_hdrd_run_under_memory_deny_write_execute() -> None:
     runs = {}
     for mode in ("plain", "mdwe"):
         r = subprocess.run(
-            [sys.executable, "-c", SANDBOXED, mode], capture_output=True, text=True, timeout=120, cwd=ROOT
+            [sys.executable, "-c", SANDBOXED, mode], check=False, capture_output=True, text=True, timeout=120, cwd=ROOT
         )
         if r.returncode == 77:
             pytest.skip("this kernel has no PR_SET_MDWE (Linux >= 6.3)")

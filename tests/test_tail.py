@@ -200,7 +200,7 @@ def test_tail_into_head_exits_zero_without_traceback(sender: socket.socket) -> N
 def test_tail_bad_listen_address() -> None:
     r = subprocess.run(
         [sys.executable, "-m", "hdrd", "tail", "--listen", "nonsense"],
-        capture_output=True, timeout=GUARD_S,
+        check=False, capture_output=True, timeout=GUARD_S,
     )
     assert r.returncode == 2 and b"--listen" in r.stderr and b"Traceback" not in r.stderr
 
@@ -211,7 +211,7 @@ def test_tail_port_in_use() -> None:
     try:
         r = subprocess.run(
             [sys.executable, "-m", "hdrd", "tail", "--listen", f"127.0.0.1:{s.getsockname()[1]}"],
-            capture_output=True, timeout=GUARD_S,
+            check=False, capture_output=True, timeout=GUARD_S,
         )
     finally:
         s.close()
