@@ -124,10 +124,14 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     if len(set(header)) != len(header):
         raise DriveLogError(f"{label}:{lineno}: repeated column in header")
     cols: dict[str, list[float]] = {h: [] for h in header}
-    for row in csv.reader(lines):
-        lineno += 1
+    row_lines: list[int] = []  # the file line of each data row, for error messages
+    header_lineno = lineno
+    reader = csv.reader(lines)
+    for row in reader:
+        lineno = header_lineno + reader.line_num
         if not row or (len(row) == 1 and not row[0].strip()):
             continue
+        row_lines.append(lineno)
         if len(row) != len(header):
             raise DriveLogError(f"{label}:{lineno}: {len(row)} fields, header has {len(header)}")
         for h, cell in zip(header, row):
@@ -138,10 +142,16 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
         raise DriveLogError(f"{label}: no data rows")
     for c in REQUIRED:
         if np.isnan(arrays[c]).any():
-            raise DriveLogError(f"{label}: column {c} has empty cells; it is required in every row")
+            bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
+            raise DriveLogError(
+                f"{label}:{row_lines[bad]}: column {c} is empty; it is required in every row"
+            )
     if np.any(np.diff(t) <= 0):
-        bad = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise DriveLogError(f"{label}: column t is not strictly increasing (data row {bad + 2})")
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise DriveLogError(
+            f"{label}:{row_lines[bad]}: column t is not strictly increasing "
+            f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
+        )
     return DriveLog(name=name, meta=meta, **arrays)  # type: ignore[arg-type]
 
 

@@ -1,0 +1,150 @@
+"""Drive log CSV (hdrd/drivelog.py): round trip, empty cells = NaN, errors naming the line."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd.drivelog import COLUMNS, OPTIONAL, DriveLog, DriveLogError, read_drive, write_drive
+
+DIGITS = {"t": 4, "omega": 5, "temp_c": 3, "heading_truth": 3, "omega_truth": 5, "speed": 3}
+
+
+def same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return bool(np.array_equal(a, b, equal_nan=True))
+
+
+def assert_same_log(a: DriveLog, b: DriveLog) -> None:
+    for c in COLUMNS:
+        assert same(getattr(a, c), getattr(b, c)), c
+    assert a.meta == b.meta
+
+
+@st.composite
+def drive_logs(draw: st.DrawFn) -> DriveLog:
+    """Logs whose values are exact at the precision the writer keeps (k / 10**digits)."""
+    n = draw(st.integers(1, 40))
+    steps = draw(st.lists(st.integers(1, 5000), min_size=n, max_size=n))
+    t0 = draw(st.integers(0, 10**8))
+    t = (t0 + np.cumsum(steps) - steps[0]) / 10**4
+    cols: dict[str, np.ndarray] = {"t": t}
+    for c in ("omega",) + tuple(o for o in OPTIONAL if draw(st.booleans())):
+        d = DIGITS[c]
+        ks = draw(st.lists(st.integers(-(10**9), 10**9), min_size=n, max_size=n))
+        v = np.array(ks, dtype=np.float64) / 10**d
+        if c != "omega":
+            holes = draw(st.lists(st.booleans(), min_size=n, max_size=n))
+            v[np.array(holes, dtype=bool)] = np.nan
+        cols[c] = v
+    meta = draw(
+        st.dictionaries(
+            st.text("abcdefghij_", min_size=1, max_size=8),
+            st.text("abc XYZ0123.-", min_size=1, max_size=12).map(str.strip).filter(bool),
+            max_size=3,
+        )
+    )
+    return DriveLog(meta=meta, **cols)  # type: ignore[arg-type]
+
+
+@settings(max_examples=150, deadline=None)
+@given(log=drive_logs())
+def test_write_read_round_trip(log: DriveLog) -> None:
+    buf = io.StringIO()
+    write_drive(buf, log)
+    buf.seek(0)
+    back = read_drive(buf)
+    assert_same_log(back, log)
+    assert back.columns() == log.columns()
+
+
+def test_round_trip_through_a_file(tmp_path: Path) -> None:
+    t = np.arange(50) / 10.0
+    log = DriveLog(
+        t=t,
+        omega=np.round(np.sin(t), 5),
+        heading_truth=np.where(np.arange(50) % 10 == 0, np.round(t * 7 % 360, 3), np.nan),
+        speed=np.full(50, 13.5),
+        meta={"drive": "city", "gyro": "CRS03-04"},
+    )
+    p = tmp_path / "city-1.csv"
+    write_drive(p, log)
+    back = read_drive(p)
+    assert_same_log(back, log)
+    assert back.name == "city-1" and back.temp_c is None and back.omega_truth is None
+    text = p.read_text().splitlines()
+    assert text[:3] == ["# drive: city", "# gyro: CRS03-04", "t,omega,heading_truth,speed"]
+    assert text[4] == "0.1000,0.09983,,13.500"  # an unknown heading is an empty cell
+
+
+def test_empty_cells_are_nan_never_zero() -> None:
+    text = "t,omega,heading_truth,temp_c\n0.0,0.1,,20\n0.1,0.2,90.5,\n0.2,0.3,nan,NaN\n"
+    log = read_drive(io.StringIO(text))
+    assert np.isnan(log.heading_truth[[0, 2]]).all() and log.heading_truth[1] == 90.5
+    assert log.temp_c[0] == 20.0 and np.isnan(log.temp_c[1:]).all()
+
+
+def test_columns_in_any_order_and_whitespace() -> None:
+    log = read_drive(io.StringIO(" omega , t \n 1.5 , 0 \n2.5,1\n"))
+    assert log.t.tolist() == [0.0, 1.0] and log.omega.tolist() == [1.5, 2.5]
+
+
+def test_metadata_blank_lines_and_properties() -> None:
+    text = "# drive: rural\n# a comment without a colon\n\nt,omega\n0,1\n\n0.1,1\n0.2,1\n0.3,1\n"
+    log = read_drive(io.StringIO(text), name="r1")
+    assert log.meta == {"drive": "rural"} and log.name == "r1"
+    assert len(log) == 4
+    assert log.duration_s == pytest.approx(0.3) and log.rate_hz == pytest.approx(10.0)
+    part = log.slice(1, 3)
+    assert part.t.tolist() == [0.1, 0.2] and part.meta == log.meta and len(part) == 2
+
+
+# -- errors name the file and line ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("t,omega,yaw\n0,1,2\n", r"<stream>:1: unknown column 'yaw' \(allowed: t, omega,"),
+        ("# meta: x\n\nt,omega,yaw\n", r"<stream>:3: unknown column 'yaw'"),
+        ("t,heading_truth\n0,1\n", r"<stream>:1: missing required column 'omega'"),
+        ("omega\n1\n", r"<stream>:1: missing required column 't'"),
+        ("t,omega,t\n0,1,0\n", r"<stream>:1: repeated column"),
+        ("t,omega\n0,1\n1,2\n1,3\n", r"<stream>:4: column t is not strictly increasing \(1.0 after 1.0\)"),
+        ("# a: b\n\nt,omega\n0,1\n\n2,2\n1.5,3\n", r"<stream>:7: column t is not strictly increasing \(1.5 after 2.0\)"),
+        ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
+        ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
+        ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: 'inf' is not finite"),
+        ("t,omega\n0,1\n0.1,1,2\n", r"<stream>:3: 3 fields, header has 2"),
+        ("t,omega\n0,1\n0.1\n", r"<stream>:3: 1 fields, header has 2"),
+        ("t,omega\n0,1\n,2\n", r"<stream>:3: column t is empty; it is required in every row"),
+        ("t,omega\n0,1\n\n1,\n", r"<stream>:4: column omega is empty; it is required in every row"),
+        ("", r"<stream>: empty file, expected a header line"),
+        ("# only: metadata\n\n", r"<stream>: empty file"),
+        ("t,omega\n", r"<stream>: no data rows"),
+    ],
+)
+def test_errors(text: str, match: str) -> None:
+    with pytest.raises(DriveLogError, match=match) as ei:
+        read_drive(io.StringIO(text))
+    assert "\n" not in str(ei.value)
+
+
+def test_error_names_the_file(tmp_path: Path) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text("t,omega\n0,1\n0.1,x\n")
+    with pytest.raises(DriveLogError, match=rf"^{p}:3: column omega"):
+        read_drive(p)
+
+
+def test_line_numbers_count_quoted_multiline_cells() -> None:
+    # A quoted cell spanning lines moves the following rows' line numbers accordingly.
+    text = 't,omega\n0,1\n"1\n",2\n1,3\n'
+    with pytest.raises(DriveLogError, match=r"<stream>:5: column t is not strictly increasing"):
+        read_drive(io.StringIO(text))
