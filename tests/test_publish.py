@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import textwrap
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -389,6 +390,16 @@ def test_unresolvable_host_is_counted_and_not_fatal(receiver: socket.socket) -> 
     assert receiver.recv(65535) == format_json(full_message())
     assert pub.errors >= 1
     assert bad.to_dict()["dest"] == "no-such-host.invalid:10110"
+    pub.stop()
+
+
+def test_unresolvable_host_is_retried_in_the_background() -> None:
+    pub = UdpJsonPublisher([("no-such-host.invalid", 10110)], resolve_retry_s=0.0)
+    deadline = time.monotonic() + RECV_TIMEOUT_S
+    while pub.stats()[0].by_error["resolve"] < 2 and time.monotonic() < deadline:
+        pub.on_message(full_message())  # starts a retry when none is running; never blocks on it
+        time.sleep(0.01)
+    assert pub.stats()[0].by_error["resolve"] >= 2
     pub.stop()
 
 
