@@ -434,3 +434,34 @@ def test_parse_hostport(text: str, want: tuple[str, int]) -> None:
 def test_parse_hostport_rejects(text: Any) -> None:
     with pytest.raises(ValueError):
         parse_hostport(text)
+
+
+# -- the CLI: exit 78 (EX_CONFIG) with the one line on stderr -----------------------------------
+
+FIRST_BAD = [(k, bad[0]) for k, (_, bad) in TABLE.items()]
+
+
+@pytest.mark.parametrize("key, value", FIRST_BAD, ids=[k for k, _ in FIRST_BAD])
+def test_cli_exits_78_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], key: str, value: Any) -> None:
+    from hdrd.cli import main
+
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(yaml.safe_dump(nested(key, value)))
+    capture = tmp_path / "none.cap"  # never opened: the config is checked first
+    assert main(["replay", str(capture), "--config", str(p)]) == 78
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"hdrd: config error in {p}: {key} = ")
+
+
+@pytest.mark.parametrize("text", ["", "hdr: [\n", "bogus: 1\n"])
+def test_cli_exits_78_on_file_level_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str) -> None:
+    from hdrd.cli import main
+
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    assert main(["replay", str(tmp_path / "none.cap"), "--config", str(p)]) == 78
+    assert len(capsys.readouterr().err.splitlines()) == 1
+    assert main(["replay", str(tmp_path / "none.cap"), "--config", str(tmp_path / "missing.yaml")]) == 78
+    assert "not found" in capsys.readouterr().err

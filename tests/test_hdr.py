@@ -319,6 +319,19 @@ def test_drift_correction_reduces_heading_error() -> None:
     assert abs(run_batch(u).yaw[-1]) < 0.2 * abs(run_batch(u, HdrParams.off()).yaw[-1])
 
 
+def test_attenuator_bounds_what_one_run_can_correct() -> None:
+    # Within one run of equal signs I moves by at most i_c * sum_r R(r) = 0.0422 * 5.1117
+    # = 0.2157 deg/s (Eq. 10 decays like r**-1.8, so the sum converges). A noise-free drift
+    # larger than that is never fully absorbed: the attenuator trades tracking for robustness.
+    bound = 0.0422 * sum(attenuation(r) for r in range(1, 200_000))
+    assert bound == pytest.approx(0.2157, abs=1e-4)
+    tr = run_batch(np.full(3000, 0.45))
+    assert np.all(tr.r == np.arange(1, 3001))  # never a sign change
+    assert -bound < tr.final.I < -0.21
+    # With the attenuator off (basic HDR), the same drift is absorbed.
+    assert run_batch(np.full(3000, 0.45), HdrParams(attenuator=False)).I[-100:].mean() == pytest.approx(-0.45, abs=0.05)
+
+
 @settings(max_examples=100, deadline=None)
 @given(
     pre=st.lists(small_rates, min_size=0, max_size=30),
