@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.analysis.metrics import (
+    abs_wrap180,
     align_index,
     e_psi,
     gyro_heading,
@@ -33,6 +34,12 @@ def test_wrap180_edges() -> None:
     assert wrap180(720.5) == pytest.approx(0.5)
     assert wrap360(-1.0) == 359.0
     assert wrap360(360.0) == 0.0
+
+
+@given(st.floats(-1e5, 1e5, allow_nan=False))
+def test_abs_wrap180_is_abs_of_wrap180(d: float) -> None:
+    assert float(abs_wrap180(d)) == pytest.approx(abs(float(wrap180(d))), abs=1e-9)
+    assert 0.0 <= float(abs_wrap180(d)) <= 180.0
 
 
 @given(st.floats(-1e5, 1e5, allow_nan=False))

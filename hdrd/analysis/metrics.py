@@ -27,6 +27,7 @@ import numpy.typing as npt
 __all__ = [
     "wrap180",
     "wrap360",
+    "abs_wrap180",
     "align_index",
     "gyro_heading",
     "heading_error",
@@ -93,18 +94,40 @@ def heading_error(
     return wrap180(h - t)
 
 
+def abs_wrap180(d: npt.ArrayLike) -> FloatArray:
+    """|wrap180(d)|, deg in [0, 180]: the size of an angle difference, equal to
+    ``abs(wrap180(d))`` but folding only the elements beyond 180 deg (tuning speed)."""
+    a = np.abs(np.asarray(d, dtype=np.float64))
+    big = a > 180.0
+    if big.any():  # rare for useful candidates: fold only those elements
+        b = a[big]
+        b -= 360.0 * np.floor(b / 360.0 + 0.5)
+        a[big] = np.abs(b)
+    return a
+
+
 def e_psi(
     yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
 ) -> float | FloatArray:
     """Average heading error Eψ, deg (paper Eq. 12): mean |gyro - truth| over the steps where
-    truth exists. A float for yaw of shape (n,), an array (P,) for (n, P). NaN if no truth."""
-    err = heading_error(yaw_deg_ccw, heading_truth_deg_cw, k)
+    truth exists, the gyro aligned as in :func:`heading_error`. A float for yaw of shape (n,),
+    an array (P,) for (n, P). NaN if no truth (or no step to align at)."""
+    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
     truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    if yaw.shape[0] != truth.shape[0]:
+        raise ValueError(f"yaw has {yaw.shape[0]} steps, truth {truth.shape[0]}")
+    if k is None:
+        k = align_index(yaw, truth)
     valid = np.isfinite(truth)
-    if not valid.any() or align_index(yaw_deg_ccw, truth) is None:
-        out = np.full(err.shape[1:], np.nan)
+    if k is None or not valid.any():
+        out = np.full(yaw.shape[1:], np.nan)
         return float(out) if out.ndim == 0 else out
-    m = np.mean(np.abs(err[valid]), axis=0)
+    # gyro - truth = truth_k - (yaw_i - yaw_k) - truth_i = -((yaw_i - yaw_k) + (truth_i - truth_k));
+    # the sign does not matter under |.|. Only the rows with truth are computed (tuning speed).
+    d = yaw[valid]
+    d -= yaw[k]
+    d += (truth[valid] - truth[k]).reshape((-1,) + (1,) * (yaw.ndim - 1))
+    m = np.mean(abs_wrap180(d), axis=0)
     return float(m) if np.ndim(m) == 0 else m
 
 
