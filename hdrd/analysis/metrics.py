@@ -97,13 +97,14 @@ def heading_error(
 def abs_wrap180(d: npt.ArrayLike) -> FloatArray:
     """|wrap180(d)|, deg in [0, 180]: the size of an angle difference, equal to
     ``abs(wrap180(d))`` but folding only the elements beyond 180 deg (tuning speed)."""
-    a = np.abs(np.asarray(d, dtype=np.float64))
+    x = np.asarray(d, dtype=np.float64)
+    a = np.abs(np.atleast_1d(x))
     big = a > 180.0
     if big.any():  # rare for useful candidates: fold only those elements
         b = a[big]
         b -= 360.0 * np.floor(b / 360.0 + 0.5)
         a[big] = np.abs(b)
-    return a
+    return a.reshape(x.shape)
 
 
 def e_psi(
