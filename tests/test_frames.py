@@ -1,0 +1,474 @@
+"""hdrd.frames: codecs, push parser, vectorised decoder (docs/protocol.md is the contract)."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from hdrd.frames import (
+    FRAME_DTYPE,
+    PROTOCOLS,
+    SYNC,
+    Frame,
+    FrameError,
+    Parser,
+    ParserStats,
+    array_to_frames,
+    crc16_ccitt_false,
+    crc16_ccitt_false_rows,
+    decode_bin,
+    decode_capture,
+    decode_frames,
+    decode_text,
+    encode,
+    encode_array,
+    encode_bin,
+    encode_text,
+    frames_to_array,
+)
+
+
+def crc_bitwise(data: bytes) -> int:
+    """Reference CRC-16/CCITT-FALSE, bit by bit from the definition (poly 0x1021, init 0xFFFF,
+    no reflection, no final xor): independent of the implementation under test."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+frames_st = st.builds(
+    Frame,
+    seq=st.integers(0, 0xFFFF),
+    t_us=st.integers(0, 0xFFFFFFFF),
+    rate=st.integers(0, 0xFFFF),
+    ref=st.integers(0, 0xFFFF),
+    temp_cc=st.none() | st.integers(-32767, 32767),
+)
+NON_SYNC_BIN = st.integers(0, 255).filter(lambda b: b not in (0xA5, 0x5A))
+
+
+def run(protocol: str, data: bytes, cuts: list[int] | None = None) -> tuple[list[Frame], ParserStats]:
+    """Feed ``data`` to a parser split at ``cuts``, then flush."""
+    p = Parser(protocol)
+    out: list[Frame] = []
+    edges = [0, *sorted(c % (len(data) + 1) for c in (cuts or [])), len(data)]
+    for a, b in zip(edges, edges[1:]):
+        out += p.feed(data[a:b])
+    p.flush()
+    return out, p.stats
+
+
+# --------------------------------------------------------------------------- CRC and codecs
+
+
+def test_crc_check_value() -> None:
+    # The catalogue check value of CRC-16/CCITT-FALSE.
+    assert crc16_ccitt_false(b"123456789") == 0x29B1 == crc_bitwise(b"123456789")
+
+
+@given(st.binary(max_size=40))
+def test_crc_matches_definition(data: bytes) -> None:
+    assert crc16_ccitt_false(data) == crc_bitwise(data)
+
+
+@given(st.integers(0, 30), st.integers(0, 17), st.integers(0, 2**32 - 1))
+def test_crc_rows_matches_scalar(k: int, m: int, seed: int) -> None:
+    rows = np.random.default_rng(seed).integers(0, 256, (k, m), dtype=np.uint8)
+    assert crc16_ccitt_false_rows(rows).tolist() == [crc_bitwise(r.tobytes()) for r in rows]
+
+
+def test_worked_example_of_docs() -> None:
+    """The example frame of docs/protocol.md, byte for byte."""
+    f = Frame(seq=258, t_us=1_000_000, rate=33554, ref=32768, temp_cc=2512)
+    wire = bytes.fromhex("a5 5a 02 01 40 42 0f 00 12 83 00 80 d0 09 ae 8a")
+    assert crc_bitwise(wire[2:14]) == 0x8AAE
+    assert encode_bin(f) == wire
+    assert decode_bin(wire) == f
+    assert f.temp_c == pytest.approx(25.12)
+    assert encode_text(f) == b"$HDRG,258,1000000,33554,32768,25.12*1D\r\n"
+    absent = Frame(seq=259, t_us=1_100_000, rate=31982, ref=0, temp_cc=None)
+    assert encode_text(absent) == b"$HDRG,259,1100000,31982,,*0A\r\n"
+    assert absent.temp_c is None
+
+
+def test_bin_layout_follows_the_table() -> None:
+    f = Frame(seq=0x1234, t_us=0x89ABCDEF, rate=0xFFFE, ref=1, temp_cc=-2)
+    b = encode_bin(f)
+    assert b[:2] == SYNC and len(b) == 16
+    assert struct.unpack("<HIHHhH", b[2:]) == (0x1234, 0x89ABCDEF, 0xFFFE, 1, -2, crc_bitwise(b[2:14]))
+    assert struct.unpack("<h", encode_bin(Frame(0, 0, 0, 0, None))[12:14]) == (-32768,)
+
+
+@given(frames_st)
+def test_bin_round_trip(f: Frame) -> None:
+    assert decode_bin(encode_bin(f)) == f
+    assert encode(f, "hdr-bin") == encode_bin(f)
+
+
+@given(frames_st)
+def test_text_round_trip(f: Frame) -> None:
+    line = encode_text(f)
+    assert decode_text(line) == f
+    assert decode_text(line.rstrip(b"\r\n")) == f  # the line end is optional for one line
+    assert encode(f, "hdr-text") == line
+    body, _, hh = line[1:-2].partition(b"*")
+    x = 0
+    for c in body:
+        x ^= c
+    assert hh == b"%02X" % x  # two uppercase hex digits
+
+
+def test_text_fields() -> None:
+    assert encode_text(Frame(1, 2, 3, 0, -5)).startswith(b"$HDRG,1,2,3,,-0.05*")
+    assert encode_text(Frame(1, 2, 3, 7, 0)).startswith(b"$HDRG,1,2,3,7,0.00*")
+    assert encode_text(Frame(1, 2, 3, 7, -32767)).startswith(b"$HDRG,1,2,3,7,-327.67*")
+
+    def line(body: bytes, hh: str | None = None) -> bytes:
+        x = 0
+        for c in body:
+            x ^= c
+        return b"$" + body + b"*" + (hh or f"{x:02X}").encode() + b"\r\n"
+
+    # Lenient input: other decimals, lowercase checksum, LF only.
+    assert decode_text(line(b"HDRG,1,2,3,4,25")).temp_cc == 2500
+    assert decode_text(line(b"HDRG,1,2,3,4,-1.5")).temp_cc == -150
+    assert decode_text(line(b"HDRG,1,2,3,4,+0.014")).temp_cc == 1
+    assert decode_text(line(b"HDRG,1,2,3,0,")) == Frame(1, 2, 3, 0, None)
+    body = b"HDRG,259,1100000,31982,,"  # checksum 0A: lowercase hex is accepted too
+    assert decode_text(line(body, "0a")) == decode_text(line(body, "0A"))
+    assert decode_text(line(b"HDRG,1,2,3,,")[:-2] + b"\n") == Frame(1, 2, 3, 0, None)
+    bad = [
+        line(b"HDRG,1,2,3,4,5", "00"),  # checksum
+        line(b"HDRG,1,2,3,4"),  # too few fields
+        line(b"HDRG,1,2,3,4,5,6"),  # too many
+        line(b"HDRG,65536,2,3,4,5"),  # seq range
+        line(b"HDRG,1,4294967296,3,4,5"),  # t_us range
+        line(b"HDRG,1,2,65536,4,5"),
+        line(b"HDRG,1,2,3,-4,5"),  # sign on an unsigned field
+        line(b"HDRG,1,2,3,4,327.68"),  # temp range
+        line(b"HDRG,1,2,3,4,1e3"),
+        line(b"HDRG,,2,3,4,5"),  # seq is required
+        line(b"HDRX,1,2,3,4,5"),
+        b"$HDRG,1,2,3,4,5*4\r\n",
+        b"$HDRG,1,2,3,4,5*ZZ\r\n",
+        b"$HDRG,1,2,3,4,5\r\n",
+        b"HDRG,1,2,3,4,5*00\r\n",
+        b"",
+    ]
+    for b in bad:
+        with pytest.raises(FrameError):
+            decode_text(b)
+
+
+def test_decode_bin_errors() -> None:
+    good = encode_bin(Frame(1, 2, 3, 4, 5))
+    for b in (good[:15], good + b"\0", b"", b"\xa5\x5b" + good[2:], good[:14] + bytes([good[14] ^ 1, good[15]])):
+        with pytest.raises(FrameError):
+            decode_bin(b)
+
+
+@pytest.mark.parametrize(
+    "f",
+    [Frame(-1, 0, 0, 0, None), Frame(0, 2**32, 0, 0, None), Frame(0, 0, 65536, 0, None),
+     Frame(0, 0, 0, 65536, None), Frame(0, 0, 0, 0, -32768), Frame(0, 0, 0, 0, 32768)],
+)
+def test_encode_rejects_out_of_range(f: Frame) -> None:
+    for protocol in PROTOCOLS:
+        with pytest.raises(FrameError):
+            encode(f, protocol)
+
+
+def test_unknown_protocol() -> None:
+    with pytest.raises(ValueError, match="unknown protocol"):
+        Parser("nmea")
+    with pytest.raises(ValueError, match="unknown protocol"):
+        encode(Frame(0, 0, 0, 0, None), "bin")
+    with pytest.raises(ValueError, match="unknown protocol"):
+        decode_capture(b"", "x")
+
+
+@given(st.lists(frames_st, max_size=30))
+def test_array_helpers_round_trip(frames: list[Frame]) -> None:
+    arr = frames_to_array(frames)
+    assert arr.dtype == FRAME_DTYPE
+    assert array_to_frames(arr) == frames
+    for protocol in PROTOCOLS:
+        data = encode_array(arr, protocol)
+        assert data == b"".join(encode(f, protocol) for f in frames)
+        assert decode_frames(data, protocol) == frames
+
+
+# --------------------------------------------------------------------------- push parser
+
+
+@settings(max_examples=300)
+@given(st.binary(max_size=400), st.sampled_from(PROTOCOLS), st.lists(st.integers(0, 400), max_size=6))
+def test_arbitrary_bytes_never_raise(data: bytes, protocol: str, cuts: list[int]) -> None:
+    frames, stats = run(protocol, data, cuts)
+    arr, vstats = decode_capture(data, protocol)
+    assert array_to_frames(arr) == frames and vstats == stats
+    assert stats.frames == len(frames)
+    assert 0 <= stats.garbage_bytes <= len(data)
+
+
+@given(st.binary(max_size=200), st.sampled_from(PROTOCOLS))
+def test_feed_accepts_bytearray_and_memoryview(data: bytes, protocol: str) -> None:
+    a, b, c = Parser(protocol), Parser(protocol), Parser(protocol)
+    assert a.feed(data) == b.feed(bytearray(data)) == c.feed(memoryview(data))
+    assert a.stats == b.stats == c.stats
+
+
+@st.composite
+def dirty_bin_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
+    """Good frames with clean garbage (no A5/5A bytes), corrupted frames (one bit flipped) and
+    truncated frames between them, always ending with a good frame. Returns the stream, the
+    good frames, and the bad frames the scan must count: one per sync pattern in each bad piece
+    (the frame's own, and any its bytes happen to contain)."""
+    parts: list[bytes] = []
+    good: list[Frame] = []
+    bad = 0
+    for _ in range(draw(st.integers(1, 25))):
+        kind = draw(st.sampled_from(["good", "good", "garbage", "corrupt", "truncated"]))
+        if kind == "garbage":
+            parts.append(bytes(draw(st.lists(NON_SYNC_BIN, min_size=1, max_size=40))))
+            continue
+        f = draw(frames_st)
+        b = bytearray(encode_bin(f))
+        if kind == "corrupt":
+            pos = draw(st.integers(2, 15))
+            b[pos] ^= 1 << draw(st.integers(0, 7))
+        elif kind == "truncated":
+            b = b[: draw(st.integers(2, 15))]
+        if kind != "good":
+            bad += sum(1 for i in range(len(b) - 1) if b[i : i + 2] == SYNC)
+        else:
+            good.append(f)
+        parts.append(bytes(b))
+    last = draw(frames_st)
+    parts.append(encode_bin(last))
+    good.append(last)
+    return b"".join(parts), good, bad
+
+
+@settings(max_examples=300)
+@given(dirty_bin_stream(), st.lists(st.integers(0, 10_000), max_size=8))
+def test_bin_recovers_every_good_frame_and_counts_bad_ones(
+    stream: tuple[bytes, list[Frame], int], cuts: list[int]
+) -> None:
+    data, good, bad = stream
+    frames, stats = run("hdr-bin", data, cuts)
+    assert frames == good
+    assert stats.frames == len(good)
+    assert stats.bad_frames == bad
+    assert stats.garbage_bytes == len(data) - 16 * len(good)
+    arr, vstats = decode_capture(data)
+    assert array_to_frames(arr) == good and vstats == stats
+
+
+@st.composite
+def dirty_text_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
+    """hdr-text lines with garbage (no '$'), lines with a damaged digit, and lines cut short
+    (their line end lost, so the next line's '$' sits inside them)."""
+    parts: list[bytes] = []
+    good: list[Frame] = []
+    bad = 0
+    garbage = st.binary(min_size=1, max_size=40).map(lambda b: b.replace(b"$", b"#"))
+    for _ in range(draw(st.integers(1, 20))):
+        kind = draw(st.sampled_from(["good", "good", "garbage", "corrupt", "truncated"]))
+        if kind == "garbage":
+            parts.append(draw(garbage))
+            continue
+        f = draw(frames_st)
+        b = bytearray(encode_text(f))
+        if kind == "corrupt":
+            digits = [i for i in range(6, len(b) - 5) if 0x30 <= b[i] <= 0x39]
+            i = draw(st.sampled_from(digits))
+            b[i] = 0x30 + (b[i] - 0x30 + draw(st.integers(1, 9))) % 10
+            bad += 1
+        elif kind == "truncated":
+            b = b[: draw(st.integers(6, len(b) - 2))]
+            bad += 1
+        else:
+            good.append(f)
+        parts.append(bytes(b))
+    last = draw(frames_st)
+    parts.append(encode_text(last))
+    good.append(last)
+    return b"".join(parts), good, bad
+
+
+@settings(max_examples=200)
+@given(dirty_text_stream(), st.lists(st.integers(0, 5_000), max_size=8))
+def test_text_recovers_every_good_line_and_counts_bad_ones(
+    stream: tuple[bytes, list[Frame], int], cuts: list[int]
+) -> None:
+    data, good, bad = stream
+    frames, stats = run("hdr-text", data, cuts)
+    assert frames == good
+    assert stats.bad_frames == bad
+    assert stats.garbage_bytes == len(data) - sum(len(encode_text(f)) for f in good)
+
+
+@settings(max_examples=200)
+@given(
+    st.lists(st.one_of(frames_st.map(encode_bin), st.binary(max_size=24)), max_size=30),
+    st.lists(st.integers(0, 2000), max_size=10),
+)
+def test_bin_chunking_invariance_and_vectorised_equality(pieces: list[bytes], cuts: list[int]) -> None:
+    """Any split gives the same frames and counters; the vectorised decoder agrees, also on
+    arbitrary garbage (which may hold sync patterns) and frames overlapping each other."""
+    data = b"".join(pieces)
+    whole = run("hdr-bin", data)
+    assert run("hdr-bin", data, cuts) == whole
+    one_by_one = Parser()
+    frames = [f for i in range(len(data)) for f in one_by_one.feed(data[i : i + 1])]
+    one_by_one.flush()
+    assert (frames, one_by_one.stats) == whole
+    arr, vstats = decode_capture(data)
+    assert (array_to_frames(arr), vstats) == whole
+
+
+@settings(max_examples=200)
+@given(
+    st.lists(st.one_of(frames_st.map(encode_text), st.binary(max_size=30)), max_size=20),
+    st.lists(st.integers(0, 2000), max_size=10),
+)
+def test_text_chunking_invariance(pieces: list[bytes], cuts: list[int]) -> None:
+    data = b"".join(pieces)
+    assert run("hdr-text", data, cuts) == run("hdr-text", data)
+
+
+def test_sync_pattern_in_payload_does_not_lose_the_next_frame() -> None:
+    # seq 0x5AA5 puts A5 5A at bytes 2-3; t_us and rate repeat it. Corrupt that frame: the
+    # scan must step one byte at a time through it and still find the next good frame.
+    f = Frame(0x5AA5, 0x5AA55AA5, 0x5AA5, 0x5AA5, 0x5AA5)
+    nxt = Frame(0x5AA6, 0x5AA55AA6, 1, 0, None)
+    b = bytearray(encode_bin(f))
+    b[15] ^= 0xFF
+    data = bytes(b) + encode_bin(nxt)
+    frames, stats = run("hdr-bin", data)
+    assert frames == [nxt]
+    syncs = sum(1 for i in range(16) if data[i : i + 2] == SYNC)
+    assert syncs >= 7 and stats.bad_frames == syncs  # the frame's own and those inside it
+    # A sync-like prefix (a lone A5, or A5 5A and a few bytes) before a good frame.
+    for prefix in (b"\xa5", b"\xa5\x5a", b"\xa5\x5a\x01\x02\x03", b"\xa5\xa5\x5a"):
+        frames, _ = run("hdr-bin", prefix + encode_bin(nxt) + encode_bin(f))
+        assert frames == [nxt, f]
+
+
+def test_partial_frame_is_kept_across_feeds() -> None:
+    p = Parser()
+    a, b = encode_bin(Frame(1, 10, 3, 4, 5)), encode_bin(Frame(2, 20, 3, 4, None))
+    assert p.feed(a[:7]) == [] and p.pending == 7
+    assert p.feed(a[7:] + b[:1]) == [Frame(1, 10, 3, 4, 5)] and p.pending == 1
+    assert p.feed(b[1:]) == [Frame(2, 20, 3, 4, None)] and p.pending == 0
+    assert p.feed(b"\x00\x01\xa5") == [] and p.pending == 1
+    p.flush()
+    assert p.stats.garbage_bytes == 3 and p.pending == 0
+
+
+def test_text_partial_line_and_missing_line_end() -> None:
+    p = Parser("hdr-text")
+    line = encode_text(Frame(1, 2, 3, 0, 2500))
+    assert p.feed(b"junk$HD") == [] and p.pending == 3
+    assert p.feed(line[3:10]) == []
+    assert p.feed(line[10:]) == [Frame(1, 2, 3, 0, 2500)]
+    # A '$HDRG,' that never ends its line within the maximum length is a bad frame.
+    p.feed(b"$HDRG," + b"1" * 200)
+    assert p.stats.bad_frames == 1 and p.pending == 0
+
+
+# --------------------------------------------------------------------------- sequence and clock
+
+
+def seq_stream(pairs: list[tuple[int, int]], protocol: str = "hdr-bin") -> ParserStats:
+    data = b"".join(encode(Frame(s, t, 100, 0, None), protocol) for s, t in pairs)
+    frames, stats = run(protocol, data)
+    assert len(frames) == len(pairs)
+    _, vstats = decode_capture(data, protocol)
+    assert vstats == stats
+    return stats
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_sequence_wrap_is_not_a_gap(protocol: str) -> None:
+    s = seq_stream([(65534, 0), (65535, 100), (0, 200), (1, 300)], protocol)
+    assert (s.seq_gaps, s.lost_frames, s.seq_repeats, s.seq_resets) == (0, 0, 0, 0)
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_sequence_gaps_repeats_and_resets(protocol: str) -> None:
+    pairs = [(10, 0), (11, 1), (14, 2), (14, 3), (13, 4), (15, 5), (30000, 6), (30001, 7), (30004, 8)]
+    #        ok       gap 2    repeat   behind   ok       gap 29984   ok          gap 2
+    s = seq_stream(pairs, protocol)
+    assert s.seq_gaps == 3
+    assert s.lost_frames == 2 + 29984 + 2
+    assert s.seq_repeats == 2
+    # Far behind: a device restart, not a repeat nor a huge gap.
+    s = seq_stream([(20000, 0), (20001, 1), (0, 2), (1, 3), (2, 4)], protocol)
+    assert (s.seq_resets, s.seq_repeats, s.seq_gaps, s.lost_frames) == (1, 0, 0, 0)
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_clock_wraps_and_steps_back(protocol: str) -> None:
+    top = 2**32
+    s = seq_stream([(0, top - 200_000), (1, top - 100_000), (2, 0), (3, 100_000), (4, 2**31), (5, top - 50), (6, 50)], protocol)
+    assert s.clock_wraps == 2 and s.clock_back == 0
+    # A repeat (same time), a small step back (reference kept), a reset (big step back).
+    s = seq_stream([(0, 5_000_000), (1, 5_000_000), (2, 4_900_000), (3, 5_100_000), (4, 1_000), (5, 2_000)], protocol)
+    assert s.clock_back == 3 and s.clock_wraps == 0
+
+
+def test_vectorised_slow_path_equals_push_on_messy_sequences() -> None:
+    rng = np.random.default_rng(7)
+    n = 3000
+    arr = np.zeros(n, FRAME_DTYPE)
+    arr["seq"] = (np.arange(n) + rng.choice([0, 0, 0, 1, -1, 5000, 40000], n).cumsum()) & 0xFFFF
+    arr["t_us"] = (np.arange(n) * 3_000_000 + rng.choice([0, 0, 0, 0, -3_000_000, -3_500_000, -10_000_000], n).cumsum()) % 2**32
+    arr["rate"] = rng.integers(0, 65536, n)
+    arr["temp"] = rng.choice([-32768, 2500, -1], n)
+    data = encode_array(arr)
+    frames, stats = run("hdr-bin", data, list(rng.integers(0, len(data), 40)))
+    got, vstats = decode_capture(data)
+    assert np.array_equal(got, arr) and array_to_frames(arr) == frames and vstats == stats
+    assert stats.seq_gaps and stats.seq_repeats and stats.seq_resets and stats.clock_back and stats.clock_wraps
+
+
+def test_vectorised_on_a_large_dirty_capture() -> None:
+    """Many frames, random garbage (with sync patterns), corrupted frames: identical results."""
+    rng = np.random.default_rng(3)
+    n = 20_000
+    arr = np.zeros(n, FRAME_DTYPE)
+    arr["seq"] = np.arange(n) & 0xFFFF
+    arr["t_us"] = np.arange(n) * 100_000
+    arr["rate"] = rng.integers(0, 65536, n)
+    arr["ref"] = rng.integers(0, 65536, n)
+    arr["temp"] = rng.integers(-32768, 32768, n)
+    frames = bytearray(encode_array(arr))
+    pieces = []
+    for i in range(n):
+        fr = bytearray(frames[16 * i : 16 * i + 16])
+        r = rng.random()
+        if r < 0.05:
+            fr[rng.integers(2, 16)] ^= 1 << rng.integers(0, 8)
+        elif r < 0.1:
+            pieces.append(rng.integers(0, 256, rng.integers(1, 30), dtype=np.uint8).tobytes())
+        elif r < 0.12:
+            pieces.append(b"\xa5\x5a" + rng.integers(0, 256, 10, dtype=np.uint8).tobytes())
+        pieces.append(bytes(fr))
+    data = b"".join(pieces)
+    got, vstats = decode_capture(data)
+    p = Parser()
+    out = []
+    for i in range(0, len(data), 64):
+        out += p.feed(data[i : i + 64])
+    p.flush()
+    assert array_to_frames(got) == out and vstats == p.stats
+    assert p.stats.bad_frames >= int(0.04 * n) and p.stats.frames >= int(0.9 * n)
