@@ -1,1 +1,72 @@
-"""Seeded simulation of drives and of the gyro's errors (placeholder while being built)."""
+"""Seeded simulation of drives and of the gyro's errors (issue 5; docs/gyro-model.md).
+
+- :func:`simulate_drive`: a drive log (hdrd.drivelog) of a road type, with the raw gyro output
+  from a :class:`GyroModel`, the true rate, 1 Hz GPS course, speed and cabin temperature.
+- :mod:`hdrd.sim.gyro`: the error model of named effects (static_bias, white_noise, ...).
+- :mod:`hdrd.sim.vehicle`: road types and the true motion; :mod:`hdrd.sim.gps`: GPS truth.
+- :mod:`hdrd.sim.benchmark`: the paper-like nine training drives (Table II) and five tests.
+
+Conventions: yaw rate deg/s, + = counter-clockwise (left turn); heading compass deg, clockwise
+from north; time s since power-on; temperature deg C.
+"""
+
+from hdrd.sim.drive import simulate_drive, simulate_legs
+from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
+from hdrd.sim.gyro import (
+    DEFAULT_START_MODEL,
+    EFFECT_NAMES,
+    EFFECTS,
+    Bandwidth,
+    BiasInstability,
+    Effect,
+    GyroModel,
+    Quantization,
+    RateRandomWalk,
+    Saturation,
+    ScaleAsymmetry,
+    ScaleFactor,
+    StaticBias,
+    TemperatureBias,
+    TimeOffset,
+    WarmupTransient,
+    WhiteNoise,
+    crs03_default_model,
+    effect_from_dict,
+    load_model,
+    save_model,
+)
+from hdrd.sim.vehicle import DRIVE_TYPES, PROFILES, CabinTemperature, RoadProfile, count_turns
+
+__all__ = [
+    "simulate_drive",
+    "simulate_legs",
+    "GpsModel",
+    "gps_course",
+    "heading_from_rate",
+    "DEFAULT_START_MODEL",
+    "EFFECT_NAMES",
+    "EFFECTS",
+    "Effect",
+    "GyroModel",
+    "Bandwidth",
+    "BiasInstability",
+    "Quantization",
+    "RateRandomWalk",
+    "Saturation",
+    "ScaleAsymmetry",
+    "ScaleFactor",
+    "StaticBias",
+    "TemperatureBias",
+    "TimeOffset",
+    "WarmupTransient",
+    "WhiteNoise",
+    "crs03_default_model",
+    "effect_from_dict",
+    "load_model",
+    "save_model",
+    "DRIVE_TYPES",
+    "PROFILES",
+    "CabinTemperature",
+    "RoadProfile",
+    "count_turns",
+]
