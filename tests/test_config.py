@@ -465,3 +465,15 @@ def test_cli_exits_78_on_file_level_errors(tmp_path: Path, capsys: pytest.Captur
     assert len(capsys.readouterr().err.splitlines()) == 1
     assert main(["replay", str(tmp_path / "none.cap"), "--config", str(tmp_path / "missing.yaml")]) == 78
     assert "not found" in capsys.readouterr().err
+
+
+def test_readme_config_table_matches_the_code() -> None:
+    readme = (SHIPPED.parent.parent / "README.md").read_text()
+    section = readme.split("<!-- section: config -->", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", section, flags=re.M)
+    table = {k: v.strip() for k, v in rows}
+    assert len(table) == len(rows) and set(table) == set(config_field_keys())
+    for key, shown in table.items():
+        value = yaml.safe_load(shown.strip("`"))
+        default = get(Config(), key)
+        assert (tuple(value) if isinstance(value, list) else value) == default, key
