@@ -289,12 +289,13 @@ class _Builder:
 
     # -- events ----------------------------------------------------------------------------
 
-    def stretch(self) -> None:
+    def stretch(self, until_s: float) -> None:
         p = self.profile
         assert p is not None
         v1 = self.u(p.cruise_mps)
         self.speed_to(v1)
-        self.hold(self.u(p.straight_m) / v1)
+        # A stretch never runs far past the leg's end, so legs keep their share of the time.
+        self.hold(min(self.u(p.straight_m) / v1, max(until_s - self.elapsed, 1.0)))
 
     def turn(self) -> None:
         p = self.profile
@@ -342,7 +343,7 @@ class _Builder:
         w = np.array([profile.weights[k] for k in kinds], dtype=np.float64)
         w /= w.sum()
         while self.elapsed < until_s:
-            self.stretch()
+            self.stretch(until_s)
             kind = kinds[int(self.rng.choice(len(kinds), p=w))]
             if kind == "turn":
                 self.turn()
