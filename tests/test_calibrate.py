@@ -26,7 +26,9 @@ from hdrd.calibrate import (
 HZ = 10.0  # the paper's sample rate
 
 
-def standstill(seconds: float = T_BIAS_S, bias: float = 0.8, sigma: float = 0.05, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def standstill(
+    seconds: float = T_BIAS_S, bias: float = 0.8, sigma: float = 0.05, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     n = int(seconds * HZ)
     t = np.arange(n) / HZ
@@ -108,7 +110,9 @@ def test_rejects_too_few_or_non_finite_samples(w: list[float]) -> None:
     turn=st.floats(5.0, 100.0),
     at=st.floats(0.0, 0.9),
 )
-def test_any_turn_in_the_window_is_rejected(bias: float, sigma: float, seed: int, turn: float, at: float) -> None:
+def test_any_turn_in_the_window_is_rejected(
+    bias: float, sigma: float, seed: int, turn: float, at: float
+) -> None:
     w, t = standstill(bias=bias, sigma=sigma, seed=seed)
     estimate_bias(w, t)  # standstill passes
     k = int(at * w.shape[0])
@@ -119,7 +123,14 @@ def test_any_turn_in_the_window_is_rejected(bias: float, sigma: float, seed: int
 
 # -- the bias file --------------------------------------------------------------------------------
 
-REC = BiasRecord(bias_dps=0.8123456789012345, std_dps=0.0512, n=300, duration_s=29.9, temp_c=21.5, time=1_700_000_000.25)
+REC = BiasRecord(
+    bias_dps=0.8123456789012345,
+    std_dps=0.0512,
+    n=300,
+    duration_s=29.9,
+    temp_c=21.5,
+    time=1_700_000_000.25,
+)
 
 
 def test_save_load_round_trip(tmp_path: Path) -> None:
@@ -140,7 +151,9 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     n=st.integers(1, 10**7),
     temp=st.one_of(st.none(), st.floats(-40, 85)),
 )
-def test_round_trip_is_exact(tmp_path_factory: pytest.TempPathFactory, bias: float, std: float, n: int, temp: float | None) -> None:
+def test_round_trip_is_exact(
+    tmp_path_factory: pytest.TempPathFactory, bias: float, std: float, n: int, temp: float | None
+) -> None:
     p = tmp_path_factory.mktemp("rt") / "bias.yaml"
     rec = BiasRecord(bias, std, n, 30.0, temp, 1.5)
     save_bias(p, rec)
@@ -164,7 +177,9 @@ def _leftovers(d: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("fail_in", ["replace", "fsync", "write"])
-def test_failed_write_leaves_old_file_whole_and_no_temp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fail_in: str) -> None:
+def test_failed_write_leaves_old_file_whole_and_no_temp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fail_in: str
+) -> None:
     p = tmp_path / "bias.yaml"
     save_bias(p, REC)
     before = p.read_bytes()
@@ -196,7 +211,9 @@ def test_failed_write_leaves_old_file_whole_and_no_temp(tmp_path: Path, monkeypa
                 self.f.flush()
                 raise OSError(5, "Input/output error")
 
-        monkeypatch.setattr(calibrate.os, "fdopen", lambda fd, *a, **k: HalfWriter(real_fdopen(fd, *a, **k)))
+        monkeypatch.setattr(
+            calibrate.os, "fdopen", lambda fd, *a, **k: HalfWriter(real_fdopen(fd, *a, **k))
+        )
     with pytest.raises(OSError):
         save_bias(p, BiasRecord(5.0, 0.1, 10, 1.0))
     assert p.read_bytes() == before
@@ -204,7 +221,9 @@ def test_failed_write_leaves_old_file_whole_and_no_temp(tmp_path: Path, monkeypa
     assert _leftovers(tmp_path) == []
 
 
-def test_interrupt_during_write_leaves_no_temp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_interrupt_during_write_leaves_no_temp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # SIGTERM/Ctrl-C (a BaseException) between fsync and rename: the old file stays, no temp.
     p = tmp_path / "bias.yaml"
     save_bias(p, REC)
@@ -239,7 +258,14 @@ def test_every_truncation_is_refused(tmp_path: Path) -> None:
 
 
 def _body(**changes: object) -> str:
-    d: dict[str, object] = {"bias_dps": 0.5, "std_dps": 0.05, "n": 300, "duration_s": 30.0, "temp_c": None, "time": 1.0}
+    d: dict[str, object] = {
+        "bias_dps": 0.5,
+        "std_dps": 0.05,
+        "n": 300,
+        "duration_s": 30.0,
+        "temp_c": None,
+        "time": 1.0,
+    }
     d.update(changes)
     lines = [f"{k}: {'null' if v is None else v}" for k, v in d.items() if v is not ...]
     return "\n".join(lines) + "\n# end\n"

@@ -202,7 +202,10 @@ def test_unknown_section(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as ei:
         load_config(p)
     msg = check_error(ei.value, "devices", str(p))
-    assert "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd)" in msg
+    assert (
+        "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd)"
+        in msg
+    )
 
 
 @pytest.mark.parametrize("value", [5, "x", [1, 2], True])
@@ -275,7 +278,9 @@ def test_unreadable_file(tmp_path: Path) -> None:
     assert "cannot be read (UnicodeDecodeError)" in check_error(ei.value, "(file)", str(p))
 
 
-def test_no_path_uses_etc_or_builtin_defaults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_no_path_uses_etc_or_builtin_defaults(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setattr(config_mod, "DEFAULT_CONFIG_PATH", tmp_path / "absent.yaml")
     assert load_config() == (Config(), "built-in defaults")
     etc = tmp_path / "hdrd.yaml"
@@ -299,7 +304,10 @@ def test_error_carries_key_value_and_allowed() -> None:
         parse_config({"hdr": {"tau": -1}}, source="/etc/hdrd/hdrd.yaml")
     e = ei.value
     assert (e.key, e.value, e.source) == ("hdr.tau", -1.0, "/etc/hdrd/hdrd.yaml")
-    assert str(e) == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0"
+    assert (
+        str(e)
+        == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0"
+    )
     assert isinstance(e, ValueError) and EX_CONFIG == 78
 
 
@@ -400,11 +408,22 @@ sections = st.sampled_from([f.name for f in fields(Config)] + ["bogus"])
 scalars = st.one_of(
     st.none(), st.booleans(), st.integers(-(10**30), 10**30), st.floats(), st.text(max_size=20)
 )
-values = st.recursive(scalars, lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=5), c, max_size=3), max_leaves=6)
+values = st.recursive(
+    scalars,
+    lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=5), c, max_size=3),
+    max_leaves=6,
+)
 
 
 @settings(max_examples=300, deadline=None)
-@given(data=st.one_of(values, st.dictionaries(sections, st.one_of(values, st.dictionaries(names, values, max_size=4)), max_size=4)))
+@given(
+    data=st.one_of(
+        values,
+        st.dictionaries(
+            sections, st.one_of(values, st.dictionaries(names, values, max_size=4)), max_size=4
+        ),
+    )
+)
 def test_fuzz_config_or_one_line_error(data: Any) -> None:
     try:
         cfg = parse_config(data, source="fuzz.yaml")
@@ -430,7 +449,9 @@ def test_parse_hostport(text: str, want: tuple[str, int]) -> None:
     assert parse_hostport(text) == want
 
 
-@pytest.mark.parametrize("text", ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5])
+@pytest.mark.parametrize(
+    "text", ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5]
+)
 def test_parse_hostport_rejects(text: Any) -> None:
     with pytest.raises(ValueError):
         parse_hostport(text)
@@ -442,7 +463,9 @@ FIRST_BAD = [(k, bad[0]) for k, (_, bad) in TABLE.items()]
 
 
 @pytest.mark.parametrize("key, value", FIRST_BAD, ids=[k for k, _ in FIRST_BAD])
-def test_cli_exits_78_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], key: str, value: Any) -> None:
+def test_cli_exits_78_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], key: str, value: Any
+) -> None:
     from hdrd.cli import main
 
     p = tmp_path / "hdrd.yaml"
@@ -456,21 +479,26 @@ def test_cli_exits_78_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixtur
 
 
 @pytest.mark.parametrize("text", ["", "hdr: [\n", "bogus: 1\n"])
-def test_cli_exits_78_on_file_level_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str) -> None:
+def test_cli_exits_78_on_file_level_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str
+) -> None:
     from hdrd.cli import main
 
     p = tmp_path / "hdrd.yaml"
     p.write_text(text)
     assert main(["replay", str(tmp_path / "none.cap"), "--config", str(p)]) == 78
     assert len(capsys.readouterr().err.splitlines()) == 1
-    assert main(["replay", str(tmp_path / "none.cap"), "--config", str(tmp_path / "missing.yaml")]) == 78
+    assert (
+        main(["replay", str(tmp_path / "none.cap"), "--config", str(tmp_path / "missing.yaml")])
+        == 78
+    )
     assert "not found" in capsys.readouterr().err
 
 
 def test_readme_config_table_matches_the_code() -> None:
     readme = (SHIPPED.parent.parent / "README.md").read_text()
     section = readme.split("<!-- section: config -->", 1)[1].split("\n## ", 1)[0]
-    rows = re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", section, flags=re.M)
+    rows = re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", section, flags=re.MULTILINE)
     table = {k: v.strip() for k, v in rows}
     assert len(table) == len(rows) and set(table) == set(config_field_keys())
     for key, shown in table.items():

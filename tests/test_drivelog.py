@@ -116,8 +116,14 @@ def test_metadata_blank_lines_and_properties() -> None:
         ("t,heading_truth\n0,1\n", r"<stream>:1: missing required column 'omega'"),
         ("omega\n1\n", r"<stream>:1: missing required column 't'"),
         ("t,omega,t\n0,1,0\n", r"<stream>:1: repeated column"),
-        ("t,omega\n0,1\n1,2\n1,3\n", r"<stream>:4: column t is not strictly increasing \(1.0 after 1.0\)"),
-        ("# a: b\n\nt,omega\n0,1\n\n2,2\n1.5,3\n", r"<stream>:7: column t is not strictly increasing \(1.5 after 2.0\)"),
+        (
+            "t,omega\n0,1\n1,2\n1,3\n",
+            r"<stream>:4: column t is not strictly increasing \(1.0 after 1.0\)",
+        ),
+        (
+            "# a: b\n\nt,omega\n0,1\n\n2,2\n1.5,3\n",
+            r"<stream>:7: column t is not strictly increasing \(1.5 after 2.0\)",
+        ),
         ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
         ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
         ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: 'inf' is not finite"),

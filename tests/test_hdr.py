@@ -151,9 +151,7 @@ def test_off_hand_worked() -> None:
 # -- Eq. 10 ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "r, R", [(1, 1.0), (2, 0.745), (3, 0.538), (5, 0.298), (10, 0.105)]
-)
+@pytest.mark.parametrize("r, R", [(1, 1.0), (2, 0.745), (3, 0.538), (5, 0.298), (10, 0.105)])
 def test_attenuator_eq10_values(r: int, R: float) -> None:
     assert attenuation(r) == pytest.approx(R, abs=5e-4)
     assert attenuation(r, 0.16, 1.80) == attenuation(r)
@@ -177,21 +175,23 @@ small_rates = st.floats(min_value=-2.0, max_value=2.0, allow_nan=False, allow_in
 
 @st.composite
 def params_st(draw: st.DrawFn) -> HdrParams:
-    kw = dict(
-        i_c=draw(st.floats(0.0, 0.5)),
-        tau=draw(st.floats(0.0, 5.0)),
-        theta_w=draw(st.floats(0.01, 5.0)),
-        c1=draw(st.floats(0.0, 2.0)),
-        c2=draw(st.floats(0.0, 3.0)),
-        T=draw(st.floats(0.01, 10.0)),
-    )
+    kw: dict[str, float] = {
+        "i_c": draw(st.floats(0.0, 0.5)),
+        "tau": draw(st.floats(0.0, 5.0)),
+        "theta_w": draw(st.floats(0.01, 5.0)),
+        "c1": draw(st.floats(0.0, 2.0)),
+        "c2": draw(st.floats(0.0, 3.0)),
+        "T": draw(st.floats(0.01, 10.0)),
+    }
     variant = draw(st.sampled_from(["paper", "basic", "off", "custom"]))
     if variant == "basic":
         return HdrParams.basic(**kw)
     if variant == "off":
         return HdrParams.off(**kw)
     if variant == "custom":
-        flags = {k: draw(st.booleans()) for k in ("lowpass", "turn_switch", "attenuator", "enabled")}
+        flags = {
+            k: draw(st.booleans()) for k in ("lowpass", "turn_switch", "attenuator", "enabled")
+        }
         return HdrParams(**kw, **flags)
     return HdrParams(**kw)
 
@@ -213,7 +213,9 @@ def state_st(draw: st.DrawFn) -> HdrState:
     params=st.one_of(st.just(HdrParams()), params_st()),
     state0=state_st(),
 )
-def test_batch_equals_steps_bit_for_bit(u: list[float], params: HdrParams, state0: HdrState) -> None:
+def test_batch_equals_steps_bit_for_bit(
+    u: list[float], params: HdrParams, state0: HdrState
+) -> None:
     tr = run_batch(np.array(u, dtype=np.float64), params, state0)
     state = state0
     for i, ui in enumerate(u):
@@ -329,7 +331,9 @@ def test_attenuator_bounds_what_one_run_can_correct() -> None:
     assert np.all(tr.r == np.arange(1, 3001))  # never a sign change
     assert -bound < tr.final.I < -0.21
     # With the attenuator off (basic HDR), the same drift is absorbed.
-    assert run_batch(np.full(3000, 0.45), HdrParams(attenuator=False)).I[-100:].mean() == pytest.approx(-0.45, abs=0.05)
+    assert run_batch(np.full(3000, 0.45), HdrParams(attenuator=False)).I[
+        -100:
+    ].mean() == pytest.approx(-0.45, abs=0.05)
 
 
 @settings(max_examples=100, deadline=None)
@@ -339,7 +343,9 @@ def test_attenuator_bounds_what_one_run_can_correct() -> None:
     sign=st.sampled_from([-1.0, 1.0]),
     length=st.integers(5, 60),
 )
-def test_turn_above_theta_w_freezes_I(pre: list[float], turn: float, sign: float, length: int) -> None:
+def test_turn_above_theta_w_freezes_I(
+    pre: list[float], turn: float, sign: float, length: int
+) -> None:
     u = np.array(pre + [sign * turn] * length)
     tr = run_batch(u)
     # While the filtered corrected rate is above Theta_w, W = 0 and I does not change.
@@ -400,7 +406,13 @@ def test_state_and_params_are_immutable() -> None:
 
 def test_variants() -> None:
     b = HdrParams.basic(i_c=0.05)
-    assert (b.lowpass, b.turn_switch, b.attenuator, b.enabled, b.i_c) == (False, False, False, True, 0.05)
+    assert (b.lowpass, b.turn_switch, b.attenuator, b.enabled, b.i_c) == (
+        False,
+        False,
+        False,
+        True,
+        0.05,
+    )
     o = HdrParams.off()
     assert o.enabled is False and o.lowpass and o.i_c == 0.0422
     assert HdrParams().as_dict()["theta_w"] == 0.564

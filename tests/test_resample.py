@@ -49,7 +49,7 @@ def test_ten_hz_into_one_hz_eq_11() -> None:
     v = [float(k) for k in range(30)]
     out, _, _ = run_stream(t, v)
     assert out == [
-        Block(0, 0.0, 1.0, sum(range(0, 10)) / 10, 10),
+        Block(0, 0.0, 1.0, sum(range(10)) / 10, 10),
         Block(1, 1.0, 2.0, sum(range(10, 20)) / 10, 10),
         Block(2, 2.0, 3.0, sum(range(20, 30)) / 10, 10),
     ]
@@ -106,7 +106,11 @@ def test_clock_wrap_in_the_middle_of_a_block() -> None:
     assert raw[4] > raw[5]  # the raw counter did wrap inside block 0
     out, clock, _ = run_stream(raw, [1.0] * 10 + [2.0] * 10 + [3.0] * 5)
     assert clock.wraps == 1 and clock.rejected == 0 and clock.resets == 0
-    assert [(b.index, b.mean, b.n) for b in blocks(out)] == [(0, 1.0, 10), (1, 2.0, 10), (2, 3.0, 5)]
+    assert [(b.index, b.mean, b.n) for b in blocks(out)] == [
+        (0, 1.0, 10),
+        (1, 2.0, 10),
+        (2, 3.0, 5),
+    ]
     assert not any(isinstance(x, Missing) for x in out)
 
 
