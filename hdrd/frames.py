@@ -29,7 +29,7 @@ import re
 import struct
 from binascii import crc_hqx
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import numpy.typing as npt
@@ -46,6 +46,7 @@ __all__ = [
     "Frame",
     "FrameError",
     "ParserStats",
+    "CaptureStats",
     "Parser",
     "crc16_ccitt_false",
     "crc16_ccitt_false_rows",
@@ -353,7 +354,7 @@ def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
 # --------------------------------------------------------------------------- push parser
 
 
-@dataclass(slots=True)
+@dataclass(slots=True, eq=False)
 class ParserStats:
     """Counters of a parser (or a source). All counts since the parser was made.
 
@@ -379,7 +380,25 @@ class ParserStats:
     clock_back: int = 0
 
     def as_dict(self) -> dict[str, int]:
-        return asdict(self)
+        """The counters by name."""
+        return {f: getattr(self, f) for f in _COUNTERS}
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ParserStats):
+            return NotImplemented
+        return self.as_dict() == other.as_dict()
+
+
+_COUNTERS = tuple(f.name for f in fields(ParserStats))
+
+
+@dataclass(slots=True, eq=False)
+class CaptureStats(ParserStats):
+    """:class:`ParserStats` of a whole capture (equal to a ParserStats with the same counters),
+    plus ``bad_before[i]``: the bad frames that came before good frame i in the byte stream
+    (what a live source reports as ``stats.bad_frames`` when it hands out frame i)."""
+
+    bad_before: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
 
 
 _SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDOW behind
@@ -394,12 +413,14 @@ class Parser:
     the same frames and counters. ``flush()`` at end of input counts the leftover bytes.
     """
 
-    __slots__ = ("protocol", "stats", "_buf", "_last_seq", "_last_t", "_feed")
+    __slots__ = ("protocol", "stats", "bad_before", "_buf", "_last_seq", "_last_t", "_feed")
 
     def __init__(self, protocol: str = "hdr-bin") -> None:
         _check_protocol(protocol)
         self.protocol = protocol
         self.stats = ParserStats()
+        self.bad_before: list[int] = []
+        """For each frame the last ``feed`` returned: ``stats.bad_frames`` just before it."""
         self._buf = b""
         self._last_seq: int | None = None
         self._last_t: int | None = None
@@ -413,6 +434,7 @@ class Parser:
     def feed(self, chunk: bytes | bytearray | memoryview) -> list[Frame]:
         """Parse more bytes; return the good frames they complete, in order."""
         if not chunk:
+            self.bad_before = []
             return []
         return self._feed(chunk if type(chunk) is bytes else bytes(chunk))
 
@@ -466,7 +488,9 @@ class Parser:
         unpack = _BODY.unpack_from
         out: list[Frame] = []
         append = out.append
-        bad = 0
+        bad = self.stats.bad_frames
+        bad_before: list[int] = []
+        bb_append = bad_before.append
         p = 0
         last_seq = self._last_seq
         last_t = self._last_t
@@ -512,12 +536,14 @@ class Parser:
                     if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
                         last_t = t_us
             append(_frame(seq, t_us, rate, ref, None if temp == TEMP_NOT_FITTED else temp))
+            bb_append(bad)
         self._last_seq = last_seq
         self._last_t = last_t
         self._buf = buf[keep:] if keep < n else b""
         nf = len(out)
         st.frames += nf
-        st.bad_frames += bad
+        st.bad_frames = bad
+        self.bad_before = bad_before
         st.garbage_bytes += keep - 16 * nf
         return out
 
@@ -525,6 +551,7 @@ class Parser:
         buf = self._buf + chunk if self._buf else chunk
         n = len(buf)
         out: list[Frame] = []
+        bad_before: list[int] = []
         st = self.stats
         p = 0
         good_bytes = 0
@@ -553,11 +580,13 @@ class Parser:
                 continue
             self._track(f.seq, f.t_us)
             out.append(f)
+            bad_before.append(st.bad_frames)
             good_bytes += e + 1 - i
             p = e + 1
         self._buf = buf[keep:] if keep < n else b""
         st.frames += len(out)
         st.garbage_bytes += keep - good_bytes
+        self.bad_before = bad_before
         return out
 
 
@@ -620,21 +649,25 @@ def _sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
 
 def decode_capture(
     data: bytes | bytearray | memoryview, protocol: str = "hdr-bin"
-) -> tuple[npt.NDArray[np.void], ParserStats]:
+) -> tuple[npt.NDArray[np.void], CaptureStats]:
     """Decode a whole capture to a :data:`FRAME_DTYPE` array and the parser's counters.
 
     Gives exactly the frames and counters of a :class:`Parser` fed the same bytes (in any
-    chunking) and then flushed. hdr-bin is vectorised: every sync candidate's CRC is computed
-    at once (table-driven over the 12 payload bytes); Python loops only over overlapping
-    candidates. hdr-text uses the push parser.
+    chunking) and then flushed, plus ``bad_before`` per frame (:class:`CaptureStats`).
+    hdr-bin is vectorised: every sync candidate's CRC is computed at once (table-driven, two
+    payload bytes per step); Python loops only over overlapping candidates. hdr-text uses the
+    push parser.
     """
     _check_protocol(protocol)
-    st = ParserStats()
+    st = CaptureStats()
     if protocol == "hdr-text":
         p = Parser("hdr-text")
         frames = p.feed(bytes(data))
         p.flush()
-        return frames_to_array(frames), p.stats
+        for name in _COUNTERS:
+            setattr(st, name, getattr(p.stats, name))
+        st.bad_before = np.asarray(p.bad_before, np.int64)
+        return frames_to_array(frames), st
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.shape[0]
     if n < BIN_FRAME_LEN:
@@ -643,7 +676,7 @@ def decode_capture(
     cand = np.flatnonzero((a[: n - 15] == 0xA5) & (a[1 : n - 14] == 0x5A))
     k = cand.shape[0]
     if k and cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
-        # A clean run of frames (the usual capture): a view, no gather.
+        # A clean run of frames with no stray sync pattern: a view, no gather.
         rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
     else:
         rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
@@ -652,20 +685,22 @@ def decode_capture(
     valid = _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
     if valid.all():
         acc_mask = _greedy_accept(cand)
-        acc = cand if acc_mask.all() else cand[acc_mask]
-        st.bad_frames = 0
         good = words if acc_mask.all() else words[acc_mask]
+        st.bad_before = np.zeros(good.shape[0], np.int64)
     else:
         v = cand[valid]
         acc_mask = _greedy_accept(v)
         acc = v[acc_mask]
         inv = cand[~valid]
         if acc.size:
+            # A failed candidate counts unless it lies inside a frame that was taken.
             j = np.searchsorted(acc, inv, side="right") - 1
             inside = (j >= 0) & (inv < acc[np.maximum(j, 0)] + BIN_FRAME_LEN)
-            st.bad_frames = int(np.count_nonzero(~inside))
+            bad_pos = inv[~inside]
         else:
-            st.bad_frames = int(inv.size)
+            bad_pos = inv
+        st.bad_frames = int(bad_pos.size)
+        st.bad_before = np.searchsorted(bad_pos, acc).astype(np.int64)
         good = words[np.flatnonzero(valid)[acc_mask]]
     arr = np.ascontiguousarray(good[:, 1:7]).view(FRAME_DTYPE).reshape(-1)
     st.frames = int(arr.shape[0])

@@ -54,13 +54,18 @@ frames_st = st.builds(
 NON_SYNC_BIN = st.integers(0, 255).filter(lambda b: b not in (0xA5, 0x5A))
 
 
-def run(protocol: str, data: bytes, cuts: list[int] | None = None) -> tuple[list[Frame], ParserStats]:
-    """Feed ``data`` to a parser split at ``cuts``, then flush."""
+def run(
+    protocol: str, data: bytes, cuts: list[int] | None = None, bad_before: list[int] | None = None
+) -> tuple[list[Frame], ParserStats]:
+    """Feed ``data`` to a parser split at ``cuts``, then flush; per-frame bad counts are
+    appended to ``bad_before`` if given."""
     p = Parser(protocol)
     out: list[Frame] = []
     edges = [0, *sorted(c % (len(data) + 1) for c in (cuts or [])), len(data)]
     for a, b in zip(edges, edges[1:]):
         out += p.feed(data[a:b])
+        if bad_before is not None:
+            bad_before += p.bad_before
     p.flush()
     return out, p.stats
 
@@ -211,9 +216,11 @@ def test_array_helpers_round_trip(frames: list[Frame]) -> None:
 @settings(max_examples=300)
 @given(st.binary(max_size=400), st.sampled_from(PROTOCOLS), st.lists(st.integers(0, 400), max_size=6))
 def test_arbitrary_bytes_never_raise(data: bytes, protocol: str, cuts: list[int]) -> None:
-    frames, stats = run(protocol, data, cuts)
+    bb: list[int] = []
+    frames, stats = run(protocol, data, cuts, bb)
     arr, vstats = decode_capture(data, protocol)
     assert array_to_frames(arr) == frames and vstats == stats
+    assert vstats.bad_before.tolist() == bb
     assert stats.frames == len(frames)
     assert 0 <= stats.garbage_bytes <= len(data)
 
@@ -263,13 +270,15 @@ def test_bin_recovers_every_good_frame_and_counts_bad_ones(
     stream: tuple[bytes, list[Frame], int], cuts: list[int]
 ) -> None:
     data, good, bad = stream
-    frames, stats = run("hdr-bin", data, cuts)
+    bb: list[int] = []
+    frames, stats = run("hdr-bin", data, cuts, bb)
     assert frames == good
+    assert bb == sorted(bb) and (not bb or bb[-1] == bad)  # the stream ends with a good frame
     assert stats.frames == len(good)
     assert stats.bad_frames == bad
     assert stats.garbage_bytes == len(data) - 16 * len(good)
     arr, vstats = decode_capture(data)
-    assert array_to_frames(arr) == good and vstats == stats
+    assert array_to_frames(arr) == good and vstats == stats and vstats.bad_before.tolist() == bb
 
 
 @st.composite
@@ -325,14 +334,16 @@ def test_bin_chunking_invariance_and_vectorised_equality(pieces: list[bytes], cu
     """Any split gives the same frames and counters; the vectorised decoder agrees, also on
     arbitrary garbage (which may hold sync patterns) and frames overlapping each other."""
     data = b"".join(pieces)
-    whole = run("hdr-bin", data)
-    assert run("hdr-bin", data, cuts) == whole
+    bb_whole: list[int] = []
+    bb_cut: list[int] = []
+    whole = run("hdr-bin", data, None, bb_whole)
+    assert run("hdr-bin", data, cuts, bb_cut) == whole and bb_cut == bb_whole
     one_by_one = Parser()
     frames = [f for i in range(len(data)) for f in one_by_one.feed(data[i : i + 1])]
     one_by_one.flush()
     assert (frames, one_by_one.stats) == whole
     arr, vstats = decode_capture(data)
-    assert (array_to_frames(arr), vstats) == whole
+    assert (array_to_frames(arr), vstats) == whole and vstats.bad_before.tolist() == bb_whole
 
 
 @settings(max_examples=200)
@@ -342,7 +353,10 @@ def test_bin_chunking_invariance_and_vectorised_equality(pieces: list[bytes], cu
 )
 def test_text_chunking_invariance(pieces: list[bytes], cuts: list[int]) -> None:
     data = b"".join(pieces)
-    assert run("hdr-text", data, cuts) == run("hdr-text", data)
+    bb_whole: list[int] = []
+    bb_cut: list[int] = []
+    assert run("hdr-text", data, cuts, bb_cut) == run("hdr-text", data, None, bb_whole)
+    assert bb_cut == bb_whole
 
 
 def test_sync_pattern_in_payload_does_not_lose_the_next_frame() -> None:
@@ -467,8 +481,10 @@ def test_vectorised_on_a_large_dirty_capture() -> None:
     got, vstats = decode_capture(data)
     p = Parser()
     out = []
+    bb = []
     for i in range(0, len(data), 64):
         out += p.feed(data[i : i + 64])
+        bb += p.bad_before
     p.flush()
-    assert array_to_frames(got) == out and vstats == p.stats
+    assert array_to_frames(got) == out and vstats == p.stats and vstats.bad_before.tolist() == bb
     assert p.stats.bad_frames >= int(0.04 * n) and p.stats.frames >= int(0.9 * n)
