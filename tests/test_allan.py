@@ -42,12 +42,14 @@ def test_rate_ramp_is_exact() -> None:
 def test_square_wave_hand_case() -> None:
     # Alternating +1/-1 at fs = 1: tau = 1 -> successive differences 2 -> AVAR = 2; tau = 2 -> 0.
     x = np.tile([1.0, -1.0], 50)
-    taus, adev = allan_deviation(x, 1.0, np.array([1.0, 2.0]))
+    _, adev = allan_deviation(x, 1.0, np.array([1.0, 2.0]))
     np.testing.assert_allclose(adev, [math.sqrt(2.0), 0.0], atol=1e-12)
 
 
 def test_taus_are_rounded_filtered_and_merged() -> None:
-    taus, _ = allan_deviation(np.zeros(101), 10.0, np.array([0.01, 0.1, 0.12, 0.5, 5.0, 5.1, 100.0]))
+    taus, _ = allan_deviation(
+        np.zeros(101), 10.0, np.array([0.01, 0.1, 0.12, 0.5, 5.0, 5.1, 100.0])
+    )
     # 0.01 s < one sample; 5.1 s = 51 samples > (101 - 1) / 2; 0.12 rounds to 0.1.
     np.testing.assert_allclose(taus, [0.1, 0.5, 5.0])
 
@@ -76,7 +78,9 @@ def test_white_noise_density_read_back() -> None:
     taus, adev = allan_deviation(x, fs)
     assert arw_from_adev(taus, adev) == pytest.approx(n_density, rel=0.05)
     assert _slope(taus, adev, 0.1, 100.0) == pytest.approx(-0.5, abs=0.05)
-    np.testing.assert_allclose(adev[taus <= 100], white_noise_adev(taus[taus <= 100], n_density), rtol=0.15)
+    np.testing.assert_allclose(
+        adev[taus <= 100], white_noise_adev(taus[taus <= 100], n_density), rtol=0.15
+    )
 
 
 def test_rate_random_walk_read_back() -> None:
@@ -98,7 +102,9 @@ def test_gauss_markov_formula_limits_and_peak() -> None:
     )
     # tau >> tc: white noise with N^2 = 2 sigma^2 tc.
     big = np.array([1e3, 1e4]) * tc
-    np.testing.assert_allclose(gauss_markov_adev(big, sigma, tc), np.sqrt(2 * sigma**2 * tc / big), rtol=0.01)
+    np.testing.assert_allclose(
+        gauss_markov_adev(big, sigma, tc), np.sqrt(2 * sigma**2 * tc / big), rtol=0.01
+    )
     # Continuous across the series/closed-form switch at tau = 0.01 tc.
     a, b = gauss_markov_adev(np.array([0.00999999, 0.01000001]) * tc, sigma, tc)
     assert a == pytest.approx(b, rel=1e-5)

@@ -48,9 +48,15 @@ def test_geodetic_hand_cases() -> None:
     # 45 deg N, 90 deg E on the ellipsoid surface.
     phi, lam = math.radians(45.0), math.radians(90.0)
     n = cr._A / math.sqrt(1 - cr._E2 * math.sin(phi) ** 2)
-    p = (n * math.cos(phi) * math.cos(lam), n * math.cos(phi) * math.sin(lam), n * (1 - cr._E2) * math.sin(phi))
+    p = (
+        n * math.cos(phi) * math.cos(lam),
+        n * math.cos(phi) * math.sin(lam),
+        n * (1 - cr._E2) * math.sin(phi),
+    )
     lat, lon = cr.geodetic_lat_lon(*p)
-    assert math.degrees(lat) == pytest.approx(45.0, abs=1e-9) and math.degrees(lon) == pytest.approx(90.0)
+    assert math.degrees(lat) == pytest.approx(45.0, abs=1e-9) and math.degrees(
+        lon
+    ) == pytest.approx(90.0)
 
 
 def test_course_from_positions_is_compass() -> None:

@@ -103,7 +103,10 @@ def test_generate_is_deterministic() -> None:
 
 def test_cli_simulate_one_drive(tmp_path: Path) -> None:
     out = tmp_path / "x.csv"
-    assert main(["simulate", "--drive", "city", "--minutes", "2", "--seed", "3", "--out", str(out)]) == 0
+    assert (
+        main(["simulate", "--drive", "city", "--minutes", "2", "--seed", "3", "--out", str(out)])
+        == 0
+    )
     log = read_drive(out)
     assert log.columns() == ["t", "omega", "temp_c", "heading_truth", "omega_truth", "speed"]
     assert len(log) == 1500 and log.rate_hz == pytest.approx(10.0)
@@ -119,7 +122,22 @@ def test_cli_simulate_with_a_model_file(tmp_path: Path) -> None:
     model = tmp_path / "m.yaml"
     model.write_text("effects:\n  - {name: static_bias, bias_dps: 0.5}\n")
     out = tmp_path / "x.csv"
-    assert main(["simulate", "--drive", "rural", "--minutes", "1", "--model", str(model), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--drive",
+                "rural",
+                "--minutes",
+                "1",
+                "--model",
+                str(model),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     log = read_drive(out)
     assert log.omega_truth is not None
     np.testing.assert_allclose(log.omega, log.omega_truth + 0.5, atol=2e-5)
@@ -152,12 +170,16 @@ def test_cli_simulate_benchmark(tmp_path: Path, capsys: pytest.CaptureFixture[st
         (["--model", "/nonexistent/m.yaml"], 78, "cannot read the model"),
     ],
 )
-def test_cli_simulate_errors(argv: list[str], status: int, message: str, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_simulate_errors(
+    argv: list[str], status: int, message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["simulate", *argv]) == status
     assert message in capsys.readouterr().err
 
 
-def test_cli_simulate_bad_model_and_unwritable_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_simulate_bad_model_and_unwritable_output(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     model = tmp_path / "m.yaml"
     model.write_text("effects:\n  - {name: static_bias, bias: 0.5}\n")
     assert main(["simulate", "--model", str(model), "--out", str(tmp_path / "x.csv")]) == 78

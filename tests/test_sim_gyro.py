@@ -59,15 +59,23 @@ ISSUE_VOCABULARY = {
 }
 
 
-def _run(model: GyroModel, x: np.ndarray, fs: float = 10.0, temp: np.ndarray | None = None, seed: int = 0,
-         t0: float = 0.0) -> np.ndarray:
+def _run(
+    model: GyroModel,
+    x: np.ndarray,
+    fs: float = 10.0,
+    temp: np.ndarray | None = None,
+    seed: int = 0,
+    t0: float = 0.0,
+) -> np.ndarray:
     t = t0 + np.arange(x.shape[0]) / fs
     return model.apply(t, x, temp, np.random.default_rng(seed))
 
 
 def test_vocabulary_is_exactly_the_issues() -> None:
-    assert {n: {p for p in effect_from_dict({"name": n, **{q: 1.0 for q in ps}}).params()}
-            for n, ps in ISSUE_VOCABULARY.items()} == ISSUE_VOCABULARY
+    assert {
+        n: {p for p in effect_from_dict({"name": n, **{q: 1.0 for q in ps}}).params()}
+        for n, ps in ISSUE_VOCABULARY.items()
+    } == ISSUE_VOCABULARY
     assert set(EFFECT_NAMES) == set(ISSUE_VOCABULARY)
     assert list(EFFECT_NAMES) == [c.name for c in sorted(EFFECTS.values(), key=lambda c: c.order)]
 
@@ -114,7 +122,9 @@ def test_time_offset_lags_the_truth() -> None:
     x = np.sin(2 * math.pi * 0.5 * t) * 10.0
     out = GyroModel((TimeOffset(0.25),)).apply(t, x, None, np.random.default_rng(0))
     inner = t >= 0.25
-    np.testing.assert_allclose(out[inner], 10 * np.sin(2 * math.pi * 0.5 * (t[inner] - 0.25)), atol=0.02)
+    np.testing.assert_allclose(
+        out[inner], 10 * np.sin(2 * math.pi * 0.5 * (t[inner] - 0.25)), atol=0.02
+    )
     # Before the record starts the first true value is held.
     assert np.all(out[~inner] == x[0])
     # On a ramp the lag is exact.
@@ -224,7 +234,9 @@ def test_paper_like_cabin_warm_up_moves_the_bias_by_a_tenth_of_a_degree_per_seco
     m = crs03_default_model()
     te = m.get("temperature_bias")
     assert isinstance(te, TemperatureBias)
-    bias = lambda c: te.coeff_dps_per_c * (c - te.ref_temp_c) + te.quad_dps_per_c2 * (c - te.ref_temp_c) ** 2
+    bias = lambda c: (
+        te.coeff_dps_per_c * (c - te.ref_temp_c) + te.quad_dps_per_c2 * (c - te.ref_temp_c) ** 2
+    )
     assert 0.1 < bias(21.0) - bias(5.0) < 0.3
     # ... yet stays within the part's +/-3 deg/s over its -40..85 degC range.
     assert all(abs(bias(c)) < 3.0 for c in np.linspace(-40, 85, 126))
@@ -247,7 +259,11 @@ def test_same_rng_same_output_other_seed_other_output() -> None:
     m = crs03_default_model()
     x = np.zeros(500)
     temp = np.full(500, 20.0)
-    a, b, c = _run(m, x, temp=temp, seed=1), _run(m, x, temp=temp, seed=1), _run(m, x, temp=temp, seed=2)
+    a, b, c = (
+        _run(m, x, temp=temp, seed=1),
+        _run(m, x, temp=temp, seed=1),
+        _run(m, x, temp=temp, seed=2),
+    )
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
 
@@ -323,8 +339,7 @@ def test_yaml_in_the_documented_form(tmp_path: Path) -> None:
 
 effect_dicts = st.sampled_from(EFFECT_NAMES).flatmap(
     lambda name: st.fixed_dictionaries(
-        {"name": st.just(name)}
-        | {p: st.floats(0.001, 500.0) for p in ISSUE_VOCABULARY[name]}
+        {"name": st.just(name)} | {p: st.floats(0.001, 500.0) for p in ISSUE_VOCABULARY[name]}
     )
 )
 
@@ -341,14 +356,34 @@ def test_dict_round_trip_any_model(items: list[dict[str, float]]) -> None:
     ("data", "message"),
     [
         ({"effects": [{"name": "bogus"}]}, "unknown effect name\\(s\\): bogus"),
-        ({"effects": [{"name": "static_bias", "bias": 1}]}, "static_bias: unknown parameter\\(s\\) bias"),
-        ({"effects": [{"name": "bias_instability", "sigma_dps": 1}]}, "bias_instability: missing parameter\\(s\\) tau_s"),
-        ({"effects": [{"name": "static_bias", "bias_dps": "x"}]}, "static_bias.bias_dps: 'x' is not a number"),
+        (
+            {"effects": [{"name": "static_bias", "bias": 1}]},
+            "static_bias: unknown parameter\\(s\\) bias",
+        ),
+        (
+            {"effects": [{"name": "bias_instability", "sigma_dps": 1}]},
+            "bias_instability: missing parameter\\(s\\) tau_s",
+        ),
+        (
+            {"effects": [{"name": "static_bias", "bias_dps": "x"}]},
+            "static_bias.bias_dps: 'x' is not a number",
+        ),
         ({"effects": [{"name": "white_noise", "density_dps_per_rthz": -1}]}, "must be >= 0"),
-        ({"effects": [{"name": "bias_instability", "sigma_dps": 1, "tau_s": 0}]}, "tau_s: 0.0 must be > 0"),
+        (
+            {"effects": [{"name": "bias_instability", "sigma_dps": 1, "tau_s": 0}]},
+            "tau_s: 0.0 must be > 0",
+        ),
         ({"effects": [{"name": "scale_factor", "error": -1.5}]}, "must be > -1"),
         ({"effects": [{"name": "static_bias", "bias_dps": float("nan")}]}, "not a finite number"),
-        ({"effects": [{"name": "static_bias", "bias_dps": 1}, {"name": "static_bias", "bias_dps": 2}]}, "more than once"),
+        (
+            {
+                "effects": [
+                    {"name": "static_bias", "bias_dps": 1},
+                    {"name": "static_bias", "bias_dps": 2},
+                ]
+            },
+            "more than once",
+        ),
         ({"effect": []}, "'effects' list"),
         ({"effects": [], "extra": 1}, "unknown key\\(s\\) in gyro model: extra"),
         ({"effects": "static_bias"}, "must be a list"),
@@ -363,7 +398,9 @@ def test_bad_model_dicts_name_the_problem(data: object, message: str) -> None:
 def test_load_model_names_the_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("effects: [{name: static_bias, bias_dps: 1, colour: red}]\n")
-    with pytest.raises(ValueError, match=r"bad.yaml: effect static_bias: unknown parameter\(s\) colour"):
+    with pytest.raises(
+        ValueError, match=r"bad.yaml: effect static_bias: unknown parameter\(s\) colour"
+    ):
         load_model(bad)
     broken = tmp_path / "broken.yaml"
     broken.write_text("effects: [\n")

@@ -157,7 +157,11 @@ def test_mixed_has_rural_highway_and_city_parts() -> None:
     log = drive("mixed", 15.0, 2)
     assert log.speed is not None
     n = len(log)
-    first, middle, last = log.speed[: n // 3], log.speed[n // 3 : 2 * n // 3], log.speed[2 * n // 3 :]
+    first, middle, last = (
+        log.speed[: n // 3],
+        log.speed[n // 3 : 2 * n // 3],
+        log.speed[2 * n // 3 :],
+    )
     assert middle.mean() > 25.0  # highway
     assert 15.0 < first[first > 1].mean() < 25.0  # rural
     assert last.mean() < 14.0  # city
@@ -172,7 +176,9 @@ def test_standstill_drive() -> None:
 
 
 def test_cabin_temperature_warms_up() -> None:
-    log = simulate_drive("city", 20.0, 3, temperature=CabinTemperature(5.0, 21.0, 300.0, noise_c=0.0))
+    log = simulate_drive(
+        "city", 20.0, 3, temperature=CabinTemperature(5.0, 21.0, 300.0, noise_c=0.0)
+    )
     assert log.temp_c is not None
     np.testing.assert_allclose(log.temp_c[0], 5.0)
     assert np.all(np.diff(log.temp_c) >= 0)
@@ -184,7 +190,10 @@ def test_cabin_temperature_warms_up() -> None:
     assert log.temp_c[299] - log.temp_c[0] < 0.15
     profile = CabinTemperature(10.0, 20.0, 100.0, on_s=50.0, self_heat_c=0.0, noise_c=0.0)
     t = np.array([0.0, 50.0, 150.0])
-    np.testing.assert_allclose(profile.profile(t, 0.0, np.random.default_rng(0)), [10.0, 10.0, 10.0 + 10 * (1 - math.exp(-1))])
+    np.testing.assert_allclose(
+        profile.profile(t, 0.0, np.random.default_rng(0)),
+        [10.0, 10.0, 10.0 + 10 * (1 - math.exp(-1))],
+    )
 
 
 def test_count_turns_on_a_hand_made_trace() -> None:
@@ -226,6 +235,8 @@ def test_gps_noise_grows_at_low_speed_and_outages_blank_epochs() -> None:
     assert np.isfinite(fast).sum() == 3600
     parked = gps_course(t, heading, np.full(n, 1.9), rng)
     assert np.all(np.isnan(parked))
-    gappy = gps_course(t, heading, np.full(n, 30.0), rng, GpsModel(outages_per_hour=20.0, outage_s=(30.0, 30.0)))
+    gappy = gps_course(
+        t, heading, np.full(n, 30.0), rng, GpsModel(outages_per_hour=20.0, outage_s=(30.0, 30.0))
+    )
     missing = 3600 - int(np.isfinite(gappy).sum())
     assert 60 <= missing <= 20 * 2 * 30

@@ -65,11 +65,15 @@ def geodetic_lat_lon(x: float, y: float, z: float) -> tuple[float, float]:
 def enu_axes(lat: float, lon: float) -> tuple[FloatArray, FloatArray]:
     """Unit East and North vectors in ECEF at a geodetic latitude/longitude (rad)."""
     east = np.array([-math.sin(lon), math.cos(lon), 0.0])
-    north = np.array([-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)])
+    north = np.array(
+        [-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)]
+    )
     return east, north
 
 
-def course_from_positions(t: FloatArray, ecef: FloatArray, min_speed: float = MIN_COURSE_SPEED_MPS) -> tuple[FloatArray, FloatArray]:
+def course_from_positions(
+    t: FloatArray, ecef: FloatArray, min_speed: float = MIN_COURSE_SPEED_MPS
+) -> tuple[FloatArray, FloatArray]:
     """Course over ground (compass deg, clockwise from north; NaN below min_speed) and
     ground speed (m/s) from ECEF positions (n, 3) by central differences."""
     lat, lon = geodetic_lat_lon(*ecef[0])
@@ -133,7 +137,7 @@ def _quat_forward(q: FloatArray) -> FloatArray:
 
 def comma2k19_to_drive(folder: Path = DATA / "comma2k19_example") -> DriveLog:
     """The comma2k19 example minute as a drive log (see the module docstring)."""
-    load = lambda rel: np.load(folder / rel)  # noqa: E731  (files are .npy without extension)
+    load = lambda rel: np.load(folder / rel)  # files are .npy without an extension
     gt = load("processed_log/IMU/gyro_uncalibrated/t").astype(np.float64)
     gz = load("processed_log/IMU/gyro_uncalibrated/value")[:, 2].astype(np.float64)
     bias = load("processed_log/IMU/gyro_bias/value")[:, 2].astype(np.float64)
@@ -178,13 +182,18 @@ def comma2k19_to_drive(folder: Path = DATA / "comma2k19_example") -> DriveLog:
     )
 
 
-CONVERTERS = {"smartloc": (smartloc_to_drive, "smartloc_berlin"), "comma2k19": (comma2k19_to_drive, "comma2k19_example")}
+CONVERTERS = {
+    "smartloc": (smartloc_to_drive, "smartloc_berlin"),
+    "comma2k19": (comma2k19_to_drive, "comma2k19_example"),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("which", choices=(*CONVERTERS, "all"))
-    p.add_argument("--data", type=Path, help="the recording's folder (default ../shared/data/<name>)")
+    p.add_argument(
+        "--data", type=Path, help="the recording's folder (default ../shared/data/<name>)"
+    )
     p.add_argument("--out", type=Path, help="drive log CSV to write (one recording)")
     p.add_argument("--out-dir", type=Path, help="with 'all': directory for <name>.csv")
     args = p.parse_args(argv)
@@ -205,7 +214,9 @@ def main(argv: list[str] | None = None) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         write_drive(out, log)
         fixes = int(np.isfinite(log.heading_truth).sum()) if log.heading_truth is not None else 0
-        print(f"{out}: {len(log)} rows, {log.duration_s:.1f} s at {log.rate_hz:.1f} Hz, {fixes} heading fixes")
+        print(
+            f"{out}: {len(log)} rows, {log.duration_s:.1f} s at {log.rate_hz:.1f} Hz, {fixes} heading fixes"
+        )
     return 0
 
 

@@ -24,13 +24,13 @@ import numpy.typing as npt
 
 __all__ = [
     "allan_deviation",
-    "default_taus",
     "arw_from_adev",
     "bias_instability_from_adev",
-    "rrw_from_adev",
+    "default_taus",
     "gauss_markov_adev",
-    "white_noise_adev",
     "rrw_adev",
+    "rrw_from_adev",
+    "white_noise_adev",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -43,7 +43,9 @@ def default_taus(n: int, fs_hz: float, per_decade: int = 10) -> FloatArray:
     m_max = (n - 1) // 2
     if m_max < 1:
         return np.empty(0)
-    ms = np.unique(np.round(np.logspace(0, math.log10(m_max), max(int(per_decade * math.log10(m_max)) + 1, 2))))
+    ms = np.unique(
+        np.round(np.logspace(0, math.log10(m_max), max(int(per_decade * math.log10(m_max)) + 1, 2)))
+    )
     return ms.astype(np.float64) / fs_hz
 
 

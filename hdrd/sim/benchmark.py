@@ -19,7 +19,7 @@ from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import GyroModel
 from hdrd.sim.vehicle import PROFILES, CabinTemperature, RoadProfile
 
-__all__ = ["DriveSpec", "TRAIN_DRIVES", "TEST_DRIVES", "VARIANTS", "generate", "generate_all", "spec_by_name"]
+__all__ = ["TEST_DRIVES", "TRAIN_DRIVES", "VARIANTS", "DriveSpec", "generate", "generate_all", "spec_by_name"]
 
 
 def _variant(base: str, name: str, **kw: object) -> RoadProfile:

@@ -65,8 +65,10 @@ def simulate_main(args: argparse.Namespace) -> int:
         _err(f"cannot write {out}: {e.strerror or e}")
         return 1
     if out != "-":
-        print(f"{out}: {args.drive}, {args.minutes:g} min + {log.meta['lead_in_s']} s standstill, "
-              f"{len(log)} samples at {args.hz:g} Hz, seed {args.seed}")
+        print(
+            f"{out}: {args.drive}, {args.minutes:g} min + {log.meta['lead_in_s']} s standstill, "
+            f"{len(log)} samples at {args.hz:g} Hz, seed {args.seed}"
+        )
     return 0
 
 

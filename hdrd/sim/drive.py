@@ -22,6 +22,9 @@ from hdrd.sim.vehicle import DRIVE_TYPES, PROFILES, CabinTemperature, RoadProfil
 
 __all__ = ["simulate_drive", "simulate_legs"]
 
+DEFAULT_GPS = GpsModel()
+"""1 Hz course, unusable below 2 m/s, no outages."""
+
 
 def simulate_legs(
     legs: Sequence[tuple[RoadProfile, float]],
@@ -31,7 +34,7 @@ def simulate_legs(
     model: GyroModel | None = None,
     lead_in_s: float = 30.0,
     temperature: CabinTemperature | None = None,
-    gps: GpsModel = GpsModel(),
+    gps: GpsModel = DEFAULT_GPS,
     heading0_deg: float | None = None,
     name: str = "",
     meta: dict[str, str] | None = None,
@@ -98,7 +101,7 @@ def simulate_drive(
     model: GyroModel | None = None,
     lead_in_s: float = 30.0,
     temperature: CabinTemperature | None = None,
-    gps: GpsModel = GpsModel(),
+    gps: GpsModel = DEFAULT_GPS,
 ) -> DriveLog:
     """A simulated drive of type city|suburbs|rural|highway|mixed|standstill.
 

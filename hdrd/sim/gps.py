@@ -44,7 +44,9 @@ class GpsModel:
             raise ValueError("GpsModel: rate_hz must be > 0, min_speed_mps and vel_noise_mps >= 0")
 
 
-def heading_from_rate(t_s: npt.ArrayLike, omega_dps: npt.ArrayLike, heading0_deg: float) -> FloatArray:
+def heading_from_rate(
+    t_s: npt.ArrayLike, omega_dps: npt.ArrayLike, heading0_deg: float
+) -> FloatArray:
     """Compass heading (deg, clockwise from north, [0, 360)) from a yaw rate (deg/s, + = CCW):
     heading = heading0 - integral(omega dt), trapezoid rule from t_s[0]. Yaw is counter-clockwise,
     compass heading clockwise, hence the minus sign."""
@@ -71,14 +73,16 @@ def gps_course(
     out = np.full(n, np.nan)
     if n == 0:
         return out
-    epochs = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * model.rate_hz)) + 1) / model.rate_hz
+    epochs = t[0] + np.arange(math.floor((t[-1] - t[0]) * model.rate_hz) + 1) / model.rate_hz
     idx = np.clip(np.searchsorted(t, epochs), 0, n - 1)
     prev = np.clip(idx - 1, 0, n - 1)
     idx = np.where(np.abs(t[prev] - epochs) < np.abs(t[idx] - epochs), prev, idx)
     idx = np.unique(idx)
     speed = v[idx]
-    sd = np.hypot(model.floor_deg, np.degrees(np.arctan2(model.vel_noise_mps, np.maximum(speed, 1e-3))))
-    course = np.mod(hdg[idx] + sd * rng.standard_normal(idx.shape[0]), 360.0)
+    sd = np.hypot(
+        model.floor_deg, np.degrees(np.arctan2(model.vel_noise_mps, np.maximum(speed, 1e-3)))
+    )
+    course = np.mod(hdg[idx] + sd * rng.standard_normal((idx.shape[0],)), 360.0)
     ok = speed >= model.min_speed_mps
     # Outages: a Poisson number over the drive, uniformly placed.
     hours = (t[-1] - t[0]) / 3600.0

@@ -35,6 +35,7 @@ bias of sigma, tau_c has variance sigma**2 and correlation exp(-|dt| / tau_c).
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from dataclasses import asdict, dataclass, fields
@@ -47,28 +48,28 @@ import yaml
 from hdrd.sensor import SensorModel
 
 __all__ = [
-    "Effect",
-    "TimeOffset",
-    "ScaleFactor",
-    "ScaleAsymmetry",
-    "StaticBias",
-    "WarmupTransient",
-    "TemperatureBias",
-    "BiasInstability",
-    "RateRandomWalk",
-    "WhiteNoise",
-    "Bandwidth",
-    "Saturation",
-    "Quantization",
+    "DEFAULT_START_MODEL",
     "EFFECTS",
     "EFFECT_NAMES",
+    "Bandwidth",
+    "BiasInstability",
+    "Effect",
     "GyroModel",
-    "effect_from_dict",
+    "Quantization",
+    "RateRandomWalk",
+    "Saturation",
+    "ScaleAsymmetry",
+    "ScaleFactor",
+    "StaticBias",
+    "TemperatureBias",
+    "TimeOffset",
+    "WarmupTransient",
+    "WhiteNoise",
+    "ar1",
     "crs03_default_model",
-    "DEFAULT_START_MODEL",
+    "effect_from_dict",
     "load_model",
     "save_model",
-    "ar1",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -123,7 +124,7 @@ def ar1(decay: FloatArray, u: FloatArray, x0: float) -> FloatArray:
     starts = np.concatenate(([0], np.flatnonzero(np.diff(block)) + 1, [n - 1]))
     carry = float(x0)
     uu = u[1:]
-    for a, b in zip(starts[:-1], starts[1:]):
+    for a, b in itertools.pairwise(starts):
         g0 = g[a - 1] if a > 0 else 0.0
         gr = g[a:b] - g0
         e = np.exp(gr)
@@ -286,7 +287,7 @@ class BiasInstability(Effect):
     def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
         decay = ctx.dt / self.tau_s
         a = np.exp(-np.minimum(decay, _STEP_CAP))
-        w = ctx.rng.standard_normal(x.shape[0])
+        w = ctx.rng.standard_normal((x.shape[0],))
         drive = self.sigma_dps * np.sqrt(1.0 - a * a) * w
         return x + ar1(decay, drive, self.sigma_dps * float(w[0]))
 
@@ -304,7 +305,7 @@ class RateRandomWalk(Effect):
         _nonneg(self.name, "k_dps_per_sqrt_s", self.k_dps_per_sqrt_s)
 
     def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
-        steps = self.k_dps_per_sqrt_s * np.sqrt(ctx.dt) * ctx.rng.standard_normal(x.shape[0])
+        steps = self.k_dps_per_sqrt_s * np.sqrt(ctx.dt) * ctx.rng.standard_normal((x.shape[0],))
         steps[0] = 0.0
         return x + np.cumsum(steps)
 
@@ -323,7 +324,7 @@ class WhiteNoise(Effect):
 
     def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
         sd = self.density_dps_per_rthz / np.sqrt(ctx.dt)
-        return x + sd * ctx.rng.standard_normal(x.shape[0])
+        return x + sd * ctx.rng.standard_normal((x.shape[0],))
 
 
 @dataclass(frozen=True)
@@ -415,7 +416,7 @@ def _required(cls: type[Effect]) -> list[str]:
 def effect_from_dict(d: dict[str, Any]) -> Effect:
     """One effect from ``{name: ..., <param>: <value>, ...}``; ValueError naming what is wrong."""
     if not isinstance(d, dict):
-        raise ValueError(f"an effect must be a mapping with a 'name', got {d!r}")
+        raise ValueError(f"an effect must be a mapping with a 'name', got {d!r}")  # noqa: TRY004 - a bad model is a ValueError
     name = d.get("name")
     if name not in EFFECTS:
         raise ValueError(f"unknown effect name {name!r} (known: {', '.join(EFFECT_NAMES)})")
@@ -432,7 +433,7 @@ def effect_from_dict(d: dict[str, Any]) -> Effect:
         raise ValueError(f"effect {name}: missing parameter(s) {', '.join(missing)}")
     for k, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{name}.{k}: {v!r} is not a number")
+            raise ValueError(f"{name}.{k}: {v!r} is not a number")  # noqa: TRY004 - a bad model is a ValueError
     return cls(**{k: float(v) for k, v in params.items()})
 
 
@@ -491,15 +492,23 @@ class GyroModel:
             raise ValueError("a gyro model must be a mapping with an 'effects' list")
         extra = sorted(set(data) - {"effects"})
         if extra:
-            raise ValueError(f"unknown key(s) in gyro model: {', '.join(map(str, extra))} (allowed: effects)")
+            raise ValueError(
+                f"unknown key(s) in gyro model: {', '.join(map(str, extra))} (allowed: effects)"
+            )
         items = data["effects"]
         if items is None:
             items = []
         if not isinstance(items, list):
-            raise ValueError("'effects' must be a list of {name: ..., <param>: ...} mappings")
-        unknown = [str(d.get("name")) for d in items if isinstance(d, dict) and d.get("name") not in EFFECTS]
+            raise ValueError("'effects' must be a list of {name: ..., <param>: ...} mappings")  # noqa: TRY004 - a bad model is a ValueError
+        unknown = [
+            str(d.get("name"))
+            for d in items
+            if isinstance(d, dict) and d.get("name") not in EFFECTS
+        ]
         if unknown:
-            raise ValueError(f"unknown effect name(s): {', '.join(unknown)} (known: {', '.join(EFFECT_NAMES)})")
+            raise ValueError(
+                f"unknown effect name(s): {', '.join(unknown)} (known: {', '.join(EFFECT_NAMES)})"
+            )
         return cls(tuple(effect_from_dict(d) for d in items))
 
     def apply(
@@ -520,7 +529,9 @@ class GyroModel:
         x = np.array(omega_true_dps, dtype=np.float64)
         n = int(t.shape[0])
         if t.ndim != 1 or x.shape != t.shape:
-            raise ValueError(f"t_s and omega_true_dps must be 1-D of equal length ({t.shape} vs {x.shape})")
+            raise ValueError(
+                f"t_s and omega_true_dps must be 1-D of equal length ({t.shape} vs {x.shape})"
+            )
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
             raise ValueError("t_s and omega_true_dps must be finite")
         if n > 1 and np.any(np.diff(t) <= 0):
@@ -598,9 +609,7 @@ def crs03_default_model() -> GyroModel:
     )
 
 
-DEFAULT_START_MODEL = GyroModel(
-    (StaticBias(bias_dps=1.0), WhiteNoise(density_dps_per_rthz=0.05))
-)
+DEFAULT_START_MODEL = GyroModel((StaticBias(bias_dps=1.0), WhiteNoise(density_dps_per_rthz=0.05)))
 """The model-gap workflow's starting model: static bias + white noise (CRS03-04-like values)."""
 
 
@@ -627,4 +636,3 @@ def save_model(model: GyroModel, path: str | os.PathLike[str]) -> None:
     )
     with open(path, "w", encoding="utf-8") as f:
         f.write(text)
-

@@ -18,6 +18,7 @@ Units: yaw rate deg/s, + = counter-clockwise (left turn); speed m/s; time s; tem
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -28,13 +29,13 @@ import numpy.typing as npt
 from hdrd.sim.gyro import ar1
 
 __all__ = [
-    "RoadProfile",
+    "DRIVE_TYPES",
+    "PROFILES",
     "CabinTemperature",
     "Motion",
-    "PROFILES",
-    "DRIVE_TYPES",
-    "generate_motion",
+    "RoadProfile",
     "count_turns",
+    "generate_motion",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -79,7 +80,9 @@ class RoadProfile:
     def __post_init__(self) -> None:
         unknown = set(self.weights) - set(EVENTS)
         if unknown:
-            raise ValueError(f"profile {self.name}: unknown event(s) {sorted(unknown)} (known: {EVENTS})")
+            raise ValueError(
+                f"profile {self.name}: unknown event(s) {sorted(unknown)} (known: {EVENTS})"
+            )
         if sum(self.weights.values()) <= 0:
             raise ValueError(f"profile {self.name}: event weights must not all be zero")
 
@@ -182,7 +185,7 @@ class CabinTemperature:
         t = np.asarray(t_s, dtype=np.float64)
         heat = np.where(t > on, 1.0 - np.exp(-np.maximum(t - on, 0.0) / self.tau_s), 0.0)
         board = self.self_heat_c * (1.0 - np.exp(-t / self.self_heat_tau_s))
-        noise = self.noise_c * rng.standard_normal(t.shape[0])
+        noise = self.noise_c * rng.standard_normal((t.shape[0],))
         return self.start_c + board + (self.end_c - self.start_c) * heat + noise
 
     @staticmethod
@@ -233,7 +236,7 @@ class _Builder:
         self.n += speed.shape[0]
 
     def _samples(self, seconds: float) -> int:
-        return max(int(round(seconds * self.hz)), 1)
+        return max(round(seconds * self.hz), 1)
 
     def u(self, r: Range) -> float:
         return float(self.rng.uniform(r[0], r[1]))
@@ -380,7 +383,7 @@ def _sway(
     dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
     decay = dt / tau_s
     a = np.exp(-decay)
-    w = rng.standard_normal(n)
+    w = rng.standard_normal((n,))
     s1 = ar1(decay, np.sqrt(1 - a * a) * w, float(w[0]))
     s2 = ar1(decay, (1 - a) * s1, 0.0)
     s2 /= max(float(np.std(s2)), 1e-12)
@@ -404,8 +407,8 @@ def generate_motion(
         raise ValueError(f"hz must be a positive number, got {hz!r}")
     if drive_s < 0 or lead_in_s < 0:
         raise ValueError("drive and lead-in durations must be >= 0")
-    n_lead = int(round(lead_in_s * hz))
-    n_drive = int(round(drive_s * hz))
+    n_lead = round(lead_in_s * hz)
+    n_drive = round(drive_s * hz)
     n = n_lead + n_drive
     t = np.arange(n) / hz
     speed = np.zeros(n)
@@ -429,7 +432,9 @@ def generate_motion(
         sway_tau = float(np.mean([p.sway_tau_s for p, _ in legs]))
         omega += _sway(t, speed, amp, sway_tau, rng)
         end = n / hz
-        events = [(k, s + lead_in_s, e + lead_in_s, a) for k, s, e, a in b.events if s + lead_in_s < end]
+        events = [
+            (k, s + lead_in_s, e + lead_in_s, a) for k, s, e, a in b.events if s + lead_in_s < end
+        ]
     return Motion(t=t, omega=omega, speed=speed, events=events)
 
 
@@ -454,7 +459,7 @@ def count_turns(
     s = np.sign(w)
     cuts = np.concatenate(([0], np.flatnonzero(np.diff(s) != 0) + 1, [w.shape[0]]))
     count = 0
-    for a, b in zip(cuts[:-1], cuts[1:]):
+    for a, b in itertools.pairwise(cuts):
         if s[a] == 0 or np.max(np.abs(w[a:b])) <= threshold_dps:
             continue
         seg = slice(max(a - 1, 0), min(b + 1, w.shape[0]))
