@@ -13,6 +13,7 @@ from hdrd.analysis.metrics import (
     abs_wrap180,
     align_index,
     e_psi,
+    e_psi_continuous,
     gyro_heading,
     heading_error,
     improvement,
@@ -166,3 +167,21 @@ def test_truth_at_interpolates_across_north() -> None:
 
 def test_truth_at_without_fixes() -> None:
     assert np.isnan(truth_at(np.arange(3.0), np.full(3, nan), np.array([1.0]))).all()
+
+
+def test_continuous_epsi_counts_whole_turns() -> None:
+    # A gyro that drifts a full turn (1 deg per step, 400 steps) against a constant truth:
+    # wrapped, the error comes back to 0 after 360 steps; continuous, it keeps growing.
+    n = 400
+    truth = np.full(n, 10.0)
+    yaw = np.arange(n, dtype=float)
+    assert e_psi(yaw, truth) < 90.0
+    assert e_psi_continuous(yaw, truth) == pytest.approx(np.mean(np.arange(n)))
+    # The truth crossing north is unwrapped, not a 360 deg jump.
+    truth2 = wrap360(350.0 - np.arange(n) * 0.1)
+    yaw2 = np.arange(n) * 0.1
+    assert e_psi_continuous(yaw2, truth2) == pytest.approx(0.0, abs=1e-9)
+    t3 = truth2.copy()
+    t3[:5] = nan  # aligned at the first fix
+    assert e_psi_continuous(yaw2 + 7.0, t3) == pytest.approx(0.0, abs=1e-9)
+    assert math.isnan(e_psi_continuous(yaw2, np.full(n, nan)))

@@ -21,6 +21,8 @@ unwrapped heading between neighbouring fixes no further apart than ``max_gap_s``
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -32,6 +34,7 @@ __all__ = [
     "gyro_heading",
     "heading_error",
     "e_psi",
+    "e_psi_continuous",
     "ne_psi",
     "truth_at",
     "improvement",
@@ -130,6 +133,29 @@ def e_psi(
     d += (truth[valid] - truth[k]).reshape((-1,) + (1,) * (yaw.ndim - 1))
     m = np.mean(abs_wrap180(d), axis=0)
     return float(m) if np.ndim(m) == 0 else m
+
+
+def e_psi_continuous(
+    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+) -> float:
+    """Eψ with continuous headings, deg: the truth unwrapped along its fixes and the gyro's
+    heading never wrapped, so a gyro that has drifted by a whole turn scores 360, not 0.
+
+    Not hdrd's Eq. 12 (which wraps each momentary error to [-180, 180)), but what the paper's
+    own Table II must have used: its Highway 1 drive averages 184 deg without HDR, impossible
+    with wrapped errors. For comparisons with the paper only. yaw of shape (n,).
+    """
+    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    if k is None:
+        k = align_index(yaw, truth)
+    valid = np.flatnonzero(np.isfinite(truth))
+    if k is None or valid.shape[0] == 0:
+        return math.nan
+    tu = np.unwrap(truth[valid], period=360.0)
+    tu += truth[k] - tu[np.searchsorted(valid, k)]  # the same turn as the gyro at step k
+    h = truth[k] - (yaw[valid] - yaw[k])
+    return float(np.mean(np.abs(h - tu)))
 
 
 def ne_psi(e_psi_deg: float | FloatArray, duration_min: float) -> float | FloatArray:
