@@ -1,0 +1,409 @@
+"""hdrd.source: serial (loop://, real ptys, cable pulls), replay and simulated sources."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrd.drivelog import DriveLog
+from hdrd.frames import (
+    FRAME_DTYPE,
+    Frame,
+    ParserStats,
+    array_to_frames,
+    decode_capture,
+    encode,
+    encode_array,
+    encode_bin,
+)
+from hdrd.sensor import SensorModel
+from hdrd.source import (
+    DeviceBack,
+    DeviceLost,
+    EndOfInput,
+    ManualClock,
+    ProfileError,
+    ReplaySource,
+    SerialReader,
+    SerialSource,
+    SimulatedSource,
+    Source,
+    builtin_profile,
+    load_profile,
+    profile_frames,
+)
+
+WAIT_S = 20.0  # upper bound for anything that should happen "soon" (never a timing assertion)
+
+
+def frames_array(n: int, t0_us: int = 0, step_us: int = 100_000, seq0: int = 0) -> np.ndarray:
+    arr = np.zeros(n, FRAME_DTYPE)
+    arr["seq"] = (seq0 + np.arange(n)) & 0xFFFF
+    arr["t_us"] = (t0_us + np.arange(n, dtype=np.int64) * step_us) % 2**32
+    arr["rate"] = (32768 + np.arange(n) * 7) & 0xFFFF
+    arr["ref"] = 0
+    arr["temp"] = np.where(np.arange(n) % 3 == 0, -32768, 2000 + np.arange(n) % 100)
+    return arr
+
+
+def collect(src: Source, until: int | None = None, done: object = None) -> tuple[list[Frame], list[object]]:
+    """recv until ``until`` frames arrived, EndOfInput, or ``done()`` and silence."""
+    frames: list[Frame] = []
+    events: list[object] = []
+    end = time.monotonic() + WAIT_S
+    while time.monotonic() < end:
+        item = src.recv(0.2)
+        if isinstance(item, Frame):
+            frames.append(item)
+            if until is not None and len(frames) >= until:
+                break
+        elif item is None:
+            if done is not None and done():  # type: ignore[operator]
+                break
+        else:
+            events.append(item)
+            if isinstance(item, EndOfInput):
+                break
+    return frames, events
+
+
+# --------------------------------------------------------------------------- serial: loop://
+
+
+def test_loop_url_delivers_frames_and_timeouts_mean_no_data() -> None:
+    with SerialSource("loop://") as src:
+        assert isinstance(src, Source)
+        assert src.recv(0.01) is None  # nothing yet: not the end, not an error
+        sent = array_to_frames(frames_array(50))
+        data = b"".join(encode_bin(f) for f in sent)
+        src.port.write(data[:96])
+        src.port.write(b"\x00\xa5\x5a garbage" + data[96:])
+        got, events = collect(src, until=50)
+        assert got == sent and events == []
+        assert src.recv(0.01) is None
+        st = src.stats
+        assert st.frames == 50 and st.bad_frames == 1 and st.garbage_bytes == 11
+        assert src.link.bytes_read == len(data) + 11
+    assert src.closed
+    src.close()  # idempotent
+    assert src.recv(0.01) is None
+
+
+def test_loop_url_text_protocol() -> None:
+    sent = array_to_frames(frames_array(20))
+    with SerialSource("loop://", protocol="hdr-text") as src:
+        src.port.write(b"".join(encode(f, "hdr-text") for f in sent))
+        got, _ = collect(src, until=20)
+    assert got == sent
+
+
+def test_bad_frames_are_reported_per_frame_as_in_a_capture() -> None:
+    """stats.bad_frames when a frame is handed out = bad frames before it in the byte stream,
+    whatever the chunking: what decode_capture's bad_before says, so live and replay agree."""
+    rng = np.random.default_rng(5)
+    parts = []
+    for f in array_to_frames(frames_array(200)):
+        b = bytearray(encode_bin(f))
+        if rng.random() < 0.2:
+            b[5] ^= 0x10
+        parts.append(bytes(b))
+    data = b"".join(parts)
+    arr, cap = decode_capture(data)
+    with SerialSource("loop://") as src:
+        for i in range(0, len(data), 37):
+            src.port.write(data[i : i + 37])
+        seen = []
+        for _ in range(arr.shape[0]):
+            f = src.recv(1.0)
+            assert isinstance(f, Frame)
+            seen.append(src.stats.bad_frames)
+        assert src.recv(0.01) is None
+        assert src.stats.bad_frames == cap.bad_frames
+    assert seen == cap.bad_before.tolist()
+    assert cap.bad_frames > 10
+
+
+def test_unusable_url_is_a_clear_error() -> None:
+    with pytest.raises(ValueError, match="unusable serial port URL"):
+        SerialSource("nosuchscheme://x")
+    with pytest.raises(ValueError):
+        SerialReader("loop://", reconnect_min_s=2.0, reconnect_max_s=1.0)
+
+
+# --------------------------------------------------------------------------- serial: ptys
+
+
+def test_pty_eof_is_device_lost_once_then_quiet(tmp_path: Path) -> None:
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)
+    try:
+        with SerialSource(path, reconnect_min_s=0.05, reconnect_max_s=0.1) as src:
+            sent = array_to_frames(frames_array(5))
+            os.write(master, b"".join(encode_bin(f) for f in sent))
+            got, _ = collect(src, until=5)
+            assert got == sent
+            assert src.recv(0.05) is None  # silent device: no data, still connected
+            os.close(master)
+            master = -1
+            item = src.recv(1.0)
+            assert isinstance(item, DeviceLost) and item.reason
+            assert src.port is None and src.link.lost == 1
+            # The pty is gone for good: it keeps trying, never raises, reports nothing new.
+            for _ in range(5):
+                assert src.recv(0.05) is None
+            assert src.link.open_failures >= 1
+    finally:
+        if master >= 0:
+            os.close(master)
+
+
+def test_missing_device_at_start_then_plugged_in(tmp_path: Path) -> None:
+    link = tmp_path / "gyro"
+    with SerialSource(str(link), reconnect_min_s=0.02, reconnect_max_s=0.05) as src:
+        item = src.recv(0.01)
+        assert isinstance(item, DeviceLost) and item.reason
+        assert src.recv(0.05) is None
+        master, slave = os.openpty()
+        try:
+            os.symlink(os.ttyname(slave), link)
+            os.close(slave)
+            item = src.recv(WAIT_S)
+            assert isinstance(item, DeviceBack)
+            f = Frame(7, 700, 1234, 0, None)
+            os.write(master, encode_bin(f))
+            assert src.recv(WAIT_S) == f
+            assert src.link.reconnects == 1
+        finally:
+            os.close(master)
+
+
+def test_recv_never_waits_longer_than_asked_while_lost(tmp_path: Path) -> None:
+    """Backoff sleeps happen inside recv, bounded by its timeout (checked on a manual clock)."""
+    clock = ManualClock()
+    src = SerialSource(str(tmp_path / "none"), reconnect_min_s=1.0, reconnect_max_s=8.0, clock=clock)
+    assert isinstance(src.recv(0.5), DeviceLost)
+    for timeout in (0.3, 0.5, 2.0, 0.0, 5.0, 10.0, 10.0, 10.0):
+        before = clock.now
+        assert src.recv(timeout) is None
+        assert clock.now - before <= timeout + 1e-9
+    # Backoff doubled up to the maximum: failures at 0, 1, 3, 7, 15, 23, 31, ...
+    assert src.link.open_failures >= 5
+    waits = [w for w in clock.slept if w > 0]
+    assert max(waits) <= 8.0 + 1e-9
+    src.close()
+
+
+def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:  # type: ignore[no-untyped-def]
+    prof = builtin_profile("constant", minutes=0.5, hz=50, rate_dps=12.5, seed=3)
+    g = fake_gyro(prof, speedup=0, garbage=0.05, crc_errors=0.05, drop=0.02, seed=9)
+    with SerialSource(g.path) as src:
+        g.start()
+        got, events = collect(src, done=lambda: g.done)
+        assert g.wait(WAIT_S) and g.error is None
+        assert events == []
+        inj = g.injected
+        assert got == g.sent_frames() and len(got) == inj.frames > 0
+        st = src.stats
+        assert st.bad_frames == inj.expected_bad_frames > 0
+        assert st.garbage_bytes == inj.garbage_bytes + 16 * inj.crc_errors
+        assert st.lost_frames == inj.dropped + inj.crc_errors
+    # The counts decode to the profile's truth: 12.5 deg/s (+ bias) after the lead-in.
+    omega = SensorModel().to_dps(np.array([f.rate for f in got]))
+    t = np.array([f.t_us for f in got]) / 1e6
+    moving = omega[t >= 30.0].mean() - omega[t < 30.0].mean()
+    assert moving == pytest.approx(12.5, abs=0.02)
+
+
+def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    prof = builtin_profile("standstill", minutes=0.5, hz=100, lead_in_s=0.0)
+    link = tmp_path / "hdrd-gyro"
+    g = fake_gyro(prof, speedup=0, link=link, pull_at=[5.0, 12.0], pull_for=0.3)
+    with SerialSource(str(link), reconnect_min_s=0.05, reconnect_max_s=0.2) as src:
+        g.start()
+        last = array_to_frames(g.frames[-1:])[0]
+        frames: list[Frame] = []
+        events: list[tuple[object, int]] = []
+        end = time.monotonic() + 3 * WAIT_S
+        while time.monotonic() < end and not (frames and frames[-1] == last):
+            item = src.recv(0.2)
+            if isinstance(item, Frame):
+                frames.append(item)
+            elif item is not None:
+                events.append((item, len(frames)))
+        assert g.wait(WAIT_S) and g.error is None
+        kinds = [type(e).__name__ for e, _ in events]
+        assert kinds == ["DeviceLost", "DeviceBack", "DeviceLost", "DeviceBack"]
+        assert g.injected.pulls == 2
+        # Every frame written intact was read, in order; the pulls' frames are a seq gap.
+        assert frames == g.sent_frames()
+        assert frames[-1].seq == (len(prof) - 1) & 0xFFFF
+        assert src.stats.seq_gaps == 2 and src.stats.lost_frames == g.injected.pulled_frames == 60
+        t_lost = [frames[n - 1].t_us / 1e6 for e, n in events if isinstance(e, DeviceLost)]
+        assert t_lost == pytest.approx([4.99, 11.99])
+        assert src.link.lost == 2 and src.link.reconnects == 2
+
+
+# --------------------------------------------------------------------------- replay
+
+
+def test_replay_bytes_and_file_end_once(tmp_path: Path) -> None:
+    arr = frames_array(300, t0_us=2**32 - 5_000_000)  # the device clock wraps in the capture
+    data = b"junk" + encode_array(arr) + b"\xa5\x5a\x01"
+    path = tmp_path / "cap.bin"
+    path.write_bytes(data)
+    for src_arg in (data, str(path), path):
+        with ReplaySource(src_arg, chunk_size=100) as src:
+            got, events = collect(src)
+            assert got == array_to_frames(arr) and events == [EndOfInput()]
+            assert src.recv(0.0) is None and src.recv(None) is None
+            st = src.stats
+            assert st.frames == 300 and st.clock_wraps == 1 and st.garbage_bytes == 4 + 3
+
+
+def test_replay_text_and_bad_frames_match_capture() -> None:
+    arr = frames_array(50)
+    lines = [encode(f, "hdr-text") for f in array_to_frames(arr)]
+    lines[10] = lines[10][:-4] + b"ZZ\r\n"  # a bad checksum
+    data = b"".join(lines)
+    _, cap = decode_capture(data, "hdr-text")
+    with ReplaySource(data, protocol="hdr-text", chunk_size=7) as src:
+        seen = []
+        while isinstance(item := src.recv(), Frame):
+            seen.append(src.stats.bad_frames)
+        assert item == EndOfInput()
+    assert seen == cap.bad_before.tolist() and cap.bad_frames == 1
+
+
+def test_replay_paced_by_device_time() -> None:
+    clock = ManualClock(100.0)
+    arr = frames_array(21, t0_us=2**32 - 1_000_000, step_us=100_000)  # 2 s, wrapping
+    with ReplaySource(encode_array(arr), paced=True, speedup=2.0, clock=clock) as src:
+        got = []
+        times = []
+        while True:
+            item = src.recv(0.25)
+            if isinstance(item, EndOfInput):
+                break
+            if item is not None:
+                got.append(item)
+                times.append(clock.now - 100.0)
+        assert got == array_to_frames(arr)
+        # 0.1 s of device time = 0.05 s at speedup 2; a recv never sleeps past its timeout.
+        assert times == pytest.approx([0.05 * k for k in range(21)])
+        assert all(w <= 0.25 + 1e-12 for w in clock.slept)
+    with pytest.raises(ValueError):
+        ReplaySource(b"", paced=True, speedup=0.0)
+
+
+def test_replay_timeout_shorter_than_the_next_frame_returns_none() -> None:
+    clock = ManualClock()
+    arr = frames_array(2, step_us=1_000_000)
+    src = ReplaySource(encode_array(arr), paced=True, clock=clock)
+    assert isinstance(src.recv(0.1), Frame)
+    assert src.recv(0.4) is None and src.recv(0.4) is None
+    assert isinstance(src.recv(0.4), Frame) and clock.now == pytest.approx(1.0)
+    assert src.recv(0.4) == EndOfInput()
+    src.close()
+
+
+def test_replay_missing_file_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError):
+        ReplaySource(tmp_path / "nope.bin")
+
+
+# --------------------------------------------------------------------------- simulated
+
+
+def test_builtin_profiles() -> None:
+    s = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
+    assert len(s) == 900 and s.rate_hz == pytest.approx(10.0)
+    assert np.all(s.omega_truth == 0) and s.omega.mean() == pytest.approx(0.3, abs=0.01)
+    c = builtin_profile("constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0)
+    assert np.all(c.omega_truth[:100] == 0) and np.all(c.omega_truth[100:] == -20.0)
+    assert np.allclose(c.omega - c.omega_truth, 0.2)
+    again = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
+    assert np.array_equal(again.omega, s.omega)  # seeded
+    for bad in (dict(drive="loop"), dict(hz=0.0), dict(minutes=-1.0), dict(minutes=float("nan"))):
+        with pytest.raises(ProfileError):
+            builtin_profile(**bad)  # type: ignore[arg-type]
+
+
+def test_profile_frames_counts_time_and_temperature() -> None:
+    sensor = SensorModel()
+    log = DriveLog(
+        t=np.array([0.0, 0.1, 0.2, 0.3]),
+        omega=np.array([0.0, 10.0, -10.0, 500.0]),
+        temp_c=np.array([25.0, np.nan, -12.345, 400.0]),
+    )
+    arr = profile_frames(log, sensor, t0_us=2**32 - 150_000, seq0=65535)
+    assert arr["seq"].tolist() == [65535, 0, 1, 2]
+    assert arr["t_us"].tolist() == [2**32 - 150_000, 2**32 - 50_000, 50_000, 150_000]
+    assert arr["rate"].tolist() == sensor.to_counts(log.omega).tolist()
+    assert arr["rate"][3] == sensor.full_scale  # clipped at the rail
+    assert arr["temp"].tolist() == [2500, -32768, -1234, 32767]
+    assert arr["ref"].tolist() == [0] * 4
+    assert profile_frames(log, sensor, supply_v=5.0)["ref"][0] == sensor.ref_counts_for(5.0)
+    assert profile_frames(DriveLog(t=log.t, omega=log.omega))["temp"].tolist() == [-32768] * 4
+
+
+def test_simulated_source_as_fast_as_possible() -> None:
+    with SimulatedSource("constant", minutes=0.1, hz=10, rate_dps=5.0, speedup=0) as src:
+        got, events = collect(src)
+        assert events == [EndOfInput()] and src.recv(0) is None
+    assert len(got) == len(src.profile) == 360
+    assert got == array_to_frames(src.frames)
+    assert src.stats.frames == 360
+    assert [f.seq for f in got] == list(range(360))
+    assert got[-1].temp_c == pytest.approx(25.0)
+
+
+def test_simulated_source_paced_on_a_clock() -> None:
+    clock = ManualClock()
+    t = np.arange(0, 2.0, 0.1)
+    src = SimulatedSource.from_arrays(t, np.full(t.shape, 3.0), None, speedup=4.0, clock=clock)
+    out = []
+    while not isinstance(item := src.recv(0.01), EndOfInput):
+        if item is not None:
+            out.append((item, clock.now))
+    assert len(out) == 20 and out[-1][1] == pytest.approx(1.9 / 4)
+    assert all(f.temp_cc is None for f, _ in out)
+    assert all(w <= 0.01 + 1e-12 for w in clock.slept)
+    with pytest.raises(ValueError):
+        SimulatedSource("standstill", minutes=0.01, speedup=-1)
+
+
+def test_simulated_drive_from_the_simulator() -> None:
+    pytest.importorskip("hdrd.sim")
+    log = load_profile("city", minutes=0.2, seed=2, hz=10)
+    assert len(log) > 100 and log.omega_truth is not None
+    src = SimulatedSource(profile=log, speedup=0)
+    got, events = collect(src)
+    assert events == [EndOfInput()] and len(got) == len(log)
+    with pytest.raises(ProfileError):
+        load_profile("no-such-road", minutes=1)
+
+
+def test_missing_simulator_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "hdrd.sim", None)  # import hdrd.sim now raises ImportError
+    with pytest.raises(ProfileError, match="needs the simulator"):
+        load_profile("city", minutes=1)
+    assert len(load_profile("standstill", minutes=0.1)) > 0  # built-ins still work
+
+
+def test_sources_satisfy_the_protocol_and_close_idempotently(tmp_path: Path) -> None:
+    srcs = [
+        SerialSource("loop://"),
+        ReplaySource(b""),
+        SimulatedSource("standstill", minutes=0.01, speedup=0),
+    ]
+    for s in srcs:
+        assert isinstance(s, Source) and isinstance(s.stats, ParserStats)
+        s.close()
+        s.close()
+        assert s.recv(0) is None
