@@ -232,7 +232,7 @@ def render(a: argparse.Namespace, W: Path, cmds: list[str], ev_train: dict[str, 
         p = PAPER_TABLE_II.get(d["name"])
         c = cont_train.get(d["name"], (math.nan, math.nan))
         pe = f"{p[1]:g}° → {p[2]:g}°" if p else "–"
-        pn = f"{p[3]:g} → {p[4]:g}" if p else "–"
+        pn = f"{p[3]:.2f} → {p[4]:.2f}" if p else "–"
         pi = f"{p[5]:g}×" if p else "–"
         L.append(f"| {d['name']} | {d['duration_min']:.1f} | {pe} | {f(d['E_psi_raw'], 1)}° → "
                  f"{f(d['E_psi_hdr'], 1)}° | {pn} | {f(d['NE_psi_raw'])} → {f(d['NE_psi_hdr'], 3)} | "
@@ -244,8 +244,8 @@ def render(a: argparse.Namespace, W: Path, cmds: list[str], ev_train: dict[str, 
     c_raw = statistics.mean(v[0] for v in cont_train.values())
     c_hdr = statistics.mean(v[1] for v in cont_train.values())
     L.append(f"| **mean** | {sum(d['duration_min'] for d in ev_train['drives']) / 60:.2f} h total | "
-             f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:g}° | {f(m['E_psi_raw'], 1)}° → {f(m['E_psi_hdr'], 1)}° | "
-             f"{PAPER_MEAN[2]:g} → {PAPER_MEAN[3]:g} | {f(m['NE_psi_raw'])} → {f(m['NE_psi_hdr'], 3)} | "
+             f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {f(m['E_psi_raw'], 1)}° → {f(m['E_psi_hdr'], 1)}° | "
+             f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {f(m['NE_psi_raw'])} → {f(m['NE_psi_hdr'], 3)} | "
              f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {f(m['improvement'], 1)}× (σ {f(sd)}) | "
              f"{c_raw:.1f}° → {c_hdr:.1f}° ({statistics.mean(c_imps):.1f}×, σ {statistics.stdev(c_imps):.2f}) |")
     L.append("")
@@ -333,7 +333,54 @@ def render(a: argparse.Namespace, W: Path, cmds: list[str], ev_train: dict[str, 
 DISCUSSION = """
 ### Discussion
 
-(written by hand from the numbers above; regenerate the tables with `python bench/tables.py`)
+Written by hand from the run above (the simulator and the search are seeded, so a re-run gives
+the same tables unless the code changes; if it did, re-read the numbers before these words).
+
+- **The Table II analogue has the paper's shape.** With the paper's Table III parameters,
+  HDR takes the nine simulated drives from a mean NEψ of about 2.0 to 0.29 deg/min (paper: 2.2
+  to 0.28) and Eψ from about 48° to 7° (paper: 61° to 7.0°), a mean improvement of about 9×
+  (paper 9.2×). This is partly by construction: the benchmark's gyro model and cabin-warming
+  profiles were chosen so that the *uncorrected* errors land where the paper's do; the *HDR*
+  column is not tuned to anything and still lands near the paper's.
+- **Wrapped vs continuous Eψ.** hdrd wraps each momentary error to ±180° (Eq. 12 as
+  HDR-NOTES fixes it), so an error can never exceed 180°. The paper's Highway 1 (184° average
+  without HDR) shows that the paper did not: its uncorrected headings were continuous. The
+  two definitions agree on every drive whose uncorrected error stays below 180°; on Highway 1
+  ours is ~73° wrapped but ~190° continuous (paper 184°), and its improvement 14× vs 38×
+  (paper 29×). With continuous headings our mean uncorrected Eψ is ~61°, the paper's figure.
+- **Where HDR helps little.** Curving roads: *suburbs* (1.8×; also the paper's weakest
+  drive, 3.4×) and *suburbs2* in the test set (1.4×), and *city1* (2.8× vs the paper's 5.4×).
+  On long arcs whose rate stays below Θw = 0.564 deg/s the turn switch lets the integrator
+  run, so HDR "corrects" real curvature as if it were drift (the paper's Sec. 4.1 says as
+  much). HDR never made a simulated drive worse than no HDR.
+- **Training vs test, paper parameters.** The mean improvement on the five test drives is
+  *higher* (~13×) than on the nine (~9×), but that mean is carried by two straight drives with
+  big uncorrected errors (city3 ~31×, rural3 ~28×; σ ≈ 15). The duration-normalised error,
+  which is what the paper minimised, goes the paper's way: mean NEψ 0.29 on the nine, 0.40 on
+  the five. A mean of ratios is dominated by its largest ratio (as the paper's own 29×
+  Highway 1), so the NEψ columns are the better comparison.
+- **Tuning.** Minimising the mean NEψ of the nine found a set with a smaller increment
+  (i_c ≈ 0.016 vs 0.042 deg/s) and a much flatter repetition attenuator (c2 ≈ 0.44): mean
+  training NEψ 0.29 → 0.13 (2.2× lower), but on the held-out five only 0.40 → 0.28 (1.4×),
+  and one test drive (city3) got worse with the tuned set. That is the paper's 9.2×-vs-6.9×
+  question answered the same way: part of what tuning wins is specific to the drives it saw.
+  Part of it is also specific to our simulator: Table III was tuned on real drives with a
+  real CRS03-04, so beating it on simulated data says little about real ones.
+- **Real recordings: HDR does not help on smartLoc Berlin.** With the car's yaw-rate sensor
+  taken as zeroed, Eψ goes from 8.7° to 12.8° with HDR; with the best static bias in hindsight
+  (+0.053 deg/s) from 1.8° to 10.3°. It is a slow (mean 5.5 m/s) 4.7-minute urban drive with
+  one turn or curve after another, and an automotive sensor whose residual bias (~0.05 deg/s)
+  is about one HDR increment: there is almost no drift to remove, while the integrator,
+  chasing slow curves, swings between −0.31 and +0.21 deg/s. HDR's premise — most driving is
+  straight, and the drift is larger than what it mistakes for drift — does not hold here.
+- **comma2k19** (1 min, nearly straight, a phone gyro with a 3.9 deg/s raw bias): with
+  Android's own bias estimate removed HDR cuts Eψ from 1.1° to 0.3° (3.6×); with the bias
+  taken from the log's first second (the car is moving on a straight road; the standstill test
+  cannot tell) from 4.7° to 0.8°. Without any bias removal HDR can do nothing (103° either
+  way): a 3.9 deg/s offset is far above Θw, so the turn switch never lets I move. HDR reduces
+  residual drift; it is no substitute for the static calibration (the paper's Eq. 2).
+- Both real recordings are short (1 and 4.7 minutes) — too short for the slow drift HDR is
+  for; they check conventions and the pipeline on real signals more than HDR's benefit.
 """
 
 
