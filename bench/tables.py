@@ -66,7 +66,7 @@ def run(cmd: list[str], log: list[str]) -> subprocess.CompletedProcess[str]:
     print(f"$ {shown}", flush=True)
     log.append(shown)
     t0 = time.monotonic()
-    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
     dt = time.monotonic() - t0
     if p.returncode != 0:
         sys.stderr.write(p.stdout + p.stderr)
@@ -84,15 +84,19 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-            f"numpy {np.__version__}, {platform.system()} {platform.release()}")
+    return (
+        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, {platform.system()} {platform.release()}"
+    )
 
 
 def f(v: float | None, d: int = 2) -> str:
     return "–" if v is None or not math.isfinite(v) else f"{v:.{d}f}"
 
 
-def continuous_errors(paths: list[Path], bias: float | None = None) -> dict[str, tuple[float, float]]:
+def continuous_errors(
+    paths: list[Path], bias: float | None = None
+) -> dict[str, tuple[float, float]]:
     """Continuous-heading Eψ (raw, hdr) per drive, same steps and alignment as hdrd evaluate."""
     from hdrd.analysis.evaluate import METHODS, prepare_drive
     from hdrd.analysis.metrics import e_psi_continuous
@@ -102,7 +106,10 @@ def continuous_errors(paths: list[Path], bias: float | None = None) -> dict[str,
     out = {}
     for p in paths:
         prep = prepare_drive(read_drive(p), bias)
-        e = [e_psi_continuous(METHODS[m](prep.steps, HdrParams()), prep.truth, prep.k) for m in ("none", "hdr")]
+        e = [
+            e_psi_continuous(METHODS[m](prep.steps, HdrParams()), prep.truth, prep.k)
+            for m in ("none", "hdr")
+        ]
         out[prep.name] = (e[0], e[1])
     return out
 
@@ -129,7 +136,9 @@ def main() -> int:
     ap.add_argument("--candidates", type=int, default=10000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeats", type=int, default=3, help="timings of the in-process tune")
-    ap.add_argument("--no-write", action="store_true", help="print the section, do not edit RESULTS.md")
+    ap.add_argument(
+        "--no-write", action="store_true", help="print the section, do not edit RESULTS.md"
+    )
     a = ap.parse_args()
 
     from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES
@@ -147,10 +156,29 @@ def main() -> int:
     te_s = [str(p) for p in test]
     run(hdrd + ["evaluate", *tr_s, "--json", f"{W}/train.json", "--plot", f"{W}/train.png"], cmds)
     run(hdrd + ["evaluate", *te_s, "--json", f"{W}/test.json", "--plot", f"{W}/test.png"], cmds)
-    run(hdrd + ["tune", *tr_s, "--test", *te_s, "--candidates", str(a.candidates), "--seed",
-                         str(a.seed), "--out", f"{W}/tuned.yaml", "--json", f"{W}/tune.json",
-                         "--no-progress"], cmds)
-    run(hdrd + ["evaluate", *te_s, "--config", f"{W}/tuned.yaml", "--json", f"{W}/test_tuned.json"], cmds)
+    run(
+        hdrd
+        + [
+            "tune",
+            *tr_s,
+            "--test",
+            *te_s,
+            "--candidates",
+            str(a.candidates),
+            "--seed",
+            str(a.seed),
+            "--out",
+            f"{W}/tuned.yaml",
+            "--json",
+            f"{W}/tune.json",
+            "--no-progress",
+        ],
+        cmds,
+    )
+    run(
+        hdrd + ["evaluate", *te_s, "--config", f"{W}/tuned.yaml", "--json", f"{W}/test_tuned.json"],
+        cmds,
+    )
     ev_train = json.loads((W / "train.json").read_text())
     ev_test = json.loads((W / "test.json").read_text())
     ev_test_tuned = json.loads((W / "test_tuned.json").read_text())
@@ -166,13 +194,21 @@ def main() -> int:
         smart = W / "real" / "smartloc_berlin.csv"
         cases = [
             (smart, "0", "smartLoc Berlin, bias 0 (the car's sensor taken as zeroed)"),
-            (smart, f"{SMARTLOC_FIT_BIAS_DPS}", "smartLoc Berlin, bias +0.053 deg/s (best static bias in hindsight)"),
+            (
+                smart,
+                f"{SMARTLOC_FIT_BIAS_DPS}",
+                "smartLoc Berlin, bias +0.053 deg/s (best static bias in hindsight)",
+            ),
             (comma, f"{android}", "comma2k19, bias = Android's estimate"),
         ]
         for i, (path, bias, label) in enumerate(cases):
             out = W / "real" / f"eval{i}.json"
-            p = run(hdrd + ["evaluate", str(path), "--bias", bias, "--json", str(out)]
-                    + (["--plot", f"{W}/real/eval{i}.png"] if i != 1 else []), cmds)
+            p = run(
+                hdrd
+                + ["evaluate", str(path), "--bias", bias, "--json", str(out)]
+                + (["--plot", f"{W}/real/eval{i}.png"] if i != 1 else []),
+                cmds,
+            )
             real.append((label, bias, json.loads(out.read_text()), p.stdout))
         # The standstill test cannot tell a straight road from standing still: it accepts this.
         p = run(hdrd + ["evaluate", str(comma), "--calibrate-seconds", "1"], cmds)
@@ -185,8 +221,21 @@ def main() -> int:
     cont_train = continuous_errors(train)
     cont_test = continuous_errors(test)
 
-    section = render(a, W, cmds, ev_train, ev_test, ev_test_tuned, tj, real, times, cont_train,
-                     cont_test, tr_s, te_s)
+    section = render(
+        a,
+        W,
+        cmds,
+        ev_train,
+        ev_test,
+        ev_test_tuned,
+        tj,
+        real,
+        times,
+        cont_train,
+        cont_test,
+        tr_s,
+        te_s,
+    )
     print(section)
     if not a.no_write:
         write_section(section)
@@ -194,101 +243,144 @@ def main() -> int:
     return 0
 
 
-def render(a: argparse.Namespace, W: Path, cmds: list[str], ev_train: dict[str, Any],
-           ev_test: dict[str, Any], ev_test_tuned: dict[str, Any], tj: dict[str, Any],
-           real: list[tuple[str, str, dict[str, Any], str]], times: list[float],
-           cont_train: dict[str, tuple[float, float]], cont_test: dict[str, tuple[float, float]],
-           train_s: list[str], test_s: list[str]) -> str:
+def render(
+    a: argparse.Namespace,
+    W: Path,
+    cmds: list[str],
+    ev_train: dict[str, Any],
+    ev_test: dict[str, Any],
+    ev_test_tuned: dict[str, Any],
+    tj: dict[str, Any],
+    real: list[tuple[str, str, dict[str, Any], str]],
+    times: list[float],
+    cont_train: dict[str, tuple[float, float]],
+    cont_test: dict[str, tuple[float, float]],
+    train_s: list[str],
+    test_s: list[str],
+) -> str:
     L: list[str] = [SECTION, ""]
-    L.append(f"Generated by `python bench/tables.py` ({time.strftime('%Y-%m-%d')}, on {machine()}). "
-             "It runs these commands (outputs in a scratch directory, here "
-             f"`{W}`; drive files listed in the paper's order):")
+    L.append(
+        f"Generated by `python bench/tables.py` ({time.strftime('%Y-%m-%d')}, on {machine()}). "
+        "It runs these commands (outputs in a scratch directory, here "
+        f"`{W}`; drive files listed in the paper's order):"
+    )
     L.append("")
     L.append("```sh")
     L.append("W=/tmp/hdrd-tables")
-    L.append(f"TRAIN=\"{' '.join(train_s)}\"".replace(str(W), "$W"))
-    L.append(f"TEST=\"{' '.join(test_s)}\"".replace(str(W), "$W"))
+    L.append(f'TRAIN="{" ".join(train_s)}"'.replace(str(W), "$W"))
+    L.append(f'TEST="{" ".join(test_s)}"'.replace(str(W), "$W"))
     for c in cmds:
         c = c.replace(" ".join(train_s), "$TRAIN").replace(" ".join(test_s), "$TEST")
         L.append(c.replace(str(W), "$W"))
     L.append("```")
     L.append("")
-    L.append("Definitions (`hdrd/analysis/evaluate.py`): static bias from the first 30 s of each log "
-             "(standstill); the drive starts after it (Td excludes it); the gyro block-averaged to "
-             "T = 1 s; yaw compared with the GPS-like truth at each step's end, aligned at the first "
-             "step with truth; Eψ = mean |error| with each error wrapped to [-180°, 180°) (Eq. 12); "
-             "NEψ = Eψ / Td (Eq. 13); improvement = Eψ without / Eψ with HDR per drive, averaged "
-             "over drives (σ: sample standard deviation), as the paper does. Parameters: the paper's "
-             "Table III.")
+    L.append(
+        "Definitions (`hdrd/analysis/evaluate.py`): static bias from the first 30 s of each log "
+        "(standstill); the drive starts after it (Td excludes it); the gyro block-averaged to "
+        "T = 1 s; yaw compared with the GPS-like truth at each step's end, aligned at the first "
+        "step with truth; Eψ = mean |error| with each error wrapped to [-180°, 180°) (Eq. 12); "
+        "NEψ = Eψ / Td (Eq. 13); improvement = Eψ without / Eψ with HDR per drive, averaged "
+        "over drives (σ: sample standard deviation), as the paper does. Parameters: the paper's "
+        "Table III."
+    )
     L.append("")
 
     # -- training nine ------------------------------------------------------------------
     L.append("### The nine training drives (paper's Table III parameters)")
     L.append("")
-    L.append("| drive | Td min | paper Eψ without → with | ours Eψ without → with | paper NEψ | ours NEψ | "
-             "paper impr. | ours impr. | ours, continuous Eψ without → with (impr.) |")
+    L.append(
+        "| drive | Td min | paper Eψ without → with | ours Eψ without → with | paper NEψ | ours NEψ | "
+        "paper impr. | ours impr. | ours, continuous Eψ without → with (impr.) |"
+    )
     L.append("|---|---|---|---|---|---|---|---|---|")
     for d in ev_train["drives"]:
         p = PAPER_TABLE_II.get(d["name"])
-        c = cont_train.get(d["name"], (math.nan, math.nan))
+        ce = cont_train.get(d["name"], (math.nan, math.nan))
         pe = f"{p[1]:g}° → {p[2]:g}°" if p else "–"
         pn = f"{p[3]:.2f} → {p[4]:.2f}" if p else "–"
         pi = f"{p[5]:g}×" if p else "–"
-        L.append(f"| {d['name']} | {d['duration_min']:.1f} | {pe} | {f(d['E_psi_raw'], 1)}° → "
-                 f"{f(d['E_psi_hdr'], 1)}° | {pn} | {f(d['NE_psi_raw'])} → {f(d['NE_psi_hdr'], 3)} | "
-                 f"{pi} | {f(d['improvement'], 1)}× | {c[0]:.1f}° → {c[1]:.1f}° ({c[0] / c[1]:.1f}×) |")
+        L.append(
+            f"| {d['name']} | {d['duration_min']:.1f} | {pe} | {f(d['E_psi_raw'], 1)}° → "
+            f"{f(d['E_psi_hdr'], 1)}° | {pn} | {f(d['NE_psi_raw'])} → {f(d['NE_psi_hdr'], 3)} | "
+            f"{pi} | {f(d['improvement'], 1)}× | {ce[0]:.1f}° → {ce[1]:.1f}° ({ce[0] / ce[1]:.1f}×) |"
+        )
     m = ev_train["mean"]
     imps = [d["improvement"] for d in ev_train["drives"] if d["improvement"] is not None]
     sd = statistics.stdev(imps) if len(imps) > 1 else math.nan
     c_imps = [v[0] / v[1] for v in cont_train.values()]
     c_raw = statistics.mean(v[0] for v in cont_train.values())
     c_hdr = statistics.mean(v[1] for v in cont_train.values())
-    L.append(f"| **mean** | {sum(d['duration_min'] for d in ev_train['drives']) / 60:.2f} h total | "
-             f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {f(m['E_psi_raw'], 1)}° → {f(m['E_psi_hdr'], 1)}° | "
-             f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {f(m['NE_psi_raw'])} → {f(m['NE_psi_hdr'], 3)} | "
-             f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {f(m['improvement'], 1)}× (σ {f(sd)}) | "
-             f"{c_raw:.1f}° → {c_hdr:.1f}° ({statistics.mean(c_imps):.1f}×, σ {statistics.stdev(c_imps):.2f}) |")
+    L.append(
+        f"| **mean** | {sum(d['duration_min'] for d in ev_train['drives']) / 60:.2f} h total | "
+        f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {f(m['E_psi_raw'], 1)}° → {f(m['E_psi_hdr'], 1)}° | "
+        f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {f(m['NE_psi_raw'])} → {f(m['NE_psi_hdr'], 3)} | "
+        f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {f(m['improvement'], 1)}× (σ {f(sd)}) | "
+        f"{c_raw:.1f}° → {c_hdr:.1f}° ({statistics.mean(c_imps):.1f}×, σ {statistics.stdev(c_imps):.2f}) |"
+    )
     L.append("")
-    worse = [d["name"] for d in ev_train["drives"] if d["improvement"] is not None and d["improvement"] < 1]
-    weak = [f"{d['name']} ({d['improvement']:.1f}×)" for d in ev_train["drives"]
-            if d["improvement"] is not None and 1 <= d["improvement"] < 2.5]
-    L.append(f"- HDR worse than no HDR on: {', '.join(worse) if worse else 'none of the nine'}; "
-             f"less than 2.5× better on: {', '.join(weak) if weak else 'none'}.")
+    worse = [
+        d["name"]
+        for d in ev_train["drives"]
+        if d["improvement"] is not None and d["improvement"] < 1
+    ]
+    weak = [
+        f"{d['name']} ({d['improvement']:.1f}×)"
+        for d in ev_train["drives"]
+        if d["improvement"] is not None and 1 <= d["improvement"] < 2.5
+    ]
+    L.append(
+        f"- HDR worse than no HDR on: {', '.join(worse) if worse else 'none of the nine'}; "
+        f"less than 2.5× better on: {', '.join(weak) if weak else 'none'}."
+    )
     L.append("")
 
     # -- test five -------------------------------------------------------------------------
     L.append("### The five test drives, and tuning on the nine")
     L.append("")
-    L.append("| drive | Td min | Eψ without | Eψ HDR (Table III) | Eψ HDR (tuned) | NEψ without | "
-             "NEψ Table III | NEψ tuned | impr. Table III | impr. tuned | continuous Eψ without → Table III |")
+    L.append(
+        "| drive | Td min | Eψ without | Eψ HDR (Table III) | Eψ HDR (tuned) | NEψ without | "
+        "NEψ Table III | NEψ tuned | impr. Table III | impr. tuned | continuous Eψ without → Table III |"
+    )
     L.append("|---|---|---|---|---|---|---|---|---|---|---|")
     tuned_by = {d["name"]: d for d in ev_test_tuned["drives"]}
     for d in ev_test["drives"]:
         t = tuned_by[d["name"]]
-        c = cont_test.get(d["name"], (math.nan, math.nan))
-        L.append(f"| {d['name']} | {d['duration_min']:.1f} | {f(d['E_psi_raw'], 1)}° | {f(d['E_psi_hdr'], 1)}° | "
-                 f"{f(t['E_psi_hdr'], 1)}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'], 3)} | "
-                 f"{f(t['NE_psi_hdr'], 3)} | {f(d['improvement'], 1)}× | {f(t['improvement'], 1)}× | "
-                 f"{c[0]:.1f}° → {c[1]:.1f}° |")
+        ce = cont_test.get(d["name"], (math.nan, math.nan))
+        L.append(
+            f"| {d['name']} | {d['duration_min']:.1f} | {f(d['E_psi_raw'], 1)}° | {f(d['E_psi_hdr'], 1)}° | "
+            f"{f(t['E_psi_hdr'], 1)}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'], 3)} | "
+            f"{f(t['NE_psi_hdr'], 3)} | {f(d['improvement'], 1)}× | {f(t['improvement'], 1)}× | "
+            f"{ce[0]:.1f}° → {ce[1]:.1f}° |"
+        )
     m, mt = ev_test["mean"], ev_test_tuned["mean"]
-    L.append(f"| **mean** | | {f(m['E_psi_raw'], 1)}° | {f(m['E_psi_hdr'], 1)}° | {f(mt['E_psi_hdr'], 1)}° | "
-             f"{f(m['NE_psi_raw'])} | {f(m['NE_psi_hdr'], 3)} | {f(mt['NE_psi_hdr'], 3)} | "
-             f"{f(m['improvement'], 1)}× | {f(mt['improvement'], 1)}× | |")
+    L.append(
+        f"| **mean** | | {f(m['E_psi_raw'], 1)}° | {f(m['E_psi_hdr'], 1)}° | {f(mt['E_psi_hdr'], 1)}° | "
+        f"{f(m['NE_psi_raw'])} | {f(m['NE_psi_hdr'], 3)} | {f(mt['NE_psi_hdr'], 3)} | "
+        f"{f(m['improvement'], 1)}× | {f(mt['improvement'], 1)}× | |"
+    )
     L.append("")
     tr, te = tj["train"], tj["test"]
-    L.append(f"`hdrd tune` ({tj['candidates']} parameter sets, seed {tj['seed']}, "
-             f"{tj['seconds']:.1f} s for the whole command) — training and test side by side; the "
-             "paper's own answer to this question was 9.2× on its training drives and "
-             f"{PAPER_TEST[0]:g}× (σ {PAPER_TEST[1]:g}) on its five test drives:")
+    L.append(
+        f"`hdrd tune` ({tj['candidates']} parameter sets, seed {tj['seed']}, "
+        f"{tj['seconds']:.1f} s for the whole command) — training and test side by side; the "
+        "paper's own answer to this question was 9.2× on its training drives and "
+        f"{PAPER_TEST[0]:g}× (σ {PAPER_TEST[1]:g}) on its five test drives:"
+    )
     L.append("")
-    L.append("| parameters | i_c | τ | Θw | c1 | c2 | train mean NEψ | train impr. | test mean NEψ | test impr. |")
+    L.append(
+        "| parameters | i_c | τ | Θw | c1 | c2 | train mean NEψ | train impr. | test mean NEψ | test impr. |"
+    )
     L.append("|---|---|---|---|---|---|---|---|---|---|")
-    L.append(f"| without HDR | | | | | | {tr['none']['mean_NE_psi']:.3f} | – | {te['none']['mean_NE_psi']:.3f} | – |")
+    L.append(
+        f"| without HDR | | | | | | {tr['none']['mean_NE_psi']:.3f} | – | {te['none']['mean_NE_psi']:.3f} | – |"
+    )
     for label, key in (("paper Table III", "baseline"), ("tuned on the nine", "tuned")):
         pp = tj["params"][key]
-        L.append(f"| {label} | {pp['i_c']:g} | {pp['tau']:g} | {pp['theta_w']:g} | {pp['c1']:g} | {pp['c2']:g} | "
-                 f"{tr[key]['mean_NE_psi']:.3f} | {tr[key]['improvement']:.2f}× (σ {f(tr[key]['improvement_std'])}) | "
-                 f"{te[key]['mean_NE_psi']:.3f} | {te[key]['improvement']:.2f}× (σ {f(te[key]['improvement_std'])}) |")
+        L.append(
+            f"| {label} | {pp['i_c']:g} | {pp['tau']:g} | {pp['theta_w']:g} | {pp['c1']:g} | {pp['c2']:g} | "
+            f"{tr[key]['mean_NE_psi']:.3f} | {tr[key]['improvement']:.2f}× (σ {f(tr[key]['improvement_std'])}) | "
+            f"{te[key]['mean_NE_psi']:.3f} | {te[key]['improvement']:.2f}× (σ {f(te[key]['improvement_std'])}) |"
+        )
     L.append("")
 
     # -- real ------------------------------------------------------------------------------
@@ -297,33 +389,41 @@ def render(a: argparse.Namespace, W: Path, cmds: list[str], ev_train: dict[str, 
     if not real:
         L.append("Skipped: the recordings were not found.")
     else:
-        L.append("| recording | bias | Td min | Eψ without | Eψ with HDR | NEψ without | NEψ with | improvement |")
+        L.append(
+            "| recording | bias | Td min | Eψ without | Eψ with HDR | NEψ without | NEψ with | improvement |"
+        )
         L.append("|---|---|---|---|---|---|---|---|")
         for label, bias, doc, text in real:
             if doc:
                 d = doc["drives"][0]
-                L.append(f"| {label} | {bias} | {d['duration_min']:.1f} | {f(d['E_psi_raw'])}° | "
-                         f"{f(d['E_psi_hdr'])}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'])} | "
-                         f"{f(d['improvement'], 1)}× |")
+                L.append(
+                    f"| {label} | {bias} | {d['duration_min']:.1f} | {f(d['E_psi_raw'])}° | "
+                    f"{f(d['E_psi_hdr'])}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'])} | "
+                    f"{f(d['improvement'], 1)}× |"
+                )
             else:
                 row = [ln for ln in text.splitlines() if ln.startswith("comma2k19")]
                 cells = row[0].split() if row else []
                 if len(cells) >= 8:
-                    L.append(f"| {label} | {cells[2]} | {cells[1]} | {cells[3]}° | {cells[4]}° | {cells[5]} | "
-                             f"{cells[6]} | {cells[7].replace('x', '×')} |")
+                    L.append(
+                        f"| {label} | {cells[2]} | {cells[1]} | {cells[3]}° | {cells[4]}° | {cells[5]} | "
+                        f"{cells[6]} | {cells[7].replace('x', '×')} |"
+                    )
     L.append("")
 
     # -- speed ---------------------------------------------------------------------------------
     best = min(times)
     L.append("### Tuning speed (issue 8)")
     L.append("")
-    L.append(f"`tune()` with 10,000 parameter sets on the nine drives (4.45 h, "
-             f"{int(round(sum(PAPER_TABLE_II[k][0] for k in PAPER_TABLE_II) * 60))} steps of 1 s), "
-             f"in-process, {len(times)} runs: best {best:.1f} s, median {statistics.median(times):.1f} s "
-             f"(target ≤ 30 s: {30 / best:.1f}× inside it). Most of it (about 70 % in a profile) is "
-             "`hdrd.hdr.run_many` stepping all sets together, the rest is Eψ of every set. "
-             f"`hdrd tune` as a command, reading the nine and five CSV files and evaluating the "
-             f"winner on both: {tj['seconds']:.1f} s.")
+    L.append(
+        f"`tune()` with 10,000 parameter sets on the nine drives (4.45 h, "
+        f"{round(sum(PAPER_TABLE_II[k][0] for k in PAPER_TABLE_II) * 60)} steps of 1 s), "
+        f"in-process, {len(times)} runs: best {best:.1f} s, median {statistics.median(times):.1f} s "
+        f"(target ≤ 30 s: {30 / best:.1f}× inside it). Most of it (about 70 % in a profile) is "
+        "`hdrd.hdr.run_many` stepping all sets together, the rest is Eψ of every set. "
+        f"`hdrd tune` as a command, reading the nine and five CSV files and evaluating the "
+        f"winner on both: {tj['seconds']:.1f} s."
+    )
     L.append("")
     L.append(DISCUSSION.strip())
     L.append("")
@@ -386,7 +486,9 @@ the same tables unless the code changes; if it did, re-read the numbers before t
 
 def write_section(section: str) -> None:
     """Replace this script's section of RESULTS.md (or append it), leaving the rest alone."""
-    text = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    text = (
+        RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    )
     lines = text.splitlines(keepends=True)
     start = next((i for i, ln in enumerate(lines) if ln.rstrip() == SECTION), None)
     if start is None:
@@ -396,7 +498,9 @@ def write_section(section: str) -> None:
         return
     end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
     tail = "".join(lines[end:])
-    RESULTS.write_text("".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8")
+    RESULTS.write_text(
+        "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
+    )
 
 
 if __name__ == "__main__":

@@ -49,7 +49,7 @@ def make_drive(
     heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere.
     """
     rng = np.random.default_rng(seed)
-    n = int(round(minutes * 60 * hz))
+    n = round(minutes * 60 * hz)
     t = np.arange(n) / hz
     w = np.zeros(n)
     for start, dur, rate in turns:
@@ -150,6 +150,7 @@ def test_no_truth_is_an_error() -> None:
 def test_truth_outage_is_not_compared() -> None:
     log = make_drive(drift_dps=0.1)
     full = evaluate_drive(log)
+    assert log.heading_truth is not None
     h = log.heading_truth.copy()
     rel = log.t - log.t[0]
     h[(rel > 100) & (rel < 160)] = np.nan  # a 60 s GPS outage
@@ -162,7 +163,10 @@ def test_gap_in_gyro_samples_is_counted_and_held() -> None:
     log = make_drive(drift_dps=0.1)
     rel = log.t - log.t[0]
     keep = ~((rel >= 100.0) & (rel < 103.0))
-    holed = DriveLog(t=log.t[keep], omega=log.omega[keep], heading_truth=log.heading_truth[keep], name="holed")
+    assert log.heading_truth is not None
+    holed = DriveLog(
+        t=log.t[keep], omega=log.omega[keep], heading_truth=log.heading_truth[keep], name="holed"
+    )
     prep = prepare_drive(holed)
     assert prep.missing_steps == 3
     assert prep.start_s == 30.0  # the drive starts after the calibration window
@@ -171,8 +175,10 @@ def test_gap_in_gyro_samples_is_counted_and_held() -> None:
 
 
 def test_summary_is_the_papers_bottom_line() -> None:
-    rs = [evaluate_drive(make_drive(drift_dps=d, turns=CITY_TURNS, seed=i, name=f"d{i}"))
-          for i, d in enumerate((0.1, -0.05, 0.2))]
+    rs = [
+        evaluate_drive(make_drive(drift_dps=d, turns=CITY_TURNS, seed=i, name=f"d{i}"))
+        for i, d in enumerate((0.1, -0.05, 0.2))
+    ]
     s = summarize(rs)
     imps = [r.e_psi["none"] / r.e_psi["hdr"] for r in rs]
     assert s.improvement == pytest.approx(np.mean(imps))
@@ -184,9 +190,20 @@ def test_summary_is_the_papers_bottom_line() -> None:
 
 
 def test_json_shape_is_exactly_the_issues() -> None:
-    rs = [evaluate_drive(make_drive(drift_dps=0.1, name="a")), evaluate_drive(make_drive(drift_dps=0.05, name="b"))]
+    rs = [
+        evaluate_drive(make_drive(drift_dps=0.1, name="a")),
+        evaluate_drive(make_drive(drift_dps=0.05, name="b")),
+    ]
     doc = to_json(rs)
-    keys = ["name", "duration_min", "E_psi_raw", "E_psi_hdr", "NE_psi_raw", "NE_psi_hdr", "improvement"]
+    keys = [
+        "name",
+        "duration_min",
+        "E_psi_raw",
+        "E_psi_hdr",
+        "NE_psi_raw",
+        "NE_psi_hdr",
+        "improvement",
+    ]
     assert list(doc) == ["drives", "mean"]
     assert [list(d) for d in doc["drives"]] == [keys, keys]
     assert list(doc["mean"]) == keys[1:]
@@ -205,7 +222,14 @@ def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) 
     assert r.methods == ("none", "hdr", "hdr+")
     assert r.e_psi["hdr+"] < 1e-6 < r.e_psi["hdr"]
     doc = to_json([r])
-    assert {"E_psi_raw", "E_psi_hdr", "E_psi_hdr+", "NE_psi_hdr+", "improvement_hdr", "improvement_hdr+"} <= set(doc["drives"][0])
+    assert {
+        "E_psi_raw",
+        "E_psi_hdr",
+        "E_psi_hdr+",
+        "NE_psi_hdr+",
+        "improvement_hdr",
+        "improvement_hdr+",
+    } <= set(doc["drives"][0])
     with pytest.raises(EvaluationError, match="not available"):
         evaluate_drive(make_drive(), methods=("kalman",))
 
@@ -310,8 +334,9 @@ def test_cli_plot_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
 
 
-def test_cli_plot_without_matplotlib(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                     monkeypatch: pytest.MonkeyPatch) -> None:
+def test_cli_plot_without_matplotlib(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     a = _write(tmp_path, make_drive(drift_dps=0.1), "a")
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)

@@ -129,7 +129,7 @@ def test_two_dimensional_yaw_is_per_column() -> None:
     truth[[0, 7, 8]] = nan
     yaw = rng.normal(0, 200, (50, 4))
     cols = e_psi(yaw, truth)
-    assert cols.shape == (4,)
+    assert isinstance(cols, np.ndarray) and cols.shape == (4,)
     for j in range(4):
         assert cols[j] == pytest.approx(e_psi(yaw[:, j], truth), rel=1e-12)
 
@@ -140,7 +140,9 @@ def test_two_dimensional_yaw_is_per_column() -> None:
     st.floats(-1000, 1000),
     st.integers(-3, 3),
 )
-def test_epsi_invariant_to_yaw_offset_and_truth_turns(yaw: list[float], offset: float, turns: int) -> None:
+def test_epsi_invariant_to_yaw_offset_and_truth_turns(
+    yaw: list[float], offset: float, turns: int
+) -> None:
     y = np.asarray(yaw)
     truth = wrap360(np.linspace(0, 400, y.shape[0]))
     base = e_psi(y, truth)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from test_evaluate import CITY_TURNS, make_drive
 
 from hdrd.analysis.evaluate import evaluate_prepared, prepare_drive
 from hdrd.analysis.tune import (
@@ -26,14 +28,19 @@ from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
 from hdrd.drivelog import write_drive
 from hdrd.hdr import HdrParams
-from test_evaluate import CITY_TURNS, make_drive
 
 
 def _drives(n: int, seed0: int, minutes: float = 5.0) -> list:
     drifts = (0.12, -0.07, 0.2, 0.05, -0.15)
     return [
-        make_drive(minutes, drifts[i % len(drifts)], turns=CITY_TURNS, sway_dps=0.4,
-                   seed=seed0 + i, name=f"d{seed0 + i}")
+        make_drive(
+            minutes,
+            drifts[i % len(drifts)],
+            turns=CITY_TURNS,
+            sway_dps=0.4,
+            seed=seed0 + i,
+            name=f"d{seed0 + i}",
+        )
         for i in range(n)
     ]
 
@@ -58,7 +65,9 @@ def test_candidates_are_log_uniform_in_range_with_three_digits() -> None:
         assert all(float(f"{x:.3g}") == x for x in v[:50].tolist())
         # log-uniform: about half below the geometric middle
         assert 0.4 < np.mean(v < math.sqrt(lo * hi)) < 0.6
-    r = refine_candidates(np.random.default_rng(2), {k: np.array([1.0]) for k in PARAM_NAMES}, 500, 1.2)
+    r = refine_candidates(
+        np.random.default_rng(2), {k: np.array([1.0]) for k in PARAM_NAMES}, 500, 1.2
+    )
     assert np.all(r["tau"] > 0.3) and np.all(r["tau"] < 3.0)
     assert abs(np.median(np.log(r["tau"]))) < 0.05
 
@@ -68,9 +77,17 @@ def test_vectorised_scores_agree_with_the_scalar_evaluation(train: list) -> None
     e = score_candidates(train, c)
     assert e.shape == (3, 7)
     for j in (0, 3, 6):
-        p = HdrParams(**{k: float(c[k][j]) for k in PARAM_NAMES})
+        p = HdrParams(
+            i_c=float(c["i_c"][j]),
+            tau=float(c["tau"][j]),
+            theta_w=float(c["theta_w"][j]),
+            c1=float(c["c1"][j]),
+            c2=float(c["c2"][j]),
+        )
         for i, d in enumerate(train):
-            assert e[i, j] == pytest.approx(evaluate_prepared(d, p).e_psi["hdr"], rel=1e-9, abs=1e-9)
+            assert e[i, j] == pytest.approx(
+                evaluate_prepared(d, p).e_psi["hdr"], rel=1e-9, abs=1e-9
+            )
 
 
 def test_chunking_does_not_change_scores(train: list, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -117,7 +134,7 @@ def test_tune_reports_progress(train: list) -> None:
     seen: list[tuple[int, int]] = []
     tune(train, (), n_candidates=50, seed=0, progress=lambda d, t: seen.append((d, t)))
     assert seen[-1][0] == seen[-1][1]
-    assert all(b[0] >= a[0] for a, b in zip(seen, seen[1:]))
+    assert all(b[0] >= a[0] for a, b in itertools.pairwise(seen))
 
 
 def test_progress_bar_draws_to_the_stream() -> None:
@@ -145,8 +162,23 @@ def test_cli_tune(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         write_drive(p, d)
         paths.append(str(p))
     out, js = tmp_path / "tuned.yaml", tmp_path / "tune.json"
-    rc = cli_main(["tune", paths[0], paths[1], "--test", paths[2], "--candidates", "60",
-                   "--seed", "4", "--out", str(out), "--json", str(js)])
+    rc = cli_main(
+        [
+            "tune",
+            paths[0],
+            paths[1],
+            "--test",
+            paths[2],
+            "--candidates",
+            "60",
+            "--seed",
+            "4",
+            "--out",
+            str(out),
+            "--json",
+            str(js),
+        ]
+    )
     assert rc == 0
     cap = capsys.readouterr()
     assert "100.0%" in cap.err  # the progress bar
@@ -162,7 +194,9 @@ def test_cli_tune(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli_main(["evaluate", paths[0], paths[1], "--config", str(out), "--json", str(ej)]) == 0
     capsys.readouterr()
     ev = json.loads(ej.read_text())
-    assert ev["mean"]["NE_psi_hdr"] == pytest.approx(doc["train"]["tuned"]["mean_NE_psi"], rel=1e-12)
+    assert ev["mean"]["NE_psi_hdr"] == pytest.approx(
+        doc["train"]["tuned"]["mean_NE_psi"], rel=1e-12
+    )
 
     assert cli_main(["tune", paths[0], "--candidates", "5", "--no-progress"]) == 0
     cap = capsys.readouterr()

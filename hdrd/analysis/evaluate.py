@@ -52,25 +52,27 @@ from hdrd.hdr import HdrParams, run_batch
 from hdrd.resample import block_average_seconds
 
 __all__ = [
-    "EvaluationError",
-    "StepInputs",
-    "MethodFn",
     "METHODS",
-    "PreparedDrive",
     "DriveResult",
-    "prepare_drive",
-    "evaluate_prepared",
+    "EvaluationError",
+    "MethodFn",
+    "PreparedDrive",
+    "StepInputs",
     "evaluate_drive",
+    "evaluate_prepared",
+    "format_table",
+    "main",
+    "method_key",
+    "prepare_drive",
     "summarize",
     "to_json",
-    "format_table",
-    "method_key",
-    "main",
 ]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
+PAPER_PARAMS = HdrParams()
+"""The paper's Table III parameters (HDR's defaults)."""
 DEFAULT_CALIBRATE_S = 30.0
 """Default calibration window, s (paper Sec. 2: Tbias = 30 s)."""
 TRUTH_MAX_GAP_S = 2.0
@@ -183,9 +185,7 @@ class DriveResult:
         return improvement(self.e_psi["none"], self.e_psi[method])
 
 
-def _step_means(
-    t: FloatArray, t0: float, values: FloatArray, n_steps: int, T: float
-) -> FloatArray:
+def _step_means(t: FloatArray, t0: float, values: FloatArray, n_steps: int, T: float) -> FloatArray:
     """Mean of the finite values in each step (NaN for a step without any), same edges as
     :func:`hdrd.resample.block_means`."""
     T_us = round(T * 1_000_000)
@@ -219,13 +219,17 @@ def prepare_drive(
     t = log.t
     t0 = float(t[0])
     dt = float(np.median(np.diff(t)))
-    n_steps = int(math.floor((float(t[-1]) - t0 + dt) / T + 1e-9))
+    n_steps = math.floor((float(t[-1]) - t0 + dt) / T + 1e-9)
     if n_steps < 2:
-        raise EvaluationError(f"{name}: {t[-1] - t0 + dt:.2f} s long; at least 2 steps of {T:g} s needed")
+        raise EvaluationError(
+            f"{name}: {t[-1] - t0 + dt:.2f} s long; at least 2 steps of {T:g} s needed"
+        )
 
     if bias is None:
         if not calibrate_seconds > 0:
-            raise EvaluationError(f"{name}: calibration window must be > 0 s, got {calibrate_seconds!r}")
+            raise EvaluationError(
+                f"{name}: calibration window must be > 0 s, got {calibrate_seconds!r}"
+            )
         win = t < t0 + calibrate_seconds
         try:
             rec = estimate_bias(log.omega[win], t[win])
@@ -234,7 +238,11 @@ def prepare_drive(
                 f"{name}: cannot measure the static bias over the first {calibrate_seconds:g} s: "
                 f"{e}; give it with --bias DPS"
             ) from None
-        bias_dps, bias_source, bias_std = rec.bias_dps, f"first {calibrate_seconds:g} s", rec.std_dps
+        bias_dps, bias_source, bias_std = (
+            rec.bias_dps,
+            f"first {calibrate_seconds:g} s",
+            rec.std_dps,
+        )
     else:
         if not math.isfinite(bias):
             raise EvaluationError(f"{name}: bias {bias!r} is not a finite number")
@@ -262,10 +270,10 @@ def prepare_drive(
     speed = None if log.speed is None else _step_means(t, t0, log.speed, n_steps, T)
     temp = None if log.temp_c is None else _step_means(t, t0, log.temp_c, n_steps, T)
 
-    t_end = (np.arange(n_steps) + 1.0) * T
+    t_end = (np.arange(n_steps, dtype=np.float64) + 1.0) * T
     truth = truth_at(t - t0, log.heading_truth, t_end, truth_max_gap_s)
     # The drive starts when the calibration ends (the daemon, too, calibrates, then runs).
-    first = int(math.ceil(calibrate_seconds / T - 1e-9)) if bias is None else 0
+    first = math.ceil(calibrate_seconds / T - 1e-9) if bias is None else 0
     if n_steps - first < 2:
         raise EvaluationError(
             f"{name}: nothing left to evaluate after the {calibrate_seconds:g} s calibration window"
@@ -311,12 +319,14 @@ def _methods(methods: Sequence[str]) -> tuple[str, ...]:
 
 
 def evaluate_prepared(
-    prep: PreparedDrive, params: HdrParams = HdrParams(), methods: Sequence[str] = ("none", "hdr")
+    prep: PreparedDrive, params: HdrParams = PAPER_PARAMS, methods: Sequence[str] = ("none", "hdr")
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first)."""
     ms = _methods(methods)
     if params.T != prep.steps.T:
-        raise EvaluationError(f"{prep.name}: params.T = {params.T} s but the drive was stepped at {prep.steps.T} s")
+        raise EvaluationError(
+            f"{prep.name}: params.T = {params.T} s but the drive was stepped at {prep.steps.T} s"
+        )
     e: dict[str, float] = {}
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
@@ -344,7 +354,7 @@ def evaluate_prepared(
 
 def evaluate_drive(
     log: DriveLog,
-    params: HdrParams = HdrParams(),
+    params: HdrParams = PAPER_PARAMS,
     bias: float | None = None,
     calibrate_seconds: float = DEFAULT_CALIBRATE_S,
     methods: Sequence[str] = ("none", "hdr"),
@@ -395,7 +405,9 @@ def summarize(results: Sequence[DriveResult]) -> Summary:
     imp_of = {m: _mean_std([r.improvement_of(m) for r in results]) for m in ms}
     imp, std = imp_of[ms[-1]]
     durations = [r.duration_min for r in results]
-    return Summary(len(results), float(np.mean(durations)), float(np.sum(durations)), e, ne, imp, std, imp_of)
+    return Summary(
+        len(results), float(np.mean(durations)), float(np.sum(durations)), e, ne, imp, std, imp_of
+    )
 
 
 def _num(v: float) -> float | None:
@@ -428,7 +440,9 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
         d["improvement"] = _num(r.improvement if r else summary.improvement)
         if len(extra) > 1:
             for m in extra:
-                d[f"improvement_{m}"] = _num(r.improvement_of(m) if r else summary.improvement_of[m][0])
+                d[f"improvement_{m}"] = _num(
+                    r.improvement_of(m) if r else summary.improvement_of[m][0]
+                )
         return d
 
     return {"drives": [row(r) for r in results], "mean": row(None)}
@@ -468,8 +482,10 @@ def format_table(results: Sequence[DriveResult]) -> str:
     if math.isfinite(s.improvement_std):
         line += f" (σ {s.improvement_std:.2f})"
     lines.append(line)
-    lines.append(f"total duration {s.total_min:.1f} min ({s.total_min / 60:.2f} h); "
-                 f"improvement = Epsi raw / Epsi {method_key(ms[-1])}; Epsi in deg, NEpsi in deg/min")
+    lines.append(
+        f"total duration {s.total_min:.1f} min ({s.total_min / 60:.2f} h); "
+        f"improvement = Epsi raw / Epsi {method_key(ms[-1])}; Epsi in deg, NEpsi in deg/min"
+    )
     return "\n".join(lines)
 
 
@@ -511,7 +527,9 @@ def main(args: argparse.Namespace) -> int:
         return EX_CONFIG
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params
-    calibrate_s = args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
+    calibrate_s = (
+        args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
+    )
     try:
         methods = _methods([method])
         logs = load_drives(args.drives)

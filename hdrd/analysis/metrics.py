@@ -27,17 +27,17 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
-    "wrap180",
-    "wrap360",
     "abs_wrap180",
     "align_index",
-    "gyro_heading",
-    "heading_error",
     "e_psi",
     "e_psi_continuous",
+    "gyro_heading",
+    "heading_error",
+    "improvement",
     "ne_psi",
     "truth_at",
-    "improvement",
+    "wrap180",
+    "wrap360",
 ]
 
 FloatArray = npt.NDArray[np.float64]

@@ -85,18 +85,27 @@ def plot_evaluation(results: Sequence[DriveResult], path: str | os.PathLike[str]
     x = np.arange(n)
     methods = results[0].methods
     width = 0.8 / len(methods)
-    for j, (metric, label) in enumerate(((lambda r, m: r.e_psi[m], "Eψ, deg"),
-                                         (lambda r, m: r.ne_psi[m], "NEψ, deg/min"))):
+    for j, (metric, label) in enumerate(
+        ((lambda r, m: r.e_psi[m], "Eψ, deg"), (lambda r, m: r.ne_psi[m], "NEψ, deg/min"))
+    ):
         ax = fig.add_subplot(grid[rows, j * ncols : (j + 1) * ncols])
         for q, m in enumerate(methods):
             color = _STYLE.get(m, {}).get("color")
             lab = _STYLE.get(m, {}).get("label", m)
-            ax.bar(x + (q - (len(methods) - 1) / 2) * width, [metric(r, m) for r in results],
-                   width, label=lab, color=color)
+            ax.bar(
+                x + (q - (len(methods) - 1) / 2) * width,
+                [metric(r, m) for r in results],
+                width,
+                label=lab,
+                color=color,
+            )
         ax.set_xticks(x)
         ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
         ax.set_ylabel(label)
-        ax.set_title(("(a) average heading error" if j == 0 else "(b) normalized average heading error"), fontsize=9)
+        ax.set_title(
+            ("(a) average heading error" if j == 0 else "(b) normalized average heading error"),
+            fontsize=9,
+        )
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7)
     try:

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
     DEFAULT_CALIBRATE_S,
+    PAPER_PARAMS,
     DriveResult,
     EvaluationError,
     PreparedDrive,
@@ -53,13 +54,13 @@ __all__ = [
     "RANGES",
     "Progress",
     "TuneResult",
-    "sample_candidates",
-    "refine_candidates",
-    "score_candidates",
-    "tune",
-    "params_yaml",
     "format_report",
     "main",
+    "params_yaml",
+    "refine_candidates",
+    "sample_candidates",
+    "score_candidates",
+    "tune",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -142,9 +143,9 @@ def score_candidates(
     done = done0
     for a in range(0, P, chunk):
         b = min(P, a + chunk)
-        args = [cand[k][a:b] for k in PARAM_NAMES]
+        ic, ta, th, k1, k2 = (cand[k][a:b] for k in PARAM_NAMES)
         for j, d in enumerate(drives):
-            yaw = run_many(d.steps.u, *args, T=T)
+            yaw = run_many(d.steps.u, ic, ta, th, k1, k2, T=T)
             out[j, a:b] = e_psi(yaw, d.truth, d.k)
             done += d.steps.u.shape[0] * (b - a)
             if progress is not None:
@@ -159,7 +160,8 @@ def _objective(e: FloatArray, drives: Sequence[PreparedDrive]) -> FloatArray:
 
 
 def _params(base: HdrParams, c: Candidates, i: int) -> HdrParams:
-    return replace(base, **{k: float(c[k][i]) for k in PARAM_NAMES})
+    v = {k: float(c[k][i]) for k in PARAM_NAMES}
+    return replace(base, i_c=v["i_c"], tau=v["tau"], theta_w=v["theta_w"], c1=v["c1"], c2=v["c2"])
 
 
 @dataclass(frozen=True)
@@ -203,7 +205,7 @@ def tune(
     n_candidates: int = 2000,
     seed: int = 0,
     *,
-    base: HdrParams = HdrParams(),
+    base: HdrParams = PAPER_PARAMS,
     bias: float | None = None,
     calibrate_seconds: float = DEFAULT_CALIBRATE_S,
     ranges: dict[str, tuple[float, float]] = RANGES,
@@ -229,7 +231,7 @@ def tune(
     test = _prepare(test_logs, bias, calibrate_seconds, base.T)
     rng = np.random.default_rng(seed)
 
-    n_refine = int(round((n_candidates - 1) * refine_fraction)) if n_candidates > 1 else 0
+    n_refine = round((n_candidates - 1) * refine_fraction) if n_candidates > 1 else 0
     n_random = n_candidates - 1 - n_refine
     rounds = max(1, refine_rounds) if n_refine else 0
     per_round = [n_refine // rounds + (1 if r < n_refine % rounds else 0) for r in range(rounds)]
@@ -286,7 +288,11 @@ def _cell(s: Summary | None, method: str) -> str:
     if s is None:
         return f"{'-':>8} {'-':>8} {'-':>17}"
     imp = s.improvement_of[method]
-    imp_s = "-" if method == "none" else f"{imp[0]:.2f}x" + (f" (σ {imp[1]:.2f})" if math.isfinite(imp[1]) else "")
+    imp_s = (
+        "-"
+        if method == "none"
+        else f"{imp[0]:.2f}x" + (f" (σ {imp[1]:.2f})" if math.isfinite(imp[1]) else "")
+    )
     return f"{s.ne_psi[method]:>8.3f} {s.e_psi[method]:>8.2f} {imp_s:>17}"
 
 
@@ -296,8 +302,10 @@ def format_report(r: TuneResult, seconds: float | None = None) -> str:
     n_te = len(r.test["baseline"])
     lines = []
     took = f", {seconds:.1f} s" if seconds is not None else ""
-    lines.append(f"HDR tuning: {r.n_evaluated} parameter sets (seed {r.seed}), "
-                 f"{n_tr} training drive(s), {n_te} test drive(s){took}")
+    lines.append(
+        f"HDR tuning: {r.n_evaluated} parameter sets (seed {r.seed}), "
+        f"{n_tr} training drive(s), {n_te} test drive(s){took}"
+    )
     lines.append("")
     lines.append(f"{'parameters':<18}" + "".join(f"{k:>9}" for k in PARAM_NAMES))
     for label, p in (("paper Table III", r.baseline), ("tuned", r.best)):
@@ -306,15 +314,23 @@ def format_report(r: TuneResult, seconds: float | None = None) -> str:
     half = f"{'NEpsi':>8} {'Epsi':>8} {'improvement':>17}"
     lines.append(f"{'':<18}{'training (' + str(n_tr) + ')':^36} | {'test (' + str(n_te) + ')':^36}")
     lines.append(f"{'':<18}{half} | {half}")
-    rows = (("without HDR", "baseline", "none"), ("paper Table III", "baseline", "hdr"), ("tuned", "tuned", "hdr"))
+    rows = (
+        ("without HDR", "baseline", "none"),
+        ("paper Table III", "baseline", "hdr"),
+        ("tuned", "tuned", "hdr"),
+    )
     for label, which, method in rows:
         tr = r.summary("train", which)
         te = r.summary("test", which)
         lines.append(f"{label:<18}{_cell(tr, method)} | {_cell(te, method)}")
     lines.append("")
-    lines.append("NEpsi: mean over drives, deg/min (the objective, training); Epsi: mean, deg; "
-                 "improvement: mean of per-drive Epsi ratios (σ: sample std)")
-    lines.append("the paper (Table III set): 9.2x on its nine training drives, 6.9x on five test drives")
+    lines.append(
+        "NEpsi: mean over drives, deg/min (the objective, training); Epsi: mean, deg; "
+        "improvement: mean of per-drive Epsi ratios (σ: sample std)"
+    )
+    lines.append(
+        "the paper (Table III set): 9.2x on its nine training drives, 6.9x on five test drives"
+    )
     return "\n".join(lines)
 
 
@@ -326,7 +342,11 @@ def to_json(r: TuneResult, seconds: float | None = None) -> dict[str, Any]:
         if not res["baseline"]:
             return None
         out: dict[str, Any] = {"drives": [d.name for d in res["baseline"]]}
-        for label, key, method in (("none", "baseline", "none"), ("baseline", "baseline", "hdr"), ("tuned", "tuned", "hdr")):
+        for label, key, method in (
+            ("none", "baseline", "none"),
+            ("baseline", "baseline", "hdr"),
+            ("tuned", "tuned", "hdr"),
+        ):
             s = summarize(res[key])
             imp, std = s.improvement_of[method]
             out[label] = {
@@ -375,11 +395,13 @@ class ProgressBar:
             return
         self._last = now
         frac = done / total if total else 1.0
-        fill = int(round(frac * self.width))
+        fill = round(frac * self.width)
         elapsed = now - self.t0
         eta = elapsed / frac - elapsed if frac > 0 else 0.0
-        self.stream.write(f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
-                          f"{frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:4.0f} s left ")
+        self.stream.write(
+            f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
+            f"{frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:4.0f} s left "
+        )
         self.stream.flush()
         self._drawn = True
 
@@ -399,7 +421,9 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.evaluate import load_drives
     from hdrd.calibrate import atomic_write_text
 
-    calibrate_s = args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
+    calibrate_s = (
+        args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
+    )
     if args.candidates < 1:
         _err(f"--candidates must be >= 1, got {args.candidates}")
         return 2
@@ -408,8 +432,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         train = load_drives(args.train)
         test = load_drives(args.test or [])
-        result = tune(train, test, args.candidates, args.seed, calibrate_seconds=calibrate_s,
-                      progress=bar)
+        result = tune(
+            train, test, args.candidates, args.seed, calibrate_seconds=calibrate_s, progress=bar
+        )
     except EvaluationError as e:
         if bar is not None:
             bar.close()
@@ -426,9 +451,14 @@ def main(args: argparse.Namespace) -> int:
             f"HDR parameters tuned by `hdrd tune` (seed {args.seed}, {result.n_evaluated} sets) on "
             f"{len(train)} training drive(s): " + ", ".join(d.name for d in train),
             f"training: mean NEpsi {s_tr.ne_psi['hdr']:.3f} deg/min, {s_tr.improvement:.2f}x"
-            if s_tr else "",
-            (f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
-             f"on {len(test)} drive(s)") if s_te else "no test drives",
+            if s_tr
+            else "",
+            (
+                f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
+                f"on {len(test)} drive(s)"
+            )
+            if s_te
+            else "no test drives",
             "paste into /etc/hdrd/hdrd.yaml (replacing its hdr: section)",
         ]
         try:
