@@ -154,39 +154,43 @@ class GapError(ValueError):
 # -- the truth and the blocks -----------------------------------------------------------------
 
 
+def _fixes(t: FloatArray, h: FloatArray) -> IntArray:
+    """Row indices of the fixes in a heading column: finite values, a value held over several
+    rows counted once (its first row)."""
+    ok = np.flatnonzero(np.isfinite(h))
+    if ok.shape[0] > 1:
+        keep = np.concatenate(([True], h[ok[1:]] != h[ok[:-1]]))
+        ok = ok[keep]
+    return ok
+
+
 def truth_rate_from_heading(
     t_s: npt.ArrayLike, heading_deg: npt.ArrayLike, max_gap_s: float = 2.5
 ) -> FloatArray:
-    """True yaw rate (deg/s, + = CCW) at the sample times from a compass heading (deg,
-    clockwise from north; NaN = unknown), e.g. a 1 Hz GPS course.
+    """True yaw rate (deg/s, + = CCW) per sample from a compass heading (deg, clockwise from
+    north; NaN = unknown), e.g. a 1 Hz GPS course.
 
-    Fixes are the finite headings (a value repeated on consecutive rows counts once). Between
-    two fixes at most ``max_gap_s`` apart the rate is -(unwrapped heading change) / (time
-    between them), CW -> CCW, placed at their midpoint and linearly interpolated to the samples
-    between the first and last such midpoint of a run; NaN elsewhere (stops, outages).
+    Between two consecutive fixes at most ``max_gap_s`` apart the rate is -(heading change the
+    short way round) / (time between them): CW -> CCW. It is given to the samples between the
+    two fixes' rows; a fix's own row, shared by two intervals, gets the mean of both rates (the
+    trapezoid rule: samples are instantaneous values, so a row between two intervals belongs
+    half to each). NaN elsewhere (stops, outages, before the first fix).
     """
     t = np.asarray(t_s, dtype=np.float64)
     h = np.asarray(heading_deg, dtype=np.float64)
     out = np.full(t.shape[0], np.nan)
-    ok = np.flatnonzero(np.isfinite(h))
-    if ok.shape[0] > 1:
-        # A course held over several rows is one fix (its first row).
-        keep = np.concatenate(([True], h[ok[1:]] != h[ok[:-1]]))
-        ok = ok[keep]
+    ok = _fixes(t, h)
     if ok.shape[0] < 2:
         return out
     tf, hf = t[ok], h[ok]
     dt = np.diff(tf)
-    dh = (np.diff(hf) + 180.0) % 360.0 - 180.0  # shortest way round, so 359 -> 1 is +2 deg
+    dh = (np.diff(hf) + 180.0) % 360.0 - 180.0  # shortest way round: 359 -> 1 is +2 deg
     rate = -dh / dt
-    mid = 0.5 * (tf[1:] + tf[:-1])
     good = dt <= max_gap_s
-    # Runs of consecutive good intervals; interpolate within each run only.
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], good.astype(np.int8), [0]))))
-    for a, b in zip(edges[::2], edges[1::2]):
-        lo, hi = tf[a], tf[b]  # the run covers fixes a..b
-        sel = (t >= lo) & (t <= hi)
-        out[sel] = np.interp(t[sel], mid[a:b], rate[a:b])
+    for j in np.flatnonzero(good):
+        out[ok[j] : ok[j + 1]] = rate[j]
+    both = np.flatnonzero(good[1:] & good[:-1]) + 1  # fixes with a good interval on each side
+    out[ok[both]] = 0.5 * (rate[both - 1] + rate[both])
     return out
 
 
@@ -266,9 +270,16 @@ class GapData:
 
     Samples: t (s since the first sample), omega (deg/s), truth (deg/s; NaN where unknown),
     truth_filled (NaN replaced by interpolation, for simulating), temp_c (deg C or None),
-    valid (truth known). Blocks of ``block_s`` on a regular grid from t = 0: ``block_of`` maps
-    each sample to its block (-1 if not valid), ``bvalid`` marks the blocks used (complete and
-    with truth), ``bcount`` their valid sample counts, ``bt`` their mid times (s).
+    valid (truth known).
+
+    Blocks of ``block_s`` on a regular grid from ``block_t0`` (0, or the first GPS fix when the
+    truth is a heading): sample i counts with weight ``wprim[i]`` in block ``block_of[i]``
+    (-1: none) and, at a heading truth's fix rows, with weight 1/2 in ``block_prev[i]`` too
+    (trapezoid rule: the fix between two blocks belongs half to each). ``bvalid`` marks the
+    blocks used (complete, with truth), ``bweight`` their weight sums, ``bneff`` the effective
+    number of samples for white noise ((sum w)**2 / sum w**2), ``bt`` their mid times (s),
+    ``btruth`` the mean true rate of each used block (deg/s; with a heading truth exactly the
+    heading change between the block's end fixes over its duration).
     """
 
     t: FloatArray
@@ -280,11 +291,16 @@ class GapData:
     truth_source: str
     fs_hz: float
     block_s: float
-    block_of: IntArray
+    block_t0: float
     nblocks: int
+    block_of: IntArray
+    wprim: FloatArray
+    block_prev: IntArray
     bvalid: BoolArray
-    bcount: FloatArray
+    bweight: FloatArray
+    bneff: FloatArray
     bt: FloatArray
+    btruth: FloatArray
     resolution_dps: float
     lattice: Lattice | None
     name: str = ""
@@ -298,11 +314,22 @@ class GapData:
         """Number of blocks in the likelihood."""
         return int(self.bvalid.sum())
 
+    @property
+    def heading_mode(self) -> bool:
+        return self.truth_source.startswith("heading_truth")
+
     def block_mean(self, x: FloatArray) -> FloatArray:
-        """Mean of the sample values x over each used block (valid samples only)."""
+        """Weighted mean of the sample values x over each used block."""
         sel = self.block_of >= 0
-        s = np.bincount(self.block_of[sel], weights=x[sel], minlength=self.nblocks)
-        return np.asarray(s[self.bvalid] / self.bcount[self.bvalid])
+        s = np.bincount(self.block_of[sel], weights=(self.wprim * x)[sel], minlength=self.nblocks)
+        sp = self.block_prev >= 0
+        if sp.any():
+            s += np.bincount(self.block_prev[sp], weights=0.5 * x[sp], minlength=self.nblocks)
+        return np.asarray(s[self.bvalid] / self.bweight[self.bvalid])
+
+    def block_residual(self, y: FloatArray) -> FloatArray:
+        """Block means of y (a gyro output, deg/s) minus the true rate: the block residual."""
+        return self.block_mean(y) - self.btruth
 
 
 def _block_length(duration_s: float, truth_source: str) -> float:
@@ -321,12 +348,19 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         raise GapError(f"the log has {n} samples; the workflow needs at least 100")
     t = np.asarray(log.t - log.t[0], dtype=np.float64)
     omega = np.asarray(log.omega, dtype=np.float64)
+    origin, fix_dt = 0.0, 1.0
+    fixes = np.empty(0, dtype=np.int64)
+    heading = None
     if log.omega_truth is not None and np.isfinite(log.omega_truth).any():
         truth = np.asarray(log.omega_truth, dtype=np.float64)
         source = "omega_truth"
     elif log.heading_truth is not None and np.isfinite(log.heading_truth).sum() > 2:
-        truth = truth_rate_from_heading(t, log.heading_truth)
+        heading = np.asarray(log.heading_truth, dtype=np.float64)
+        truth = truth_rate_from_heading(t, heading)
         source = "heading_truth"
+        fixes = _fixes(t, heading)
+        origin = float(t[fixes[0]])
+        fix_dt = float(np.median(np.diff(t[fixes]))) if fixes.shape[0] > 1 else 1.0
     elif standstill:
         truth = np.zeros(n)
         source = "standstill"
@@ -349,28 +383,73 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         temp = tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
     dt = float(np.median(np.diff(t)))
     fs = 1.0 / dt
-    bs = float(block_s) if block_s is not None else _block_length(float(t[-1]), source)
+    if block_s is not None:
+        bs = float(block_s)
+    else:
+        bs = _block_length(float(t[-1]), source)
+        if heading is not None:
+            bs *= max(1.0, round(fix_dt))  # whole fix intervals
     if not (math.isfinite(bs) and bs >= dt):
         raise GapError(f"block length {bs!r} s is shorter than the sample period {dt:g} s")
-    nblocks = int(math.floor((t[-1] + dt) / bs + 1e-9))
+    nblocks = int(math.floor((t[-1] - origin + dt) / bs + 1e-9))
     if nblocks < 20:
         raise GapError(
             f"the log covers {nblocks} blocks of {bs:g} s; the workflow needs at least 20 "
             f"(a log of {20 * bs:g} s or more)"
         )
-    blk = np.floor((t + 0.5 * dt) / bs - 1e-9).astype(np.int64)  # sample k covers [t, t + dt)
-    inside = blk < nblocks
-    expected = bs * fs
-    total = np.bincount(blk[inside], minlength=nblocks).astype(np.float64)
-    good = np.bincount(blk[inside & valid], minlength=nblocks).astype(np.float64)
-    bvalid = (good >= 0.8 * expected) & (good == total)
-    block_of = np.where(inside & valid & bvalid[np.minimum(blk, nblocks - 1)], blk, -1)
+    # Sample i covers [t_i, t_i + dt); half a sample of margin absorbs float jitter.
+    blk = np.floor((t - origin + 0.5 * dt) / bs - 1e-9).astype(np.int64)
+    inside = (blk >= 0) & (blk < nblocks)
+    bi = np.where(inside, blk, nblocks)  # nblocks: a bin for "outside"
+    total = np.bincount(bi, minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    good = np.bincount(bi[valid], minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    bvalid = (good >= 0.8 * bs * fs) & (good == total)
+    wprim = np.ones(n)
+    block_prev = np.full(n, -1, dtype=np.int64)
+    btruth_full = np.full(nblocks, np.nan)
+    if heading is not None:
+        # Each block must start on a fix and end on the next block's first row, also a fix.
+        is_fix = np.zeros(n, dtype=bool)
+        is_fix[fixes] = True
+        first = np.full(nblocks + 1, -1, dtype=np.int64)
+        rows = np.flatnonzero(inside)
+        first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
+        first[blk[first_rows]] = first_rows
+        after = np.flatnonzero(blk == nblocks)
+        if after.shape[0]:
+            first[nblocks] = after[0]
+        hu = np.full(n, np.nan)  # heading unwrapped along the fixes, deg
+        dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
+        hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
+        for k in range(nblocks):
+            a, b = first[k], first[k + 1]
+            ok = a >= 0 and b >= 0 and is_fix[a] and is_fix[b] and bool(valid[a:b].all()) and bool(valid[b])
+            if ok and bvalid[k]:
+                btruth_full[k] = -(hu[b] - hu[a]) / (t[b] - t[a])  # CW heading -> CCW rate
+                wprim[a] = 0.5
+                if k > 0:
+                    block_prev[a] = k - 1
+            else:
+                bvalid[k] = False
+        # The half-row that closes block k is the first row of block k + 1: give it to k even
+        # when block k + 1 itself is not used.
+        for k in np.flatnonzero(bvalid):
+            b = first[k + 1]
+            if b >= 0 and block_prev[b] < 0:
+                block_prev[b] = k
+    block_of = np.where(inside & valid & bvalid[np.clip(blk, 0, nblocks - 1)], blk, -1)
+    block_prev = np.where((block_prev >= 0) & bvalid[np.clip(block_prev, 0, nblocks - 1)], block_prev, -1)
+    wsum = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0], minlength=nblocks)
+    w2 = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0] ** 2, minlength=nblocks)
+    if (block_prev >= 0).any():
+        wsum += np.bincount(block_prev[block_prev >= 0], weights=np.full(int((block_prev >= 0).sum()), 0.5), minlength=nblocks)
+        w2 += np.bincount(block_prev[block_prev >= 0], weights=np.full(int((block_prev >= 0).sum()), 0.25), minlength=nblocks)
     if bvalid.sum() < 20:
         raise GapError(
             f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
         )
     res = decimal_resolution(omega)
-    return GapData(
+    data = GapData(
         t=t,
         omega=omega,
         truth=truth,
@@ -380,15 +459,22 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         truth_source=source,
         fs_hz=fs,
         block_s=bs,
-        block_of=block_of,
+        block_t0=origin,
         nblocks=nblocks,
+        block_of=block_of,
+        wprim=wprim,
+        block_prev=block_prev,
         bvalid=bvalid,
-        bcount=good,
-        bt=(np.arange(nblocks) + 0.5) * bs,
+        bweight=np.where(wsum > 0, wsum, 1.0),
+        bneff=np.where(w2 > 0, wsum**2 / np.where(w2 > 0, w2, 1.0), 1.0),
+        bt=origin + (np.arange(nblocks) + 0.5) * bs,
+        btruth=np.empty(0),
         resolution_dps=res,
         lattice=detect_lattice(omega, res),
         name=log.name,
     )
+    bt_used = btruth_full[bvalid] if heading is not None else data.block_mean(truth_filled)
+    return replace(data, btruth=bt_used)
 
 
 # -- Allan deviation with gaps --------------------------------------------------------------------
@@ -420,8 +506,10 @@ def allan_deviation_masked(
     return out
 
 
-def _gap_ms(data: GapData) -> IntArray:
-    n = data.t.shape[0]
+def _gap_ms(data: GapData, samples: bool = False) -> IntArray:
+    """Cluster sizes of the gap's Allan deviation: samples, or blocks for a heading truth."""
+    per_block = data.truth_source.startswith("heading_truth") and not samples
+    n = data.nblocks if per_block else data.t.shape[0]
     m_max = max(1, n // 10)
     k = max(int(TAUS_PER_DECADE * math.log10(max(m_max, 2))) + 1, 2)
     return np.unique(np.round(np.logspace(0, math.log10(m_max), k))).astype(np.int64)
@@ -480,7 +568,7 @@ class _Whitener:
 
     def __init__(self, data: GapData, noise: _Noise) -> None:
         b = data.block_s
-        cnt = data.bcount[data.bvalid]
+        cnt = data.bneff[data.bvalid]
         r = (noise.white_var + noise.q_step**2 / 12.0) / cnt + noise.extra_var
         self.diag = noise.bi_sigma <= 0 and noise.rrw_k <= 0
         if self.diag:
@@ -506,10 +594,11 @@ class _Whitener:
         n = int(r.shape[0])
         s = [0.0] * n
         gains = [(0.0, 0.0, 0.0, 0.0)] * n
-        # P at block 0: g(0), g(B) stationary with correlation a; w(0) = 0, w(B) ~ K**2 B.
+        # P at block 0: g at its two ends stationary with correlation a; w from zero at power-on.
         p00, p01, p02, p03 = sig2, a * sig2, 0.0, 0.0
         p11, p12, p13 = sig2, 0.0, 0.0
-        p22, p23, p33 = 0.0, 0.0, qw
+        w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
+        p22, p23, p33 = w0, w0, w0 + qw
         valid = data.bvalid.tolist()
         j = 0
         for k in range(data.nblocks):
@@ -776,7 +865,11 @@ def _white_var(data: GapData, d: FloatArray, q_step: float) -> float:
     """Per-sample white-noise variance (deg/s)**2 from sample-to-sample differences of the
     unexplained residual (robust: MAD), less the quantization's q**2/12."""
     e = data.omega - data.truth_filled - d
+    # Pairs of samples with the same truth value: a piecewise-constant truth (from a heading)
+    # jumps at its fixes, and such a jump is no sensor noise.
     ok = data.valid[1:] & data.valid[:-1]
+    if data.truth_source.startswith("heading_truth"):
+        ok &= data.truth_filled[1:] == data.truth_filled[:-1]
     de = np.diff(e)[ok]
     if de.shape[0] < 10:
         return float(np.var(e[data.valid]))
@@ -846,7 +939,7 @@ class _Fitter:
 
     def __init__(self, data: GapData) -> None:
         self.data = data
-        self.ebar = data.block_mean(data.omega - data.truth_filled)
+        self.ebar = data.block_residual(data.omega)
         self.heading = data.truth_source.startswith("heading_truth")
         # A warm-up transient must visibly decay within the log; slower it is just a trend.
         self.tau_bounds = (data.block_s, max(data.duration_s / 2.0, 2.0 * data.block_s))
@@ -875,7 +968,7 @@ class _Fitter:
 
     def fit_noise(self, model: GyroModel, noise: _Noise, dbar: FloatArray, which: Sequence[str]) -> _Noise:
         """Maximum likelihood of the named noise parameters (log scale), others fixed."""
-        which = [w for w in which if w != "extra" or self.heading]
+        which = [w for w in which if w != "extra_var" or self.heading]
         if not which:
             return noise
         y = self.ebar - dbar
@@ -914,7 +1007,7 @@ class _Fitter:
         noise = _noise_of(self.data, model, d, extra_var)
         if self.heading and noise.extra_var == 0.0:
             noise = replace(noise, extra_var=float(np.var(self.ebar - db)))
-        which = ["extra"] if self.heading else []
+        which = ["extra_var"] if self.heading else []
         if "bias_instability" in model:
             which += ["bi_sigma", "bi_tau"]
         if "rate_random_walk" in model:
@@ -981,7 +1074,7 @@ def _not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
         for c in ("scale_factor", "scale_asymmetry", "time_offset", "saturation"):
             out[c] = why
     else:
-        wb = data.block_mean(data.truth_filled)
+        wb = data.btruth
         if int((wb > 1.0).sum()) < 2 or int((wb < -1.0).sum()) < 2:
             out["scale_asymmetry"] = "the drive turns one way only"
     if data.lattice is None:
@@ -997,7 +1090,7 @@ def _not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
 def _adev_excess_init(data: GapData, e: FloatArray, white_var: float, kind: str) -> tuple[float, float]:
     """Start values for a correlated-noise candidate from the Allan variance of e above the
     white floor (its signature): (sigma, tau_c) for bias_instability, (K, 0) for the RRW."""
-    ms = _gap_ms(data)
+    ms = _gap_ms(data, samples=True)
     ms = ms[ms / data.fs_hz >= data.block_s]
     if ms.shape[0] == 0:
         return (1e-3, 10.0 * data.block_s)
@@ -1211,22 +1304,45 @@ def _simulate(data: GapData, model: GyroModel, seed: int, r: int) -> FloatArray:
     return np.asarray(y)
 
 
-def gap_metric(data: GapData, model: GyroModel, seed: int = 0, d: FloatArray | None = None) -> _Sim:
+def gap_metric(
+    data: GapData, model: GyroModel, seed: int = 0, d: FloatArray | None = None, truth_var: float = 0.0
+) -> _Sim:
     """The gap between the log and ``model`` (see :data:`GAP_METRIC`); model parameters as
-    given. Deterministic for a seed."""
+    given. Deterministic for a seed.
+
+    With a truth derived from a heading the Allan deviations are taken over block means (the
+    truth is only known as heading changes between fixes), and the simulated block residual
+    gets the truth's own error (white heading noise at the fixes, differenced: variance
+    ``truth_var`` (deg/s)**2 per block, fitted with the model) so that both sides carry it."""
     d = deterministic_part(data, model) if d is None else d
+    per_block = data.truth_source.startswith("heading_truth")
     ms = _gap_ms(data)
-    e_m = data.omega - data.truth_filled - d
-    adev_m = allan_deviation_masked(e_m, data.valid, data.fs_hz, ms)
+    rng_truth = np.random.default_rng([seed, 99])
+
+    dbar = data.block_mean(d) if per_block else None
+
+    def adev(y: FloatArray, noise: bool) -> FloatArray:
+        if not per_block:
+            return allan_deviation_masked(y - data.truth_filled - d, data.valid, data.fs_hz, ms)
+        full = np.zeros(data.nblocks)
+        full[data.bvalid] = data.block_residual(y) - dbar
+        if noise and truth_var > 0:
+            # The truth's error: white heading noise at the fixes, differenced over a block.
+            eta = math.sqrt(truth_var / 2.0) * rng_truth.standard_normal(data.nblocks + 1)
+            full -= np.diff(eta)
+        return allan_deviation_masked(full, data.bvalid, 1.0 / data.block_s, ms)
+
+    adev_m = adev(data.omega, False)
     avar_s = np.zeros(ms.shape[0])
     sims = []
     for r in range(N_SIM):
         y = _simulate(data, model, seed, r)
         sims.append(y)
-        avar_s += allan_deviation_masked(y - data.truth_filled - d, data.valid, data.fs_hz, ms) ** 2
+        avar_s += adev(y, True) ** 2
     adev_s = np.sqrt(avar_s / N_SIM)
     ok = np.isfinite(adev_m) & np.isfinite(adev_s) & (adev_m > 0) & (adev_s > 0)
     a = float(np.sqrt(np.mean(np.log(adev_m[ok] / adev_s[ok]) ** 2))) if ok.any() else 0.0
+    taus = ms * data.block_s if per_block else ms / data.fs_hz
     # Histogram term: lattices found in the measurement or in the simulation.
     h = 0.0
     lattices = [data.lattice] if data.lattice is not None else []
@@ -1237,7 +1353,7 @@ def gap_metric(data: GapData, model: GyroModel, seed: int = 0, d: FloatArray | N
         fm = float(_on_lattice(data.omega, lat.step_dps, lat.offset_dps, data.resolution_dps).mean())
         fs = float(np.mean([_on_lattice(y, lat.step_dps, lat.offset_dps, data.resolution_dps).mean() for y in sims]))
         h = max(h, abs(fm - fs))
-    return _Sim(taus=ms / data.fs_hz, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
+    return _Sim(taus=taus, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
 
 
 _REGRESSOR = {
@@ -1261,7 +1377,7 @@ def _regressors(data: GapData) -> dict[str, FloatArray]:
     w = data.truth_filled
     out = {
         "time_s": data.bt[data.bvalid],
-        "true_rate": data.block_mean(w),
+        "true_rate": data.btruth,
         "true_rate_left": data.block_mean(np.maximum(w, 0.0)),
         "true_rate_right": data.block_mean(np.minimum(w, 0.0)),
         "rate_derivative": data.block_mean(np.gradient(w, data.t)),
@@ -1274,7 +1390,7 @@ def _regressors(data: GapData) -> dict[str, FloatArray]:
 def _diagnostics(data: GapData, fit: Fit, sim: _Sim) -> dict[str, Any]:
     """Discrepancy measures for the report: Allan deviation ratio over tau, correlations of
     the unexplained block residual, residual by part of the log, histogram."""
-    e = data.block_mean(data.omega - data.truth_filled) - fit.dbar
+    e = data.block_residual(data.omega) - fit.dbar
     regs = _regressors(data)
     corr = {k: round(_corr(e, v), 3) for k, v in regs.items() if k not in ("true_rate_left", "true_rate_right")}
     # Sign: separate slopes for left (+) and right (-) turns, least squares with a constant.
@@ -1458,9 +1574,9 @@ def run_gap(
     if unknown:
         raise GapError(f"unknown candidate effect(s): {', '.join(unknown)}")
     f = _Fitter(data)
-    sim_given = gap_metric(data, start, seed)
     cur = fit_model(data, start)
-    cur_sim = gap_metric(data, cur.model, seed, cur.d)
+    sim_given = gap_metric(data, start, seed, None, cur.noise.extra_var)
+    cur_sim = gap_metric(data, cur.model, seed, cur.d, cur.noise.extra_var)
     initial_fit, initial_sim = cur, cur_sim
     skip = _not_identifiable(data, cur.model)
     steps: list[Step] = []
@@ -1486,7 +1602,7 @@ def run_gap(
         new = f.full(best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var)
         if new.lnl < best.fit.lnl:
             new = best.fit  # the joint refit can only keep or improve the candidate's fit
-        new_sim = gap_metric(data, new.model, seed, new.d)
+        new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
         if rivals:
             names_r = tuple(c.name for c, _ in rivals)
             ambiguous.append(
@@ -1535,7 +1651,7 @@ def run_gap(
             if rec["action"].startswith("replaced by "):
                 added.append(rec["action"][len("replaced by ") :])
             cur = revised
-            cur_sim = gap_metric(data, cur.model, seed, cur.d)
+            cur_sim = gap_metric(data, cur.model, seed, cur.d, cur.noise.extra_var)
             rec["gap_after"] = _r(cur_sim.gap)
             revisions.append(rec)
     return GapResult(
