@@ -448,7 +448,12 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         raise GapError(
             f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
         )
+    # The writer's resolution for rates: omega's own digits can look coarse when its values
+    # sit on a round ADC lattice (0.05 deg/s values are all multiples of 0.01), so the true
+    # rate column, written alike, is consulted too.
     res = decimal_resolution(omega)
+    if log.omega_truth is not None:
+        res = min(res, decimal_resolution(log.omega_truth))
     data = GapData(
         t=t,
         omega=omega,

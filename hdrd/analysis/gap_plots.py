@@ -1,0 +1,154 @@
+"""Figure of the model-gap workflow: measured vs simulated, before and after each step.
+
+An edge module (it writes a file). matplotlib is imported lazily, only when a plot is drawn;
+without it, :class:`PlotError` says how to install it.
+
+One row per accepted step (one row showing the starting model if none was accepted):
+
+- left: Allan deviation of the unexplained residual (omega - truth - the model's deterministic
+  part), measured (solid) and simulated by the model under the same conditions (dashed), for
+  the model before the step (red) and after it (blue);
+- right: the block residual against the regressor that named the effect (temp_c, time, true
+  rate, its derivative; omega's values on the ADC lattice for quantization): before the step
+  (grey dots), the fitted effect's contribution (red line) and what is left after it (blue).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from hdrd.analysis.gap import GapResult, Step
+
+__all__ = ["PlotError", "plot_gap"]
+
+_LABEL = {
+    "temp_c": "temperature, degC",
+    "time_s": "time since power-on, s",
+    "true_rate": "true yaw rate, deg/s (+ = CCW)",
+    "rate_derivative": "true yaw acceleration, deg/s^2",
+    "omega": "omega modulo the lattice step, deg/s",
+}
+
+
+class PlotError(RuntimeError):
+    """Plotting is impossible (matplotlib missing); the message says what to do."""
+
+
+def _pyplot() -> Any:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")  # files only; never needs a display
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise PlotError(
+            "plots need matplotlib: pip install 'hdrd[plot]' (or pip install matplotlib)"
+        ) from None
+    return plt
+
+
+def _allan(ax: Any, res: GapResult, step: Step | None) -> None:
+    pairs = [("before", res.initial_sim, "tab:red")] if step is None else [
+        ("before", step.sim_before, "tab:red"),
+        ("after", step.sim_after, "tab:blue"),
+    ]
+    for label, sim, color in pairs:
+        ok = np.isfinite(sim.adev_meas) & np.isfinite(sim.adev_sim)
+        ax.loglog(sim.taus[ok], sim.adev_meas[ok], "-", color=color, label=f"measured ({label})")
+        ax.loglog(sim.taus[ok], sim.adev_sim[ok], "--", color=color, label=f"model simulated ({label})")
+    title = "starting model" if step is None else f"{step.effect}: gap {step.gap_before:.3g} -> {step.gap_after:.3g}"
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("averaging time tau, s")
+    ax.set_ylabel("Allan deviation of residual, deg/s")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def _regressor(res: GapResult, step: Step) -> tuple[np.ndarray, str]:
+    from hdrd.analysis.gap import _regressors
+
+    data = res.data
+    name = step.regressor
+    regs = _regressors(data)
+    if name == "omega" or name not in regs:
+        return regs["time_s"], "time_s"
+    return regs[name], name
+
+
+def _scatter(ax: Any, res: GapResult, step: Step) -> None:
+    from hdrd.analysis.gap import deterministic_part
+
+    data = res.data
+    if step.regressor == "omega":
+        _lattice(ax, res, step)
+        return
+    x, name = _regressor(res, step)
+    resid = data.block_residual(data.omega)
+    after = resid - step.fit_after.dbar
+    # The effect's own contribution, and the residual it has to explain once everything else
+    # in the enlarged model is accounted for (the partial residual).
+    without = step.fit_after.model.without(step.effect)
+    own = step.fit_after.dbar - data.block_mean(deterministic_part(data, without))
+    partial = after + own
+    ax.plot(x, partial, ".", color="0.6", markersize=3, label="residual without the effect")
+    order = np.argsort(x)
+    if np.any(own != 0):
+        ax.plot(x[order], own[order], "-", color="tab:red", linewidth=1.2, label=f"fitted {step.effect}")
+    ax.plot(x, after, ".", color="tab:blue", markersize=3, label="residual after")
+    ax.set_xlabel(_LABEL.get(name, name))
+    ax.set_ylabel(f"block residual ({data.block_s:g} s), deg/s")
+    ax.set_title(step.where if len(step.where) < 90 else step.where[:87] + "...", fontsize=7)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def _lattice(ax: Any, res: GapResult, step: Step) -> None:
+    from hdrd.analysis.gap import _simulate
+
+    data = res.data
+    q = float(step.params.get("step_dps", 0.0)) or 1.0
+    mid = float(np.median(data.omega))
+    lo, hi = mid - 6.0 * q, mid + 6.0 * q
+    bins = np.linspace(lo, hi, 241)
+    ax.hist(data.omega, bins=bins, color="tab:blue", alpha=0.8, label="measured omega")
+    sim = _simulate(data, step.fit_before.model, 0, 0)
+    ax.hist(sim, bins=bins, histtype="step", color="tab:red", label="model before (simulated)")
+    ax.set_xlabel(f"omega near its median, deg/s (lattice step {q:.4g})")
+    ax.set_ylabel("samples")
+    ax.set_title(step.where if len(step.where) < 90 else step.where[:87] + "...", fontsize=7)
+    ax.legend(fontsize=7)
+
+
+def plot_gap(res: GapResult, path: str | os.PathLike[str]) -> None:
+    """Write the figure to ``path`` (format from the extension, e.g. .png, .pdf)."""
+    plt = _pyplot()
+    steps = list(res.steps)
+    rows = max(1, len(steps))
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 3.6 * rows), squeeze=False)
+    if not steps:
+        _allan(axes[0][0], res, None)
+        ax = axes[0][1]
+        data = res.data
+        e = data.block_residual(data.omega) - res.final_fit.dbar
+        ax.plot(data.bt[data.bvalid], e, ".", color="tab:blue", markersize=3)
+        ax.set_xlabel(_LABEL["time_s"])
+        ax.set_ylabel(f"block residual ({data.block_s:g} s), deg/s")
+        ax.set_title("no missing effect found", fontsize=9)
+        ax.grid(True, alpha=0.3)
+    for i, st in enumerate(steps):
+        _allan(axes[i][0], res, st)
+        _scatter(axes[i][1], res, st)
+    fig.suptitle(
+        f"hdrd gap {res.data.name}: {' + '.join(res.initial_model.names())} -> "
+        f"{' + '.join(res.final_model.names())}",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
