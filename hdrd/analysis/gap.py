@@ -59,33 +59,33 @@ from hdrd.sim.gyro import (
 )
 
 __all__ = [
-    "GapError",
-    "GapData",
-    "Lattice",
-    "Fit",
-    "Step",
-    "Ambiguity",
-    "GapResult",
-    "CANDIDATES",
-    "NOISE_EFFECTS",
-    "BIC_MARGIN",
     "ALPHA",
     "AMBIGUITY_BIC",
     "AMBIGUITY_R",
+    "BIC_MARGIN",
+    "CANDIDATES",
     "GAP_METRIC",
-    "truth_rate_from_heading",
-    "prepare",
+    "NOISE_EFFECTS",
+    "Ambiguity",
+    "Fit",
+    "GapData",
+    "GapError",
+    "GapResult",
+    "Lattice",
+    "Step",
     "allan_deviation_masked",
+    "chi2_sf",
     "decimal_resolution",
     "detect_lattice",
     "deterministic_part",
-    "chi2_sf",
     "fit_model",
     "gap_metric",
-    "run_gap",
-    "to_report",
-    "summary",
     "main",
+    "prepare",
+    "run_gap",
+    "summary",
+    "to_report",
+    "truth_rate_from_heading",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -391,7 +391,7 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
             bs *= max(1.0, round(fix_dt))  # whole fix intervals
     if not (math.isfinite(bs) and bs >= dt):
         raise GapError(f"block length {bs!r} s is shorter than the sample period {dt:g} s")
-    nblocks = int(math.floor((t[-1] - origin + dt) / bs + 1e-9))
+    nblocks = math.floor((t[-1] - origin + dt) / bs + 1e-9)
     if nblocks < 20:
         raise GapError(
             f"the log covers {nblocks} blocks of {bs:g} s; the workflow needs at least 20 "
@@ -423,8 +423,15 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
         for k in range(nblocks):
             a, b = first[k], first[k + 1]
-            ok = a >= 0 and b >= 0 and is_fix[a] and is_fix[b] and bool(valid[a:b].all()) and bool(valid[b])
-            if ok and bvalid[k]:
+            edge_ok = (
+                a >= 0
+                and b >= 0
+                and is_fix[a]
+                and is_fix[b]
+                and bool(valid[a:b].all())
+                and bool(valid[b])
+            )
+            if edge_ok and bvalid[k]:
                 btruth_full[k] = -(hu[b] - hu[a]) / (t[b] - t[a])  # CW heading -> CCW rate
                 wprim[a] = 0.5
                 if k > 0:
@@ -433,17 +440,27 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
                 bvalid[k] = False
         # The half-row that closes block k is the first row of block k + 1: give it to k even
         # when block k + 1 itself is not used.
-        for k in np.flatnonzero(bvalid):
-            b = first[k + 1]
+        for kk in np.flatnonzero(bvalid).tolist():
+            b = first[kk + 1]
             if b >= 0 and block_prev[b] < 0:
-                block_prev[b] = k
+                block_prev[b] = kk
     block_of = np.where(inside & valid & bvalid[np.clip(blk, 0, nblocks - 1)], blk, -1)
-    block_prev = np.where((block_prev >= 0) & bvalid[np.clip(block_prev, 0, nblocks - 1)], block_prev, -1)
+    block_prev = np.where(
+        (block_prev >= 0) & bvalid[np.clip(block_prev, 0, nblocks - 1)], block_prev, -1
+    )
     wsum = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0], minlength=nblocks)
     w2 = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0] ** 2, minlength=nblocks)
     if (block_prev >= 0).any():
-        wsum += np.bincount(block_prev[block_prev >= 0], weights=np.full(int((block_prev >= 0).sum()), 0.5), minlength=nblocks)
-        w2 += np.bincount(block_prev[block_prev >= 0], weights=np.full(int((block_prev >= 0).sum()), 0.25), minlength=nblocks)
+        wsum += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.5),
+            minlength=nblocks,
+        )
+        w2 += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.25),
+            minlength=nblocks,
+        )
     if bvalid.sum() < 20:
         raise GapError(
             f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
@@ -609,7 +626,16 @@ class _Whitener:
         for k in range(data.nblocks):
             if k:
                 p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = (
-                    p11, a * p11, p13, p13, a * a * p11 + qg, a * p13, a * p13, p33, p33, p33 + qw,
+                    p11,
+                    a * p11,
+                    p13,
+                    p13,
+                    a * a * p11 + qg,
+                    a * p13,
+                    a * p13,
+                    p33,
+                    p33,
+                    p33 + qw,
                 )
             if not valid[k]:
                 continue
@@ -736,7 +762,9 @@ def _levenberg_marquardt(
     return x
 
 
-def _nelder_mead(f: Callable[[FloatArray], float], x0: FloatArray, scale: float = 0.5, iters: int = 80) -> FloatArray:
+def _nelder_mead(
+    f: Callable[[FloatArray], float], x0: FloatArray, scale: float = 0.5, iters: int = 80
+) -> FloatArray:
     """Minimise f from x0 (unconstrained; a small simplex method, enough for 1-3 parameters)."""
     n = x0.shape[0]
     pts = [np.array(x0, dtype=np.float64)]
@@ -931,9 +959,13 @@ def _lattice_loglik(data: GapData, model: GyroModel) -> float:
 def _count_params(model: GyroModel, free_det: int, data: GapData) -> int:
     k = free_det
     for e in model.effects:
-        k += {"white_noise": 1, "bias_instability": 2, "rate_random_walk": 1, "quantization": 1, "saturation": 1}.get(
-            e.name, 0
-        )
+        k += {
+            "white_noise": 1,
+            "bias_instability": 2,
+            "rate_random_walk": 1,
+            "quantization": 1,
+            "saturation": 1,
+        }.get(e.name, 0)
     if data.truth_source.startswith("heading_truth"):
         k += 1  # the truth's own noise variance
     return k
@@ -969,9 +1001,13 @@ class _Fitter:
         return _with_params(model, free, theta, self.tau_bounds)
 
     def loglik(self, model: GyroModel, noise: _Noise, dbar: FloatArray) -> float:
-        return _Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(self.data, model)
+        return _Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
+            self.data, model
+        )
 
-    def fit_noise(self, model: GyroModel, noise: _Noise, dbar: FloatArray, which: Sequence[str]) -> _Noise:
+    def fit_noise(
+        self, model: GyroModel, noise: _Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> _Noise:
         """Maximum likelihood of the named noise parameters (log scale), others fixed."""
         which = [w for w in which if w != "extra_var" or self.heading]
         if not which:
@@ -983,7 +1019,9 @@ class _Fitter:
             for name, v in zip(which, x):
                 kw[name] = float(math.exp(min(max(v, -40.0), 20.0)))
             if "bi_tau" in kw:
-                kw["bi_tau"] = min(max(kw["bi_tau"], 2.0 * self.data.block_s), 10.0 * self.data.duration_s)
+                kw["bi_tau"] = min(
+                    max(kw["bi_tau"], 2.0 * self.data.block_s), 10.0 * self.data.duration_s
+                )
             return replace(noise, **kw)
 
         def nll(x: FloatArray) -> float:
@@ -998,14 +1036,21 @@ class _Fitter:
 
     def finish(self, model: GyroModel, noise: _Noise, quad: bool) -> Fit:
         d, db = self.dbar(model)
-        noise = replace(noise, white_var=_white_var(self.data, d, noise.q_step) if "white_noise" in model else noise.white_var)
+        noise = replace(
+            noise,
+            white_var=_white_var(self.data, d, noise.q_step)
+            if "white_noise" in model
+            else noise.white_var,
+        )
         full = _model_noise(model, noise, self.data.fs_hz)
         lnl = self.loglik(full, noise, db)
         k = _count_params(full, len(_free_det(full, quad)), self.data)
         bic = -2.0 * lnl + k * math.log(self.data.n_used)
         return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
 
-    def full(self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2) -> Fit:
+    def full(
+        self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2
+    ) -> Fit:
         """Fit every free parameter of the model: alternate deterministic least squares and
         maximum likelihood of the noise."""
         d, db = self.dbar(model)
@@ -1020,7 +1065,12 @@ class _Fitter:
         for _ in range(rounds):
             model = self.fit_det(model, noise, quad)
             d, db = self.dbar(model)
-            noise = replace(noise, white_var=_white_var(self.data, d, noise.q_step) if "white_noise" in model else noise.white_var)
+            noise = replace(
+                noise,
+                white_var=_white_var(self.data, d, noise.q_step)
+                if "white_noise" in model
+                else noise.white_var,
+            )
             noise = self.fit_noise(model, noise, db, which)
             if not which:
                 break
@@ -1092,7 +1142,9 @@ def _not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
     return out
 
 
-def _adev_excess_init(data: GapData, e: FloatArray, white_var: float, kind: str) -> tuple[float, float]:
+def _adev_excess_init(
+    data: GapData, e: FloatArray, white_var: float, kind: str
+) -> tuple[float, float]:
     """Start values for a correlated-noise candidate from the Allan variance of e above the
     white floor (its signature): (sigma, tau_c) for bias_instability, (K, 0) for the RRW."""
     ms = _gap_ms(data, samples=True)
@@ -1112,7 +1164,11 @@ def _adev_excess_init(data: GapData, e: FloatArray, white_var: float, kind: str)
         k2 = float(np.sum(w * g * excess) / np.sum(w * g * g))
         return (math.sqrt(max(k2, 1e-14)), 0.0)
     best = (math.inf, 1e-3, 10.0)
-    for tc in np.logspace(math.log10(2.0 * data.block_s), math.log10(max(data.duration_s / 2.0, 4.0 * data.block_s)), 12):
+    for tc in np.logspace(
+        math.log10(2.0 * data.block_s),
+        math.log10(max(data.duration_s / 2.0, 4.0 * data.block_s)),
+        12,
+    ):
         g = gauss_markov_adev(taus, 1.0, float(tc)) ** 2
         s2 = float(np.sum(w * g * excess) / np.sum(w * g * g))
         sse = float(np.sum(w * (excess - s2 * g) ** 2))
@@ -1140,7 +1196,9 @@ def _candidate_fits(f: _Fitter, cur: Fit, name: str) -> list[Fit]:
             return [f.finish(m, nz, cur.quad)]
         if name == "bias_instability":
             s0, tc0 = _adev_excess_init(data, e, noise.white_var, name)
-            nz = f.fit_noise(model, replace(noise, bi_sigma=s0, bi_tau=tc0), cur.dbar, ["bi_sigma", "bi_tau"])
+            nz = f.fit_noise(
+                model, replace(noise, bi_sigma=s0, bi_tau=tc0), cur.dbar, ["bi_sigma", "bi_tau"]
+            )
             m = model.with_effect(BiasInstability(sigma_dps=nz.bi_sigma, tau_s=nz.bi_tau))
         else:
             k0, _ = _adev_excess_init(data, e, noise.white_var, name)
@@ -1162,7 +1220,10 @@ def _candidate_fits(f: _Fitter, cur: Fit, name: str) -> list[Fit]:
         assert data.temp_c is not None
         ref = round(float(np.mean(data.temp_c[data.valid])), 1)
         tb = TemperatureBias(coeff_dps_per_c=0.0, ref_temp_c=ref, quad_dps_per_c2=0.0)
-        variants = [(model.with_effect(tb), False), (model.with_effect(replace(tb, quad_dps_per_c2=1e-6)), True)]
+        variants = [
+            (model.with_effect(tb), False),
+            (model.with_effect(replace(tb, quad_dps_per_c2=1e-6)), True),
+        ]
     elif name == "saturation":
         variants = [(model.with_effect(Saturation(limit_dps=_rail(data) or 200.0)), cur.quad)]
     elif name == "time_offset":
@@ -1185,7 +1246,9 @@ def _candidate_fits(f: _Fitter, cur: Fit, name: str) -> list[Fit]:
             sse = float(np.sum((wy - a @ coef) ** 2))
             if sse < best[0]:
                 best = (sse, float(coef[0]), float(tau))
-        variants = [(model.with_effect(WarmupTransient(amplitude_dps=best[1], tau_s=best[2])), cur.quad)]
+        variants = [
+            (model.with_effect(WarmupTransient(amplitude_dps=best[1], tau_s=best[2])), cur.quad)
+        ]
     else:  # pragma: no cover - CANDIDATES and this function are kept in step
         raise ValueError(f"no fitting rule for {name}")
     for m, quad in variants:
@@ -1222,7 +1285,9 @@ def _slow_gm(a: _Cand, duration_s: float) -> bool:
     return isinstance(gm, BiasInstability) and gm.tau_s >= duration_s
 
 
-def _rivals(best: _Cand, others: list[_Cand], duration_s: float) -> list[tuple[_Cand, float | None]]:
+def _rivals(
+    best: _Cand, others: list[_Cand], duration_s: float
+) -> list[tuple[_Cand, float | None]]:
     """Significant candidates the data cannot tell from ``best`` (documented rule)."""
     out: list[tuple[_Cand, float | None]] = []
     for c in others:
@@ -1230,7 +1295,9 @@ def _rivals(best: _Cand, others: list[_Cand], duration_s: float) -> list[tuple[_
             continue
         if (c.name, best.name) in _NESTS:
             continue  # the general form adds nothing the special case lacks: parsimony decides
-        if (best.name, c.name) == ("bias_instability", "rate_random_walk") and _slow_gm(best, duration_s):
+        if (best.name, c.name) == ("bias_instability", "rate_random_walk") and _slow_gm(
+            best, duration_s
+        ):
             out.append((c, None))  # a Gauss-Markov bias slower than the log is a random walk
             continue
         if c.fit.bic - best.fit.bic >= AMBIGUITY_BIC:
@@ -1310,7 +1377,11 @@ def _simulate(data: GapData, model: GyroModel, seed: int, r: int) -> FloatArray:
 
 
 def gap_metric(
-    data: GapData, model: GyroModel, seed: int = 0, d: FloatArray | None = None, truth_var: float = 0.0
+    data: GapData,
+    model: GyroModel,
+    seed: int = 0,
+    d: FloatArray | None = None,
+    truth_var: float = 0.0,
 ) -> _Sim:
     """The gap between the log and ``model`` (see :data:`GAP_METRIC`); model parameters as
     given. Deterministic for a seed.
@@ -1324,7 +1395,7 @@ def gap_metric(
     ms = _gap_ms(data)
     rng_truth = np.random.default_rng([seed, 99])
 
-    dbar = data.block_mean(d) if per_block else None
+    dbar = data.block_mean(d) if per_block else np.zeros(0)
 
     def adev(y: FloatArray, noise: bool) -> FloatArray:
         if not per_block:
@@ -1347,7 +1418,7 @@ def gap_metric(
     adev_s = np.sqrt(avar_s / N_SIM)
     ok = np.isfinite(adev_m) & np.isfinite(adev_s) & (adev_m > 0) & (adev_s > 0)
     a = float(np.sqrt(np.mean(np.log(adev_m[ok] / adev_s[ok]) ** 2))) if ok.any() else 0.0
-    taus = ms * data.block_s if per_block else ms / data.fs_hz
+    taus = np.asarray(ms * data.block_s if per_block else ms / data.fs_hz, dtype=np.float64)
     # Histogram term: lattices found in the measurement or in the simulation.
     h = 0.0
     lattices = [data.lattice] if data.lattice is not None else []
@@ -1355,8 +1426,17 @@ def gap_metric(
     if sim_lat is not None:
         lattices.append(sim_lat)
     for lat in lattices:
-        fm = float(_on_lattice(data.omega, lat.step_dps, lat.offset_dps, data.resolution_dps).mean())
-        fs = float(np.mean([_on_lattice(y, lat.step_dps, lat.offset_dps, data.resolution_dps).mean() for y in sims]))
+        fm = float(
+            _on_lattice(data.omega, lat.step_dps, lat.offset_dps, data.resolution_dps).mean()
+        )
+        fs = float(
+            np.mean(
+                [
+                    _on_lattice(y, lat.step_dps, lat.offset_dps, data.resolution_dps).mean()
+                    for y in sims
+                ]
+            )
+        )
         h = max(h, abs(fm - fs))
     return _Sim(taus=taus, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
 
@@ -1397,15 +1477,25 @@ def _diagnostics(data: GapData, fit: Fit, sim: _Sim) -> dict[str, Any]:
     the unexplained block residual, residual by part of the log, histogram."""
     e = data.block_residual(data.omega) - fit.dbar
     regs = _regressors(data)
-    corr = {k: round(_corr(e, v), 3) for k, v in regs.items() if k not in ("true_rate_left", "true_rate_right")}
+    corr = {
+        k: round(_corr(e, v), 3)
+        for k, v in regs.items()
+        if k not in ("true_rate_left", "true_rate_right")
+    }
     # Sign: separate slopes for left (+) and right (-) turns, least squares with a constant.
     a = np.vstack([regs["true_rate_left"], regs["true_rate_right"], np.ones_like(e)]).T
     coef, *_ = np.linalg.lstsq(a, e, rcond=None)
     parts = np.array_split(np.arange(e.shape[0]), 10)
     ratio = sim.adev_meas / sim.adev_sim
     rail = _rail(data)
-    at_rail = int(np.sum(np.abs(np.abs(data.omega) - (rail or 0.0)) <= max(data.resolution_dps, 1e-9) * 1.01))
-    hist: dict[str, Any] = {"resolution_dps": data.resolution_dps, "max_abs_omega_dps": rail, "samples_at_max": at_rail}
+    at_rail = int(
+        np.sum(np.abs(np.abs(data.omega) - (rail or 0.0)) <= max(data.resolution_dps, 1e-9) * 1.01)
+    )
+    hist: dict[str, Any] = {
+        "resolution_dps": data.resolution_dps,
+        "max_abs_omega_dps": rail,
+        "samples_at_max": at_rail,
+    }
     if data.lattice is not None:
         hist["lattice_dps"] = round(data.lattice.step_dps, 9)
         hist["lattice_offset_dps"] = round(data.lattice.offset_dps, 9)
@@ -1413,13 +1503,21 @@ def _diagnostics(data: GapData, fit: Fit, sim: _Sim) -> dict[str, Any]:
     return {
         "allan": {
             "tau_s": [round(float(x), 4) for x in sim.taus],
-            "measured_dps": [None if not np.isfinite(x) else float(f"{x:.4g}") for x in sim.adev_meas],
-            "simulated_dps": [None if not np.isfinite(x) else float(f"{x:.4g}") for x in sim.adev_sim],
-            "max_ratio": None if not np.isfinite(ratio).any() else round(float(np.nanmax(ratio)), 3),
+            "measured_dps": [
+                None if not np.isfinite(x) else float(f"{x:.4g}") for x in sim.adev_meas
+            ],
+            "simulated_dps": [
+                None if not np.isfinite(x) else float(f"{x:.4g}") for x in sim.adev_sim
+            ],
+            "max_ratio": None
+            if not np.isfinite(ratio).any()
+            else round(float(np.nanmax(ratio)), 3),
         },
         "correlation": corr,
         "slope_left_right": [round(float(coef[0]), 5), round(float(coef[1]), 5)],
-        "mean_by_tenth_dps": [round(float(e[p].mean() - e.mean()), 5) if p.shape[0] else None for p in parts],
+        "mean_by_tenth_dps": [
+            round(float(e[p].mean() - e.mean()), 5) if p.shape[0] else None for p in parts
+        ],
         "histogram": hist,
     }
 
@@ -1483,7 +1581,9 @@ def _where(data: GapData, cand: _Cand, sim: _Sim, diag: dict[str, Any]) -> str:
         )
     # Noise effects and the basics: only the Allan deviation speaks.
     big = max(c.items(), key=lambda kv: abs(kv[1]))
-    return f"{allan}; no deterministic regressor explains it (largest |r|: {big[0]}, r = {big[1]:.2f})"
+    return (
+        f"{allan}; no deterministic regressor explains it (largest |r|: {big[0]}, r = {big[1]:.2f})"
+    )
 
 
 # -- the workflow ---------------------------------------------------------------------------------
@@ -1744,10 +1844,14 @@ def summary(res: GapResult) -> str:
     """A few lines for people: what was found, the gap before and after."""
     d = res.data
     lines = [
-        f"{d.name or 'log'}: {d.t.shape[0]} samples over {d.duration_s / 60.0:.1f} min, truth from "
-        f"{d.truth_source}, {d.n_used} blocks of {d.block_s:g} s",
-        f"start: {' + '.join(res.initial_model.names()) or '(empty)'}, gap {res.initial_sim.gap:.3g} "
-        f"(parameters refitted; {res.gap_as_given:.3g} as given)",
+        (
+            f"{d.name or 'log'}: {d.t.shape[0]} samples over {d.duration_s / 60.0:.1f} min, "
+            f"truth from {d.truth_source}, {d.n_used} blocks of {d.block_s:g} s"
+        ),
+        (
+            f"start: {' + '.join(res.initial_model.names()) or '(empty)'}, gap "
+            f"{res.initial_sim.gap:.3g} (parameters refitted; {res.gap_as_given:.3g} as given)"
+        ),
     ]
     amb = {a.step: a for a in res.ambiguous}
     for i, s in enumerate(res.steps, 1):
@@ -1758,12 +1862,16 @@ def summary(res: GapResult) -> str:
         if i in amb:
             lines.append(f"  AMBIGUOUS: {amb[i].note}")
     for rv in res.revisions:
-        lines.append(f"revised after step {rv['after_step']}: {rv['effect']} {rv['action']} (dBIC {rv['delta_bic']:+.1f})")
+        lines.append(
+            f"revised after step {rv['after_step']}: {rv['effect']} {rv['action']} (dBIC {rv['delta_bic']:+.1f})"
+        )
     if not res.steps:
         lines.append("no missing effect found: the model explains the log")
     best = next((c for c in res.remaining), None)
     if best is not None:
-        lines.append(f"nothing else significant (best remaining: {best['effect']}, dBIC {best['delta_bic']:+.1f})")
+        lines.append(
+            f"nothing else significant (best remaining: {best['effect']}, dBIC {best['delta_bic']:+.1f})"
+        )
     lines.append(f"final: {' + '.join(res.final_model.names())}, gap {res.final_sim.gap:.3g}")
     return "\n".join(lines)
 

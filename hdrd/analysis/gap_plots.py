@@ -52,15 +52,25 @@ def _pyplot() -> Any:
 
 
 def _allan(ax: Any, res: GapResult, step: Step | None) -> None:
-    pairs = [("before", res.initial_sim, "tab:red")] if step is None else [
-        ("before", step.sim_before, "tab:red"),
-        ("after", step.sim_after, "tab:blue"),
-    ]
+    pairs = (
+        [("before", res.initial_sim, "tab:red")]
+        if step is None
+        else [
+            ("before", step.sim_before, "tab:red"),
+            ("after", step.sim_after, "tab:blue"),
+        ]
+    )
     for label, sim, color in pairs:
         ok = np.isfinite(sim.adev_meas) & np.isfinite(sim.adev_sim)
         ax.loglog(sim.taus[ok], sim.adev_meas[ok], "-", color=color, label=f"measured ({label})")
-        ax.loglog(sim.taus[ok], sim.adev_sim[ok], "--", color=color, label=f"model simulated ({label})")
-    title = "starting model" if step is None else f"{step.effect}: gap {step.gap_before:.3g} -> {step.gap_after:.3g}"
+        ax.loglog(
+            sim.taus[ok], sim.adev_sim[ok], "--", color=color, label=f"model simulated ({label})"
+        )
+    title = (
+        "starting model"
+        if step is None
+        else f"{step.effect}: gap {step.gap_before:.3g} -> {step.gap_after:.3g}"
+    )
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("averaging time tau, s")
     ax.set_ylabel("Allan deviation of residual, deg/s")
@@ -97,7 +107,9 @@ def _scatter(ax: Any, res: GapResult, step: Step) -> None:
     ax.plot(x, partial, ".", color="0.6", markersize=3, label="residual without the effect")
     order = np.argsort(x)
     if np.any(own != 0):
-        ax.plot(x[order], own[order], "-", color="tab:red", linewidth=1.2, label=f"fitted {step.effect}")
+        ax.plot(
+            x[order], own[order], "-", color="tab:red", linewidth=1.2, label=f"fitted {step.effect}"
+        )
     ax.plot(x, after, ".", color="tab:blue", markersize=3, label="residual after")
     ax.set_xlabel(_LABEL.get(name, name))
     ax.set_ylabel(f"block residual ({data.block_s:g} s), deg/s")
