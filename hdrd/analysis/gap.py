@@ -736,14 +736,20 @@ def _levenberg_marquardt(
             xp = x.copy()
             xp[j] += h[j]
             jac[:, j] = (fun(xp) - r) / h[j]
-        g = jac.T @ r
-        a = jac.T @ jac
-        dg = np.diag(a).copy()
-        dg[dg <= 0] = 1e-12
+        # A parameter with no effect here (e.g. held at a bound) is left where it is: solving
+        # for it would take round-off for a direction.
+        dg = np.diag(jac.T @ jac).copy()
+        act = dg > 1e-14 * max(float(dg.max()), 1e-300)
+        if not act.any():
+            break
+        ja = jac[:, act]
+        g = ja.T @ r
+        a = ja.T @ ja
         accepted = False
         for _ in range(10):
+            step = np.zeros_like(x)
             try:
-                step = -np.linalg.solve(a + lam * np.diag(dg), g)
+                step[act] = -np.linalg.solve(a + lam * np.diag(dg[act]), g)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
