@@ -1537,10 +1537,9 @@ def _allan_phrase(sim: _Sim) -> str:
     hi = rr > 1.5
     if not hi.any():
         return f"Allan deviation within 1.5x of the model's (max {float(rr.max()):.2f}x)"
-    return (
-        f"Allan deviation up to {float(rr.max()):.1f}x the model's, above 1.5x at tau = "
-        f"{_fmt_tau(float(tt[hi].min()))}-{_fmt_tau(float(tt[hi].max()))} s"
-    )
+    lo, top = _fmt_tau(float(tt[hi].min())), _fmt_tau(float(tt[hi].max()))
+    span = lo if lo == top else f"{lo}-{top}"
+    return f"Allan deviation up to {float(rr.max()):.1f}x the model's, above 1.5x at tau = {span} s"
 
 
 def _fmt_tau(t: float) -> str:
