@@ -271,7 +271,7 @@ class Pipeline:
         msg["bad_frames"] = bad_frames
         msg["status"] = status
         if block.temp_c is not None:
-            msg["temp"] = block.temp_c
+            msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
         if self._pending_gap_s:
             msg["gap_s"] = self._pending_gap_s
             self._pending_gap_s = 0.0
