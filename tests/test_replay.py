@@ -1,0 +1,161 @@
+"""``hdrd replay``: the daemon's pipeline on a capture, bit-identical to the live daemon."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrd.calibrate import BiasRecord, save_bias
+from hdrd.cli import main as cli
+from hdrd.config import Config
+from hdrd.drivelog import read_drive
+from hdrd.fakegyro import FakeGyro
+from hdrd.replay import replay_capture
+from hdrd.sensor import SensorModel
+from hdrd.source import builtin_profile
+
+from tests.test_daemon import drive_profile, strip_time
+
+WAIT = 30.0
+
+
+def replay_cli(capsys, *args: str) -> tuple[int, list[dict], str]:
+    rc = cli(["replay", *args])
+    cap = capsys.readouterr()
+    return rc, [json.loads(x) for x in cap.out.splitlines()], cap.err
+
+
+def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_path, capsys):
+    profile = drive_profile(seconds=90)
+    kw = dict(garbage=0.05, crc_errors=0.05, seed=11)
+    g = fake_gyro(profile, speedup=0, **kw)
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(WAIT)
+    env = dict(os.environ, STATE_DIRECTORY="/nonexistent-hdrd-state")
+    env.pop("NOTIFY_SOCKET", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", "--port", g.path, "--bias", "0.3", "--udp", f"127.0.0.1:{rx.getsockname()[1]}"],
+        stderr=subprocess.PIPE,
+        env=env,
+    )
+    try:
+        g.start()
+        live = [json.loads(rx.recvfrom(65536)[0]) for _ in range(89)]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=WAIT)
+        rx.close()
+    assert proc.returncode == 0
+    assert live[-1]["bad_frames"] == g.injected.expected_bad_frames > 0
+    cap = tmp_path / "cap.bin"
+    FakeGyro(profile, **kw).write_capture(cap)  # the same bytes, faults included
+    rc, replayed, _ = replay_cli(capsys, str(cap), "--bias", "0.3")
+    assert rc == 0
+    assert all("time" not in m for m in replayed)
+    assert replayed[:89] == [strip_time(m) for m in live]
+    assert len(replayed) == 90  # the last, partial block is flushed at end of input
+
+
+def test_replay_of_a_fakegyro_capture_follows_its_known_truth(tmp_path, capsys):
+    # the built-in "constant" drive: 30 s standstill, then 1 min at 3 deg/s CCW; bias 0.2 deg/s
+    cap = tmp_path / "c.bin"
+    assert cli(["fakegyro", "--drive", "constant", "--rate-dps", "3", "--minutes", "1", "--out", str(cap)]) == 0
+    capsys.readouterr()
+    rc, msgs, _ = replay_cli(capsys, str(cap), "--calibrate-seconds", "30", "--method", "none")
+    assert rc == 0
+    assert [m["status"] for m in msgs[:30]] == ["calibrating"] * 30
+    assert msgs[30]["bias"] == pytest.approx(0.2, abs=0.01)
+    steps = msgs[30:]
+    assert len(steps) == 60
+    # truth: 3 deg/s for 60 s -> yaw 180 deg CCW, compass heading (0 - 180) mod 360
+    assert steps[-1]["yaw"] == pytest.approx(180.0, abs=1.0)
+    assert steps[-1]["heading"] == pytest.approx(180.0, abs=1.0)
+    assert np.mean([m["omega"] for m in steps]) == pytest.approx(3.0, abs=0.02)
+
+
+def test_record_then_replay_equals_the_stream(fake_gyro, tmp_path, capsys):
+    profile = drive_profile(seconds=40)
+    g = fake_gyro(profile, speedup=0, garbage=0.02, seed=5)
+    cap = tmp_path / "rec.bin"
+    rec = subprocess.Popen([sys.executable, "-m", "hdrd", "record", "--port", g.path, "--out", str(cap)], stderr=subprocess.PIPE)
+    try:
+        g.start()
+        assert g.wait(WAIT)
+    finally:
+        rec.send_signal(signal.SIGINT)
+        rec.communicate(timeout=WAIT)
+    assert rec.returncode == 0
+    ref = tmp_path / "ref.bin"
+    FakeGyro(profile, garbage=0.02, seed=5).write_capture(ref)
+    assert cap.read_bytes() == ref.read_bytes()
+    rc, msgs, _ = replay_cli(capsys, str(cap), "--bias", "0.3")
+    assert rc == 0 and len(msgs) == 40
+
+
+def test_replay_text_protocol_equals_binary(tmp_path, capsys):
+    profile = drive_profile(seconds=30)
+    b, t = tmp_path / "b.bin", tmp_path / "t.txt"
+    FakeGyro(profile).write_capture(b)
+    FakeGyro(profile, protocol="hdr-text").write_capture(t)
+    _, mb, _ = replay_cli(capsys, str(b), "--bias", "0.3")
+    _, mt, _ = replay_cli(capsys, str(t), "--bias", "0.3", "--protocol", "hdr-text")
+    assert mb == mt and len(mb) == 30
+
+
+def test_replay_bias_sources(tmp_path, capsys):
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=20)).write_capture(cap)
+    bf = tmp_path / "bias.yaml"
+    save_bias(bf, BiasRecord(0.31, 0.01, 300, 30.0))
+    _, a, _ = replay_cli(capsys, str(cap), "--bias-file", str(bf))
+    assert {m["bias"] for m in a} == {0.31}
+    cfg = tmp_path / "h.yaml"
+    cfg.write_text(f"calibration:\n  bias_file: {bf}\n")
+    _, b, _ = replay_cli(capsys, str(cap), "--config", str(cfg))
+    assert a == b
+    _, c, _ = replay_cli(capsys, str(cap), "--calibrate-seconds", "3")
+    assert [m["status"] for m in c[:3]] == ["calibrating"] * 3 and "bias" in c[3]
+
+
+def test_replay_errors(tmp_path, capsys):
+    rc, _, err = replay_cli(capsys, str(tmp_path / "missing.bin"))
+    assert rc == 1 and "cannot read" in err
+    bf = tmp_path / "bias.yaml"
+    bf.write_text("garbage")
+    rc, _, err = replay_cli(capsys, str(tmp_path / "missing.bin"), "--bias-file", str(bf))
+    assert rc == 1 and "bias file" in err
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("hdr:\n  c2: .inf\n")
+    rc, _, err = replay_cli(capsys, "x", "--config", str(cfg))
+    assert rc == 78 and "hdr.c2" in err
+
+
+def test_convert_capture_to_drive_log(tmp_path, capsys):
+    prof = drive_profile(seconds=20)
+    cap = tmp_path / "c.bin"
+    FakeGyro(prof).write_capture(cap)
+    out = tmp_path / "d.csv"
+    assert cli(["convert", str(cap), "--out", str(out)]) == 0
+    log = read_drive(out)
+    assert len(log) == len(prof)
+    np.testing.assert_allclose(log.t, prof.t, atol=1e-6)
+    np.testing.assert_allclose(log.omega, prof.omega, atol=SensorModel().lsb_dps)
+    np.testing.assert_allclose(log.temp_c, 24.5)
+
+
+def test_replay_capture_is_pure_and_repeatable(tmp_path):
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=20), crc_errors=0.1, seed=2).write_capture(cap)
+    data = Path(cap).read_bytes()
+    a = replay_capture(data, Config(), 0.3)
+    b = replay_capture(data, Config(), 0.3)
+    assert a == b and a[-1]["bad_frames"] > 0
