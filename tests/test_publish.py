@@ -472,3 +472,31 @@ def test_stdout_closed_by_head_exits_without_traceback() -> None:
     assert strict_loads(first) == {"class": "HDR", "step": 0}
     assert rc == 0, err
     assert "Traceback" not in err and "Exception ignored" not in err
+
+
+# -- docs/protocol.md, "Published messages" ---------------------------------------------------
+
+
+def published_section() -> str:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
+    assert "## Published messages" in text
+    section = text.split("## Published messages", 1)[1]
+    return section.split("\n## ", 1)[0]
+
+
+def test_documented_json_example_is_what_format_json_writes() -> None:
+    examples = [line for line in published_section().splitlines() if line.startswith('{"class":"HDR"')]
+    assert examples
+    for line in examples:
+        msg = strict_loads(line.encode())
+        assert format_json(msg) == line.encode() + b"\n"
+
+
+def test_documented_nmea_examples_are_what_nmea_sentences_writes() -> None:
+    examples = [line for line in published_section().splitlines() if line.startswith("$HN")]
+    assert len(examples) == 2
+    assert [e.encode() + b"\r\n" for e in examples] == nmea_sentences(
+        {"heading": 123.456, "omega": 2.0, "status": "turning"}
+    )
