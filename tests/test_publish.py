@@ -481,8 +481,9 @@ def published_section() -> str:
     from pathlib import Path
 
     text = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
-    assert "## Published messages" in text
-    section = text.split("## Published messages", 1)[1]
+    heading = "\n## Published messages\n"
+    assert heading in text
+    section = text.split(heading, 1)[1]
     return section.split("\n## ", 1)[0]
 
 
