@@ -14,7 +14,8 @@ captures; ``numpy.bincount`` also sums in order).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -145,7 +146,8 @@ class Block:
     index: step number i since t0. t_start, t_end: the block's edges in device seconds since
     the first sample. mean: mean of the samples, in the unit fed (deg/s for the gyro). n:
     number of samples. temp_c: mean board temperature, deg C, None if unknown. saturated:
-    how many samples were flagged saturated.
+    how many samples were flagged saturated. sumsq: sum of the squared samples, from which
+    :attr:`std` (the samples' spread, same unit as mean) follows.
     """
 
     index: int
@@ -155,6 +157,12 @@ class Block:
     n: int
     temp_c: float | None = None
     saturated: int = 0
+    sumsq: float = field(default=math.nan, compare=False)
+
+    @property
+    def std(self) -> float:
+        """Population standard deviation of the block's samples (NaN if unknown)."""
+        return math.sqrt(max(self.sumsq / self.n - self.mean * self.mean, 0.0))
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,6 +190,7 @@ class BlockAverager:
         self.t0_us: int | None = None
         self._index = 0
         self._sum = 0.0
+        self._sumsq = 0.0
         self._n = 0
         self._temp_sum = 0.0
         self._temp_n = 0
@@ -195,8 +204,11 @@ class BlockAverager:
     def _close(self) -> Block:
         t_start, t_end = self._edges(self._index)
         temp = self._temp_sum / self._temp_n if self._temp_n else None
-        block = Block(self._index, t_start, t_end, self._sum / self._n, self._n, temp, self._sat)
+        block = Block(
+            self._index, t_start, t_end, self._sum / self._n, self._n, temp, self._sat, self._sumsq
+        )
         self._sum = 0.0
+        self._sumsq = 0.0
         self._n = 0
         self._temp_sum = 0.0
         self._temp_n = 0
@@ -215,6 +227,7 @@ class BlockAverager:
             return []
         out = self._advance(index)
         self._sum += value
+        self._sumsq += value * value
         self._n += 1
         if temp_c is not None:
             self._temp_sum += temp_c
@@ -257,6 +270,7 @@ class BlockAverager:
             self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]))
         rel = idx[j:] - idx[j]
         sums = np.bincount(rel, weights=values[j:])
+        sumsq = np.bincount(rel, weights=values[j:] * values[j:])
         counts = np.bincount(rel)
         has_t = ~np.isnan(temps[j:])
         tsum = np.bincount(rel, weights=np.where(has_t, temps[j:], 0.0))
@@ -271,15 +285,9 @@ class BlockAverager:
             index = base + b
             for item in self._advance(index):
                 out.append((closer, item))
-            if k == len(nonempty) - 1:
-                self._sum = float(sums[b])
-                self._n = int(counts[b])
-                self._temp_sum = float(tsum[b])
-                self._temp_n = int(tn[b])
-                self._sat = int(sn[b])
-            else:
-                self._sum, self._n = float(sums[b]), int(counts[b])
-                self._temp_sum, self._temp_n, self._sat = float(tsum[b]), int(tn[b]), int(sn[b])
+            self._sum, self._sumsq, self._n = float(sums[b]), float(sumsq[b]), int(counts[b])
+            self._temp_sum, self._temp_n, self._sat = float(tsum[b]), int(tn[b]), int(sn[b])
+            if k < len(nonempty) - 1:
                 closer = int(first_pos[k + 1])
         return out
 

@@ -302,3 +302,19 @@ def test_block_average_seconds_for_drive_logs() -> None:
     idx, _, _ = block_average_seconds([0.0, 0.5, 3.2], [1.0, 1.0, 2.0])
     assert idx.tolist() == [0, 3]
     assert block_average_seconds([], [])[0].shape == (0,)
+
+
+def test_block_spread_streaming_equals_vectorised_and_numpy():
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.integers(5_000, 150_000, 2000)).astype(np.int64)
+    v = rng.normal(0.5, 2.0, 2000)
+    a = BlockAverager(1.0)
+    stream = [b for i in range(2000) for b in a.feed(int(t[i]), float(v[i]))] + a.flush()
+    b = BlockAverager(1.0)
+    fast = [blk for _, blk in b.feed_many(t, v)] + b.flush()
+    sb = [x for x in stream if isinstance(x, Block)]
+    fb = [x for x in fast if isinstance(x, Block)]
+    assert [x.sumsq for x in sb] == [x.sumsq for x in fb]
+    idx = (t - t[0]) // 1_000_000
+    for blk in sb:
+        np.testing.assert_allclose(blk.std, np.std(v[idx == blk.index]), rtol=1e-9, atol=1e-12)
