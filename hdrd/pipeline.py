@@ -113,6 +113,7 @@ class Pipeline:
         if config.bias_dps is not None:
             self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.events: list[tuple[str, dict[str, Any]]] = []
+        self.speed_mps: float | None = None
 
     # -- state ---------------------------------------------------------------------------
 
@@ -143,6 +144,19 @@ class Pipeline:
             self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.config = config
         self._params = method_params(config.method, config.params)
+
+    def set_speed(self, speed_mps: float | None) -> None:
+        """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
+        the next closed step (standstill detection); the edge keeps it fresh."""
+        self.speed_mps = speed_mps
+
+    def adjust_bias(self, delta_dps: float, source: str) -> None:
+        """Add delta_dps to the static bias eps0 (deg/s), e.g. learned from GPS course or a
+        standstill; the controller state is kept. No effect while still calibrating."""
+        if self.bias is None or delta_dps == 0.0:
+            return
+        self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
+        self.events.append(("bias_adjusted", {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source}))
 
     # -- input ---------------------------------------------------------------------------
 
