@@ -1,0 +1,637 @@
+"""gpsd's JSON protocol: a pure line parser and a non-blocking client.
+
+gpsd (https://gpsd.io, ``gpsd_json(5)``) speaks newline-delimited JSON objects tagged with
+``"class"``. A client sends ``?WATCH={"enable":true,"json":true}`` and then receives, per
+GPS cycle, a ``TPV`` report (time, position, velocity: ``mode`` 0/1 = no fix, 2 = 2D,
+3 = 3D; ``track`` = course over ground, compass degrees clockwise from true north;
+``speed`` = ground speed, m/s; ``epd``/``eps`` their 95 % error estimates) and now and then
+``SKY`` (satellites, DOPs), ``ATT`` (attitude: ``heading`` in compass degrees) and the
+session reports ``VERSION``, ``DEVICES``, ``DEVICE``, ``WATCH`` and ``ERROR``. An
+attribute whose value is unknown is left out, never sent as null: so are ours.
+
+Pure core: :func:`parse_line` turns one line into a small frozen dataclass (or ``None`` for
+a class we do not use) and raises :class:`GpsdProtocolError` for a line that is not a
+gpsd JSON object. The edge, :class:`GpsdClient`, owns a TCP socket that never blocks and
+never raises on I/O trouble: it connects, reconnects with backoff, buffers partial lines,
+counts and skips bad ones; :meth:`GpsdClient.poll` returns the fixes that arrived.
+:class:`GpsdLink` wires the client and :class:`hdrd.aiding.GpsAiding` to the daemon's
+pipeline.
+"""
+
+from __future__ import annotations
+
+import calendar
+import errno
+import json
+import math
+import re
+import select
+import socket
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import structlog
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing.Self from Python 3.11
+
+__all__ = [
+    "DEFAULT_HOST",
+    "DEFAULT_PORT",
+    "WATCH_COMMAND",
+    "Attitude",
+    "Device",
+    "Devices",
+    "Fix",
+    "GpsdClient",
+    "GpsdError",
+    "GpsdLink",
+    "GpsdProtocolError",
+    "Report",
+    "Satellite",
+    "Sky",
+    "Version",
+    "Watch",
+    "parse_line",
+    "parse_time",
+]
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 2947
+WATCH_COMMAND = b'?WATCH={"enable":true,"json":true}\n'
+MAX_LINE = 65536
+"""Longest line we buffer, bytes; gpsd's reports are a few hundred bytes (SKY a few KiB)."""
+
+log = structlog.get_logger("hdrd")
+
+
+class GpsdProtocolError(ValueError):
+    """A line that is not a gpsd JSON report; ``str()`` says why."""
+
+
+# -- reports ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Version:
+    """``VERSION``: the first line gpsd sends on connect."""
+
+    release: str
+    rev: str | None = None
+    proto_major: int | None = None
+    proto_minor: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Device:
+    """``DEVICE``: one device gpsd reads (alone, or inside ``DEVICES``)."""
+
+    path: str | None = None
+    driver: str | None = None
+    activated: str | None = None
+    bps: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Devices:
+    """``DEVICES``: the devices gpsd knows about."""
+
+    devices: tuple[Device, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Watch:
+    """``WATCH``: gpsd's answer to our ``?WATCH``."""
+
+    enable: bool | None = None
+    json: bool | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """``TPV``: a time-position-velocity report.
+
+    mode: 0 unknown, 1 no fix, 2 2D fix, 3 3D fix. time: UNIX s (GPS time), None if not
+    sent. track_deg: course over ground, compass deg clockwise from true north [0, 360).
+    speed_mps: ground speed, m/s. epd: course error estimate, deg; eps: speed error
+    estimate, m/s (95 %). lat/lon: deg; alt_m: altitude (MSL when given), m.
+    """
+
+    mode: int
+    time: float | None = None
+    track_deg: float | None = None
+    speed_mps: float | None = None
+    epd: float | None = None
+    eps: float | None = None
+    lat: float | None = None
+    lon: float | None = None
+    alt_m: float | None = None
+    climb_mps: float | None = None
+    device: str | None = None
+    status: int | None = None
+
+    @property
+    def has_fix(self) -> bool:
+        """A 2D or 3D fix."""
+        return self.mode >= 2
+
+
+@dataclass(frozen=True, slots=True)
+class Satellite:
+    prn: int | None = None
+    used: bool = False
+    ss_dbhz: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Sky:
+    """``SKY``: satellites in view and used, and the dilutions of precision."""
+
+    time: float | None = None
+    nsat: int = 0
+    usat: int = 0
+    hdop: float | None = None
+    pdop: float | None = None
+    satellites: tuple[Satellite, ...] = ()
+    device: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Attitude:
+    """``ATT``: attitude; heading in compass deg (true, clockwise from north)."""
+
+    heading: float | None = None
+    time: float | None = None
+    pitch: float | None = None
+    roll: float | None = None
+    device: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class GpsdError:
+    """``ERROR``: gpsd did not like a request."""
+
+    message: str
+
+
+Report = Version | Devices | Device | Watch | Fix | Sky | Attitude | GpsdError
+
+_TIME_RE = re.compile(r"(\d{4})-(\d\d)-(\d\d)T(\d\d):(\d\d):(\d\d)(\.\d+)?Z?\Z")
+
+
+def parse_time(value: Any) -> float | None:
+    """gpsd's time, ISO 8601 UTC (``2005-06-08T10:34:48.283Z``) or, in old gpsd, UNIX s,
+    -> UNIX s. None for anything else (a bad time is not a reason to drop a fix)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        return float(value) if math.isfinite(value) else None
+    if not isinstance(value, str):
+        return None
+    m = _TIME_RE.match(value)
+    if not m:
+        return None
+    y, mo, d, h, mi, s = (int(x) for x in m.groups()[:6])
+    if not (1 <= mo <= 12 and 1 <= d <= 31 and h < 24 and mi < 60 and s <= 60):
+        return None
+    frac = float(m.group(7)) if m.group(7) else 0.0
+    return calendar.timegm((y, mo, d, h, mi, s, 0, 0, 0)) + frac
+
+
+def _num(obj: Mapping[str, Any], key: str) -> float | None:
+    """A finite number, None when absent; GpsdProtocolError when of the wrong type."""
+    v = obj.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise GpsdProtocolError(f"{key!r} is not a number: {v!r}")
+    return float(v) if math.isfinite(v) else None
+
+
+def _int(obj: Mapping[str, Any], key: str) -> int | None:
+    v = _num(obj, key)
+    return None if v is None else int(v)
+
+
+def _str(obj: Mapping[str, Any], key: str) -> str | None:
+    v = obj.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, str):
+        raise GpsdProtocolError(f"{key!r} is not a string: {v!r}")
+    return v
+
+
+def _bool(obj: Mapping[str, Any], key: str) -> bool | None:
+    v = obj.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, bool):
+        raise GpsdProtocolError(f"{key!r} is not true/false: {v!r}")
+    return v
+
+
+def _device(obj: Mapping[str, Any]) -> Device:
+    return Device(
+        path=_str(obj, "path"),
+        driver=_str(obj, "driver"),
+        activated=_str(obj, "activated"),
+        bps=_int(obj, "bps"),
+    )
+
+
+def _fix(obj: Mapping[str, Any]) -> Fix:
+    mode = _int(obj, "mode")
+    track = _num(obj, "track")
+    alt = _num(obj, "altMSL")
+    return Fix(
+        mode=0 if mode is None else mode,
+        time=parse_time(obj.get("time")),
+        track_deg=None if track is None else track % 360.0,
+        speed_mps=_num(obj, "speed"),
+        epd=_num(obj, "epd"),
+        eps=_num(obj, "eps"),
+        lat=_num(obj, "lat"),
+        lon=_num(obj, "lon"),
+        alt_m=_num(obj, "alt") if alt is None else alt,
+        climb_mps=_num(obj, "climb"),
+        device=_str(obj, "device"),
+        status=_int(obj, "status"),
+    )
+
+
+def _sky(obj: Mapping[str, Any]) -> Sky:
+    sats_raw = obj.get("satellites", [])
+    if not isinstance(sats_raw, list):
+        raise GpsdProtocolError("'satellites' is not a list")
+    sats = []
+    for s in sats_raw:
+        if not isinstance(s, dict):
+            raise GpsdProtocolError("a satellite is not an object")
+        sats.append(
+            Satellite(prn=_int(s, "PRN"), used=bool(_bool(s, "used")), ss_dbhz=_num(s, "ss"))
+        )
+    nsat = _int(obj, "nSat")
+    usat = _int(obj, "uSat")
+    return Sky(
+        time=parse_time(obj.get("time")),
+        nsat=len(sats) if nsat is None else nsat,
+        usat=sum(s.used for s in sats) if usat is None else usat,
+        hdop=_num(obj, "hdop"),
+        pdop=_num(obj, "pdop"),
+        satellites=tuple(sats),
+        device=_str(obj, "device"),
+    )
+
+
+def parse_line(line: bytes | str) -> Report | None:
+    """One line of gpsd output -> a report; None for a class hdrd does not use.
+
+    Raises GpsdProtocolError (with the reason) for a line that is not a JSON object with a
+    string ``class``, or whose known attributes have the wrong type.
+    """
+    if isinstance(line, bytes):
+        try:
+            line = line.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise GpsdProtocolError(f"not UTF-8: {e.reason}") from None
+    line = line.strip()
+    if not line:
+        raise GpsdProtocolError("empty line")
+    try:
+        obj = json.loads(line)
+    except (json.JSONDecodeError, RecursionError) as e:
+        raise GpsdProtocolError(f"not JSON: {getattr(e, 'msg', e)}") from None
+    if not isinstance(obj, dict):
+        raise GpsdProtocolError("not a JSON object")
+    cls = obj.get("class")
+    if not isinstance(cls, str):
+        raise GpsdProtocolError("no 'class'")
+    if cls == "TPV":
+        return _fix(obj)
+    if cls == "SKY":
+        return _sky(obj)
+    if cls == "ATT":
+        return Attitude(
+            heading=_num(obj, "heading"),
+            time=parse_time(obj.get("time")),
+            pitch=_num(obj, "pitch"),
+            roll=_num(obj, "roll"),
+            device=_str(obj, "device"),
+        )
+    if cls == "VERSION":
+        return Version(
+            release=_str(obj, "release") or _str(obj, "version") or "",
+            rev=_str(obj, "rev"),
+            proto_major=_int(obj, "proto_major"),
+            proto_minor=_int(obj, "proto_minor"),
+        )
+    if cls == "DEVICES":
+        devs = obj.get("devices", [])
+        if not isinstance(devs, list) or not all(isinstance(d, dict) for d in devs):
+            raise GpsdProtocolError("'devices' is not a list of objects")
+        return Devices(tuple(_device(d) for d in devs))
+    if cls == "DEVICE":
+        return _device(obj)
+    if cls == "WATCH":
+        return Watch(enable=_bool(obj, "enable"), json=_bool(obj, "json"))
+    if cls == "ERROR":
+        return GpsdError(_str(obj, "message") or "")
+    return None
+
+
+# -- the client (edge) ------------------------------------------------------------------------
+
+
+@dataclass
+class ClientStats:
+    """Counters of a :class:`GpsdClient`."""
+
+    connects: int = 0
+    disconnects: int = 0
+    lines: int = 0
+    bad_lines: int = 0
+    fixes: int = 0
+    errors: list[str] = field(default_factory=list)
+    """The last few gpsd ERROR messages and bad lines (for a log or a test)."""
+
+    def note(self, text: str) -> None:
+        self.errors.append(text)
+        del self.errors[:-10]
+
+
+class GpsdClient:
+    """A gpsd JSON client that never blocks and never raises on I/O trouble.
+
+    Call :meth:`poll` often (the daemon: every loop turn): it connects when due, sends
+    ``?WATCH={"enable":true,"json":true}``, reads what is there, and returns the fixes
+    (TPV) received since the last call. A refused or lost connection is retried after
+    ``reconnect_min_s``, doubling up to ``reconnect_max_s``. Other reports are kept:
+    ``version``, ``devices``, ``sky``, ``attitude`` (the latest of each); :meth:`poll_reports`
+    returns every report. Host names are resolved when connecting (numeric addresses never
+    wait on DNS).
+    """
+
+    def __init__(
+        self,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        *,
+        reconnect_min_s: float = 0.5,
+        reconnect_max_s: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.host, self.port = host, port
+        self.reconnect_min_s, self.reconnect_max_s = reconnect_min_s, reconnect_max_s
+        self._clock = clock
+        self._sock: socket.socket | None = None
+        self._connecting = False
+        self._buf = bytearray()
+        self._next_try = 0.0
+        self._backoff = reconnect_min_s
+        self._last_failure: str | None = None
+        self.connected = False
+        self.closed = False
+        self.stats = ClientStats()
+        self.version: Version | None = None
+        self.devices: Devices | None = None
+        self.sky: Sky | None = None
+        self.attitude: Attitude | None = None
+
+    def __repr__(self) -> str:
+        return f"GpsdClient({self.host!r}, {self.port})"
+
+    # -- connection --
+    def _fail(self, reason: str) -> None:
+        was = self.connected
+        if self._sock is not None:
+            try:
+                self._sock.close()
+            except OSError:
+                pass
+        self._sock = None
+        self._connecting = False
+        self.connected = False
+        self._buf.clear()
+        self._next_try = self._clock() + self._backoff
+        self._backoff = min(self._backoff * 2, self.reconnect_max_s)
+        if was:
+            self.stats.disconnects += 1
+            log.warning("gpsd_lost", host=self.host, port=self.port, reason=reason)
+        elif reason != self._last_failure:
+            log.warning(
+                "gpsd_unavailable",
+                host=self.host,
+                port=self.port,
+                reason=reason,
+                retry_s=round(self._next_try - self._clock(), 3),
+            )
+        self._last_failure = reason
+
+    def _start_connect(self) -> None:
+        try:
+            try:
+                infos = socket.getaddrinfo(
+                    self.host, self.port, type=socket.SOCK_STREAM, flags=socket.AI_NUMERICHOST
+                )
+            except socket.gaierror:
+                infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
+        except (OSError, UnicodeError) as e:
+            self._fail(f"cannot resolve {self.host}: {e}")
+            return
+        family, stype, proto, _, addr = infos[0]
+        try:
+            s = socket.socket(family, stype | socket.SOCK_CLOEXEC, proto)
+        except OSError as e:
+            self._fail(f"socket: {e.strerror or e}")
+            return
+        s.setblocking(False)
+        self._sock = s
+        rc = s.connect_ex(addr)
+        if rc in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EALREADY):
+            self._connecting = True
+            if rc == 0:
+                self._on_connected()
+        else:
+            self._fail(f"connect: {errno.errorcode.get(rc, rc)}")
+
+    def _on_connected(self) -> None:
+        assert self._sock is not None
+        self._connecting = False
+        try:
+            self._sock.send(WATCH_COMMAND)  # 36 bytes into an empty socket buffer: all of it
+        except OSError as e:
+            self._fail(f"send: {e.strerror or e}")
+            return
+        self.connected = True
+        self._backoff = self.reconnect_min_s
+        self._last_failure = None
+        self.stats.connects += 1
+        log.info("gpsd_connected", host=self.host, port=self.port, connects=self.stats.connects)
+
+    def _check_connect(self) -> None:
+        assert self._sock is not None
+        try:
+            _, w, _ = select.select([], [self._sock], [], 0)
+        except (OSError, ValueError) as e:
+            self._fail(f"select: {e}")
+            return
+        if not w:
+            return
+        err = self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if err:
+            self._fail(f"connect: {errno.errorcode.get(err, str(err))}")
+            return
+        self._on_connected()
+
+    # -- reading --
+    def _read(self) -> list[bytes]:
+        assert self._sock is not None
+        lines: list[bytes] = []
+        for _ in range(64):  # bounded: never starve the caller's loop
+            try:
+                chunk = self._sock.recv(65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as e:
+                self._fail(f"recv: {e.strerror or e}")
+                break
+            if not chunk:
+                self._fail("gpsd closed the connection")
+                break
+            self._buf += chunk
+            while True:
+                nl = self._buf.find(b"\n")
+                if nl < 0:
+                    break
+                lines.append(bytes(self._buf[:nl]))
+                del self._buf[: nl + 1]
+            if len(self._buf) > MAX_LINE:
+                self.stats.bad_lines += 1
+                self.stats.note(f"a line longer than {MAX_LINE} bytes dropped")
+                self._buf.clear()
+        return lines
+
+    def poll_reports(self) -> list[Report]:
+        """Every report received since the last call (never blocks, never raises OSError)."""
+        if self.closed:
+            return []
+        if self._sock is None:
+            if self._clock() < self._next_try:
+                return []
+            self._start_connect()
+            if self._sock is None:
+                return []
+        if self._connecting:
+            self._check_connect()
+            if not self.connected:
+                return []
+        out: list[Report] = []
+        for raw in self._read():
+            if not raw.strip():
+                continue
+            self.stats.lines += 1
+            try:
+                rep = parse_line(raw)
+            except GpsdProtocolError as e:
+                self.stats.bad_lines += 1
+                self.stats.note(f"bad line ({e}): {raw[:80]!r}")
+                continue
+            if rep is None:
+                continue
+            if isinstance(rep, Fix):
+                self.stats.fixes += 1
+            elif isinstance(rep, Version):
+                self.version = rep
+            elif isinstance(rep, Devices):
+                self.devices = rep
+            elif isinstance(rep, Sky):
+                self.sky = rep
+            elif isinstance(rep, Attitude):
+                self.attitude = rep
+            elif isinstance(rep, GpsdError):
+                self.stats.note(f"gpsd error: {rep.message}")
+            out.append(rep)
+        return out
+
+    def poll(self) -> list[Fix]:
+        """The fixes (TPV reports) received since the last call, oldest first."""
+        return [r for r in self.poll_reports() if isinstance(r, Fix)]
+
+    def close(self) -> None:
+        """Close the connection (idempotent); poll() then returns nothing."""
+        self.closed = True
+        if self._sock is not None:
+            try:
+                self._sock.close()
+            except OSError:
+                pass
+            self._sock = None
+        self.connected = False
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# -- the daemon's link: client + aiding + pipeline hooks -------------------------------------
+
+
+class GpsdLink:
+    """What ``hdrd run --gpsd`` adds to the run loop (edge).
+
+    :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
+    and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
+    fix). :meth:`aid` on each batch of messages before they are published: each gains
+    ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
+    :class:`hdrd.aiding.GpsAiding`), and a learned bias correction goes to
+    ``Pipeline.adjust_bias(delta, "gps")``.
+    """
+
+    def __init__(
+        self, client: GpsdClient, aiding: Any, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.client = client
+        self.aiding = aiding
+        self._clock = clock
+        self._mode: str | None = None
+
+    @classmethod
+    def from_config(cls, gpsd_cfg: Any, step_s: float = 1.0) -> GpsdLink:
+        """From :class:`hdrd.config.GpsdConfig` (enabled, host, port, min_speed_mps)."""
+        from hdrd.aiding import AidingConfig, GpsAiding
+
+        client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
+        return cls(
+            client, GpsAiding(AidingConfig(min_speed_mps=gpsd_cfg.min_speed_mps, step_s=step_s))
+        )
+
+    def poll(self, pipeline: Any, now: float | None = None) -> None:
+        now = self._clock() if now is None else now
+        for f in self.client.poll():
+            self.aiding.on_fix(f, now)
+        pipeline.set_speed(self.aiding.speed(now))
+
+    def aid(
+        self, msgs: list[dict[str, Any]], pipeline: Any, now: float | None = None
+    ) -> list[dict[str, Any]]:
+        now = self._clock() if now is None else now
+        out = []
+        for m in msgs:
+            m2, delta = self.aiding.on_message(m, now)
+            if delta:
+                pipeline.adjust_bias(delta, "gps")
+            mode = m2.get("mode")
+            if mode is not None and mode != self._mode:
+                self._mode = mode
+                fields_ = {k: m2[k] for k in ("heading", "gps_course", "gps_speed") if k in m2}
+                log.info("gps_mode", mode=mode, **fields_)
+            out.append(m2)
+        return out
+
+    def close(self) -> None:
+        self.client.close()

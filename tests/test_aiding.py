@@ -1,0 +1,395 @@
+"""GpsAiding (pure): mode switching, heading alignment across 0/360, continuity through an
+outage, and bias learning, in closed loop with the real Pipeline fed real frames."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hdrd.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.gpsd import Fix
+from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.sensor import SensorModel
+
+KNOT = 0.514444
+
+
+def step_msg(
+    heading: float,
+    omega: float = 0.0,
+    t: float = 1.0,
+    raw: float = 0.0,
+    bias: float = 0.0,
+    **kw: Any,
+) -> dict[str, Any]:
+    """A step message shaped as the pipeline builds it (only the keys aiding reads)."""
+    m = {
+        "class": "HDR",
+        "v": 1,
+        "t": t,
+        "step": max(0, round(t) - 1),
+        "omega_raw": raw,
+        "omega": omega,
+        "yaw": 0.0,
+        "heading": heading,
+        "bias": bias,
+        "status": "ok",
+    }
+    m.update(kw)
+    return m
+
+
+def good(course: float, speed: float = 15.0, **kw: Any) -> Fix:
+    return Fix(mode=3, track_deg=course, speed_mps=speed, **kw)
+
+
+# -- helpers -----------------------------------------------------------------------------------
+
+
+@given(st.floats(-1e6, 1e6, allow_nan=False))
+def test_wrap180_range_and_congruence(x):
+    w = wrap180(x)
+    assert -180.0 <= w < 180.0
+    assert math.isclose(math.remainder(w - x, 360.0), 0.0, abs_tol=1e-6)
+
+
+def test_config_rejects_nonsense():
+    with pytest.raises(ValueError, match="align_gain"):
+        AidingConfig(align_gain=1.5)
+    with pytest.raises(ValueError, match="step_s"):
+        AidingConfig(step_s=0.0)
+    with pytest.raises(ValueError, match="min_speed_mps"):
+        AidingConfig(min_speed_mps=math.nan)
+
+
+# -- mode ----------------------------------------------------------------------------------------
+
+
+def test_no_fix_is_dead_reckoning_and_heading_untouched():
+    a = GpsAiding()
+    out, delta = a.on_message(step_msg(123.0), now=10.0)
+    assert out["mode"] == DEAD_RECKONING and out["heading"] == 123.0
+    assert "gps_course" not in out and "heading_offset" not in out and "gps_speed" not in out
+    assert delta == 0.0
+
+
+def test_calibrating_message_passes_unchanged():
+    a = GpsAiding()
+    a.on_fix(good(90.0), 0.0)
+    msg = {"class": "HDR", "v": 1, "t": 1.0, "step": 0, "omega_raw": 0.8, "status": "calibrating"}
+    out, delta = a.on_message(msg, 0.5)
+    assert out == msg and delta == 0.0
+
+
+def test_good_fix_aligns_at_once_then_modes_follow_fix_quality():
+    c = AidingConfig(min_speed_mps=5.0, max_fix_age_s=2.5, max_epd_deg=15.0)
+    a = GpsAiding(c)
+    a.on_fix(good(250.0, 12.0, epd=3.0), now=0.0)
+    out, _ = a.on_message(step_msg(10.0), now=0.1)
+    assert out["mode"] == AIDED
+    assert out["heading"] == pytest.approx(250.0)
+    assert out["heading_offset"] == pytest.approx(wrap180(240.0))
+    assert out["gps_course"] == 250.0 and out["gps_speed"] == 12.0
+
+    cases: list[tuple[str, Fix, float]] = [
+        ("no fix (mode 1)", Fix(mode=1), 1.0),
+        ("mode 0", Fix(mode=0, track_deg=250.0, speed_mps=12.0), 1.0),
+        ("below min speed", good(250.0, 4.9), 1.0),
+        ("no course", Fix(mode=3, speed_mps=12.0), 1.0),
+        ("no speed", Fix(mode=2, track_deg=250.0), 1.0),
+        ("course error too large", good(250.0, 12.0, epd=40.0), 1.0),
+        ("stale", good(250.0, 12.0), -3.0),  # received 3 s before the step
+    ]
+    for what, fix, at in cases:
+        a.on_fix(fix, now=at)
+        out, _ = a.on_message(step_msg(10.0, t=2.0), now=1.1)
+        assert out["mode"] == DEAD_RECKONING, what
+        assert "gps_course" not in out, what
+        # the last alignment still applies: heading continues
+        assert out["heading"] == pytest.approx(250.0), what
+    # a 2D fix above the speed threshold is good enough
+    a.on_fix(Fix(mode=2, track_deg=251.0, speed_mps=5.0), now=2.0)
+    out, _ = a.on_message(step_msg(10.0, t=3.0), now=2.2)
+    assert out["mode"] == AIDED
+
+
+def test_speed_for_the_standstill_detector():
+    a = GpsAiding()
+    assert a.speed(0.0) is None
+    a.on_fix(good(0.0, speed=0.0), now=0.0)
+    assert a.speed(1.0) == 0.0  # standing still: speed known, course not used
+    out, _ = a.on_message(step_msg(5.0), now=1.0)
+    assert out["mode"] == DEAD_RECKONING and out["gps_speed"] == 0.0
+    assert a.speed(10.0) is None  # stale
+    a.on_fix(Fix(mode=1), now=11.0)
+    assert a.speed(11.0) is None
+
+
+# -- alignment -------------------------------------------------------------------------------------
+
+
+def test_alignment_is_smooth_and_wraps_at_north():
+    c = AidingConfig(align_gain=0.25)
+    a = GpsAiding(c)
+    a.on_fix(good(2.0), 0.0)
+    a.on_message(step_msg(100.0, t=1.0), 0.0)  # snap: offset -98
+    assert a.offset_deg == pytest.approx(-98.0)
+    # GPS now says 358 (4 deg to the left across north): the error is -4, not +356
+    a.on_fix(good(358.0), 1.0)
+    out, _ = a.on_message(step_msg(100.0, t=2.0), 1.0)
+    assert a.offset_deg == pytest.approx(-99.0)
+    assert out["heading"] == pytest.approx(1.0)
+    out, _ = a.on_message(step_msg(100.0, t=3.0), 1.0)
+    assert out["heading"] == pytest.approx(0.25)
+    out, _ = a.on_message(step_msg(100.0, t=4.0), 1.0)
+    assert out["heading"] == pytest.approx(359.6875)
+    assert 0.0 <= out["heading"] < 360.0
+
+
+def test_no_alignment_update_in_a_fast_turn():
+    a = GpsAiding(AidingConfig(align_max_rate_dps=3.0))
+    a.on_fix(good(90.0), 0.0)
+    a.on_message(step_msg(90.0, t=1.0), 0.0)
+    a.on_fix(good(80.0), 1.0)
+    a.on_message(step_msg(90.0, omega=10.0, t=2.0), 1.0)
+    assert a.offset_deg == 0.0
+    a.on_message(step_msg(90.0, omega=2.0, t=3.0), 1.0)
+    assert a.offset_deg != 0.0
+
+
+def test_course_carried_forward_by_the_gyro_over_the_fix_age():
+    """A left turn (omega > 0, CCW) lowers the compass course: a fix 0.5 s old at 10 deg/s
+    predicts 5 deg less than it says."""
+    a = GpsAiding()
+    a.on_fix(good(3.0), 0.0)
+    out, _ = a.on_message(step_msg(50.0, omega=10.0), 0.5)
+    assert out["heading"] == pytest.approx(358.0)
+
+
+# -- closed loop with the real pipeline ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Frame:
+    t_us: int
+    rate: int
+    ref: int = 0
+    temp_c: float | None = None
+
+
+@dataclass
+class Run:
+    msgs: list[dict[str, Any]]
+    hdr_headings: list[float]
+    truth: list[float]  # true compass course at each step's end
+    gps_ok: list[bool]
+    pipeline: Pipeline
+    aiding: GpsAiding
+
+
+def drive(
+    rate_ccw: Callable[[np.ndarray], np.ndarray],
+    seconds: float,
+    *,
+    course0: float = 80.0,
+    speed: Callable[[float], float] = lambda t: 15.0,
+    gps_ok: Callable[[float], bool] = lambda t: True,
+    bias_true: float = 0.5,
+    bias_given: float = 0.3,
+    gyro_noise: float = 0.05,
+    course_noise: float = 0.3,
+    config: AidingConfig | None = None,
+    method: str = "hdr",
+    seed: int = 1,
+    heading0: float = 0.0,
+) -> Run:
+    """A drive: the true CCW rate profile (deg/s), the raw gyro = truth + bias + noise at
+    10 Hz through the real sensor model and Pipeline; a 1 Hz GPS fix of the true course
+    (+ noise) before each step while ``gps_ok``; the step's device time is the clock."""
+    hz = 10.0
+    rng = np.random.default_rng(seed)
+    n = int(seconds * hz)
+    t = np.arange(n) / hz
+    w_true = rate_ccw(t)
+    raw = w_true + bias_true + rng.normal(0, gyro_noise, n)
+    counts = SensorModel().to_counts(raw)
+    # true course at t: course0 - integral of the CCW rate (trapezoid on the 10 Hz grid,
+    # evaluated at the samples; block ends fall on samples)
+    yaw_true = np.concatenate([[0.0], np.cumsum(w_true[:-1]) / hz])
+    p = Pipeline(PipelineConfig(bias_dps=bias_given, heading0_deg=heading0, method=method))
+    a = GpsAiding(config or AidingConfig())
+    run = Run([], [], [], [], p, a)
+    for i in range(n):
+        for m in p.feed(Frame(int(round(t[i] * 1e6)), int(counts[i]))):
+            now = float(m["t"])
+            truth = (course0 - yaw_true[i]) % 360.0  # m["t"] is this sample's time
+            ok = gps_ok(now)
+            if ok:
+                a.on_fix(good((truth + rng.normal(0, course_noise)) % 360.0, speed(now)), now)
+            else:
+                a.on_fix(Fix(mode=1), now)
+            out, delta = a.on_message(m, now)
+            p.adjust_bias(delta, "gps")
+            run.msgs.append(out)
+            run.hdr_headings.append(m["heading"])
+            run.truth.append(truth)
+            run.gps_ok.append(ok)
+    return run
+
+
+def herr(a: float, b: float) -> float:
+    return abs(wrap180(a - b))
+
+
+def test_bias_learning_converges_on_a_straight_drive():
+    run = drive(lambda t: np.zeros_like(t), 900.0, bias_true=0.5, bias_given=0.3, course0=359.5)
+    assert run.pipeline.bias is not None
+    learned = run.pipeline.bias.bias_dps
+    assert learned == pytest.approx(0.5, abs=0.02), learned
+    assert type(learned) is float  # published as JSON: no numpy scalars
+    assert run.aiding.windows >= 40 and run.aiding.windows_discarded == 0
+    assert any(name == "bias_adjusted" and f["source"] == "gps" for name, f in run.pipeline.events)
+    # the published bias follows the pipeline's, and the heading stays on the GPS course
+    assert run.msgs[-1]["bias"] == pytest.approx(learned, abs=0.1)
+    assert all(m["mode"] == AIDED for m in run.msgs)
+    assert max(herr(m["heading"], tr) for m, tr in zip(run.msgs[-300:], run.truth[-300:])) < 1.5
+
+
+def test_no_bias_learning_while_turning():
+    # a slow circle: 2 deg/s, well above the straight-driving threshold, for 5 minutes
+    run = drive(lambda t: np.full_like(t, 2.0), 300.0, bias_true=0.5, bias_given=0.3)
+    assert run.aiding.windows == 0 and run.aiding.bias_learned_dps == 0.0
+    assert run.pipeline.bias is not None and run.pipeline.bias.bias_dps == 0.3
+    # aided all along: the heading follows the GPS course through the turn
+    assert all(m["mode"] == AIDED for m in run.msgs)
+    assert max(herr(m["heading"], tr) for m, tr in zip(run.msgs[10:], run.truth[10:])) < 3.0
+
+
+def test_no_aiding_below_the_speed_threshold():
+    run = drive(
+        lambda t: np.zeros_like(t),
+        200.0,
+        speed=lambda t: 3.0,
+        config=AidingConfig(min_speed_mps=5.0),
+        heading0=10.0,
+    )
+    assert all(m["mode"] == DEAD_RECKONING for m in run.msgs)
+    assert all(m["gps_speed"] == 3.0 for m in run.msgs)
+    assert run.aiding.windows == 0 and run.aiding.offset_deg is None
+    assert [m["heading"] for m in run.msgs] == run.hdr_headings
+
+
+def test_a_window_with_an_implausible_estimate_is_discarded():
+    run = drive(
+        lambda t: np.zeros_like(t),
+        100.0,
+        bias_true=0.9,
+        bias_given=0.0,
+        config=AidingConfig(max_residual_dps=0.5, straight_max_dps=2.0),
+        method="none",
+    )
+    assert run.aiding.windows >= 4 and run.aiding.windows_discarded == run.aiding.windows
+    assert run.aiding.bias_learned_dps == 0.0
+
+
+def test_outage_dead_reckons_with_hdr_and_heading_stays_continuous():
+    """Drive north-west through north with turns; GPS lost for 120 s (with a right turn
+    inside), then back. Aided -> dead-reckoning -> aided; the published heading never
+    jumps: step-to-step it changes like the HDR heading, up to the smooth alignment."""
+
+    def rate(t: np.ndarray) -> np.ndarray:
+        w = np.zeros_like(t)
+        w[(t >= 100) & (t < 110)] = 9.0  # left 90 deg (compass course down, through north)
+        w[(t >= 200) & (t < 215)] = -6.0  # right 90 deg, inside the outage
+        w[(t >= 350) & (t < 360)] = 4.5  # left 45 deg after the outage
+        return w
+
+    outage = (170.0, 290.0)
+    c = AidingConfig()
+    run = drive(
+        rate,
+        450.0,
+        course0=40.0,
+        gps_ok=lambda t: not (outage[0] <= t < outage[1]),
+        bias_true=0.5,
+        bias_given=0.3,
+        config=c,
+    )
+    modes = [m["mode"] for m in run.msgs]
+    # the sequence of modes: aided, dead-reckoning, aided
+    runs = [modes[0]] + [b for a_, b in itertools.pairwise(modes) if a_ != b]
+    assert runs == [AIDED, DEAD_RECKONING, AIDED]
+    dr = [i for i, m in enumerate(modes) if m == DEAD_RECKONING]
+    assert run.msgs[dr[0]]["t"] == pytest.approx(outage[0]) and run.msgs[dr[-1] + 1][
+        "t"
+    ] == pytest.approx(outage[1])
+    # the heading crossed north while aided (wrap handled: close to the truth throughout)
+    crossed = [m["heading"] for m in run.msgs[100:115]]
+    assert min(crossed) < 10.0 and max(crossed) > 350.0
+    for i, (m, tr) in enumerate(zip(run.msgs, run.truth)):
+        if 20 <= i < outage[0]:
+            assert herr(m["heading"], tr) < 1.5, (i, m["heading"], tr)
+    # during the outage the heading is the HDR heading plus the last offset (no jumps)
+    off = run.msgs[dr[0]]["heading_offset"]
+    for i in dr:
+        assert run.msgs[i]["heading_offset"] == off
+        assert herr(run.msgs[i]["heading"], run.hdr_headings[i] + off) < 1e-9
+    # dead reckoning with the GPS-learned bias: within a few degrees after 2 minutes
+    assert herr(run.msgs[dr[-1]]["heading"], run.truth[dr[-1]]) < 3.0
+    # continuity: each step's change equals the HDR heading's change, plus at most
+    # align_gain of the (small) remaining error; no snap when the GPS comes back
+    for i in range(1, len(run.msgs)):
+        d_pub = wrap180(run.msgs[i]["heading"] - run.msgs[i - 1]["heading"])
+        d_hdr = wrap180(run.hdr_headings[i] - run.hdr_headings[i - 1])
+        assert abs(d_pub - d_hdr) <= c.align_gain * 5.0 + 1e-6, (i, d_pub, d_hdr)
+    # and back on the GPS course after re-acquisition
+    assert herr(run.msgs[-1]["heading"], run.truth[-1]) < 1.5
+
+
+def test_stale_messages_get_the_alignment_but_change_nothing():
+    a = GpsAiding()
+    a.on_fix(good(200.0), 0.0)
+    a.on_message(step_msg(20.0), 0.0)
+    stale = {
+        "class": "HDR",
+        "v": 1,
+        "step": 0,
+        "yaw": -20.0,
+        "heading": 20.0,
+        "bias": 0.0,
+        "status": "stale",
+        "stale_s": 3.0,
+    }
+    a.on_fix(good(230.0), 1.0)
+    out, delta = a.on_message(stale, 1.0)
+    assert out["heading"] == pytest.approx(200.0) and out["mode"] == AIDED and delta == 0.0
+    assert a.offset_deg == pytest.approx(-180.0)  # wrapped to [-180, 180)
+
+
+def test_a_gap_restarts_the_bias_window():
+    c = AidingConfig(bias_window_s=5.0, bias_gain=1.0, max_bias_step_dps=1.0)
+    a = GpsAiding(c)
+    deltas = []
+    for k in range(1, 12):
+        a.on_fix(good(90.0), float(k))
+        extra = {"gap_s": 2.0} if k == 4 else {}
+        _, d = a.on_message(step_msg(90.0, t=float(k), raw=0.2, bias=0.0, **extra), float(k))
+        deltas.append(d)
+    # windows: steps 5..9 (the gap at 4 restarts at 5), the next would end at 14
+    assert [i + 1 for i, d in enumerate(deltas) if d] == [10]
+    assert deltas[9] == pytest.approx(0.2)
+
+
+def test_replace_keeps_config_frozen():
+    c = AidingConfig()
+    assert replace(c, min_speed_mps=2.0).min_speed_mps == 2.0
+    with pytest.raises(AttributeError):
+        c.min_speed_mps = 1.0  # type: ignore[misc]
