@@ -228,7 +228,7 @@ def drive(
     a = GpsAiding(config or AidingConfig())
     run = Run([], [], [], [], p, a)
     for i in range(n):
-        for m in p.feed(Frame(int(round(t[i] * 1e6)), int(counts[i]))):
+        for m in p.feed(Frame(round(t[i] * 1e6), int(counts[i]))):
             now = float(m["t"])
             truth = (course0 - yaw_true[i]) % 360.0  # m["t"] is this sample's time
             ok = gps_ok(now)
