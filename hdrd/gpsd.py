@@ -349,6 +349,8 @@ def parse_line(line: bytes | str) -> Report | None:
 class ClientStats:
     """Counters of a :class:`GpsdClient`."""
 
+    attempts: int = 0
+    """Connection attempts started."""
     connects: int = 0
     disconnects: int = 0
     lines: int = 0
@@ -449,6 +451,7 @@ class GpsdClient:
             return
         s.setblocking(False)
         self._sock = s
+        self.stats.attempts += 1
         rc = s.connect_ex(addr)
         if rc in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EALREADY):
             self._connecting = True
