@@ -149,6 +149,8 @@ class OutputConfig:
     """HOST:PORT destinations of NMEA 0183 ($HNHDT, $HNROT)."""
     nmea_ths: bool = False
     """Also send $HNTHS."""
+    nmea_talker: str = "HN"
+    """NMEA talker ID: HN (non-north-seeking gyro); gpsd reads HC (compass), not HN."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,6 +266,10 @@ RULES: dict[str, tuple[Check, str]] = {
     "output.heading0_deg": _num(0, 360, hi_open=True),
     "output.udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
     "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
+    "output.nmea_talker": (
+        (lambda v: len(v) == 2 and v.isascii() and v.isalpha() and v.isupper()),
+        "two capital letters, e.g. HN or HC",
+    ),
     "log.level": _choice("debug", "info", "warning", "error"),
     "log.format": _choice("auto", "json", "console"),
     "log.bad_frame_interval_s": _POS,

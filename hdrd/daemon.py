@@ -245,7 +245,7 @@ def build_publishers(cfg: Config) -> list[Any]:
     if o.udp:
         pubs.append(publish.UdpJsonPublisher([parse_hostport(a) for a in o.udp]))
     if o.nmea_udp:
-        pubs.append(publish.UdpNmeaPublisher([parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths))
+        pubs.append(publish.UdpNmeaPublisher([parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths, talker=o.nmea_talker))
     if o.stdout or not pubs:
         pubs.append(publish.StdoutPublisher())
     return pubs
@@ -297,6 +297,11 @@ class Daemon:
         self.status = ""
         self.steps = 0
         self.reconnects = 0
+        self.gps: Any = None  # GPS aiding through gpsd (hdrd.gpsd.GpsdLink), issue 9
+        if cfg.gpsd.enabled:
+            from hdrd.gpsd import GpsdLink
+
+            self.gps = GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
 
     # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
     def _set_status(self, text: str) -> None:
@@ -307,6 +312,8 @@ class Daemon:
     def _publish(self, msgs: list[dict[str, Any]], steps: bool = True) -> None:
         from hdrd.publish import OutputClosed
 
+        if self.gps is not None:  # mode, GPS-aligned heading; learned bias -> pipeline
+            msgs = self.gps.aid(msgs, self.pipeline)
         for m in msgs:
             for p in self.publishers:
                 try:
@@ -382,6 +389,8 @@ class Daemon:
                     self.signals.reload = False
                     self._reload()
                 item = src.recv(self.RECV_TIMEOUT_S)
+                if self.gps is not None:
+                    self.gps.poll(self.pipeline)  # never blocks; fixes and speed
                 now_m = mono()
                 bad = int(src.stats.bad_frames)
                 msgs: list[dict[str, Any]] = []
@@ -443,6 +452,8 @@ class Daemon:
             except OutputClosed:
                 pass
             src.close()
+            if self.gps is not None:
+                self.gps.close()
             _stop_all(self.publishers)
             log.info("stop", steps=self.steps, bad_frames=int(src.stats.bad_frames), reconnects=self.reconnects)
             self.notifier.close()

@@ -175,7 +175,7 @@ def _heading_field(heading: float) -> str:
     return f"{0.0 if h >= 360.0 else h:.2f}"
 
 
-def nmea_sentences(msg: Mapping[str, Any], ths: bool = False) -> list[bytes]:
+def nmea_sentences(msg: Mapping[str, Any], ths: bool = False, talker: str = NMEA_TALKER) -> list[bytes]:
     """One message -> NMEA 0183 sentences, each ``$...*hh\\r\\n``.
 
     - ``$HNHDT,<heading>,T``: heading, degrees true (compass, 2 decimals). Left out when the
@@ -183,23 +183,29 @@ def nmea_sentences(msg: Mapping[str, Any], ths: bool = False) -> list[bytes]:
     - ``$HNROT,<rate>,A|V``: rate of turn in deg/min, negative = turning to port (left).
       Our omega is + CCW = left turn, so ROT = -omega * 60 (1 decimal). A when the status is
       one of :data:`RATE_VALID_STATUSES`, V (invalid) otherwise or when omega is unknown.
-    - with *ths*: ``$HNTHS,<heading>,E|V``: true heading with mode E (estimated, dead
-      reckoning), V when the status is not valid.
+    - with *ths*: ``$HNTHS,<heading>,A|E|V``: true heading with mode A (autonomous) while
+      GPS-aided (``"mode": "aided"``, :mod:`hdrd.aiding`), E (estimated, dead reckoning)
+      otherwise, V when the status is not valid.
+
+    *talker*: the two-letter talker ID (default HN, non-north-seeking gyro). gpsd drops
+    sentences from talkers its packet lexer does not know, HN among them; HC is one it
+    reads (README, "GPS aiding").
     """
     out: list[bytes] = []
     status = msg.get("status")
     valid = status in RATE_VALID_STATUSES
     heading = _finite(msg, "heading")
     if heading is not None:
-        out.append(nmea_sentence(f"{NMEA_TALKER}HDT,{_heading_field(heading)},T"))
+        out.append(nmea_sentence(f"{talker}HDT,{_heading_field(heading)},T"))
     omega = _finite(msg, "omega")
     if omega is None:
-        out.append(nmea_sentence(f"{NMEA_TALKER}ROT,,V"))
+        out.append(nmea_sentence(f"{talker}ROT,,V"))
     else:
         rot = round(-omega * 60.0, 1) + 0.0  # + 0.0 turns -0.0 into 0.0
-        out.append(nmea_sentence(f"{NMEA_TALKER}ROT,{rot:.1f},{'A' if valid else 'V'}"))
+        out.append(nmea_sentence(f"{talker}ROT,{rot:.1f},{'A' if valid else 'V'}"))
     if ths and heading is not None:
-        out.append(nmea_sentence(f"{NMEA_TALKER}THS,{_heading_field(heading)},{'E' if valid else 'V'}"))
+        mode = ("A" if msg.get("mode") == "aided" else "E") if valid else "V"
+        out.append(nmea_sentence(f"{talker}THS,{_heading_field(heading)},{mode}"))
     return out
 
 
@@ -488,9 +494,10 @@ class UdpNmeaPublisher(UdpPublisher):
     """NMEA 0183 (:func:`nmea_sentences`), one datagram per sentence, as OpenCPN and gpsd's
     ``udp://`` source expect."""
 
-    def __init__(self, destinations: Iterable[tuple[str, int]], ths: bool = False, **kw: Any) -> None:
+    def __init__(self, destinations: Iterable[tuple[str, int]], ths: bool = False, talker: str = NMEA_TALKER, **kw: Any) -> None:
         self.ths = ths
-        super().__init__(destinations, lambda m: nmea_sentences(m, ths=self.ths), **kw)
+        self.talker = talker
+        super().__init__(destinations, lambda m: nmea_sentences(m, ths=self.ths, talker=self.talker), **kw)
 
 
 # -- stdout -------------------------------------------------------------------------------

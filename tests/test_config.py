@@ -90,6 +90,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     ),
     "output.nmea_udp": (["192.168.1.5:10110"], ["x", ["h:0"], [None], ["h:"]]),
     "output.nmea_ths": (True, [1, "true"]),
+    "output.nmea_talker": ("HC", ["hc", "H", "HCX", "H1", "ÄB", "", 5, None]),
     "log.level": ("debug", ["verbose", "INFO", 3, None]),
     "log.format": ("json", ["xml", True]),
     "log.bad_frame_interval_s": (60.0, [0.0, -10.0, NAN, INF]),
