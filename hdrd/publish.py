@@ -631,8 +631,10 @@ class TailFormatter:
         if sentence == "HDT" and fields_:
             return f"heading {fields_[0]} deg true"
         if sentence == "ROT" and len(fields_) >= 2:
+            if not fields_[0]:
+                return "rate of turn unknown"
             valid = "valid" if fields_[1] == "A" else "invalid"
-            return f"rate of turn {fields_[0] or '-'} deg/min ({valid}; - = to port)"
+            return f"rate of turn {fields_[0]} deg/min ({valid}; - = to port)"
         if sentence == "THS" and len(fields_) >= 2:
             mode = {"E": "estimated", "V": "invalid", "A": "autonomous"}.get(fields_[1], fields_[1])
             return f"heading {fields_[0]} deg true ({mode})"
