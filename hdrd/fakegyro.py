@@ -376,7 +376,8 @@ class FakeGyro:
         self._pull_request = self.pull_for if seconds is None else float(seconds)
 
     def wait(self, timeout: float | None = None) -> bool:
-        """Wait until every frame is written (or :meth:`stop`); True if finished."""
+        """Wait until every frame is written and the reader has read them (bounded wait), or
+        until :meth:`stop`; True if finished."""
         return self._done.wait(timeout)
 
     @property
@@ -464,6 +465,7 @@ class FakeGyro:
             written = self._write(bytes(out)) if out else True
             self._commit(tally, written)
             k = j
+        self._drain()  # "done" means the reader has had everything
 
     # -- a capture file instead of a pty ---------------------------------------------------
 
