@@ -14,6 +14,7 @@ The standstill test rejects a window whose samples say the vehicle moved:
 
 from __future__ import annotations
 
+import glob
 import math
 import os
 import tempfile
@@ -134,9 +135,17 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644
     """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
 
     Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
+    Temp files that an earlier writer left behind (killed, or a power cut, before its rename)
+    are removed first, so they never pile up; one writer per target at a time is assumed (a
+    concurrent writer would lose its temp file and fail with an OSError, the target intact).
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
+    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+        try:
+            stale.unlink()
+        except OSError:
+            pass  # not ours to insist on; at worst one more leftover
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
