@@ -100,6 +100,8 @@ def test_worked_example_of_docs() -> None:
     assert encode_text(f) == b"$HDRG,258,1000000,33554,32768,25.12*1D\r\n"
     absent = Frame(seq=259, t_us=1_100_000, rate=31982, ref=0, temp_cc=None)
     assert encode_text(absent) == b"$HDRG,259,1100000,31982,,*0A\r\n"
+    wire2 = bytes.fromhex("a5 5a 03 01 e0 c8 10 00 ee 7c 00 00 00 80 92 0e")
+    assert crc_bitwise(wire2[2:14]) == 0x0E92 and encode_bin(absent) == wire2
     assert absent.temp_c is None
 
 
