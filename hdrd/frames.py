@@ -112,19 +112,24 @@ class Frame:
         return None if self.temp_cc is None else self.temp_cc / 100.0
 
 
+# Building a Frame through its slot descriptors has the same effect as Frame(...) (the frozen
+# dataclass __init__ sets the same slots through object.__setattr__) at a fraction of the cost:
+# the parser's hot path.
 _new = object.__new__
-_set = object.__setattr__
+_SET_SEQ = Frame.seq.__set__  # type: ignore[attr-defined]
+_SET_T = Frame.t_us.__set__  # type: ignore[attr-defined]
+_SET_RATE = Frame.rate.__set__  # type: ignore[attr-defined]
+_SET_REF = Frame.ref.__set__  # type: ignore[attr-defined]
+_SET_TEMP = Frame.temp_cc.__set__  # type: ignore[attr-defined]
 
 
 def _frame(seq: int, t_us: int, rate: int, ref: int, temp_cc: int | None) -> Frame:
-    # Same effect as Frame(...) at half the cost: the frozen dataclass __init__ does exactly
-    # these object.__setattr__ calls, through slower global look-ups. Hot path of the parser.
     f = _new(Frame)
-    _set(f, "seq", seq)
-    _set(f, "t_us", t_us)
-    _set(f, "rate", rate)
-    _set(f, "ref", ref)
-    _set(f, "temp_cc", temp_cc)
+    _SET_SEQ(f, seq)
+    _SET_T(f, t_us)
+    _SET_RATE(f, rate)
+    _SET_REF(f, ref)
+    _SET_TEMP(f, temp_cc)
     return f
 
 
@@ -486,6 +491,8 @@ class Parser:
         n = len(buf)
         find = buf.find
         unpack = _BODY.unpack_from
+        crc16 = crc_hqx
+        new, set_seq, set_t, set_rate, set_ref, set_temp = _new, _SET_SEQ, _SET_T, _SET_RATE, _SET_REF, _SET_TEMP
         out: list[Frame] = []
         append = out.append
         bad = self.stats.bad_frames
@@ -504,13 +511,13 @@ class Parser:
                 keep = i
                 break
             seq, t_us, rate, ref, temp, crc = unpack(buf, i + 2)
-            if crc_hqx(buf[i + 2 : i + 14], 0xFFFF) != crc:
+            if crc16(buf[i + 2 : i + 14], 0xFFFF) != crc:
                 bad += 1
                 p = i + 1
                 continue
             p = i + 16
             # Inline copy of _track (the hot path); keep the two in step.
-            if last_seq is None or seq == (last_seq + 1) & _U16:
+            if last_seq is None or seq == (last_seq + 1) & 0xFFFF:
                 last_seq = seq
             else:
                 d = (seq - last_seq) & _U16
@@ -526,8 +533,8 @@ class Parser:
             if last_t is None:
                 last_t = t_us
             else:
-                d = (t_us - last_t) & _U32
-                if 0 < d < _HALF_WRAP:
+                d = (t_us - last_t) & 0xFFFFFFFF
+                if 0 < d < 0x80000000:  # forward by less than half the wrap
                     if t_us < last_t:
                         st.clock_wraps += 1
                     last_t = t_us
@@ -535,7 +542,13 @@ class Parser:
                     st.clock_back += 1
                     if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
                         last_t = t_us
-            append(_frame(seq, t_us, rate, ref, None if temp == TEMP_NOT_FITTED else temp))
+            f = new(Frame)
+            set_seq(f, seq)
+            set_t(f, t_us)
+            set_rate(f, rate)
+            set_ref(f, ref)
+            set_temp(f, None if temp == -32768 else temp)
+            append(f)
             bb_append(bad)
         self._last_seq = last_seq
         self._last_t = last_t
