@@ -618,6 +618,8 @@ class TailFormatter:
                     cell = f"{int(v):d}"
                 elif f == "s":
                     cell = str(v)
+                elif key == "heading":
+                    cell = _heading_field(float(v))
                 else:
                     cell = format(float(v), f)
             except (TypeError, ValueError, OverflowError, OSError):

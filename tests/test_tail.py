@@ -216,3 +216,10 @@ def test_tail_port_in_use() -> None:
     finally:
         s.close()
     assert r.returncode == 1 and b"cannot listen" in r.stderr and b"Traceback" not in r.stderr
+
+
+def test_row_never_prints_heading_360():
+    from hdrd.publish import TailFormatter
+
+    row = TailFormatter.row({"class": "HDR", "step": 1, "status": "ok", "heading": 359.996})
+    assert "360.00" not in row and "0.00" in row
