@@ -139,8 +139,12 @@ class GpsAiding:
 
     def __init__(self, config: AidingConfig = AidingConfig()) -> None:
         self.config = config
-        self._fix: FixLike | None = None
+        self._fix: FixLike | None = None  # the latest TPV: fix or no fix
         self._fix_at = -math.inf
+        self._course_fix: FixLike | None = None  # the latest 2D/3D TPV with course and speed
+        self._course_at = -math.inf
+        self._speed: float | None = None  # the latest 2D/3D TPV's speed
+        self._speed_at = -math.inf
         self.offset_deg: float | None = None
         """Added to the HDR heading (compass deg), None until the first alignment."""
         self.mode = DEAD_RECKONING
@@ -157,35 +161,39 @@ class GpsAiding:
 
     # -- inputs --
     def on_fix(self, fix: FixLike, now: float) -> None:
-        """A TPV report received at ``now`` (s, the caller's monotonic clock)."""
-        self._fix = fix
-        self._fix_at = now
+        """A TPV report received at ``now`` (s, the caller's monotonic clock).
 
-    def _fresh(self, now: float) -> FixLike | None:
+        A TPV without a course (gpsd reports one per sentence until it has found the
+        receiver's cycle end, e.g. after a GGA and again after the RMC) does not hide the
+        course of an earlier fix that is still fresh; a TPV without a fix (mode < 2) ends
+        aiding at once.
+        """
+        self._fix, self._fix_at = fix, now
+        if fix.mode >= 2 and fix.speed_mps is not None and math.isfinite(fix.speed_mps):
+            self._speed, self._speed_at = fix.speed_mps, now
+            if fix.track_deg is not None and math.isfinite(fix.track_deg):
+                self._course_fix, self._course_at = fix, now
+
+    def _has_fix(self, now: float) -> bool:
         f = self._fix
-        if f is None or now - self._fix_at > self.config.max_fix_age_s or f.mode < 2:
-            return None
-        return f
+        return f is not None and f.mode >= 2 and now - self._fix_at <= self.config.max_fix_age_s
 
     def good_fix(self, now: float) -> FixLike | None:
-        """The latest fix if good enough to align to (see the module doc), else None."""
-        f = self._fresh(now)
+        """The fix to align to, if good enough (see the module doc), else None."""
         c = self.config
-        if (
-            f is None
-            or f.track_deg is None
-            or f.speed_mps is None
-            or not math.isfinite(f.track_deg)
-        ):
+        f = self._course_fix
+        if f is None or not self._has_fix(now) or now - self._course_at > c.max_fix_age_s:
             return None
+        assert f.speed_mps is not None
         if f.speed_mps < c.min_speed_mps or (f.epd is not None and f.epd > c.max_epd_deg):
             return None
         return f
 
     def speed(self, now: float) -> float | None:
         """Ground speed of a fresh 2D/3D fix, m/s; None when unknown."""
-        f = self._fresh(now)
-        return None if f is None else f.speed_mps
+        if not self._has_fix(now) or now - self._speed_at > self.config.max_fix_age_s:
+            return None
+        return self._speed
 
     # -- per message --
     def on_message(self, msg: dict[str, Any], now: float) -> tuple[dict[str, Any], float]:
@@ -200,7 +208,7 @@ class GpsAiding:
         course: float | None = None
         if fix is not None:
             assert fix.track_deg is not None
-            age = max(0.0, now - self._fix_at)
+            age = max(0.0, now - self._course_at)
             course = _compass(fix.track_deg - omega * age)
             if self.offset_deg is None:
                 self.offset_deg = wrap180(course - h_hdr)

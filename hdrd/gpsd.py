@@ -91,6 +91,7 @@ class Device:
     path: str | None = None
     driver: str | None = None
     activated: str | None = None
+    """When gpsd opened it (ISO 8601); None once closed (gpsd then sends 0)."""
     bps: int | None = None
 
 
@@ -234,10 +235,12 @@ def _bool(obj: Mapping[str, Any], key: str) -> bool | None:
 
 
 def _device(obj: Mapping[str, Any]) -> Device:
+    act = obj.get("activated")
     return Device(
         path=_str(obj, "path"),
         driver=_str(obj, "driver"),
-        activated=_str(obj, "activated"),
+        # ISO time when opened; gpsd sends the number 0 when it closes the device
+        activated=act if isinstance(act, str) else None,
         bps=_int(obj, "bps"),
     )
 

@@ -393,3 +393,23 @@ def test_replace_keeps_config_frozen():
     assert replace(c, min_speed_mps=2.0).min_speed_mps == 2.0
     with pytest.raises(AttributeError):
         c.min_speed_mps = 1.0  # type: ignore[misc]
+
+
+def test_a_tpv_without_course_does_not_hide_a_fresh_course():
+    """gpsd 3.22 reports a TPV after the GGA (no course; speed from positions) and another
+    after the RMC until it has found the cycle end: aiding must not flicker."""
+    a = GpsAiding(AidingConfig(max_fix_age_s=2.5))
+    a.on_fix(good(45.0, 12.0), 0.0)
+    a.on_fix(Fix(mode=3, speed_mps=11.5), 0.5)  # GGA-only TPV of the next epoch
+    out, _ = a.on_message(step_msg(0.0), 0.6)
+    assert out["mode"] == AIDED and out["gps_course"] == 45.0 and out["gps_speed"] == 11.5
+    # ... but only while that course is fresh
+    a.on_fix(Fix(mode=3, speed_mps=11.5), 2.0)
+    out, _ = a.on_message(step_msg(0.0, t=2.0), 2.6)
+    assert out["mode"] == DEAD_RECKONING and out["gps_speed"] == 11.5
+    # a TPV without a fix ends aiding at once, and the speed is unknown then
+    a.on_fix(good(45.0, 12.0), 3.0)
+    assert a.on_message(step_msg(0.0, t=3.0), 3.1)[0]["mode"] == AIDED
+    a.on_fix(Fix(mode=1), 3.5)
+    out, _ = a.on_message(step_msg(0.0, t=4.0), 3.6)
+    assert out["mode"] == DEAD_RECKONING and "gps_speed" not in out and a.speed(3.6) is None
