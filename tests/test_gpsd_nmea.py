@@ -1,0 +1,596 @@
+"""hdrd and the real gpsd, both directions.
+
+GPS -> hdrd: gpsfake (gpsd-clients) replays an NMEA log we write ($GPGGA/$GPRMC, a drive
+through north, a GPS outage) into a real gpsd; :class:`hdrd.gpsd.GpsdClient` receives the
+TPV reports, :class:`hdrd.aiding.GpsAiding` switches aided -> dead-reckoning -> aided and
+the heading stays continuous; and a real ``hdrd run --gpsd`` does the same end to end.
+
+hdrd -> gpsd: gpsd reading hdrd's NMEA over ``udp://`` reports the heading as ATT. What
+gpsd 3.22 (Debian 12) does with our sentences: $--HDT becomes ATT ``heading``, but only
+from talkers its packet lexer accepts (GP/GN/GL, HC, II/IN, ...): $HN... sentences are
+dropped before decoding, hence ``output.nmea_talker: HC``. $--THS and $--ROT give no ATT in
+3.22 (newer gpsd decode THS).
+
+Skipped, with the reason, only where gpsd/gpsfake cannot run. Every process started is
+killed in a ``finally``; no timings are asserted (waits are upper bounds for a hung peer).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hdrd.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.drivelog import DriveLog
+from hdrd.gpsd import Attitude, Fix, GpsdClient
+from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
+from hdrd.sensor import SensorModel
+
+WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
+KNOT_MPS = 1852.0 / 3600.0
+
+# -- gpsd availability -----------------------------------------------------------------------
+
+
+@functools.cache
+def _gpsd_problem() -> str | None:
+    if shutil.which("gpsd") is None:
+        return "gpsd is not installed (Debian: apt-get install gpsd gpsd-clients; .ci/run installs it as root)"
+    return None
+
+
+@functools.cache
+def _gpsfake_problem() -> str | None:
+    if _gpsd_problem():
+        return _gpsd_problem()
+    exe = shutil.which("gpsfake")
+    if exe is None:
+        return "gpsfake is not installed (Debian package gpsd-clients)"
+    try:
+        r = subprocess.run([exe, "-h"], capture_output=True, timeout=WAIT, check=False)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return f"gpsfake cannot run: {e}"
+    if r.returncode != 0:
+        return f"gpsfake cannot run: {r.stderr.decode(errors='replace').strip()[-200:]}"
+    return None
+
+
+@pytest.fixture
+def need_gpsd() -> None:
+    if _gpsd_problem():
+        pytest.skip(_gpsd_problem())
+
+
+@pytest.fixture
+def need_gpsfake() -> None:
+    if _gpsfake_problem():
+        pytest.skip(_gpsfake_problem())
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Proc:
+    """A process in its own session (gpsfake starts gpsd as its child); stop() ends the
+    whole group, SIGTERM then SIGKILL."""
+
+    def __init__(self, argv: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+        self.argv = argv
+        self.log = log
+        self._f = log.open("wb")
+        self.p = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=self._f,
+            start_new_session=True,
+            env=env,
+        )
+
+    def stop(self) -> int | None:
+        if self.p.poll() is None:
+            for sig, wait in ((signal.SIGTERM, 3.0), (signal.SIGKILL, WAIT)):
+                try:
+                    os.killpg(self.p.pid, sig)
+                except ProcessLookupError:
+                    break
+                try:
+                    self.p.wait(wait)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+        else:  # the leader is gone; its children (gpsd) may not be
+            try:
+                os.killpg(self.p.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        self._f.close()
+        return self.p.returncode
+
+    def stderr(self) -> str:
+        return self.log.read_text(errors="replace")[-2000:]
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Callable[..., Proc]]:
+    made: list[Proc] = []
+
+    def start(argv: list[str], env: dict[str, str] | None = None) -> Proc:
+        p = Proc(argv, tmp_path / f"proc{len(made)}.log", env)
+        made.append(p)
+        return p
+
+    try:
+        yield start
+    finally:
+        for p in made:
+            p.stop()
+
+
+# -- an NMEA log ---------------------------------------------------------------------------------
+
+
+def sentence(body: str) -> str:
+    return f"${body}*{nmea_checksum(body)}\r\n"
+
+
+def _ddmm(deg: float, width: int) -> str:
+    d = int(abs(deg))
+    return f"{d:0{width}d}{(abs(deg) - d) * 60:07.4f}"
+
+
+def nmea_log(
+    course: list[float | None], speed_mps: float = 15.0, lat: float = 48.1, lon: float = 11.5
+) -> str:
+    """One $GPGGA + $GPRMC per second from 12:00:00 on 2025-11-21; course[k] None = no fix
+    in second k (GGA quality 0, RMC status V). Positions advance along the course."""
+    out = []
+    for k, c in enumerate(course):
+        hms = f"12{k // 60:02d}{k % 60:02d}.00"
+        if c is None:
+            out.append(sentence(f"GPGGA,{hms},,,,,0,00,,,M,,M,,"))
+            out.append(sentence(f"GPRMC,{hms},V,,,,,,,211125,,,N"))
+            continue
+        la = f"{_ddmm(lat, 2)},{'N' if lat >= 0 else 'S'}"
+        lo = f"{_ddmm(lon, 3)},{'E' if lon >= 0 else 'W'}"
+        out.append(sentence(f"GPGGA,{hms},{la},{lo},1,09,0.9,520.0,M,47.0,M,,"))
+        out.append(
+            sentence(f"GPRMC,{hms},A,{la},{lo},{speed_mps / KNOT_MPS:.3f},{c:.2f},211125,,,A")
+        )
+        lat += speed_mps * math.cos(math.radians(c)) / 111_320.0
+        lon += speed_mps * math.sin(math.radians(c)) / (111_320.0 * math.cos(math.radians(lat)))
+    return "".join(out)
+
+
+def tod(fix: Fix) -> int | None:
+    """Seconds since 12:00:00 of the log (gpsd may get the date wrong; the time is ours)."""
+    return None if fix.time is None else round(fix.time % 86400.0) - 12 * 3600
+
+
+def test_nmea_log_is_valid():
+    text = nmea_log([10.0, None, 359.99])
+    lines = text.splitlines()
+    assert len(lines) == 6
+    for line in lines:
+        parse_nmea(line)  # checksums right
+    assert lines[3].startswith("$GPRMC,120001.00,V")
+    assert parse_nmea(lines[5])[1][7] == "359.99"
+
+
+# -- GPS -> hdrd: gpsfake ----------------------------------------------------------------------------
+
+
+def outage_drive() -> tuple[list[float], list[float | None]]:
+    """True course per second (compass deg) and what the GPS reports (None: outage)."""
+    truth = []
+    c = 340.0
+    for k in range(70):
+        if 15 <= k < 25:
+            c += 4.0  # right turn through north: 340 -> 20
+        elif 36 <= k < 51:
+            c -= 2.0  # left turn inside the outage: 20 -> 350
+        truth.append(c % 360.0)
+    gps = [None if 35 <= k < 50 else truth[k] for k in range(70)]
+    return truth, gps
+
+
+def run_gpsfake(
+    procs: Callable[..., Proc], tmp_path: Path, log_text: str, port: int, cycle: float
+) -> Proc:
+    log = tmp_path / "drive.nmea"
+    log.write_text(log_text)
+    # -n: gpsd opens the fake device at once (else sentences written before a client's
+    # WATCH are lost); -1: the log once; -c: seconds between sentences.
+    return procs(
+        [
+            shutil.which("gpsfake") or "gpsfake",
+            "-1",
+            "-n",
+            "-q",
+            "-c",
+            str(cycle),
+            "-P",
+            str(port),
+            str(log),
+        ]
+    )
+
+
+def collect_fixes(client: GpsdClient, until: Callable[[list[Any]], bool], proc: Proc) -> list[Any]:
+    reports: list[Any] = []
+    deadline = time.monotonic() + WAIT
+    while time.monotonic() < deadline:
+        reports.extend(client.poll_reports())
+        if until(reports):
+            return reports
+        time.sleep(0.01)
+    raise AssertionError(
+        f"gpsd did not deliver; {len(reports)} reports, last {reports[-3:]}; gpsfake: {proc.stderr()}"
+    )
+
+
+@dataclass(frozen=True)
+class Frame:
+    t_us: int
+    rate: int
+    ref: int = 0
+    temp_c: float | None = None
+
+
+def gyro_steps(
+    truth: list[float], bias_true: float, bias_given: float, seed: int = 2
+) -> list[dict[str, Any]]:
+    """The real pipeline's step messages for a gyro that saw the true course changes
+    (10 Hz samples, raw = true CCW rate + bias + noise); step k ends at t = k + 1."""
+    rng = np.random.default_rng(seed)
+    rate = [-wrap180(b - a) for a, b in itertools.pairwise(truth)]  # CCW, deg/s per second
+    raw = np.repeat(rate, 10) + bias_true + rng.normal(0, 0.05, 10 * len(rate))
+    counts = SensorModel().to_counts(np.append(raw, raw[-1]))
+    p = Pipeline(PipelineConfig(bias_dps=bias_given))
+    out: list[dict[str, Any]] = []
+    for i, c in enumerate(counts):
+        out.extend(p.feed(Frame(i * 100_000, int(c))))
+    return out
+
+
+def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
+    truth, gps = outage_drive()
+    port = free_port()
+    client = GpsdClient("127.0.0.1", port, reconnect_min_s=0.05, reconnect_max_s=0.2)
+    try:
+        client.poll_reports()
+        fake = run_gpsfake(procs, tmp_path, nmea_log(gps), port, cycle=0.02)
+        last = len(gps) - 1
+        reports = collect_fixes(
+            client, lambda rs: any(isinstance(r, Fix) and tod(r) == last for r in rs), fake
+        )
+    finally:
+        client.close()
+    assert client.stats.bad_lines == 0, client.stats.errors
+    assert client.version is not None and client.version.proto_major == 3
+    fixes = [r for r in reports if isinstance(r, Fix) and tod(r) is not None]
+    by_second: dict[int, list[Fix]] = {}
+    for f in fixes:
+        by_second.setdefault(tod(f) or 0, []).append(f)
+    # what we wrote is what gpsd reports: course and speed while fixed, mode 1 in the outage
+    good = [k for k, c in enumerate(gps) if c is not None]
+    seen = [k for k in good if any(f.track_deg is not None for f in by_second.get(k, []))]
+    assert len(seen) >= 0.8 * len(good), f"TPV with course for {len(seen)} of {len(good)} seconds"
+    for k in seen:
+        f = next(f for f in by_second[k] if f.track_deg is not None)
+        assert f.mode >= 2
+        assert abs(wrap180(f.track_deg - (gps[k] or 0.0))) < 0.01, (k, f)
+        assert f.speed_mps == pytest.approx(15.0, abs=0.01)
+    assert any(f.mode == 1 for k in range(35, 50) for f in by_second.get(k, [])), (
+        "no no-fix TPV in the outage"
+    )
+    assert all(f.mode < 2 for k in range(36, 50) for f in by_second.get(k, []))
+
+    # GpsAiding on the gyro's steps and these fixes, in their order: a fix of second k is
+    # received at k + 0.3 s, the step ending at k is published at k + 0.05 s
+    steps = gyro_steps(truth, bias_true=0.4, bias_given=0.35)
+    events: list[tuple[float, int, Any]] = [(tod(f) + 0.3, 0, f) for f in fixes]  # type: ignore[operator]
+    events += [(m["t"] + 0.05, 1, m) for m in steps]
+    events.sort(key=lambda e: (e[0], e[1]))
+    aiding = GpsAiding(AidingConfig(min_speed_mps=5.0))
+    pub: list[dict[str, Any]] = []
+    hdr: list[float] = []
+    for now, kind, item in events:
+        if kind == 0:
+            aiding.on_fix(item, now)
+        else:
+            out, _ = aiding.on_message(item, now)
+            pub.append(out)
+            hdr.append(item["heading"])
+    modes = [m["mode"] for m in pub]
+    first = modes.index(AIDED)
+    runs = [modes[first]] + [b for a, b in itertools.pairwise(modes[first:]) if a != b]
+    assert runs == [AIDED, DEAD_RECKONING, AIDED]
+    dr = [i for i, m in enumerate(modes) if m == DEAD_RECKONING and i > first]
+    # gpsd reports the first no-fix second late (or not): at most the fix age later
+    assert 35 <= pub[dr[0]]["t"] <= 38.5 and 50 <= pub[dr[-1] + 1]["t"] <= 52
+    k_truth = {round(m["t"]): truth[round(m["t"])] for m in pub if round(m["t"]) < len(truth)}
+    for i, m in enumerate(pub):
+        k = round(m["t"])
+        if i >= first + 3 and k in k_truth:
+            # aided through north and back, dead reckoning through the outage's turn
+            assert abs(wrap180(m["heading"] - k_truth[k])) < 3.0, (
+                k,
+                m["heading"],
+                k_truth[k],
+                m["mode"],
+            )
+        if i > first:
+            # continuous: changes like the HDR heading, up to the smooth alignment
+            d_pub = wrap180(m["heading"] - pub[i - 1]["heading"])
+            d_hdr = wrap180(hdr[i] - hdr[i - 1])
+            assert abs(d_pub - d_hdr) < 1.5, (k, d_pub, d_hdr)
+    assert {round(m["heading"]) % 360 for m in pub if m["mode"] == AIDED} & {
+        358,
+        359,
+        0,
+        1,
+        2,
+    }  # crossed north
+
+
+# -- GPS -> hdrd: the daemon -------------------------------------------------------------------------
+
+
+class Udp:
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.addr = f"127.0.0.1:{self.sock.getsockname()[1]}"
+
+    def datagrams(self, until: Callable[[list[bytes]], bool], what: str) -> list[bytes]:
+        out: list[bytes] = []
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline:
+            self.sock.settimeout(max(0.05, deadline - time.monotonic()))
+            try:
+                out.append(self.sock.recvfrom(65536)[0])
+            except TimeoutError:
+                break
+            if until(out):
+                return out
+        raise AssertionError(
+            f"{what}: condition not met after {len(out)} datagrams; last {out[-3:]}"
+        )
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def udp() -> Iterator[Callable[[], Udp]]:
+    made: list[Udp] = []
+
+    def make() -> Udp:
+        u = Udp()
+        made.append(u)
+        return u
+
+    try:
+        yield make
+    finally:
+        for u in made:
+            u.close()
+
+
+def hdrd_run(procs: Callable[..., Proc], *args: str) -> Proc:
+    env = dict(os.environ)
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    env["STATE_DIRECTORY"] = "/nonexistent-hdrd-state"
+    return procs([sys.executable, "-m", "hdrd", "run", "--log-format", "json", *args], env=env)
+
+
+def straight_gyro(seconds: float, bias: float) -> DriveLog:
+    hz = 10.0
+    t = np.arange(int(seconds * hz)) / hz
+    rng = np.random.default_rng(5)
+    return DriveLog(t=t, omega=bias + rng.normal(0, 0.05, t.shape[0]), omega_truth=np.zeros_like(t))
+
+
+def test_hdrd_run_aided_by_gpsd_through_an_outage(need_gpsfake, procs, fake_gyro, udp, tmp_path):
+    """``hdrd run --gpsd``: a straight drive on course 250 deg, GPS lost for 12 s. The
+    messages say aided -> dead-reckoning -> aided, the heading is the GPS course, holds
+    through the outage, and $HNTHS says A / E."""
+    port = free_port()
+    js, nm = udp(), udp()
+    g = fake_gyro(straight_gyro(200.0, 0.3), speedup=5.0)
+    d = hdrd_run(
+        procs,
+        "--port",
+        g.path,
+        "--bias",
+        "0.3",
+        "--gpsd",
+        f"127.0.0.1:{port}",
+        "--udp",
+        js.addr,
+        "--nmea-udp",
+        nm.addr,
+        "--nmea-ths",
+    )
+    g.start()
+    # 5x real time, as the gyro: one GPS second per 0.2 s (two sentences, 0.1 s apart)
+    gps: list[float | None] = [250.0] * 25 + [None] * 12 + [250.0] * 40
+    fake = run_gpsfake(procs, tmp_path, nmea_log(gps), port, cycle=0.1)
+
+    def seen_back(dgs: list[bytes]) -> bool:
+        modes = [json.loads(x).get("mode") for x in dgs]
+        runs = [a for a, b in itertools.zip_longest(modes, modes[1:]) if a != b]
+        return (
+            any(runs[i : i + 3] == [AIDED, DEAD_RECKONING, AIDED] for i in range(len(runs)))
+            and modes[-5:] == [AIDED] * 5
+        )
+
+    try:
+        msgs = [json.loads(x) for x in js.datagrams(seen_back, "JSON messages")]
+    except AssertionError as e:
+        raise AssertionError(f"{e}\nhdrd: {d.stderr()}\ngpsfake: {fake.stderr()}") from None
+    sentences = nm.datagrams(lambda dgs: len(dgs) >= 3 * len(msgs), "NMEA")
+    rc = d.stop()
+    assert rc == 0, d.stderr()
+    aided = [m for m in msgs if m["mode"] == AIDED]
+    dr_after = [m for m in msgs[msgs.index(aided[0]) :] if m["mode"] == DEAD_RECKONING]
+    assert aided and dr_after
+    for m in aided:
+        assert abs(wrap180(m["heading"] - 250.0)) < 1.0 and m["gps_course"] == 250.0
+        assert m["gps_speed"] == pytest.approx(15.0, abs=0.2) and "heading_offset" in m
+    for m in dr_after:  # straight: the heading holds, carried by HDR
+        assert abs(wrap180(m["heading"] - 250.0)) < 1.0 and "gps_course" not in m
+    # every message keeps the documented keys
+    assert all(
+        {"class", "v", "t", "step", "omega", "yaw", "heading", "bias", "status"} <= set(m)
+        for m in msgs
+    )
+    # $HNTHS: A while aided, E in dead reckoning, same heading as the JSON message
+    ths = [parse_nmea(s) for s in sentences if b"THS" in s]
+    modes = {f[1] for _, f in ths}
+    assert modes == {"A", "E"}
+    by_heading = {(f[0], f[1]) for _, f in ths}
+    for m in aided[:5] + dr_after[:5]:
+        assert (f"{m['heading']:.2f}", "A" if m["mode"] == AIDED else "E") in by_heading
+    log = [json.loads(x) for x in d.stderr().splitlines() if x.startswith("{")]
+    assert any(e.get("event") == "gpsd_connected" for e in log)
+    assert [e["mode"] for e in log if e.get("event") == "gps_mode"][-3:] == [
+        AIDED,
+        DEAD_RECKONING,
+        AIDED,
+    ]
+
+
+# -- hdrd -> gpsd: NMEA over udp:// -------------------------------------------------------------------
+
+
+def start_gpsd_udp(procs: Callable[..., Proc]) -> tuple[Proc, int, int]:
+    """gpsd in the foreground on a free port, reading NMEA datagrams from a free UDP port."""
+    port, uport = free_port(), free_port(socket.SOCK_DGRAM)
+    gpsd = procs(
+        [shutil.which("gpsd") or "gpsd", "-N", "-n", "-S", str(port), f"udp://127.0.0.1:{uport}"]
+    )
+    return gpsd, port, uport
+
+
+def watch(port: int, proc: Proc) -> GpsdClient:
+    c = GpsdClient("127.0.0.1", port, reconnect_min_s=0.05, reconnect_max_s=0.2)
+    deadline = time.monotonic() + WAIT
+    while time.monotonic() < deadline:
+        c.poll_reports()
+        if c.devices is not None:  # answered our WATCH: gpsd reads the UDP port now
+            return c
+        if proc.p.poll() is not None:
+            break
+        time.sleep(0.02)
+    c.close()
+    raise AssertionError(f"gpsd did not answer: {proc.stderr()}")
+
+
+def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs):
+    gpsd, port, uport = start_gpsd_udp(procs)
+    c = watch(port, gpsd)
+    hn = UdpNmeaPublisher([("127.0.0.1", uport)], ths=True)  # the default talker, HN
+    hc = UdpNmeaPublisher([("127.0.0.1", uport)], ths=True, talker="HC")
+    try:
+        msg = {"class": "HDR", "v": 1, "omega": 1.5, "status": "ok", "mode": AIDED}
+        for k in range(5):
+            hn.on_message(msg | {"heading": 11.0 + k})
+        atts: list[Attitude] = []
+        k = 0
+        deadline = time.monotonic() + WAIT
+        while len(atts) < 5 and time.monotonic() < deadline:
+            hc.on_message(msg | {"heading": 222.25 + k})  # datagrams are read in order
+            k += 1
+            time.sleep(0.05)
+            atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+        assert hn.errors == 0 and hc.errors == 0
+    finally:
+        c.close()
+        hn.stop()
+        hc.stop()
+    assert len(atts) >= 5, f"no ATT from gpsd for $HCHDT: {gpsd.stderr()}"
+    headings = [a.heading for a in atts]
+    hn_seen = [h for h in headings if h is not None and h < 100.0]
+    assert not hn_seen, (
+        f"this gpsd reports $HNHDT ({hn_seen}): update README 'GPS aiding' and output.nmea_talker"
+    )
+    assert all(h is not None and 222.25 <= h < 222.25 + k for h in headings), headings
+    assert all(a.device == f"udp://127.0.0.1:{uport}" for a in atts)
+    assert all(
+        h == pytest.approx(round(h - 0.25) + 0.25, abs=1e-6) for h in headings if h is not None
+    )
+
+
+def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, tmp_path):
+    """A real ``hdrd run`` with ``output.nmea_talker: HC`` turning left at 3 deg/s: gpsd's
+    ATT headings are the published headings (HDT, 2 decimals)."""
+    gpsd, port, uport = start_gpsd_udp(procs)
+    c = watch(port, gpsd)
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("output:\n  nmea_talker: HC\n")
+    js = udp()
+    hz = 10.0
+    t = np.arange(int(120 * hz)) / hz
+    g = fake_gyro(
+        DriveLog(t=t, omega=np.full(t.shape[0], 3.3), omega_truth=np.full(t.shape[0], 3.0)),
+        speedup=10.0,
+    )
+    d = hdrd_run(
+        procs,
+        "--config",
+        str(cfg),
+        "--port",
+        g.path,
+        "--bias",
+        "0.3",
+        "--heading0",
+        "10",
+        "--udp",
+        js.addr,
+        "--nmea-udp",
+        f"127.0.0.1:{uport}",
+        "--nmea-ths",
+    )
+    g.start()
+    atts: list[Attitude] = []
+    try:
+        deadline = time.monotonic() + WAIT
+        while len(atts) < 10 and time.monotonic() < deadline:
+            atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+            time.sleep(0.02)
+        msgs = [json.loads(x) for x in js.datagrams(lambda dgs: len(dgs) >= 40, "JSON messages")]
+    finally:
+        c.close()
+        rc = d.stop()
+    assert rc == 0, d.stderr()
+    assert len(atts) >= 10, (
+        f"gpsd reported {len(atts)} ATT; gpsd: {gpsd.stderr()}; hdrd: {d.stderr()}"
+    )
+    published = {round(m["heading"], 2) for m in msgs}
+    got = [round(a.heading, 2) for a in atts if a.heading is not None]
+    assert set(got) <= published, (got, sorted(published)[:5])
+    # the heading turns left (compass down) through north: 10 -> 0 -> 357 ...
+    assert got[0] > got[-1] or got[-1] > 300.0
