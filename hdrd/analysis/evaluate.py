@@ -20,7 +20,9 @@ How a drive log becomes Table II numbers:
    runs HDR); when the bias is given, the whole log is the drive.
 4. u_i = block mean - eps0 (Eqs. 2, 11) goes through each method (``none``: static bias
    only; ``hdr``: :func:`hdrd.hdr.run_batch` with the given parameters) from yaw 0 at the
-   drive's start, giving the yaw at each step's END, t0 + (i+1)T.
+   drive's start, giving the yaw at each step's END, t0 + (i+1)T; ``hdr+``:
+   :func:`hdrd.hdrplus.run_batch` with its own defaults (only T taken from the parameters),
+   also given each step's sample spread, speed and temperature.
 5. The truth heading is sampled at those same step ends (:func:`hdrd.analysis.metrics.truth_at`,
    interpolating between fixes at most 2 s apart), the yaw is aligned to the truth at the
    first step end where truth exists, and Eψ (Eq. 12) is the mean |error| over the step ends
@@ -39,7 +41,7 @@ import json
 import math
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -49,6 +51,8 @@ from hdrd.analysis.metrics import align_index, e_psi, gyro_heading, improvement,
 from hdrd.calibrate import MotionDetected, estimate_bias
 from hdrd.drivelog import DriveLog
 from hdrd.hdr import HdrParams, run_batch
+from hdrd.hdrplus import PLUS_CORE, HdrPlusParams
+from hdrd.hdrplus import run_batch as run_plus
 from hdrd.resample import block_average_seconds
 
 __all__ = [
@@ -93,6 +97,8 @@ class StepInputs:
     before). speed: mean speed in each step, m/s (NaN where unknown), None if the log has none.
     temp_c: mean temperature in each step, deg C, or None. omega_std: standard deviation of the
     raw samples within each step, deg/s (0 for a single sample), for standstill detection.
+    bias_var: variance of the static bias estimate, (deg/s)^2 (sample variance / samples of
+    the calibration window; NaN if the bias was given).
     """
 
     u: FloatArray
@@ -103,6 +109,7 @@ class StepInputs:
     speed: FloatArray | None = None
     temp_c: FloatArray | None = None
     omega_std: FloatArray | None = None
+    bias_var: float = math.nan
 
 
 MethodFn = Callable[[StepInputs, HdrParams], FloatArray]
@@ -119,7 +126,16 @@ def _yaw_hdr(steps: StepInputs, params: HdrParams) -> FloatArray:
     return run_batch(steps.u, params).yaw
 
 
-METHODS: dict[str, MethodFn] = {"none": _yaw_none, "hdr": _yaw_hdr}
+def _yaw_hdrplus(steps: StepInputs, params: HdrParams) -> FloatArray:
+    # HDR+ runs with its own core (tuned together with its extras), at the drive's T; its
+    # prior on the bias is how well the calibration measured it, when it was measured.
+    plus = HdrPlusParams(hdr=replace(PLUS_CORE, T=params.T))
+    if math.isfinite(steps.bias_var):
+        plus = plus.with_(bias_p0=steps.bias_var)
+    return run_plus(steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, plus).yaw
+
+
+METHODS: dict[str, MethodFn] = {"none": _yaw_none, "hdr": _yaw_hdr, "hdr+": _yaw_hdrplus}
 """Drift reducers by name (``--method``). ``none`` is the "without HDR" column of Table II."""
 
 
@@ -243,10 +259,12 @@ def prepare_drive(
             f"first {calibrate_seconds:g} s",
             rec.std_dps,
         )
+        bias_var = rec.std_dps * rec.std_dps / rec.n
     else:
         if not math.isfinite(bias):
             raise EvaluationError(f"{name}: bias {bias!r} is not a finite number")
         bias_dps, bias_source, bias_std = float(bias), "given", math.nan
+        bias_var = math.nan
 
     idx, means, counts = block_average_seconds(t, log.omega, T)
     keep = idx < n_steps
@@ -294,6 +312,7 @@ def prepare_drive(
         None if speed is None else speed[sl],
         None if temp is None else temp[sl],
         omega_std[sl],
+        bias_var,
     )
     return PreparedDrive(
         name=name,
@@ -531,7 +550,8 @@ def main(args: argparse.Namespace) -> int:
         args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
     )
     try:
-        methods = _methods([method])
+        # HDR+ is shown beside the paper's HDR it improves on.
+        methods = _methods(["hdr", method] if method == "hdr+" else [method])
         logs = load_drives(args.drives)
         results = [
             evaluate_prepared(prepare_drive(log, args.bias, calibrate_s, params.T), params, methods)
