@@ -594,3 +594,22 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
     assert set(got) <= published, (got, sorted(published)[:5])
     # the heading turns left (compass down) through north: 10 -> 0 -> 357 ...
     assert got[0] > got[-1] or got[-1] > 300.0
+
+
+def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
+    from hdrd.publish import nmea_sentences
+
+    base = {"class": "HDR", "v": 1, "omega": -0.5, "heading": 359.996, "status": "ok"}
+
+    def ths(msg: dict[str, Any], talker: str = "HN") -> tuple[str, list[str]]:
+        (s,) = [x for x in nmea_sentences(msg, ths=True, talker=talker) if b"THS" in x]
+        return parse_nmea(s)
+
+    assert ths(base | {"mode": AIDED}) == ("HNTHS", ["0.00", "A"])
+    assert ths(base | {"mode": DEAD_RECKONING}) == ("HNTHS", ["0.00", "E"])
+    assert ths(base) == ("HNTHS", ["0.00", "E"])  # no GPS aiding configured
+    assert ths(base | {"mode": AIDED, "status": "stale"})[1][1] == "V"
+    kinds = [
+        parse_nmea(s)[0] for s in nmea_sentences(base | {"mode": AIDED}, ths=True, talker="HC")
+    ]
+    assert kinds == ["HCHDT", "HCROT", "HCTHS"]
