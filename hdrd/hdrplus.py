@@ -309,37 +309,156 @@ def run_batch(
     """Run HDR+ over arrays of steps: u (deg/s), spread (deg/s), speed (m/s), temp (degC),
     each per step or None (unknown throughout), T a scalar or per step (None: params.hdr.T).
 
-    Bit-identical to :func:`step` in a loop (it is that loop).
+    Bit-identical to calling :func:`step` in a loop: the same operations in the same order,
+    written out with local floats (the recursion is sequential; tuning needs the speed).
     """
     uu = np.asarray(u, dtype=np.float64)
     n = uu.shape[0]
-    cols = (
-        uu.tolist(),
-        _column(spread, n, "spread"),
-        _column(speed, n, "speed"),
-        _column(temp, n, "temp"),
-        _column(params.hdr.T if T is None else T, n, "T"),
+    u_l = uu.tolist()
+    spread_l = _column(spread, n, "spread")
+    speed_l = _column(speed, n, "speed")
+    temp_l = _column(temp, n, "temp")
+    T_l = _column(params.hdr.T if T is None else T, n, "T")
+    o_omega = np.empty(n)
+    o_yaw = np.empty(n)
+    o_I = np.empty(n)
+    o_W = np.empty(n, np.int8)
+    o_R = np.empty(n)
+    o_r = np.empty(n, np.int64)
+    o_y = np.empty(n)
+    o_corr = np.empty(n)
+    o_still = np.empty(n, np.bool_)
+    o_sd = np.empty(n)
+    o_k = np.empty(n)
+
+    hp = params.hdr
+    ss = params.standstill
+    tau, theta_w, c1, c2, i_c = hp.tau, hp.theta_w, hp.c1, hp.c2, hp.i_c
+    lowpass, turn_switch, attenuator, enabled = (
+        hp.lowpass,
+        hp.turn_switch,
+        hp.attenuator,
+        hp.enabled,
     )
-    outs: list[PlusOutput] = []
-    append = outs.append
-    for row in zip(*cols):
-        state, o = step(state, PlusInput(*row), params)
-        append(o)
-    if outs:
-        cols_out = list(zip(*outs))
-    else:
-        cols_out = [()] * len(PlusOutput._fields)
-    return PlusTrace(
-        omega=np.asarray(cols_out[0], np.float64),
-        yaw=np.asarray(cols_out[1], np.float64),
-        I=np.asarray(cols_out[2], np.float64),
-        W=np.asarray(cols_out[3], np.int8),
-        R=np.asarray(cols_out[4], np.float64),
-        r=np.asarray(cols_out[5], np.int64),
-        filtered=np.asarray(cols_out[6], np.float64),
-        bias_corr_dps=np.asarray(cols_out[7], np.float64),
-        standstill=np.asarray(cols_out[8], np.bool_),
-        bias_sd_dps=np.asarray(cols_out[9], np.float64),
-        temp_coeff_dps_per_c=np.asarray(cols_out[10], np.float64),
-        final=state,
+    temp_model, q_t, q_nt = params.temp_model, params.bias_q, params.bias_q_no_temp
+    straight_r, straight_gate = params.straight_r, params.straight_gate_dps
+    gate_speed, holdoff = params.gate_speed_mps, params.holdoff_steps
+    ss_on, ss_speed, ss_spread, ss_level, ss_n_speed = (
+        ss.enabled,
+        ss.speed_mps,
+        ss.spread_dps,
+        ss.level_dps,
+        ss.steps_speed,
     )
+    ss_gyro, g_spread, g_level, ss_n_gyro = (
+        ss.gyro_only,
+        ss.gyro_spread_dps,
+        ss.gyro_level_dps,
+        ss.steps_gyro,
+    )
+    floor2, nsamp = ss.noise_floor_dps * ss.noise_floor_dps, ss.samples_per_step
+    bias0 = zupt.init_bias(state.bias, params.bias_p0, params.temp_coeff_sd)
+    b, k, p_bb, p_bk, p_kk, t_ref = bias0
+    core = state.core
+    x, I, yaw, r, s_prev, n0 = core.x, core.I, core.yaw, core.r, core.s, core.n
+    still, hold = state.still, state.hold
+    isnan, sqrt, pow_ = math.isnan, math.sqrt, math.pow
+
+    for i in range(n):
+        T_i = T_l[i]
+        ui = u_l[i]
+        te = temp_l[i]
+        have_temp = temp_model and not isnan(te)
+        if have_temp and isnan(t_ref):
+            t_ref = te
+        dT = te - t_ref if have_temp else 0.0
+        p_bb = p_bb + (q_t if have_temp else q_nt) * T_i
+        uc = ui - (b + k * dT)
+        sp = spread_l[i]
+        v = speed_l[i]
+        # zupt.standstill_candidate, inline
+        level = uc + I
+        if not ss_on:
+            cand, need = False, ss_n_speed
+        elif not isnan(v):
+            cand = v <= ss_speed and not sp > ss_spread and abs(level) <= ss_level
+            need = ss_n_speed
+        elif ss_gyro and not isnan(sp):
+            cand = sp <= g_spread and abs(level) <= g_level
+            need = ss_n_gyro
+        else:
+            cand, need = False, ss_n_gyro
+        still = still + 1 if cand else 0
+        if cand and still >= need:
+            b = b - I
+            if still == need:
+                p_bb = p_bb + i_c * i_c
+            s_ = ss_spread if isnan(sp) else sp
+            b, k, p_bb, p_bk, p_kk = _update(
+                b, k, p_bb, p_bk, p_kk, ui, (s_ * s_ + floor2) / nsamp, dT
+            )
+            x, I, r, s_prev, hold = 0.0, 0.0, 1, 0, 0
+            o_omega[i] = 0.0
+            o_yaw[i] = yaw
+            o_I[i] = 0.0
+            o_W[i] = 0
+            o_R[i] = 1.0
+            o_r[i] = 1
+            o_y[i] = 0.0
+            o_corr[i] = b + k * dT
+            o_still[i] = True
+            o_sd[i] = sqrt(p_bb)
+            o_k[i] = k
+            continue
+        x = (T_i * uc + tau * x) / (T_i + tau) if lowpass else uc
+        y = x + I
+        omega = uc + I
+        yaw = yaw + omega * T_i
+        s = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
+        r = r + 1 if s == s_prev else 1
+        R = (1.0 + c1) / (1.0 + c1 * pow_(r, c2)) if attenuator else 1.0
+        W = 1 if (not turn_switch or abs(y) <= theta_w) else 0
+        if holdoff:
+            if not abs(y) <= theta_w:
+                hold = holdoff
+            elif hold > 0:
+                W = 0
+                hold -= 1
+        if gate_speed > 0.0 and v < gate_speed:
+            W = 0
+        I_next = I - s * W * R * i_c if enabled else 0.0
+        if straight_r > 0.0 and W and abs(uc + I) <= straight_gate:
+            b, k, p_bb, p_bk, p_kk = _update(b, k, p_bb, p_bk, p_kk, ui, straight_r, dT)
+        o_omega[i] = omega
+        o_yaw[i] = yaw
+        o_I[i] = I
+        o_W[i] = W
+        o_R[i] = R
+        o_r[i] = r
+        o_y[i] = y
+        o_corr[i] = b + k * dT
+        o_still[i] = False
+        o_sd[i] = sqrt(p_bb)
+        o_k[i] = k
+        I = I_next
+        s_prev = s
+    final = PlusState(
+        HdrState(x=x, I=I, yaw=yaw, r=r, s=s_prev, n=n0 + n),
+        BiasState(b, k, p_bb, p_bk, p_kk, t_ref),
+        still,
+        hold,
+    )
+    return PlusTrace(o_omega, o_yaw, o_I, o_W, o_R, o_r, o_y, o_corr, o_still, o_sd, o_k, final)
+
+
+def _update(
+    b: float, k: float, p_bb: float, p_bk: float, p_kk: float, z: float, r: float, dT: float
+) -> tuple[float, float, float, float, float]:
+    """:func:`hdrd.zupt.update` on plain floats (same operations)."""
+    ph0 = p_bb + dT * p_bk
+    ph1 = p_bk + dT * p_kk
+    s = ph0 + dT * ph1 + r
+    k0 = ph0 / s
+    k1 = ph1 / s
+    innov = z - (b + k * dT)
+    return b + k0 * innov, k + k1 * innov, p_bb - k0 * ph0, p_bk - k0 * ph1, p_kk - k1 * ph1
