@@ -392,7 +392,7 @@ class Daemon:
                 if self.gps is not None:
                     self.gps.poll(self.pipeline)  # never blocks; fixes and speed
                 now_m = mono()
-                bad = int(src.stats.bad_frames)
+                bad = src.bad_frames  # not src.stats: that copies every counter, per frame
                 msgs: list[dict[str, Any]] = []
                 got_frame = False
                 if item is None:

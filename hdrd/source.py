@@ -26,6 +26,7 @@ import dataclasses
 import io
 import math
 import os
+import select
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -142,6 +143,11 @@ class Source(Protocol):
     @property
     def stats(self) -> ParserStats: ...
 
+    @property
+    def bad_frames(self) -> int:
+        """``stats.bad_frames`` without copying the counters (read once per frame)."""
+        ...
+
     def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None: ...
 
     def close(self) -> None: ...
@@ -215,6 +221,21 @@ def _reason(e: BaseException) -> str:
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
+_READ_MAX = 65536
+"""Most bytes taken from the port per read: 4096 hdr-bin frames, 0.2 s of a 3 Mbaud link."""
+
+
+def _fd_poll(port: Any) -> tuple[int, select.poll] | None:
+    """(descriptor, poller) for the direct read path of a plain local port (``serial.Serial``
+    on POSIX: a device path or a pty), None for URL handlers (``loop://``, ``socket://``,
+    ``spy://``...), which keep pyserial's own read."""
+    if type(port) is not serial.Serial or not isinstance(getattr(port, "fd", None), int):
+        return None
+    poller = select.poll()
+    poller.register(port.fd, select.POLLIN | select.POLLERR | select.POLLHUP | select.POLLNVAL)
+    return port.fd, poller
+
+
 class SerialReader:
     """Raw bytes from a serial port that reopens itself (shared by SerialSource and record).
 
@@ -253,6 +274,7 @@ class SerialReader:
         self._next_try = 0.0
         self._closed = False
         self._report: DeviceLost | None = None
+        self._fd_poll: tuple[int, select.poll] | None = None
         self.last_error: str | None = None
         try:
             # Validates the URL (unknown schemes raise here), without touching the device.
@@ -282,6 +304,7 @@ class SerialReader:
             return False
         self.port = port
         self._timeout = 0
+        self._fd_poll = _fd_poll(port)
         self._backoff = self.reconnect_min_s
         return True
 
@@ -295,6 +318,7 @@ class SerialReader:
 
     def _drop_port(self) -> None:
         port, self.port = self.port, None
+        self._fd_poll = None
         if port is not None:
             try:
                 port.close()
@@ -329,6 +353,8 @@ class SerialReader:
                 return None
 
     def _read_open(self, timeout: float | None) -> bytes | DeviceLost | None:
+        if self._fd_poll is not None:
+            return self._read_fd(*self._fd_poll, timeout)
         port = self.port
         try:
             if timeout != self._timeout:
@@ -344,6 +370,30 @@ class SerialReader:
             return self._lose(e)
         if not data:
             return None
+        self.stats.bytes_read += len(data)
+        return data
+
+    def _read_fd(self, fd: int, poller: select.poll, timeout: float | None) -> bytes | DeviceLost | None:
+        """:meth:`_read_open` for a local serial device: one poll, one read of all there is.
+
+        Why not ``port.read``: pyserial re-applies the termios settings whenever its timeout
+        changes (every call here, as ``recv``'s deadline shrinks), and makes two select calls
+        and two reads per wake-up (one byte, then ``in_waiting`` more); at 1 kHz that was most
+        of the daemon's CPU. The descriptor is non-blocking (pyserial opens it O_NONBLOCK), so
+        a read takes what the driver holds. Losses are what pyserial reports: an error from
+        poll or read (EIO once a pty's other side has closed), or a readable descriptor that
+        gives no bytes (an unplugged USB adapter). tests/test_source.py (ptys, cable pulls).
+        """
+        try:
+            if not poller.poll(None if timeout is None else timeout * 1000.0):
+                return None
+            data = os.read(fd, _READ_MAX)
+        except (BlockingIOError, InterruptedError):
+            return None  # woken for nothing (another reader took the bytes, or a signal)
+        except Exception as e:  # noqa: BLE001 - any I/O trouble means the device is lost
+            return self._lose(e)
+        if not data:
+            return self._lose(serial.SerialException("device reports readiness to read but returned no data"))
         self.stats.bytes_read += len(data)
         return data
 
@@ -398,6 +448,10 @@ class SerialSource(_SourceBase):
     @property
     def stats(self) -> ParserStats:
         return dataclasses.replace(self.parser.stats, bad_frames=self._bad_seen)
+
+    @property
+    def bad_frames(self) -> int:
+        return self._bad_seen
 
     def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None:
         if self._queue:
@@ -475,6 +529,10 @@ class ReplaySource(_SourceBase):
     @property
     def stats(self) -> ParserStats:
         return dataclasses.replace(self.parser.stats, bad_frames=self._bad_seen)
+
+    @property
+    def bad_frames(self) -> int:
+        return self._bad_seen
 
     def _fill(self) -> bool:
         while not self._queue and not self._eof:
@@ -688,6 +746,10 @@ class SimulatedSource(_SourceBase):
     @property
     def stats(self) -> ParserStats:
         return dataclasses.replace(self._stats)
+
+    @property
+    def bad_frames(self) -> int:
+        return self._stats.bad_frames
 
     def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None:
         if self._closed or self._ended:
