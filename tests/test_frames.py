@@ -266,12 +266,31 @@ def dirty_bin_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
     return b"".join(parts), good, bad
 
 
+def _forged_frame(data: bytes, good: list[Frame]) -> bool:
+    """True if a byte-by-byte reference scan (sync, then CRC, else move one byte) finds other
+    frames than the good ones: a truncated frame and the bytes after it passing the 16-bit
+    CRC by coincidence (one candidate in 65536), which hides the real frame it overlaps."""
+    found: list[bytes] = []
+    i = 0
+    while i + 16 <= len(data):
+        if data[i : i + 2] == SYNC and crc16_ccitt_false(data[i + 2 : i + 14]) == int.from_bytes(data[i + 14 : i + 16], "little"):
+            found.append(data[i : i + 16])
+            i += 16
+        else:
+            i += 1
+    return found != [encode_bin(f) for f in good]
+
+
 @settings(max_examples=300)
 @given(dirty_bin_stream(), st.lists(st.integers(0, 10_000), max_size=8))
 def test_bin_recovers_every_good_frame_and_counts_bad_ones(
     stream: tuple[bytes, list[Frame], int], cuts: list[int]
 ) -> None:
     data, good, bad = stream
+    # A forged frame is a limit of the protocol's CRC, not of the parser; its cost is measured
+    # in bench/RESULTS.md ("Fuzz") and tests/test_rel_bytes.py checks such streams against
+    # the reference scan. Here every good frame must come back.
+    assume(not _forged_frame(data, good))
     bb: list[int] = []
     frames, stats = run("hdr-bin", data, cuts, bb)
     assert frames == good
