@@ -89,6 +89,12 @@ class HdrPlusParams:
     (0 = off)."""
     holdoff_steps: int = 0
     """Steps after the turn switch opened (|y| > theta_w) during which I stays frozen."""
+    adapt_gain: float = 0.0
+    """Adaptive increment: I moves by max(i_c, adapt_gain * sd) per step (capped at
+    i_c_max), sd the bias model's standard deviation at this temperature, deg/s
+    (dimensionless; 0 = off, always i_c)."""
+    i_c_max: float = 0.0422
+    """Largest adaptive increment, deg/s (default: the paper's i_c)."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -118,6 +124,7 @@ class HdrPlusParams:
             straight_r=0.0,
             gate_speed_mps=0.0,
             holdoff_steps=0,
+            adapt_gain=0.0,
         )
 
     def with_(self, **kw: object) -> HdrPlusParams:
@@ -247,7 +254,11 @@ def step(
             hold -= 1
     if params.gate_speed_mps > 0.0 and speed < params.gate_speed_mps:
         W = 0
-    I_next = I - s * W * R * hp.i_c if hp.enabled else 0.0
+    i_c = hp.i_c
+    if params.adapt_gain > 0.0:
+        sd = math.sqrt(bias.p_bb + dT * (2.0 * bias.p_bk + dT * bias.p_kk))
+        i_c = min(params.i_c_max, max(i_c, params.adapt_gain * sd))
+    I_next = I - s * W * R * i_c if hp.enabled else 0.0
     if params.straight_r > 0.0 and W and abs(uc + I) <= params.straight_gate_dps:
         bias = zupt.update(bias, u, params.straight_r, dT)
     out = PlusOutput(
@@ -343,6 +354,7 @@ def run_batch(
     temp_model, q_t, q_nt = params.temp_model, params.bias_q, params.bias_q_no_temp
     straight_r, straight_gate = params.straight_r, params.straight_gate_dps
     gate_speed, holdoff = params.gate_speed_mps, params.holdoff_steps
+    adapt_gain, i_c_max = params.adapt_gain, params.i_c_max
     ss_on, ss_speed, ss_spread, ss_level, ss_n_speed = (
         ss.enabled,
         ss.speed_mps,
@@ -426,7 +438,11 @@ def run_batch(
                 hold -= 1
         if gate_speed > 0.0 and v < gate_speed:
             W = 0
-        I_next = I - s * W * R * i_c if enabled else 0.0
+        inc = i_c
+        if adapt_gain > 0.0:
+            sd = sqrt(p_bb + dT * (2.0 * p_bk + dT * p_kk))
+            inc = min(i_c_max, max(inc, adapt_gain * sd))
+        I_next = I - s * W * R * inc if enabled else 0.0
         if straight_r > 0.0 and W and abs(uc + I) <= straight_gate:
             b, k, p_bb, p_bk, p_kk = _update(b, k, p_bb, p_bk, p_kk, ui, straight_r, dT)
         o_omega[i] = omega

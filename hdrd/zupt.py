@@ -53,10 +53,14 @@ class StandstillParams:
     spread_dps: float = 0.5
     """Largest standard deviation of the raw samples within a step, deg/s (a parked car with
     its engine running shows less; a step with a turn in it shows more)."""
-    level_dps: float = 0.3
-    """Largest |bias-corrected block mean rate|, deg/s, for a step to count as standstill."""
-    steps_speed: int = 1
-    """Consecutive candidate steps needed when the speed is known."""
+    level_dps: float = 1.0
+    """Largest |bias-corrected block mean rate|, deg/s, for a step with a known speed to count
+    as standstill: far above any bias error, far below the rate of a turn seen with a stale
+    speed."""
+    steps_speed: int = 3
+    """Consecutive candidate steps needed when the speed is known: the first steps of a stop
+    are not used (the car still rocks and yaws as it brakes to a halt, and the speed's and
+    the gyro's averaging windows are not aligned), nor a halt shorter than this."""
     gyro_only: bool = False
     """Detect standstill from the gyro alone when the speed is unknown (NaN)."""
     gyro_spread_dps: float = 0.3

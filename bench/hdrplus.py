@@ -1,0 +1,837 @@
+#!/usr/bin/env python3
+"""HDR+ vs paper HDR on held-out drives, every idea's ablation, and the 1 s vs 30 s calibration.
+
+    python bench/hdrplus.py [--workdir /tmp/hdrd-hdrplus] [--routes 12] [--no-write]
+    python bench/hdrplus.py --tune 300 [--seed 0]     # the training-set search (no write)
+
+1. As processes, the commands a user runs (listed in bench/RESULTS.md): ``hdrd simulate
+   --benchmark train|test``, ``hdrd evaluate --method hdr+`` on both (the JSON has none, hdr
+   and hdr+ side by side), ``python tools/convert_real.py all`` and ``hdrd evaluate --method
+   hdr+`` on the two real recordings of ../shared/data/ (skipped, and said so, if absent).
+2. In-process, on the same nine training and five test drives and on more routes of each drive
+   type (``--routes`` per type; seeds ``spec.seed + 1000 j``, j = 1..routes): the ablation
+   table, one row per idea (added to paper HDR, and taken out of HDR+), with speed and
+   temperature withheld; the calibration study (a 1 s start-up calibration plus standstill
+   re-calibration vs a 30 s one); the cost of a step.
+3. Rewrites its own section of bench/RESULTS.md, leaving every other section as it is.
+
+Honesty rules this script keeps: HDR+'s parameters were tuned on the nine training drives'
+types only (``--tune`` repeats that search on them); the five test drives and the test-type
+routes are evaluated, never searched. Eψ/NEψ are hdrd evaluate's (Eqs. 12, 13; truth at step
+ends, aligned at the first step with truth).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
+from hdrd.analysis.metrics import align_index, e_psi
+from hdrd.drivelog import DriveLog
+from hdrd.hdr import HdrParams
+from hdrd.hdr import run_batch as hdr_batch
+from hdrd.hdrplus import (
+    INITIAL_PLUS_STATE,
+    PLUS_CORE,
+    HdrPlusParams,
+    PlusInput,
+    run_batch,
+    step,
+)
+from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
+from hdrd.sim.drive import simulate_legs
+from hdrd.sim.gyro import ScaleFactor, crs03_default_model
+from hdrd.zupt import StandstillParams
+
+RESULTS = REPO / "bench" / "RESULTS.md"
+SECTION = "## Beyond the paper: HDR+ and standstill re-calibration (held-out)"
+DATA = REPO.parent / "shared" / "data"
+SMARTLOC_FIT_BIAS_DPS = 0.053  # as bench/tables.py: least-squares bias of the whole run
+COMMA_ANDROID_BIAS_DPS = -3.9167  # Android's own estimate, in hdrd's CCW convention
+PAPER = HdrParams()
+
+
+# -- running the user's commands ------------------------------------------------------------
+
+
+def run(cmd: list[str], log: list[str]) -> subprocess.CompletedProcess[str]:
+    """Run a command from the repository root, record it, fail loudly if it fails."""
+    shown = " ".join(shlex.quote(c) for c in cmd).replace(sys.executable, "python")
+    print(f"$ {shown}", flush=True)
+    log.append(shown)
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
+    if p.returncode != 0:
+        sys.stderr.write(p.stdout + p.stderr)
+        raise SystemExit(f"command failed ({p.returncode}): {shown}")
+    return p
+
+
+def hdrd(*args: str) -> list[str]:
+    return ["hdrd", *args]
+
+
+# -- methods on prepared drives ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One ablation row: a method (none / hdr / hdr+ with params), and inputs withheld."""
+
+    label: str
+    kind: str  # "none", "hdr", "plus"
+    params: HdrPlusParams | None = None
+    speed: bool = True
+    temp: bool = True
+
+
+def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
+    s = prep.steps
+    if v.kind == "none":
+        return np.cumsum(s.u * s.T)
+    if v.kind == "hdr":
+        return hdr_batch(s.u, PAPER).yaw
+    assert v.params is not None
+    p = v.params
+    if math.isfinite(s.bias_var):  # as hdrd evaluate: the prior is the calibration's variance
+        p = p.with_(bias_p0=s.bias_var)
+    return run_batch(
+        s.u,
+        s.omega_std,
+        s.speed if v.speed else None,
+        s.temp_c if v.temp else None,
+        s.T,
+        p,
+    ).yaw
+
+
+def ne(prep: PreparedDrive, yaw: np.ndarray, drop: int = 0) -> float:
+    """NEψ (deg/min) over the steps from ``drop`` on, aligned at the first with truth there."""
+    truth = prep.truth[drop:]
+    y = yaw[drop:]
+    k = align_index(y, truth)
+    return float(e_psi(y, truth, k)) / (y.shape[0] * prep.steps.T / 60.0)
+
+
+@dataclass
+class SetScores:
+    """NEψ per drive of one variant on one set, and the paper-HDR reference."""
+
+    names: list[str]
+    values: np.ndarray
+    hdr: np.ndarray
+    types: int  # drives cycle through this many types (for per-type means)
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.values))
+
+    @property
+    def worst_drive(self) -> tuple[float, str]:
+        r = self.values / self.hdr
+        i = int(np.argmax(r))
+        return float(r[i]), self.names[i]
+
+    @property
+    def worst_type(self) -> tuple[float, str]:
+        ratios = [
+            float(np.mean(self.values[t :: self.types]) / np.mean(self.hdr[t :: self.types]))
+            for t in range(self.types)
+        ]
+        i = int(np.argmax(ratios))
+        return ratios[i], self.names[i]
+
+
+def score(v: Variant, preps: Sequence[PreparedDrive], hdr: np.ndarray, types: int) -> SetScores:
+    vals = np.array([ne(p, yaw_of(v, p)) for p in preps])
+    return SetScores([p.name for p in preps], vals, hdr, types)
+
+
+# -- the drive sets ---------------------------------------------------------------------------
+
+
+def routes(specs: Sequence[DriveSpec], n: int) -> list[DriveLog]:
+    """n more routes of each spec's drive type (same legs, duration, temperature profile and
+    gyro; seed spec.seed + 1000 j, j = 1..n), ordered route by route."""
+    return [generate(replace(s, seed=s.seed + 1000 * j)) for j in range(1, n + 1) for s in specs]
+
+
+def drive_off(spec: DriveSpec, lead_in_s: float = 1.0) -> DriveLog:
+    """The spec's drive with only ``lead_in_s`` of standstill after power-on (the car leaves
+    1 s after the gyro is switched on): same route, legs, temperature profile and gyro model."""
+    legs = [(VARIANTS[p], f) for p, f in spec.legs]
+    return simulate_legs(
+        legs,
+        spec.minutes,
+        spec.seed,
+        lead_in_s=lead_in_s,
+        temperature=spec.temperature,
+        name=spec.name,
+    )
+
+
+def truth_bias_30s(log: DriveLog) -> float:
+    """What a 30 s standstill calibration at power-on would have measured, known only in
+    simulation: the mean over the first 30 s of the gyro output minus its scaled true rate."""
+    model = crs03_default_model()
+    sf = model.get("scale_factor")
+    gain = 1.0 + (sf.error if isinstance(sf, ScaleFactor) else 0.0)
+    assert log.omega_truth is not None
+    w = log.t < log.t[0] + 30.0
+    return float(np.mean(log.omega[w] - gain * log.omega_truth[w]))
+
+
+# -- the rows ---------------------------------------------------------------------------------
+
+
+def variants() -> list[tuple[str, list[Variant]]]:
+    P = HdrPlusParams()
+    paper = HdrPlusParams.paper()
+    ss_off = StandstillParams(enabled=False)
+    return [
+        (
+            "references",
+            [
+                Variant("no correction (static bias only)", "none"),
+                Variant("paper HDR, Table III", "hdr"),
+            ],
+        ),
+        (
+            "one idea added to paper HDR",
+            [
+                Variant(
+                    "HDR+'s retuned core alone (i_c, τ, Θw, c1, c2; no extras)",
+                    "plus",
+                    HdrPlusParams.paper(PLUS_CORE),
+                ),
+                Variant(
+                    "+ standstill zero-rate updates (speed)",
+                    "plus",
+                    paper.with_(standstill=P.standstill),
+                ),
+                Variant(
+                    "+ standstill + temperature model",
+                    "plus",
+                    paper.with_(standstill=P.standstill, temp_model=True),
+                ),
+                Variant(
+                    "+ straight-driving bias measurements",
+                    "plus",
+                    paper.with_(straight_r=P.straight_r),
+                ),
+                Variant(
+                    "+ straight measurements + temperature model",
+                    "plus",
+                    paper.with_(straight_r=P.straight_r, temp_model=True),
+                ),
+                Variant(
+                    "+ speed gate (I frozen below 3 m/s)", "plus", paper.with_(gate_speed_mps=3.0)
+                ),
+                Variant("+ hold-off 3 steps after a turn", "plus", paper.with_(holdoff_steps=3)),
+            ],
+        ),
+        (
+            "HDR+ and one idea taken out or added",
+            [
+                Variant("**HDR+ (defaults)**", "plus", P),
+                Variant("HDR+ without standstill updates", "plus", P.with_(standstill=ss_off)),
+                Variant(
+                    "HDR+ with stops used from their 1st step (steps_speed 1, not 3)",
+                    "plus",
+                    P.with_(standstill=StandstillParams(steps_speed=1)),
+                ),
+                Variant(
+                    "HDR+ without straight-driving measurements", "plus", P.with_(straight_r=0.0)
+                ),
+                Variant("HDR+ without the temperature model", "plus", P.with_(temp_model=False)),
+                Variant("HDR+ with the paper's core (Table III)", "plus", P.with_(hdr=PAPER)),
+                Variant("HDR+ + speed gate (3 m/s)", "plus", P.with_(gate_speed_mps=3.0)),
+                Variant("HDR+ + hold-off 3 steps", "plus", P.with_(holdoff_steps=3)),
+                Variant("HDR+ + adaptive increment (gain 1)", "plus", P.with_(adapt_gain=1.0)),
+            ],
+        ),
+        (
+            "HDR+ with inputs withheld",
+            [
+                Variant("HDR+, speed withheld (no standstill detection)", "plus", P, speed=False),
+                Variant(
+                    "HDR+, speed withheld, gyro-only standstill detection",
+                    "plus",
+                    P.with_(standstill=StandstillParams(gyro_only=True)),
+                    speed=False,
+                ),
+                Variant(
+                    "HDR+, speed withheld, gyro-only detection, loose (0.5 deg/s spread, 0.3 level, 5 steps)",
+                    "plus",
+                    P.with_(
+                        standstill=StandstillParams(
+                            gyro_only=True, gyro_spread_dps=0.5, gyro_level_dps=0.3, steps_gyro=5
+                        )
+                    ),
+                    speed=False,
+                ),
+                Variant("HDR+, temperature withheld", "plus", P, temp=False),
+                Variant("HDR+, speed and temperature withheld", "plus", P, speed=False, temp=False),
+            ],
+        ),
+    ]
+
+
+# -- calibration study ------------------------------------------------------------------------
+
+
+def calibration_rows(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
+    """Scenario A: the benchmark's logs (30 s standstill after power-on). Every method is
+    scored on the same window, from 30 s on; the 1 s methods start running at 1 s."""
+    P = HdrPlusParams()
+    no_ss = P.with_(standstill=StandstillParams(enabled=False))
+    out: dict[str, list[float]] = {}
+
+    def add(k: str, v: float) -> None:
+        out.setdefault(k, []).append(v)
+
+    for log in logs:
+        p30 = prepare_drive(log, calibrate_seconds=30.0)
+        p1 = prepare_drive(log, calibrate_seconds=1.0)
+        drop = round(30.0 - 1.0)
+        add("HDR, 30 s calibration", ne(p30, hdr_batch(p30.steps.u).yaw))
+        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw, drop))
+        add("HDR+, 30 s calibration", ne(p30, yaw_of(Variant("", "plus", P), p30)))
+        add(
+            "HDR+, 1 s calibration + standstill re-calibration",
+            ne(p1, yaw_of(Variant("", "plus", P), p1), drop),
+        )
+        add(
+            "HDR+ without standstill updates, 1 s calibration",
+            ne(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
+        )
+    return out
+
+
+def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], int]:
+    """Scenario B: the car leaves 1 s after power-on; stops happen only during the drive."""
+    P = HdrPlusParams()
+    no_ss = P.with_(standstill=StandstillParams(enabled=False))
+    out: dict[str, list[float]] = {}
+    stopped = 0
+
+    def add(k: str, v: float) -> None:
+        out.setdefault(k, []).append(v)
+
+    for spec in specs:
+        log = drive_off(spec)
+        p1 = prepare_drive(log, calibrate_seconds=1.0)
+        b30 = truth_bias_30s(log)
+        pb = prepare_drive(log, bias=b30)
+        drop = 1  # score the same steps as the 1 s runs (which start at 1 s)
+        assert pb.steps.speed is not None
+        stopped += int(np.count_nonzero(pb.steps.speed[drop:] <= 0.3))
+        add(
+            "HDR, bias of a 30 s standstill (known in simulation only)",
+            ne(pb, hdr_batch(pb.steps.u).yaw, drop),
+        )
+        add(
+            "HDR+, bias of a 30 s standstill (known in simulation only)",
+            ne(pb, yaw_of(Variant("", "plus", P.with_(bias_p0=0.155**2 / 300)), pb), drop),
+        )
+        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw))
+        add(
+            "HDR+, 1 s calibration + standstill re-calibration",
+            ne(p1, yaw_of(Variant("", "plus", P), p1)),
+        )
+        add(
+            "HDR+ without standstill updates, 1 s calibration",
+            ne(p1, yaw_of(Variant("", "plus", no_ss), p1)),
+        )
+    return out, stopped
+
+
+def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
+    """Eψ (deg) of HDR+ variants on the converted real recordings (post hoc diagnostics)."""
+    from hdrd.drivelog import read_drive
+
+    P = HdrPlusParams()
+    out = []
+    for label, f, bias in (
+        ("smartLoc Berlin", "smartloc_berlin.csv", 0.0),
+        ("smartLoc Berlin", "smartloc_berlin.csv", SMARTLOC_FIT_BIAS_DPS),
+        ("comma2k19", "comma2k19.csv", COMMA_ANDROID_BIAS_DPS),
+    ):
+        prep = prepare_drive(read_drive(folder / f), bias=bias)
+        cols: dict[str, float] = {}
+        for name, v in (
+            ("HDR+", Variant("", "plus", P)),
+            (
+                "HDR+, stops used from their 1st step",
+                Variant("", "plus", P.with_(standstill=StandstillParams(steps_speed=1))),
+            ),
+            ("HDR+, speed withheld", Variant("", "plus", P, speed=False)),
+            ("HDR+, bias_p0 2.6e-3", Variant("", "plus", P.with_(bias_p0=2.6e-3))),
+            ("HDR+ + speed gate 3 m/s", Variant("", "plus", P.with_(gate_speed_mps=3.0))),
+        ):
+            yaw = yaw_of(v, prep)
+            cols[name] = float(e_psi(yaw, prep.truth, prep.k))
+        out.append((label, f"--bias {bias:g}", cols))
+    return out
+
+
+# -- cost of a step ---------------------------------------------------------------------------
+
+
+def step_cost(prep: PreparedDrive, repeats: int = 3) -> tuple[float, float]:
+    """(us per step of step(), us per step of run_batch()) on one drive, best of repeats."""
+    s = prep.steps
+    P = HdrPlusParams()
+    assert s.speed is not None and s.temp_c is not None and s.omega_std is not None
+    rows = [
+        PlusInput(float(u), float(sp), float(v), float(tc), s.T)
+        for u, sp, v, tc in zip(s.u, s.omega_std, s.speed, s.temp_c, strict=True)
+    ]
+    best_step = best_batch = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        st = INITIAL_PLUS_STATE
+        for r in rows:
+            st, _o = step(st, r, P)
+        best_step = min(best_step, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        run_batch(s.u, s.omega_std, s.speed, s.temp_c, s.T, P)
+        best_batch = min(best_batch, time.perf_counter() - t0)
+    n = len(rows)
+    return best_step / n * 1e6, best_batch / n * 1e6
+
+
+# -- the search on training drives (not run by default) ---------------------------------------
+
+
+def tune(n: int, seed: int, routes_n: int) -> None:
+    """Random search of HDR+'s main parameters on the training types (more routes of the nine
+    training drives), printing the best sets by mean NEψ; the test drives are never used."""
+    rng = np.random.default_rng(seed)
+    preps = [prepare_drive(d) for d in routes(TRAIN_DRIVES, routes_n)]
+    hdr = np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in preps])
+
+    def lu(a: float, b: float) -> float:
+        return float(math.exp(rng.uniform(math.log(a), math.log(b))))
+
+    found: list[tuple[float, float, dict[str, Any]]] = []
+    for i in range(n):
+        core = {
+            "i_c": lu(0.003, 0.03),
+            "tau": float(rng.uniform(0, 3)),
+            "theta_w": float(rng.uniform(0.2, 1.0)),
+            "c1": lu(0.05, 1.0),
+            "c2": float(rng.uniform(0.3, 2.5)),
+        }
+        extra = {
+            "bias_q": lu(1e-8, 1e-4),
+            "bias_q_no_temp": lu(1e-6, 1e-4),
+            "straight_r": lu(0.003, 0.3),
+            "straight_gate_dps": lu(0.05, 2.0),
+            "bias_p0": lu(1e-5, 1e-2),
+            "temp_coeff_sd": lu(0.002, 0.03),
+        }
+        P = HdrPlusParams(hdr=HdrParams(**core), **extra)  # type: ignore[arg-type]
+        sc = score(Variant("", "plus", P), preps, hdr, len(TRAIN_DRIVES))
+        found.append((sc.mean, sc.worst_type[0], {**core, **extra}))
+        print(
+            f"{i + 1}/{n} mean NEψ {sc.mean:.4f} (paper HDR {hdr.mean():.4f})", end="\r", flush=True
+        )
+    print()
+    found.sort(key=lambda x: x[0])
+    for m, wt, kw in found[:5]:
+        print(
+            f"mean NEψ {m:.4f}, worst type ratio {wt:.2f}: "
+            + ", ".join(f"{k}={v:.3g}" for k, v in kw.items())
+        )
+
+
+# -- formatting -------------------------------------------------------------------------------
+
+
+def fm(v: float, d: int = 3) -> str:
+    return "–" if not math.isfinite(v) else f"{v:.{d}f}"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (
+        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+    )
+
+
+def evaluate_json(path: Path) -> dict[str, Any]:
+    return json.loads(path.read_text(encoding="utf-8"))  # type: ignore[no-any-return]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workdir", default="/tmp/hdrd-hdrplus", help="drive logs and outputs")
+    ap.add_argument("--routes", type=int, default=12, help="extra routes per drive type")
+    ap.add_argument("--no-write", action="store_true", help="print, do not touch RESULTS.md")
+    ap.add_argument("--tune", type=int, default=0, metavar="N", help="only run the training search")
+    ap.add_argument("--seed", type=int, default=0, help="seed of --tune")
+    args = ap.parse_args()
+    if args.tune:
+        tune(args.tune, args.seed, args.routes)
+        return 0
+
+    W = Path(args.workdir)
+    W.mkdir(parents=True, exist_ok=True)
+    cmds: list[str] = []
+    wq = shlex.quote(str(W))
+    train_files = [W / "train" / f"{s.name}.csv" for s in TRAIN_DRIVES]
+    test_files = [W / "test" / f"{s.name}.csv" for s in TEST_DRIVES]
+    run(hdrd("simulate", "--benchmark", "train", "--out", str(W / "train")), cmds)
+    run(hdrd("simulate", "--benchmark", "test", "--out", str(W / "test")), cmds)
+    run(
+        hdrd(
+            "evaluate", *map(str, train_files), "--method", "hdr+", "--json", str(W / "train.json")
+        ),
+        cmds,
+    )
+    run(
+        hdrd("evaluate", *map(str, test_files), "--method", "hdr+", "--json", str(W / "test.json")),
+        cmds,
+    )
+    cli = {k: evaluate_json(W / f"{k}.json") for k in ("train", "test")}
+    real: list[tuple[str, str, dict[str, Any]]] = []
+    if DATA.is_dir():
+        run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(W / "real")], cmds)
+        sl, cm = W / "real" / "smartloc_berlin.csv", W / "real" / "comma2k19.csv"
+        for label, bias_args, f, out in (
+            (
+                "smartLoc Berlin, bias 0 (the car's sensor taken as zeroed)",
+                ["--bias", "0"],
+                sl,
+                "sl0",
+            ),
+            (
+                f"smartLoc Berlin, bias {SMARTLOC_FIT_BIAS_DPS:+g} deg/s (best static bias in hindsight)",
+                ["--bias", str(SMARTLOC_FIT_BIAS_DPS)],
+                sl,
+                "sl1",
+            ),
+            (
+                "comma2k19, bias = Android's estimate",
+                ["--bias", str(COMMA_ANDROID_BIAS_DPS)],
+                cm,
+                "cm0",
+            ),
+            (
+                "comma2k19, bias from its first second (moving!)",
+                ["--calibrate-seconds", "1"],
+                cm,
+                "cm1",
+            ),
+        ):
+            run(
+                hdrd(
+                    "evaluate",
+                    str(f),
+                    *bias_args,
+                    "--method",
+                    "hdr+",
+                    "--json",
+                    str(W / "real" / f"{out}.json"),
+                ),
+                cmds,
+            )
+            real.append((label, " ".join(bias_args), evaluate_json(W / "real" / f"{out}.json")))
+
+    # In-process: the same drives (prepared as hdrd evaluate does) and more routes per type.
+    print("preparing drive sets ...", flush=True)
+    from hdrd.drivelog import read_drive
+
+    sets: dict[str, tuple[list[PreparedDrive], int]] = {
+        "train": ([prepare_drive(read_drive(f)) for f in train_files], len(TRAIN_DRIVES)),
+        "test": ([prepare_drive(read_drive(f)) for f in test_files], len(TEST_DRIVES)),
+        "train types": (
+            [prepare_drive(d) for d in routes(TRAIN_DRIVES, args.routes)],
+            len(TRAIN_DRIVES),
+        ),
+        "test types": (
+            [prepare_drive(d) for d in routes(TEST_DRIVES, args.routes)],
+            len(TEST_DRIVES),
+        ),
+    }
+    hdr_ref = {
+        k: np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in ps]) for k, (ps, _) in sets.items()
+    }
+    table: list[tuple[str, list[tuple[Variant, dict[str, SetScores]]]]] = []
+    for group, vs in variants():
+        rows = []
+        for v in vs:
+            print(f"  {v.label}", flush=True)
+            rows.append((v, {k: score(v, ps, hdr_ref[k], t) for k, (ps, t) in sets.items()}))
+        table.append((group, rows))
+    # The in-process HDR+ row must be what `hdrd evaluate --method hdr+` printed.
+    plus_row = next(r for g, rs in table for v, r in rs if v.label == "**HDR+ (defaults)**")
+    for k in ("train", "test"):
+        got = [d["NE_psi_hdr+"] for d in cli[k]["drives"]]
+        if not np.allclose(got, plus_row[k].values, rtol=1e-9, atol=1e-12):
+            raise SystemExit(
+                f"in-process HDR+ differs from hdrd evaluate on {k}: {got} vs {plus_row[k].values}"
+            )
+
+    print("calibration study ...", flush=True)
+    cal_a = {
+        k: calibration_rows([read_drive(f) for f in files])
+        for k, files in (("train", train_files), ("test", test_files))
+    }
+    cal_b = {
+        k: drive_off_rows(specs) for k, specs in (("train", TRAIN_DRIVES), ("test", TEST_DRIVES))
+    }
+    us_step, us_batch = step_cost(sets["train"][0][5])
+
+    real_diag = real_diagnostics(W / "real") if real else []
+    section = render(
+        args, cmds, cli, table, sets, real, cal_a, cal_b, us_step, us_batch, wq, real_diag
+    )
+    print(section)
+    if not args.no_write:
+        write_section(section)
+        print(f"wrote {RESULTS.relative_to(REPO)} ({SECTION})")
+    return 0
+
+
+def render(
+    args: argparse.Namespace,
+    cmds: list[str],
+    cli: dict[str, dict[str, Any]],
+    table: list[tuple[str, list[tuple[Variant, dict[str, SetScores]]]]],
+    sets: dict[str, tuple[list[PreparedDrive], int]],
+    real: list[tuple[str, str, dict[str, Any]]],
+    cal_a: dict[str, dict[str, list[float]]],
+    cal_b: dict[str, tuple[dict[str, list[float]], int]],
+    us_step: float,
+    us_batch: float,
+    wq: str,
+    real_diag: list[tuple[str, str, dict[str, float]]],
+) -> str:
+    L: list[str] = [SECTION, ""]
+    L.append(
+        f"Generated by `python bench/hdrplus.py` ({time.strftime('%Y-%m-%d')}, {machine()}; "
+        f"--routes {args.routes}). It runs these commands (outputs in `{wq}`), then the ablation "
+        "and calibration study in-process on the same drives:"
+    )
+    L += ["", "```sh"]
+    L += [c.replace(str(Path(args.workdir)), "$W") for c in cmds]
+    L += ["```", ""]
+    L.append(
+        "**Held out.** HDR+'s parameters (its core's i_c, τ, Θw, c1, c2 and its bias model's "
+        "variances and gate) were tuned on the nine *training* drive types only: a random search "
+        "on more routes of those nine types (seeds `spec.seed + 1000 j`), refined and rounded by "
+        "hand (`python bench/hdrplus.py --tune N` repeats that kind of search). The five *test* "
+        "drives, and the extra routes of the five test types, were never searched; they are "
+        "evaluated here with the parameters fixed. Paper HDR runs with Table III throughout."
+    )
+    L.append("")
+
+    # Headline: per drive, from hdrd evaluate's JSON.
+    L.append("### Held-out test drives and the training drives (`hdrd evaluate --method hdr+`)")
+    L.append("")
+    L.append("| set | drive | Td min | NEψ none | NEψ paper HDR | NEψ HDR+ | HDR+ / HDR |")
+    L.append("|---|---|---|---|---|---|---|")
+    for k in ("test", "train"):
+        for d in cli[k]["drives"]:
+            L.append(
+                f"| {k} | {d['name']} | {d['duration_min']:.1f} | {fm(d['NE_psi_raw'])} | "
+                f"{fm(d['NE_psi_hdr'])} | {fm(d['NE_psi_hdr+'])} | {d['NE_psi_hdr+'] / d['NE_psi_hdr']:.2f} |"
+            )
+        m = cli[k]["mean"]
+        ratios = [d["NE_psi_hdr+"] / d["NE_psi_hdr"] for d in cli[k]["drives"]]
+        L.append(
+            f"| **{k} mean** | | | **{fm(m['NE_psi_raw'])}** | **{fm(m['NE_psi_hdr'])}** | "
+            f"**{fm(m['NE_psi_hdr+'])}** | **{m['NE_psi_hdr+'] / m['NE_psi_hdr']:.2f}** "
+            f"(HDR / HDR+ = {m['NE_psi_hdr'] / m['NE_psi_hdr+']:.2f}×; worst drive {max(ratios):.2f}) |"
+        )
+    L.append("")
+    L.append(
+        f"More routes of each type (`--routes {args.routes}`: {args.routes} per type; mean NEψ, "
+        "and the type where HDR+ did worst relative to HDR, as a ratio of the type's mean NEψ):"
+    )
+    L.append("")
+    L.append(
+        "| drive types | drives | NEψ none | NEψ paper HDR | NEψ HDR+ | HDR / HDR+ | worst type (HDR+ / HDR) |"
+    )
+    L.append("|---|---|---|---|---|---|---|")
+    refs = {v.label: r for g, rs in table for v, r in rs}
+    for k in ("test types", "train types"):
+        none_, hdr_, plus_ = (
+            refs[x][k]
+            for x in (
+                "no correction (static bias only)",
+                "paper HDR, Table III",
+                "**HDR+ (defaults)**",
+            )
+        )
+        wt, wn = plus_.worst_type
+        L.append(
+            f"| {k} | {len(sets[k][0])} | {fm(none_.mean)} | {fm(hdr_.mean)} | {fm(plus_.mean)} | "
+            f"{hdr_.mean / plus_.mean:.2f}× | {wt:.2f} ({wn}) |"
+        )
+    L.append("")
+    L.append("Per drive type (mean NEψ over its routes):")
+    L.append("")
+    L.append("| type | set | NEψ paper HDR | NEψ HDR+ | HDR+ / HDR |")
+    L.append("|---|---|---|---|---|")
+    for k in ("test types", "train types"):
+        h, q = refs["paper HDR, Table III"][k], refs["**HDR+ (defaults)**"][k]
+        for t in range(h.types):
+            mh, mq = float(np.mean(h.values[t :: h.types])), float(np.mean(q.values[t :: q.types]))
+            L.append(f"| {h.names[t]} | {k} | {fm(mh)} | {fm(mq)} | {mq / mh:.2f} |")
+    L.append("")
+
+    # Ablation.
+    L.append("### Ablation: every idea, on training and held-out drives")
+    L.append("")
+    L.append(
+        "Mean NEψ (deg/min) per set; *worst* = the largest NEψ(row) / NEψ(paper HDR) over the "
+        "single drives (train, test) or over the drive types' means (the route sets). Bold "
+        "numbers: the defaults. A row that is worse than the row it modifies did not help."
+    )
+    L.append("")
+    L.append(
+        "| row | train (9) | test (5) | worst drive train / test | train types | test types | worst type train / test |"
+    )
+    L.append("|---|---|---|---|---|---|---|")
+    for group, rows in table:
+        L.append(f"| *{group}* | | | | | | |")
+        for v, r in rows:
+            wd = f"{r['train'].worst_drive[0]:.2f} / {r['test'].worst_drive[0]:.2f}"
+            wts = f"{r['train types'].worst_type[0]:.2f} / {r['test types'].worst_type[0]:.2f}"
+            L.append(
+                f"| {v.label} | {fm(r['train'].mean)} | {fm(r['test'].mean)} | {wd} | "
+                f"{fm(r['train types'].mean)} | {fm(r['test types'].mean)} | {wts} |"
+            )
+    L.append("")
+
+    # Calibration.
+    L.append("### A 1 s start-up calibration plus standstill re-calibration vs a 30 s one")
+    L.append("")
+    L.append(
+        "**A — the benchmark's drives** (30 s standstill after power-on, then driving): every "
+        "row is scored on the same steps, from 30 s on; the 1 s rows start running at 1 s, so "
+        "HDR+ sees the remaining 29 s of standstill as a stop. Mean NEψ, deg/min:"
+    )
+    L.append("")
+    L.append("| method | train (9) | test (5) |")
+    L.append("|---|---|---|")
+    for key in cal_a["train"]:
+        L.append(
+            f"| {key} | {fm(float(np.mean(cal_a['train'][key])))} | {fm(float(np.mean(cal_a['test'][key])))} |"
+        )
+    L.append("")
+    L.append(
+        "**B — drive off after 1 s** (the same routes, legs, temperature profiles and gyro "
+        "with only 1 s of standstill after power-on; HDR+ can re-calibrate only at the stops "
+        f"during the drive: {cal_b['train'][1]} standstill steps in the nine, "
+        f"{cal_b['test'][1]} in the five). The 30 s reference rows are given the bias a 30 s "
+        "calibration at power-on would have measured (the gyro output minus its scaled true rate, "
+        "averaged over the first 30 s: known in simulation only). Mean NEψ, deg/min:"
+    )
+    L.append("")
+    L.append("| method | train (9) | test (5) |")
+    L.append("|---|---|---|")
+    for key in cal_b["train"][0]:
+        L.append(
+            f"| {key} | {fm(float(np.mean(cal_b['train'][0][key])))} | {fm(float(np.mean(cal_b['test'][0][key])))} |"
+        )
+    L.append("")
+
+    # Real recordings.
+    L.append("### Real recordings (`../shared/data/`, converted by `tools/convert_real.py`)")
+    L.append("")
+    if not real:
+        L.append("Skipped: ../shared/data/ is not present on this machine.")
+    else:
+        L.append(
+            "| recording | bias | Td min | Eψ none | Eψ paper HDR | Eψ HDR+ | NEψ none | NEψ HDR | NEψ HDR+ |"
+        )
+        L.append("|---|---|---|---|---|---|---|---|---|")
+        for label, bias, doc in real:
+            d = doc["drives"][0]
+            L.append(
+                f"| {label} | `{bias}` | {d['duration_min']:.1f} | {fm(d['E_psi_raw'], 2)}° | {fm(d['E_psi_hdr'], 2)}° | "
+                f"{fm(d['E_psi_hdr+'], 2)}° | {fm(d['NE_psi_raw'])} | {fm(d['NE_psi_hdr'])} | {fm(d['NE_psi_hdr+'])} |"
+            )
+    L.append("")
+    if real_diag:
+        L.append(
+            "Post hoc, to explain the table (nothing was chosen from it): HDR+ on the same "
+            "recordings with inputs withheld or with a vaguer prior on the given bias "
+            "(`bias_p0` = 2.6e-3 (deg/s)², the accuracy of a 1 s calibration, instead of a "
+            "30 s one's 8e-5). Eψ in degrees:"
+        )
+        L.append("")
+        L.append("| recording | bias | " + " | ".join(real_diag[0][2]) + " |")
+        L.append("|---|---|" + "---|" * len(real_diag[0][2]))
+        for label, bias, cols in real_diag:
+            L.append(
+                f"| {label} | `{bias}` | "
+                + " | ".join(f"{fm(v, 2)}°" for v in cols.values())
+                + " |"
+            )
+        L.append("")
+    L.append(
+        f"Cost: `hdrplus.step` {us_step:.1f} µs per step (the daemon runs one per second), "
+        f"`hdrplus.run_batch` {us_batch:.1f} µs per step (highway1, best of 3)."
+    )
+    L.append("")
+    L.append(DISCUSSION.strip())
+    L.append("")
+    return "\n".join(L) + "\n"
+
+
+DISCUSSION = """
+### Discussion
+
+(written after the run; see docs/hdrplus.md for the design)
+"""
+
+
+def write_section(section: str) -> None:
+    """Replace this script's section of RESULTS.md (or append it), leaving the rest alone."""
+    text = (
+        RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    )
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == SECTION), None)
+    if start is None:
+        if not text.endswith("\n\n"):
+            text = text.rstrip("\n") + "\n\n"
+        RESULTS.write_text(text + section, encoding="utf-8")
+        return
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    tail = "".join(lines[end:])
+    RESULTS.write_text(
+        "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

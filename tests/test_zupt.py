@@ -1,0 +1,260 @@
+"""Standstill detection and bias refinement (hdrd/zupt.py), alone and inside HDR+.
+
+Rates in deg/s, + = CCW; speeds m/s; temperatures degC. Inputs are hand-made step sequences
+(block mean u = raw mean - eps0, within-block spread), not simulator output, so each test
+states exactly what the detector sees.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hdrd import zupt
+from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, run_batch, step
+from hdrd.zupt import (
+    INITIAL_BIAS,
+    BiasState,
+    StandstillParams,
+    block_mean_variance,
+    standstill_candidate,
+    update,
+)
+
+NAN = math.nan
+SS = StandstillParams()
+
+
+# -- the detector on single steps ----------------------------------------------------------
+
+
+def test_stopped_and_quiet_with_speed_is_a_candidate() -> None:
+    assert standstill_candidate(0.02, 0.15, 0.0, SS) == (True, SS.steps_speed)
+    assert SS.steps_speed < SS.steps_gyro  # speed is trusted sooner than the gyro alone
+
+
+def test_slow_straight_drive_above_the_speed_threshold_is_not_standstill() -> None:
+    # 1.5 m/s, no rotation, a gyro as quiet as at rest: speed alone says "moving".
+    assert standstill_candidate(0.0, 0.1, 1.5, SS)[0] is False
+    assert standstill_candidate(0.0, 0.1, SS.speed_mps + 1e-9, SS)[0] is False
+    assert standstill_candidate(0.0, 0.1, SS.speed_mps, SS)[0] is True
+
+
+def test_speed_zero_but_gyro_rotating_is_not_standstill() -> None:
+    # A car cannot turn on the spot: a stale speed must not freeze a real turn.
+    assert standstill_candidate(5.0, 0.2, 0.0, SS)[0] is False
+    assert standstill_candidate(0.0, 2.0, 0.0, SS)[0] is False  # a bump or a turn in the block
+
+
+def test_unknown_spread_is_not_checked_when_speed_is_known() -> None:
+    assert standstill_candidate(0.0, NAN, 0.0, SS)[0] is True
+
+
+def test_gyro_only_needs_its_switch_quiet_and_several_steps() -> None:
+    off = StandstillParams(gyro_only=False)
+    assert standstill_candidate(0.0, 0.05, NAN, off)[0] is False
+    on = StandstillParams(gyro_only=True, steps_gyro=7)
+    assert standstill_candidate(0.0, 0.05, NAN, on) == (True, 7)
+    assert standstill_candidate(0.0, on.gyro_spread_dps * 1.5, NAN, on)[0] is False  # not quiet
+    assert standstill_candidate(on.gyro_level_dps * 2, 0.05, NAN, on)[0] is False  # rotating
+    assert standstill_candidate(0.0, NAN, NAN, on)[0] is False  # nothing to judge by
+    assert standstill_candidate(0.0, 0.0, 0.0, StandstillParams(enabled=False))[0] is False
+
+
+def test_params_are_checked() -> None:
+    with pytest.raises(ValueError, match="speed_mps"):
+        StandstillParams(speed_mps=-1.0)
+    with pytest.raises(ValueError, match="steps_gyro"):
+        StandstillParams(steps_gyro=0)
+    with pytest.raises(ValueError, match="samples_per_step"):
+        StandstillParams(samples_per_step=0.0)
+
+
+# -- the detector over step sequences, inside HDR+ -------------------------------------------
+
+
+def _run(
+    u: list[float], spread: list[float], speed: list[float], params: HdrPlusParams
+) -> np.ndarray:
+    return run_batch(u, spread, speed, None, 1.0, params).standstill
+
+
+def test_a_stationary_block_sequence_is_detected_with_speed() -> None:
+    n, k = 20, SS.steps_speed
+    still = _run([0.01] * n, [0.15] * n, [0.0] * n, HdrPlusParams())
+    assert still.tolist() == [False] * (k - 1) + [True] * (n - k + 1)
+    one = HdrPlusParams(standstill=StandstillParams(steps_speed=1))
+    assert _run([0.01] * n, [0.15] * n, [0.0] * n, one).all()
+
+
+def test_a_halt_shorter_than_steps_speed_is_not_used() -> None:
+    # A rolling halt between two manoeuvres (one or two steps at zero speed, the car still
+    # yawing as it brakes) must not be taken for a bias measurement.
+    u = [2.0] * 5 + [-0.1, -0.1] + [-2.0] * 5
+    speed = [1.0] * 5 + [0.0, 0.0] + [1.0] * 5
+    tr = run_batch(u, [0.2] * 12, speed, None, 1.0, HdrPlusParams())
+    assert not tr.standstill.any()
+    assert np.all(np.abs(tr.bias_corr_dps) < 0.01)
+
+
+def test_a_slow_straight_drive_is_not_detected() -> None:
+    n = 30
+    still = _run([0.01] * n, [0.15] * n, [2.0] * n, HdrPlusParams())
+    assert not still.any()
+
+
+def test_gyro_only_detection_requires_quiet_for_several_steps() -> None:
+    p = HdrPlusParams(standstill=StandstillParams(gyro_only=True, steps_gyro=5))
+    quiet = [0.02] * 12
+    still = _run(quiet, [0.1] * 12, [NAN] * 12, p)
+    assert still.tolist() == [False] * 4 + [True] * 8
+    # A loud step (a bump) restarts the count; so does a rotating one.
+    spread = [0.1] * 12
+    spread[6] = 1.0
+    still = _run(quiet, spread, [NAN] * 12, p)
+    assert still.tolist() == [False] * 4 + [True] * 2 + [False] * 5 + [True]
+    rot = list(quiet)
+    rot[3] = 0.5
+    assert _run(rot, [0.1] * 12, [NAN] * 12, p).tolist() == [False] * 8 + [True] * 4
+    # Without the switch, an unknown speed never means standstill.
+    assert not _run(quiet, [0.1] * 12, [NAN] * 12, HdrPlusParams()).any()
+
+
+def test_yaw_does_not_move_at_standstill() -> None:
+    # Driving with a residual bias makes yaw move; at standstill omega is 0 whatever u is.
+    u = [0.2] * 75
+    speed = [10.0] * 10 + [0.0] * 60 + [10.0] * 5
+    tr = run_batch(u, [0.15] * 75, speed, None, 1.0, HdrPlusParams())
+    a = 10 + SS.steps_speed - 1  # the first zero-rate update
+    assert tr.standstill.tolist() == [False] * a + [True] * (70 - a) + [False] * 5
+    assert np.all(tr.omega[a:70] == 0.0)
+    assert np.all(tr.yaw[a:70] == tr.yaw[a - 1])
+    assert tr.yaw[a - 1] > 1.0
+    # ... and after the stop most of the bias it measured (0.2) is removed: the estimate
+    # weighs the stop against its prior (the start-up eps0), so not all of it at once.
+    assert abs(tr.omega[70]) < 0.2 * 0.2
+    assert tr.bias_corr_dps[69] == pytest.approx(0.2, abs=0.04)
+
+
+def test_zero_rate_update_through_step_publishes_standstill() -> None:
+    # A start-up bias known to +-1 deg/s only; stops count from their first step.
+    vague = HdrPlusParams(bias_p0=1.0, standstill=StandstillParams(steps_speed=1))
+    s = INITIAL_PLUS_STATE
+    s, o = step(s, PlusInput(0.5, 0.1, 0.0, NAN, 1.0), vague)
+    assert o.standstill and o.omega == 0.0 and o.yaw == 0.0 and o.W == 0
+    assert o.bias_corr_dps == pytest.approx(0.5, rel=0.01)
+    s, o = step(s, PlusInput(0.5, 0.1, 5.0, NAN, 1.0), vague)
+    assert not o.standstill and abs(o.omega) < 0.05
+
+
+# -- bias refinement ----------------------------------------------------------------------------
+
+
+def test_bias_converges_to_the_true_bias_on_a_noisy_stationary_segment() -> None:
+    rng = np.random.default_rng(1)
+    true_bias, sigma, n_samples, steps = 0.137, 0.16, 10, 120
+    # Block means of n_samples white samples: the spread is sigma, the mean's noise sigma/sqrt(n).
+    u = true_bias + sigma / math.sqrt(n_samples) * rng.standard_normal(steps)
+    # A bias that does not wander (q = 0) and a vague start-up prior: the filter's answer
+    # is then the mean of the block means, as good as the samples allow.
+    p = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=0.0)
+    tr = run_batch(u, np.full(steps, sigma), np.zeros(steps), None, 1.0, p)
+    used = steps - (SS.steps_speed - 1)  # the first steps of a stop are not measurements
+    expect_sd = math.sqrt(sigma**2 + SS.noise_floor_dps**2) / math.sqrt(n_samples * used)
+    assert abs(tr.bias_corr_dps[-1] - true_bias) < 4 * expect_sd
+    # The filter knows how well it knows: its standard deviation is about that of the mean.
+    assert tr.bias_sd_dps[-1] == pytest.approx(expect_sd, rel=0.15)
+    assert np.all(np.diff(tr.bias_sd_dps[SS.steps_speed - 1 :]) <= 0)
+
+
+def test_a_wandering_bias_is_followed_from_stop_to_stop() -> None:
+    # Default model without temperature: the bias may wander (bias_q_no_temp), so a later
+    # stop that sees a different bias moves the estimate most of the way there.
+    n = 40
+    u = [0.10] * n + [0.18] * n
+    speed = [0.0] * (2 * n)
+    tr = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0))
+    assert tr.bias_corr_dps[n - 1] == pytest.approx(0.10, abs=0.005)
+    assert tr.bias_corr_dps[-1] == pytest.approx(0.18, abs=0.01)
+
+
+def _weighted_mean(z: list[float], r: list[float]) -> float:
+    w = [1 / v for v in r]
+    return sum(wi * zi for wi, zi in zip(w, z, strict=True)) / sum(w)
+
+
+def test_stops_weigh_by_duration_and_quietness() -> None:
+    # With a vague prior and no random walk, the estimate is the inverse-variance weighted
+    # mean of the stops' block means: a long stop outweighs a short one, a quiet one a loud one.
+    p0 = 1e6
+    ss = StandstillParams()
+    stops = [(0.10, 0.1, 20), (0.20, 0.4, 20), (0.40, 0.1, 2)]  # (bias seen, spread, steps)
+    state = INITIAL_BIAS
+    state = zupt.init_bias(state, p0, 0.0)
+    z: list[float] = []
+    r: list[float] = []
+    for bias, spread, steps in stops:
+        for _ in range(steps):
+            var = block_mean_variance(spread, ss)
+            state = update(state, bias, var, 0.0)
+            z.append(bias)
+            r.append(var)
+    assert state.b == pytest.approx(_weighted_mean(z, r), abs=1e-6)
+    # The quiet 20-step stop dominates: the estimate sits near 0.10, not at the plain mean.
+    plain = float(np.mean([s[0] for s in stops]))
+    assert abs(state.b - 0.10) < abs(state.b - plain) / 2
+
+
+def test_temperature_coefficient_is_learned_from_stops_at_different_temperatures() -> None:
+    b_true, k_true, t0 = 0.05, 0.009, 8.0
+    p = HdrPlusParams(bias_p0=1.0)
+    u, spread, speed, temp = [], [], [], []
+    for t_c in (8.0, 12.0, 16.0, 20.0):
+        for _ in range(15):
+            u.append(b_true + k_true * (t_c - t0))
+            spread.append(0.1)
+            speed.append(0.0)
+            temp.append(t_c)
+    tr = run_batch(u, spread, speed, temp, 1.0, p)
+    assert tr.temp_coeff_dps_per_c[-1] == pytest.approx(k_true, rel=0.05)
+    assert tr.bias_corr_dps[-1] == pytest.approx(b_true + k_true * 12.0, abs=2e-3)
+
+
+@given(
+    b=st.floats(-1, 1),
+    k=st.floats(-0.05, 0.05),
+    p_bb=st.floats(1e-8, 1.0),
+    p_kk=st.floats(1e-8, 1e-2),
+    rho=st.floats(-0.9, 0.9),
+    z=st.floats(-2, 2),
+    r=st.floats(1e-6, 1.0),
+    dT=st.floats(-30, 30),
+)
+def test_update_is_the_kalman_update(
+    b: float, k: float, p_bb: float, p_kk: float, rho: float, z: float, r: float, dT: float
+) -> None:
+    p_bk = rho * math.sqrt(p_bb * p_kk)
+    s = BiasState(b, k, p_bb, p_bk, p_kk, 0.0)
+    out = update(s, z, r, dT)
+    P = np.array([[p_bb, p_bk], [p_bk, p_kk]])
+    h = np.array([1.0, dT])
+    K = P @ h / (h @ P @ h + r)
+    x = np.array([b, k]) + K * (z - h @ np.array([b, k]))
+    P2 = (np.eye(2) - np.outer(K, h)) @ P
+    assert [out.b, out.k] == pytest.approx(x.tolist(), rel=1e-9, abs=1e-12)
+    assert [out.p_bb, out.p_bk, out.p_kk] == pytest.approx(
+        [P2[0, 0], P2[0, 1], P2[1, 1]], rel=1e-6, abs=1e-15
+    )
+    assert out.p_bb <= p_bb + 1e-15  # a measurement never makes the bias less certain
+
+
+def test_predict_and_prior() -> None:
+    s = zupt.init_bias(INITIAL_BIAS, 2.5e-3, 0.01)
+    assert (s.p_bb, s.p_kk, s.p_bk) == (2.5e-3, pytest.approx(1e-4), 0.0)
+    assert zupt.init_bias(s, 1.0, 1.0) is s  # set once
+    assert zupt.predict(s, 1e-6, 10.0).p_bb == pytest.approx(2.5e-3 + 1e-5)
+    assert zupt.correction(s._replace(b=0.1, k=0.01), 5.0) == pytest.approx(0.15)
