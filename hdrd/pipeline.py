@@ -47,10 +47,14 @@ TEMP_NOT_FITTED = -32768
 
 
 class FrameLike(Protocol):
-    t_us: int
-    rate: int
-    ref: int
+    """What the pipeline reads of a frame (hdrd.frames.Frame, or a capture row)."""
 
+    @property
+    def t_us(self) -> int: ...
+    @property
+    def rate(self) -> int: ...
+    @property
+    def ref(self) -> int: ...
     @property
     def temp_c(self) -> float | None: ...
 
@@ -226,15 +230,16 @@ class Pipeline:
     def resync(self, gap_s: float | None = None, bad_frames: int = 0, now: float | None = None) -> list[Message]:
         """The device went away and is back (its clock may have restarted from zero).
 
-        Closes the open block, then cuts new block edges from the next sample; heading, the
-        controller, step numbers and device time ``t`` carry on. ``gap_s`` (wall-clock
-        seconds without data) is reported in the next step's message; the steps missed are
-        not invented.
+        Closes the open block, then cuts new block edges from the next sample; heading and
+        the controller carry on. ``gap_s`` (wall-clock seconds without data) is reported in
+        the next step's message, and step numbers and ``t`` move on by it, as they do across
+        a gap within a connection: the steps missed are skipped, not invented.
         """
         out = self.finish(bad_frames, now)
         if self._last_step is not None:
-            self._step_offset = self._last_step + 1
-            self._t_offset = self._t_last
+            missed = int(gap_s // self.config.params.T) if gap_s and gap_s > 0 else 0
+            self._step_offset = self._last_step + 1 + missed
+            self._t_offset = self._t_last + missed * self.config.params.T
         self._clock = DeviceClock()
         self._avg = BlockAverager(self.config.params.T)
         if gap_s:
@@ -320,6 +325,23 @@ class Pipeline:
                 {"bias_dps": rec.bias_dps, "std_dps": rec.std_dps, "samples": rec.n, "source": "startup"},
             )
         )
+
+    def until_step_s(self) -> float | None:
+        """Device seconds from the last sample to one sample interval before the open block
+        ends: how long the port may go unread without delaying the next step, if the device
+        clock runs at the host's rate (the sample that closes the step arrives at the block's
+        end at the earliest). None until the open block holds two samples.
+
+        The interval is (last - block start) / (n - 1), never less than the mean interval, so
+        the answer errs early. The daemon uses it to read the port in batches.
+        """
+        block = self._avg.open_block
+        last = self._clock.last_us
+        if block is None or last is None or block[2] < 2:
+            return None
+        start, end, n = block
+        interval = max(last - start, 0) / (n - 1)
+        return (end - last - interval) / 1e6
 
     # -- while no data arrives -------------------------------------------------------------
 

@@ -144,12 +144,14 @@ def test_resync_keeps_heading_and_numbers():
     after = run_live(p, make_frames(np.full(21, 2.0), t0_us=123))
     msgs = first + resumed + after
     steps = [m["step"] for m in msgs]
-    assert steps == list(range(len(steps)))
+    # 7.5 s out: 7 steps skipped (not invented), then the numbers go on
+    assert steps == list(range(len(first) + len(resumed))) + [s + 7 for s in range(len(first) + len(resumed), len(msgs))]
     yaws = [m["yaw"] for m in msgs]
     assert all(b > a for a, b in zip(yaws, yaws[1:]))  # heading continuous, no reset
     assert after[0]["gap_s"] == 7.5
     ts = [m["t"] for m in msgs]
     assert all(b > a for a, b in zip(ts, ts[1:]))
+    assert after[0]["t"] - resumed[-1]["t"] == 7.0 + 1.0
 
 
 def run_live_no_finish(p: Pipeline, frames: list[F]) -> list[dict]:
