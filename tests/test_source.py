@@ -140,18 +140,26 @@ def test_unusable_url_is_a_clear_error() -> None:
 
 def test_pty_eof_is_device_lost_once_then_quiet(tmp_path: Path) -> None:
     master, slave = os.openpty()
-    path = os.ttyname(slave)
+    # Through a link removed at the unplug: a freed /dev/pts/N may be handed to another
+    # process at once, and reopening it must not look like the gyro coming back.
+    path = tmp_path / "gyro"
+    path.symlink_to(os.ttyname(slave))
     os.close(slave)
     try:
-        with SerialSource(path, reconnect_min_s=0.05, reconnect_max_s=0.1) as src:
+        with SerialSource(str(path), reconnect_min_s=0.05, reconnect_max_s=0.1) as src:
             sent = array_to_frames(frames_array(5))
             os.write(master, b"".join(encode_bin(f) for f in sent))
             got, _ = collect(src, until=5)
             assert got == sent
             assert src.recv(0.05) is None  # silent device: no data, still connected
+            path.unlink()
             os.close(master)
             master = -1
-            item = src.recv(1.0)
+            item = None
+            for _ in range(200):  # bounded: only a hung source gets here
+                item = src.recv(0.05)
+                if item is not None:
+                    break
             assert isinstance(item, DeviceLost) and item.reason
             assert src.port is None and src.link.lost == 1
             # The pty is gone for good: it keeps trying, never raises, reports nothing new.
