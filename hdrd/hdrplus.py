@@ -458,6 +458,8 @@ def run_batch(
         o_k[i] = k
         I = I_next
         s_prev = s
+    if n == 0:  # as a loop of step() that never ran: not even the prior is set
+        return PlusTrace(o_omega, o_yaw, o_I, o_W, o_R, o_r, o_y, o_corr, o_still, o_sd, o_k, state)
     final = PlusState(
         HdrState(x=x, I=I, yaw=yaw, r=r, s=s_prev, n=n0 + n),
         BiasState(b, k, p_bb, p_bk, p_kk, t_ref),

@@ -1,0 +1,272 @@
+"""HDR+ (hdrd/hdrplus.py): per-step vs batch, paper HDR as the all-off special case, the bias
+model while driving, a simulated drive where it beats HDR, and `hdrd evaluate --method hdr+`.
+
+Rates in deg/s, + = CCW; speeds m/s; temperatures degC; steps of T seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hdrd import hdr
+from hdrd.analysis.evaluate import evaluate_drive
+from hdrd.cli import main as cli_main
+from hdrd.drivelog import read_drive, write_drive
+from hdrd.hdr import HdrParams
+from hdrd.hdrplus import (
+    INITIAL_PLUS_STATE,
+    PLUS_CORE,
+    HdrPlusParams,
+    PlusInput,
+    PlusOutput,
+    PlusState,
+    run_batch,
+    step,
+)
+from hdrd.sim import simulate_legs
+from hdrd.sim.benchmark import VARIANTS
+from hdrd.sim.vehicle import CabinTemperature
+from hdrd.zupt import StandstillParams
+
+NAN = math.nan
+
+# -- strategies ------------------------------------------------------------------------------
+
+maybe_nan = st.floats(allow_nan=False, allow_infinity=False)
+rate = st.floats(-5.0, 5.0)
+spread = st.one_of(st.just(NAN), st.floats(0.0, 1.0))
+speed = st.one_of(st.just(NAN), st.just(0.0), st.floats(0.0, 30.0))
+temp = st.one_of(st.just(NAN), st.floats(-10.0, 40.0))
+rows = st.lists(st.tuples(rate, spread, speed, temp), min_size=0, max_size=60)
+
+
+@st.composite
+def core_params(draw: st.DrawFn) -> HdrParams:
+    return HdrParams(
+        i_c=draw(st.floats(0.0, 0.1)),
+        tau=draw(st.floats(0.0, 3.0)),
+        theta_w=draw(st.floats(0.01, 2.0)),
+        c1=draw(st.floats(0.0, 1.0)),
+        c2=draw(st.floats(0.0, 3.0)),
+        T=draw(st.sampled_from([0.5, 1.0, 2.0])),
+        lowpass=draw(st.booleans()),
+        turn_switch=draw(st.booleans()),
+        attenuator=draw(st.booleans()),
+        enabled=draw(st.booleans()),
+    )
+
+
+@st.composite
+def plus_params(draw: st.DrawFn) -> HdrPlusParams:
+    ss = StandstillParams(
+        enabled=draw(st.booleans()),
+        speed_mps=draw(st.floats(0.0, 2.0)),
+        level_dps=draw(st.floats(0.0, 2.0)),
+        steps_speed=draw(st.integers(1, 4)),
+        gyro_only=draw(st.booleans()),
+        gyro_level_dps=draw(st.floats(0.0, 2.0)),
+        steps_gyro=draw(st.integers(1, 6)),
+    )
+    return HdrPlusParams(
+        hdr=draw(core_params()),
+        standstill=ss,
+        bias_p0=draw(st.floats(1e-6, 1.0)),
+        bias_q=draw(st.floats(0.0, 1e-3)),
+        bias_q_no_temp=draw(st.floats(0.0, 1e-3)),
+        temp_model=draw(st.booleans()),
+        temp_coeff_sd=draw(st.floats(0.0, 0.05)),
+        straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
+        straight_gate_dps=draw(st.floats(0.0, 2.0)),
+        gate_speed_mps=draw(st.sampled_from([0.0, 3.0])),
+        holdoff_steps=draw(st.integers(0, 4)),
+        adapt_gain=draw(st.sampled_from([0.0, 1.0])),
+    )
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal, with NaN equal to NaN (a state's t_ref is NaN until a temperature is seen)."""
+    if isinstance(a, tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and math.isnan(a):
+        return isinstance(b, float) and math.isnan(b)
+    return bool(a == b) and type(a) is type(b)
+
+
+def _loop(
+    data: list[tuple[float, float, float, float]], params: HdrPlusParams, T: float
+) -> tuple[list[PlusOutput], PlusState]:
+    s = INITIAL_PLUS_STATE
+    outs = []
+    for u, sp, v, tc in data:
+        s, o = step(s, PlusInput(u, sp, v, tc, T), params)
+        outs.append(o)
+    return outs, s
+
+
+def _columns(
+    data: list[tuple[float, float, float, float]],
+) -> tuple[list[float], list[float], list[float], list[float]]:
+    return [r[0] for r in data], [r[1] for r in data], [r[2] for r in data], [r[3] for r in data]
+
+
+# -- per step vs batch -----------------------------------------------------------------------
+
+
+@given(data=rows, params=plus_params())
+def test_batch_is_bit_identical_to_step(
+    data: list[tuple[float, float, float, float]], params: HdrPlusParams
+) -> None:
+    T = params.hdr.T
+    outs, final = _loop(data, params, T)
+    u, sp, v, tc = _columns(data)
+    tr = run_batch(u, sp, v, tc, T, params)
+    for name in PlusOutput._fields:
+        got = getattr(tr, name).tolist()
+        want = [getattr(o, name) for o in outs]
+        assert all(_same(float(g), float(w)) for g, w in zip(got, want, strict=True)), name
+    assert _same(tr.final, final)
+
+
+@given(data=rows, params=plus_params())
+def test_batch_continues_from_a_state(
+    data: list[tuple[float, float, float, float]], params: HdrPlusParams
+) -> None:
+    # Two halves, the second started from the first's final state: as one run.
+    T = params.hdr.T
+    h = len(data) // 2
+    whole = run_batch(*_columns(data), T, params)
+    a = run_batch(*_columns(data[:h]), T, params)
+    b = run_batch(*_columns(data[h:]), T, params, a.final)
+    assert np.array_equal(np.concatenate([a.yaw, b.yaw]), whole.yaw, equal_nan=True)
+    assert _same(b.final, whole.final)
+
+
+def test_inputs_may_be_none_scalar_or_per_step() -> None:
+    u = [0.1, -0.2, 0.3]
+    a = run_batch(u)
+    b = run_batch(u, [NAN] * 3, NAN, [NAN] * 3, 1.0)
+    assert np.array_equal(a.yaw, b.yaw)
+    with pytest.raises(ValueError, match="speed must have one value per step"):
+        run_batch(u, None, [1.0, 2.0])
+    empty = run_batch([])
+    assert empty.yaw.shape == (0,) and _same(empty.final, run_batch([]).final)
+
+
+def test_params_are_checked() -> None:
+    with pytest.raises(ValueError, match="straight_r"):
+        HdrPlusParams(straight_r=-1.0)
+    with pytest.raises(ValueError, match="bias_q"):
+        HdrPlusParams(bias_q=math.inf)
+    with pytest.raises(ValueError, match="holdoff_steps"):
+        HdrPlusParams(holdoff_steps=-1)
+    assert HdrPlusParams().hdr == PLUS_CORE
+    assert HdrPlusParams().with_(holdoff_steps=2).holdoff_steps == 2
+
+
+# -- paper HDR is HDR+ with every extra off -------------------------------------------------------
+
+
+@given(u=st.lists(rate, max_size=80), core=core_params(), extras=rows)
+def test_all_extras_off_is_paper_hdr_bit_identical(
+    u: list[float], core: HdrParams, extras: list[tuple[float, float, float, float]]
+) -> None:
+    n = len(u)
+    # Whatever spread, speed and temperature come with it: they must not matter.
+    ex = (extras * (n // max(len(extras), 1) + 1))[:n] if extras else [(NAN, NAN, NAN, NAN)] * n
+    sp, v, tc = ([e[k] for e in ex] for k in (1, 2, 3))
+    paper = hdr.run_batch(u, core)
+    plus = run_batch(u, sp, v, tc, core.T, HdrPlusParams.paper(core))
+    for name in ("omega", "yaw", "I", "W", "R", "r", "filtered"):
+        assert np.array_equal(getattr(plus, name), getattr(paper, name)), name
+    assert plus.final.core == paper.final
+    assert not plus.standstill.any() and np.all(plus.bias_corr_dps == 0.0)
+    # ... and the per-step form against hdr.step.
+    s, hs = INITIAL_PLUS_STATE, hdr.INITIAL_STATE
+    for i in range(n):
+        s, o = step(s, PlusInput(u[i], sp[i], v[i], tc[i], core.T), HdrPlusParams.paper(core))
+        hs, ho = hdr.step(hs, u[i], core)
+        assert tuple(o)[:7] == tuple(ho)
+
+
+def test_paper_defaults_are_table_iii() -> None:
+    assert HdrPlusParams.paper().hdr == HdrParams()
+
+
+# -- the bias model while driving -----------------------------------------------------------------
+
+
+def test_temperature_coefficient_is_learned_while_driving_straight() -> None:
+    # A straight drive (true rate 0 plus swaying) with the bias rising 0.01 deg/s per degC as
+    # the cabin warms 5 -> 20 degC over 20 min; no stops. The model learns k from straight
+    # driving alone and removes most of the drift.
+    rng = np.random.default_rng(3)
+    n = 1200
+    t = np.arange(n)
+    tc = 5.0 + 15.0 * (1.0 - np.exp(-t / 400.0))
+    k_true = 0.01
+    sway = 0.08 * np.sin(2 * np.pi * t / 9.0)
+    u = k_true * (tc - tc[0]) + sway + 0.05 * rng.standard_normal(n)
+    tr = run_batch(u, np.full(n, 0.16), np.full(n, 20.0), tc, 1.0, HdrPlusParams())
+    assert tr.temp_coeff_dps_per_c[-1] == pytest.approx(k_true, rel=0.3)
+    assert tr.bias_corr_dps[-1] == pytest.approx(k_true * (tc[-1] - tc[0]), rel=0.2)
+    assert abs(tr.yaw[-1]) < 0.25 * abs(np.sum(u))
+
+
+def test_turns_do_not_move_the_bias_model() -> None:
+    # 90 deg turns at 9 deg/s are far beyond the gate: b stays where the straights put it.
+    u = np.zeros(200)
+    for start in (30, 90, 150):
+        u[start : start + 10] = 9.0
+    tr = run_batch(
+        u, np.full(200, 0.2), np.full(200, 8.0), np.full(200, 20.0), 1.0, HdrPlusParams()
+    )
+    assert np.max(np.abs(tr.bias_corr_dps)) < 1e-3
+    assert tr.yaw[-1] == pytest.approx(270.0, abs=0.5)
+
+
+# -- a simulated drive where HDR+ beats HDR ------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_hdrplus_beats_hdr_on_a_simulated_drive(seed: int) -> None:
+    # 30 min: city streets with traffic-light stops at both ends, a curving highway between,
+    # in a cabin warming from 5 to 21 degC: paper HDR's integrator chases the long curves,
+    # HDR+'s slow bias model does not.
+    legs = [(VARIANTS["city"], 0.1), (VARIANTS["highway_curvy"], 0.8), (VARIANTS["city"], 0.1)]
+    warm = CabinTemperature(start_c=5.0, end_c=21.0, tau_s=400.0)
+    log = simulate_legs(legs, 30.0, seed, temperature=warm)
+    assert log.speed is not None and np.any(log.speed[300:] == 0.0)  # it does stop
+    r = evaluate_drive(log, methods=("hdr", "hdr+"))
+    assert r.ne_psi["hdr+"] < 0.9 * r.ne_psi["hdr"] < 0.9 * r.ne_psi["none"]
+
+
+# -- hdrd evaluate --method hdr+ ---------------------------------------------------------------------
+
+
+def test_cli_evaluate_hdrplus_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    legs = [(VARIANTS["city"], 0.5), (VARIANTS["suburbs"], 0.5)]
+    log = simulate_legs(legs, 4.0, 5, name="short")
+    path = tmp_path / "short.csv"
+    write_drive(path, log)
+    out = tmp_path / "e.json"
+    assert cli_main(["evaluate", str(path), "--method", "hdr+", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "NEpsi hdr+" in text and "NEpsi hdr " in text
+    doc = json.loads(out.read_text())
+    d = doc["drives"][0]
+    for key in ("E_psi_raw", "E_psi_hdr", "E_psi_hdr+", "NE_psi_raw", "NE_psi_hdr", "NE_psi_hdr+"):
+        assert isinstance(d[key], float) and d[key] >= 0.0, key
+        assert key in doc["mean"]
+    assert {"improvement", "improvement_hdr", "improvement_hdr+"} <= set(d)
+    # The numbers are those of the library call on the file (and the JSON's NEψ = Eψ / Td).
+    r = evaluate_drive(read_drive(path), methods=("hdr", "hdr+"))
+    assert d["E_psi_hdr+"] == pytest.approx(r.e_psi["hdr+"], rel=1e-12)
+    assert d["NE_psi_hdr+"] == pytest.approx(d["E_psi_hdr+"] / d["duration_min"], rel=1e-12)
