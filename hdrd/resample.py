@@ -56,6 +56,11 @@ class DeviceClock:
         self.rejected = 0
         self.resets = 0
 
+    @property
+    def last_us(self) -> int | None:
+        """The last accepted sample's unwrapped time, us (None before the first)."""
+        return None if self._last_raw is None else self._last
+
     def unwrap(self, t_us: int) -> int | None:
         """Monotonic device time in us for a raw 32-bit timestamp, or None if rejected."""
         if self._last_raw is None:
@@ -196,6 +201,15 @@ class BlockAverager:
         self._temp_n = 0
         self._sat = 0
         self.late = 0  # samples in a step already closed (only after flush, with DeviceClock)
+
+    @property
+    def open_block(self) -> tuple[int, int, int] | None:
+        """The open block: (start, end) in unwrapped device us and its sample count; None
+        before the first sample."""
+        if self.t0_us is None:
+            return None
+        start = self.t0_us + self._index * self.T_us
+        return start, start + self.T_us, self._n
 
     def _edges(self, index: int, count: int = 1) -> tuple[float, float]:
         T = self.T_us

@@ -199,6 +199,9 @@ class _FrameQueue:
     def __bool__(self) -> bool:
         return bool(self.frames)
 
+    def __len__(self) -> int:
+        return len(self.frames)
+
     def pop(self) -> tuple[Frame, int]:
         return self.frames.popleft(), self.bad.popleft()
 
@@ -444,6 +447,11 @@ class SerialSource(_SourceBase):
     @property
     def link(self) -> LinkStats:
         return self.reader.stats
+
+    @property
+    def pending(self) -> int:
+        """Frames read and parsed but not handed out by ``recv`` yet."""
+        return len(self._queue)
 
     @property
     def stats(self) -> ParserStats:

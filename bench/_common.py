@@ -1,0 +1,265 @@
+"""Shared helpers of the performance benchmarks (bench/decode.py, replay.py, live.py, tune.py,
+startup.py): the machine's description, timing helpers, the 1-hour test capture, and
+appending a dated "## Performance: ..." section to bench/RESULTS.md.
+
+Benchmarks measure; tests never assert timings. Every figure is reported with the machine it
+was taken on, including the load average at the time: this 2-core machine is shared with other
+jobs, so wall-clock figures vary from run to run; CPU-time figures (what the process itself
+spent) vary much less, and each script prints both.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "bench" / "RESULTS.md"
+sys.path.insert(0, str(REPO))
+
+WIRE_BAUD = 3_000_000
+"""The fastest serial link the ADC would use, baud (8N1: 10 bits on the wire per byte)."""
+WIRE_FRAMES_PER_S = WIRE_BAUD / 10 / 16
+"""The most hdr-bin frames (16 bytes) a 3 Mbaud link can carry per second: 18,750."""
+
+
+# --------------------------------------------------------------------------- the machine
+
+
+def _read(path: str) -> str:
+    try:
+        return Path(path).read_text()
+    except OSError:
+        return ""
+
+
+def cpu_model() -> str:
+    for line in _read("/proc/cpuinfo").splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
+def ram_gb() -> float:
+    for line in _read("/proc/meminfo").splitlines():
+        if line.startswith("MemTotal:"):
+            return int(line.split()[1]) / 1024 / 1024
+    return float("nan")
+
+
+def git_commit() -> str:
+    """Short commit of the working tree, "+dirty" when hdrd/ or bench/ has uncommitted changes."""
+    try:
+        rev = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "hdrd", "bench"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return rev + ("+dirty" if dirty else "")
+
+
+def loadavg() -> str:
+    parts = _read("/proc/loadavg").split()
+    return " ".join(parts[:3]) if parts else "?"
+
+
+def machine() -> dict[str, str]:
+    """What the figures were measured on."""
+    import numpy as np
+
+    return {
+        "cpu": cpu_model(),
+        "cores": str(os.cpu_count()),
+        "ram": f"{ram_gb():.1f} GB",
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "kernel": f"{platform.system()} {platform.release()}",
+        "commit": git_commit(),
+        "load": loadavg(),
+    }
+
+
+def machine_line(m: dict[str, str] | None = None) -> str:
+    m = m or machine()
+    return (
+        f"{m['cpu']}, {m['cores']} cores, {m['ram']} RAM, Python {m['python']}, numpy {m['numpy']}, "
+        f"{m['kernel']}, commit {m['commit']}; load average (1/5/15 min) at start {m['load']}"
+    )
+
+
+# --------------------------------------------------------------------------- timing
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Repeated measurements of one thing: wall and CPU seconds of each run."""
+
+    wall: list[float]
+    cpu: list[float]
+
+    @property
+    def best_wall(self) -> float:
+        return min(self.wall)
+
+    @property
+    def median_wall(self) -> float:
+        return statistics.median(self.wall)
+
+    @property
+    def best_cpu(self) -> float:
+        return min(self.cpu)
+
+
+def time_in_process(fn: Callable[[], Any], repeats: int) -> tuple[Timing, Any]:
+    """Run ``fn`` ``repeats`` times; wall (perf_counter) and CPU (process_time) of each."""
+    wall: list[float] = []
+    cpu: list[float] = []
+    result: Any = None
+    for _ in range(repeats):
+        c0, w0 = time.process_time(), time.perf_counter()
+        result = fn()
+        w1, c1 = time.perf_counter(), time.process_time()
+        wall.append(w1 - w0)
+        cpu.append(c1 - c0)
+    return Timing(wall, cpu), result
+
+
+def time_process(
+    cmd: Sequence[str],
+    repeats: int,
+    stdout: Any = subprocess.DEVNULL,
+    env: dict[str, str] | None = None,
+) -> Timing:
+    """Run a command ``repeats`` times: wall seconds from spawn to exit, and the child's CPU
+    seconds (user + system, from its rusage). Fails loudly if the command fails."""
+    wall: list[float] = []
+    cpu: list[float] = []
+    for _ in range(repeats):
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        w0 = time.perf_counter()
+        p = subprocess.run(list(cmd), stdout=stdout, stderr=subprocess.PIPE, env=env, check=False)
+        w1 = time.perf_counter()
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if p.returncode != 0:
+            raise SystemExit(
+                f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr.decode(errors='replace')}"
+            )
+        wall.append(w1 - w0)
+        cpu.append((r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime))
+    return Timing(wall, cpu)
+
+
+def hdrd_command() -> list[str]:
+    """How a user runs hdrd: the console script installed beside this Python (not a pyenv
+    shim, which adds its own start-up), else ``python -m hdrd``."""
+    script = Path(sys.executable).with_name("hdrd")
+    if script.is_file() and os.access(script, os.X_OK) and script.read_bytes()[:2] == b"#!":
+        return [str(script)]
+    found = shutil.which("hdrd")
+    if found and "shims" not in found:
+        return [found]
+    return [sys.executable, "-m", "hdrd"]
+
+
+# --------------------------------------------------------------------------- the capture
+
+CAPTURE_MINUTES = 60.0
+CAPTURE_HZ = 100.0
+CAPTURE_GARBAGE = 0.01
+"""Probability of a run of 1..32 garbage bytes before a frame: ~1 % of the bytes."""
+CAPTURE_CRC_ERRORS = 0.001
+"""Probability of a frame with a flipped bit (a CRC error)."""
+CAPTURE_SEED = 1
+
+
+def make_capture(
+    path: Path, minutes: float = CAPTURE_MINUTES, hz: float = CAPTURE_HZ, seed: int = CAPTURE_SEED
+) -> dict[str, Any]:
+    """Write the benchmark capture: the simulated "mixed" drive (``hdrd.sim``) at ``hz`` through
+    the fake gyro's encoder with 1 % garbage and 0.1 % CRC errors. Returns what went in.
+    Cached: an existing file with a matching ``.meta`` is reused."""
+    import json
+
+    meta = path.with_suffix(path.suffix + ".meta")
+    key = {
+        "minutes": minutes,
+        "hz": hz,
+        "seed": seed,
+        "garbage": CAPTURE_GARBAGE,
+        "crc_errors": CAPTURE_CRC_ERRORS,
+    }
+    if path.exists() and meta.exists():
+        m = json.loads(meta.read_text())
+        if m.get("key") == key:
+            return m
+    from hdrd.fakegyro import FakeGyro
+    from hdrd.sim import simulate_drive
+
+    profile = simulate_drive("mixed", minutes, seed, hz=hz)
+    g = FakeGyro(profile, garbage=CAPTURE_GARBAGE, crc_errors=CAPTURE_CRC_ERRORS, seed=seed)
+    g.write_capture(path)
+    size = path.stat().st_size
+    m = {
+        "key": key,
+        "frames_total": int(g.frames.shape[0]),
+        "frames": g.injected.frames,
+        "crc_errors": g.injected.crc_errors,
+        "garbage_bytes": g.injected.garbage_bytes,
+        "bytes": size,
+        "device_s": float(g.t_s[-1]),
+    }
+    meta.write_text(json.dumps(m))
+    return m
+
+
+def capture_line(m: dict[str, Any]) -> str:
+    return (
+        f'{m["device_s"] / 3600:.2f} h of the simulated "mixed" drive at {m["key"]["hz"]:g} Hz, '
+        f"{m['bytes']:,} bytes: {m['frames']:,} good frames, {m['crc_errors']:,} with a CRC error, "
+        f"{m['garbage_bytes']:,} garbage bytes ({m['garbage_bytes'] / m['bytes']:.1%})"
+    )
+
+
+# --------------------------------------------------------------------------- results
+
+
+def ratio(value: float, target: float, higher_is_better: bool) -> str:
+    """ "2.3x the target" (better) or "0.6x the target" (worse), as a margin: > 1 means met."""
+    r = value / target if higher_is_better else target / value
+    return f"{r:.2f}x"
+
+
+def append_section(title: str, body: str, write: bool = True) -> str:
+    """Append ``## Performance: <title> (<date>)`` with ``body`` to bench/RESULTS.md (never
+    touching the sections before it); returns the section's text. ``write=False`` only
+    returns it."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    text = f"\n## Performance: {title} ({stamp})\n\n{body.rstrip()}\n"
+    if write:
+        # Append mode: other benchmarks rewrite only their own sections, so an append never
+        # overwrites theirs (and theirs never drop ours: they keep every other section).
+        with open(RESULTS, "a", encoding="utf-8") as f:
+            f.write(text)
+    return text
