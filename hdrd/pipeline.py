@@ -26,9 +26,10 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from hdrd import hdr
+from hdrd import hdr, hdrplus
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
 from hdrd.hdr import HdrParams, HdrState
+from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusState
 from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
 from hdrd.sensor import SensorModel
 
@@ -65,13 +66,17 @@ def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
     return 0.0 if h >= 360.0 else h
 
 
+METHODS = ("none", "hdr", "hdr+")
+
+
 def method_params(method: str, params: HdrParams) -> HdrParams:
-    """The HDR parameters a drift-reduction method runs with ("none" freezes I at 0)."""
+    """The paper-HDR parameters a drift-reduction method runs with ("none" freezes I at 0;
+    "hdr+" runs its own core, :data:`hdrd.hdrplus.PLUS_CORE`, and ignores these)."""
     if method == "none":
         return replace(params, enabled=False)
-    if method == "hdr":
+    if method in ("hdr", "hdr+"):
         return params
-    raise ValueError(f"unknown method {method!r} (allowed: none, hdr)")
+    raise ValueError(f"unknown method {method!r} (allowed: {', '.join(METHODS)})")
 
 
 @dataclass(frozen=True)
@@ -88,6 +93,8 @@ class PipelineConfig:
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
+    plus: HdrPlusParams = HdrPlusParams()
+    """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
 
 
 class Pipeline:
@@ -102,7 +109,9 @@ class Pipeline:
         self._params = method_params(config.method, config.params)
         self._clock = DeviceClock()
         self._avg = BlockAverager(config.params.T)
-        self._state: HdrState = hdr.INITIAL_STATE
+        # One state for every method: HDR+ carries the paper HDR state as its core, so a
+        # method switched on SIGHUP continues the same heading.
+        self._plus: PlusState = INITIAL_PLUS_STATE
         self._step_offset = 0  # step numbers continue across a device resync
         self._t_offset = 0.0  # device seconds continue across a device resync
         self._last_step: int | None = None
@@ -128,12 +137,13 @@ class Pipeline:
 
     @property
     def hdr_state(self) -> HdrState:
-        return self._state
+        """The HDR core's state (x, I, yaw, r, s, n)."""
+        return self._plus.core
 
     @property
     def heading(self) -> float:
         """Current compass heading, deg."""
-        return heading_from_yaw(self.config.heading0_deg, self._state.yaw)
+        return heading_from_yaw(self.config.heading0_deg, self._plus.core.yaw)
 
     @property
     def clock(self) -> DeviceClock:
@@ -276,7 +286,7 @@ class Pipeline:
             status = "calibrating"
             self._calibration_step(block)
         else:
-            self._state, o = hdr.step(self._state, block.mean - bias.bias_dps, self._params)
+            o, published_bias, still = self._step(block, bias.bias_dps)
             msg["omega"] = o.omega
             msg["yaw"] = o.yaw
             msg["heading"] = heading_from_yaw(self.config.heading0_deg, o.yaw)
@@ -284,8 +294,10 @@ class Pipeline:
             msg["W"] = o.W
             msg["R"] = o.R
             msg["r"] = o.r
-            msg["bias"] = bias.bias_dps
-            status = "ok" if o.W else "turning"
+            msg["bias"] = published_bias
+            status = "standstill" if still else ("ok" if o.W else "turning")
+            if self.config.method == "hdr+":
+                msg["zupt"] = int(still)
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status
@@ -297,6 +309,19 @@ class Pipeline:
         if block.saturated:
             msg["saturated"] = block.saturated
         return msg
+
+    def _step(self, block: Block, eps0: float) -> tuple[hdr.HdrOutput | hdrplus.PlusOutput, float, bool]:
+        """One drift-reduction step on the block: (output, published bias deg/s, standstill)."""
+        u = block.mean - eps0
+        if self.config.method != "hdr+":
+            core, o = hdr.step(self._plus.core, u, self._params)
+            self._plus = self._plus._replace(core=core)
+            return o, eps0, False
+        temp = math.nan if block.temp_c is None else block.temp_c
+        speed = math.nan if self.speed_mps is None else self.speed_mps
+        inp = hdrplus.PlusInput(u, block.std, speed, temp, self.config.params.T)
+        self._plus, po = hdrplus.step(self._plus, inp, self.config.plus)
+        return po, eps0 + po.bias_corr_dps, po.standstill
 
     def _calibration_step(self, block: Block) -> None:
         """A calibration block closed: its samples are in _cal_*, minus none (the closing
@@ -353,7 +378,7 @@ class Pipeline:
         if self._last_step is not None:
             msg["step"] = self._last_step
         if self.bias is not None and self._last_step is not None:
-            msg["yaw"] = self._state.yaw
+            msg["yaw"] = self._plus.core.yaw
             msg["heading"] = self.heading
             msg["bias"] = self.bias.bias_dps
         msg["bad_frames"] = bad_frames

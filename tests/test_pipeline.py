@@ -218,15 +218,16 @@ def captures(draw):
     bad = np.cumsum(rng.random(n) < 0.05)
     bias = draw(st.one_of(st.none(), st.floats(-3, 3)))
     startup = draw(st.sampled_from([0.5, 1.0, 3.0]))
-    return a, bad, bias, startup
+    method = draw(st.sampled_from(["none", "hdr", "hdr+"]))
+    return a, bad, bias, startup, method
 
 
 @settings(max_examples=60, deadline=None)
 @given(captures())
 def test_array_path_is_bit_identical_to_live(cap):
-    a, bad, bias, startup = cap
+    a, bad, bias, startup, method = cap
     limits_loose = PipelineConfig().limits.__class__(1e9, 1e9, 1e9)
-    cfg = PipelineConfig(bias_dps=bias, startup_s=startup, limits=limits_loose)
+    cfg = PipelineConfig(bias_dps=bias, startup_s=startup, limits=limits_loose, method=method)
     live = Pipeline(cfg)
     frames = [F(int(r["seq"]), int(r["t_us"]), int(r["rate"]), int(r["ref"]), None if r["temp"] == -32768 else int(r["temp"])) for r in a]
     expected = run_live(live, frames, bad.tolist())
@@ -237,3 +238,29 @@ def test_array_path_is_bit_identical_to_live(cap):
     for m in got:
         for v in m.values():
             assert not (isinstance(v, float) and math.isnan(v))
+
+
+def test_hdr_plus_zero_rate_update_at_standstill():
+    rng = np.random.default_rng(3)
+    bias = 0.5
+    omega = bias + 0.1 + rng.normal(0, 0.05, 400)  # 0.1 deg/s of drift beyond eps0
+    p = Pipeline(PipelineConfig(bias_dps=bias, method="hdr+"))
+    p.set_speed(0.0)  # gpsd says the vehicle stands still
+    msgs = run_live(p, make_frames(omega))
+    still = [m for m in msgs if m["zupt"] == 1]
+    assert len(still) > 30 and all(m["status"] == "standstill" and m["omega"] == 0.0 for m in still)
+    assert msgs[-1]["yaw"] == pytest.approx(msgs[5]["yaw"], abs=1e-9)  # the yaw does not move
+    assert msgs[-1]["bias"] == pytest.approx(0.6, abs=0.02)  # eps0 refined from the stop
+    ref = Pipeline(PipelineConfig(bias_dps=bias, method="hdr"))
+    plain = run_live(ref, make_frames(omega))
+    assert abs(plain[-1]["yaw"] - plain[5]["yaw"]) > 0.1  # paper HDR's yaw wanders meanwhile
+    assert "zupt" not in plain[0]
+
+
+def test_switching_method_keeps_the_heading():
+    p = Pipeline(PipelineConfig(bias_dps=0.0, method="hdr"))
+    a = run_live_no_finish(p, make_frames(np.full(100, 1.0)))
+    p.reconfigure(PipelineConfig(bias_dps=0.0, method="hdr+"))
+    b = run_live(p, make_frames(np.full(50, 1.0), t0_us=10_000_000))
+    assert b[0]["yaw"] - a[-1]["yaw"] == pytest.approx(1.0, abs=0.2)
+    assert "zupt" in b[0] and "zupt" not in a[-1]
