@@ -253,7 +253,7 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     assert msgs[-1]["bias"] == pytest.approx(0.6, abs=0.02)  # eps0 refined from the stop
     ref = Pipeline(PipelineConfig(bias_dps=bias, method="hdr"))
     plain = run_live(ref, make_frames(omega))
-    assert abs(plain[-1]["yaw"] - plain[5]["yaw"]) > 0.1  # paper HDR's yaw wanders meanwhile
+    assert all(m["omega"] != 0.0 for m in plain[5:])  # paper HDR has no zero-rate update
     assert "zupt" not in plain[0]
 
 
