@@ -570,14 +570,10 @@ def main(args: argparse.Namespace) -> int:
             _err(f"cannot write {args.json}: {e.strerror or e}")
             return 1
     if args.plot:
-        from hdrd.analysis.plots import PlotError, plot_evaluation
+        from hdrd.analysis.plots import plot_evaluation, plot_to_file
 
-        try:
-            plot_evaluation(results, args.plot)
-        except PlotError as e:
-            _err(str(e))
-            return 1
-        except OSError as e:
-            _err(f"cannot write {args.plot}: {e.strerror or e}")
+        problem = plot_to_file(lambda path: plot_evaluation(results, path), args.plot)
+        if problem:
+            _err(problem)
             return 1
     return 0

@@ -1930,14 +1930,11 @@ def main(args: argparse.Namespace) -> int:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1
     if args.plot:
-        from hdrd.analysis.gap_plots import PlotError, plot_gap
+        from hdrd.analysis.gap_plots import plot_gap
+        from hdrd.analysis.plots import plot_to_file
 
-        try:
-            plot_gap(res, args.plot)
-        except PlotError as e:
-            _err(str(e))
-            return 1
-        except OSError as e:
-            _err(f"cannot write {args.plot}: {e.strerror or e}")
+        problem = plot_to_file(lambda path: plot_gap(res, path), args.plot)
+        if problem:
+            _err(problem)
             return 1
     return 0

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdrd.analysis.plots import PlotError, pyplot
+
 if TYPE_CHECKING:  # pragma: no cover
     from hdrd.analysis.gap import GapResult, Step
 
@@ -32,23 +34,6 @@ _LABEL = {
     "rate_derivative": "true yaw acceleration, deg/s^2",
     "omega": "omega modulo the lattice step, deg/s",
 }
-
-
-class PlotError(RuntimeError):
-    """Plotting is impossible (matplotlib missing); the message says what to do."""
-
-
-def _pyplot() -> Any:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")  # files only; never needs a display
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise PlotError(
-            "plots need matplotlib: pip install 'hdrd[plot]' (or pip install matplotlib)"
-        ) from None
-    return plt
 
 
 def _allan(ax: Any, res: GapResult, step: Step | None) -> None:
@@ -137,7 +122,7 @@ def _lattice(ax: Any, res: GapResult, step: Step) -> None:
 
 def plot_gap(res: GapResult, path: str | os.PathLike[str]) -> None:
     """Write the figure to ``path`` (format from the extension, e.g. .png, .pdf)."""
-    plt = _pyplot()
+    plt = pyplot()
     steps = list(res.steps)
     rows = max(1, len(steps))
     fig, axes = plt.subplots(rows, 2, figsize=(11, 3.6 * rows), squeeze=False)

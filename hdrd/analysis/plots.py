@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from hdrd.analysis.evaluate import DriveResult
 
-__all__ = ["PlotError", "plot_evaluation"]
+__all__ = ["PlotError", "plot_evaluation", "plot_to_file", "pyplot"]
 
 # The paper's Fig. 5: thick blue truth, dotted red uncorrected, dashed green HDR.
 _STYLE: dict[str, dict[str, Any]] = {
@@ -31,7 +31,20 @@ class PlotError(RuntimeError):
     """Plotting is impossible (matplotlib missing); the message says what to do."""
 
 
-def _pyplot() -> Any:
+def plot_to_file(draw: Callable[[str], None], path: str) -> str | None:
+    """Run ``draw(path)``; None on success, else the one-line error for the user (matplotlib
+    missing, or the file not writable). The command-line edges share this."""
+    try:
+        draw(path)
+    except PlotError as e:
+        return str(e)
+    except OSError as e:
+        return f"cannot write {path}: {e.strerror or e}"
+    return None
+
+
+def pyplot() -> Any:
+    """matplotlib.pyplot on the file-only Agg backend; PlotError if matplotlib is missing."""
     try:
         import matplotlib
 
@@ -60,7 +73,7 @@ def plot_evaluation(results: Sequence[DriveResult], path: str | os.PathLike[str]
     """One PNG: a heading-vs-time panel per drive (Fig. 5: truth, without HDR, with HDR; the
     gyro aligned to the truth at its first valid step, headings unwrapped so a turn through
     north does not jump) and, below, bars of Eψ and NEψ per drive (Fig. 6 a, b)."""
-    plt = _pyplot()
+    plt = pyplot()
     n = len(results)
     rows = math.ceil(n / _COLS)
     ncols = min(n, _COLS)
