@@ -203,17 +203,22 @@ class _Signals:
         self.reload = True
 
 
+def standstill_limits(cfg: Config) -> StandstillLimits:
+    """The standstill test's thresholds from the calibration section (deg/s)."""
+    c = cfg.calibration
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps)
+
+
 def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
     from hdrd.pipeline import PipelineConfig
 
-    c = cfg.calibration
     return PipelineConfig(
         sensor=cfg.sensor,
         params=cfg.hdr.params,
         method=cfg.hdr.method,
         bias_dps=None if bias is None else bias.bias_dps,
-        startup_s=c.startup_s,
-        limits=StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps),
+        startup_s=cfg.calibration.startup_s,
+        limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
     )
 
@@ -544,7 +549,6 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if signals.stop:
         print("calibration interrupted; bias file not written", file=sys.stderr)
         return 0
-    c = cfg.calibration
     duration = 0.0 if t0 is None else (t_last - t0) / 1e6
     if duration < seconds * 0.99:
         print(f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written", file=sys.stderr)
@@ -555,7 +559,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         rec = estimate_bias(
             np.asarray(omega),
             temp_c=np.asarray(temps),
-            limits=StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps),
+            limits=standstill_limits(cfg),
             when=time.time(),
         )
     except MotionDetected as e:

@@ -38,22 +38,30 @@ def replay_capture(data: bytes, cfg: Config, bias_dps: float | None, startup_s: 
     return msgs
 
 
-def _config(args: argparse.Namespace) -> Config:
+def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config, bytes] | int:
+    """The configuration and the capture's bytes, or the exit status after saying why."""
     from hdrd.daemon import config_from_args
 
-    cfg, _ = config_from_args(args)
-    return cfg
+    try:
+        cfg, _ = config_from_args(args)
+    except ConfigError as e:
+        print(f"hdrd: {e}", file=sys.stderr)
+        return EX_CONFIG
+    try:
+        return cfg, Path(args.capture).read_bytes()
+    except OSError as e:
+        print(f"hdrd {command}: cannot read {args.capture}: {e.strerror or e}", file=sys.stderr)
+        return 1
 
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout."""
     from hdrd.publish import format_json
 
-    try:
-        cfg = _config(args)
-    except ConfigError as e:
-        print(f"hdrd: {e}", file=sys.stderr)
-        return EX_CONFIG
+    loaded = _config_and_capture(args, "replay")
+    if isinstance(loaded, int):
+        return loaded
+    cfg, data = loaded
     startup_s: float | None = None
     bias: float | None = None
     try:
@@ -71,11 +79,6 @@ def main(args: argparse.Namespace) -> int:
     except BiasFileError as e:
         print(f"hdrd replay: {e}", file=sys.stderr)
         return 1
-    try:
-        data = Path(args.capture).read_bytes()
-    except OSError as e:
-        print(f"hdrd replay: cannot read {args.capture}: {e.strerror or e}", file=sys.stderr)
-        return 1
     msgs = replay_capture(data, cfg, bias, startup_s)
     out = sys.stdout.buffer
     out.write(b"".join(format_json(m) for m in msgs))
@@ -91,16 +94,10 @@ def convert_main(args: argparse.Namespace) -> int:
     from hdrd.frames import decode_capture
     from hdrd.resample import DeviceClock
 
-    try:
-        cfg = _config(args)
-    except ConfigError as e:
-        print(f"hdrd: {e}", file=sys.stderr)
-        return EX_CONFIG
-    try:
-        data = Path(args.capture).read_bytes()
-    except OSError as e:
-        print(f"hdrd convert: cannot read {args.capture}: {e.strerror or e}", file=sys.stderr)
-        return 1
+    loaded = _config_and_capture(args, "convert")
+    if isinstance(loaded, int):
+        return loaded
+    cfg, data = loaded
     frames, stats = decode_capture(data, cfg.device.protocol)
     t_us, ok = DeviceClock().unwrap_many(frames["t_us"])
     frames, t_us = frames[ok], t_us[ok]

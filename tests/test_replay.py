@@ -131,7 +131,9 @@ def test_replay_errors(tmp_path, capsys):
     assert rc == 1 and "cannot read" in err
     bf = tmp_path / "bias.yaml"
     bf.write_text("garbage")
-    rc, _, err = replay_cli(capsys, str(tmp_path / "missing.bin"), "--bias-file", str(bf))
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=5)).write_capture(cap)
+    rc, _, err = replay_cli(capsys, str(cap), "--bias-file", str(bf))
     assert rc == 1 and "bias file" in err
     cfg = tmp_path / "bad.yaml"
     cfg.write_text("hdr:\n  c2: .inf\n")
