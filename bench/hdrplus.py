@@ -296,9 +296,21 @@ def variants() -> list[tuple[str, list[Variant]]]:
 # -- calibration study ------------------------------------------------------------------------
 
 
+def one_second(log: DriveLog) -> PreparedDrive:
+    """The whole log with the bias of its first 1 s (the mean of those samples, its variance
+    the samples' variance / their number, for HDR+'s prior). No standstill test: with 10
+    samples, its trend check (first vs last third) rejects about one real standstill in ten,
+    and the daemon would simply try the next second; the mean is what it would then keep."""
+    w = log.t < log.t[0] + 1.0
+    b = float(np.mean(log.omega[w]))
+    var = float(np.var(log.omega[w], ddof=1)) / int(np.count_nonzero(w))
+    prep = prepare_drive(log, bias=b)
+    return replace(prep, steps=replace(prep.steps, bias_var=var))
+
+
 def calibration_rows(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
     """Scenario A: the benchmark's logs (30 s standstill after power-on). Every method is
-    scored on the same window, from 30 s on; the 1 s methods start running at 1 s."""
+    scored on the same window, from 30 s on; the 1 s methods run from power-on."""
     P = HdrPlusParams()
     no_ss = P.with_(standstill=StandstillParams(enabled=False))
     out: dict[str, list[float]] = {}
@@ -308,8 +320,8 @@ def calibration_rows(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
 
     for log in logs:
         p30 = prepare_drive(log, calibrate_seconds=30.0)
-        p1 = prepare_drive(log, calibrate_seconds=1.0)
-        drop = round(30.0 - 1.0)
+        p1 = one_second(log)
+        drop = 30
         add("HDR, 30 s calibration", ne(p30, hdr_batch(p30.steps.u).yaw))
         add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw, drop))
         add("HDR+, 30 s calibration", ne(p30, yaw_of(Variant("", "plus", P), p30)))
@@ -336,10 +348,10 @@ def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], 
 
     for spec in specs:
         log = drive_off(spec)
-        p1 = prepare_drive(log, calibrate_seconds=1.0)
+        p1 = one_second(log)
         b30 = truth_bias_30s(log)
         pb = prepare_drive(log, bias=b30)
-        drop = 1  # score the same steps as the 1 s runs (which start at 1 s)
+        drop = 1  # scored from the end of the 1 s calibration, every row alike
         assert pb.steps.speed is not None
         stopped += int(np.count_nonzero(pb.steps.speed[drop:] <= 0.3))
         add(
@@ -350,14 +362,14 @@ def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], 
             "HDR+, bias of a 30 s standstill (known in simulation only)",
             ne(pb, yaw_of(Variant("", "plus", P.with_(bias_p0=0.155**2 / 300)), pb), drop),
         )
-        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw))
+        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw, drop))
         add(
             "HDR+, 1 s calibration + standstill re-calibration",
-            ne(p1, yaw_of(Variant("", "plus", P), p1)),
+            ne(p1, yaw_of(Variant("", "plus", P), p1), drop),
         )
         add(
             "HDR+ without standstill updates, 1 s calibration",
-            ne(p1, yaw_of(Variant("", "plus", no_ss), p1)),
+            ne(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
         )
     return out, stopped
 
@@ -388,6 +400,22 @@ def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
             yaw = yaw_of(v, prep)
             cols[name] = float(e_psi(yaw, prep.truth, prep.k))
         out.append((label, f"--bias {bias:g}", cols))
+    return out
+
+
+def perfect_gyro(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
+    """NEψ of each method fed the *true* rate (a gyro without any error, bias 0), scored from
+    30 s on: what a method does to real motion alone (no drift to remove)."""
+    out: dict[str, list[float]] = {}
+    for log in logs:
+        assert log.omega_truth is not None
+        prep = prepare_drive(replace(log, omega=log.omega_truth), bias=0.0)
+        for label, v in (
+            ("no correction", Variant("", "none")),
+            ("paper HDR", Variant("", "hdr")),
+            ("HDR+", Variant("", "plus", HdrPlusParams())),
+        ):
+            out.setdefault(label, []).append(ne(prep, yaw_of(v, prep), 30))
     return out
 
 
@@ -598,18 +626,29 @@ def main() -> int:
             )
 
     print("calibration study ...", flush=True)
+    more = {
+        k: [replace(s, seed=s.seed + 1000 * j) for j in range(1, args.routes + 1) for s in specs]
+        for k, specs in (("train types", TRAIN_DRIVES), ("test types", TEST_DRIVES))
+    }
     cal_a = {
-        k: calibration_rows([read_drive(f) for f in files])
-        for k, files in (("train", train_files), ("test", test_files))
+        "train": calibration_rows([read_drive(f) for f in train_files]),
+        "test": calibration_rows([read_drive(f) for f in test_files]),
+        **{k: calibration_rows([generate(s) for s in specs]) for k, specs in more.items()},
     }
     cal_b = {
-        k: drive_off_rows(specs) for k, specs in (("train", TRAIN_DRIVES), ("test", TEST_DRIVES))
+        "train": drive_off_rows(TRAIN_DRIVES),
+        "test": drive_off_rows(TEST_DRIVES),
+        **{k: drive_off_rows(specs) for k, specs in more.items()},
+    }
+    perfect = {
+        "train": perfect_gyro([read_drive(f) for f in train_files]),
+        "test": perfect_gyro([read_drive(f) for f in test_files]),
     }
     us_step, us_batch = step_cost(sets["train"][0][5])
 
     real_diag = real_diagnostics(W / "real") if real else []
     section = render(
-        args, cmds, cli, table, sets, real, cal_a, cal_b, us_step, us_batch, wq, real_diag
+        args, cmds, cli, table, sets, real, cal_a, cal_b, us_step, us_batch, wq, real_diag, perfect
     )
     print(section)
     if not args.no_write:
@@ -631,6 +670,7 @@ def render(
     us_batch: float,
     wq: str,
     real_diag: list[tuple[str, str, dict[str, float]]],
+    perfect: dict[str, dict[str, list[float]]],
 ) -> str:
     L: list[str] = [SECTION, ""]
     L.append(
@@ -647,7 +687,11 @@ def render(
         "on more routes of those nine types (seeds `spec.seed + 1000 j`), refined and rounded by "
         "hand (`python bench/hdrplus.py --tune N` repeats that kind of search). The five *test* "
         "drives, and the extra routes of the five test types, were never searched; they are "
-        "evaluated here with the parameters fixed. Paper HDR runs with Table III throughout."
+        "evaluated here with the parameters fixed. (Disclosure: in the very first exploration, "
+        "before HDR+ existed, a few prototype gating variants of paper HDR were also printed on "
+        "the five test drives; none is part of HDR+ and no parameter came from them. One "
+        "parameter was changed after seeing a real recording: see the discussion.) Paper HDR "
+        "runs with Table III throughout."
     )
     L.append("")
 
@@ -711,8 +755,8 @@ def render(
     L.append("")
     L.append(
         "Mean NEψ (deg/min) per set; *worst* = the largest NEψ(row) / NEψ(paper HDR) over the "
-        "single drives (train, test) or over the drive types' means (the route sets). Bold "
-        "numbers: the defaults. A row that is worse than the row it modifies did not help."
+        "single drives (train, test) or over the drive types' means (the route sets). The bold "
+        "row: the defaults. A row that is worse than the row it modifies did not help."
     )
     L.append("")
     L.append(
@@ -730,36 +774,59 @@ def render(
             )
     L.append("")
 
+    L.append(
+        "The same drives with a *perfect* gyro (the true rate, bias 0; scored from 30 s on): "
+        "whatever error a method shows here it made itself, by taking real motion for drift. "
+        "Mean NEψ, deg/min:"
+    )
+    L.append("")
+    L.append("| method | train (9) | test (5) |")
+    L.append("|---|---|---|")
+    for key in perfect["train"]:
+        L.append(
+            f"| {key} | {fm(float(np.mean(perfect['train'][key])))} | "
+            f"{fm(float(np.mean(perfect['test'][key])))} |"
+        )
+    L.append("")
+
     # Calibration.
     L.append("### A 1 s start-up calibration plus standstill re-calibration vs a 30 s one")
     L.append("")
     L.append(
         "**A — the benchmark's drives** (30 s standstill after power-on, then driving): every "
-        "row is scored on the same steps, from 30 s on; the 1 s rows start running at 1 s, so "
-        "HDR+ sees the remaining 29 s of standstill as a stop. Mean NEψ, deg/min:"
+        "row is scored on the same steps, from 30 s on; the 1 s rows use the mean of the first "
+        "second as eps0 and run from power-on, so HDR+ sees the remaining 29 s of standstill as "
+        "a stop. Mean NEψ, deg/min:"
     )
     L.append("")
-    L.append("| method | train (9) | test (5) |")
-    L.append("|---|---|---|")
+    cal_cols = ("train", "test", "train types", "test types")
+    head = (
+        f"| method | train (9) | test (5) | train types ({args.routes} routes each) | test types |"
+    )
+    L.append(head)
+    L.append("|---|---|---|---|---|")
     for key in cal_a["train"]:
         L.append(
-            f"| {key} | {fm(float(np.mean(cal_a['train'][key])))} | {fm(float(np.mean(cal_a['test'][key])))} |"
+            f"| {key} | " + " | ".join(fm(float(np.mean(cal_a[c][key]))) for c in cal_cols) + " |"
         )
     L.append("")
     L.append(
         "**B — drive off after 1 s** (the same routes, legs, temperature profiles and gyro "
         "with only 1 s of standstill after power-on; HDR+ can re-calibrate only at the stops "
         f"during the drive: {cal_b['train'][1]} standstill steps in the nine, "
-        f"{cal_b['test'][1]} in the five). The 30 s reference rows are given the bias a 30 s "
+        f"{cal_b['test'][1]} in the five, {cal_b['train types'][1]} and {cal_b['test types'][1]} "
+        "in the route sets). The 30 s reference rows are given the bias a 30 s "
         "calibration at power-on would have measured (the gyro output minus its scaled true rate, "
         "averaged over the first 30 s: known in simulation only). Mean NEψ, deg/min:"
     )
     L.append("")
-    L.append("| method | train (9) | test (5) |")
-    L.append("|---|---|---|")
+    L.append(head)
+    L.append("|---|---|---|---|---|")
     for key in cal_b["train"][0]:
         L.append(
-            f"| {key} | {fm(float(np.mean(cal_b['train'][0][key])))} | {fm(float(np.mean(cal_b['test'][0][key])))} |"
+            f"| {key} | "
+            + " | ".join(fm(float(np.mean(cal_b[c][0][key]))) for c in cal_cols)
+            + " |"
         )
     L.append("")
 
@@ -810,7 +877,75 @@ def render(
 DISCUSSION = """
 ### Discussion
 
-(written after the run; see docs/hdrplus.md for the design)
+Written by hand from the run above (everything is seeded: a re-run gives the same tables
+unless the code changes; if it did, re-read the numbers before these words). Design and
+equations: docs/hdrplus.md.
+
+- **Held-out result.** On the five test drives mean NEψ goes from 0.397 deg/min (paper HDR,
+  Table III) to 0.159 with HDR+, 2.5× lower (no correction: 1.80); on 60 further drives of the
+  five test types (12 routes each, never searched) from 0.298 to 0.199, 1.50×; on the training
+  side 1.90× (the nine) and 1.54× (108 routes of their types). Every drive *type* is better on
+  average (HDR+ / HDR between 0.38 and 0.80, test types 0.43-0.80), most on curving highways
+  (highway2, highwaymix, highway3: 0.34-0.43), least in the city (city3 type 0.80).
+- **Not every single drive.** HDR+ is worse than paper HDR on the test drive city3 (0.066 ->
+  0.181, 2.8×) and on the training drive rural1 (1.17×). city3 is paper HDR's luckiest drive:
+  over 12 other routes of its type HDR averages 0.306, not 0.066, and HDR+ 0.245. A single
+  drive's NEψ is a noisy number (its errors are a few degrees that random-walk; HDR's binary
+  increments make it chaotic: the same route with other gyro noise moves HDR's NEψ by ±30-50 %),
+  so "no worse than HDR by more than 10 % on any drive" holds here per drive type, not per drive.
+- **What does the work** (ablation): a ~9× smaller HDR increment (i_c 0.0048 instead of
+  0.0422 deg/s) *together with* the slow Kalman bias model fed by straight driving. Neither
+  alone: the retuned core alone is no better than HDR on the route sets (0.247 / 0.242), and
+  straight-driving measurements beside the paper's large increment are worse (0.314 / 0.384).
+  HDR's own response to real motion (sway, curve entries below Θw) is most of its error on
+  these drives: fed a *perfect* gyro it still scores 0.240 (train) and 0.411 (test) deg/min,
+  about all it scores with the simulated CRS03-04, where no correction scores 0.087 / 0.063.
+  A small increment makes fewer such mistakes (HDR+ 0.135 / 0.165 on the perfect gyro), and
+  the bias model, a long average of the straight stretches, follows the slow drift that the
+  small increment alone could not.
+- **Temperature model:** a small gain (route sets 0.170 -> 0.164, 0.206 -> 0.199). In this
+  simulator the bias is an exact function of the logged temperature plus small random terms,
+  so this is an upper bound; on a real board the temperature sensor sits beside, not inside,
+  the gyro. Without temperature HDR+ uses a faster-forgetting bias model (`bias_q_no_temp`).
+- **Standstill updates:** neutral on NEψ in the simulator (route sets 0.157 without vs 0.164
+  with, 0.201 vs 0.199): at a simulated stop the gyro sees pure noise, which HDR's integrator
+  and the bias model already average correctly. Kept for what they guarantee — the yaw does
+  not move while the car stands, and the bias is re-measured where the true rate is exactly
+  zero — and for the short calibration (below). Gyro-only detection (speed unknown) is *off* by
+  default: the simulator has no engine vibration or road noise, so quiet straight driving
+  looks exactly like a stop and the detector takes sway for bias (route sets 0.157 -> 0.197);
+  on a real car the spread may separate them, which this simulator cannot show.
+- **Not kept:** the speed gate (I frozen below 3 m/s: neutral, 0.164 -> 0.165), the hold-off
+  after turns (worse, 0.177), the adaptive increment (max(i_c, sd of the bias model): worse,
+  0.238 — larger steps undo what the small increment gains).
+- **Withheld inputs.** With neither speed nor temperature HDR+ still scores 0.164 / 0.208 on
+  the route sets (HDR 0.253 / 0.298): it needs neither. Withholding the speed only switches
+  the standstill updates off (the default gate is off), hence identical rows.
+- **One parameter chosen after seeing a held-out result** (disclosed): the first version used
+  a stop from its first zero-speed step. On smartLoc Berlin that made HDR+ worse than no
+  correction (9.8° vs 8.7°): the recording's three zero-speed steps are rolling halts between
+  manoeuvres, in which the car still yaws and the speed's and gyro's blocks do not line up; the
+  simulator's stops are perfectly still. Stops now count from their third step
+  (`standstill.steps_speed = 3`), which was neutral on the training types (0.162 -> 0.164) and
+  costs on the test drives (0.135 -> 0.159; test types 0.192 -> 0.199); smartLoc is therefore
+  not held out for this one choice.
+- **1 s vs 30 s calibration.** (A) With the benchmark's 30 s standstill, a 1 s calibration plus
+  re-calibration lands within 1-2 % of a 30 s one (route sets 0.166 vs 0.164, 0.196 vs 0.199);
+  without the standstill updates 0.177 / 0.202. (B) Driving off after 1 s, HDR+ is within 4-9 %
+  of what it does with the bias a 30 s standstill would have given (0.161 vs 0.155, 0.200 vs
+  0.183); here the bias model re-learns eps0 from straight driving and the standstill updates
+  add little (0.164 / 0.198 without). Paper HDR itself hardly cares (0.257 vs 0.253 in A): its
+  integrator removes a 1 s calibration's ~0.05 deg/s error within a few steps. So the paper's
+  closing remark holds for both; for HDR+ the 30 s wait buys a few per cent.
+- **Real recordings.** smartLoc Berlin (4.7 min, slow urban, an automotive sensor with almost
+  no drift): HDR+ 6.5° vs paper HDR 12.8° vs none 8.7° with the sensor taken as zeroed, 2.0°
+  vs 10.3° vs 1.8° with the best bias in hindsight — HDR+ moves far less than HDR on this
+  curve-after-curve drive, helps with the zero bias and costs 0.3° with the hindsight one.
+  comma2k19 (1 min, nearly straight, phone gyro): HDR+ 0.63° vs HDR 0.31° vs none 1.13° with
+  Android's bias estimate — better than nothing, worse than HDR: one minute is too short for
+  HDR+'s slow bias model, while HDR's 9× larger increment removes the residual bias in
+  seconds. Neither recording has a temperature, and both are far shorter than the drift HDR+
+  is built for; they show conventions and robustness, not its benefit.
 """
 
 
