@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 __all__ = [
     "T_BIAS_S",
@@ -172,6 +171,8 @@ _BIAS_HEADER = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in
 
 def save_bias(path: str | os.PathLike[str], record: BiasRecord) -> None:
     """Write a bias record as YAML, atomically, mode 0644."""
+    import yaml  # imported where used: `hdrd replay --bias` never needs it (~18 ms)
+
     body = yaml.safe_dump(record.to_dict(), sort_keys=False)
     atomic_write_text(path, _BIAS_HEADER + body + "# end\n")
 
@@ -188,6 +189,8 @@ def load_bias(path: str | os.PathLike[str]) -> BiasRecord:
         raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
     if not text.rstrip().endswith("# end"):
         raise BiasFileError(f"bias file {p}: truncated (no '# end' line); run `hdrd calibrate`")
+    import yaml
+
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

@@ -16,8 +16,6 @@ from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
-import yaml
-
 from hdrd.calibrate import T_BIAS_S
 from hdrd.hdr import HdrParams
 from hdrd.sensor import SensorModel
@@ -67,6 +65,8 @@ def _show(value: Any) -> str:
     if isinstance(value, (str, float)):
         text = repr(value)
     else:
+        import yaml
+
         try:
             text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30).strip()
             text = text.removesuffix("...").strip()
@@ -395,6 +395,8 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
         raise ConfigError("(file)", str(p), "not found", str(p)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError("(file)", str(p), f"cannot be read ({e.__class__.__name__})", str(p)) from None
+    import yaml  # here, not at the top: a run without a config file never needs it (~18 ms)
+
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

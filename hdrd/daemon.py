@@ -22,8 +22,6 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-import structlog
-
 from hdrd.calibrate import (
     BiasFileError,
     BiasRecord,
@@ -37,7 +35,19 @@ from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_co
 
 __all__ = ["main", "calibrate_main", "SdNotifier", "default_bias_path", "config_from_args"]
 
-log = structlog.get_logger("hdrd")
+
+class _LazyLogger:
+    """``structlog.get_logger("hdrd")``, structlog imported on first use. Why: importing it
+    costs ~30 ms (it brings asyncio), and ``hdrd replay`` imports this module for its
+    configuration helpers without logging anything (tests/test_fastpaths.py checks)."""
+
+    def __getattr__(self, name: str) -> Any:
+        import structlog
+
+        return getattr(structlog.get_logger("hdrd"), name)
+
+
+log: Any = _LazyLogger()
 
 # -- systemd notification -------------------------------------------------------------------
 
@@ -87,6 +97,8 @@ class SdNotifier:
 
 def setup_logging(level: str = "info", fmt: str = "auto") -> None:
     """structlog to stderr: JSON lines when not on a terminal (journald), console otherwise."""
+    import structlog
+
     use_json = fmt == "json" or (fmt == "auto" and not sys.stderr.isatty())
     renderer: Any = structlog.processors.JSONRenderer() if use_json else structlog.dev.ConsoleRenderer(colors=False)
     structlog.configure(

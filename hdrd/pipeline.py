@@ -220,8 +220,9 @@ class Pipeline:
         rest = frames[i:]
         t_us, ok = self._clock.unwrap_many(rest["t_us"])
         keep = np.flatnonzero(ok) + i
-        rest = frames[keep]
-        t_us = t_us[ok]
+        if keep.shape[0] < rest.shape[0]:  # samples the clock rejected (else: no copy)
+            rest = frames[keep]
+            t_us = t_us[ok]
         rate = rest["rate"].astype(np.int64)
         ref = rest["ref"].astype(np.int64)
         sensor = self.config.sensor

@@ -8,12 +8,17 @@ the same messages as the replay path (:func:`hdrd.frames.decode_capture` then
 test_replay check each pair on small or synthetic inputs; this module ties all of them together
 on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a device-clock wrap.
 
-It also covers the daemon's batched reading: :meth:`Pipeline.until_step_s` (how long the port
-may go unread without delaying a step) and the direct read path of a local serial port.
+It also covers the other shortcuts taken for speed: the daemon's batched reading
+(:meth:`Pipeline.until_step_s`: how long the port may go unread without delaying a step), the
+direct read path of a local serial port, the JSON formatter's fast path, and the lazy imports
+that keep ``hdrd replay`` light.
 """
 
 from __future__ import annotations
 
+import math
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +31,7 @@ from hdrd.fakegyro import FakeGyro
 from hdrd.frames import Frame, Parser, array_to_frames, decode_capture
 from hdrd.hdr import HdrParams
 from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.publish import _format_clean, format_json
 from hdrd.sim import simulate_drive
 from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource, profile_frames
 
@@ -188,3 +194,49 @@ def test_until_step_s_never_sleeps_past_the_closing_sample(
         if closing.size:
             assert tu + s * 1e6 <= t[closing[0]]
         assert s < 1.0
+
+
+# --------------------------------------------------------------------------- JSON, imports
+
+_json_values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**70), 2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+    st.builds(np.float64, st.floats(allow_nan=True)),
+    st.builds(np.int32, st.integers(-(2**31), 2**31 - 1)),
+    st.lists(st.floats(allow_nan=False, allow_infinity=False), max_size=3),
+    st.dictionaries(st.text(max_size=3), st.one_of(st.none(), st.integers()), max_size=2),
+)
+
+
+@settings(max_examples=300)
+@given(st.dictionaries(st.one_of(st.text(max_size=6), st.integers(0, 3)), _json_values, max_size=8))
+def test_json_fast_path_writes_what_the_cleaning_path_writes(msg: dict[Any, Any]) -> None:
+    assert format_json(msg) == _format_clean(msg)
+
+
+def test_json_fast_path_on_pipeline_messages(capture: tuple[bytes, FakeGyro]) -> None:
+    msgs = replay_messages(capture[0], CONFIGS["bias given"])
+    assert all(
+        isinstance(v, (str, int, float)) and not (isinstance(v, float) and math.isnan(v))
+        for m in msgs
+        for v in m.values()
+    )
+    assert b"".join(map(format_json, msgs)) == b"".join(map(_format_clean, msgs))
+
+
+def test_replay_imports_neither_structlog_nor_yaml(tmp_path: Path) -> None:
+    """``hdrd replay --bias`` loads no logging framework and no YAML parser (each costs tens
+    of ms of the replay's budget); the daemon's own modules import them where used."""
+    cap = tmp_path / "c.bin"
+    FakeGyro(profile_frames(simulate_drive("standstill", 0.1, 1, hz=10.0))).write_capture(cap)
+    code = (
+        "import sys; from hdrd.cli import main; rc = main(['replay', sys.argv[1], '--bias', '0']);"
+        "print(rc, sorted(m for m in ('structlog', 'yaml', 'asyncio') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(cap)], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.splitlines()[-1] == "0 []"
