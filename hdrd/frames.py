@@ -698,8 +698,8 @@ def decode_capture(
     valid = _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
     if valid.all():
         acc_mask = _greedy_accept(cand)
-        good = words if acc_mask.all() else words[acc_mask]
-        st.bad_before = np.zeros(good.shape[0], np.int64)
+        payload = (words if acc_mask.all() else words[acc_mask])[:, 1:7]
+        st.bad_before = np.zeros(payload.shape[0], np.int64)
     else:
         v = cand[valid]
         acc_mask = _greedy_accept(v)
@@ -713,9 +713,12 @@ def decode_capture(
         else:
             bad_pos = inv
         st.bad_frames = int(bad_pos.size)
-        st.bad_before = np.searchsorted(bad_pos, acc).astype(np.int64)
-        good = words[np.flatnonzero(valid)[acc_mask]]
-    arr = np.ascontiguousarray(good[:, 1:7]).view(FRAME_DTYPE).reshape(-1)
+        # bad_before[i] = #(bad positions < acc[i]) = #(bad j whose insertion point in acc is
+        # <= i): a cumulative count over the few bad frames, not a search per good frame.
+        at = np.searchsorted(acc, bad_pos)
+        st.bad_before = np.cumsum(np.bincount(at, minlength=acc.size + 1)[: acc.size], dtype=np.int64)
+        payload = words[np.flatnonzero(valid)[acc_mask], 1:7]  # one gather, contiguous
+    arr = np.ascontiguousarray(payload).view(FRAME_DTYPE).reshape(-1)
     st.frames = int(arr.shape[0])
     st.garbage_bytes = n - BIN_FRAME_LEN * st.frames
     _sequence_stats(arr, st)
