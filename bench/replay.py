@@ -1,0 +1,153 @@
+#!/usr/bin/env python3
+"""Replay: wall time of ``hdrd replay`` on a 1-hour 100 Hz capture, end to end as a process.
+
+    python bench/replay.py [--repeats 5] [--workdir /tmp/hdrd-bench] [--no-write]
+
+Takes about 15 s (the first run also writes the capture, ~3 s). ``hdrd replay CAPTURE --bias
+0.1`` runs as a process (the console script beside this Python): interpreter start-up, imports,
+reading and decoding the capture, the pipeline and one JSON line per step, written to a file
+(and, apart, to /dev/null). The figure is the wall time from spawn to exit; also the child's CPU
+time (user + system) and the multiple of real time (device time / wall time). A breakdown by
+phase comes from one more run in a fresh interpreter that times each phase itself.
+
+Target (issue 8): <= 0.5 s, i.e. >= 7,200x real time. Prints the figures and appends them to
+bench/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import (
+    REPO,
+    append_section,
+    capture_line,
+    hdrd_command,
+    machine_line,
+    make_capture,
+    ratio,
+    time_process,
+)
+
+TARGET_S = 0.5
+BIAS = "0.1"
+
+# One replay in a fresh interpreter, timing its own phases (what `hdrd replay` does, in order).
+PHASES = r"""
+import json, sys, time
+t = [time.perf_counter()]
+import numpy
+t.append(time.perf_counter())
+from dataclasses import replace
+from hdrd.cli import build_parser
+from hdrd.daemon import _pipeline_config, config_from_args
+from hdrd.frames import decode_capture
+from hdrd.pipeline import Pipeline
+from hdrd.publish import format_json
+t.append(time.perf_counter())
+args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
+cfg, _ = config_from_args(args)
+data = open(sys.argv[1], "rb").read()
+t.append(time.perf_counter())
+frames, stats = decode_capture(data)
+t.append(time.perf_counter())
+p = Pipeline(replace(_pipeline_config(cfg, None), bias_dps=float(sys.argv[2])))
+msgs = p.feed_array(frames, stats.bad_before)
+msgs.extend(p.finish(int(stats.bad_frames)))
+t.append(time.perf_counter())
+out = b"".join(format_json(m) for m in msgs)
+t.append(time.perf_counter())
+with open("/dev/null", "wb") as f:
+    f.write(out)
+t.append(time.perf_counter())
+names = ["import numpy", "import hdrd's modules", "arguments, configuration, read the file",
+         "decode (decode_capture)", "pipeline (feed_array)", "JSON (format_json)", "write"]
+print(json.dumps({n: b - a for n, a, b in zip(names, t, t[1:])}))
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--workdir", default="/tmp/hdrd-bench", help="where the capture is kept")
+    ap.add_argument(
+        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
+    )
+    a = ap.parse_args(argv)
+    work = Path(a.workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    print(machine_line(), flush=True)
+    cap = work / "capture-1h-100hz.bin"
+    meta = make_capture(cap)
+    print(capture_line(meta), flush=True)
+    hdrd = hdrd_command()
+    cmd = [*hdrd, "replay", str(cap), "--bias", BIAS]
+    out_file = work / "replay.jsonl"
+    with open(out_file, "wb") as f:
+        subprocess.run(
+            cmd, stdout=f, check=True
+        )  # warm the page cache; also the output checked below
+    lines = out_file.read_bytes().count(b"\n")
+    with open(out_file, "wb") as f:
+        to_file = time_process(cmd, a.repeats, stdout=f)
+    to_null = time_process(cmd, a.repeats)
+    python_alone = time_process([sys.executable, "-c", "pass"], a.repeats)
+    phases = json.loads(
+        subprocess.run(
+            [sys.executable, "-c", PHASES, str(cap), BIAS],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=REPO,
+        ).stdout
+    )
+    dev_s = meta["device_s"]
+    how = "the console script" if len(hdrd) == 1 else "python -m hdrd"
+    rows = [("> a file", to_file), ("> /dev/null", to_null)]
+    md = [
+        f"`python bench/replay.py --repeats {a.repeats}` on {machine_line()}.",
+        "",
+        (
+            f"Capture: {capture_line(meta)}. `hdrd replay CAPTURE --bias {BIAS}` as a process ({how}), "
+            f"{lines:,} JSON lines; wall time from spawn to exit (best and median of {a.repeats}), the "
+            "child's CPU time (user + system), and device time / wall time."
+        ),
+        "",
+        "| output | best wall | median wall | CPU | x real time | target <= 0.5 s | vs target |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, t in rows:
+        md.append(
+            f"| {name} | {t.best_wall:.3f} s | {t.median_wall:.3f} s | {t.best_cpu:.3f} s | "
+            f"{dev_s / t.best_wall:,.0f}x | {'met' if t.best_wall <= TARGET_S else 'missed'} | "
+            f"{ratio(t.best_wall, TARGET_S, False)} |"
+        )
+        print(
+            f"replay {name}: best {t.best_wall:.3f} s, median {t.median_wall:.3f} s, CPU {t.best_cpu:.3f} s, {dev_s / t.best_wall:,.0f}x real time",
+            flush=True,
+        )
+    md += [
+        "",
+        (
+            f"Where the time goes (one more run, in a fresh interpreter, timing itself; the interpreter's "
+            f"own start-up, `python -c pass`, is {python_alone.best_wall * 1e3:.0f} ms on its own):"
+        ),
+        "",
+        "| phase | ms |",
+        "|---|---|",
+    ]
+    md += [f"| {k} | {v * 1e3:.0f} |" for k, v in phases.items()]
+    text = "\n".join(md)
+    append_section("replay", text, write=not a.no_write)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
