@@ -59,7 +59,8 @@ def ram_gb() -> float:
 
 
 def git_commit() -> str:
-    """Short commit of the working tree, "+dirty" when hdrd/ or bench/ has uncommitted changes."""
+    """Short commit of the working tree, "+dirty" when hdrd/ or bench/ (results aside) has
+    uncommitted changes."""
     try:
         rev = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
@@ -69,7 +70,7 @@ def git_commit() -> str:
             check=True,
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", "hdrd", "bench"],
+            ["git", "status", "--porcelain", "--", "hdrd", "bench", ":!bench/RESULTS.md"],
             cwd=REPO,
             capture_output=True,
             text=True,
