@@ -3,7 +3,7 @@
 Ten minutes of device time of a simulated drive at 100 Hz, played 100 times faster to a real
 `hdrd run` process on a fake-gyro pty, with garbage, CRC errors and dropped frames throughout
 and two cable pulls. Counts are asserted, never timings: every step the delivered frames make
-is published once (numbers contiguous), every delivered frame is in one step, every damaged
+is published once (numbers in order, skipping only across reconnects), every delivered frame is in one step, every damaged
 frame is counted, every pull is a reconnect, the daemon exits 0 without a traceback. The
 long run (6 hours of device time) and its figures are in bench/RESULTS.md, "## Soak".
 """
@@ -46,7 +46,7 @@ def test_short_soak_counts(tmp_path: Path) -> None:
     assert r.exit_code == 0 and not r.traceback
     assert r.pulls == 2 and r.reconnects == 2 and r.device_lost_events == 2
     assert r.stale_reports > 0  # while each cable was out
-    assert r.steps_published == r.steps_expected and r.steps_contiguous
+    assert r.steps_published == r.steps_expected and r.steps_in_order
     assert r.samples_published == r.frames_delivered
     assert r.bad_injected > 0 and r.bad_counted == r.bad_injected
     assert r.dropped > 0 and r.garbage_events > 0
