@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Live: what `hdrd run` costs, fed by the fake gyro on a pty at 100 Hz and at 1 kHz.
 
-    python bench/live.py [--seconds 60] [--rates 100,1000] [--no-write]
+    python bench/live.py [--seconds 60] [--rates 100,1000] [--load N] [--no-write]
 
 Takes about 2 * (seconds + 10) s. For each frame rate the daemon runs as a process
 (``hdrd run --port PTY --bias 0.1 --udp 127.0.0.1:PORT``, the console script) on a pty written
@@ -19,6 +19,10 @@ measure, over the ``--seconds`` after its first step message (imports and start-
   datagram as it arrives (``SO_TIMESTAMPNS``, the same CLOCK_REALTIME), so neither stamp waits
   for this process's threads to be scheduled. The write stamp is taken before the writer's
   poll and write system calls, so the figure is an upper bound.
+
+``--load N`` runs N busy-looping processes meanwhile, to see what a machine busy with other
+work does to the figures (CPU time per wake-up grows with cold caches; latency with the wait
+for a core).
 
 Targets (issue 8) at 1 kHz: <= 2 % of one core, peak RSS <= 60 MB, p99 latency <= 2 ms.
 Prints the figures and appends them, with the machine's description, to bench/RESULTS.md.
@@ -251,12 +255,18 @@ def measure(hz: float, seconds: float, seed: int = 1) -> LiveResult:
     )
 
 
-def report(results: list[LiveResult], seconds: float) -> str:
+def report(results: list[LiveResult], seconds: float, load: int = 0) -> str:
     cmd = " ".join(
         ["hdrd", "run", "--port", "PTY", "--bias", str(BIAS_DPS), "--udp", "127.0.0.1:PORT"]
     )
     lines = [
-        f"`python bench/live.py --seconds {seconds:g}` on {machine_line()}.",
+        f"`python bench/live.py --seconds {seconds:g}{f' --load {load}' if load else ''}` on "
+        f"{machine_line()}"
+        + (
+            f"; {load} busy-looping processes ran beside it (the machine has 2 cores)."
+            if load
+            else "."
+        ),
         "",
         (
             f"`{cmd}` (a process) on a pty written in real time by the fake gyro; CPU over the "
@@ -296,24 +306,38 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="measured window per rate, s")
     ap.add_argument("--rates", default="100,1000", help="frame rates, Hz, comma-separated")
     ap.add_argument(
+        "--load",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run N busy processes meanwhile (a machine busy with other work)",
+    )
+    ap.add_argument(
         "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
     )
     a = ap.parse_args(argv)
     m = machine()
     print(machine_line(m), flush=True)
     results = []
-    for hz in (float(x) for x in a.rates.split(",")):
-        print(f"{hz:g} Hz for {a.seconds:g} s ...", flush=True)
-        r = measure(hz, a.seconds)
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.load)]
+    try:
+        for hz in (float(x) for x in a.rates.split(",")):
+            print(f"{hz:g} Hz for {a.seconds:g} s ...", flush=True)
+            results.append(measure(hz, a.seconds))
+    finally:
+        for b in busy:
+            b.kill()
+            b.wait()
+    for r in results:
         print(
             f"  CPU {100 * r.cpu_share:.2f} % of one core, peak RSS {r.rss_peak_mb:.1f} MB, latency p50 "
             f"{r.p50_ms:.2f} ms p99 {r.p99_ms:.2f} ms max {r.max_ms:.2f} ms over {r.steps} steps, "
             f"samples as sent: {r.samples_ok}",
             flush=True,
         )
-        results.append(r)
-    text = report(results, a.seconds)
-    append_section("live daemon", text, write=not a.no_write)
+    text = report(results, a.seconds, a.load)
+    title = "live daemon" + (f", {a.load} busy processes beside it" if a.load else "")
+    append_section(title, text, write=not a.no_write)
     print(text)
     return 0
 
