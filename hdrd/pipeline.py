@@ -127,6 +127,7 @@ class Pipeline:
             self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.events: list[tuple[str, dict[str, Any]]] = []
         self.speed_mps: float | None = None
+        self._plus_params: HdrPlusParams | None = None  # fitted at the first HDR+ step
 
     # -- state ---------------------------------------------------------------------------
 
@@ -158,6 +159,7 @@ class Pipeline:
             self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.config = config
         self._params = method_params(config.method, config.params)
+        self._plus_params = None  # refitted at the next HDR+ step
 
     def set_speed(self, speed_mps: float | None) -> None:
         """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
@@ -321,8 +323,22 @@ class Pipeline:
         temp = math.nan if block.temp_c is None else block.temp_c
         speed = math.nan if self.speed_mps is None else self.speed_mps
         inp = hdrplus.PlusInput(u, block.std, speed, temp, self.config.params.T)
-        self._plus, po = hdrplus.step(self._plus, inp, self.config.plus)
+        if self._plus_params is None:
+            self._plus_params = self._fit_plus_params(block)
+        self._plus, po = hdrplus.step(self._plus, inp, self._plus_params)
         return po, eps0 + po.bias_corr_dps, po.standstill
+
+    def _fit_plus_params(self, block: Block) -> HdrPlusParams:
+        """HDR+'s parameters for this gyro: samples per step from the first block stepped
+        (the sample rate times T), and the start-up bias variance std^2/n of the eps0
+        measurement when it is known (the default assumes a 30 s one)."""
+        p = self.config.plus
+        if block.n >= 2:
+            p = replace(p, standstill=replace(p.standstill, samples_per_step=float(block.n)))
+        rec = self.bias
+        if rec is not None and rec.n > 1 and rec.std_dps > 0:
+            p = replace(p, bias_p0=rec.std_dps * rec.std_dps / rec.n)
+        return p
 
     def _calibration_step(self, block: Block) -> None:
         """A calibration block closed: its samples are in _cal_*, minus none (the closing
