@@ -231,8 +231,8 @@ class Pipeline:
         omega = sensor.to_dps_array(rate, ref)
         sat = np.asarray(sensor.saturated(rate, omega), bool)
         raw_temp = rest["temp"].astype(np.int64)
-        temp = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
-        for pos, item in self._avg.feed_many(t_us, omega, temp, sat):
+        temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
+        for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
             out.extend(self._on_blocks((item,), int(bad[keep[pos]]), now() if now else None))
         return out
 
