@@ -105,8 +105,10 @@ class DeviceClock:
                 out[0] = start
             np.cumsum(d, out=out[head:])
             out[head:] += start
-            prev = np.concatenate(([self._last_raw], raw[:-1])) if not head else raw[:-1]
-            self.wraps += int(np.count_nonzero(raw[head:] < prev))
+            prev = np.empty(n, np.int64)  # each sample's predecessor; a wrap goes down
+            prev[0] = raw[0] if self._last_raw is None else self._last_raw
+            prev[1:] = raw[:-1]
+            self.wraps += int(np.count_nonzero(raw < prev))
             self._last_raw = int(raw[-1])
             self._last = int(out[-1])
             return out, np.ones(n, bool)
