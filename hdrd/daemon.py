@@ -304,8 +304,8 @@ class Daemon:
     frames gather in the kernel's tty buffer and come in one read. 20 ms is 6 KB at 3 Mbaud,
     well inside what the tty layer buffers."""
     READ_GUARD_S = 0.002
-    """Pausing stops this long before the step-closing frame is due (by the device clock,
-    :meth:`hdrd.pipeline.Pipeline.until_step_s`), so that frame is read as it arrives."""
+    """Pausing stops this long before the step-closing frame can arrive (:mod:`hdrd.pacing`),
+    so that frame is read as it arrives."""
 
     def __init__(self, cfg: Config, where: str, args: argparse.Namespace, bias: BiasChoice) -> None:
         from hdrd.pipeline import Pipeline
@@ -382,6 +382,7 @@ class Daemon:
 
     def run(self) -> int:
         from hdrd.publish import OutputClosed
+        from hdrd.pacing import ReadPacer
         from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource
 
         self.signals.install()
@@ -399,7 +400,8 @@ class Daemon:
         if self.bias_choice.record is None:
             self._set_status(f"calibrating: measuring the bias over {self.cfg.calibration.startup_s:g} s at standstill")
         src = open_source(self.cfg, self.simulate)
-        batch_reads = isinstance(src, SerialSource)  # others pace themselves
+        # Batched reads of a serial port (hdrd.pacing); the other sources pace themselves.
+        pacer = ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S) if isinstance(src, SerialSource) else None
         T = self.cfg.hdr.params.T
         mono = time.monotonic
         last_data = mono()
@@ -432,6 +434,8 @@ class Daemon:
                     log.info("device_back", port=src_name, gap_s=round(gap, 3), reconnects=self.reconnects)
                     msgs = self.pipeline.resync(gap, bad, time.time())
                     lost_at = None
+                    if pacer is not None:
+                        pacer.reset()  # a new device clock
                 elif isinstance(item, EndOfInput):
                     msgs = self.pipeline.finish(bad, time.time())
                     self._publish(msgs)
@@ -468,11 +472,13 @@ class Daemon:
                 if self.notifier.watchdog_s and now_m >= next_watchdog:
                     self.notifier.notify("WATCHDOG=1")
                     next_watchdog = now_m + self.notifier.watchdog_s
-                if got_frame and batch_reads and not src.pending:
+                if got_frame and pacer is not None and not src.pending:
                     # Everything read is processed: let the next frames gather (READ_BATCH_S).
-                    slack = self.pipeline.until_step_s()
-                    if slack is not None and slack - self.READ_GUARD_S > 0.001:
-                        time.sleep(min(self.READ_BATCH_S, slack - self.READ_GUARD_S))
+                    t_dev = self.pipeline.clock.last_us
+                    if t_dev is not None:
+                        pause = pacer.pause(now_m, t_dev / 1e6, self.pipeline.until_step_s(), mono())
+                        if pause:
+                            time.sleep(pause)
         except OutputClosed:
             log.info("output_closed", reason="stdout reader went away")
         finally:
