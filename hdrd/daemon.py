@@ -476,7 +476,8 @@ class Daemon:
                     # Everything read is processed: let the next frames gather (READ_BATCH_S).
                     t_dev = self.pipeline.clock.last_us
                     if t_dev is not None:
-                        pause = pacer.pause(now_m, t_dev / 1e6, self.pipeline.until_step_s(), mono())
+                        pl = self.pipeline
+                        pause = pacer.pause(now_m, t_dev / 1e6, pl.until_step_s(), mono(), pl.sample_interval_s())
                         if pause:
                             time.sleep(pause)
         except OutputClosed:

@@ -17,7 +17,9 @@ only makes lags larger, so it never moves the estimate later. The estimate may c
 faster one gives smaller lags at once.
 
 :class:`ReadPacer` turns that into a pause: until ``guard_s`` before the earliest arrival of the
-closing frame, and never longer than ``max_pause_s``.
+closing frame, never longer than ``max_pause_s``, and never longer than ``max_frames`` sample
+intervals: at high frame rates a long pause would fill the tty layer's 4 KB buffer, which
+blocks a pty's writer (and so delays the frames behind it) and risks overruns on a real port.
 """
 
 from __future__ import annotations
@@ -31,21 +33,26 @@ class ReadPacer:
     """Pauses between reads of the port (see the module doc). Times in seconds: ``now`` on
     the host's monotonic clock, device times unwrapped (:class:`hdrd.resample.DeviceClock`).
 
-    max_pause_s: longest pause (bounds what gathers in the tty buffer: 20 ms is 6 KB at 3 Mbaud).
-    guard_s: margin before the closing frame's earliest arrival. drift: how fast (s/s) the
-    delay estimate may grow between observations.
+    max_pause_s: longest pause. guard_s: margin before the closing frame's earliest arrival.
+    drift: how fast (s/s) the delay estimate may grow between observations. max_frames: most
+    sample intervals in a pause (128 hdr-bin frames are 2 KB, half the tty buffer).
     """
 
-    __slots__ = ("_lag", "_lag_at", "drift", "guard_s", "max_pause_s")
+    __slots__ = ("_lag", "_lag_at", "drift", "guard_s", "max_frames", "max_pause_s")
 
     def __init__(
-        self, max_pause_s: float = 0.02, guard_s: float = 0.002, drift: float = 2e-4
+        self,
+        max_pause_s: float = 0.02,
+        guard_s: float = 0.002,
+        drift: float = 2e-4,
+        max_frames: int = 128,
     ) -> None:
-        if not (max_pause_s >= 0 and guard_s >= 0 and drift >= 0):
-            raise ValueError("max_pause_s, guard_s and drift must be >= 0")
+        if not (max_pause_s >= 0 and guard_s >= 0 and drift >= 0 and max_frames >= 0):
+            raise ValueError("max_pause_s, guard_s, drift and max_frames must be >= 0")
         self.max_pause_s = max_pause_s
         self.guard_s = guard_s
         self.drift = drift
+        self.max_frames = max_frames
         self._lag = math.inf
         self._lag_at = 0.0
 
@@ -59,14 +66,20 @@ class ReadPacer:
         return self._lag
 
     def pause(
-        self, in_hand_s: float, t_dev_s: float, until_step_s: float | None, now_s: float
+        self,
+        in_hand_s: float,
+        t_dev_s: float,
+        until_step_s: float | None,
+        now_s: float,
+        interval_s: float | None = None,
     ) -> float:
         """Seconds to wait before reading again (0: read now).
 
         in_hand_s: host time at which the newest frame read was in hand; t_dev_s: its device
         time. until_step_s: :meth:`hdrd.pipeline.Pipeline.until_step_s` after it (device
         seconds from it to the earliest step-closing sample, or None: unknown). now_s: host
-        time now.
+        time now. interval_s: the sample interval, device s
+        (:meth:`hdrd.pipeline.Pipeline.sample_interval_s`; None: unknown, no frame limit).
         """
         lag = in_hand_s - t_dev_s
         grown = self._lag + self.drift * (in_hand_s - self._lag_at)
@@ -76,6 +89,8 @@ class ReadPacer:
             return 0.0
         due = t_dev_s + until_step_s + self._lag  # earliest arrival of the closing frame
         p = due - self.guard_s - now_s
+        if interval_s is not None:
+            p = min(p, self.max_frames * interval_s)
         if p <= 0.001:  # not worth a sleep
             return 0.0
         return min(p, self.max_pause_s)

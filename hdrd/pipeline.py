@@ -368,22 +368,31 @@ class Pipeline:
             )
         )
 
+    def sample_interval_s(self) -> float | None:
+        """Sample interval of the open block, device s: (last - block start) / (n - 1), never
+        less than the mean interval (the first sample is at or after the start). None until
+        the open block holds two samples."""
+        block = self._avg.open_block
+        last = self._clock.last_us
+        if block is None or last is None or block[2] < 2:
+            return None
+        return max(last - block[0], 0) / (block[2] - 1) / 1e6
+
     def until_step_s(self) -> float | None:
         """Device seconds from the last sample to one sample interval before the open block
         ends: how long the port may go unread without delaying the next step, if the device
         clock runs at the host's rate (the sample that closes the step arrives at the block's
         end at the earliest). None until the open block holds two samples.
 
-        The interval is (last - block start) / (n - 1), never less than the mean interval, so
-        the answer errs early. The daemon uses it to read the port in batches.
+        The interval (:meth:`sample_interval_s`) errs long, so the answer errs early. The
+        daemon uses it to read the port in batches (:mod:`hdrd.pacing`).
         """
+        interval = self.sample_interval_s()
         block = self._avg.open_block
         last = self._clock.last_us
-        if block is None or last is None or block[2] < 2:
+        if interval is None or block is None or last is None:
             return None
-        start, end, n = block
-        interval = max(last - start, 0) / (n - 1)
-        return (end - last - interval) / 1e6
+        return (block[1] - last) / 1e6 - interval
 
     # -- while no data arrives -------------------------------------------------------------
 

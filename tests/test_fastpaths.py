@@ -267,7 +267,7 @@ def simulate_reader(hz: float, seconds: float, delays: np.ndarray, pacer: ReadPa
             break
         last = p.clock.last_us
         assert last is not None
-        pause = pacer.pause(now, last / 1e6, p.until_step_s(), now)
+        pause = pacer.pause(now, last / 1e6, p.until_step_s(), now, p.sample_interval_s())
         now = max(now + pause, arrive[k])
     return late
 
@@ -293,7 +293,16 @@ def test_paced_reads_never_read_a_step_closing_frame_late(
     late = simulate_reader(hz, 12.0, delays, pacer)
     assert len(late) >= 10
     assert max(late[2:]) == 0.0  # the first steps come before the delay is known
-    assert pacer.lag_s >= 5.0 - 1e-9  # never below the true delay
+    assert pacer.lag_s >= 5.0 - 1e-6  # never below the true delay (device times in whole us)
+
+
+def test_paced_reads_at_the_wires_limit() -> None:
+    """18,750 frames/s (3 Mbaud), delivery late by up to 3 ms for half the frames."""
+    rng = np.random.default_rng(1)
+    n = 18750 * 5
+    delays = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(0, 0.003, n))
+    late = simulate_reader(18750.0, 5.0, delays, ReadPacer())
+    assert len(late) == 4 and max(late[1:]) == 0.0
 
 
 def test_pacing_batches_reads_and_gives_up_nothing_on_steady_delivery() -> None:
@@ -310,5 +319,8 @@ def test_pacing_batches_reads_and_gives_up_nothing_on_steady_delivery() -> None:
     assert pacer.lag_s == pytest.approx(5.0)
     pacer.reset()
     assert pacer.lag_s == math.inf and pacer.pause(20.0, 1.0, 0.5, 20.0) == 0.02
+    # At 18,750 frames/s (a 3 Mbaud link's limit) no more than 128 frames gather: 6.8 ms.
+    assert pacer.pause(20.1, 1.1, 0.5, 20.1, 1 / 18750) == pytest.approx(128 / 18750)
+    assert pacer.pause(20.2, 1.2, 0.5, 20.2, 1 / 1000) == 0.02
     with pytest.raises(ValueError):
         ReadPacer(guard_s=-1.0)
