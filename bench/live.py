@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""Live: what `hdrd run` costs, fed by the fake gyro on a pty at 100 Hz and at 1 kHz.
+"""Live: what `hdrd run` costs, fed by the fake gyro on a pty at 100 Hz, 1 kHz and 18,750 Hz.
 
-    python bench/live.py [--seconds 60] [--rates 100,1000] [--load N] [--no-write]
+    python bench/live.py [--seconds 60] [--rates 100,1000,18750] [--load N] [--no-write]
 
-Takes about 2 * (seconds + 10) s. For each frame rate the daemon runs as a process
+Takes about 3 * (seconds + 10) s. For each frame rate the daemon runs as a process
 (``hdrd run --port PTY --bias 0.1 --udp 127.0.0.1:PORT``, the console script) on a pty written
 in real time by :class:`hdrd.fakegyro.FakeGyro` (a simulated "mixed" drive, no faults), and we
 measure, over the ``--seconds`` after its first step message (imports and start-up excluded):
@@ -304,7 +304,11 @@ def report(results: list[LiveResult], seconds: float, load: int = 0) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured window per rate, s")
-    ap.add_argument("--rates", default="100,1000", help="frame rates, Hz, comma-separated")
+    ap.add_argument(
+        "--rates",
+        default="100,1000,18750",
+        help="frame rates, Hz, comma-separated (18,750: a 3 Mbaud link's limit)",
+    )
     ap.add_argument(
         "--load",
         type=int,
