@@ -485,6 +485,8 @@ class Daemon:
         finally:
             self.notifier.notify("STOPPING=1")
             try:
+                if pacer is not None:
+                    self._drain_port(src)
                 self._publish(self.pipeline.finish(int(src.stats.bad_frames), time.time()))
             except OutputClosed:
                 pass
@@ -496,6 +498,19 @@ class Daemon:
             self.notifier.close()
             self.signals.restore()
         return 0
+
+    DRAIN_S = 0.25
+    """At shutdown, frames the port already holds are read for at most this long (s)."""
+
+    def _drain_port(self, src: Any) -> None:
+        """Flush at shutdown: publish the frames the kernel already holds for us (read
+        without waiting; paced reads leave up to a few in the tty buffer), then stop."""
+        deadline = time.monotonic() + self.DRAIN_S
+        while time.monotonic() < deadline:
+            item = src.recv(0.0)
+            if item is None or not hasattr(item, "t_us"):  # nothing left, or a device event
+                return
+            self._publish(self.pipeline.feed(item, src.bad_frames, time.time()))
 
     def _publish_stale(self, silent: float, bad: int) -> None:
         msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
