@@ -264,3 +264,20 @@ def append_section(title: str, body: str, write: bool = True) -> str:
         with open(RESULTS, "a", encoding="utf-8") as f:
             f.write(text)
     return text
+
+
+def replace_section(heading: str, section: str) -> None:
+    """Replace the section that starts with the line ``heading`` in RESULTS.md (up to the next
+    ``## `` heading) by ``section``, or append it; the other sections are left alone. For the
+    scripts that keep one section up to date (bench/tables.py, bench/hdrplus.py)."""
+    text = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
+    if start is None:
+        if not text.endswith("\n\n"):
+            text = text.rstrip("\n") + "\n\n"
+        RESULTS.write_text(text + section, encoding="utf-8")
+        return
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    tail = "".join(lines[end:])
+    RESULTS.write_text("".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8")

@@ -486,21 +486,9 @@ the same tables unless the code changes; if it did, re-read the numbers before t
 
 def write_section(section: str) -> None:
     """Replace this script's section of RESULTS.md (or append it), leaving the rest alone."""
-    text = (
-        RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
-    )
-    lines = text.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == SECTION), None)
-    if start is None:
-        if not text.endswith("\n\n"):
-            text = text.rstrip("\n") + "\n\n"
-        RESULTS.write_text(text + section, encoding="utf-8")
-        return
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-    tail = "".join(lines[end:])
-    RESULTS.write_text(
-        "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
-    )
+    from _common import replace_section  # bench/ is on sys.path when run as a script
+
+    replace_section(SECTION, section)
 
 
 if __name__ == "__main__":
