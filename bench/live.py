@@ -181,8 +181,8 @@ def measure(hz: float, seconds: float, seed: int = 1) -> LiveResult:
         rx = Receiver()
         rx.start()
         env = dict(os.environ, STATE_DIRECTORY=str(tmpd))
-        for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
-            env.pop(k, None)
+        for name in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
+            env.pop(name, None)
         proc: subprocess.Popen[bytes] | None = None
         try:
             g.open()
