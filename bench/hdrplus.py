@@ -28,7 +28,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import shlex
 import subprocess
 import sys
@@ -672,17 +671,10 @@ def fm(v: float, d: int = 3) -> str:
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (
-        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
-    )
+    """What the figures were measured on (bench/_common.py, shared by every benchmark)."""
+    from _common import machine_line  # bench/ is on sys.path when run as a script
+
+    return machine_line()
 
 
 def evaluate_json(path: Path) -> dict[str, Any]:

@@ -25,8 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import shlex
 import statistics
 import subprocess
@@ -35,7 +33,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -76,18 +73,10 @@ def run(cmd: list[str], log: list[str]) -> subprocess.CompletedProcess[str]:
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (
-        f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"numpy {np.__version__}, {platform.system()} {platform.release()}"
-    )
+    """What the figures were measured on (bench/_common.py, shared by every benchmark)."""
+    from _common import machine_line  # bench/ is on sys.path when run as a script
+
+    return machine_line()
 
 
 def f(v: float | None, d: int = 2) -> str:
