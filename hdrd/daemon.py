@@ -449,9 +449,6 @@ class Daemon:
                     self._drain_events()
                     self._publish(msgs)
                     last = msgs[-1]
-                    if not self.ready and self.pipeline.bias is not None:
-                        self.ready = True
-                        self.notifier.notify("READY=1")
                     if self.pipeline.bias is not None:
                         self._set_status(
                             f"{last['status']}: heading {last.get('heading', float('nan')):.1f} deg, "
@@ -459,8 +456,8 @@ class Daemon:
                         )
                 elif self.pipeline.events:
                     self._drain_events()
-                if not self.ready and self.bias_choice.record is not None and got_frame:
-                    self.ready = True  # bias known and the port delivers
+                if not self.ready and self.pipeline.bias is not None and got_frame:
+                    self.ready = True  # the port delivers and the bias is known (given or measured)
                     self.notifier.notify("READY=1")
                 silent = now_m - last_data
                 if silent > self.cfg.device.stale_after_s and now_m - last_stale >= T:
