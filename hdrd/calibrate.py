@@ -27,14 +27,14 @@ import numpy.typing as npt
 
 __all__ = [
     "T_BIAS_S",
+    "BiasFileError",
     "BiasRecord",
     "MotionDetected",
-    "BiasFileError",
     "StandstillLimits",
-    "estimate_bias",
-    "save_bias",
-    "load_bias",
     "atomic_write_text",
+    "estimate_bias",
+    "load_bias",
+    "save_bias",
 ]
 
 T_BIAS_S = 30.0

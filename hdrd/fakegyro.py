@@ -97,13 +97,13 @@ def _device_seconds(t_us: npt.NDArray[np.integer[Any]]) -> npt.NDArray[np.float6
     """Device time of each frame since the first, s (unwrapped; a step back counts as 0)."""
     if t_us.shape[0] == 0:
         return np.zeros(0)
-    d = np.diff(t_us.astype(np.int64)) % CLOCK_WRAP_US
+    d = np.mod(np.diff(t_us.astype(np.int64)), CLOCK_WRAP_US)
     d[d >= CLOCK_WRAP_US // 2] = 0
     return np.concatenate(([0.0], np.cumsum(d) / 1e6))
 
 
 class _Tally:
-    __slots__ = ("frames", "garbage_events", "garbage_bytes", "crc_errors", "extra_sync", "dropped", "idx")
+    __slots__ = ("crc_errors", "dropped", "extra_sync", "frames", "garbage_bytes", "garbage_events", "idx")
 
     def __init__(self) -> None:
         self.frames = self.garbage_events = self.garbage_bytes = 0

@@ -30,6 +30,7 @@ import struct
 from binascii import crc_hqx
 from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -37,30 +38,30 @@ import numpy.typing as npt
 from hdrd.resample import CLOCK_WRAP_US, RESET_THRESHOLD_US
 
 __all__ = [
-    "PROTOCOLS",
-    "SYNC",
     "BIN_FRAME_LEN",
-    "TEMP_NOT_FITTED",
+    "CRC_TABLE",
     "FRAME_DTYPE",
+    "PROTOCOLS",
     "SEQ_REORDER_WINDOW",
+    "SYNC",
+    "TEMP_NOT_FITTED",
+    "CaptureStats",
     "Frame",
     "FrameError",
-    "ParserStats",
-    "CaptureStats",
     "Parser",
+    "ParserStats",
+    "array_to_frames",
     "crc16_ccitt_false",
     "crc16_ccitt_false_rows",
-    "encode_bin",
     "decode_bin",
-    "encode_text",
+    "decode_capture",
+    "decode_frames",
     "decode_text",
     "encode",
     "encode_array",
-    "decode_capture",
-    "decode_frames",
-    "CRC_TABLE",
+    "encode_bin",
+    "encode_text",
     "frames_to_array",
-    "array_to_frames",
 ]
 
 PROTOCOLS = ("hdr-bin", "hdr-text")
@@ -116,11 +117,12 @@ class Frame:
 # dataclass __init__ sets the same slots through object.__setattr__) at a fraction of the cost:
 # the parser's hot path.
 _new = object.__new__
-_SET_SEQ = Frame.seq.__set__  # type: ignore[attr-defined]
-_SET_T = Frame.t_us.__set__  # type: ignore[attr-defined]
-_SET_RATE = Frame.rate.__set__  # type: ignore[attr-defined]
-_SET_REF = Frame.ref.__set__  # type: ignore[attr-defined]
-_SET_TEMP = Frame.temp_cc.__set__  # type: ignore[attr-defined]
+_SLOTS: Any = vars(Frame)  # the slot descriptors (typing sees instance attributes only)
+_SET_SEQ = _SLOTS["seq"].__set__
+_SET_T = _SLOTS["t_us"].__set__
+_SET_RATE = _SLOTS["rate"].__set__
+_SET_REF = _SLOTS["ref"].__set__
+_SET_TEMP = _SLOTS["temp_cc"].__set__
 
 
 def _frame(seq: int, t_us: int, rate: int, ref: int, temp_cc: int | None) -> Frame:
@@ -190,7 +192,7 @@ def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16
     k, m = rows.shape
     if m % 2 == 0:
         c = _crc_words_le(np.ascontiguousarray(rows).view("<u2"))
-        return (c >> 8) | (c << 8)
+        return ((c >> 8) | (c << 8)).astype(np.uint16, copy=False)
     crc = np.full(k, 0xFFFF, np.uint16)
     for j in range(m):
         crc = (crc << 8) ^ CRC_TABLE[(crc >> 8) ^ rows[:, j]]
@@ -418,7 +420,7 @@ class Parser:
     the same frames and counters. ``flush()`` at end of input counts the leftover bytes.
     """
 
-    __slots__ = ("protocol", "stats", "bad_before", "_buf", "_last_seq", "_last_t", "_feed")
+    __slots__ = ("_buf", "_feed", "_last_seq", "_last_t", "bad_before", "protocol", "stats")
 
     def __init__(self, protocol: str = "hdr-bin") -> None:
         _check_protocol(protocol)

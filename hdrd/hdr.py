@@ -33,15 +33,15 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "INITIAL_STATE",
+    "HdrOutput",
     "HdrParams",
     "HdrState",
-    "HdrOutput",
     "HdrTrace",
-    "INITIAL_STATE",
     "attenuation",
-    "step",
     "run_batch",
     "run_many",
+    "step",
 ]
 
 # Paper, Table III: "A single set of parameters was used for all drives."

@@ -36,8 +36,8 @@ from hdrd.sensor import SensorModel
 __all__ = [
     "SCHEMA_VERSION",
     "Message",
-    "PipelineConfig",
     "Pipeline",
+    "PipelineConfig",
     "heading_from_yaw",
     "method_params",
 ]

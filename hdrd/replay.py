@@ -16,7 +16,7 @@ from typing import Any
 from hdrd.calibrate import BiasFileError, load_bias
 from hdrd.config import EX_CONFIG, Config, ConfigError
 
-__all__ = ["main", "convert_main", "replay_capture"]
+__all__ = ["convert_main", "main", "replay_capture"]
 
 
 def replay_capture(data: bytes, cfg: Config, bias_dps: float | None, startup_s: float | None = None) -> list[dict[str, Any]]:

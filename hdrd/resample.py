@@ -22,13 +22,13 @@ import numpy.typing as npt
 
 __all__ = [
     "CLOCK_WRAP_US",
-    "DeviceClock",
     "Block",
-    "Missing",
     "BlockAverager",
-    "unwrap_us",
-    "block_means",
+    "DeviceClock",
+    "Missing",
     "block_average_seconds",
+    "block_means",
+    "unwrap_us",
 ]
 
 CLOCK_WRAP_US = 1 << 32
@@ -47,7 +47,7 @@ class DeviceClock:
     the real time elapsed across a reset cannot be known from the device clock.
     """
 
-    __slots__ = ("_last_raw", "_last", "wraps", "rejected", "resets")
+    __slots__ = ("_last", "_last_raw", "rejected", "resets", "wraps")
 
     def __init__(self) -> None:
         self._last_raw: int | None = None

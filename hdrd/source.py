@@ -52,19 +52,19 @@ from hdrd.sensor import SensorModel
 __all__ = [
     "BUILTIN_DRIVES",
     "Clock",
-    "RealClock",
-    "ManualClock",
-    "DeviceLost",
     "DeviceBack",
+    "DeviceLost",
     "EndOfInput",
-    "SourceEvent",
-    "Source",
     "LinkStats",
+    "ManualClock",
+    "ProfileError",
+    "RealClock",
+    "ReplaySource",
     "SerialReader",
     "SerialSource",
-    "ReplaySource",
     "SimulatedSource",
-    "ProfileError",
+    "Source",
+    "SourceEvent",
     "builtin_profile",
     "load_profile",
     "profile_frames",
@@ -186,7 +186,7 @@ class _SourceBase:
 class _FrameQueue:
     """Frames parsed but not handed out yet, each with the bad-frame count before it."""
 
-    __slots__ = ("frames", "bad")
+    __slots__ = ("bad", "frames")
 
     def __init__(self) -> None:
         self.frames: deque[Frame] = deque()

@@ -20,8 +20,6 @@ from hdrd.drivelog import read_drive
 from hdrd.fakegyro import FakeGyro
 from hdrd.replay import replay_capture
 from hdrd.sensor import SensorModel
-from hdrd.source import builtin_profile
-
 from tests.test_daemon import drive_profile, strip_time
 
 WAIT = 30.0
