@@ -21,19 +21,19 @@ from hdrd.hdr import HdrParams
 from hdrd.sensor import SensorModel
 
 __all__ = [
-    "EX_CONFIG",
     "DEFAULT_CONFIG_PATH",
-    "ConfigError",
-    "Config",
-    "DeviceConfig",
+    "EX_CONFIG",
     "CalibrationConfig",
-    "OutputConfig",
-    "LogConfig",
-    "SimulateConfig",
+    "Config",
+    "ConfigError",
+    "DeviceConfig",
     "GpsdConfig",
+    "LogConfig",
+    "OutputConfig",
+    "SimulateConfig",
+    "apply_overrides",
     "load_config",
     "parse_config",
-    "apply_overrides",
     "parse_hostport",
 ]
 
@@ -183,6 +183,16 @@ class GpsdConfig:
     port: int = 2947
     min_speed_mps: float = 5.0
     """Course from GPS is trusted above this speed, m/s."""
+    max_fix_age_s: float = 2.5
+    """A fix older than this, s since it arrived, is stale (two missed 1 Hz fixes)."""
+    max_epd_deg: float = 15.0
+    """Course error estimate (gpsd's epd, 95 %) above which the course is not used, deg."""
+    align_gain: float = 0.2
+    """Share of the heading error (hdrd - GPS course) removed per step while aided, 0 .. 1."""
+    bias_window_s: float = 20.0
+    """Straight-driving window over which GPS makes one bias estimate, s."""
+    bias_gain: float = 0.3
+    """Share of a window's bias estimate applied, 0 .. 1."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -280,6 +290,11 @@ RULES: dict[str, tuple[Check, str]] = {
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
+    "gpsd.max_fix_age_s": _POS,
+    "gpsd.max_epd_deg": _num(0, 180, lo_open=True),
+    "gpsd.align_gain": _num(0, 1),
+    "gpsd.bias_window_s": _POS,
+    "gpsd.bias_gain": _num(0, 1),
 }
 
 

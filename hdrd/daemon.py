@@ -33,7 +33,7 @@ from hdrd.calibrate import (
 )
 from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
 
-__all__ = ["main", "calibrate_main", "SdNotifier", "default_bias_path", "config_from_args"]
+__all__ = ["SdNotifier", "calibrate_main", "config_from_args", "default_bias_path", "main"]
 
 
 class _LazyLogger:
@@ -221,6 +221,15 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
     return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps)
 
 
+def _gps_link(cfg: Config) -> Any:
+    """The GPS aiding link that ``cfg.gpsd`` asks for (:class:`hdrd.gpsd.GpsdLink`), or None."""
+    if not cfg.gpsd.enabled:
+        return None
+    from hdrd.gpsd import GpsdLink
+
+    return GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
+
+
 def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
     from hdrd.pipeline import PipelineConfig
 
@@ -323,11 +332,7 @@ class Daemon:
         self.status = ""
         self.steps = 0
         self.reconnects = 0
-        self.gps: Any = None  # GPS aiding through gpsd (hdrd.gpsd.GpsdLink), issue 9
-        if cfg.gpsd.enabled:
-            from hdrd.gpsd import GpsdLink
-
-            self.gps = GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
+        self.gps: Any = _gps_link(cfg)  # GPS aiding through gpsd (hdrd.gpsd.GpsdLink), issue 9
 
     # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
     def _set_status(self, text: str) -> None:
@@ -371,6 +376,11 @@ class Daemon:
         if cfg.output != old.output:
             _stop_all(self.publishers)
             self.publishers = build_publishers(cfg)
+        if cfg.gpsd != old.gpsd:  # a new gpsd connection and aiding state, or none
+            if self.gps is not None:
+                self.gps.close()
+            self.gps = _gps_link(cfg)
+            log.info("gpsd_reconfigured", enabled=cfg.gpsd.enabled, host=cfg.gpsd.host, port=cfg.gpsd.port)
         self.cfg, self.where = cfg, where
         log.info("config_reloaded", source=where, method=cfg.hdr.method, **cfg.hdr.params.as_dict())
 
@@ -381,8 +391,8 @@ class Daemon:
         self.pipeline.events.clear()
 
     def run(self) -> int:
-        from hdrd.publish import OutputClosed
         from hdrd.pacing import ReadPacer
+        from hdrd.publish import OutputClosed
         from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource
 
         self.signals.install()

@@ -587,6 +587,23 @@ class GpsdClient:
 # -- the daemon's link: client + aiding + pipeline hooks -------------------------------------
 
 
+def aiding_config(gpsd_cfg: Any, step_s: float = 1.0) -> Any:
+    """The :class:`hdrd.aiding.AidingConfig` that a :class:`hdrd.config.GpsdConfig` names
+    (``gpsd.min_speed_mps``, ``max_fix_age_s``, ``max_epd_deg``, ``align_gain``,
+    ``bias_window_s``, ``bias_gain``), with the HDR step period ``step_s``, s."""
+    from hdrd.aiding import AidingConfig
+
+    return AidingConfig(
+        min_speed_mps=gpsd_cfg.min_speed_mps,
+        max_fix_age_s=gpsd_cfg.max_fix_age_s,
+        max_epd_deg=gpsd_cfg.max_epd_deg,
+        align_gain=gpsd_cfg.align_gain,
+        bias_window_s=gpsd_cfg.bias_window_s,
+        bias_gain=gpsd_cfg.bias_gain,
+        step_s=step_s,
+    )
+
+
 class GpsdLink:
     """What ``hdrd run --gpsd`` adds to the run loop (edge).
 
@@ -608,13 +625,12 @@ class GpsdLink:
 
     @classmethod
     def from_config(cls, gpsd_cfg: Any, step_s: float = 1.0) -> GpsdLink:
-        """From :class:`hdrd.config.GpsdConfig` (enabled, host, port, min_speed_mps)."""
-        from hdrd.aiding import AidingConfig, GpsAiding
+        """From :class:`hdrd.config.GpsdConfig`: host, port and the aiding's thresholds and
+        gains (the rest of :class:`hdrd.aiding.AidingConfig` keeps its defaults)."""
+        from hdrd.aiding import GpsAiding
 
         client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
-        return cls(
-            client, GpsAiding(AidingConfig(min_speed_mps=gpsd_cfg.min_speed_mps, step_s=step_s))
-        )
+        return cls(client, GpsAiding(aiding_config(gpsd_cfg, step_s)))
 
     def poll(self, pipeline: Any, now: float | None = None) -> None:
         now = self._clock() if now is None else now

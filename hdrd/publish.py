@@ -606,6 +606,7 @@ _COLUMNS: tuple[tuple[str, str, int, str], ...] = (
     ("bias", "bias", 8, ".4f"),
     ("samples", "samples", 7, "d"),
     ("bad", "bad_frames", 5, "d"),
+    ("mode", "mode", 14, "s"),  # GPS aiding (hdrd run --gpsd): aided / dead-reckoning
 )
 
 

@@ -102,6 +102,11 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.host": ("gps.local", ["", " ", 127, None]),
     "gpsd.port": (2948, [0, 65536, -1, 2947.0, "2947", NAN]),
     "gpsd.min_speed_mps": (0.0, [-1.0, NAN, INF]),
+    "gpsd.max_fix_age_s": (1.0, [0.0, -1.0, NAN, "2"]),
+    "gpsd.max_epd_deg": (30.0, [0.0, 181.0, INF]),
+    "gpsd.align_gain": (0.5, [-0.1, 1.5, NAN]),
+    "gpsd.bias_window_s": (60.0, [0.0, -5.0, INF]),
+    "gpsd.bias_gain": (1.0, [1.01, -0.3, True]),
 }
 
 BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]

@@ -14,14 +14,12 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-
 from typing import Any
 
 import numpy as np
 import pytest
 
 from hdrd.drivelog import DriveLog
-from hdrd.fakegyro import FakeGyro
 from hdrd.frames import frames_to_array
 from hdrd.pipeline import Pipeline, PipelineConfig
 from hdrd.publish import nmea_checksum
@@ -384,3 +382,37 @@ def test_corrupt_bias_file_is_refused(tmp_path):
 
 
 
+
+
+def test_sighup_switches_gpsd_aiding_on(fake_gyro, daemon, udp, tmp_path):
+    """gpsd settings are reloaded too: a SIGHUP that enables gpsd makes the running daemon
+    connect to it and ask for its JSON reports (?WATCH), without a restart."""
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    srv.settimeout(20.0)
+    port = srv.getsockname()[1]
+    cfg = tmp_path / "hdrd.yaml"
+    u = udp()
+    cfg.write_text(f"output:\n  udp: ['{u.addr}']\n")
+    g = fake_gyro(drive_profile(), speedup=5)
+    d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0.3")
+    g.start()
+    u.messages(lambda ms: len(ms) >= 2)
+    cfg.write_text(
+        f"output:\n  udp: ['{u.addr}']\ngpsd:\n  enabled: true\n  host: 127.0.0.1\n"
+        f"  port: {port}\n  bias_window_s: 30.0\n"
+    )
+    d.signal(signal.SIGHUP)
+    try:
+        conn, _ = srv.accept()
+        conn.settimeout(20.0)
+        request = conn.recv(1024)
+        conn.close()
+    finally:
+        srv.close()
+    assert request.startswith(b"?WATCH=") and b'"json":true' in request.replace(b" ", b"")
+    rc, _, err = d.stop()
+    assert rc == 0
+    ev = [e for e in events(err) if e["event"] == "gpsd_reconfigured"]
+    assert ev and ev[0]["enabled"] is True and ev[0]["port"] == port

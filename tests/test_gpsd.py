@@ -446,3 +446,27 @@ def test_link_feeds_speed_and_aids_messages(peer):
     finally:
         link.close()
     assert c.closed
+
+
+def test_link_from_config_takes_the_aiding_keys():
+    from hdrd.config import Config, apply_overrides
+
+    cfg = apply_overrides(
+        Config(),
+        {
+            "gpsd.enabled": True,
+            "gpsd.min_speed_mps": 3.0,
+            "gpsd.max_fix_age_s": 1.5,
+            "gpsd.max_epd_deg": 8.0,
+            "gpsd.align_gain": 0.5,
+            "gpsd.bias_window_s": 45.0,
+            "gpsd.bias_gain": 0.1,
+        },
+    )
+    link = GpsdLink.from_config(cfg.gpsd, step_s=0.5)
+    try:
+        a = link.aiding.config
+        assert (a.min_speed_mps, a.max_fix_age_s, a.max_epd_deg) == (3.0, 1.5, 8.0)
+        assert (a.align_gain, a.bias_window_s, a.bias_gain, a.step_s) == (0.5, 45.0, 0.1, 0.5)
+    finally:
+        link.close()

@@ -37,11 +37,13 @@ def test_header_once_then_rows() -> None:
     f = TailFormatter()
     out, notes, n = f.lines(format_json(hdr(1)) + format_json(hdr(2)))
     assert n == 2 and notes == []
-    assert out[0].split() == ["time", "step", "status", "heading", "yaw", "omega", "I", "W", "r", "bias", "samples", "bad"]
+    assert out[0].split() == ["time", "step", "status", "heading", "yaw", "omega", "I", "W", "r", "bias", "samples", "bad", "mode"]
     row = out[1].split()
-    assert row[1:] == ["1", "ok", "1.25", "-1.25", "0.058", "-0.0422", "1", "1", "0.2419", "10", "3"]
+    assert row[1:] == ["1", "ok", "1.25", "-1.25", "0.058", "-0.0422", "1", "1", "0.2419", "10", "3", "-"]
     out2, _, _ = f.lines(format_json(hdr(3)))
     assert len(out2) == 1 and out2[0].split()[1] == "3"
+    out3, _, _ = f.lines(format_json(dict(hdr(4), mode="dead-reckoning")))
+    assert out3[0].split()[-1] == "dead-reckoning"
 
 
 def test_missing_values_print_as_dash() -> None:
