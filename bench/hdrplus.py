@@ -1352,6 +1352,18 @@ drives' mean), the city3 type at best
 0.245 -> 0.230 (HDR 0.306), and a worse type in most rows. None would have made the single
 drive city3 (HDR's luckiest: 0.066) no worse than paper HDR; that criterion holds per drive
 type, not per drive (see the discussion above).
+
+**Later, an ensemble (session 2; prototype scripts not kept).** Averaging HDR+'s heading
+with that of a second, linear estimator (no sign controller: a Kalman bias model with a fast
+random walk, q = 1e-4 (deg/s)²/s, fed by the stops, the single straight steps and the mean
+rate of every 10 consecutive straight steps, gated at 3 σ) lowered mean NEψ on the 165
+training drives above by 6 % (geometric mean of per-drive ratios 0.94) and on 480 further
+training-type routes by 9 % (0.188 -> 0.172), with rural2 and highway1 worse by 6-8 %. Held
+out, evaluated once: the 65 drives 0.196 -> 0.180 (four of the five test types better,
+highway3 0.090 -> 0.094), but the five test drives' mean worse (0.159 -> 0.180), city3
+unchanged (0.184), and the share of held-out drives more than 10 % worse than paper HDR
+unchanged (25 %). Not kept: a second estimator for a gain that does not reach the per-drive
+criterion and does not hold on the test drives.
 """
 
 
