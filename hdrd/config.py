@@ -379,11 +379,33 @@ def parse_config(data: Any, source: str | None = None) -> Config:
             raise ConfigError("(file)", "", "is empty; expected a mapping of sections")
         if not isinstance(data, dict):
             raise ConfigError("(file)", data, "expected a mapping of sections")
+        data = _top_level_method(data)
         cfg: Config = _build(Config, data, "")
         _cross_check(cfg)
         return cfg
     except ConfigError as e:
         raise e.with_source(source) if source else e
+
+
+def _top_level_method(data: dict[Any, Any]) -> dict[Any, Any]:
+    """A top-level ``method: hdr+`` (issue 9's spelling) is ``hdr.method``; giving both with
+    different values is an error. Returns the mapping with it moved into ``hdr``."""
+    if "method" not in data:
+        return data
+    data = dict(data)
+    v = data.pop("method")
+    check, allowed = RULES["hdr.method"]
+    if not isinstance(v, str) or not check(v):
+        raise ConfigError("method", v, f"must be {allowed}")
+    hdr = data.get("hdr")
+    if hdr is None:
+        hdr = {}
+    if not isinstance(hdr, dict):
+        return data  # _build reports the bad hdr section
+    if "method" in hdr and hdr["method"] != v:
+        raise ConfigError("method", v, f"conflicts with hdr.method = {hdr['method']!r}; give one")
+    data["hdr"] = {**hdr, "method": v}
+    return data
 
 
 def _cross_check(cfg: Config) -> None:

@@ -511,3 +511,26 @@ def test_readme_config_table_matches_the_code() -> None:
         value = yaml.safe_load(shown.strip("`"))
         default = get(Config(), key)
         assert (tuple(value) if isinstance(value, list) else value) == default, key
+
+
+@pytest.mark.parametrize("method", ["none", "hdr", "hdr+"])
+def test_top_level_method_is_hdr_method(tmp_path: Path, method: str) -> None:
+    f = tmp_path / "hdrd.yaml"
+    f.write_text(f"method: {method}\nhdr:\n  i_c: 0.03\n")
+    cfg, _ = load_config(f)
+    assert cfg.hdr.method == method and cfg.hdr.params.i_c == 0.03
+    assert parse_config({"method": method}).hdr.method == method
+
+
+@pytest.mark.parametrize(
+    ("data", "why"),
+    [
+        ({"method": "hdr++"}, "must be one of none, hdr, hdr+"),
+        ({"method": 1}, "must be one of none, hdr, hdr+"),
+        ({"method": "hdr+", "hdr": {"method": "hdr"}}, "conflicts with hdr.method = 'hdr'"),
+    ],
+)
+def test_top_level_method_errors_name_the_key(data: dict[str, Any], why: str) -> None:
+    with pytest.raises(ConfigError) as e:
+        parse_config(data)
+    assert str(e.value).startswith("config error: method = ") and why in str(e.value)
