@@ -234,6 +234,14 @@ def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) 
         evaluate_drive(make_drive(), methods=("kalman",))
 
 
+def test_method_none_alone_also_spells_its_keys_e_psi_none() -> None:
+    r = evaluate_drive(make_drive(drift_dps=0.1), methods=("none",))
+    d = to_json([r])["drives"][0]
+    assert d["E_psi_none"] == d["E_psi_raw"] == pytest.approx(r.e_psi["none"])
+    assert d["NE_psi_none"] == d["NE_psi_raw"]
+    assert "E_psi_none" not in to_json([evaluate_drive(make_drive(drift_dps=0.1))])["drives"][0]
+
+
 # -- the command line --------------------------------------------------------------------
 
 
@@ -277,7 +285,7 @@ def test_cli_method_none(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     assert cli_main(["evaluate", a, "--method", "none", "--json", str(j)]) == 0
     capsys.readouterr()
     d = json.loads(j.read_text())["drives"][0]
-    assert list(d) == ["name", "duration_min", "E_psi_raw", "NE_psi_raw", "improvement"]
+    assert list(d) == ["name", "duration_min", "E_psi_raw", "NE_psi_raw", "E_psi_none", "NE_psi_none", "improvement"]
     assert d["improvement"] == 1.0
 
 
