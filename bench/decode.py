@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         k = 0
         for c in chunks:
             k += len(p.feed(c))
-        p.flush()
+        k += len(p.flush())
         return k, p
 
     push_t, (k, parser) = time_in_process(push, max(1, min(a.repeats, 3)))

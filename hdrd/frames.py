@@ -412,6 +412,41 @@ _SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDO
 _HALF_WRAP = CLOCK_WRAP_US >> 1
 
 
+def _sync_at(buf: bytes, k: int) -> bool | None:
+    """Whether a sync pattern starts at ``buf[k]``; None if those bytes are not there yet."""
+    if k + 2 > len(buf):
+        return None
+    return buf[k] == 0xA5 and buf[k + 1] == 0x5A
+
+
+def _displaced(buf: bytes, i: int, final: bool) -> bool | None:
+    """Is the CRC-valid candidate at ``buf[i]`` a coincidence hiding a real frame?
+
+    It is when a sync pattern inside it, at j (i + 2 <= j <= i + 14), starts another
+    CRC-valid candidate that is followed by a sync pattern at j + 16 while the one at i is
+    not followed by one at i + 16: typically a truncated frame whose first bytes and the
+    next frame's bytes pass the 16-bit CRC by chance (1 in 65536). None: undecided until
+    more bytes arrive (with ``final``, missing bytes count as no sync pattern and no frame).
+    """
+    here = _sync_at(buf, i + 16)
+    if here is None and not final:
+        return None
+    if here:
+        return False
+    j = buf.find(SYNC, i + 2, i + 16)
+    while j >= 0:
+        if j + 16 > len(buf):
+            return None if not final else False
+        if crc_hqx(buf[j + 2 : j + 14], 0xFFFF) == buf[j + 14] | (buf[j + 15] << 8):
+            after = _sync_at(buf, j + 16)
+            if after is None and not final:
+                return None
+            if after:
+                return True
+        j = buf.find(SYNC, j + 1, i + 16)
+    return False
+
+
 class Parser:
     """Push parser: ``feed(chunk) -> list[Frame]`` (pyserial ``threaded.Packetizer`` style).
 
@@ -446,13 +481,21 @@ class Parser:
         return self._feed(chunk if type(chunk) is bytes else bytes(chunk))
 
     def flush(self) -> list[Frame]:
-        """End of input (or a link reset): the buffered bytes are dropped and counted as garbage.
+        """End of input (or a link reset): the frames still held back are decided and
+        returned (hdr-bin: a complete frame waits only while the bytes that tell a CRC
+        coincidence from a real frame are missing, see :func:`_displaced`; at the end they
+        never come), then the leftover bytes are dropped and counted as garbage.
 
         The sequence and clock references are kept, so a gap across a reconnection is
-        still reported. Returns no frames (kept for the Packetizer-like shape)."""
+        still reported. :attr:`bad_before` describes the returned frames."""
+        out: list[Frame] = []
+        if self._buf and self.protocol == "hdr-bin":
+            out = self._feed_bin(b"", final=True)
+        else:
+            self.bad_before = []
         self.stats.garbage_bytes += len(self._buf)
         self._buf = b""
-        return []
+        return out
 
     def _track(self, seq: int, t_us: int) -> None:
         """Sequence and clock bookkeeping for one good frame (the push path's rule, shared by
@@ -488,7 +531,7 @@ class Parser:
                 if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
                     self._last_t = t_us
 
-    def _feed_bin(self, chunk: bytes) -> list[Frame]:
+    def _feed_bin(self, chunk: bytes, final: bool = False) -> list[Frame]:
         buf = self._buf + chunk if self._buf else chunk
         n = len(buf)
         find = buf.find
@@ -501,11 +544,12 @@ class Parser:
         bad_before: list[int] = []
         bb_append = bad_before.append
         p = 0
+        nxt = -2  # the first sync pattern at or after p when known (-1: none), else -2
         last_seq = self._last_seq
         last_t = self._last_t
         st = self.stats
         while True:
-            i = find(SYNC, p)
+            i = find(SYNC, p) if nxt == -2 else nxt
             if i < 0:
                 keep = n - 1 if n > p and buf[n - 1] == 0xA5 else n
                 break
@@ -516,7 +560,22 @@ class Parser:
             if crc16(buf[i + 2 : i + 14], 0xFFFF) != crc:
                 bad += 1
                 p = i + 1
+                nxt = -2
                 continue
+            # The next sync pattern after this one's: beyond the frame, the next scan starts
+            # there; inside it (rare), is this frame a CRC coincidence? (:func:`_displaced`)
+            nxt = find(SYNC, i + 2)
+            if 0 <= nxt < i + 16:
+                verdict = _displaced(buf, i, final)
+                if verdict is None:  # the bytes that decide have not arrived yet
+                    keep = i
+                    break
+                if verdict:
+                    bad += 1
+                    p = i + 1
+                    nxt = -2
+                    continue
+                nxt = -2
             p = i + 16
             # Inline copy of _track (the hot path); keep the two in step.
             if last_seq is None or seq == (last_seq + 1) & 0xFFFF:
@@ -633,6 +692,36 @@ def _greedy_accept(v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     return accepted
 
 
+def _drop_displaced(
+    a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64], valid: npt.NDArray[np.bool_]
+) -> None:
+    """Mark CRC coincidences invalid in place, as the push parser's :func:`_displaced` does
+    at the end of input: a valid candidate x with another valid candidate y, x + 2 <= y <=
+    x + 14, followed by a sync pattern at y + 16 while x is not followed by one at x + 16.
+    Python loops only over candidates closer than 15 bytes (rare)."""
+    if cand.shape[0] < 2:
+        return
+    near = np.flatnonzero(np.diff(cand) <= BIN_FRAME_LEN - 2)
+    if near.size == 0:
+        return
+    n = a.shape[0]
+
+    def sync_after(x: int) -> bool:
+        return x + BIN_FRAME_LEN + 2 <= n and a[x + 16] == 0xA5 and a[x + 17] == 0x5A
+
+    last = cand.shape[0]
+    for k in near.tolist():
+        x = int(cand[k])
+        if not valid[k] or sync_after(x):
+            continue
+        m = k + 1
+        while m < last and cand[m] <= x + BIN_FRAME_LEN - 2:
+            if valid[m] and sync_after(int(cand[m])):
+                valid[k] = False
+                break
+            m += 1
+
+
 def _sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
     """Fill the sequence/clock counters of ``st`` as the push parser would, vectorised in the
     common case (all steps forward), else through the push parser's own rule."""
@@ -678,10 +767,11 @@ def decode_capture(
     if protocol == "hdr-text":
         p = Parser("hdr-text")
         frames = p.feed(bytes(data))
-        p.flush()
+        bad_before = p.bad_before
+        p.flush()  # hdr-text holds no complete line back: it only counts the leftover
         for name in _COUNTERS:
             setattr(st, name, getattr(p.stats, name))
-        st.bad_before = np.asarray(p.bad_before, np.int64)
+        st.bad_before = np.asarray(bad_before, np.int64)
         return frames_to_array(frames), st
     a = np.frombuffer(data, dtype=np.uint8)
     n = a.shape[0]
@@ -698,6 +788,7 @@ def decode_capture(
     words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
     stored = words[:, 7]
     valid = _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
+    _drop_displaced(a, cand, valid)
     if valid.all():
         acc_mask = _greedy_accept(cand)
         payload = (words if acc_mask.all() else words[acc_mask])[:, 1:7]

@@ -434,6 +434,7 @@ class SerialSource(_SourceBase):
         self.clock = self.reader.clock
         self._queue = _FrameQueue()
         self._bad_seen = 0
+        self._lost: SourceEvent | None = None  # a loss to report once the queue is empty
 
     @property
     def url(self) -> str:
@@ -465,6 +466,10 @@ class SerialSource(_SourceBase):
         if self._queue:
             frame, self._bad_seen = self._queue.pop()
             return frame
+        if self._lost is not None:  # the frames the parser still held came first
+            lost, self._lost = self._lost, None
+            self._bad_seen = self.parser.stats.bad_frames
+            return lost
         if self._closed:
             return None
         deadline = None if timeout is None else self.clock.monotonic() + timeout
@@ -482,9 +487,14 @@ class SerialSource(_SourceBase):
                     self._bad_seen = self.parser.stats.bad_frames
                     return None
                 continue
-            self._bad_seen = self.parser.stats.bad_frames
             if isinstance(item, DeviceLost):
-                self.parser.flush()
+                held = self.parser.flush()
+                if held:
+                    self._queue.extend(held, self.parser.bad_before)
+                    self._lost = item
+                    frame, self._bad_seen = self._queue.pop()
+                    return frame
+            self._bad_seen = self.parser.stats.bad_frames
             return item
 
     def _close(self) -> None:
@@ -547,7 +557,7 @@ class ReplaySource(_SourceBase):
             chunk = self._file.read(self.chunk_size)
             if not chunk:
                 self._eof = True
-                self.parser.flush()
+                self._queue.extend(self.parser.flush(), self.parser.bad_before)
                 break
             frames = self.parser.feed(chunk)
             self._queue.extend(frames, self.parser.bad_before)

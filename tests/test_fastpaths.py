@@ -81,7 +81,8 @@ def test_decoder_and_push_parser_agree_with_what_was_sent(capture: tuple[bytes, 
     for i in range(0, len(data), 64):
         frames += p.feed(data[i : i + 64])
         bad_before += p.bad_before
-    p.flush()
+    frames += p.flush()
+    bad_before += p.bad_before
     assert array_to_frames(arr) == frames
     assert cst == p.stats  # every counter
     assert cst.bad_before.tolist() == bad_before

@@ -65,7 +65,7 @@ def feed_in_chunks(protocol: str, data: bytes, cuts: list[int]) -> tuple[list[Fr
     out: list[Frame] = []
     for a, b in itertools.pairwise(edges):
         out += p.feed(data[a:b])
-    p.flush()
+    out += p.flush()
     return out, p.stats
 
 
@@ -73,24 +73,35 @@ def feed_in_chunks(protocol: str, data: bytes, cuts: list[int]) -> tuple[list[Fr
 
 
 def scan_bin_reference(data: bytes) -> tuple[list[Frame], int]:
-    """The documented resynchronisation rule, byte by byte and nothing clever: at each sync
-    pattern take the frame if it decodes (and jump over it), else count one bad frame and
-    move on by one byte. A frame cut off by the end of input is not counted (it is garbage)."""
+    """The documented resynchronisation rule (docs/protocol.md), byte by byte and nothing
+    clever: at each sync pattern take the frame if it decodes and is not a CRC coincidence
+    (another decoding candidate starts inside it, 2..14 bytes on, and is followed by a sync
+    pattern 16 bytes on while this one is not), and jump over it; else count one bad frame
+    and move on by one byte. A frame cut off by the end of input is not counted (garbage)."""
+
+    def sync_at(k: int) -> bool:
+        return data[k : k + 2] == SYNC
+
+    def decodes(k: int) -> bool:
+        return sync_at(k) and k + BIN_FRAME_LEN <= len(data) and crc_ok(data[k : k + BIN_FRAME_LEN])
+
     frames: list[Frame] = []
     bad = 0
     i = 0
     while i + 2 <= len(data):
-        if data[i : i + 2] != SYNC:
+        if not sync_at(i):
             i += 1
             continue
         if i + BIN_FRAME_LEN > len(data):
             break
-        try:
-            frames.append(decode_bin(data[i : i + BIN_FRAME_LEN]))
-        except FrameError:
+        coincidence = not sync_at(i + 16) and any(
+            decodes(j) and sync_at(j + 16) for j in range(i + 2, i + 15)
+        )
+        if not decodes(i) or coincidence:
             bad += 1
             i += 1
             continue
+        frames.append(decode_bin(data[i : i + BIN_FRAME_LEN]))
         i += BIN_FRAME_LEN
     return frames, bad
 

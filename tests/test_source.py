@@ -415,3 +415,34 @@ def test_sources_satisfy_the_protocol_and_close_idempotently(tmp_path: Path) -> 
         s.close()
         s.close()
         assert s.recv(0) is None
+
+
+def test_a_frame_held_for_a_look_past_it_comes_before_device_lost(tmp_path: Path) -> None:
+    # The last frame before the unplug has a sync pattern inside (seq 0x5AA5): the parser
+    # holds it until the next frame's start shows it was real. The unplug ends the input, so
+    # it is handed out then, before DeviceLost, with its bad-frame count.
+    master, slave = os.openpty()
+    path = tmp_path / "gyro"
+    path.symlink_to(os.ttyname(slave))
+    os.close(slave)
+    sent = array_to_frames(frames_array(3)) + [Frame(0x5AA5, 400_000, 5, 0, None)]
+    try:
+        with SerialSource(str(path), reconnect_min_s=0.05, reconnect_max_s=0.1) as src:
+            os.write(master, b"\xa5\x5a\x00" + b"".join(encode_bin(f) for f in sent))
+            got, _ = collect(src, until=3)
+            assert got == sent[:3] and src.recv(0.1) is None  # the fourth is held
+            path.unlink()
+            os.close(master)
+            master = -1
+            items = []
+            for _ in range(200):
+                item = src.recv(0.05)
+                if item is not None:
+                    items.append(item)
+                if isinstance(item, DeviceLost):
+                    break
+            assert items[0] == sent[3] and isinstance(items[1], DeviceLost) and len(items) == 2
+            assert src.bad_frames == 1 and src.stats.frames == 4
+    finally:
+        if master >= 0:
+            os.close(master)
