@@ -513,8 +513,13 @@ class Daemon:
         """Flush at shutdown: publish the frames the kernel already holds for us (read
         without waiting; paced reads leave up to a few in the tty buffer), then stop."""
         deadline = time.monotonic() + self.DRAIN_S
+        ended = False
         while time.monotonic() < deadline:
             item = src.recv(0.0)
+            if item is None and not ended and hasattr(src, "end_input"):
+                src.end_input()  # the input ends here: frames the parser held back, decided
+                ended = True
+                continue
             if item is None or not hasattr(item, "t_us"):  # nothing left, or a device event
                 return
             self._publish(self.pipeline.feed(item, src.bad_frames, time.time()))

@@ -497,6 +497,12 @@ class SerialSource(_SourceBase):
             self._bad_seen = self.parser.stats.bad_frames
             return item
 
+    def end_input(self) -> None:
+        """The reader stops here (shutdown): frames the parser still holds back for a look
+        past their end are decided as at the end of a capture and queued for ``recv``, so a
+        capture of the same bytes replays to the same frames."""
+        self._queue.extend(self.parser.flush(), self.parser.bad_before)
+
     def _close(self) -> None:
         self.reader.close()
 

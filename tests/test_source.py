@@ -446,3 +446,25 @@ def test_a_frame_held_for_a_look_past_it_comes_before_device_lost(tmp_path: Path
     finally:
         if master >= 0:
             os.close(master)
+
+
+def test_end_input_hands_out_a_held_frame(tmp_path: Path) -> None:
+    # At shutdown the daemon ends the input: a frame held back for a look past its end is
+    # decided as at the end of a capture (and replays the same way).
+    master, slave = os.openpty()
+    path = tmp_path / "gyro"
+    path.symlink_to(os.ttyname(slave))
+    os.close(slave)
+    held = Frame(0x5AA5, 100_000, 7, 0, None)
+    try:
+        with SerialSource(str(path)) as src:
+            os.write(master, encode_bin(held))
+            deadline = time.monotonic() + 5.0
+            while src.parser.pending < 16 and time.monotonic() < deadline:
+                assert src.recv(0.05) is None
+            assert src.parser.pending == 16
+            src.end_input()
+            assert src.recv(0.0) == held and src.recv(0.0) is None
+            assert src.stats.frames == 1 and src.parser.pending == 0
+    finally:
+        os.close(master)
