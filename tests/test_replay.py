@@ -31,7 +31,8 @@ def replay_cli(capsys, *args: str) -> tuple[int, list[dict], str]:
     return rc, [json.loads(x) for x in cap.out.splitlines()], cap.err
 
 
-def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_path, capsys):
+@pytest.mark.parametrize("method", ["hdr", "hdr+"])
+def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_path, capsys, method):
     profile = drive_profile(seconds=90)
     kw = dict(garbage=0.05, crc_errors=0.05, seed=11)
     g = fake_gyro(profile, speedup=0, **kw)
@@ -41,7 +42,7 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_p
     env = dict(os.environ, STATE_DIRECTORY="/nonexistent-hdrd-state")
     env.pop("NOTIFY_SOCKET", None)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hdrd", "run", "--port", g.path, "--bias", "0.3", "--udp", f"127.0.0.1:{rx.getsockname()[1]}"],
+        [sys.executable, "-m", "hdrd", "run", "--port", g.path, "--bias", "0.3", "--method", method, "--udp", f"127.0.0.1:{rx.getsockname()[1]}"],
         stderr=subprocess.PIPE,
         env=env,
     )
@@ -56,9 +57,10 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_p
     assert live[-1]["bad_frames"] == g.injected.expected_bad_frames > 0
     cap = tmp_path / "cap.bin"
     FakeGyro(profile, **kw).write_capture(cap)  # the same bytes, faults included
-    rc, replayed, _ = replay_cli(capsys, str(cap), "--bias", "0.3")
+    rc, replayed, _ = replay_cli(capsys, str(cap), "--bias", "0.3", "--method", method)
     assert rc == 0
     assert all("time" not in m for m in replayed)
+    assert ("zupt" in replayed[-1]) == (method == "hdr+")  # HDR+'s own key: it ran
     assert replayed[:89] == [strip_time(m) for m in live]
     assert len(replayed) == 90  # the last, partial block is flushed at end of input
 
