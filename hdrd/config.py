@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from hdrd.calibrate import T_BIAS_S
 from hdrd.hdr import HdrParams
@@ -384,7 +385,7 @@ def parse_config(data: Any, source: str | None = None) -> Config:
         _cross_check(cfg)
         return cfg
     except ConfigError as e:
-        raise e.with_source(source) if source else e
+        raise (e.with_source(source) if source else e) from None
 
 
 def _top_level_method(data: dict[Any, Any]) -> dict[Any, Any]:

@@ -31,7 +31,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, Protocol, Union, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -133,7 +133,7 @@ class EndOfInput:
     """A capture or a simulated drive has ended; ``recv`` returns None from now on."""
 
 
-SourceEvent = Union[DeviceLost, DeviceBack, EndOfInput]
+SourceEvent = DeviceLost | DeviceBack | EndOfInput
 
 
 @runtime_checkable

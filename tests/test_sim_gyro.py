@@ -234,9 +234,11 @@ def test_paper_like_cabin_warm_up_moves_the_bias_by_a_tenth_of_a_degree_per_seco
     m = crs03_default_model()
     te = m.get("temperature_bias")
     assert isinstance(te, TemperatureBias)
-    bias = lambda c: (
-        te.coeff_dps_per_c * (c - te.ref_temp_c) + te.quad_dps_per_c2 * (c - te.ref_temp_c) ** 2
-    )
+
+    def bias(c: float) -> float:
+        d = c - te.ref_temp_c
+        return te.coeff_dps_per_c * d + te.quad_dps_per_c2 * d**2
+
     assert 0.1 < bias(21.0) - bias(5.0) < 0.3
     # ... yet stays within the part's +/-3 deg/s over its -40..85 degC range.
     assert all(abs(bias(c)) < 3.0 for c in np.linspace(-40, 85, 126))

@@ -137,7 +137,9 @@ def _quat_forward(q: FloatArray) -> FloatArray:
 
 def comma2k19_to_drive(folder: Path = DATA / "comma2k19_example") -> DriveLog:
     """The comma2k19 example minute as a drive log (see the module docstring)."""
-    load = lambda rel: np.load(folder / rel)  # files are .npy without an extension
+    def load(rel: str) -> np.ndarray:
+        return np.load(folder / rel)  # files are .npy without an extension
+
     gt = load("processed_log/IMU/gyro_uncalibrated/t").astype(np.float64)
     gz = load("processed_log/IMU/gyro_uncalibrated/value")[:, 2].astype(np.float64)
     bias = load("processed_log/IMU/gyro_bias/value")[:, 2].astype(np.float64)
