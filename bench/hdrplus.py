@@ -1364,6 +1364,15 @@ highway3 0.090 -> 0.094), but the five test drives' mean worse (0.159 -> 0.180),
 unchanged (0.184), and the share of held-out drives more than 10 % worse than paper HDR
 unchanged (25 %). Not kept: a second estimator for a gain that does not reach the per-drive
 criterion and does not hold on the test drives.
+
+Also tried on training routes only (prototype scripts not kept; none reached a held-out look):
+dropping I at a stop instead of folding it into b (learns the temperature coefficient, 0.008
+instead of 0.005 deg/s/°C, but within noise on 480 further training-type routes: geometric
+mean of per-drive ratios 1.007 ± 0.012); a process noise raised when the straight-driving
+innovations stay one-sided (no gain); a search minimising the share of single drives worse
+than 1.1 × paper HDR (0.261 -> 0.188 on the 165 search drives, 0.198 -> 0.192 on the 480:
+no real change); sign decisions on the mean of 3-20 straight steps instead of every step
+(worse by 8-18 %).
 """
 
 
