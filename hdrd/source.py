@@ -206,6 +206,32 @@ class _FrameQueue:
         return self.frames.popleft(), self.bad.popleft()
 
 
+class _ParsedSource(_SourceBase):
+    """A source whose bytes go through a :class:`hdrd.frames.Parser` (serial, replay): frames
+    parsed but not handed out wait in a queue with the bad-frame count before each."""
+
+    def __init__(self, protocol: str) -> None:
+        self.parser = Parser(protocol)
+        self._queue = _FrameQueue()
+        self._bad_seen = 0
+
+    @property
+    def stats(self) -> ParserStats:
+        return dataclasses.replace(self.parser.stats, bad_frames=self._bad_seen)
+
+    @property
+    def bad_frames(self) -> int:
+        return self._bad_seen
+
+    def end_input(self) -> bool:
+        """The input ends here (end of a capture, a lost device, shutdown): frames the parser
+        still holds back for a look past their end are decided as at the end of a capture
+        and queued for ``recv``. True if any were."""
+        held = self.parser.flush()
+        self._queue.extend(held, self.parser.bad_before)
+        return bool(held)
+
+
 # --------------------------------------------------------------------------- serial
 
 
@@ -412,7 +438,7 @@ class SerialReader:
         self.close()
 
 
-class SerialSource(_SourceBase):
+class SerialSource(_ParsedSource):
     """Frames from a serial port (any pyserial URL), reopened by itself when lost.
 
     ``recv`` parses what the port delivers with :class:`hdrd.frames.Parser`; on a loss the
@@ -429,11 +455,9 @@ class SerialSource(_SourceBase):
         reconnect_max_s: float = 10.0,
         clock: Clock | None = None,
     ) -> None:
-        self.parser = Parser(protocol)
+        super().__init__(protocol)
         self.reader = SerialReader(url, baud, reconnect_min_s, reconnect_max_s, clock)
         self.clock = self.reader.clock
-        self._queue = _FrameQueue()
-        self._bad_seen = 0
         self._lost: SourceEvent | None = None  # a loss to report once the queue is empty
 
     @property
@@ -453,14 +477,6 @@ class SerialSource(_SourceBase):
     def pending(self) -> int:
         """Frames read and parsed but not handed out by ``recv`` yet."""
         return len(self._queue)
-
-    @property
-    def stats(self) -> ParserStats:
-        return dataclasses.replace(self.parser.stats, bad_frames=self._bad_seen)
-
-    @property
-    def bad_frames(self) -> int:
-        return self._bad_seen
 
     def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None:
         if self._queue:
@@ -487,21 +503,12 @@ class SerialSource(_SourceBase):
                     self._bad_seen = self.parser.stats.bad_frames
                     return None
                 continue
-            if isinstance(item, DeviceLost):
-                held = self.parser.flush()
-                if held:
-                    self._queue.extend(held, self.parser.bad_before)
-                    self._lost = item
-                    frame, self._bad_seen = self._queue.pop()
-                    return frame
+            if isinstance(item, DeviceLost) and self.end_input():
+                self._lost = item  # reported once the frames the parser held are out
+                frame, self._bad_seen = self._queue.pop()
+                return frame
             self._bad_seen = self.parser.stats.bad_frames
             return item
-
-    def end_input(self) -> None:
-        """The reader stops here (shutdown): frames the parser still holds back for a look
-        past their end are decided as at the end of a capture and queued for ``recv``, so a
-        capture of the same bytes replays to the same frames."""
-        self._queue.extend(self.parser.flush(), self.parser.bad_before)
 
     def _close(self) -> None:
         self.reader.close()
@@ -510,7 +517,7 @@ class SerialSource(_SourceBase):
 # --------------------------------------------------------------------------- replay
 
 
-class ReplaySource(_SourceBase):
+class ReplaySource(_ParsedSource):
     """Frames of a capture file (or bytes), as fast as possible or paced by device time.
 
     The capture is read in chunks through the same :class:`hdrd.frames.Parser` as the live
@@ -530,7 +537,7 @@ class ReplaySource(_SourceBase):
     ) -> None:
         if paced and not (speedup > 0 and math.isfinite(speedup)):
             raise ValueError(f"speedup must be a finite number > 0 when paced, got {speedup!r}")
-        self.parser = Parser(protocol)
+        super().__init__(protocol)
         if isinstance(path_or_bytes, (bytes, bytearray, memoryview)):
             self._file: io.BufferedIOBase = io.BytesIO(bytes(path_or_bytes))
             self.name = "<bytes>"
@@ -541,8 +548,6 @@ class ReplaySource(_SourceBase):
         self.speedup = speedup
         self.clock: Clock = clock or RealClock()
         self.chunk_size = chunk_size
-        self._queue = _FrameQueue()
-        self._bad_seen = 0
         self._eof = False
         self._ended = False
         self._wall0: float | None = None
@@ -550,20 +555,12 @@ class ReplaySource(_SourceBase):
         self._last_raw: int | None = None
         self._head_due: float | None = None
 
-    @property
-    def stats(self) -> ParserStats:
-        return dataclasses.replace(self.parser.stats, bad_frames=self._bad_seen)
-
-    @property
-    def bad_frames(self) -> int:
-        return self._bad_seen
-
     def _fill(self) -> bool:
         while not self._queue and not self._eof:
             chunk = self._file.read(self.chunk_size)
             if not chunk:
                 self._eof = True
-                self._queue.extend(self.parser.flush(), self.parser.bad_before)
+                self.end_input()
                 break
             frames = self.parser.feed(chunk)
             self._queue.extend(frames, self.parser.bad_before)
