@@ -235,6 +235,30 @@ def make_capture(
     return m
 
 
+def capture_bench_setup(
+    doc: str, argv: list[str] | None
+) -> tuple[Any, Path, dict[str, Any]]:
+    """The start of a benchmark on the 1-hour capture (bench/decode.py, bench/replay.py):
+    parse ``--repeats``, ``--workdir`` and ``--no-write``, print the machine, make (or reuse)
+    the capture in the work directory and describe it. Returns (args, capture path, meta)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--workdir", default="/tmp/hdrd-bench", help="where the capture is kept")
+    ap.add_argument(
+        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
+    )
+    a = ap.parse_args(argv)
+    work = Path(a.workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    print(machine_line(), flush=True)
+    cap = work / "capture-1h-100hz.bin"
+    meta = make_capture(cap)
+    print(capture_line(meta), flush=True)
+    return a, cap, meta
+
+
 def capture_line(m: dict[str, Any]) -> str:
     return (
         f'{m["device_s"] / 3600:.2f} h of the simulated "mixed" drive at {m["key"]["hz"]:g} Hz, '

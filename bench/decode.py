@@ -20,7 +20,6 @@ hdr-bin frames/s). Prints them and appends them to bench/RESULTS.md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -30,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (
     WIRE_FRAMES_PER_S,
     append_section,
+    capture_bench_setup,
     capture_line,
     machine_line,
-    make_capture,
     ratio,
     time_in_process,
 )
@@ -45,19 +44,8 @@ CHUNK = 64
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--workdir", default="/tmp/hdrd-bench", help="where the capture is kept")
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
-    a = ap.parse_args(argv)
-    work = Path(a.workdir)
-    work.mkdir(parents=True, exist_ok=True)
-    print(machine_line(), flush=True)
-    meta = make_capture(work / "capture-1h-100hz.bin")
-    data = (work / "capture-1h-100hz.bin").read_bytes()
-    print(capture_line(meta), flush=True)
+    a, cap, meta = capture_bench_setup(__doc__, argv)
+    data = cap.read_bytes()
 
     t0 = time.process_time()
     arr, cst = decode_capture(data)

@@ -187,15 +187,20 @@ def drive_off(spec: DriveSpec, lead_in_s: float = 1.0) -> DriveLog:
     )
 
 
+def true_gyro_error(log: DriveLog) -> np.ndarray:
+    """Per sample, the simulated gyro's output minus its true rate scaled by the default
+    model's scale factor, deg/s: its bias and noise, known in simulation only."""
+    sf = crs03_default_model().get("scale_factor")
+    gain = 1.0 + (sf.error if isinstance(sf, ScaleFactor) else 0.0)
+    assert log.omega_truth is not None
+    return log.omega - gain * log.omega_truth
+
+
 def truth_bias_30s(log: DriveLog) -> float:
     """What a 30 s standstill calibration at power-on would have measured, known only in
     simulation: the mean over the first 30 s of the gyro output minus its scaled true rate."""
-    model = crs03_default_model()
-    sf = model.get("scale_factor")
-    gain = 1.0 + (sf.error if isinstance(sf, ScaleFactor) else 0.0)
-    assert log.omega_truth is not None
     w = log.t < log.t[0] + 30.0
-    return float(np.mean(log.omega[w] - gain * log.omega_truth[w]))
+    return float(np.mean(true_gyro_error(log)[w]))
 
 
 # -- the rows ---------------------------------------------------------------------------------
@@ -676,15 +681,11 @@ def oracle_yaw(log: DriveLog, prep: PreparedDrive, window_s: int = 121) -> np.nd
     """Yaw with the gyro's true error removed as a smoother would: the error (gyro output
     minus its scaled true rate, known in simulation only) averaged over a centred
     ``window_s`` window, white noise left in. Not causal: a bound no real-time method reaches."""
-    model = crs03_default_model()
-    sf = model.get("scale_factor")
-    gain = 1.0 + (sf.error if isinstance(sf, ScaleFactor) else 0.0)
-    assert log.omega_truth is not None
     s = prep.steps
     n = s.u.shape[0]
     per = round(s.T * log.rate_hz)
     off = round(prep.start_s * log.rate_hz)
-    err = (log.omega - gain * log.omega_truth)[off : off + n * per].reshape(n, per).mean(axis=1)
+    err = true_gyro_error(log)[off : off + n * per].reshape(n, per).mean(axis=1)
     eps0 = float(np.mean(log.omega[:off])) if off else 0.0
     half = window_s // 2
     smooth = np.convolve(

@@ -16,7 +16,6 @@ bench/RESULTS.md.
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -27,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (
     REPO,
     append_section,
+    capture_bench_setup,
     capture_line,
     hdrd_command,
     machine_line,
-    make_capture,
     ratio,
     time_process,
 )
@@ -73,19 +72,8 @@ print(json.dumps({n: b - a for n, a, b in zip(names, t, t[1:])}))
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--workdir", default="/tmp/hdrd-bench", help="where the capture is kept")
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
-    a = ap.parse_args(argv)
-    work = Path(a.workdir)
-    work.mkdir(parents=True, exist_ok=True)
-    print(machine_line(), flush=True)
-    cap = work / "capture-1h-100hz.bin"
-    meta = make_capture(cap)
-    print(capture_line(meta), flush=True)
+    a, cap, meta = capture_bench_setup(__doc__, argv)
+    work = cap.parent
     hdrd = hdrd_command()
     cmd = [*hdrd, "replay", str(cap), "--bias", BIAS]
     out_file = work / "replay.jsonl"

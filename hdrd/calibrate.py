@@ -21,6 +21,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -31,6 +32,7 @@ __all__ = [
     "BiasRecord",
     "MotionDetected",
     "StandstillLimits",
+    "atomic_write_json",
     "atomic_write_text",
     "estimate_bias",
     "load_bias",
@@ -164,6 +166,14 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644
         os.fsync(dfd)
     finally:
         os.close(dfd)
+
+
+def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
+    """:func:`atomic_write_text` of ``doc`` as indented JSON with a final newline (the
+    ``--json``/``--report`` files of evaluate, tune and gap)."""
+    import json
+
+    atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
 
 
 _BIAS_HEADER = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"

@@ -37,7 +37,6 @@ the HDR parameters, returning yaw), the one place a new drift reducer is registe
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -566,9 +565,9 @@ def main(args: argparse.Namespace) -> int:
     print(format_table(results))
     if args.json:
         try:
-            from hdrd.calibrate import atomic_write_text
+            from hdrd.calibrate import atomic_write_json
 
-            atomic_write_text(args.json, json.dumps(to_json(results), indent=2) + "\n")
+            atomic_write_json(args.json, to_json(results))
         except OSError as e:
             _err(f"cannot write {args.json}: {e.strerror or e}")
             return 1

@@ -28,7 +28,6 @@ The loop, each step visible in the report:
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -1921,9 +1920,9 @@ def main(args: argparse.Namespace) -> int:
     print(summary(res))
     try:
         if args.report:
-            from hdrd.calibrate import atomic_write_text
+            from hdrd.calibrate import atomic_write_json
 
-            atomic_write_text(args.report, json.dumps(to_report(res), indent=2) + "\n")
+            atomic_write_json(args.report, to_report(res))
         if args.out:
             save_model(res.final_model, args.out)
     except OSError as e:

@@ -63,6 +63,18 @@ def align_index(yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike)
     return int(ok[0]) if ok.shape[0] else None
 
 
+def _aligned(
+    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None
+) -> tuple[FloatArray, FloatArray, int | None]:
+    """yaw and truth as float arrays of the same length (else ValueError), and the step the
+    gyro is aligned at: k, or by default :func:`align_index`."""
+    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
+    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
+    if yaw.shape[0] != truth.shape[0]:
+        raise ValueError(f"yaw has {yaw.shape[0]} steps, truth {truth.shape[0]}")
+    return yaw, truth, align_index(yaw, truth) if k is None else k
+
+
 def gyro_heading(
     yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
 ) -> FloatArray:
@@ -71,12 +83,7 @@ def gyro_heading(
 
     yaw has shape (n,) or (n, P) (P candidate runs); truth has shape (n,).
     """
-    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
-    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
-    if yaw.shape[0] != truth.shape[0]:
-        raise ValueError(f"yaw has {yaw.shape[0]} steps, truth {truth.shape[0]}")
-    if k is None:
-        k = align_index(yaw, truth)
+    yaw, truth, k = _aligned(yaw_deg_ccw, heading_truth_deg_cw, k)
     if k is None:
         return np.full(yaw.shape, np.nan)
     return truth[k] - (yaw - yaw[k])
@@ -116,12 +123,7 @@ def e_psi(
     """Average heading error Eψ, deg (paper Eq. 12): mean |gyro - truth| over the steps where
     truth exists, the gyro aligned as in :func:`heading_error`. A float for yaw of shape (n,),
     an array (P,) for (n, P). NaN if no truth (or no step to align at)."""
-    yaw = np.asarray(yaw_deg_ccw, dtype=np.float64)
-    truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
-    if yaw.shape[0] != truth.shape[0]:
-        raise ValueError(f"yaw has {yaw.shape[0]} steps, truth {truth.shape[0]}")
-    if k is None:
-        k = align_index(yaw, truth)
+    yaw, truth, k = _aligned(yaw_deg_ccw, heading_truth_deg_cw, k)
     valid = np.isfinite(truth)
     if k is None or not valid.any():
         out = np.full(yaw.shape[1:], np.nan)

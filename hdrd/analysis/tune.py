@@ -23,7 +23,6 @@ Pure except for the optional progress callback; :func:`main` is the ``hdrd tune`
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -419,7 +418,7 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv... --test TEST.csv... [--candidates N] [--seed S]
     [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]``."""
     from hdrd.analysis.evaluate import load_drives
-    from hdrd.calibrate import atomic_write_text
+    from hdrd.calibrate import atomic_write_json, atomic_write_text
 
     calibrate_s = (
         args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
@@ -468,7 +467,7 @@ def main(args: argparse.Namespace) -> int:
             return 1
     if args.json:
         try:
-            atomic_write_text(args.json, json.dumps(to_json(result, seconds), indent=2) + "\n")
+            atomic_write_json(args.json, to_json(result, seconds))
         except OSError as e:
             _err(f"cannot write {args.json}: {e.strerror or e}")
             return 1
