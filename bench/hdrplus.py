@@ -541,6 +541,10 @@ class CityIdea:
     win_steps: int = 0  # windowed straight measurement: mean u over this many gated steps
     win_r: float = 0.01  # its variance, (deg/s)^2
     i_c: float = 0.0  # core increment (0: PLUS_CORE's)
+    slow_core: HdrParams | None = None  # core used while the smoothed speed is below slow_mps
+    slow_mps: float = 0.0  # speed-aware core: threshold, m/s
+    slow_tc_s: float = 0.0  # ... on the speed low-passed with this time constant, s (0: raw)
+    blend_hdr: float = 0.0  # published yaw = w * paper HDR's + (1 - w) * the prototype's
 
 
 def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
@@ -559,6 +563,7 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
     r, s_prev, still, wsum, wcnt = 0, 0, 0, 0.0, 0
     T = s.T
     out = np.empty(s.u.shape[0])
+    v_s = math.nan  # the speed, low-passed (speed-aware core)
     for i, (ui, sp, v, te) in enumerate(
         zip(s.u.tolist(), s.omega_std.tolist(), s.speed.tolist(), s.temp_c.tolist(), strict=True)
     ):
@@ -568,6 +573,10 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
         dT = te - t_ref if have_temp else 0.0
         p_bb += (P.bias_q if have_temp else P.bias_q_no_temp) * T
         uc = ui - (b + k * dT)
+        if idea.slow_core is not None and not math.isnan(v):
+            v_s = v if math.isnan(v_s) else v_s + (v - v_s) * T / (idea.slow_tc_s + T)
+        core = idea.slow_core if idea.slow_core is not None and v_s < idea.slow_mps else hp
+        inc = idea.slow_core.i_c if core is idea.slow_core else i_c
         level = uc + I
         cand = not math.isnan(v) and v <= ss.speed_mps and not sp > ss.spread_dps
         cand = cand and abs(level) <= ss.level_dps
@@ -587,14 +596,14 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
             x, I, r, s_prev, wsum, wcnt = 0.0, 0.0, 1, 0, 0.0, 0
             out[i] = yaw
             continue
-        x = (T * uc + hp.tau * x) / (T + hp.tau)
+        x = (T * uc + core.tau * x) / (T + core.tau)
         y = x + I
         yaw = yaw + (uc + I) * T
         sg = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
         r = r + 1 if sg == s_prev else 1
-        R = (1.0 + hp.c1) / (1.0 + hp.c1 * math.pow(r, hp.c2))
-        W = 1 if abs(y) <= hp.theta_w else 0
-        I_next = I - sg * W * R * i_c
+        R = (1.0 + core.c1) / (1.0 + core.c1 * math.pow(r, core.c2))
+        W = 1 if abs(y) <= core.theta_w else 0
+        I_next = I - sg * W * R * inc
         if W and abs(uc + I) <= P.straight_gate_dps:
             b, k, p_bb, p_bk, p_kk = _proto_update(b, k, p_bb, p_bk, p_kk, ui, P.straight_r, dT)
             if idea.win_steps:
@@ -610,6 +619,8 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
         out[i] = yaw
         I = I_next
         s_prev = sg
+    if idea.blend_hdr:
+        return idea.blend_hdr * hdr_batch(s.u, PAPER).yaw + (1.0 - idea.blend_hdr) * out
     return out
 
 
@@ -633,6 +644,23 @@ CITY_IDEAS = (
     CityIdea("stop: I discarded, P_bb += 1e-3", fold="drop", bump=1e-3),
     CityIdea("+ windowed straight measurement (10 steps, r 0.01)", win_steps=10),
     CityIdea("+ windowed (10 steps, r 0.003), i_c 0.0025", win_steps=10, win_r=0.003, i_c=0.0025),
+    # session 3: a core that depends on how fast the car goes (the issue's "speed-aware
+    # gating"; paper HDR does comparatively well downtown), and a blend with paper HDR
+    CityIdea("speed-aware core: paper Table III below 8 m/s", slow_core=PAPER, slow_mps=8.0),
+    CityIdea(
+        "speed-aware core: paper Table III below 8 m/s (speed low-passed 60 s)",
+        slow_core=PAPER,
+        slow_mps=8.0,
+        slow_tc_s=60.0,
+    ),
+    CityIdea(
+        "speed-aware core: i_c 0.015 below 8 m/s (speed low-passed 60 s)",
+        slow_core=replace(PLUS_CORE, i_c=0.015),
+        slow_mps=8.0,
+        slow_tc_s=60.0,
+    ),
+    CityIdea("blend: 0.3 x paper HDR's yaw + 0.7 x HDR+'s", blend_hdr=0.3),
+    CityIdea("blend: 0.5 x paper HDR's yaw + 0.5 x HDR+'s", blend_hdr=0.5),
 )
 
 
@@ -657,12 +685,17 @@ def city_study(held_out: bool) -> None:
     got = [city_prototype(p, CityIdea("")) for p in preps[:20]]
     assert all(np.array_equal(a, b) for a, b in zip(ref, got, strict=True)), "prototype != HDR+"
     hdr = np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in preps])
-    print("row | all | " + " | ".join(keys))
+    print("row | all | " + " | ".join(keys) + " | drives > 1.1 x paper HDR")
     for row in [None, *CITY_IDEAS]:
         v = hdr if row is None else np.array([ne(p, city_prototype(p, row)) for p in preps])
         per = [float(np.mean(v[[n == k for n in names]])) for k in keys]
         label = "paper HDR" if row is None else row.label
-        print(f"{label} | {np.mean(v):.4f} | " + " | ".join(f"{x:.3f}" for x in per), flush=True)
+        worse = float(np.mean(v > 1.1 * hdr))
+        print(
+            f"{label} | {np.mean(v):.4f} | " + " | ".join(f"{x:.3f}" for x in per),
+            f"| {100 * worse:.0f}%",
+            flush=True,
+        )
 
 
 def _city_prep(spec: DriveSpec) -> PreparedDrive:
@@ -1374,6 +1407,36 @@ innovations stay one-sided (no gain); a search minimising the share of single dr
 than 1.1 × paper HDR (0.261 -> 0.188 on the 165 search drives, 0.198 -> 0.192 on the 480:
 no real change); sign decisions on the mean of 3-20 straight steps instead of every step
 (worse by 8-18 %).
+
+**Session 3: a speed-aware core and a blend with paper HDR** (`python bench/hdrplus.py
+--city-study train`, training routes only; neither reached a held-out look). Paper HDR does
+comparatively well downtown, so two ways to borrow from it: switch HDR+'s core to the paper's
+Table III core (or a 3× larger increment) while the car is slow — the issue's "speed-aware
+gating" — or publish a weighted mean of paper HDR's and HDR+'s yaw, which bounds how much
+worse than HDR a drive can get (|e| ≤ w |e_HDR| + (1 − w) |e_HDR+| at every step). Mean NEψ,
+deg/min, as in the table above; last column: share of the 165 drives more than 10 % worse
+than paper HDR:
+
+| row | all (165) | new city (24) | new suburbs (12) | new mixed (12) | city1 type | city2 type | the nine | groups worse than the defaults | drives > 1.1 × HDR |
+|---|---|---|---|---|---|---|---|---|---|
+| **HDR+ (defaults)** | **0.188** | **0.208** | **0.371** | **0.207** | **0.129** | **0.178** | **0.152** | | **26 %** |
+| core: paper Table III below 8 m/s | 0.329 | 0.441 | 0.640 | 0.460 | 0.394 | 0.463 | 0.347 | 13 of 13 (city1 +205 %) | 48 % |
+| core: paper Table III below 8 m/s (speed low-passed 60 s) | 0.253 | 0.357 | 0.374 | 0.387 | 0.170 | 0.386 | 0.271 | 12 of 13 (new mixed +87 %) | 38 % |
+| core: i_c 0.015 below 8 m/s (speed low-passed 60 s) | 0.211 | 0.260 | 0.344 | 0.267 | 0.185 | 0.245 | 0.189 | 10 of 13 (city1 +43 %) | 29 % |
+| blend: 0.3 × paper HDR + 0.7 × HDR+ | 0.196 | 0.203 | 0.374 | 0.239 | 0.126 | 0.185 | 0.180 | 9 of 13 (new mixed +15 %) | 18 % |
+| blend: 0.5 × paper HDR + 0.5 × HDR+ | 0.213 | 0.204 | 0.421 | 0.271 | 0.132 | 0.205 | 0.209 | 11 of 13 (new mixed +31 %) | 15 % |
+
+A larger increment while slow makes the city *worse* (new downtown routes 0.208 -> 0.26-0.44):
+beside the bias model the paper's increment over-corrects, and paper HDR's good city score
+belongs to its whole loop, not to its increment. The blend lowers the share of single drives
+worse than 1.1 × paper HDR (26 % -> 18 % -> 15 %) only by taking on HDR's own error
+everywhere else (mean 0.188 -> 0.196 -> 0.213; 9-11 of the 13 groups worse). Neither kept.
+
+The standstill updates, once more: the ablation above shows HDR+ *without* them passing the
+five test drives (worst 0.93 × HDR, city3 included). On training routes they are neutral
+(NEψ without / with, geometric mean of per-drive ratios: 0.98 ± 0.04 on the 165, 1.01 ± 0.02
+on 480 further training-type routes), so switching them off would be a choice made on the
+test drives; they stay on.
 """
 
 
