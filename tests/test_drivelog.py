@@ -68,7 +68,7 @@ def test_round_trip_through_a_file(tmp_path: Path) -> None:
     t = np.arange(50) / 10.0
     log = DriveLog(
         t=t,
-        omega=np.round(np.sin(t), 5),
+        omega=np.sin(t).round(5),
         heading_truth=np.where(np.arange(50) % 10 == 0, np.round(t * 7 % 360, 3), np.nan),
         speed=np.full(50, 13.5),
         meta={"drive": "city", "gyro": "CRS03-04"},
@@ -86,6 +86,7 @@ def test_round_trip_through_a_file(tmp_path: Path) -> None:
 def test_empty_cells_are_nan_never_zero() -> None:
     text = "t,omega,heading_truth,temp_c\n0.0,0.1,,20\n0.1,0.2,90.5,\n0.2,0.3,nan,NaN\n"
     log = read_drive(io.StringIO(text))
+    assert log.heading_truth is not None and log.temp_c is not None
     assert np.isnan(log.heading_truth[[0, 2]]).all() and log.heading_truth[1] == 90.5
     assert log.temp_c[0] == 20.0 and np.isnan(log.temp_c[1:]).all()
 

@@ -9,10 +9,12 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
+from hdrd.drivelog import DriveLog
 from hdrd.fakegyro import FakeGyro
 from hdrd.frames import Frame, Parser, array_to_frames, decode_capture
 from hdrd.sensor import SensorModel
@@ -44,8 +46,8 @@ def edge_missing(g: FakeGyro) -> int:
     return int(idx[0] + (len(g.delivered) - 1 - idx[-1])) if idx.size else len(g.delivered)
 
 
-def profile(minutes: float = 0.2, hz: float = 50.0, **kw: float) -> object:
-    return builtin_profile("constant", minutes=minutes, hz=hz, rate_dps=-7.5, lead_in_s=2.0, **kw)
+def profile(minutes: float = 0.2, hz: float = 50.0) -> DriveLog:
+    return builtin_profile("constant", minutes=minutes, hz=hz, rate_dps=-7.5, lead_in_s=2.0)
 
 
 def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -129,7 +131,7 @@ def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-
     g = fake_gyro(profile(minutes=0.5, hz=20), speedup=20.0, link=link)
     with SerialSource(str(link), reconnect_min_s=0.02, reconnect_max_s=0.05) as src:
         g.start()
-        kinds = []
+        kinds: list[str] = []
         end = time.monotonic() + WAIT_S
         n = 0
         while time.monotonic() < end and not (g.done and kinds[-2:] == ["DeviceLost", "DeviceBack"]):
@@ -159,13 +161,13 @@ def test_frames_array_profile_and_bad_arguments() -> None:
 # --------------------------------------------------------------------------- the command
 
 
-def hdrd(*args: str, **kw: object) -> subprocess.Popen[str]:
+def hdrd(*args: str, **kw: Any) -> subprocess.Popen[str]:
     return subprocess.Popen(
         [sys.executable, "-m", "hdrd", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        **kw,  # type: ignore[arg-type]
+        **kw,
     )
 
 
@@ -189,7 +191,7 @@ def test_cli_pty_prints_paths_serves_frames_and_exits_0_on_sigterm(tmp_path: Pat
         assert p.stdout.readline().strip() == str(link)
         assert os.readlink(link) == path
         with SerialSource(str(link)) as src:
-            frames = []
+            frames: list[Frame] = []
             end = time.monotonic() + WAIT_S
             while len(frames) < 20 and time.monotonic() < end:
                 item = src.recv(0.5)

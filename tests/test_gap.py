@@ -82,6 +82,7 @@ def measured(
     model = DEFAULT_START_MODEL
     for e in hidden:
         model = model.with_effect(e)
+    assert drive.omega_truth is not None
     tc = separable_temp(drive.t) if temp is None else temp
     omega = model.apply(drive.t, drive.omega_truth, tc, np.random.default_rng(seed))
     log = replace(drive, omega=omega, temp_c=tc, name="measured")
@@ -91,6 +92,7 @@ def measured(
 
 
 def rail(drive: DriveLog) -> float:
+    assert drive.omega_truth is not None
     return round(0.7 * float(np.max(np.abs(drive.omega_truth))), 1)
 
 

@@ -74,14 +74,14 @@ def _gpsfake_problem() -> str | None:
 
 @pytest.fixture
 def need_gpsd() -> None:
-    if _gpsd_problem():
-        pytest.skip(_gpsd_problem())
+    if problem := _gpsd_problem():
+        pytest.skip(problem)
 
 
 @pytest.fixture
 def need_gpsfake() -> None:
-    if _gpsfake_problem():
-        pytest.skip(_gpsfake_problem())
+    if problem := _gpsfake_problem():
+        pytest.skip(problem)
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -410,7 +410,7 @@ def straight_gyro(seconds: float, bias: float) -> DriveLog:
     hz = 10.0
     t = np.arange(int(seconds * hz)) / hz
     rng = np.random.default_rng(5)
-    return DriveLog(t=t, omega=bias + rng.normal(0, 0.05, t.shape[0]), omega_truth=np.zeros_like(t))
+    return DriveLog(t=t, omega=bias + rng.normal(0, 0.05, len(t)), omega_truth=np.zeros_like(t))
 
 
 def test_hdrd_run_aided_by_gpsd_through_an_outage(need_gpsfake, procs, fake_gyro, udp, tmp_path):

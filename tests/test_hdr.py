@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TypedDict
 
 import numpy as np
 import pytest
@@ -173,9 +174,20 @@ rates = st.floats(min_value=-300.0, max_value=300.0, allow_nan=False, allow_infi
 small_rates = st.floats(min_value=-2.0, max_value=2.0, allow_nan=False, allow_infinity=False)
 
 
+class Gains(TypedDict):
+    """HdrParams' numeric fields, as keywords."""
+
+    i_c: float
+    tau: float
+    theta_w: float
+    c1: float
+    c2: float
+    T: float
+
+
 @st.composite
 def params_st(draw: st.DrawFn) -> HdrParams:
-    kw: dict[str, float] = {
+    kw: Gains = {
         "i_c": draw(st.floats(0.0, 0.5)),
         "tau": draw(st.floats(0.0, 5.0)),
         "theta_w": draw(st.floats(0.01, 5.0)),

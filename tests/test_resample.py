@@ -180,7 +180,8 @@ def test_flush() -> None:
 def test_feeding_after_flush_neither_repeats_nor_invents() -> None:
     avg = BlockAverager()
     avg.feed(0, 1.0)
-    assert [b.index for b in avg.flush()] == [0]
+    (b,) = avg.flush()
+    assert isinstance(b, Block) and b.index == 0
     # A late sample in the flushed step cannot change what was already published.
     assert avg.feed(500_000, 9.0) == [] and avg.late == 1
     # The next step continues normally ...
@@ -199,8 +200,10 @@ def test_temperature_and_saturation_are_aggregated() -> None:
     avg.feed(100_000, 0.0, temp_c=30.0, saturated=True)
     avg.feed(200_000, 0.0, temp_c=40.0, saturated=True)
     (b,) = avg.feed(1_000_000, 0.0)
+    assert isinstance(b, Block)
     assert (b.temp_c, b.saturated, b.n) == (35.0, 2, 3)
     (b,) = avg.flush()
+    assert isinstance(b, Block)
     assert b.temp_c is None and b.saturated == 0
 
 

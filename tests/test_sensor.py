@@ -75,7 +75,9 @@ def test_counts_to_dps_and_back_is_exact(counts: int, polarity: int, supply: flo
     ref = 0 if supply is None else m.ref_counts_for(supply)
     omega = m.to_dps(counts, ref)
     assert isinstance(omega, float)
-    back = m.to_counts(omega, None if supply is None else m.supply_v(ref))
+    supply_v = None if supply is None else m.supply_v(ref)
+    assert supply_v is None or isinstance(supply_v, float)  # one ref count: one voltage
+    back = m.to_counts(omega, supply_v)
     assert int(back) == counts
 
 
@@ -132,6 +134,7 @@ def test_supply_4_8_v_scales_null_and_scale() -> None:
 def test_ratiometric_round_trip_at_4_8_v() -> None:
     ref = M.ref_counts_for(4.8)
     supply = M.supply_v(ref)
+    assert isinstance(supply, float)
     assert supply == pytest.approx(4.8, abs=M.vref_v / 2**16 * 2)
     omega = np.linspace(-150, 150, 301)
     c = M.to_counts(omega, supply)
@@ -154,6 +157,7 @@ def test_saturation_at_rails_and_beyond_range() -> None:
     c = np.array([0, 1, 32768, 65534, 65535])
     w = M.to_dps(c)
     sat = M.saturated(c, w)
+    assert isinstance(sat, np.ndarray)
     # The rails (0, 65535) read -250 / +249.99 deg/s and are flagged; so are 1 and 65534
     # (beyond +/-200 deg/s); null is not.
     assert sat.tolist() == [True, True, False, True, True]

@@ -116,6 +116,7 @@ def test_deterministic_by_seed_and_model_independent_truth() -> None:
     c = simulate_drive("mixed", 3.0, 12)
     for col in ("omega", "omega_truth", "heading_truth", "speed", "temp_c"):
         np.testing.assert_array_equal(getattr(a, col), getattr(b, col))
+    assert a.omega_truth is not None and c.omega_truth is not None
     assert not np.allclose(a.omega_truth, c.omega_truth)
     d = simulate_drive("mixed", 3.0, 11, model=GyroModel((StaticBias(0.1),)))
     np.testing.assert_array_equal(a.heading_truth, d.heading_truth)

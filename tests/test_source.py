@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import pytest
@@ -33,6 +35,7 @@ from hdrd.source import (
     SerialSource,
     SimulatedSource,
     Source,
+    SourceEvent,
     builtin_profile,
     load_profile,
     profile_frames,
@@ -51,7 +54,15 @@ def frames_array(n: int, t0_us: int = 0, step_us: int = 100_000, seq0: int = 0) 
     return arr
 
 
-def collect(src: Source, until: int | None = None, done: object = None) -> tuple[list[Frame], list[object]]:
+class Receiver(Protocol):
+    """The part of :class:`Source` that :func:`collect` uses."""
+
+    def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None: ...
+
+
+def collect(
+    src: Receiver, until: int | None = None, done: Callable[[], bool] | None = None
+) -> tuple[list[Frame], list[object]]:
     """recv until ``until`` frames arrived, EndOfInput, or ``done()`` and silence."""
     frames: list[Frame] = []
     events: list[object] = []
@@ -63,7 +74,7 @@ def collect(src: Source, until: int | None = None, done: object = None) -> tuple
             if until is not None and len(frames) >= until:
                 break
         elif item is None:
-            if done is not None and done():  # type: ignore[operator]
+            if done is not None and done():
                 break
         else:
             events.append(item)
@@ -76,6 +87,7 @@ def collect(src: Source, until: int | None = None, done: object = None) -> tuple
 
 
 def test_loop_url_delivers_frames_and_timeouts_mean_no_data() -> None:
+    src: SerialSource
     with SerialSource("loop://") as src:
         assert isinstance(src, Source)
         assert src.recv(0.01) is None  # nothing yet: not the end, not an error
@@ -333,6 +345,7 @@ def test_builtin_profiles() -> None:
     assert len(s) == 900 and s.rate_hz == pytest.approx(10.0)
     assert np.all(s.omega_truth == 0) and s.omega.mean() == pytest.approx(0.3, abs=0.01)
     c = builtin_profile("constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0)
+    assert c.omega_truth is not None
     assert np.all(c.omega_truth[:100] == 0) and np.all(c.omega_truth[100:] == -20.0)
     assert np.allclose(c.omega - c.omega_truth, 0.2)
     again = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
@@ -378,6 +391,7 @@ def test_simulated_source_paced_on_a_clock() -> None:
     out = []
     while not isinstance(item := src.recv(0.01), EndOfInput):
         if item is not None:
+            assert isinstance(item, Frame)
             out.append((item, clock.now))
     assert len(out) == 20 and out[-1][1] == pytest.approx(1.9 / 4)
     assert all(f.temp_cc is None for f, _ in out)

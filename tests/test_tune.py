@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_evaluate import CITY_TURNS, make_drive
 
 from hdrd.analysis.evaluate import evaluate_prepared, prepare_drive
 from hdrd.analysis.tune import (
@@ -28,6 +27,7 @@ from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
 from hdrd.drivelog import write_drive
 from hdrd.hdr import HdrParams
+from tests.test_evaluate import CITY_TURNS, make_drive
 
 
 def _drives(n: int, seed0: int, minutes: float = 5.0) -> list:
