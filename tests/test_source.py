@@ -7,7 +7,6 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 import pytest
@@ -35,7 +34,6 @@ from hdrd.source import (
     SerialSource,
     SimulatedSource,
     Source,
-    SourceEvent,
     builtin_profile,
     load_profile,
     profile_frames,
@@ -54,14 +52,8 @@ def frames_array(n: int, t0_us: int = 0, step_us: int = 100_000, seq0: int = 0) 
     return arr
 
 
-class Receiver(Protocol):
-    """The part of :class:`Source` that :func:`collect` uses."""
-
-    def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None: ...
-
-
 def collect(
-    src: Receiver, until: int | None = None, done: Callable[[], bool] | None = None
+    src: Source, until: int | None = None, done: Callable[[], bool] | None = None
 ) -> tuple[list[Frame], list[object]]:
     """recv until ``until`` frames arrived, EndOfInput, or ``done()`` and silence."""
     frames: list[Frame] = []
