@@ -235,9 +235,7 @@ def make_capture(
     return m
 
 
-def capture_bench_setup(
-    doc: str, argv: list[str] | None
-) -> tuple[Any, Path, dict[str, Any]]:
+def capture_bench_setup(doc: str, argv: list[str] | None) -> tuple[Any, Path, dict[str, Any]]:
     """The start of a benchmark on the 1-hour capture (bench/decode.py, bench/replay.py):
     parse ``--repeats``, ``--workdir`` and ``--no-write``, print the machine, make (or reuse)
     the capture in the work directory and describe it. Returns (args, capture path, meta)."""
@@ -294,7 +292,9 @@ def replace_section(heading: str, section: str) -> None:
     """Replace the section that starts with the line ``heading`` in RESULTS.md (up to the next
     ``## `` heading) by ``section``, or append it; the other sections are left alone. For the
     scripts that keep one section up to date (bench/tables.py, bench/hdrplus.py)."""
-    text = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    text = (
+        RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
+    )
     lines = text.splitlines(keepends=True)
     start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
     if start is None:
@@ -304,4 +304,6 @@ def replace_section(heading: str, section: str) -> None:
         return
     end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
     tail = "".join(lines[end:])
-    RESULTS.write_text("".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8")
+    RESULTS.write_text(
+        "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
+    )

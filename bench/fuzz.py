@@ -186,6 +186,7 @@ def reference_bin(data: bytes, good_pos: npt.NDArray[np.int64]) -> dict[str, Any
     rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
     crc = rows[:, 14].astype(np.uint16) | (rows[:, 15].astype(np.uint16) << 8)
     valid = crc16_ccitt_false_rows(rows[:, 2:14]) == crc
+
     # A CRC coincidence is not a frame: a valid candidate with another valid one starting
     # 2..14 bytes on that is followed by a sync pattern 16 bytes on while it is not.
     def sync_at(k: int) -> bool:

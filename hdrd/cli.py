@@ -66,7 +66,9 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
         help="serial device or pyserial URL (/dev/ttyUSB0, /dev/serial/by-id/..., loop://, socket://host:port)",
     )
     p.add_argument("--baud", type=int, metavar="N", help="serial speed, baud")
-    p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)")
+    p.add_argument(
+        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+    )
 
 
 @command("run", "hdrd.daemon:main", "run the daemon: gyro -> HDR -> publishers")
@@ -74,16 +76,30 @@ def _run(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)
     _bias_group(p, calibrate_seconds=False)
-    p.add_argument("--udp", action="append", metavar="HOST:PORT", help="send JSON lines here (repeatable)")
-    p.add_argument("--nmea-udp", action="append", metavar="HOST:PORT", help="send NMEA 0183 here (repeatable)")
+    p.add_argument(
+        "--udp", action="append", metavar="HOST:PORT", help="send JSON lines here (repeatable)"
+    )
+    p.add_argument(
+        "--nmea-udp", action="append", metavar="HOST:PORT", help="send NMEA 0183 here (repeatable)"
+    )
     p.add_argument("--nmea-ths", action="store_true", default=None, help="also send $HNTHS")
     p.add_argument("--stdout", action="store_true", default=None, help="print JSON lines to stdout")
-    p.add_argument("--simulate", action="store_true", help="read the built-in simulated gyro, no hardware")
+    p.add_argument(
+        "--simulate", action="store_true", help="read the built-in simulated gyro, no hardware"
+    )
     p.add_argument("--drive", help="with --simulate: city|suburbs|rural|highway|mixed|standstill")
-    p.add_argument("--speedup", type=float, metavar="X", help="with --simulate: play the drive X times faster")
+    p.add_argument(
+        "--speedup", type=float, metavar="X", help="with --simulate: play the drive X times faster"
+    )
     p.add_argument("--heading0", type=float, metavar="DEG", help="compass heading at start, deg")
     _method(p)
-    p.add_argument("--gpsd", metavar="HOST:PORT", nargs="?", const="127.0.0.1:2947", help="aid with GPS from gpsd")
+    p.add_argument(
+        "--gpsd",
+        metavar="HOST:PORT",
+        nargs="?",
+        const="127.0.0.1:2947",
+        help="aid with GPS from gpsd",
+    )
     p.add_argument("--log-format", choices=("auto", "json", "console"), help="log format on stderr")
 
 
@@ -91,34 +107,90 @@ def _run(p: argparse.ArgumentParser) -> None:
 def _calibrate(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)
-    p.add_argument("--seconds", type=float, metavar="S", help="averaging time Tbias, s (default 30, the paper's)")
-    p.add_argument("--bias-file", metavar="PATH", help="where to write (default $STATE_DIRECTORY or /var/lib/hdrd)/bias.yaml")
-    p.add_argument("--simulate", action="store_true", help="calibrate on the built-in simulated gyro")
+    p.add_argument(
+        "--seconds",
+        type=float,
+        metavar="S",
+        help="averaging time Tbias, s (default 30, the paper's)",
+    )
+    p.add_argument(
+        "--bias-file",
+        metavar="PATH",
+        help="where to write (default $STATE_DIRECTORY or /var/lib/hdrd)/bias.yaml",
+    )
+    p.add_argument(
+        "--simulate", action="store_true", help="calibrate on the built-in simulated gyro"
+    )
 
 
 @command("tail", "hdrd.publish:tail_main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--listen", metavar="HOST:PORT", default="127.0.0.1:10110", help="UDP address to listen on (default 127.0.0.1:10110)")
+    p.add_argument(
+        "--listen",
+        metavar="HOST:PORT",
+        default="127.0.0.1:10110",
+        help="UDP address to listen on (default 127.0.0.1:10110)",
+    )
     p.add_argument("--raw", action="store_true", help="print the JSON lines as received")
     p.add_argument("--count", type=int, metavar="N", help="exit after N messages")
 
 
 @command("fakegyro", "hdrd.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
 def _fakegyro(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--drive", default="mixed", help="drive profile: city|suburbs|rural|highway|mixed|standstill|constant")
-    p.add_argument("--rate-dps", type=float, default=0.0, metavar="DPS", help="with --drive constant: true yaw rate")
+    p.add_argument(
+        "--drive",
+        default="mixed",
+        help="drive profile: city|suburbs|rural|highway|mixed|standstill|constant",
+    )
+    p.add_argument(
+        "--rate-dps",
+        type=float,
+        default=0.0,
+        metavar="DPS",
+        help="with --drive constant: true yaw rate",
+    )
     p.add_argument("--minutes", type=float, default=20.0, help="length of the drive, min")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--hz", type=float, default=10.0, help="frame rate, Hz")
-    p.add_argument("--speedup", type=float, default=1.0, help="1 = real time; 0 = as fast as possible")
+    p.add_argument(
+        "--speedup", type=float, default=1.0, help="1 = real time; 0 = as fast as possible"
+    )
     p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), default="hdr-bin")
-    p.add_argument("--link", metavar="PATH", help="also make a symlink here to the pty (stable path across pulls)")
-    p.add_argument("--garbage", type=float, default=0.0, metavar="P", help="probability of garbage bytes before a frame")
-    p.add_argument("--crc-errors", type=float, default=0.0, metavar="P", help="probability of a corrupted frame")
-    p.add_argument("--drop", type=float, default=0.0, metavar="P", help="probability of a dropped frame")
-    p.add_argument("--pull-at", type=float, action="append", metavar="S", help="pull the cable at device time S (repeatable)")
-    p.add_argument("--pull-for", type=float, default=5.0, metavar="S", help="how long a pull lasts, s")
-    p.add_argument("--out", metavar="FILE", help="write the frames to a capture file instead of a pty")
+    p.add_argument(
+        "--link",
+        metavar="PATH",
+        help="also make a symlink here to the pty (stable path across pulls)",
+    )
+    p.add_argument(
+        "--garbage",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="probability of garbage bytes before a frame",
+    )
+    p.add_argument(
+        "--crc-errors",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="probability of a corrupted frame",
+    )
+    p.add_argument(
+        "--drop", type=float, default=0.0, metavar="P", help="probability of a dropped frame"
+    )
+    p.add_argument(
+        "--pull-at",
+        type=float,
+        action="append",
+        metavar="S",
+        help="pull the cable at device time S (repeatable)",
+    )
+    p.add_argument(
+        "--pull-for", type=float, default=5.0, metavar="S", help="how long a pull lasts, s"
+    )
+    p.add_argument(
+        "--out", metavar="FILE", help="write the frames to a capture file instead of a pty"
+    )
 
 
 @command("record", "hdrd.record:main", "record raw bytes from the gyro to a capture file")
@@ -126,13 +198,24 @@ def _record(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", metavar="URL", required=True, help="serial device or pyserial URL")
     p.add_argument("--baud", type=int, default=115200)
     p.add_argument("--out", metavar="FILE", required=True, help="capture file to write")
-    p.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds (default: until interrupted)")
+    p.add_argument(
+        "--seconds",
+        type=float,
+        metavar="S",
+        help="stop after S seconds (default: until interrupted)",
+    )
 
 
-@command("replay", "hdrd.replay:main", "run the daemon's pipeline on a capture, as fast as possible")
+@command(
+    "replay", "hdrd.replay:main", "run the daemon's pipeline on a capture, as fast as possible"
+)
 def _replay(p: argparse.ArgumentParser) -> None:
-    p.add_argument("capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)")
-    p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)")
+    p.add_argument(
+        "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
+    )
+    p.add_argument(
+        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+    )
     _bias_group(p)
     _config(p)
     _method(p)
@@ -142,7 +225,9 @@ def _replay(p: argparse.ArgumentParser) -> None:
 @command("convert", "hdrd.replay:convert_main", "convert a capture into a drive log CSV")
 def _convert(p: argparse.ArgumentParser) -> None:
     p.add_argument("capture", metavar="FILE")
-    p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)")
+    p.add_argument(
+        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+    )
     p.add_argument("--out", metavar="CSV", required=True)
     _config(p)
 
@@ -153,43 +238,79 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--minutes", type=float, default=20.0)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--hz", type=float, default=10.0, help="gyro sample rate, Hz (paper: 10)")
-    p.add_argument("--model", metavar="MODEL.yaml", help="gyro error model (default: CRS03-04-like)")
-    p.add_argument("--out", metavar="CSV", help="drive log to write (with --benchmark: a directory)")
-    p.add_argument("--benchmark", choices=("train", "test"), help="write the paper-like nine (train) or five (test) drives")
+    p.add_argument(
+        "--model", metavar="MODEL.yaml", help="gyro error model (default: CRS03-04-like)"
+    )
+    p.add_argument(
+        "--out", metavar="CSV", help="drive log to write (with --benchmark: a directory)"
+    )
+    p.add_argument(
+        "--benchmark",
+        choices=("train", "test"),
+        help="write the paper-like nine (train) or five (test) drives",
+    )
 
 
-@command("evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)")
+@command(
+    "evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)"
+)
 def _evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("drives", nargs="+", metavar="DRIVE.csv")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--calibrate-seconds", type=float, metavar="S", help="bias from the first S seconds (default 30)")
+    g.add_argument(
+        "--calibrate-seconds",
+        type=float,
+        metavar="S",
+        help="bias from the first S seconds (default 30)",
+    )
     g.add_argument("--bias", type=float, metavar="DPS", help="static bias, deg/s")
     p.add_argument("--json", metavar="FILE", help="write the table as JSON")
-    p.add_argument("--plot", metavar="FILE.png", help="heading vs time and error bars (needs matplotlib)")
+    p.add_argument(
+        "--plot", metavar="FILE.png", help="heading vs time and error bars (needs matplotlib)"
+    )
     _config(p)
     _method(p)
 
 
-@command("tune", "hdrd.analysis.tune:main", "tune HDR parameters on training drives, check on test drives")
+@command(
+    "tune",
+    "hdrd.analysis.tune:main",
+    "tune HDR parameters on training drives, check on test drives",
+)
 def _tune(p: argparse.ArgumentParser) -> None:
     p.add_argument("train", nargs="+", metavar="TRAIN.csv")
     p.add_argument("--test", nargs="+", metavar="TEST.csv", default=[])
-    p.add_argument("--candidates", type=int, default=2000, metavar="N", help="parameter sets to try")
+    p.add_argument(
+        "--candidates", type=int, default=2000, metavar="N", help="parameter sets to try"
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--calibrate-seconds", type=float, metavar="S", help="bias from the first S seconds (default 30)")
+    p.add_argument(
+        "--calibrate-seconds",
+        type=float,
+        metavar="S",
+        help="bias from the first S seconds (default 30)",
+    )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-@command("gap", "hdrd.analysis.gap:main", "find the gyro effects a model misses (model-gap workflow)")
+@command(
+    "gap", "hdrd.analysis.gap:main", "find the gyro effects a model misses (model-gap workflow)"
+)
 def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED.csv")
-    p.add_argument("--model", metavar="MODEL.yaml", help="starting error model (default static_bias + white_noise)")
+    p.add_argument(
+        "--model",
+        metavar="MODEL.yaml",
+        help="starting error model (default static_bias + white_noise)",
+    )
     p.add_argument("--out", metavar="FITTED.yaml", help="write the fitted model")
     p.add_argument("--report", metavar="REPORT.json", help="write the report")
     p.add_argument("--plot", metavar="FILE.png", help="measured vs simulated, before and after")
-    p.add_argument("--standstill", action="store_true", help="the log was taken at rest: true rate is zero")
+    p.add_argument(
+        "--standstill", action="store_true", help="the log was taken at rest: true rate is zero"
+    )
     p.add_argument("--seed", type=int, default=0)
 
 

@@ -213,7 +213,9 @@ class Config:
 Check = Callable[[Any], bool]
 
 
-def _num(lo: float | None = None, hi: float | None = None, lo_open: bool = False, hi_open: bool = False) -> tuple[Check, str]:
+def _num(
+    lo: float | None = None, hi: float | None = None, lo_open: bool = False, hi_open: bool = False
+) -> tuple[Check, str]:
     parts = []
     if lo is not None:
         parts.append(f"{'>' if lo_open else '>='} {lo:g}")
@@ -412,7 +414,9 @@ def _top_level_method(data: dict[Any, Any]) -> dict[Any, Any]:
 def _cross_check(cfg: Config) -> None:
     if cfg.device.reconnect_max_s < cfg.device.reconnect_min_s:
         raise ConfigError(
-            "device.reconnect_max_s", cfg.device.reconnect_max_s, "must be >= device.reconnect_min_s"
+            "device.reconnect_max_s",
+            cfg.device.reconnect_max_s,
+            "must be >= device.reconnect_min_s",
         )
 
 
@@ -432,7 +436,9 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
     except FileNotFoundError:
         raise ConfigError("(file)", str(p), "not found", str(p)) from None
     except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError("(file)", str(p), f"cannot be read ({e.__class__.__name__})", str(p)) from None
+        raise ConfigError(
+            "(file)", str(p), f"cannot be read ({e.__class__.__name__})", str(p)
+        ) from None
     import yaml  # here, not at the top: a run without a config file never needs it (~18 ms)
 
     try:
@@ -484,4 +490,3 @@ def config_field_keys() -> list[str]:
             else:
                 keys.append(f"{sec.name}.{f.name}")
     return keys
-

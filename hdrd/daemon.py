@@ -100,7 +100,11 @@ def setup_logging(level: str = "info", fmt: str = "auto") -> None:
     import structlog
 
     use_json = fmt == "json" or (fmt == "auto" and not sys.stderr.isatty())
-    renderer: Any = structlog.processors.JSONRenderer() if use_json else structlog.dev.ConsoleRenderer(colors=False)
+    renderer: Any = (
+        structlog.processors.JSONRenderer()
+        if use_json
+        else structlog.dev.ConsoleRenderer(colors=False)
+    )
     structlog.configure(
         processors=[
             structlog.processors.add_log_level,
@@ -184,7 +188,9 @@ def choose_bias(cfg: Config, bias_arg: float | None) -> BiasChoice:
         return BiasChoice(load_bias(path), str(path))
     except BiasFileError as e:
         if cfg.calibration.on_bad_bias_file == "calibrate" and not (explicit and not path.exists()):
-            log.warning("bias_file_rejected", path=str(path), error=str(e), fallback="startup calibration")
+            log.warning(
+                "bias_file_rejected", path=str(path), error=str(e), fallback="startup calibration"
+            )
             return BiasChoice(None, "startup")
         raise
 
@@ -201,7 +207,11 @@ class _Signals:
         self._old: dict[int, Any] = {}
 
     def install(self) -> None:
-        for sig, handler in ((signal.SIGTERM, self._on_stop), (signal.SIGINT, self._on_stop), (signal.SIGHUP, self._on_hup)):
+        for sig, handler in (
+            (signal.SIGTERM, self._on_stop),
+            (signal.SIGINT, self._on_stop),
+            (signal.SIGHUP, self._on_hup),
+        ):
             self._old[sig] = signal.signal(sig, handler)
 
     def restore(self) -> None:
@@ -250,7 +260,9 @@ def open_source(cfg: Config, simulate: bool) -> Any:
 
     if simulate:
         s = cfg.simulate
-        return source.SimulatedSource(drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor)
+        return source.SimulatedSource(
+            drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor
+        )
     d = cfg.device
     return source.SerialSource(
         d.port,
@@ -271,7 +283,11 @@ def build_publishers(cfg: Config) -> list[Any]:
     if o.udp:
         pubs.append(publish.UdpJsonPublisher([parse_hostport(a) for a in o.udp]))
     if o.nmea_udp:
-        pubs.append(publish.UdpNmeaPublisher([parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths, talker=o.nmea_talker))
+        pubs.append(
+            publish.UdpNmeaPublisher(
+                [parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths, talker=o.nmea_talker
+            )
+        )
     if o.stdout or not pubs:
         pubs.append(publish.StdoutPublisher())
     return pubs
@@ -366,11 +382,19 @@ class Daemon:
 
         old = self.cfg
         if cfg.device != old.device and not self.simulate:
-            log.warning("config_reload_partial", reason="device settings need a restart", kept=str(old.device.port))
+            log.warning(
+                "config_reload_partial",
+                reason="device settings need a restart",
+                kept=str(old.device.port),
+            )
             cfg = replace(cfg, device=old.device)
         if cfg.hdr.params.T != old.hdr.params.T:
-            log.warning("config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T)
-            cfg = replace(cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T)))
+            log.warning(
+                "config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T
+            )
+            cfg = replace(
+                cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T))
+            )
         pc: PipelineConfig = _pipeline_config(cfg, self.pipeline.bias)
         self.pipeline.reconfigure(pc)
         if cfg.output != old.output:
@@ -380,7 +404,12 @@ class Daemon:
             if self.gps is not None:
                 self.gps.close()
             self.gps = _gps_link(cfg)
-            log.info("gpsd_reconfigured", enabled=cfg.gpsd.enabled, host=cfg.gpsd.host, port=cfg.gpsd.port)
+            log.info(
+                "gpsd_reconfigured",
+                enabled=cfg.gpsd.enabled,
+                host=cfg.gpsd.host,
+                port=cfg.gpsd.port,
+            )
         self.cfg, self.where = cfg, where
         log.info("config_reloaded", source=where, method=cfg.hdr.method, **cfg.hdr.params.as_dict())
 
@@ -408,10 +437,16 @@ class Daemon:
             bias_dps=None if self.bias_choice.record is None else self.bias_choice.record.bias_dps,
         )
         if self.bias_choice.record is None:
-            self._set_status(f"calibrating: measuring the bias over {self.cfg.calibration.startup_s:g} s at standstill")
+            self._set_status(
+                f"calibrating: measuring the bias over {self.cfg.calibration.startup_s:g} s at standstill"
+            )
         src = open_source(self.cfg, self.simulate)
         # Batched reads of a serial port (hdrd.pacing); the other sources pace themselves.
-        pacer = ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S) if isinstance(src, SerialSource) else None
+        pacer = (
+            ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S)
+            if isinstance(src, SerialSource)
+            else None
+        )
         T = self.cfg.hdr.params.T
         mono = time.monotonic
         last_data = mono()
@@ -441,7 +476,12 @@ class Daemon:
                 elif isinstance(item, DeviceBack):
                     gap = now_m - (lost_at if lost_at is not None else last_data)
                     self.reconnects += 1
-                    log.info("device_back", port=src_name, gap_s=round(gap, 3), reconnects=self.reconnects)
+                    log.info(
+                        "device_back",
+                        port=src_name,
+                        gap_s=round(gap, 3),
+                        reconnects=self.reconnects,
+                    )
                     msgs = self.pipeline.resync(gap, bad, time.time())
                     lost_at = None
                     if pacer is not None:
@@ -484,7 +524,9 @@ class Daemon:
                     t_dev = self.pipeline.clock.last_us
                     if t_dev is not None:
                         pl = self.pipeline
-                        pause = pacer.pause(now_m, t_dev / 1e6, pl.until_step_s(), mono(), pl.sample_interval_s())
+                        pause = pacer.pause(
+                            now_m, t_dev / 1e6, pl.until_step_s(), mono(), pl.sample_interval_s()
+                        )
                         if pause:
                             time.sleep(pause)
         except OutputClosed:
@@ -501,7 +543,12 @@ class Daemon:
             if self.gps is not None:
                 self.gps.close()
             _stop_all(self.publishers)
-            log.info("stop", steps=self.steps, bad_frames=int(src.stats.bad_frames), reconnects=self.reconnects)
+            log.info(
+                "stop",
+                steps=self.steps,
+                bad_frames=int(src.stats.bad_frames),
+                reconnects=self.reconnects,
+            )
             self.notifier.close()
             self.signals.restore()
         return 0
@@ -545,7 +592,11 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if not seconds > 0:
         print(f"hdrd: --seconds must be > 0, got {seconds}", file=sys.stderr)
         return 2
-    path = Path(args.bias_file) if args.bias_file else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
+    path = (
+        Path(args.bias_file)
+        if args.bias_file
+        else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
+    )
     signals = _Signals()
     signals.install()
     from hdrd.resample import DeviceClock
@@ -565,7 +616,11 @@ def calibrate_main(args: argparse.Namespace) -> int:
             if item is None:
                 continue
             if isinstance(item, DeviceLost):
-                print(f"device lost ({item.reason}); waiting for it to come back", file=sys.stderr, flush=True)
+                print(
+                    f"device lost ({item.reason}); waiting for it to come back",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 continue
             if isinstance(item, DeviceBack):
                 print("device back; restarting the measurement", file=sys.stderr, flush=True)
@@ -587,7 +642,10 @@ def calibrate_main(args: argparse.Namespace) -> int:
             temps.append(item.temp_c if item.temp_c is not None else float("nan"))
             t_last = t
             if elapsed >= next_report:
-                print(f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}", flush=True)
+                print(
+                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}",
+                    flush=True,
+                )
                 next_report += 1.0
     finally:
         src.close()
@@ -597,7 +655,10 @@ def calibrate_main(args: argparse.Namespace) -> int:
         return 0
     duration = 0.0 if t0 is None else (t_last - t0) / 1e6
     if duration < seconds * 0.99:
-        print(f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written", file=sys.stderr)
+        print(
+            f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written",
+            file=sys.stderr,
+        )
         return 1
     try:
         import numpy as np
@@ -609,7 +670,9 @@ def calibrate_main(args: argparse.Namespace) -> int:
             when=time.time(),
         )
     except MotionDetected as e:
-        print(f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr)
+        print(
+            f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
+        )
         return 1
     rec = replace(rec, duration_s=duration)
     try:
@@ -623,5 +686,12 @@ def calibrate_main(args: argparse.Namespace) -> int:
         + f") written to {path}",
         flush=True,
     )
-    log.info("calibrated", bias_dps=rec.bias_dps, std_dps=rec.std_dps, samples=rec.n, path=str(path), source="calibrate")
+    log.info(
+        "calibrated",
+        bias_dps=rec.bias_dps,
+        std_dps=rec.std_dps,
+        samples=rec.n,
+        path=str(path),
+        source="calibrate",
+    )
     return 0

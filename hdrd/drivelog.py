@@ -117,7 +117,9 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     header = [h.strip() for h in next(csv.reader([header_line]))]
     for h in header:
         if h not in COLUMNS:
-            raise DriveLogError(f"{label}:{lineno}: unknown column {h!r} (allowed: {', '.join(COLUMNS)})")
+            raise DriveLogError(
+                f"{label}:{lineno}: unknown column {h!r} (allowed: {', '.join(COLUMNS)})"
+            )
     for r in REQUIRED:
         if r not in header:
             raise DriveLogError(f"{label}:{lineno}: missing required column {r!r}")

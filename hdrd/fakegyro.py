@@ -103,7 +103,15 @@ def _device_seconds(t_us: npt.NDArray[np.integer[Any]]) -> npt.NDArray[np.float6
 
 
 class _Tally:
-    __slots__ = ("crc_errors", "dropped", "extra_sync", "frames", "garbage_bytes", "garbage_events", "idx")
+    __slots__ = (
+        "crc_errors",
+        "dropped",
+        "extra_sync",
+        "frames",
+        "garbage_bytes",
+        "garbage_events",
+        "idx",
+    )
 
     def __init__(self) -> None:
         self.frames = self.garbage_events = self.garbage_bytes = 0
@@ -137,12 +145,16 @@ class FakeGyro:
         settle_s: float = 0.2,
     ) -> None:
         if protocol not in PROTOCOLS:
-            raise ValueError(f"unknown protocol {protocol!r} (expected one of {', '.join(PROTOCOLS)})")
+            raise ValueError(
+                f"unknown protocol {protocol!r} (expected one of {', '.join(PROTOCOLS)})"
+            )
         for name, p in (("garbage", garbage), ("crc_errors", crc_errors), ("drop", drop)):
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name} is a probability in [0, 1], got {p!r}")
         if not (speedup >= 0 and np.isfinite(speedup)):
-            raise ValueError(f"speedup must be a finite number >= 0 (0 = as fast as possible), got {speedup!r}")
+            raise ValueError(
+                f"speedup must be a finite number >= 0 (0 = as fast as possible), got {speedup!r}"
+            )
         if not pull_for > 0:
             raise ValueError(f"pull_for must be > 0 s, got {pull_for!r}")
         if isinstance(profile, DriveLog):
@@ -577,4 +589,3 @@ def main(args: argparse.Namespace) -> int:
         gyro.close()
         for s, h in old.items():
             signal.signal(s, h)
-

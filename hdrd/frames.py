@@ -203,10 +203,16 @@ def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16
 
 
 def _check_fields(f: Frame) -> None:
-    if not (0 <= f.seq <= _U16 and 0 <= f.t_us <= _U32 and 0 <= f.rate <= _U16 and 0 <= f.ref <= _U16):
-        raise FrameError(f"field out of range in {f!r} (seq, rate, ref: 0..65535; t_us: 0..2**32-1)")
+    if not (
+        0 <= f.seq <= _U16 and 0 <= f.t_us <= _U32 and 0 <= f.rate <= _U16 and 0 <= f.ref <= _U16
+    ):
+        raise FrameError(
+            f"field out of range in {f!r} (seq, rate, ref: 0..65535; t_us: 0..2**32-1)"
+        )
     if f.temp_cc is not None and not -32767 <= f.temp_cc <= 32767:
-        raise FrameError(f"temp_cc {f.temp_cc!r} out of range -32767..32767 (0.01 degC; None = not fitted)")
+        raise FrameError(
+            f"temp_cc {f.temp_cc!r} out of range -32767..32767 (0.01 degC; None = not fitted)"
+        )
 
 
 def encode_bin(f: Frame) -> bytes:
@@ -336,7 +342,11 @@ def array_to_frames(arr: npt.NDArray[np.void]) -> list[Frame]:
     return [
         _frame(*row)
         for row in zip(
-            arr["seq"].tolist(), arr["t_us"].tolist(), arr["rate"].tolist(), arr["ref"].tolist(), temps
+            arr["seq"].tolist(),
+            arr["t_us"].tolist(),
+            arr["rate"].tolist(),
+            arr["ref"].tolist(),
+            temps,
         )
     ]
 
@@ -405,7 +415,9 @@ class CaptureStats(ParserStats):
     plus ``bad_before[i]``: the bad frames that came before good frame i in the byte stream
     (what a live source reports as ``stats.bad_frames`` when it hands out frame i)."""
 
-    bad_before: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    bad_before: npt.NDArray[np.int64] = field(
+        default_factory=lambda: np.zeros(0, np.int64), repr=False
+    )
 
 
 _SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDOW behind
@@ -537,7 +549,14 @@ class Parser:
         find = buf.find
         unpack = _BODY.unpack_from
         crc16 = crc_hqx
-        new, set_seq, set_t, set_rate, set_ref, set_temp = _new, _SET_SEQ, _SET_T, _SET_RATE, _SET_REF, _SET_TEMP
+        new, set_seq, set_t, set_rate, set_ref, set_temp = (
+            _new,
+            _SET_SEQ,
+            _SET_T,
+            _SET_RATE,
+            _SET_REF,
+            _SET_TEMP,
+        )
         out: list[Frame] = []
         append = out.append
         bad = self.stats.bad_frames
@@ -780,7 +799,11 @@ def decode_capture(
         return np.empty(0, FRAME_DTYPE), st
     cand = np.flatnonzero((a[: n - 15] == 0xA5) & (a[1 : n - 14] == 0x5A))
     k = cand.shape[0]
-    if k and cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
+    if (
+        k
+        and cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1)
+        and np.all(np.diff(cand) == BIN_FRAME_LEN)
+    ):
         # A clean run of frames with no stray sync pattern: a view, no gather.
         rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
     else:
@@ -809,7 +832,9 @@ def decode_capture(
         # bad_before[i] = #(bad positions < acc[i]) = #(bad j whose insertion point in acc is
         # <= i): a cumulative count over the few bad frames, not a search per good frame.
         at = np.searchsorted(acc, bad_pos)
-        st.bad_before = np.cumsum(np.bincount(at, minlength=acc.size + 1)[: acc.size], dtype=np.int64)
+        st.bad_before = np.cumsum(
+            np.bincount(at, minlength=acc.size + 1)[: acc.size], dtype=np.int64
+        )
         payload = words[np.flatnonzero(valid)[acc_mask], 1:7]  # one gather, contiguous
     arr = np.ascontiguousarray(payload).view(FRAME_DTYPE).reshape(-1)
     st.frames = int(arr.shape[0])
@@ -821,4 +846,3 @@ def decode_capture(
 def decode_frames(data: bytes, protocol: str = "hdr-bin") -> list[Frame]:
     """All good frames of a capture as Frame objects (convenience over decode_capture)."""
     return array_to_frames(decode_capture(data, protocol)[0])
-

@@ -155,7 +155,9 @@ class Pipeline:
         state. T cannot change while running: it defines the block edges."""
         if config.params.T != self.config.params.T:
             raise ValueError("hdr.T cannot change while running; restart the daemon")
-        if config.bias_dps is not None and (self.bias is None or config.bias_dps != self.bias.bias_dps):
+        if config.bias_dps is not None and (
+            self.bias is None or config.bias_dps != self.bias.bias_dps
+        ):
             self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.config = config
         self._params = method_params(config.method, config.params)
@@ -172,11 +174,18 @@ class Pipeline:
         if self.bias is None or delta_dps == 0.0:
             return
         self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
-        self.events.append(("bias_adjusted", {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source}))
+        self.events.append(
+            (
+                "bias_adjusted",
+                {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source},
+            )
+        )
 
     # -- input ---------------------------------------------------------------------------
 
-    def feed(self, frame: FrameLike, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+    def feed(
+        self, frame: FrameLike, bad_frames: int = 0, now: float | None = None
+    ) -> list[Message]:
         """One frame; the messages of the steps it closed (usually none, at most a few).
 
         bad_frames: corrupt frames counted so far, published as is. now: UNIX time to stamp.
@@ -215,7 +224,13 @@ class Pipeline:
         while self.bias is None and i < n:
             f = frames[i]
             temp = None if int(f["temp"]) == TEMP_NOT_FITTED else int(f["temp"]) / 100
-            out.extend(self.feed(_Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp), int(bad[i]), now() if now else None))
+            out.extend(
+                self.feed(
+                    _Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp),
+                    int(bad[i]),
+                    now() if now else None,
+                )
+            )
             i += 1
         if i >= n:
             return out
@@ -240,7 +255,9 @@ class Pipeline:
         """End of input: close the open, partial block."""
         return self._on_blocks(self._avg.flush(), bad_frames, now)
 
-    def resync(self, gap_s: float | None = None, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+    def resync(
+        self, gap_s: float | None = None, bad_frames: int = 0, now: float | None = None
+    ) -> list[Message]:
         """The device went away and is back (its clock may have restarted from zero).
 
         Closes the open block, then cuts new block edges from the next sample; heading and
@@ -265,7 +282,12 @@ class Pipeline:
 
     # -- steps ---------------------------------------------------------------------------
 
-    def _on_blocks(self, items: tuple[Block | Missing, ...] | list[Block | Missing], bad_frames: int, now: float | None) -> list[Message]:
+    def _on_blocks(
+        self,
+        items: tuple[Block | Missing, ...] | list[Block | Missing],
+        bad_frames: int,
+        now: float | None,
+    ) -> list[Message]:
         out: list[Message] = []
         for item in items:
             if isinstance(item, Missing):
@@ -313,7 +335,9 @@ class Pipeline:
             msg["saturated"] = block.saturated
         return msg
 
-    def _step(self, block: Block, eps0: float) -> tuple[hdr.HdrOutput | hdrplus.PlusOutput, float, bool]:
+    def _step(
+        self, block: Block, eps0: float
+    ) -> tuple[hdr.HdrOutput | hdrplus.PlusOutput, float, bool]:
         """One drift-reduction step on the block: (output, published bias deg/s, standstill)."""
         u = block.mean - eps0
         if self.config.method != "hdr+":
@@ -353,7 +377,9 @@ class Pipeline:
         try:
             rec = estimate_bias(w, temp_c=temps, limits=self.config.limits)
         except MotionDetected as e:
-            self.events.append(("calibration_rejected", {"reason": str(e), "attempt": self.calibration_attempts}))
+            self.events.append(
+                ("calibration_rejected", {"reason": str(e), "attempt": self.calibration_attempts})
+            )
             self._cal_omega.clear()
             self._cal_temp.clear()
             self._cal_done_blocks = 0
@@ -364,7 +390,12 @@ class Pipeline:
         self.events.append(
             (
                 "calibrated",
-                {"bias_dps": rec.bias_dps, "std_dps": rec.std_dps, "samples": rec.n, "source": "startup"},
+                {
+                    "bias_dps": rec.bias_dps,
+                    "std_dps": rec.std_dps,
+                    "samples": rec.n,
+                    "source": "startup",
+                },
             )
         )
 
@@ -396,7 +427,9 @@ class Pipeline:
 
     # -- while no data arrives -------------------------------------------------------------
 
-    def stale_message(self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale") -> Message:
+    def stale_message(
+        self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
+    ) -> Message:
         """What to publish while no sample arrives: no new step, the heading held."""
         msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
         if now is not None:

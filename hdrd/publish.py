@@ -138,7 +138,9 @@ def _plain(msg: Mapping[str, Any]) -> bool:
         return False
     for k, v in msg.items():
         t = type(v)
-        if type(k) is not str or not (t is str or t is int or t is bool or (t is float and math.isfinite(v))):
+        if type(k) is not str or not (
+            t is str or t is int or t is bool or (t is float and math.isfinite(v))
+        ):
             return False
     return True
 
@@ -199,7 +201,9 @@ def _heading_field(heading: float) -> str:
     return f"{0.0 if h >= 360.0 else h:.2f}"
 
 
-def nmea_sentences(msg: Mapping[str, Any], ths: bool = False, talker: str = NMEA_TALKER) -> list[bytes]:
+def nmea_sentences(
+    msg: Mapping[str, Any], ths: bool = False, talker: str = NMEA_TALKER
+) -> list[bytes]:
     """One message -> NMEA 0183 sentences, each ``$...*hh\\r\\n``.
 
     - ``$HNHDT,<heading>,T``: heading, degrees true (compass, 2 decimals). Left out when the
@@ -258,7 +262,10 @@ def parse_nmea(line: bytes | str) -> tuple[str, list[str]]:
 # error queue together with the destination that caused them. Without it Linux reports no
 # ICMP error on an unconnected UDP socket at all; with it, the pending error also fails the
 # *next* sendto, whatever its destination, so we drain the queue and retry (see _send).
-_RECVERR: dict[int, tuple[int, int]] = {socket.AF_INET: (socket.IPPROTO_IP, 11), socket.AF_INET6: (socket.IPPROTO_IPV6, 25)}
+_RECVERR: dict[int, tuple[int, int]] = {
+    socket.AF_INET: (socket.IPPROTO_IP, 11),
+    socket.AF_INET6: (socket.IPPROTO_IPV6, 25),
+}
 _HAVE_RECVERR = sys.platform.startswith("linux")
 _ASYNC_ERRNOS = frozenset(
     {errno.ECONNREFUSED, errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.EMSGSIZE}
@@ -518,10 +525,18 @@ class UdpNmeaPublisher(UdpPublisher):
     """NMEA 0183 (:func:`nmea_sentences`), one datagram per sentence, as OpenCPN and gpsd's
     ``udp://`` source expect."""
 
-    def __init__(self, destinations: Iterable[tuple[str, int]], ths: bool = False, talker: str = NMEA_TALKER, **kw: Any) -> None:
+    def __init__(
+        self,
+        destinations: Iterable[tuple[str, int]],
+        ths: bool = False,
+        talker: str = NMEA_TALKER,
+        **kw: Any,
+    ) -> None:
         self.ths = ths
         self.talker = talker
-        super().__init__(destinations, lambda m: nmea_sentences(m, ths=self.ths, talker=self.talker), **kw)
+        super().__init__(
+            destinations, lambda m: nmea_sentences(m, ths=self.ths, talker=self.talker), **kw
+        )
 
 
 # -- stdout -------------------------------------------------------------------------------
@@ -685,7 +700,9 @@ class TailFormatter:
                 try:
                     kind, fields_ = parse_nmea(text)
                 except ValueError as e:
-                    notes.append(f"hdrd tail: ignored a bad NMEA sentence from {sender}: {e}: {shown!r}")
+                    notes.append(
+                        f"hdrd tail: ignored a bad NMEA sentence from {sender}: {e}: {shown!r}"
+                    )
                     continue
                 count += 1
                 what = "" if self.raw else self.describe_nmea(kind, fields_)
@@ -694,10 +711,14 @@ class TailFormatter:
             try:
                 msg = json.loads(text)
             except (json.JSONDecodeError, RecursionError) as e:
-                notes.append(f"hdrd tail: ignored malformed data from {sender}: {e.msg if hasattr(e, 'msg') else e}: {shown!r}")
+                notes.append(
+                    f"hdrd tail: ignored malformed data from {sender}: {e.msg if hasattr(e, 'msg') else e}: {shown!r}"
+                )
                 continue
             if not isinstance(msg, dict):
-                notes.append(f"hdrd tail: ignored a JSON value that is not an object from {sender}: {shown!r}")
+                notes.append(
+                    f"hdrd tail: ignored a JSON value that is not an object from {sender}: {shown!r}"
+                )
                 continue
             count += 1
             if self.raw or msg.get("class") != MESSAGE_CLASS:

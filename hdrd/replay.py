@@ -19,7 +19,9 @@ from hdrd.config import EX_CONFIG, Config, ConfigError
 __all__ = ["convert_main", "main", "replay_capture"]
 
 
-def replay_capture(data: bytes, cfg: Config, bias_dps: float | None, startup_s: float | None = None) -> list[dict[str, Any]]:
+def replay_capture(
+    data: bytes, cfg: Config, bias_dps: float | None, startup_s: float | None = None
+) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure."""
     from dataclasses import replace
 
@@ -102,7 +104,10 @@ def convert_main(args: argparse.Namespace) -> int:
     t_us, ok = DeviceClock().unwrap_many(frames["t_us"])
     frames, t_us = frames[ok], t_us[ok]
     if frames.shape[0] == 0:
-        print(f"hdrd convert: no valid frames in {args.capture} ({stats.bad_frames} bad)", file=sys.stderr)
+        print(
+            f"hdrd convert: no valid frames in {args.capture} ({stats.bad_frames} bad)",
+            file=sys.stderr,
+        )
         return 1
     omega = cfg.sensor.to_dps_array(frames["rate"], frames["ref"])
     temp = frames["temp"].astype(np.float64)
@@ -112,8 +117,14 @@ def convert_main(args: argparse.Namespace) -> int:
         omega=omega,
         temp_c=np.where(has_temp, temp / 100, np.nan) if has_temp.any() else None,
         name=Path(args.capture).stem,
-        meta={"source": f"hdrd convert {Path(args.capture).name}", "bad_frames": str(stats.bad_frames)},
+        meta={
+            "source": f"hdrd convert {Path(args.capture).name}",
+            "bad_frames": str(stats.bad_frames),
+        },
     )
     write_drive(args.out, log)
-    print(f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {args.out}", file=sys.stderr)
+    print(
+        f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {args.out}",
+        file=sys.stderr,
+    )
     return 0

@@ -81,7 +81,9 @@ class DeviceClock:
         self._last += d
         return self._last
 
-    def unwrap_many(self, t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    def unwrap_many(
+        self, t_us: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
         """:meth:`unwrap` over an array, continuing this clock's state: (times, accepted).
 
         Identical to calling :meth:`unwrap` in order (rejected samples get time -1); numpy
@@ -278,7 +280,9 @@ class BlockAverager:
         if j == n or np.any(np.diff(idx[j:]) < 0):
             for i in range(n):
                 tc = float(temps[i])
-                for b in self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i])):
+                for b in self.feed(
+                    int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i])
+                ):
                     out.append((i, b))
             return out
         for i in range(j):

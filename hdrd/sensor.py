@@ -61,7 +61,9 @@ class SensorModel:
         """Supply voltage from the supply-monitor counts, V (nominal where not wired, ref = 0)."""
         ref = np.asarray(ref_counts, dtype=np.float64)
         v = np.where(
-            ref > 0, ref * self.vref_v / (1 << self.adc_bits) * self.ref_divider, self.supply_nominal_v
+            ref > 0,
+            ref * self.vref_v / (1 << self.adc_bits) * self.ref_divider,
+            self.supply_nominal_v,
         )
         return float(v) if v.ndim == 0 else v
 
@@ -102,9 +104,13 @@ class SensorModel:
 
     def saturated_scalar(self, rate_counts: int, omega_dps: float) -> bool:
         """:meth:`saturated` for one sample."""
-        return rate_counts <= 0 or rate_counts >= self.full_scale or abs(omega_dps) >= self.range_dps
+        return (
+            rate_counts <= 0 or rate_counts >= self.full_scale or abs(omega_dps) >= self.range_dps
+        )
 
-    def to_counts(self, omega_dps: npt.ArrayLike, supply_v: float | None = None) -> npt.NDArray[np.int64]:
+    def to_counts(
+        self, omega_dps: npt.ArrayLike, supply_v: float | None = None
+    ) -> npt.NDArray[np.int64]:
         """ADC counts a yaw rate produces (rounded, clipped to the ADC's rails); inverse of to_dps."""
         k = (self.supply_nominal_v if supply_v is None else supply_v) / self.supply_nominal_v
         omega = np.asarray(omega_dps, dtype=np.float64)
@@ -117,7 +123,9 @@ class SensorModel:
         counts = round(supply_v / self.ref_divider * (1 << self.adc_bits) / self.vref_v)
         return int(min(max(counts, 1), self.full_scale))
 
-    def saturated(self, rate_counts: npt.ArrayLike, omega_dps: npt.ArrayLike) -> npt.NDArray[np.bool_] | bool:
+    def saturated(
+        self, rate_counts: npt.ArrayLike, omega_dps: npt.ArrayLike
+    ) -> npt.NDArray[np.bool_] | bool:
         """True where a sample is at an ADC rail or beyond the gyro's specified range."""
         c = np.asarray(rate_counts)
         w = np.asarray(omega_dps, dtype=np.float64)

@@ -404,7 +404,9 @@ class SerialReader:
         self.stats.bytes_read += len(data)
         return data
 
-    def _read_fd(self, fd: int, poller: select.poll, timeout: float | None) -> bytes | DeviceLost | None:
+    def _read_fd(
+        self, fd: int, poller: select.poll, timeout: float | None
+    ) -> bytes | DeviceLost | None:
         """:meth:`_read_open` for a local serial device: one poll, one read of all there is.
 
         Why not ``port.read``: pyserial re-applies the termios settings whenever its timeout
@@ -424,7 +426,9 @@ class SerialReader:
         except Exception as e:  # noqa: BLE001 - any I/O trouble means the device is lost
             return self._lose(e)
         if not data:
-            return self._lose(serial.SerialException("device reports readiness to read but returned no data"))
+            return self._lose(
+                serial.SerialException("device reports readiness to read but returned no data")
+            )
         self.stats.bytes_read += len(data)
         return data
 
@@ -630,10 +634,14 @@ def builtin_profile(
     + = CCW, seeded); ``omega_truth`` the true rate; ``temp_c`` constant. Time from 0 s.
     """
     if drive not in BUILTIN_DRIVES:
-        raise ProfileError(f"unknown built-in drive {drive!r} (built in: {', '.join(BUILTIN_DRIVES)})")
+        raise ProfileError(
+            f"unknown built-in drive {drive!r} (built in: {', '.join(BUILTIN_DRIVES)})"
+        )
     for name, v in (("minutes", minutes), ("hz", hz), ("lead_in_s", lead_in_s)):
         if not (math.isfinite(v) and v >= 0) or (name == "hz" and v == 0):
-            raise ProfileError(f"{name} must be a finite number {'> 0' if name == 'hz' else '>= 0'}, got {v!r}")
+            raise ProfileError(
+                f"{name} must be a finite number {'> 0' if name == 'hz' else '>= 0'}, got {v!r}"
+            )
     n = int(round((lead_in_s + minutes * 60.0) * hz))
     if n < 1:
         raise ProfileError(f"a drive of {minutes} min at {hz} Hz has no samples")
@@ -696,13 +704,17 @@ def profile_frames(
     n = len(log)
     arr = np.zeros(n, FRAME_DTYPE)
     arr["seq"] = (seq0 + np.arange(n, dtype=np.int64)) & 0xFFFF
-    arr["t_us"] = (t0_us + np.rint(np.asarray(log.t, np.float64) * 1e6).astype(np.int64)) % CLOCK_WRAP_US
+    arr["t_us"] = (
+        t0_us + np.rint(np.asarray(log.t, np.float64) * 1e6).astype(np.int64)
+    ) % CLOCK_WRAP_US
     arr["rate"] = sensor.to_counts(log.omega, supply_v)
     arr["ref"] = 0 if supply_v is None else sensor.ref_counts_for(supply_v)
     if log.temp_c is None:
         arr["temp"] = TEMP_NOT_FITTED
     else:
-        cc = np.clip(np.rint(np.nan_to_num(log.temp_c, nan=0.0) * 100.0), -32767, 32767).astype(np.int64)
+        cc = np.clip(np.rint(np.nan_to_num(log.temp_c, nan=0.0) * 100.0), -32767, 32767).astype(
+            np.int64
+        )
         arr["temp"] = np.where(np.isnan(log.temp_c), TEMP_NOT_FITTED, cc)
     return arr
 
@@ -736,8 +748,12 @@ class SimulatedSource(_SourceBase):
         clock: Clock | None = None,
     ) -> None:
         if not (speedup >= 0 and math.isfinite(speedup)):
-            raise ValueError(f"speedup must be a finite number >= 0 (0 = as fast as possible), got {speedup!r}")
-        self.profile = profile if profile is not None else load_profile(drive, minutes, seed, hz, rate_dps)
+            raise ValueError(
+                f"speedup must be a finite number >= 0 (0 = as fast as possible), got {speedup!r}"
+            )
+        self.profile = (
+            profile if profile is not None else load_profile(drive, minutes, seed, hz, rate_dps)
+        )
         self.frames = profile_frames(self.profile, sensor, supply_v, t0_us, seq0)
         self.speedup = speedup
         self.clock: Clock = clock or RealClock()
@@ -797,4 +813,3 @@ class SimulatedSource(_SourceBase):
         self._i += 1
         self._stats.frames += 1
         return self._batch.popleft()
-

@@ -79,7 +79,9 @@ def udp() -> Iterator[Any]:
 
 
 class Daemon:
-    def __init__(self, args: list[str], env: dict[str, str] | None = None, stdout: Any = subprocess.PIPE) -> None:
+    def __init__(
+        self, args: list[str], env: dict[str, str] | None = None, stdout: Any = subprocess.PIPE
+    ) -> None:
         e = dict(os.environ)
         e.pop("NOTIFY_SOCKET", None)
         e.pop("WATCHDOG_USEC", None)
@@ -131,7 +133,9 @@ def events(stderr: bytes) -> list[dict[str, Any]]:
     return out
 
 
-def expected_messages(frames: np.ndarray, bias: float, heading0: float = 0.0) -> list[dict[str, Any]]:
+def expected_messages(
+    frames: np.ndarray, bias: float, heading0: float = 0.0
+) -> list[dict[str, Any]]:
     """What the HDR core says the daemon must publish for these frames (without time)."""
     p = Pipeline(PipelineConfig(bias_dps=bias, heading0_deg=heading0))
     from hdrd.frames import array_to_frames
@@ -159,7 +163,20 @@ def strip_time(m: dict[str, Any]) -> dict[str, Any]:
 def test_run_publishes_hdr_steps_over_udp_nmea_and_stdout(fake_gyro, daemon, udp):
     g = fake_gyro(drive_profile(), speedup=0)
     js, nm = udp(), udp()
-    d = daemon("--port", g.path, "--bias", "0.3", "--udp", js.addr, "--nmea-udp", nm.addr, "--nmea-ths", "--stdout", "--heading0", "45")
+    d = daemon(
+        "--port",
+        g.path,
+        "--bias",
+        "0.3",
+        "--udp",
+        js.addr,
+        "--nmea-udp",
+        nm.addr,
+        "--nmea-ths",
+        "--stdout",
+        "--heading0",
+        "45",
+    )
     g.start()
     got = js.messages(lambda ms: len(ms) >= 59)
     sentences = nm.lines(3 * 59)
@@ -214,10 +231,20 @@ def test_sd_notify_ready_status_watchdog(fake_gyro, daemon, udp, tmp_path):
     try:
         g = fake_gyro(drive_profile(), speedup=5)
         u = udp()
-        d = daemon("--port", g.path, "--bias", "0.3", "--udp", u.addr, env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"})
+        d = daemon(
+            "--port",
+            g.path,
+            "--bias",
+            "0.3",
+            "--udp",
+            u.addr,
+            env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"},
+        )
         g.start()
         seen: list[str] = []
-        while not (any(s.startswith("READY=1") for s in seen) and sum(s == "WATCHDOG=1" for s in seen) >= 3):
+        while not (
+            any(s.startswith("READY=1") for s in seen) and sum(s == "WATCHDOG=1" for s in seen) >= 3
+        ):
             seen.append(ns.recv(4096).decode())
         assert any(s.startswith("STATUS=") for s in seen)
         rc, _, _ = d.stop()
@@ -232,12 +259,27 @@ def test_sd_notify_ready_status_watchdog(fake_gyro, daemon, udp, tmp_path):
 def test_unplug_and_replug_reports_stale_and_resumes(fake_gyro, daemon, udp, tmp_path):
     link = tmp_path / "gyro"
     cfg = tmp_path / "hdrd.yaml"
-    cfg.write_text("device:\n  stale_after_s: 0.5\n  reconnect_min_s: 0.1\n  reconnect_max_s: 0.5\n")
-    g = fake_gyro(builtin_profile("constant", minutes=2, rate_dps=2.0, bias_dps=0.0, noise_dps=0.0, lead_in_s=0), speedup=4, link=link, pull_at=[12.0], pull_for=3.0)
+    cfg.write_text(
+        "device:\n  stale_after_s: 0.5\n  reconnect_min_s: 0.1\n  reconnect_max_s: 0.5\n"
+    )
+    g = fake_gyro(
+        builtin_profile(
+            "constant", minutes=2, rate_dps=2.0, bias_dps=0.0, noise_dps=0.0, lead_in_s=0
+        ),
+        speedup=4,
+        link=link,
+        pull_at=[12.0],
+        pull_for=3.0,
+    )
     u = udp()
     d = daemon("--config", str(cfg), "--port", str(link), "--bias", "0", "--udp", u.addr)
     g.start()
-    got = u.messages(lambda ms: any("gap_s" in m for m in ms) and len(ms) > 5 + [i for i, m in enumerate(ms) if "gap_s" in m][0])
+    got = u.messages(
+        lambda ms: (
+            any("gap_s" in m for m in ms)
+            and len(ms) > 5 + [i for i, m in enumerate(ms) if "gap_s" in m][0]
+        )
+    )
     rc, _, err = d.stop()
     assert rc == 0
     stale = [m for m in got if m["status"] == "stale"]
@@ -259,7 +301,12 @@ def test_sighup_reloads_keeping_heading_and_rejects_bad_config(fake_gyro, daemon
     cfg = tmp_path / "hdrd.yaml"
     u1, u2 = udp(), udp()
     cfg.write_text(f"output:\n  udp: ['{u1.addr}']\n  heading0_deg: 0\n")
-    g = fake_gyro(builtin_profile("constant", minutes=5, rate_dps=1.0, bias_dps=0.0, noise_dps=0.0, lead_in_s=0), speedup=5)
+    g = fake_gyro(
+        builtin_profile(
+            "constant", minutes=5, rate_dps=1.0, bias_dps=0.0, noise_dps=0.0, lead_in_s=0
+        ),
+        speedup=5,
+    )
     d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0")
     g.start()
     first = u1.messages(lambda ms: len(ms) >= 3)
@@ -289,7 +336,20 @@ def test_dead_udp_peers_do_not_stop_the_daemon(fake_gyro, daemon, udp):
     closed.close()  # nothing listens there: ICMP port unreachable -> ECONNREFUSED
     g = fake_gyro(drive_profile(), speedup=0)
     u = udp()
-    d = daemon("--port", g.path, "--bias", "0.3", "--udp", dead, "--udp", "no-such-host.invalid:9", "--udp", u.addr, "--nmea-udp", dead)
+    d = daemon(
+        "--port",
+        g.path,
+        "--bias",
+        "0.3",
+        "--udp",
+        dead,
+        "--udp",
+        "no-such-host.invalid:9",
+        "--udp",
+        u.addr,
+        "--nmea-udp",
+        dead,
+    )
     g.start()
     got = u.messages(lambda ms: len(ms) >= 59)
     rc, _, err = d.stop()
@@ -323,20 +383,38 @@ def test_stdout_closed_by_reader_ends_cleanly():
 def test_bad_config_exits_78(tmp_path):
     cfg = tmp_path / "bad.yaml"
     cfg.write_text("hdr:\n  tau: -2\n")
-    p = subprocess.run([sys.executable, "-m", "hdrd", "run", "--config", str(cfg)], capture_output=True, timeout=60)
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--config", str(cfg)], capture_output=True, timeout=60
+    )
     assert p.returncode == 78
     lines = p.stderr.decode().strip().splitlines()
     assert len(lines) == 1 and "hdr.tau" in lines[0] and "-2" in lines[0]
-    p = subprocess.run([sys.executable, "-m", "hdrd", "run", "--udp", "nohost"], capture_output=True, timeout=60)
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--udp", "nohost"], capture_output=True, timeout=60
+    )
     assert p.returncode == 78 and "output.udp" in p.stderr.decode()
 
 
 def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_path):
     bias_file = tmp_path / "state" / "bias.yaml"
-    g = fake_gyro(builtin_profile("standstill", minutes=1, bias_dps=0.42, noise_dps=0.05, lead_in_s=0), speedup=0)
+    g = fake_gyro(
+        builtin_profile("standstill", minutes=1, bias_dps=0.42, noise_dps=0.05, lead_in_s=0),
+        speedup=0,
+    )
     g.start()
     p = subprocess.run(
-        [sys.executable, "-m", "hdrd", "calibrate", "--port", g.path, "--seconds", "5", "--bias-file", str(bias_file)],
+        [
+            sys.executable,
+            "-m",
+            "hdrd",
+            "calibrate",
+            "--port",
+            g.path,
+            "--seconds",
+            "5",
+            "--bias-file",
+            str(bias_file),
+        ],
         capture_output=True,
         timeout=120,
     )
@@ -346,7 +424,9 @@ def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_
     from hdrd.calibrate import load_bias
 
     rec = load_bias(bias_file)
-    assert rec.bias_dps == pytest.approx(0.42, abs=0.02) and rec.duration_s == pytest.approx(5.0, abs=0.2)
+    assert rec.bias_dps == pytest.approx(0.42, abs=0.02) and rec.duration_s == pytest.approx(
+        5.0, abs=0.2
+    )
     g2 = fake_gyro(drive_profile(), speedup=0)
     u = udp()
     d = daemon("--port", g2.path, "--bias-file", str(bias_file), "--udp", u.addr)
@@ -361,7 +441,18 @@ def test_calibrate_refuses_when_the_vehicle_moves(fake_gyro, tmp_path):
     g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=12.0, lead_in_s=2), speedup=0)
     g.start()
     p = subprocess.run(
-        [sys.executable, "-m", "hdrd", "calibrate", "--port", g.path, "--seconds", "5", "--bias-file", str(bias_file)],
+        [
+            sys.executable,
+            "-m",
+            "hdrd",
+            "calibrate",
+            "--port",
+            g.path,
+            "--seconds",
+            "5",
+            "--bias-file",
+            str(bias_file),
+        ],
         capture_output=True,
         timeout=120,
     )
@@ -379,9 +470,6 @@ def test_corrupt_bias_file_is_refused(tmp_path):
         timeout=60,
     )
     assert p.returncode == 1 and b"truncated" in p.stderr
-
-
-
 
 
 def test_sighup_switches_gpsd_aiding_on(fake_gyro, daemon, udp, tmp_path):

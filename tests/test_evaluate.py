@@ -285,7 +285,15 @@ def test_cli_method_none(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     assert cli_main(["evaluate", a, "--method", "none", "--json", str(j)]) == 0
     capsys.readouterr()
     d = json.loads(j.read_text())["drives"][0]
-    assert list(d) == ["name", "duration_min", "E_psi_raw", "NE_psi_raw", "E_psi_none", "NE_psi_none", "improvement"]
+    assert list(d) == [
+        "name",
+        "duration_min",
+        "E_psi_raw",
+        "NE_psi_raw",
+        "E_psi_none",
+        "NE_psi_none",
+        "improvement",
+    ]
     assert d["improvement"] == 1.0
 
 

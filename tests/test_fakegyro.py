@@ -62,7 +62,9 @@ def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-unt
 
 @pytest.mark.parametrize("protocol", ["hdr-bin", "hdr-text"])
 def test_injected_faults_match_the_parser_counts(fake_gyro, protocol: str) -> None:  # type: ignore[no-untyped-def]
-    g = fake_gyro(profile(), protocol=protocol, speedup=0, garbage=0.1, crc_errors=0.1, drop=0.05, seed=4)
+    g = fake_gyro(
+        profile(), protocol=protocol, speedup=0, garbage=0.1, crc_errors=0.1, drop=0.05, seed=4
+    )
     with SerialSource(g.path, protocol=protocol) as src:
         g.start()
         got = read_all(src, g)
@@ -134,7 +136,9 @@ def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-
         kinds: list[str] = []
         end = time.monotonic() + WAIT_S
         n = 0
-        while time.monotonic() < end and not (g.done and kinds[-2:] == ["DeviceLost", "DeviceBack"]):
+        while time.monotonic() < end and not (
+            g.done and kinds[-2:] == ["DeviceLost", "DeviceBack"]
+        ):
             item = src.recv(0.1)
             if isinstance(item, Frame):
                 n += 1
@@ -148,12 +152,20 @@ def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-
 
 
 def test_frames_array_profile_and_bad_arguments() -> None:
-    arr = np.zeros(3, dtype=[("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")])
+    arr = np.zeros(
+        3, dtype=[("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")]
+    )
     arr["seq"] = [1, 2, 3]
     arr["t_us"] = [2**32 - 10, 5, 20]  # a wrap: device seconds still increase
     g = FakeGyro(arr)
     assert g.t_s.tolist() == pytest.approx([0.0, 15e-6, 30e-6])
-    for bad in (dict(garbage=1.5), dict(drop=-0.1), dict(speedup=-1.0), dict(pull_for=0.0), dict(protocol="nmea")):
+    for bad in (
+        dict(garbage=1.5),
+        dict(drop=-0.1),
+        dict(speedup=-1.0),
+        dict(pull_for=0.0),
+        dict(protocol="nmea"),
+    ):
         with pytest.raises(ValueError):
             FakeGyro(arr, **bad)  # type: ignore[arg-type]
 
@@ -173,8 +185,23 @@ def hdrd(*args: str, **kw: Any) -> subprocess.Popen[str]:
 
 def test_cli_out_file(tmp_path: Path) -> None:
     out = tmp_path / "cap.bin"
-    p = hdrd("fakegyro", "--drive", "constant", "--rate-dps", "3", "--minutes", "0.05", "--hz", "20",
-             "--crc-errors", "0.1", "--seed", "5", "--out", str(out))
+    p = hdrd(
+        "fakegyro",
+        "--drive",
+        "constant",
+        "--rate-dps",
+        "3",
+        "--minutes",
+        "0.05",
+        "--hz",
+        "20",
+        "--crc-errors",
+        "0.1",
+        "--seed",
+        "5",
+        "--out",
+        str(out),
+    )
     _, err = p.communicate(timeout=60)
     assert p.returncode == 0, err
     arr, st = decode_capture(out.read_bytes())
@@ -184,7 +211,19 @@ def test_cli_out_file(tmp_path: Path) -> None:
 
 def test_cli_pty_prints_paths_serves_frames_and_exits_0_on_sigterm(tmp_path: Path) -> None:
     link = tmp_path / "gyro"
-    p = hdrd("fakegyro", "--drive", "standstill", "--minutes", "30", "--hz", "50", "--speedup", "5", "--link", str(link))
+    p = hdrd(
+        "fakegyro",
+        "--drive",
+        "standstill",
+        "--minutes",
+        "30",
+        "--hz",
+        "50",
+        "--speedup",
+        "5",
+        "--link",
+        str(link),
+    )
     try:
         assert p.stdout is not None
         path = p.stdout.readline().strip()
@@ -227,7 +266,9 @@ def test_cli_bad_arguments(args: list[str], message: str, tmp_path: Path) -> Non
 def test_parser_sees_the_constant_rate_of_the_profile(tmp_path: Path) -> None:
     """The fake gyro's truth survives the wire: counts -> deg/s gives rate + bias."""
     out = tmp_path / "c.bin"
-    prof = builtin_profile("constant", minutes=0.1, hz=10, rate_dps=-7.5, bias_dps=0.25, noise_dps=0.0, lead_in_s=1.0)
+    prof = builtin_profile(
+        "constant", minutes=0.1, hz=10, rate_dps=-7.5, bias_dps=0.25, noise_dps=0.0, lead_in_s=1.0
+    )
     FakeGyro(prof).write_capture(out)
     p = Parser()
     frames = p.feed(out.read_bytes())

@@ -112,7 +112,14 @@ def test_bin_layout_follows_the_table() -> None:
     f = Frame(seq=0x1234, t_us=0x89ABCDEF, rate=0xFFFE, ref=1, temp_cc=-2)
     b = encode_bin(f)
     assert b[:2] == SYNC and len(b) == 16
-    assert struct.unpack("<HIHHhH", b[2:]) == (0x1234, 0x89ABCDEF, 0xFFFE, 1, -2, crc_bitwise(b[2:14]))
+    assert struct.unpack("<HIHHhH", b[2:]) == (
+        0x1234,
+        0x89ABCDEF,
+        0xFFFE,
+        1,
+        -2,
+        crc_bitwise(b[2:14]),
+    )
     assert struct.unpack("<h", encode_bin(Frame(0, 0, 0, 0, None))[12:14]) == (-32768,)
 
 
@@ -179,15 +186,27 @@ def test_text_fields() -> None:
 
 def test_decode_bin_errors() -> None:
     good = encode_bin(Frame(1, 2, 3, 4, 5))
-    for b in (good[:15], good + b"\0", b"", b"\xa5\x5b" + good[2:], good[:14] + bytes([good[14] ^ 1, good[15]])):
+    for b in (
+        good[:15],
+        good + b"\0",
+        b"",
+        b"\xa5\x5b" + good[2:],
+        good[:14] + bytes([good[14] ^ 1, good[15]]),
+    ):
         with pytest.raises(FrameError):
             decode_bin(b)
 
 
 @pytest.mark.parametrize(
     "f",
-    [Frame(-1, 0, 0, 0, None), Frame(0, 2**32, 0, 0, None), Frame(0, 0, 65536, 0, None),
-     Frame(0, 0, 0, 65536, None), Frame(0, 0, 0, 0, -32768), Frame(0, 0, 0, 0, 32768)],
+    [
+        Frame(-1, 0, 0, 0, None),
+        Frame(0, 2**32, 0, 0, None),
+        Frame(0, 0, 65536, 0, None),
+        Frame(0, 0, 0, 65536, None),
+        Frame(0, 0, 0, 0, -32768),
+        Frame(0, 0, 0, 0, 32768),
+    ],
 )
 def test_encode_rejects_out_of_range(f: Frame) -> None:
     for protocol in PROTOCOLS:
@@ -219,7 +238,9 @@ def test_array_helpers_round_trip(frames: list[Frame]) -> None:
 
 
 @settings(max_examples=300)
-@given(st.binary(max_size=400), st.sampled_from(PROTOCOLS), st.lists(st.integers(0, 400), max_size=6))
+@given(
+    st.binary(max_size=400), st.sampled_from(PROTOCOLS), st.lists(st.integers(0, 400), max_size=6)
+)
 def test_arbitrary_bytes_never_raise(data: bytes, protocol: str, cuts: list[int]) -> None:
     bb: list[int] = []
     frames, stats = run(protocol, data, cuts, bb)
@@ -347,7 +368,9 @@ def test_text_recovers_every_good_line_and_counts_bad_ones(
     st.lists(st.one_of(frames_st.map(encode_bin), st.binary(max_size=24)), max_size=30),
     st.lists(st.integers(0, 2000), max_size=10),
 )
-def test_bin_chunking_invariance_and_vectorised_equality(pieces: list[bytes], cuts: list[int]) -> None:
+def test_bin_chunking_invariance_and_vectorised_equality(
+    pieces: list[bytes], cuts: list[int]
+) -> None:
     """Any split gives the same frames and counters; the vectorised decoder agrees, also on
     arbitrary garbage (which may hold sync patterns) and frames overlapping each other."""
     data = b"".join(pieces)
@@ -436,7 +459,17 @@ def test_sequence_wrap_is_not_a_gap(protocol: str) -> None:
 
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_sequence_gaps_repeats_and_resets(protocol: str) -> None:
-    pairs = [(10, 0), (11, 1), (14, 2), (14, 3), (13, 4), (15, 5), (30000, 6), (30001, 7), (30004, 8)]
+    pairs = [
+        (10, 0),
+        (11, 1),
+        (14, 2),
+        (14, 3),
+        (13, 4),
+        (15, 5),
+        (30000, 6),
+        (30001, 7),
+        (30004, 8),
+    ]
     #        ok       gap 2    repeat   behind   ok       gap 29984   ok          gap 2
     s = seq_stream(pairs, protocol)
     assert s.seq_gaps == 3
@@ -450,10 +483,24 @@ def test_sequence_gaps_repeats_and_resets(protocol: str) -> None:
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_clock_wraps_and_steps_back(protocol: str) -> None:
     top = 2**32
-    s = seq_stream([(0, top - 200_000), (1, top - 100_000), (2, 0), (3, 100_000), (4, 2**31), (5, top - 50), (6, 50)], protocol)
+    s = seq_stream(
+        [
+            (0, top - 200_000),
+            (1, top - 100_000),
+            (2, 0),
+            (3, 100_000),
+            (4, 2**31),
+            (5, top - 50),
+            (6, 50),
+        ],
+        protocol,
+    )
     assert s.clock_wraps == 2 and s.clock_back == 0
     # A repeat (same time), a small step back (reference kept), a reset (big step back).
-    s = seq_stream([(0, 5_000_000), (1, 5_000_000), (2, 4_900_000), (3, 5_100_000), (4, 1_000), (5, 2_000)], protocol)
+    s = seq_stream(
+        [(0, 5_000_000), (1, 5_000_000), (2, 4_900_000), (3, 5_100_000), (4, 1_000), (5, 2_000)],
+        protocol,
+    )
     assert s.clock_back == 3 and s.clock_wraps == 0
 
 
@@ -462,14 +509,23 @@ def test_vectorised_slow_path_equals_push_on_messy_sequences() -> None:
     n = 3000
     arr = np.zeros(n, FRAME_DTYPE)
     arr["seq"] = (np.arange(n) + rng.choice([0, 0, 0, 1, -1, 5000, 40000], n).cumsum()) & 0xFFFF
-    arr["t_us"] = (np.arange(n) * 3_000_000 + rng.choice([0, 0, 0, 0, -3_000_000, -3_500_000, -10_000_000], n).cumsum()) % 2**32
+    arr["t_us"] = (
+        np.arange(n) * 3_000_000
+        + rng.choice([0, 0, 0, 0, -3_000_000, -3_500_000, -10_000_000], n).cumsum()
+    ) % 2**32
     arr["rate"] = rng.integers(0, 65536, n)
     arr["temp"] = rng.choice([-32768, 2500, -1], n)
     data = encode_array(arr)
     frames, stats = run("hdr-bin", data, list(rng.integers(0, len(data), 40)))
     got, vstats = decode_capture(data)
     assert np.array_equal(got, arr) and array_to_frames(arr) == frames and vstats == stats
-    assert stats.seq_gaps and stats.seq_repeats and stats.seq_resets and stats.clock_back and stats.clock_wraps
+    assert (
+        stats.seq_gaps
+        and stats.seq_repeats
+        and stats.seq_resets
+        and stats.clock_back
+        and stats.clock_wraps
+    )
 
 
 def test_vectorised_on_a_large_dirty_capture() -> None:

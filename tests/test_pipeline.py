@@ -15,7 +15,9 @@ from hdrd.hdr import HdrParams
 from hdrd.pipeline import Pipeline, PipelineConfig, heading_from_yaw
 from hdrd.sensor import SensorModel
 
-CAPTURE_DTYPE = np.dtype([("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")])
+CAPTURE_DTYPE = np.dtype(
+    [("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")]
+)
 
 
 @dataclass(frozen=True)
@@ -31,10 +33,14 @@ class F:
         return None if self.temp_cc is None else self.temp_cc / 100
 
 
-def make_frames(omega_dps: np.ndarray, hz: float = 10.0, t0_us: int = 0, temp_cc: int | None = None) -> list[F]:
+def make_frames(
+    omega_dps: np.ndarray, hz: float = 10.0, t0_us: int = 0, temp_cc: int | None = None
+) -> list[F]:
     counts = SensorModel().to_counts(omega_dps)
     dt = round(1e6 / hz)
-    return [F(i & 0xFFFF, (t0_us + i * dt) % 2**32, int(c), 0, temp_cc) for i, c in enumerate(counts)]
+    return [
+        F(i & 0xFFFF, (t0_us + i * dt) % 2**32, int(c), 0, temp_cc) for i, c in enumerate(counts)
+    ]
 
 
 def to_array(frames: list[F]) -> np.ndarray:
@@ -99,7 +105,7 @@ def test_startup_calibration_then_steps():
     assert msgs[2]["bias"] == p.bias.bias_dps
     assert msgs[2]["yaw"] == msgs[2]["omega"]  # first HDR step starts from yaw 0
     assert msgs[2]["temp"] == pytest.approx(21.5)
-    assert ("calibrated", ) == tuple(e[0] for e in p.events)
+    assert ("calibrated",) == tuple(e[0] for e in p.events)
 
 
 def test_startup_calibration_rejects_motion_and_retries():
@@ -145,7 +151,9 @@ def test_resync_keeps_heading_and_numbers():
     msgs = first + resumed + after
     steps = [m["step"] for m in msgs]
     # 7.5 s out: 7 steps skipped (not invented), then the numbers go on
-    assert steps == list(range(len(first) + len(resumed))) + [s + 7 for s in range(len(first) + len(resumed), len(msgs))]
+    assert steps == list(range(len(first) + len(resumed))) + [
+        s + 7 for s in range(len(first) + len(resumed), len(msgs))
+    ]
     yaws = [m["yaw"] for m in msgs]
     assert all(b > a for a, b in zip(yaws, yaws[1:]))  # heading continuous, no reset
     assert after[0]["gap_s"] == 7.5
@@ -229,7 +237,16 @@ def test_array_path_is_bit_identical_to_live(cap):
     limits_loose = PipelineConfig().limits.__class__(1e9, 1e9, 1e9)
     cfg = PipelineConfig(bias_dps=bias, startup_s=startup, limits=limits_loose, method=method)
     live = Pipeline(cfg)
-    frames = [F(int(r["seq"]), int(r["t_us"]), int(r["rate"]), int(r["ref"]), None if r["temp"] == -32768 else int(r["temp"])) for r in a]
+    frames = [
+        F(
+            int(r["seq"]),
+            int(r["t_us"]),
+            int(r["rate"]),
+            int(r["ref"]),
+            None if r["temp"] == -32768 else int(r["temp"]),
+        )
+        for r in a
+    ]
     expected = run_live(live, frames, bad.tolist())
     fast = Pipeline(cfg)
     got = fast.feed_array(a, bad)

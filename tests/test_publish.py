@@ -114,7 +114,9 @@ def test_zero_heading_is_kept() -> None:
     assert strict_loads(format_json(full_message(heading=0.0)))["heading"] == 0.0
 
 
-@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, np.float64("nan"), np.float32("inf")])
+@pytest.mark.parametrize(
+    "bad", [math.nan, math.inf, -math.inf, np.float64("nan"), np.float32("inf")]
+)
 def test_non_finite_values_are_dropped(bad: float) -> None:
     line = format_json(full_message(omega=bad, gap_s=bad))
     parsed = strict_loads(line)  # raises on NaN/Infinity
@@ -131,7 +133,9 @@ def test_extra_keys_pass_through_in_order() -> None:
 
 
 def test_nested_non_finite_is_dropped() -> None:
-    parsed = strict_loads(format_json({"class": "HDR", "aid": {"a": math.nan, "b": 1.0}, "l": [1.0, math.inf]}))
+    parsed = strict_loads(
+        format_json({"class": "HDR", "aid": {"a": math.nan, "b": 1.0}, "l": [1.0, math.inf]})
+    )
     assert parsed == {"class": "HDR", "aid": {"b": 1.0}}
 
 
@@ -160,7 +164,9 @@ def test_json_property_valid_one_line_only_known_values(msg: dict[str, Any]) -> 
     assert line.endswith(b"\n") and line.count(b"\n") == 1
     parsed = strict_loads(line)
     expected = {
-        k: v for k, v in msg.items() if v is not None and not (isinstance(v, float) and not math.isfinite(v))
+        k: v
+        for k, v in msg.items()
+        if v is not None and not (isinstance(v, float) and not math.isfinite(v))
     }
     assert parsed == expected
     assert list(parsed) == list(expected)
@@ -218,7 +224,10 @@ def test_hdt_and_rot_of_a_left_turn() -> None:
 
 
 def test_rot_of_a_right_turn_is_positive() -> None:
-    assert decode(nmea_sentences(full_message(omega=-1.5, status="turning")))["HNROT"] == ["90.0", "A"]
+    assert decode(nmea_sentences(full_message(omega=-1.5, status="turning")))["HNROT"] == [
+        "90.0",
+        "A",
+    ]
 
 
 def test_rot_of_straight_driving_has_no_negative_zero() -> None:
@@ -271,7 +280,9 @@ def test_nmea_property(omega: float, heading: float, ths: bool) -> None:
     d = decode(nmea_sentences(full_message(omega=omega, heading=heading), ths=ths))
     h = float(d["HNHDT"][0])
     assert 0.0 <= h < 360.0
-    assert math.isclose(h, heading % 360.0, abs_tol=0.006) or math.isclose(abs(h - heading % 360.0), 360.0, abs_tol=0.006)
+    assert math.isclose(h, heading % 360.0, abs_tol=0.006) or math.isclose(
+        abs(h - heading % 360.0), 360.0, abs_tol=0.006
+    )
     rot = float(d["HNROT"][0])
     assert math.isclose(rot, -omega * 60.0, abs_tol=0.051)
     if abs(omega * 60.0) >= 0.05:
@@ -316,7 +327,9 @@ def test_udp_to_several_destinations(receiver: socket.socket) -> None:
     other.bind(("127.0.0.1", 0))
     other.settimeout(RECV_TIMEOUT_S)
     try:
-        with UdpJsonPublisher([("127.0.0.1", receiver.getsockname()[1]), ("127.0.0.1", other.getsockname()[1])]) as pub:
+        with UdpJsonPublisher(
+            [("127.0.0.1", receiver.getsockname()[1]), ("127.0.0.1", other.getsockname()[1])]
+        ) as pub:
             pub.on_message(full_message())
             assert receiver.recv(65535) == other.recv(65535) == format_json(full_message())
     finally:
@@ -327,7 +340,11 @@ def test_udp_nmea_one_sentence_per_datagram(receiver: socket.socket) -> None:
     with UdpNmeaPublisher([("127.0.0.1", receiver.getsockname()[1])], ths=True) as pub:
         pub.on_message(full_message(omega=1.0, heading=90.0))
         got = [receiver.recv(65535) for _ in range(3)]
-    assert decode(got) == {"HNHDT": ["90.00", "T"], "HNROT": ["-60.0", "A"], "HNTHS": ["90.00", "E"]}
+    assert decode(got) == {
+        "HNHDT": ["90.00", "T"],
+        "HNROT": ["-60.0", "A"],
+        "HNTHS": ["90.00", "E"],
+    }
 
 
 def test_udp_ipv6_destination() -> None:
@@ -352,7 +369,9 @@ def test_localhost_name_goes_to_ipv4(receiver: socket.socket) -> None:
         assert receiver.recv(65535) == format_json(full_message())
 
 
-def test_refusing_destination_is_counted_and_never_stops_the_others(receiver: socket.socket) -> None:
+def test_refusing_destination_is_counted_and_never_stops_the_others(
+    receiver: socket.socket,
+) -> None:
     dead = closed_udp_port()
     good = receiver.getsockname()[1]
     pub = UdpJsonPublisher([("127.0.0.1", dead), ("127.0.0.1", good)])
@@ -378,7 +397,9 @@ def test_refusing_destination_is_counted_and_never_stops_the_others(receiver: so
 
 def test_unresolvable_host_is_counted_and_not_fatal(receiver: socket.socket) -> None:
     # .invalid never resolves (RFC 6761).
-    pub = UdpJsonPublisher([("no-such-host.invalid", 10110), ("127.0.0.1", receiver.getsockname()[1])])
+    pub = UdpJsonPublisher(
+        [("no-such-host.invalid", 10110), ("127.0.0.1", receiver.getsockname()[1])]
+    )
     bad, _ = pub.stats()
     assert bad.errors >= 1 and bad.by_error["resolve"] >= 1 and bad.address is None
     assert "no-such-host.invalid" in (bad.last_error or "")
@@ -488,7 +509,9 @@ def published_section() -> str:
 
 
 def test_documented_json_example_is_what_format_json_writes() -> None:
-    examples = [line for line in published_section().splitlines() if line.startswith('{"class":"HDR"')]
+    examples = [
+        line for line in published_section().splitlines() if line.startswith('{"class":"HDR"')
+    ]
     assert examples
     for line in examples:
         msg = strict_loads(line.encode())

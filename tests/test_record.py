@@ -50,7 +50,9 @@ def test_record_function_on_loop_url() -> None:
     reader.close()
 
 
-def test_record_from_fake_gyro_decodes_to_exactly_the_frames_sent(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_record_from_fake_gyro_decodes_to_exactly_the_frames_sent(
+    fake_gyro, tmp_path: Path
+) -> None:  # type: ignore[no-untyped-def]
     prof = builtin_profile("constant", minutes=0.5, hz=50, rate_dps=4.0, lead_in_s=5.0)
     g = fake_gyro(prof, speedup=0, garbage=0.05, crc_errors=0.05, drop=0.02, seed=2)
     out = tmp_path / "cap.bin"

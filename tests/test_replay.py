@@ -32,7 +32,9 @@ def replay_cli(capsys, *args: str) -> tuple[int, list[dict], str]:
 
 
 @pytest.mark.parametrize("method", ["hdr", "hdr+"])
-def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_path, capsys, method):
+def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(
+    fake_gyro, tmp_path, capsys, method
+):
     profile = drive_profile(seconds=90)
     kw = dict(garbage=0.05, crc_errors=0.05, seed=11)
     g = fake_gyro(profile, speedup=0, **kw)
@@ -42,7 +44,20 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_p
     env = dict(os.environ, STATE_DIRECTORY="/nonexistent-hdrd-state")
     env.pop("NOTIFY_SOCKET", None)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hdrd", "run", "--port", g.path, "--bias", "0.3", "--method", method, "--udp", f"127.0.0.1:{rx.getsockname()[1]}"],
+        [
+            sys.executable,
+            "-m",
+            "hdrd",
+            "run",
+            "--port",
+            g.path,
+            "--bias",
+            "0.3",
+            "--method",
+            method,
+            "--udp",
+            f"127.0.0.1:{rx.getsockname()[1]}",
+        ],
         stderr=subprocess.PIPE,
         env=env,
     )
@@ -68,7 +83,22 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(fake_gyro, tmp_p
 def test_replay_of_a_fakegyro_capture_follows_its_known_truth(tmp_path, capsys):
     # the built-in "constant" drive: 30 s standstill, then 1 min at 3 deg/s CCW; bias 0.2 deg/s
     cap = tmp_path / "c.bin"
-    assert cli(["fakegyro", "--drive", "constant", "--rate-dps", "3", "--minutes", "1", "--out", str(cap)]) == 0
+    assert (
+        cli(
+            [
+                "fakegyro",
+                "--drive",
+                "constant",
+                "--rate-dps",
+                "3",
+                "--minutes",
+                "1",
+                "--out",
+                str(cap),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     rc, msgs, _ = replay_cli(capsys, str(cap), "--calibrate-seconds", "30", "--method", "none")
     assert rc == 0
@@ -86,7 +116,10 @@ def test_record_then_replay_equals_the_stream(fake_gyro, tmp_path, capsys):
     profile = drive_profile(seconds=40)
     g = fake_gyro(profile, speedup=0, garbage=0.02, seed=5)
     cap = tmp_path / "rec.bin"
-    rec = subprocess.Popen([sys.executable, "-m", "hdrd", "record", "--port", g.path, "--out", str(cap)], stderr=subprocess.PIPE)
+    rec = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "record", "--port", g.path, "--out", str(cap)],
+        stderr=subprocess.PIPE,
+    )
     try:
         g.start()
         assert g.wait(WAIT)

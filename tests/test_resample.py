@@ -323,7 +323,11 @@ def test_block_spread_streaming_equals_vectorised_and_numpy():
         np.testing.assert_allclose(blk.std, np.std(v[idx == blk.index]), rtol=1e-9, atol=1e-12)
 
 
-@given(st.integers(0, 2**32 - 1), st.lists(st.integers(1, 3_000_000), min_size=1, max_size=300), st.integers(0, 300))
+@given(
+    st.integers(0, 2**32 - 1),
+    st.lists(st.integers(1, 3_000_000), min_size=1, max_size=300),
+    st.integers(0, 300),
+)
 def test_unwrap_many_continues_the_clock_like_unwrap(t0, steps, cut):
     raw = (t0 + np.cumsum([0, *steps])) % 2**32
     a, b = DeviceClock(), DeviceClock()

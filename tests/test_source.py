@@ -198,7 +198,9 @@ def test_missing_device_at_start_then_plugged_in(tmp_path: Path) -> None:
 def test_recv_never_waits_longer_than_asked_while_lost(tmp_path: Path) -> None:
     """Backoff sleeps happen inside recv, bounded by its timeout (checked on a manual clock)."""
     clock = ManualClock()
-    src = SerialSource(str(tmp_path / "none"), reconnect_min_s=1.0, reconnect_max_s=8.0, clock=clock)
+    src = SerialSource(
+        str(tmp_path / "none"), reconnect_min_s=1.0, reconnect_max_s=8.0, clock=clock
+    )
     assert isinstance(src.recv(0.5), DeviceLost)
     for timeout in (0.3, 0.5, 2.0, 0.0, 5.0, 10.0, 10.0, 10.0):
         before = clock.now
@@ -336,7 +338,9 @@ def test_builtin_profiles() -> None:
     s = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
     assert len(s) == 900 and s.rate_hz == pytest.approx(10.0)
     assert np.all(s.omega_truth == 0) and s.omega.mean() == pytest.approx(0.3, abs=0.01)
-    c = builtin_profile("constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0)
+    c = builtin_profile(
+        "constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0
+    )
     assert c.omega_truth is not None
     assert np.all(c.omega_truth[:100] == 0) and np.all(c.omega_truth[100:] == -20.0)
     assert np.allclose(c.omega - c.omega_truth, 0.2)

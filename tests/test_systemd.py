@@ -23,7 +23,8 @@ README = ROOT / "README.md"
 MAX_EXPOSURE = 2.0  # systemd-analyze's "OK" band ends here
 
 needs_analyze = pytest.mark.skipif(
-    shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed on this machine"
+    shutil.which("systemd-analyze") is None,
+    reason="systemd-analyze is not installed on this machine",
 )
 
 
@@ -98,7 +99,10 @@ def test_unit_has_what_the_daemon_relies_on() -> None:
 def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
     r = subprocess.run(
         ["systemd-analyze", "verify", str(unit_copy(tmp_path, hdrd_executable()))],
-        check=False, capture_output=True, text=True, timeout=60,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     complaints = [line for line in (r.stdout + r.stderr).splitlines() if "hdrd.service" in line]
     assert r.returncode == 0 and not complaints, r.stdout + r.stderr
@@ -109,15 +113,26 @@ def test_systemd_analyze_verify_really_checks(tmp_path: Path) -> None:
     # The same check fails for a unit whose program does not exist: the test above can fail.
     r = subprocess.run(
         ["systemd-analyze", "verify", str(unit_copy(tmp_path, str(tmp_path / "no-such-hdrd")))],
-        check=False, capture_output=True, text=True, timeout=60,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert r.returncode != 0
 
 
 def exposure(tmp_path: Path) -> float:
     r = subprocess.run(
-        ["systemd-analyze", "security", "--offline=true", str(unit_copy(tmp_path, hdrd_executable()))],
-        check=False, capture_output=True, text=True, timeout=60,
+        [
+            "systemd-analyze",
+            "security",
+            "--offline=true",
+            str(unit_copy(tmp_path, hdrd_executable())),
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     m = re.search(r"Overall exposure level for hdrd\.service:\s*([0-9.]+)", r.stdout)
     if m is None and "--offline" in r.stderr:
@@ -135,7 +150,9 @@ def test_security_exposure_is_ok_and_recorded_in_readme(tmp_path: Path) -> None:
     assert m, "README does not record the systemd-analyze security exposure"
     recorded, version = float(m.group(1)), int(m.group(2))
     assert recorded <= MAX_EXPOSURE
-    v = subprocess.run(["systemd-analyze", "--version"], check=False, capture_output=True, text=True, timeout=60)
+    v = subprocess.run(
+        ["systemd-analyze", "--version"], check=False, capture_output=True, text=True, timeout=60
+    )
     here = re.search(r"systemd (\d+)", v.stdout)
     if here and int(here.group(1)) == version:
         assert score == recorded, f"README says {recorded}, systemd-analyze says {score}"
@@ -154,7 +171,7 @@ def udev_rules() -> list[dict[str, tuple[str, str]]]:
         rule = {}
         for part in line.split(","):
             m = UDEV_PAIR.match(part)
-            assert m, f"not a udev KEY op \"value\": {part!r}"
+            assert m, f'not a udev KEY op "value": {part!r}'
             rule[m.group(1)] = (m.group(2), m.group(3))
         rules.append(rule)
     return rules
@@ -163,8 +180,14 @@ def udev_rules() -> list[dict[str, tuple[str, str]]]:
 def test_udev_rule_names_the_default_port() -> None:
     (rule,) = udev_rules()
     assert rule["SUBSYSTEM"] == ("==", "tty")
-    assert re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idVendor}"][1]) and rule["ATTRS{idVendor}"][0] == "=="
-    assert re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idProduct}"][1]) and rule["ATTRS{idProduct}"][0] == "=="
+    assert (
+        re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idVendor}"][1])
+        and rule["ATTRS{idVendor}"][0] == "=="
+    )
+    assert (
+        re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idProduct}"][1])
+        and rule["ATTRS{idProduct}"][0] == "=="
+    )
     assert rule["SYMLINK"] == ("+=", "hdrd-gyro")
     assert DeviceConfig().port == "/dev/" + rule["SYMLINK"][1]
     assert rule["GROUP"] == ("=", "dialout") and rule["MODE"] == ("=", "0660")
@@ -221,7 +244,12 @@ def test_numpy_and_hdrd_run_under_memory_deny_write_execute() -> None:
     runs = {}
     for mode in ("plain", "mdwe"):
         r = subprocess.run(
-            [sys.executable, "-c", SANDBOXED, mode], check=False, capture_output=True, text=True, timeout=120, cwd=ROOT
+            [sys.executable, "-c", SANDBOXED, mode],
+            check=False,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=ROOT,
         )
         if r.returncode == 77:
             pytest.skip("this kernel has no PR_SET_MDWE (Linux >= 6.3)")

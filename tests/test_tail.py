@@ -22,9 +22,23 @@ GUARD_S = 30.0  # generous guards against a hang; no test asserts a duration
 
 def hdr(step: int, **over: Any) -> dict[str, Any]:
     msg: dict[str, Any] = {
-        "class": "HDR", "v": 1, "time": 1700000000.0 + step, "t": float(step), "step": step,
-        "omega_raw": 0.3, "omega": 0.0581, "yaw": -1.25, "heading": 1.25, "I": -0.0422, "W": 1,
-        "R": 1.0, "r": 1, "bias": 0.2419, "samples": 10, "bad_frames": 3, "status": "ok",
+        "class": "HDR",
+        "v": 1,
+        "time": 1700000000.0 + step,
+        "t": float(step),
+        "step": step,
+        "omega_raw": 0.3,
+        "omega": 0.0581,
+        "yaw": -1.25,
+        "heading": 1.25,
+        "I": -0.0422,
+        "W": 1,
+        "R": 1.0,
+        "r": 1,
+        "bias": 0.2419,
+        "samples": 10,
+        "bad_frames": 3,
+        "status": "ok",
     }
     msg.update(over)
     return msg
@@ -37,9 +51,36 @@ def test_header_once_then_rows() -> None:
     f = TailFormatter()
     out, notes, n = f.lines(format_json(hdr(1)) + format_json(hdr(2)))
     assert n == 2 and notes == []
-    assert out[0].split() == ["time", "step", "status", "heading", "yaw", "omega", "I", "W", "r", "bias", "samples", "bad", "mode"]
+    assert out[0].split() == [
+        "time",
+        "step",
+        "status",
+        "heading",
+        "yaw",
+        "omega",
+        "I",
+        "W",
+        "r",
+        "bias",
+        "samples",
+        "bad",
+        "mode",
+    ]
     row = out[1].split()
-    assert row[1:] == ["1", "ok", "1.25", "-1.25", "0.058", "-0.0422", "1", "1", "0.2419", "10", "3", "-"]
+    assert row[1:] == [
+        "1",
+        "ok",
+        "1.25",
+        "-1.25",
+        "0.058",
+        "-0.0422",
+        "1",
+        "1",
+        "0.2419",
+        "10",
+        "3",
+        "-",
+    ]
     out2, _, _ = f.lines(format_json(hdr(3)))
     assert len(out2) == 1 and out2[0].split()[1] == "3"
     out3, _, _ = f.lines(format_json(dict(hdr(4), mode="dead-reckoning")))
@@ -56,7 +97,7 @@ def test_missing_values_print_as_dash() -> None:
 
 def test_malformed_data_gives_notes_and_is_skipped() -> None:
     f = TailFormatter()
-    data = b"not json\n{\"class\":\n[1,2]\n\xff\xfe\n$HNHDT,1.00,T*00\n" + format_json(hdr(5))
+    data = b'not json\n{"class":\n[1,2]\n\xff\xfe\n$HNHDT,1.00,T*00\n' + format_json(hdr(5))
     out, notes, n = f.lines(data, sender="127.0.0.1:9")
     assert n == 1 and out[-1].split()[1] == "5"
     assert len(notes) == 5 and all("127.0.0.1:9" in note for note in notes)
@@ -69,7 +110,9 @@ def test_nmea_printed_raw_and_decoded() -> None:
     assert out[0].startswith("$HNHDT,90.00,T*") and "heading 90.00" in out[0]
     assert out[1].startswith("$HNROT,-60.0,A*") and "-60.0 deg/min" in out[1]
     raw, _, _ = TailFormatter(raw=True).lines(sentences)
-    assert [line.encode() + b"\r\n" for line in raw] == nmea_sentences(hdr(6, omega=1.0, heading=90.0), ths=True)
+    assert [line.encode() + b"\r\n" for line in raw] == nmea_sentences(
+        hdr(6, omega=1.0, heading=90.0), ths=True
+    )
 
 
 def test_raw_mode_passes_lines_through() -> None:
@@ -117,7 +160,9 @@ def start_tail(*extra: str, stdout: int = subprocess.PIPE) -> tuple[subprocess.P
     env = dict(os.environ, TZ="UTC")
     proc = subprocess.Popen(
         [sys.executable, "-m", "hdrd", "tail", "--listen", f"127.0.0.1:{port}", *extra],
-        stdout=stdout, stderr=subprocess.PIPE, env=env,
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        env=env,
     )
     wait_bound(proc, port)
     return proc, port
@@ -202,7 +247,9 @@ def test_tail_into_head_exits_zero_without_traceback(sender: socket.socket) -> N
 def test_tail_bad_listen_address() -> None:
     r = subprocess.run(
         [sys.executable, "-m", "hdrd", "tail", "--listen", "nonsense"],
-        check=False, capture_output=True, timeout=GUARD_S,
+        check=False,
+        capture_output=True,
+        timeout=GUARD_S,
     )
     assert r.returncode == 2 and b"--listen" in r.stderr and b"Traceback" not in r.stderr
 
@@ -213,7 +260,9 @@ def test_tail_port_in_use() -> None:
     try:
         r = subprocess.run(
             [sys.executable, "-m", "hdrd", "tail", "--listen", f"127.0.0.1:{s.getsockname()[1]}"],
-            check=False, capture_output=True, timeout=GUARD_S,
+            check=False,
+            capture_output=True,
+            timeout=GUARD_S,
         )
     finally:
         s.close()

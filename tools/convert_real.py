@@ -137,6 +137,7 @@ def _quat_forward(q: FloatArray) -> FloatArray:
 
 def comma2k19_to_drive(folder: Path = DATA / "comma2k19_example") -> DriveLog:
     """The comma2k19 example minute as a drive log (see the module docstring)."""
+
     def load(rel: str) -> np.ndarray:
         return np.load(folder / rel)  # files are .npy without an extension
 
