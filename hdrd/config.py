@@ -32,6 +32,7 @@ __all__ = [
     "LogConfig",
     "OutputConfig",
     "SimulateConfig",
+    "StandstillConfig",
     "apply_overrides",
     "load_config",
     "parse_config",
@@ -197,6 +198,17 @@ class GpsdConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class StandstillConfig:
+    """HDR+'s standstill re-calibration (zero-rate updates, :mod:`hdrd.zupt`)."""
+
+    enabled: bool = True
+    """Use stops: publish omega 0 and re-measure the bias while the vehicle stands still."""
+    from_gyro: bool = False
+    """With no speed source (gpsd), detect a stop from the gyro's own statistics; off by
+    default: a gyro alone cannot tell a stop from a smooth straight road (bench/RESULTS.md)."""
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     device: DeviceConfig = DeviceConfig()
     sensor: SensorModel = SensorModel()
@@ -206,6 +218,7 @@ class Config:
     log: LogConfig = LogConfig()
     simulate: SimulateConfig = SimulateConfig()
     gpsd: GpsdConfig = GpsdConfig()
+    standstill: StandstillConfig = StandstillConfig()
 
 
 # -- rules ------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hdrd.calibrate import (
     BiasFileError,
@@ -32,6 +32,9 @@ from hdrd.calibrate import (
     save_bias,
 )
 from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
+
+if TYPE_CHECKING:
+    from hdrd.hdrplus import HdrPlusParams
 
 __all__ = ["SdNotifier", "calibrate_main", "config_from_args", "default_bias_path", "main"]
 
@@ -251,6 +254,20 @@ def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
+        plus=plus_params(cfg),
+    )
+
+
+def plus_params(cfg: Config) -> HdrPlusParams:
+    """HDR+'s parameters with the config's ``standstill.*`` keys applied (run, replay and
+    evaluate use the same)."""
+    from hdrd.hdrplus import HdrPlusParams
+
+    plus = HdrPlusParams()
+    return plus.with_(
+        standstill=replace(
+            plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
+        )
     )
 
 

@@ -107,6 +107,8 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.align_gain": (0.5, [-0.1, 1.5, NAN]),
     "gpsd.bias_window_s": (60.0, [0.0, -5.0, INF]),
     "gpsd.bias_gain": (1.0, [1.01, -0.3, True]),
+    "standstill.enabled": (False, ["no", 0, None]),
+    "standstill.from_gyro": (True, ["yes", 1, 1.0]),
 }
 
 BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]
@@ -209,8 +211,8 @@ def test_unknown_section(tmp_path: Path) -> None:
         load_config(p)
     msg = check_error(ei.value, "devices", str(p))
     assert (
-        "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd)"
-        in msg
+        "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd, "
+        "standstill)" in msg
     )
 
 

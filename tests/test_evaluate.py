@@ -23,7 +23,7 @@ from hdrd.analysis.evaluate import (
     to_json,
 )
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, write_drive
+from hdrd.drivelog import DriveLog, read_drive, write_drive
 from hdrd.hdr import HdrParams, run_batch
 
 
@@ -370,3 +370,29 @@ def test_nonfinite_improvement_is_null_in_json() -> None:
     assert doc["drives"][0]["improvement"] is None
     assert doc["mean"]["improvement"] is None
     json.dumps(doc, allow_nan=False)
+
+
+def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path) -> None:
+    # A downtown drive with stops: `standstill.enabled: false` in the config must change
+    # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
+    from hdrd.config import parse_config
+    from hdrd.daemon import plus_params
+    from hdrd.hdrplus import HdrPlusParams
+    from hdrd.sim.benchmark import TRAIN_DRIVES, generate
+
+    path = tmp_path / "city1.csv"
+    write_drive(path, generate(next(s for s in TRAIN_DRIVES if s.name == "city1")))
+    prep = ev.prepare_drive(read_drive(path))
+    off = plus_params(parse_config({"standstill": {"enabled": False}}))
+    assert not off.standstill.enabled
+    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), plus=off).e_psi["hdr+"]
+    got_on = ev.evaluate_prepared(prep, methods=("hdr+",), plus=HdrPlusParams()).e_psi["hdr+"]
+    yaw = ev._yaw_hdrplus(prep.steps, HdrParams(), off)
+    assert got_off == pytest.approx(float(ev.e_psi(yaw, prep.truth, prep.k)), abs=0)
+    assert got_off != got_on
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("standstill:\n  enabled: false\n")
+    out = tmp_path / "out.json"
+    args = [str(path), "--method", "hdr+", "--config", str(cfg), "--json", str(out)]
+    assert cli_main(["evaluate", *args]) == 0
+    assert json.loads(out.read_text())["drives"][0]["E_psi_hdr+"] == pytest.approx(got_off)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -272,6 +272,28 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     plain = run_live(ref, make_frames(omega))
     assert all(m["omega"] != 0.0 for m in plain[5:])  # paper HDR has no zero-rate update
     assert "zupt" not in plain[0]
+
+
+@pytest.mark.parametrize(("from_gyro", "enabled"), [(False, True), (True, True), (True, False)])
+def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled: bool) -> None:
+    # No speed source: a stop can only be seen in the gyro's own statistics, and only when
+    # the config says so (standstill.from_gyro); standstill.enabled false switches stops off.
+    from hdrd.config import parse_config
+    from hdrd.daemon import _pipeline_config
+
+    cfg = parse_config(
+        {"hdr": {"method": "hdr+"}, "standstill": {"enabled": enabled, "from_gyro": from_gyro}}
+    )
+    pc = replace(_pipeline_config(cfg, None), bias_dps=0.5)
+    rng = np.random.default_rng(4)
+    omega = 0.5 + rng.normal(0, 0.05, 400)  # 40 s parked, 10 Hz, eps0 known
+    msgs = run_live(Pipeline(pc), make_frames(omega))
+    still = [m for m in msgs if m["zupt"] == 1]
+    if from_gyro and enabled:
+        assert len(still) > 20 and all(m["omega"] == 0.0 for m in still)
+        assert msgs[-1]["yaw"] == pytest.approx(msgs[12]["yaw"], abs=1e-9)
+    else:
+        assert still == []
 
 
 def test_switching_method_keeps_the_heading():

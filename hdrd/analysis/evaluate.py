@@ -125,10 +125,14 @@ def _yaw_hdr(steps: StepInputs, params: HdrParams) -> FloatArray:
     return run_batch(steps.u, params).yaw
 
 
-def _yaw_hdrplus(steps: StepInputs, params: HdrParams) -> FloatArray:
+def _yaw_hdrplus(
+    steps: StepInputs, params: HdrParams, base: HdrPlusParams | None = None
+) -> FloatArray:
     # HDR+ runs with its own core (tuned together with its extras), at the drive's T; its
     # prior on the bias is how well the calibration measured it, when it was measured.
-    plus = HdrPlusParams(hdr=replace(PLUS_CORE, T=params.T))
+    # ``base``: HDR+'s other settings (the config's standstill.* keys), default HDR+'s own.
+    base = HdrPlusParams() if base is None else base
+    plus = base.with_(hdr=replace(PLUS_CORE, T=params.T))
     if math.isfinite(steps.bias_var):
         plus = plus.with_(bias_p0=steps.bias_var)
     return run_plus(steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, plus).yaw
@@ -337,9 +341,13 @@ def _methods(methods: Sequence[str]) -> tuple[str, ...]:
 
 
 def evaluate_prepared(
-    prep: PreparedDrive, params: HdrParams = PAPER_PARAMS, methods: Sequence[str] = ("none", "hdr")
+    prep: PreparedDrive,
+    params: HdrParams = PAPER_PARAMS,
+    methods: Sequence[str] = ("none", "hdr"),
+    plus: HdrPlusParams | None = None,
 ) -> DriveResult:
-    """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first)."""
+    """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
+    ``plus``: HDR+'s settings besides its core (default: HDR+'s defaults)."""
     ms = _methods(methods)
     if params.T != prep.steps.T:
         raise EvaluationError(
@@ -349,7 +357,10 @@ def evaluate_prepared(
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = METHODS[m](prep.steps, params)
+        if m == "hdr+" and plus is not None:
+            yaw = _yaw_hdrplus(prep.steps, params, plus)
+        else:
+            yaw = METHODS[m](prep.steps, params)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
@@ -540,12 +551,14 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv... [--calibrate-seconds S | --bias DPS] [--json FILE]
     [--plot FILE.png] [--config PATH] [--method none|hdr|hdr+]``."""
     from hdrd.config import EX_CONFIG, ConfigError, load_config
+    from hdrd.daemon import plus_params
 
     try:
         cfg, _ = load_config(args.config)
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
+    plus = plus_params(cfg)
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params
     calibrate_s = (
@@ -556,7 +569,9 @@ def main(args: argparse.Namespace) -> int:
         methods = _methods(["hdr", method] if method == "hdr+" else [method])
         logs = load_drives(args.drives)
         results = [
-            evaluate_prepared(prepare_drive(log, args.bias, calibrate_s, params.T), params, methods)
+            evaluate_prepared(
+                prepare_drive(log, args.bias, calibrate_s, params.T), params, methods, plus
+            )
             for log in logs
         ]
     except EvaluationError as e:
