@@ -846,7 +846,7 @@ def machine() -> str:
 
 
 def evaluate_json(path: Path) -> dict[str, Any]:
-    return json.loads(path.read_text(encoding="utf-8"))  # type: ignore[no-any-return]
+    return json.loads(path.read_text(encoding="utf-8"))
 
 
 def main() -> int:

@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             f"`tune()` on the nine simulated training drives ({hours:.2f} h, {steps:,} steps of 1 s; "
             f"preparation included, generation not), {a.candidates:,} parameter sets, seed {a.seed}; "
             f"{result.n_evaluated:,} sets scored."
-        ),  # type: ignore[attr-defined]
+        ),
         "",
         "| | best wall | median wall | CPU | target | vs target |",
         "|---|---|---|---|---|---|",

@@ -154,7 +154,7 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
             f"{label}:{row_lines[bad]}: column t is not strictly increasing "
             f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
         )
-    return DriveLog(name=name, meta=meta, **arrays)  # type: ignore[arg-type]
+    return DriveLog(name=name, meta=meta, **arrays)
 
 
 def _fmt(v: float, digits: int) -> str:

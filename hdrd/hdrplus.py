@@ -305,7 +305,7 @@ def _column(v: npt.ArrayLike | None, n: int, name: str) -> list[float]:
         return [float(a)] * n
     if a.shape != (n,):
         raise ValueError(f"{name} must have one value per step ({a.shape} vs {n})")
-    return a.tolist()  # type: ignore[no-any-return]
+    return a.tolist()
 
 
 def run_batch(

@@ -71,7 +71,7 @@ class SensorModel:
     def to_dps(self, rate_counts: int, ref_counts: int = 0) -> float: ...
     @overload
     def to_dps(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike = 0) -> FloatArray: ...
-    def to_dps(self, rate_counts, ref_counts=0):  # type: ignore[no-untyped-def]
+    def to_dps(self, rate_counts, ref_counts=0):
         """Yaw rate in deg/s (+ = CCW) from ADC counts; ref_counts 0 = supply not monitored."""
         omega = self.to_dps_array(rate_counts, ref_counts)
         return float(omega) if omega.ndim == 0 else omega

@@ -197,13 +197,13 @@ def test_failed_write_leaves_old_file_whole_and_no_temp(
         class HalfWriter:
             """A file object that writes half of the text, then fails (a power cut)."""
 
-            def __init__(self, f):  # type: ignore[no-untyped-def]
+            def __init__(self, f):
                 self.f = f
 
-            def __enter__(self):  # type: ignore[no-untyped-def]
+            def __enter__(self):
                 return self
 
-            def __exit__(self, *exc):  # type: ignore[no-untyped-def]
+            def __exit__(self, *exc):
                 self.f.close()
 
             def write(self, text: str) -> None:

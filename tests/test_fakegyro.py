@@ -50,7 +50,7 @@ def profile(minutes: float = 0.2, hz: float = 50.0) -> DriveLog:
     return builtin_profile("constant", minutes=minutes, hz=hz, rate_dps=-7.5, lead_in_s=2.0)
 
 
-def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:
     link = tmp_path / "gyro"
     g = fake_gyro(profile(), link=link)
     assert g.path and stat.S_ISCHR(os.stat(g.path).st_mode)
@@ -61,7 +61,7 @@ def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-unt
 
 
 @pytest.mark.parametrize("protocol", ["hdr-bin", "hdr-text"])
-def test_injected_faults_match_the_parser_counts(fake_gyro, protocol: str) -> None:  # type: ignore[no-untyped-def]
+def test_injected_faults_match_the_parser_counts(fake_gyro, protocol: str) -> None:
     g = fake_gyro(
         profile(), protocol=protocol, speedup=0, garbage=0.1, crc_errors=0.1, drop=0.05, seed=4
     )
@@ -102,7 +102,7 @@ def test_capture_file_is_reproducible_and_decodes_to_the_frames_sent(tmp_path: P
     assert c.read_bytes() != a.read_bytes()
 
 
-def test_real_time_pacing_with_speedup(fake_gyro) -> None:  # type: ignore[no-untyped-def]
+def test_real_time_pacing_with_speedup(fake_gyro) -> None:
     g = fake_gyro(profile(minutes=0.05, hz=20), speedup=20.0)  # 5 s of device time
     with SerialSource(g.path) as src:
         g.start()
@@ -110,7 +110,7 @@ def test_real_time_pacing_with_speedup(fake_gyro) -> None:  # type: ignore[no-un
     assert got == array_to_frames(g.frames) and g.injected.unread_frames == 0
 
 
-def test_real_time_without_reader_sends_nothing(fake_gyro) -> None:  # type: ignore[no-untyped-def]
+def test_real_time_without_reader_sends_nothing(fake_gyro) -> None:
     g = fake_gyro(profile(minutes=0.02, hz=50), speedup=50.0)
     g.start()
     assert g.wait(WAIT_S)
@@ -118,7 +118,7 @@ def test_real_time_without_reader_sends_nothing(fake_gyro) -> None:  # type: ign
     assert not g.delivered.any()
 
 
-def test_as_fast_as_possible_waits_for_a_reader(fake_gyro) -> None:  # type: ignore[no-untyped-def]
+def test_as_fast_as_possible_waits_for_a_reader(fake_gyro) -> None:
     g = fake_gyro(profile(minutes=0.02), speedup=0)
     g.start()
     assert not g.wait(0.3)  # nobody reads: it waits, it does not throw frames away
@@ -128,7 +128,7 @@ def test_as_fast_as_possible_waits_for_a_reader(fake_gyro) -> None:  # type: ign
     assert got == array_to_frames(g.frames)
 
 
-def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:
     link = tmp_path / "g"
     g = fake_gyro(profile(minutes=0.5, hz=20), speedup=20.0, link=link)
     with SerialSource(str(link), reconnect_min_s=0.02, reconnect_max_s=0.05) as src:
@@ -167,7 +167,7 @@ def test_frames_array_profile_and_bad_arguments() -> None:
         dict(protocol="nmea"),
     ):
         with pytest.raises(ValueError):
-            FakeGyro(arr, **bad)  # type: ignore[arg-type]
+            FakeGyro(arr, **bad)
 
 
 # --------------------------------------------------------------------------- the command

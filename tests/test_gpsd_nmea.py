@@ -298,7 +298,7 @@ def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
     assert len(seen) >= 0.8 * len(good), f"TPV with course for {len(seen)} of {len(good)} seconds"
     for k in seen:
         f = next(f for f in by_second[k] if f.track_deg is not None)
-        assert f.mode >= 2
+        assert f.mode >= 2 and f.track_deg is not None
         assert abs(wrap180(f.track_deg - (gps[k] or 0.0))) < 0.01, (k, f)
         assert f.speed_mps == pytest.approx(15.0, abs=0.01)
     assert any(f.mode == 1 for k in range(35, 50) for f in by_second.get(k, [])), (

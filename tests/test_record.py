@@ -52,7 +52,7 @@ def test_record_function_on_loop_url() -> None:
 
 def test_record_from_fake_gyro_decodes_to_exactly_the_frames_sent(
     fake_gyro, tmp_path: Path
-) -> None:  # type: ignore[no-untyped-def]
+) -> None:
     prof = builtin_profile("constant", minutes=0.5, hz=50, rate_dps=4.0, lead_in_s=5.0)
     g = fake_gyro(prof, speedup=0, garbage=0.05, crc_errors=0.05, drop=0.02, seed=2)
     out = tmp_path / "cap.bin"
@@ -71,7 +71,7 @@ def test_record_from_fake_gyro_decodes_to_exactly_the_frames_sent(
     assert st.garbage_bytes == g.injected.garbage_bytes + 16 * g.injected.crc_errors
 
 
-def test_record_stops_after_seconds(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_record_stops_after_seconds(fake_gyro, tmp_path: Path) -> None:
     g = fake_gyro(builtin_profile("standstill", minutes=10, hz=20), speedup=1.0)
     out = tmp_path / "cap.bin"
     p = start_record("--port", g.path, "--out", str(out), "--seconds", "1.0")

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,7 +37,7 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(
     fake_gyro, tmp_path, capsys, method
 ):
     profile = drive_profile(seconds=90)
-    kw = dict(garbage=0.05, crc_errors=0.05, seed=11)
+    kw: dict[str, Any] = dict(garbage=0.05, crc_errors=0.05, seed=11)
     g = fake_gyro(profile, speedup=0, **kw)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
@@ -184,6 +185,7 @@ def test_convert_capture_to_drive_log(tmp_path, capsys):
     assert len(log) == len(prof)
     np.testing.assert_allclose(log.t, prof.t, atol=1e-6)
     np.testing.assert_allclose(log.omega, prof.omega, atol=SensorModel().lsb_dps)
+    assert log.temp_c is not None
     np.testing.assert_allclose(log.temp_c, 24.5)
 
 

@@ -97,7 +97,7 @@ def test_generate_is_deterministic() -> None:
     spec = spec_by_name("rural1")
     a, b = generate(spec), generate(spec)
     np.testing.assert_array_equal(a.omega, b.omega)
-    np.testing.assert_array_equal(a.heading_truth, b.heading_truth)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(a.heading_truth, b.heading_truth)
     assert a.meta["description"] == spec.description and a.meta["benchmark"] == "train"
 
 

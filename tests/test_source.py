@@ -213,7 +213,7 @@ def test_recv_never_waits_longer_than_asked_while_lost(tmp_path: Path) -> None:
     src.close()
 
 
-def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:  # type: ignore[no-untyped-def]
+def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:
     prof = builtin_profile("constant", minutes=0.5, hz=50, rate_dps=12.5, seed=3)
     g = fake_gyro(prof, speedup=0, garbage=0.05, crc_errors=0.05, drop=0.02, seed=9)
     with SerialSource(g.path) as src:
@@ -234,7 +234,7 @@ def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:  # typ
     assert moving == pytest.approx(12.5, abs=0.02)
 
 
-def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path: Path) -> None:
     prof = builtin_profile("standstill", minutes=0.5, hz=100, lead_in_s=0.0)
     link = tmp_path / "hdrd-gyro"
     g = fake_gyro(prof, speedup=0, link=link, pull_at=[5.0, 12.0], pull_for=0.3)
@@ -348,7 +348,7 @@ def test_builtin_profiles() -> None:
     assert np.array_equal(again.omega, s.omega)  # seeded
     for bad in (dict(drive="loop"), dict(hz=0.0), dict(minutes=-1.0), dict(minutes=float("nan"))):
         with pytest.raises(ProfileError):
-            builtin_profile(**bad)  # type: ignore[arg-type]
+            builtin_profile(**bad)
 
 
 def test_profile_frames_counts_time_and_temperature() -> None:
