@@ -90,12 +90,15 @@ def continuous_errors(
     from hdrd.analysis.metrics import e_psi_continuous
     from hdrd.drivelog import read_drive
     from hdrd.hdr import HdrParams
+    from hdrd.hdrplus import HdrPlusParams
 
     out = {}
     for p in paths:
         prep = prepare_drive(read_drive(p), bias)
         e = [
-            e_psi_continuous(METHODS[m](prep.steps, HdrParams()), prep.truth, prep.k)
+            e_psi_continuous(
+                METHODS[m](prep.steps, HdrParams(), HdrPlusParams()), prep.truth, prep.k
+            )
             for m in ("none", "hdr")
         ]
         out[prep.name] = (e[0], e[1])

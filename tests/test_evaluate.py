@@ -25,6 +25,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.cli import main as cli_main
 from hdrd.drivelog import DriveLog, read_drive, write_drive
 from hdrd.hdr import HdrParams, run_batch
+from hdrd.hdrplus import HdrPlusParams
 
 
 def make_drive(
@@ -214,7 +215,7 @@ def test_json_shape_is_exactly_the_issues() -> None:
 
 def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) -> None:
     # How hdr+ will plug in: one entry in METHODS; evaluate and the JSON pick it up.
-    def perfect_bias(steps: StepInputs, params: HdrParams) -> np.ndarray:
+    def perfect_bias(steps: StepInputs, params: HdrParams, plus: HdrPlusParams) -> np.ndarray:
         return np.cumsum((steps.u - 0.1) * params.T)
 
     monkeypatch.setitem(METHODS, "hdr+", perfect_bias)
@@ -377,7 +378,6 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
     from hdrd.config import parse_config
     from hdrd.daemon import plus_params
-    from hdrd.hdrplus import HdrPlusParams
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"

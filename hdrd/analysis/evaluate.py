@@ -30,8 +30,9 @@ How a drive log becomes Table II numbers:
 6. Td, the drive's duration in minutes for NEψ (Eq. 13), is (number of drive steps) * T / 60:
    the time from the drive's start (end of calibration) to the last complete step.
 
-Methods are dispatched through :data:`METHODS` (name -> function of the per-step inputs and
-the HDR parameters, returning yaw), the one place a new drift reducer is registered.
+Methods are dispatched through :data:`METHODS` (name -> function of the per-step inputs, the
+HDR parameters and HDR+'s settings, returning yaw), the one place a new drift reducer is
+registered.
 """
 
 from __future__ import annotations
@@ -76,6 +77,8 @@ IntArray = npt.NDArray[np.int64]
 
 PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
+PLUS_DEFAULTS = HdrPlusParams()
+"""HDR+'s own settings (its extras at their defaults; the core is set per drive's T)."""
 DEFAULT_CALIBRATE_S = 30.0
 """Default calibration window, s (paper Sec. 2: Tbias = 30 s)."""
 TRUTH_MAX_GAP_S = 2.0
@@ -111,28 +114,25 @@ class StepInputs:
     bias_var: float = math.nan
 
 
-MethodFn = Callable[[StepInputs, HdrParams], FloatArray]
-"""A drift reducer: per-step inputs and the HDR parameters -> yaw at each step end, deg CCW."""
+MethodFn = Callable[[StepInputs, HdrParams, HdrPlusParams], FloatArray]
+"""A drift reducer: per-step inputs, the HDR parameters and HDR+'s settings (the config's
+``standstill.*``; only hdr+ reads them) -> yaw at each step end, deg CCW."""
 
 
-def _yaw_none(steps: StepInputs, params: HdrParams) -> FloatArray:
+def _yaw_none(steps: StepInputs, params: HdrParams, plus: HdrPlusParams) -> FloatArray:
     # Static bias removal only: psi_i = psi_{i-1} + u_i * T (Eq. 3 with I = 0). Sequential
     # cumsum: bit-identical to run_batch(u, HdrParams.off()).yaw.
     return np.cumsum(steps.u * params.T)
 
 
-def _yaw_hdr(steps: StepInputs, params: HdrParams) -> FloatArray:
+def _yaw_hdr(steps: StepInputs, params: HdrParams, plus: HdrPlusParams) -> FloatArray:
     return run_batch(steps.u, params).yaw
 
 
-def _yaw_hdrplus(
-    steps: StepInputs, params: HdrParams, base: HdrPlusParams | None = None
-) -> FloatArray:
+def _yaw_hdrplus(steps: StepInputs, params: HdrParams, plus: HdrPlusParams) -> FloatArray:
     # HDR+ runs with its own core (tuned together with its extras), at the drive's T; its
     # prior on the bias is how well the calibration measured it, when it was measured.
-    # ``base``: HDR+'s other settings (the config's standstill.* keys), default HDR+'s own.
-    base = HdrPlusParams() if base is None else base
-    plus = base.with_(hdr=replace(PLUS_CORE, T=params.T))
+    plus = plus.with_(hdr=replace(PLUS_CORE, T=params.T))
     if math.isfinite(steps.bias_var):
         plus = plus.with_(bias_p0=steps.bias_var)
     return run_plus(steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, plus).yaw
@@ -344,7 +344,7 @@ def evaluate_prepared(
     prep: PreparedDrive,
     params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    plus: HdrPlusParams | None = None,
+    plus: HdrPlusParams = PLUS_DEFAULTS,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
     ``plus``: HDR+'s settings besides its core (default: HDR+'s defaults)."""
@@ -357,10 +357,7 @@ def evaluate_prepared(
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        if m == "hdr+" and plus is not None:
-            yaw = _yaw_hdrplus(prep.steps, params, plus)
-        else:
-            yaw = METHODS[m](prep.steps, params)
+        yaw = METHODS[m](prep.steps, params, plus)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
