@@ -251,6 +251,7 @@ def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
         params=cfg.hdr.params,
         method=cfg.hdr.method,
         bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
