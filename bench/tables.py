@@ -86,21 +86,14 @@ def continuous_errors(
     paths: list[Path], bias: float | None = None
 ) -> dict[str, tuple[float, float]]:
     """Continuous-heading Eψ (raw, hdr) per drive, same steps and alignment as hdrd evaluate."""
-    from hdrd.analysis.evaluate import METHODS, prepare_drive
+    from hdrd.analysis.evaluate import method_yaw, prepare_drive
     from hdrd.analysis.metrics import e_psi_continuous
     from hdrd.drivelog import read_drive
-    from hdrd.hdr import HdrParams
-    from hdrd.hdrplus import HdrPlusParams
 
     out = {}
     for p in paths:
         prep = prepare_drive(read_drive(p), bias)
-        e = [
-            e_psi_continuous(
-                METHODS[m](prep.steps, HdrParams(), HdrPlusParams()), prep.truth, prep.k
-            )
-            for m in ("none", "hdr")
-        ]
+        e = [e_psi_continuous(method_yaw(prep, m), prep.truth, prep.k) for m in ("none", "hdr")]
         out[prep.name] = (e[0], e[1])
     return out
 

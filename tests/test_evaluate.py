@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.analysis import evaluate as ev
 from hdrd import methods
+from hdrd.analysis import evaluate as ev
 from hdrd.analysis.evaluate import (
     EvaluationError,
     StepInputs,
@@ -435,3 +435,82 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     args = [str(path), "--method", "hdr+", "--config", str(cfg), "--json", str(out)]
     assert cli_main(["evaluate", *args]) == 0
     assert json.loads(out.read_text())["drives"][0]["E_psi_hdr+"] == pytest.approx(got_off)
+
+
+# -- per-drive calibration --------------------------------------------------------------------
+
+
+def phone_drive(seed: int = 7) -> DriveLog:
+    """A phone-like 1 Hz drive (bias 0.01 deg/s, noise 0.01 deg/s): 5 s standing, a left turn
+    whose first second averages 0.37 deg/s (then 4, 9, 12, 12, 12, 9, 4 deg/s), a 20 s stop at
+    a light, then 5 minutes of driving with a 0.05 deg/s bias drift and right turns. Truth: the
+    true heading at every second while moving."""
+    rng = np.random.default_rng(seed)
+    n = 5 + 8 + 20 + 300
+    true = np.zeros(n)
+    true[5:13] = [0.36, 4.0, 9.0, 12.0, 12.0, 12.0, 9.0, 4.0]
+    for start in range(60, n - 20, 50):
+        true[start : start + 9] = -10.0
+    t = np.arange(n, dtype=np.float64)
+    omega = true + 0.01 + 0.05 * (t >= 33) + 0.01 * rng.standard_normal(n)
+    omega[:6] = 0.01 + 0.01 * rng.standard_normal(6)
+    omega[5] += 0.36
+    heading = np.mod(90.0 - np.cumsum(true), 360.0)
+    moving = (t >= 5) & ((t < 13) | (t >= 33))
+    return DriveLog(t=t, omega=omega, heading_truth=np.where(moving, heading, np.nan), name="phone")
+
+
+def test_a_turns_first_second_at_1_hz_is_not_taken_for_the_start_up_standstill() -> None:
+    log = phone_drive()
+    # The first 6 s hold the turn's first second: rejected, as are the windows in the turn;
+    # the daemon's start-up window measures at the stop that follows (18-24 s).
+    prep = prepare_drive(log, calibrate_seconds=6.0)
+    assert prep.calibration_attempts == 4
+    assert prep.start_s == 24.0
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[18:24])), rel=1e-12)
+    assert abs(prep.steps.bias_dps - 0.01) < 0.015  # the first 6 s measured 0.07 deg/s
+    # Per drive, without --calibrate-seconds: the 5 s before the turn, found from the gyro.
+    prep = prepare_drive(log)
+    assert prep.bias_source == "gyro standstill 5 s at 0 s"
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[:5])), rel=1e-12)
+
+
+def test_lead_in_and_speed_standstill_set_the_window(tmp_path: Path) -> None:
+    log = make_drive(drift_dps=0.1, calib_s=20.0)
+    lead = dataclasses.replace(log, meta={"lead_in_s": "20"})
+    prep = prepare_drive(lead)
+    assert prep.bias_source == "lead-in 20 s" and prep.start_s == 20.0
+    # --calibrate-seconds overrides the lead-in; --bias overrides both.
+    assert prepare_drive(lead, calibrate_seconds=10.0).bias_source == "first 10 s"
+    assert prepare_drive(lead, bias=0.8, calibrate_seconds=10.0).bias_source == "given"
+    # A log that starts moving and stops from 60 to 75 s: the daemon started then.
+    rel = log.t - log.t[0]
+    speed = np.where((rel >= 60.0) & (rel < 75.0), 0.0, 12.0)
+    stopped = dataclasses.replace(log, speed=speed, name="stop")
+    prep = prepare_drive(stopped)
+    assert prep.bias_source == "speed standstill 15 s at 60 s"
+    assert prep.start_s == 75.0 and prep.steps.t_end[0] == 76.0
+    assert prep.duration_min == pytest.approx((360.0 - 75.0) / 60.0)
+    never = dataclasses.replace(log, speed=np.full(len(log), 12.0))
+    with pytest.raises(EvaluationError, match="no standstill .* from the speed"):
+        prepare_drive(never)
+
+
+def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sub = tmp_path / "phone"
+    sub.mkdir()
+    write_drive(tmp_path / "city.csv", make_drive(drift_dps=0.1, turns=CITY_TURNS))
+    write_drive(sub / "p1.csv", phone_drive())
+    write_drive(sub / "moving.csv", make_drive(calib_s=0.0, turns=SLALOM))
+    (sub / "notes.txt").write_text("not a drive log")
+    out = tmp_path / "r.json"
+    assert cli_main(["evaluate", str(tmp_path), "--json", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert [d["name"] for d in json.loads(out.read_text())["drives"]] == ["city", "phone/p1"]
+    rows = {line.split()[0]: line for line in cap.out.splitlines()}
+    assert rows["city"].endswith("gyro standstill 30 s at 0 s")
+    assert rows["phone/p1"].endswith("gyro standstill 5 s at 0 s")
+    assert cap.err.count("\n") == 1 and "skipped phone/moving: " in cap.err
+    # A file and a directory together, with the bias given for all.
+    assert cli_main(["evaluate", str(sub / "p1.csv"), str(sub), "--bias", "0.01"]) == 0
+    assert capsys.readouterr().out.count(" given") == 3

@@ -35,7 +35,7 @@ def _steps(rows: list[tuple[float, float, float, float]], T: float) -> StepInput
     a = np.array(rows, dtype=np.float64).reshape(len(rows), 4)
     return StepInputs(
         u=a[:, 0],
-        t_end=(np.arange(len(rows)) + 1.0) * T,
+        t_end=(np.arange(len(rows), dtype=np.float64) + 1.0) * T,
         T=T,
         bias_dps=0.0,
         n_samples=np.full(len(rows), 10, np.int64),
@@ -112,7 +112,9 @@ def test_the_config_and_the_command_line_take_the_names_from_the_registry(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     assert methods.names() == ("none", "hdr", "hdr+")
-    with pytest.raises(ConfigError, match="hdr.method = 'kalman': must be one of none, hdr, hdr\\+"):
+    with pytest.raises(
+        ConfigError, match="hdr.method = 'kalman': must be one of none, hdr, hdr\\+"
+    ):
         parse_config({"hdr": {"method": "kalman"}})
     with pytest.raises(ConfigError, match="hdr.method"):
         parse_config({"hdr": {"method": ["hdr"]}})  # not a name at all
