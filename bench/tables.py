@@ -259,9 +259,10 @@ def render(
     L.append("```")
     L.append("")
     L.append(
-        "Definitions (`hdrd/analysis/evaluate.py`): static bias from the first 30 s of each log "
-        "(standstill); the drive starts after it (Td excludes it); the gyro block-averaged to "
-        "T = 1 s; yaw compared with the GPS-like truth at each step's end, aligned at the first "
+        "Definitions (`hdrd/analysis/evaluate.py`, docs/evaluation.md): static bias from each "
+        "log's 30 s standstill lead-in (`lead_in_s`), as the daemon's start-up window; the drive "
+        "starts after it (Td excludes it); the gyro block-averaged to T = 1 s by the daemon's "
+        "own block code and stepper (a step without samples is no step); yaw compared with the GPS-like truth at each step's end, aligned at the first "
         "step with truth; Eψ = mean |error| with each error wrapped to [-180°, 180°) (Eq. 12); "
         "NEψ = Eψ / Td (Eq. 13); improvement = Eψ without / Eψ with HDR per drive, averaged "
         "over drives (σ: sample standard deviation), as the paper does. Parameters: the paper's "
