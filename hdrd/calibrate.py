@@ -20,7 +20,8 @@ gyro's own noise and the number of samples, so that a quiet gyro sampled slowly 
   difference of two third-means (never less than ``trend_floor_dps``).
 The noise sigma is the larger of 1.4826 x the median absolute deviation and the standard
 deviation without the sample farthest from the median (the MAD alone is 0 when a coarse ADC
-reads one code in most samples), never below ``noise_floor_dps``. See docs/evaluation.md.
+reads one code in most samples), never below ``noise_floor_dps``. They need at least
+``NOISE_TEST_MIN_SAMPLES`` samples. See docs/evaluation.md.
 
 :class:`StartupWindow` is the one start-up calibration window: the daemon's pipeline, ``hdrd
 calibrate`` and ``hdrd evaluate`` gather their standstill samples in it and measure through it.
@@ -60,6 +61,9 @@ T_BIAS_S = 30.0
 SHIFT_INNER_SIGMAS = 4.0
 """Samples within this many noise sigmas of the median are the undisturbed core of a window
 (the shift test compares their mean with the mean of all)."""
+NOISE_TEST_MIN_SAMPLES = 6
+"""The noise-scaled tests need this many samples: a window's own noise is too uncertain in
+fewer (Gaussian noise alone would fail them 1 time in 100 with 5 samples, 1 in 4 with 3)."""
 
 
 class MotionDetected(ValueError):
@@ -179,9 +183,9 @@ def noise_sigma(w: npt.NDArray[np.float64], floor_dps: float = 0.0) -> float:
 
 def _check_noise_scaled(w: npt.NDArray[np.float64], limits: StandstillLimits) -> None:
     """The shift and scaled-trend tests (module docstring); raises MotionDetected."""
-    if not limits.max_shift_se > 0:
-        return
     n = int(w.shape[0])
+    if not limits.max_shift_se > 0 or n < NOISE_TEST_MIN_SAMPLES:
+        return
     sigma = noise_sigma(w, limits.noise_floor_dps)
     med = float(np.median(w))
     core = w[np.abs(w - med) <= SHIFT_INNER_SIGMAS * sigma]

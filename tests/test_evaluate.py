@@ -127,11 +127,11 @@ def test_hdr_column_is_run_batch() -> None:
 
 def test_motion_at_the_start_the_bias_comes_from_the_standstill_found() -> None:
     # No lead-in in the metadata, no speed: the first window that passes the standstill test
-    # on the gyro (the 5 s before the turn), as the daemon started there would measure it.
-    log = make_drive(turns=[(5, 10, 15.0)])
+    # on the gyro (the 6 s before the turn), as the daemon started there would measure it.
+    log = make_drive(turns=[(6, 10, 15.0)])
     r = evaluate_drive(log)
-    assert r.bias_source == "gyro standstill 5 s at 0 s"
-    assert r.bias_dps == pytest.approx(float(np.mean(log.omega[:50])), rel=1e-12)
+    assert r.bias_source == "gyro standstill 6 s at 0 s"
+    assert r.bias_dps == pytest.approx(float(np.mean(log.omega[:60])), rel=1e-12)
     # With the bias given the whole log is the drive.
     assert evaluate_drive(log, bias=0.8).n_steps == 360
 
@@ -139,7 +139,7 @@ def test_motion_at_the_start_the_bias_comes_from_the_standstill_found() -> None:
 def test_calibrate_seconds_retries_as_the_daemon_does() -> None:
     # The first 30 s hold a turn: the daemon's start-up window rejects them and measures the
     # next 30 s (here a straight drive: a gyro alone cannot tell it from a stop).
-    log = make_drive(turns=[(5, 10, 15.0)])
+    log = make_drive(turns=[(6, 10, 15.0)])
     prep = prepare_drive(log, calibrate_seconds=30.0)
     assert prep.calibration_attempts == 2
     assert prep.start_s == 60.0
@@ -443,8 +443,8 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
 def phone_drive(seed: int = 7) -> DriveLog:
     """A phone-like 1 Hz drive (bias 0.01 deg/s, noise 0.01 deg/s): 5 s standing, a left turn
     whose first second averages 0.37 deg/s (then 4, 9, 12, 12, 12, 9, 4 deg/s), a 20 s stop at
-    a light, then 5 minutes of driving with a 0.05 deg/s bias drift and right turns. Truth: the
-    true heading at every second while moving."""
+    a light, then 5 minutes of driving with right turns from 60 s on, the bias drifting by 0.05
+    deg/s from then. Truth: the true heading at every second while moving."""
     rng = np.random.default_rng(seed)
     n = 5 + 8 + 20 + 300
     true = np.zeros(n)
@@ -452,7 +452,7 @@ def phone_drive(seed: int = 7) -> DriveLog:
     for start in range(60, n - 20, 50):
         true[start : start + 9] = -10.0
     t = np.arange(n, dtype=np.float64)
-    omega = true + 0.01 + 0.05 * (t >= 33) + 0.01 * rng.standard_normal(n)
+    omega = true + 0.01 + 0.05 * (t >= 60) + 0.01 * rng.standard_normal(n)
     omega[:6] = 0.01 + 0.01 * rng.standard_normal(6)
     omega[5] += 0.36
     heading = np.mod(90.0 - np.cumsum(true), 360.0)
@@ -469,10 +469,14 @@ def test_a_turns_first_second_at_1_hz_is_not_taken_for_the_start_up_standstill()
     assert prep.start_s == 24.0
     assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[18:24])), rel=1e-12)
     assert abs(prep.steps.bias_dps - 0.01) < 0.015  # the first 6 s measured 0.07 deg/s
-    # Per drive, without --calibrate-seconds: the 5 s before the turn, found from the gyro.
+    # Per drive, without --calibrate-seconds: 5 s before the turn are too few samples to
+    # judge at 1 Hz; the stop after it is found from the gyro (with the straight road after it,
+    # which a gyro cannot tell from a stop), and the drive starts after that window.
     prep = prepare_drive(log)
-    assert prep.bias_source == "gyro standstill 5 s at 0 s"
-    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[:5])), rel=1e-12)
+    assert prep.bias_source == "gyro standstill 30 s at 13 s"
+    assert prep.start_s == 43.0
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[13:43])), rel=1e-12)
+    assert abs(prep.steps.bias_dps - 0.01) < 0.01
 
 
 def test_lead_in_and_speed_standstill_set_the_window(tmp_path: Path) -> None:
@@ -509,7 +513,7 @@ def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert [d["name"] for d in json.loads(out.read_text())["drives"]] == ["city", "phone/p1"]
     rows = {line.split()[0]: line for line in cap.out.splitlines()}
     assert rows["city"].endswith("gyro standstill 30 s at 0 s")
-    assert rows["phone/p1"].endswith("gyro standstill 5 s at 0 s")
+    assert rows["phone/p1"].endswith("gyro standstill 30 s at 13 s")
     assert cap.err.count("\n") == 1 and "skipped phone/moving: " in cap.err
     # A file and a directory together, with the bias given for all.
     assert cli_main(["evaluate", str(sub / "p1.csv"), str(sub), "--bias", "0.01"]) == 0

@@ -63,8 +63,9 @@ TRUTH_MAX_GAP_S = 2.0
 STANDSTILL_SPEED_MPS = 0.3
 """A sample at or below this speed, m/s, is standing still (GPS speed at rest jitters by a few
 tenths of a m/s; HDR+'s standstill detection uses the same)."""
-STANDSTILL_MIN_S = 5.0
-"""Shortest standstill a per-drive calibration window is found in, s."""
+STANDSTILL_MIN_S = 6.0
+"""Shortest standstill a per-drive calibration window is found in, s (at 1 Hz, the six samples
+the standstill test's noise-scaled checks need)."""
 STANDSTILL_MAX_S = 30.0
 """Longest window taken from a found standstill, s (the paper's Tbias)."""
 DEFAULT_LIMITS = StandstillLimits()
@@ -163,7 +164,7 @@ def _standstill_from_gyro(
     log: DriveLog, T: float, limits: StandstillLimits
 ) -> tuple[int, float] | None:
     """(first sample, window s) of the first window that passes the standstill test on the
-    raw rate alone: from each step edge in turn, the longest of 30, 20, 10 and 5 s (whole
+    raw rate alone: from each step edge in turn, the longest of 30, 20, 10 and 6 s (whole
     steps) that passes; None if none does. A gyro cannot tell a stop from a smooth straight
     road: with a speed in the log, :func:`_standstill_from_speed` is used instead."""
     t_us = _t_us(log.t)
