@@ -8,7 +8,8 @@
  *
  * The board around the chip (docs/firmware.md): A0 sees rate_volts (through the RC filter,
  * whose settling is the waveform's business); A1 sees supply_volts / --ref-divider; the ADC
- * reference AVCC is --vcc. simavr simulates the CPU, timers, ADC control and UART cycle by
+ * reference AVCC is --vcc (or, with --vcc supply, the waveform's supply: the gyro powered
+ * from the board's own 5 V, which is then also the ADC's reference). simavr simulates the CPU, timers, ADC control and UART cycle by
  * cycle, but converts an input it is given in whole millivolts with code = mV * 1023 / Vref.
  * The harness therefore does the analog part itself, at the instant the chip samples
  * (1.5 ADC clocks after a conversion starts): input + Gaussian noise (--noise-lsb, the
@@ -49,6 +50,7 @@
 static const char *opt_firmware, *opt_wave, *opt_out, *opt_pty, *opt_adc_log;
 static double opt_seconds = -1;  /* < 0: until the waveform's last row */
 static double opt_vcc = 5.0;     /* AVCC = ADC reference, V */
+static int opt_vcc_is_supply;    /* --vcc supply: AVCC is the gyro's supply (one 5 V rail) */
 static double opt_ref_divider = 2.0;
 static double opt_noise_lsb = 0.5;
 static double opt_speedup = 0;   /* 0: as fast as possible; 1: real time */
@@ -60,7 +62,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: hdrd-adc-sim --firmware ELF WAVE.csv OUT.bin [--seconds N] [--pty LINK]\n"
-            "         [--adc-log FILE] [--noise-lsb X] [--seed N] [--vcc V] [--ref-divider R]\n"
+            "         [--adc-log FILE] [--noise-lsb X] [--seed N] [--vcc V|supply] [--ref-divider R]\n"
             "         [--speedup X] [--mcu NAME] [--f-cpu HZ]\n");
 }
 
@@ -101,6 +103,7 @@ static void parse_args(int argc, char **argv)
             else if (!strcmp(a, "--adc-log")) opt_adc_log = v;
             else if (!strcmp(a, "--noise-lsb")) opt_noise_lsb = number(a, v, 0, 100);
             else if (!strcmp(a, "--seed")) opt_seed = (uint64_t)number(a, v, 0, 4e9);
+            else if (!strcmp(a, "--vcc") && !strcmp(v, "supply")) opt_vcc_is_supply = 1;
             else if (!strcmp(a, "--vcc")) opt_vcc = number(a, v, 1.8, 5.5);
             else if (!strcmp(a, "--ref-divider")) opt_ref_divider = number(a, v, 1, 100);
             else if (!strcmp(a, "--speedup")) opt_speedup = number(a, v, 0, 1e6);
@@ -284,8 +287,19 @@ static void adc_trigger_hook(struct avr_irq_t *irq, uint32_t value, void *param)
         volts = wave_at(wrate, t);
     else if (chan == 1)
         volts = wave_at(wsupply, t) / opt_ref_divider;
+    double vref_v = avr->avcc / 1000.0;
+    if (opt_vcc_is_supply) { /* one rail feeds the gyro and AVCC: the reference moves with it */
+        vref_v = wave_at(wsupply, t);
+        if (!(vref_v >= 1.8 && vref_v <= 5.5)) {
+            fprintf(stderr, "hdrd-adc-sim: --vcc supply: %.3f V at t = %.6f s is outside "
+                            "the ATmega328P's 1.8 .. 5.5 V\n", vref_v, t);
+            exit(1);
+        }
+        /* simavr only needs a reference in whole mV to map our code back (below) */
+        avr->vcc = avr->avcc = avr->aref = (uint32_t)lround(vref_v * 1000);
+    }
     uint32_t vref_mv = avr->avcc;
-    double lsb = vref_mv / 1000.0 / 1024.0;
+    double lsb = vref_v / 1024.0;
     double x = volts / lsb + opt_noise_lsb * gaussian();
     long code = lround(x);
     if (code < 0)

@@ -64,9 +64,39 @@ def write_wave(path: str, t: FloatArray, rate_v: FloatArray, supply_v: FloatArra
     """The CSV firmware/sim/run reads: a header, then ``t, rate_volts, supply_volts`` rows."""
     rows = np.column_stack([t, rate_v, supply_v])
     np.savetxt(
-        path, rows, fmt=("%.6f", "%.7f", "%.7f"), delimiter=",", header="t,rate_volts,supply_volts",
+        path,
+        rows,
+        fmt=("%.6f", "%.7f", "%.7f"),
+        delimiter=",",
+        header="t,rate_volts,supply_volts",
         comments="",
     )
+
+
+def read_wave(path: str) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(t s, rate_volts V, supply_volts V) of a waveform CSV (header line optional)."""
+    with open(path, encoding="ascii") as f:
+        first = f.readline()
+    skip = 0 if first[:1].isdigit() or first[:1] in "+-." else 1
+    rows = np.loadtxt(path, delimiter=",", skiprows=skip, comments="#", ndmin=2)
+    return rows[:, 0], rows[:, 1], rows[:, 2]
+
+
+def rate_at(
+    t_query: npt.ArrayLike,
+    wave: tuple[FloatArray, FloatArray, FloatArray],
+    sensor: object | None = None,
+) -> FloatArray:
+    """The yaw rate the waveform carries at times t_query (s), deg/s (+ = CCW): the gyro's
+    ratiometric output read back through ``sensor`` (an hdrd.sensor.SensorModel; default
+    the CRS03-04's), with the voltages interpolated linearly as firmware/sim/run does."""
+    from hdrd.sensor import SensorModel
+
+    m = sensor if isinstance(sensor, SensorModel) else SensorModel()
+    t, v, vs = wave
+    tq = np.asarray(t_query, dtype=np.float64)
+    k = np.interp(tq, t, vs) / m.supply_nominal_v
+    return m.polarity * (np.interp(tq, t, v) - m.null_v * k) / (m.scale_v_per_dps * k)
 
 
 def main(argv: list[str] | None = None) -> int:

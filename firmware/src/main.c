@@ -88,6 +88,13 @@ _Static_assert(HDR_BIN_LEN * 10UL * 1000000UL / HDR_BAUD < FRAME_US, "BAUD too l
 #define BAUD HDR_BAUD
 #define BAUD_TOL 3 /* 115200 at 16 MHz is +2.1 % (U2X, UBRR 16), as every Arduino sends it */
 #include <util/setbaud.h>
+#if USE_2X
+#define BAUD_REAL (F_CPU / (8UL * (UBRR_VALUE + 1UL)))
+#else
+#define BAUD_REAL (F_CPU / (16UL * (UBRR_VALUE + 1UL)))
+#endif
+_Static_assert(100UL * BAUD_REAL <= 103UL * HDR_BAUD && 100UL * BAUD_REAL >= 97UL * HDR_BAUD,
+               "BAUD: this clock cannot make that speed within 3 % (at 8 MHz use 57600)");
 
 #define TX_SIZE 64u /* power of two, > HDR_TEXT_MAX */
 static uint8_t tx_buf[TX_SIZE];
