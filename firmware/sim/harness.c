@@ -364,7 +364,7 @@ static void open_pty(const char *link)
     /* Wait for the reader, then let its open-time flush (pyserial) pass. */
     while (!reader_present())
         usleep(20000);
-    usleep(200000);
+    usleep(500000);
 }
 
 static double wall_s(void)
