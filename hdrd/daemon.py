@@ -149,10 +149,16 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     if g("nmea_udp"):
         o["output.nmea_udp"] = tuple(args.nmea_udp)
     if g("gpsd"):
-        host, _, port = args.gpsd.rpartition(":")
+        from hdrd.gpsd import parse_address
+
+        try:
+            host, port = parse_address(args.gpsd)
+        except ValueError as e:
+            allowed = f"{e}; give HOST, HOST:PORT, [IPv6] or [IPv6]:PORT (port default 2947)"
+            raise ConfigError("--gpsd", args.gpsd, allowed) from None
         o["gpsd.enabled"] = True
-        o["gpsd.host"] = host or "127.0.0.1"
-        o["gpsd.port"] = int(port) if port.isdigit() else -1
+        o["gpsd.host"] = host
+        o["gpsd.port"] = port
     return o
 
 
