@@ -22,11 +22,16 @@ from collections.abc import Iterator
 import pytest
 
 from hdrd.daemon import WatchdogGate
+from hdrd.publish import parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
+    Msgs,
+    Receiver,
     constant_turn,
+    fast_config,
     hdrd,
     receivers,
+    resume_after_device_back,
     run_args,
     steps_of,
     wait_port_open,
@@ -224,6 +229,59 @@ def test_the_watchdog_is_fed_while_the_device_is_away(hdrd, receivers, tmp_path)
     notify.wait(lambda xs: xs.count("WATCHDOG=1") >= 5, what="5 watchdog pings, no device")
     rx.wait(lambda ms: len(ms) >= 1 and ms[-1]["status"] == "stale", what="stale reports")
     assert d.stop() == 0 and not d.traceback
+
+
+@pytest.mark.slow
+def test_no_hdt_while_the_gyro_is_unplugged(hdrd, receivers, fake_gyro, tmp_path):
+    """A pulled cable: the JSON stale reports hold the heading; the NMEA output says so with
+    THS V and no HDT (a receiver takes every HDT for a fresh heading), and HDT is back
+    with the steps."""
+    link = tmp_path / "gyro"
+    cfg = fast_config(tmp_path)
+    g = fake_gyro(constant_turn(minutes=5), speedup=4, link=link)
+    rx = receivers()
+    ns = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ns.bind(("127.0.0.1", 0))
+    nm = Receiver(ns, parse_nmea)
+    try:
+        d = hdrd(
+            *run_args("--config", str(cfg), "--port", str(link), "--bias", "0", "--udp", rx.addr),
+            "--nmea-udp",
+            f"127.0.0.1:{ns.getsockname()[1]}",
+            "--nmea-ths",
+        )
+        resume_after_device_back(g, d)
+        wait_port_open(d, link)
+        g.start()
+        rx.wait(lambda ms: len(steps_of(ms)) >= 4, what="4 steps")
+        g.pull(3.0)
+
+        def resumed(ms: Msgs) -> bool:
+            gaps = [i for i, m in enumerate(ms) if "gap_s" in m]
+            return bool(gaps) and len(ms) > gaps[0] + 3
+
+        rx.wait(resumed, what="steps after the cable is back")
+        assert d.stop() == 0 and not d.traceback
+        ms = rx.snapshot()
+        sentences = nm.wait(
+            lambda xs: sum(k.endswith("THS") for k, _ in xs) >= len(ms), what="THS per message"
+        )
+    finally:
+        nm.close()
+    groups: list[dict[str, list[str]]] = [{}]
+    for kind, fields in sentences:  # each message: [HDT] ROT THS, in order
+        groups[-1][kind[2:]] = fields
+        if kind.endswith("THS"):
+            groups.append({})
+    stale = [(m, grp) for m, grp in zip(ms, groups) if m["status"] == "stale"]
+    live = [(m, grp) for m, grp in zip(ms, groups) if m["status"] != "stale"]
+    assert stale and live
+    for m, grp in stale:
+        assert "HDT" not in grp and grp["ROT"] == ["", "V"]
+        assert grp["THS"] == [f"{m['heading']:.2f}", "V"]
+    for m, grp in live:
+        assert grp["HDT"] == [f"{m['heading']:.2f}", "T"] and grp["THS"][1] == "E"
+        assert grp["ROT"][1] == "A"
 
 
 # -- the rule, unit by unit ---------------------------------------------------------------
