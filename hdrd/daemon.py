@@ -491,6 +491,8 @@ class Daemon:
         if now - self._dropped_log_at < self.DROP_LOG_INTERVAL_S:
             return
         total = self._dropped()
+        if total < self._dropped_logged:  # the publishers were rebuilt (SIGHUP)
+            self._dropped_logged = 0
         if total > self._dropped_logged:
             log.warning(
                 "output_dropped",

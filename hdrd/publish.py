@@ -65,6 +65,7 @@ __all__ = [
     "nmea_sentence",
     "nmea_sentences",
     "parse_nmea",
+    "printable",
     "tail_main",
 ]
 
