@@ -723,7 +723,7 @@ class GpsdLink:
 
     :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
     and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
-    fix). :meth:`aid` on each batch of messages before they are published: each gains
+    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
     ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
     :class:`hdrd.aiding.GpsAiding`), and a learned bias correction goes to
     ``Pipeline.adjust_bias(delta, "gps")``.
@@ -736,6 +736,8 @@ class GpsdLink:
         self.aiding = aiding
         self._clock = clock
         self._mode: str | None = None
+        self._bad_logged = 0
+        self._bad_log_at = -math.inf
 
     @classmethod
     def from_config(cls, gpsd_cfg: Any, step_s: float = 1.0) -> GpsdLink:
@@ -746,11 +748,24 @@ class GpsdLink:
         client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
         return cls(client, GpsAiding(aiding_config(gpsd_cfg, step_s)))
 
+    BAD_LOG_INTERVAL_S = 10.0
+    """At most one ``gpsd_bad_lines`` warning per this many seconds."""
+
     def poll(self, pipeline: Any, now: float | None = None) -> None:
         now = self._clock() if now is None else now
         for f in self.client.poll():
             self.aiding.on_fix(f, now)
         pipeline.set_speed(self.aiding.speed(now))
+        bad = self.client.stats.bad_lines
+        if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
+            errors = self.client.stats.errors
+            log.warning(
+                "gpsd_bad_lines",
+                total=bad,
+                new=bad - self._bad_logged,
+                last=errors[-1] if errors else None,
+            )
+            self._bad_logged, self._bad_log_at = bad, now
 
     def aid(
         self, msgs: list[dict[str, Any]], pipeline: Any, now: float | None = None

@@ -147,6 +147,8 @@ def test_lines_no_parser_can_use_do_not_stop_run_gpsd(
     )
     assert d.alive and d.stop() == 0 and not d.traceback, d.other[-10:]
     assert all(m.get("gps_speed", 0.0) >= 0.0 for m in ms)  # no negative speed published
+    bad = d.named("gpsd_bad_lines")  # counted and said (at most every 10 s)
+    assert bad and bad[0]["total"] >= 1 and "too many digits" in bad[0]["last"]
 
 
 @pytest.mark.slow
