@@ -114,10 +114,10 @@ def _run(p: argparse.ArgumentParser) -> None:
     _method(p)
     p.add_argument(
         "--gpsd",
-        metavar="HOST:PORT",
+        metavar="HOST[:PORT]",
         nargs="?",
         const="127.0.0.1:2947",
-        help="aid with GPS from gpsd",
+        help="aid with GPS from gpsd (default 127.0.0.1:2947; IPv6 as [::1]:2947)",
     )
     p.add_argument("--log-format", choices=("auto", "json", "console"), help="log format on stderr")
 
