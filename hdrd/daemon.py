@@ -28,7 +28,7 @@ from hdrd.calibrate import (
     BiasRecord,
     MotionDetected,
     StandstillLimits,
-    estimate_bias,
+    StartupWindow,
     load_bias,
     save_bias,
 )
@@ -296,6 +296,7 @@ def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
         params=cfg.hdr.params,
         method=cfg.hdr.method,
         bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
@@ -705,8 +706,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
 
     src = open_source(cfg, bool(getattr(args, "simulate", False)))
     clock = DeviceClock()
-    omega: list[float] = []
-    temps: list[float] = []
+    window = StartupWindow(limits=standstill_limits(cfg))  # the daemon's start-up window, too
     t0: int | None = None
     t_last = 0
     next_report = 1.0
@@ -725,7 +725,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
                 continue
             if isinstance(item, DeviceBack):
                 print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, omega, temps, t0, next_report = DeviceClock(), [], [], None, 1.0
+                clock, t0, next_report = DeviceClock(), None, 1.0
+                window.clear()
                 continue
             if isinstance(item, EndOfInput):
                 break
@@ -738,13 +739,11 @@ def calibrate_main(args: argparse.Namespace) -> int:
             if elapsed >= seconds:
                 t_last = t
                 break
-            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
-            omega.append(w)
-            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
+            window.add(cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
             t_last = t
             if elapsed >= next_report:
                 print(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}",
+                    f"  {elapsed:5.1f} / {seconds:g} s  mean {window.mean_dps:+.4f} deg/s  n {window.n}",
                     flush=True,
                 )
                 next_report += 1.0
@@ -762,14 +761,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         )
         return 1
     try:
-        import numpy as np
-
-        rec = estimate_bias(
-            np.asarray(omega),
-            temp_c=np.asarray(temps),
-            limits=standstill_limits(cfg),
-            when=time.time(),
-        )
+        rec = window.measure(when=time.time())
     except MotionDetected as e:
         print(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
