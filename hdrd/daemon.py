@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import socket
@@ -140,6 +141,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "output.heading0_deg": g("heading0"),
         "hdr.method": g("method"),
         "log.format": g("log_format"),
+        "log.level": g("log_level"),
         "simulate.drive": g("drive"),
         "simulate.speedup": g("speedup"),
         "calibration.bias_file": g("bias_file"),
@@ -169,6 +171,22 @@ def config_from_args(args: argparse.Namespace) -> tuple[Config, str]:
 # -- bias ---------------------------------------------------------------------------------
 
 
+def check_bias_arg(value: float | None, cfg: Config) -> None:
+    """``--bias`` must be a finite rate within +/- ``calibration.max_bias_dps`` (deg/s): a
+    NaN or infinite bias would leave the daemon with no rate, yaw or heading. ConfigError
+    (exit 78) naming the flag, the value and what is allowed."""
+    if value is None:
+        return
+    limit = cfg.calibration.max_bias_dps
+    if not (math.isfinite(value) and abs(value) <= limit):
+        raise ConfigError(
+            "--bias",
+            value,
+            f"must be a finite number within +/-{limit:g} deg/s (calibration.max_bias_dps)",
+            "command line",
+        )
+
+
 @dataclass(frozen=True)
 class BiasChoice:
     record: BiasRecord | None  # None: measure at start-up
@@ -188,7 +206,7 @@ def choose_bias(cfg: Config, bias_arg: float | None) -> BiasChoice:
     if not explicit and not path.exists():
         return BiasChoice(None, "startup")
     try:
-        return BiasChoice(load_bias(path), str(path))
+        return BiasChoice(load_bias(path, cfg.calibration.max_bias_dps), str(path))
     except BiasFileError as e:
         if cfg.calibration.on_bad_bias_file == "calibrate" and not (explicit and not path.exists()):
             log.warning(
@@ -210,16 +228,25 @@ class _Signals:
         self._old: dict[int, Any] = {}
 
     def install(self) -> None:
+        """Take over SIGTERM, SIGINT and SIGHUP (idempotent). A SIGHUP that came while
+        ``hdrd.cli`` held it (between start and now) is a reload to do."""
+        if self._old:
+            return
         for sig, handler in (
             (signal.SIGTERM, self._on_stop),
             (signal.SIGINT, self._on_stop),
             (signal.SIGHUP, self._on_hup),
         ):
             self._old[sig] = signal.signal(sig, handler)
+        from hdrd.cli import take_held_hangup
+
+        if take_held_hangup():
+            self.reload = True
 
     def restore(self) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+        self._old.clear()
 
     def _on_stop(self, signum: int, frame: FrameType | None) -> None:
         self.stop = True
@@ -231,7 +258,7 @@ class _Signals:
 def standstill_limits(cfg: Config) -> StandstillLimits:
     """The standstill test's thresholds from the calibration section (deg/s)."""
     c = cfg.calibration
-    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps)
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
 
 
 def _gps_link(cfg: Config) -> Any:
@@ -320,19 +347,58 @@ def _stop_all(pubs: list[Any]) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd run``."""
+    # First of all: from here on SIGHUP reloads and SIGTERM stops, even during start-up
+    # (hdrd.cli holds SIGHUP from argument parsing until here).
+    signals = _Signals()
+    signals.install()
     try:
         cfg, where = config_from_args(args)
+        check_bias_arg(getattr(args, "bias", None), cfg)
     except ConfigError as e:
         print(f"hdrd: {e}", file=sys.stderr)
+        signals.restore()
         return EX_CONFIG
+    problem = _closed_stdio(cfg)
+    if problem:
+        print(f"hdrd: {problem}", file=sys.stderr)
+        signals.restore()
+        return 1
     setup_logging(cfg.log.level, cfg.log.format)
     try:
         bias = choose_bias(cfg, getattr(args, "bias", None))
     except BiasFileError as e:
         log.error("bias_file_invalid", error=str(e))
         print(f"hdrd: {e}", file=sys.stderr)
+        signals.restore()
         return 1
-    return Daemon(cfg, where, args, bias).run()
+    return Daemon(cfg, where, args, bias, signals).run()
+
+
+def _closed_stdio(cfg: Config) -> str | None:
+    """Started with stdout or stderr closed (``hdrd run >&-``): Python leaves sys.stdout
+    None. Publishing to stdout is then impossible (the message says so); otherwise the
+    descriptor is pointed at /dev/null, so that no port or socket opened later becomes
+    fd 1 or 2 and receives stray output. stderr likewise, for the log."""
+    o = cfg.output
+    if sys.stdout is None and (o.stdout or not (o.udp or o.nmea_udp)):
+        return (
+            "stdout is closed and is the only output configured; give --udp or --nmea-udp "
+            "(or output.udp / output.nmea_udp), or start hdrd with stdout open"
+        )
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is not None:
+            continue
+        try:
+            os.fstat(fd)
+            continue  # the number is taken already (not ours to close)
+        except OSError:
+            pass
+        null = os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC)
+        if null != fd:
+            os.dup2(null, fd, inheritable=False)
+            os.close(null)
+        setattr(sys, name, open(fd, "w", closefd=False))  # noqa: SIM115 - for the process
+    return None
 
 
 class Daemon:
@@ -349,7 +415,14 @@ class Daemon:
     """Pausing stops this long before the step-closing frame can arrive (:mod:`hdrd.pacing`),
     so that frame is read as it arrives."""
 
-    def __init__(self, cfg: Config, where: str, args: argparse.Namespace, bias: BiasChoice) -> None:
+    def __init__(
+        self,
+        cfg: Config,
+        where: str,
+        args: argparse.Namespace,
+        bias: BiasChoice,
+        signals: _Signals | None = None,
+    ) -> None:
         from hdrd.pipeline import Pipeline
 
         self.cfg = cfg
@@ -358,7 +431,7 @@ class Daemon:
         self.simulate = bool(getattr(args, "simulate", False))
         self.bias_choice = bias
         self.pipeline = Pipeline(_pipeline_config(cfg, bias.record))
-        self.signals = _Signals()
+        self.signals = signals or _Signals()
         self.notifier = SdNotifier()
         self.publishers: list[Any] = []
         self.ready = False

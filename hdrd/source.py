@@ -23,10 +23,12 @@ The serial byte reader with its reconnect loop, :class:`SerialReader`, is shared
 from __future__ import annotations
 
 import dataclasses
+import errno
 import io
 import math
 import os
 import select
+import socket
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -36,6 +38,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 import serial
+from serial.urlhandler import protocol_socket
 
 from hdrd.drivelog import DriveLog
 from hdrd.frames import (
@@ -256,6 +259,48 @@ _READ_MAX = 65536
 """Most bytes taken from the port per read: 4096 hdr-bin frames, 0.2 s of a 3 Mbaud link."""
 
 
+CONNECT_TIMEOUT_S = 5.0
+"""A ``socket://`` connection not made within this long is a failed open (pyserial's)."""
+CONNECT_POLL_S = 0.05
+"""While a ``socket://`` connection is being made, how often ``read`` looks at it, s."""
+START_CONNECT_WAIT_S = 1.0
+"""At construction, how long a ``socket://`` connection may take before the reader reports
+the device lost and goes on connecting in the background (during ``read`` calls)."""
+
+
+class _SocketPort(protocol_socket.Serial):
+    """pyserial's ``socket://`` port on a socket that :class:`SerialReader` connected without
+    blocking. Why: pyserial's own open blocks up to 5 s in ``create_connection`` (a listener
+    with a full backlog never answers), and its close sleeps 0.3 s; both would stall the
+    daemon's loop while it reconnects."""
+
+    def adopt(self, sock: socket.socket) -> None:
+        """Become open on ``sock`` (connected), as pyserial's ``open`` would leave it."""
+        self.logger = None
+        sock.setblocking(False)
+        self._socket = sock
+        self.is_open = True
+
+    def close(self) -> None:
+        if self.is_open and self._socket is not None:
+            try:
+                self._socket.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self._socket.close()
+        self._socket = None  # type: ignore[assignment] # pyserial's own close does the same
+        self.is_open = False
+
+
+def _busy_reason(e: BaseException, url: str) -> str | None:
+    """The user's message if ``e`` says another program holds the port (pyserial's
+    ``exclusive=True`` lock, or a device that refuses a second opener), else None."""
+    text = str(e)
+    if "exclusively lock" in text or getattr(e, "errno", None) == errno.EBUSY:
+        return f"{url} is in use by another program (another hdrd run, calibrate or record?)"
+    return None
+
+
 def _fd_poll(port: Any) -> tuple[int, select.poll] | None:
     """(descriptor, poller) for the direct read path of a plain local port (``serial.Serial``
     on POSIX: a device path or a pty), None for URL handlers (``loop://``, ``socket://``,
@@ -306,7 +351,10 @@ class SerialReader:
         self._closed = False
         self._report: DeviceLost | None = None
         self._fd_poll: tuple[int, select.poll] | None = None
+        self._connecting: tuple[socket.socket, float] | None = None  # socket://, in progress
         self.last_error: str | None = None
+        self.busy = False
+        """The last open failed because another program holds the port (its lock)."""
         try:
             # Validates the URL (unknown schemes raise here), without touching the device.
             serial.serial_for_url(url, baudrate=baud, do_not_open=True)
@@ -314,7 +362,17 @@ class SerialReader:
             raise ValueError(f"unusable serial port URL {url!r}: {e}") from None
         except (OSError, serial.SerialException):
             pass  # e.g. a socket:// host that does not resolve yet: treated as a lost device
-        if not self._open():
+        opened = self._open()
+        if not opened and self._connecting is not None:
+            # A connection under way: give it a moment before calling the device lost.
+            deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
+            while not opened and self._connecting is not None:
+                left = deadline - self.clock.monotonic()
+                if left <= 0:
+                    break
+                self._wait_connect(min(left, CONNECT_POLL_S))
+                opened = self._open()
+        if not opened:
             self._report = DeviceLost(self.last_error or "cannot open")
             self.stats.lost += 1
 
@@ -323,21 +381,101 @@ class SerialReader:
         return self.port is not None
 
     def _open(self) -> bool:
+        """One attempt to open the port: True if open (for ``socket://``, False while the
+        connection is still being made, with the next look due in CONNECT_POLL_S)."""
+        if self.url.startswith("socket://"):
+            return self._open_socket()
         try:
-            port = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0, do_not_open=True)
+            # exclusive: a second hdrd (calibrate on the daemon's port) gets a clear error
+            # instead of stealing frames; pyserial locks the device with flock(2).
+            port = serial.serial_for_url(
+                self.url, baudrate=self.baud, timeout=0, exclusive=True, do_not_open=True
+            )
             port.open()
         except Exception as e:  # noqa: BLE001 - any failure to open is "still lost"
-            self.last_error = _reason(e)
-            self.stats.open_failures += 1
-            now = self.clock.monotonic()
-            self._next_try = now + self._backoff
-            self._backoff = min(self._backoff * 2, self.reconnect_max_s)
+            self._open_failed(e)
             return False
+        self._adopt(port)
+        return True
+
+    def _open_failed(self, e: BaseException | str) -> None:
+        if isinstance(e, str):
+            self.busy, self.last_error = False, e
+        else:
+            busy = _busy_reason(e, self.url)
+            self.busy, self.last_error = busy is not None, busy or _reason(e)
+        self.stats.open_failures += 1
+        now = self.clock.monotonic()
+        self._next_try = now + self._backoff
+        self._backoff = min(self._backoff * 2, self.reconnect_max_s)
+
+    def _adopt(self, port: Any) -> None:
         self.port = port
+        self.busy = False
         self._timeout = 0
         self._fd_poll = _fd_poll(port)
         self._backoff = self.reconnect_min_s
+
+    def _open_socket(self) -> bool:
+        """``socket://host:port`` connected without blocking: start the connection, then on
+        later calls see whether it is made, failed, or has taken CONNECT_TIMEOUT_S."""
+        now = self.clock.monotonic()
+        if self._connecting is None:
+            try:
+                port = _SocketPort(None)
+                host, tcp_port = port.from_url(self.url)
+                family, kind, proto, _, addr = socket.getaddrinfo(
+                    host, tcp_port, type=socket.SOCK_STREAM
+                )[0]
+                sock = socket.socket(family, kind, proto)
+            except Exception as e:  # noqa: BLE001 - a bad or unresolvable URL: still lost
+                self._open_failed(e)
+                return False
+            sock.setblocking(False)
+            code = sock.connect_ex(addr)
+            if code not in (0, errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK):
+                sock.close()
+                self._open_failed(f"could not connect to {self.url}: {os.strerror(code)}")
+                return False
+            self._connecting = (sock, now + CONNECT_TIMEOUT_S)
+        sock, deadline = self._connecting
+        try:
+            ready = select.select([], [sock], [], 0)[1]
+        except (OSError, ValueError) as e:
+            self._connecting = None
+            sock.close()
+            self._open_failed(e)
+            return False
+        if not ready:
+            if now < deadline:
+                self.last_error = f"connecting to {self.url}: no answer yet"
+                self._next_try = now + CONNECT_POLL_S
+                return False
+            self._connecting = None
+            sock.close()
+            self._open_failed(
+                f"could not connect to {self.url}: no answer in {CONNECT_TIMEOUT_S:g} s"
+            )
+            return False
+        self._connecting = None
+        code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if code:
+            sock.close()
+            self._open_failed(f"could not connect to {self.url}: {os.strerror(code)}")
+            return False
+        port = _SocketPort(None)
+        port._port = self.url  # what pyserial's port.port shows
+        port.adopt(sock)
+        self._adopt(port)
         return True
+
+    def _wait_connect(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for the connection under way to be made or fail."""
+        if self._connecting is not None:
+            try:
+                select.select([], [self._connecting[0]], [], max(timeout, 0.0))
+            except (OSError, ValueError):
+                pass
 
     def _lose(self, e: BaseException) -> DeviceLost:
         self.last_error = _reason(e)
@@ -350,6 +488,9 @@ class SerialReader:
     def _drop_port(self) -> None:
         port, self.port = self.port, None
         self._fd_poll = None
+        if self._connecting is not None:
+            self._connecting[0].close()
+            self._connecting = None
         if port is not None:
             try:
                 port.close()
