@@ -124,7 +124,7 @@ def _run(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
-@command("calibrate", "hdrd.daemon:calibrate_main", "measure the static bias at standstill")
+@command("calibrate", "hdrd.calibrate_cmd:main", "measure the static bias at standstill")
 def _calibrate(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)

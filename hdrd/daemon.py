@@ -26,18 +26,15 @@ from typing import TYPE_CHECKING, Any
 from hdrd.calibrate import (
     BiasFileError,
     BiasRecord,
-    MotionDetected,
     StandstillLimits,
-    estimate_bias,
     load_bias,
-    save_bias,
 )
 from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.hdrplus import HdrPlusParams
 
-__all__ = ["SdNotifier", "calibrate_main", "config_from_args", "default_bias_path", "main"]
+__all__ = ["SdNotifier", "config_from_args", "default_bias_path", "main"]
 
 
 class _LazyLogger:
@@ -665,123 +662,3 @@ class Daemon:
         msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
         self._set_status(f"stale: no data for {silent:.0f} s")
         self._publish([msg], steps=False)  # a stale report is not a step
-
-
-# -- hdrd calibrate ---------------------------------------------------------------------------
-
-
-def calibrate_main(args: argparse.Namespace) -> int:
-    """``hdrd calibrate``: static bias over --seconds at standstill, saved atomically."""
-    try:
-        cfg, _ = config_from_args(args)
-    except ConfigError as e:
-        print(f"hdrd: {e}", file=sys.stderr)
-        return EX_CONFIG
-    setup_logging(cfg.log.level, cfg.log.format)
-    seconds = args.seconds if args.seconds is not None else cfg.calibration.t_bias_s
-    if not seconds > 0:
-        print(f"hdrd: --seconds must be > 0, got {seconds}", file=sys.stderr)
-        return 2
-    path = (
-        Path(args.bias_file)
-        if args.bias_file
-        else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
-    )
-    signals = _Signals()
-    signals.install()
-    from hdrd.resample import DeviceClock
-    from hdrd.source import DeviceBack, DeviceLost, EndOfInput
-
-    src = open_source(cfg, bool(getattr(args, "simulate", False)))
-    clock = DeviceClock()
-    omega: list[float] = []
-    temps: list[float] = []
-    t0: int | None = None
-    t_last = 0
-    next_report = 1.0
-    print(f"calibrating: keep the vehicle still for {seconds:g} s", flush=True)
-    try:
-        while not signals.stop:
-            item = src.recv(0.1)
-            if item is None:
-                continue
-            if isinstance(item, DeviceLost):
-                print(
-                    f"device lost ({item.reason}); waiting for it to come back",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                continue
-            if isinstance(item, DeviceBack):
-                print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, omega, temps, t0, next_report = DeviceClock(), [], [], None, 1.0
-                continue
-            if isinstance(item, EndOfInput):
-                break
-            t = clock.unwrap(item.t_us)
-            if t is None:
-                continue
-            if t0 is None:
-                t0 = t
-            elapsed = (t - t0) / 1e6
-            if elapsed >= seconds:
-                t_last = t
-                break
-            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
-            omega.append(w)
-            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
-            t_last = t
-            if elapsed >= next_report:
-                print(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}",
-                    flush=True,
-                )
-                next_report += 1.0
-    finally:
-        src.close()
-        signals.restore()
-    if signals.stop:
-        print("calibration interrupted; bias file not written", file=sys.stderr)
-        return 0
-    duration = 0.0 if t0 is None else (t_last - t0) / 1e6
-    if duration < seconds * 0.99:
-        print(
-            f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written",
-            file=sys.stderr,
-        )
-        return 1
-    try:
-        import numpy as np
-
-        rec = estimate_bias(
-            np.asarray(omega),
-            temp_c=np.asarray(temps),
-            limits=standstill_limits(cfg),
-            when=time.time(),
-        )
-    except MotionDetected as e:
-        print(
-            f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
-        )
-        return 1
-    rec = replace(rec, duration_s=duration)
-    try:
-        save_bias(path, rec)
-    except OSError as e:
-        print(f"hdrd calibrate: cannot write {path}: {e.strerror or e}", file=sys.stderr)
-        return 1
-    print(
-        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
-        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
-        + f") written to {path}",
-        flush=True,
-    )
-    log.info(
-        "calibrated",
-        bias_dps=rec.bias_dps,
-        std_dps=rec.std_dps,
-        samples=rec.n,
-        path=str(path),
-        source="calibrate",
-    )
-    return 0

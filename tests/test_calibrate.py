@@ -370,3 +370,42 @@ def test_a_well_formed_body_loads(tmp_path: Path) -> None:
     p = tmp_path / "bias.yaml"
     p.write_text(_body())
     assert load_bias(p) == BiasRecord(0.5, 0.05, 300, 30.0, None, 1.0)
+
+
+# -- the window's device time (SampleClock) -------------------------------------------------------
+
+
+def test_sample_clock_sets_a_glitch_aside() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    t = [k * 100_000 for k in range(50)]
+    t[20] += 1_800_000_000  # one frame 30 min ahead
+    kept = [c.accept(x) for x in t]
+    assert kept.count(False) == 1 and not kept[20] and c.glitches == 1
+    assert c.elapsed_us == 4_900_000  # the 49 steps of the good frames only
+
+
+def test_sample_clock_repeats_steps_back_and_the_wrap() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    base = 2**32 - 250_000  # wraps after two frames
+    seq = [base, base + 100_000, base + 100_000, base + 50_000, (base + 200_000) % 2**32,
+           (base + 300_000) % 2**32]  # fmt: skip
+    assert [c.accept(x) for x in seq] == [True, True, False, False, True, True]
+    assert c.elapsed_us == 300_000 and c.glitches == 2
+
+
+def test_sample_clock_follows_a_real_jump() -> None:
+    # The device clock jumps for good (a reset, or frames lost for a while): after a few
+    # frames that step normally among themselves, the clock follows them; the jump itself
+    # is not counted as time at standstill.
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock(confirm=3)
+    before = [k * 100_000 for k in range(10)]
+    after = [50_000_000 + k * 100_000 for k in range(10)]
+    kept = [c.accept(x) for x in before + after]
+    assert kept[:10] == [True] * 10 and kept[10:13] == [False] * 3 and all(kept[13:])
+    assert c.elapsed_us == 900_000 + 7 * 100_000  # from the third frame after the jump
