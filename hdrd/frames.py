@@ -880,10 +880,10 @@ def decode_capture(
         ok = _crc_ok(a, cand)
         parts.append(cand[ok])
         if not ok.all():
-            bad = cand[~ok]
-            failed += bad.shape[0]
+            failed_here = cand[~ok]
+            failed += failed_here.shape[0]
             if failed_parts is not None:
-                failed_parts.append(bad)
+                failed_parts.append(failed_here)
                 if failed > _KEEP_FAILED:
                     failed_parts = None
     valid = np.concatenate(parts) if parts else np.empty(0, np.int64)
