@@ -189,7 +189,12 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--speedup", type=float, default=1.0, help="1 = real time; 0 = as fast as possible"
     )
-    p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), default="hdr-bin")
+    p.add_argument(
+        "--protocol",
+        choices=("hdr-bin", "hdr-text"),
+        default="hdr-bin",
+        help="frame format (default hdr-bin)",
+    )
     p.add_argument(
         "--link",
         metavar="PATH",
@@ -303,7 +308,7 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     "evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)"
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("drives", nargs="+", metavar="DRIVE.csv")
+    p.add_argument("drives", nargs="+", metavar="DRIVE.csv", help="drive logs with a true heading")
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--calibrate-seconds",
@@ -359,7 +364,9 @@ def _tune(p: argparse.ArgumentParser) -> None:
     "gap", "hdrd.analysis.gap:main", "find the gyro effects a model misses (model-gap workflow)"
 )
 def _gap(p: argparse.ArgumentParser) -> None:
-    p.add_argument("measured", metavar="MEASURED.csv")
+    p.add_argument(
+        "measured", metavar="MEASURED.csv", help="drive log of the real gyro (raw rates, deg/s)"
+    )
     p.add_argument(
         "--model",
         metavar="MODEL.yaml",
