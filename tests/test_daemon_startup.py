@@ -71,11 +71,20 @@ def test_sighup_with_a_file_the_yaml_parser_cannot_take_keeps_the_old_config(
     d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0.2")
     g.start()
     u.messages(lambda ms: len(ms) >= 1)
+
+    def fifo() -> None:
+        cfg.unlink()
+        os.mkfifo(cfg)
+
+    def too_big() -> None:
+        cfg.unlink()
+        cfg.write_text(good + "#" * (2 << 20) + "\n")
+
     breakages = [
         ("digits", lambda: cfg.write_text(good + "hdr:\n  c2: " + "1" * 5000 + "\n")),
         ("depth", lambda: cfg.write_text(good + "x: " + "[" * 2000 + "]" * 2000 + "\n")),
-        ("fifo", lambda: (cfg.unlink(), os.mkfifo(cfg))),
-        ("big", lambda: (cfg.unlink(), cfg.write_text(good + "#" * (2 << 20) + "\n"))),
+        ("fifo", fifo),
+        ("big", too_big),
     ]
     for _, breakage in breakages:
         breakage()
