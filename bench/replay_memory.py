@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """Replay's memory: peak RSS of ``hdrd replay`` on ordinary and hostile captures.
 
-    python bench/replay_memory.py [--code DIR] [--workdir /tmp/hdrd-bench] [--no-write]
+    python bench/replay_memory.py [--before DIR] [--workdir /tmp/hdrd-bench] [--no-write]
 
 Takes about 30 s. Each capture is replayed by ``python -m hdrd replay CAPTURE --bias 0.1`` as a
 process, its output to /dev/null; the figure is the child's peak resident set (``ru_maxrss``
-from ``wait4``). ``--code DIR`` runs the hdrd found in DIR instead of this repository's (how
-the "before" column of bench/RESULTS.md was taken, from a checkout of the earlier commit).
+from ``wait4``). ``--before DIR`` also runs the hdrd found in DIR (a checkout of an earlier
+commit, e.g. ``git archive COMMIT | tar -x -C DIR``) and shows both.
 
 The captures (made once in the work directory):
 
@@ -101,23 +101,28 @@ def peak_rss_mb(code: Path, capture: Path) -> tuple[float, int, str]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--code", type=Path, default=REPO, help="hdrd source tree to run")
+    ap.add_argument("--before", type=Path, help="an earlier hdrd source tree to compare")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/hdrd-bench"))
     ap.add_argument("--no-write", action="store_true", help="print only")
     args = ap.parse_args()
+    trees = ([("before", args.before.resolve())] if args.before else []) + [("this tree", REPO)]
+    head = "| capture | MB | " + " | ".join(f"{n}: peak RSS, MB | exit" for n, _ in trees)
     rows = []
     for name, path in captures(args.workdir):
-        mb, rc, last = peak_rss_mb(args.code.resolve(), path)
-        size = path.stat().st_size / 1e6
-        rows.append(f"| `{name}` | {size:.1f} | {mb:.0f} | {rc} | {last[:70]} |")
-        print(rows[-1], flush=True)
-    code = "this tree" if args.code.resolve() == REPO else str(args.code)
+        cells = [f"`{name}`", f"{path.stat().st_size / 1e6:.1f}"]
+        for _, code in trees:
+            mb, rc, last = peak_rss_mb(code, path)
+            cells += [f"{mb:.0f}", str(rc)]
+        rows.append("| " + " | ".join(cells) + " |")
+        print(rows[-1], f"({last[:60]})" if last else "", flush=True)
+    before = f"; before = {args.before}" if args.before else ""
     table = "\n".join(
         [
-            f"`python bench/replay_memory.py` (hdrd from {code}); {machine_line()}",
+            f"`python bench/replay_memory.py{' --before DIR' if args.before else ''}`{before}; "
+            f"{machine_line()}",
             "",
-            "| capture | MB | peak RSS, MB | exit | last line on stderr |",
-            "|---|---|---|---|---|",
+            head + " |",
+            "|---|---|" + "---|---|" * len(trees),
             *rows,
         ]
     )

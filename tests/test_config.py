@@ -662,3 +662,20 @@ def test_a_config_that_is_not_a_regular_file_or_too_big(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as ei:
         load_config(big)
     assert "larger than the 1 MiB allowed" in check_error(ei.value, "(file)", str(big))
+
+
+def test_docs_state_the_ranges_the_code_checks() -> None:
+    # docs/configuration.md's table gives each bounded key's range as the code words it.
+    doc = (SHIPPED.parent.parent / "docs" / "configuration.md").read_text()
+    rows = dict(re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", doc, flags=re.MULTILINE))
+    bounded = [k for k, (check, _) in config_mod.RULES.items() if hasattr(check, "bounds")]
+    for key in bounded:
+        shared_row = key.startswith("gpsd.") or key in (
+            "calibration.max_std_dps",
+            "calibration.max_trend_dps",
+            "calibration.max_excursion_dps",
+        )
+        if shared_row:
+            continue
+        allowed = config_mod.RULES[key][1].removeprefix("a finite number ")
+        assert rows.get(key, "").strip() == allowed, key

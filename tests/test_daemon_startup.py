@@ -263,15 +263,17 @@ def test_a_socket_port_whose_listener_never_answers_does_not_stall_the_loop(
         fillers.append(c)
     try:
         cfg = tmp_path / "hdrd.yaml"
-        cfg.write_text("device:\n  stale_after_s: 0.2\nhdr:\n  T: 0.5\n")
+        cfg.write_text("device:\n  stale_after_s: 0.2\nhdr:\n  T: 0.2\n")
         u = udp()
         d = daemon(
             "--config", str(cfg), "--port", f"socket://127.0.0.1:{port}", "--bias", "0",
             "--udp", u.addr,
         )  # fmt: skip
-        # One stale report per T (0.5 s) while the connection is tried: 12 of them come in
-        # ~6 s; a loop that stands 5 s per connection attempt needs a minute (WAIT is 30 s).
-        got = u.messages(lambda ms: len(ms) >= 12)
+        # One stale report per T (0.2 s) while the connection is tried: 60 of them come in
+        # ~12 s. A loop that stands 5 s in each attempt (pyserial's connect timeout; the
+        # attempts 0.5, 1, 2, 4 ... s apart) is free a quarter of the time: it needs ~50 s,
+        # beyond WAIT (30 s).
+        got = u.messages(lambda ms: len(ms) >= 60)
         assert {m["status"] for m in got} == {"stale"}
         rc, _, err = d.stop()
         assert rc == 0 and b"Traceback" not in err
