@@ -385,9 +385,15 @@ def builtin_profile(
             raise ProfileError(
                 f"{name} must be a finite number {'> 0' if name == 'hz' else '>= 0'}, got {v!r}"
             )
-    n = int(round((lead_in_s + minutes * 60.0) * hz))
-    if n < 1:
-        raise ProfileError(f"a drive of {minutes} min at {hz} Hz has no samples")
+    for name, v in (
+        ("rate_dps", rate_dps),
+        ("bias_dps", bias_dps),
+        ("noise_dps", noise_dps),
+        ("temp_c", temp_c),
+    ):
+        if not math.isfinite(v):
+            raise ProfileError(f"{name} must be a finite number, got {v!r}")
+    n = _profile_samples(minutes, hz, lead_in_s)
     t = np.arange(n, dtype=np.float64) / hz
     truth = np.where(t >= lead_in_s, rate_dps if drive == "constant" else 0.0, 0.0)
     rng = np.random.default_rng(seed)
@@ -409,6 +415,26 @@ def builtin_profile(
     )
 
 
+MAX_PROFILE_SAMPLES = 50_000_000
+"""Most samples a generated drive may have (each a few float64 columns: ~1 GB at most)."""
+
+
+def _profile_samples(minutes: float, hz: float, lead_in_s: float = 0.0) -> int:
+    """Samples of a drive of ``minutes`` after ``lead_in_s`` at ``hz``; ProfileError if it
+    has none or more than MAX_PROFILE_SAMPLES (1e308 minutes used to overflow, 1e6 minutes
+    to fill the memory)."""
+    total = (lead_in_s + minutes * 60.0) * hz
+    if not total <= MAX_PROFILE_SAMPLES:
+        raise ProfileError(
+            f"a drive of {minutes:g} min at {hz:g} Hz is {total:.3g} samples; "
+            f"at most {MAX_PROFILE_SAMPLES:,} are made"
+        )
+    n = int(round(total))
+    if n < 1:
+        raise ProfileError(f"a drive of {minutes} min at {hz} Hz has no samples")
+    return n
+
+
 def load_profile(
     drive: str, minutes: float = 20.0, seed: int = 1, hz: float = 10.0, rate_dps: float = 0.0
 ) -> DriveLog:
@@ -416,6 +442,10 @@ def load_profile(
     any other name comes from the simulator, ``hdrd.sim.simulate_drive`` (imported lazily)."""
     if drive in BUILTIN_DRIVES:
         return builtin_profile(drive, minutes, seed, hz, rate_dps)
+    for name, v in (("minutes", minutes), ("hz", hz)):
+        if not (math.isfinite(v) and v > 0):
+            raise ProfileError(f"{name} must be a finite number > 0, got {v!r}")
+    _profile_samples(minutes, hz)
     try:
         from hdrd.sim import simulate_drive
     except ImportError as e:

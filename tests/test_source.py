@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -499,3 +501,22 @@ def test_the_port_is_opened_exclusively(fake_gyro) -> None:
         assert time.monotonic() < deadline
     assert second.is_open and not second.busy
     second.close()
+
+
+@pytest.mark.parametrize(
+    "kw, why",
+    [
+        ({"minutes": 1e308}, "is inf samples; at most 50,000,000 are made"),
+        ({"minutes": 1e6}, "is 6e+08 samples"),
+        ({"hz": 1e308}, "is inf samples"),
+        ({"rate_dps": math.nan}, "rate_dps must be a finite number, got nan"),
+        ({"rate_dps": math.inf}, "rate_dps must be a finite number, got inf"),
+    ],
+)
+def test_a_drive_too_long_or_not_finite_is_a_profile_error(kw: dict, why: str) -> None:
+    # Was an OverflowError (1e308 minutes), a memory exhaustion (1e6 minutes), or NaN counts.
+    for drive in ("constant", "mixed"):
+        if drive == "mixed" and "rate_dps" in kw:
+            continue
+        with pytest.raises(ProfileError, match=re.escape(why)):
+            load_profile(drive, **kw)
