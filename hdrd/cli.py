@@ -279,7 +279,11 @@ def _convert(p: argparse.ArgumentParser) -> None:
 
 @command("simulate", "hdrd.sim.cli:simulate_main", "simulate a drive and its gyro into a drive log")
 def _simulate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--drive", default="mixed", choices=DRIVES, help="the drive (default mixed)")
+    p.add_argument(
+        "--drive",
+        default="mixed",
+        help="city|suburbs|rural|highway|mixed|standstill (default mixed)",
+    )
     p.add_argument(
         "--minutes",
         type=float,
