@@ -1,11 +1,13 @@
-"""``hdrd run`` and ``hdrd calibrate``: the edge that wires source -> pipeline -> publishers.
+"""``hdrd run``: the edge that wires source -> pipeline -> publishers (and the configuration,
+bias and signal helpers that ``hdrd calibrate``, in :mod:`hdrd.calibrate_cmd`, shares).
 
 Everything with a clock, a port, a socket or a signal lives here; the stages it wires are
 pure (:mod:`hdrd.pipeline`). Behaviour under trouble, as gpsd does it: a lost device is
 reported ("stale") and reopened with backoff, the heading carrying on; a publisher that
 fails never stops the loop; SIGTERM/SIGINT end it cleanly (exit 0) within a second; SIGHUP
 reloads the configuration, keeping the heading, and keeps the old one if the new one is
-invalid; systemd is told READY=1, STATUS= and WATCHDOG=1 through ``$NOTIFY_SOCKET``.
+invalid (and a SIGHUP during start-up is a reload, not the end); systemd is told READY=1,
+STATUS= and WATCHDOG=1 through ``$NOTIFY_SOCKET``.
 """
 
 from __future__ import annotations
