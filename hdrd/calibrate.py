@@ -43,6 +43,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.errors import HdrdError
+
 __all__ = [
     "T_BIAS_S",
     "BiasFileError",
@@ -69,11 +71,11 @@ NOISE_TEST_MIN_SAMPLES = 6
 fewer (Gaussian noise alone would fail them 1 time in 100 with 5 samples, 1 in 4 with 3)."""
 
 
-class MotionDetected(ValueError):
+class MotionDetected(HdrdError, ValueError):
     """The calibration window does not look like standstill; the message says why."""
 
 
-class BiasFileError(ValueError):
+class BiasFileError(HdrdError, ValueError):
     """A bias file is missing, unreadable, truncated or holds invalid values."""
 
 

@@ -19,7 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from hdrd.calibrate import MotionDetected, estimate_bias, save_bias
-from hdrd.config import EX_CONFIG, Config, ConfigError
+from hdrd.config import Config, ConfigError
 from hdrd.daemon import (
     _Signals,
     config_from_args,
@@ -29,6 +29,7 @@ from hdrd.daemon import (
     setup_logging,
     standstill_limits,
 )
+from hdrd.errors import EX_CONFIG
 
 __all__ = ["main"]
 

@@ -20,7 +20,6 @@ from types import FrameType
 
 from hdrd import __version__
 
-EX_CONFIG = 78  # sysexits.h; also hdrd.config.EX_CONFIG (not imported here: keeps --help light)
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
 

@@ -2,7 +2,7 @@
 
 Pure apart from :func:`load_config` reading the file. An invalid value raises
 :class:`ConfigError`, whose one-line message names the key, the value and what is allowed;
-the CLI turns it into exit status 78 (EX_CONFIG, sysexits.h). Defaults are the paper's
+the CLI turns it into exit status 78 (:data:`hdrd.errors.EX_CONFIG`). Defaults are the paper's
 (Table III, Tbias = 30 s, T = 1 s; see :mod:`hdrd.hdr` and :mod:`hdrd.calibrate`) and the
 CRS03-04's (:mod:`hdrd.sensor`); ``config/hdrd.yaml`` ships them with comments, and a test
 keeps that file and these defaults equal.
@@ -19,12 +19,12 @@ from typing import Any
 
 from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
+from hdrd.errors import HdrdError
 from hdrd.hdr import HdrParams
 from hdrd.sensor import SensorModel
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
-    "EX_CONFIG",
     "CalibrationConfig",
     "Config",
     "ConfigError",
@@ -40,15 +40,13 @@ __all__ = [
     "parse_hostport",
 ]
 
-EX_CONFIG = 78
-"""sysexits.h: configuration error."""
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
 
 PROTOCOLS = ("hdr-bin", "hdr-text")
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 
 
-class ConfigError(ValueError):
+class ConfigError(HdrdError, ValueError):
     """An invalid configuration. ``str()`` is the one line shown to the user."""
 
     def __init__(self, key: str, value: Any, allowed: str, source: str | None = None) -> None:

@@ -31,7 +31,8 @@ from hdrd.calibrate import (
     StandstillLimits,
     load_bias,
 )
-from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
+from hdrd.config import Config, ConfigError, apply_overrides, load_config
+from hdrd.errors import EX_CONFIG
 
 if TYPE_CHECKING:
     from hdrd.hdrplus import HdrPlusParams

@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.errors import HdrdError
+
 __all__ = ["COLUMNS", "OPTIONAL", "DriveLog", "DriveLogError", "read_drive", "write_drive"]
 
 COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed")
@@ -35,7 +37,7 @@ OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed")
 FloatArray = npt.NDArray[np.float64]
 
 
-class DriveLogError(ValueError):
+class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
 
 

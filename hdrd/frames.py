@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.errors import HdrdError
 from hdrd.resample import CLOCK_WRAP_US, RESET_THRESHOLD_US
 
 __all__ = [
@@ -88,7 +89,7 @@ FRAME_DTYPE = np.dtype(
 12 bytes). ``temp`` is in 0.01 degC with -32768 = not fitted; ``ref`` 0 = not wired."""
 
 
-class FrameError(ValueError):
+class FrameError(HdrdError, ValueError):
     """Bytes that are not a valid frame (bad sync, length, CRC, checksum or field)."""
 
 

@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
+from hdrd.errors import HdrdError
+
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
 
@@ -75,7 +77,7 @@ report from a real gpsd."""
 log = structlog.get_logger("hdrd")
 
 
-class GpsdProtocolError(ValueError):
+class GpsdProtocolError(HdrdError, ValueError):
     """A line that is not a gpsd JSON report; ``str()`` says why."""
 
 

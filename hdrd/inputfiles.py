@@ -14,6 +14,8 @@ import os
 import stat
 from typing import Any
 
+from hdrd.errors import HdrdError
+
 __all__ = [
     "MAX_BIAS_BYTES",
     "MAX_CAPTURE_BYTES",
@@ -43,7 +45,7 @@ _KINDS = (
 )
 
 
-class InputFileError(ValueError):
+class InputFileError(HdrdError, ValueError):
     """A file that cannot be taken. ``str()`` is the problem, without the path; ``where``
     is "line L, column C" for a YAML problem that has a position, else None."""
 

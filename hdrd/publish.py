@@ -43,6 +43,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TextIO
 
 from hdrd.config import parse_hostport
+from hdrd.errors import HdrdError
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -84,7 +85,7 @@ NMEA_TALKER = "HN"
 """NMEA 0183 talker: heading, non-north-seeking gyro."""
 
 
-class OutputClosed(Exception):
+class OutputClosed(HdrdError):
     """The reader of an output stream went away (EPIPE): the daemon should end, exit 0."""
 
 
@@ -900,12 +901,8 @@ class TailFormatter:
         return out, notes, count
 
 
-class _Stop(Exception):
-    pass
-
-
 def _raise_stop(signum: int, frame: object) -> None:
-    raise _Stop
+    raise KeyboardInterrupt  # SIGTERM ends ``hdrd tail`` as Ctrl-C does: status 0
 
 
 def _write(stream: TextIO, lines: Sequence[str]) -> None:
@@ -955,7 +952,7 @@ def tail_main(args: argparse.Namespace) -> int:
             _write(sys.stdout, out)
             seen += n
         return 0
-    except (KeyboardInterrupt, _Stop):
+    except KeyboardInterrupt:
         return 0
     except BrokenPipeError:
         _silence(sys.stdout)

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.calibrate import BiasFileError, BiasRecord, load_bias
-from hdrd.config import EX_CONFIG, Config, ConfigError
+from hdrd.config import Config, ConfigError
+from hdrd.errors import EX_CONFIG
 
 __all__ = ["convert_main", "main", "replay_capture", "replay_steps"]
 

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.drivelog import DriveLog
+from hdrd.errors import HdrdError
 from hdrd.frames import (
     FRAME_DTYPE,
     TEMP_NOT_FITTED,
@@ -355,7 +356,7 @@ class ReplaySource(_ParsedSource):
 BUILTIN_DRIVES = ("standstill", "constant")
 
 
-class ProfileError(ValueError):
+class ProfileError(HdrdError, ValueError):
     """A drive profile that cannot be made (unknown drive, simulator missing, bad value)."""
 
 

@@ -39,6 +39,7 @@ import numpy.typing as npt
 
 from hdrd.analysis.allan import gauss_markov_adev
 from hdrd.drivelog import DriveLog
+from hdrd.errors import HdrdError
 from hdrd.sim.gyro import (
     DEFAULT_START_MODEL,
     EFFECTS,
@@ -146,7 +147,7 @@ GAP_METRIC = (
 )
 
 
-class GapError(ValueError):
+class GapError(HdrdError, ValueError):
     """The log cannot be analysed (no truth, too short, ...); the message says why."""
 
 

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from hdrd.drivelog import write_drive
+from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.gyro import GyroModel, load_model
@@ -23,8 +24,6 @@ from hdrd.sim.vehicle import DRIVE_TYPES
 
 __all__ = ["simulate_main"]
 
-EX_USAGE = 2
-EX_CONFIG = 78
 
 
 def _err(msg: str) -> None:
