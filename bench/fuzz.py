@@ -49,7 +49,6 @@ import numpy.typing as npt
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdrd.frames import (
-    BIN_FRAME_LEN,
     FRAME_DTYPE,
     Parser,
     ParserStats,
@@ -60,6 +59,7 @@ from hdrd.frames import (
     encode_text,
 )
 from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.protocol import BIN_FRAME_LEN
 from hdrd.resample import unwrap_us
 from hdrd.sensor import SensorModel
 

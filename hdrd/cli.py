@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterator, Sequence
 from types import FrameType
 
 from hdrd import __version__
+from hdrd.protocol import PROTOCOLS
 
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
@@ -95,7 +96,7 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
         "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
     )
     p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
     )
 
 
@@ -209,7 +210,7 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--protocol",
-        choices=("hdr-bin", "hdr-text"),
+        choices=PROTOCOLS,
         default="hdr-bin",
         help="frame format (default hdr-bin)",
     )
@@ -273,7 +274,7 @@ def _replay(p: argparse.ArgumentParser) -> None:
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
     p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
     )
     _bias_group(p)
     _config(p)
@@ -287,7 +288,7 @@ def _convert(p: argparse.ArgumentParser) -> None:
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
     p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
     )
     p.add_argument(
         "--out", metavar="CSV", required=True, help="drive log to write (raw rates, deg/s)"

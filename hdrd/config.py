@@ -21,6 +21,7 @@ from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
 from hdrd.errors import HdrdError
 from hdrd.hdr import HdrParams
+from hdrd.protocol import NMEA_TALKER, PROTOCOLS
 from hdrd.sensor import SensorModel
 
 __all__ = [
@@ -42,7 +43,6 @@ __all__ = [
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
 
-PROTOCOLS = ("hdr-bin", "hdr-text")
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 
 
@@ -155,7 +155,7 @@ class OutputConfig:
     """HOST:PORT destinations of NMEA 0183 ($HNHDT, $HNROT)."""
     nmea_ths: bool = False
     """Also send $HNTHS."""
-    nmea_talker: str = "HN"
+    nmea_talker: str = NMEA_TALKER
     """NMEA talker ID: HN (non-north-seeking gyro); gpsd reads HC (compass), not HN."""
 
 

@@ -44,16 +44,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.drivelog import DriveLog
-from hdrd.frames import (
-    FRAME_DTYPE,
-    PROTOCOLS,
-    SYNC,
-    Frame,
-    array_to_frames,
-    encode_array,
-    encode_text,
-)
-from hdrd.resample import CLOCK_WRAP_US
+from hdrd.frames import FRAME_DTYPE, Frame, array_to_frames, encode_array, encode_text
+from hdrd.protocol import CLOCK_WRAP_US, PROTOCOLS, SYNC
 from hdrd.sensor import SensorModel
 from hdrd.source import ProfileError, load_profile, profile_frames
 

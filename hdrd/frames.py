@@ -36,16 +36,21 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError
-from hdrd.resample import CLOCK_WRAP_US, RESET_THRESHOLD_US
+from hdrd.protocol import (
+    BIN_FRAME_LEN,
+    CLOCK_WRAP_US,
+    PROTOCOLS,
+    RESET_THRESHOLD_US,
+    SEQ_REORDER_WINDOW,
+    SYNC,
+    TEMP_NOT_FITTED,
+    TEXT_MAX_LINE,
+    TEXT_SYNC,
+)
 
 __all__ = [
-    "BIN_FRAME_LEN",
     "CRC_TABLE",
     "FRAME_DTYPE",
-    "PROTOCOLS",
-    "SEQ_REORDER_WINDOW",
-    "SYNC",
-    "TEMP_NOT_FITTED",
     "CaptureStats",
     "Frame",
     "FrameError",
@@ -64,18 +69,6 @@ __all__ = [
     "encode_text",
     "frames_to_array",
 ]
-
-PROTOCOLS = ("hdr-bin", "hdr-text")
-SYNC = b"\xa5\x5a"
-BIN_FRAME_LEN = 16
-TEMP_NOT_FITTED = -32768
-"""hdr-bin temp value meaning "no temperature sensor fitted" (``Frame.temp_cc is None``)."""
-TEXT_SYNC = b"$HDRG,"
-TEXT_MAX_LINE = 96
-"""Longest hdr-text line the parser waits for, bytes (a valid line has at most 47)."""
-SEQ_REORDER_WINDOW = 64
-"""A sequence number at most this far behind the last one is a repeat or reordering (the
-frame is kept, the counter not moved back); further behind is a device restart."""
 
 _BODY = struct.Struct("<HIHHhH")  # seq, t_us, rate, ref, temp, crc: bytes 2..15
 _PAYLOAD = struct.Struct("<HIHHh")  # bytes 2..13, the CRC's input

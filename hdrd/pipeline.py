@@ -16,7 +16,8 @@ evaluated exactly as the daemon would have run it. The caller owns the clock: th
 of a message is passed in, and ``None`` leaves it out (as replay does, having no wall clock for
 recorded bytes).
 
-Message fields are documented in docs/protocol.md ("Published messages"). An unknown value
+Message fields are documented in docs/protocol.md ("Published messages"); their names, order
+and schema version are in :mod:`hdrd.protocol`. An unknown value
 is left out, never sent as null or 0.
 """
 
@@ -34,21 +35,17 @@ from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.hdr import HdrParams, HdrState
 from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
 from hdrd.sensor import SensorModel
 
 __all__ = [
-    "SCHEMA_VERSION",
-    "Message",
     "Pipeline",
     "PipelineConfig",
     "Stepper",
     "heading_from_yaw",
 ]
 
-SCHEMA_VERSION = 1
-Message = dict[str, Any]
-TEMP_NOT_FITTED = -32768
 
 
 class FrameLike(Protocol):
@@ -217,7 +214,7 @@ class Stepper:
     ) -> Message:
         """Step the block and publish it: step number and device time ``t`` (s) as the
         owner counts them, gap_s: seconds without samples before it (0 = none)."""
-        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         msg["t"] = t
@@ -502,7 +499,7 @@ class Pipeline:
         self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
     ) -> Message:
         """What to publish while no sample arrives: no new step, the heading held."""
-        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         if self._last_step is not None:

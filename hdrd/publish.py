@@ -1,7 +1,7 @@
 """Publishers: where each HDR step's message goes, and ``hdrd tail``, which prints it.
 
 A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
-"Published messages"): ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
+"Published messages", and :mod:`hdrd.protocol`): ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
 Yaw rates are deg/s, positive counter-clockwise seen from above (a left turn); yaw is degrees
 CCW since start; heading is compass degrees, clockwise from north, in [0, 360). A value that
 is not known is absent from the dict, never None or 0; keys we do not know are passed through.
@@ -44,15 +44,13 @@ from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TextIO
 
 from hdrd.config import parse_hostport
 from hdrd.errors import HdrdError
+from hdrd.protocol import MESSAGE_CLASS, NMEA_TALKER, RATE_VALID_STATUSES
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
 
 __all__ = [
     "DEFAULT_TAIL_LISTEN",
-    "MESSAGE_CLASS",
-    "RATE_VALID_STATUSES",
-    "SCHEMA_VERSION",
     "DestinationStats",
     "OutputClosed",
     "Publisher",
@@ -70,19 +68,8 @@ __all__ = [
     "tail_main",
 ]
 
-MESSAGE_CLASS = "HDR"
-"""The ``"class"`` of a per-step message (gpsd style: every object names its class)."""
-SCHEMA_VERSION = 1
-"""The ``"v"`` of a per-step message; bumped only for incompatible changes."""
 DEFAULT_TAIL_LISTEN = "127.0.0.1:10110"
 """Where ``hdrd tail`` listens by default (10110: the registered NMEA-0183 port)."""
-RATE_VALID_STATUSES = frozenset({"ok", "turning", "standstill", "aided", "dead-reckoning"})
-"""Statuses of a live step, whose rate and heading are current: $HNHDT is sent, $HNROT says
-A (valid) and $HNTHS A or E. In any other status (``stale``: no data, the heading held;
-``calibrating``; a status this version does not know) no $HNHDT is sent and $HNROT and
-$HNTHS say V. ``standstill`` (HDR+'s zero-rate update) is valid: the rate is known to be 0."""
-NMEA_TALKER = "HN"
-"""NMEA 0183 talker: heading, non-north-seeking gyro."""
 
 
 class OutputClosed(HdrdError):

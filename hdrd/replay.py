@@ -168,6 +168,7 @@ def convert_main(args: argparse.Namespace) -> int:
 
     from hdrd.drivelog import DriveLog, write_drive
     from hdrd.frames import decode_capture
+    from hdrd.protocol import TEMP_NOT_FITTED
     from hdrd.resample import DeviceClock
 
     loaded = _config_and_capture(args, "convert")
@@ -181,7 +182,7 @@ def convert_main(args: argparse.Namespace) -> int:
         return _no_frames("convert", args.capture, cfg.device.protocol, stats)
     omega = cfg.sensor.to_dps_array(frames["rate"], frames["ref"])
     temp = frames["temp"].astype(np.float64)
-    has_temp = frames["temp"] != -32768
+    has_temp = frames["temp"] != TEMP_NOT_FITTED
     log = DriveLog(
         t=(t_us - t_us[0]) / 1e6,
         omega=omega,

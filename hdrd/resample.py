@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.protocol import CLOCK_WRAP_US, RESET_THRESHOLD_US
+
 __all__ = [
-    "CLOCK_WRAP_US",
     "Block",
     "BlockAverager",
     "DeviceClock",
@@ -32,10 +33,7 @@ __all__ = [
     "unwrap_us",
 ]
 
-CLOCK_WRAP_US = 1 << 32
-_HALF_WRAP = 1 << 31
-RESET_THRESHOLD_US = 1_000_000
-"""A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
+_HALF_WRAP = CLOCK_WRAP_US >> 1
 
 
 class DeviceClock:

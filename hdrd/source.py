@@ -37,15 +37,8 @@ import numpy.typing as npt
 
 from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
-from hdrd.frames import (
-    FRAME_DTYPE,
-    TEMP_NOT_FITTED,
-    Frame,
-    Parser,
-    ParserStats,
-    array_to_frames,
-)
-from hdrd.resample import CLOCK_WRAP_US
+from hdrd.frames import FRAME_DTYPE, Frame, Parser, ParserStats, array_to_frames
+from hdrd.protocol import CLOCK_WRAP_US, TEMP_NOT_FITTED
 from hdrd.sensor import SensorModel
 from hdrd.serialport import (
     Clock,

@@ -11,8 +11,6 @@ from hypothesis import strategies as st
 
 from hdrd.frames import (
     FRAME_DTYPE,
-    PROTOCOLS,
-    SYNC,
     Frame,
     FrameError,
     Parser,
@@ -30,6 +28,7 @@ from hdrd.frames import (
     encode_text,
     frames_to_array,
 )
+from hdrd.protocol import PROTOCOLS, SYNC
 from tests.test_rel_bytes import scan_bin_reference
 
 

@@ -31,9 +31,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.frames import (
-    BIN_FRAME_LEN,
     FRAME_DTYPE,
-    SYNC,
     Frame,
     FrameError,
     Parser,
@@ -45,6 +43,7 @@ from hdrd.frames import (
     encode_text,
 )
 from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.protocol import BIN_FRAME_LEN, SYNC
 from hdrd.sensor import SensorModel
 
 TEXT_SYNC = b"$HDRG,"

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd.protocol import CLOCK_WRAP_US
 from hdrd.resample import (
-    CLOCK_WRAP_US,
     Block,
     BlockAverager,
     DeviceClock,

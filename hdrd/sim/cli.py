@@ -25,7 +25,6 @@ from hdrd.sim.vehicle import DRIVE_TYPES
 __all__ = ["simulate_main"]
 
 
-
 def _err(msg: str) -> None:
     print(f"hdrd simulate: {msg}", file=sys.stderr)
 
