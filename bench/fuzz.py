@@ -48,6 +48,7 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hdrd.clocks import unwrap_us
 from hdrd.frames import (
     FRAME_DTYPE,
     Parser,
@@ -60,7 +61,6 @@ from hdrd.frames import (
 )
 from hdrd.pipeline import Pipeline, PipelineConfig
 from hdrd.protocol import BIN_FRAME_LEN
-from hdrd.resample import unwrap_us
 from hdrd.sensor import SensorModel
 
 TEXT_SYNC = b"$HDRG,"

@@ -50,7 +50,6 @@ __all__ = [
     "BiasFileError",
     "BiasRecord",
     "MotionDetected",
-    "SampleClock",
     "StandstillLimits",
     "StartupWindow",
     "atomic_write_json",
@@ -317,55 +316,6 @@ class StartupWindow:
         self._temp = []
         self.closed = 0
         return rec
-
-
-class SampleClock:
-    """How much device time a calibration window spans, robust to a glitched timestamp.
-
-    Pure. ``accept(t_us)`` takes each sample's raw 32-bit device time (us, wrapping at
-    2**32) and says whether the sample counts. :attr:`elapsed_us` sums the forward steps
-    between counted samples; a step is counted only if it is forward and at most
-    ``max_step_us``. A sample whose step is not (one CRC-valid frame with a wild clock, a
-    repeat, a step back) is set aside and counted in :attr:`glitches`, so one bad frame can
-    neither end a 30 s window after 2 s nor stretch it. If ``confirm`` set-aside samples in
-    a row step normally among themselves, the device clock really jumped (a reset, frames
-    lost for a while): the clock continues from them, the jump itself not counted.
-    """
-
-    __slots__ = ("_cand", "_cand_n", "_last", "confirm", "elapsed_us", "glitches", "max_step_us")
-
-    def __init__(self, max_step_us: int = 2_000_000, confirm: int = 3) -> None:
-        self.max_step_us = max_step_us
-        self.confirm = confirm
-        self.elapsed_us = 0
-        self.glitches = 0
-        self._last: int | None = None
-        self._cand: int | None = None  # the last set-aside sample, a possible new reference
-        self._cand_n = 0  # set-aside samples in a row that step normally among themselves
-
-    def _step_ok(self, prev: int, t_us: int) -> bool:
-        return 0 < (t_us - prev) % (1 << 32) <= self.max_step_us
-
-    def accept(self, t_us: int) -> bool:
-        """True if the sample at raw device time ``t_us`` counts (see the class doc)."""
-        if self._last is None:
-            self._last = t_us
-            return True
-        if self._step_ok(self._last, t_us):
-            self.elapsed_us += (t_us - self._last) % (1 << 32)
-            self._last = t_us
-            self._cand, self._cand_n = None, 0
-            return True
-        self.glitches += 1
-        if self._cand is not None and self._step_ok(self._cand, t_us):
-            self._cand_n += 1
-        else:
-            self._cand_n = 1
-        self._cand = t_us
-        if self._cand_n >= self.confirm:  # the device clock moved for good: follow it
-            self._last = t_us
-            self._cand, self._cand_n = None, 0
-        return False
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:

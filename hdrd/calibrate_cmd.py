@@ -2,7 +2,7 @@
 
 The edge around :func:`hdrd.calibrate.estimate_bias`: it opens the port (exclusively, as
 the daemon does: a port in use is an error at once), times the window by the device clock
-(:class:`hdrd.calibrate.SampleClock`, which a glitched timestamp cannot end early), gives
+(:class:`hdrd.clocks.SampleClock`, which a glitched timestamp cannot end early), gives
 up when no frame comes for ``calibration.no_data_timeout_s``, and writes the file
 atomically. Progress goes to stdout; a reader that goes away (``| head -1``) does not stop
 the measurement, and the result is then said on stderr.
@@ -108,7 +108,7 @@ def _calibrate(
 ) -> int:
     from array import array
 
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
     from hdrd.source import DeviceBack, DeviceLost, EndOfInput
 
     def fail(why: str) -> int:

@@ -377,7 +377,7 @@ class ParserStats:
     is at most :data:`SEQ_REORDER_WINDOW` behind the last (kept, but the counter is not moved
     back). seq_resets: larger backward jumps (a device restart). clock_wraps: device-clock
     wraps at 2**32 us. clock_back: device-clock steps that did not go forward (a step back of
-    more than 1 s resets the reference, like :class:`hdrd.resample.DeviceClock`).
+    more than 1 s resets the reference, like :class:`hdrd.clocks.DeviceClock`).
     """
 
     frames: int = 0

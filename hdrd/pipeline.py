@@ -33,10 +33,11 @@ import numpy.typing as npt
 
 from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
+from hdrd.clocks import DeviceClock
 from hdrd.hdr import HdrParams, HdrState
 from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, PlusOutput, PlusState
 from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
-from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
+from hdrd.resample import Block, BlockAverager, Missing
 from hdrd.sensor import SensorModel
 
 __all__ = [

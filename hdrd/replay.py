@@ -166,10 +166,10 @@ def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv``: every frame as a drive-log row (raw deg/s)."""
     import numpy as np
 
+    from hdrd.clocks import DeviceClock
     from hdrd.drivelog import DriveLog, write_drive
     from hdrd.frames import decode_capture
     from hdrd.protocol import TEMP_NOT_FITTED
-    from hdrd.resample import DeviceClock
 
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):

@@ -17,8 +17,8 @@ exactly what :class:`hdrd.frames.CaptureStats` ``.bad_before`` gives for a whole
 so a live run and a replay of the same bytes publish the same counts.
 
 The serial byte reader with its reconnect loop, :class:`SerialReader`, lives in
-:mod:`hdrd.serialport` (shared with ``hdrd record``); its clocks and link events are
-re-exported here.
+:mod:`hdrd.serialport` (shared with ``hdrd record``); its link events are re-exported here,
+the clocks are in :mod:`hdrd.clocks`.
 """
 
 from __future__ import annotations
@@ -35,31 +35,21 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.clocks import Clock, RealClock
 from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
 from hdrd.frames import FRAME_DTYPE, Frame, Parser, ParserStats, array_to_frames
 from hdrd.protocol import CLOCK_WRAP_US, TEMP_NOT_FITTED
 from hdrd.sensor import SensorModel
-from hdrd.serialport import (
-    Clock,
-    DeviceBack,
-    DeviceLost,
-    LinkStats,
-    ManualClock,
-    RealClock,
-    SerialReader,
-)
+from hdrd.serialport import DeviceBack, DeviceLost, LinkStats, SerialReader
 
 __all__ = [
     "BUILTIN_DRIVES",
-    "Clock",
     "DeviceBack",
     "DeviceLost",
     "EndOfInput",
     "LinkStats",
-    "ManualClock",
     "ProfileError",
-    "RealClock",
     "ReplaySource",
     "SerialReader",
     "SerialSource",

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd.clocks import ManualClock
 from hdrd.drivelog import DriveLog
 from hdrd.frames import (
     FRAME_DTYPE,
@@ -29,7 +30,6 @@ from hdrd.source import (
     DeviceBack,
     DeviceLost,
     EndOfInput,
-    ManualClock,
     ProfileError,
     ReplaySource,
     SerialReader,
