@@ -31,19 +31,17 @@ calibrate`` and ``hdrd evaluate`` gather their standstill samples in it and meas
 
 from __future__ import annotations
 
-import glob
 import math
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError
+from hdrd.files import atomic_write_text
 
 __all__ = [
     "T_BIAS_S",
@@ -52,8 +50,6 @@ __all__ = [
     "MotionDetected",
     "StandstillLimits",
     "StartupWindow",
-    "atomic_write_json",
-    "atomic_write_text",
     "estimate_bias",
     "load_bias",
     "noise_sigma",
@@ -318,50 +314,6 @@ class StartupWindow:
         return rec
 
 
-def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
-    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
-
-    Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
-    Temp files that an earlier writer left behind (killed, or a power cut, before its rename)
-    are removed first, so they never pile up; one writer per target at a time is assumed (a
-    concurrent writer would lose its temp file and fail with an OSError, the target intact).
-    """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
-        try:
-            stale.unlink()
-        except OSError:
-            pass  # not ours to insist on; at worst one more leftover
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    dfd = os.open(target.parent, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
-
-
-def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
-    """:func:`atomic_write_text` of ``doc`` as indented JSON with a final newline (the
-    ``--json``/``--report`` files of evaluate, tune and gap)."""
-    import json
-
-    atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
-
-
 _BIAS_HEADER = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
 
 
@@ -382,12 +334,12 @@ MAX_BIAS_STD_DPS = 1000.0
 def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = None) -> BiasRecord:
     """Read a bias file; BiasFileError (naming the file and the problem) if it is not whole
     and valid. A truncated file lacks the ``# end`` trailer and is refused. The file must be
-    a regular file of at most :data:`hdrd.inputfiles.MAX_BIAS_BYTES`.
+    a regular file of at most :data:`hdrd.files.MAX_BIAS_BYTES`.
 
     max_abs_bias_dps: refuse a bias_dps beyond +/- this, deg/s (the configuration's
     ``calibration.max_bias_dps``); None: any finite value.
     """
-    from hdrd.inputfiles import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
 
     p = Path(path)
     try:

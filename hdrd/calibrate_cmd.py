@@ -23,13 +23,13 @@ from hdrd.config import Config, ConfigError
 from hdrd.daemon import (
     _Signals,
     config_from_args,
-    default_bias_path,
     log,
     open_source,
     setup_logging,
     standstill_limits,
 )
 from hdrd.errors import EX_CONFIG
+from hdrd.files import default_bias_path
 
 __all__ = ["main"]
 

@@ -469,7 +469,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
-    from hdrd.inputfiles import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")

@@ -33,11 +33,12 @@ from hdrd.calibrate import (
 )
 from hdrd.config import Config, ConfigError, apply_overrides, load_config
 from hdrd.errors import EX_CONFIG
+from hdrd.files import default_bias_path
 
 if TYPE_CHECKING:
     from hdrd.hdrplus import HdrPlusParams
 
-__all__ = ["SdNotifier", "config_from_args", "default_bias_path", "main"]
+__all__ = ["SdNotifier", "config_from_args", "main"]
 
 
 class _LazyLogger:
@@ -160,12 +161,6 @@ def setup_logging(level: str = "info", fmt: str = "auto") -> None:
 
 
 # -- configuration from the command line ----------------------------------------------------
-
-
-def default_bias_path() -> Path:
-    """$STATE_DIRECTORY/bias.yaml under systemd (StateDirectory=hdrd), else /var/lib/hdrd."""
-    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
-    return Path(state or "/var/lib/hdrd") / "bias.yaml"
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:

@@ -6,7 +6,7 @@ lines are bit-identical to what ``hdrd run`` publishes for the same bytes, excep
 (the UNIX time of publication), which a recording does not have and replay leaves out.
 
 Memory follows the file: its bytes (read whole, a regular file of at most
-:data:`hdrd.inputfiles.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
+:data:`hdrd.files.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
 one chunk of frames at a time; never the device time the capture spans
 (bench/replay_memory.py). A file with no valid frame is an error (exit 1), not an empty run.
 """
@@ -85,7 +85,7 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
     from hdrd.daemon import check_bias_arg, config_from_args
-    from hdrd.inputfiles import MAX_CAPTURE_BYTES, InputFileError, read_limited
+    from hdrd.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:
         cfg, _ = config_from_args(args)

@@ -385,7 +385,7 @@ def test_the_unit_runs_unprivileged_and_writes_only_its_state_directory() -> Non
 def test_the_daemon_finds_its_bias_in_the_units_state_directory(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from hdrd.daemon import default_bias_path
+    from hdrd.files import default_bias_path
 
     monkeypatch.setenv("STATE_DIRECTORY", f"{tmp_path}/hdrd")
     assert default_bias_path() == tmp_path / "hdrd" / "bias.yaml"

@@ -441,7 +441,7 @@ def main(args: argparse.Namespace) -> int:
     print(format_table(results))
     if args.json:
         try:
-            from hdrd.calibrate import atomic_write_json
+            from hdrd.files import atomic_write_json
 
             atomic_write_json(args.json, to_json(results))
         except OSError as e:
