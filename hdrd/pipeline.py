@@ -377,7 +377,7 @@ class Pipeline:
         now: Callable[[], float] | None = None,
     ) -> list[Message]:
         """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
-        -32768 = not fitted), as :func:`hdrd.frames.decode_capture` gives.
+        -32768 = not fitted), as :func:`hdrd.capture.decode_capture` gives.
 
         Same messages as :meth:`feed` frame by frame. bad_before[i]: corrupt frames seen
         before frame i in the byte stream.

@@ -1,6 +1,6 @@
 """``hdrd replay`` and ``hdrd convert``: a recorded capture through the daemon's pipeline.
 
-Replay decodes the whole capture at once (:func:`hdrd.frames.decode_capture`) and feeds it
+Replay decodes the whole capture at once (:func:`hdrd.capture.decode_capture`) and feeds it
 to the same :class:`hdrd.pipeline.Pipeline` the daemon uses, as fast as possible; its JSON
 lines are bit-identical to what ``hdrd run`` publishes for the same bytes, except ``time``
 (the UNIX time of publication), which a recording does not have and replay leaves out.
@@ -67,7 +67,7 @@ def replay_capture(
 ) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure.
     bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from hdrd.frames import decode_capture
+    from hdrd.capture import decode_capture
 
     frames, stats = decode_capture(data, cfg.device.protocol)
     out: list[dict[str, Any]] = []
@@ -116,7 +116,7 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.frames import decode_capture
+    from hdrd.capture import decode_capture
     from hdrd.publish import format_json
 
     loaded = _config_and_capture(args, "replay")
@@ -166,9 +166,9 @@ def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv``: every frame as a drive-log row (raw deg/s)."""
     import numpy as np
 
+    from hdrd.capture import decode_capture
     from hdrd.clocks import DeviceClock
     from hdrd.drivelog import DriveLog, write_drive
-    from hdrd.frames import decode_capture
     from hdrd.protocol import TEMP_NOT_FITTED
 
     loaded = _config_and_capture(args, "convert")

@@ -13,7 +13,7 @@ a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.frames
 
 I/O trouble never raises out of ``recv``. ``stats.bad_frames`` is the count of bad frames
 that came before the last frame ``recv`` returned (all of them after a ``None`` or an event),
-exactly what :class:`hdrd.frames.CaptureStats` ``.bad_before`` gives for a whole capture,
+exactly what :class:`hdrd.capture.CaptureStats` ``.bad_before`` gives for a whole capture,
 so a live run and a replay of the same bytes publish the same counts.
 
 The serial byte reader with its reconnect loop, :class:`SerialReader`, lives in

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hdrd.capture import decode_capture
 from hdrd.fakegyro import FakeGyro
-from hdrd.frames import array_to_frames, decode_capture
+from hdrd.frames import array_to_frames
 from hdrd.record import record
 from hdrd.source import SerialReader, builtin_profile
 

@@ -30,6 +30,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd.capture import decode_capture
 from hdrd.frames import (
     FRAME_DTYPE,
     Frame,
@@ -37,7 +38,6 @@ from hdrd.frames import (
     Parser,
     array_to_frames,
     decode_bin,
-    decode_capture,
     encode_array,
     encode_bin,
     encode_text,

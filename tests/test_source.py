@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd.capture import decode_capture
 from hdrd.clocks import ManualClock
 from hdrd.drivelog import DriveLog
 from hdrd.frames import (
@@ -20,7 +21,6 @@ from hdrd.frames import (
     Frame,
     ParserStats,
     array_to_frames,
-    decode_capture,
     encode,
     encode_array,
     encode_bin,
