@@ -164,7 +164,7 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
-@command("tail", "hdrd.publish:tail_main", "print what the daemon publishes (like gpspipe -w)")
+@command("tail", "hdrd.tail:main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--listen",

@@ -22,6 +22,7 @@ from hdrd.calibrate import T_BIAS_S
 from hdrd.errors import HdrdError
 from hdrd.hdr import HdrParams
 from hdrd.protocol import NMEA_TALKER, PROTOCOLS
+from hdrd.publish import parse_hostport
 from hdrd.sensor import SensorModel
 
 __all__ = [
@@ -38,7 +39,6 @@ __all__ = [
     "apply_overrides",
     "load_config",
     "parse_config",
-    "parse_hostport",
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
@@ -75,20 +75,6 @@ def _show(value: Any) -> str:
         if not text.isprintable():  # a quoted scalar folded over lines
             text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
-    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
-    if not isinstance(text, str) or ":" not in text:
-        raise ValueError("expected HOST:PORT")
-    host, _, port_s = text.rpartition(":")
-    if host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    if not port_s.isdigit() or not 0 < int(port_s) < 65536:
-        raise ValueError("port must be 1..65535")
-    if any(c.isspace() for c in host):
-        raise ValueError("host must not contain spaces")
-    return host or default_host, int(port_s)
 
 
 # -- sections ---------------------------------------------------------------------------

@@ -360,7 +360,7 @@ def open_source(cfg: Config, simulate: bool) -> Any:
 def build_publishers(cfg: Config) -> list[Any]:
     """Publishers for the configured outputs; stdout when nothing else is configured."""
     from hdrd import publish
-    from hdrd.config import parse_hostport
+    from hdrd.publish import parse_hostport
 
     o = cfg.output
     pubs: list[Any] = []

@@ -26,10 +26,10 @@ from hdrd.config import (
     config_field_keys,
     load_config,
     parse_config,
-    parse_hostport,
 )
 from hdrd.errors import EX_CONFIG, HdrdError
 from hdrd.hdr import HdrParams
+from hdrd.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
 NAN, INF = math.nan, math.inf
