@@ -47,7 +47,7 @@ from hdrd.drivelog import DriveLog
 from hdrd.frames import FRAME_DTYPE, Frame, array_to_frames, encode_array, encode_text
 from hdrd.protocol import PROTOCOLS, SYNC
 from hdrd.sensor import SensorModel
-from hdrd.source import ProfileError, load_profile, profile_frames
+from hdrd.sim.profiles import ProfileError, load_profile, profile_frames
 
 __all__ = ["FakeGyro", "Injected", "main"]
 

@@ -23,7 +23,7 @@ from hdrd.drivelog import DriveLog
 from hdrd.frames import frames_to_array
 from hdrd.pipeline import Pipeline, PipelineConfig
 from hdrd.publish import nmea_checksum
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
 

@@ -35,7 +35,8 @@ from hdrd.pacing import ReadPacer
 from hdrd.pipeline import Pipeline, PipelineConfig
 from hdrd.publish import _format_clean, format_json
 from hdrd.sim import simulate_drive
-from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource, profile_frames
+from hdrd.sim.profiles import profile_frames
+from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource
 
 FAULTS: dict[str, Any] = {"garbage": 0.01, "crc_errors": 0.005, "drop": 0.002, "seed": 5}
 

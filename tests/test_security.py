@@ -35,7 +35,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "hdrd"

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import math
 import os
-import re
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +12,6 @@ import pytest
 
 from hdrd.capture import decode_capture
 from hdrd.clocks import ManualClock
-from hdrd.drivelog import DriveLog
 from hdrd.frames import (
     FRAME_DTYPE,
     Frame,
@@ -26,19 +22,16 @@ from hdrd.frames import (
     encode_bin,
 )
 from hdrd.sensor import SensorModel
+from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.source import (
     DeviceBack,
     DeviceLost,
     EndOfInput,
-    ProfileError,
     ReplaySource,
     SerialReader,
     SerialSource,
     SimulatedSource,
     Source,
-    builtin_profile,
-    load_profile,
-    profile_frames,
 )
 
 WAIT_S = 20.0  # upper bound for anything that should happen "soon" (never a timing assertion)
@@ -336,41 +329,6 @@ def test_replay_missing_file_is_a_clear_error(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- simulated
 
 
-def test_builtin_profiles() -> None:
-    s = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
-    assert len(s) == 900 and s.rate_hz == pytest.approx(10.0)
-    assert np.all(s.omega_truth == 0) and s.omega.mean() == pytest.approx(0.3, abs=0.01)
-    c = builtin_profile(
-        "constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0
-    )
-    assert c.omega_truth is not None
-    assert np.all(c.omega_truth[:100] == 0) and np.all(c.omega_truth[100:] == -20.0)
-    assert np.allclose(c.omega - c.omega_truth, 0.2)
-    again = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
-    assert np.array_equal(again.omega, s.omega)  # seeded
-    for bad in (dict(drive="loop"), dict(hz=0.0), dict(minutes=-1.0), dict(minutes=float("nan"))):
-        with pytest.raises(ProfileError):
-            builtin_profile(**bad)
-
-
-def test_profile_frames_counts_time_and_temperature() -> None:
-    sensor = SensorModel()
-    log = DriveLog(
-        t=np.array([0.0, 0.1, 0.2, 0.3]),
-        omega=np.array([0.0, 10.0, -10.0, 500.0]),
-        temp_c=np.array([25.0, np.nan, -12.345, 400.0]),
-    )
-    arr = profile_frames(log, sensor, t0_us=2**32 - 150_000, seq0=65535)
-    assert arr["seq"].tolist() == [65535, 0, 1, 2]
-    assert arr["t_us"].tolist() == [2**32 - 150_000, 2**32 - 50_000, 50_000, 150_000]
-    assert arr["rate"].tolist() == sensor.to_counts(log.omega).tolist()
-    assert arr["rate"][3] == sensor.full_scale  # clipped at the rail
-    assert arr["temp"].tolist() == [2500, -32768, -1234, 32767]
-    assert arr["ref"].tolist() == [0] * 4
-    assert profile_frames(log, sensor, supply_v=5.0)["ref"][0] == sensor.ref_counts_for(5.0)
-    assert profile_frames(DriveLog(t=log.t, omega=log.omega))["temp"].tolist() == [-32768] * 4
-
-
 def test_simulated_source_as_fast_as_possible() -> None:
     with SimulatedSource("constant", minutes=0.1, hz=10, rate_dps=5.0, speedup=0) as src:
         got, events = collect(src)
@@ -399,7 +357,6 @@ def test_simulated_source_paced_on_a_clock() -> None:
 
 
 def test_simulated_drive_from_the_simulator() -> None:
-    pytest.importorskip("hdrd.sim")
     log = load_profile("city", minutes=0.2, seed=2, hz=10)
     assert len(log) > 100 and log.omega_truth is not None
     src = SimulatedSource(profile=log, speedup=0)
@@ -407,13 +364,6 @@ def test_simulated_drive_from_the_simulator() -> None:
     assert events == [EndOfInput()] and len(got) == len(log)
     with pytest.raises(ProfileError):
         load_profile("no-such-road", minutes=1)
-
-
-def test_missing_simulator_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, "hdrd.sim", None)  # import hdrd.sim now raises ImportError
-    with pytest.raises(ProfileError, match="needs the simulator"):
-        load_profile("city", minutes=1)
-    assert len(load_profile("standstill", minutes=0.1)) > 0  # built-ins still work
 
 
 def test_sources_satisfy_the_protocol_and_close_idempotently(tmp_path: Path) -> None:
@@ -503,20 +453,3 @@ def test_the_port_is_opened_exclusively(fake_gyro) -> None:
     second.close()
 
 
-@pytest.mark.parametrize(
-    "kw, why",
-    [
-        ({"minutes": 1e308}, "is inf samples; at most 50,000,000 are made"),
-        ({"minutes": 1e6}, "is 6e+08 samples"),
-        ({"hz": 1e308}, "is inf samples"),
-        ({"rate_dps": math.nan}, "rate_dps must be a finite number, got nan"),
-        ({"rate_dps": math.inf}, "rate_dps must be a finite number, got inf"),
-    ],
-)
-def test_a_drive_too_long_or_not_finite_is_a_profile_error(kw: dict, why: str) -> None:
-    # Was an OverflowError (1e308 minutes), a memory exhaustion (1e6 minutes), or NaN counts.
-    for drive in ("constant", "mixed"):
-        if drive == "mixed" and "rate_dps" in kw:
-            continue
-        with pytest.raises(ProfileError, match=re.escape(why)):
-            load_profile(drive, **kw)
