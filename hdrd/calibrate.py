@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from array import array
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -227,6 +228,10 @@ class StartupWindow:
     show motion empty it, and the samples that follow start a new attempt (the daemon keeps
     trying until the vehicle stands still). ``hdrd calibrate`` ends its window by device time
     instead and calls :meth:`measure` itself.
+
+    Samples are kept as C doubles (``array('d')``: 8 bytes each, not a Python float's 32), so
+    an hour of a fast gyro fits in ``hdrd calibrate``; :meth:`measure` hands them to numpy
+    without a copy.
     """
 
     __slots__ = ("_omega", "_temp", "attempts", "block_s", "blocks", "closed", "limits")
@@ -244,8 +249,8 @@ class StartupWindow:
         """Steps of the current attempt closed so far."""
         self.attempts = 0
         """Measurements tried (accepted or rejected)."""
-        self._omega: list[float] = []
-        self._temp: list[float] = []
+        self._omega: array[float] = array("d")
+        self._temp: array[float] = array("d")
 
     @classmethod
     def for_seconds(
@@ -261,8 +266,9 @@ class StartupWindow:
 
     @property
     def mean_dps(self) -> float:
-        """Mean of the samples gathered so far, deg/s (NaN before the first)."""
-        return math.fsum(self._omega) / len(self._omega) if self._omega else math.nan
+        """Mean of the samples gathered so far, deg/s (NaN before the first): their sum in
+        order over their count (``hdrd calibrate``'s progress lines)."""
+        return sum(self._omega) / len(self._omega) if self._omega else math.nan
 
     def add(self, omega_dps: float, temp_c: float | None = None) -> None:
         """One sample of the window."""
@@ -271,17 +277,19 @@ class StartupWindow:
 
     def add_many(self, omega_dps: npt.ArrayLike, temp_c: npt.ArrayLike | None = None) -> None:
         """Samples in order, as :meth:`add` one by one (temp_c NaN = unknown)."""
-        w = np.asarray(omega_dps, dtype=np.float64)
-        self._omega.extend(w.tolist())
+        w = np.ascontiguousarray(omega_dps, dtype=np.float64)
+        self._omega.frombytes(w.tobytes())
         if temp_c is None:
-            self._temp.extend([math.nan] * w.shape[0])
+            self._temp.frombytes(np.full(w.shape[0], math.nan).tobytes())
         else:
-            self._temp.extend(np.asarray(temp_c, dtype=np.float64).tolist())
+            self._temp.frombytes(np.ascontiguousarray(temp_c, dtype=np.float64).tobytes())
 
     def clear(self) -> None:
         """Start again: no samples, no closed steps (a contiguous window was broken)."""
-        self._omega.clear()
-        self._temp.clear()
+        # New arrays, not emptied ones: a failed measure's exception may still hold a numpy
+        # view of the old ones (an array lending its buffer cannot be resized).
+        self._omega = array("d")
+        self._temp = array("d")
         self.closed = 0
 
     def measure(self, when: float = 0.0) -> BiasRecord:
@@ -289,8 +297,8 @@ class StartupWindow:
         Raises MotionDetected (the window is left as it is)."""
         self.attempts += 1
         rec = estimate_bias(
-            np.asarray(self._omega),
-            temp_c=np.asarray(self._temp),
+            np.frombuffer(self._omega, dtype=np.float64),
+            temp_c=np.frombuffer(self._temp, dtype=np.float64),
             limits=self.limits,
             when=when,
         )
@@ -308,9 +316,7 @@ class StartupWindow:
         except MotionDetected:
             self.clear()
             raise
-        self._omega = []
-        self._temp = []
-        self.closed = 0
+        self.clear()
         return rec
 
 
