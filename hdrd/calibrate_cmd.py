@@ -19,17 +19,14 @@ from dataclasses import replace
 from pathlib import Path
 
 from hdrd.calibrate import MotionDetected, estimate_bias, save_bias
+from hdrd.cliargs import config_from_args
 from hdrd.config import Config, ConfigError
-from hdrd.daemon import (
-    _Signals,
-    config_from_args,
-    log,
-    open_source,
-    setup_logging,
-    standstill_limits,
-)
 from hdrd.errors import EX_CONFIG
 from hdrd.files import default_bias_path
+from hdrd.logs import log, setup_logging
+from hdrd.pipeline import standstill_limits
+from hdrd.signals import Signals
+from hdrd.source import SerialSource, open_source
 
 __all__ = ["main"]
 
@@ -95,7 +92,7 @@ def main(args: argparse.Namespace) -> int:
         if args.bias_file
         else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
     )
-    signals = _Signals()
+    signals = Signals()
     signals.install()
     try:
         return _calibrate(cfg, args, seconds, path, signals)
@@ -104,7 +101,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _calibrate(
-    cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: _Signals
+    cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: Signals
 ) -> int:
     from array import array
 
@@ -118,9 +115,9 @@ def _calibrate(
     simulate = bool(getattr(args, "simulate", False))
     src = open_source(cfg, simulate)
     port = "the simulated gyro" if simulate else cfg.device.port
-    if getattr(getattr(src, "reader", None), "busy", False):
+    if isinstance(src, SerialSource) and src.reader.busy:
         src.close()
-        return fail(src.reader.last_error)
+        return fail(src.reader.last_error or "the port is in use")
     out = _Progress()
     timeout = cfg.calibration.no_data_timeout_s
     clock = SampleClock()

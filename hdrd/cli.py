@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from types import FrameType
 
 from hdrd import __version__
 from hdrd.protocol import PROTOCOLS
+from hdrd.signals import hold_hangup
 
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
@@ -437,29 +436,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-# -- SIGHUP during start-up -------------------------------------------------------------------
-
-_held_hangups: list[int] = []
-
-
-def _hold_hangup(signum: int, frame: FrameType | None) -> None:
-    _held_hangups.append(signum)
-
-
-def take_held_hangup() -> bool:
-    """True if a SIGHUP came while held (see :func:`main`); forgets it."""
-    held = bool(_held_hangups)
-    _held_hangups.clear()
-    return held
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    if args.command == "run" and hasattr(signal, "SIGHUP"):
+    if args.command == "run":
         # SIGHUP's default action ends the process: hold it from here, before the slow
         # imports and the config, until the daemon installs its reload handler (which
         # takes a held one as a reload request).
-        signal.signal(signal.SIGHUP, _hold_hangup)
+        hold_hangup()
     module, _, func = args._target.partition(":")
     impl = getattr(importlib.import_module(module), func)
     try:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -40,13 +40,18 @@ from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Messag
 from hdrd.resample import Block, BlockAverager, Missing
 from hdrd.sensor import SensorModel
 
+if TYPE_CHECKING:
+    from hdrd.config import Config
+
 __all__ = [
     "Pipeline",
     "PipelineConfig",
     "Stepper",
     "heading_from_yaw",
+    "pipeline_config",
+    "plus_params",
+    "standstill_limits",
 ]
-
 
 
 class FrameLike(Protocol):
@@ -70,7 +75,8 @@ def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Everything the pipeline needs; the edges build it from :class:`hdrd.config.Config`."""
+    """Everything the pipeline needs; :func:`pipeline_config` builds it from a
+    :class:`hdrd.config.Config`."""
 
     sensor: SensorModel = SensorModel()
     params: HdrParams = HdrParams()
@@ -97,6 +103,46 @@ def _given_bias(config: PipelineConfig) -> BiasRecord | None:
     if rec is not None and rec.bias_dps == config.bias_dps:
         return rec
     return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+
+
+# -- from a configuration ---------------------------------------------------------------------
+
+
+def standstill_limits(cfg: Config) -> StandstillLimits:
+    """The standstill test's thresholds from the calibration section (deg/s)."""
+    c = cfg.calibration
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
+
+
+def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
+    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
+    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings; the
+    static bias of ``bias`` (None: measured at start-up)."""
+    return PipelineConfig(
+        sensor=cfg.sensor,
+        params=cfg.hdr.params,
+        method=cfg.hdr.method,
+        bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
+        startup_s=cfg.calibration.startup_s,
+        limits=standstill_limits(cfg),
+        heading0_deg=cfg.output.heading0_deg,
+        plus=plus_params(cfg),
+    )
+
+
+def plus_params(cfg: Config) -> HdrPlusParams:
+    """HDR+'s parameters with the config's ``standstill.*`` keys applied (run, replay and
+    evaluate use the same)."""
+    plus = HdrPlusParams()
+    return plus.with_(
+        standstill=replace(
+            plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
+        )
+    )
+
+
+# -- stepping ----------------------------------------------------------------------------------
 
 
 class Stepper:

@@ -46,10 +46,9 @@ def replay_steps(
     file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
     from dataclasses import replace
 
-    from hdrd.daemon import _pipeline_config
-    from hdrd.pipeline import Pipeline
+    from hdrd.pipeline import Pipeline, pipeline_config
 
-    pc = replace(_pipeline_config(cfg, None), bias_dps=bias_dps, bias_record=bias_record)
+    pc = replace(pipeline_config(cfg), bias_dps=bias_dps, bias_record=bias_record)
     if startup_s is not None:
         pc = replace(pc, startup_s=startup_s)
     p = Pipeline(pc)
@@ -84,7 +83,7 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
-    from hdrd.daemon import check_bias_arg, config_from_args
+    from hdrd.cliargs import check_bias_arg, config_from_args
     from hdrd.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:

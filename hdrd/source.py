@@ -30,7 +30,7 @@ import os
 from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -41,6 +41,9 @@ from hdrd.frames import Frame, Parser, ParserStats, array_to_frames
 from hdrd.protocol import CLOCK_WRAP_US
 from hdrd.sensor import SensorModel
 from hdrd.serialport import DeviceBack, DeviceLost, LinkStats, SerialReader
+
+if TYPE_CHECKING:
+    from hdrd.config import Config
 
 __all__ = [
     "DeviceBack",
@@ -53,6 +56,7 @@ __all__ = [
     "SimulatedSource",
     "Source",
     "SourceEvent",
+    "open_source",
 ]
 
 
@@ -426,3 +430,24 @@ class SimulatedSource(_SourceBase):
         self._i += 1
         self._stats.frames += 1
         return self._batch.popleft()
+
+
+# --------------------------------------------------------------------------- from a configuration
+
+
+def open_source(cfg: Config, simulate: bool) -> Source:
+    """The configured input (``hdrd run``, ``hdrd calibrate``): the serial device
+    (``device.*``), or the built-in simulated gyro (``simulate.*``)."""
+    if simulate:
+        s = cfg.simulate
+        return SimulatedSource(
+            drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor
+        )
+    d = cfg.device
+    return SerialSource(
+        d.port,
+        protocol=d.protocol,
+        baud=d.baud,
+        reconnect_min_s=d.reconnect_min_s,
+        reconnect_max_s=d.reconnect_max_s,
+    )

@@ -18,11 +18,10 @@ from hdrd.analysis.evaluate import evaluate_prepared, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.calibrate import BiasRecord
 from hdrd.config import Config, parse_config
-from hdrd.daemon import plus_params
 from hdrd.drivelog import DriveLog
 from hdrd.frames import FRAME_DTYPE, encode_array
 from hdrd.methods import names
-from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.pipeline import Pipeline, PipelineConfig, plus_params
 from hdrd.replay import replay_capture
 from hdrd.sensor import SensorModel
 

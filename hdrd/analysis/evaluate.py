@@ -400,8 +400,8 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DIR... [--calibrate-seconds S | --bias DPS] [--json FILE]
     [--plot FILE.png] [--config PATH] [--method METHOD]``."""
     from hdrd.config import ConfigError, load_config
-    from hdrd.daemon import plus_params, standstill_limits
     from hdrd.errors import EX_CONFIG
+    from hdrd.pipeline import plus_params, standstill_limits
 
     try:
         cfg, _ = load_config(args.config)
