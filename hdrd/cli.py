@@ -327,7 +327,7 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)"
+    "evaluate", "hdrd.analysis.evaluate_cmd:main", "heading error without and with HDR (paper Table II)"
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
