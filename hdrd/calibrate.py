@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import os
-import time
 from array import array
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -416,6 +415,3 @@ def _count(data: dict[str, object], key: str) -> int:
     return v
 
 
-def now() -> float:
-    """UNIX time, for callers at the edge that stamp records (kept out of the pure functions)."""
-    return time.time()

@@ -56,7 +56,7 @@ class RealClock:
 
 
 class ManualClock:
-    """A clock that only moves when slept on (or advanced): for tests and offline pacing.
+    """A clock that only moves when slept on: for tests and offline pacing.
     ``slept`` lists every sleep, s."""
 
     def __init__(self, start: float = 0.0) -> None:
@@ -70,9 +70,6 @@ class ManualClock:
         self.slept.append(seconds)
         if seconds > 0:
             self.now += seconds
-
-    def advance(self, seconds: float) -> None:
-        self.now += seconds
 
 
 # -- the device's clock --------------------------------------------------------------------

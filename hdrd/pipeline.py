@@ -24,7 +24,6 @@ is left out, never sent as null or 0.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -420,7 +419,6 @@ class Pipeline:
         self,
         frames: npt.NDArray[Any],
         bad_before: npt.ArrayLike | None = None,
-        now: Callable[[], float] | None = None,
     ) -> list[Message]:
         """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
         -32768 = not fitted), as :func:`hdrd.capture.decode_capture` gives.
@@ -440,7 +438,6 @@ class Pipeline:
                 self.feed(
                     _Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp),
                     int(bad[i]),
-                    now() if now else None,
                 )
             )
             i += 1
@@ -460,7 +457,7 @@ class Pipeline:
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
         for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
-            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), now() if now else None))
+            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
         return out
 
     def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:

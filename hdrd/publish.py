@@ -11,8 +11,8 @@ Two layers, as in pyubx2 (pure codec) and python-can (listeners):
 
 - pure formatting: :func:`format_json` (one JSON line), :func:`nmea_sentences` ($HNHDT,
   $HNROT, optional $HNTHS) and :func:`nmea_checksum`; :func:`parse_nmea` for the reader side;
-- sinks with the python-can listener shape (``on_message(msg)``, ``on_error(exc)``,
-  ``stop()`` that flushes): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
+- sinks with the python-can listener shape (``on_message(msg)``, ``stop()`` that flushes;
+  a sink's failures are its own counters, not exceptions handed back to it): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
   :class:`StdoutPublisher`.
 
 No publisher blocks the caller, so none can hold up another. A UDP destination that is
@@ -73,8 +73,6 @@ class Publisher(Protocol):
     """A sink for per-step messages (the python-can ``Listener`` shape)."""
 
     def on_message(self, msg: Mapping[str, Any]) -> None: ...
-
-    def on_error(self, exc: BaseException) -> None: ...
 
     def stop(self) -> None: ...
 
@@ -359,8 +357,6 @@ class UdpPublisher:
         self._socks: dict[int, socket.socket | None] = {}
         self._dests = [_Destination(DestinationStats(h, int(p))) for h, p in destinations]
         self._stopped = False
-        self.last_exception: BaseException | None = None
-        """The last exception passed to :meth:`on_error` (kept for the daemon's log)."""
         for d in self._dests:
             self._resolve(d)
 
@@ -484,10 +480,6 @@ class UdpPublisher:
             for dg in datagrams:
                 self._send(d, bytes(dg))
 
-    def on_error(self, exc: BaseException) -> None:
-        """Remember *exc*; a UDP sink has nothing to tell its peers about it."""
-        self.last_exception = exc
-
     def stop(self) -> None:
         """Collect the last error reports and close the sockets (idempotent)."""
         if self._stopped:
@@ -505,11 +497,6 @@ class UdpPublisher:
             self._drain_all()
         with self._lock:
             return [replace(d.stats, by_error=dict(d.stats.by_error)) for d in self._dests]
-
-    @property
-    def errors(self) -> int:
-        """Total failures over all destinations."""
-        return sum(s.errors for s in self.stats())
 
     def __enter__(self) -> Self:
         return self
@@ -588,7 +575,6 @@ class StdoutPublisher:
         """Lines not written: the queue was full (a stalled reader), or left at stop."""
         self.errors = 0
         self.last_error: str | None = None
-        self.last_exception: BaseException | None = None
         self._queue: deque[bytes] = deque()
         self._queued_bytes = 0
         self._busy = 0  # lines being written by the thread
@@ -632,9 +618,6 @@ class StdoutPublisher:
             if self.closed:
                 raise OutputClosed(_CLOSED_MESSAGE)
         return True
-
-    def on_error(self, exc: BaseException) -> None:
-        self.last_exception = exc
 
     def stop(self) -> None:
         """Write what is queued, waiting at most ``stop_wait_s``; what is still queued then

@@ -1,4 +1,4 @@
-"""Inputs of the pipeline: the serial gyro, a replayed capture, a simulated gyro.
+"""Inputs of the daemon's pipeline: the serial gyro, or a simulated one.
 
 Every source is shaped like python-can's bus: ``recv(timeout) -> Frame | SourceEvent | None``,
 a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.frames.ParserStats`).
@@ -9,12 +9,13 @@ a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.frames
 - ``None``: nothing within ``timeout`` seconds ("no data yet" — never the end of the stream);
 - :class:`DeviceLost` (once, when the device goes away: unplugged, EOF on a pty, I/O error),
   then, after the source has reopened the same path by itself, :class:`DeviceBack`;
-- :class:`EndOfInput` once at the end of a capture or a simulated drive, then ``None``.
+- :class:`EndOfInput` once at the end of a simulated drive, then ``None``.
 
 I/O trouble never raises out of ``recv``. ``stats.bad_frames`` is the count of bad frames
 that came before the last frame ``recv`` returned (all of them after a ``None`` or an event),
 exactly what :class:`hdrd.capture.CaptureStats` ``.bad_before`` gives for a whole capture,
-so a live run and a replay of the same bytes publish the same counts.
+so a live run and a replay of the same bytes publish the same counts (``hdrd replay`` decodes
+a capture whole, :mod:`hdrd.capture`, instead of reading it as a source).
 
 The serial byte reader with its reconnect loop, :class:`SerialReader`, lives in
 :mod:`hdrd.serialport` (shared with ``hdrd record``); its link events are re-exported here,
@@ -24,21 +25,17 @@ the clocks are in :mod:`hdrd.clocks`.
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
-import os
 from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
-import numpy.typing as npt
 
 from hdrd.clocks import Clock, RealClock
 from hdrd.drivelog import DriveLog
 from hdrd.frames import Frame, Parser, ParserStats, array_to_frames
-from hdrd.protocol import CLOCK_WRAP_US
 from hdrd.sensor import SensorModel
 from hdrd.serialport import DeviceBack, DeviceLost, LinkStats, SerialReader
 
@@ -50,7 +47,6 @@ __all__ = [
     "DeviceLost",
     "EndOfInput",
     "LinkStats",
-    "ReplaySource",
     "SerialReader",
     "SerialSource",
     "SimulatedSource",
@@ -65,7 +61,7 @@ __all__ = [
 
 @dataclass(frozen=True, slots=True)
 class EndOfInput:
-    """A capture or a simulated drive has ended; ``recv`` returns None from now on."""
+    """A simulated drive has ended; ``recv`` returns None from now on."""
 
 
 SourceEvent = DeviceLost | DeviceBack | EndOfInput
@@ -144,7 +140,7 @@ class _FrameQueue:
 
 
 class _ParsedSource(_SourceBase):
-    """A source whose bytes go through a :class:`hdrd.frames.Parser` (serial, replay): frames
+    """A source whose bytes go through a :class:`hdrd.frames.Parser` (the serial port): frames
     parsed but not handed out wait in a queue with the bad-frame count before each."""
 
     def __init__(self, protocol: str) -> None:
@@ -245,92 +241,6 @@ class SerialSource(_ParsedSource):
         self.reader.close()
 
 
-# --------------------------------------------------------------------------- replay
-
-
-class ReplaySource(_ParsedSource):
-    """Frames of a capture file (or bytes), as fast as possible or paced by device time.
-
-    The capture is read in chunks through the same :class:`hdrd.frames.Parser` as the live
-    source. Paced (``paced=True``, ``speedup`` > 0): frame k is handed out at
-    ``start + (t_k - t_0) / speedup`` on ``clock``, device time unwrapped across 2**32 us
-    (a step backwards does not wait). Ends with one :class:`EndOfInput`, then None.
-    """
-
-    def __init__(
-        self,
-        path_or_bytes: str | os.PathLike[str] | bytes | bytearray | memoryview,
-        protocol: str = "hdr-bin",
-        paced: bool = False,
-        speedup: float = 1.0,
-        clock: Clock | None = None,
-        chunk_size: int = 65536,
-    ) -> None:
-        if paced and not (speedup > 0 and math.isfinite(speedup)):
-            raise ValueError(f"speedup must be a finite number > 0 when paced, got {speedup!r}")
-        super().__init__(protocol)
-        if isinstance(path_or_bytes, (bytes, bytearray, memoryview)):
-            self._file: io.BufferedIOBase = io.BytesIO(bytes(path_or_bytes))
-            self.name = "<bytes>"
-        else:
-            self._file = open(path_or_bytes, "rb")  # noqa: SIM115 - closed in close()
-            self.name = os.fspath(path_or_bytes)
-        self.paced = paced
-        self.speedup = speedup
-        self.clock: Clock = clock or RealClock()
-        self.chunk_size = chunk_size
-        self._eof = False
-        self._ended = False
-        self._wall0: float | None = None
-        self._dev_us = 0  # unwrapped device time of the head frame since the first, us
-        self._last_raw: int | None = None
-        self._head_due: float | None = None
-
-    def _fill(self) -> bool:
-        while not self._queue and not self._eof:
-            chunk = self._file.read(self.chunk_size)
-            if not chunk:
-                self._eof = True
-                self.end_input()
-                break
-            frames = self.parser.feed(chunk)
-            self._queue.extend(frames, self.parser.bad_before)
-        return bool(self._queue)
-
-    def _due(self, frame: Frame) -> float:
-        if self._head_due is None:
-            if self._last_raw is None or self._wall0 is None:
-                self._wall0 = self.clock.monotonic()
-            else:
-                d = (frame.t_us - self._last_raw) % CLOCK_WRAP_US
-                if d < CLOCK_WRAP_US // 2:
-                    self._dev_us += d
-            self._last_raw = frame.t_us
-            self._head_due = self._wall0 + self._dev_us / 1e6 / self.speedup
-        return self._head_due
-
-    def recv(self, timeout: float | None = None) -> Frame | SourceEvent | None:
-        if self._closed or self._ended:
-            return None
-        if not self._fill():
-            self._ended = True
-            self._bad_seen = self.parser.stats.bad_frames
-            return EndOfInput()
-        if self.paced:
-            wait = self._due(self._queue.frames[0]) - self.clock.monotonic()
-            if wait > 0:
-                if timeout is not None and wait > timeout:
-                    self.clock.sleep(timeout)
-                    return None
-                self.clock.sleep(wait)
-            self._head_due = None
-        frame, self._bad_seen = self._queue.pop()
-        return frame
-
-    def _close(self) -> None:
-        self._file.close()
-
-
 # --------------------------------------------------------------------------- simulated
 
 
@@ -380,24 +290,6 @@ class SimulatedSource(_SourceBase):
         self._wall0: float | None = None
         self._ended = False
         self._stats = ParserStats()
-
-    @classmethod
-    def from_arrays(
-        cls,
-        t_s: npt.ArrayLike,
-        omega_dps: npt.ArrayLike,
-        temp_c: npt.ArrayLike | None = None,
-        **kwargs: Any,
-    ) -> SimulatedSource:
-        """From raw arrays: time (s), raw gyro rate (deg/s, + = CCW), temperature (degC)."""
-        t = np.asarray(t_s, np.float64)
-        log = DriveLog(
-            t=t,
-            omega=np.asarray(omega_dps, np.float64),
-            temp_c=None if temp_c is None else np.asarray(temp_c, np.float64),
-            name="arrays",
-        )
-        return cls(profile=log, **kwargs)
 
     @property
     def stats(self) -> ParserStats:

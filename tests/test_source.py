@@ -1,4 +1,4 @@
-"""hdrd.source: serial (loop://, real ptys, cable pulls), replay and simulated sources."""
+"""hdrd.source: serial (loop://, real ptys, cable pulls) and simulated sources."""
 
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ import pytest
 
 from hdrd.capture import decode_capture
 from hdrd.clocks import ManualClock
+from hdrd.drivelog import DriveLog
 from hdrd.frames import (
     FRAME_DTYPE,
     Frame,
     ParserStats,
     array_to_frames,
     encode,
-    encode_array,
     encode_bin,
 )
 from hdrd.sensor import SensorModel
@@ -27,7 +27,6 @@ from hdrd.source import (
     DeviceBack,
     DeviceLost,
     EndOfInput,
-    ReplaySource,
     SerialReader,
     SerialSource,
     SimulatedSource,
@@ -261,71 +260,6 @@ def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path
 # --------------------------------------------------------------------------- replay
 
 
-def test_replay_bytes_and_file_end_once(tmp_path: Path) -> None:
-    arr = frames_array(300, t0_us=2**32 - 5_000_000)  # the device clock wraps in the capture
-    data = b"junk" + encode_array(arr) + b"\xa5\x5a\x01"
-    path = tmp_path / "cap.bin"
-    path.write_bytes(data)
-    for src_arg in (data, str(path), path):
-        with ReplaySource(src_arg, chunk_size=100) as src:
-            got, events = collect(src)
-            assert got == array_to_frames(arr) and events == [EndOfInput()]
-            assert src.recv(0.0) is None and src.recv(None) is None
-            st = src.stats
-            assert st.frames == 300 and st.clock_wraps == 1 and st.garbage_bytes == 4 + 3
-
-
-def test_replay_text_and_bad_frames_match_capture() -> None:
-    arr = frames_array(50)
-    lines = [encode(f, "hdr-text") for f in array_to_frames(arr)]
-    lines[10] = lines[10][:-4] + b"ZZ\r\n"  # a bad checksum
-    data = b"".join(lines)
-    _, cap = decode_capture(data, "hdr-text")
-    with ReplaySource(data, protocol="hdr-text", chunk_size=7) as src:
-        seen = []
-        while isinstance(item := src.recv(), Frame):
-            seen.append(src.stats.bad_frames)
-        assert item == EndOfInput()
-    assert seen == cap.bad_before.tolist() and cap.bad_frames == 1
-
-
-def test_replay_paced_by_device_time() -> None:
-    clock = ManualClock(100.0)
-    arr = frames_array(21, t0_us=2**32 - 1_000_000, step_us=100_000)  # 2 s, wrapping
-    with ReplaySource(encode_array(arr), paced=True, speedup=2.0, clock=clock) as src:
-        got = []
-        times = []
-        while True:
-            item = src.recv(0.25)
-            if isinstance(item, EndOfInput):
-                break
-            if item is not None:
-                got.append(item)
-                times.append(clock.now - 100.0)
-        assert got == array_to_frames(arr)
-        # 0.1 s of device time = 0.05 s at speedup 2; a recv never sleeps past its timeout.
-        assert times == pytest.approx([0.05 * k for k in range(21)])
-        assert all(w <= 0.25 + 1e-12 for w in clock.slept)
-    with pytest.raises(ValueError):
-        ReplaySource(b"", paced=True, speedup=0.0)
-
-
-def test_replay_timeout_shorter_than_the_next_frame_returns_none() -> None:
-    clock = ManualClock()
-    arr = frames_array(2, step_us=1_000_000)
-    src = ReplaySource(encode_array(arr), paced=True, clock=clock)
-    assert isinstance(src.recv(0.1), Frame)
-    assert src.recv(0.4) is None and src.recv(0.4) is None
-    assert isinstance(src.recv(0.4), Frame) and clock.now == pytest.approx(1.0)
-    assert src.recv(0.4) == EndOfInput()
-    src.close()
-
-
-def test_replay_missing_file_is_a_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError):
-        ReplaySource(tmp_path / "nope.bin")
-
-
 # --------------------------------------------------------------------------- simulated
 
 
@@ -343,7 +277,8 @@ def test_simulated_source_as_fast_as_possible() -> None:
 def test_simulated_source_paced_on_a_clock() -> None:
     clock = ManualClock()
     t = np.arange(0, 2.0, 0.1)
-    src = SimulatedSource.from_arrays(t, np.full(t.shape, 3.0), None, speedup=4.0, clock=clock)
+    log = DriveLog(t=t, omega=np.full(t.shape, 3.0))
+    src = SimulatedSource(profile=log, speedup=4.0, clock=clock)
     out = []
     while not isinstance(item := src.recv(0.01), EndOfInput):
         if item is not None:
@@ -369,7 +304,6 @@ def test_simulated_drive_from_the_simulator() -> None:
 def test_sources_satisfy_the_protocol_and_close_idempotently(tmp_path: Path) -> None:
     srcs = [
         SerialSource("loop://"),
-        ReplaySource(b""),
         SimulatedSource("standstill", minutes=0.01, speedup=0),
     ]
     for s in srcs:
@@ -451,5 +385,3 @@ def test_the_port_is_opened_exclusively(fake_gyro) -> None:
         assert time.monotonic() < deadline
     assert second.is_open and not second.busy
     second.close()
-
-

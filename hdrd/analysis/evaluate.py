@@ -77,8 +77,6 @@ PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
 PLUS_DEFAULTS = HdrPlusParams()
 """HDR+'s own settings (its extras at their defaults; the core is set per drive's T)."""
-DEFAULT_CALIBRATE_S = 30.0
-"""A calibration window's length where a caller wants the paper's Tbias (30 s)."""
 
 
 def method_key(method: str) -> str:
