@@ -20,6 +20,7 @@ from typing import Any
 from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
 from hdrd.errors import HdrdError
+from hdrd.gpsd import DEFAULT_HOST, DEFAULT_PORT
 from hdrd.hdr import HdrParams
 from hdrd.protocol import NMEA_TALKER, PROTOCOLS
 from hdrd.publish import parse_hostport
@@ -171,8 +172,8 @@ class GpsdConfig:
     """Optional GPS aiding through gpsd's JSON protocol."""
 
     enabled: bool = False
-    host: str = "127.0.0.1"
-    port: int = 2947
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
     min_speed_mps: float = 5.0
     """Course from GPS is trusted above this speed, m/s."""
     max_fix_age_s: float = 2.5

@@ -32,9 +32,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import structlog
-
 from hdrd.errors import HdrdError
+from hdrd.logs import log
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -73,7 +72,6 @@ LINES_PER_POLL = 32
 daemon polls every loop turn (at least 10 times a second), so these bounds never delay a
 report from a real gpsd."""
 
-log = structlog.get_logger("hdrd")
 
 
 class GpsdProtocolError(HdrdError, ValueError):
