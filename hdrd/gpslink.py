@@ -9,11 +9,12 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from hdrd.aiding import AidingConfig, GpsAiding
 from hdrd.gpsd import GpsdClient
 from hdrd.logs import log
+from hdrd.protocol import Message
 
 if TYPE_CHECKING:
     from hdrd.config import GpsdConfig
@@ -92,8 +93,8 @@ class GpsdLink:
             self._bad_logged, self._bad_log_at = bad, now
 
     def aid(
-        self, msgs: list[dict[str, Any]], pipeline: AidedPipeline, now: float | None = None
-    ) -> list[dict[str, Any]]:
+        self, msgs: list[Message], pipeline: AidedPipeline, now: float | None = None
+    ) -> list[Message]:
         now = self._clock() if now is None else now
         out = []
         for m in msgs:
