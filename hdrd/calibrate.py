@@ -413,5 +413,3 @@ def _count(data: dict[str, object], key: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
         raise ValueError(f"{key} = {_short(v)} is not an integer")
     return v
-
-

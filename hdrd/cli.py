@@ -94,9 +94,7 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
     p.add_argument(
         "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
     )
-    p.add_argument(
-        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
 
 
 def _log_level(p: argparse.ArgumentParser) -> None:
@@ -272,9 +270,7 @@ def _replay(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
-    p.add_argument(
-        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
     _bias_group(p)
     _config(p)
     _method(p)
@@ -286,9 +282,7 @@ def _convert(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
-    p.add_argument(
-        "--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
     p.add_argument(
         "--out", metavar="CSV", required=True, help="drive log to write (raw rates, deg/s)"
     )
@@ -327,7 +321,9 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "evaluate", "hdrd.analysis.evaluate_cmd:main", "heading error without and with HDR (paper Table II)"
+    "evaluate",
+    "hdrd.analysis.evaluate_cmd:main",
+    "heading error without and with HDR (paper Table II)",
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument(

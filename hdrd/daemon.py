@@ -425,7 +425,10 @@ class Daemon:
         """Every turn: a stale report while the device is silent, the bad-frames warning, the
         watchdog ping, the output-dropped warning, each at most as often as allowed."""
         silent = now - self._last_data
-        if silent > self.cfg.device.stale_after_s and now - self._last_stale >= self.cfg.hdr.params.T:
+        if (
+            silent > self.cfg.device.stale_after_s
+            and now - self._last_stale >= self.cfg.hdr.params.T
+        ):
             self._last_stale = now
             self._publish_stale(silent, bad)
         if bad > self._last_bad and now - self._last_bad_log >= self.cfg.log.bad_frame_interval_s:

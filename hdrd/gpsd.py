@@ -73,7 +73,6 @@ daemon polls every loop turn (at least 10 times a second), so these bounds never
 report from a real gpsd."""
 
 
-
 class GpsdProtocolError(HdrdError, ValueError):
     """A line that is not a gpsd JSON report; ``str()`` says why."""
 
