@@ -61,6 +61,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.analysis.metrics import e_psi
 from hdrd.drivelog import DriveLog, read_drive
 from hdrd.hdrplus import HdrPlusParams
+from hdrd.zupt import CalibrationNoise, calibration_noise, quantization_step
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
 DATA = REPO.parent / "shared" / "data"
@@ -158,14 +159,31 @@ def prepare(log: DriveLog, win: Window) -> PreparedDrive:
     return prepare_drive(part, bias=None, calibrate_seconds=win.seconds)
 
 
+def fit_plus(log: DriveLog, win: Window | None, T: float = 1.0) -> HdrPlusParams:
+    """HDR+'s settings for this gyro, as :meth:`hdrd.hdrplus.HdrPlusParams.fitted` derives
+    them: from the calibration window's noise (samples per step, a step's standstill
+    variance, var(eps0)) and the output step seen over the whole recording (a property of
+    the sensor). Without a window: samples per step from the log's rate. (To be replaced by
+    evaluate's own call of ``fitted`` once it has one.)"""
+    q = quantization_step(log.omega)
+    if win is None:
+        cal = CalibrationNoise(math.nan, math.nan, q, max(1.0, log.rate_hz * T))
+    else:
+        part = log.slice(win.start) if win.start else log
+        w = part.t < part.t[0] + win.seconds
+        cal = calibration_noise(part.omega[w], part.t[w], T)
+    return PLUS_DEFAULTS.fitted(cal, None, q if q > 0 else None)
+
+
 # -- scoring --------------------------------------------------------------------------------
 
-YawFn = Callable[[PreparedDrive], np.ndarray]
+YawFn = Callable[[PreparedDrive, HdrPlusParams], np.ndarray]
 
 
-def method_yaw(method: str, plus: HdrPlusParams = PLUS_DEFAULTS) -> YawFn:
-    """A method as ``hdrd evaluate`` runs it (paper Table III for hdr)."""
-    return lambda prep: METHODS[method](prep.steps, PAPER_PARAMS, plus)
+def method_yaw(method: str) -> YawFn:
+    """A method as ``hdrd evaluate`` runs it (paper Table III for hdr; HDR+ with the drive's
+    fitted settings, its prior the calibration's variance)."""
+    return lambda prep, plus: METHODS[method](prep.steps, PAPER_PARAMS, plus)
 
 
 def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
@@ -210,6 +228,7 @@ class RealDrive:
     log: DriveLog
     window: Window | None
     prep: PreparedDrive | None
+    plus: HdrPlusParams
     note: str = ""
 
     @property
@@ -235,13 +254,14 @@ def load_drives(folder: Path) -> list[RealDrive]:
                 note = f"calibration refused: {e}"
             if prep is not None and prep.duration_min < MIN_SCORED_MIN:
                 note = f"scored part {prep.duration_min:.1f} min < {MIN_SCORED_MIN:g}"
-        out.append(RealDrive(name, drive_set(name), log, win, prep, note))
+        plus = fit_plus(log, win)
+        out.append(RealDrive(name, drive_set(name), log, win, prep, plus, note))
     return out
 
 
-def scores(prep: PreparedDrive, methods: dict[str, YawFn]) -> dict[str, float]:
+def scores(prep: PreparedDrive, plus: HdrPlusParams, methods: dict[str, YawFn]) -> dict[str, float]:
     """Eψ (deg) of each method on one prepared drive."""
-    return {m: float(e_psi(fn(prep), prep.truth, prep.k)) for m, fn in methods.items()}
+    return {m: float(e_psi(fn(prep, plus), prep.truth, prep.k)) for m, fn in methods.items()}
 
 
 DEFAULT_METHODS: dict[str, YawFn] = {
@@ -287,7 +307,7 @@ def table(
             skipped.append(d)
             continue
         assert d.prep is not None and d.window is not None
-        e = scores(d.prep, {m: DEFAULT_METHODS[m] for m in methods})
+        e = scores(d.prep, d.plus, {m: DEFAULT_METHODS[m] for m in methods})
         delta, e_best = best_constant_bias(d.prep)
         td = d.prep.duration_min
         lines.append(
@@ -359,7 +379,7 @@ def given_table(drives: Sequence[RealDrive], methods: Sequence[str]) -> str:
         prep = hindsight_prep(d.log)
         if prep is None:
             continue
-        e = scores(prep, {m: DEFAULT_METHODS[m] for m in methods})
+        e = scores(prep, fit_plus(d.log, None), {m: DEFAULT_METHODS[m] for m in methods})
         td = prep.duration_min
         lines.append(
             f"| {d.set} | {d.name} | {td:.1f} | {prep.steps.bias_dps:+.4f} | "
@@ -403,6 +423,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workdir", default="/tmp/hdrd-real")
     ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument(
+        "--tuning-only",
+        action="store_true",
+        help="score and print the tuning drives only (no write): for development",
+    )
     a = ap.parse_args(argv)
     if not DATA.is_dir():
         print(f"bench/real.py: {DATA} is absent: no real drives to score", file=sys.stderr)
@@ -412,6 +437,9 @@ def main(argv: list[str] | None = None) -> int:
     shown: list[str] = []
     run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
     drives = load_drives(folder)
+    if a.tuning_only:
+        drives = [d for d in drives if d.set == "tune"]
+        a.no_write = True
     methods = ("none", "hdr", "hdr+")
     tab, means = table(drives, methods)
     summ = summary(means, methods)

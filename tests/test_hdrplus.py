@@ -87,7 +87,15 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         straight_gate_dps=draw(st.floats(0.0, 2.0)),
         gate_speed_mps=draw(st.sampled_from([0.0, 3.0])),
         holdoff_steps=draw(st.integers(0, 4)),
-        adapt_gain=draw(st.sampled_from([0.0, 1.0])),
+        ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
+        i_c_max=draw(st.floats(0.0, 0.05)),
+        stop_offset_var=draw(st.sampled_from([0.0, 1e-4])),
+        quant_step_dps=draw(st.sampled_from([0.0, 0.0625])),
+        block_var=draw(st.sampled_from([NAN, 0.0, 0.01])),
+        stop_gate_sigma=draw(st.sampled_from([0.0, 4.0])),
+        q_adapt_steps=draw(st.sampled_from([0, 1, 3])),
+        q_adapt_gain=draw(st.floats(0.0, 1.0)),
+        q_min=draw(st.sampled_from([0.0, 1e-8])),
     )
 
 

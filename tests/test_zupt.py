@@ -172,14 +172,19 @@ def test_bias_converges_to_the_true_bias_on_a_noisy_stationary_segment() -> None
 
 
 def test_a_wandering_bias_is_followed_from_stop_to_stop() -> None:
-    # Default model without temperature: the bias may wander (bias_q_no_temp), so a later
-    # stop that sees a different bias moves the estimate most of the way there.
+    # Without temperature, a bias random walk of 4e-5 (deg/s)^2/s (a CRS03-04 in a warming
+    # cabin): a later stop that sees a different bias moves the estimate most of the way.
+    # With the default, a slow random walk (a good gyro), it moves much less: the 40 s
+    # between the stops could not have moved a good gyro's bias by 0.08 deg/s.
     n = 40
     u = [0.10] * n + [0.18] * n
     speed = [0.0] * (2 * n)
-    tr = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0))
+    fast = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=4e-5, stop_offset_var=0.0)
+    tr = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, fast)
     assert tr.bias_corr_dps[n - 1] == pytest.approx(0.10, abs=0.005)
     assert tr.bias_corr_dps[-1] == pytest.approx(0.18, abs=0.01)
+    slow = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0))
+    assert 0.10 < slow.bias_corr_dps[-1] < 0.16
 
 
 def _weighted_mean(z: list[float], r: list[float]) -> float:

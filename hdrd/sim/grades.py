@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from hdrd.hdrplus import GyroNoise
 from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,
@@ -51,7 +52,7 @@ from hdrd.sim.gyro import (
     crs03_default_model,
 )
 
-__all__ = ["DEFAULT_GRADE", "GRADES", "GRADE_TABLE", "Grade", "grade_model"]
+__all__ = ["DEFAULT_GRADE", "GRADES", "GRADE_TABLE", "Grade", "grade_model", "grade_noise"]
 
 GM_PEAK = 0.62
 """Peak of a Gauss-Markov bias's Allan deviation, in units of its sigma (docs/gyro-model.md)."""
@@ -260,3 +261,16 @@ def grade_model(name: str, seed: int = 0) -> GyroModel:
         Quantization(step_dps=g.quant_step_dps),
     ]
     return GyroModel(tuple(effects))
+
+
+def grade_noise(name: str) -> GyroNoise:
+    """The grade's error model as HDR+ uses it (:meth:`hdrd.hdrplus.HdrPlusParams.fitted`)."""
+    g = Grade.from_table(name)
+    return GyroNoise(
+        white_dps_per_rthz=g.white_dps_per_rthz,
+        bias_instability_dps=g.bias_instability_dps,
+        bias_tau_s=g.bias_tau_s,
+        rrw_dps_per_sqrt_s=g.rrw_dps_per_sqrt_s,
+        temp_coeff_dps_per_c=g.temp_coeff_dps_per_c,
+        quant_step_dps=g.quant_step_dps,
+    )
