@@ -278,3 +278,111 @@ def test_cli_evaluate_hdrplus_json(tmp_path: Path, capsys: pytest.CaptureFixture
     r = evaluate_drive(read_drive(path), methods=("hdr", "hdr+"))
     assert d["E_psi_hdr+"] == pytest.approx(r.e_psi["hdr+"], rel=1e-12)
     assert d["NE_psi_hdr+"] == pytest.approx(d["E_psi_hdr+"] / d["duration_min"], rel=1e-12)
+
+
+# -- the gyro-adaptive bias model ----------------------------------------------------------------
+
+
+def _sway(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    return 0.1 * np.sin(2 * np.pi * t / 9.0) + 0.05 * rng.standard_normal(n)
+
+
+def test_a_coarse_adc_reads_the_same_code_at_every_stop() -> None:
+    # A 0.244 deg/s output step and noise below it: the start-up calibration read the code
+    # 0 while the bias is +0.08 deg/s, and so does every stop (spread 0, u = 0), while
+    # driving dithers the samples (the straight-road mean is 0.08). With the standstill
+    # offset (F = q^2/12) the stop does not pull the bias back to the code's 0; without it,
+    # the model believes the stop and the heading drifts while it relearns.
+    n1, ns, n2 = 200, 60, 600
+    n = n1 + ns + n2
+    u = 0.08 + _sway(n, 2)
+    u[n1 : n1 + ns] = 0.0
+    spread = np.full(n, 0.3)
+    spread[n1 : n1 + ns] = 0.0
+    speed = np.full(n, 15.0)
+    speed[n1 : n1 + ns] = 0.0
+    q = 0.244
+    lattice = HdrPlusParams(bias_p0=1e-6, quant_step_dps=q, stop_offset_var=q * q / 12)
+    plain = HdrPlusParams(bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
+    a = run_batch(u, spread, speed, None, 1.0, lattice)
+    b = run_batch(u, spread, speed, None, 1.0, plain)
+    assert a.bias_corr_dps[n1 + ns - 1] > 0.04  # the stop left most of the learned bias
+    assert abs(b.bias_corr_dps[n1 + ns - 1]) < 0.01  # the stop pinned it to the code
+    assert abs(a.yaw[-1]) < 2.0 < 4.0 < abs(b.yaw[-1])
+    assert abs(a.yaw[-1]) < 0.05 * abs(float(np.sum(u)))  # none: 63 deg
+
+
+def test_the_increment_follows_the_bias_uncertainty() -> None:
+    # A well-calibrated good gyro (bias known to 1e-4 deg/s, no random walk) on a swaying
+    # straight road: the core's integrator nearly stops; with the fixed increment it chases
+    # the sway.
+    u = _sway(2000, 5)
+    args = (np.full(2000, 0.2), np.full(2000, 15.0), None, 1.0)
+    good = HdrPlusParams(
+        bias_p0=1e-8, quant_step_dps=0.0, stop_offset_var=0.0, bias_q_no_temp=1e-10
+    ).with_(q_adapt_steps=0)
+    a = run_batch(u, *args, good)
+    b = run_batch(u, *args, HdrPlusParams(ic_alpha=0.0))
+    # i_c = 0.1 x the bias sd before this step's measurement (the last step's, plus q T)
+    assert np.allclose(a.i_c_dps[1:], 0.1 * a.bias_sd_dps[:-1], rtol=0.01)
+    assert np.max(np.abs(a.I)) < 0.002 < 0.02 < np.max(np.abs(b.I))
+    assert np.all(b.i_c_dps == PLUS_CORE.i_c)
+    # A vague start (1 deg/s calibration error possible): full increments, capped.
+    c = run_batch(u, *args, HdrPlusParams(bias_p0=1.0))
+    assert c.i_c_dps[0] == HdrPlusParams().i_c_max
+
+
+def test_without_temperature_the_random_walk_is_learned_online() -> None:
+    # Straight driving; the bias ramps 0 -> 0.3 deg/s over 25 min (a warming cabin, no
+    # thermometer): the estimate of the random walk rises and the bias is followed. On a
+    # constant bias it falls to its floor.
+    t = np.arange(1500.0)
+    args = (np.full(1500, 0.2), np.full(1500, 15.0), None, 1.0)
+    ramp = run_batch(0.3 * t / 1500 + _sway(1500, 7), *args)
+    const = run_batch(_sway(1500, 8), *args)
+    q0 = HdrPlusParams().bias_q_no_temp
+    assert ramp.bias_q[-1] > 2 * q0 and const.bias_q[-1] < q0 / 2
+    assert ramp.bias_corr_dps[-1] - ramp.I[-1] == pytest.approx(0.3, abs=0.03)
+    assert abs(ramp.yaw[-1]) < 0.05 * 0.3 * 1500 / 2
+    with_temp = run_batch(0.3 * t / 1500 + _sway(1500, 7), args[0], args[1], 20.0, 1.0)
+    assert np.all(with_temp.bias_q == HdrPlusParams().bias_q)  # a temperature: no learning
+
+
+def test_a_stale_speed_turn_is_not_a_stop() -> None:
+    # 1 Hz, speed still 0 while the car turns at 0.8 deg/s (a lagging GPS speed), single
+    # samples per step (spread 0): with the standstill noise known (sd 0.1 deg/s per step)
+    # the level is 8 sigma off and the turn is kept; without it, it is zeroed.
+    u = np.concatenate([np.zeros(10), np.full(10, 0.8), np.zeros(5)])
+    args = (np.zeros(25), np.zeros(25), None, 1.0)
+    kept = run_batch(u, *args, HdrPlusParams(block_var=0.01))
+    lost = run_batch(u, *args, HdrPlusParams())
+    assert not kept.standstill[10:20].any() and kept.yaw[-1] == pytest.approx(8.0, abs=0.1)
+    assert lost.standstill[10:20].all() and lost.yaw[-1] == 0.0
+
+
+def test_fitted_from_a_calibration_and_a_noise_model() -> None:
+    from hdrd.hdrplus import GyroNoise
+    from hdrd.zupt import CalibrationNoise
+
+    cal = CalibrationNoise(
+        bias_var=1e-6, block_var=4e-4, quant_step_dps=0.0625, samples_per_step=1.0
+    )
+    p = HdrPlusParams().fitted(cal)
+    assert p.bias_p0 == 1e-6 and p.block_var == 4e-4 and p.quant_step_dps == 0.0625
+    assert p.stop_offset_var == pytest.approx(0.0625**2 / 12)
+    assert p.standstill.samples_per_step == 1.0
+    # The whole recording's step wins over the calibration's (a locked window sees none).
+    assert HdrPlusParams().fitted(cal, quant_step_dps=0.25).quant_step_dps == 0.25
+    noise = GyroNoise(
+        bias_instability_dps=0.62 * 0.001,
+        bias_tau_s=100.0,
+        rrw_dps_per_sqrt_s=1e-4,
+        temp_coeff_dps_per_c=0.002,
+    )
+    g = HdrPlusParams().fitted(cal, noise)
+    assert g.bias_q == pytest.approx(1e-8 + 2e-6 / 100.0)
+    assert g.bias_q_no_temp == pytest.approx(g.bias_q + (0.002 * 16.0) ** 2 / 900.0)
+    assert g.temp_coeff_sd == 0.002 and g.q_min <= g.bias_q
+    assert HdrPlusParams().fitted() == HdrPlusParams()  # nothing known: nothing changes

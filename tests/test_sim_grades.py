@@ -157,3 +157,14 @@ def test_simulated_source_takes_a_grade() -> None:
     assert np.max(np.abs(codes - np.round(codes))) < 1e-6
     default = SimulatedSource("highway", minutes=0.5, seed=2, hz=20.0, speedup=0.0)
     assert not np.array_equal(default.profile.omega, src.profile.omega)
+
+
+def test_grade_noise_for_hdrplus() -> None:
+    from hdrd.sim.grades import grade_noise
+
+    q = {g: grade_noise(g).bias_q() for g in GRADES}
+    qnt = {g: grade_noise(g).bias_q_no_temp() for g in GRADES}
+    assert all(v > 0 for v in q.values())
+    assert q["tactical"] < q["phone"] < q["crs03"]  # bias stability, datasheet order
+    assert qnt["tactical"] < qnt["automotive"] < qnt["crs03"] < qnt["phone"]  # + warm-up
+    assert grade_noise("automotive").quant_step_dps == 0.244
