@@ -138,7 +138,7 @@ class HdrPlusParams:
     unknown): the floor of a stop measurement's variance and the scale of the stop gate."""
     bias_q: float = 1e-6
     """Random walk of the bias left unexplained by the temperature model, (deg/s)^2/s."""
-    bias_q_no_temp: float = 1e-6
+    bias_q_no_temp: float = 3e-7
     """The same when the temperature is unknown, (deg/s)^2/s: the start value of the online
     estimate when ``q_adapt_steps`` > 0."""
     q_adapt_steps: int = 30

@@ -135,9 +135,10 @@ def test_yaw_does_not_move_at_standstill() -> None:
     assert np.all(tr.yaw[a:70] == tr.yaw[a - 1])
     assert tr.yaw[a - 1] > 1.0
     # ... and after the stop most of the bias it measured (0.2) is removed: the estimate
-    # weighs the stop against its prior (the start-up eps0), so not all of it at once.
-    assert abs(tr.omega[70]) < 0.2 * 0.2
-    assert tr.bias_corr_dps[69] == pytest.approx(0.2, abs=0.04)
+    # weighs the stop against its prior (the start-up eps0) and a bias that could not have
+    # moved much in 10 s, so not all of it at once.
+    assert abs(tr.omega[70]) < 0.3 * 0.2
+    assert tr.bias_corr_dps[69] == pytest.approx(0.2, abs=0.06)
 
 
 def test_zero_rate_update_through_step_publishes_standstill() -> None:
