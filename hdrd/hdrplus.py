@@ -151,6 +151,13 @@ class HdrPlusParams:
     """Inflation of a window mean's variance for the road's correlated yaw wander (sway)."""
     q_min: float = 1e-8
     """Floor of the online estimate, (deg/s)^2/s."""
+    q_adapt_speed_mps: float = 0.0
+    """Only straight steps at or above this known speed feed the online estimate; steps
+    without a speed count (0 = off: it slowed the learning of real drift on the training
+    routes more than it protected good gyros)."""
+    q_adapt_max_rise: float = 10.0
+    """One window may raise the estimate at most this many times (a single curving window is
+    not a drifting gyro; a sustained drift still raises it geometrically)."""
     temp_model: bool = True
     """Learn the temperature coefficient k (when a temperature is given)."""
     temp_coeff_sd: float = 0.01
@@ -463,6 +470,7 @@ def run_batch(
         params.q_adapt_kappa,
         params.q_min,
     )
+    a_speed, a_rise = params.q_adapt_speed_mps, params.q_adapt_max_rise
     q_floor2 = params.quant_step_dps * params.quant_step_dps / 12.0
     block_var, gate_sigma = params.block_var, params.stop_gate_sigma
     use_gate = gate_sigma > 0.0 and not math.isnan(block_var)
@@ -584,7 +592,7 @@ def run_batch(
             W = 0
         I_next = I - s * W * R * inc if enabled else 0.0
         if straight_r > 0.0 and W and abs(uc + I) <= straight_gate:
-            if a_steps and not have_temp:
+            if a_steps and not have_temp and not v < a_speed:
                 # the online estimate of the bias random walk: windows of straight steps
                 if w_n == 0:
                     w_beta = b - I
@@ -598,6 +606,8 @@ def run_batch(
                     var_in = w_sq / w_n - m * m
                     excess = m * m - a_kappa * (var_in if var_in > 1e-6 else 1e-6) / w_n
                     q_obs = (excess if excess > 0.0 else 0.0) / w_span
+                    if q_obs > a_rise * q_hat:
+                        q_obs = a_rise * q_hat
                     q_hat = (1.0 - a_gain) * q_hat + a_gain * q_obs
                     if q_hat < q_min:
                         q_hat = q_min

@@ -343,7 +343,7 @@ def test_without_temperature_the_random_walk_is_learned_online() -> None:
     ramp = run_batch(0.3 * t / 1500 + _sway(1500, 7), *args)
     const = run_batch(_sway(1500, 8), *args)
     q0 = HdrPlusParams().bias_q_no_temp
-    assert ramp.bias_q[-1] > 3 * q0 and const.bias_q[-1] < q0
+    assert ramp.bias_q.max() > 2 * q0 and const.bias_q[-1] < q0
     assert ramp.bias_corr_dps[-1] - ramp.I[-1] == pytest.approx(0.3, abs=0.03)
     assert abs(ramp.yaw[-1]) < 0.05 * 0.3 * 1500 / 2
     with_temp = run_batch(0.3 * t / 1500 + _sway(1500, 7), args[0], args[1], 20.0, 1.0)
@@ -386,3 +386,18 @@ def test_fitted_from_a_calibration_and_a_noise_model() -> None:
     assert g.bias_q_no_temp == pytest.approx(g.bias_q + (0.002 * 16.0) ** 2 / 900.0)
     assert g.temp_coeff_sd == 0.002 and g.q_min <= g.bias_q
     assert HdrPlusParams().fitted() == HdrPlusParams()  # nothing known: nothing changes
+
+
+def test_one_curving_window_cannot_inflate_the_random_walk() -> None:
+    # 30 "straight" steps of a long gentle curve at 0.4 deg/s (under the gate) after a quiet
+    # start: the window's excess would be read as a huge random walk; one window may raise
+    # the estimate by at most (1 - gain) + gain x q_adapt_max_rise.
+    p = HdrPlusParams()
+    u = np.concatenate([_sway(30, 9) * 0.1, np.full(30, 0.4)])
+    tr = run_batch(u, np.full(60, 0.2), np.full(60, 15.0), None, 1.0, p)
+    cap = (1 - p.q_adapt_gain) + p.q_adapt_gain * p.q_adapt_max_rise
+    assert tr.final.adapt.q <= cap * tr.bias_q[30] * (1 + 1e-9)
+    free = run_batch(
+        u, np.full(60, 0.2), np.full(60, 15.0), None, 1.0, p.with_(q_adapt_max_rise=1e9)
+    )
+    assert free.final.adapt.q > 100 * tr.final.adapt.q
