@@ -41,8 +41,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bench._common import machine_line, replace_section
-from bench.real import Window, fit_plus
+from _common import machine_line, replace_section
+from real import Window, fit_plus
+
 from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.drivelog import DriveLog

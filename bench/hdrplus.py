@@ -269,7 +269,11 @@ def variants() -> list[tuple[str, list[Variant]]]:
                 Variant("HDR+ with the paper's core (Table III)", "plus", P.with_(hdr=PAPER)),
                 Variant("HDR+ + speed gate (3 m/s)", "plus", P.with_(gate_speed_mps=3.0)),
                 Variant("HDR+ + hold-off 3 steps", "plus", P.with_(holdoff_steps=3)),
-                Variant("HDR+ + adaptive increment (gain 1)", "plus", P.with_(adapt_gain=1.0)),
+                Variant(
+                    "HDR+ with the fixed increment (i_c 0.0048, not 0.1 x the bias sd)",
+                    "plus",
+                    P.with_(ic_alpha=0.0),
+                ),
             ],
         ),
         (

@@ -49,7 +49,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bench._common import machine_line, replace_section
+from _common import machine_line, replace_section
+
 from hdrd.analysis.evaluate import (
     METHODS,
     PAPER_PARAMS,
