@@ -56,6 +56,7 @@ from hdrd.hdrplus import (
     run_batch,
     step,
 )
+from hdrd.methods import plus_settings
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import ScaleFactor, crs03_default_model
@@ -109,7 +110,7 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     if v.kind == "hdr":
         return hdr_batch(s.u, PAPER).yaw
     assert v.params is not None
-    p = v.params
+    p = plus_settings(v.params, s.T, prep.samples_per_step)  # as hdrd evaluate: its sample rate
     if math.isfinite(s.bias_var):  # as hdrd evaluate: the prior is the calibration's variance
         p = p.with_(bias_p0=s.bias_var)
     return run_batch(

@@ -86,21 +86,14 @@ def continuous_errors(
     paths: list[Path], bias: float | None = None
 ) -> dict[str, tuple[float, float]]:
     """Continuous-heading Eψ (raw, hdr) per drive, same steps and alignment as hdrd evaluate."""
-    from hdrd.analysis.evaluate import METHODS, prepare_drive
+    from hdrd.analysis.evaluate import method_yaw, prepare_drive
     from hdrd.analysis.metrics import e_psi_continuous
     from hdrd.drivelog import read_drive
-    from hdrd.hdr import HdrParams
-    from hdrd.hdrplus import HdrPlusParams
 
     out = {}
     for p in paths:
         prep = prepare_drive(read_drive(p), bias)
-        e = [
-            e_psi_continuous(
-                METHODS[m](prep.steps, HdrParams(), HdrPlusParams()), prep.truth, prep.k
-            )
-            for m in ("none", "hdr")
-        ]
+        e = [e_psi_continuous(method_yaw(prep, m), prep.truth, prep.k) for m in ("none", "hdr")]
         out[prep.name] = (e[0], e[1])
     return out
 
@@ -278,9 +271,10 @@ def render(
     L.append("```")
     L.append("")
     L.append(
-        "Definitions (`hdrd/analysis/evaluate.py`): static bias from the first 30 s of each log "
-        "(standstill); the drive starts after it (Td excludes it); the gyro block-averaged to "
-        "T = 1 s; yaw compared with the GPS-like truth at each step's end, aligned at the first "
+        "Definitions (`hdrd/analysis/evaluate.py`, docs/evaluation.md): static bias from each "
+        "log's 30 s standstill lead-in (`lead_in_s`), as the daemon's start-up window; the drive "
+        "starts after it (Td excludes it); the gyro block-averaged to T = 1 s by the daemon's "
+        "own block code and stepper (a step without samples is no step); yaw compared with the GPS-like truth at each step's end, aligned at the first "
         "step with truth; Eψ = mean |error| with each error wrapped to [-180°, 180°) (Eq. 12); "
         "NEψ = Eψ / Td (Eq. 13); improvement = Eψ without / Eψ with HDR per drive, averaged "
         "over drives (σ: sample standard deviation), as the paper does. Parameters: the paper's "

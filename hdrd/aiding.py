@@ -166,10 +166,14 @@ class GpsAiding:
         A TPV without a course (gpsd reports one per sentence until it has found the
         receiver's cycle end, e.g. after a GGA and again after the RMC) does not hide the
         course of an earlier fix that is still fresh; a TPV without a fix (mode < 2) ends
-        aiding at once.
+        aiding at once. A negative or non-finite speed is treated as no speed (the fix
+        gives neither a speed nor a course).
         """
         self._fix, self._fix_at = fix, now
-        if fix.mode >= 2 and fix.speed_mps is not None and math.isfinite(fix.speed_mps):
+        spd = fix.speed_mps
+        # A ground speed is a magnitude: a negative (or non-finite) one is no speed at all,
+        # never a standstill (it would let a zero-rate update fire while the car moves).
+        if fix.mode >= 2 and spd is not None and math.isfinite(spd) and spd >= 0.0:
             self._speed, self._speed_at = fix.speed_mps, now
             if fix.track_deg is not None and math.isfinite(fix.track_deg):
                 self._course_fix, self._course_at = fix, now

@@ -10,6 +10,21 @@ The standstill test rejects a window whose samples say the vehicle moved:
 - trend: the means of the window's first and last thirds differ by more than
   ``max_trend_dps`` (a slow turn or a creeping drift that the mean would absorb);
 - excursion: any sample is further than ``max_excursion_dps`` from the median (a bump).
+
+Those limits are absolute, set for a CRS03-04-class gyro at 10 Hz. Two more scale with the
+gyro's own noise and the number of samples, so that a quiet gyro sampled slowly (a phone at
+1 Hz, where one sample is a whole second) cannot pass the start of a turn as standstill:
+- shift: the samples far from the median (beyond ``SHIFT_INNER_SIGMAS`` noise sigmas) move
+  the window's mean by more than ``max_shift_se`` standard errors of that mean;
+- scaled trend: the first-vs-last-third trend exceeds ``max_trend_se`` standard errors of a
+  difference of two third-means (never less than ``trend_floor_dps``).
+The noise sigma is the larger of 1.4826 x the median absolute deviation and the standard
+deviation without the sample farthest from the median (the MAD alone is 0 when a coarse ADC
+reads one code in most samples), never below ``noise_floor_dps``. They need at least
+``NOISE_TEST_MIN_SAMPLES`` samples. See docs/evaluation.md.
+
+:class:`StartupWindow` is the one start-up calibration window: the daemon's pipeline, ``hdrd
+calibrate`` and ``hdrd evaluate`` gather their standstill samples in it and measure through it.
 """
 
 from __future__ import annotations
@@ -19,7 +34,7 @@ import math
 import os
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,15 +47,23 @@ __all__ = [
     "BiasRecord",
     "MotionDetected",
     "StandstillLimits",
+    "StartupWindow",
     "atomic_write_json",
     "atomic_write_text",
     "estimate_bias",
     "load_bias",
+    "noise_sigma",
     "save_bias",
 ]
 
 T_BIAS_S = 30.0
 """Static bias averaging time Tbias, s (paper Sec. 2: "Tbias = 30 seconds")."""
+SHIFT_INNER_SIGMAS = 4.0
+"""Samples within this many noise sigmas of the median are the undisturbed core of a window
+(the shift test compares their mean with the mean of all)."""
+NOISE_TEST_MIN_SAMPLES = 6
+"""The noise-scaled tests need this many samples: a window's own noise is too uncertain in
+fewer (Gaussian noise alone would fail them 1 time in 100 with 5 samples, 1 in 4 with 3)."""
 
 
 class MotionDetected(ValueError):
@@ -59,6 +82,17 @@ class StandstillLimits:
     max_std_dps: float = 0.5
     max_trend_dps: float = 0.2
     max_excursion_dps: float = 3.0
+    max_shift_se: float = 4.0
+    """Largest pull of the far samples on the mean, in standard errors of the mean (noise
+    sigma / sqrt(samples)); 0 switches the noise-scaled tests off."""
+    max_trend_se: float = 6.0
+    """Largest first-vs-last-third trend, in standard errors of that difference."""
+    noise_floor_dps: float = 0.01
+    """Smallest noise sigma the noise-scaled tests assume, deg/s (a gyro quieter than this,
+    or quantised to one code, is not held to a finer limit)."""
+    trend_floor_dps: float = 0.02
+    """The noise-scaled trend test never rejects a trend below this, deg/s (slow warm-up
+    drift over a long window)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +154,7 @@ def estimate_bias(
             f"vehicle moved: a sample {excursion:.2f} deg/s from the median "
             f"> {limits.max_excursion_dps} deg/s allowed"
         )
+    _check_noise_scaled(w, limits)
     duration = 0.0
     if t_s is not None:
         t = np.asarray(t_s, dtype=np.float64)
@@ -130,6 +165,146 @@ def estimate_bias(
         tc = tc[np.isfinite(tc)]
         temp = float(np.mean(tc)) if tc.shape[0] else None
     return BiasRecord(mean, std, n, duration, temp, when)
+
+
+def noise_sigma(w: npt.NDArray[np.float64], floor_dps: float = 0.0) -> float:
+    """Robust noise sigma of standstill samples (deg/s): the larger of 1.4826 x the median
+    absolute deviation and the sample standard deviation without the sample farthest from the
+    median, never below floor_dps. One bump (the first second of a turn at 1 Hz) does not
+    inflate it, and, unlike the MAD alone, it is not 0 when most samples read one ADC code."""
+    n = int(w.shape[0])
+    dev = np.abs(w - np.median(w))
+    mad_sigma = 1.4826 * float(np.median(dev))
+    loo = 0.0
+    if n > 2:
+        loo = float(np.std(np.delete(w, int(np.argmax(dev))), ddof=1))
+    return max(mad_sigma, loo, floor_dps)
+
+
+def _check_noise_scaled(w: npt.NDArray[np.float64], limits: StandstillLimits) -> None:
+    """The shift and scaled-trend tests (module docstring); raises MotionDetected."""
+    n = int(w.shape[0])
+    if not limits.max_shift_se > 0 or n < NOISE_TEST_MIN_SAMPLES:
+        return
+    sigma = noise_sigma(w, limits.noise_floor_dps)
+    med = float(np.median(w))
+    core = w[np.abs(w - med) <= SHIFT_INNER_SIGMAS * sigma]
+    mean = float(np.mean(w))
+    shift = mean - float(np.mean(core)) if core.shape[0] else mean - med
+    se = sigma / math.sqrt(n)
+    if abs(shift) > limits.max_shift_se * se:
+        raise MotionDetected(
+            f"vehicle moved: {n - core.shape[0]} of {n} samples pull the mean by {shift:+.4f} "
+            f"deg/s, {abs(shift) / se:.1f} standard errors (noise {sigma:.4f} deg/s) > "
+            f"{limits.max_shift_se:g} allowed"
+        )
+    third = max(n // 3, 1)
+    trend = float(np.mean(w[-third:]) - np.mean(w[:third]))
+    se_trend = sigma * math.sqrt(2.0 / third)
+    if abs(trend) > max(limits.max_trend_se * se_trend, limits.trend_floor_dps):
+        raise MotionDetected(
+            f"vehicle moved: rate trend {trend:+.4f} deg/s between the window's first and last "
+            f"thirds, {abs(trend) / se_trend:.1f} standard errors (noise {sigma:.4f} deg/s) > "
+            f"{limits.max_trend_se:g} allowed"
+        )
+
+
+class StartupWindow:
+    """The start-up calibration window, one implementation for the daemon's pipeline,
+    ``hdrd calibrate`` and ``hdrd evaluate``. Pure.
+
+    It gathers the raw rates (deg/s, + = CCW) and temperatures (deg C, NaN = unknown) of
+    consecutive samples while the vehicle should stand still, and measures them as one static
+    bias (:func:`estimate_bias`). The owner says when a step of the window closed
+    (:meth:`close_block`): after ``blocks`` closed steps the window is measured; samples that
+    show motion empty it, and the samples that follow start a new attempt (the daemon keeps
+    trying until the vehicle stands still). ``hdrd calibrate`` ends its window by device time
+    instead and calls :meth:`measure` itself.
+    """
+
+    __slots__ = ("_omega", "_temp", "attempts", "block_s", "blocks", "closed", "limits")
+
+    def __init__(
+        self, blocks: int = 1, limits: StandstillLimits = StandstillLimits(), block_s: float = 0.0
+    ) -> None:
+        if blocks < 1:
+            raise ValueError(f"a calibration window needs at least 1 step, got {blocks}")
+        self.blocks = blocks
+        self.block_s = block_s
+        """Length of one step, s (the measured record's duration is blocks x block_s)."""
+        self.limits = limits
+        self.closed = 0
+        """Steps of the current attempt closed so far."""
+        self.attempts = 0
+        """Measurements tried (accepted or rejected)."""
+        self._omega: list[float] = []
+        self._temp: list[float] = []
+
+    @classmethod
+    def for_seconds(
+        cls, seconds: float, T: float, limits: StandstillLimits = StandstillLimits()
+    ) -> StartupWindow:
+        """A window of ``seconds`` rounded up to whole steps of T s (at least one)."""
+        return cls(max(1, math.ceil(seconds / T - 1e-9)), limits, T)
+
+    @property
+    def n(self) -> int:
+        """Samples gathered in the current attempt."""
+        return len(self._omega)
+
+    @property
+    def mean_dps(self) -> float:
+        """Mean of the samples gathered so far, deg/s (NaN before the first)."""
+        return math.fsum(self._omega) / len(self._omega) if self._omega else math.nan
+
+    def add(self, omega_dps: float, temp_c: float | None = None) -> None:
+        """One sample of the window."""
+        self._omega.append(omega_dps)
+        self._temp.append(math.nan if temp_c is None else temp_c)
+
+    def add_many(self, omega_dps: npt.ArrayLike, temp_c: npt.ArrayLike | None = None) -> None:
+        """Samples in order, as :meth:`add` one by one (temp_c NaN = unknown)."""
+        w = np.asarray(omega_dps, dtype=np.float64)
+        self._omega.extend(w.tolist())
+        if temp_c is None:
+            self._temp.extend([math.nan] * w.shape[0])
+        else:
+            self._temp.extend(np.asarray(temp_c, dtype=np.float64).tolist())
+
+    def clear(self) -> None:
+        """Start again: no samples, no closed steps (a contiguous window was broken)."""
+        self._omega.clear()
+        self._temp.clear()
+        self.closed = 0
+
+    def measure(self, when: float = 0.0) -> BiasRecord:
+        """The bias of the samples gathered (duration: the closed steps times block_s).
+        Raises MotionDetected (the window is left as it is)."""
+        self.attempts += 1
+        rec = estimate_bias(
+            np.asarray(self._omega),
+            temp_c=np.asarray(self._temp),
+            limits=self.limits,
+            when=when,
+        )
+        return replace(rec, duration_s=self.blocks * self.block_s)
+
+    def close_block(self) -> BiasRecord | None:
+        """A step of the window closed (its samples were added). None until ``blocks`` steps
+        closed; then the measured bias, the window emptied. MotionDetected if the samples
+        show motion, the window emptied for a new attempt."""
+        self.closed += 1
+        if self.closed < self.blocks:
+            return None
+        try:
+            rec = self.measure()
+        except MotionDetected:
+            self.clear()
+            raise
+        self._omega = []
+        self._temp = []
+        self.closed = 0
+        return rec
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:

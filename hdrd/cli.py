@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 from hdrd import __version__
 
@@ -42,11 +42,30 @@ def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> N
         )
 
 
+class _MethodNames:
+    """The drift reducers' names, read from :data:`hdrd.methods.REGISTRY` when argparse
+    first needs them (to check a value or print a command's help). Importing the registry up
+    front would load numpy and slow ``hdrd --help``."""
+
+    def _names(self) -> tuple[str, ...]:
+        from hdrd.methods import names
+
+        return names()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names())
+
+    def __contains__(self, value: object) -> bool:
+        return value in self._names()
+
+
 def _method(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--method",
-        choices=("none", "hdr", "hdr+"),
-        help="drift reduction: none (static bias only), hdr (the paper), hdr+ (improved)",
+        choices=_MethodNames(),
+        metavar="METHOD",  # a metavar keeps argparse from listing the choices at parser set-up
+        help="drift reduction, one of %(choices)s (none: static bias removal only; hdr: the "
+        "paper's; see docs/evaluation.md)",
     )
 
 
@@ -95,10 +114,10 @@ def _run(p: argparse.ArgumentParser) -> None:
     _method(p)
     p.add_argument(
         "--gpsd",
-        metavar="HOST:PORT",
+        metavar="HOST[:PORT]",
         nargs="?",
         const="127.0.0.1:2947",
-        help="aid with GPS from gpsd",
+        help="aid with GPS from gpsd (default 127.0.0.1:2947; IPv6 as [::1]:2947)",
     )
     p.add_argument("--log-format", choices=("auto", "json", "console"), help="log format on stderr")
 
@@ -263,13 +282,16 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     "evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)"
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("drives", nargs="+", metavar="DRIVE.csv")
+    p.add_argument(
+        "drives", nargs="+", metavar="DRIVE.csv|DIR", help="drive logs, or directories of them"
+    )
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--calibrate-seconds",
         type=float,
         metavar="S",
-        help="bias from the first S seconds (default 30)",
+        help="bias from the first S seconds, as the daemon's start-up window (default: each "
+        "log's lead-in, else its first standstill found from the speed or the gyro)",
     )
     g.add_argument("--bias", type=float, metavar="DPS", help="static bias, deg/s")
     p.add_argument("--json", metavar="FILE", help="write the table as JSON")
@@ -296,7 +318,7 @@ def _tune(p: argparse.ArgumentParser) -> None:
         "--calibrate-seconds",
         type=float,
         metavar="S",
-        help="bias from the first S seconds (default 30)",
+        help="bias from the first S seconds (default: per drive, as `hdrd evaluate`)",
     )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
 from hdrd.hdr import HdrParams
 from hdrd.sensor import SensorModel
@@ -44,7 +45,6 @@ EX_CONFIG = 78
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
 
 PROTOCOLS = ("hdr-bin", "hdr-text")
-METHODS = ("none", "hdr", "hdr+")
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 
 
@@ -250,6 +250,14 @@ def _choice(*options: Any) -> tuple[Check, str]:
     return (lambda v: v in options), "one of " + ", ".join(str(o) for o in options)
 
 
+def _method() -> tuple[Check, str]:
+    """A registered drift reducer (:data:`hdrd.methods.REGISTRY`, read when checked)."""
+    return (
+        (lambda v: isinstance(v, str) and v in methods.REGISTRY),
+        "one of " + ", ".join(methods.names()),
+    )
+
+
 def _hostports(v: tuple[str, ...]) -> bool:
     try:
         for item in v:
@@ -276,7 +284,7 @@ RULES: dict[str, tuple[Check, str]] = {
     "sensor.range_dps": _POS,
     "sensor.ref_divider": _POS,
     "sensor.supply_nominal_v": _POS,
-    "hdr.method": _choice(*METHODS),
+    "hdr.method": _method(),
     "hdr.i_c": _NONNEG,
     "hdr.tau": _NONNEG,
     "hdr.theta_w": _POS,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import socket
@@ -27,7 +28,7 @@ from hdrd.calibrate import (
     BiasRecord,
     MotionDetected,
     StandstillLimits,
-    estimate_bias,
+    StartupWindow,
     load_bias,
     save_bias,
 )
@@ -66,7 +67,11 @@ class SdNotifier:
         if addr:
             self._addr = "\0" + addr[1:] if addr.startswith("@") else addr
             try:
-                self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                # Non-blocking: a notification that cannot go at once is dropped (and the
+                # next one tried), never a reason to hold up the loop.
+                self._sock = socket.socket(
+                    socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK
+                )
             except OSError:
                 self._sock = None
         usec = env.get("WATCHDOG_USEC", "")
@@ -93,6 +98,40 @@ class SdNotifier:
         if self._sock is not None:
             self._sock.close()
             self._sock = None
+
+
+class WatchdogGate:
+    """When the run loop may tell systemd ``WATCHDOG=1``. Pure: the caller passes the time.
+
+    A ping says "the loop is doing its job", so it is sent (at most every *interval_s*, half
+    of WatchdogSec) only if, since the previous ping, the loop has made **progress**
+    (:meth:`progress`): it published a message (a step, or a stale report while the device
+    is silent), or it found the source with nothing to hand out (everything that arrived is
+    handled: the state while the device is unplugged, before it first appears, or when it
+    sends only garbage). A loop that turns without either (a flood of other work keeps it
+    from the frames that are waiting, so steps come late or never) stops pinging, and
+    systemd restarts the daemon after WatchdogSec. Steps come every T, so WatchdogSec must
+    be longer than T; at least 2 T leaves room (docs/operations.md).
+    """
+
+    __slots__ = ("_next", "_progress", "interval_s")
+
+    def __init__(self, interval_s: float | None) -> None:
+        self.interval_s = interval_s
+        self._next = -math.inf
+        self._progress = False
+
+    def progress(self) -> None:
+        """A message was published, or the source was idle."""
+        self._progress = True
+
+    def due(self, now: float) -> bool:
+        """True when a ping should go now (and then it counts as sent)."""
+        if self.interval_s is None or now < self._next or not self._progress:
+            return False
+        self._progress = False
+        self._next = now + self.interval_s
+        return True
 
 
 # -- logging ------------------------------------------------------------------------------
@@ -149,10 +188,16 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     if g("nmea_udp"):
         o["output.nmea_udp"] = tuple(args.nmea_udp)
     if g("gpsd"):
-        host, _, port = args.gpsd.rpartition(":")
+        from hdrd.gpsd import parse_address
+
+        try:
+            host, port = parse_address(args.gpsd)
+        except ValueError as e:
+            allowed = f"{e}; give HOST, HOST:PORT, [IPv6] or [IPv6]:PORT (port default 2947)"
+            raise ConfigError("--gpsd", args.gpsd, allowed) from None
         o["gpsd.enabled"] = True
-        o["gpsd.host"] = host or "127.0.0.1"
-        o["gpsd.port"] = int(port) if port.isdigit() else -1
+        o["gpsd.host"] = host
+        o["gpsd.port"] = port
     return o
 
 
@@ -251,6 +296,7 @@ def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
         params=cfg.hdr.params,
         method=cfg.hdr.method,
         bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
@@ -365,6 +411,9 @@ class Daemon:
         self.status = ""
         self.steps = 0
         self.reconnects = 0
+        self.watchdog = WatchdogGate(self.notifier.watchdog_s)
+        self._dropped_logged = 0
+        self._dropped_log_at = -math.inf
         self.gps: Any = _gps_link(cfg)  # GPS aiding through gpsd (hdrd.gpsd.GpsdLink), issue 9
 
     # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
@@ -376,6 +425,8 @@ class Daemon:
     def _publish(self, msgs: list[dict[str, Any]], steps: bool = True) -> None:
         from hdrd.publish import OutputClosed
 
+        if msgs:
+            self.watchdog.progress()
         if self.gps is not None:  # mode, GPS-aligned heading; learned bias -> pipeline
             msgs = self.gps.aid(msgs, self.pipeline)
         for m in msgs:
@@ -430,6 +481,29 @@ class Daemon:
         self.cfg, self.where = cfg, where
         log.info("config_reloaded", source=where, method=cfg.hdr.method, **cfg.hdr.params.as_dict())
 
+    DROP_LOG_INTERVAL_S = 10.0
+    """At most one ``output_dropped`` warning per this many seconds."""
+
+    def _dropped(self) -> int:
+        """Messages dropped by the publishers so far (stdout with a stalled reader)."""
+        return sum(int(getattr(p, "dropped", 0)) for p in self.publishers)
+
+    def _log_drops(self, now: float) -> None:
+        if now - self._dropped_log_at < self.DROP_LOG_INTERVAL_S:
+            return
+        total = self._dropped()
+        if total < self._dropped_logged:  # the publishers were rebuilt (SIGHUP)
+            self._dropped_logged = 0
+        if total > self._dropped_logged:
+            log.warning(
+                "output_dropped",
+                output="stdout",
+                reason="the reader does not keep up",
+                total=total,
+                new=total - self._dropped_logged,
+            )
+            self._dropped_logged, self._dropped_log_at = total, now
+
     def _drain_events(self) -> None:
         for name, fields in self.pipeline.events:
             # rejections are worth a warning; calibrations and bias updates are news
@@ -469,17 +543,27 @@ class Daemon:
         last_data = mono()
         lost_at: float | None = None
         last_stale = 0.0
-        next_watchdog = mono()
         last_bad = 0
         last_bad_log = 0.0
+        wd = self.notifier.watchdog_s
+        if wd is not None and T > wd:
+            log.warning(
+                "watchdog_too_short",
+                watchdog_s=2 * wd,
+                step_s=T,
+                reason="WATCHDOG=1 follows published steps: make WatchdogSec at least 2 hdr.T",
+            )
         try:
             while not self.signals.stop:
                 if self.signals.reload:
                     self.signals.reload = False
                     self._reload()
                 item = src.recv(self.RECV_TIMEOUT_S)
+                if item is None:
+                    self.watchdog.progress()  # all input handled: idle, not stuck
                 if self.gps is not None:
-                    self.gps.poll(self.pipeline)  # never blocks; fixes and speed
+                    # never blocks; bounded work per turn (hdrd.gpsd.LINES_PER_POLL)
+                    self.gps.poll(self.pipeline)
                 now_m = mono()
                 bad = src.bad_frames  # not src.stats: that copies every counter, per frame
                 msgs: list[dict[str, Any]] = []
@@ -533,9 +617,9 @@ class Daemon:
                 if bad > last_bad and now_m - last_bad_log >= self.cfg.log.bad_frame_interval_s:
                     log.warning("bad_frames", total=bad, new=bad - last_bad)
                     last_bad, last_bad_log = bad, now_m
-                if self.notifier.watchdog_s and now_m >= next_watchdog:
+                if self.watchdog.due(now_m):
                     self.notifier.notify("WATCHDOG=1")
-                    next_watchdog = now_m + self.notifier.watchdog_s
+                self._log_drops(now_m)
                 if got_frame and pacer is not None and not src.pending:
                     # Everything read is processed: let the next frames gather (READ_BATCH_S).
                     t_dev = self.pipeline.clock.last_us
@@ -565,6 +649,7 @@ class Daemon:
                 steps=self.steps,
                 bad_frames=int(src.stats.bad_frames),
                 reconnects=self.reconnects,
+                output_dropped=self._dropped(),
             )
             self.notifier.close()
             self.signals.restore()
@@ -621,8 +706,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
 
     src = open_source(cfg, bool(getattr(args, "simulate", False)))
     clock = DeviceClock()
-    omega: list[float] = []
-    temps: list[float] = []
+    window = StartupWindow(limits=standstill_limits(cfg))  # the daemon's start-up window, too
     t0: int | None = None
     t_last = 0
     next_report = 1.0
@@ -641,7 +725,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
                 continue
             if isinstance(item, DeviceBack):
                 print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, omega, temps, t0, next_report = DeviceClock(), [], [], None, 1.0
+                clock, t0, next_report = DeviceClock(), None, 1.0
+                window.clear()
                 continue
             if isinstance(item, EndOfInput):
                 break
@@ -654,13 +739,11 @@ def calibrate_main(args: argparse.Namespace) -> int:
             if elapsed >= seconds:
                 t_last = t
                 break
-            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
-            omega.append(w)
-            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
+            window.add(cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
             t_last = t
             if elapsed >= next_report:
                 print(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s  n {len(omega)}",
+                    f"  {elapsed:5.1f} / {seconds:g} s  mean {window.mean_dps:+.4f} deg/s  n {window.n}",
                     flush=True,
                 )
                 next_report += 1.0
@@ -678,14 +761,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         )
         return 1
     try:
-        import numpy as np
-
-        rec = estimate_bias(
-            np.asarray(omega),
-            temp_c=np.asarray(temps),
-            limits=standstill_limits(cfg),
-            when=time.time(),
-        )
+        rec = window.measure(when=time.time())
     except MotionDetected as e:
         print(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr

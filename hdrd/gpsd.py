@@ -54,6 +54,7 @@ __all__ = [
     "Sky",
     "Version",
     "Watch",
+    "parse_address",
     "parse_line",
     "parse_time",
 ]
@@ -63,6 +64,13 @@ DEFAULT_PORT = 2947
 WATCH_COMMAND = b'?WATCH={"enable":true,"json":true}\n'
 MAX_LINE = 65536
 """Longest line we buffer, bytes; gpsd's reports are a few hundred bytes (SKY a few KiB)."""
+READ_CHUNK = 16384
+"""Most bytes read from gpsd per :meth:`GpsdClient.poll`: a poll's work is bounded whatever
+the peer sends (a flooding peer is slowed by TCP flow control, not by the daemon's loop)."""
+LINES_PER_POLL = 32
+"""Most lines parsed per :meth:`GpsdClient.poll`; gpsd sends a few lines per second, the
+daemon polls every loop turn (at least 10 times a second), so these bounds never delay a
+report from a real gpsd."""
 
 log = structlog.get_logger("hdrd")
 
@@ -182,33 +190,60 @@ Report = Version | Devices | Device | Watch | Fix | Sky | Attitude | GpsdError
 _TIME_RE = re.compile(r"(\d{4})-(\d\d)-(\d\d)T(\d\d):(\d\d):(\d\d)(\.\d+)?Z?\Z")
 
 
+def _finite(v: int | float) -> float | None:
+    """*v* as a finite float; None for NaN, +-inf and integers beyond float range (JSON
+    integers have no size limit: ``1`` followed by 400 zeros is valid JSON)."""
+    try:
+        f = float(v)
+    except OverflowError:
+        return None
+    return f if math.isfinite(f) else None
+
+
 def parse_time(value: Any) -> float | None:
     """gpsd's time, ISO 8601 UTC (``2005-06-08T10:34:48.283Z``) or, in old gpsd, UNIX s,
     -> UNIX s. None for anything else (a bad time is not a reason to drop a fix)."""
     if isinstance(value, bool):
         return None
     if isinstance(value, (int, float)):
-        return float(value) if math.isfinite(value) else None
+        return _finite(value)
     if not isinstance(value, str):
         return None
     m = _TIME_RE.match(value)
     if not m:
         return None
     y, mo, d, h, mi, s = (int(x) for x in m.groups()[:6])
-    if not (1 <= mo <= 12 and 1 <= d <= 31 and h < 24 and mi < 60 and s <= 60):
-        return None
+    if not (1 <= y and 1 <= mo <= 12 and 1 <= d <= 31 and h < 24 and mi < 60 and s <= 60):
+        return None  # year 0000 has no calendar date (datetime starts at year 1)
     frac = float(m.group(7)) if m.group(7) else 0.0
     return calendar.timegm((y, mo, d, h, mi, s, 0, 0, 0)) + frac
 
 
 def _num(obj: Mapping[str, Any], key: str) -> float | None:
-    """A finite number, None when absent; GpsdProtocolError when of the wrong type."""
+    """A finite number, None when absent or not finite (NaN, +-inf, an integer beyond float
+    range); GpsdProtocolError when of the wrong type."""
     v = obj.get(key)
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise GpsdProtocolError(f"{key!r} is not a number: {v!r}")
-    return float(v) if math.isfinite(v) else None
+        raise GpsdProtocolError(f"{key!r} is not a number: {_shown(v)}")
+    return _finite(v)
+
+
+def _nonneg(obj: Mapping[str, Any], key: str) -> float | None:
+    """:func:`_num` for a magnitude (a speed, an error estimate): a negative value is not one
+    gpsd sends, so it is treated as unknown (None) rather than trusted."""
+    v = _num(obj, key)
+    return None if v is None or v < 0.0 else v
+
+
+def _shown(v: Any) -> str:
+    """A short, printable rendering of a bad value for an error message."""
+    try:
+        text = repr(v)
+    except (ValueError, RecursionError):  # an int beyond the str-conversion limit, deep nesting
+        text = f"<{type(v).__name__}>"
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _int(obj: Mapping[str, Any], key: str) -> int | None:
@@ -221,7 +256,7 @@ def _str(obj: Mapping[str, Any], key: str) -> str | None:
     if v is None:
         return None
     if not isinstance(v, str):
-        raise GpsdProtocolError(f"{key!r} is not a string: {v!r}")
+        raise GpsdProtocolError(f"{key!r} is not a string: {_shown(v)}")
     return v
 
 
@@ -230,7 +265,7 @@ def _bool(obj: Mapping[str, Any], key: str) -> bool | None:
     if v is None:
         return None
     if not isinstance(v, bool):
-        raise GpsdProtocolError(f"{key!r} is not true/false: {v!r}")
+        raise GpsdProtocolError(f"{key!r} is not true/false: {_shown(v)}")
     return v
 
 
@@ -253,9 +288,9 @@ def _fix(obj: Mapping[str, Any]) -> Fix:
         mode=0 if mode is None else mode,
         time=parse_time(obj.get("time")),
         track_deg=None if track is None else track % 360.0,
-        speed_mps=_num(obj, "speed"),
-        epd=_num(obj, "epd"),
-        eps=_num(obj, "eps"),
+        speed_mps=_nonneg(obj, "speed"),
+        epd=_nonneg(obj, "epd"),
+        eps=_nonneg(obj, "eps"),
         lat=_num(obj, "lat"),
         lon=_num(obj, "lon"),
         alt_m=_num(obj, "alt") if alt is None else alt,
@@ -293,7 +328,10 @@ def parse_line(line: bytes | str) -> Report | None:
     """One line of gpsd output -> a report; None for a class hdrd does not use.
 
     Raises GpsdProtocolError (with the reason) for a line that is not a JSON object with a
-    string ``class``, or whose known attributes have the wrong type.
+    string ``class``, or whose known attributes have the wrong type; never anything else,
+    whatever the line (numbers of any length, nesting of any depth, any bytes).
+    A number that is not finite or beyond float range reads as absent (None); so does a
+    negative speed or error estimate (``speed``, ``epd``, ``eps``: magnitudes).
     """
     if isinstance(line, bytes):
         try:
@@ -305,13 +343,28 @@ def parse_line(line: bytes | str) -> Report | None:
         raise GpsdProtocolError("empty line")
     try:
         obj = json.loads(line)
-    except (json.JSONDecodeError, RecursionError) as e:
-        raise GpsdProtocolError(f"not JSON: {getattr(e, 'msg', e)}") from None
+    except json.JSONDecodeError as e:
+        raise GpsdProtocolError(f"not JSON: {e.msg}") from None
+    except ValueError:  # an integer of more than sys.get_int_max_str_digits() digits
+        raise GpsdProtocolError("not JSON hdrd reads: a number with too many digits") from None
+    except RecursionError:
+        raise GpsdProtocolError("not JSON hdrd reads: nested too deeply") from None
     if not isinstance(obj, dict):
         raise GpsdProtocolError("not a JSON object")
     cls = obj.get("class")
     if not isinstance(cls, str):
         raise GpsdProtocolError("no 'class'")
+    try:
+        return _report(cls, obj)
+    except GpsdProtocolError:
+        raise
+    except (ValueError, OverflowError, TypeError, RecursionError) as e:
+        # A guard: every value is type-checked above, so this is a case we did not foresee;
+        # the line is reported bad (counted, skipped) rather than stopping the caller.
+        raise GpsdProtocolError(f"unusable {cls[:20]!r} report: {type(e).__name__}") from None
+
+
+def _report(cls: str, obj: Mapping[str, Any]) -> Report | None:
     if cls == "TPV":
         return _fix(obj)
     if cls == "SKY":
@@ -345,6 +398,42 @@ def parse_line(line: bytes | str) -> Report | None:
     return None
 
 
+def parse_address(text: str) -> tuple[str, int]:
+    """Where gpsd listens, as ``hdrd run --gpsd`` takes it -> (host, port).
+
+    ``HOST``, ``HOST:PORT``, ``:PORT`` (host 127.0.0.1), ``[IPv6]``, ``[IPv6]:PORT``, or a
+    bare IPv6 address (``::1``: more than one colon and no brackets, so no port); the port
+    defaults to 2947 (:data:`DEFAULT_PORT`) and must be 1..65535. ValueError says what is
+    wrong.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError("empty address")
+    if any(c.isspace() or not c.isprintable() for c in text):
+        raise ValueError("an address has no spaces or control characters")
+    host, port_s = text, None  # None: no port given
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0:
+            raise ValueError("'[' without ']'")
+        host, rest = text[1:end], text[end + 1 :]
+        if not host:
+            raise ValueError("empty host in []")
+        if rest:
+            if not rest.startswith(":"):
+                raise ValueError(f"unexpected {rest[:20]!r} after ']'")
+            port_s = rest[1:]
+    elif text.count(":") == 1:
+        host, _, port_s = text.partition(":")
+        host = host or DEFAULT_HOST
+    if "[" in host or "]" in host:
+        raise ValueError("brackets belong around a whole IPv6 address")
+    if port_s is None:
+        return host, DEFAULT_PORT
+    if not port_s.isdigit() or len(port_s) > 5 or not 0 < int(port_s) < 65536:
+        raise ValueError(f"port {port_s[:20]!r} is not 1..65535")
+    return host, int(port_s)
+
+
 # -- the client (edge) ------------------------------------------------------------------------
 
 
@@ -371,8 +460,9 @@ class GpsdClient:
     """A gpsd JSON client that never blocks and never raises on I/O trouble.
 
     Call :meth:`poll` often (the daemon: every loop turn): it connects when due, sends
-    ``?WATCH={"enable":true,"json":true}``, reads what is there, and returns the fixes
-    (TPV) received since the last call. A refused or lost connection is retried after
+    ``?WATCH={"enable":true,"json":true}``, reads what is there (at most :data:`READ_CHUNK`
+    bytes and :data:`LINES_PER_POLL` lines per call, so a peer that floods cannot hold up
+    the caller), and returns the fixes (TPV) received since the last call. A refused or lost connection is retried after
     ``reconnect_min_s``, doubling up to ``reconnect_max_s``. Other reports are kept:
     ``version``, ``devices``, ``sky``, ``attitude`` (the latest of each); :meth:`poll_reports`
     returns every report. Host names are resolved when connecting (numeric addresses never
@@ -394,6 +484,7 @@ class GpsdClient:
         self._sock: socket.socket | None = None
         self._connecting = False
         self._buf = bytearray()
+        self._skip_line = False  # dropping the rest of a line longer than MAX_LINE
         self._next_try = 0.0
         self._backoff = reconnect_min_s
         self._last_failure: str | None = None
@@ -420,6 +511,7 @@ class GpsdClient:
         self._connecting = False
         self.connected = False
         self._buf.clear()
+        self._skip_line = False
         self._next_try = self._clock() + self._backoff
         self._backoff = min(self._backoff * 2, self.reconnect_max_s)
         if was:
@@ -494,34 +586,56 @@ class GpsdClient:
 
     # -- reading --
     def _read(self) -> list[bytes]:
+        """At most :data:`LINES_PER_POLL` complete lines, reading at most one chunk of
+        :data:`READ_CHUNK` bytes, and only when fewer than a chunk's worth of bytes or no
+        complete line is buffered (so the buffer stays under MAX_LINE + READ_CHUNK)."""
         assert self._sock is not None
-        lines: list[bytes] = []
-        for _ in range(64):  # bounded: never starve the caller's loop
+        buf = self._buf
+        if len(buf) < READ_CHUNK or buf.find(b"\n") < 0:
             try:
-                chunk = self._sock.recv(65536)
+                chunk = self._sock.recv(READ_CHUNK)
             except (BlockingIOError, InterruptedError):
-                break
+                chunk = None
             except OSError as e:
                 self._fail(f"recv: {e.strerror or e}")
+                return []
+            if chunk is not None:
+                if not chunk:
+                    self._fail("gpsd closed the connection")
+                    return []
+                if self._skip_line:  # the rest of a line too long to keep
+                    nl = chunk.find(b"\n")
+                    if nl < 0:
+                        return []
+                    chunk = chunk[nl + 1 :]
+                    self._skip_line = False
+                buf += chunk
+        lines: list[bytes] = []
+        pos = 0
+        while len(lines) < LINES_PER_POLL:
+            nl = buf.find(b"\n", pos)
+            if nl < 0:
                 break
-            if not chunk:
-                self._fail("gpsd closed the connection")
-                break
-            self._buf += chunk
-            while True:
-                nl = self._buf.find(b"\n")
-                if nl < 0:
-                    break
-                lines.append(bytes(self._buf[:nl]))
-                del self._buf[: nl + 1]
-            if len(self._buf) > MAX_LINE:
-                self.stats.bad_lines += 1
-                self.stats.note(f"a line longer than {MAX_LINE} bytes dropped")
-                self._buf.clear()
+            if nl - pos > MAX_LINE:
+                self._too_long()
+            else:
+                lines.append(bytes(buf[pos:nl]))
+            pos = nl + 1
+        del buf[:pos]
+        if len(buf) > MAX_LINE and buf.find(b"\n") < 0:
+            self._too_long()
+            buf.clear()
+            self._skip_line = True
         return lines
 
+    def _too_long(self) -> None:
+        self.stats.bad_lines += 1
+        self.stats.note(f"a line longer than {MAX_LINE} bytes dropped")
+
     def poll_reports(self) -> list[Report]:
-        """Every report received since the last call (never blocks, never raises OSError)."""
+        """The reports received since the last call, oldest first: at most
+        :data:`LINES_PER_POLL` lines are parsed per call, the rest wait for the next ones.
+        Never blocks, never raises (bad lines are counted in ``stats`` and skipped)."""
         if self.closed:
             return []
         if self._sock is None:
@@ -609,7 +723,7 @@ class GpsdLink:
 
     :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
     and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
-    fix). :meth:`aid` on each batch of messages before they are published: each gains
+    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
     ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
     :class:`hdrd.aiding.GpsAiding`), and a learned bias correction goes to
     ``Pipeline.adjust_bias(delta, "gps")``.
@@ -622,6 +736,8 @@ class GpsdLink:
         self.aiding = aiding
         self._clock = clock
         self._mode: str | None = None
+        self._bad_logged = 0
+        self._bad_log_at = -math.inf
 
     @classmethod
     def from_config(cls, gpsd_cfg: Any, step_s: float = 1.0) -> GpsdLink:
@@ -632,11 +748,24 @@ class GpsdLink:
         client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
         return cls(client, GpsAiding(aiding_config(gpsd_cfg, step_s)))
 
+    BAD_LOG_INTERVAL_S = 10.0
+    """At most one ``gpsd_bad_lines`` warning per this many seconds."""
+
     def poll(self, pipeline: Any, now: float | None = None) -> None:
         now = self._clock() if now is None else now
         for f in self.client.poll():
             self.aiding.on_fix(f, now)
         pipeline.set_speed(self.aiding.speed(now))
+        bad = self.client.stats.bad_lines
+        if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
+            errors = self.client.stats.errors
+            log.warning(
+                "gpsd_bad_lines",
+                total=bad,
+                new=bad - self._bad_logged,
+                last=errors[-1] if errors else None,
+            )
+            self._bad_logged, self._bad_log_at = bad, now
 
     def aid(
         self, msgs: list[dict[str, Any]], pipeline: Any, now: float | None = None

@@ -7,10 +7,14 @@ bit-identical messages for the same bytes: the array path uses the same formulas
 (:meth:`hdrd.resample.BlockAverager.feed_many`).
 
 Stages: counts -> deg/s, + = CCW (:mod:`hdrd.sensor`); block means over T by device time
-(Eq. 11, :mod:`hdrd.resample`); static bias eps0 removed (Eq. 2; given, or measured over the
-first ``startup_s`` at standstill, paper Sec. 6); one HDR step per block (Eqs. 3-10,
-:mod:`hdrd.hdr`). The caller owns the clock: the UNIX ``time`` of a message is passed in, and
-``None`` leaves it out (as replay does, having no wall clock for recorded bytes).
+(Eq. 11, :mod:`hdrd.resample`); then the :class:`Stepper`, one call per closed block: static
+bias eps0 removed (Eq. 2; given, or measured over the first ``startup_s`` at standstill, paper
+Sec. 6, in :class:`hdrd.calibrate.StartupWindow`), one step of the configured drift reducer
+(:mod:`hdrd.methods`), the message's fields. ``hdrd evaluate`` runs a drive log's samples
+through the same :class:`hdrd.resample.BlockAverager` and :class:`Stepper`, so a drive is
+evaluated exactly as the daemon would have run it. The caller owns the clock: the UNIX ``time``
+of a message is passed in, and ``None`` leaves it out (as replay does, having no wall clock for
+recorded bytes).
 
 Message fields are documented in docs/protocol.md ("Published messages"). An unknown value
 is left out, never sent as null or 0.
@@ -26,10 +30,10 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from hdrd import hdr, hdrplus
-from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd import methods
+from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.hdr import HdrParams, HdrState
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusState
+from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, PlusOutput, PlusState
 from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
 from hdrd.sensor import SensorModel
 
@@ -38,8 +42,8 @@ __all__ = [
     "Message",
     "Pipeline",
     "PipelineConfig",
+    "Stepper",
     "heading_from_yaw",
-    "method_params",
 ]
 
 SCHEMA_VERSION = 1
@@ -66,19 +70,6 @@ def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
     return 0.0 if h >= 360.0 else h
 
 
-METHODS = ("none", "hdr", "hdr+")
-
-
-def method_params(method: str, params: HdrParams) -> HdrParams:
-    """The paper-HDR parameters a drift-reduction method runs with ("none" freezes I at 0;
-    "hdr+" runs its own core, :data:`hdrd.hdrplus.PLUS_CORE`, and ignores these)."""
-    if method == "none":
-        return replace(params, enabled=False)
-    if method in ("hdr", "hdr+"):
-        return params
-    raise ValueError(f"unknown method {method!r} (allowed: {', '.join(METHODS)})")
-
-
 @dataclass(frozen=True)
 class PipelineConfig:
     """Everything the pipeline needs; the edges build it from :class:`hdrd.config.Config`."""
@@ -88,6 +79,9 @@ class PipelineConfig:
     method: str = "hdr"
     bias_dps: float | None = None
     """Static bias eps0, deg/s; None = measure it over the first startup_s at standstill."""
+    bias_record: BiasRecord | None = None
+    """The calibration record behind bias_dps (a bias file), when there is one: its spread
+    and sample count set HDR+'s prior on the bias. Ignored unless its bias is bias_dps."""
     startup_s: float = 1.0
     """Start-up calibration window, s, rounded up to whole steps (paper Sec. 6: 1 s)."""
     limits: StandstillLimits = StandstillLimits()
@@ -95,6 +89,191 @@ class PipelineConfig:
     """Compass heading at start, deg."""
     plus: HdrPlusParams = HdrPlusParams()
     """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
+
+
+def _given_bias(config: PipelineConfig) -> BiasRecord | None:
+    """The bias record of a configured bias (None: measure it at start-up)."""
+    if config.bias_dps is None:
+        return None
+    rec = config.bias_record
+    if rec is not None and rec.bias_dps == config.bias_dps:
+        return rec
+    return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+
+
+class Stepper:
+    """One closed block in, one message out: the start-up calibration window, one step of the
+    configured drift reducer, the message's fields. Pure; not thread-safe.
+
+    The :class:`Pipeline` (``hdrd run``, ``hdrd replay``) and ``hdrd evaluate`` both step
+    through it. While calibrating, the owner adds each sample's raw rate to :attr:`window`
+    before the block that holds it closes. ``events`` collects state changes for the edge to
+    log ("calibrated", "calibration_rejected", "bias_adjusted").
+    """
+
+    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+        self.config = config
+        self.method = methods.get(config.method)
+        # One state for every method: HDR+ carries the paper HDR state as its core, so a
+        # method switched on SIGHUP continues the same heading.
+        self.state: PlusState = INITIAL_PLUS_STATE
+        self.bias: BiasRecord | None = _given_bias(config)
+        self.window = StartupWindow.for_seconds(config.startup_s, config.params.T, config.limits)
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        self.speed_mps: float | None = None
+        self.samples_per_step: float | None = None
+        """Samples per step the method's settings were derived with (the first block stepped:
+        the gyro's sample rate times T)."""
+        self._settings: Any = None  # derived at the first step (methods.Method.settings)
+
+    @property
+    def calibrating(self) -> bool:
+        """True until the static bias is known."""
+        return self.bias is None
+
+    @property
+    def settings(self) -> Any:
+        """The method's settings in force (None until the first step after (re)configuring)."""
+        return self._settings
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """New parameters, method or bias; the state (heading, controller) is kept."""
+        if config.bias_dps is not None and (
+            self.bias is None or config.bias_dps != self.bias.bias_dps
+        ):
+            self.bias = _given_bias(config)
+        self.config = config
+        self.method = methods.get(config.method)
+        self.window.limits = config.limits
+        self.samples_per_step = None
+        self._settings = None  # derived again at the next step
+
+    def adjust_bias(self, delta_dps: float, source: str) -> None:
+        """Add delta_dps to the static bias eps0 (deg/s); no effect while calibrating."""
+        if self.bias is None or delta_dps == 0.0:
+            return
+        self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
+        self.events.append(
+            (
+                "bias_adjusted",
+                {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source},
+            )
+        )
+
+    def input_for(self, block: Block) -> PlusInput:
+        """The method's input for a block: u = block mean - eps0 (Eqs. 2, 11), the samples'
+        spread, the speed set last (NaN = unknown), the block's temperature, T."""
+        assert self.bias is not None
+        temp = math.nan if block.temp_c is None else block.temp_c
+        speed = math.nan if self.speed_mps is None else self.speed_mps
+        return PlusInput(
+            block.mean - self.bias.bias_dps, block.std, speed, temp, self.config.params.T
+        )
+
+    def prepare(self, block: Block) -> PlusInput | None:
+        """A block closed: None while calibrating (it was a step of the start-up window),
+        else the method's input for it. The first block after (re)configuring also fixes the
+        samples per step the method's settings are derived with: the gyro's sample rate
+        times T, as this block holds it (a 1 Hz gyro: 1)."""
+        if self.bias is None:
+            self._calibration_step()
+            return None
+        if self.samples_per_step is None:
+            self.samples_per_step = float(block.n)
+        return self.input_for(block)
+
+    def derive_settings(self) -> Any:
+        """The method's settings for this gyro and drive (:mod:`hdrd.methods`): the config,
+        the samples per step, the bias record (HDR+: :func:`hdrd.methods.plus_settings`)."""
+        if self._settings is None:
+            ctx = methods.SettingsContext(
+                self.config.params, self.config.plus, self.samples_per_step, self.bias
+            )
+            self._settings = self.method.settings(ctx)
+        return self._settings
+
+    def step(self, block: Block) -> tuple[methods.StepOutput, float, bool] | None:
+        """One block: None while calibrating (the window closes a step), else the method's
+        output, the published bias (deg/s) and whether the step was a standstill."""
+        inp = self.prepare(block)
+        bias = self.bias
+        if inp is None or bias is None:
+            return None
+        settings = self.derive_settings()
+        self.state, o = self.method.step(self.state, inp, settings)
+        if self.method.bias_model:
+            assert isinstance(o, PlusOutput)
+            return o, bias.bias_dps + o.bias_corr_dps, o.standstill
+        return o, bias.bias_dps, False
+
+    def message(
+        self,
+        block: Block,
+        step: int,
+        t: float,
+        bad_frames: int,
+        now: float | None,
+        gap_s: float = 0.0,
+    ) -> Message:
+        """Step the block and publish it: step number and device time ``t`` (s) as the
+        owner counts them, gap_s: seconds without samples before it (0 = none)."""
+        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        msg["t"] = t
+        msg["step"] = step
+        msg["omega_raw"] = block.mean
+        stepped = self.step(block)
+        if stepped is None:
+            status = "calibrating"
+        else:
+            o, published_bias, still = stepped
+            msg["omega"] = o.omega
+            msg["yaw"] = o.yaw
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, o.yaw)
+            msg["I"] = o.I
+            msg["W"] = o.W
+            msg["R"] = o.R
+            msg["r"] = o.r
+            msg["bias"] = published_bias
+            status = "standstill" if still else ("ok" if o.W else "turning")
+            if self.method.bias_model:
+                msg["zupt"] = int(still)
+        msg["samples"] = block.n
+        msg["bad_frames"] = bad_frames
+        msg["status"] = status
+        if block.temp_c is not None:
+            msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
+        if gap_s:
+            msg["gap_s"] = gap_s
+        if block.saturated:
+            msg["saturated"] = block.saturated
+        return msg
+
+    def _calibration_step(self) -> None:
+        """A calibration block closed (its samples are in the window): measure once the
+        window is complete; on motion, log it and start again."""
+        try:
+            rec = self.window.close_block()
+        except MotionDetected as e:
+            self.events.append(
+                ("calibration_rejected", {"reason": str(e), "attempt": self.window.attempts})
+            )
+            return
+        if rec is None:
+            return
+        self.bias = rec
+        self.events.append(
+            (
+                "calibrated",
+                {
+                    "bias_dps": rec.bias_dps,
+                    "std_dps": rec.std_dps,
+                    "samples": rec.n,
+                    "source": "startup",
+                },
+            )
+        )
 
 
 class Pipeline:
@@ -106,45 +285,48 @@ class Pipeline:
 
     def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
         self.config = config
-        self._params = method_params(config.method, config.params)
         self._clock = DeviceClock()
         self._avg = BlockAverager(config.params.T)
-        # One state for every method: HDR+ carries the paper HDR state as its core, so a
-        # method switched on SIGHUP continues the same heading.
-        self._plus: PlusState = INITIAL_PLUS_STATE
+        self.stepper = Stepper(config)
         self._step_offset = 0  # step numbers continue across a device resync
         self._t_offset = 0.0  # device seconds continue across a device resync
         self._last_step: int | None = None
         self._t_last = 0.0
         self._pending_gap_s = 0.0
-        self.bias: BiasRecord | None = None
-        self._cal_blocks = max(1, math.ceil(config.startup_s / config.params.T - 1e-9))
-        self._cal_omega: list[float] = []  # per-sample rates of the calibration window
-        self._cal_temp: list[float] = []
-        self._cal_done_blocks = 0
-        self.calibration_attempts = 0
-        if config.bias_dps is not None:
-            self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
-        self.events: list[tuple[str, dict[str, Any]]] = []
-        self.speed_mps: float | None = None
-        self._plus_params: HdrPlusParams | None = None  # fitted at the first HDR+ step
 
     # -- state ---------------------------------------------------------------------------
 
     @property
+    def bias(self) -> BiasRecord | None:
+        """The static bias in force (None while calibrating)."""
+        return self.stepper.bias
+
+    @property
+    def events(self) -> list[tuple[str, dict[str, Any]]]:
+        return self.stepper.events
+
+    @property
+    def speed_mps(self) -> float | None:
+        return self.stepper.speed_mps
+
+    @property
+    def calibration_attempts(self) -> int:
+        return self.stepper.window.attempts
+
+    @property
     def calibrating(self) -> bool:
         """True until the static bias is known."""
-        return self.bias is None
+        return self.stepper.bias is None
 
     @property
     def hdr_state(self) -> HdrState:
         """The HDR core's state (x, I, yaw, r, s, n)."""
-        return self._plus.core
+        return self.stepper.state.core
 
     @property
     def heading(self) -> float:
         """Current compass heading, deg."""
-        return heading_from_yaw(self.config.heading0_deg, self._plus.core.yaw)
+        return heading_from_yaw(self.config.heading0_deg, self.stepper.state.core.yaw)
 
     @property
     def clock(self) -> DeviceClock:
@@ -155,31 +337,18 @@ class Pipeline:
         state. T cannot change while running: it defines the block edges."""
         if config.params.T != self.config.params.T:
             raise ValueError("hdr.T cannot change while running; restart the daemon")
-        if config.bias_dps is not None and (
-            self.bias is None or config.bias_dps != self.bias.bias_dps
-        ):
-            self.bias = BiasRecord(config.bias_dps, 0.0, 0, 0.0)
         self.config = config
-        self._params = method_params(config.method, config.params)
-        self._plus_params = None  # refitted at the next HDR+ step
+        self.stepper.reconfigure(config)
 
     def set_speed(self, speed_mps: float | None) -> None:
         """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
         the next closed step (standstill detection); the edge keeps it fresh."""
-        self.speed_mps = speed_mps
+        self.stepper.speed_mps = speed_mps
 
     def adjust_bias(self, delta_dps: float, source: str) -> None:
         """Add delta_dps to the static bias eps0 (deg/s), e.g. learned from GPS course or a
         standstill; the controller state is kept. No effect while still calibrating."""
-        if self.bias is None or delta_dps == 0.0:
-            return
-        self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
-        self.events.append(
-            (
-                "bias_adjusted",
-                {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source},
-            )
-        )
+        self.stepper.adjust_bias(delta_dps, source)
 
     # -- input ---------------------------------------------------------------------------
 
@@ -199,9 +368,8 @@ class Pipeline:
         temp = frame.temp_c
         closed = self._avg.feed(t, omega, temp, sat)
         out = self._on_blocks(closed, bad_frames, now) if closed else []
-        if self.bias is None:
-            self._cal_omega.append(omega)
-            self._cal_temp.append(math.nan if temp is None else temp)
+        if self.stepper.bias is None:
+            self.stepper.window.add(omega, temp)
         return out
 
     def feed_array(
@@ -221,7 +389,7 @@ class Pipeline:
         out: list[Message] = []
         i = 0
         # The start-up calibration gathers per-sample rates: take it a frame at a time.
-        while self.bias is None and i < n:
+        while self.stepper.bias is None and i < n:
             f = frames[i]
             temp = None if int(f["temp"]) == TEMP_NOT_FITTED else int(f["temp"]) / 100
             out.extend(
@@ -274,10 +442,8 @@ class Pipeline:
         self._avg = BlockAverager(self.config.params.T)
         if gap_s:
             self._pending_gap_s += gap_s
-        if self.bias is None:  # a calibration window must be contiguous
-            self._cal_omega.clear()
-            self._cal_temp.clear()
-            self._cal_done_blocks = 0
+        if self.stepper.bias is None:  # a calibration window must be contiguous
+            self.stepper.window.clear()
         return out
 
     # -- steps ---------------------------------------------------------------------------
@@ -300,104 +466,9 @@ class Pipeline:
         step = block.index + self._step_offset
         self._last_step = step
         self._t_last = self._t_offset + block.t_end
-        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
-        if now is not None:
-            msg["time"] = now
-        msg["t"] = self._t_last
-        msg["step"] = step
-        msg["omega_raw"] = block.mean
-        bias = self.bias
-        if bias is None:
-            status = "calibrating"
-            self._calibration_step(block)
-        else:
-            o, published_bias, still = self._step(block, bias.bias_dps)
-            msg["omega"] = o.omega
-            msg["yaw"] = o.yaw
-            msg["heading"] = heading_from_yaw(self.config.heading0_deg, o.yaw)
-            msg["I"] = o.I
-            msg["W"] = o.W
-            msg["R"] = o.R
-            msg["r"] = o.r
-            msg["bias"] = published_bias
-            status = "standstill" if still else ("ok" if o.W else "turning")
-            if self.config.method == "hdr+":
-                msg["zupt"] = int(still)
-        msg["samples"] = block.n
-        msg["bad_frames"] = bad_frames
-        msg["status"] = status
-        if block.temp_c is not None:
-            msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
-        if self._pending_gap_s:
-            msg["gap_s"] = self._pending_gap_s
-            self._pending_gap_s = 0.0
-        if block.saturated:
-            msg["saturated"] = block.saturated
-        return msg
-
-    def _step(
-        self, block: Block, eps0: float
-    ) -> tuple[hdr.HdrOutput | hdrplus.PlusOutput, float, bool]:
-        """One drift-reduction step on the block: (output, published bias deg/s, standstill)."""
-        u = block.mean - eps0
-        if self.config.method != "hdr+":
-            core, o = hdr.step(self._plus.core, u, self._params)
-            self._plus = self._plus._replace(core=core)
-            return o, eps0, False
-        temp = math.nan if block.temp_c is None else block.temp_c
-        speed = math.nan if self.speed_mps is None else self.speed_mps
-        inp = hdrplus.PlusInput(u, block.std, speed, temp, self.config.params.T)
-        if self._plus_params is None:
-            self._plus_params = self._fit_plus_params(block)
-        self._plus, po = hdrplus.step(self._plus, inp, self._plus_params)
-        return po, eps0 + po.bias_corr_dps, po.standstill
-
-    def _fit_plus_params(self, block: Block) -> HdrPlusParams:
-        """HDR+'s parameters for this gyro: samples per step from the first block stepped
-        (the sample rate times T), and the start-up bias variance std^2/n of the eps0
-        measurement when it is known (the default assumes a 30 s one)."""
-        p = self.config.plus
-        if block.n >= 2:
-            p = replace(p, standstill=replace(p.standstill, samples_per_step=float(block.n)))
-        rec = self.bias
-        if rec is not None and rec.n > 1 and rec.std_dps > 0:
-            p = replace(p, bias_p0=rec.std_dps * rec.std_dps / rec.n)
-        return p
-
-    def _calibration_step(self, block: Block) -> None:
-        """A calibration block closed: its samples are in _cal_*, minus none (the closing
-        sample is appended after this runs). Measure once the window is complete."""
-        self._cal_done_blocks += 1
-        if self._cal_done_blocks < self._cal_blocks:
-            return
-        self.calibration_attempts += 1
-        w = np.asarray(self._cal_omega)
-        temps = np.asarray(self._cal_temp)
-        T = self.config.params.T
-        try:
-            rec = estimate_bias(w, temp_c=temps, limits=self.config.limits)
-        except MotionDetected as e:
-            self.events.append(
-                ("calibration_rejected", {"reason": str(e), "attempt": self.calibration_attempts})
-            )
-            self._cal_omega.clear()
-            self._cal_temp.clear()
-            self._cal_done_blocks = 0
-            return
-        self.bias = replace(rec, duration_s=self._cal_blocks * T)
-        self._cal_omega = []
-        self._cal_temp = []
-        self.events.append(
-            (
-                "calibrated",
-                {
-                    "bias_dps": rec.bias_dps,
-                    "std_dps": rec.std_dps,
-                    "samples": rec.n,
-                    "source": "startup",
-                },
-            )
-        )
+        gap = self._pending_gap_s
+        self._pending_gap_s = 0.0
+        return self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
 
     def sample_interval_s(self) -> float | None:
         """Sample interval of the open block, device s: (last - block start) / (n - 1), never
@@ -437,7 +508,7 @@ class Pipeline:
         if self._last_step is not None:
             msg["step"] = self._last_step
         if self.bias is not None and self._last_step is not None:
-            msg["yaw"] = self._plus.core.yaw
+            msg["yaw"] = self.stepper.state.core.yaw
             msg["heading"] = self.heading
             msg["bias"] = self.bias.bias_dps
         msg["bad_frames"] = bad_frames

@@ -14,11 +14,13 @@ Two layers, as in pyubx2 (pure codec) and python-can (listeners):
   ``stop()`` that flushes): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
   :class:`StdoutPublisher`.
 
-A UDP destination that is down, refuses (ICMP port unreachable), is unreachable or whose
-name does not resolve never blocks the caller and never raises: the failure is counted per
-destination (:meth:`UdpPublisher.stats`) for the daemon to log. Standard output is
-different: when its reader goes away (``hdrd run --stdout | head``) :class:`StdoutPublisher`
-raises :class:`OutputClosed` so that the daemon ends cleanly with exit status 0.
+No publisher blocks the caller, so none can hold up another. A UDP destination that is
+down, refuses (ICMP port unreachable), is unreachable or whose name does not resolve never
+blocks and never raises: the failure is counted per destination (:meth:`UdpPublisher.stats`)
+for the daemon to log. Standard output is written by a thread of its own: a reader that
+stalls costs dropped (counted) lines, never a late step elsewhere; when its reader goes away
+(``hdrd run --stdout | head``) :class:`StdoutPublisher` raises :class:`OutputClosed` so that
+the daemon ends cleanly with exit status 0.
 """
 
 from __future__ import annotations
@@ -28,12 +30,14 @@ import errno
 import json
 import math
 import os
+import select
 import signal
 import socket
 import struct
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TextIO
@@ -61,6 +65,7 @@ __all__ = [
     "nmea_sentence",
     "nmea_sentences",
     "parse_nmea",
+    "printable",
     "tail_main",
 ]
 
@@ -70,8 +75,11 @@ SCHEMA_VERSION = 1
 """The ``"v"`` of a per-step message; bumped only for incompatible changes."""
 DEFAULT_TAIL_LISTEN = "127.0.0.1:10110"
 """Where ``hdrd tail`` listens by default (10110: the registered NMEA-0183 port)."""
-RATE_VALID_STATUSES = frozenset({"ok", "turning", "aided", "dead-reckoning"})
-"""Statuses in which the published rate is trusted: $HNROT says A (valid), else V."""
+RATE_VALID_STATUSES = frozenset({"ok", "turning", "standstill", "aided", "dead-reckoning"})
+"""Statuses of a live step, whose rate and heading are current: $HNHDT is sent, $HNROT says
+A (valid) and $HNTHS A or E. In any other status (``stale``: no data, the heading held;
+``calibrating``; a status this version does not know) no $HNHDT is sent and $HNROT and
+$HNTHS say V. ``standstill`` (HDR+'s zero-rate update) is valid: the rate is known to be 0."""
 NMEA_TALKER = "HN"
 """NMEA 0183 talker: heading, non-north-seeking gyro."""
 
@@ -206,24 +214,26 @@ def nmea_sentences(
 ) -> list[bytes]:
     """One message -> NMEA 0183 sentences, each ``$...*hh\\r\\n``.
 
-    - ``$HNHDT,<heading>,T``: heading, degrees true (compass, 2 decimals). Left out when the
-      heading is unknown (HDT has no validity flag).
+    - ``$HNHDT,<heading>,T``: heading, degrees true (compass, 2 decimals). Sent only when
+      the heading is known and current (status in :data:`RATE_VALID_STATUSES`): HDT has no
+      validity flag, so a receiver takes every HDT as a fresh heading, and a heading held
+      while the gyro is silent (``stale``) must not look like one.
     - ``$HNROT,<rate>,A|V``: rate of turn in deg/min, negative = turning to port (left).
       Our omega is + CCW = left turn, so ROT = -omega * 60 (1 decimal). A when the status is
       one of :data:`RATE_VALID_STATUSES`, V (invalid) otherwise or when omega is unknown.
     - with *ths*: ``$HNTHS,<heading>,A|E|V``: true heading with mode A (autonomous) while
       GPS-aided (``"mode": "aided"``, :mod:`hdrd.aiding`), E (estimated, dead reckoning)
-      otherwise, V when the status is not valid.
+      otherwise, V when the status is not valid (the held heading while ``stale``).
 
-    *talker*: the two-letter talker ID (default HN, non-north-seeking gyro). gpsd drops
-    sentences from talkers its packet lexer does not know, HN among them; HC is one it
-    reads (README, "GPS aiding").
+    *talker*: the two-letter talker ID (default HN, non-north-seeking gyro). gpsd 3.22
+    drops sentences from talkers its packet lexer does not know, HN among them
+    (docs/protocol.md, "NMEA 0183 and gpsd").
     """
     out: list[bytes] = []
     status = msg.get("status")
     valid = status in RATE_VALID_STATUSES
     heading = _finite(msg, "heading")
-    if heading is not None:
+    if heading is not None and valid:
         out.append(nmea_sentence(f"{talker}HDT,{_heading_field(heading)},T"))
     omega = _finite(msg, "omega")
     if omega is None:
@@ -241,12 +251,14 @@ def parse_nmea(line: bytes | str) -> tuple[str, list[str]]:
     """``$TTSSS,f1,f2*hh`` -> (``"TTSSS"``, [``"f1"``, ``"f2"``]); checks the checksum.
 
     Raises ValueError with the reason for anything else (no ``$``/``!``, no ``*hh``,
-    a wrong checksum, non-ASCII bytes).
+    a wrong checksum, non-ASCII bytes, control characters: NMEA 0183 is printable ASCII).
     """
     text = line.decode("ascii") if isinstance(line, bytes) else line
     text = text.strip("\r\n")
     if not text or text[0] not in "$!":
         raise ValueError("an NMEA sentence starts with $ or !")
+    if not all(" " <= c <= "~" for c in text):
+        raise ValueError("an NMEA sentence is printable ASCII")
     body, star, cs = text[1:].rpartition("*")
     if not star or len(cs) != 2:
         raise ValueError("no *hh checksum")
@@ -542,26 +554,176 @@ class UdpNmeaPublisher(UdpPublisher):
 # -- stdout -------------------------------------------------------------------------------
 
 _CLOSED_ERRNOS = frozenset({errno.EPIPE, errno.ECONNRESET})
+_CLOSED_MESSAGE = "the reader of standard output went away"
 
 
 class StdoutPublisher:
-    """JSON lines on a binary stream (default: standard output), flushed per message.
+    """JSON lines on a binary stream (default: standard output), never blocking the caller.
 
-    When the reader goes away (EPIPE) :meth:`on_message` raises :class:`OutputClosed`; the
+    :meth:`on_message` formats the line and queues it; a background thread writes the
+    queue out in order, as fast as the reader takes it. A reader that stalls (a full pipe,
+    a terminal on XOFF) therefore holds up only that thread, never the daemon's loop or the
+    other publishers: once ``max_queue_bytes`` are waiting, further lines are dropped and
+    counted (``dropped``) until the reader catches up. When the reader goes away (EPIPE)
+    the next :meth:`on_message` (or :meth:`flush`) raises :class:`OutputClosed`; the
     stream's descriptor is then pointed at /dev/null so that no later flush (at interpreter
     exit) prints a traceback. Other write errors (a full disk) are counted and swallowed.
+    :meth:`stop` waits at most ``stop_wait_s`` for the queue to be written.
+
+    The thread writes with ``os.write`` on the stream's descriptor (never through the
+    stream's own buffer, whose lock a blocked write would hold at interpreter exit); a
+    stream without a descriptor is written through ``write``/``flush``.
     """
 
-    def __init__(self, stream: BinaryIO | None = None) -> None:
+    def __init__(
+        self,
+        stream: BinaryIO | None = None,
+        *,
+        max_queue_bytes: int = 256 * 1024,
+        stop_wait_s: float = 0.5,
+    ) -> None:
         self._stream: BinaryIO = stream if stream is not None else sys.stdout.buffer
+        self.max_queue_bytes = max_queue_bytes
+        self.stop_wait_s = stop_wait_s
         self.closed = False
         self.written = 0
+        """Lines written."""
+        self.dropped = 0
+        """Lines not written: the queue was full (a stalled reader), or left at stop."""
         self.errors = 0
         self.last_error: str | None = None
         self.last_exception: BaseException | None = None
+        self._queue: deque[bytes] = deque()
+        self._queued_bytes = 0
+        self._busy = 0  # lines being written by the thread
+        self._stopping = False
+        self._abandoned = False
+        self._cond = threading.Condition()
+        self._thread: threading.Thread | None = None
 
-    def _closed(self) -> OutputClosed:
-        self.closed = True
+    # -- the caller's side --
+    def on_message(self, msg: Mapping[str, Any]) -> None:
+        """Queue one JSON line (never blocks); OutputClosed once the reader has gone."""
+        if self.closed:
+            raise OutputClosed(_CLOSED_MESSAGE)
+        line = format_json(msg)
+        with self._cond:
+            if self.closed:
+                raise OutputClosed(_CLOSED_MESSAGE)
+            if self._stopping:
+                self.dropped += 1
+                return
+            if self._queue and self._queued_bytes + len(line) > self.max_queue_bytes:
+                self.dropped += 1
+                return
+            self._queue.append(line)
+            self._queued_bytes += len(line)
+            self._cond.notify()
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="hdrd-stdout", daemon=True)
+            self._thread.start()
+
+    def flush(self, timeout: float | None = None) -> bool:
+        """Wait until every queued line is written (True) or *timeout* s pass (False);
+        OutputClosed if the reader went away."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while (self._queue or self._busy) and not self.closed:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._cond.wait(left)
+            if self.closed:
+                raise OutputClosed(_CLOSED_MESSAGE)
+        return True
+
+    def on_error(self, exc: BaseException) -> None:
+        self.last_exception = exc
+
+    def stop(self) -> None:
+        """Write what is queued, waiting at most ``stop_wait_s``; what is still queued then
+        (a stalled reader) is counted as dropped. A reader that went away is not an error
+        here. Idempotent."""
+        try:
+            done = self.flush(self.stop_wait_s)
+        except OutputClosed:
+            done = True
+        with self._cond:
+            self._stopping = True
+            if not done:  # the lines being written count as lost: they may never be
+                self.dropped += len(self._queue) + self._busy
+                self._queue.clear()
+                self._queued_bytes = 0
+                self._busy = 0
+                self._abandoned = True
+            self._cond.notify_all()
+        if self._thread is None and not self.closed:  # nothing written: flush the stream
+            try:
+                self._stream.flush()
+            except (OSError, ValueError):
+                pass
+
+    # -- the writer thread --
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stopping:
+                    self._cond.wait()
+                if not self._queue:
+                    return
+                lines = list(self._queue)
+                self._queue.clear()
+                self._queued_bytes = 0
+                self._busy = len(lines)
+            ok = self._write(b"".join(lines))
+            with self._cond:
+                self._busy = 0
+                if self._abandoned:  # stop() gave up on (and counted) these lines
+                    return
+                if ok:
+                    self.written += len(lines)
+                elif not self.closed:
+                    self.dropped += len(lines)
+                self._cond.notify_all()
+                if self.closed:
+                    self.dropped += len(self._queue)
+                    self._queue.clear()
+                    return
+
+    def _write(self, data: bytes) -> bool:
+        """Write *data* whole (blocking this thread only); False on an error."""
+        try:
+            fd = self._stream.fileno()
+        except (OSError, ValueError, AttributeError):
+            fd = None
+        try:
+            if fd is None:
+                self._stream.write(data)
+                self._stream.flush()
+                return True
+            view = memoryview(data)
+            while view:
+                try:
+                    n = os.write(fd, view)
+                except BlockingIOError:  # someone set O_NONBLOCK on a shared descriptor
+                    select.select([], [fd], [], 0.1)
+                    continue
+                view = view[n:]
+            return True
+        except BrokenPipeError:
+            self._reader_gone()
+        except ValueError:  # the stream object was closed
+            self._reader_gone()
+        except OSError as e:
+            if e.errno in _CLOSED_ERRNOS or e.errno == errno.EBADF:
+                self._reader_gone()
+            else:
+                with self._cond:
+                    self.errors += 1
+                    self.last_error = f"{_errname(e.errno)}: {e.strerror or e}"
+        return False
+
+    def _reader_gone(self) -> None:
         try:
             devnull = os.open(os.devnull, os.O_WRONLY)
             try:
@@ -570,39 +732,9 @@ class StdoutPublisher:
                 os.close(devnull)
         except (OSError, ValueError, AttributeError):
             pass
-        return OutputClosed("the reader of standard output went away")
-
-    def on_message(self, msg: Mapping[str, Any]) -> None:
-        if self.closed:
-            raise OutputClosed("the reader of standard output went away")
-        line = format_json(msg)
-        try:
-            self._stream.write(line)
-            self._stream.flush()
-            self.written += 1
-        except BrokenPipeError:
-            raise self._closed() from None
-        except ValueError:  # the stream object was closed
-            raise self._closed() from None
-        except OSError as e:
-            if e.errno in _CLOSED_ERRNOS:
-                raise self._closed() from None
-            self.errors += 1
-            self.last_error = f"{_errname(e.errno)}: {e.strerror or e}"
-
-    def on_error(self, exc: BaseException) -> None:
-        self.last_exception = exc
-
-    def stop(self) -> None:
-        """Flush; a reader that went away is not an error here."""
-        if self.closed:
-            return
-        try:
-            self._stream.flush()
-        except BrokenPipeError:
-            self._closed()
-        except (OSError, ValueError):
-            pass
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
 
 
 # -- hdrd tail ----------------------------------------------------------------------------
@@ -623,6 +755,36 @@ _COLUMNS: tuple[tuple[str, str, int, str], ...] = (
     ("bad", "bad_frames", 5, "d"),
     ("mode", "mode", 14, "s"),  # GPS aiding (hdrd run --gpsd): aided / dead-reckoning
 )
+
+
+def _escape(c: str) -> str:
+    """*c* as a JSON-style escape: ``\\u001b``; beyond the BMP, a surrogate pair."""
+    o = ord(c)
+    if o < 0x10000:
+        return f"\\u{o:04x}"
+    o -= 0x10000
+    return f"\\u{0xD800 + (o >> 10):04x}\\u{0xDC00 + (o & 0x3FF):04x}"
+
+
+def printable(text: str) -> str:
+    """*text* with every character a terminal could act on escaped (``\\u001b`` for ESC):
+    C0 and C1 controls (ESC, BEL, CR, CSI U+009B ...), DEL, format characters such as
+    bidirectional overrides, separators other than the space, surrogates and unassigned
+    code points; i.e. all that ``str.isprintable`` refuses. What ``hdrd tail`` prints goes
+    through it, so no datagram can move the cursor, retitle the window or ring the bell."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else _escape(c) for c in text)
+
+
+def _printable_json(text: str) -> str:
+    """A valid JSON line made printable with the same meaning: raw TAB and CR can only be
+    whitespace between tokens (JSON strings cannot hold them unescaped), so they become
+    spaces; any other non-printable character is inside a string, where ``\\uXXXX`` is the
+    same character."""
+    if text.isprintable():
+        return text
+    return printable(text.replace("\t", " ").replace("\r", " "))
 
 
 class TailFormatter:
@@ -657,12 +819,12 @@ class TailFormatter:
                 elif f == "d":
                     cell = f"{int(v):d}"
                 elif f == "s":
-                    cell = str(v)
+                    cell = printable(str(v))
                 elif key == "heading":
                     cell = _heading_field(float(v))
                 else:
                     cell = format(float(v), f)
-            except (TypeError, ValueError, OverflowError, OSError):
+            except (TypeError, ValueError, OverflowError, OSError, RecursionError):
                 cell = "?"
             cells.append(f"{cell:<{w}}" if f in ("s", "time") else f"{cell:>{w}}")
         return " ".join(cells).rstrip()
@@ -683,6 +845,11 @@ class TailFormatter:
         return ""
 
     def lines(self, data: bytes, sender: str = "?") -> tuple[list[str], list[str], int]:
+        """Never raises; every line returned is printable (:func:`printable`)."""
+        out, notes, count = self._lines(data, sender)
+        return [printable(x) for x in out], [printable(x) for x in notes], count
+
+    def _lines(self, data: bytes, sender: str) -> tuple[list[str], list[str], int]:
         out: list[str] = []
         notes: list[str] = []
         count = 0
@@ -710,10 +877,12 @@ class TailFormatter:
                 continue
             try:
                 msg = json.loads(text)
-            except (json.JSONDecodeError, RecursionError) as e:
-                notes.append(
-                    f"hdrd tail: ignored malformed data from {sender}: {e.msg if hasattr(e, 'msg') else e}: {shown!r}"
-                )
+            except json.JSONDecodeError as e:
+                notes.append(f"hdrd tail: ignored malformed data from {sender}: {e.msg}: {shown!r}")
+                continue
+            except (ValueError, RecursionError) as e:  # a huge integer; nesting too deep
+                why = "nested too deeply" if isinstance(e, RecursionError) else "a number too long"
+                notes.append(f"hdrd tail: ignored data from {sender}: {why}: {shown!r}")
                 continue
             if not isinstance(msg, dict):
                 notes.append(
@@ -722,7 +891,7 @@ class TailFormatter:
                 continue
             count += 1
             if self.raw or msg.get("class") != MESSAGE_CLASS:
-                out.append(text)
+                out.append(_printable_json(text))
                 continue
             if not self._header_done:
                 out.append(self.header())

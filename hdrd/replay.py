@@ -13,16 +13,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hdrd.calibrate import BiasFileError, load_bias
+from hdrd.calibrate import BiasFileError, BiasRecord, load_bias
 from hdrd.config import EX_CONFIG, Config, ConfigError
 
 __all__ = ["convert_main", "main", "replay_capture"]
 
 
 def replay_capture(
-    data: bytes, cfg: Config, bias_dps: float | None, startup_s: float | None = None
+    data: bytes,
+    cfg: Config,
+    bias_dps: float | None,
+    startup_s: float | None = None,
+    bias_record: BiasRecord | None = None,
 ) -> list[dict[str, Any]]:
-    """Every message the daemon would publish for these bytes (without ``time``). Pure."""
+    """Every message the daemon would publish for these bytes (without ``time``). Pure.
+    bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
     from dataclasses import replace
 
     from hdrd.daemon import _pipeline_config
@@ -31,7 +36,7 @@ def replay_capture(
 
     frames, stats = decode_capture(data, cfg.device.protocol)
     pc = _pipeline_config(cfg, None)
-    pc = replace(pc, bias_dps=bias_dps)
+    pc = replace(pc, bias_dps=bias_dps, bias_record=bias_record)
     if startup_s is not None:
         pc = replace(pc, startup_s=startup_s)
     p = Pipeline(pc)
@@ -66,22 +71,25 @@ def main(args: argparse.Namespace) -> int:
     cfg, data = loaded
     startup_s: float | None = None
     bias: float | None = None
+    record: BiasRecord | None = None
     try:
         if args.bias is not None:
             bias = args.bias
         elif args.bias_file:
-            bias = load_bias(args.bias_file).bias_dps
+            record = load_bias(args.bias_file)
         elif args.calibrate_seconds is not None:
             if not args.calibrate_seconds > 0:
                 print("hdrd replay: --calibrate-seconds must be > 0", file=sys.stderr)
                 return 2
             startup_s = args.calibrate_seconds
         elif cfg.calibration.bias_file:
-            bias = load_bias(cfg.calibration.bias_file).bias_dps
+            record = load_bias(cfg.calibration.bias_file)
     except BiasFileError as e:
         print(f"hdrd replay: {e}", file=sys.stderr)
         return 1
-    msgs = replay_capture(data, cfg, bias, startup_s)
+    if record is not None:
+        bias = record.bias_dps
+    msgs = replay_capture(data, cfg, bias, startup_s, record)
     out = sys.stdout.buffer
     out.write(b"".join(format_json(m) for m in msgs))
     out.flush()

@@ -315,3 +315,108 @@ def test_a_well_formed_body_loads(tmp_path: Path) -> None:
     p = tmp_path / "bias.yaml"
     p.write_text(_body())
     assert load_bias(p) == BiasRecord(0.5, 0.05, 300, 30.0, None, 1.0)
+
+
+# -- noise-scaled standstill tests and the shared start-up window ------------------------------
+
+
+def phone_window() -> np.ndarray:
+    """The first 6 s of a 1 Hz phone drive (bias 0.01 deg/s, noise 0.01 deg/s): 5 s standing,
+    then the first second of a left turn, which averages 0.37 deg/s at 1 Hz."""
+    rng = np.random.default_rng(7)
+    w = 0.01 + 0.01 * rng.standard_normal(6)
+    w[5] += 0.36
+    return w
+
+
+def test_the_start_of_a_turn_at_1_hz_is_not_a_standstill() -> None:
+    w = phone_window()
+    # The absolute limits alone (as before) take it, and measure a bias 7x too large.
+    old = StandstillLimits(max_shift_se=0.0)
+    assert estimate_bias(w, limits=old).bias_dps == pytest.approx(0.07, abs=0.01)
+    with pytest.raises(MotionDetected, match=r"1 of 6 samples pull the mean by \+0\.05\d+ deg/s"):
+        estimate_bias(w)
+    assert estimate_bias(w[:5]).bias_dps == pytest.approx(0.01, abs=0.01)
+
+
+def test_a_slow_creep_is_caught_relative_to_the_noise() -> None:
+    w, t = standstill(sigma=0.05)
+    w = w + np.linspace(0.0, 0.15, w.shape[0])  # a trend of 0.1 deg/s: under the absolute 0.2
+    assert estimate_bias(w, t, limits=StandstillLimits(max_shift_se=0.0)).n == 300
+    with pytest.raises(MotionDetected, match="rate trend .* standard errors"):
+        estimate_bias(w, t)
+
+
+def test_noise_sigma_survives_a_bump_and_a_coarse_adc() -> None:
+    rng = np.random.default_rng(3)
+    w = 0.2 + 0.05 * rng.standard_normal(300)
+    assert calibrate.noise_sigma(w) == pytest.approx(0.05, rel=0.15)
+    w[10] += 2.0  # one bump does not inflate it
+    assert calibrate.noise_sigma(w) == pytest.approx(0.05, rel=0.15)
+    # A coarse ADC (1/16 deg/s) reading one code in most samples: the MAD is 0, the spread
+    # without the farthest sample is not, and the standstill passes.
+    q = np.zeros(60)
+    q[[3, 17, 31, 44, 58]] = 0.0625
+    q[25] = -0.0625
+    assert float(np.median(np.abs(q - np.median(q)))) == 0.0
+    assert calibrate.noise_sigma(q) > 0.015  # not the floor
+    estimate_bias(q)
+    assert calibrate.noise_sigma(np.zeros(5), 0.01) == 0.01  # the floor
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    bias=st.floats(-5, 5),
+    sigma=st.floats(0.0, 0.3),
+    seed=st.integers(0, 1000),
+    n=st.sampled_from([12, 60, 300, 3000]),
+)
+def test_gaussian_standstill_passes_the_noise_scaled_tests(
+    bias: float, sigma: float, seed: int, n: int
+) -> None:
+    # Whatever the absolute limits accept of pure Gaussian noise, the noise-scaled tests do.
+    w = bias + sigma * np.random.default_rng(seed).standard_normal(n)
+    try:
+        estimate_bias(w, limits=StandstillLimits(max_shift_se=0.0))
+    except MotionDetected:
+        return
+    estimate_bias(w)
+
+
+@pytest.mark.parametrize(("n", "at_most"), [(5, 0.0), (6, 0.006), (8, 0.002), (10, 0.0005)])
+def test_few_samples_rarely_fail_the_noise_scaled_tests(n: int, at_most: float) -> None:
+    # Few samples tell little of their own noise: with 6 (1 Hz, 6 s) the tests refuse about
+    # 3 in 1000 Gaussian windows; below 6 they are not applied.
+    rng = np.random.default_rng(n)
+    loose = StandstillLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
+    refused = 0
+    for _ in range(4000):
+        try:
+            estimate_bias(0.1 * rng.standard_normal(n), limits=loose)
+        except MotionDetected:
+            refused += 1
+    assert refused / 4000 <= at_most
+
+
+def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> None:
+    win = calibrate.StartupWindow.for_seconds(2.5, 1.0)
+    assert win.blocks == 3
+    w, _ = standstill(3.0)
+    win.add_many(w[:10], np.full(10, 20.0))
+    assert win.close_block() is None
+    for x in w[10:20].tolist():
+        win.add(x, None)
+    assert win.close_block() is None and win.n == 20
+    win.add_many(w[20:30])
+    rec = win.close_block()
+    assert rec is not None and rec.n == 30 and rec.duration_s == 3.0
+    assert rec.bias_dps == estimate_bias(w).bias_dps and rec.temp_c == 20.0
+    assert win.n == 0 and win.attempts == 1
+    moving = w + np.linspace(0.0, 3.0, 30)
+    for k in range(3):
+        win.add_many(moving[k * 10 : (k + 1) * 10])
+        if k < 2:
+            assert win.close_block() is None
+    with pytest.raises(MotionDetected):
+        win.close_block()
+    assert win.n == 0 and win.closed == 0 and win.attempts == 2

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd import methods
 from hdrd.analysis import evaluate as ev
 from hdrd.analysis.evaluate import (
-    METHODS,
     EvaluationError,
     StepInputs,
     evaluate_drive,
@@ -125,17 +125,45 @@ def test_hdr_column_is_run_batch() -> None:
     assert r.heading["hdr"] == pytest.approx(prep.truth[prep.k] - (yaw - yaw[prep.k]))
 
 
-def test_motion_during_calibration_is_reported() -> None:
-    log = make_drive(turns=[(5, 10, 15.0)])
-    with pytest.raises(EvaluationError, match="cannot measure the static bias.*--bias"):
-        evaluate_drive(log)
-    # With the bias given the drive evaluates.
+def test_motion_at_the_start_the_bias_comes_from_the_standstill_found() -> None:
+    # No lead-in in the metadata, no speed: the first window that passes the standstill test
+    # on the gyro (the 6 s before the turn), as the daemon started there would measure it.
+    log = make_drive(turns=[(6, 10, 15.0)])
+    r = evaluate_drive(log)
+    assert r.bias_source == "gyro standstill 6 s at 0 s"
+    assert r.bias_dps == pytest.approx(float(np.mean(log.omega[:60])), rel=1e-12)
+    # With the bias given the whole log is the drive.
     assert evaluate_drive(log, bias=0.8).n_steps == 360
 
 
+def test_calibrate_seconds_retries_as_the_daemon_does() -> None:
+    # The first 30 s hold a turn: the daemon's start-up window rejects them and measures the
+    # next 30 s (here a straight drive: a gyro alone cannot tell it from a stop).
+    log = make_drive(turns=[(6, 10, 15.0)])
+    prep = prepare_drive(log, calibrate_seconds=30.0)
+    assert prep.calibration_attempts == 2
+    assert prep.start_s == 60.0
+    assert prep.bias_source == "30 s to 60 s (1 rejected, first 30 s)"
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[300:600])), rel=1e-12)
+
+
+# A slalom from the first second: a 3 s turn every 4 s, alternating left and right.
+SLALOM = [(float(s), 3.0, 8.0 * (-1) ** k) for k, s in enumerate(range(0, 360, 4))]
+
+
+def test_motion_in_every_window_is_reported() -> None:
+    weaving = make_drive(minutes=3.0, calib_s=0.0, turns=SLALOM)
+    with pytest.raises(EvaluationError, match="showed motion in all 6 attempts.*--bias"):
+        prepare_drive(weaving, calibrate_seconds=30.0)
+    with pytest.raises(EvaluationError, match="no standstill .* from the gyro.*--bias"):
+        prepare_drive(weaving)
+
+
 def test_calibration_window_longer_than_the_drive() -> None:
+    with pytest.raises(EvaluationError, match="log ends before the 90 s start-up window"):
+        prepare_drive(make_drive(minutes=1.0, calib_s=20.0), calibrate_seconds=90.0)
     with pytest.raises(EvaluationError, match="nothing left to evaluate"):
-        prepare_drive(make_drive(minutes=1.0, calib_s=20.0), calibrate_seconds=60.0)
+        prepare_drive(make_drive(minutes=1.0, calib_s=20.0), calibrate_seconds=59.5)
 
 
 def test_no_truth_is_an_error() -> None:
@@ -160,7 +188,7 @@ def test_truth_outage_is_not_compared() -> None:
     assert np.isnan(cut.truth[120 - 30])
 
 
-def test_gap_in_gyro_samples_is_counted_and_held() -> None:
+def test_gap_in_gyro_samples_is_no_step_and_the_yaw_holds() -> None:
     log = make_drive(drift_dps=0.1)
     rel = log.t - log.t[0]
     keep = ~((rel >= 100.0) & (rel < 103.0))
@@ -171,8 +199,13 @@ def test_gap_in_gyro_samples_is_counted_and_held() -> None:
     prep = prepare_drive(holed)
     assert prep.missing_steps == 3
     assert prep.start_s == 30.0  # the drive starts after the calibration window
-    assert prep.steps.n_samples[70:73].tolist() == [0, 0, 0]
-    assert prep.steps.u[70] == prep.steps.u[69]
+    assert prep.duration_min == 5.5  # Td: the drive's time span, gaps included
+    # Steps 100-103 s had no samples: no step, not a repeated rate; the next one ends at 104 s.
+    i = int(np.flatnonzero(prep.steps.t_end == 100.0)[0])
+    assert prep.steps.t_end[i + 1] == 104.0
+    assert prep.steps.u.shape[0] == 330 - 3 and prep.steps.n_samples.min() == 10
+    r = ev.evaluate_prepared(prep)
+    assert r.n_steps == 327
 
 
 def test_summary_is_the_papers_bottom_line() -> None:
@@ -214,22 +247,26 @@ def test_json_shape_is_exactly_the_issues() -> None:
 
 
 def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) -> None:
-    # How hdr+ will plug in: one entry in METHODS; evaluate and the JSON pick it up.
-    def perfect_bias(steps: StepInputs, params: HdrParams, plus: HdrPlusParams) -> np.ndarray:
+    # A new drift reducer is one entry in hdrd.methods.REGISTRY; evaluate and the JSON pick
+    # it up.
+    def perfect_bias(steps: StepInputs, params: HdrParams) -> np.ndarray:
         return np.cumsum((steps.u - 0.1) * params.T)
 
-    monkeypatch.setitem(METHODS, "hdr+", perfect_bias)
-    r = evaluate_drive(make_drive(drift_dps=0.1, noise_dps=0.0), methods=("hdr", "hdr+"))
-    assert r.methods == ("none", "hdr", "hdr+")
-    assert r.e_psi["hdr+"] < 1e-6 < r.e_psi["hdr"]
+    entry = methods.Method(
+        "perfect", "knows the drift", methods.REGISTRY["hdr"].step, perfect_bias, lambda c: c.hdr
+    )
+    monkeypatch.setitem(methods.REGISTRY, "perfect", entry)
+    r = evaluate_drive(make_drive(drift_dps=0.1, noise_dps=0.0), methods=("hdr", "perfect"))
+    assert r.methods == ("none", "hdr", "perfect")
+    assert r.e_psi["perfect"] < 1e-6 < r.e_psi["hdr"]
     doc = to_json([r])
     assert {
         "E_psi_raw",
         "E_psi_hdr",
-        "E_psi_hdr+",
-        "NE_psi_hdr+",
+        "E_psi_perfect",
+        "NE_psi_perfect",
         "improvement_hdr",
-        "improvement_hdr+",
+        "improvement_perfect",
     } <= set(doc["drives"][0])
     with pytest.raises(EvaluationError, match="not available"):
         evaluate_drive(make_drive(), methods=("kalman",))
@@ -333,11 +370,13 @@ def test_cli_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     blind = _write(tmp_path, DriveLog(t=log.t, omega=log.omega, name="blind"), "blind")
     assert cli_main(["evaluate", blind]) == 1
     _one_line_error(capsys, "no truth heading")
-    moving = _write(tmp_path, make_drive(turns=[(5, 10, 15.0)]), "moving")
+    moving = _write(tmp_path, make_drive(calib_s=0.0, turns=SLALOM), "moving")
     assert cli_main(["evaluate", moving]) == 1
-    _one_line_error(capsys, "moving", "--bias")
-    assert cli_main(["evaluate", str(tmp_path)]) == 1
-    _one_line_error(capsys, "directory")
+    _one_line_error(capsys, "moving", "no standstill", "--bias")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli_main(["evaluate", str(empty)]) == 1
+    _one_line_error(capsys, "empty", "directory without drive logs")
 
 
 def test_cli_plot_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -387,7 +426,7 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     assert not off.standstill.enabled
     got_off = ev.evaluate_prepared(prep, methods=("hdr+",), plus=off).e_psi["hdr+"]
     got_on = ev.evaluate_prepared(prep, methods=("hdr+",), plus=HdrPlusParams()).e_psi["hdr+"]
-    yaw = ev._yaw_hdrplus(prep.steps, HdrParams(), off)
+    yaw = ev.method_yaw(prep, "hdr+", HdrParams(), off)
     assert got_off == pytest.approx(float(ev.e_psi(yaw, prep.truth, prep.k)), abs=0)
     assert got_off != got_on
     cfg = tmp_path / "hdrd.yaml"
@@ -396,3 +435,86 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     args = [str(path), "--method", "hdr+", "--config", str(cfg), "--json", str(out)]
     assert cli_main(["evaluate", *args]) == 0
     assert json.loads(out.read_text())["drives"][0]["E_psi_hdr+"] == pytest.approx(got_off)
+
+
+# -- per-drive calibration --------------------------------------------------------------------
+
+
+def phone_drive(seed: int = 7) -> DriveLog:
+    """A phone-like 1 Hz drive (bias 0.01 deg/s, noise 0.01 deg/s): 5 s standing, a left turn
+    whose first second averages 0.37 deg/s (then 4, 9, 12, 12, 12, 9, 4 deg/s), a 20 s stop at
+    a light, then 5 minutes of driving with right turns from 60 s on, the bias drifting by 0.05
+    deg/s from then. Truth: the true heading at every second while moving."""
+    rng = np.random.default_rng(seed)
+    n = 5 + 8 + 20 + 300
+    true = np.zeros(n)
+    true[5:13] = [0.36, 4.0, 9.0, 12.0, 12.0, 12.0, 9.0, 4.0]
+    for start in range(60, n - 20, 50):
+        true[start : start + 9] = -10.0
+    t = np.arange(n, dtype=np.float64)
+    omega = true + 0.01 + 0.05 * (t >= 60) + 0.01 * rng.standard_normal(n)
+    omega[:6] = 0.01 + 0.01 * rng.standard_normal(6)
+    omega[5] += 0.36
+    heading = np.mod(90.0 - np.cumsum(true), 360.0)
+    moving = (t >= 5) & ((t < 13) | (t >= 33))
+    return DriveLog(t=t, omega=omega, heading_truth=np.where(moving, heading, np.nan), name="phone")
+
+
+def test_a_turns_first_second_at_1_hz_is_not_taken_for_the_start_up_standstill() -> None:
+    log = phone_drive()
+    # The first 6 s hold the turn's first second: rejected, as are the windows in the turn;
+    # the daemon's start-up window measures at the stop that follows (18-24 s).
+    prep = prepare_drive(log, calibrate_seconds=6.0)
+    assert prep.calibration_attempts == 4
+    assert prep.start_s == 24.0
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[18:24])), rel=1e-12)
+    assert abs(prep.steps.bias_dps - 0.01) < 0.015  # the first 6 s measured 0.07 deg/s
+    # Per drive, without --calibrate-seconds: 5 s before the turn are too few samples to
+    # judge at 1 Hz; the stop after it is found from the gyro (with the straight road after it,
+    # which a gyro cannot tell from a stop), and the drive starts after that window.
+    prep = prepare_drive(log)
+    assert prep.bias_source == "gyro standstill 30 s at 13 s"
+    assert prep.start_s == 43.0
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(log.omega[13:43])), rel=1e-12)
+    assert abs(prep.steps.bias_dps - 0.01) < 0.01
+
+
+def test_lead_in_and_speed_standstill_set_the_window(tmp_path: Path) -> None:
+    log = make_drive(drift_dps=0.1, calib_s=20.0)
+    lead = dataclasses.replace(log, meta={"lead_in_s": "20"})
+    prep = prepare_drive(lead)
+    assert prep.bias_source == "lead-in 20 s" and prep.start_s == 20.0
+    # --calibrate-seconds overrides the lead-in; --bias overrides both.
+    assert prepare_drive(lead, calibrate_seconds=10.0).bias_source == "first 10 s"
+    assert prepare_drive(lead, bias=0.8, calibrate_seconds=10.0).bias_source == "given"
+    # A log that starts moving and stops from 60 to 75 s: the daemon started then.
+    rel = log.t - log.t[0]
+    speed = np.where((rel >= 60.0) & (rel < 75.0), 0.0, 12.0)
+    stopped = dataclasses.replace(log, speed=speed, name="stop")
+    prep = prepare_drive(stopped)
+    assert prep.bias_source == "speed standstill 15 s at 60 s"
+    assert prep.start_s == 75.0 and prep.steps.t_end[0] == 76.0
+    assert prep.duration_min == pytest.approx((360.0 - 75.0) / 60.0)
+    never = dataclasses.replace(log, speed=np.full(len(log), 12.0))
+    with pytest.raises(EvaluationError, match="no standstill .* from the speed"):
+        prepare_drive(never)
+
+
+def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sub = tmp_path / "phone"
+    sub.mkdir()
+    write_drive(tmp_path / "city.csv", make_drive(drift_dps=0.1, turns=CITY_TURNS))
+    write_drive(sub / "p1.csv", phone_drive())
+    write_drive(sub / "moving.csv", make_drive(calib_s=0.0, turns=SLALOM))
+    (sub / "notes.txt").write_text("not a drive log")
+    out = tmp_path / "r.json"
+    assert cli_main(["evaluate", str(tmp_path), "--json", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert [d["name"] for d in json.loads(out.read_text())["drives"]] == ["city", "phone/p1"]
+    rows = {line.split()[0]: line for line in cap.out.splitlines()}
+    assert rows["city"].endswith("gyro standstill 30 s at 0 s")
+    assert rows["phone/p1"].endswith("gyro standstill 30 s at 13 s")
+    assert cap.err.count("\n") == 1 and "skipped phone/moving: " in cap.err
+    # A file and a directory together, with the bias given for all.
+    assert cli_main(["evaluate", str(sub / "p1.csv"), str(sub), "--bias", "0.01"]) == 0
+    assert capsys.readouterr().out.count(" given") == 3

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import socket
 import time
 from collections.abc import Iterator
@@ -470,3 +471,278 @@ def test_link_from_config_takes_the_aiding_keys():
         assert (a.align_gain, a.bias_window_s, a.bias_gain, a.step_s) == (0.5, 45.0, 0.1, 0.5)
     finally:
         link.close()
+
+
+# -- hostile input: anything that answers on the gpsd address -----------------------------------
+
+HUGE_INT = "9" * 5000  # beyond Python's 4,300-digit int-from-string limit
+BEYOND_FLOAT = "1" + "0" * 400  # a valid JSON integer no float can hold
+
+
+@pytest.mark.parametrize(
+    "line",
+    [
+        '{"class":"TPV","mode":3,"speed":' + HUGE_INT + "}",
+        '{"class":"TPV","mode":' + HUGE_INT + "}",
+        '{"class":"SKY","satellites":[{"PRN":' + HUGE_INT + "}]}",
+        '{"class":"DEVICES","devices":[{"bps":' + HUGE_INT + "}]}",
+        '{"class":"ATT","heading":-' + HUGE_INT + "}",
+        '{"class":"TPV","mode":3,"time":"2005-06-08T10:34:48.' + HUGE_INT + 'Z"}',
+        "[" * 100_000 + "]" * 100_000,
+        '{"class":"TPV","x":' + "[" * 50_000 + "]" * 50_000 + "}",
+    ],
+    ids=[
+        "tpv-speed",
+        "tpv-mode",
+        "sky-prn",
+        "devices-bps",
+        "att-heading",
+        "time-fraction",
+        "deep-list",
+        "deep-attribute",
+    ],
+)
+def test_lines_no_parser_can_use_are_protocol_errors(line):
+    try:
+        parse_line(line)
+    except GpsdProtocolError as e:
+        assert str(e)  # a reason, one line
+        assert "\n" not in str(e)
+
+
+@pytest.mark.parametrize("key", ["mode", "speed", "track", "epd", "eps", "lat", "time", "status"])
+@pytest.mark.parametrize("sign", ["", "-"])
+def test_integers_beyond_float_range_read_as_absent(key, sign):
+    f = parse_line(f'{{"class":"TPV","mode":3,"{key}":{sign}{BEYOND_FLOAT}}}')
+    assert isinstance(f, Fix)
+    field_of = {
+        "mode": "mode",
+        "speed": "speed_mps",
+        "track": "track_deg",
+        "epd": "epd",
+        "eps": "eps",
+        "lat": "lat",
+        "time": "time",
+        "status": "status",
+    }
+    assert getattr(f, field_of[key]) == (0 if key == "mode" else None)
+
+
+def test_numbers_in_every_report_class_beyond_float_range():
+    for line in (
+        '{"class":"SKY","nSat":' + BEYOND_FLOAT + ',"satellites":[{"PRN":' + BEYOND_FLOAT + "}]}",
+        '{"class":"ATT","heading":' + BEYOND_FLOAT + ',"time":' + BEYOND_FLOAT + "}",
+        '{"class":"VERSION","release":"3.22","proto_major":' + BEYOND_FLOAT + "}",
+        '{"class":"DEVICE","bps":' + BEYOND_FLOAT + "}",
+    ):
+        assert parse_line(line) is not None
+
+
+@pytest.mark.parametrize(
+    "value", ["0000-01-01T00:00:00Z", "0000-12-31T23:59:60.999Z", 1e308, -1e308, float("nan")]
+)
+def test_times_no_calendar_holds_are_unknown(value):
+    line = json.dumps({"class": "TPV", "mode": 3, "time": value})
+    f = parse_line(line)
+    assert isinstance(f, Fix)
+    assert f.time is None or f.time == value  # 1e308 is a (silly) finite UNIX time
+
+
+@pytest.mark.parametrize("key", ["speed", "epd", "eps"])
+def test_negative_magnitudes_read_as_absent(key):
+    f = parse_line(f'{{"class":"TPV","mode":3,"track":90.0,"speed":12.0,"{key}":-2.5}}')
+    assert isinstance(f, Fix)
+    assert {"speed": f.speed_mps, "epd": f.epd, "eps": f.eps}[key] is None
+
+
+def test_a_negative_speed_never_reaches_the_pipeline_as_a_standstill():
+    """A negative speed would pass the zero-rate update's "speed at or below 0.3 m/s" test."""
+    a = GpsAiding()
+    f = parse_line('{"class":"TPV","mode":3,"track":90.0,"speed":-20.0}')
+    assert isinstance(f, Fix)
+    a.on_fix(f, 0.0)
+    assert a.speed(0.1) is None and a.good_fix(0.1) is None
+    # and should a Fix be built by hand with one, aiding ignores it the same way
+    a.on_fix(Fix(mode=3, track_deg=90.0, speed_mps=-20.0), 1.0)
+    assert a.speed(1.1) is None and a.good_fix(1.1) is None
+
+
+_any_json = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.integers(min_value=2**1024, max_value=10**4000).map(lambda x: x * (-1) ** (x % 2))
+    | st.floats()
+    | st.text(max_size=8),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=12,
+)
+
+
+@given(
+    st.sampled_from(["TPV", "SKY", "ATT", "VERSION", "DEVICES", "DEVICE", "WATCH", "ERROR"]),
+    st.dictionaries(
+        st.sampled_from(
+            [
+                "mode",
+                "time",
+                "track",
+                "speed",
+                "epd",
+                "eps",
+                "lat",
+                "lon",
+                "alt",
+                "altMSL",
+                "climb",
+                "status",
+                "satellites",
+                "devices",
+                "heading",
+                "pitch",
+                "roll",
+                "bps",
+                "nSat",
+                "uSat",
+                "hdop",
+                "pdop",
+                "proto_major",
+                "release",
+                "enable",
+                "message",
+            ]
+        ),
+        _any_json,
+        max_size=8,
+    ),
+)
+def test_any_values_of_any_size_parse_or_fail_cleanly(cls, attrs):
+    line = json.dumps({"class": cls, **attrs})
+    try:
+        rep = parse_line(line)
+    except GpsdProtocolError:
+        return
+    if isinstance(rep, Fix):
+        assert rep.speed_mps is None or 0.0 <= rep.speed_mps < math.inf
+        assert rep.track_deg is None or 0.0 <= rep.track_deg < 360.0
+
+
+def test_client_counts_lines_it_cannot_use_and_carries_on(peer):
+    with GpsdClient("127.0.0.1", peer.port) as c:
+        c.poll()
+        peer.accept()
+        poll_until(c, lambda _: c.connected)
+        peer.send(
+            '{"class":"TPV","mode":3,"speed":' + HUGE_INT + "}\n"
+            '{"class":"TPV","mode":3,"speed":'
+            + BEYOND_FLOAT
+            + "}\n"
+            + "[" * 100_000
+            + "\n"
+            + REAL_TPV
+            + "\n"
+        )
+        got = poll_until(c, lambda g: len(g) >= 2)
+        assert got == [parse_line('{"class":"TPV","mode":3}'), parse_line(REAL_TPV)]
+        assert c.stats.bad_lines == 2 and c.connected
+
+
+def test_a_flooding_peer_gets_bounded_work_per_poll_and_loses_nothing(peer):
+    """Each poll reads at most READ_CHUNK bytes and parses at most LINES_PER_POLL lines;
+    the rest stays in the kernel (TCP flow control slows the peer) and comes in order."""
+    from hdrd.gpsd import LINES_PER_POLL, READ_CHUNK
+
+    n = 20_000
+    lines = [f'{{"class":"TPV","mode":3,"speed":{k}}}\n'.encode() for k in range(n)]
+    with GpsdClient("127.0.0.1", peer.port) as c:
+        c.poll()
+        peer.accept()
+        poll_until(c, lambda _: c.connected)
+        import threading
+
+        sender = threading.Thread(target=peer.send, args=(b"".join(lines),), daemon=True)
+        sender.start()
+        speeds: list[float] = []
+        deadline = time.monotonic() + WAIT
+        while len(speeds) < n and time.monotonic() < deadline:
+            got = c.poll()
+            assert len(got) <= LINES_PER_POLL
+            assert len(c._buf) <= READ_CHUNK + 65536
+            speeds += [f.speed_mps for f in got if f.speed_mps is not None]
+        sender.join(WAIT)
+    assert speeds == [float(k) for k in range(n)]
+
+
+@pytest.mark.parametrize(
+    ("text", "addr"),
+    [
+        ("localhost", ("localhost", 2947)),
+        ("gps.example:3000", ("gps.example", 3000)),
+        ("127.0.0.1:2947", ("127.0.0.1", 2947)),
+        (":2948", ("127.0.0.1", 2948)),
+        ("[::1]:2947", ("::1", 2947)),
+        ("[::1]", ("::1", 2947)),
+        ("::1", ("::1", 2947)),
+        ("fe80::1%eth0", ("fe80::1%eth0", 2947)),
+    ],
+)
+def test_gpsd_address(text, addr):
+    from hdrd.gpsd import parse_address
+
+    assert parse_address(text) == addr
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "",
+        " ",
+        "host:",
+        "host:0",
+        "host:65536",
+        "host:http",
+        "[::1",
+        "[::1]x",
+        "a]:1",
+        "[]:1",
+        "host :1",
+        "h\x1bst:1",
+        "host:00000000002947",
+    ],
+)
+def test_bad_gpsd_addresses_say_what_is_wrong(text):
+    from hdrd.gpsd import parse_address
+
+    with pytest.raises(ValueError):
+        parse_address(text)
+
+
+@pytest.mark.parametrize(
+    ("arg", "host", "port"),
+    [("localhost", "localhost", 2947), ("[::1]:2947", "::1", 2947), ("[::1]", "::1", 2947)],
+)
+def test_run_gpsd_option_is_the_address_gpsd_listens_on(arg, host, port, tmp_path):
+    import argparse
+
+    from hdrd.daemon import config_from_args
+
+    empty = tmp_path / "hdrd.yaml"
+    empty.write_text("{}\n")
+    cfg, _ = config_from_args(argparse.Namespace(gpsd=arg, config=str(empty)))
+    assert (cfg.gpsd.enabled, cfg.gpsd.host, cfg.gpsd.port) == (True, host, port)
+
+
+def test_run_with_a_bad_gpsd_address_is_a_config_error(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--simulate", "--gpsd", "localhost:gps"],
+        capture_output=True,
+        timeout=WAIT,
+    )
+    err = r.stderr.decode()
+    assert r.returncode == 78, err
+    assert err.count("\n") == 1 and "--gpsd" in err and "localhost:gps" in err

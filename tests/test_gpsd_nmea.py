@@ -8,8 +8,9 @@ the heading stays continuous; and a real ``hdrd run --gpsd`` does the same end t
 hdrd -> gpsd: gpsd reading hdrd's NMEA over ``udp://`` reports the heading as ATT. What
 gpsd 3.22 (Debian 12) does with our sentences: $--HDT becomes ATT ``heading``, but only
 from talkers its packet lexer accepts (GP/GN/GL, HC, II/IN, ...): $HN... sentences are
-dropped before decoding, hence ``output.nmea_talker: HC``. $--THS and $--ROT give no ATT in
-3.22 (newer gpsd decode THS).
+dropped before decoding, hence ``output.nmea_talker: II`` (docs/protocol.md, "NMEA 0183 and
+gpsd"). $--THS and $--ROT give no ATT in 3.22 (newer gpsd decode THS). A held heading (status
+stale) reaches gpsd as no HDT at all.
 
 Skipped, with the reason, only where gpsd/gpsfake cannot run. Every process started is
 killed in a ``finally``; no timings are asserted (waits are upper bounds for a hung peer).
@@ -545,12 +546,13 @@ def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs)
 
 
 def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, tmp_path):
-    """A real ``hdrd run`` with ``output.nmea_talker: HC`` turning left at 3 deg/s: gpsd's
-    ATT headings are the published headings (HDT, 2 decimals)."""
+    """A real ``hdrd run`` with ``output.nmea_talker: II`` (what docs/protocol.md says to set
+    for gpsd) turning left at 3 deg/s: gpsd's ATT headings are the published headings (HDT,
+    2 decimals)."""
     gpsd, port, uport = start_gpsd_udp(procs)
     c = watch(port, gpsd)
     cfg = tmp_path / "hdrd.yaml"
-    cfg.write_text("output:\n  nmea_talker: HC\n")
+    cfg.write_text("output:\n  nmea_talker: II\n")
     js = udp()
     hz = 10.0
     t = np.arange(int(120 * hz)) / hz
@@ -613,3 +615,61 @@ def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
         parse_nmea(s)[0] for s in nmea_sentences(base | {"mode": AIDED}, ths=True, talker="HC")
     ]
     assert kinds == ["HCHDT", "HCROT", "HCTHS"]
+
+
+# -- what gpsd 3.22 does with a held heading, and which talkers it reads -------------------------
+
+
+def _atts_for(c: GpsdClient, pub: UdpNmeaPublisher, msgs: list[dict[str, Any]]) -> list[Attitude]:
+    """Send *msgs* (each once), then a live marker message until gpsd reports it; the ATT
+    reports seen before the marker are what *msgs* produced (datagrams are read in order)."""
+    for m in msgs:
+        pub.on_message(m)
+    marker = {"class": "HDR", "v": 1, "omega": 0.0, "status": "ok", "heading": 300.5}
+    atts: list[Attitude] = []
+    deadline = time.monotonic() + WAIT
+    while not any(a.heading == 300.5 for a in atts) and time.monotonic() < deadline:
+        pub.on_message(marker)
+        time.sleep(0.05)
+        atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+    assert any(a.heading == 300.5 for a in atts), "gpsd never reported the marker heading"
+    return atts[: next(i for i, a in enumerate(atts) if a.heading == 300.5)]
+
+
+def test_gpsd_takes_no_held_heading_for_a_fresh_one(need_gpsd, procs):
+    """While the gyro is unplugged the messages hold the last heading (status stale). gpsd
+    used to report each as a fresh ATT heading ($--HDT has no validity field); now hdrd
+    sends no HDT then, and THS says V."""
+    from tests.test_pipeline import make_frames, run_live
+
+    gpsd, port, uport = start_gpsd_udp(procs)
+    c = watch(port, gpsd)
+    pub = UdpNmeaPublisher([("127.0.0.1", uport)], ths=True, talker="II")
+    p = Pipeline(PipelineConfig(bias_dps=0.0, heading0_deg=123.0))
+    assert len(run_live(p, make_frames(np.zeros(30)))) == 3  # three real steps, then silence
+    stale = [p.stale_message(None, silent_s=3.0 + k) for k in range(5)]
+    assert all(m["status"] == "stale" and m["heading"] == 123.0 for m in stale)
+    try:
+        held = _atts_for(c, pub, stale)
+    finally:
+        c.close()
+        pub.stop()
+    assert [a.heading for a in held] == [], f"gpsd took a held heading for a fresh one: {held}"
+
+
+@pytest.mark.parametrize("talker", ["II", "IN", "HC"])
+def test_gpsd_reads_the_talkers_the_docs_offer(need_gpsd, procs, talker):
+    """docs/protocol.md offers these talkers for gpsd; gpsd 3.22 must read $--HDT from each."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    assert f"`{talker}`" in doc
+    gpsd, port, uport = start_gpsd_udp(procs)
+    c = watch(port, gpsd)
+    pub = UdpNmeaPublisher([("127.0.0.1", uport)], talker=talker)
+    try:
+        atts = _atts_for(c, pub, [{"class": "HDR", "v": 1, "status": "ok", "heading": 42.25}])
+    finally:
+        c.close()
+        pub.stop()
+    assert [a.heading for a in atts] == [42.25]

@@ -242,7 +242,7 @@ def test_rot_invalid_status_says_v(status: str | None) -> None:
     assert decode(nmea_sentences(msg))["HNROT"][1] == "V"
 
 
-@pytest.mark.parametrize("status", ["ok", "turning", "aided", "dead-reckoning"])
+@pytest.mark.parametrize("status", ["ok", "turning", "standstill", "aided", "dead-reckoning"])
 def test_rot_valid_status_says_a(status: str) -> None:
     assert decode(nmea_sentences(full_message(status=status)))["HNROT"][1] == "A"
 
@@ -288,6 +288,58 @@ def test_nmea_property(omega: float, heading: float, ths: bool) -> None:
     if abs(omega * 60.0) >= 0.05:
         assert math.copysign(1.0, rot) == -math.copysign(1.0, omega)
     assert ("HNTHS" in d) == ths
+
+
+def _pipeline_messages(method: str, speed: float | None) -> list[dict[str, Any]]:
+    """Real pipeline messages: 40 s of a parked car at 10 Hz, eps0 known."""
+    from hdrd.pipeline import Pipeline, PipelineConfig
+    from tests.test_pipeline import make_frames, run_live
+
+    rng = np.random.default_rng(7)
+    p = Pipeline(PipelineConfig(bias_dps=0.5, method=method))
+    p.set_speed(speed)
+    msgs = run_live(p, make_frames(0.5 + rng.normal(0, 0.05, 400)))
+    msgs.append(p.stale_message(1e9, silent_s=4.0))  # then the cable is pulled
+    return msgs
+
+
+@pytest.mark.parametrize("ths", [False, True])
+def test_a_held_heading_is_never_sent_as_a_fresh_one(ths: bool) -> None:
+    """While the gyro is silent (status stale) the message repeats the held heading; NMEA
+    must not: no HDT (it has no validity field), THS and ROT say V."""
+    stale = _pipeline_messages("hdr", None)[-1]
+    assert stale["status"] == "stale" and "heading" in stale
+    d = decode(nmea_sentences(stale, ths=ths))
+    assert "HNHDT" not in d
+    assert d["HNROT"] == ["", "V"]
+    if ths:
+        assert d["HNTHS"] == [f"{stale['heading']:.2f}", "V"]
+    else:
+        assert "HNTHS" not in d
+
+
+@pytest.mark.parametrize("status", ["stale", "calibrating", "error", None])
+def test_no_hdt_unless_the_heading_is_current(status: str | None) -> None:
+    msg = full_message(status=status)
+    if status is None:
+        del msg["status"]
+    d = decode(nmea_sentences(msg, ths=True))
+    assert "HNHDT" not in d and d["HNTHS"][1] == "V" and d["HNROT"][1] == "V"
+
+
+@pytest.mark.parametrize("aided", [False, True])
+def test_a_standstill_rate_is_known_zero_and_valid(aided: bool) -> None:
+    """HDR+'s zero-rate update: the rate is exactly 0 and the heading current, so ROT and
+    THS are valid (A; THS A while GPS-aided, E otherwise) and HDT is sent."""
+    still = [m for m in _pipeline_messages("hdr+", 0.0) if m.get("zupt") == 1]
+    assert len(still) > 20
+    for m in still:
+        if aided:
+            m = m | {"mode": "aided"}
+        d = decode(nmea_sentences(m, ths=True))
+        assert d["HNROT"] == ["0.0", "A"]
+        assert d["HNTHS"] == [f"{m['heading']:.2f}", "A" if aided else "E"]
+        assert d["HNHDT"] == [f"{m['heading']:.2f}", "T"]
 
 
 # -- UDP ------------------------------------------------------------------------------------
@@ -457,13 +509,100 @@ def test_stdout_publisher_raises_output_closed_when_the_reader_goes_away() -> No
     os.close(r)
     wf = os.fdopen(w, "wb")
     pub = StdoutPublisher(wf)
+    pub.on_message(full_message())  # queued: the writer thread meets the closed pipe
     with pytest.raises(OutputClosed):
-        pub.on_message(full_message())
+        pub.flush(RECV_TIMEOUT_S)
     assert pub.closed
     with pytest.raises(OutputClosed):
         pub.on_message(full_message())
     pub.stop()  # no error
     wf.close()  # nor here: the descriptor now points at /dev/null
+
+
+def finishes(work: Any) -> bool:
+    """Run *work* in a thread; False if it is still running after RECV_TIMEOUT_S (blocked:
+    the thread is left behind, unblocked by the test closing the pipe)."""
+    import threading
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    t.join(RECV_TIMEOUT_S)
+    return not t.is_alive()
+
+
+def stalled_pipe() -> tuple[int, Any]:
+    """A real pipe whose reader never reads: (read fd, writable file), the pipe's buffer
+    shrunk to one page so that it fills at once."""
+    import fcntl
+
+    r, w = os.pipe()
+    fcntl.fcntl(w, 1031, 4096)  # F_SETPIPE_SZ: the smallest pipe Linux makes
+    return r, os.fdopen(w, "wb")
+
+
+def test_a_stalled_reader_never_blocks_the_caller_and_drops_are_counted() -> None:
+    r, wf = stalled_pipe()
+    try:
+        pub = StdoutPublisher(wf, max_queue_bytes=16384, stop_wait_s=0.2)
+        n = 5000  # about 2 MB of lines into a 4 KiB pipe nobody reads
+
+        def publish() -> None:
+            for i in range(n):
+                pub.on_message(full_message(step=i))
+
+        if not finishes(publish):
+            os.close(r)  # unblock the write, so that the test fails rather than hangs
+            raise AssertionError("on_message blocked on the stalled reader")
+        assert pub.dropped > 0 and pub.written + pub.dropped <= n
+        pub.stop()  # gives up after stop_wait_s: the reader still does not read
+        assert pub.written + pub.dropped == n and pub.errors == 0 and not pub.closed
+        # what did get through is whole lines, in order, from the first one
+        os.set_blocking(r, False)
+        got = os.read(r, 1 << 20)
+        lines = got.split(b"\n")
+        assert lines[0] == format_json(full_message(step=0)).rstrip(b"\n")
+        steps = [json.loads(x)["step"] for x in lines[:-1]]
+        assert steps == sorted(steps) and len(set(steps)) == len(steps)
+    finally:
+        try:
+            os.close(r)
+        except OSError:
+            pass
+        wf.close()
+
+
+def test_other_publishers_go_on_while_stdout_is_stalled(receiver: socket.socket) -> None:
+    """The daemon calls its publishers in turn: a stalled stdout reader must not hold up
+    the UDP one (it used to block in write(2) for good)."""
+    r, wf = stalled_pipe()
+    port = receiver.getsockname()[1]
+    stdout = StdoutPublisher(wf, stop_wait_s=0.2)
+    pubs: list[Any] = [stdout, UdpJsonPublisher([("127.0.0.1", port)])]
+    try:
+        n = 3000  # 1 MB of JSON lines: far beyond the pipe and the stdout queue
+        got: list[int] = []
+
+        def publish() -> None:
+            for i in range(n):
+                for p in pubs:
+                    p.on_message(full_message(step=i))
+                if i % 100 == 99:  # read as we go: the receive buffer is not the subject here
+                    while len(got) <= i:
+                        got.append(json.loads(receiver.recv(65536))["step"])
+
+        if not finishes(publish):
+            os.close(r)  # unblock the write, so that the test fails rather than hangs
+            raise AssertionError(f"UDP held up by the stalled stdout after {len(got)} steps")
+        assert got == list(range(n))
+        assert stdout.dropped > 0
+    finally:
+        for p in pubs:
+            p.stop()
+        try:
+            os.close(r)
+        except OSError:
+            pass
+        wf.close()
 
 
 def test_stdout_closed_by_head_exits_without_traceback() -> None:

@@ -177,21 +177,40 @@ def udev_rules() -> list[dict[str, tuple[str, str]]]:
     return rules
 
 
-def test_udev_rule_names_the_default_port() -> None:
-    (rule,) = udev_rules()
-    assert rule["SUBSYSTEM"] == ("==", "tty")
-    assert (
-        re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idVendor}"][1])
-        and rule["ATTRS{idVendor}"][0] == "=="
-    )
-    assert (
-        re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idProduct}"][1])
-        and rule["ATTRS{idProduct}"][0] == "=="
-    )
-    assert rule["SYMLINK"] == ("+=", "hdrd-gyro")
-    assert DeviceConfig().port == "/dev/" + rule["SYMLINK"][1]
-    assert rule["GROUP"] == ("=", "dialout") and rule["MODE"] == ("=", "0660")
-    assert rule["ENV{SYSTEMD_WANTS}"][1] == UNIT.name and rule["TAG"] == ("+=", "systemd")
+def test_udev_rules_name_the_default_port() -> None:
+    rules = udev_rules()
+    assert rules
+    for rule in rules:
+        assert rule["SUBSYSTEM"] == ("==", "tty")
+        assert (
+            re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idVendor}"][1])
+            and rule["ATTRS{idVendor}"][0] == "=="
+        )
+        assert (
+            re.fullmatch(r"[0-9a-f]{4}", rule["ATTRS{idProduct}"][1])
+            and rule["ATTRS{idProduct}"][0] == "=="
+        )
+        assert rule["SYMLINK"] == ("+=", "hdrd-gyro")
+        assert DeviceConfig().port == "/dev/" + rule["SYMLINK"][1]
+        assert rule["GROUP"] == ("=", "dialout") and rule["MODE"] == ("=", "0660")
+        assert rule["ENV{SYSTEMD_WANTS}"][1] == UNIT.name and rule["TAG"] == ("+=", "systemd")
+        # ModemManager would probe a ttyACM/ttyUSB port with AT commands at plug-in.
+        assert rule["ENV{ID_MM_DEVICE_IGNORE}"] == ("=", "1")
+
+
+# The USB-serial bridges of the boards the hdrd-adc firmware runs on (docs/firmware.md).
+BOARD_BRIDGES = {
+    ("1a86", "7523"): "WCH CH340 (Nano and Uno clones)",
+    ("2341", "0043"): "ATmega16U2 of the Arduino Uno R3",
+    ("0403", "6001"): "FTDI FT232R (original Nano, USB-serial ADC boards)",
+}
+
+
+def test_udev_rules_match_the_boards_users_plug_in() -> None:
+    ids = [(r["ATTRS{idVendor}"][1], r["ATTRS{idProduct}"][1]) for r in udev_rules()]
+    assert len(ids) == len(set(ids)), "a vendor:product pair is matched twice"
+    missing = {k: v for k, v in BOARD_BRIDGES.items() if k not in ids}
+    assert not missing, f"no active rule for {missing}"
 
 
 def test_udev_commented_alternatives_are_valid_too() -> None:

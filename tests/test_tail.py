@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from hdrd.publish import TailFormatter, format_json, nmea_sentences
 
@@ -274,3 +276,105 @@ def test_row_never_prints_heading_360():
 
     row = TailFormatter.row({"class": "HDR", "step": 1, "status": "ok", "heading": 359.996})
     assert "360.00" not in row and "0.00" in row
+
+
+# -- hostile datagrams: nothing kills tail, nothing reaches the terminal raw ----------------
+
+HUGE_INT = "9" * 5000  # beyond Python's 4,300-digit int-from-string limit
+ESC_SEQUENCES = ["\x1b[2J", "\x1b]0;owned\x07", "\x07", "\u009b31m", "\x1b[31m", "\r", "\u202e"]
+
+
+def _terminal_safe(lines: list[str]) -> bool:
+    return all(line.isprintable() for line in lines)
+
+
+def test_a_huge_integer_is_a_note_not_a_crash() -> None:
+    f = TailFormatter()
+    for data in (
+        b'{"class":"HDR","step":' + HUGE_INT.encode() + b"}",
+        b'{"class":"X","n":-' + HUGE_INT.encode() + b"}",
+        b"[" * 100_000,
+    ):
+        out, notes, n = f.lines(data)
+        assert (out, n) == ([], 0) and len(notes) == 1 and _terminal_safe(notes)
+    # numbers that do load but fit no column print as "?" or in full, never a traceback
+    out, notes, n = f.lines(
+        format_json(hdr(1) | {"step": 10**400, "heading": 10**400, "time": -(10**400)})
+    )
+    assert n == 1 and notes == [] and "?" in out[1]
+
+
+@pytest.mark.parametrize("seq", ESC_SEQUENCES)
+@pytest.mark.parametrize("raw", [False, True])
+def test_control_sequences_in_any_field_are_escaped(seq: str, raw: bool) -> None:
+    f = TailFormatter(raw=raw)
+    datagrams = [
+        format_json(hdr(1, status=f"ok{seq}", mode=f"aided{seq}")),
+        format_json({"class": f"X{seq}", "note": seq}),
+        json.dumps({"class": "HDR", "status": seq}, ensure_ascii=False).encode(),
+        # NMEA: in a field (valid checksum), and in the checksum field
+        f"$HNHDT,1{seq}2.00,T*".encode() + nmea_checksum_of(f"HNHDT,1{seq}2.00,T") + b"\r\n",
+        f"$HNHDT,12.00,T*{seq}\r\n".encode(),
+        f"{{garbage{seq}".encode(),
+    ]
+    for d in datagrams:
+        out, notes, _ = f.lines(d, sender="127.0.0.1:1")
+        assert _terminal_safe(out) and _terminal_safe(notes), (out, notes)
+
+
+def nmea_checksum_of(body: str) -> bytes:
+    """The XOR checksum over the UTF-8 bytes of *body* (what a sender would compute)."""
+    x = 0
+    for b in body.encode():
+        x ^= b
+    return f"{x:02X}".encode()
+
+
+def test_raw_json_stays_the_same_json_when_escaped() -> None:
+    """--raw prints JSON as received; made printable, it must still parse to the same value."""
+    f = TailFormatter(raw=True)
+    for text in (
+        '{"class":"HDR",\t"status":"ok\\u001b[2J"}',
+        '{"class":"HDR",\r"note":"\u009b31m \u202e x"}',
+    ):
+        (line,), _, _ = f.lines(text.encode())
+        assert line.isprintable() and json.loads(line) == json.loads(text)
+
+
+@given(st.binary(max_size=300))
+def test_any_datagram_gives_printable_lines(data: bytes) -> None:
+    for raw in (False, True):
+        out, notes, _ = TailFormatter(raw=raw).lines(data, sender="127.0.0.1:1")
+        assert _terminal_safe(out) and _terminal_safe(notes)
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(["class", "step", "status", "mode", "heading", "time", "W", "omega"]),
+        st.none()
+        | st.booleans()
+        | st.text()
+        | st.floats()
+        | st.integers(min_value=-(10**4000), max_value=10**4000)
+        | st.lists(st.integers(), max_size=3),
+    )
+)
+def test_any_json_object_gives_printable_lines(obj: dict[str, Any]) -> None:
+    obj.setdefault("class", "HDR")
+    data = json.dumps(obj, ensure_ascii=False).encode("utf-8", "surrogatepass")
+    out, notes, _ = TailFormatter().lines(data)
+    assert _terminal_safe(out) and _terminal_safe(notes)
+
+
+def test_tail_survives_hostile_datagrams_end_to_end(sender: socket.socket) -> None:
+    proc, port = start_tail("--count", "2")
+    sender.sendto(b'{"class":"HDR","step":' + HUGE_INT.encode() + b"}", ("127.0.0.1", port))
+    sender.sendto(format_json(hdr(1, status="ok\x1b[2J\x07")), ("127.0.0.1", port))
+    sender.sendto(format_json(hdr(2)), ("127.0.0.1", port))
+    out, err = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0, err
+    assert b"Traceback" not in err and b"\x1b" not in out + err and b"\x07" not in out + err
+    lines = out.decode().splitlines()
+    assert [line.split()[1] for line in lines[1:]] == ["1", "2"]
+    assert "ok\\u001b[2J\\u0007" in lines[1]
+    assert "a number too long" in err.decode()

@@ -205,3 +205,37 @@ def test_cli_tune(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli_main(["tune", str(tmp_path / "missing.csv"), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("hdrd tune: error: ") and "missing.csv" in err and err.count("\n") == 1
+
+
+def test_run_many_steps_the_same_yaw_as_the_daemons_hdr_step() -> None:
+    # Tuning scores its candidates with the vectorised run_many on the steps evaluate prepared
+    # through the daemon's block code: for drives with gaps, at 1 Hz and at 100 Hz, each
+    # candidate's yaw is the daemon's HDR step looped (to rounding: numpy's power vs math.pow).
+    from hdrd import hdr
+    from hdrd.hdrplus import INITIAL_PLUS_STATE
+    from hdrd.methods import REGISTRY
+    from tests.test_onepath import drive
+
+    c = sample_candidates(np.random.default_rng(9), 5)
+    logs = [
+        drive(10.0, gaps=((100.0, 103.0), (150.2, 150.7))),
+        drive(1.0, noise_dps=0.02, gaps=((80.0, 84.0),)),
+        drive(100.0, minutes=2.0),
+    ]
+    for log in logs:
+        prep = prepare_drive(log, calibrate_seconds=10.0)
+        yaw = hdr.run_many(prep.steps.u, c["i_c"], c["tau"], c["theta_w"], c["c1"], c["c2"])
+        assert yaw.shape == (prep.steps.u.shape[0], 5)
+        for j in range(5):
+            p = HdrParams(
+                i_c=float(c["i_c"][j]),
+                tau=float(c["tau"][j]),
+                theta_w=float(c["theta_w"][j]),
+                c1=float(c["c1"][j]),
+                c2=float(c["c2"][j]),
+            )
+            state, stepped = INITIAL_PLUS_STATE, []
+            for i in range(prep.steps.u.shape[0]):
+                state, out = REGISTRY["hdr"].step(state, prep.steps.input(i), p)
+                stepped.append(out.yaw)
+            np.testing.assert_allclose(yaw[:, j], stepped, rtol=1e-12, atol=1e-9)

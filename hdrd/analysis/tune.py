@@ -12,10 +12,13 @@ unchanged to five further drives: 9.2x better than no HDR on the nine training d
    ``top_k`` sets so far by log-normal factors (spread 1.5, then smaller each round);
 3. objective: the mean NEψ (Eq. 13, deg/min) over the training drives, smaller is better.
 
-Every candidate is scored with :func:`hdrd.hdr.run_many`, which steps thousands of
-parameter sets together as numpy arrays; the winner and the starting set are then re-run
-with the scalar :func:`hdrd.hdr.run_batch` (:mod:`hdrd.analysis.evaluate`) for the reported
-numbers, so they are exactly what ``hdrd evaluate`` prints. Reproducible by seed.
+The drives are prepared once, as ``hdrd evaluate`` prepares them (:mod:`hdrd.analysis.prepare`:
+the daemon's block code and stepper, the bias measured per drive), and every candidate is
+scored on those steps with :func:`hdrd.hdr.run_many`, which steps thousands of parameter sets
+together as numpy arrays, yaw for yaw what the daemon's HDR step gives (tests/test_tune.py);
+the winner and the starting set are then re-run through :func:`hdrd.analysis.evaluate.
+evaluate_prepared` for the reported numbers, so they are exactly what ``hdrd evaluate``
+prints. Reproducible by seed.
 
 Pure except for the optional progress callback; :func:`main` is the ``hdrd tune`` edge.
 """
@@ -34,7 +37,6 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
-    DEFAULT_CALIBRATE_S,
     PAPER_PARAMS,
     DriveResult,
     EvaluationError,
@@ -190,7 +192,10 @@ class TuneResult:
 
 
 def _prepare(
-    logs: Sequence[DriveLog | PreparedDrive], bias: float | None, calibrate_seconds: float, T: float
+    logs: Sequence[DriveLog | PreparedDrive],
+    bias: float | None,
+    calibrate_seconds: float | None,
+    T: float,
 ) -> list[PreparedDrive]:
     return [
         d if isinstance(d, PreparedDrive) else prepare_drive(d, bias, calibrate_seconds, T)
@@ -206,7 +211,7 @@ def tune(
     *,
     base: HdrParams = PAPER_PARAMS,
     bias: float | None = None,
-    calibrate_seconds: float = DEFAULT_CALIBRATE_S,
+    calibrate_seconds: float | None = None,
     ranges: dict[str, tuple[float, float]] = RANGES,
     refine_fraction: float = 0.3,
     refine_rounds: int = 2,
@@ -217,7 +222,8 @@ def tune(
 
     n_candidates: parameter sets scored in all (the starting set ``base`` is one of them, so
     the result is never worse than it on the training drives). bias/calibrate_seconds: the
-    static bias, as in :func:`hdrd.analysis.evaluate.prepare_drive`. Raises EvaluationError
+    static bias, as in :func:`hdrd.analysis.evaluate.prepare_drive` (None, None: measured per
+    drive, as ``hdrd evaluate`` does). Raises EvaluationError
     for a drive that cannot be evaluated, ValueError for a bad budget.
     """
     if not train_logs:
@@ -420,9 +426,7 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.evaluate import load_drives
     from hdrd.calibrate import atomic_write_json, atomic_write_text
 
-    calibrate_s = (
-        args.calibrate_seconds if args.calibrate_seconds is not None else DEFAULT_CALIBRATE_S
-    )
+    calibrate_s = args.calibrate_seconds
     if args.candidates < 1:
         _err(f"--candidates must be >= 1, got {args.candidates}")
         return 2

@@ -1,0 +1,411 @@
+"""A drive log made ready for evaluation, exactly as the daemon would have run it. Pure.
+
+One path from samples to steps: the log's samples go through the daemon's own block code
+and stepper, not a re-implementation of them:
+
+1. times: t (s) -> integer microseconds since the log's first sample (``round``); raw omega
+   (deg/s), temperature (deg C) and, per step, the mean of the log's speed (m/s);
+2. blocks: :meth:`hdrd.resample.BlockAverager.feed_many` then ``flush`` (the last, partial
+   block is a step, as at the end of a replay); a step without samples is
+   :class:`hdrd.resample.Missing`: no step, the yaw holds, nothing is evaluated there;
+3. the static bias and the steps: :class:`hdrd.pipeline.Stepper`, the daemon's per-block
+   stepper with its start-up window (:class:`hdrd.calibrate.StartupWindow`): it measures the
+   bias over the window's steps, starts again after a window that shows motion, then hands
+   each block's input (u = block mean - eps0, spread, speed, temperature, T) to the method;
+4. where the bias comes from, per drive (:func:`plan_calibration`): ``bias`` when given;
+   else ``calibrate_seconds`` (the first S s as the daemon's start-up window); else the log's
+   own ``lead_in_s`` (metadata: seconds of standstill at the start); else the first standstill
+   found from the speed (at or below :data:`STANDSTILL_SPEED_MPS`, at least
+   :data:`STANDSTILL_MIN_S`, at most :data:`STANDSTILL_MAX_S`); else, when the log has no
+   speed, the first window that passes the standstill test on the gyro alone. A standstill
+   found after the log's start begins the drive there (the daemon started then).
+
+The drive starts where the calibration ends (0 with a given bias); Td (Eq. 13) is the time
+from there to the end of the last step. ``hdrd replay`` of a capture holding the same samples
+publishes the same yaw at every step (tests/test_onepath.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.analysis.metrics import align_index, truth_at
+from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd.drivelog import DriveLog
+from hdrd.hdr import HdrParams
+from hdrd.methods import StepInputs
+from hdrd.pipeline import PipelineConfig, Stepper
+from hdrd.resample import Block, BlockAverager, Missing
+
+__all__ = [
+    "DEFAULT_LIMITS",
+    "STANDSTILL_MAX_S",
+    "STANDSTILL_MIN_S",
+    "STANDSTILL_SPEED_MPS",
+    "TRUTH_MAX_GAP_S",
+    "CalibrationPlan",
+    "EvaluationError",
+    "PreparedDrive",
+    "plan_calibration",
+    "prepare_drive",
+    "step_log",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+TRUTH_MAX_GAP_S = 2.0
+"""Truth is interpolated between fixes at most this far apart (1 Hz GPS with one fix lost)."""
+STANDSTILL_SPEED_MPS = 0.3
+"""A sample at or below this speed, m/s, is standing still (GPS speed at rest jitters by a few
+tenths of a m/s; HDR+'s standstill detection uses the same)."""
+STANDSTILL_MIN_S = 6.0
+"""Shortest standstill a per-drive calibration window is found in, s (at 1 Hz, the six samples
+the standstill test's noise-scaled checks need)."""
+STANDSTILL_MAX_S = 30.0
+"""Longest window taken from a found standstill, s (the paper's Tbias)."""
+DEFAULT_LIMITS = StandstillLimits()
+"""The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
+
+
+class EvaluationError(ValueError):
+    """A drive that cannot be evaluated; the message names the drive and says why."""
+
+
+@dataclass(frozen=True)
+class CalibrationPlan:
+    """Where one drive's static bias comes from (see :func:`plan_calibration`).
+
+    bias_dps: the given bias, or None (measured by the start-up window). start: the sample at
+    which the daemon starts (0 = the log's first; a standstill found later starts the drive
+    there). window_s: the start-up window's length, s (None with a given bias). source: what
+    was used, for the reader: ``given``, ``first S s``, ``lead-in S s``, ``speed standstill
+    ...``, ``gyro standstill ...``.
+    """
+
+    bias_dps: float | None
+    start: int
+    window_s: float | None
+    source: str
+
+
+@dataclass(frozen=True)
+class PreparedDrive:
+    """A drive reduced to what the metrics need: per-step inputs and truth at step ends.
+
+    steps: the steps after the calibration (t_end in s since the log's first sample). truth:
+    compass heading, deg CW, at each step end (NaN where unknown). k: the step where the gyro
+    is aligned to the truth. duration_min: Td of Eq. 13. bias_source: where the bias came from
+    (:class:`CalibrationPlan`). bias_std_dps: spread of the calibration samples, deg/s (NaN if
+    given). missing_steps: steps without samples after the start (not evaluated). start_s:
+    where the evaluated drive starts, s after the log's first sample (the end of the
+    calibration window, 0 if the bias was given). bias: the calibration record (None if
+    given). samples_per_step: samples in the first step, as the daemon derives its methods'
+    settings from (the gyro's sample rate times T). calibration_attempts: start-up windows
+    measured (more than one: the first ones showed motion).
+    """
+
+    name: str
+    steps: StepInputs
+    truth: FloatArray
+    k: int
+    duration_min: float
+    bias_source: str
+    bias_std_dps: float
+    missing_steps: int
+    start_s: float = 0.0
+    bias: BiasRecord | None = None
+    samples_per_step: float | None = None
+    calibration_attempts: int = 0
+
+
+# -- where the bias comes from -------------------------------------------------------------
+
+
+def _t_us(t: FloatArray) -> IntArray:
+    """Sample times as integer microseconds since the first sample (the device clock's unit)."""
+    return np.rint((t - t[0]) * 1e6).astype(np.int64)
+
+
+def _lead_in_s(log: DriveLog) -> float | None:
+    try:
+        v = float(log.meta.get("lead_in_s", ""))
+    except ValueError:
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def _whole_steps(seconds: float, T: float) -> float:
+    """The longest whole number of steps of T within ``seconds``, s (0 if none fits)."""
+    return math.floor(seconds / T + 1e-9) * T
+
+
+def _standstill_from_speed(log: DriveLog, T: float) -> tuple[int, float] | None:
+    """(first sample, window s) of the first run of samples at standstill by the speed that
+    holds at least STANDSTILL_MIN_S of whole steps; None if there is none."""
+    assert log.speed is not None
+    still = np.isfinite(log.speed) & (log.speed <= STANDSTILL_SPEED_MPS)
+    t = log.t
+    dt = float(np.median(np.diff(t))) if len(log) > 1 else 0.0
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
+    for i, j in zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True):
+        covered = float(t[j - 1] - t[i]) + dt  # the last sample stands for one interval
+        window = _whole_steps(min(covered, STANDSTILL_MAX_S), T)
+        if window >= STANDSTILL_MIN_S:
+            return i, window
+    return None
+
+
+def _standstill_from_gyro(
+    log: DriveLog, T: float, limits: StandstillLimits
+) -> tuple[int, float] | None:
+    """(first sample, window s) of the first window that passes the standstill test on the
+    raw rate alone: from each step edge in turn, the longest of 30, 20, 10 and 6 s (whole
+    steps) that passes; None if none does. A gyro cannot tell a stop from a smooth straight
+    road: with a speed in the log, :func:`_standstill_from_speed` is used instead."""
+    t_us = _t_us(log.t)
+    T_us = round(T * 1_000_000)
+    w = log.omega
+    n = w.shape[0]
+    lengths = sorted(
+        {_whole_steps(s, T) for s in (STANDSTILL_MAX_S, 20.0, 10.0, STANDSTILL_MIN_S)},
+        reverse=True,
+    )
+    lengths = [s for s in lengths if s >= STANDSTILL_MIN_S]
+    # Cheap screens first (spread and level from running sums, the values centred for
+    # precision): only windows that pass them take the full test.
+    c = w - float(np.median(w))
+    s1 = np.concatenate(([0.0], np.cumsum(c)))
+    s2 = np.concatenate(([0.0], np.cumsum(c * c)))
+    block = t_us // T_us
+    starts = np.searchsorted(block, np.arange(int(block[-1]) + 1))
+    for i in np.unique(starts).tolist():
+        if i >= n:
+            break
+        for length in lengths:
+            end_us = int(t_us[i]) + round(length * 1_000_000)
+            j = int(np.searchsorted(t_us, end_us, side="left"))
+            m = j - i
+            if m < 2 or j >= n:  # the drive must go on after its calibration window
+                continue
+            mean = (s1[j] - s1[i]) / m
+            var = max((s2[j] - s2[i]) / m - mean * mean, 0.0) * m / (m - 1)
+            if var > limits.max_std_dps**2:
+                continue
+            try:
+                estimate_bias(w[i:j], limits=limits)
+            except MotionDetected:
+                continue
+            return i, length
+    return None
+
+
+def plan_calibration(
+    log: DriveLog,
+    bias: float | None = None,
+    calibrate_seconds: float | None = None,
+    T: float = 1.0,
+    limits: StandstillLimits = DEFAULT_LIMITS,
+) -> CalibrationPlan:
+    """Where the drive's static bias comes from: ``bias``, else ``calibrate_seconds``, else
+    the log's ``lead_in_s``, else the first standstill found from the speed, else (no speed
+    in the log) from the gyro. EvaluationError if none applies."""
+    name = log.name or "drive"
+    if bias is not None:
+        if not math.isfinite(bias):
+            raise EvaluationError(f"{name}: bias {bias!r} is not a finite number")
+        return CalibrationPlan(float(bias), 0, None, "given")
+    if calibrate_seconds is not None:
+        if not calibrate_seconds > 0:
+            raise EvaluationError(
+                f"{name}: calibration window must be > 0 s, got {calibrate_seconds!r}"
+            )
+        return CalibrationPlan(None, 0, calibrate_seconds, f"first {calibrate_seconds:g} s")
+    lead = _lead_in_s(log)
+    if lead is not None and _whole_steps(lead, T) > 0:
+        window = _whole_steps(lead, T)
+        return CalibrationPlan(None, 0, window, f"lead-in {window:g} s")
+    has_speed = log.speed is not None and bool(np.isfinite(log.speed).any())
+    found = _standstill_from_speed(log, T) if has_speed else _standstill_from_gyro(log, T, limits)
+    kind = "speed" if has_speed else "gyro"
+    if found is None:
+        raise EvaluationError(
+            f"{name}: no standstill of at least {STANDSTILL_MIN_S:g} s found from the {kind} to "
+            "measure the static bias; give it with --bias DPS or --calibrate-seconds S"
+        )
+    i, window = found
+    at = float(log.t[i] - log.t[0])
+    return CalibrationPlan(None, i, window, f"{kind} standstill {window:g} s at {at:g} s")
+
+
+# -- the steps ------------------------------------------------------------------------------
+
+
+@dataclass
+class _Stepped:
+    """What the stepper made of a log: the blocks stepped after the calibration and their
+    inputs, the calibration's outcome."""
+
+    blocks: list[Block]
+    u: list[float]
+    spread: list[float]
+    speed: list[float]
+    temp: list[float]
+    missing: int
+    start_s: float
+    stepper: Stepper
+
+
+def _speed_per_block(t_us: IntArray, speed: FloatArray, T_us: int) -> FloatArray:
+    """Mean of the finite speeds in each block (NaN for a block without any), m/s."""
+    idx = t_us // T_us
+    n = int(idx[-1]) + 1
+    ok = np.isfinite(speed)
+    sums = np.bincount(idx[ok], weights=speed[ok], minlength=n)
+    counts = np.bincount(idx[ok], minlength=n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+
+def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None) -> _Stepped:
+    """Run a log's samples through the daemon's BlockAverager and Stepper (module docstring,
+    steps 1-3). config: T (``params.T``), the bias (``bias_dps``) or the start-up window
+    (``startup_s``, ``limits``). t_us: the samples' times in integer us from the first
+    (default: from ``log.t``)."""
+    if t_us is None:
+        t_us = _t_us(log.t)
+    omega = log.omega
+    n = omega.shape[0]
+    temp = np.full(n, np.nan) if log.temp_c is None else log.temp_c
+    avg = BlockAverager(config.params.T)
+    items = avg.feed_many(t_us, omega, temp)
+    items.extend((n, b) for b in avg.flush())  # the end of input closes the last block
+    speed = None if log.speed is None else _speed_per_block(t_us, log.speed, avg.T_us)
+    stepper = Stepper(config)
+    out = _Stepped([], [], [], [], [], 0, 0.0, stepper)
+    prev = 0
+    for pos, item in items:
+        if stepper.calibrating:  # the samples fed before this block closed, as the daemon's
+            stepper.window.add_many(omega[prev:pos], temp[prev:pos])
+        prev = pos
+        if isinstance(item, Missing):
+            if not stepper.calibrating:
+                out.missing += item.count
+            continue
+        was_calibrating = stepper.calibrating
+        if speed is not None:
+            v = float(speed[item.index])
+            stepper.speed_mps = None if math.isnan(v) else v
+        inp = stepper.prepare(item)
+        if inp is None:
+            if was_calibrating and not stepper.calibrating:
+                out.start_s = item.t_end  # the drive starts when the calibration ends
+            continue
+        out.blocks.append(item)
+        out.u.append(inp.u)
+        out.spread.append(inp.spread_dps)
+        out.speed.append(inp.speed_mps)
+        out.temp.append(inp.temp_c)
+    return out
+
+
+def _calibration_failure(name: str, plan: CalibrationPlan, stepper: Stepper) -> str:
+    window = f"the {plan.window_s:g} s start-up window"
+    if stepper.window.attempts == 0:
+        return f"{name}: the log ends before {window} ({plan.source}) is complete"
+    reasons = [f["reason"] for e, f in stepper.events if e == "calibration_rejected"]
+    return (
+        f"{name}: cannot measure the static bias: {window} ({plan.source}) showed motion in "
+        f"all {stepper.window.attempts} attempts (last: {reasons[-1]}); give it with --bias DPS"
+    )
+
+
+def prepare_drive(
+    log: DriveLog,
+    bias: float | None = None,
+    calibrate_seconds: float | None = None,
+    T: float = 1.0,
+    truth_max_gap_s: float = TRUTH_MAX_GAP_S,
+    limits: StandstillLimits = DEFAULT_LIMITS,
+) -> PreparedDrive:
+    """Bias, steps and truth at step ends for one drive (see the module docstring).
+
+    bias: static bias eps0 in deg/s; None = measured per drive (:func:`plan_calibration`,
+    ``calibrate_seconds`` first). limits: the standstill test's thresholds. Raises
+    EvaluationError if the log is too short, has no truth heading at all, or its bias cannot
+    be measured.
+    """
+    name = log.name or "drive"
+    n_rows = len(log)
+    if n_rows < 2:
+        raise EvaluationError(f"{name}: only {n_rows} sample(s); a drive needs at least 2")
+    if log.heading_truth is None or not np.isfinite(log.heading_truth).any():
+        raise EvaluationError(f"{name}: no truth heading (column heading_truth is absent or empty)")
+    if not T > 0:
+        raise EvaluationError(f"{name}: step period T must be > 0 s, got {T!r}")
+    plan = plan_calibration(log, bias, calibrate_seconds, T, limits)
+    drive = log.slice(plan.start) if plan.start else log
+    offset = float(drive.t[0] - log.t[0])
+    config = PipelineConfig(
+        params=HdrParams(T=T),
+        method="none",
+        bias_dps=plan.bias_dps,
+        startup_s=plan.window_s if plan.window_s is not None else 1.0,
+        limits=limits,
+    )
+    t_us = _t_us(log.t)[plan.start :]
+    stepped = step_log(drive, config, t_us - t_us[0])
+    stepper = stepped.stepper
+    if stepper.bias is None:
+        raise EvaluationError(_calibration_failure(name, plan, stepper))
+    if len(stepped.blocks) < 2:
+        raise EvaluationError(
+            f"{name}: nothing left to evaluate after the calibration ({plan.source}): "
+            f"{len(stepped.blocks)} step(s) of {T:g} s; at least 2 are needed"
+        )
+    rec = stepper.bias
+    measured = plan.bias_dps is None
+    t_end = np.array([b.t_end for b in stepped.blocks]) + offset
+    start_s = stepped.start_s + offset
+    truth = truth_at(log.t - log.t[0], log.heading_truth, t_end, truth_max_gap_s)
+    k = align_index(np.zeros(t_end.shape[0]), truth)
+    if k is None:
+        raise EvaluationError(
+            f"{name}: no truth heading at any step end after the start (fixes further than "
+            f"{truth_max_gap_s:g} s apart, or only during calibration)"
+        )
+    steps = StepInputs(
+        u=np.array(stepped.u),
+        t_end=t_end,
+        T=T,
+        bias_dps=rec.bias_dps,
+        n_samples=np.array([b.n for b in stepped.blocks], np.int64),
+        speed=None if log.speed is None else np.array(stepped.speed),
+        temp_c=None if log.temp_c is None else np.array(stepped.temp),
+        omega_std=np.array(stepped.spread),
+        bias_var=rec.std_dps * rec.std_dps / rec.n if measured else math.nan,
+    )
+    source = plan.source
+    if measured and stepper.window.attempts > 1:
+        source = (
+            f"{plan.window_s:g} s to {start_s:g} s ({stepper.window.attempts - 1} rejected, "
+            f"{plan.source})"
+        )
+    return PreparedDrive(
+        name=name,
+        steps=steps,
+        truth=truth,
+        k=k,
+        duration_min=(float(t_end[-1]) - start_s) / 60.0,
+        bias_source=source,
+        bias_std_dps=rec.std_dps if measured else math.nan,
+        missing_steps=stepped.missing,
+        start_s=start_s,
+        bias=rec if measured else None,
+        samples_per_step=stepper.samples_per_step,
+        calibration_attempts=stepper.window.attempts,
+    )

@@ -1,0 +1,148 @@
+"""The drift-reducer registry (hdrd/methods.py): each method's batch form is its step looped,
+settings are derived in one place, and the config and the command line take their names from it.
+
+Rates in deg/s, + = CCW; speeds m/s; temperatures degC; steps of T seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd import methods
+from hdrd.calibrate import BiasRecord
+from hdrd.config import ConfigError, parse_config
+from hdrd.hdr import HdrParams
+from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams
+from hdrd.methods import REGISTRY, SettingsContext, StepInputs, plus_settings
+from tests.test_hdrplus import core_params, plus_params
+
+NAN = math.nan
+rate = st.floats(-5.0, 5.0)
+spread = st.floats(0.0, 1.0)
+speed = st.one_of(st.just(NAN), st.just(0.0), st.floats(0.0, 30.0))
+temp = st.one_of(st.just(NAN), st.floats(-10.0, 40.0))
+rows = st.lists(st.tuples(rate, spread, speed, temp), min_size=0, max_size=60)
+
+
+def _steps(rows: list[tuple[float, float, float, float]], T: float) -> StepInputs:
+    a = np.array(rows, dtype=np.float64).reshape(len(rows), 4)
+    return StepInputs(
+        u=a[:, 0],
+        t_end=(np.arange(len(rows), dtype=np.float64) + 1.0) * T,
+        T=T,
+        bias_dps=0.0,
+        n_samples=np.full(len(rows), 10, np.int64),
+        speed=a[:, 2],
+        temp_c=a[:, 3],
+        omega_std=a[:, 1],
+    )
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+@settings(max_examples=60, deadline=None)
+@given(
+    data=rows,
+    hdr=core_params(),
+    plus=plus_params(),
+    n=st.sampled_from([None, 1.0, 10.0, 100.0]),
+    bias=st.one_of(
+        st.none(),
+        st.builds(
+            BiasRecord, st.floats(-2, 2), st.floats(0, 0.5), st.integers(0, 3000), st.just(30.0)
+        ),
+    ),
+)
+def test_batch_is_the_step_looped_bit_for_bit(
+    name: str,
+    data: list[tuple[float, float, float, float]],
+    hdr: HdrParams,
+    plus: HdrPlusParams,
+    n: float | None,
+    bias: BiasRecord | None,
+) -> None:
+    m = REGISTRY[name]
+    steps = _steps(data, hdr.T)
+    s = m.settings(SettingsContext(hdr, plus, n, bias))
+    state = INITIAL_PLUS_STATE
+    yaw = []
+    for i in range(len(data)):
+        state, out = m.step(state, steps.input(i), s)
+        yaw.append(out.yaw)
+    assert m.batch(steps, s).tolist() == yaw
+
+
+def test_one_state_for_every_method_a_switch_keeps_the_heading() -> None:
+    # The daemon switches method on SIGHUP with the state it has: the yaw carries on.
+    steps = _steps([(0.3, 0.1, NAN, NAN)] * 5, 1.0)
+    ctx = SettingsContext()
+    state = INITIAL_PLUS_STATE
+    for name in ("hdr", "hdr+", "none", "hdr"):
+        m = REGISTRY[name]
+        before = state.core.yaw
+        state, out = m.step(state, steps.input(0), m.settings(ctx))
+        assert out.yaw == pytest.approx(before + out.omega * 1.0)
+
+
+def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
+    base = HdrPlusParams()
+    # A 1 Hz gyro has one sample per step; a measured bias sets the prior.
+    rec = BiasRecord(0.5, 0.2, 30, 30.0)
+    p = plus_settings(base, 1.0, 1.0, rec)
+    assert p.standstill.samples_per_step == 1.0
+    assert p.bias_p0 == 0.2 * 0.2 / 30
+    assert p.hdr.T == 1.0 and p.hdr.i_c == base.hdr.i_c
+    # A given bias (no record of its spread) keeps the configured prior.
+    assert plus_settings(base, 2.0, None, BiasRecord(0.5, 0.0, 0, 0.0)).bias_p0 == base.bias_p0
+    assert plus_settings(base, 2.0).hdr.T == 2.0
+    # The registry's hdr+ entry derives exactly these.
+    ctx = SettingsContext(HdrParams(T=1.0), base, 1.0, rec)
+    assert REGISTRY["hdr+"].settings(ctx) == p
+    assert REGISTRY["none"].settings(ctx) == HdrParams(enabled=False)
+    assert REGISTRY["hdr"].settings(ctx) == HdrParams()
+
+
+def test_the_config_and_the_command_line_take_the_names_from_the_registry(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    assert methods.names() == ("none", "hdr", "hdr+")
+    with pytest.raises(
+        ConfigError, match="hdr.method = 'kalman': must be one of none, hdr, hdr\\+"
+    ):
+        parse_config({"hdr": {"method": "kalman"}})
+    with pytest.raises(ConfigError, match="hdr.method"):
+        parse_config({"hdr": {"method": ["hdr"]}})  # not a name at all
+    monkeypatch.setitem(REGISTRY, "kalman", REGISTRY["hdr"])
+    assert parse_config({"hdr": {"method": "kalman"}}).hdr.method == "kalman"
+    from hdrd.cli import build_parser
+
+    args = build_parser().parse_args(["evaluate", "x.csv", "--method", "kalman"])
+    assert args.method == "kalman"
+    with pytest.raises(
+        ValueError, match="unknown method 'nope' \\(allowed: none, hdr, hdr\\+, kalman"
+    ):
+        methods.get("nope")
+
+
+def test_help_stays_light() -> None:
+    # `hdrd --help` must not load numpy (the registry is read when a method is checked).
+    code = (
+        "import sys, contextlib, io\n"
+        "from hdrd.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    try: main(['--help'])\n"
+        "    except SystemExit: pass\n"
+        "print('numpy' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    out = subprocess.run(
+        [sys.executable, "-m", "hdrd", "evaluate", "--help"], capture_output=True, text=True
+    )
+    assert "one of none, hdr, hdr+" in " ".join(out.stdout.split())
