@@ -42,14 +42,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from _common import machine_line, replace_section
-from real import Window, fit_plus
 
-from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
+from hdrd.analysis.evaluate import PreparedDrive, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.drivelog import DriveLog
-from hdrd.hdr import HdrParams
-from hdrd.hdr import run_batch as hdr_batch
-from hdrd.hdrplus import run_batch
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.grades import GRADES, Grade, grade_model, grade_noise
 
@@ -98,20 +94,19 @@ def score_drive(spec: DriveSpec, grade: str) -> Scores:
     g = Grade.from_table(grade)
     log = generate(spec, hz=g.rate_hz, model=grade_model(grade, spec.seed))
     prep = prepare_drive(log, calibrate_seconds=CALIBRATE_S)
-    plus = fit_plus(log, Window(0, CALIBRATE_S, "lead-in"))
-    plus_g = plus.fitted(None, grade_noise(grade))
     s = prep.steps
+    noise = grade_noise(grade)
 
     def ep(yaw: np.ndarray) -> float:
         return float(e_psi(yaw, prep.truth, prep.k))
 
     def methods(temp: bool) -> dict[str, float]:
-        tc = s.temp_c if temp else None
+        p = prep if temp else replace(prep, steps=replace(s, temp_c=None))
         return {
-            "none": ep(np.cumsum(s.u * s.T)),
-            "hdr": ep(hdr_batch(s.u, HdrParams()).yaw),
-            "hdr+": ep(run_batch(s.u, s.omega_std, s.speed, tc, s.T, plus).yaw),
-            "hdr+ (grade)": ep(run_batch(s.u, s.omega_std, s.speed, tc, s.T, plus_g).yaw),
+            "none": ep(method_yaw(p, "none")),
+            "hdr": ep(method_yaw(p, "hdr")),
+            "hdr+": ep(method_yaw(p, "hdr+")),
+            "hdr+ (grade)": ep(method_yaw(p, "hdr+", noise=noise)),
             "oracle": ep(oracle_yaw(log, prep)),
         }
 

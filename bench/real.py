@@ -19,18 +19,15 @@ tuning = the DrivePlotR drives with an *odd* drive number, and comma2k19; judgin
 DrivePlotR drives with an *even* number, rtklib drive 0708 and smartLoc Berlin. Only tuning
 drives may inform a parameter or a design choice; the judging drives are evaluated.
 
-**Start-up calibration** (:func:`startup_window`; a thin helper of this script, to be replaced
-by ``hdrd evaluate``'s own per-drive calibration once it has one): the log's ``lead_in_s``
-(its start-up standstill, tools/convert_real.py) when it has one, else the first standstill
-found from the speed: a run of rows with speed <= 0.3 m/s whose gyro rate, averaged over 1 s,
-stays within 0.5 deg/s of the run's median (a car creeping or turning with a lagging speed is
-not standing), with 2 s dropped at its start (a stop is not still at once) and a margin at its
-end (1 s, or 3 s on logs sampled at 2 Hz or less, whose GPS speed lags). The calibration
-averages the first min(standstill, 30 s) of it (``hdrd evaluate --calibrate-seconds S`` on the
-log from that point on; the paper's Tbias is 30 s); the scored drive starts where the
-calibration ends, so a drive that first stops after 10 minutes is scored from that stop on.
-A log without any standstill of at least 3 s is listed, not scored; so is a drive whose scored
-part is shorter than 5 minutes (:data:`MIN_SCORED_MIN`: on a short drive Eψ / Td is noise).
+**Start-up calibration**: ``hdrd evaluate``'s own per-drive calibration
+(:mod:`hdrd.analysis.prepare`), nothing of this script's: the log's ``lead_in_s`` (its start-up
+standstill, tools/convert_real.py), else the first standstill of at least 6 s found from the
+speed (at most 30 s of it), else from the gyro; the scored drive starts where the calibration
+ends. HDR+'s settings come from :func:`hdrd.methods.plus_settings`, as evaluate derives them.
+The script also runs ``hdrd evaluate DIR --method hdr+ --json`` as a process and checks that
+its per-drive figures equal the ones computed here (it stops if they differ). A drive whose
+scored part is shorter than 5 minutes (:data:`MIN_SCORED_MIN`: on a short drive Eψ / Td is
+noise) is listed, not scored, and so is a drive evaluate cannot calibrate.
 """
 
 from __future__ import annotations
@@ -40,7 +37,7 @@ import math
 import shlex
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,20 +46,22 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import json
+
 from _common import machine_line, replace_section
 
 from hdrd.analysis.evaluate import (
-    METHODS,
     PAPER_PARAMS,
-    PLUS_DEFAULTS,
     EvaluationError,
     PreparedDrive,
+    evaluate_prepared,
     prepare_drive,
 )
 from hdrd.analysis.metrics import e_psi
+from hdrd.config import Config
+from hdrd.daemon import plus_params
 from hdrd.drivelog import DriveLog, read_drive
 from hdrd.hdrplus import HdrPlusParams
-from hdrd.zupt import CalibrationNoise, calibration_noise, quantization_step
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
 DATA = REPO.parent / "shared" / "data"
@@ -78,14 +77,8 @@ JUDGING: frozenset[str] = frozenset(
 )
 """Drives that only judge (DrivePlotR even drive numbers, rtklib, smartLoc)."""
 
-MAX_CALIBRATE_S = 30.0
-"""Longest start-up calibration, s (the paper's Tbias)."""
-MIN_STANDSTILL_S = 3.0
-"""Shortest standstill used for a calibration, s."""
 MIN_SCORED_MIN = 5.0
 """Drives whose scored part is shorter than this, min, are listed but not scored."""
-STILL_SPEED_MPS = 0.3
-STILL_RATE_DEV_DPS = 0.5
 
 
 def drive_set(name: str) -> str:
@@ -97,94 +90,17 @@ def drive_set(name: str) -> str:
     raise ValueError(f"{name}: in neither the tuning nor the judging set")
 
 
-# -- the start-up calibration (to be replaced by hdrd evaluate's per-drive calibration) ----
-
-
-def _moving_mean(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
-    c = np.concatenate(([0.0], np.cumsum(x)))
-    lo = np.searchsorted(t, t - window_s / 2, side="left")
-    hi = np.searchsorted(t, t + window_s / 2, side="right")
-    return np.asarray((c[hi] - c[lo]) / np.maximum(hi - lo, 1))
-
-
-@dataclass(frozen=True)
-class Window:
-    """A start-up calibration: rows from ``start`` on, the first ``seconds`` averaged.
-    ``source``: "lead-in" (the log's lead_in_s) or "stop at N s" (the first standstill)."""
-
-    start: int
-    seconds: float
-    source: str
-
-
-def startup_window(log: DriveLog) -> Window | None:
-    """The start-up calibration of a log (see the module docstring), or None without one."""
-    t = log.t
-    if "lead_in_s" in log.meta:
-        lead = float(log.meta["lead_in_s"])
-        if lead >= MIN_STANDSTILL_S:
-            return Window(0, min(lead, MAX_CALIBRATE_S), "lead-in")
-    if log.speed is None:
-        return None
-    w = _moving_mean(t, log.omega, 1.0)
-    margin = 3.0 if log.rate_hz <= 2.0 else 1.0
-    still = np.isfinite(log.speed) & (log.speed <= STILL_SPEED_MPS)
-    i = 0
-    n = len(log)
-    while i < n:
-        if not still[i]:
-            i += 1
-            continue
-        j = i
-        while j < n and still[j]:
-            j += 1
-        # rows i..j-1 stand still by the speed; drop 2 s at the start, check the gyro
-        a = int(np.searchsorted(t, t[i] + 2.0))
-        if a < j:
-            med = float(np.median(w[a:j]))
-            bad = np.flatnonzero(np.abs(w[a:j] - med) > STILL_RATE_DEV_DPS)
-            end = a + int(bad[0]) if bad.shape[0] else j
-            t_end = (t[end] if end < n else t[-1]) - margin
-            length = math.floor(t_end - t[a])
-            if length >= MIN_STANDSTILL_S:
-                return Window(
-                    a, min(float(length), MAX_CALIBRATE_S), f"stop at {t[a] - t[0]:.0f} s"
-                )
-        i = j
-    return None
-
-
-def prepare(log: DriveLog, win: Window) -> PreparedDrive:
-    """``hdrd evaluate --calibrate-seconds S`` on the log from the window's first row."""
-    part = log.slice(win.start) if win.start else log
-    return prepare_drive(part, bias=None, calibrate_seconds=win.seconds)
-
-
-def fit_plus(log: DriveLog, win: Window | None, T: float = 1.0) -> HdrPlusParams:
-    """HDR+'s settings for this gyro, as :meth:`hdrd.hdrplus.HdrPlusParams.fitted` derives
-    them: from the calibration window's noise (samples per step, a step's standstill
-    variance, var(eps0)) and the output step seen over the whole recording (a property of
-    the sensor). Without a window: samples per step from the log's rate. (To be replaced by
-    evaluate's own call of ``fitted`` once it has one.)"""
-    q = quantization_step(log.omega)
-    if win is None:
-        cal = CalibrationNoise(math.nan, math.nan, q, max(1.0, log.rate_hz * T))
-    else:
-        part = log.slice(win.start) if win.start else log
-        w = part.t < part.t[0] + win.seconds
-        cal = calibration_noise(part.omega[w], part.t[w], T)
-    return PLUS_DEFAULTS.fitted(cal, None, q if q > 0 else None)
-
-
 # -- scoring --------------------------------------------------------------------------------
 
-YawFn = Callable[[PreparedDrive, HdrPlusParams], np.ndarray]
+PLUS = plus_params(Config())
+"""HDR+'s base settings as ``hdrd evaluate`` takes them from the default configuration."""
+METHOD_NAMES = ("none", "hdr", "hdr+")
+"""What ``hdrd evaluate --method hdr+`` evaluates: none, paper HDR (Table III), HDR+."""
 
 
-def method_yaw(method: str) -> YawFn:
-    """A method as ``hdrd evaluate`` runs it (paper Table III for hdr; HDR+ with the drive's
-    fitted settings, its prior the calibration's variance)."""
-    return lambda prep, plus: METHODS[method](prep.steps, PAPER_PARAMS, plus)
+def scores(prep: PreparedDrive, plus: HdrPlusParams = PLUS) -> dict[str, float]:
+    """Eψ (deg) of each method on one prepared drive, as ``hdrd evaluate`` computes it."""
+    return dict(evaluate_prepared(prep, PAPER_PARAMS, METHOD_NAMES, plus).e_psi)
 
 
 def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
@@ -222,14 +138,14 @@ def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class RealDrive:
-    """One converted drive with its calibration (None: not scorable) and why not."""
+    """One converted drive, prepared by ``hdrd evaluate``'s path (None: it cannot be), its
+    Eψ per method, and why it is not scored (empty: scored)."""
 
     name: str
     set: str
     log: DriveLog
-    window: Window | None
     prep: PreparedDrive | None
-    plus: HdrPlusParams
+    e: dict[str, float]
     note: str = ""
 
     @property
@@ -238,38 +154,39 @@ class RealDrive:
 
 
 def load_drives(folder: Path) -> list[RealDrive]:
-    """Every converted log in ``folder`` with its start-up calibration."""
+    """Every converted log in ``folder``, calibrated and evaluated as ``hdrd evaluate DIR
+    --method hdr+`` does (the same function calls, with the default configuration)."""
     out = []
     for f in sorted(folder.glob("*.csv")):
-        log = read_drive(f)
+        log = read_drive(f, f.stem)
         name = log.name or f.stem
-        win = startup_window(log)
         prep: PreparedDrive | None = None
+        e: dict[str, float] = {}
         note = ""
-        if win is None:
-            note = "no standstill of 3 s or more"
-        else:
-            try:
-                prep = prepare(log, win)
-            except EvaluationError as e:
-                note = f"calibration refused: {e}"
-            if prep is not None and prep.duration_min < MIN_SCORED_MIN:
-                note = f"scored part {prep.duration_min:.1f} min < {MIN_SCORED_MIN:g}"
-        plus = fit_plus(log, win)
-        out.append(RealDrive(name, drive_set(name), log, win, prep, plus, note))
+        try:
+            prep = prepare_drive(log)
+            e = scores(prep)
+        except EvaluationError as err:
+            note = f"not evaluated: {err}".replace(f"{name}: ", "")
+        if prep is not None and prep.duration_min < MIN_SCORED_MIN:
+            note = f"scored part {prep.duration_min:.1f} min < {MIN_SCORED_MIN:g}"
+        out.append(RealDrive(name, drive_set(name), log, prep, e, note))
     return out
 
 
-def scores(prep: PreparedDrive, plus: HdrPlusParams, methods: dict[str, YawFn]) -> dict[str, float]:
-    """Eψ (deg) of each method on one prepared drive."""
-    return {m: float(e_psi(fn(prep, plus), prep.truth, prep.k)) for m, fn in methods.items()}
-
-
-DEFAULT_METHODS: dict[str, YawFn] = {
-    "none": method_yaw("none"),
-    "hdr": method_yaw("hdr"),
-    "hdr+": method_yaw("hdr+"),
-}
+def check_against_cli(drives: Sequence[RealDrive], json_path: Path) -> None:
+    """Stop unless ``hdrd evaluate``'s JSON (json_path) has the same Eψ per drive and method
+    as computed here: this script scores exactly what the command scores."""
+    doc = json.loads(json_path.read_text())
+    cli = {d["name"]: d for d in doc["drives"]}
+    mine = {d.name: d for d in drives if d.prep is not None}
+    if set(cli) != set(mine):
+        raise SystemExit(f"hdrd evaluate evaluated {sorted(cli)}, this script {sorted(mine)}")
+    for name, d in mine.items():
+        for m in METHOD_NAMES:
+            key = "E_psi_raw" if m == "none" else f"E_psi_{m}"
+            if not math.isclose(cli[name][key], d.e[m], rel_tol=1e-9, abs_tol=1e-9):
+                raise SystemExit(f"{name}: {key} {cli[name][key]} (hdrd evaluate) != {d.e[m]}")
 
 
 # -- the report -------------------------------------------------------------------------------
@@ -307,12 +224,12 @@ def table(
         if not d.scored:
             skipped.append(d)
             continue
-        assert d.prep is not None and d.window is not None
-        e = scores(d.prep, d.plus, {m: DEFAULT_METHODS[m] for m in methods})
+        assert d.prep is not None
+        e = d.e
         delta, e_best = best_constant_bias(d.prep)
         td = d.prep.duration_min
         lines.append(
-            f"| {d.set} | {d.name} | {td:.1f} | {d.window.seconds:g} s, {d.window.source} | "
+            f"| {d.set} | {d.name} | {td:.1f} | {d.prep.bias_source} | "
             f"{d.prep.steps.bias_dps:+.4f} | {d.prep.steps.bias_dps + delta:+.4f} | "
             + " | ".join(f"{e[m]:.2f}°" for m in methods)
             + f" | {e_best:.2f}° | "
@@ -380,7 +297,7 @@ def given_table(drives: Sequence[RealDrive], methods: Sequence[str]) -> str:
         prep = hindsight_prep(d.log)
         if prep is None:
             continue
-        e = scores(prep, fit_plus(d.log, None), {m: DEFAULT_METHODS[m] for m in methods})
+        e = scores(prep)
         td = prep.duration_min
         lines.append(
             f"| {d.set} | {d.name} | {td:.1f} | {prep.steps.bias_dps:+.4f} | "
@@ -464,7 +381,14 @@ def main(argv: list[str] | None = None) -> int:
     folder = work / "real"
     shown: list[str] = []
     run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
+    json_path = work / "evaluate.json"
+    run(
+        [sys.executable, "-m", "hdrd", "evaluate", str(folder), "--method", "hdr+"]
+        + ["--json", str(json_path)],
+        shown,
+    )
     drives = load_drives(folder)
+    check_against_cli(drives, json_path)
     if a.tuning_only:
         drives = [d for d in drives if d.set == "tune"]
         a.no_write = True
@@ -483,17 +407,18 @@ Generated by `python bench/real.py` ({machine_line()}). It runs:
 {chr(10).join(shown)}
 ```
 
-then, per converted log, the start-up calibration and the methods in-process, exactly as
-`hdrd evaluate --calibrate-seconds S --method hdr+` on the log from the calibration's first row
-(S and that row per drive in the table; paper HDR with Table III, HDR+ with its defaults).
+and the same evaluation in-process (the same calls: `prepare_drive`, `evaluate_prepared`,
+with the default configuration), checked to give the command's Eψ for every drive and method,
+to add the best constant bias in hindsight and the given-bias table. Paper HDR with Table III;
+HDR+ with its settings derived per drive by `hdrd.methods.plus_settings`.
 
 **Split, fixed before any method ran on these drives** (bench/real.py `TUNING`, `JUDGING`):
 tuning = DrivePlotR drives with an odd drive number and comma2k19; judging = DrivePlotR
-drives with an even number, rtklib drive 0708 and smartLoc Berlin. Calibration: each log's
-start-up standstill (`lead_in_s`) or else its first standstill found from the speed (2 s dropped
-at its start, a 1 s / 3 s margin at its end), averaged for at most 30 s; the drive is scored
-from the end of the calibration. Drives without a 3 s standstill, or with less than 5 minutes
-left to score, are listed, not scored. *Best const.*: the one constant bias that minimises the
+drives with an even number, rtklib drive 0708 and smartLoc Berlin. Calibration: `hdrd
+evaluate`'s per drive (docs/evaluation.md): each log's start-up standstill (`lead_in_s`), else
+its first standstill of at least 6 s found from the speed (at most 30 s of it); the drive is
+scored from the end of the calibration. Drives evaluate cannot calibrate, or with less than 5
+minutes left to score, are listed, not scored. *Best const.*: the one constant bias that minimises the
 drive's Eψ with no other correction (known only in hindsight: a reference, not a method).
 "Worse" counts a drive whose NEψ exceeds 1.1 × bias removal's by more than 0.5° of Eψ.
 

@@ -223,14 +223,22 @@ def update(state: BiasState, z: float, r: float, dT: float, stop: bool = False) 
 def quantization_step(values_dps: npt.ArrayLike) -> float:
     """The output step (LSB) of a quantised rate signal, deg/s; 0 when it cannot be seen.
 
-    The median of the gaps between neighbouring distinct values that are at most 1.5 times
-    the smallest gap: the distinct values of a quantised signal sit on a lattice (a step
-    printed to fewer digits than it has, e.g. 1/16 deg/s with two decimals, gives gaps of
-    0.06 and 0.07, whose median is the step to a few per cent). Fewer than 3 distinct values,
-    or gaps mostly wider than that (an unquantised signal): 0.
+    Over the central half of the values (between their quartiles, where a drive's rates are
+    dense: far out, a turn's rates are sparse and skip codes), the mean of the gaps between
+    neighbouring distinct values that are at most 1.5 times the smallest gap: the distinct
+    values of a quantised signal sit on a lattice (a step printed to fewer digits than it has,
+    e.g. 1/16 deg/s with two decimals, gives gaps of 0.06 and 0.07, whose mean is the step to
+    a per cent). Fewer than 3 distinct values, or gaps mostly wider than that (an unquantised
+    signal): 0.
     """
-    v = np.unique(np.asarray(values_dps, dtype=np.float64))
-    v = v[np.isfinite(v)]
+    w = np.asarray(values_dps, dtype=np.float64)
+    w = w[np.isfinite(w)]
+    if w.shape[0] < 3:
+        return 0.0
+    lo, hi = np.percentile(w, [25.0, 75.0])
+    v = np.unique(w[(w >= lo) & (w <= hi)])
+    if v.shape[0] < 3:
+        v = np.unique(w)
     if v.shape[0] < 3:
         return 0.0
     gaps = np.diff(v)
@@ -240,7 +248,7 @@ def quantization_step(values_dps: npt.ArrayLike) -> float:
     small = gaps[gaps <= 1.5 * float(np.min(gaps))]
     if small.shape[0] < 0.5 * gaps.shape[0]:
         return 0.0
-    return float(np.median(small))
+    return float(np.mean(small))
 
 
 @dataclass(frozen=True, slots=True)

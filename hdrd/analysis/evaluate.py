@@ -50,7 +50,7 @@ from hdrd.analysis.prepare import (
 from hdrd.calibrate import StandstillLimits
 from hdrd.drivelog import DriveLog
 from hdrd.hdr import HdrParams
-from hdrd.hdrplus import HdrPlusParams
+from hdrd.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.methods import StepInputs
 
 __all__ = [
@@ -139,12 +139,16 @@ def method_yaw(
     method: str,
     params: HdrParams = PAPER_PARAMS,
     plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
 ) -> FloatArray:
     """Yaw (deg CCW since the drive's start) at each step end of one method on a prepared
     drive: its batch form with its settings derived as the daemon derives them. params: the
-    HDR parameters (``hdr.*``); plus: HDR+'s base settings (the config's ``standstill.*``)."""
+    HDR parameters (``hdr.*``); plus: HDR+'s base settings (the config's ``standstill.*``);
+    noise: the gyro's error model when known (a configured grade). The output step is the
+    log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
-    ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias)
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias, noise, q)
     return m.batch(prep.steps, m.settings(ctx))
 
 
