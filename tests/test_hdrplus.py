@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -85,8 +86,6 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         temp_coeff_sd=draw(st.floats(0.0, 0.05)),
         straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
         straight_gate_dps=draw(st.floats(0.0, 2.0)),
-        gate_speed_mps=draw(st.sampled_from([0.0, 3.0])),
-        holdoff_steps=draw(st.integers(0, 4)),
         ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
         i_c_max=draw(st.floats(0.0, 0.05)),
         stop_offset_var=draw(st.sampled_from([0.0, 1e-4])),
@@ -96,6 +95,9 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         q_adapt_steps=draw(st.sampled_from([0, 1, 3])),
         q_adapt_gain=draw(st.floats(0.0, 1.0)),
         q_min=draw(st.sampled_from([0.0, 1e-8])),
+        q_stop_gain=draw(st.floats(0.0, 1.0)),
+        q_stop_max_rise=draw(st.sampled_from([0.0, 100.0])),
+        ic_drift_ratio=draw(st.sampled_from([0.0, 0.01, 1e6])),
     )
 
 
@@ -173,10 +175,12 @@ def test_params_are_checked() -> None:
         HdrPlusParams(straight_r=-1.0)
     with pytest.raises(ValueError, match="bias_q"):
         HdrPlusParams(bias_q=math.inf)
-    with pytest.raises(ValueError, match="holdoff_steps"):
-        HdrPlusParams(holdoff_steps=-1)
+    with pytest.raises(ValueError, match="q_adapt_steps"):
+        HdrPlusParams(q_adapt_steps=-1)
+    with pytest.raises(ValueError, match="q_stop_gain"):
+        HdrPlusParams(q_stop_gain=1.5)
     assert HdrPlusParams().hdr == PLUS_CORE
-    assert HdrPlusParams().with_(holdoff_steps=2).holdoff_steps == 2
+    assert HdrPlusParams().with_(q_adapt_steps=2).q_adapt_steps == 2
 
 
 # -- paper HDR is HDR+ with every extra off -------------------------------------------------------
@@ -384,8 +388,77 @@ def test_fitted_from_a_calibration_and_a_noise_model() -> None:
     g = HdrPlusParams().fitted(cal, noise)
     assert g.bias_q == pytest.approx(1e-8 + 2e-6 / 100.0)
     assert g.bias_q_no_temp == pytest.approx(g.bias_q + (0.002 * 16.0) ** 2 / 900.0)
-    assert g.temp_coeff_sd == 0.002 and g.q_min <= g.bias_q
+    assert g.temp_coeff_sd == 0.002
+    # a known error model: no online learning, the increment gated, its name in force
+    assert g.q_adapt_steps == 0 and g.ic_drift_ratio == 0.01 and g.model == "given"
     assert HdrPlusParams().fitted() == HdrPlusParams()  # nothing known: nothing changes
+    # Unknown model: the online estimate starts at 0.03 N^2 (N^2 = block_var x T), clipped.
+    assert p.bias_q_no_temp == pytest.approx(0.03 * 4e-4) and p.model == "calibration"
+    quiet = HdrPlusParams().fitted(replace(cal, block_var=1e-12))
+    loud = HdrPlusParams().fitted(replace(cal, block_var=1.0))
+    assert quiet.bias_q_no_temp == 1e-8 and loud.bias_q_no_temp == 1e-4
+    assert HdrPlusParams(hdr=replace(PLUS_CORE, T=2.0)).fitted(cal).bias_q_no_temp == (
+        pytest.approx(0.03 * 8e-4)
+    )
+
+
+def _stop_go(n_legs: int, bias_step_dps: float, seed: int) -> tuple[np.ndarray, ...]:
+    """Legs of 120 s straight driving and 20 s stops; the bias moves by bias_step_dps at
+    every leg (a drifting gyro) or not (0); single samples per step (spread 0.05)."""
+    rng = np.random.default_rng(seed)
+    u, speed = [], []
+    for i in range(n_legs):
+        b = i * bias_step_dps
+        u.append(b + 0.1 * _sway(120, seed + i))
+        u.append(b + 0.005 * rng.standard_normal(20))
+        speed += [15.0] * 120 + [0.0] * 20
+    return np.concatenate(u), np.full(140 * n_legs, 0.05), np.array(speed)
+
+
+def test_stops_say_how_far_the_bias_moved() -> None:
+    # An unknown gyro without a temperature: each stop's mean against the stop-only anchor
+    # measures the random walk. Stops that read the same bias drive the estimate to its
+    # floor; stops that show a drift raise it. Straight windows stop counting after the
+    # first stop. (The last stop is still open when the drive ends: 7 estimates.)
+    p = HdrPlusParams(block_var=0.005**2, bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
+    still = run_batch(*_stop_go(8, 0.0, 1), None, 1.0, p)
+    drift = run_batch(*_stop_go(8, 0.02, 1), None, 1.0, p)
+    assert still.final.adapt.stops == drift.final.adapt.stops == 7
+    assert still.bias_q[-1] < p.bias_q_no_temp / 10 < 5 * p.bias_q_no_temp < drift.bias_q[-1]
+    assert drift.bias_q[-1] == pytest.approx(0.02**2 / 140, rel=0.5)  # 0.02 deg/s per leg
+    assert drift.final.adapt.anchor == pytest.approx(6 * 0.02, abs=0.005)
+    windows = run_batch(*_stop_go(8, 0.02, 1), None, 1.0, p.with_(q_stop_gain=0.0))
+    assert windows.bias_q[-1] == windows.bias_q[141]  # no window counts once stops speak
+    assert windows.bias_q[139] != windows.bias_q[0]  # (before the first stop, they did)
+    # a known model learns nothing
+    fixed = run_batch(*_stop_go(8, 0.02, 1), None, 1.0, p.with_(q_adapt_steps=0))
+    assert np.all(fixed.bias_q == p.bias_q_no_temp)
+
+
+@given(seed=st.integers(0, 2**16), gated=st.booleans())
+def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool) -> None:
+    # Longer than the hypothesis rows: stops end, the stop-only anchor and the windows run.
+    u, sp, v = _stop_go(4, 0.03, seed)
+    p = HdrPlusParams(block_var=1e-4, q_adapt_steps=20, ic_drift_ratio=1e6 if gated else 0.0)
+    tr = run_batch(u, sp, v, None, 1.0, p)
+    outs, final = _loop(list(zip(u, sp, v, [NAN] * len(u), strict=True)), p, 1.0)
+    assert final.adapt.stops == 3 and _same(tr.final, final)
+    assert [o.yaw for o in outs] == tr.yaw.tolist()
+
+
+def test_a_known_good_gyro_does_not_straighten_gentle_curves() -> None:
+    # A known tactical-grade error model (random walk 1e-7 (deg/s)^2/s: its bias moves
+    # 0.004 deg/s within a 120 s curve, below real roads' 0.05 deg/s curvature): the binary
+    # increment is off, so a long gentle curve (0.2 deg/s for 10 min, under the turn switch)
+    # is kept; with the increment on, HDR+ takes part of it for drift.
+    u = np.concatenate([_sway(300, 3) * 0.1, np.full(600, 0.2), _sway(300, 4) * 0.1])
+    args = (np.full(1200, 0.2), np.full(1200, 20.0), None, 1.0)
+    base = HdrPlusParams(bias_p0=1e-6, bias_q_no_temp=1e-7, q_adapt_steps=0)
+    gated = run_batch(u, *args, base.with_(ic_drift_ratio=0.01))
+    free = run_batch(u, *args, base)
+    truth = float(np.sum(u))
+    assert np.all(gated.i_c_dps == 0.0) and np.all(gated.I == 0.0)
+    assert abs(gated.yaw[-1] - truth) < abs(free.yaw[-1] - truth)
 
 
 def test_one_curving_window_cannot_inflate_the_random_walk() -> None:

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from hdrd.hdrplus import GyroNoise
+from hdrd.gyronoise import GyroNoise
 from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,
@@ -273,4 +273,5 @@ def grade_noise(name: str) -> GyroNoise:
         rrw_dps_per_sqrt_s=g.rrw_dps_per_sqrt_s,
         temp_coeff_dps_per_c=g.temp_coeff_dps_per_c,
         quant_step_dps=g.quant_step_dps,
+        source=f"grade {name}",
     )
