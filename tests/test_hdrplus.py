@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
