@@ -392,14 +392,15 @@ def test_fitted_from_a_calibration_and_a_noise_model() -> None:
     # a known error model: no online learning, the increment gated, its name in force
     assert g.q_adapt_steps == 0 and g.ic_drift_ratio == 0.01 and g.model == "given"
     assert HdrPlusParams().fitted() == HdrPlusParams()  # nothing known: nothing changes
-    # Unknown model: the online estimate starts at 0.03 N^2 (N^2 = block_var x T), clipped.
-    assert p.bias_q_no_temp == pytest.approx(0.03 * 4e-4) and p.model == "calibration"
-    quiet = HdrPlusParams().fitted(replace(cal, block_var=1e-12))
-    loud = HdrPlusParams().fitted(replace(cal, block_var=1.0))
-    assert quiet.bias_q_no_temp == 1e-8 and loud.bias_q_no_temp == 1e-4
-    assert HdrPlusParams(hdr=replace(PLUS_CORE, T=2.0)).fitted(cal).bias_q_no_temp == (
-        pytest.approx(0.03 * 8e-4)
-    )
+    # Unknown model: the online estimate starts at bias_q_no_temp, or (q_white_ratio) at a
+    # multiple of N^2 (N^2 = block_var x T), clipped.
+    assert p.bias_q_no_temp == HdrPlusParams().bias_q_no_temp and p.model == "calibration"
+    w = HdrPlusParams(q_white_ratio=0.03)
+    assert w.fitted(cal).bias_q_no_temp == pytest.approx(0.03 * 4e-4)
+    assert w.fitted(replace(cal, block_var=1e-12)).bias_q_no_temp == 1e-8
+    assert w.fitted(replace(cal, block_var=1.0)).bias_q_no_temp == 1e-4
+    two = w.with_(hdr=replace(PLUS_CORE, T=2.0))
+    assert two.fitted(cal).bias_q_no_temp == pytest.approx(0.03 * 8e-4)
 
 
 def _stop_go(n_legs: int, bias_step_dps: float, seed: int) -> tuple[np.ndarray, ...]:
