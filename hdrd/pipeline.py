@@ -255,6 +255,9 @@ class Stepper:
             status = "standstill" if still else ("ok" if o.W else "turning")
             if self.method.bias_model:
                 msg["zupt"] = int(still)
+                assert isinstance(o, PlusOutput)
+                msg["model"] = getattr(self.settings, "model", "")  # the error model in force
+                msg["bias_sd"] = o.bias_sd_dps
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status
