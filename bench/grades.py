@@ -280,7 +280,7 @@ DISCUSSION = """
   that the online estimate, slow to protect good gyros, follows late). Per type the CRS03-04
   and phone grades are up to 1.9x and 1.8x worse than paper HDR (rural3, city3); with the
   grade known (`hdr+ (grade)`) both are 1.3-1.6x better than paper HDR.
-- **Curving road** (the real-road variant, temperature withheld): paper HDR loses 2-5x here
+- **Curving road** (the real-road variant, temperature withheld): paper HDR loses about 2x here
   (it straightens the curves: 0.58-0.63 deg/min on every grade), HDR+ loses too. On the
   tactical grade HDR+ with the grade not known is 2.1x *worse* than bias removal (0.264 vs
   0.124), 62 % of the drives worse by > 10 % and 0.5°: the online random walk rises on the
