@@ -16,7 +16,18 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 
-__all__ = ["GM_PEAK", "NOISE_KEYS", "WARMUP_DEG_C", "WARMUP_S", "GyroNoise"]
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "ALLAN_MIN_S",
+    "GM_PEAK",
+    "NOISE_KEYS",
+    "WARMUP_DEG_C",
+    "WARMUP_S",
+    "GyroNoise",
+    "measure_noise",
+]
 
 GM_PEAK = 0.62
 """Peak of a Gauss-Markov bias's Allan deviation in units of its sigma."""
@@ -114,3 +125,91 @@ NOISE_KEYS: tuple[str, ...] = (
     "quant_step_dps",
 )
 """The parameters of :class:`GyroNoise` by name (bias files, the config's ``plus.noise``)."""
+
+
+ALLAN_MIN_S = 600.0
+"""A standstill at least this long, s, is read for its bias instability and rate random walk
+(an Allan deviation needs clusters many times the bias's correlation time)."""
+
+
+def measure_noise(omega_dps: npt.ArrayLike, rate_hz: float, source: str = "recorded") -> GyroNoise:
+    """The error model a standstill shows (raw rates in deg/s at ``rate_hz``), for ``hdrd
+    calibrate`` to record beside the bias.
+
+    Always: the white noise N (deg/s/sqrt(Hz): the Allan deviation's -1/2 line at 1 s when
+    the window shows it, else the sample spread / sqrt(rate)) and the output step (the
+    lattice of the values; unknown when not seen). From :data:`ALLAN_MIN_S` on, also the
+    Allan floor as the bias instability (and its correlation time: the floor's cluster time
+    / 1.89), when the curve turns before its end, and the rate random walk where its +1/2
+    slope shows: the random walk HDR+'s bias model needs (:meth:`GyroNoise.bias_q`). The
+    temperature coefficient is not seen at one temperature: unknown. ValueError for fewer
+    than 2 finite samples or a rate that is not > 0.
+    """
+    from hdrd.analysis.allan import allan_deviation, arw_from_adev, default_taus
+    from hdrd.zupt import quantization_step
+
+    w = np.asarray(omega_dps, dtype=np.float64)
+    w = w[np.isfinite(w)]
+    if w.shape[0] < 2 or not (math.isfinite(rate_hz) and rate_hz > 0.0):
+        raise ValueError("measure_noise needs 2 or more finite samples and a rate > 0 Hz")
+    white = float(np.std(w, ddof=1)) / math.sqrt(rate_hz)
+    q = quantization_step(w)
+    b_inst, b_tau, rrw = math.nan, 100.0, math.nan
+    duration = w.shape[0] / rate_hz
+    if default_taus(w.shape[0], rate_hz).shape[0] >= 3:
+        taus, adev = allan_deviation(w, rate_hz)
+        n_at_1 = arw_from_adev(taus, adev)
+        if math.isfinite(n_at_1) and n_at_1 > 0.0:
+            white = n_at_1
+        if duration >= ALLAN_MIN_S:
+            fit = _fit_adev(taus, adev)
+            if fit is not None:
+                sigma, b_tau, k = fit
+                b_inst = GM_PEAK * sigma if sigma > 0.0 else math.nan
+                rrw = k if k > 0.0 else math.nan
+    return GyroNoise(
+        white_dps_per_rthz=white,
+        bias_instability_dps=b_inst,
+        bias_tau_s=b_tau,
+        rrw_dps_per_sqrt_s=rrw,
+        quant_step_dps=q if q > 0.0 else math.nan,
+        source=source,
+    )
+
+
+def _fit_adev(
+    taus: npt.NDArray[np.float64], adev: npt.NDArray[np.float64]
+) -> tuple[float, float, float] | None:
+    """(sigma deg/s, tau_c s, K deg/s/sqrt(s)) of the model AVAR = N^2 / tau + GM(sigma,
+    tau_c) + K^2 tau / 3 fitted to an Allan curve: for each tau_c on a grid (10 s .. a third
+    of the longest cluster time), non-negative least squares of (N^2, sigma^2, K^2) in
+    relative terms; the tau_c with the smallest residual. None when the curve has fewer than
+    6 points or neither a Gauss-Markov nor a random-walk term is found."""
+    from itertools import combinations
+
+    from hdrd.analysis.allan import gauss_markov_adev
+
+    if taus.shape[0] < 6:
+        return None
+    avar = adev * adev
+    scale = 1.0 / avar  # relative residuals: every decade of tau counts alike
+    best: tuple[float, float, float, float] | None = None
+    for tau_c in np.geomspace(10.0, max(taus[-1] / 3.0, 10.0), 40):
+        cols = np.stack(
+            [1.0 / taus, gauss_markov_adev(taus, 1.0, float(tau_c)) ** 2, taus / 3.0], axis=1
+        )
+        a = cols * scale[:, None]
+        y = avar * scale
+        for keep in (c for r in (3, 2, 1) for c in combinations(range(3), r)):
+            coef = np.zeros(3)
+            sol, *_ = np.linalg.lstsq(a[:, keep], y, rcond=None)
+            if np.any(sol < 0.0):
+                continue
+            coef[list(keep)] = sol
+            res = float(np.sum((a @ coef - y) ** 2))
+            if best is None or res < best[0] - 1e-12:
+                best = (res, math.sqrt(coef[1]), float(tau_c), math.sqrt(coef[2]))
+            break  # the largest non-negative subset at this tau_c
+    if best is None or (best[1] <= 0.0 and best[3] <= 0.0):
+        return None
+    return best[1], best[2], best[3]

@@ -157,9 +157,11 @@ def evaluate_prepared(
     params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
     plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
-    ``plus``: HDR+'s base settings (default: HDR+'s defaults)."""
+    ``plus``: HDR+'s base settings (default: HDR+'s defaults); ``noise``: the gyro's error
+    model when known (the config's ``plus.grade`` / ``plus.noise``)."""
     ms = _methods(methods)
     if params.T != prep.steps.T:
         raise EvaluationError(
@@ -169,7 +171,7 @@ def evaluate_prepared(
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = method_yaw(prep, m, params, plus)
+        yaw = method_yaw(prep, m, params, plus, noise)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
@@ -384,6 +386,7 @@ def evaluate_logs(
     calibrate_seconds: float | None = None,
     limits: StandstillLimits = DEFAULT_LIMITS,
     truth_max_gap_s: float = TRUTH_MAX_GAP_S,
+    noise: GyroNoise | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
     """Every drive that can be evaluated, and why each other one cannot (one line each).
     With a single drive, a drive that cannot be evaluated raises EvaluationError instead."""
@@ -392,7 +395,7 @@ def evaluate_logs(
     for log in logs:
         try:
             prep = prepare_drive(log, bias, calibrate_seconds, params.T, truth_max_gap_s, limits)
-            results.append(evaluate_prepared(prep, params, methods, plus))
+            results.append(evaluate_prepared(prep, params, methods, plus, noise))
         except EvaluationError as e:
             if len(logs) == 1:
                 raise
