@@ -139,9 +139,9 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     if v.kind == "hdr":
         return hdr_batch(s.u, PAPER).yaw
     assert v.params is not None
-    p = plus_settings(v.params, s.T, prep.samples_per_step)  # as hdrd evaluate: its sample rate
-    if math.isfinite(s.bias_var):  # as hdrd evaluate: the prior is the calibration's variance
-        p = p.with_(bias_p0=s.bias_var)
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    # as hdrd evaluate fits HDR+ to the drive (hdrd.methods.plus_settings)
+    p = plus_settings(v.params, s.T, prep.samples_per_step, prep.bias, None, q)
     if v.gate_speed_mps > 0.0 or v.holdoff_steps > 0:
         return gated_yaw(s, p, v.gate_speed_mps, v.holdoff_steps, v.temp)
     return run_batch(
