@@ -9,7 +9,9 @@ The standstill test rejects a window whose samples say the vehicle moved:
 - spread: the sample standard deviation exceeds ``max_std_dps`` (a turn, or rough motion);
 - trend: the means of the window's first and last thirds differ by more than
   ``max_trend_dps`` (a slow turn or a creeping drift that the mean would absorb);
-- excursion: any sample is further than ``max_excursion_dps`` from the median (a bump).
+- excursion: any sample is further than ``max_excursion_dps`` from the median (a bump);
+- size: the mean is beyond ``max_bias_dps`` (a constant rotation looks steady, but no
+  CRS03-04 has a bias that large: +/-3 deg/s over -40..85 degC, docs/gyro-model.md).
 
 Those limits are absolute, set for a CRS03-04-class gyro at 10 Hz. Two more scale with the
 gyro's own noise and the number of samples, so that a quiet gyro sampled slowly (a phone at
@@ -46,6 +48,7 @@ __all__ = [
     "BiasFileError",
     "BiasRecord",
     "MotionDetected",
+    "SampleClock",
     "StandstillLimits",
     "StartupWindow",
     "atomic_write_json",
@@ -82,6 +85,7 @@ class StandstillLimits:
     max_std_dps: float = 0.5
     max_trend_dps: float = 0.2
     max_excursion_dps: float = 3.0
+    max_bias_dps: float = 3.0
     max_shift_se: float = 4.0
     """Largest pull of the far samples on the mean, in standard errors of the mean (noise
     sigma / sqrt(samples)); 0 switches the noise-scaled tests off."""
@@ -153,6 +157,12 @@ def estimate_bias(
         raise MotionDetected(
             f"vehicle moved: a sample {excursion:.2f} deg/s from the median "
             f"> {limits.max_excursion_dps} deg/s allowed"
+        )
+    if not abs(mean) <= limits.max_bias_dps:
+        raise MotionDetected(
+            f"mean rate {mean:+.3f} deg/s is beyond the +/-{limits.max_bias_dps:g} deg/s a "
+            "bias can be (calibration.max_bias_dps): the vehicle is turning, or the sensor "
+            "settings are wrong"
         )
     _check_noise_scaled(w, limits)
     duration = 0.0
@@ -307,6 +317,55 @@ class StartupWindow:
         return rec
 
 
+class SampleClock:
+    """How much device time a calibration window spans, robust to a glitched timestamp.
+
+    Pure. ``accept(t_us)`` takes each sample's raw 32-bit device time (us, wrapping at
+    2**32) and says whether the sample counts. :attr:`elapsed_us` sums the forward steps
+    between counted samples; a step is counted only if it is forward and at most
+    ``max_step_us``. A sample whose step is not (one CRC-valid frame with a wild clock, a
+    repeat, a step back) is set aside and counted in :attr:`glitches`, so one bad frame can
+    neither end a 30 s window after 2 s nor stretch it. If ``confirm`` set-aside samples in
+    a row step normally among themselves, the device clock really jumped (a reset, frames
+    lost for a while): the clock continues from them, the jump itself not counted.
+    """
+
+    __slots__ = ("_cand", "_cand_n", "_last", "confirm", "elapsed_us", "glitches", "max_step_us")
+
+    def __init__(self, max_step_us: int = 2_000_000, confirm: int = 3) -> None:
+        self.max_step_us = max_step_us
+        self.confirm = confirm
+        self.elapsed_us = 0
+        self.glitches = 0
+        self._last: int | None = None
+        self._cand: int | None = None  # the last set-aside sample, a possible new reference
+        self._cand_n = 0  # set-aside samples in a row that step normally among themselves
+
+    def _step_ok(self, prev: int, t_us: int) -> bool:
+        return 0 < (t_us - prev) % (1 << 32) <= self.max_step_us
+
+    def accept(self, t_us: int) -> bool:
+        """True if the sample at raw device time ``t_us`` counts (see the class doc)."""
+        if self._last is None:
+            self._last = t_us
+            return True
+        if self._step_ok(self._last, t_us):
+            self.elapsed_us += (t_us - self._last) % (1 << 32)
+            self._last = t_us
+            self._cand, self._cand_n = None, 0
+            return True
+        self.glitches += 1
+        if self._cand is not None and self._step_ok(self._cand, t_us):
+            self._cand_n += 1
+        else:
+            self._cand_n = 1
+        self._cand = t_us
+        if self._cand_n >= self.confirm:  # the device clock moved for good: follow it
+            self._last = t_us
+            self._cand, self._cand_n = None, 0
+        return False
+
+
 def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
     """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
 
@@ -362,24 +421,38 @@ def save_bias(path: str | os.PathLike[str], record: BiasRecord) -> None:
     atomic_write_text(path, _BIAS_HEADER + body + "# end\n")
 
 
-def load_bias(path: str | os.PathLike[str]) -> BiasRecord:
+MAX_BIAS_N = 10**12
+"""Most samples a bias record may claim (a year at 10 kHz is 3e11)."""
+MAX_BIAS_STD_DPS = 1000.0
+"""Largest sample spread a bias record may claim, deg/s (beyond any rate gyro's range)."""
+
+
+def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = None) -> BiasRecord:
     """Read a bias file; BiasFileError (naming the file and the problem) if it is not whole
-    and valid. A truncated file lacks the ``# end`` trailer and is refused."""
+    and valid. A truncated file lacks the ``# end`` trailer and is refused. The file must be
+    a regular file of at most :data:`hdrd.inputfiles.MAX_BIAS_BYTES`.
+
+    max_abs_bias_dps: refuse a bias_dps beyond +/- this, deg/s (the configuration's
+    ``calibration.max_bias_dps``); None: any finite value.
+    """
+    from hdrd.inputfiles import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
     except FileNotFoundError:
         raise BiasFileError(f"bias file {p}: not found") from None
+    except InputFileError as e:
+        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
     if not text.rstrip().endswith("# end"):
         raise BiasFileError(f"bias file {p}: truncated (no '# end' line); run `hdrd calibrate`")
-    import yaml
-
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise BiasFileError(f"bias file {p}: not valid YAML: {e}".splitlines()[0]) from None
+        data = load_yaml(text)
+    except InputFileError as e:
+        at = f" at {e.where}" if e.where else ""
+        raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
     if not isinstance(data, dict):
         raise BiasFileError(f"bias file {p}: expected a mapping of bias_dps, std_dps, n, ...")
     try:
@@ -397,20 +470,39 @@ def load_bias(path: str | os.PathLike[str]) -> BiasRecord:
         raise BiasFileError(f"bias file {p}: {e}") from None
     if record.n < 1 or record.std_dps < 0 or record.duration_s < 0:
         raise BiasFileError(f"bias file {p}: n, std_dps and duration_s must not be negative")
+    if record.n > MAX_BIAS_N or record.std_dps > MAX_BIAS_STD_DPS:
+        raise BiasFileError(
+            f"bias file {p}: n = {_short(record.n)} or std_dps = {record.std_dps!r} is beyond "
+            f"what a measurement gives (n <= {MAX_BIAS_N:.0e}, std_dps <= {MAX_BIAS_STD_DPS:g})"
+        )
+    if max_abs_bias_dps is not None and not abs(record.bias_dps) <= max_abs_bias_dps:
+        raise BiasFileError(
+            f"bias file {p}: bias_dps = {record.bias_dps!r} is beyond the "
+            f"+/-{max_abs_bias_dps:g} deg/s allowed (calibration.max_bias_dps)"
+        )
     return record
+
+
+def _short(v: object) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _finite(data: dict[str, object], key: str) -> float:
     v = data[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"{key} = {v!r} is not a finite number")
-    return float(v)
+    try:
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    except OverflowError:  # an integer beyond float range
+        ok = False
+    if not ok:
+        raise ValueError(f"{key} = {_short(v)} is not a finite number")
+    return float(v)  # type: ignore[arg-type]
 
 
 def _count(data: dict[str, object], key: str) -> int:
     v = data[key]
     if isinstance(v, bool) or not isinstance(v, int):
-        raise ValueError(f"{key} = {v!r} is not an integer")
+        raise ValueError(f"{key} = {_short(v)} is not an integer")
     return v
 
 

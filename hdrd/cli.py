@@ -3,19 +3,26 @@
 Each subcommand names the function that implements it (``module:function``, taking the
 parsed arguments and returning an exit status); the module is imported only when the
 subcommand runs, so ``hdrd --help`` stays fast. Exit statuses: 0 success, 1 failure,
-2 usage error, 78 configuration error (EX_CONFIG).
+2 usage error (a malformed command line: unknown option, missing or malformed argument, a
+choice not in its list, such as an unknown --drive), 78 configuration error (EX_CONFIG: a
+value that fails the configuration's checks, from the file or from a flag that overrides
+it, e.g. ``--heading0 400``).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from types import FrameType
 
 from hdrd import __version__
 
 EX_CONFIG = 78  # sysexits.h; also hdrd.config.EX_CONFIG (not imported here: keeps --help light)
+DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
+"""Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
 
 Adder = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, str, Adder]] = {}
@@ -82,11 +89,22 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
         "--port",
         metavar="URL",
         required=required,
-        help="serial device or pyserial URL (/dev/ttyUSB0, /dev/serial/by-id/..., loop://, socket://host:port)",
+        help="serial device or pyserial URL (/dev/ttyUSB0, /dev/serial/by-id/..., loop://, "
+        "socket://host:port); default device.port, /dev/hdrd-gyro",
     )
-    p.add_argument("--baud", type=int, metavar="N", help="serial speed, baud")
+    p.add_argument(
+        "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
+    )
     p.add_argument(
         "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
+    )
+
+
+def _log_level(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--log-level",
+        choices=("debug", "info", "warning", "error"),
+        help="log level on stderr (default log.level, info)",
     )
 
 
@@ -106,7 +124,9 @@ def _run(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--simulate", action="store_true", help="read the built-in simulated gyro, no hardware"
     )
-    p.add_argument("--drive", help="with --simulate: city|suburbs|rural|highway|mixed|standstill")
+    p.add_argument(
+        "--drive", choices=DRIVES, help="with --simulate: the drive (default simulate.drive, mixed)"
+    )
     p.add_argument(
         "--speedup", type=float, metavar="X", help="with --simulate: play the drive X times faster"
     )
@@ -120,9 +140,10 @@ def _run(p: argparse.ArgumentParser) -> None:
         help="aid with GPS from gpsd (default 127.0.0.1:2947; IPv6 as [::1]:2947)",
     )
     p.add_argument("--log-format", choices=("auto", "json", "console"), help="log format on stderr")
+    _log_level(p)
 
 
-@command("calibrate", "hdrd.daemon:calibrate_main", "measure the static bias at standstill")
+@command("calibrate", "hdrd.calibrate_cmd:main", "measure the static bias at standstill")
 def _calibrate(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)
@@ -140,6 +161,7 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--simulate", action="store_true", help="calibrate on the built-in simulated gyro"
     )
+    _log_level(p)
 
 
 @command("tail", "hdrd.publish:tail_main", "print what the daemon publishes (like gpspipe -w)")
@@ -168,13 +190,30 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
         metavar="DPS",
         help="with --drive constant: true yaw rate",
     )
-    p.add_argument("--minutes", type=float, default=20.0, help="length of the drive, min")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--hz", type=float, default=10.0, help="frame rate, Hz")
+    p.add_argument(
+        "--minutes",
+        type=float,
+        default=20.0,
+        metavar="MIN",
+        help="length of the drive, min (default 20)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=1,
+        metavar="N",
+        help="random seed of the drive, noise and injected faults (default 1)",
+    )
+    p.add_argument("--hz", type=float, default=10.0, help="frame rate, Hz (default 10)")
     p.add_argument(
         "--speedup", type=float, default=1.0, help="1 = real time; 0 = as fast as possible"
     )
-    p.add_argument("--protocol", choices=("hdr-bin", "hdr-text"), default="hdr-bin")
+    p.add_argument(
+        "--protocol",
+        choices=("hdr-bin", "hdr-text"),
+        default="hdr-bin",
+        help="frame format (default hdr-bin)",
+    )
     p.add_argument(
         "--link",
         metavar="PATH",
@@ -215,7 +254,9 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
 @command("record", "hdrd.record:main", "record raw bytes from the gyro to a capture file")
 def _record(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", metavar="URL", required=True, help="serial device or pyserial URL")
-    p.add_argument("--baud", type=int, default=115200)
+    p.add_argument(
+        "--baud", type=int, default=115200, metavar="N", help="serial speed, baud (default 115200)"
+    )
     p.add_argument("--out", metavar="FILE", required=True, help="capture file to write")
     p.add_argument(
         "--seconds",
@@ -243,19 +284,35 @@ def _replay(p: argparse.ArgumentParser) -> None:
 
 @command("convert", "hdrd.replay:convert_main", "convert a capture into a drive log CSV")
 def _convert(p: argparse.ArgumentParser) -> None:
-    p.add_argument("capture", metavar="FILE")
+    p.add_argument(
+        "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
+    )
     p.add_argument(
         "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
     )
-    p.add_argument("--out", metavar="CSV", required=True)
+    p.add_argument(
+        "--out", metavar="CSV", required=True, help="drive log to write (raw rates, deg/s)"
+    )
     _config(p)
 
 
 @command("simulate", "hdrd.sim.cli:simulate_main", "simulate a drive and its gyro into a drive log")
 def _simulate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--drive", default="mixed", help="city|suburbs|rural|highway|mixed|standstill")
-    p.add_argument("--minutes", type=float, default=20.0)
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--drive",
+        default="mixed",
+        help="city|suburbs|rural|highway|mixed|standstill (default mixed)",
+    )
+    p.add_argument(
+        "--minutes",
+        type=float,
+        default=20.0,
+        metavar="MIN",
+        help="length of the drive after its standstill lead-in, min (default 20)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=1, metavar="N", help="random seed of drive and gyro (default 1)"
+    )
     p.add_argument(
         "--hz",
         type=float,
@@ -283,7 +340,10 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "drives", nargs="+", metavar="DRIVE.csv|DIR", help="drive logs, or directories of them"
+        "drives",
+        nargs="+",
+        metavar="DRIVE.csv|DIR",
+        help="drive logs with a true heading, or directories of them",
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument(
@@ -308,12 +368,24 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
     "tune HDR parameters on training drives, check on test drives",
 )
 def _tune(p: argparse.ArgumentParser) -> None:
-    p.add_argument("train", nargs="+", metavar="TRAIN.csv")
-    p.add_argument("--test", nargs="+", metavar="TEST.csv", default=[])
+    p.add_argument("train", nargs="+", metavar="TRAIN.csv", help="drive logs to tune on")
     p.add_argument(
-        "--candidates", type=int, default=2000, metavar="N", help="parameter sets to try"
+        "--test",
+        nargs="+",
+        metavar="TEST.csv",
+        default=[],
+        help="held-out drive logs, scored with the tuned parameters (never tuned on)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--candidates",
+        type=int,
+        default=2000,
+        metavar="N",
+        help="parameter sets to try (default 2000)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, metavar="N", help="random seed of the search (default 0)"
+    )
     p.add_argument(
         "--calibrate-seconds",
         type=float,
@@ -329,7 +401,9 @@ def _tune(p: argparse.ArgumentParser) -> None:
     "gap", "hdrd.analysis.gap:main", "find the gyro effects a model misses (model-gap workflow)"
 )
 def _gap(p: argparse.ArgumentParser) -> None:
-    p.add_argument("measured", metavar="MEASURED.csv")
+    p.add_argument(
+        "measured", metavar="MEASURED.csv", help="drive log of the real gyro (raw rates, deg/s)"
+    )
     p.add_argument(
         "--model",
         metavar="MODEL.yaml",
@@ -341,7 +415,9 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--standstill", action="store_true", help="the log was taken at rest: true rate is zero"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -355,12 +431,43 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (target, help_, add) in COMMANDS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         add(p)
-        p.set_defaults(_target=target)
+        p.set_defaults(_target=target, _parser=p)
     return parser
 
 
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The parsed command line; on a usage error exit 2 with the usage of the subcommand
+    the error is in (argparse's subparsers hand unknown options up to the top-level parser,
+    whose usage would not help: ``hdrd run --simualte``)."""
+    args, extra = build_parser().parse_known_args(argv)
+    if extra:
+        args._parser.error("unrecognized arguments: " + " ".join(extra))
+    return args
+
+
+# -- SIGHUP during start-up -------------------------------------------------------------------
+
+_held_hangups: list[int] = []
+
+
+def _hold_hangup(signum: int, frame: FrameType | None) -> None:
+    _held_hangups.append(signum)
+
+
+def take_held_hangup() -> bool:
+    """True if a SIGHUP came while held (see :func:`main`); forgets it."""
+    held = bool(_held_hangups)
+    _held_hangups.clear()
+    return held
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
+    if args.command == "run" and hasattr(signal, "SIGHUP"):
+        # SIGHUP's default action ends the process: hold it from here, before the slow
+        # imports and the config, until the daemon installs its reload handler (which
+        # takes a held one as a reload request).
+        signal.signal(signal.SIGHUP, _hold_hangup)
     module, _, func = args._target.partition(":")
     impl = getattr(importlib.import_module(module), func)
     try:

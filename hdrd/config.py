@@ -136,6 +136,12 @@ class CalibrationConfig:
     max_std_dps: float = 0.5
     max_trend_dps: float = 0.2
     max_excursion_dps: float = 3.0
+    max_bias_dps: float = 3.0
+    """Largest |bias| believed, deg/s: a measurement (`hdrd calibrate`, start-up), a bias
+    file or --bias beyond it is refused. The CRS03-04's bias stays within +/-3 deg/s over
+    -40..85 degC (docs/gyro-model.md); the paper measured 1.432 deg/s on its unit."""
+    no_data_timeout_s: float = 10.0
+    """`hdrd calibrate` gives up when no frame has arrived for this long, s (wall clock)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,9 +237,9 @@ def _num(
 ) -> tuple[Check, str]:
     parts = []
     if lo is not None:
-        parts.append(f"{'>' if lo_open else '>='} {lo:g}")
+        parts.append(f"{'>' if lo_open else '>='} {_fmt(lo)}")
     if hi is not None:
-        parts.append(f"{'<' if hi_open else '<='} {hi:g}")
+        parts.append(f"{'<' if hi_open else '<='} {_fmt(hi)}")
     desc = "a finite number" + (" " + " and ".join(parts) if parts else "")
 
     def check(v: float) -> bool:
@@ -243,7 +249,13 @@ def _num(
             return False
         return True
 
+    check.bounds = (lo, hi, lo_open, hi_open)  # type: ignore[attr-defined] # for the tests
     return check, desc
+
+
+def _fmt(v: float) -> str:
+    """A bound as written in a message: integers in full, others short (0.01, 1e-06)."""
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e16 else f"{v:g}"
 
 
 def _choice(*options: Any) -> tuple[Check, str]:
@@ -269,34 +281,41 @@ def _hostports(v: tuple[str, ...]) -> bool:
 
 _POS = _num(0, lo_open=True)
 _NONNEG = _num(0)
+# Upper (and some lower) bounds keep every later computation finite: a value inside them
+# cannot overflow a float, divide by zero or wait forever anywhere in hdrd (a test steps
+# the pipeline with every key at both ends of its range). docs/configuration.md says why
+# each bound is where it is.
+_SECONDS = _num(0, 3600, lo_open=True)
 RULES: dict[str, tuple[Check, str]] = {
     "device.port": ((lambda v: bool(v.strip())), "a non-empty device path or pyserial URL"),
     "device.protocol": _choice(*PROTOCOLS),
     "device.baud": _num(50, 20_000_000),
-    "device.reconnect_min_s": _POS,
-    "device.reconnect_max_s": _POS,
-    "device.stale_after_s": _POS,
+    "device.reconnect_min_s": _SECONDS,
+    "device.reconnect_max_s": _SECONDS,
+    "device.stale_after_s": _SECONDS,
     "sensor.adc_bits": _num(8, 32),
-    "sensor.vref_v": _POS,
-    "sensor.null_v": _NONNEG,
-    "sensor.scale_v_per_dps": _POS,
+    "sensor.vref_v": _num(0.01, 100),
+    "sensor.null_v": _num(0, 100),
+    "sensor.scale_v_per_dps": _num(1e-6, 100),
     "sensor.polarity": _choice(1, -1),
-    "sensor.range_dps": _POS,
-    "sensor.ref_divider": _POS,
-    "sensor.supply_nominal_v": _POS,
+    "sensor.range_dps": _num(0, 100_000, lo_open=True),
+    "sensor.ref_divider": _num(0.01, 100),
+    "sensor.supply_nominal_v": _num(0.01, 100),
     "hdr.method": _method(),
-    "hdr.i_c": _NONNEG,
-    "hdr.tau": _NONNEG,
-    "hdr.theta_w": _POS,
-    "hdr.c1": _NONNEG,
-    "hdr.c2": _NONNEG,
+    "hdr.i_c": _num(0, 10),
+    "hdr.tau": _num(0, 3600),
+    "hdr.theta_w": _num(0, 100_000, lo_open=True),
+    "hdr.c1": _num(0, 1000),
+    "hdr.c2": _num(0, 10),
     "hdr.T": _num(0.01, 60),
-    "calibration.t_bias_s": _POS,
-    "calibration.startup_s": _POS,
+    "calibration.t_bias_s": _SECONDS,
+    "calibration.startup_s": _num(0, 600, lo_open=True),
     "calibration.on_bad_bias_file": _choice("error", "calibrate"),
     "calibration.max_std_dps": _POS,
     "calibration.max_trend_dps": _POS,
     "calibration.max_excursion_dps": _POS,
+    "calibration.max_bias_dps": _num(0, 1000, lo_open=True),
+    "calibration.no_data_timeout_s": _SECONDS,
     "output.heading0_deg": _num(0, 360, hi_open=True),
     "output.udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
     "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
@@ -306,11 +325,11 @@ RULES: dict[str, tuple[Check, str]] = {
     ),
     "log.level": _choice("debug", "info", "warning", "error"),
     "log.format": _choice("auto", "json", "console"),
-    "log.bad_frame_interval_s": _POS,
+    "log.bad_frame_interval_s": _SECONDS,
     "simulate.drive": _choice(*DRIVES),
-    "simulate.seed": _num(0),
+    "simulate.seed": _num(0, 2**32 - 1),
     "simulate.rate_hz": _num(1, 10_000),
-    "simulate.speedup": _POS,
+    "simulate.speedup": _num(0.001, 1_000_000),
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
@@ -452,23 +471,22 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
+    from hdrd.inputfiles import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")
     except FileNotFoundError:
         raise ConfigError("(file)", str(p), "not found", str(p)) from None
+    except InputFileError as e:
+        raise ConfigError("(file)", str(p), f"cannot be read: {e}", str(p)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(
             "(file)", str(p), f"cannot be read ({e.__class__.__name__})", str(p)
         ) from None
-    import yaml  # here, not at the top: a run without a config file never needs it (~18 ms)
-
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        at = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
-        problem = getattr(e, "problem", None) or "syntax error"
-        raise ConfigError("(yaml)", at, f"YAML syntax error: {problem}", str(p)) from None
+        data = load_yaml(text)
+    except InputFileError as e:
+        raise ConfigError("(yaml)", e.where or "?", e.problem, str(p)) from None
     return parse_config(data, str(p)), str(p)
 
 

@@ -1,11 +1,13 @@
-"""``hdrd run`` and ``hdrd calibrate``: the edge that wires source -> pipeline -> publishers.
+"""``hdrd run``: the edge that wires source -> pipeline -> publishers (and the configuration,
+bias and signal helpers that ``hdrd calibrate``, in :mod:`hdrd.calibrate_cmd`, shares).
 
 Everything with a clock, a port, a socket or a signal lives here; the stages it wires are
 pure (:mod:`hdrd.pipeline`). Behaviour under trouble, as gpsd does it: a lost device is
 reported ("stale") and reopened with backoff, the heading carrying on; a publisher that
 fails never stops the loop; SIGTERM/SIGINT end it cleanly (exit 0) within a second; SIGHUP
 reloads the configuration, keeping the heading, and keeps the old one if the new one is
-invalid; systemd is told READY=1, STATUS= and WATCHDOG=1 through ``$NOTIFY_SOCKET``.
+invalid (and a SIGHUP during start-up is a reload, not the end); systemd is told READY=1,
+STATUS= and WATCHDOG=1 through ``$NOTIFY_SOCKET``.
 """
 
 from __future__ import annotations
@@ -26,18 +28,15 @@ from typing import TYPE_CHECKING, Any
 from hdrd.calibrate import (
     BiasFileError,
     BiasRecord,
-    MotionDetected,
     StandstillLimits,
-    StartupWindow,
     load_bias,
-    save_bias,
 )
 from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.hdrplus import HdrPlusParams
 
-__all__ = ["SdNotifier", "calibrate_main", "config_from_args", "default_bias_path", "main"]
+__all__ = ["SdNotifier", "config_from_args", "default_bias_path", "main"]
 
 
 class _LazyLogger:
@@ -179,6 +178,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "output.heading0_deg": g("heading0"),
         "hdr.method": g("method"),
         "log.format": g("log_format"),
+        "log.level": g("log_level"),
         "simulate.drive": g("drive"),
         "simulate.speedup": g("speedup"),
         "calibration.bias_file": g("bias_file"),
@@ -214,6 +214,22 @@ def config_from_args(args: argparse.Namespace) -> tuple[Config, str]:
 # -- bias ---------------------------------------------------------------------------------
 
 
+def check_bias_arg(value: float | None, cfg: Config) -> None:
+    """``--bias`` must be a finite rate within +/- ``calibration.max_bias_dps`` (deg/s): a
+    NaN or infinite bias would leave the daemon with no rate, yaw or heading. ConfigError
+    (exit 78) naming the flag, the value and what is allowed."""
+    if value is None:
+        return
+    limit = cfg.calibration.max_bias_dps
+    if not (math.isfinite(value) and abs(value) <= limit):
+        raise ConfigError(
+            "--bias",
+            value,
+            f"must be a finite number within +/-{limit:g} deg/s (calibration.max_bias_dps)",
+            "command line",
+        )
+
+
 @dataclass(frozen=True)
 class BiasChoice:
     record: BiasRecord | None  # None: measure at start-up
@@ -233,7 +249,7 @@ def choose_bias(cfg: Config, bias_arg: float | None) -> BiasChoice:
     if not explicit and not path.exists():
         return BiasChoice(None, "startup")
     try:
-        return BiasChoice(load_bias(path), str(path))
+        return BiasChoice(load_bias(path, cfg.calibration.max_bias_dps), str(path))
     except BiasFileError as e:
         if cfg.calibration.on_bad_bias_file == "calibrate" and not (explicit and not path.exists()):
             log.warning(
@@ -255,16 +271,25 @@ class _Signals:
         self._old: dict[int, Any] = {}
 
     def install(self) -> None:
+        """Take over SIGTERM, SIGINT and SIGHUP (idempotent). A SIGHUP that came while
+        ``hdrd.cli`` held it (between start and now) is a reload to do."""
+        if self._old:
+            return
         for sig, handler in (
             (signal.SIGTERM, self._on_stop),
             (signal.SIGINT, self._on_stop),
             (signal.SIGHUP, self._on_hup),
         ):
             self._old[sig] = signal.signal(sig, handler)
+        from hdrd.cli import take_held_hangup
+
+        if take_held_hangup():
+            self.reload = True
 
     def restore(self) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+        self._old.clear()
 
     def _on_stop(self, signum: int, frame: FrameType | None) -> None:
         self.stop = True
@@ -276,7 +301,7 @@ class _Signals:
 def standstill_limits(cfg: Config) -> StandstillLimits:
     """The standstill test's thresholds from the calibration section (deg/s)."""
     c = cfg.calibration
-    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps)
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
 
 
 def _gps_link(cfg: Config) -> Any:
@@ -366,19 +391,58 @@ def _stop_all(pubs: list[Any]) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd run``."""
+    # First of all: from here on SIGHUP reloads and SIGTERM stops, even during start-up
+    # (hdrd.cli holds SIGHUP from argument parsing until here).
+    signals = _Signals()
+    signals.install()
     try:
         cfg, where = config_from_args(args)
+        check_bias_arg(getattr(args, "bias", None), cfg)
     except ConfigError as e:
         print(f"hdrd: {e}", file=sys.stderr)
+        signals.restore()
         return EX_CONFIG
+    problem = _closed_stdio(cfg)
+    if problem:
+        print(f"hdrd: {problem}", file=sys.stderr)
+        signals.restore()
+        return 1
     setup_logging(cfg.log.level, cfg.log.format)
     try:
         bias = choose_bias(cfg, getattr(args, "bias", None))
     except BiasFileError as e:
         log.error("bias_file_invalid", error=str(e))
         print(f"hdrd: {e}", file=sys.stderr)
+        signals.restore()
         return 1
-    return Daemon(cfg, where, args, bias).run()
+    return Daemon(cfg, where, args, bias, signals).run()
+
+
+def _closed_stdio(cfg: Config) -> str | None:
+    """Started with stdout or stderr closed (``hdrd run >&-``): Python leaves sys.stdout
+    None. Publishing to stdout is then impossible (the message says so); otherwise the
+    descriptor is pointed at /dev/null, so that no port or socket opened later becomes
+    fd 1 or 2 and receives stray output. stderr likewise, for the log."""
+    o = cfg.output
+    if sys.stdout is None and (o.stdout or not (o.udp or o.nmea_udp)):
+        return (
+            "stdout is closed and is the only output configured; give --udp or --nmea-udp "
+            "(or output.udp / output.nmea_udp), or start hdrd with stdout open"
+        )
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is not None:
+            continue
+        try:
+            os.fstat(fd)
+            continue  # the number is taken already (not ours to close)
+        except OSError:
+            pass
+        null = os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC)
+        if null != fd:
+            os.dup2(null, fd, inheritable=False)
+            os.close(null)
+        setattr(sys, name, open(fd, "w", closefd=False))  # noqa: SIM115 - for the process
+    return None
 
 
 class Daemon:
@@ -395,7 +459,14 @@ class Daemon:
     """Pausing stops this long before the step-closing frame can arrive (:mod:`hdrd.pacing`),
     so that frame is read as it arrives."""
 
-    def __init__(self, cfg: Config, where: str, args: argparse.Namespace, bias: BiasChoice) -> None:
+    def __init__(
+        self,
+        cfg: Config,
+        where: str,
+        args: argparse.Namespace,
+        bias: BiasChoice,
+        signals: _Signals | None = None,
+    ) -> None:
         from hdrd.pipeline import Pipeline
 
         self.cfg = cfg
@@ -404,7 +475,7 @@ class Daemon:
         self.simulate = bool(getattr(args, "simulate", False))
         self.bias_choice = bias
         self.pipeline = Pipeline(_pipeline_config(cfg, bias.record))
-        self.signals = _Signals()
+        self.signals = signals or _Signals()
         self.notifier = SdNotifier()
         self.publishers: list[Any] = []
         self.ready = False
@@ -677,114 +748,3 @@ class Daemon:
         msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
         self._set_status(f"stale: no data for {silent:.0f} s")
         self._publish([msg], steps=False)  # a stale report is not a step
-
-
-# -- hdrd calibrate ---------------------------------------------------------------------------
-
-
-def calibrate_main(args: argparse.Namespace) -> int:
-    """``hdrd calibrate``: static bias over --seconds at standstill, saved atomically."""
-    try:
-        cfg, _ = config_from_args(args)
-    except ConfigError as e:
-        print(f"hdrd: {e}", file=sys.stderr)
-        return EX_CONFIG
-    setup_logging(cfg.log.level, cfg.log.format)
-    seconds = args.seconds if args.seconds is not None else cfg.calibration.t_bias_s
-    if not seconds > 0:
-        print(f"hdrd: --seconds must be > 0, got {seconds}", file=sys.stderr)
-        return 2
-    path = (
-        Path(args.bias_file)
-        if args.bias_file
-        else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
-    )
-    signals = _Signals()
-    signals.install()
-    from hdrd.resample import DeviceClock
-    from hdrd.source import DeviceBack, DeviceLost, EndOfInput
-
-    src = open_source(cfg, bool(getattr(args, "simulate", False)))
-    clock = DeviceClock()
-    window = StartupWindow(limits=standstill_limits(cfg))  # the daemon's start-up window, too
-    t0: int | None = None
-    t_last = 0
-    next_report = 1.0
-    print(f"calibrating: keep the vehicle still for {seconds:g} s", flush=True)
-    try:
-        while not signals.stop:
-            item = src.recv(0.1)
-            if item is None:
-                continue
-            if isinstance(item, DeviceLost):
-                print(
-                    f"device lost ({item.reason}); waiting for it to come back",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                continue
-            if isinstance(item, DeviceBack):
-                print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, t0, next_report = DeviceClock(), None, 1.0
-                window.clear()
-                continue
-            if isinstance(item, EndOfInput):
-                break
-            t = clock.unwrap(item.t_us)
-            if t is None:
-                continue
-            if t0 is None:
-                t0 = t
-            elapsed = (t - t0) / 1e6
-            if elapsed >= seconds:
-                t_last = t
-                break
-            window.add(cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
-            t_last = t
-            if elapsed >= next_report:
-                print(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {window.mean_dps:+.4f} deg/s  n {window.n}",
-                    flush=True,
-                )
-                next_report += 1.0
-    finally:
-        src.close()
-        signals.restore()
-    if signals.stop:
-        print("calibration interrupted; bias file not written", file=sys.stderr)
-        return 0
-    duration = 0.0 if t0 is None else (t_last - t0) / 1e6
-    if duration < seconds * 0.99:
-        print(
-            f"hdrd calibrate: input ended after {duration:.1f} s of the {seconds:g} s needed; bias file not written",
-            file=sys.stderr,
-        )
-        return 1
-    try:
-        rec = window.measure(when=time.time())
-    except MotionDetected as e:
-        print(
-            f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
-        )
-        return 1
-    rec = replace(rec, duration_s=duration)
-    try:
-        save_bias(path, rec)
-    except OSError as e:
-        print(f"hdrd calibrate: cannot write {path}: {e.strerror or e}", file=sys.stderr)
-        return 1
-    print(
-        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
-        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
-        + f") written to {path}",
-        flush=True,
-    )
-    log.info(
-        "calibrated",
-        bias_dps=rec.bias_dps,
-        std_dps=rec.std_dps,
-        samples=rec.n,
-        path=str(path),
-        source="calibrate",
-    )
-    return 0

@@ -177,6 +177,7 @@ class FakeGyro:
         """delivered[k]: frame k reached an open port intact."""
         self.path: str | None = None
         """The pty slave of the current connection (changes at every cable pull)."""
+        self._link_target: str | None = None  # what our symlink points at, once made
         self.t_s = _device_seconds(self.frames["t_us"])
         self._wire = self._encode_all()
         self._rng = np.random.default_rng(seed)
@@ -208,19 +209,37 @@ class FakeGyro:
         fcntl.fcntl(master, fcntl.F_SETFL, fl | os.O_NONBLOCK)
         self._master = master
         if self.link is not None:
-            tmp = f"{self.link}.tmp{os.getpid()}"
             try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            os.symlink(self.path, tmp)
-            os.replace(tmp, self.link)  # atomic: the link is never half-made
+                self._point_link()
+            except OSError:
+                self._master = None
+                os.close(master)
+                raise
+
+    def _point_link(self) -> None:
+        """Make (or re-point) the symlink at the current pty, atomically. Only a symlink is
+        ever replaced: a regular file, a directory or a device at that path is refused
+        (FileExistsError), never deleted."""
+        assert self.link is not None and self.path is not None
+        if os.path.lexists(self.link) and not os.path.islink(self.link):
+            raise FileExistsError(
+                errno.EEXIST, "exists and is not a symlink; refusing to replace it", self.link
+            )
+        tmp = f"{self.link}.tmp{os.getpid()}"
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        os.symlink(self.path, tmp)
+        os.replace(tmp, self.link)  # atomic: the link is never half-made
+        self._link_target = self.path
 
     def _close_pty(self) -> None:
-        if self.link is not None:
-            try:
-                os.unlink(self.link)
-            except FileNotFoundError:
+        if self.link is not None and self._link_target is not None:
+            try:  # remove the link only if it is still ours (pointing at our pty)
+                if os.readlink(self.link) == self._link_target:
+                    os.unlink(self.link)
+            except OSError:
                 pass
         master, self._master = self._master, None
         if master is not None:
@@ -567,7 +586,8 @@ def main(args: argparse.Namespace) -> int:
         try:
             gyro.open()
         except OSError as e:
-            _err(f"cannot open a pty or the link: {e}")
+            where = f" {e.filename}" if e.filename else ""
+            _err(f"cannot open a pty or the link{where}: {e.strerror or e}")
             return 1
         try:
             print(gyro.path, flush=True)

@@ -4,19 +4,57 @@ Replay decodes the whole capture at once (:func:`hdrd.frames.decode_capture`) an
 to the same :class:`hdrd.pipeline.Pipeline` the daemon uses, as fast as possible; its JSON
 lines are bit-identical to what ``hdrd run`` publishes for the same bytes, except ``time``
 (the UNIX time of publication), which a recording does not have and replay leaves out.
+
+Memory follows the file: its bytes (read whole, a regular file of at most
+:data:`hdrd.inputfiles.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
+one chunk of frames at a time; never the device time the capture spans
+(bench/replay_memory.py). A file with no valid frame is an error (exit 1), not an empty run.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from hdrd.calibrate import BiasFileError, BiasRecord, load_bias
 from hdrd.config import EX_CONFIG, Config, ConfigError
 
-__all__ = ["convert_main", "main", "replay_capture"]
+__all__ = ["convert_main", "main", "replay_capture", "replay_steps"]
+
+STEP_CHUNK_FRAMES = 16384
+"""Frames fed to the pipeline at once by ``hdrd replay``, whose messages are written out
+before the next chunk: the messages of a long capture are never all held at once."""
+
+
+def replay_steps(
+    frames: Any,
+    bad_before: Any,
+    bad_frames: int,
+    cfg: Config,
+    bias_dps: float | None,
+    startup_s: float | None = None,
+    chunk: int = STEP_CHUNK_FRAMES,
+    bias_record: BiasRecord | None = None,
+) -> Iterator[list[dict[str, Any]]]:
+    """The daemon's messages (without ``time``) for decoded frames, a list per chunk of
+    frames: the same messages, in the same order, as one pass (the pipeline's state carries
+    over, and its block sums run in sample order either way). Pure. bias_record: the bias
+    file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
+    from dataclasses import replace
+
+    from hdrd.daemon import _pipeline_config
+    from hdrd.pipeline import Pipeline
+
+    pc = replace(_pipeline_config(cfg, None), bias_dps=bias_dps, bias_record=bias_record)
+    if startup_s is not None:
+        pc = replace(pc, startup_s=startup_s)
+    p = Pipeline(pc)
+    for lo in range(0, frames.shape[0], chunk):
+        yield p.feed_array(frames[lo : lo + chunk], bad_before[lo : lo + chunk])
+    yield p.finish(int(bad_frames))
 
 
 def replay_capture(
@@ -28,70 +66,97 @@ def replay_capture(
 ) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure.
     bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from dataclasses import replace
-
-    from hdrd.daemon import _pipeline_config
     from hdrd.frames import decode_capture
-    from hdrd.pipeline import Pipeline
 
     frames, stats = decode_capture(data, cfg.device.protocol)
-    pc = _pipeline_config(cfg, None)
-    pc = replace(pc, bias_dps=bias_dps, bias_record=bias_record)
-    if startup_s is not None:
-        pc = replace(pc, startup_s=startup_s)
-    p = Pipeline(pc)
-    msgs = p.feed_array(frames, stats.bad_before)
-    msgs.extend(p.finish(int(stats.bad_frames)))
-    return msgs
+    out: list[dict[str, Any]] = []
+    for msgs in replay_steps(
+        frames, stats.bad_before, stats.bad_frames, cfg, bias_dps, startup_s,
+        bias_record=bias_record,
+    ):
+        out.extend(msgs)
+    return out
 
 
 def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config, bytes] | int:
-    """The configuration and the capture's bytes, or the exit status after saying why."""
-    from hdrd.daemon import config_from_args
+    """The configuration and the capture's bytes, or the exit status after saying why.
+
+    The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
+    would block or never end)."""
+    from hdrd.daemon import check_bias_arg, config_from_args
+    from hdrd.inputfiles import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:
         cfg, _ = config_from_args(args)
+        check_bias_arg(getattr(args, "bias", None), cfg)
     except ConfigError as e:
         print(f"hdrd: {e}", file=sys.stderr)
         return EX_CONFIG
     try:
-        return cfg, Path(args.capture).read_bytes()
+        return cfg, read_limited(args.capture, MAX_CAPTURE_BYTES)
+    except InputFileError as e:
+        print(f"hdrd {command}: cannot read {args.capture}: {e}", file=sys.stderr)
     except OSError as e:
         print(f"hdrd {command}: cannot read {args.capture}: {e.strerror or e}", file=sys.stderr)
-        return 1
+    return 1
+
+
+def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
+    """A file that holds no valid frame (not a capture, or another --protocol): exit 1."""
+    other = "hdr-text" if protocol == "hdr-bin" else "hdr-bin"
+    print(
+        f"hdrd {command}: no valid frames in {capture} ({stats.bad_frames} bad frames, "
+        f"{stats.garbage_bytes} bytes of garbage as {protocol}); is it a capture from "
+        f"`hdrd record`, and is it {other} (--protocol {other})?",
+        file=sys.stderr,
+    )
+    return 1
 
 
 def main(args: argparse.Namespace) -> int:
-    """``hdrd replay FILE``: one JSON line per step on stdout."""
+    """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
+    from hdrd.frames import decode_capture
     from hdrd.publish import format_json
 
     loaded = _config_and_capture(args, "replay")
     if isinstance(loaded, int):
         return loaded
     cfg, data = loaded
+    del loaded
     startup_s: float | None = None
     bias: float | None = None
     record: BiasRecord | None = None
+    limit = cfg.calibration.max_bias_dps
     try:
         if args.bias is not None:
             bias = args.bias
         elif args.bias_file:
-            record = load_bias(args.bias_file)
+            record = load_bias(args.bias_file, limit)
         elif args.calibrate_seconds is not None:
-            if not args.calibrate_seconds > 0:
-                print("hdrd replay: --calibrate-seconds must be > 0", file=sys.stderr)
+            if not 0 < args.calibrate_seconds <= 600:  # calibration.startup_s's range
+                print(
+                    "hdrd replay: --calibrate-seconds must be a number > 0 and <= 600",
+                    file=sys.stderr,
+                )
                 return 2
             startup_s = args.calibrate_seconds
         elif cfg.calibration.bias_file:
-            record = load_bias(cfg.calibration.bias_file)
+            record = load_bias(cfg.calibration.bias_file, limit)
     except BiasFileError as e:
         print(f"hdrd replay: {e}", file=sys.stderr)
         return 1
     if record is not None:
         bias = record.bias_dps
-    msgs = replay_capture(data, cfg, bias, startup_s, record)
+    frames, stats = decode_capture(data, cfg.device.protocol)
+    del data  # the frames are all that is needed from here on
+    if frames.shape[0] == 0:
+        return _no_frames("replay", args.capture, cfg.device.protocol, stats)
     out = sys.stdout.buffer
-    out.write(b"".join(format_json(m) for m in msgs))
+    for msgs in replay_steps(
+        frames, stats.bad_before, stats.bad_frames, cfg, bias, startup_s, bias_record=record
+    ):
+        if msgs:
+            out.write(b"".join(format_json(m) for m in msgs))
     out.flush()
     return 0
 
@@ -112,11 +177,7 @@ def convert_main(args: argparse.Namespace) -> int:
     t_us, ok = DeviceClock().unwrap_many(frames["t_us"])
     frames, t_us = frames[ok], t_us[ok]
     if frames.shape[0] == 0:
-        print(
-            f"hdrd convert: no valid frames in {args.capture} ({stats.bad_frames} bad)",
-            file=sys.stderr,
-        )
-        return 1
+        return _no_frames("convert", args.capture, cfg.device.protocol, stats)
     omega = cfg.sensor.to_dps_array(frames["rate"], frames["ref"])
     temp = frames["temp"].astype(np.float64)
     has_temp = frames["temp"] != -32768

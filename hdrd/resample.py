@@ -9,7 +9,8 @@ count so block edges are exact integers.
 
 Two forms give bit-identical block means: the streaming :class:`BlockAverager` (the live
 daemon, one sample at a time, sums in arrival order) and :func:`block_means` (whole
-captures; ``numpy.bincount`` also sums in order).
+captures; ``numpy.bincount`` also sums in order, one bin per non-empty block, so memory
+follows the number of samples, not the device time they span).
 """
 
 from __future__ import annotations
@@ -288,26 +289,27 @@ class BlockAverager:
         for i in range(j):
             tc = float(temps[i])
             self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]))
-        rel = idx[j:] - idx[j]
-        sums = np.bincount(rel, weights=values[j:])
-        sumsq = np.bincount(rel, weights=values[j:] * values[j:])
-        counts = np.bincount(rel)
+        # One bin per non-empty block, not per step index: memory follows the samples,
+        # never the device time they span (a clock that jumps 2**31 us per frame).
+        starts, labels = _runs(idx[j:])
+        sums = np.bincount(labels, weights=values[j:])
+        sumsq = np.bincount(labels, weights=values[j:] * values[j:])
+        counts = np.bincount(labels)
         has_t = ~np.isnan(temps[j:])
-        tsum = np.bincount(rel, weights=np.where(has_t, temps[j:], 0.0))
-        tn = np.bincount(rel, weights=has_t.astype(np.float64))
-        sn = np.bincount(rel, weights=sat[j:].astype(np.float64))
-        nonempty = np.flatnonzero(counts)
-        first_pos = j + np.searchsorted(rel, nonempty)
-        base = int(idx[j])
+        tsum = np.bincount(labels, weights=np.where(has_t, temps[j:], 0.0))
+        tn = np.bincount(labels, weights=has_t.astype(np.float64))
+        sn = np.bincount(labels, weights=sat[j:].astype(np.float64))
+        first_pos = j + starts
+        block_index = idx[j:][starts]
         # Close the block that was open before these samples (as the j-th sample's feed would).
         closer = j
-        for k, b in enumerate(nonempty.tolist()):
-            index = base + b
+        last = len(starts) - 1
+        for k, index in enumerate(block_index.tolist()):
             for item in self._advance(index):
                 out.append((closer, item))
-            self._sum, self._sumsq, self._n = float(sums[b]), float(sumsq[b]), int(counts[b])
-            self._temp_sum, self._temp_n, self._sat = float(tsum[b]), int(tn[b]), int(sn[b])
-            if k < len(nonempty) - 1:
+            self._sum, self._sumsq, self._n = float(sums[k]), float(sumsq[k]), int(counts[k])
+            self._temp_sum, self._temp_n, self._sat = float(tsum[k]), int(tn[k]), int(sn[k])
+            if k < last:
                 closer = int(first_pos[k + 1])
         return out
 
@@ -351,10 +353,23 @@ def block_means(
         return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
     T_us = round(T_s * 1_000_000)
     idx = (t_us - t_us[0]) // T_us
-    sums = np.bincount(idx, weights=values)
-    counts = np.bincount(idx)
-    keep = np.flatnonzero(counts)
-    return keep.astype(np.int64), sums[keep] / counts[keep], counts[keep].astype(np.int64)
+    starts, labels = _runs(idx)
+    sums = np.bincount(labels, weights=values)
+    counts = np.bincount(labels)
+    return idx[starts].astype(np.int64), sums / counts, counts.astype(np.int64)
+
+
+def _runs(idx: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """For non-decreasing block indices: (position where each run of equal indices starts,
+    each sample's run number 0, 1, ...). ``numpy.bincount`` over run numbers sums each block
+    in sample order, as over the indices themselves, with one bin per non-empty block."""
+    n = idx.shape[0]
+    change = np.empty(n, bool)
+    change[:1] = True
+    np.not_equal(idx[1:], idx[:-1], out=change[1:])
+    labels = np.cumsum(change, dtype=np.int64)
+    labels -= 1
+    return np.flatnonzero(change), labels
 
 
 def block_average_seconds(

@@ -16,8 +16,9 @@ that came before the last frame ``recv`` returned (all of them after a ``None`` 
 exactly what :class:`hdrd.frames.CaptureStats` ``.bad_before`` gives for a whole capture,
 so a live run and a replay of the same bytes publish the same counts.
 
-The serial byte reader with its reconnect loop, :class:`SerialReader`, is shared by
-:class:`SerialSource` and ``hdrd record``.
+The serial byte reader with its reconnect loop, :class:`SerialReader`, lives in
+:mod:`hdrd.serialport` (shared with ``hdrd record``); its clocks and link events are
+re-exported here.
 """
 
 from __future__ import annotations
@@ -26,8 +27,6 @@ import dataclasses
 import io
 import math
 import os
-import select
-import time
 from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
@@ -35,7 +34,6 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
-import serial
 
 from hdrd.drivelog import DriveLog
 from hdrd.frames import (
@@ -48,6 +46,15 @@ from hdrd.frames import (
 )
 from hdrd.resample import CLOCK_WRAP_US
 from hdrd.sensor import SensorModel
+from hdrd.serialport import (
+    Clock,
+    DeviceBack,
+    DeviceLost,
+    LinkStats,
+    ManualClock,
+    RealClock,
+    SerialReader,
+)
 
 __all__ = [
     "BUILTIN_DRIVES",
@@ -71,61 +78,7 @@ __all__ = [
 ]
 
 
-# --------------------------------------------------------------------------- clocks
-
-
-class Clock(Protocol):
-    """Where a source gets time from: real time, or a test's manual clock."""
-
-    def monotonic(self) -> float: ...
-
-    def sleep(self, seconds: float) -> None: ...
-
-
-class RealClock:
-    """``time.monotonic`` and ``time.sleep``."""
-
-    def monotonic(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
-
-
-class ManualClock:
-    """A clock that only moves when slept on (or advanced): for tests and offline pacing.
-    ``slept`` lists every sleep, s."""
-
-    def __init__(self, start: float = 0.0) -> None:
-        self.now = start
-        self.slept: list[float] = []
-
-    def monotonic(self) -> float:
-        return self.now
-
-    def sleep(self, seconds: float) -> None:
-        self.slept.append(seconds)
-        if seconds > 0:
-            self.now += seconds
-
-    def advance(self, seconds: float) -> None:
-        self.now += seconds
-
-
 # --------------------------------------------------------------------------- events
-
-
-@dataclass(frozen=True, slots=True)
-class DeviceLost:
-    """The device went away (unplugged, EOF, I/O error); the source is reopening it."""
-
-    reason: str
-
-
-@dataclass(frozen=True, slots=True)
-class DeviceBack:
-    """The device is open again after a :class:`DeviceLost`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -232,216 +185,6 @@ class _ParsedSource(_SourceBase):
         held = self.parser.flush()
         self._queue.extend(held, self.parser.bad_before)
         return bool(held)
-
-
-# --------------------------------------------------------------------------- serial
-
-
-@dataclass(slots=True)
-class LinkStats:
-    """The serial link's counters: bytes read, losses, successful reopenings, failed opens."""
-
-    bytes_read: int = 0
-    lost: int = 0
-    reconnects: int = 0
-    open_failures: int = 0
-
-
-def _reason(e: BaseException) -> str:
-    text = str(e).strip()
-    return f"{type(e).__name__}: {text}" if text else type(e).__name__
-
-
-_READ_MAX = 65536
-"""Most bytes taken from the port per read: 4096 hdr-bin frames, 0.2 s of a 3 Mbaud link."""
-
-
-def _fd_poll(port: Any) -> tuple[int, select.poll] | None:
-    """(descriptor, poller) for the direct read path of a plain local port (``serial.Serial``
-    on POSIX: a device path or a pty), None for URL handlers (``loop://``, ``socket://``,
-    ``spy://``...), which keep pyserial's own read."""
-    if type(port) is not serial.Serial or not isinstance(getattr(port, "fd", None), int):
-        return None
-    poller = select.poll()
-    poller.register(port.fd, select.POLLIN | select.POLLERR | select.POLLHUP | select.POLLNVAL)
-    return port.fd, poller
-
-
-class SerialReader:
-    """Raw bytes from a serial port that reopens itself (shared by SerialSource and record).
-
-    ``url`` is anything ``serial.serial_for_url`` opens: a device path, a
-    ``/dev/serial/by-id/...`` link, ``loop://``, ``socket://host:port``, ``spy://...``.
-    ``read(timeout)`` returns the bytes available (waiting up to ``timeout`` s for the first
-    one), ``None`` when nothing came, :class:`DeviceLost` once when the port fails (any
-    OSError / SerialException, or EOF on a pty whose other side closed), and
-    :class:`DeviceBack` once it has reopened the same URL. While lost it retries with
-    exponential backoff from ``reconnect_min_s`` to ``reconnect_max_s``, inside ``read``
-    calls, never waiting longer than the timeout given. It never raises on I/O trouble; an
-    unusable URL (unknown scheme) raises ValueError at construction.
-    """
-
-    def __init__(
-        self,
-        url: str,
-        baud: int = 115200,
-        reconnect_min_s: float = 0.5,
-        reconnect_max_s: float = 10.0,
-        clock: Clock | None = None,
-    ) -> None:
-        if not reconnect_min_s > 0 or not reconnect_max_s >= reconnect_min_s:
-            raise ValueError(
-                f"need 0 < reconnect_min_s <= reconnect_max_s, got {reconnect_min_s}, {reconnect_max_s}"
-            )
-        self.url = url
-        self.baud = baud
-        self.reconnect_min_s = reconnect_min_s
-        self.reconnect_max_s = reconnect_max_s
-        self.clock: Clock = clock or RealClock()
-        self.stats = LinkStats()
-        self.port: Any = None
-        self._timeout: object = object()  # the timeout the open port is set to (unset)
-        self._backoff = reconnect_min_s
-        self._next_try = 0.0
-        self._closed = False
-        self._report: DeviceLost | None = None
-        self._fd_poll: tuple[int, select.poll] | None = None
-        self.last_error: str | None = None
-        try:
-            # Validates the URL (unknown schemes raise here), without touching the device.
-            serial.serial_for_url(url, baudrate=baud, do_not_open=True)
-        except ValueError as e:
-            raise ValueError(f"unusable serial port URL {url!r}: {e}") from None
-        except (OSError, serial.SerialException):
-            pass  # e.g. a socket:// host that does not resolve yet: treated as a lost device
-        if not self._open():
-            self._report = DeviceLost(self.last_error or "cannot open")
-            self.stats.lost += 1
-
-    @property
-    def is_open(self) -> bool:
-        return self.port is not None
-
-    def _open(self) -> bool:
-        try:
-            port = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0, do_not_open=True)
-            port.open()
-        except Exception as e:  # noqa: BLE001 - any failure to open is "still lost"
-            self.last_error = _reason(e)
-            self.stats.open_failures += 1
-            now = self.clock.monotonic()
-            self._next_try = now + self._backoff
-            self._backoff = min(self._backoff * 2, self.reconnect_max_s)
-            return False
-        self.port = port
-        self._timeout = 0
-        self._fd_poll = _fd_poll(port)
-        self._backoff = self.reconnect_min_s
-        return True
-
-    def _lose(self, e: BaseException) -> DeviceLost:
-        self.last_error = _reason(e)
-        self._drop_port()
-        self.stats.lost += 1
-        self._backoff = self.reconnect_min_s
-        self._next_try = self.clock.monotonic() + self._backoff
-        return DeviceLost(self.last_error)
-
-    def _drop_port(self) -> None:
-        port, self.port = self.port, None
-        self._fd_poll = None
-        if port is not None:
-            try:
-                port.close()
-            except Exception:  # noqa: BLE001, S110 - closing a dead port may fail; it is gone anyway
-                pass
-
-    def read(self, timeout: float | None = None) -> bytes | DeviceLost | DeviceBack | None:
-        """Bytes, None (nothing within timeout s), or a link event. See the class doc."""
-        if self._closed:
-            return None
-        if self._report is not None:
-            ev, self._report = self._report, None
-            return ev
-        if self.port is not None:
-            return self._read_open(timeout)
-        deadline = None if timeout is None else self.clock.monotonic() + timeout
-        while True:
-            now = self.clock.monotonic()
-            if now >= self._next_try:
-                if self._open():
-                    self.stats.reconnects += 1
-                    return DeviceBack()
-                now = self.clock.monotonic()
-            wait = self._next_try - now
-            if deadline is not None:
-                left = deadline - now
-                if left <= 0:
-                    return None
-                wait = min(wait, left)
-            self.clock.sleep(max(wait, 0.0))
-            if self._closed:
-                return None
-
-    def _read_open(self, timeout: float | None) -> bytes | DeviceLost | None:
-        if self._fd_poll is not None:
-            return self._read_fd(*self._fd_poll, timeout)
-        port = self.port
-        try:
-            if timeout != self._timeout:
-                port.timeout = timeout
-                self._timeout = timeout
-            waiting = port.in_waiting
-            data = port.read(waiting or 1)
-            if data and not waiting:
-                more = port.in_waiting  # the first byte woke us: take the rest that is there
-                if more:
-                    data += port.read(more)
-        except Exception as e:  # noqa: BLE001 - any I/O trouble means the device is lost
-            return self._lose(e)
-        if not data:
-            return None
-        self.stats.bytes_read += len(data)
-        return data
-
-    def _read_fd(
-        self, fd: int, poller: select.poll, timeout: float | None
-    ) -> bytes | DeviceLost | None:
-        """:meth:`_read_open` for a local serial device: one poll, one read of all there is.
-
-        Why not ``port.read``: pyserial re-applies the termios settings whenever its timeout
-        changes (every call here, as ``recv``'s deadline shrinks), and makes two select calls
-        and two reads per wake-up (one byte, then ``in_waiting`` more); at 1 kHz that was most
-        of the daemon's CPU. The descriptor is non-blocking (pyserial opens it O_NONBLOCK), so
-        a read takes what the driver holds. Losses are what pyserial reports: an error from
-        poll or read (EIO once a pty's other side has closed), or a readable descriptor that
-        gives no bytes (an unplugged USB adapter). tests/test_source.py (ptys, cable pulls).
-        """
-        try:
-            if not poller.poll(None if timeout is None else timeout * 1000.0):
-                return None
-            data = os.read(fd, _READ_MAX)
-        except (BlockingIOError, InterruptedError):
-            return None  # woken for nothing (another reader took the bytes, or a signal)
-        except Exception as e:  # noqa: BLE001 - any I/O trouble means the device is lost
-            return self._lose(e)
-        if not data:
-            return self._lose(
-                serial.SerialException("device reports readiness to read but returned no data")
-            )
-        self.stats.bytes_read += len(data)
-        return data
-
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        self._closed = True
-        self._drop_port()
-
-    def __enter__(self) -> SerialReader:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class SerialSource(_ParsedSource):
@@ -642,9 +385,15 @@ def builtin_profile(
             raise ProfileError(
                 f"{name} must be a finite number {'> 0' if name == 'hz' else '>= 0'}, got {v!r}"
             )
-    n = int(round((lead_in_s + minutes * 60.0) * hz))
-    if n < 1:
-        raise ProfileError(f"a drive of {minutes} min at {hz} Hz has no samples")
+    for name, v in (
+        ("rate_dps", rate_dps),
+        ("bias_dps", bias_dps),
+        ("noise_dps", noise_dps),
+        ("temp_c", temp_c),
+    ):
+        if not math.isfinite(v):
+            raise ProfileError(f"{name} must be a finite number, got {v!r}")
+    n = _profile_samples(minutes, hz, lead_in_s)
     t = np.arange(n, dtype=np.float64) / hz
     truth = np.where(t >= lead_in_s, rate_dps if drive == "constant" else 0.0, 0.0)
     rng = np.random.default_rng(seed)
@@ -666,6 +415,26 @@ def builtin_profile(
     )
 
 
+MAX_PROFILE_SAMPLES = 50_000_000
+"""Most samples a generated drive may have (each a few float64 columns: ~1 GB at most)."""
+
+
+def _profile_samples(minutes: float, hz: float, lead_in_s: float = 0.0) -> int:
+    """Samples of a drive of ``minutes`` after ``lead_in_s`` at ``hz``; ProfileError if it
+    has none or more than MAX_PROFILE_SAMPLES (1e308 minutes used to overflow, 1e6 minutes
+    to fill the memory)."""
+    total = (lead_in_s + minutes * 60.0) * hz
+    if not total <= MAX_PROFILE_SAMPLES:
+        raise ProfileError(
+            f"a drive of {minutes:g} min at {hz:g} Hz is {total:.3g} samples; "
+            f"at most {MAX_PROFILE_SAMPLES:,} are made"
+        )
+    n = int(round(total))
+    if n < 1:
+        raise ProfileError(f"a drive of {minutes} min at {hz} Hz has no samples")
+    return n
+
+
 def load_profile(
     drive: str,
     minutes: float = 20.0,
@@ -679,6 +448,10 @@ def load_profile(
     with the gyro of ``grade`` (hdrd.sim.grades; None: the default CRS03-04 model)."""
     if drive in BUILTIN_DRIVES:
         return builtin_profile(drive, minutes, seed, hz, rate_dps)
+    for name, v in (("minutes", minutes), ("hz", hz)):
+        if not (math.isfinite(v) and v > 0):
+            raise ProfileError(f"{name} must be a finite number > 0, got {v!r}")
+    _profile_samples(minutes, hz)
     try:
         from hdrd.sim import simulate_drive
     except ImportError as e:

@@ -104,7 +104,7 @@ def test_rejects_too_few_or_non_finite_samples(w: list[float]) -> None:
 
 @settings(max_examples=50, deadline=None)
 @given(
-    bias=st.floats(-5, 5),
+    bias=st.floats(-2.9, 2.9),  # within the default max_bias_dps
     sigma=st.floats(0.0, 0.2),
     seed=st.integers(0, 1000),
     turn=st.floats(5.0, 100.0),
@@ -131,6 +131,23 @@ REC = BiasRecord(
     temp_c=21.5,
     time=1_700_000_000.25,
 )
+
+
+def test_a_steady_rotation_is_not_a_bias() -> None:
+    # A turntable (or a ferry) turning at a constant 10 deg/s looks perfectly still to the
+    # spread, trend and excursion tests; no CRS03-04 has a bias that large (+/-3 deg/s).
+    w, t = standstill(bias=10.0)
+    with pytest.raises(
+        MotionDetected,
+        match=r"mean rate \+(9\.9|10\.0)\d+ deg/s is beyond the \+/-3 deg/s .*"
+        r"calibration\.max_bias_dps",
+    ):
+        estimate_bias(w, t)
+    with pytest.raises(MotionDetected, match="beyond"):
+        estimate_bias(-w, t)
+    # The limit is configurable, and a bias inside it passes.
+    assert estimate_bias(w, t, limits=StandstillLimits(max_bias_dps=12.0)).bias_dps > 9.9
+    assert estimate_bias(*standstill(bias=2.9)).bias_dps == pytest.approx(2.9, abs=0.02)
 
 
 def test_save_load_round_trip(tmp_path: Path) -> None:
@@ -290,6 +307,14 @@ def _body(**changes: object) -> str:
         ("- 0.5\n- 0.1\n# end\n", r"expected a mapping"),
         ("bias_dps: [0.5\n# end\n", r"not valid YAML"),
         ("# end\n", r"expected a mapping"),
+        # Values no measurement gives, which would overflow later (std**2 / n, float(n)).
+        (_body(bias_dps="1" * 400), r"bias_dps = 1111.* is not a finite number"),
+        (_body(std_dps="1.0e+308"), r"std_dps = 1e\+308 is beyond what a measurement gives"),
+        (_body(n=str(10**13)), r"n = 10000000000000 .* is beyond what a measurement gives"),
+        # What the YAML parser itself cannot take: one line, never a traceback.
+        (_body(bias_dps="1" * 5000), r"not valid YAML at line 1, column 11: .*cannot be converted"),
+        ("a: " + "[" * 2000 + "]" * 2000 + "\n# end\n", r"nested deeper than 32 levels"),
+        (_body(time="2024-13-45"), r"not valid YAML at line 6.*month must be in 1\.\.12"),
     ],
 )
 def test_corrupted_bias_file(tmp_path: Path, text: str, match: str) -> None:
@@ -308,6 +333,36 @@ def test_binary_garbage_and_directory(tmp_path: Path) -> None:
         load_bias(p)
     with pytest.raises(BiasFileError, match="cannot be read"):
         load_bias(tmp_path)
+
+
+def test_a_bias_beyond_the_limit_is_refused(tmp_path: Path) -> None:
+    p = tmp_path / "bias.yaml"
+    p.write_text(_body(bias_dps="1.0e+308"))
+    assert load_bias(p).bias_dps == 1e308  # finite: the file format alone allows it
+    for value, limit in (("1.0e+308", 3.0), ("3.5", 3.0), ("-3.5", 3.0)):
+        p.write_text(_body(bias_dps=value))
+        with pytest.raises(
+            BiasFileError,
+            match=rf"bias_dps = .* is beyond the \+/-{limit:g} deg/s "
+            r"allowed \(calibration\.max_bias_dps\)",
+        ):
+            load_bias(p, max_abs_bias_dps=limit)
+    p.write_text(_body(bias_dps="-2.5"))
+    assert load_bias(p, max_abs_bias_dps=3.0).bias_dps == -2.5
+
+
+def test_not_a_regular_file_is_refused_at_once(tmp_path: Path) -> None:
+    # A FIFO would block the reader until a writer came; /dev/zero never ends.
+    fifo = tmp_path / "bias.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(BiasFileError, match=r"cannot be read: is a FIFO, not a regular file"):
+        load_bias(fifo)
+    with pytest.raises(BiasFileError, match=r"is a character device, not a regular file"):
+        load_bias("/dev/zero")
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (64 << 10) + "\n" + _body())
+    with pytest.raises(BiasFileError, match=r"is 64\.\d KiB, larger than the 64 KiB allowed"):
+        load_bias(big)
 
 
 def test_a_well_formed_body_loads(tmp_path: Path) -> None:
@@ -420,3 +475,42 @@ def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> Non
     with pytest.raises(MotionDetected):
         win.close_block()
     assert win.n == 0 and win.closed == 0 and win.attempts == 2
+
+
+# -- the window's device time (SampleClock) -------------------------------------------------------
+
+
+def test_sample_clock_sets_a_glitch_aside() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    t = [k * 100_000 for k in range(50)]
+    t[20] += 1_800_000_000  # one frame 30 min ahead
+    kept = [c.accept(x) for x in t]
+    assert kept.count(False) == 1 and not kept[20] and c.glitches == 1
+    assert c.elapsed_us == 4_900_000  # the 49 steps of the good frames only
+
+
+def test_sample_clock_repeats_steps_back_and_the_wrap() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    base = 2**32 - 250_000  # wraps after two frames
+    seq = [base, base + 100_000, base + 100_000, base + 50_000, (base + 200_000) % 2**32,
+           (base + 300_000) % 2**32]  # fmt: skip
+    assert [c.accept(x) for x in seq] == [True, True, False, False, True, True]
+    assert c.elapsed_us == 300_000 and c.glitches == 2
+
+
+def test_sample_clock_follows_a_real_jump() -> None:
+    # The device clock jumps for good (a reset, or frames lost for a while): after a few
+    # frames that step normally among themselves, the clock follows them; the jump itself
+    # is not counted as time at standstill.
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock(confirm=3)
+    before = [k * 100_000 for k in range(10)]
+    after = [50_000_000 + k * 100_000 for k in range(10)]
+    kept = [c.accept(x) for x in before + after]
+    assert kept[:10] == [True] * 10 and kept[10:13] == [False] * 3 and all(kept[13:])
+    assert c.elapsed_us == 900_000 + 7 * 100_000  # from the third frame after the jump

@@ -12,6 +12,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import given, settings
@@ -53,35 +54,37 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "device.port": ("/dev/ttyUSB0", [123, "", "   ", None, ["/dev/ttyUSB0"], True]),
     "device.protocol": ("hdr-text", ["hdr-xml", "", 1, None]),
     "device.baud": (9600, [49, 20_000_001, 0, -9600, 9600.5, 9600.0, "9600", True, NAN]),
-    "device.reconnect_min_s": (1, [0, -1.0, NAN, INF, "1", True, None]),
-    "device.reconnect_max_s": (30.0, [0, -1, NAN, INF, "30", [30]]),
-    "device.stale_after_s": (5.0, [0.0, -0.1, NAN, -INF, "5s"]),
+    "device.reconnect_min_s": (1, [0, -1.0, NAN, INF, "1", True, None, 3601]),
+    "device.reconnect_max_s": (30.0, [0, -1, NAN, INF, "30", [30], 1e308]),
+    "device.stale_after_s": (5.0, [0.0, -0.1, NAN, -INF, "5s", 1e308]),
     "sensor.adc_bits": (12, [7, 33, 0, 16.0, "16", True, NAN]),
-    "sensor.vref_v": (3.3, [0, -5.0, NAN, INF, 10**400, "5V"]),
-    "sensor.null_v": (1.65, [-0.1, NAN, INF, "2.5"]),
-    "sensor.scale_v_per_dps": (0.0066, [0, -0.01, NAN, INF, None]),
+    "sensor.vref_v": (3.3, [0, -5.0, NAN, INF, 10**400, "5V", 1e308, 1e-320]),
+    "sensor.null_v": (1.65, [-0.1, NAN, INF, "2.5", 1e308]),
+    "sensor.scale_v_per_dps": (0.0066, [0, -0.01, NAN, INF, None, 1e-300, 1e308]),
     "sensor.polarity": (-1, [0, 2, -2, 1.0, "up", True, NAN]),
-    "sensor.range_dps": (100.0, [0, -200.0, INF, NAN, "200"]),
-    "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF]),
-    "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF]),
+    "sensor.range_dps": (100.0, [0, -200.0, INF, NAN, "200", 1e308]),
+    "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF, 1e-300, 1e308]),
+    "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF, 1e-320, 1e308]),
     "hdr.method": ("none", ["kalman", "HDR", 1, None]),
-    "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", True]),
-    "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75]]),
-    "hdr.theta_w": (1.0, [0.0, -0.564, NAN, INF, "0.564"]),
-    "hdr.c1": (0.2, [-0.16, NAN, INF]),
-    "hdr.c2": (2.0, [-1.8, NAN, -INF]),
+    "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", True, 1e308]),
+    "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75], 1e308]),
+    "hdr.theta_w": (1.0, [0.0, -0.564, NAN, INF, "0.564", 1e308]),
+    "hdr.c1": (0.2, [-0.16, NAN, INF, 1e308]),
+    "hdr.c2": (2.0, [-1.8, NAN, -INF, 1000, 10.5]),
     "hdr.T": (0.5, [0.0, 0.005, 61.0, -1.0, NAN, INF, "1s"]),
     "hdr.lowpass": (False, ["yes", 1, 0.0, None]),
     "hdr.turn_switch": (False, ["true", 0]),
     "hdr.attenuator": (False, ["false", 1.0]),
     "hdr.enabled": (False, ["off", 0]),
     "calibration.bias_file": ("/var/lib/hdrd/bias.yaml", [5, ["bias.yaml"], True, {"a": 1}]),
-    "calibration.t_bias_s": (20, [0, -30.0, NAN, INF, "30"]),
-    "calibration.startup_s": (2.0, [0.0, -1.0, INF, NAN]),
+    "calibration.t_bias_s": (20, [0, -30.0, NAN, INF, "30", 1e308]),
+    "calibration.startup_s": (2.0, [0.0, -1.0, INF, NAN, 1e308, 601]),
     "calibration.on_bad_bias_file": ("calibrate", ["ignore", "", 1, True]),
     "calibration.max_std_dps": (1.0, [0.0, -0.5, NAN, INF]),
     "calibration.max_trend_dps": (0.5, [0.0, -1.0, NAN, INF]),
     "calibration.max_excursion_dps": (5.0, [0.0, -3.0, NAN, INF]),
+    "calibration.max_bias_dps": (5.0, [0, -1.0, NAN, INF, 1001, "3"]),
+    "calibration.no_data_timeout_s": (30.0, [0, -1.0, NAN, INF, 3601, "10"]),
     "output.heading0_deg": (359.5, [-1.0, -0.001, 360, 360.0, 720.0, NAN, INF, "90"]),
     "output.stdout": (True, ["no", 1, None]),
     "output.udp": (
@@ -93,11 +96,11 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "output.nmea_talker": ("HC", ["hc", "H", "HCX", "H1", "ÄB", "", 5, None]),
     "log.level": ("debug", ["verbose", "INFO", 3, None]),
     "log.format": ("json", ["xml", True]),
-    "log.bad_frame_interval_s": (60.0, [0.0, -10.0, NAN, INF]),
+    "log.bad_frame_interval_s": (60.0, [0.0, -10.0, NAN, INF, 1e308]),
     "simulate.drive": ("highway", ["moon", "", 1]),
-    "simulate.seed": (42, [-1, 1.5, "1", True, NAN]),
+    "simulate.seed": (42, [-1, 1.5, "1", True, NAN, 2**32]),
     "simulate.rate_hz": (100.0, [0.5, 10_001.0, 0, NAN, INF]),
-    "simulate.speedup": (60.0, [0.0, -1.0, INF, NAN]),
+    "simulate.speedup": (60.0, [0.0, -1.0, INF, NAN, 1e-300, 1e308]),
     "gpsd.enabled": (True, ["true", 1]),
     "gpsd.host": ("gps.local", ["", " ", 127, None]),
     "gpsd.port": (2948, [0, 65536, -1, 2947.0, "2947", NAN]),
@@ -314,7 +317,8 @@ def test_error_carries_key_value_and_allowed() -> None:
     assert (e.key, e.value, e.source) == ("hdr.tau", -1.0, "/etc/hdrd/hdrd.yaml")
     assert (
         str(e)
-        == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0"
+        == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0 and "
+        "<= 3600"
     )
     assert isinstance(e, ValueError) and EX_CONFIG == 78
 
@@ -536,3 +540,142 @@ def test_top_level_method_errors_name_the_key(data: dict[str, Any], why: str) ->
     with pytest.raises(ConfigError) as e:
         parse_config(data)
     assert str(e.value).startswith("config error: method = ") and why in str(e.value)
+
+
+# -- every numeric key at both ends of its range keeps every computation finite -----------------
+
+
+def _edges(key: str) -> list[Any]:
+    """The extreme values a numeric key accepts (an open end nudged one ulp inside)."""
+    lo, hi, lo_open, hi_open = config_mod.RULES[key][0].bounds  # type: ignore[attr-defined]
+    integer = isinstance(get(Config(), key), int) and not isinstance(get(Config(), key), bool)
+    out: list[Any] = []
+    for end, is_open, inward in ((lo, lo_open, math.inf), (hi, hi_open, -math.inf)):
+        if end is None:
+            continue
+        if integer:
+            out.append(int(end) + (0 if not is_open else (1 if inward > 0 else -1)))
+        else:
+            out.append(math.nextafter(float(end), inward) if is_open else float(end))
+    return out
+
+
+NUMERIC = [
+    k
+    for k, (check, _) in config_mod.RULES.items()
+    if hasattr(check, "bounds") and not k.startswith("gpsd.")  # gpsd: tests/test_aiding.py
+]
+EDGES = [(k, v) for k in NUMERIC for v in _edges(k)]
+
+
+def _hard_capture() -> bytes:
+    """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
+    65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
+    counter grows), a clock jump of 20 s and a device clock wrap."""
+    from hdrd.frames import FRAME_DTYPE, encode_array
+
+    n = 1200
+    arr = np.zeros(n, FRAME_DTYPE)
+    arr["seq"] = np.arange(n) & 0xFFFF
+    t = (np.arange(n, dtype=np.int64) * 100_000) + (2**32 - 30_000_000)  # wraps after 30 s
+    t[600:] += 20_000_000  # 20 s without samples
+    arr["t_us"] = t % 2**32
+    rate = np.full(n, 32768)
+    rate[200:400] = 65535  # saturated one way, then the other
+    rate[400:450] = 0
+    rate[450:900] = 32900  # a long gentle turn: one sign for 45 s
+    arr["rate"] = rate
+    ref = np.zeros(n, np.int64)
+    ref[900:1000] = 1  # supply monitor wired, at its lowest and highest reading
+    ref[1000:1100] = 65535
+    arr["ref"] = ref
+    arr["temp"] = np.where(np.arange(n) % 7 == 0, -32768, 2150)
+    return encode_array(arr)
+
+
+@pytest.mark.parametrize("key, value", EDGES, ids=[f"{k}={v!r}" for k, v in EDGES])
+def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) -> None:
+    from hdrd.replay import replay_capture
+
+    data = nested(key, value)
+    if key.startswith("device.reconnect_"):  # the cross-check wants min <= max
+        data = {"device": {"reconnect_min_s": value, "reconnect_max_s": value}}
+    cfg = parse_config(data)
+    capture = _hard_capture()
+    for method in ("none", "hdr", "hdr+"):
+        c = apply_overrides(cfg, {"hdr.method": method})
+        for bias, startup in ((0.3, None), (None, None), (None, cfg.calibration.startup_s)):
+            for msg in replay_capture(capture, c, bias, startup):
+                for name, v in msg.items():
+                    if isinstance(v, float):
+                        assert math.isfinite(v), (key, value, method, name, msg)
+
+
+def test_the_attenuator_stays_finite_for_any_run_length() -> None:
+    # hdr.c2 <= 10 and hdr.c1 <= 1000: R(r) = (1 + c1) / (1 + c1 r^c2) is finite and > 0 for
+    # any repetition count a run can reach (r < 2**63; 2**63**10 ~ 1e190).
+    from hdrd.hdr import attenuation
+
+    assert 0.0 < attenuation(2**63, c1=1000.0, c2=10.0) < 1.0
+    assert attenuation(2**63, c1=0.0, c2=10.0) == 1.0
+
+
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("hdr:\n  c2: " + "1" * 5000 + "\n", "line 2, column 7': YAML value cannot be converted"),
+        ("a: " + "[" * 2000 + "]" * 2000 + "\n", "collections nested deeper than 32 levels"),
+        ("x: " + "{a: " * 40 + "1" + "}" * 40 + "\n", "nested deeper than 32 levels"),
+        ("calibration:\n  bias_file: 2024-13-45\n", "YAML value cannot be converted (month"),
+    ],
+)
+def test_what_the_yaml_parser_cannot_take_is_a_config_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, why: str
+) -> None:
+    from hdrd.cli import main
+
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    assert why in check_error(ei.value, "(yaml)", str(p))
+    assert main(["replay", str(tmp_path / "none.cap"), "--config", str(p)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and why in err
+
+
+def test_a_config_that_is_not_a_regular_file_or_too_big(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)  # would block the reader for ever
+    for path, why in (
+        (fifo, "is a FIFO, not a regular file"),
+        (Path("/dev/zero"), "is a character device, not a regular file"),
+        (tmp_path, "is a directory, not a regular file"),
+    ):
+        with pytest.raises(ConfigError) as ei:
+            load_config(path)
+        assert why in check_error(ei.value, "(file)", str(path))
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (1 << 20) + "\nhdr:\n  method: none\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(big)
+    assert "larger than the 1 MiB allowed" in check_error(ei.value, "(file)", str(big))
+
+
+def test_docs_state_the_ranges_the_code_checks() -> None:
+    # docs/configuration.md's table gives each bounded key's range as the code words it.
+    doc = (SHIPPED.parent.parent / "docs" / "configuration.md").read_text()
+    rows = dict(re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", doc, flags=re.MULTILINE))
+    bounded = [k for k, (check, _) in config_mod.RULES.items() if hasattr(check, "bounds")]
+    for key in bounded:
+        shared_row = key.startswith("gpsd.") or key in (
+            "calibration.max_std_dps",
+            "calibration.max_trend_dps",
+            "calibration.max_excursion_dps",
+        )
+        if shared_row:
+            continue
+        allowed = config_mod.RULES[key][1].removeprefix("a finite number ")
+        assert rows.get(key, "").strip() == allowed, key

@@ -396,10 +396,13 @@ def test_cli_plot_without_matplotlib(
     a = _write(tmp_path, make_drive(drift_dps=0.1), "a")
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
-    assert cli_main(["evaluate", a, "--plot", str(tmp_path / "x.png")]) == 1
-    err = capsys.readouterr().err
-    assert "matplotlib" in err and "pip install" in err
+    js = tmp_path / "table.json"
+    assert cli_main(["evaluate", a, "--plot", str(tmp_path / "x.png"), "--json", str(js)]) == 1
+    out, err = capsys.readouterr()
+    assert "matplotlib" in err and "pip install 'hdrd[plot]'" in err
     assert not (tmp_path / "x.png").exists()
+    # Said before the work: no table evaluated and printed, no JSON written.
+    assert out == "" and not js.exists()
 
 
 def test_nonfinite_improvement_is_null_in_json() -> None:

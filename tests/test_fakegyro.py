@@ -60,6 +60,42 @@ def test_pty_and_link(fake_gyro, tmp_path: Path) -> None:
     g.close()  # idempotent
 
 
+def test_link_never_replaces_or_deletes_what_is_not_a_symlink(tmp_path: Path) -> None:
+    # Was: `hdrd fakegyro --link notes.txt` replaced the regular file, then deleted it.
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep me\n")
+    (tmp_path / "dir").mkdir()
+    for path in (notes, tmp_path / "dir"):
+        with pytest.raises(FileExistsError, match="not a symlink"):
+            FakeGyro(profile(), link=path).open()
+    assert notes.read_text() == "keep me\n" and (tmp_path / "dir").is_dir()
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "fakegyro", "--link", str(notes), "--speedup", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 1 and p.stdout == ""
+    assert p.stderr.strip() == (
+        f"hdrd fakegyro: cannot open a pty or the link {notes}: "
+        "exists and is not a symlink; refusing to replace it"
+    )
+    assert notes.read_text() == "keep me\n"
+
+
+def test_link_is_removed_only_while_it_is_ours(tmp_path: Path) -> None:
+    # An old link (from an earlier fake) is re-pointed; if someone else re-points it while we
+    # run, closing leaves theirs alone.
+    link = tmp_path / "gyro"
+    os.symlink("/dev/null", link)
+    g = FakeGyro(profile(), link=link).open()
+    assert os.readlink(link) == g.path
+    os.unlink(link)
+    os.symlink("/dev/null", link)  # another program's now
+    g.close()
+    assert os.readlink(link) == "/dev/null"
+
+
 @pytest.mark.parametrize("protocol", ["hdr-bin", "hdr-text"])
 def test_injected_faults_match_the_parser_counts(fake_gyro, protocol: str) -> None:
     g = fake_gyro(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -342,6 +343,24 @@ def test_cli_report_fitted_model_and_plot(
     assert isinstance(tb, TemperatureBias) and tb.coeff_dps_per_c == pytest.approx(0.03, rel=0.15)
     if plot:
         assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_plot_without_matplotlib_fails_before_the_work(
+    drive: DriveLog,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    csv = tmp_path / "measured.csv"
+    write_drive(csv, measured(drive, []))
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
+    report = tmp_path / "r.json"
+    rc = cli_main(["gap", str(csv), "--report", str(report), "--plot", str(tmp_path / "g.png")])
+    out, err = capsys.readouterr()
+    assert rc == 1 and "matplotlib" in err and "pip install 'hdrd[plot]'" in err
+    assert len(err.splitlines()) == 1
+    assert out == "" and not report.exists()  # no fit run, no summary, no report
 
 
 def test_cli_starting_model_file(drive: DriveLog, tmp_path: Path) -> None:

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import io
-import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -118,19 +116,42 @@ def test_record_bad_arguments(tmp_path: Path) -> None:
         assert p.returncode == code and text in err and "Traceback" not in err
 
 
-def test_record_waits_for_a_missing_device_and_exits_0_on_sigint(tmp_path: Path) -> None:
+def test_record_on_a_missing_port_fails_at_once_without_a_file(tmp_path: Path) -> None:
+    # Was: exit 0 with an empty capture, the user none the wiser.
     out = tmp_path / "cap.bin"
-    p = start_record("--port", str(tmp_path / "absent"), "--out", str(out))
-    try:
-        deadline = time.monotonic() + WAIT_S
-        while not out.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.3)
-        p.send_signal(signal.SIGINT)
+    p = start_record("--port", str(tmp_path / "absent"), "--out", str(out), "--seconds", "5")
+    _, err = p.communicate(timeout=WAIT_S)
+    assert p.returncode == 1, err
+    assert err.startswith(f"hdrd record: cannot open {tmp_path / 'absent'}: ")
+    assert err.rstrip().endswith("nothing recorded") and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_record_on_a_port_in_use_fails_at_once(fake_gyro, tmp_path: Path) -> None:
+    g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)
+    with SerialReader(g.path) as holder:  # another program has it (hdrd run)
+        assert holder.is_open
+        out = tmp_path / "cap.bin"
+        p = start_record("--port", g.path, "--out", str(out), "--seconds", "5")
         _, err = p.communicate(timeout=WAIT_S)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
-    assert p.returncode == 0 and "device lost" in err and out.read_bytes() == b""
-    assert os.path.getsize(out) == 0
+    assert p.returncode == 1 and f"{g.path} is in use by another program" in err
+    assert not out.exists()
+
+
+def test_record_on_a_full_disk_says_so_in_one_line(fake_gyro) -> None:
+    # /dev/full: every write fails with ENOSPC. Was: three chained tracebacks.
+    g = fake_gyro(builtin_profile("standstill", minutes=2, hz=100), speedup=0)
+    p = start_record("--port", g.path, "--out", "/dev/full", "--seconds", "20")
+    g.start()
+    _, err = p.communicate(timeout=WAIT_S)
+    assert p.returncode == 1, err
+    assert "Traceback" not in err and len(err.splitlines()) == 1
+    assert err.startswith("hdrd record: cannot write /dev/full: No space left on device;")
+
+
+def test_record_of_a_silent_port_is_not_a_success(fake_gyro, tmp_path: Path) -> None:
+    g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)  # never started
+    out = tmp_path / "cap.bin"
+    p = start_record("--port", g.path, "--out", str(out), "--seconds", "0.5")
+    _, err = p.communicate(timeout=WAIT_S)
+    assert p.returncode == 1 and "nothing came from" in err and "Traceback" not in err

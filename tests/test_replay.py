@@ -196,3 +196,73 @@ def test_replay_capture_is_pure_and_repeatable(tmp_path):
     a = replay_capture(data, Config(), 0.3)
     b = replay_capture(data, Config(), 0.3)
     assert a == b and a[-1]["bad_frames"] > 0
+
+
+def test_replay_in_chunks_is_replay_whole(tmp_path):
+    # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
+    # steps before the next (memory follows the chunk, not the capture): the same messages.
+    from hdrd.frames import decode_capture
+    from hdrd.replay import replay_steps
+
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=60), crc_errors=0.05, garbage=0.05, seed=3).write_capture(cap)
+    frames, st = decode_capture(cap.read_bytes())
+    for bias, startup in ((0.3, None), (None, 2.5)):
+        whole = replay_capture(cap.read_bytes(), Config(), bias, startup)
+        for chunk in (1, 7, 100, 10**6):
+            got = [
+                m
+                for msgs in replay_steps(
+                    frames, st.bad_before, st.bad_frames, Config(), bias, startup, chunk=chunk
+                )
+                for m in msgs
+            ]
+            assert got == whole, chunk
+
+
+def test_replay_of_what_is_not_a_capture_says_so(tmp_path, capsys):
+    # Was: exit 0 and no output at all.
+    notes = tmp_path / "notes.txt"
+    notes.write_text("shopping list\n" * 100)
+    rc, msgs, err = replay_cli(capsys, str(notes), "--bias", "0.3")
+    assert rc == 1 and msgs == [] and len(err.splitlines()) == 1
+    assert err.startswith(f"hdrd replay: no valid frames in {notes} (")
+    assert "--protocol hdr-text" in err
+    # A capture read with the wrong --protocol: the error names the other one.
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=5)).write_capture(cap)
+    rc, msgs, err = replay_cli(capsys, str(cap), "--bias", "0.3", "--protocol", "hdr-text")
+    assert rc == 1 and msgs == [] and "(--protocol hdr-bin)" in err
+    rc, msgs, err = replay_cli(capsys, str(cap), "--bias", "0.3")
+    assert rc == 0 and len(msgs) == 5
+    # 20 MB of the sync pattern and nothing else: ten million candidates, no frame.
+    a55a = tmp_path / "a55a.bin"
+    a55a.write_bytes(b"\xa5\x5a" * 10_000_000)
+    rc, msgs, err = replay_cli(capsys, str(a55a), "--bias", "0.3")
+    assert rc == 1 and msgs == [] and "no valid frames" in err and "9999993 bad frames" in err
+    assert cli(["convert", str(notes), "--out", str(tmp_path / "d.csv")]) == 1
+    assert "no valid frames" in capsys.readouterr().err
+
+
+def test_replay_refuses_what_is_not_a_regular_file(tmp_path, capsys):
+    fifo = tmp_path / "cap.fifo"
+    os.mkfifo(fifo)  # would wait for a writer for ever
+    for path, why in ((fifo, "is a FIFO"), ("/dev/zero", "is a character device")):
+        rc, msgs, err = replay_cli(capsys, str(path), "--bias", "0.3")
+        assert rc == 1 and msgs == [] and f"cannot read {path}: {why}" in err
+        assert cli(["convert", str(path), "--out", str(tmp_path / "d.csv")]) == 1
+        assert why in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bias", ["nan", "inf", "-inf", "1e308", "3.5"])
+def test_replay_bias_must_be_finite_and_within_the_limit(tmp_path, capsys, bias):
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=5)).write_capture(cap)
+    rc, msgs, err = replay_cli(capsys, str(cap), f"--bias={bias}")
+    assert rc == 78 and msgs == []
+    assert err.startswith(f"hdrd: config error in command line: --bias = {float(bias)!r}: must be")
+    assert "calibration.max_bias_dps" in err
+    bf = tmp_path / "bias.yaml"
+    bf.write_text("bias_dps: 1.0e+308\nstd_dps: 0.01\nn: 10\nduration_s: 1.0\ntime: 0.0\n# end\n")
+    rc, msgs, err = replay_cli(capsys, str(cap), "--bias-file", str(bf))
+    assert rc == 1 and msgs == [] and "calibration.max_bias_dps" in err

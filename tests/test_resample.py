@@ -337,3 +337,24 @@ def test_unwrap_many_continues_the_clock_like_unwrap(t0, steps, cut):
     second, _ = b.unwrap_many(raw[cut:])
     assert [*first.tolist(), *second.tolist()] == stream
     assert (b.wraps, b._last, b._last_raw) == (a.wraps, a._last, a._last_raw)
+
+
+def test_memory_follows_the_samples_not_the_device_time_they_span() -> None:
+    # Samples 3,000 years of device time apart (a clock that jumps, a hostile capture): the
+    # vectorised forms take one bin per non-empty block, not one per step in between (which
+    # would be 10**11 bins here), and agree with the streaming form bit for bit.
+    t = np.array([0, 5, 10**17, 10**17 + 1, 10**17 + 2_000_000], np.int64)
+    v = np.array([1.0, 0.25, 2.0, 4.0, -1.5])
+    idx, mean, n = block_means(t, v)
+    assert idx.tolist() == [0, 10**11, 10**11 + 2] and n.tolist() == [2, 2, 1]
+    assert mean.tolist() == [0.625, 3.0, -1.5]
+    stream = BlockAverager(1.0)
+    want = [b for i in range(len(t)) for b in stream.feed(int(t[i]), float(v[i]))]
+    want += stream.flush()
+    many = BlockAverager(1.0)
+    got = [b for _, b in many.feed_many(t, v)] + many.flush()
+    assert got == want
+    assert [b for b in got if isinstance(b, Missing)] == [
+        Missing(1, 10**11 - 1, 1.0, 1e11),
+        Missing(10**11 + 1, 1, 1e11 + 1, 1e11 + 2),
+    ]

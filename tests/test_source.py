@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -478,3 +480,43 @@ def test_end_input_hands_out_a_held_frame(tmp_path: Path) -> None:
             assert src.stats.frames == 1 and src.parser.pending == 0
     finally:
         os.close(master)
+
+
+def test_the_port_is_opened_exclusively(fake_gyro) -> None:
+    # A second opener of the same device (hdrd calibrate on the running daemon's port) gets
+    # a clear "in use" instead of half the frames; once the first closes, the port is free.
+    g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)
+    first = SerialReader(g.path)
+    assert first.is_open and not first.busy
+    second = SerialReader(g.path, reconnect_min_s=0.01, reconnect_max_s=0.02)
+    assert not second.is_open and second.busy
+    assert second.last_error == (
+        f"{g.path} is in use by another program (another hdrd run, calibrate or record?)"
+    )
+    lost = second.read(0)
+    assert isinstance(lost, DeviceLost) and "in use by another program" in lost.reason
+    first.close()
+    deadline = time.monotonic() + 10
+    while not isinstance(second.read(0.05), DeviceBack):
+        assert time.monotonic() < deadline
+    assert second.is_open and not second.busy
+    second.close()
+
+
+@pytest.mark.parametrize(
+    "kw, why",
+    [
+        ({"minutes": 1e308}, "is inf samples; at most 50,000,000 are made"),
+        ({"minutes": 1e6}, "is 6e+08 samples"),
+        ({"hz": 1e308}, "is inf samples"),
+        ({"rate_dps": math.nan}, "rate_dps must be a finite number, got nan"),
+        ({"rate_dps": math.inf}, "rate_dps must be a finite number, got inf"),
+    ],
+)
+def test_a_drive_too_long_or_not_finite_is_a_profile_error(kw: dict, why: str) -> None:
+    # Was an OverflowError (1e308 minutes), a memory exhaustion (1e6 minutes), or NaN counts.
+    for drive in ("constant", "mixed"):
+        if drive == "mixed" and "rate_dps" in kw:
+            continue
+        with pytest.raises(ProfileError, match=re.escape(why)):
+            load_profile(drive, **kw)

@@ -137,14 +137,33 @@ def test_tune_reports_progress(train: list) -> None:
     assert all(b[0] >= a[0] for a, b in itertools.pairwise(seen))
 
 
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
 def test_progress_bar_draws_to_the_stream() -> None:
-    s = io.StringIO()
+    s = _Terminal()
     bar = ProgressBar("tune", stream=s, width=10)
     bar(5, 10)
     bar(10, 10)
     bar.close()
     out = s.getvalue()
     assert "\r" in out and "100.0%" in out and "##########" in out and out.endswith("\n")
+
+
+def test_progress_off_a_terminal_is_plain_lines() -> None:
+    # Into a log file or a pipe a carriage return only makes one endless line.
+    s = io.StringIO()
+    bar = ProgressBar("tune 50 sets", stream=s)
+    for done in range(0, 1001):
+        bar(done, 1000)
+    bar.close()
+    out = s.getvalue()
+    lines = out.splitlines()
+    assert "\r" not in out and out.endswith("\n")
+    assert len(lines) == 11  # 0 %, 10 %, ..., 100 %
+    assert lines[0].startswith("tune 50 sets:   0.0%") and "100.0%" in lines[-1]
 
 
 def test_params_yaml_is_a_valid_config_section() -> None:

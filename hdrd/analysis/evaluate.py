@@ -414,6 +414,13 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
+    if args.plot:
+        from hdrd.analysis.plots import plotting_unavailable
+
+        problem = plotting_unavailable()
+        if problem:  # said before the work, not after it
+            _err(problem)
+            return 1
     plus = plus_params(cfg)
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params

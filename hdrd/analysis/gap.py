@@ -1894,6 +1894,13 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.drivelog import DriveLogError, read_drive
     from hdrd.sim.gyro import load_model, save_model
 
+    if args.plot:
+        from hdrd.analysis.plots import plotting_unavailable
+
+        problem = plotting_unavailable()
+        if problem:  # said before the work, not after it
+            _err(problem)
+            return 1
     start = DEFAULT_START_MODEL
     if args.model:
         try:

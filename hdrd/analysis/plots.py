@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from hdrd.analysis.evaluate import DriveResult
 
-__all__ = ["PlotError", "plot_evaluation", "plot_to_file", "pyplot"]
+__all__ = ["PlotError", "plot_evaluation", "plot_to_file", "plotting_unavailable", "pyplot"]
 
 # The paper's Fig. 5: thick blue truth, dotted red uncorrected, dashed green HDR.
 _STYLE: dict[str, dict[str, Any]] = {
@@ -43,6 +43,16 @@ def plot_to_file(draw: Callable[[str], None], path: str) -> str | None:
     return None
 
 
+def plotting_unavailable() -> str | None:
+    """None if plots can be drawn, else the one-line error for the user. Commands with
+    ``--plot`` ask this first, so a missing matplotlib is said before any work is done."""
+    try:
+        pyplot()
+    except PlotError as e:
+        return str(e)
+    return None
+
+
 def pyplot() -> Any:
     """matplotlib.pyplot on the file-only Agg backend; PlotError if matplotlib is missing."""
     try:
@@ -52,7 +62,8 @@ def pyplot() -> Any:
         import matplotlib.pyplot as plt
     except ImportError:
         raise PlotError(
-            "plots need matplotlib: pip install 'hdrd[plot]' (or pip install matplotlib)"
+            "--plot needs matplotlib, which is not installed: pip install 'hdrd[plot]' "
+            "(from a source checkout: pip install '.[plot]')"
         ) from None
     return plt
 

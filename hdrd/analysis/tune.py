@@ -381,7 +381,9 @@ def to_json(r: TuneResult, seconds: float | None = None) -> dict[str, Any]:
 
 
 class ProgressBar:
-    """A one-line progress bar on stderr, redrawn at most every 0.1 s (1 s off a terminal)."""
+    """Progress on stderr: on a terminal a one-line bar redrawn in place (``\\r``) at most
+    every 0.1 s; anywhere else (a log file, journald, a pipe) one plain line per tenth of
+    the work, since a carriage return there only piles up as one endless line."""
 
     def __init__(self, label: str, stream: Any = None, width: int = 30) -> None:
         self.label = label
@@ -390,19 +392,29 @@ class ProgressBar:
         self.t0 = time.monotonic()
         self._last = 0.0
         self._drawn = False
-        # Into a log file (not a terminal) a redraw every second is plenty.
         isatty = getattr(self.stream, "isatty", None)
-        self.interval = 0.1 if (isatty is not None and isatty()) else 1.0
+        self.tty = bool(isatty is not None and isatty())
+        self._tenths = -1  # off a terminal: the last tenth of the work reported
 
     def __call__(self, done: int, total: int) -> None:
         now = time.monotonic()
-        if done < total and now - self._last < self.interval:
-            return
-        self._last = now
         frac = done / total if total else 1.0
-        fill = round(frac * self.width)
         elapsed = now - self.t0
         eta = elapsed / frac - elapsed if frac > 0 else 0.0
+        if not self.tty:
+            tenths = int(frac * 10 + 1e-9)
+            if tenths <= self._tenths:
+                return
+            self._tenths = tenths
+            self.stream.write(
+                f"{self.label}: {frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:.0f} s left\n"
+            )
+            self.stream.flush()
+            return
+        if done < total and now - self._last < 0.1:
+            return
+        self._last = now
+        fill = round(frac * self.width)
         self.stream.write(
             f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
             f"{frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:4.0f} s left "

@@ -1,0 +1,218 @@
+"""``hdrd calibrate``: the static bias eps0 measured at standstill and saved to the bias file.
+
+The edge around :func:`hdrd.calibrate.estimate_bias`: it opens the port (exclusively, as
+the daemon does: a port in use is an error at once), times the window by the device clock
+(:class:`hdrd.calibrate.SampleClock`, which a glitched timestamp cannot end early), gives
+up when no frame comes for ``calibration.no_data_timeout_s``, and writes the file
+atomically. Progress goes to stdout; a reader that goes away (``| head -1``) does not stop
+the measurement, and the result is then said on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from hdrd.calibrate import MotionDetected, estimate_bias, save_bias
+from hdrd.config import EX_CONFIG, Config, ConfigError
+from hdrd.daemon import (
+    _Signals,
+    config_from_args,
+    default_bias_path,
+    log,
+    open_source,
+    setup_logging,
+    standstill_limits,
+)
+
+__all__ = ["main"]
+
+
+class _Progress:
+    """``hdrd calibrate``'s lines on stdout. If the reader goes away (``| head -1``) the
+    measurement goes on and the result is said on stderr instead: the bias file is what was
+    promised, not the lines."""
+
+    def __init__(self) -> None:
+        self.gone = sys.stdout is None
+
+    def say(self, text: str) -> None:
+        if not self.gone:
+            try:
+                print(text, flush=True)
+                return
+            except (BrokenPipeError, ValueError, OSError):
+                self.gone = True
+                _quiet_stdout()
+        # progress is not worth saying elsewhere; only the final result is (see done)
+
+    def done(self, text: str) -> None:
+        if self.gone:
+            print(text, file=sys.stderr, flush=True)
+        else:
+            self.say(text)
+            if self.gone:
+                print(text, file=sys.stderr, flush=True)
+
+
+def _quiet_stdout() -> None:
+    """Point fd 1 at /dev/null so that Python's final flush of the lost pipe stays quiet."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 1)
+        os.close(null)
+    except OSError:
+        pass
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd calibrate``: static bias over --seconds at standstill, saved atomically.
+
+    Exit 0 with the bias file written; 1 when it is not (motion, a bias beyond
+    calibration.max_bias_dps, a busy port, no data for calibration.no_data_timeout_s, the
+    input ended, an unwritable file), with one line saying why; 78 for a bad value.
+    """
+    from hdrd.config import RULES
+
+    try:
+        cfg, _ = config_from_args(args)
+        seconds = args.seconds if args.seconds is not None else cfg.calibration.t_bias_s
+        check, allowed = RULES["calibration.t_bias_s"]
+        if not (math.isfinite(seconds) and check(seconds)):
+            raise ConfigError("--seconds", seconds, f"must be {allowed}", "command line")
+    except ConfigError as e:
+        print(f"hdrd: {e}", file=sys.stderr)
+        return EX_CONFIG
+    setup_logging(cfg.log.level, cfg.log.format)
+    path = (
+        Path(args.bias_file)
+        if args.bias_file
+        else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
+    )
+    signals = _Signals()
+    signals.install()
+    try:
+        return _calibrate(cfg, args, seconds, path, signals)
+    finally:
+        signals.restore()
+
+
+def _calibrate(
+    cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: _Signals
+) -> int:
+    from array import array
+
+    from hdrd.calibrate import SampleClock
+    from hdrd.source import DeviceBack, DeviceLost, EndOfInput
+
+    def fail(why: str) -> int:
+        print(f"hdrd calibrate: {why}; bias file not written", file=sys.stderr, flush=True)
+        return 1
+
+    simulate = bool(getattr(args, "simulate", False))
+    src = open_source(cfg, simulate)
+    port = "the simulated gyro" if simulate else cfg.device.port
+    if getattr(getattr(src, "reader", None), "busy", False):
+        src.close()
+        return fail(src.reader.last_error)
+    out = _Progress()
+    timeout = cfg.calibration.no_data_timeout_s
+    clock = SampleClock()
+    omega: array[float] = array("d")  # 8 bytes a sample, not a Python float's 24
+    temps: array[float] = array("d")
+    last_data = time.monotonic()
+    lost: str | None = None
+    ended = False
+    next_report = 1.0
+    out.say(f"calibrating: keep the vehicle still for {seconds:g} s")
+    try:
+        while not signals.stop:
+            item = src.recv(0.1)
+            now = time.monotonic()
+            if item is None or isinstance(item, DeviceLost):
+                if isinstance(item, DeviceLost):
+                    lost = item.reason
+                    print(
+                        f"device lost ({item.reason}); waiting for it to come back",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                if now - last_data > timeout:
+                    why = f" ({lost})" if lost else ""
+                    return fail(
+                        f"no data from {port} for {timeout:g} s{why} "
+                        "(calibration.no_data_timeout_s); is the gyro connected and sending?"
+                    )
+                continue
+            if isinstance(item, DeviceBack):
+                print("device back; restarting the measurement", file=sys.stderr, flush=True)
+                clock, omega, temps, next_report = SampleClock(), array("d"), array("d"), 1.0
+                lost, last_data = None, now
+                continue
+            if isinstance(item, EndOfInput):
+                ended = True
+                break
+            last_data = now
+            if not clock.accept(item.t_us):
+                continue  # a glitched timestamp: neither its time nor its rate counts
+            elapsed = clock.elapsed_us / 1e6
+            if elapsed >= seconds:  # this sample starts the time after the window
+                break
+            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
+            omega.append(w)
+            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
+            if elapsed >= next_report:
+                out.say(
+                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s"
+                    f"  n {len(omega)}"
+                )
+                next_report += 1.0
+    finally:
+        src.close()
+    if signals.stop:
+        print("calibration interrupted; bias file not written", file=sys.stderr)
+        return 0
+    duration = clock.elapsed_us / 1e6
+    if duration < seconds * 0.99:
+        what = "input ended" if ended else "measurement stopped"
+        return fail(f"{what} after {duration:.1f} s of the {seconds:g} s needed")
+    try:
+        import numpy as np
+
+        rec = estimate_bias(
+            np.frombuffer(omega, dtype=np.float64),
+            temp_c=np.frombuffer(temps, dtype=np.float64),
+            limits=standstill_limits(cfg),
+            when=time.time(),
+        )
+    except MotionDetected as e:
+        print(
+            f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
+        )
+        return 1
+    rec = replace(rec, duration_s=duration)
+    try:
+        save_bias(path, rec)
+    except OSError as e:
+        print(f"hdrd calibrate: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+        return 1
+    out.done(
+        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
+        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
+        + f") written to {path}"
+        + (f"; {clock.glitches} frame(s) with a bad timestamp skipped" if clock.glitches else "")
+    )
+    log.info(
+        "calibrated",
+        bias_dps=rec.bias_dps,
+        std_dps=rec.std_dps,
+        samples=rec.n,
+        path=str(path),
+        source="calibrate",
+    )
+    return 0

@@ -1,0 +1,160 @@
+"""Reading the files hdrd is handed (configuration, bias file, capture) without trusting them.
+
+A file must be a regular file (a FIFO would block the reader forever, ``/dev/zero`` never
+ends) no larger than a limit that fits its kind; YAML is parsed with PyYAML's safe loader,
+its nesting depth bounded, and any failure of the parser (syntax, a number with more digits
+than Python converts, an impossible date) becomes one :class:`InputFileError`. Callers turn
+that into their own one-line error (:class:`hdrd.config.ConfigError`,
+:class:`hdrd.calibrate.BiasFileError`, the capture commands' message).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from typing import Any
+
+__all__ = [
+    "MAX_BIAS_BYTES",
+    "MAX_CAPTURE_BYTES",
+    "MAX_CONFIG_BYTES",
+    "MAX_YAML_DEPTH",
+    "InputFileError",
+    "load_yaml",
+    "read_limited",
+]
+
+MAX_CONFIG_BYTES = 1 << 20
+"""A configuration file: 1 MiB (the shipped one, every key with its comment, is ~10 KB)."""
+MAX_BIAS_BYTES = 64 << 10
+"""A bias file: 64 KiB (``hdrd calibrate`` writes ~250 bytes)."""
+MAX_CAPTURE_BYTES = 2 << 30
+"""A capture for ``hdrd replay``/``convert``: 2 GiB, 1.5 days of a 115200-baud link and
+134 million hdr-bin frames; replay holds the file and its frames in memory (bench/RESULTS.md)."""
+MAX_YAML_DEPTH = 32
+"""Deepest nesting of YAML collections accepted (hdrd's files need 3)."""
+
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+class InputFileError(ValueError):
+    """A file that cannot be taken. ``str()`` is the problem, without the path; ``where``
+    is "line L, column C" for a YAML problem that has a position, else None."""
+
+    def __init__(self, problem: str, where: str | None = None) -> None:
+        super().__init__(problem)
+        self.problem = problem
+        self.where = where
+
+
+def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``.
+
+    Raises FileNotFoundError if there is no such file, InputFileError if it is not a regular
+    file or is too large, OSError if it cannot be read. Opened non-blocking, so a FIFO is
+    refused at once instead of waiting for a writer.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+            raise InputFileError(f"is {kind}, not a regular file")
+        if st.st_size > max_bytes:
+            raise InputFileError(
+                f"is {_size(st.st_size)}, larger than the {_size(max_bytes)} allowed"
+            )
+        chunks: list[bytes] = []
+        got = 0
+        while True:  # to the end, as it is now: a file still growing stops at the limit
+            chunk = os.read(fd, min(1 << 20, max_bytes + 1 - got))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            got += len(chunk)
+            if got > max_bytes:
+                raise InputFileError(f"grew beyond the {_size(max_bytes)} allowed while read")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def _size(n: int) -> str:
+    for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if n >= 1 << shift:
+            return f"{n / (1 << shift):.3g} {unit}"
+    return f"{n} bytes"
+
+
+def load_yaml(text: str) -> Any:
+    """``yaml.safe_load`` of a document whose collections nest at most MAX_YAML_DEPTH deep.
+
+    Any problem (syntax, depth, a number of more digits than Python converts, an invalid
+    timestamp, a tag the safe loader refuses) raises InputFileError naming it.
+    """
+    import yaml  # here, not at the top: hdrd run without a file never needs it (~18 ms)
+
+    loader = _bounded_loader(yaml)(text)
+    try:
+        return loader.get_single_data()
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
+        problem = getattr(e, "problem", None) or "syntax error"
+        if problem.startswith(("collections nested", "value cannot")):
+            raise InputFileError(f"YAML {problem}", where) from None
+        raise InputFileError(f"YAML syntax error: {problem}", where) from None
+    except RecursionError:  # a guard: the depth bound should come first
+        raise InputFileError(
+            f"YAML collections nested deeper than {MAX_YAML_DEPTH} levels"
+        ) from None
+    except (ValueError, OverflowError, TypeError) as e:  # a guard, as construct_object's
+        raise InputFileError(f"YAML value cannot be converted ({type(e).__name__})") from None
+    finally:
+        loader.dispose()
+
+
+_LOADER: Any = None
+
+
+def _bounded_loader(yaml: Any) -> Any:
+    """SafeLoader that refuses collections nested deeper than MAX_YAML_DEPTH (before the
+    recursive composer and constructor could exhaust Python's stack)."""
+    global _LOADER
+    if _LOADER is not None:
+        return _LOADER
+
+    class BoundedSafeLoader(yaml.SafeLoader):
+        _depth = 0
+
+        def compose_node(self, parent: Any, index: Any) -> Any:
+            self._depth += 1
+            try:
+                if self._depth > MAX_YAML_DEPTH:
+                    mark = self.peek_event().start_mark
+                    raise yaml.composer.ComposerError(
+                        None, None, f"collections nested deeper than {MAX_YAML_DEPTH} levels", mark
+                    )
+                return super().compose_node(parent, index)
+            finally:
+                self._depth -= 1
+
+        def construct_object(self, node: Any, deep: bool = False) -> Any:
+            try:
+                return super().construct_object(node, deep)
+            except (ValueError, OverflowError) as e:
+                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45, ...
+                why = (str(e).splitlines() or [type(e).__name__])[0]
+                why = why if len(why) <= 80 else why[:77] + "..."
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"value cannot be converted ({why})", node.start_mark
+                ) from None
+
+    _LOADER = BoundedSafeLoader
+    return _LOADER

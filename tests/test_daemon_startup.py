@@ -1,0 +1,283 @@
+"""``hdrd run``'s start-up, configuration reload and bias choice under hostile input: real
+processes, real ptys, real signals, real sockets (hdrd/daemon.py, hdrd/serialport.py).
+
+No timings are asserted; the waits are generous bounds that only fail a hung daemon.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hdrd.source import builtin_profile
+from tests.test_daemon import WAIT, Daemon, daemon, events, udp  # noqa: F401 - fixtures
+
+STANDSTILL = builtin_profile("standstill", minutes=10, bias_dps=0.2, lead_in_s=0)
+
+
+def _maps(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return ""
+
+
+@pytest.mark.slow
+def test_sighup_during_start_up_does_not_kill_the_daemon(fake_gyro, daemon, udp) -> None:  # noqa: F811
+    # SIGHUP's default action ends a process; hdrd run used to take it over only when its loop
+    # began (~0.3 s after start), so a reload sent early killed it. Sent here while the
+    # daemon is importing numpy (its shared object just mapped), long before the loop.
+    g = fake_gyro(STANDSTILL, speedup=5)
+    u = udp()
+    d = daemon("--port", g.path, "--bias", "0.2", "--udp", u.addr)
+    deadline = time.monotonic() + WAIT
+    while "_multiarray_umath" not in _maps(d.proc.pid):
+        assert d.proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.001)
+    d.signal(signal.SIGHUP)
+    g.start()
+    got = u.messages(lambda ms: len(ms) >= 2)
+    assert d.proc.poll() is None
+    d.signal(signal.SIGHUP)  # and once running, as always
+    more = u.messages(lambda ms: len(ms) >= 2)
+    rc, _, err = d.stop()
+    assert rc == 0, err.decode()
+    assert more[-1]["step"] > got[-1]["step"]
+    reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
+    assert 1 <= len(reloads) <= 2  # the held one (if it came after the handler) and the later
+
+
+@pytest.mark.slow
+def test_sighup_with_a_file_the_yaml_parser_cannot_take_keeps_the_old_config(
+    fake_gyro,
+    daemon,  # noqa: F811
+    udp,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    # A number of 5,000 digits, nesting 2,000 deep, a FIFO (was: the daemon died, or hung
+    # reading the FIFO), /dev/zero's worth: each is refused and the daemon carries on.
+    u = udp()
+    cfg = tmp_path / "hdrd.yaml"
+    good = f"output:\n  udp: ['{u.addr}']\n"
+    cfg.write_text(good)
+    g = fake_gyro(STANDSTILL, speedup=5)
+    d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0.2")
+    g.start()
+    u.messages(lambda ms: len(ms) >= 1)
+
+    def fifo() -> None:
+        cfg.unlink()
+        os.mkfifo(cfg)
+
+    def too_big() -> None:
+        cfg.unlink()
+        cfg.write_text(good + "#" * (2 << 20) + "\n")
+
+    breakages = [
+        ("digits", lambda: cfg.write_text(good + "hdr:\n  c2: " + "1" * 5000 + "\n")),
+        ("depth", lambda: cfg.write_text(good + "x: " + "[" * 2000 + "]" * 2000 + "\n")),
+        ("fifo", fifo),
+        ("big", too_big),
+    ]
+    for _, breakage in breakages:
+        breakage()
+        d.signal(signal.SIGHUP)
+        u.messages(lambda ms: len(ms) >= 3)  # still publishing, to the same place
+        assert d.proc.poll() is None
+    rc, _, err = d.stop()
+    assert rc == 0, err.decode()
+    failed = [e["error"] for e in events(err) if e["event"] == "config_reload_failed"]
+    assert len(failed) == 4 and all("\n" not in f for f in failed)
+    assert "YAML value cannot be converted" in failed[0]
+    assert "nested deeper than 32 levels" in failed[1]
+    assert "is a FIFO, not a regular file" in failed[2]
+    assert "larger than the 1 MiB allowed" in failed[3]
+    assert b"Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("hdr:\n  c2: " + "1" * 5000 + "\n", "YAML value cannot be converted"),
+        ("a: " + "[" * 2000 + "]" * 2000 + "\n", "nested deeper than 32 levels"),
+        ("hdr:\n  c2: 1000\n", "hdr.c2 = 1000.0: must be a finite number >= 0 and <= 10"),
+        ("calibration:\n  startup_s: 1.0e+308\n", "calibration.startup_s = 1e+308"),
+    ],
+)
+def test_a_bad_config_at_start_is_exit_78_with_one_line(
+    tmp_path: Path, text: str, why: str
+) -> None:
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text(text)
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--simulate", "--config", str(cfg)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 78, p.stderr
+    assert len(p.stderr.splitlines()) == 1 and why in p.stderr and p.stdout == ""
+
+
+@pytest.mark.parametrize("bias", ["nan", "inf", "1e308", "-5"])
+def test_run_bias_must_be_finite_and_within_the_limit(bias: str) -> None:
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--simulate", f"--bias={bias}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert p.returncode == 78, p.stderr
+    assert p.stderr == (
+        f"hdrd: config error in command line: --bias = {float(bias)!r}: must be a finite "
+        "number within +/-3 deg/s (calibration.max_bias_dps)\n"
+    )
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        "bias_dps: " + "1" * 5000 + "\n",  # more digits than Python converts
+        "bias_dps: " + "[" * 2000 + "]" * 2000 + "\n",  # nested too deep
+        "bias_dps: 1.0e+308\n",  # finite, but no gyro's bias
+    ],
+    ids=["digits", "depth", "1e308"],
+)
+def test_a_bias_file_the_daemon_cannot_take(tmp_path: Path, body: str) -> None:
+    bias_file = tmp_path / "bias.yaml"
+    bias_file.write_text(body + "std_dps: 0.01\nn: 10\nduration_s: 1.0\ntime: 0.0\n# end\n")
+    cmd = [sys.executable, "-m", "hdrd", "run", "--simulate", "--bias-file", str(bias_file)]
+    # on_bad_bias_file: error (the default): exit 1, one line naming the file.
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 1 and "Traceback" not in p.stderr
+    assert f"hdrd: bias file {bias_file}: " in p.stderr
+    # on_bad_bias_file: calibrate: the daemon measures the bias itself instead.
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text(
+        "calibration:\n  on_bad_bias_file: calibrate\n"
+        "simulate:\n  drive: standstill\n  speedup: 50\n"
+    )
+    proc = subprocess.Popen(
+        [*cmd, "--config", str(cfg), "--stdout", "--log-format", "json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert '"status":"calibrating"' in first
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0 and "bias_file_rejected" in err and "Traceback" not in err
+
+
+def test_run_with_stdout_closed(tmp_path: Path) -> None:
+    # `hdrd run >&-`: was a traceback. With stdout the only output it is one clear line...
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "run", "--simulate"],
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: os.close(1),
+    )
+    assert p.returncode == 1 and "Traceback" not in p.stderr
+    assert p.stderr.startswith("hdrd: stdout is closed and is the only output configured;")
+    assert len(p.stderr.splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_run_with_stdout_closed_publishes_elsewhere(udp) -> None:  # noqa: F811
+    # ... and with another output it runs (fd 1 pointed at /dev/null, not at a port).
+    u = udp()
+    cfg_speed = ["--simulate", "--speedup", "50", "--bias", "0.2", "--udp", u.addr]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", *cfg_speed, "--log-format", "json"],
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: os.close(1),
+    )
+    try:
+        got = u.messages(lambda ms: len(ms) >= 3)
+        assert [m["step"] for m in got] == [0, 1, 2]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0 and b"Traceback" not in err
+
+
+def test_log_level_flag(tmp_path: Path) -> None:
+    # A rejected bias file is a warning: shown at --log-level warning, not at error.
+    bias_file = tmp_path / "bias.yaml"
+    bias_file.write_text("garbage\n")
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text(
+        "calibration:\n  on_bad_bias_file: calibrate\n"
+        "simulate:\n  drive: standstill\n  speedup: 50\n"
+    )
+    base = [sys.executable, "-m", "hdrd", "run", "--simulate", "--config", str(cfg), "--stdout"]
+    for level, shown in (("warning", True), ("error", False)):
+        proc = subprocess.Popen(
+            [*base, "--bias-file", str(bias_file), "--log-format", "json", "--log-level", level],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert proc.stdout is not None and proc.stdout.readline()
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=WAIT)
+        assert proc.returncode == 0
+        assert ('"bias_file_rejected"' in err) is shown, err
+        assert ('"start"' in err) is False  # info
+    p = subprocess.run([*base, "--log-level", "loud"], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "invalid choice: 'loud'" in p.stderr
+
+
+@pytest.mark.slow
+def test_a_socket_port_whose_listener_never_answers_does_not_stall_the_loop(
+    daemon,  # noqa: F811
+    udp,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    # A listener whose backlog is full: a connect waits for an answer that never comes.
+    # pyserial's socket:// open blocked 5 s per attempt, so the daemon's loop (stale reports,
+    # signals, reloads) stood still; connecting now goes on in the background.
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(0)
+    port = srv.getsockname()[1]
+    fillers = []
+    for _ in range(16):  # fill the accept queue and the SYN queue
+        c = socket.socket()
+        c.setblocking(False)
+        c.connect_ex(("127.0.0.1", port))
+        fillers.append(c)
+    try:
+        cfg = tmp_path / "hdrd.yaml"
+        cfg.write_text("device:\n  stale_after_s: 0.2\nhdr:\n  T: 0.2\n")
+        u = udp()
+        d = daemon(
+            "--config", str(cfg), "--port", f"socket://127.0.0.1:{port}", "--bias", "0",
+            "--udp", u.addr,
+        )  # fmt: skip
+        # One stale report per T (0.2 s) while the connection is tried: 60 of them come in
+        # ~12 s. A loop that stands 5 s in each attempt (pyserial's connect timeout; the
+        # attempts 0.5, 1, 2, 4 ... s apart) is free a quarter of the time: it needs ~50 s,
+        # beyond WAIT (30 s).
+        got = u.messages(lambda ms: len(ms) >= 60)
+        assert {m["status"] for m in got} == {"stale"}
+        rc, _, err = d.stop()
+        assert rc == 0 and b"Traceback" not in err
+    finally:
+        for c in fillers:
+            c.close()
+        srv.close()
