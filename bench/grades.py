@@ -71,9 +71,9 @@ def curvy(prep: PreparedDrive, seed: int) -> PreparedDrive:
     n = s.u.shape[0]
     rng = np.random.default_rng([seed, 0x726F6164])  # "road"
     a = math.exp(-s.T / ROAD_TAU_S)
-    kicks = rng.normal(0.0, ROAD_SD_DPS * math.sqrt(1.0 - a * a), n)
+    kicks = np.asarray(rng.normal(0.0, ROAD_SD_DPS * math.sqrt(1.0 - a * a), size=n)).tolist()
     g = np.empty(n)
-    x = rng.normal(0.0, ROAD_SD_DPS)
+    x = float(rng.normal(0.0, ROAD_SD_DPS))
     for i in range(n):
         x = a * x + kicks[i]
         g[i] = x

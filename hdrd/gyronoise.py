@@ -22,13 +22,18 @@ import numpy.typing as npt
 __all__ = [
     "ALLAN_MIN_S",
     "GM_PEAK",
+    "GRADE_NAMES",
     "NOISE_KEYS",
     "WARMUP_DEG_C",
     "WARMUP_S",
     "GyroNoise",
     "measure_noise",
+    "noise_in_force",
 ]
 
+GRADE_NAMES: tuple[str, ...] = ("crs03", "phone", "automotive", "tactical")
+"""The grade presets of :mod:`hdrd.sim.grades` by name (the config checks ``plus.grade`` and
+``simulate.grade`` against these without importing the simulator; a test keeps them equal)."""
 GM_PEAK = 0.62
 """Peak of a Gauss-Markov bias's Allan deviation in units of its sigma."""
 WARMUP_DEG_C = 16.0
@@ -213,3 +218,41 @@ def _fit_adev(
     if best is None or (best[1] <= 0.0 and best[3] <= 0.0):
         return None
     return best[1], best[2], best[3]
+
+
+def noise_in_force(
+    grade: str = "none",
+    given: Mapping[str, float] | None = None,
+    recorded: GyroNoise | None = None,
+) -> GyroNoise | None:
+    """The error model HDR+ is fitted to, from what is known, most specific first:
+
+    1. ``recorded``: parameters ``hdrd calibrate`` measured on this gyro (the bias file), when
+       they say how the bias moves (:meth:`GyroNoise.known`: a long enough standstill);
+    2. ``given``: measured parameters from the configuration (``plus.*``; 0 = not given;
+       ``bias_tau_s`` only with a given bias instability), on top of the grade's when one is
+       configured (source ``config``);
+    3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.
+
+    None when nothing is known: HDR+ learns the bias's random walk online. ValueError for an
+    unknown grade."""
+    if recorded is not None and recorded.known():
+        return recorded
+    base: dict[str, float] = {}
+    source = "config"
+    if grade != "none":
+        from hdrd.sim.grades import grade_noise
+
+        g = grade_noise(grade)
+        base = g.to_dict()
+        source = g.source
+    given = dict(given or {})
+    tau = given.pop("bias_tau_s", None)
+    extra = {k: float(v) for k, v in given.items() if v}
+    if tau is not None and "bias_instability_dps" in extra:  # the given B's own time
+        extra["bias_tau_s"] = float(tau)
+    if extra:
+        source = "config"
+    if not base and not extra:
+        return None
+    return GyroNoise.from_mapping({**base, **extra}, source=source)

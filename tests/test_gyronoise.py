@@ -79,3 +79,50 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
         measure_noise([1.0], 10.0)
     with pytest.raises(ValueError, match="rate > 0"):
         measure_noise([1.0, 2.0], 0.0)
+
+
+def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
+    from hdrd.calibrate import BiasRecord
+    from hdrd.config import parse_config
+    from hdrd.daemon import plus_noise
+    from hdrd.gyronoise import noise_in_force
+
+    assert noise_in_force() is None
+    assert noise_in_force("phone").source == "grade phone"  # type: ignore[union-attr]
+    given = noise_in_force("phone", {"rrw_dps_per_sqrt_s": 2e-4, "bias_tau_s": 300.0})
+    assert given is not None and given.source == "config"
+    assert given.rrw_dps_per_sqrt_s == 2e-4 and given.bias_tau_s == 100.0  # the grade's tau
+    recorded = GyroNoise(rrw_dps_per_sqrt_s=1e-6, source="recorded")
+    assert noise_in_force("phone", {}, recorded) is recorded
+    short = GyroNoise(white_dps_per_rthz=0.01, source="recorded")  # says nothing of the walk
+    assert noise_in_force("phone", {}, short).source == "grade phone"  # type: ignore[union-attr]
+    # the daemon's choice from its config and bias file
+    cfg = parse_config({"plus": {"grade": "tactical"}})
+    assert plus_noise(cfg, None).source == "grade tactical"  # type: ignore[union-attr]
+    rec = BiasRecord(0.1, 0.01, 100, 10.0, noise=recorded)
+    assert plus_noise(cfg, rec) is recorded
+    assert plus_noise(parse_config({}), None) is None
+    with pytest.raises(ValueError, match="unknown gyro grade"):
+        noise_in_force("nav")
+
+
+def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> None:
+    # `hdrd replay --bias-file F` (and `hdrd run`) fits HDR+ to the noise recorded in F,
+    # else to plus.grade, and says which in every step.
+    from hdrd.calibrate import BiasRecord
+    from hdrd.config import parse_config
+    from hdrd.frames import FRAME_DTYPE, encode_array
+    from hdrd.replay import replay_capture
+
+    n = 600
+    a = np.zeros(n, FRAME_DTYPE)
+    a["seq"] = np.arange(n)
+    a["t_us"] = np.arange(n) * 100_000
+    a["rate"] = 32768 + np.random.default_rng(0).integers(-3, 4, n)
+    data = encode_array(a)
+    cfg = parse_config({"hdr": {"method": "hdr+"}, "plus": {"grade": "automotive"}})
+    known = GyroNoise(rrw_dps_per_sqrt_s=1e-5, source="recorded")
+    rec = BiasRecord(0.0, 0.02, 300, 30.0, noise=known)
+    for record, model in ((None, "grade automotive"), (rec, "recorded")):
+        msgs = [m for m in replay_capture(data, cfg, 0.0, None, record) if "yaw" in m]
+        assert msgs and {m["model"] for m in msgs} == {model}

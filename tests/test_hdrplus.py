@@ -403,7 +403,9 @@ def test_fitted_from_a_calibration_and_a_noise_model() -> None:
     assert two.fitted(cal).bias_q_no_temp == pytest.approx(0.03 * 8e-4)
 
 
-def _stop_go(n_legs: int, bias_step_dps: float, seed: int) -> tuple[np.ndarray, ...]:
+def _stop_go(
+    n_legs: int, bias_step_dps: float, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Legs of 120 s straight driving and 20 s stops; the bias moves by bias_step_dps at
     every leg (a drifting gyro) or not (0); single samples per step (spread 0.05)."""
     rng = np.random.default_rng(seed)

@@ -407,7 +407,7 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DIR... [--calibrate-seconds S | --bias DPS] [--json FILE]
     [--plot FILE.png] [--config PATH] [--method METHOD]``."""
     from hdrd.config import EX_CONFIG, ConfigError, load_config
-    from hdrd.daemon import plus_params, standstill_limits
+    from hdrd.daemon import plus_noise, plus_params, standstill_limits
 
     try:
         cfg, _ = load_config(args.config)
@@ -436,6 +436,7 @@ def main(args: argparse.Namespace) -> int:
             args.bias,
             args.calibrate_seconds,
             standstill_limits(cfg),
+            noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
         )
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
