@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import fields
 from pathlib import Path
 
@@ -168,3 +169,22 @@ def test_grade_noise_for_hdrplus() -> None:
     assert q["tactical"] < q["phone"] < q["crs03"]  # bias stability, datasheet order
     assert qnt["tactical"] < qnt["automotive"] < qnt["crs03"] < qnt["phone"]  # + warm-up
     assert grade_noise("automotive").quant_step_dps == 0.244
+
+
+def test_a_model_reads_back_as_its_grade_error_model() -> None:
+    # A grade's effects, read as HDR+'s error model, give the grade's own parameters (what
+    # `hdrd gap` needs to turn a fitted model into plus.* keys or a bias file's noise).
+    from hdrd.sim.grades import GRADES, grade_model, grade_noise, model_noise
+
+    for name in GRADES:
+        got = model_noise(grade_model(name, 1), source=f"grade {name}")
+        want = grade_noise(name)
+        for key in ("white_dps_per_rthz", "bias_tau_s", "rrw_dps_per_sqrt_s", "quant_step_dps"):
+            assert getattr(got, key) == pytest.approx(getattr(want, key)), (name, key)
+        assert got.bias_instability_dps == pytest.approx(want.bias_instability_dps, rel=1e-9)
+        assert got.temp_coeff_dps_per_c == pytest.approx(want.temp_coeff_dps_per_c)
+        assert got.bias_q() == pytest.approx(want.bias_q())
+    from hdrd.sim.gyro import GyroModel
+
+    empty = model_noise(GyroModel(()))
+    assert not empty.known() and math.isnan(empty.white_dps_per_rthz)

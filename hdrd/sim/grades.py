@@ -52,7 +52,15 @@ from hdrd.sim.gyro import (
     crs03_default_model,
 )
 
-__all__ = ["DEFAULT_GRADE", "GRADES", "GRADE_TABLE", "Grade", "grade_model", "grade_noise"]
+__all__ = [
+    "DEFAULT_GRADE",
+    "GRADES",
+    "GRADE_TABLE",
+    "Grade",
+    "grade_model",
+    "grade_noise",
+    "model_noise",
+]
 
 GM_PEAK = 0.62
 """Peak of a Gauss-Markov bias's Allan deviation, in units of its sigma (docs/gyro-model.md)."""
@@ -274,4 +282,27 @@ def grade_noise(name: str) -> GyroNoise:
         temp_coeff_dps_per_c=g.temp_coeff_dps_per_c,
         quant_step_dps=g.quant_step_dps,
         source=f"grade {name}",
+    )
+
+
+def model_noise(model: GyroModel, source: str = "model") -> GyroNoise:
+    """A gyro error model's effects as HDR+'s error model (:class:`hdrd.gyronoise.GyroNoise`):
+    white noise density, the Gauss-Markov bias as its Allan peak (0.62 sigma) and correlation
+    time, the rate random walk, the linear temperature coefficient, the output step; a
+    missing effect is unknown. For a model fitted to a drive (``hdrd gap``) to become the
+    ``plus.*`` keys or a bias file's ``noise``."""
+    nan = math.nan
+    white = model.get("white_noise")
+    gm = model.get("bias_instability")
+    rrw = model.get("rate_random_walk")
+    temp = model.get("temperature_bias")
+    quant = model.get("quantization")
+    return GyroNoise(
+        white_dps_per_rthz=getattr(white, "density_dps_per_rthz", nan),
+        bias_instability_dps=GM_PEAK * gm.sigma_dps if isinstance(gm, BiasInstability) else nan,
+        bias_tau_s=gm.tau_s if isinstance(gm, BiasInstability) else 100.0,
+        rrw_dps_per_sqrt_s=getattr(rrw, "k_dps_per_sqrt_s", nan),
+        temp_coeff_dps_per_c=abs(getattr(temp, "coeff_dps_per_c", nan)),
+        quant_step_dps=getattr(quant, "step_dps", nan),
+        source=source,
     )
