@@ -22,8 +22,6 @@ from hdrd.analysis.allan import allan_deviation
 from hdrd.analysis.gap import (
     GAP_METRIC,
     GapError,
-    _Noise,
-    _Whitener,
     allan_deviation_masked,
     chi2_sf,
     detect_lattice,
@@ -33,6 +31,7 @@ from hdrd.analysis.gap import (
     to_report,
     truth_rate_from_heading,
 )
+from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
 from hdrd.drivelog import DriveLog, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
@@ -250,7 +249,7 @@ def test_kalman_likelihood_equals_dense_gaussian() -> None:
     truth = np.zeros(n)
     truth[200:260] = np.nan
     data = prepare(DriveLog(t=t, omega=np.zeros(n), omega_truth=truth), block_s=1.0)
-    nz = _Noise(white_var=0.02, q_step=0.05, bi_sigma=0.07, bi_tau=4.0, rrw_k=0.01, extra_var=0.001)
+    nz = Noise(white_var=0.02, q_step=0.05, bi_sigma=0.07, bi_tau=4.0, rrw_k=0.01, extra_var=0.001)
     cov = (
         nz.bi_sigma**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / nz.bi_tau)
         + nz.rrw_k**2 * np.minimum(t[:, None], t[None, :])
@@ -266,7 +265,7 @@ def test_kalman_likelihood_equals_dense_gaussian() -> None:
     chol = np.linalg.cholesky(cb)
     w = np.linalg.solve(chol, y)
     dense = -0.5 * (y.shape[0] * math.log(2 * math.pi) + 2 * np.log(np.diag(chol)).sum() + w @ w)
-    wh = _Whitener(data, nz)
+    wh = Whitener(data, nz)
     # Equal up to sampled vs continuous time inside the blocks.
     assert wh.loglik(y) == pytest.approx(dense, abs=0.02)
     both = wh.whiten(np.vstack([y, 2.0 * y]).T)

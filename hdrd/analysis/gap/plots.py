@@ -20,10 +20,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdrd.analysis.gap.diagnose import regressors
+from hdrd.analysis.gap.fit import deterministic_part
+from hdrd.analysis.gap.metric import simulate_like
 from hdrd.analysis.plots import PlotError, pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
-    from hdrd.analysis.gap import GapResult, Step
+    from hdrd.analysis.gap.search import GapResult, Step
 
 __all__ = ["PlotError", "plot_gap"]
 
@@ -64,19 +67,15 @@ def _allan(ax: Any, res: GapResult, step: Step | None) -> None:
 
 
 def _regressor(res: GapResult, step: Step) -> tuple[np.ndarray, str]:
-    from hdrd.analysis.gap import _regressors
-
     data = res.data
     name = step.regressor
-    regs = _regressors(data)
+    regs = regressors(data)
     if name == "omega" or name not in regs:
         return regs["time_s"], "time_s"
     return regs[name], name
 
 
 def _scatter(ax: Any, res: GapResult, step: Step) -> None:
-    from hdrd.analysis.gap import deterministic_part
-
     data = res.data
     if step.regressor == "omega":
         _lattice(ax, res, step)
@@ -104,15 +103,13 @@ def _scatter(ax: Any, res: GapResult, step: Step) -> None:
 
 
 def _lattice(ax: Any, res: GapResult, step: Step) -> None:
-    from hdrd.analysis.gap import _simulate
-
     data = res.data
     q = float(step.params.get("step_dps", 0.0)) or 1.0
     mid = float(np.median(data.omega))
     lo, hi = mid - 6.0 * q, mid + 6.0 * q
     bins = np.linspace(lo, hi, 241)
     ax.hist(data.omega, bins=bins, color="tab:blue", alpha=0.8, label="measured omega")
-    sim = _simulate(data, step.fit_before.model, 0, 0)
+    sim = simulate_like(data, step.fit_before.model, 0, 0)
     ax.hist(sim, bins=bins, histtype="step", color="tab:red", label="model before (simulated)")
     ax.set_xlabel(f"omega near its median, deg/s (lattice step {q:.4g})")
     ax.set_ylabel("samples")

@@ -1,0 +1,345 @@
+"""Fitting a gyro error model to a prepared log: the deterministic prediction D, the
+likelihood (whitened block residual + lattice), BIC, and the alternating least-squares /
+maximum-likelihood fit of every free parameter.
+
+Rates deg/s, + = CCW; times s; temperatures deg C. Effect names and parameters are those of
+:mod:`hdrd.sim.gyro`. Pure.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.lattice import on_lattice
+from hdrd.analysis.gap.noise import Noise, Whitener
+from hdrd.analysis.gap.optimize import levenberg_marquardt, nelder_mead
+from hdrd.sim.gyro import (
+    BiasInstability,
+    GyroModel,
+    Quantization,
+    RateRandomWalk,
+    Saturation,
+    TemperatureBias,
+    WhiteNoise,
+)
+
+__all__ = [
+    "DELAY_MAX_S",
+    "GLITCH_P",
+    "NOISE_EFFECTS",
+    "Fit",
+    "Fitter",
+    "clipping_rail",
+    "deterministic_part",
+    "fit_model",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+NOISE_EFFECTS = ("bias_instability", "rate_random_walk", "white_noise", "quantization")
+"""Effects with a random (or, for quantization, sub-sample) output: they shape the residual's
+covariance and histogram, not its deterministic prediction D."""
+
+GLITCH_P = 1e-3  # per-sample probability of an off-lattice value under a quantised model
+
+
+def _det_model(model: GyroModel) -> GyroModel:
+    return GyroModel(tuple(e for e in model.effects if e.name not in NOISE_EFFECTS))
+
+
+_RNG0 = np.random.default_rng(0)
+
+
+def deterministic_part(data: GapData, model: GyroModel) -> FloatArray:
+    """D: what the model adds to the true rate with every random effect off (deg/s per sample):
+    its bias, gain, lag, bandwidth and clipping effects applied to the truth, minus the truth.
+    Quantization is left out: on a noisy signal it adds a small white error, not a bias."""
+    det = _det_model(model)
+    if not det.effects:
+        return np.zeros_like(data.t)
+    y = det.apply(data.t, data.truth_filled, data.temp_c, _RNG0)
+    return np.asarray(y - data.truth_filled)
+
+
+# -- fitting a model -------------------------------------------------------------------------------
+
+# Free deterministic parameters: (effect, parameter) -> (transform, finite-difference step).
+# "log": the optimiser works on ln(value) (positive parameters).
+_DET_PARAMS: dict[str, tuple[tuple[str, str, float], ...]] = {
+    "static_bias": (("bias_dps", "lin", 1e-3),),
+    "scale_factor": (("error", "lin", 1e-4),),
+    "scale_asymmetry": (("pos_error", "lin", 1e-4), ("neg_error", "lin", 1e-4)),
+    "warmup_transient": (("amplitude_dps", "lin", 1e-3), ("tau_s", "log", 1e-3)),
+    "temperature_bias": (("coeff_dps_per_c", "lin", 1e-4),),
+    "time_offset": (("delay_s", "lin", 1e-3),),
+}
+
+_TAU_BOUNDS = (1.0, 1e6)
+DELAY_MAX_S = 3.0
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A model fitted to the log: its log-likelihood (Gaussian block part + lattice part),
+    number of fitted parameters k, BIC = -2 lnL + k ln(n blocks), the deterministic prediction
+    D (per sample) and its block means Dbar (used blocks)."""
+
+    model: GyroModel
+    lnl: float
+    k: int
+    bic: float
+    d: FloatArray = field(repr=False)
+    dbar: FloatArray = field(repr=False)
+    noise: Noise = field(repr=False)
+    quad: bool = False
+
+
+def _free_det(model: GyroModel, quad: bool) -> list[tuple[str, str, str, float]]:
+    out = []
+    for e in model.effects:
+        for p, kind, h in _DET_PARAMS.get(e.name, ()):
+            out.append((e.name, p, kind, h))
+        if e.name == "temperature_bias" and quad:
+            out.append((e.name, "quad_dps_per_c2", "lin", 1e-5))
+    return out
+
+
+def _with_params(
+    model: GyroModel,
+    free: list[tuple[str, str, str, float]],
+    theta: FloatArray,
+    tau_bounds: tuple[float, float] = _TAU_BOUNDS,
+) -> GyroModel:
+    upd: dict[str, dict[str, float]] = {}
+    lo, hi = math.log(tau_bounds[0]), math.log(tau_bounds[1])
+    for (eff, p, kind, _), v in zip(free, theta):
+        val = float(v)
+        if kind == "log":
+            val = float(math.exp(min(max(val, lo), hi)))
+        if eff == "time_offset":
+            val = min(max(val, -DELAY_MAX_S), DELAY_MAX_S)
+        if p in ("error", "pos_error", "neg_error"):
+            val = max(val, -0.9)
+        upd.setdefault(eff, {})[p] = val
+    effects = []
+    for e in model.effects:
+        if e.name in upd:
+            effects.append(replace(e, **upd[e.name]))
+        else:
+            effects.append(e)
+    return GyroModel(tuple(effects))
+
+
+def _theta(model: GyroModel, free: list[tuple[str, str, str, float]]) -> FloatArray:
+    vals = []
+    for eff, p, kind, _ in free:
+        v = float(getattr(model.get(eff), p))
+        vals.append(math.log(v) if kind == "log" else v)
+    return np.asarray(vals, dtype=np.float64)
+
+
+def _white_var(data: GapData, d: FloatArray, q_step: float) -> float:
+    """Per-sample white-noise variance (deg/s)**2 from sample-to-sample differences of the
+    unexplained residual (robust: MAD), less the quantization's q**2/12."""
+    e = data.omega - data.truth_filled - d
+    # Pairs of samples with the same truth value: a piecewise-constant truth (from a heading)
+    # jumps at its fixes, and such a jump is no sensor noise.
+    ok = data.valid[1:] & data.valid[:-1]
+    if data.truth_source.startswith("heading_truth"):
+        ok &= data.truth_filled[1:] == data.truth_filled[:-1]
+    de = np.diff(e)[ok]
+    if de.shape[0] < 10:
+        return float(np.var(e[data.valid]))
+    mad = float(np.median(np.abs(de - np.median(de))))
+    v = (1.4826 * mad) ** 2 / 2.0
+    if mad == 0.0:
+        v = float(np.var(de)) / 2.0
+    return float(max(v - q_step**2 / 12.0, 1e-12))
+
+
+def _noise_of(data: GapData, model: GyroModel, d: FloatArray, extra_var: float) -> Noise:
+    q = model.get("quantization")
+    bi = model.get("bias_instability")
+    rw = model.get("rate_random_walk")
+    q_step = float(q.step_dps) if isinstance(q, Quantization) else 0.0
+    wv = _white_var(data, d, q_step) if "white_noise" in model else 1e-10
+    return Noise(
+        white_var=wv,
+        q_step=q_step,
+        bi_sigma=float(bi.sigma_dps) if isinstance(bi, BiasInstability) else 0.0,
+        bi_tau=float(bi.tau_s) if isinstance(bi, BiasInstability) else 300.0,
+        rrw_k=float(rw.k_dps_per_sqrt_s) if isinstance(rw, RateRandomWalk) else 0.0,
+        extra_var=extra_var,
+    )
+
+
+def _model_noise(model: GyroModel, noise: Noise, fs_hz: float) -> GyroModel:
+    """The model with its noise effects' parameters set from ``noise``."""
+    out = model
+    if "white_noise" in model:
+        out = out.with_effect(WhiteNoise(density_dps_per_rthz=math.sqrt(noise.white_var / fs_hz)))
+    if "bias_instability" in model:
+        out = out.with_effect(BiasInstability(sigma_dps=noise.bi_sigma, tau_s=noise.bi_tau))
+    if "rate_random_walk" in model:
+        out = out.with_effect(RateRandomWalk(k_dps_per_sqrt_s=noise.rrw_k))
+    return out
+
+
+def _lattice_loglik(data: GapData, model: GyroModel) -> float:
+    """Log-likelihood gain of the recorded values under the model's ADC lattice against a
+    continuous output recorded at the log's resolution: a value on the lattice has probability
+    ~ f(x) * step instead of f(x) * resolution; off it only a glitch (:data:`GLITCH_P`)."""
+    q = model.get("quantization")
+    if not isinstance(q, Quantization):
+        return 0.0
+    off = data.lattice.offset_dps if data.lattice is not None else 0.0
+    on = on_lattice(data.omega, q.step_dps, off, data.resolution_dps)
+    n_on = int(on.sum())
+    n_off = int(on.shape[0] - n_on)
+    gain = math.log((1.0 - GLITCH_P) * q.step_dps / data.resolution_dps + GLITCH_P)
+    return n_on * gain + n_off * math.log(GLITCH_P)
+
+
+def _count_params(model: GyroModel, free_det: int, data: GapData) -> int:
+    k = free_det
+    for e in model.effects:
+        k += {
+            "white_noise": 1,
+            "bias_instability": 2,
+            "rate_random_walk": 1,
+            "quantization": 1,
+            "saturation": 1,
+        }.get(e.name, 0)
+    if data.truth_source.startswith("heading_truth"):
+        k += 1  # the truth's own noise variance
+    return k
+
+
+class Fitter:
+    """Fits the free parameters of one model structure to one log."""
+
+    def __init__(self, data: GapData) -> None:
+        self.data = data
+        self.ebar = data.block_residual(data.omega)
+        self.heading = data.truth_source.startswith("heading_truth")
+        # A warm-up transient must visibly decay within the log; slower it is just a trend.
+        self.tau_bounds = (data.block_s, max(data.duration_s / 2.0, 2.0 * data.block_s))
+
+    def dbar(self, model: GyroModel) -> tuple[FloatArray, FloatArray]:
+        d = deterministic_part(self.data, model)
+        return d, self.data.block_mean(d)
+
+    def fit_det(self, model: GyroModel, noise: Noise, quad: bool) -> GyroModel:
+        """Weighted (whitened) least squares of the deterministic parameters, noise fixed."""
+        free = _free_det(model, quad)
+        if not free:
+            return model
+        wh = Whitener(self.data, noise)
+        wy = wh.whiten(self.ebar)
+
+        def res(theta: FloatArray) -> FloatArray:
+            _, db = self.dbar(_with_params(model, free, theta, self.tau_bounds))
+            return np.asarray(wy - wh.whiten(db))
+
+        theta = levenberg_marquardt(res, _theta(model, free), np.array([f[3] for f in free]))
+        return _with_params(model, free, theta, self.tau_bounds)
+
+    def loglik(self, model: GyroModel, noise: Noise, dbar: FloatArray) -> float:
+        return Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
+            self.data, model
+        )
+
+    def fit_noise(
+        self, model: GyroModel, noise: Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> Noise:
+        """Maximum likelihood of the named noise parameters (log scale), others fixed."""
+        which = [w for w in which if w != "extra_var" or self.heading]
+        if not which:
+            return noise
+        y = self.ebar - dbar
+
+        def build(x: FloatArray) -> Noise:
+            kw: dict[str, float] = {}
+            for name, v in zip(which, x):
+                kw[name] = float(math.exp(min(max(v, -40.0), 20.0)))
+            if "bi_tau" in kw:
+                kw["bi_tau"] = min(
+                    max(kw["bi_tau"], 2.0 * self.data.block_s), 10.0 * self.data.duration_s
+                )
+            return replace(noise, **kw)
+
+        def nll(x: FloatArray) -> float:
+            return -Whitener(self.data, build(x)).loglik(y)
+
+        x0 = []
+        for w in which:
+            v = getattr(noise, w)
+            x0.append(math.log(v) if v > 0 else math.log(1e-6))
+        x = nelder_mead(nll, np.array(x0), scale=0.7, iters=60 * len(which))
+        return build(x)
+
+    def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
+        d, db = self.dbar(model)
+        noise = replace(
+            noise,
+            white_var=_white_var(self.data, d, noise.q_step)
+            if "white_noise" in model
+            else noise.white_var,
+        )
+        full = _model_noise(model, noise, self.data.fs_hz)
+        lnl = self.loglik(full, noise, db)
+        k = _count_params(full, len(_free_det(full, quad)), self.data)
+        bic = -2.0 * lnl + k * math.log(self.data.n_used)
+        return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
+
+    def full(
+        self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2
+    ) -> Fit:
+        """Fit every free parameter of the model: alternate deterministic least squares and
+        maximum likelihood of the noise."""
+        d, db = self.dbar(model)
+        noise = _noise_of(self.data, model, d, extra_var)
+        if self.heading and noise.extra_var == 0.0:
+            noise = replace(noise, extra_var=float(np.var(self.ebar - db)))
+        which = ["extra_var"] if self.heading else []
+        if "bias_instability" in model:
+            which += ["bi_sigma", "bi_tau"]
+        if "rate_random_walk" in model:
+            which += ["rrw_k"]
+        for _ in range(rounds):
+            model = self.fit_det(model, noise, quad)
+            d, db = self.dbar(model)
+            noise = replace(
+                noise,
+                white_var=_white_var(self.data, d, noise.q_step)
+                if "white_noise" in model
+                else noise.white_var,
+            )
+            noise = self.fit_noise(model, noise, db, which)
+            if not which:
+                break
+        return self.finish(model, noise, quad)
+
+
+def fit_model(data: GapData, model: GyroModel) -> Fit:
+    """Refit all parameters of ``model`` to the log (its structure unchanged)."""
+    f = Fitter(data)
+    tb = model.get("temperature_bias")
+    quad = isinstance(tb, TemperatureBias) and tb.quad_dps_per_c2 != 0.0
+    if "saturation" in model and clipping_rail(data) is not None:
+        model = model.with_effect(Saturation(limit_dps=clipping_rail(data) or 200.0))
+    if "quantization" in model and data.lattice is not None:
+        model = model.with_effect(Quantization(step_dps=data.lattice.step_dps))
+    return f.full(model, quad=quad)
+
+
+def clipping_rail(data: GapData) -> float | None:
+    """The clipping level the histogram suggests: the largest |omega| (deg/s)."""
+    m = float(np.max(np.abs(data.omega)))
+    return m if m > 0 else None
