@@ -8,9 +8,11 @@ statistics they use) and the ``hdrd gap`` edge (:func:`main`), one module per st
 lattice         the log's recording resolution and the ADC lattice its values sit on
 data            truth rate, blocks: a drive log made ready (:func:`prepare`, :class:`GapData`)
 noise           Allan deviation with gaps; the block noise model and its whitening Kalman filter
+lowpass         the sensor low-pass seen in neighbouring differences (Whittle likelihood)
 optimize        Levenberg-Marquardt, Nelder-Mead, chi-squared tail
 fit             the deterministic prediction D, likelihood, BIC, fitting a model (:class:`Fit`)
 candidates      which effects the log can inform, fitting and scoring each candidate
+choose          deterministic before stochastic, nested forms, rivals, backward revisions
 metric          the gap number: the model simulated under the log's conditions
 diagnose        the discrepancy measures and the "where" sentence
 search          the loop: choose, refit, revise (:func:`run_gap`)
@@ -42,6 +44,7 @@ The loop, each step visible in the report:
 """
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN, CANDIDATES
+from hdrd.analysis.gap.choose import AMBIGUITY_BIC, AMBIGUITY_R
 from hdrd.analysis.gap.command import main
 from hdrd.analysis.gap.data import GapData, GapError, prepare, truth_rate_from_heading
 from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, deterministic_part, fit_model
@@ -50,14 +53,7 @@ from hdrd.analysis.gap.metric import GAP_METRIC, gap_metric
 from hdrd.analysis.gap.noise import allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
 from hdrd.analysis.gap.report import summary, to_report
-from hdrd.analysis.gap.search import (
-    AMBIGUITY_BIC,
-    AMBIGUITY_R,
-    Ambiguity,
-    GapResult,
-    Step,
-    run_gap,
-)
+from hdrd.analysis.gap.search import Ambiguity, GapResult, Step, run_gap
 
 __all__ = [
     "ALPHA",

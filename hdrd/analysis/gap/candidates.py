@@ -17,11 +17,13 @@ from hdrd.analysis.gap.fit import (
     NOISE_EFFECTS,
     Fit,
     Fitter,
+    at_rest,
     clipping_rail,
 )
 from hdrd.analysis.gap.noise import Whitener, adev_cluster_sizes, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
 from hdrd.sim.gyro import (
+    Bandwidth,
     BiasInstability,
     GyroModel,
     Quantization,
@@ -40,10 +42,13 @@ __all__ = [
     "ALPHA",
     "BIC_MARGIN",
     "CANDIDATES",
+    "DETERMINISTIC",
     "MIN_TEMP_STD_C",
+    "SLOW_NOISE",
     "Candidate",
     "evaluate_candidate",
     "not_identifiable",
+    "slow_noise_forms",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -58,12 +63,29 @@ CANDIDATES = (
     "time_offset",
     "saturation",
     "quantization",
+    "bandwidth",
     "bias_instability",
     "rate_random_walk",
 )
-"""Effects the workflow may add, in the order they are tried. ``bandwidth`` is not one: at a
-vehicle's yaw dynamics (< 1 Hz) a first-order low-pass is a pure lag of 1 / (2 pi f_c) and
-cannot be told from ``time_offset``; a model that has it keeps it unchanged."""
+"""Effects the workflow may add, in the order they are tried. ``bandwidth`` only at rest,
+where the low-pass shapes the noise (the short-tau Allan deviation, neighbouring samples that
+correlate); while driving, at a vehicle's yaw dynamics (< 1 Hz) a first-order low-pass is a
+pure lag of 1 / (2 pi f_c) and cannot be told from ``time_offset``."""
+
+DETERMINISTIC = (
+    "static_bias",
+    "temperature_bias",
+    "warmup_transient",
+    "scale_factor",
+    "scale_asymmetry",
+    "time_offset",
+    "saturation",
+)
+"""Candidates read against a measured regressor (temperature, time since power-on, the true
+rate and its derivative): preferred over a random process that explains the same variance."""
+
+SLOW_NOISE = ("bias_instability", "rate_random_walk")
+"""Random processes slow enough to take over what a deterministic drift explains."""
 
 BIC_MARGIN = 10.0
 """An effect is added only if BIC falls by more than this ("very strong" evidence, Kass &
@@ -108,6 +130,12 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
         wb = data.btruth
         if int((wb > 1.0).sum()) < 2 or int((wb < -1.0).sum()) < 2:
             out["scale_asymmetry"] = "the drive turns one way only"
+    if not at_rest(data):
+        out["bandwidth"] = (
+            "the true rate is not zero (or only known at GPS fixes): at a vehicle's yaw "
+            "dynamics a low-pass is a lag of 1 / (2 pi f_c), not told from time_offset "
+            "(a candidate at rest only)"
+        )
     if data.lattice is None:
         out["quantization"] = (
             f"no lattice of values coarser than the log's resolution ({data.resolution_dps:g} deg/s)"
@@ -127,7 +155,7 @@ def _adev_excess_init(
     ms = ms[ms / data.fs_hz >= data.block_s]
     if ms.shape[0] == 0:
         return (1e-3, 10.0 * data.block_s)
-    adev = allan_deviation_masked(e, data.valid, data.fs_hz, ms)
+    adev = allan_deviation_masked(e, data.valid, data.fs_hz, ms, data.time_gap)
     taus = ms / data.fs_hz
     ok = np.isfinite(adev)
     taus, avar = taus[ok], adev[ok] ** 2
@@ -160,6 +188,9 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
     noise = cur.noise
     e_bar = f.ebar - cur.dbar
     fits: list[Fit] = []
+    if name == "bandwidth":  # the cutoff is fitted by Fitter.full (at rest)
+        m = model.with_effect(Bandwidth(cutoff_hz=0.25 * data.fs_hz))
+        return [f.full(m, quad=cur.quad, extra_var=noise.extra_var)]
     if name in NOISE_EFFECTS:
         e = data.omega - data.truth_filled - cur.d
         if name == "white_noise":
@@ -181,7 +212,12 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
             nz = f.fit_noise(model, replace(noise, rrw_k=k0), cur.dbar, ["rrw_k"])
             m = model.with_effect(RateRandomWalk(k_dps_per_sqrt_s=nz.rrw_k))
         m = f.fit_det(m, nz, cur.quad)
-        return [f.finish(m, nz, cur.quad)]
+        first = f.finish(m, nz, cur.quad)
+        if any(s in model for s in SLOW_NOISE):
+            # Another slow process is in already: refit them all jointly (a random walk that
+            # took over a Gauss-Markov bias's block-to-block changes gives some back).
+            return [first, f.full(first.model, quad=cur.quad, extra_var=nz.extra_var)]
+        return [first]
 
     wh = Whitener(data, noise)
     if name == "static_bias":
@@ -242,5 +278,22 @@ def evaluate_candidate(f: Fitter, cur: Fit, name: str) -> Candidate:
     dlnl = best.lnl - cur.lnl
     dbic = best.bic - cur.bic
     p = chi2_sf(2.0 * dlnl, max(dk, 1)) if dlnl > 0 else 1.0
-    contrib = None if name in NOISE_EFFECTS else best.dbar - cur.dbar
+    contrib = best.dbar - cur.dbar if name in DETERMINISTIC else None
     return Candidate(name=name, fit=best, dk=dk, dlnl=dlnl, dbic=dbic, p=p, contribution=contrib)
+
+
+def slow_noise_forms(f: Fitter, cur: Fit) -> list[Fit]:
+    """The current model with its slow noise in each form (random walk, bias instability,
+    both), every parameter jointly refitted: the likelihood of block means often cannot tell
+    them apart on a log a few correlation times long, the Allan deviation over all tau can."""
+    base = cur.model.without("bias_instability").without("rate_random_walk")
+    bf = f.full(base, quad=cur.quad, extra_var=cur.noise.extra_var)
+    rw = min(_candidate_fits(f, bf, "rate_random_walk"), key=lambda x: x.bic)
+    bi = min(_candidate_fits(f, bf, "bias_instability"), key=lambda x: x.bic)
+    # Both, from either single form (a random walk that took everything leaves the added
+    # Gauss-Markov bias no start, and the other way round).
+    both = min(
+        _candidate_fits(f, rw, "bias_instability") + _candidate_fits(f, bi, "rate_random_walk"),
+        key=lambda x: x.bic,
+    )
+    return [rw, bi, both]

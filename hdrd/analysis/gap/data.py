@@ -7,6 +7,7 @@ first sample (= power-on); temperature deg C. Pure.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -15,11 +16,24 @@ import numpy.typing as npt
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
 from hdrd.drivelog import DriveLog
 
-__all__ = ["GapData", "GapError", "prepare", "truth_rate_from_heading"]
+__all__ = [
+    "TIME_GAP_FACTOR",
+    "GapData",
+    "GapError",
+    "excluded_samples",
+    "prepare",
+    "truth_rate_from_heading",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+
+
+TIME_GAP_FACTOR = 2.5
+"""A step between two rows longer than this many median sample periods is a time gap (rows
+dropped; a jittery clock's steps stay below it): statistics over consecutive samples (Allan deviation, neighbouring differences)
+do not reach across it."""
 
 
 class GapError(ValueError):
@@ -75,7 +89,8 @@ class GapData:
 
     Samples: t (s since the first sample), omega (deg/s), truth (deg/s; NaN where unknown),
     truth_filled (NaN replaced by interpolation, for simulating), temp_c (deg C or None),
-    valid (truth known).
+    valid (truth known and the sample not excluded), excluded (marked ``valid`` = 0 in the log or
+    inside an excluded period), time_gap (a time gap, rows dropped, just before the sample).
 
     Blocks of ``block_s`` on a regular grid from ``block_t0`` (0, or the first GPS fix when the
     truth is a heading): sample i counts with weight ``wprim[i]`` in block ``block_of[i]``
@@ -93,6 +108,8 @@ class GapData:
     truth_filled: FloatArray
     temp_c: FloatArray | None
     valid: BoolArray
+    excluded: BoolArray
+    time_gap: BoolArray
     truth_source: str
     fs_hz: float
     block_s: float
@@ -144,10 +161,27 @@ def _block_length(duration_s: float, truth_source: str) -> float:
     return float(max(base, math.ceil(duration_s / 1500.0)))
 
 
-def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = None) -> GapData:
+def excluded_samples(log: DriveLog, exclude: Sequence[tuple[float, float]] = ()) -> BoolArray:
+    """Samples left out: ``valid`` = 0 in the log, or t (the log's own time, s) inside one of the
+    ``exclude`` periods (T0, T1), ends included."""
+    out = np.zeros(len(log), dtype=bool) if log.valid is None else np.asarray(log.valid == 0.0)
+    for t0, t1 in exclude:
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+            raise GapError(f"excluded period {t0:g}:{t1:g} s: need finite T0 <= T1")
+        out = out | ((log.t >= t0) & (log.t <= t1))
+    return out
+
+
+def prepare(
+    log: DriveLog,
+    standstill: bool = False,
+    block_s: float | None = None,
+    exclude: Sequence[tuple[float, float]] = (),
+) -> GapData:
     """Turn a drive log into :class:`GapData`. The truth rate is ``omega_truth`` where it has
-    values, else the derivative of ``heading_truth``, else zero when ``standstill``. Raises
-    GapError if there is no truth or too little of it."""
+    values, else the derivative of ``heading_truth``, else zero when ``standstill``. Samples
+    marked ``valid`` = 0 or inside an ``exclude`` period (s, the log's own t) count as having
+    no truth. Raises GapError if there is no truth or too little of it."""
     n = len(log)
     if n < 100:
         raise GapError(f"the log has {n} samples; the workflow needs at least 100")
@@ -176,6 +210,11 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         )
     if standstill and source != "standstill":
         source += " (--standstill ignored: the log has truth)"
+    excluded = excluded_samples(log, exclude)
+    if excluded.all():
+        raise GapError("every sample is excluded (valid = 0 or inside an excluded period)")
+    if excluded.any():
+        truth = np.where(excluded, np.nan, truth)
     valid = np.isfinite(truth)
     if valid.sum() < 100:
         raise GapError(f"only {int(valid.sum())} samples have a known true rate; need >= 100")
@@ -188,6 +227,7 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         temp = tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
     dt = float(np.median(np.diff(t)))
     fs = 1.0 / dt
+    time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
     if block_s is not None:
         bs = float(block_s)
     else:
@@ -276,6 +316,7 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
     res = decimal_resolution(omega)
     if log.omega_truth is not None:
         res = min(res, decimal_resolution(log.omega_truth))
+    kept = omega[~excluded]  # what the sensor gave while it counted (no handling)
     data = GapData(
         t=t,
         omega=omega,
@@ -283,6 +324,8 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         truth_filled=truth_filled,
         temp_c=temp,
         valid=valid,
+        excluded=excluded,
+        time_gap=time_gap,
         truth_source=source,
         fs_hz=fs,
         block_s=bs,
@@ -297,7 +340,7 @@ def prepare(log: DriveLog, standstill: bool = False, block_s: float | None = Non
         bt=origin + (np.arange(nblocks) + 0.5) * bs,
         btruth=np.empty(0),
         resolution_dps=res,
-        lattice=detect_lattice(omega, res),
+        lattice=detect_lattice(kept, res),
         name=log.name,
     )
     bt_used = btruth_full[bvalid] if heading is not None else data.block_mean(truth_filled)

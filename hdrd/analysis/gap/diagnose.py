@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -13,8 +14,9 @@ import numpy.typing as npt
 from hdrd.analysis.gap.candidates import Candidate
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.fit import Fit, clipping_rail
+from hdrd.analysis.gap.lowpass import pole, white_factor
 from hdrd.analysis.gap.metric import GapMeasure
-from hdrd.sim.gyro import WarmupTransient
+from hdrd.sim.gyro import Bandwidth, WarmupTransient
 
 __all__ = ["REGRESSOR", "correlation", "diagnostics", "regressors", "where_phrase"]
 
@@ -111,24 +113,82 @@ def diagnostics(data: GapData, fit: Fit, sim: GapMeasure) -> dict[str, Any]:
 
 def _allan_phrase(sim: GapMeasure) -> str:
     r = sim.adev_meas / sim.adev_sim
-    ok = np.isfinite(r)
+    ok = np.isfinite(r) & (r > 0)
     if not ok.any():
         return "Allan deviation not available"
     rr, tt = r[ok], sim.taus[ok]
-    hi = rr > 1.5
-    if not hi.any():
-        return f"Allan deviation within 1.5x of the model's (max {float(rr.max()):.2f}x)"
-    lo, top = _fmt_tau(float(tt[hi].min())), _fmt_tau(float(tt[hi].max()))
-    span = lo if lo == top else f"{lo}-{top}"
-    return f"Allan deviation up to {float(rr.max()):.1f}x the model's, above 1.5x at tau = {span} s"
+    hi, lo = rr > 1.5, rr < 1.0 / 1.5
+    parts = []
+    for sel, word, ext in (
+        (hi, "up to {:.2g}x the model's, above 1.5x", float(rr.max())),
+        (lo, "down to {:.2g}x the model's, below 1/1.5x", float(rr.min())),
+    ):
+        if sel.any():
+            a, b = _fmt_tau(float(tt[sel].min())), _fmt_tau(float(tt[sel].max()))
+            span = a if a == b else f"{a}-{b}"
+            parts.append(f"{word.format(ext)} at tau = {span} s")
+    if not parts:
+        return (
+            f"Allan deviation within 1.5x of the model's "
+            f"({float(rr.min()):.2f}x-{float(rr.max()):.2f}x)"
+        )
+    return "Allan deviation " + "; ".join(parts)
 
 
 def _fmt_tau(t: float) -> str:
     return f"{t:.2g}" if t < 10 else f"{t:.0f}"
 
 
-def where_phrase(data: GapData, cand: Candidate, sim: GapMeasure, diag: dict[str, Any]) -> str:
-    """What disagreed, in words, for the effect that explains it."""
+_EFFECT_OF = {
+    "temp_c": "temperature_bias",
+    "time_s": "warmup_transient",
+    "true_rate": "scale_factor",
+    "rate_derivative": "time_offset",
+}
+"""The deterministic effect each regressor of the diagnostics stands for."""
+
+_STRONG_R = 0.3
+"""A regressor correlating at least this much with the residual needs a word on its effect."""
+
+
+def _why_not(
+    effect: str,
+    rows: Sequence[dict[str, Any]],
+    skip: dict[str, str],
+    rejected: Sequence[dict[str, Any]],
+) -> str:
+    """Why ``effect`` is not the one added at this step, from the step's own evidence."""
+    if effect in skip:
+        return f"is not identifiable here ({skip[effect]})"
+    row = next((r for r in rows if r["effect"] == effect), None)
+    if row is None:
+        return "is already in the model"
+    bey = row.get("beyond_random_processes")
+    if row["significant"] and bey is not None and not bey["holds"]:
+        return (
+            f"does not hold once {' + '.join(bey['background'])} is in the model "
+            f"(dBIC {bey['delta_bic']:+.1f}): a random process explains that drift as well"
+        )
+    if not row["significant"]:
+        return f"is not significant (dBIC {row['delta_bic']:+.1f})"
+    if any(r["effect"] == effect for r in rejected):
+        return "was tried and raised the gap"
+    return f"ranks lower (dBIC {row['delta_bic']:+.1f})"
+
+
+def where_phrase(
+    data: GapData,
+    cand: Candidate,
+    sim: GapMeasure,
+    diag: dict[str, Any],
+    rows: Sequence[dict[str, Any]] = (),
+    skip: dict[str, str] | None = None,
+    rejected: Sequence[dict[str, Any]] = (),
+) -> str:
+    """What disagreed, in words, for the effect that explains it. For a random effect the
+    regressor that correlates most with the residual is named with the reason its own effect
+    was not chosen (``rows``: the step's candidates; ``skip``: the effects not identifiable;
+    ``rejected``: those that raised the gap), so the sentence never contradicts the choice."""
     allan = _allan_phrase(sim)
     c = diag["correlation"]
     n = cand.name
@@ -165,8 +225,25 @@ def where_phrase(data: GapData, cand: Candidate, sim: GapMeasure, diag: dict[str
             f"{h.get('lattice_dps', 0.0):.6g} deg/s (log resolution {data.resolution_dps:g} deg/s), "
             "the model's output is continuous"
         )
-    # Noise effects and the basics: only the Allan deviation speaks.
-    big = max(c.items(), key=lambda kv: abs(kv[1]))
-    return (
-        f"{allan}; no deterministic regressor explains it (largest |r|: {big[0]}, r = {big[1]:.2f})"
-    )
+    lead = allan
+    if n == "bandwidth":
+        bw = cand.fit.model.get("bandwidth")
+        if isinstance(bw, Bandwidth):
+            a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
+            lead = (
+                f"{allan}; neighbouring samples correlate (a low-pass at {bw.cutoff_hz:.3g} Hz: "
+                f"the white noise is {math.sqrt(white_factor(a)):.3g}x what their differences "
+                "alone suggest)"
+            )
+    # Random effects: name the strongest regressor and why its effect was not chosen.
+    regs = {k: v for k, v in c.items() if k in _EFFECT_OF}
+    if not regs:
+        return lead
+    big = max(regs.items(), key=lambda kv: abs(kv[1]))
+    if abs(big[1]) < _STRONG_R:
+        return (
+            f"{lead}; no measured regressor explains it (largest |r|: {big[0]}, r = {big[1]:.2f})"
+        )
+    eff = _EFFECT_OF[big[0]]
+    why = _why_not(eff, rows, skip or {}, rejected)
+    return f"{lead}; {big[0]} correlates with the residual (r = {big[1]:.2f}), but {eff} {why}"

@@ -11,15 +11,26 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lattice import on_lattice
+from hdrd.analysis.gap.lowpass import (
+    A_MAX,
+    A_MIN,
+    cutoff_hz,
+    differences,
+    fit_lowpass,
+    pole,
+    white_factor,
+)
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.analysis.gap.optimize import levenberg_marquardt, nelder_mead
 from hdrd.sim.gyro import (
+    Bandwidth,
     BiasInstability,
     GyroModel,
     Quantization,
@@ -35,9 +46,12 @@ __all__ = [
     "NOISE_EFFECTS",
     "Fit",
     "Fitter",
+    "at_rest",
     "clipping_rail",
     "deterministic_part",
     "fit_model",
+    "param_bounds",
+    "params_at_bounds",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -82,6 +96,69 @@ _DET_PARAMS: dict[str, tuple[tuple[str, str, float], ...]] = {
 
 _TAU_BOUNDS = (1.0, 1e6)
 DELAY_MAX_S = 3.0
+_GAIN_MIN = -0.9
+
+
+def at_rest(data: GapData) -> bool:
+    """The true rate is (near) zero throughout (99th percentile of |truth| below 1 deg/s) and
+    known at every sample (not a GPS heading's: its fixes step): the unexplained residual's
+    sample-to-sample structure is the sensor's own noise."""
+    truth = data.truth[data.valid]
+    if data.truth_source.startswith("heading_truth"):
+        return False
+    return truth.shape[0] == 0 or float(np.percentile(np.abs(truth), 99)) < 1.0
+
+
+def param_bounds(data: GapData) -> dict[tuple[str, str], tuple[float, float, str]]:
+    """The bounds the fits keep each bounded parameter in, (low, high, why), in the
+    parameter's unit: what the log can resolve, or what the effect means."""
+    b, d = data.block_s, data.duration_s
+    dt = 1.0 / data.fs_hz
+    return {
+        ("warmup_transient", "tau_s"): (
+            b,
+            max(d / 2.0, 2.0 * b),
+            "one block .. half the log (a slower transient is a trend)",
+        ),
+        ("time_offset", "delay_s"): (-DELAY_MAX_S, DELAY_MAX_S, "lags of at most 3 s"),
+        ("scale_factor", "error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
+        ("scale_asymmetry", "pos_error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
+        ("scale_asymmetry", "neg_error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
+        ("bias_instability", "tau_s"): (
+            2.0 * b,
+            10.0 * d,
+            "two blocks .. ten times the log (faster is not resolved by the blocks)",
+        ),
+        ("bandwidth", "cutoff_hz"): (
+            cutoff_hz(A_MAX, dt),
+            cutoff_hz(A_MIN, dt),
+            "a time constant of 1000 samples .. 1.1 x the sample rate",
+        ),
+    }
+
+
+def params_at_bounds(model: GyroModel, data: GapData) -> list[dict[str, Any]]:
+    """The model's parameters that sit at (within 0.5 % of) a fit bound: the data pushed them
+    there, so the value is a limit, not an estimate."""
+    out: list[dict[str, Any]] = []
+    for (eff, p), (lo, hi, why) in param_bounds(data).items():
+        e = model.get(eff)
+        if e is None:
+            continue
+        v = float(getattr(e, p))
+        for side, lim in (("lower", lo), ("upper", hi)):
+            if math.isfinite(lim) and abs(v - lim) <= 0.005 * max(abs(lim), 1e-12):
+                out.append(
+                    {
+                        "effect": eff,
+                        "param": p,
+                        "value": float(f"{v:.6g}"),
+                        "bound": side,
+                        "limit": float(f"{lim:.6g}"),
+                        "range": why,
+                    }
+                )
+    return out
 
 
 @dataclass(frozen=True)
@@ -144,23 +221,38 @@ def _theta(model: GyroModel, free: list[tuple[str, str, str, float]]) -> FloatAr
     return np.asarray(vals, dtype=np.float64)
 
 
-def _white_var(data: GapData, d: FloatArray, q_step: float) -> float:
-    """Per-sample white-noise variance (deg/s)**2 from sample-to-sample differences of the
-    unexplained residual (robust: MAD), less the quantization's q**2/12."""
+def _white_var(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
+    """Per-sample white-noise variance (deg/s)**2 at the sensor's input from sample-to-sample
+    differences of the unexplained residual, less the quantization's q**2/12.
+
+    Robust (MAD) unless the values sit on an ADC lattice coarse against the noise, where the
+    differences take a few discrete values and their variance is used. With a ``bandwidth``
+    in the model the differences understate the input noise by (1 - a)**2 / (1 + a): at rest
+    the white level comes from the Whittle fit of their spectrum (:mod:`.lowpass`), otherwise
+    from that factor."""
     e = data.omega - data.truth_filled - d
     # Pairs of samples with the same truth value: a piecewise-constant truth (from a heading)
-    # jumps at its fixes, and such a jump is no sensor noise.
-    ok = data.valid[1:] & data.valid[:-1]
+    # jumps at its fixes, and such a jump is no sensor noise. No pair across a time gap.
+    ok = data.valid[1:] & data.valid[:-1] & ~data.time_gap[1:]
     if data.truth_source.startswith("heading_truth"):
         ok &= data.truth_filled[1:] == data.truth_filled[:-1]
     de = np.diff(e)[ok]
     if de.shape[0] < 10:
         return float(np.var(e[data.valid]))
+    bw = model.get("bandwidth")
+    if isinstance(bw, Bandwidth) and at_rest(data):
+        a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
+        fit = fit_lowpass(de, data.block_s * data.fs_hz, q_step**2 / 12.0, 0.0, a)
+        return float(max(fit.white_var, 1e-12))
     mad = float(np.median(np.abs(de - np.median(de))))
     v = (1.4826 * mad) ** 2 / 2.0
-    if mad == 0.0:
+    lat = data.lattice
+    if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
         v = float(np.var(de)) / 2.0
-    return float(max(v - q_step**2 / 12.0, 1e-12))
+    v = max(v - q_step**2 / 12.0, 1e-12)
+    if isinstance(bw, Bandwidth):
+        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+    return float(v)
 
 
 def _noise_of(data: GapData, model: GyroModel, d: FloatArray, extra_var: float) -> Noise:
@@ -168,7 +260,7 @@ def _noise_of(data: GapData, model: GyroModel, d: FloatArray, extra_var: float) 
     bi = model.get("bias_instability")
     rw = model.get("rate_random_walk")
     q_step = float(q.step_dps) if isinstance(q, Quantization) else 0.0
-    wv = _white_var(data, d, q_step) if "white_noise" in model else 1e-10
+    wv = _white_var(data, d, q_step, model) if "white_noise" in model else 1e-10
     return Noise(
         white_var=wv,
         q_step=q_step,
@@ -199,7 +291,7 @@ def _lattice_loglik(data: GapData, model: GyroModel) -> float:
     if not isinstance(q, Quantization):
         return 0.0
     off = data.lattice.offset_dps if data.lattice is not None else 0.0
-    on = on_lattice(data.omega, q.step_dps, off, data.resolution_dps)
+    on = on_lattice(data.omega[~data.excluded], q.step_dps, off, data.resolution_dps)
     n_on = int(on.sum())
     n_off = int(on.shape[0] - n_on)
     gain = math.log((1.0 - GLITCH_P) * q.step_dps / data.resolution_dps + GLITCH_P)
@@ -208,6 +300,8 @@ def _lattice_loglik(data: GapData, model: GyroModel) -> float:
 
 def _count_params(model: GyroModel, free_det: int, data: GapData) -> int:
     k = free_det
+    if "bandwidth" in model and at_rest(data):
+        k += 2  # the cutoff, and the white level after the low-pass
     for e in model.effects:
         k += {
             "white_noise": 1,
@@ -228,19 +322,19 @@ class Fitter:
         self.data = data
         self.ebar = data.block_residual(data.omega)
         self.heading = data.truth_source.startswith("heading_truth")
+        self.rest = at_rest(data)
+        bounds = param_bounds(data)
         # A warm-up transient must visibly decay within the log; slower it is just a trend.
-        self.tau_bounds = (data.block_s, max(data.duration_s / 2.0, 2.0 * data.block_s))
+        self.tau_bounds = bounds[("warmup_transient", "tau_s")][:2]
+        self.bi_tau_bounds = bounds[("bias_instability", "tau_s")][:2]
 
     def dbar(self, model: GyroModel) -> tuple[FloatArray, FloatArray]:
         d = deterministic_part(self.data, model)
         return d, self.data.block_mean(d)
 
-    def fit_det(self, model: GyroModel, noise: Noise, quad: bool) -> GyroModel:
-        """Weighted (whitened) least squares of the deterministic parameters, noise fixed."""
-        free = _free_det(model, quad)
-        if not free:
-            return model
-        wh = Whitener(self.data, noise)
+    def _lsq(
+        self, model: GyroModel, free: list[tuple[str, str, str, float]], wh: Whitener
+    ) -> GyroModel:
         wy = wh.whiten(self.ebar)
 
         def res(theta: FloatArray) -> FloatArray:
@@ -249,6 +343,50 @@ class Fitter:
 
         theta = levenberg_marquardt(res, _theta(model, free), np.array([f[3] for f in free]))
         return _with_params(model, free, theta, self.tau_bounds)
+
+    def fit_det(self, model: GyroModel, noise: Noise, quad: bool) -> GyroModel:
+        """Least squares of the deterministic parameters, noise fixed, weighted by the white
+        part of the noise only: deterministic before stochastic, so that a correlated random
+        process in the model (bias instability, random walk) cannot take over part of what a
+        measured regressor explains. The static bias, which is also where a random walk
+        starts at power-on, is then refitted with the full whitening."""
+        free = _free_det(model, quad)
+        if not free:
+            return model
+        white = replace(noise, bi_sigma=0.0, rrw_k=0.0)
+        model = self._lsq(model, free, Whitener(self.data, white))
+        if noise.bi_sigma > 0 or noise.rrw_k > 0:
+            bias = [f for f in free if f[0] == "static_bias"]
+            if bias:
+                model = self._lsq(model, bias, Whitener(self.data, noise))
+        return model
+
+    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float]:
+        """Neighbouring differences of the unexplained residual and the ADC's white variance
+        (deg/s)**2. The slow processes' floor in the differences is left out: above the
+        block frequency it is negligible, and keeping it would make the high-frequency term
+        move with the slow noise's parameters, which the block likelihood alone should judge."""
+        data = self.data
+        de = differences(data.omega - data.truth_filled - d, data.valid, data.time_gap)
+        return de, noise.q_step**2 / 12.0
+
+    def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
+        """At rest: the low-pass cutoff by the Whittle likelihood of the differences."""
+        d, _ = self.dbar(model)
+        de, qv = self._lowpass_input(d, noise)
+        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
+        return model.with_effect(Bandwidth(cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz)))
+
+    def hf_gain(self, model: GyroModel, d: FloatArray, noise: Noise) -> float:
+        """At rest, with a low-pass in the model: the log-likelihood its spectrum gains over
+        white noise in the neighbouring differences (the frequencies above the blocks');
+        0 otherwise (the white model is the reference)."""
+        bw = model.get("bandwidth")
+        if not (self.rest and isinstance(bw, Bandwidth)):
+            return 0.0
+        de, qv = self._lowpass_input(d, noise)
+        a = pole(bw.cutoff_hz, 1.0 / self.data.fs_hz)
+        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, 0.0, a).gain
 
     def loglik(self, model: GyroModel, noise: Noise, dbar: FloatArray) -> float:
         return Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
@@ -263,15 +401,14 @@ class Fitter:
         if not which:
             return noise
         y = self.ebar - dbar
+        lo, hi = self.bi_tau_bounds
 
         def build(x: FloatArray) -> Noise:
             kw: dict[str, float] = {}
             for name, v in zip(which, x):
                 kw[name] = float(math.exp(min(max(v, -40.0), 20.0)))
             if "bi_tau" in kw:
-                kw["bi_tau"] = min(
-                    max(kw["bi_tau"], 2.0 * self.data.block_s), 10.0 * self.data.duration_s
-                )
+                kw["bi_tau"] = min(max(kw["bi_tau"], lo), hi)
             return replace(noise, **kw)
 
         def nll(x: FloatArray) -> float:
@@ -284,16 +421,16 @@ class Fitter:
         x = nelder_mead(nll, np.array(x0), scale=0.7, iters=60 * len(which))
         return build(x)
 
+    def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
+        if "white_noise" not in model:
+            return noise
+        return replace(noise, white_var=_white_var(self.data, d, noise.q_step, model))
+
     def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
         d, db = self.dbar(model)
-        noise = replace(
-            noise,
-            white_var=_white_var(self.data, d, noise.q_step)
-            if "white_noise" in model
-            else noise.white_var,
-        )
+        noise = self._white(model, d, noise)
         full = _model_noise(model, noise, self.data.fs_hz)
-        lnl = self.loglik(full, noise, db)
+        lnl = self.loglik(full, noise, db) + self.hf_gain(full, d, noise)
         k = _count_params(full, len(_free_det(full, quad)), self.data)
         bic = -2.0 * lnl + k * math.log(self.data.n_used)
         return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
@@ -301,8 +438,8 @@ class Fitter:
     def full(
         self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2
     ) -> Fit:
-        """Fit every free parameter of the model: alternate deterministic least squares and
-        maximum likelihood of the noise."""
+        """Fit every free parameter of the model: alternate deterministic least squares, the
+        low-pass (at rest) and maximum likelihood of the noise."""
         d, db = self.dbar(model)
         noise = _noise_of(self.data, model, d, extra_var)
         if self.heading and noise.extra_var == 0.0:
@@ -314,13 +451,10 @@ class Fitter:
             which += ["rrw_k"]
         for _ in range(rounds):
             model = self.fit_det(model, noise, quad)
+            if self.rest and "bandwidth" in model:
+                model = self.fit_bandwidth(model, noise)
             d, db = self.dbar(model)
-            noise = replace(
-                noise,
-                white_var=_white_var(self.data, d, noise.q_step)
-                if "white_noise" in model
-                else noise.white_var,
-            )
+            noise = self._white(model, d, noise)
             noise = self.fit_noise(model, noise, db, which)
             if not which:
                 break
@@ -340,6 +474,7 @@ def fit_model(data: GapData, model: GyroModel) -> Fit:
 
 
 def clipping_rail(data: GapData) -> float | None:
-    """The clipping level the histogram suggests: the largest |omega| (deg/s)."""
-    m = float(np.max(np.abs(data.omega)))
+    """The clipping level the histogram suggests: the largest |omega| (deg/s) of the samples
+    that count (not excluded)."""
+    m = float(np.max(np.abs(data.omega[~data.excluded]), initial=0.0))
     return m if m > 0 else None

@@ -80,7 +80,9 @@ def gap_metric(
 
     def adev(y: FloatArray, noise: bool) -> FloatArray:
         if not per_block:
-            return allan_deviation_masked(y - data.truth_filled - d, data.valid, data.fs_hz, ms)
+            return allan_deviation_masked(
+                y - data.truth_filled - d, data.valid, data.fs_hz, ms, data.time_gap
+            )
         full = np.zeros(data.nblocks)
         full[data.bvalid] = data.block_residual(y) - dbar
         if noise and truth_var > 0:

@@ -30,23 +30,34 @@ TAUS_PER_DECADE = 5
 
 
 def allan_deviation_masked(
-    x: npt.ArrayLike, valid: npt.ArrayLike, fs_hz: float, m: npt.ArrayLike
+    x: npt.ArrayLike,
+    valid: npt.ArrayLike,
+    fs_hz: float,
+    m: npt.ArrayLike,
+    breaks: npt.ArrayLike | None = None,
 ) -> FloatArray:
     """Overlapping Allan deviation (units of x) at cluster sizes ``m`` (samples), using only the
-    clusters whose 2m samples are all valid; NaN where there are fewer than 4 such clusters.
-    With every sample valid it equals :func:`hdrd.analysis.allan.allan_deviation`."""
+    clusters whose 2m samples are all valid and contiguous (``breaks[i]``: a time gap just
+    before sample i, rows dropped); NaN where there are fewer than 4 such clusters. So each
+    cluster lies inside one contiguous valid run. With every sample valid and no break it
+    equals :func:`hdrd.analysis.allan.allan_deviation`."""
     v = np.asarray(valid, dtype=bool)
     y = np.asarray(x, dtype=np.float64)
     ms = np.asarray(m, dtype=np.int64)
     mean = float(y[v].mean()) if v.any() else 0.0
     theta = np.concatenate(([0.0], np.cumsum(np.where(v, y - mean, 0.0)))) / fs_hz
     bad = np.concatenate(([0], np.cumsum(~v)))
+    # brk[j] counts the breaks before samples 1..j: a cluster over samples j..j+2m-1 has none
+    # inside it when brk[j + 2m - 1] == brk[j].
+    b = np.zeros(v.shape[0], dtype=bool) if breaks is None else np.asarray(breaks, dtype=bool)
+    brk = np.cumsum(b)
     out = np.full(ms.shape[0], np.nan)
     for i, mi in enumerate(ms):
         if mi < 1 or 2 * mi >= theta.shape[0]:
             continue
         d = theta[2 * mi :] - 2.0 * theta[mi:-mi] + theta[: -2 * mi]
         ok = (bad[2 * mi :] - bad[: -2 * mi]) == 0
+        ok &= brk[2 * mi - 1 :] == brk[: brk.shape[0] - 2 * mi + 1]
         if ok.sum() < 4:
             continue
         tau = mi / fs_hz

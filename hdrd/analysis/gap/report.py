@@ -26,6 +26,7 @@ def to_report(res: GapResult) -> dict[str, Any]:
                 "delta_bic": round(s.delta_bic, 2),
                 "p_value": float(f"{s.p_value:.3g}"),
                 "ambiguous_with": list(s.ambiguous_with),
+                "at_bound": list(s.at_bound),
                 "candidates": list(s.candidates),
                 "diagnostics": s.diagnostics,
             }
@@ -36,6 +37,9 @@ def to_report(res: GapResult) -> dict[str, Any]:
         "gap_final": sig4(res.final_sim.gap),
         "gap_metric": GAP_METRIC,
         "gap_as_given": sig4(res.gap_as_given),
+        "gap_noise": res.gap_noise,
+        "final_at_bound": list(res.final_at_bound),
+        "rejected": list(res.rejected),
         "ambiguous": [
             {
                 "step": a.step,
@@ -67,17 +71,32 @@ def to_report(res: GapResult) -> dict[str, Any]:
             "block_s": d.block_s,
             "blocks_used": d.n_used,
             "temp_c": d.temp_c is not None,
+            "excluded_samples": int(d.excluded.sum()),
+            "time_gaps": int(d.time_gap.sum()),
         },
     }
 
 
+def _bound_line(b: dict[str, Any]) -> str:
+    return (
+        f"  AT BOUND: {b['effect']}.{b['param']} = {b['value']:.4g} is at its {b['bound']} "
+        f"bound ({b['range']}): a limit, not an estimate"
+    )
+
+
 def summary(res: GapResult) -> str:
-    """A few lines for people: what was found, the gap before and after."""
+    """A few lines for people: what was found, the gap before and after, its noise."""
     d = res.data
+    left = []
+    if d.excluded.any():
+        left.append(f"{int(d.excluded.sum())} samples excluded")
+    if d.time_gap.any():
+        left.append(f"{int(d.time_gap.sum())} time gaps")
     lines = [
         (
             f"{d.name or 'log'}: {d.t.shape[0]} samples over {d.duration_s / 60.0:.1f} min, "
             f"truth from {d.truth_source}, {d.n_used} blocks of {d.block_s:g} s"
+            + (f" ({', '.join(left)})" if left else "")
         ),
         (
             f"start: {' + '.join(res.initial_model.names()) or '(empty)'}, gap "
@@ -92,6 +111,12 @@ def summary(res: GapResult) -> str:
         lines.append(f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}, dBIC {s.delta_bic:.1f}")
         if i in amb:
             lines.append(f"  AMBIGUOUS: {amb[i].note}")
+        lines.extend(_bound_line(b) for b in s.at_bound if b["effect"] == s.effect)
+    for rj in res.rejected:
+        lines.append(
+            f"not added at step {rj['step']}: {rj['effect']} (dBIC {rj['delta_bic']:+.1f}): "
+            f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
+        )
     for rv in res.revisions:
         lines.append(
             f"revised after step {rv['after_step']}: {rv['effect']} {rv['action']} (dBIC {rv['delta_bic']:+.1f})"
@@ -103,5 +128,11 @@ def summary(res: GapResult) -> str:
         lines.append(
             f"nothing else significant (best remaining: {best['effect']}, dBIC {best['delta_bic']:+.1f})"
         )
-    lines.append(f"final: {' + '.join(res.final_model.names())}, gap {res.final_sim.gap:.3g}")
+    gn = res.gap_noise
+    lines.append(
+        f"final: {' + '.join(res.final_model.names())}, gap {res.final_sim.gap:.3g} "
+        f"(seed to seed: sd {gn['gap_final_sd']:.2g}, {gn['gap_final_range'][0]:.3g}-"
+        f"{gn['gap_final_range'][1]:.3g} over {gn['seeds']} seeds)"
+    )
+    lines.extend(_bound_line(b) for b in res.final_at_bound)
     return "\n".join(lines)

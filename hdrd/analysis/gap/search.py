@@ -1,5 +1,6 @@
-"""The model-gap loop: add the best significant candidate, report rivals, refit, revise
-earlier choices, until nothing significant is left (docs/model-gap.md). Pure.
+"""The model-gap loop: add the preferred significant candidate unless it raises the gap,
+report rivals, refit jointly, revise earlier choices, until nothing significant is left
+(docs/model-gap.md). Pure.
 """
 
 from __future__ import annotations
@@ -10,31 +11,23 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hdrd.analysis.gap.candidates import (
-    BIC_MARGIN,
     CANDIDATES,
+    SLOW_NOISE,
     Candidate,
     evaluate_candidate,
     not_identifiable,
+    slow_noise_forms,
 )
+from hdrd.analysis.gap.choose import AMBIGUITY_BIC, Beyond, rank, revise, rivals
 from hdrd.analysis.gap.data import GapData, GapError, prepare
-from hdrd.analysis.gap.diagnose import REGRESSOR, correlation, diagnostics, where_phrase
-from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
+from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
+from hdrd.analysis.gap.fit import Fit, Fitter, fit_model, params_at_bounds
 from hdrd.analysis.gap.metric import GapMeasure, gap_metric
 from hdrd.drivelog import DriveLog
-from hdrd.sim.gyro import (
-    DEFAULT_START_MODEL,
-    EFFECTS,
-    BiasInstability,
-    Effect,
-    GyroModel,
-    RateRandomWalk,
-    ScaleAsymmetry,
-    ScaleFactor,
-)
+from hdrd.sim.gyro import DEFAULT_START_MODEL, EFFECTS, Effect, GyroModel
 
 __all__ = [
-    "AMBIGUITY_BIC",
-    "AMBIGUITY_R",
+    "GAP_NOISE_SEEDS",
     "MAX_STEPS",
     "Ambiguity",
     "GapResult",
@@ -43,89 +36,9 @@ __all__ = [
     "sig4",
 ]
 
-AMBIGUITY_BIC = 10.0
-"""A significant candidate whose BIC is within this of the best one's is a rival..."""
-
-AMBIGUITY_R = 0.8
-"""...if, for two deterministic effects, their fitted contributions to the block residual
-correlate at least this much (|r|): they explain the same disagreement in the same way."""
-
 MAX_STEPS = 8
-
-# (general, special case): pos = neg = error; a Gauss-Markov bias whose correlation time
-# exceeds the log is a random walk (sigma**2 / tau_c = K**2 / 2).
-_NESTS = {("scale_asymmetry", "scale_factor"), ("bias_instability", "rate_random_walk")}
-
-
-def _slow_gm(a: Candidate, duration_s: float) -> bool:
-    gm = a.fit.model.get("bias_instability")
-    return isinstance(gm, BiasInstability) and gm.tau_s >= duration_s
-
-
-def _rivals(
-    best: Candidate, others: list[Candidate], duration_s: float
-) -> list[tuple[Candidate, float | None]]:
-    """Significant candidates the data cannot tell from ``best`` (documented rule)."""
-    out: list[tuple[Candidate, float | None]] = []
-    for c in others:
-        if c.name == best.name or not c.significant or "quantization" in (c.name, best.name):
-            continue
-        if (c.name, best.name) in _NESTS:
-            continue  # the general form adds nothing the special case lacks: parsimony decides
-        if (best.name, c.name) == ("bias_instability", "rate_random_walk") and _slow_gm(
-            best, duration_s
-        ):
-            out.append((c, None))  # a Gauss-Markov bias slower than the log is a random walk
-            continue
-        if c.fit.bic - best.fit.bic >= AMBIGUITY_BIC:
-            continue
-        r: float | None = None
-        if best.contribution is not None and c.contribution is not None:
-            r = correlation(best.contribution, c.contribution)
-            if abs(r) < AMBIGUITY_R:
-                continue  # both real, explaining different parts: later steps add the other
-        out.append((c, r))
-    return out
-
-
-def _special_case(e: Effect) -> Effect | None:
-    """The nested special case an effect can be simplified to (same physics, fewer parameters)."""
-    if isinstance(e, ScaleAsymmetry):
-        return ScaleFactor(error=0.5 * (e.pos_error + e.neg_error))
-    if isinstance(e, BiasInstability):
-        return RateRandomWalk(k_dps_per_sqrt_s=e.sigma_dps * math.sqrt(2.0 / e.tau_s))
-    return None
-
-
-def _revise(f: Fitter, cur: Fit, added: list[str], step: int) -> tuple[Fit, list[dict[str, Any]]]:
-    """Backward check after a step: an effect added earlier that is no longer strongly
-    supported now that the new one explains part of its disagreement is simplified to its
-    nested special case or dropped (whichever has the lower BIC), if that costs less than
-    :data:`BIC_MARGIN` of BIC. One change per call."""
-    best: tuple[float, Fit, dict[str, Any]] | None = None
-    for name in added[:-1]:
-        e = cur.model.get(name)
-        if e is None:
-            continue
-        alts: list[tuple[str, GyroModel]] = [("dropped", cur.model.without(name))]
-        sc = _special_case(e)
-        if sc is not None and sc.name not in cur.model:
-            alts.append((f"replaced by {sc.name}", cur.model.without(name).with_effect(sc)))
-        for how, m in alts:
-            alt = f.full(m, quad=cur.quad, extra_var=cur.noise.extra_var)
-            cost = alt.bic - cur.bic
-            if cost < BIC_MARGIN and (best is None or alt.bic < best[0]):
-                rec = {
-                    "after_step": step,
-                    "effect": name,
-                    "action": how,
-                    "delta_bic": round(cost, 2),
-                    "why": f"{name} no longer lowers BIC by more than {BIC_MARGIN:g} once the later effects are in",
-                }
-                best = (alt.bic, alt, rec)
-    if best is None:
-        return cur, []
-    return best[1], [best[2]]
+GAP_NOISE_SEEDS = 6
+"""Seeds over which the final gap is re-measured to state its seed-to-seed noise."""
 
 
 @dataclass(frozen=True)
@@ -156,6 +69,8 @@ class Step:
     candidates: tuple[dict[str, Any], ...]
     diagnostics: dict[str, Any]
     regressor: str
+    at_bound: tuple[dict[str, Any], ...]
+    """Parameters of the model after the step that sit at a fit bound."""
     fit_before: Fit = field(repr=False)
     fit_after: Fit = field(repr=False)
     sim_before: GapMeasure = field(repr=False)
@@ -179,15 +94,20 @@ class GapResult:
     revisions: tuple[dict[str, Any], ...]
     not_identifiable: dict[str, str]
     final_diagnostics: dict[str, Any]
+    rejected: tuple[dict[str, Any], ...]
+    """Significant candidates not added because the gap rose with them."""
+    final_at_bound: tuple[dict[str, Any], ...]
+    gap_noise: dict[str, Any]
+    """The final gap re-measured with other seeds: its seed-to-seed spread."""
 
     @property
     def final_model(self) -> GyroModel:
         return self.final_fit.model
 
 
-def _cand_row(c: Candidate) -> dict[str, Any]:
+def _cand_row(c: Candidate, beyond: Beyond | None = None) -> dict[str, Any]:
     eff = c.fit.model.get(c.name)
-    return {
+    row = {
         "effect": c.name,
         "delta_bic": round(c.dbic, 2),
         "delta_loglik": round(c.dlnl, 2),
@@ -195,10 +115,84 @@ def _cand_row(c: Candidate) -> dict[str, Any]:
         "significant": c.significant,
         "params": _params(eff) if eff is not None else {},
     }
+    if beyond is not None:
+        row["beyond_random_processes"] = beyond.row()
+    return row
 
 
 def _params(e: Effect) -> dict[str, float]:
     return {k: float(f"{v:.6g}") for k, v in e.params().items()}
+
+
+def _ambiguity(step: int, best: Candidate, rv: list[tuple[Candidate, float | None]]) -> Ambiguity:
+    names_r = tuple(c.name for c, _ in rv)
+    return Ambiguity(
+        step=step,
+        effects=(best.name, *names_r),
+        chosen=best.name,
+        delta_bic=tuple(round(c.fit.bic - best.fit.bic, 2) for c, _ in rv),
+        contribution_r=tuple(None if r is None else round(r, 3) for _, r in rv),
+        note=(
+            f"{best.name} and {', '.join(names_r)} explain this disagreement about "
+            f"equally well (BIC within {AMBIGUITY_BIC:g}); {best.name} was added "
+            "because its BIC is lowest, but the log cannot tell them apart"
+        ),
+    )
+
+
+def _gap_noise(data: GapData, fit: Fit, seed: int, gap: float) -> dict[str, Any]:
+    gaps = [gap] + [
+        gap_metric(data, fit.model, seed + 1000 + j, fit.d, fit.noise.extra_var).gap
+        for j in range(GAP_NOISE_SEEDS - 1)
+    ]
+    mean = sum(gaps) / len(gaps)
+    sd = math.sqrt(sum((g - mean) ** 2 for g in gaps) / (len(gaps) - 1))
+    return {
+        "seeds": len(gaps),
+        "gap_final_mean": sig4(mean),
+        "gap_final_sd": sig4(sd),
+        "gap_final_range": [sig4(min(gaps)), sig4(max(gaps))],
+    }
+
+
+def _slow_form(
+    f: Fitter, cur: Fit, cur_sim: GapMeasure, seed: int, step: int
+) -> tuple[Fit, GapMeasure, dict[str, Any] | None]:
+    """If the model has slow noise: of its forms (random walk, bias instability, both) whose
+    BIC is within :data:`AMBIGUITY_BIC` of the best, the one with the lowest gap."""
+    if not any(s in cur.model for s in SLOW_NOISE):
+        return cur, cur_sim, None
+    data = f.data
+    forms = [cur, *slow_noise_forms(f, cur)]
+    best_bic = min(x.bic for x in forms)
+    close = [x for x in forms if x.bic - best_bic < AMBIGUITY_BIC]
+    scored = [
+        (
+            cur_sim.gap
+            if x is cur
+            else gap_metric(data, x.model, seed, x.d, x.noise.extra_var).gap,
+            i,
+            x,
+        )
+        for i, x in enumerate(close)
+    ]
+    gap, _, x = min(scored, key=lambda z: (z[0], z[1]))
+    names = [n for n in x.model.names() if n in SLOW_NOISE]
+    old = [n for n in cur.model.names() if n in SLOW_NOISE]
+    if x is cur or names == old or not gap < cur_sim.gap:
+        return cur, cur_sim, None
+    rec = {
+        "after_step": step,
+        "effect": " + ".join(old),
+        "action": f"replaced by {' + '.join(names)}",
+        "delta_bic": round(x.bic - cur.bic, 2),
+        "why": (
+            f"the block likelihood cannot tell these forms of the slow noise apart (BIC within "
+            f"{AMBIGUITY_BIC:g}: {', '.join(' + '.join(n for n in y.model.names() if n in SLOW_NOISE) for y in close)}); "
+            "the Allan deviation over all tau can: the one with the lowest gap is kept"
+        ),
+    }
+    return x, gap_metric(data, x.model, seed, x.d, x.noise.extra_var), rec
 
 
 def run_gap(
@@ -206,14 +200,16 @@ def run_gap(
     start: GyroModel = DEFAULT_START_MODEL,
     *,
     standstill: bool = False,
+    exclude: Sequence[tuple[float, float]] = (),
     seed: int = 0,
     candidates: Sequence[str] = CANDIDATES,
     max_steps: int = MAX_STEPS,
 ) -> GapResult:
-    """Run the model-gap workflow on a measured log from the model ``start``.
+    """Run the model-gap workflow on a measured log from the model ``start``; ``exclude``:
+    periods (T0, T1) of the log's own t (s) left out, besides rows marked ``valid`` = 0.
 
     Deterministic for a seed (it only seeds the model simulations of the gap metric)."""
-    data = log if isinstance(log, GapData) else prepare(log, standstill=standstill)
+    data = log if isinstance(log, GapData) else prepare(log, standstill, exclude=exclude)
     unknown = [c for c in candidates if c not in EFFECTS]
     if unknown:
         raise GapError(f"unknown candidate effect(s): {', '.join(unknown)}")
@@ -225,58 +221,61 @@ def run_gap(
     skip = not_identifiable(data, cur.model)
     steps: list[Step] = []
     ambiguous: list[Ambiguity] = []
-    remaining: list[Candidate] = []
+    remaining: list[dict[str, Any]] = []
     added: list[str] = []
     dropped: set[str] = set()  # revised away: never re-added (no loops)
     revisions: list[dict[str, Any]] = []
+    rejected: list[dict[str, Any]] = []
     for i in range(max_steps):
         names = [c for c in candidates if c not in cur.model and c not in skip and c not in dropped]
         cands = [evaluate_candidate(f, cur, c) for c in names]
         sig = [c for c in cands if c.significant]
-        remaining = cands
-        if not sig:
-            break
-        best = min(sig, key=lambda c: c.fit.bic)
-        for c in sig:
-            # A general form must beat its special case by the same margin as any new effect.
-            if (best.name, c.name) in _NESTS and c.fit.bic - best.fit.bic < BIC_MARGIN:
-                best = c
-        rivals = _rivals(best, cands, data.duration_s)
-        diag = diagnostics(data, cur, cur_sim)
-        new = f.full(best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var)
-        if new.lnl < best.fit.lnl:
-            new = best.fit  # the joint refit can only keep or improve the candidate's fit
-        new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
-        if rivals:
-            names_r = tuple(c.name for c, _ in rivals)
-            ambiguous.append(
-                Ambiguity(
-                    step=i + 1,
-                    effects=(best.name, *names_r),
-                    chosen=best.name,
-                    delta_bic=tuple(round(c.fit.bic - best.fit.bic, 2) for c, _ in rivals),
-                    contribution_r=tuple(None if r is None else round(r, 3) for _, r in rivals),
-                    note=(
-                        f"{best.name} and {', '.join(names_r)} explain this disagreement about "
-                        f"equally well (BIC within {AMBIGUITY_BIC:g}); {best.name} was added "
-                        "because its BIC is lowest, but the log cannot tell them apart"
-                    ),
+        order, beyond = rank(f, cur, sig)
+        rows = tuple(_cand_row(c, beyond.get(c.name)) for c in sorted(cands, key=lambda c: c.dbic))
+        remaining = list(rows)
+        chosen = None
+        for best in order:
+            new = f.full(best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var)
+            if new.lnl < best.fit.lnl:
+                new = best.fit  # the joint refit can only keep or improve the candidate's fit
+            new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
+            if new_sim.gap > cur_sim.gap:
+                rejected.append(
+                    {
+                        "step": i + 1,
+                        "effect": best.name,
+                        "delta_bic": round(best.dbic, 2),
+                        "gap_before": sig4(cur_sim.gap),
+                        "gap_with_it": sig4(new_sim.gap),
+                        "why": "significant, but the gap rose with it: the fitted effect "
+                        "makes the simulated log less like the measured one",
+                    }
                 )
-            )
+                continue
+            chosen = (best, new, new_sim)
+            break
+        if chosen is None:
+            break
+        best, new, new_sim = chosen
+        rv = rivals(best, [c for c in cands if c in order], data.duration_s)
+        diag = diagnostics(data, cur, cur_sim)
+        if rv:
+            ambiguous.append(_ambiguity(i + 1, best, rv))
         eff = new.model.get(best.name)
         steps.append(
             Step(
                 effect=best.name,
                 params=_params(eff) if eff is not None else {},
-                where=where_phrase(data, best, cur_sim, diag),
+                where=where_phrase(data, best, cur_sim, diag, rows, skip, rejected),
                 gap_before=cur_sim.gap,
                 gap_after=new_sim.gap,
                 delta_bic=best.dbic,
                 p_value=best.p,
-                ambiguous_with=tuple(c.name for c, _ in rivals),
-                candidates=tuple(_cand_row(c) for c in sorted(cands, key=lambda c: c.dbic)),
+                ambiguous_with=tuple(c.name for c, _ in rv),
+                candidates=rows,
                 diagnostics=diag,
                 regressor=REGRESSOR.get(best.name, "time_s"),
+                at_bound=tuple(params_at_bounds(new.model, data)),
                 fit_before=cur,
                 fit_after=new,
                 sim_before=cur_sim,
@@ -286,16 +285,24 @@ def run_gap(
         cur, cur_sim = new, new_sim
         added.append(best.name)
         for _ in range(len(added)):
-            revised, recs = _revise(f, cur, added, i + 1)
-            if not recs:
+            made = False
+            for revised, rec in revise(f, cur, added, i + 1):
+                rsim = gap_metric(data, revised.model, seed, revised.d, revised.noise.extra_var)
+                if rsim.gap > cur_sim.gap:
+                    continue  # a revision must not raise the gap either
+                added.remove(rec["effect"])
+                dropped.add(rec["effect"])
+                if rec["action"].startswith("replaced by "):
+                    added.append(rec["action"][len("replaced by ") :])
+                cur, cur_sim = revised, rsim
+                rec["gap_after"] = sig4(cur_sim.gap)
+                revisions.append(rec)
+                made = True
                 break
-            rec = recs[0]
-            added.remove(rec["effect"])
-            dropped.add(rec["effect"])
-            if rec["action"].startswith("replaced by "):
-                added.append(rec["action"][len("replaced by ") :])
-            cur = revised
-            cur_sim = gap_metric(data, cur.model, seed, cur.d, cur.noise.extra_var)
+            if not made:
+                break
+        cur, cur_sim, rec = _slow_form(f, cur, cur_sim, seed, i + 1)
+        if rec is not None:
             rec["gap_after"] = sig4(cur_sim.gap)
             revisions.append(rec)
     return GapResult(
@@ -307,11 +314,14 @@ def run_gap(
         steps=tuple(steps),
         final_fit=cur,
         final_sim=cur_sim,
-        remaining=tuple(_cand_row(c) for c in sorted(remaining, key=lambda c: c.dbic)),
+        remaining=tuple(remaining),
         ambiguous=tuple(ambiguous),
         revisions=tuple(revisions),
         not_identifiable=skip,
         final_diagnostics=diagnostics(data, cur, cur_sim),
+        rejected=tuple(rejected),
+        final_at_bound=tuple(params_at_bounds(cur.model, data)),
+        gap_noise=_gap_noise(data, cur, seed, cur_sim.gap),
     )
 
 
