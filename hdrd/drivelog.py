@@ -146,11 +146,11 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     if t.shape[0] == 0:
         raise DriveLogError(f"{label}: no data rows")
     if "valid" in arrays:
-        v = arrays["valid"]
-        bad_v = np.flatnonzero((v != 0.0) & (v != 1.0))  # NaN (empty) included
+        vcol = arrays["valid"]
+        bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
         if bad_v.shape[0]:
             i = int(bad_v[0])
-            what = "is empty" if math.isnan(v[i]) else f"{float(v[i])!r} is not 0 or 1"
+            what = "is empty" if math.isnan(vcol[i]) else f"{float(vcol[i])!r} is not 0 or 1"
             raise DriveLogError(
                 f"{label}:{row_lines[i]}: column valid: {what}; every row needs 1 (the sample "
                 "counts) or 0 (excluded)"

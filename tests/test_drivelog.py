@@ -184,7 +184,7 @@ def test_rates_keep_an_adc_step(step: float) -> None:
     """Values on an ADC step that is no round decimal (CRS03-04 on 16 bits; a +/-1000 deg/s
     MEMS) come back within 1e-5 of a step (they used to be rounded to 1e-5 deg/s); values
     with 5 decimals or fewer are written as they always were."""
-    k = np.arange(-3000, 3000, 7)
+    k = np.arange(-3000, 3000, 7).astype(np.float64)
     log = DriveLog(t=np.arange(k.shape[0]) / 10.0, omega=k * step, omega_truth=k * step)
     buf = io.StringIO()
     write_drive(buf, log)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from hdrd.analysis.allan import allan_deviation
@@ -24,6 +24,7 @@ from hdrd.analysis.gap import (
     GapError,
     allan_deviation_masked,
     chi2_sf,
+    decimal_resolution,
     detect_lattice,
     prepare,
     run_gap,
@@ -33,7 +34,8 @@ from hdrd.analysis.gap import (
 )
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, write_drive
+from hdrd.drivelog import DriveLog, read_drive, write_drive
+from hdrd.sensor import SensorModel
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.gyro import (
     BiasInstability,
@@ -302,6 +304,43 @@ def test_lattice_found_on_quantised_values_and_not_on_continuous(
     assert lat.step_dps == pytest.approx(step, rel=1e-6)
     assert lat.fraction == 1.0
     assert detect_lattice(x, 1e-9) is None
+
+
+@given(
+    step=st.floats(0.002, 0.25),
+    offset=st.floats(-0.4, 0.4),
+    decimals=st.integers(3, 9),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_lattice_found_through_the_csv_rounding(
+    step: float, offset: float, decimals: int, seed: int
+) -> None:
+    """Values on an ADC step that is no round decimal, written with a few decimals, sit on
+    the step only within the rounding: still found (the step to 0.1 %), and continuous values
+    written alike are not. (At least a dozen codes: with a handful, each code's own rounding
+    error is the fit's, and a lattice is barely defined.)"""
+    assume(step >= 30.0 * 10.0**-decimals)
+    rng = np.random.default_rng(seed)
+    x = 1.0 + 0.5 * rng.standard_normal(2000)
+    q = np.round(offset * step + step * np.round((x - offset * step) / step), decimals)
+    # The CSV's resolution (values on a round lattice can look coarser than it by themselves).
+    lat = detect_lattice(q, min(decimal_resolution(q), 10.0**-decimals))
+    assert lat is not None
+    assert lat.step_dps == pytest.approx(step, rel=1e-3)
+    assert lat.fraction == 1.0
+    cont = np.round(x, decimals)
+    assert detect_lattice(cont, decimal_resolution(cont)) is None
+
+
+def test_simulated_log_keeps_its_adc_step(tmp_path: Path) -> None:
+    """hdrd simulate writes enough digits for the CRS03-04's 0.00763 deg/s step to be found."""
+    out = tmp_path / "rest.csv"
+    rc = cli_main(["simulate", "--drive", "standstill", "--minutes", "2", "--out", str(out)])
+    assert rc == 0
+    log = read_drive(out)
+    lat = detect_lattice(log.omega, decimal_resolution(log.omega))
+    assert lat is not None
+    assert lat.step_dps == pytest.approx(SensorModel().lsb_dps, rel=1e-4)
 
 
 # -- the command line ---------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from hdrd.analysis.gap.data import GapError
@@ -10,17 +11,39 @@ from hdrd.analysis.gap.report import summary, to_report
 from hdrd.analysis.gap.search import run_gap
 from hdrd.sim.gyro import DEFAULT_START_MODEL
 
-__all__ = ["main"]
+__all__ = ["main", "parse_period"]
 
 
 def _err(msg: str) -> None:
     print(f"hdrd gap: {msg}", file=sys.stderr)
 
 
+def parse_period(text: str) -> tuple[float, float]:
+    """``T0:T1`` (s) -> (T0, T1); ValueError naming what is wrong."""
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        t0, t1 = float(a), float(b)
+    except ValueError:
+        raise ValueError(
+            f"--exclude {text!r}: expected T0:T1, two times in seconds of the log's t "
+            "(e.g. 120:185)"
+        ) from None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+        raise ValueError(f"--exclude {text!r}: need finite times with T0 <= T1")
+    return t0, t1
+
+
 def main(args: argparse.Namespace) -> int:
     """``hdrd gap MEASURED.csv [--model MODEL.yaml] [--out FITTED.yaml] [--report REPORT.json]
-    [--plot FILE.png] [--standstill] [--seed N]``. Exit 0 ok, 1 bad input or I/O error,
-    78 bad model file."""
+    [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N]``. Exit 0 ok, 1 bad
+    input or I/O error, 78 bad model file."""
+    try:
+        exclude = [parse_period(x) for x in getattr(args, "exclude", None) or []]
+    except ValueError as e:
+        _err(str(e))
+        return 1
     from hdrd.drivelog import DriveLogError, read_drive
     from hdrd.sim.gyro import load_model, save_model
 
@@ -43,7 +66,9 @@ def main(args: argparse.Namespace) -> int:
         _err(str(e))
         return 1
     try:
-        res = run_gap(log, start, standstill=bool(args.standstill), seed=int(args.seed))
+        res = run_gap(
+            log, start, standstill=bool(args.standstill), exclude=exclude, seed=int(args.seed)
+        )
     except (GapError, ValueError) as e:
         _err(str(e))
         return 1

@@ -9,18 +9,16 @@ Rates deg/s, + = CCW; times s; temperatures deg C. Effect names and parameters a
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lattice import on_lattice
 from hdrd.analysis.gap.lowpass import (
-    A_MAX,
-    A_MIN,
     cutoff_hz,
     differences,
     fit_lowpass,
@@ -28,7 +26,7 @@ from hdrd.analysis.gap.lowpass import (
     white_factor,
 )
 from hdrd.analysis.gap.noise import Noise, Whitener
-from hdrd.analysis.gap.optimize import levenberg_marquardt, nelder_mead
+from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
 from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,
@@ -41,17 +39,14 @@ from hdrd.sim.gyro import (
 )
 
 __all__ = [
-    "DELAY_MAX_S",
     "GLITCH_P",
     "NOISE_EFFECTS",
     "Fit",
     "Fitter",
-    "at_rest",
     "clipping_rail",
     "deterministic_part",
     "fit_model",
-    "param_bounds",
-    "params_at_bounds",
+    "with_params",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -95,70 +90,6 @@ _DET_PARAMS: dict[str, tuple[tuple[str, str, float], ...]] = {
 }
 
 _TAU_BOUNDS = (1.0, 1e6)
-DELAY_MAX_S = 3.0
-_GAIN_MIN = -0.9
-
-
-def at_rest(data: GapData) -> bool:
-    """The true rate is (near) zero throughout (99th percentile of |truth| below 1 deg/s) and
-    known at every sample (not a GPS heading's: its fixes step): the unexplained residual's
-    sample-to-sample structure is the sensor's own noise."""
-    truth = data.truth[data.valid]
-    if data.truth_source.startswith("heading_truth"):
-        return False
-    return truth.shape[0] == 0 or float(np.percentile(np.abs(truth), 99)) < 1.0
-
-
-def param_bounds(data: GapData) -> dict[tuple[str, str], tuple[float, float, str]]:
-    """The bounds the fits keep each bounded parameter in, (low, high, why), in the
-    parameter's unit: what the log can resolve, or what the effect means."""
-    b, d = data.block_s, data.duration_s
-    dt = 1.0 / data.fs_hz
-    return {
-        ("warmup_transient", "tau_s"): (
-            b,
-            max(d / 2.0, 2.0 * b),
-            "one block .. half the log (a slower transient is a trend)",
-        ),
-        ("time_offset", "delay_s"): (-DELAY_MAX_S, DELAY_MAX_S, "lags of at most 3 s"),
-        ("scale_factor", "error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
-        ("scale_asymmetry", "pos_error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
-        ("scale_asymmetry", "neg_error"): (_GAIN_MIN, math.inf, "a gain above 0.1"),
-        ("bias_instability", "tau_s"): (
-            2.0 * b,
-            10.0 * d,
-            "two blocks .. ten times the log (faster is not resolved by the blocks)",
-        ),
-        ("bandwidth", "cutoff_hz"): (
-            cutoff_hz(A_MAX, dt),
-            cutoff_hz(A_MIN, dt),
-            "a time constant of 1000 samples .. 1.1 x the sample rate",
-        ),
-    }
-
-
-def params_at_bounds(model: GyroModel, data: GapData) -> list[dict[str, Any]]:
-    """The model's parameters that sit at (within 0.5 % of) a fit bound: the data pushed them
-    there, so the value is a limit, not an estimate."""
-    out: list[dict[str, Any]] = []
-    for (eff, p), (lo, hi, why) in param_bounds(data).items():
-        e = model.get(eff)
-        if e is None:
-            continue
-        v = float(getattr(e, p))
-        for side, lim in (("lower", lo), ("upper", hi)):
-            if math.isfinite(lim) and abs(v - lim) <= 0.005 * max(abs(lim), 1e-12):
-                out.append(
-                    {
-                        "effect": eff,
-                        "param": p,
-                        "value": float(f"{v:.6g}"),
-                        "bound": side,
-                        "limit": float(f"{lim:.6g}"),
-                        "range": why,
-                    }
-                )
-    return out
 
 
 @dataclass(frozen=True)
@@ -187,7 +118,7 @@ def _free_det(model: GyroModel, quad: bool) -> list[tuple[str, str, str, float]]
     return out
 
 
-def _with_params(
+def with_params(
     model: GyroModel,
     free: list[tuple[str, str, str, float]],
     theta: FloatArray,
@@ -202,7 +133,7 @@ def _with_params(
         if eff == "time_offset":
             val = min(max(val, -DELAY_MAX_S), DELAY_MAX_S)
         if p in ("error", "pos_error", "neg_error"):
-            val = max(val, -0.9)
+            val = max(val, GAIN_MIN)
         upd.setdefault(eff, {})[p] = val
     effects = []
     for e in model.effects:
@@ -332,17 +263,42 @@ class Fitter:
         d = deterministic_part(self.data, model)
         return d, self.data.block_mean(d)
 
-    def _lsq(
+    def det_problem(
         self, model: GyroModel, free: list[tuple[str, str, str, float]], wh: Whitener
-    ) -> GyroModel:
+    ) -> tuple[Callable[[FloatArray], FloatArray], FloatArray, FloatArray]:
+        """The least-squares problem of the ``free`` deterministic parameters: the whitened
+        residual as a function of theta (log-transformed where positive), its start and
+        finite-difference steps. :func:`with_params` turns theta back into a model."""
         wy = wh.whiten(self.ebar)
 
         def res(theta: FloatArray) -> FloatArray:
-            _, db = self.dbar(_with_params(model, free, theta, self.tau_bounds))
+            _, db = self.dbar(with_params(model, free, theta, self.tau_bounds))
             return np.asarray(wy - wh.whiten(db))
 
-        theta = levenberg_marquardt(res, _theta(model, free), np.array([f[3] for f in free]))
-        return _with_params(model, free, theta, self.tau_bounds)
+        return res, _theta(model, free), np.array([f[3] for f in free])
+
+    def _lsq(
+        self, model: GyroModel, free: list[tuple[str, str, str, float]], wh: Whitener
+    ) -> GyroModel:
+        res, theta0, h = self.det_problem(model, free, wh)
+        lo, hi = self.theta_bounds(free)
+        theta = least_squares_bounded(res, theta0, h, lo, hi)
+        return with_params(model, free, theta, self.tau_bounds)
+
+    def theta_bounds(
+        self, free: list[tuple[str, str, str, float]]
+    ) -> tuple[FloatArray, FloatArray]:
+        """Bounds of the deterministic parameters theta (log of tau), from :func:`param_bounds`."""
+        lo = np.full(len(free), -np.inf)
+        hi = np.full(len(free), np.inf)
+        for i, (eff, p, kind, _) in enumerate(free):
+            if kind == "log":
+                lo[i], hi[i] = math.log(self.tau_bounds[0]), math.log(self.tau_bounds[1])
+            elif eff == "time_offset":
+                lo[i], hi[i] = -DELAY_MAX_S, DELAY_MAX_S
+            elif p in ("error", "pos_error", "neg_error"):
+                lo[i] = GAIN_MIN
+        return lo, hi
 
     def fit_det(self, model: GyroModel, noise: Noise, quad: bool) -> GyroModel:
         """Least squares of the deterministic parameters, noise fixed, weighted by the white
@@ -393,13 +349,11 @@ class Fitter:
             self.data, model
         )
 
-    def fit_noise(
-        self, model: GyroModel, noise: Noise, dbar: FloatArray, which: Sequence[str]
-    ) -> Noise:
-        """Maximum likelihood of the named noise parameters (log scale), others fixed."""
-        which = [w for w in which if w != "extra_var" or self.heading]
-        if not which:
-            return noise
+    def noise_problem(
+        self, noise: Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> tuple[Callable[[FloatArray], float], FloatArray, Callable[[FloatArray], Noise]]:
+        """The maximum-likelihood problem of the named noise parameters: the negative
+        log-likelihood of x (their logarithms), its start, and x -> Noise (bounds applied)."""
         y = self.ebar - dbar
         lo, hi = self.bi_tau_bounds
 
@@ -418,8 +372,22 @@ class Fitter:
         for w in which:
             v = getattr(noise, w)
             x0.append(math.log(v) if v > 0 else math.log(1e-6))
-        x = nelder_mead(nll, np.array(x0), scale=0.7, iters=60 * len(which))
-        return build(x)
+        return nll, np.array(x0), build
+
+    def fit_noise(
+        self, model: GyroModel, noise: Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> Noise:
+        """Maximum likelihood of the named noise parameters (log scale), others fixed."""
+        which = [w for w in which if w != "extra_var" or self.heading]
+        if not which:
+            return noise
+        nll, x0, build = self.noise_problem(noise, dbar, which)
+        lo = np.full(len(which), -40.0)
+        hi = np.full(len(which), 20.0)
+        for i, w in enumerate(which):
+            if w == "bi_tau":
+                lo[i], hi[i] = math.log(self.bi_tau_bounds[0]), math.log(self.bi_tau_bounds[1])
+        return build(minimize_simplex(nll, x0, lo, hi))
 
     def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
         if "white_noise" not in model:

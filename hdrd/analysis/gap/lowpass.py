@@ -24,6 +24,7 @@ white noise alone would give (:func:`white_factor`; 130x at a = 0.88).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -104,26 +105,41 @@ class _Spectrum:
     def loglik(self, s: FloatArray) -> float:
         return -float(np.sum(self.m * (np.log(s) + self.i / s)))
 
-    def best_white(self, g1: FloatArray, g0: FloatArray) -> tuple[float, float]:
-        """(W, ln L) maximising the likelihood of S = W g1 + g0 over W > 0."""
-        w = max(float(np.sum(self.m * np.maximum(self.i - g0, 0.0) / g1) / np.sum(self.m)), 1e-30)
-        lo, hi = math.log(w) - 3.0, math.log(w) + 3.0
-        # ln L is unimodal in ln W here: a golden-section search polishes the moment estimate.
-        g = (math.sqrt(5.0) - 1.0) / 2.0
-        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-        f1 = self.loglik(math.exp(x1) * g1 + g0)
-        f2 = self.loglik(math.exp(x2) * g1 + g0)
-        for _ in range(40):
-            if f1 > f2:
-                hi, x2, f2 = x2, x1, f1
-                x1 = hi - g * (hi - lo)
-                f1 = self.loglik(math.exp(x1) * g1 + g0)
-            else:
-                lo, x1, f1 = x1, x2, f2
-                x2 = lo + g * (hi - lo)
-                f2 = self.loglik(math.exp(x2) * g1 + g0)
-        x = 0.5 * (lo + hi)
-        return math.exp(x), self.loglik(math.exp(x) * g1 + g0)
+    def best_linear(self, gs: list[FloatArray], g0: FloatArray) -> tuple[FloatArray, float]:
+        """(c, ln L) maximising the likelihood of S = sum_j c_j gs[j] + g0 over c >= 0, by
+        coordinate ascent: one coefficient at a time by Fisher scoring (the spectrum is linear
+        in it), clipped at zero, until a sweep gains less than 1e-4."""
+        mtot = float(np.sum(self.m))
+        c = [
+            max(float(np.sum(self.m * np.maximum(self.i - g0, 0.0) / gj)) / mtot, 1e-30)
+            for gj in gs
+        ]
+        c = [x / len(gs) for x in c]
+        sp = sum(cj * gj for cj, gj in zip(c, gs)) + g0
+        ll = self.loglik(sp)
+        for _ in range(60):
+            start = ll
+            for j, gj in enumerate(gs):
+                for _ in range(8):
+                    r = self.m / (sp * sp)
+                    score = float(np.sum(gj * r * (self.i - sp)))
+                    info = float(np.sum(gj * gj * r))
+                    new = max(c[j] + score / info, 0.0)
+                    while True:  # halve the step until the likelihood does not fall
+                        sp_new = sp + (new - c[j]) * gj
+                        ll_new = self.loglik(sp_new) if np.all(sp_new > 0) else -math.inf
+                        if ll_new >= ll or abs(new - c[j]) <= 1e-12 * max(c[j], 1e-30):
+                            break
+                        new = 0.5 * (new + c[j])
+                    if ll_new < ll:
+                        break
+                    moved = ll_new - ll
+                    c[j], sp, ll = new, sp_new, ll_new
+                    if moved < 1e-6:
+                        break
+            if ll - start < 1e-4:
+                break
+        return np.asarray(c), ll
 
 
 def fit_lowpass(
@@ -137,20 +153,13 @@ def fit_lowpass(
     ``block_samples``) up: the pole a (given, or fitted over [A_MIN, A_MAX]), the input white
     variance W and the white variance after the low-pass (at least the ADC's ``q_var`` =
     q**2/12), with the slow processes' flat ``floor`` ((deg/s)**2) known."""
-    sp = _Spectrum(np.asarray(de, dtype=np.float64), 2.0 * math.pi / max(block_samples, 2.0))
-    _, ll_white = sp.best_white(sp.d2, sp.d2 * q_var + floor)
+    sp = _spectrum(np.asarray(de, dtype=np.float64), 2.0 * math.pi / max(block_samples, 2.0))
+    g0 = sp.d2 * q_var + floor
+    _, ll_white = sp.best_linear([sp.d2], g0)
 
     def at(av: float) -> tuple[float, float]:
-        # The white level after the low-pass: profiled over a few values above the ADC's.
-        h = sp.shape(av)
-        best = (0.0, -math.inf)
-        top = float(np.sum(sp.m * sp.i / sp.d2) / np.sum(sp.m))
-        for frac in (0.0, 0.01, 0.03, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9):
-            g0 = sp.d2 * (q_var + frac * top) + floor
-            w, ll = sp.best_white(h, g0)
-            if ll > best[1]:
-                best = (w, ll)
-        return best
+        c, ll = sp.best_linear([sp.shape(av), sp.d2], g0)
+        return float(c[0]), ll
 
     if a is None:
         # Grid over ln(1 - a), then golden-section refinement around the best point.
@@ -160,15 +169,35 @@ def fit_lowpass(
         lo = math.log(1.0 - float(grid[min(j + 1, 39)]))
         hi = math.log(1.0 - float(grid[max(j - 1, 0)]))
         g = (math.sqrt(5.0) - 1.0) / 2.0
+        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+        f1, f2 = at(1.0 - math.exp(x1))[1], at(1.0 - math.exp(x2))[1]
         for _ in range(25):
-            x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-            if at(1.0 - math.exp(x1))[1] > at(1.0 - math.exp(x2))[1]:
-                hi = x2
+            if f1 > f2:
+                hi, x2, f2 = x2, x1, f1
+                x1 = hi - g * (hi - lo)
+                f1 = at(1.0 - math.exp(x1))[1]
             else:
-                lo = x1
+                lo, x1, f1 = x1, x2, f2
+                x2 = lo + g * (hi - lo)
+                f2 = at(1.0 - math.exp(x2))[1]
         a = 1.0 - math.exp(0.5 * (lo + hi))
         if vals[j] > at(a)[1]:
             a = float(grid[j])
     a = min(max(a, A_MIN), A_MAX)
     w, ll = at(a)
     return LowpassFit(a=a, white_var=w, loglik=ll, loglik_white=ll_white)
+
+
+_CACHE: dict[tuple[int, float, bytes], _Spectrum] = {}
+
+
+def _spectrum(de: FloatArray, w_min: float) -> _Spectrum:
+    """The binned periodogram of ``de``, remembered for the last few series (a fit asks for
+    the same residual's spectrum many times)."""
+    key = (de.shape[0], w_min, hashlib.blake2b(de.tobytes(), digest_size=16).digest())
+    sp = _CACHE.get(key)
+    if sp is None:
+        if len(_CACHE) >= 8:
+            _CACHE.pop(next(iter(_CACHE)))
+        sp = _CACHE[key] = _Spectrum(de, w_min)
+    return sp

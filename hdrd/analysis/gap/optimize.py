@@ -1,100 +1,76 @@
-"""Small optimisers and a chi-squared tail (numpy only) for the model-gap fits."""
+"""The model-gap fits' solvers: bounded least squares and a bounded simplex search from
+scipy.optimize (imported when first used; ``pip install 'hdrd[gap]'``), and a closed-form
+chi-squared tail. bench/gap_libraries.py compares them with hand-written ones (kept there)
+and chi2_sf with scipy.stats: see docs/model-gap.md, "Libraries"."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["chi2_sf", "levenberg_marquardt", "nelder_mead"]
+from hdrd.analysis.gap.data import GapError
+
+__all__ = ["chi2_sf", "least_squares_bounded", "minimize_simplex"]
 
 FloatArray = npt.NDArray[np.float64]
 
 
-def levenberg_marquardt(
-    fun: Callable[[FloatArray], FloatArray], x0: FloatArray, h: FloatArray, max_iter: int = 40
-) -> FloatArray:
-    """Minimise |fun(x)|**2 from x0 (forward-difference Jacobian with steps h)."""
-    x = np.array(x0, dtype=np.float64)
-    r = fun(x)
-    cost = float(np.dot(r, r))
-    lam = 1e-4
-    for _ in range(max_iter):
-        jac = np.empty((r.shape[0], x.shape[0]))
-        for j in range(x.shape[0]):
-            xp = x.copy()
-            xp[j] += h[j]
-            jac[:, j] = (fun(xp) - r) / h[j]
-        # A parameter with no effect here (e.g. held at a bound) is left where it is: solving
-        # for it would take round-off for a direction.
-        dg = np.diag(jac.T @ jac).copy()
-        act = dg > 1e-14 * max(float(dg.max()), 1e-300)
-        if not act.any():
-            break
-        ja = jac[:, act]
-        g = ja.T @ r
-        a = ja.T @ ja
-        accepted = False
-        for _ in range(10):
-            step = np.zeros_like(x)
-            try:
-                step[act] = -np.linalg.solve(a + lam * np.diag(dg[act]), g)
-            except np.linalg.LinAlgError:
-                lam *= 10.0
-                continue
-            xn = x + step
-            rn = fun(xn)
-            cn = float(np.dot(rn, rn))
-            if np.isfinite(cn) and cn <= cost:
-                accepted = True
-                done = cost - cn <= 1e-10 * max(cost, 1e-300)
-                x, r, cost = xn, rn, cn
-                lam = max(lam / 5.0, 1e-12)
-                break
-            lam *= 10.0
-        if not accepted or done:
-            break
-    return x
+def _scipy_optimize() -> Any:
+    try:
+        import scipy.optimize
+    except ImportError:  # pragma: no cover - the gap extra installs it
+        raise GapError(
+            "hdrd gap needs scipy for its fits: pip install 'hdrd[gap]' (or pip install scipy)"
+        ) from None
+    return scipy.optimize
 
 
-def nelder_mead(
-    f: Callable[[FloatArray], float], x0: FloatArray, scale: float = 0.5, iters: int = 80
+def least_squares_bounded(
+    fun: Callable[[FloatArray], FloatArray],
+    x0: FloatArray,
+    steps: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
 ) -> FloatArray:
-    """Minimise f from x0 (unconstrained; a small simplex method, enough for 1-3 parameters)."""
-    n = x0.shape[0]
-    pts = [np.array(x0, dtype=np.float64)]
-    for i in range(n):
-        p = pts[0].copy()
-        p[i] += scale
-        pts.append(p)
-    vals = [f(p) for p in pts]
-    for _ in range(iters):
-        order = np.argsort(vals)
-        pts = [pts[i] for i in order]
-        vals = [vals[i] for i in order]
-        if abs(vals[-1] - vals[0]) < 1e-6 and np.max(np.abs(np.array(pts) - pts[0])) < 1e-4:
-            break
-        c = np.mean(pts[:-1], axis=0)
-        xr = c + (c - pts[-1])
-        fr = f(xr)
-        if fr < vals[0]:
-            xe = c + 2.0 * (c - pts[-1])
-            fe = f(xe)
-            pts[-1], vals[-1] = (xe, fe) if fe < fr else (xr, fr)
-        elif fr < vals[-2]:
-            pts[-1], vals[-1] = xr, fr
-        else:
-            xc = c + 0.5 * (pts[-1] - c)
-            fc = f(xc)
-            if fc < vals[-1]:
-                pts[-1], vals[-1] = xc, fc
-            else:
-                for i in range(1, n + 1):
-                    pts[i] = pts[0] + 0.5 * (pts[i] - pts[0])
-                    vals[i] = f(pts[i])
-    return pts[int(np.argmin(vals))]
+    """Minimise |fun(x)|**2 within [lower, upper] (scipy's trust-region reflective least
+    squares, forward-difference Jacobian with absolute steps ``steps`` near 0)."""
+    lo = np.asarray(lower, dtype=np.float64)
+    hi = np.asarray(upper, dtype=np.float64)
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    x = np.clip(np.asarray(x0, dtype=np.float64), lo + 1e-9 * span, hi - 1e-9 * span)
+    res = _scipy_optimize().least_squares(
+        fun, x, bounds=(lo, hi), x_scale="jac", diff_step=np.asarray(steps), method="trf"
+    )
+    return np.asarray(res.x, dtype=np.float64)
+
+
+def minimize_simplex(
+    f: Callable[[FloatArray], float],
+    x0: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    scale: float = 0.7,
+) -> FloatArray:
+    """Minimise f within [lower, upper] by scipy's Nelder-Mead from a simplex of side
+    ``scale`` around x0 (tolerances 1e-4 in x and f: a log-likelihood needs no finer)."""
+    lo = np.asarray(lower, dtype=np.float64)
+    hi = np.asarray(upper, dtype=np.float64)
+    x = np.clip(np.asarray(x0, dtype=np.float64), lo, hi)
+    n = x.shape[0]
+    simplex = np.vstack([x] + [x + scale * np.eye(n)[i] for i in range(n)])
+    simplex = np.clip(simplex, lo, hi)
+    res = _scipy_optimize().minimize(
+        f,
+        x,
+        method="Nelder-Mead",
+        bounds=list(zip(lo, hi)),
+        options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-4},
+    )
+    return np.asarray(res.x, dtype=np.float64)
 
 
 def chi2_sf(x: float, k: int) -> float:

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hdrd.analysis.gap.bounds import params_at_bounds
 from hdrd.analysis.gap.candidates import (
     CANDIDATES,
     SLOW_NOISE,
@@ -21,7 +22,7 @@ from hdrd.analysis.gap.candidates import (
 from hdrd.analysis.gap.choose import AMBIGUITY_BIC, Beyond, rank, revise, rivals
 from hdrd.analysis.gap.data import GapData, GapError, prepare
 from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
-from hdrd.analysis.gap.fit import Fit, Fitter, fit_model, params_at_bounds
+from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import GapMeasure, gap_metric
 from hdrd.drivelog import DriveLog
 from hdrd.sim.gyro import DEFAULT_START_MODEL, EFFECTS, Effect, GyroModel
@@ -37,6 +38,8 @@ __all__ = [
 ]
 
 MAX_STEPS = 8
+FORM_GAP_RATIO = 0.8
+FORM_GAP_DROP = 0.05
 GAP_NOISE_SEEDS = 6
 """Seeds over which the final gap is re-measured to state its seed-to-seed noise."""
 
@@ -159,7 +162,9 @@ def _slow_form(
     f: Fitter, cur: Fit, cur_sim: GapMeasure, seed: int, step: int
 ) -> tuple[Fit, GapMeasure, dict[str, Any] | None]:
     """If the model has slow noise: of its forms (random walk, bias instability, both) whose
-    BIC is within :data:`AMBIGUITY_BIC` of the best, the one with the lowest gap."""
+    BIC is within :data:`AMBIGUITY_BIC` of the best, the one with the lowest gap, if that
+    gap is clearly lower (below :data:`FORM_GAP_RATIO` times the current one and by more
+    than :data:`FORM_GAP_DROP`, beyond the gap's seed-to-seed noise)."""
     if not any(s in cur.model for s in SLOW_NOISE):
         return cur, cur_sim, None
     data = f.data
@@ -179,7 +184,11 @@ def _slow_form(
     gap, _, x = min(scored, key=lambda z: (z[0], z[1]))
     names = [n for n in x.model.names() if n in SLOW_NOISE]
     old = [n for n in cur.model.names() if n in SLOW_NOISE]
-    if x is cur or names == old or not gap < cur_sim.gap:
+    if (
+        x is cur
+        or names == old
+        or not (gap < FORM_GAP_RATIO * cur_sim.gap and cur_sim.gap - gap > FORM_GAP_DROP)
+    ):
         return cur, cur_sim, None
     rec = {
         "after_step": step,
@@ -301,10 +310,10 @@ def run_gap(
                 break
             if not made:
                 break
-        cur, cur_sim, rec = _slow_form(f, cur, cur_sim, seed, i + 1)
-        if rec is not None:
-            rec["gap_after"] = sig4(cur_sim.gap)
-            revisions.append(rec)
+        cur, cur_sim, form = _slow_form(f, cur, cur_sim, seed, i + 1)
+        if form is not None:
+            form["gap_after"] = sig4(cur_sim.gap)
+            revisions.append(form)
     return GapResult(
         data=data,
         initial_model=start,
