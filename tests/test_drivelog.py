@@ -147,7 +147,10 @@ def test_metadata_blank_lines_and_properties() -> None:
         ("# only: metadata\n\n", r"<stream>: empty file"),
         ("t,omega\n", r"<stream>: no data rows"),
         ("t,omega,valid\n0,1,1\n0.1,1,2\n", r"<stream>:3: column valid: 2.0 is not 0 or 1"),
-        ("t,omega,valid\n0,1,1\n0.1,1,\n", r"<stream>:3: column valid: is empty; every row needs 1"),
+        (
+            "t,omega,valid\n0,1,1\n0.1,1,\n",
+            r"<stream>:3: column valid: is empty; every row needs 1",
+        ),
     ],
 )
 def test_errors(text: str, match: str) -> None:
