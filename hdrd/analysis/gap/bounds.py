@@ -12,9 +12,19 @@ from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lowpass import A_MAX, A_MIN, cutoff_hz
 from hdrd.sim.gyro import GyroModel
 
-__all__ = ["DELAY_MAX_S", "GAIN_MIN", "at_rest", "param_bounds", "params_at_bounds"]
+__all__ = [
+    "DELAY_MAX_S",
+    "GAIN_MIN",
+    "WARMUP_TAU_MAX_S",
+    "at_rest",
+    "param_bounds",
+    "params_at_bounds",
+]
 
 DELAY_MAX_S = 3.0
+WARMUP_TAU_MAX_S = 1800.0
+"""A gyro's own warm-up after power-on settles within minutes; an exponential of hours is the
+surroundings warming (temperature_bias) or a random walk, and would trade places with them."""
 GAIN_MIN = -0.9
 
 
@@ -36,8 +46,9 @@ def param_bounds(data: GapData) -> dict[tuple[str, str], tuple[float, float, str
     return {
         ("warmup_transient", "tau_s"): (
             b,
-            max(d / 2.0, 2.0 * b),
-            "one block .. half the log (a slower transient is a trend)",
+            max(min(d / 2.0, WARMUP_TAU_MAX_S), 2.0 * b),
+            f"one block .. half the log, at most {WARMUP_TAU_MAX_S:g} s (a slower transient is "
+            "the surroundings' temperature or a random walk)",
         ),
         ("time_offset", "delay_s"): (-DELAY_MAX_S, DELAY_MAX_S, "lags of at most 3 s"),
         ("scale_factor", "error"): (GAIN_MIN, math.inf, "a gain above 0.1"),

@@ -88,6 +88,7 @@ Raftery 1995: a likelihood ratio above e**5 ~ 150 after the parameter penalty)."
 ALPHA = 1e-3
 """...and only if the likelihood-ratio test rejects "effect absent" at this level."""
 MIN_TEMP_STD_C = 0.3  # below this temp_c carries no usable information on temperature_bias
+MIN_AT_RAIL = 3  # samples at the largest |omega| for a clipping rail to be a candidate
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,15 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
         why = "the true rate is (near) zero throughout: gain, lag and clipping need turns"
         for c in ("scale_factor", "scale_asymmetry", "time_offset", "saturation"):
             out[c] = why
+    rail = clipping_rail(data)
+    if rail is not None and "saturation" not in out:
+        kept = np.abs(data.omega[~data.excluded])
+        at_rail = int(np.sum(kept >= rail - max(data.resolution_dps, 1e-9) * 1.01))
+        if at_rail < MIN_AT_RAIL:
+            out["saturation"] = (
+                f"only {at_rail} sample(s) at the largest |omega| ({rail:g} deg/s): no rail "
+                f"piles values up (a clipping rail holds at least {MIN_AT_RAIL})"
+            )
     else:
         wb = data.btruth
         if int((wb > 1.0).sum()) < 2 or int((wb < -1.0).sum()) < 2:
@@ -221,10 +231,17 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
     elif name == "scale_asymmetry":
         variants = [(model.with_effect(ScaleAsymmetry(pos_error=0.0, neg_error=0.0)), cur.quad)]
     elif name == "temperature_bias":
-        # Reference at the log's mean temperature: coeff is then the mean slope over the log,
-        # whatever a (possibly spurious) quadratic term does at its ends.
+        # Reference where the curve's slope equals the straight line's least-squares slope
+        # over the log: for c (T - r) + q (T - r)**2 that line's slope is
+        # c + q (2 (m - r) + mu3 / var), m, var, mu3 the temperatures' mean, variance and
+        # third central moment, so r = m + mu3 / (2 var). coeff is then what a user fitting a
+        # line to rate against temperature gets, whatever a (possibly spurious) quadratic term
+        # does; without skew r is the mean temperature.
         assert data.temp_c is not None
-        ref = round(float(np.mean(data.temp_c[data.valid])), 1)
+        tv = data.temp_c[data.valid]
+        tmean, tvar = float(np.mean(tv)), float(np.var(tv))
+        mu3 = float(np.mean((tv - tmean) ** 3))
+        ref = round(tmean + (mu3 / (2.0 * tvar) if tvar > 0 else 0.0), 1)
         tb = TemperatureBias(coeff_dps_per_c=0.0, ref_temp_c=ref, quad_dps_per_c2=0.0)
         variants = [
             (model.with_effect(tb), False),

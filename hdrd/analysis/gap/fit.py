@@ -162,12 +162,10 @@ def _white_var(data: GapData, d: FloatArray, q_step: float, model: GyroModel) ->
     the white level comes from the Whittle fit of their spectrum (:mod:`.lowpass`), otherwise
     from that factor."""
     e = data.omega - data.truth_filled - d
-    # Pairs of samples with the same truth value: a piecewise-constant truth (from a heading)
-    # jumps at its fixes, and such a jump is no sensor noise. No pair across a time gap.
     ok = data.valid[1:] & data.valid[:-1] & ~data.time_gap[1:]
-    if data.truth_source.startswith("heading_truth"):
-        ok &= data.truth_filled[1:] == data.truth_filled[:-1]
     de = np.diff(e)[ok]
+    if data.truth_source.startswith("heading_truth"):
+        return _white_var_heading(data, d, q_step, model)
     if de.shape[0] < 10:
         return float(np.var(e[data.valid]))
     bw = model.get("bandwidth")
@@ -181,6 +179,33 @@ def _white_var(data: GapData, d: FloatArray, q_step: float, model: GyroModel) ->
     if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
         v = float(np.var(de)) / 2.0
     v = max(v - q_step**2 / 12.0, 1e-12)
+    if isinstance(bw, Bandwidth):
+        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+    return float(v)
+
+
+STRAIGHT_DPS = 1.0
+"""With a GPS-course truth the white noise is read where the car drives straight (true rate
+below this, deg/s): between fixes the true rate is unknown, and in turns its own changes
+from one sample to the next would pass for noise."""
+
+
+def _white_var_heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
+    """White-noise variance with a heading truth: second differences of omega - D on straight
+    stretches (robust: MAD; a second difference of white noise has variance 6 sigma**2, and a
+    yaw rate changing steadily has none)."""
+    y = data.omega - d
+    ok = data.valid & (np.abs(data.truth_filled) < STRAIGHT_DPS)
+    run = ok[2:] & ok[1:-1] & ok[:-2] & ~data.time_gap[2:] & ~data.time_gap[1:-1]
+    if int(run.sum()) < 30:  # hardly any straight driving: all samples
+        run = data.valid[2:] & data.valid[1:-1] & data.valid[:-2]
+    d2 = np.diff(y, 2)[run]
+    if d2.shape[0] < 10:
+        return float(np.var(y[data.valid]))
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    v = (1.4826 * mad) ** 2 / 6.0 if mad > 0 else float(np.var(d2)) / 6.0
+    v = max(v - q_step**2 / 12.0, 1e-12)
+    bw = model.get("bandwidth")
     if isinstance(bw, Bandwidth):
         v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
     return float(v)

@@ -16,7 +16,7 @@ from hdrd.analysis.gap.lattice import detect_lattice, on_lattice
 from hdrd.analysis.gap.noise import adev_cluster_sizes, allan_deviation_masked
 from hdrd.sim.gyro import GyroModel
 
-__all__ = ["GAP_METRIC", "N_SIM", "GapMeasure", "gap_metric", "simulate_like"]
+__all__ = ["GAP_METRIC", "N_SIM", "GapMeasure", "gap_metric", "sim_truth", "simulate_like"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -50,8 +50,31 @@ class GapMeasure:
         return math.sqrt(self.a_term**2 + self.h_term**2)
 
 
+def sim_truth(data: GapData) -> FloatArray:
+    """The true rate the model is simulated with (deg/s per sample): ``truth_filled``, and with
+    a heading truth corrected by a constant per block so that its block means are exactly the
+    blocks' true rates. Sampled at uneven times (0.2 and 0.3 s steps) a rate that steps at
+    every fix would otherwise average to something else over a block than the heading change
+    says, an error the measured gyro, whose rate is smooth, does not make."""
+    truth = data.truth_filled
+    if not data.heading_mode:
+        return truth
+    used = np.flatnonzero(data.bvalid)
+    blk = np.full(data.nblocks, -1, dtype=np.int64)
+    blk[used] = np.arange(used.shape[0])
+    rows = data.block_of >= 0
+    corr = np.zeros(used.shape[0])
+    out = truth
+    for _ in range(6):  # a fix row counts half in the block before it: a few sweeps converge
+        corr += data.btruth - data.block_mean(out)
+        out = truth.copy()
+        out[rows] += corr[blk[data.block_of[rows]]]
+    return out
+
+
 def simulate_like(data: GapData, model: GyroModel, seed: int, r: int) -> FloatArray:
-    y = model.apply(data.t, data.truth_filled, data.temp_c, np.random.default_rng([seed, r]))
+    truth = sim_truth(data)
+    y = model.apply(data.t, truth, data.temp_c, np.random.default_rng([seed, r]))
     if data.resolution_dps > 1e-9:
         y = np.round(y / data.resolution_dps) * data.resolution_dps  # as the log recorded it
     return np.asarray(y)
