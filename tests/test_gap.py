@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from hdrd.analysis.allan import allan_deviation
 from hdrd.analysis.gap import (
     GAP_METRIC,
+    GapData,
     GapError,
     allan_deviation_masked,
     chi2_sf,
@@ -32,6 +33,7 @@ from hdrd.analysis.gap import (
     to_report,
     truth_rate_from_heading,
 )
+from hdrd.analysis.gap.metric import GapMeasure
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
 from hdrd.drivelog import DriveLog, read_drive, write_drive
@@ -416,3 +418,54 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "no_such_effect" in capsys.readouterr().err
     assert cli_main(["gap", str(tmp_path / "missing.csv")]) == 1
     assert "cannot read" in capsys.readouterr().err
+
+
+# -- honest fits -------------------------------------------------------------------------------
+
+
+def test_parameter_at_a_bound_is_reported() -> None:
+    """A Gauss-Markov bias faster than the blocks resolve: its fitted tau sits at the lower
+    bound (two blocks), and the report and the summary say it is a limit, not an estimate."""
+    t = np.arange(0.0, 600.0, 0.1)
+    model = DEFAULT_START_MODEL.with_effect(BiasInstability(sigma_dps=0.3, tau_s=0.3))
+    omega = model.apply(t, np.zeros_like(t), None, np.random.default_rng(2))
+    cands = ("static_bias", "white_noise", "warmup_transient", "bias_instability")
+    res = run_gap(DriveLog(t=t, omega=omega), standstill=True, candidates=cands)
+    assert [s.effect for s in res.steps] == ["bias_instability"], summary(res)
+    rep = to_report(res)
+    bound = {(b["effect"], b["param"], b["bound"]) for b in rep["final_at_bound"]}
+    assert ("bias_instability", "tau_s", "lower") in bound
+    assert rep["steps"][0]["at_bound"] == rep["final_at_bound"]
+    assert "AT BOUND: bias_instability.tau_s" in summary(res)
+
+
+def test_a_step_that_raises_the_gap_is_not_added(
+    drive: DriveLog, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The best candidate (scale factor) is made to raise the gap: it is not added, the report
+    says so, and the next significant one (temperature) is."""
+    import hdrd.analysis.gap.search as search
+
+    real = search.gap_metric
+
+    def worse_with_scale(
+        data: GapData,
+        model: GyroModel,
+        seed: int = 0,
+        d: np.ndarray | None = None,
+        truth_var: float = 0.0,
+    ) -> GapMeasure:
+        m = real(data, model, seed, d, truth_var)
+        if "scale_factor" in model:
+            return replace(m, a_term=m.a_term + 10.0)
+        return m
+
+    monkeypatch.setattr(search, "gap_metric", worse_with_scale)
+    hidden = [TemperatureBias(coeff_dps_per_c=0.03, ref_temp_c=25.0), ScaleFactor(error=0.03)]
+    res = run_gap(measured(drive, hidden))
+    assert "scale_factor" not in res.final_model, summary(res)
+    assert "temperature_bias" in res.final_model
+    assert res.rejected and res.rejected[0]["effect"] == "scale_factor"
+    assert "not added at step 1: scale_factor" in summary(res)
+    gaps = [res.initial_sim.gap] + [s.gap_after for s in res.steps]
+    assert gaps == sorted(gaps, reverse=True)
