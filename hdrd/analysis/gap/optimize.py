@@ -49,26 +49,19 @@ def least_squares_bounded(
 
 
 def minimize_simplex(
-    f: Callable[[FloatArray], float],
-    x0: FloatArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    scale: float = 0.7,
+    f: Callable[[FloatArray], float], x0: FloatArray, lower: FloatArray, upper: FloatArray
 ) -> FloatArray:
-    """Minimise f within [lower, upper] by scipy's Nelder-Mead from a simplex of side
-    ``scale`` around x0 (tolerances 1e-4 in x and f: a log-likelihood needs no finer)."""
+    """Minimise f within [lower, upper] by scipy's Nelder-Mead from its own initial simplex
+    (5 % of each coordinate; tolerances 1e-4 in x and f: a log-likelihood needs no finer)."""
     lo = np.asarray(lower, dtype=np.float64)
     hi = np.asarray(upper, dtype=np.float64)
     x = np.clip(np.asarray(x0, dtype=np.float64), lo, hi)
-    n = x.shape[0]
-    simplex = np.vstack([x] + [x + scale * np.eye(n)[i] for i in range(n)])
-    simplex = np.clip(simplex, lo, hi)
     res = _scipy_optimize().minimize(
         f,
         x,
         method="Nelder-Mead",
         bounds=list(zip(lo, hi)),
-        options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-4},
+        options={"xatol": 1e-4, "fatol": 1e-4},
     )
     return np.asarray(res.x, dtype=np.float64)
 
