@@ -416,6 +416,14 @@ def _gap(p: argparse.ArgumentParser) -> None:
         "--standstill", action="store_true", help="the log was taken at rest: true rate is zero"
     )
     p.add_argument(
+        "--exclude",
+        action="append",
+        default=[],
+        metavar="T0:T1",
+        help="leave out the samples with T0 <= t <= T1 (s, the log's t; repeatable), e.g. "
+        "while the device was handled; rows with valid = 0 are left out too",
+    )
+    p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
     )
 
