@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from hdrd.calibrate import MotionDetected, estimate_bias, save_bias
 from hdrd.config import EX_CONFIG, Config, ConfigError
@@ -29,6 +30,7 @@ from hdrd.daemon import (
     setup_logging,
     standstill_limits,
 )
+from hdrd.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise
 
 __all__ = ["main"]
 
@@ -58,6 +60,31 @@ class _Progress:
             self.say(text)
             if self.gone:
                 print(text, file=sys.stderr, flush=True)
+
+
+def _noise_of(omega: Any, n: int, duration_s: float) -> GyroNoise | None:
+    """The error model the window shows (:func:`hdrd.gyronoise.measure_noise`), recorded
+    beside the bias for HDR+; None when the window is too short to tell a rate."""
+    import numpy as np
+
+    if n < 2 or not duration_s > 0.0:
+        return None
+    return measure_noise(np.frombuffer(omega, dtype=np.float64), n / duration_s)
+
+
+def _noise_line(noise: GyroNoise | None) -> str:
+    """What the result line says of the recorded error model."""
+    if noise is None:
+        return ""
+    if noise.known():
+        return (
+            f"; noise recorded: white {noise.white_dps_per_rthz:.3g} deg/s/sqrt(Hz), bias "
+            f"random walk {noise.bias_q():.2g} (deg/s)^2/s (HDR+ uses it)"
+        )
+    return (
+        f"; noise recorded: white {noise.white_dps_per_rthz:.3g} deg/s/sqrt(Hz) (a standstill "
+        f"of {ALLAN_MIN_S / 60:g} min or more also shows how the bias wanders)"
+    )
 
 
 def _quiet_stdout() -> None:
@@ -195,7 +222,7 @@ def _calibrate(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
         )
         return 1
-    rec = replace(rec, duration_s=duration)
+    rec = replace(rec, duration_s=duration, noise=_noise_of(omega, rec.n, duration))
     try:
         save_bias(path, rec)
     except OSError as e:
@@ -206,6 +233,7 @@ def _calibrate(
         + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
         + f") written to {path}"
         + (f"; {clock.glitches} frame(s) with a bad timestamp skipped" if clock.glitches else "")
+        + _noise_line(rec.noise)
     )
     log.info(
         "calibrated",

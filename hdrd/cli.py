@@ -313,9 +313,17 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=1, metavar="N", help="random seed of drive and gyro (default 1)"
     )
-    p.add_argument("--hz", type=float, default=10.0, help="gyro sample rate, Hz (paper: 10)")
     p.add_argument(
-        "--model", metavar="MODEL.yaml", help="gyro error model (default: CRS03-04-like)"
+        "--hz",
+        type=float,
+        help="gyro sample rate, Hz (default: the grade's; crs03: 10, as the paper)",
+    )
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--model", metavar="MODEL.yaml", help="gyro error model (default: the grade's)")
+    g.add_argument(
+        "--grade",
+        metavar="NAME",
+        help="gyro grade preset: crs03 (default), phone, automotive, tactical (docs/gyro-model.md)",
     )
     p.add_argument(
         "--out", metavar="CSV", help="drive log to write (with --benchmark: a directory)"

@@ -34,6 +34,7 @@ from hdrd.calibrate import (
 from hdrd.config import EX_CONFIG, Config, ConfigError, apply_overrides, load_config
 
 if TYPE_CHECKING:
+    from hdrd.gyronoise import GyroNoise
     from hdrd.hdrplus import HdrPlusParams
 
 __all__ = ["SdNotifier", "config_from_args", "default_bias_path", "main"]
@@ -326,6 +327,7 @@ def _pipeline_config(cfg: Config, bias: BiasRecord | None) -> Any:
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
         plus=plus_params(cfg),
+        noise=plus_noise(cfg, bias),
     )
 
 
@@ -342,6 +344,18 @@ def plus_params(cfg: Config) -> HdrPlusParams:
     )
 
 
+def plus_noise(cfg: Config, bias: BiasRecord | None) -> GyroNoise | None:
+    """The gyro error model HDR+ is fitted to: the noise parameters recorded in the bias file,
+    else the config's ``plus.*`` (:func:`hdrd.gyronoise.noise_in_force`; run, replay and
+    evaluate use the same)."""
+    from dataclasses import asdict
+
+    from hdrd.gyronoise import noise_in_force
+
+    given = {k: v for k, v in asdict(cfg.plus).items() if k != "grade"}
+    return noise_in_force(cfg.plus.grade, given, None if bias is None else bias.noise)
+
+
 def open_source(cfg: Config, simulate: bool) -> Any:
     """The configured input: the serial device, or the built-in simulated gyro."""
     from hdrd import source
@@ -349,7 +363,12 @@ def open_source(cfg: Config, simulate: bool) -> Any:
     if simulate:
         s = cfg.simulate
         return source.SimulatedSource(
-            drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor
+            drive=s.drive,
+            seed=s.seed,
+            hz=s.rate_hz,
+            speedup=s.speedup,
+            sensor=cfg.sensor,
+            grade=s.grade,
         )
     d = cfg.device
     return source.SerialSource(

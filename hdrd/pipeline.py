@@ -33,7 +33,14 @@ import numpy.typing as npt
 from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.hdr import HdrParams, HdrState
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.hdrplus import (
+    INITIAL_PLUS_STATE,
+    GyroNoise,
+    HdrPlusParams,
+    PlusInput,
+    PlusOutput,
+    PlusState,
+)
 from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
 from hdrd.sensor import SensorModel
 
@@ -89,6 +96,10 @@ class PipelineConfig:
     """Compass heading at start, deg."""
     plus: HdrPlusParams = HdrPlusParams()
     """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
+    noise: GyroNoise | None = None
+    """The gyro's error model when known (a configured grade, or the noise parameters
+    recorded beside the bias): HDR+ fits its bias model to it (:func:`hdrd.methods.
+    plus_settings`). None: fitted from the start-up calibration alone."""
 
 
 def _given_bias(config: PipelineConfig) -> BiasRecord | None:
@@ -187,7 +198,12 @@ class Stepper:
         the samples per step, the bias record (HDR+: :func:`hdrd.methods.plus_settings`)."""
         if self._settings is None:
             ctx = methods.SettingsContext(
-                self.config.params, self.config.plus, self.samples_per_step, self.bias
+                self.config.params,
+                self.config.plus,
+                self.samples_per_step,
+                self.bias,
+                self.config.noise,
+                self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
             )
             self._settings = self.method.settings(ctx)
         return self._settings
@@ -239,6 +255,9 @@ class Stepper:
             status = "standstill" if still else ("ok" if o.W else "turning")
             if self.method.bias_model:
                 msg["zupt"] = int(still)
+                assert isinstance(o, PlusOutput)
+                msg["model"] = getattr(self.settings, "model", "")  # the error model in force
+                msg["bias_sd"] = o.bias_sd_dps
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status

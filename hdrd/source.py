@@ -436,10 +436,16 @@ def _profile_samples(minutes: float, hz: float, lead_in_s: float = 0.0) -> int:
 
 
 def load_profile(
-    drive: str, minutes: float = 20.0, seed: int = 1, hz: float = 10.0, rate_dps: float = 0.0
+    drive: str,
+    minutes: float = 20.0,
+    seed: int = 1,
+    hz: float = 10.0,
+    rate_dps: float = 0.0,
+    grade: str | None = None,
 ) -> DriveLog:
     """A drive by name: "standstill" and "constant" are built in (:func:`builtin_profile`);
-    any other name comes from the simulator, ``hdrd.sim.simulate_drive`` (imported lazily)."""
+    any other name comes from the simulator, ``hdrd.sim.simulate_drive`` (imported lazily),
+    with the gyro of ``grade`` (hdrd.sim.grades; None: the default CRS03-04 model)."""
     if drive in BUILTIN_DRIVES:
         return builtin_profile(drive, minutes, seed, hz, rate_dps)
     for name, v in (("minutes", minutes), ("hz", hz)):
@@ -454,7 +460,12 @@ def load_profile(
             f"built-in drives: {', '.join(BUILTIN_DRIVES)}"
         ) from None
     try:
-        return simulate_drive(drive, minutes, seed, hz=hz)
+        model = None
+        if grade is not None:
+            from hdrd.sim.grades import grade_model
+
+            model = grade_model(grade, seed)
+        return simulate_drive(drive, minutes, seed, hz=hz, model=model)
     except ValueError as e:
         raise ProfileError(str(e)) from None
 
@@ -497,7 +508,7 @@ class SimulatedSource(_SourceBase):
 
     The drive is ``profile`` if given (any :class:`hdrd.drivelog.DriveLog`, e.g. from
     ``hdrd.sim.simulate_drive``; its raw ``omega`` becomes ADC counts through ``sensor``),
-    else :func:`load_profile` (drive, minutes, seed, hz, rate_dps). Frame k is handed out at
+    else :func:`load_profile` (drive, minutes, seed, hz, rate_dps, grade). Frame k is handed out at
     ``start + (t_k - t_0) / speedup`` on ``clock``; ``speedup`` 0 = as fast as possible.
     Ends with one :class:`EndOfInput`, then None.
     """
@@ -519,13 +530,16 @@ class SimulatedSource(_SourceBase):
         seq0: int = 0,
         profile: DriveLog | None = None,
         clock: Clock | None = None,
+        grade: str | None = None,
     ) -> None:
         if not (speedup >= 0 and math.isfinite(speedup)):
             raise ValueError(
                 f"speedup must be a finite number >= 0 (0 = as fast as possible), got {speedup!r}"
             )
         self.profile = (
-            profile if profile is not None else load_profile(drive, minutes, seed, hz, rate_dps)
+            profile
+            if profile is not None
+            else load_profile(drive, minutes, seed, hz, rate_dps, grade)
         )
         self.frames = profile_frames(self.profile, sensor, supply_v, t0_us, seq0)
         self.speedup = speedup
