@@ -34,14 +34,16 @@ from __future__ import annotations
 import math
 import os
 from array import array
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError
 from hdrd.files import atomic_write_text
+from hdrd.gyronoise import GyroNoise
 
 __all__ = [
     "T_BIAS_S",
@@ -103,6 +105,8 @@ class BiasRecord:
     bias_dps: eps0, mean raw rate at standstill, deg/s (+ = CCW). std_dps: sample standard
     deviation, deg/s. n: samples averaged. duration_s: device time spanned, s. temp_c: mean
     board temperature, deg C, or None if not fitted. time: when it was measured, UNIX s.
+    noise: the gyro's error model the standstill showed (``hdrd calibrate`` records it;
+    :func:`hdrd.gyronoise.measure_noise`), or None (not measured; older bias files).
     """
 
     bias_dps: float
@@ -111,9 +115,15 @@ class BiasRecord:
     duration_s: float
     temp_c: float | None = None
     time: float = 0.0
+    noise: GyroNoise | None = None
 
-    def to_dict(self) -> dict[str, float | int | None]:
-        return asdict(self)
+    def to_dict(self) -> dict[str, Any]:
+        """The record as a bias file holds it (``noise``: its known parameters by name)."""
+        d: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
+        d.pop("noise")
+        if self.noise is not None:
+            d["noise"] = self.noise.to_dict()
+        return d
 
 
 def estimate_bias(
@@ -264,6 +274,12 @@ class StartupWindow:
         return len(self._omega)
 
     @property
+    def omega_dps(self) -> npt.NDArray[np.float64]:
+        """The raw rates gathered in the current attempt, deg/s: a numpy view of the window's
+        storage, no copy (drop it before adding more: a lent buffer cannot grow)."""
+        return np.frombuffer(self._omega, dtype=np.float64)
+
+    @property
     def mean_dps(self) -> float:
         """Mean of the samples gathered so far, deg/s (NaN before the first): their sum in
         order over their count (``hdrd calibrate``'s progress lines)."""
@@ -296,7 +312,7 @@ class StartupWindow:
         Raises MotionDetected (the window is left as it is)."""
         self.attempts += 1
         rec = estimate_bias(
-            np.frombuffer(self._omega, dtype=np.float64),
+            self.omega_dps,
             temp_c=np.frombuffer(self._temp, dtype=np.float64),
             limits=self.limits,
             when=when,
@@ -372,6 +388,7 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
             duration_s=_finite(data, "duration_s"),
             temp_c=None if data.get("temp_c") is None else _finite(data, "temp_c"),
             time=_finite(data, "time"),
+            noise=_noise(data.get("noise")),
         )
     except KeyError as e:
         raise BiasFileError(f"bias file {p}: missing key {e.args[0]}") from None
@@ -395,6 +412,18 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
 def _short(v: object) -> str:
     text = repr(v)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _noise(data: object) -> GyroNoise | None:
+    """The recorded error model of a bias file (absent in older files: None)."""
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise ValueError("noise must be a mapping of noise parameters")
+    try:
+        return GyroNoise.from_mapping(data, source="recorded")
+    except ValueError as e:
+        raise ValueError(f"noise: {e}") from None
 
 
 def _finite(data: dict[str, object], key: str) -> float:

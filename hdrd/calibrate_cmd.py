@@ -25,6 +25,7 @@ from hdrd.clocks import SampleClock
 from hdrd.config import Config, ConfigError
 from hdrd.errors import EX_CONFIG
 from hdrd.files import default_bias_path
+from hdrd.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise
 from hdrd.logs import log, setup_logging
 from hdrd.pipeline import standstill_limits
 from hdrd.signals import Signals
@@ -58,6 +59,30 @@ class _Progress:
             self.say(text)
             if self.gone:
                 print(text, file=sys.stderr, flush=True)
+
+
+def _noise_of(window: StartupWindow, duration_s: float) -> GyroNoise | None:
+    """The error model the window shows (:func:`hdrd.gyronoise.measure_noise`), recorded
+    beside the bias for HDR+; None when the window is too short to tell a rate."""
+    n = window.n
+    if n < 2 or not duration_s > 0.0:
+        return None
+    return measure_noise(window.omega_dps, n / duration_s)
+
+
+def _noise_line(noise: GyroNoise | None) -> str:
+    """What the result line says of the recorded error model."""
+    if noise is None:
+        return ""
+    if noise.known():
+        return (
+            f"; noise recorded: white {noise.white_dps_per_rthz:.3g} deg/s/sqrt(Hz), bias "
+            f"random walk {noise.bias_q():.2g} (deg/s)^2/s (HDR+ uses it)"
+        )
+    return (
+        f"; noise recorded: white {noise.white_dps_per_rthz:.3g} deg/s/sqrt(Hz) (a standstill "
+        f"of {ALLAN_MIN_S / 60:g} min or more also shows how the bias wanders)"
+    )
 
 
 def _quiet_stdout() -> None:
@@ -181,7 +206,7 @@ def _calibrate(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
         )
         return 1
-    rec = replace(rec, duration_s=duration)
+    rec = replace(rec, duration_s=duration, noise=_noise_of(window, duration))
     try:
         save_bias(path, rec)
     except OSError as e:
@@ -192,6 +217,7 @@ def _calibrate(
         + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
         + f") written to {path}"
         + (f"; {clock.glitches} frame(s) with a bad timestamp skipped" if clock.glitches else "")
+        + _noise_line(rec.noise)
     )
     log.info(
         "calibrated",

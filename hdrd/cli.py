@@ -306,9 +306,17 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=1, metavar="N", help="random seed of drive and gyro (default 1)"
     )
-    p.add_argument("--hz", type=float, default=10.0, help="gyro sample rate, Hz (paper: 10)")
     p.add_argument(
-        "--model", metavar="MODEL.yaml", help="gyro error model (default: CRS03-04-like)"
+        "--hz",
+        type=float,
+        help="gyro sample rate, Hz (default: the grade's; crs03: 10, as the paper)",
+    )
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--model", metavar="MODEL.yaml", help="gyro error model (default: the grade's)")
+    g.add_argument(
+        "--grade",
+        metavar="NAME",
+        help="gyro grade preset: crs03 (default), phone, automotive, tactical (docs/gyro-model.md)",
     )
     p.add_argument(
         "--out", metavar="CSV", help="drive log to write (with --benchmark: a directory)"
@@ -401,6 +409,14 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="FILE.png", help="measured vs simulated, before and after")
     p.add_argument(
         "--standstill", action="store_true", help="the log was taken at rest: true rate is zero"
+    )
+    p.add_argument(
+        "--exclude",
+        action="append",
+        default=[],
+        metavar="T0:T1",
+        help="leave out the samples with T0 <= t <= T1 (s, the log's t; repeatable), e.g. "
+        "while the device was handled; rows with valid = 0 are left out too",
     )
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"

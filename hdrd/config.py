@@ -21,6 +21,7 @@ from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
 from hdrd.errors import HdrdError
 from hdrd.gpsd import DEFAULT_HOST, DEFAULT_PORT
+from hdrd.gyronoise import GRADE_NAMES
 from hdrd.hdr import HdrParams
 from hdrd.protocol import NMEA_TALKER, PROTOCOLS
 from hdrd.publish import parse_hostport
@@ -165,6 +166,8 @@ class SimulateConfig:
     """Sample rate of the simulated ADC, Hz (paper: 10 Hz)."""
     speedup: float = 1.0
     """1 = real time; larger plays the drive faster."""
+    grade: str = "crs03"
+    """The simulated gyro's grade preset (:mod:`hdrd.sim.grades`, docs/gyro-model.md)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,6 +203,28 @@ class StandstillConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class PlusConfig:
+    """The gyro's error model HDR+ is fitted to (docs/hdrplus.md), when it is known: a grade
+    preset, and/or measured parameters (0 = not given). Noise parameters that ``hdrd
+    calibrate`` recorded in the bias file take precedence when they say how the bias moves."""
+
+    grade: str = "none"
+    """A grade preset (:mod:`hdrd.sim.grades`), or ``none``."""
+    white_dps_per_rthz: float = 0.0
+    """White rate noise N, deg/s/sqrt(Hz)."""
+    bias_instability_dps: float = 0.0
+    """Bias instability B (the Allan floor), deg/s."""
+    bias_tau_s: float = 100.0
+    """Its correlation time, s."""
+    rrw_dps_per_sqrt_s: float = 0.0
+    """Rate random walk K, deg/s/sqrt(s)."""
+    temp_coeff_dps_per_c: float = 0.0
+    """Bias temperature coefficient, deg/s/degC."""
+    quant_step_dps: float = 0.0
+    """Output step, deg/s."""
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     device: DeviceConfig = DeviceConfig()
     sensor: SensorModel = SensorModel()
@@ -210,6 +235,7 @@ class Config:
     simulate: SimulateConfig = SimulateConfig()
     gpsd: GpsdConfig = GpsdConfig()
     standstill: StandstillConfig = StandstillConfig()
+    plus: PlusConfig = PlusConfig()
 
 
 # -- rules ------------------------------------------------------------------------------
@@ -315,6 +341,14 @@ RULES: dict[str, tuple[Check, str]] = {
     "simulate.seed": _num(0, 2**32 - 1),
     "simulate.rate_hz": _num(1, 10_000),
     "simulate.speedup": _num(0.001, 1_000_000),
+    "simulate.grade": _choice(*GRADE_NAMES),
+    "plus.grade": _choice("none", *GRADE_NAMES),
+    "plus.white_dps_per_rthz": _num(0, 100),
+    "plus.bias_instability_dps": _num(0, 100),
+    "plus.bias_tau_s": _num(1, 1_000_000),
+    "plus.rrw_dps_per_sqrt_s": _num(0, 100),
+    "plus.temp_coeff_dps_per_c": _num(0, 100),
+    "plus.quant_step_dps": _num(0, 100),
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,

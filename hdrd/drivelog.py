@@ -9,6 +9,7 @@ temp_c          deg C    board/cabin temperature (optional)
 heading_truth   deg      compass heading, clockwise from north, [0, 360); empty = unknown
 omega_truth     deg/s    true yaw rate, + = CCW (optional)
 speed           m/s      vehicle speed (optional)
+valid           0 / 1    1 = the sample counts, 0 = excluded (handling, ...) (optional)
 =============== ======== ===============================================================
 
 Empty cells are NaN in memory ("unknown"), never 0.
@@ -30,9 +31,9 @@ from hdrd.errors import HdrdError
 
 __all__ = ["COLUMNS", "OPTIONAL", "DriveLog", "DriveLogError", "read_drive", "write_drive"]
 
-COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed")
+COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed", "valid")
 REQUIRED = ("t", "omega")
-OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed")
+OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed", "valid")
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -51,6 +52,8 @@ class DriveLog:
     heading_truth: FloatArray | None = None
     omega_truth: FloatArray | None = None
     speed: FloatArray | None = None
+    valid: FloatArray | None = None
+    """1.0 where the sample counts, 0.0 where it is excluded (e.g. the device was handled)."""
     name: str = ""
     meta: dict[str, str] = field(default_factory=dict)
 
@@ -144,6 +147,16 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     t = arrays["t"]
     if t.shape[0] == 0:
         raise DriveLogError(f"{label}: no data rows")
+    if "valid" in arrays:
+        vcol = arrays["valid"]
+        bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
+        if bad_v.shape[0]:
+            i = int(bad_v[0])
+            what = "is empty" if math.isnan(vcol[i]) else f"{float(vcol[i])!r} is not 0 or 1"
+            raise DriveLogError(
+                f"{label}:{row_lines[i]}: column valid: {what}; every row needs 1 (the sample "
+                "counts) or 0 (excluded)"
+            )
     for c in REQUIRED:
         if np.isnan(arrays[c]).any():
             bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
@@ -159,11 +172,30 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     return DriveLog(name=name, meta=meta, **arrays)
 
 
-def _fmt(v: float, digits: int) -> str:
-    return "" if math.isnan(v) else f"{v:.{digits}f}"
+def _fmt(v: float, digits: tuple[int, int]) -> str:
+    """``v`` with up to digits[1] decimals, trailing zeros dropped down to digits[0]."""
+    if math.isnan(v):
+        return ""
+    lo, hi = digits
+    s = f"{v:.{hi}f}"
+    if hi > lo:
+        s = s[: len(s) - hi + lo] + s[len(s) - hi + lo :].rstrip("0")
+    return s
 
 
-_DIGITS = {"t": 4, "omega": 5, "temp_c": 3, "heading_truth": 3, "omega_truth": 5, "speed": 3}
+# Decimals per column, (at least, at most). Rates keep 7 decimals where they have them, so that
+# an ADC's step survives the CSV: a CRS03-04 on a 16-bit ADC steps by 0.00763 deg/s, a
+# +/-1000 deg/s MEMS by 0.0305 deg/s (1/32.8), neither a round decimal; rounded to 1e-7 deg/s
+# their codes stay within 1e-5 of a step. A value with 5 decimals or fewer is written as before.
+_DIGITS = {
+    "t": (4, 4),
+    "omega": (5, 7),
+    "temp_c": (3, 3),
+    "heading_truth": (3, 3),
+    "omega_truth": (5, 7),
+    "speed": (3, 3),
+    "valid": (0, 0),
+}
 
 
 def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:

@@ -32,7 +32,8 @@ import numpy.typing as npt
 from hdrd import hdr, hdrplus
 from hdrd.calibrate import BiasRecord
 from hdrd.hdr import HdrOutput, HdrParams
-from hdrd.hdrplus import HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.hdrplus import GyroNoise, HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.zupt import CalibrationNoise
 
 __all__ = [
     "REGISTRY",
@@ -40,6 +41,7 @@ __all__ = [
     "SettingsContext",
     "StepInputs",
     "StepOutput",
+    "calibration_of",
     "get",
     "names",
     "plus_settings",
@@ -96,12 +98,30 @@ class SettingsContext:
     base settings (its defaults with the config's ``standstill.*`` applied). samples_per_step:
     samples averaged in one step, from the gyro's own sample rate (None = unknown). bias: the
     calibration record behind the static bias (None, or n = 0, when the bias was given).
+    noise: the gyro's error model when known (configured grade, recorded parameters).
+    quant_step_dps: the gyro's output step, deg/s, when known.
     """
 
     hdr: HdrParams = HdrParams()
     plus: HdrPlusParams = HdrPlusParams()
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
+    noise: GyroNoise | None = None
+    quant_step_dps: float | None = None
+
+
+def calibration_of(
+    bias: BiasRecord | None, samples_per_step: float | None
+) -> CalibrationNoise | None:
+    """What a start-up calibration record says about the gyro's noise at standstill
+    (:class:`hdrd.zupt.CalibrationNoise`): var(eps0) = std^2 / n, a step's mean's variance
+    std^2 / (samples per step), and whether the window sat on one output code (std 0: a
+    coarse ADC whose noise is below its step). None without a measured record (n < 2)."""
+    if bias is None or bias.n < 2 or not math.isfinite(bias.std_dps):
+        return None
+    per = samples_per_step if samples_per_step is not None and samples_per_step > 0 else 1.0
+    var = bias.std_dps * bias.std_dps
+    return CalibrationNoise(var / bias.n, var / per, math.nan, per, 1 if var == 0.0 else 0)
 
 
 def plus_settings(
@@ -109,22 +129,24 @@ def plus_settings(
     T: float,
     samples_per_step: float | None = None,
     bias: BiasRecord | None = None,
+    noise: GyroNoise | None = None,
+    quant_step_dps: float | None = None,
 ) -> HdrPlusParams:
     """HDR+'s settings for this gyro and this drive: the one place they are derived.
 
     base: HDR+'s configured settings (its own core, tuned with its extras; the configured
     ``hdr.*`` parameters are not used). T: the step period, s, given to the core. Samples per
     step (the gyro's sample rate times T; a 1 Hz gyro has 1) turns a step's spread into the
-    variance of its mean at a standstill. The calibration record's spread over its samples,
-    std^2 / n in (deg/s)^2, is the prior variance of the bias (base.bias_p0 when the bias was
-    given: no record of how well it was measured).
+    variance of its mean at a standstill. bias: the start-up calibration record (its noise:
+    :func:`calibration_of`; a given bias has none, and base.bias_p0 stays). noise: the gyro's
+    error model when known (a configured grade, or parameters recorded by ``hdrd calibrate``).
+    quant_step_dps: the gyro's output step, deg/s, when known (the ADC's LSB; for a recorded
+    log, the lattice of its values). :meth:`hdrd.hdrplus.HdrPlusParams.fitted` does the rest.
     """
     p = base.with_(hdr=replace(base.hdr, T=T))
     if samples_per_step is not None and samples_per_step > 0:
         p = p.with_(standstill=replace(p.standstill, samples_per_step=float(samples_per_step)))
-    if bias is not None and bias.n > 1 and bias.std_dps > 0:
-        p = p.with_(bias_p0=bias.std_dps * bias.std_dps / bias.n)
-    return p
+    return p.fitted(calibration_of(bias, samples_per_step), noise, quant_step_dps)
 
 
 @dataclass(frozen=True)
@@ -186,7 +208,9 @@ def _plus_batch(steps: StepInputs, params: HdrPlusParams) -> FloatArray:
 
 
 def _plus_settings(ctx: SettingsContext) -> HdrPlusParams:
-    return plus_settings(ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias)
+    return plus_settings(
+        ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias, ctx.noise, ctx.quant_step_dps
+    )
 
 
 REGISTRY: dict[str, Method[Any]] = {

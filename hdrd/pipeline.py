@@ -34,7 +34,14 @@ from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.clocks import DeviceClock
 from hdrd.hdr import HdrParams, HdrState
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.hdrplus import (
+    INITIAL_PLUS_STATE,
+    GyroNoise,
+    HdrPlusParams,
+    PlusInput,
+    PlusOutput,
+    PlusState,
+)
 from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 from hdrd.resample import Block, BlockAverager, Missing
 from hdrd.sensor import SensorModel
@@ -48,6 +55,7 @@ __all__ = [
     "Stepper",
     "heading_from_yaw",
     "pipeline_config",
+    "plus_noise",
     "plus_params",
     "standstill_limits",
 ]
@@ -92,6 +100,10 @@ class PipelineConfig:
     """Compass heading at start, deg."""
     plus: HdrPlusParams = HdrPlusParams()
     """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
+    noise: GyroNoise | None = None
+    """The gyro's error model when known (a configured grade, or the noise parameters
+    recorded beside the bias): HDR+ fits its bias model to it (:func:`hdrd.methods.
+    plus_settings`). None: fitted from the start-up calibration alone."""
 
 
 def _given_bias(config: PipelineConfig) -> BiasRecord | None:
@@ -115,8 +127,8 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
 
 def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
     """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
-    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings; the
-    static bias of ``bias`` (None: measured at start-up)."""
+    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings and error
+    model (:func:`plus_noise`); the static bias of ``bias`` (None: measured at start-up)."""
     return PipelineConfig(
         sensor=cfg.sensor,
         params=cfg.hdr.params,
@@ -127,6 +139,7 @@ def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConf
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
         plus=plus_params(cfg),
+        noise=plus_noise(cfg, bias),
     )
 
 
@@ -139,6 +152,18 @@ def plus_params(cfg: Config) -> HdrPlusParams:
             plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
         )
     )
+
+
+def plus_noise(cfg: Config, bias: BiasRecord | None) -> GyroNoise | None:
+    """The gyro error model HDR+ is fitted to: the noise parameters recorded in the bias file,
+    else the config's ``plus.*`` (:func:`hdrd.gyronoise.noise_in_force`; run, replay and
+    evaluate use the same)."""
+    from dataclasses import asdict
+
+    from hdrd.gyronoise import noise_in_force
+
+    given = {k: v for k, v in asdict(cfg.plus).items() if k != "grade"}
+    return noise_in_force(cfg.plus.grade, given, None if bias is None else bias.noise)
 
 
 # -- stepping ----------------------------------------------------------------------------------
@@ -230,7 +255,12 @@ class Stepper:
         the samples per step, the bias record (HDR+: :func:`hdrd.methods.plus_settings`)."""
         if self._settings is None:
             ctx = methods.SettingsContext(
-                self.config.params, self.config.plus, self.samples_per_step, self.bias
+                self.config.params,
+                self.config.plus,
+                self.samples_per_step,
+                self.bias,
+                self.config.noise,
+                self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
             )
             self._settings = self.method.settings(ctx)
         return self._settings
@@ -282,6 +312,9 @@ class Stepper:
             status = "standstill" if still else ("ok" if o.W else "turning")
             if self.method.bias_model:
                 msg["zupt"] = int(still)
+                assert isinstance(o, PlusOutput)
+                msg["model"] = getattr(self.settings, "model", "")  # the error model in force
+                msg["bias_sd"] = o.bias_sd_dps
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status

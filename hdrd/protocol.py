@@ -87,6 +87,8 @@ STEP_KEYS = (
 """The keys of a step's message, in the order they are sent (the docs' table)."""
 ADDED_KEYS = (
     "zupt",
+    "model",
+    "bias_sd",
     "gap_s",
     "saturated",
     "stale_s",

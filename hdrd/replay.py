@@ -48,7 +48,8 @@ def replay_steps(
 
     from hdrd.pipeline import Pipeline, pipeline_config
 
-    pc = replace(pipeline_config(cfg), bias_dps=bias_dps, bias_record=bias_record)
+    # the record also brings the noise parameters it holds (HDR+'s error model)
+    pc = replace(pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
     if startup_s is not None:
         pc = replace(pc, startup_s=startup_s)
     p = Pipeline(pc)
@@ -71,7 +72,12 @@ def replay_capture(
     frames, stats = decode_capture(data, cfg.device.protocol)
     out: list[dict[str, Any]] = []
     for msgs in replay_steps(
-        frames, stats.bad_before, stats.bad_frames, cfg, bias_dps, startup_s,
+        frames,
+        stats.bad_before,
+        stats.bad_frames,
+        cfg,
+        bias_dps,
+        startup_s,
         bias_record=bias_record,
     ):
         out.extend(msgs)

@@ -249,9 +249,9 @@ class SimulatedSource(_SourceBase):
 
     The drive is ``profile`` if given (any :class:`hdrd.drivelog.DriveLog`, e.g. from
     ``hdrd.sim.simulate_drive``; its raw ``omega`` becomes ADC counts through ``sensor``),
-    else :func:`hdrd.sim.profiles.load_profile` (drive, minutes, seed, hz, rate_dps). Frame k is handed out at
-    ``start + (t_k - t_0) / speedup`` on ``clock``; ``speedup`` 0 = as fast as possible.
-    Ends with one :class:`EndOfInput`, then None.
+    else :func:`hdrd.sim.profiles.load_profile` (drive, minutes, seed, hz, rate_dps, grade).
+    Frame k is handed out at ``start + (t_k - t_0) / speedup`` on ``clock``; ``speedup`` 0 =
+    as fast as possible. Ends with one :class:`EndOfInput`, then None.
     """
 
     _BATCH = 512
@@ -271,6 +271,7 @@ class SimulatedSource(_SourceBase):
         seq0: int = 0,
         profile: DriveLog | None = None,
         clock: Clock | None = None,
+        grade: str | None = None,
     ) -> None:
         if not (speedup >= 0 and math.isfinite(speedup)):
             raise ValueError(
@@ -279,7 +280,9 @@ class SimulatedSource(_SourceBase):
         from hdrd.sim.profiles import load_profile, profile_frames  # the simulator: only here
 
         self.profile = (
-            profile if profile is not None else load_profile(drive, minutes, seed, hz, rate_dps)
+            profile
+            if profile is not None
+            else load_profile(drive, minutes, seed, hz, rate_dps, grade)
         )
         self.frames = profile_frames(self.profile, sensor, supply_v, t0_us, seq0)
         self.speedup = speedup
@@ -333,7 +336,12 @@ def open_source(cfg: Config, simulate: bool) -> Source:
     if simulate:
         s = cfg.simulate
         return SimulatedSource(
-            drive=s.drive, seed=s.seed, hz=s.rate_hz, speedup=s.speedup, sensor=cfg.sensor
+            drive=s.drive,
+            seed=s.seed,
+            hz=s.rate_hz,
+            speedup=s.speedup,
+            sensor=cfg.sensor,
+            grade=s.grade,
         )
     d = cfg.device
     return SerialSource(

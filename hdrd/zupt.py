@@ -18,6 +18,17 @@ Two pieces that HDR+ (:mod:`hdrd.hdrplus`) combines, usable on their own:
   number of samples, so a stop contributes in proportion to how long and how quietly the
   vehicle stood (inverse-variance weighting). Between measurements the bias variance grows by
   a random walk (``q`` in (deg/s)^2/s), so old measurements count less.
+- A third state, c, the *standstill offset*: what a stop reads minus the bias while driving.
+  A quantised gyro whose noise is below its step reads the same code at every stop (its mean
+  can miss the bias by up to half a step, however long it stands), and vibration can shift a
+  MEMS gyro's bias while driving. Stops measure b + c, straight driving measures b; the
+  start-up calibration itself was a stop, so at start b = -c + (calibration error): prior
+  var(b) = var(eps0) + F, var(c) = F, cov(b, c) = -F, F the offset's variance (a quantisation
+  step's q^2/12). With F = 0 the model is the two-state one exactly.
+- :class:`CalibrationNoise` and :func:`calibration_noise`: what a start-up calibration window
+  says about the gyro's noise (the variance of eps0 and of one step's mean at standstill, the
+  quantisation step, the samples per step), for HDR+'s settings (:meth:`hdrd.hdrplus.
+  HdrPlusParams.fitted`).
 
 Units: rates deg/s, + = counter-clockwise seen from above; temperature degC; time s.
 """
@@ -28,14 +39,20 @@ import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
+import numpy as np
+import numpy.typing as npt
+
 __all__ = [
     "INITIAL_BIAS",
     "BiasState",
+    "CalibrationNoise",
     "StandstillParams",
     "block_mean_variance",
+    "calibration_noise",
     "correction",
     "init_bias",
     "predict",
+    "quantization_step",
     "standstill_candidate",
     "update",
 ]
@@ -128,11 +145,12 @@ def block_mean_variance(spread_dps: float, params: StandstillParams) -> float:
 
 
 class BiasState(NamedTuple):
-    """The bias model relative to eps0: bias(temp) = b + k * (temp - t_ref). Immutable.
+    """The bias model relative to eps0: bias(temp) = b + k * (temp - t_ref) while driving; a
+    stop reads b + c + k * (temp - t_ref). Immutable.
 
-    b: deg/s. k: deg/s/degC. p_bb, p_bk, p_kk: covariance of (b, k), in (deg/s)^2,
-    (deg/s)^2/degC, (deg/s/degC)^2; NaN until :func:`init_bias` sets the prior. t_ref: the
-    reference temperature, degC (NaN until a temperature is seen).
+    b, c: deg/s. k: deg/s/degC. p_bb, p_bk, p_kk, p_bc, p_cc, p_ck: the covariance of (b, c,
+    k), in (deg/s)^2, (deg/s)^2/degC, (deg/s/degC)^2; p_bb and p_kk NaN until :func:`init_bias`
+    sets the prior. t_ref: the reference temperature, degC (NaN until a temperature is seen).
     """
 
     b: float = 0.0
@@ -141,20 +159,26 @@ class BiasState(NamedTuple):
     p_bk: float = 0.0
     p_kk: float = math.nan
     t_ref: float = math.nan
+    c: float = 0.0
+    p_bc: float = 0.0
+    p_cc: float = 0.0
+    p_ck: float = 0.0
 
 
 INITIAL_BIAS = BiasState()
 
 
-def init_bias(state: BiasState, p0: float, k_sd: float) -> BiasState:
-    """Set the prior variances if not yet set: var(b) = p0 (deg/s)^2, sd(k) = k_sd deg/s/degC."""
+def init_bias(state: BiasState, p0: float, k_sd: float, offset_var: float = 0.0) -> BiasState:
+    """Set the prior if not yet set: var(b) = p0 + F, sd(k) = k_sd deg/s/degC, var(c) = F,
+    cov(b, c) = -F, with F = ``offset_var`` (deg/s)^2, the standstill offset's variance."""
     if not math.isnan(state.p_bb):
         return state
-    return state._replace(p_bb=p0, p_kk=k_sd * k_sd)
+    f = offset_var
+    return state._replace(p_bb=p0 + f, p_kk=k_sd * k_sd, p_bc=-f, p_cc=f)
 
 
 def correction(state: BiasState, dT: float) -> float:
-    """The modelled bias change since eps0 at a temperature dT above t_ref, deg/s."""
+    """The modelled bias change since eps0 while driving, at dT degC above t_ref, deg/s."""
     return state.b + state.k * dT
 
 
@@ -163,21 +187,115 @@ def predict(state: BiasState, q: float, T: float) -> BiasState:
     return state._replace(p_bb=state.p_bb + q * T)
 
 
-def update(state: BiasState, z: float, r: float, dT: float) -> BiasState:
-    """Kalman update with a measurement z (deg/s) of the bias at dT (degC above t_ref) whose
-    variance is r ((deg/s)^2): measurement row h = [1, dT]. With dT = 0 only b moves."""
-    b, k, p_bb, p_bk, p_kk = state.b, state.k, state.p_bb, state.p_bk, state.p_kk
-    ph0 = p_bb + dT * p_bk  # (P h)_0
-    ph1 = p_bk + dT * p_kk  # (P h)_1
-    s = ph0 + dT * ph1 + r
+def update(state: BiasState, z: float, r: float, dT: float, stop: bool = False) -> BiasState:
+    """Kalman update with a measurement z (deg/s) at dT (degC above t_ref) of variance r
+    ((deg/s)^2): of the driving bias (h = [1, 0, dT] over b, c, k), or with ``stop`` of what
+    a stop reads (h = [1, 1, dT]). With dT = 0 k does not move; with F = 0, c does not."""
+    hs = 1.0 if stop else 0.0
+    b, c, k = state.b, state.c, state.k
+    p_bb, p_bc, p_bk = state.p_bb, state.p_bc, state.p_bk
+    p_cc, p_ck, p_kk = state.p_cc, state.p_ck, state.p_kk
+    ph0 = p_bb + hs * p_bc + dT * p_bk  # (P h)_b
+    ph1 = p_bc + hs * p_cc + dT * p_ck  # (P h)_c
+    ph2 = p_bk + hs * p_ck + dT * p_kk  # (P h)_k
+    s = ph0 + hs * ph1 + dT * ph2 + r
     k0 = ph0 / s
     k1 = ph1 / s
-    innov = z - (b + k * dT)
-    # P <- P - K (P h)^T, written out for the symmetric 2x2 case.
+    k2 = ph2 / s
+    innov = z - (b + hs * c + k * dT)
+    # P <- P - K (P h)^T, written out for the symmetric 3x3 case.
     return state._replace(
         b=b + k0 * innov,
-        k=k + k1 * innov,
+        c=c + k1 * innov,
+        k=k + k2 * innov,
         p_bb=p_bb - k0 * ph0,
-        p_bk=p_bk - k0 * ph1,
-        p_kk=p_kk - k1 * ph1,
+        p_bc=p_bc - k0 * ph1,
+        p_bk=p_bk - k0 * ph2,
+        p_cc=p_cc - k1 * ph1,
+        p_ck=p_ck - k1 * ph2,
+        p_kk=p_kk - k2 * ph2,
     )
+
+
+# -- what a calibration window says about the gyro's noise ------------------------------------
+
+
+def quantization_step(values_dps: npt.ArrayLike) -> float:
+    """The output step (LSB) of a quantised rate signal, deg/s; 0 when it cannot be seen.
+
+    Over the central half of the values (between their quartiles, where a drive's rates are
+    dense: far out, a turn's rates are sparse and skip codes), the mean of the gaps between
+    neighbouring distinct values that are at most 1.5 times the smallest gap: the distinct
+    values of a quantised signal sit on a lattice (a step printed to fewer digits than it has,
+    e.g. 1/16 deg/s with two decimals, gives gaps of 0.06 and 0.07, whose mean is the step to
+    a per cent). Fewer than 3 distinct values, or gaps mostly wider than that (an unquantised
+    signal): 0.
+    """
+    w = np.asarray(values_dps, dtype=np.float64)
+    w = w[np.isfinite(w)]
+    if w.shape[0] < 3:
+        return 0.0
+    lo, hi = np.percentile(w, [25.0, 75.0])
+    v = np.unique(w[(w >= lo) & (w <= hi)])
+    if v.shape[0] < 3:
+        v = np.unique(w)
+    if v.shape[0] < 3:
+        return 0.0
+    gaps = np.diff(v)
+    gaps = gaps[gaps > 1e-9]
+    if gaps.shape[0] < 2:
+        return 0.0
+    small = gaps[gaps <= 1.5 * float(np.min(gaps))]
+    if small.shape[0] < 0.5 * gaps.shape[0]:
+        return 0.0
+    return float(np.mean(small))
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationNoise:
+    """What a start-up calibration window says about the gyro at standstill.
+
+    bias_var: variance of its mean, eps0, (deg/s)^2 (sample variance / samples). block_var:
+    variance of the mean of one step of T seconds at standstill, (deg/s)^2 (from the window's
+    step means when it holds 3 or more steps, else sample variance / samples per step).
+    quant_step_dps: the output step, deg/s (0 = not seen). samples_per_step: samples averaged
+    per step (rate x T). codes: distinct output values in the window (1 or 2: the window sits
+    on the lattice and cannot see the bias better than half a step).
+    """
+
+    bias_var: float
+    block_var: float
+    quant_step_dps: float
+    samples_per_step: float
+    codes: int = 0
+
+
+def calibration_noise(
+    omega_dps: npt.ArrayLike,
+    t_s: npt.ArrayLike,
+    T: float = 1.0,
+    quant_step_dps: float | None = None,
+) -> CalibrationNoise:
+    """The :class:`CalibrationNoise` of raw standstill samples (deg/s) at times t_s (s).
+
+    quant_step_dps: the output step when known (e.g. the ADC's LSB in deg/s); None estimates
+    it from the samples (:func:`quantization_step`). ValueError for fewer than 2 samples.
+    """
+    w = np.asarray(omega_dps, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    n = int(w.shape[0])
+    if n < 2 or t.shape != w.shape or not (np.all(np.isfinite(w)) and np.all(np.isfinite(t))):
+        raise ValueError("calibration_noise needs 2 or more finite samples with one time each")
+    var = float(np.var(w, ddof=1))
+    span = float(t[-1] - t[0])
+    per_step = max(1.0, (n - 1) / span * T) if span > 0 else 1.0
+    idx = np.floor((t - t[0]) / T + 1e-9).astype(np.int64)
+    counts = np.bincount(idx)
+    full = np.flatnonzero(counts >= 0.5 * per_step)
+    if full.shape[0] >= 3:
+        means = np.bincount(idx, weights=w)[full] / counts[full]
+        block_var = float(np.var(means, ddof=1))
+    else:
+        block_var = var / per_step
+    q = quantization_step(w) if quant_step_dps is None else float(quant_step_dps)
+    return CalibrationNoise(var / n, block_var, q, per_step, int(np.unique(w).shape[0]))

@@ -514,3 +514,28 @@ def test_sample_clock_follows_a_real_jump() -> None:
     kept = [c.accept(x) for x in before + after]
     assert kept[:10] == [True] * 10 and kept[10:13] == [False] * 3 and all(kept[13:])
     assert c.elapsed_us == 900_000 + 7 * 100_000  # from the third frame after the jump
+
+
+def test_a_bias_file_records_noise_parameters_and_older_files_still_read(tmp_path: Path) -> None:
+    from hdrd.gyronoise import GyroNoise
+
+    noise = GyroNoise(white_dps_per_rthz=0.05, rrw_dps_per_sqrt_s=3e-4, quant_step_dps=0.0076)
+    p = tmp_path / "bias.yaml"
+    save_bias(p, BiasRecord(0.5, 0.1, 300, 30.0, None, 1.0, noise))
+    got = load_bias(p)
+    assert got.noise is not None and got.noise.source == "recorded" and got.noise.known()
+    assert got.noise.to_dict() == noise.to_dict()
+    # a file written before noise parameters were recorded: read, no noise
+    old = tmp_path / "old.yaml"
+    old.write_text("bias_dps: 0.5\nstd_dps: 0.1\nn: 300\nduration_s: 30.0\ntemp_c: null\n"
+                   "time: 1.0\n# end\n")  # fmt: skip
+    assert load_bias(old) == BiasRecord(0.5, 0.1, 300, 30.0, None, 1.0)
+    for bad, why in (
+        ("noise: 3\n", "noise must be a mapping"),
+        ("noise:\n  white: 0.1\n", "unknown noise parameter 'white'"),
+        ("noise:\n  rrw_dps_per_sqrt_s: -1\n", "rrw_dps_per_sqrt_s = -1"),
+    ):
+        f = tmp_path / "bad.yaml"
+        f.write_text(old.read_text().replace("# end", bad + "# end"))
+        with pytest.raises(BiasFileError, match=why):
+            load_bias(f)

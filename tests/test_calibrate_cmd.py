@@ -46,6 +46,23 @@ def test_one_glitched_timestamp_does_not_end_the_window(fake_gyro, tmp_path: Pat
     assert b"1 frame(s) with a bad timestamp skipped" in p.stdout
 
 
+def test_the_noise_parameters_are_recorded_beside_the_bias(fake_gyro, tmp_path: Path) -> None:
+    # The window's white noise and output step go into the bias file for HDR+; a 10 s window
+    # cannot show how the bias wanders (that needs 10 minutes), and the result line says so.
+    frames = profile_frames(builtin_profile("standstill", minutes=1, bias_dps=0.42, lead_in_s=0))
+    g = fake_gyro(frames, speedup=0)
+    g.start()
+    bias_file = tmp_path / "bias.yaml"
+    p = calibrate("--port", g.path, "--seconds", "10", "--bias-file", str(bias_file))
+    assert p.returncode == 0, p.stderr.decode()
+    rec = load_bias(bias_file)
+    assert rec.noise is not None and rec.noise.source == "recorded" and not rec.noise.known()
+    # the profile's 0.05 deg/s per sample at 10 Hz: N = 0.05 / sqrt(10), read from 100 samples
+    assert rec.noise.white_dps_per_rthz == pytest.approx(0.05 / 10**0.5, rel=0.35)
+    assert "noise:\n  white_dps_per_rthz:" in bias_file.read_text()
+    assert b"noise recorded: white" in p.stdout and b"10 min or more" in p.stdout
+
+
 def test_a_steady_rotation_is_refused_naming_the_limit(fake_gyro, tmp_path: Path) -> None:
     # 10 deg/s, perfectly steady: spread, trend and excursion all pass; the size does not.
     g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=10.0, lead_in_s=0), speedup=0)

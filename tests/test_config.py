@@ -112,6 +112,14 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.bias_gain": (1.0, [1.01, -0.3, True]),
     "standstill.enabled": (False, ["no", 0, None]),
     "standstill.from_gyro": (True, ["yes", 1, 1.0]),
+    "simulate.grade": ("tactical", ["nav", "", 1]),
+    "plus.grade": ("phone", ["nav", None, 2]),
+    "plus.white_dps_per_rthz": (0.01, [-0.01, 101.0, NAN]),
+    "plus.bias_instability_dps": (0.001, [-1.0, INF, "small"]),
+    "plus.bias_tau_s": (300.0, [0.5, 2e6, NAN]),
+    "plus.rrw_dps_per_sqrt_s": (1e-5, [-1e-5, 1e3, True]),
+    "plus.temp_coeff_dps_per_c": (0.005, [-0.005, 200.0, NAN]),
+    "plus.quant_step_dps": (0.244, [-0.1, 1e9, INF]),
 }
 
 BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]
@@ -215,7 +223,7 @@ def test_unknown_section(tmp_path: Path) -> None:
     msg = check_error(ei.value, "devices", str(p))
     assert (
         "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd, "
-        "standstill)" in msg
+        "standstill, plus)" in msg
     )
 
 

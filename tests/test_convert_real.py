@@ -1,5 +1,6 @@
-"""tools/convert_real.py: geodesy on hand cases, and the two real recordings (skipped when
-../shared/data is absent) with their sign conventions checked against the reference."""
+"""tools/convert_real.py: geodesy and the start-up standstill on hand cases, and the real
+recordings (each skipped when its folder under ../shared/data is absent) with their sign
+conventions checked against the reference."""
 
 from __future__ import annotations
 
@@ -29,6 +30,8 @@ def _load() -> ModuleType:
 cr = _load()
 SMARTLOC = cr.DATA / "smartloc_berlin"
 COMMA = cr.DATA / "comma2k19_example"
+RTKLIB = cr.DATA / "rtklib_drive0708"
+NDS = cr.DATA / "driveplotr_nds"
 
 
 def mean_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> tuple[float, float]:
@@ -112,3 +115,100 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "convert_real: smartloc:" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cr.main(["smartloc"])
+
+
+def course_rate_correlation(log: DriveLog, min_speed: float = 3.0) -> tuple[float, int]:
+    """(correlation of the gyro's mean rate between consecutive truth fixes with minus the
+    truth's course rate, number of fix pairs used): positive for a CCW-positive gyro."""
+    assert log.heading_truth is not None and log.speed is not None
+    h, t, w = log.heading_truth, log.t, log.omega
+    ok = np.flatnonzero(np.isfinite(h))
+    angle = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))))
+    i0, i1 = ok[:-1], ok[1:]
+    dt = t[i1] - t[i0]
+    sel = (dt < 1.5) & (log.speed[i0] > min_speed) & (log.speed[i1] > min_speed)
+    course_rate = (((h[i1] - h[i0] + 180.0) % 360.0) - 180.0) / dt
+    gyro_rate = (angle[i1] - angle[i0]) / dt
+    return float(np.corrcoef(gyro_rate[sel], -course_rate[sel])[0, 1]), int(sel.sum())
+
+
+def test_lead_in_seconds_hand_cases() -> None:
+    t = np.arange(20.0)
+    speed = np.where(t < 10, 0.0, 5.0)
+    assert cr.lead_in_seconds(t, speed, margin_s=1.0) == 9.0  # first moving row at 10 s
+    assert cr.lead_in_seconds(t, speed, margin_s=3.0) == 7.0
+    assert cr.lead_in_seconds(t, np.full(20, 5.0)) is None  # starts moving
+    assert cr.lead_in_seconds(t, np.where(t < 3, 0.0, 5.0)) is None  # 2 s: under 3 s
+    assert cr.lead_in_seconds(t, np.where(t < 1, np.nan, 0.0)) is None  # unknown speed
+    # A lagging speed says "still" but the gyro turns from 6 s: the lead-in ends before it.
+    omega = np.where((t >= 6) & (t < 10), 15.0, 0.1)
+    assert cr.lead_in_seconds(t, speed, omega, margin_s=1.0) == 5.0
+    # 100 Hz: a vibration spike of single samples is not motion; a 1 s turn is.
+    t100 = np.arange(0.0, 20.0, 0.01)
+    sp100 = np.where(t100 < 10, 0.0, 5.0)
+    w100 = np.full(t100.shape, 0.2)
+    w100[500:503] = 3.0
+    assert cr.lead_in_seconds(t100, sp100, w100, margin_s=1.0) == 9.0
+    w100[700:800] = 3.0
+    assert cr.lead_in_seconds(t100, sp100, w100, margin_s=1.0) == 5.0
+
+
+@pytest.mark.skipif(not RTKLIB.is_dir(), reason="../shared/data/rtklib_drive0708 is absent")
+def test_rtklib(tmp_path: Path) -> None:
+    out = tmp_path / "r.csv"
+    assert cr.main(["rtklib", "--out", str(out)]) == 0
+    log = read_drive(out)
+    assert log.columns() == ["t", "omega", "heading_truth", "speed"]
+    assert log.rate_hz == pytest.approx(100.0, rel=0.01)
+    assert 540.0 < log.duration_s < 560.0  # README: about 9 minutes
+    lead = float(log.meta["lead_in_s"])
+    assert 25.0 <= lead <= 35.0  # the car pulls away ~35 s after the IMU's first sample
+    assert float(log.meta["imu_tilt_deg"]) == pytest.approx(7.0, abs=0.5)  # README: ~7 deg
+    assert log.speed is not None
+    assert np.nanmax(log.speed[log.t < lead]) < 0.3
+    bias = float(np.mean(log.omega[log.t < lead]))
+    assert bias == pytest.approx(0.17, abs=0.01)  # README: static bias about 0.17 deg/s
+    # CCW positive: the gyro turns against the compass course, at zero lag, nearly 1:1.
+    corr, pairs = course_rate_correlation(log)
+    assert corr > 0.95 and pairs > 1000
+    mean_ok, _ = mean_heading_error(log, bias)
+    mean_flipped, _ = mean_heading_error(log, bias, sign=-1.0)
+    assert mean_ok < 3.0 and mean_flipped > 100.0
+
+
+@pytest.mark.skipif(not NDS.is_dir(), reason="../shared/data/driveplotr_nds is absent")
+def test_driveplotr(tmp_path: Path) -> None:
+    assert cr.main(["driveplotr", "--out-dir", str(tmp_path)]) == 0
+    files = sorted(tmp_path.glob("nds_drive*.csv"))
+    assert len(files) == 28  # README: 28 drives
+    logs = [read_drive(f) for f in files]
+    assert sum(1 for lg in logs if lg.duration_s >= 600.0) >= 9
+    assert all(lg.rate_hz == pytest.approx(1.0) for lg in logs)
+    # gyro_z is quantised in 1/16 deg/s (printed with 2 decimals).
+    codes = np.concatenate([lg.omega for lg in logs]) * 16.0
+    assert np.max(np.abs(codes - np.round(codes))) < 0.2
+    long_ones = []
+    for lg in logs:
+        assert lg.heading_truth is not None and lg.speed is not None
+        h = lg.heading_truth[np.isfinite(lg.heading_truth)]
+        assert h.min() >= 0.0 and h.max() < 360.0
+        assert np.all(lg.speed[np.isfinite(lg.heading_truth)] > 2.0)
+        if "lead_in_s" in lg.meta:
+            lead = float(lg.meta["lead_in_s"])
+            assert lead >= 3.0 and np.all(lg.speed[lg.t < lead] <= 0.3)
+        corr, pairs = course_rate_correlation(lg)
+        if pairs > 100:
+            long_ones.append(corr)
+    # CCW positive on every drive with enough motion (README: correlation 0.60-0.83).
+    assert len(long_ones) >= 20 and min(long_ones) > 0.5
+    by_name = {lg.name: lg for lg in logs}
+    assert "lead_in_s" not in by_name["nds_drive01"].meta  # starts at 30 mph
+    # Drive 8 stands ~10 min, then turns out of its parking space while the GPS speed still
+    # reads ~0.1 m/s (at ~600 s): the lead-in ends before that turn.
+    assert 560.0 <= float(by_name["nds_drive08"].meta["lead_in_s"]) < 600.0
+
+
+def test_cli_multi_needs_out_dir(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit):
+        cr.main(["driveplotr", "--out", str(tmp_path / "x.csv")])
+    assert cr.main(["rtklib", "--data", str(tmp_path), "--out", str(tmp_path / "x.csv")]) == 1

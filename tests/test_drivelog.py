@@ -12,7 +12,15 @@ from hypothesis import strategies as st
 
 from hdrd.drivelog import COLUMNS, OPTIONAL, DriveLog, DriveLogError, read_drive, write_drive
 
-DIGITS = {"t": 4, "omega": 5, "temp_c": 3, "heading_truth": 3, "omega_truth": 5, "speed": 3}
+DIGITS = {
+    "t": 4,
+    "omega": 7,
+    "temp_c": 3,
+    "heading_truth": 3,
+    "omega_truth": 7,
+    "speed": 3,
+    "valid": 0,
+}
 
 
 def same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
@@ -37,6 +45,9 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
     cols: dict[str, np.ndarray] = {"t": t}
     for c in ("omega",) + tuple(o for o in OPTIONAL if draw(st.booleans())):
         d = DIGITS[c]
+        if c == "valid":  # 0 or 1 in every row
+            cols[c] = np.array(draw(st.lists(st.sampled_from([0.0, 1.0]), min_size=n, max_size=n)))
+            continue
         ks = draw(st.lists(st.integers(-(10**9), 10**9), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
@@ -135,6 +146,11 @@ def test_metadata_blank_lines_and_properties() -> None:
         ("", r"<stream>: empty file, expected a header line"),
         ("# only: metadata\n\n", r"<stream>: empty file"),
         ("t,omega\n", r"<stream>: no data rows"),
+        ("t,omega,valid\n0,1,1\n0.1,1,2\n", r"<stream>:3: column valid: 2.0 is not 0 or 1"),
+        (
+            "t,omega,valid\n0,1,1\n0.1,1,\n",
+            r"<stream>:3: column valid: is empty; every row needs 1",
+        ),
     ],
 )
 def test_errors(text: str, match: str) -> None:
@@ -155,3 +171,31 @@ def test_line_numbers_count_quoted_multiline_cells() -> None:
     text = 't,omega\n0,1\n"1\n",2\n1,3\n'
     with pytest.raises(DriveLogError, match=r"<stream>:5: column t is not strictly increasing"):
         read_drive(io.StringIO(text))
+
+
+def test_valid_column_round_trip() -> None:
+    text = "t,omega,valid\n0,1,1\n0.1,2,0\n0.2,3,1\n"
+    log = read_drive(io.StringIO(text))
+    assert log.valid is not None and log.valid.tolist() == [1.0, 0.0, 1.0]
+    buf = io.StringIO()
+    write_drive(buf, log)
+    assert buf.getvalue() == "t,omega,valid\n0.0000,1.00000,1\n0.1000,2.00000,0\n0.2000,3.00000,1\n"
+
+
+@pytest.mark.parametrize("step", [0.00762939453125, 1.0 / 32.8])
+def test_rates_keep_an_adc_step(step: float) -> None:
+    """Values on an ADC step that is no round decimal (CRS03-04 on 16 bits; a +/-1000 deg/s
+    MEMS) come back within 1e-5 of a step (they used to be rounded to 1e-5 deg/s); values
+    with 5 decimals or fewer are written as they always were."""
+    k = np.arange(-3000, 3000, 7).astype(np.float64)
+    log = DriveLog(t=np.arange(k.shape[0]) / 10.0, omega=k * step, omega_truth=k * step)
+    buf = io.StringIO()
+    write_drive(buf, log)
+    buf.seek(0)
+    back = read_drive(buf)
+    for col in (back.omega, back.omega_truth):
+        assert col is not None
+        assert np.max(np.abs(col / step - k)) < 1e-5
+    buf = io.StringIO()
+    write_drive(buf, DriveLog(t=np.array([0.0, 0.1]), omega=np.array([0.09983, -1.5])))
+    assert buf.getvalue().splitlines()[1:] == ["0.0000,0.09983", "0.1000,-1.50000"]

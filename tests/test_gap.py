@@ -16,17 +16,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from hdrd.analysis.allan import allan_deviation
 from hdrd.analysis.gap import (
     GAP_METRIC,
+    GapData,
     GapError,
-    _Noise,
-    _Whitener,
     allan_deviation_masked,
     chi2_sf,
+    decimal_resolution,
     detect_lattice,
     prepare,
     run_gap,
@@ -34,8 +34,11 @@ from hdrd.analysis.gap import (
     to_report,
     truth_rate_from_heading,
 )
+from hdrd.analysis.gap.metric import GapMeasure
+from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, write_drive
+from hdrd.drivelog import DriveLog, read_drive, write_drive
+from hdrd.sensor import SensorModel
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.gyro import (
     BiasInstability,
@@ -251,7 +254,7 @@ def test_kalman_likelihood_equals_dense_gaussian() -> None:
     truth = np.zeros(n)
     truth[200:260] = np.nan
     data = prepare(DriveLog(t=t, omega=np.zeros(n), omega_truth=truth), block_s=1.0)
-    nz = _Noise(white_var=0.02, q_step=0.05, bi_sigma=0.07, bi_tau=4.0, rrw_k=0.01, extra_var=0.001)
+    nz = Noise(white_var=0.02, q_step=0.05, bi_sigma=0.07, bi_tau=4.0, rrw_k=0.01, extra_var=0.001)
     cov = (
         nz.bi_sigma**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / nz.bi_tau)
         + nz.rrw_k**2 * np.minimum(t[:, None], t[None, :])
@@ -267,7 +270,7 @@ def test_kalman_likelihood_equals_dense_gaussian() -> None:
     chol = np.linalg.cholesky(cb)
     w = np.linalg.solve(chol, y)
     dense = -0.5 * (y.shape[0] * math.log(2 * math.pi) + 2 * np.log(np.diag(chol)).sum() + w @ w)
-    wh = _Whitener(data, nz)
+    wh = Whitener(data, nz)
     # Equal up to sampled vs continuous time inside the blocks.
     assert wh.loglik(y) == pytest.approx(dense, abs=0.02)
     both = wh.whiten(np.vstack([y, 2.0 * y]).T)
@@ -304,6 +307,43 @@ def test_lattice_found_on_quantised_values_and_not_on_continuous(
     assert lat.step_dps == pytest.approx(step, rel=1e-6)
     assert lat.fraction == 1.0
     assert detect_lattice(x, 1e-9) is None
+
+
+@given(
+    step=st.floats(0.002, 0.25),
+    offset=st.floats(-0.4, 0.4),
+    decimals=st.integers(3, 9),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_lattice_found_through_the_csv_rounding(
+    step: float, offset: float, decimals: int, seed: int
+) -> None:
+    """Values on an ADC step that is no round decimal, written with a few decimals, sit on
+    the step only within the rounding: still found (the step to 0.1 %), and continuous values
+    written alike are not. (At least a dozen codes: with a handful, each code's own rounding
+    error is the fit's, and a lattice is barely defined.)"""
+    assume(step >= 30.0 * 10.0**-decimals)
+    rng = np.random.default_rng(seed)
+    x = 1.0 + 0.5 * rng.standard_normal(2000)
+    q = np.round(offset * step + step * np.round((x - offset * step) / step), decimals)
+    # The CSV's resolution (values on a round lattice can look coarser than it by themselves).
+    lat = detect_lattice(q, min(decimal_resolution(q), 10.0**-decimals))
+    assert lat is not None
+    assert lat.step_dps == pytest.approx(step, rel=1e-3)
+    assert lat.fraction >= 0.999
+    cont = np.round(x, decimals)
+    assert detect_lattice(cont, decimal_resolution(cont)) is None
+
+
+def test_simulated_log_keeps_its_adc_step(tmp_path: Path) -> None:
+    """hdrd simulate writes enough digits for the CRS03-04's 0.00763 deg/s step to be found."""
+    out = tmp_path / "rest.csv"
+    rc = cli_main(["simulate", "--drive", "standstill", "--minutes", "2", "--out", str(out)])
+    assert rc == 0
+    log = read_drive(out)
+    lat = detect_lattice(log.omega, decimal_resolution(log.omega))
+    assert lat is not None
+    assert lat.step_dps == pytest.approx(SensorModel().lsb_dps, rel=1e-4)
 
 
 # -- the command line ---------------------------------------------------------------------------
@@ -397,3 +437,54 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "no_such_effect" in capsys.readouterr().err
     assert cli_main(["gap", str(tmp_path / "missing.csv")]) == 1
     assert "cannot read" in capsys.readouterr().err
+
+
+# -- honest fits -------------------------------------------------------------------------------
+
+
+def test_parameter_at_a_bound_is_reported() -> None:
+    """A Gauss-Markov bias faster than the blocks resolve: its fitted tau sits at the lower
+    bound (two blocks), and the report and the summary say it is a limit, not an estimate."""
+    t = np.arange(0.0, 600.0, 0.1)
+    model = DEFAULT_START_MODEL.with_effect(BiasInstability(sigma_dps=0.3, tau_s=0.3))
+    omega = model.apply(t, np.zeros_like(t), None, np.random.default_rng(2))
+    cands = ("static_bias", "white_noise", "warmup_transient", "bias_instability")
+    res = run_gap(DriveLog(t=t, omega=omega), standstill=True, candidates=cands)
+    assert [s.effect for s in res.steps] == ["bias_instability"], summary(res)
+    rep = to_report(res)
+    bound = {(b["effect"], b["param"], b["bound"]) for b in rep["final_at_bound"]}
+    assert ("bias_instability", "tau_s", "lower") in bound
+    assert rep["steps"][0]["at_bound"] == rep["final_at_bound"]
+    assert "AT BOUND: bias_instability.tau_s" in summary(res)
+
+
+def test_a_step_that_raises_the_gap_is_not_added(
+    drive: DriveLog, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The best candidate (scale factor) is made to raise the gap: it is not added, the report
+    says so, and the next significant one (temperature) is."""
+    import hdrd.analysis.gap.search as search
+
+    real = search.gap_metric
+
+    def worse_with_scale(
+        data: GapData,
+        model: GyroModel,
+        seed: int = 0,
+        d: np.ndarray | None = None,
+        truth_var: float = 0.0,
+    ) -> GapMeasure:
+        m = real(data, model, seed, d, truth_var)
+        if "scale_factor" in model:
+            return replace(m, a_term=m.a_term + 10.0)
+        return m
+
+    monkeypatch.setattr(search, "gap_metric", worse_with_scale)
+    hidden = [TemperatureBias(coeff_dps_per_c=0.03, ref_temp_c=25.0), ScaleFactor(error=0.03)]
+    res = run_gap(measured(drive, hidden))
+    assert "scale_factor" not in res.final_model, summary(res)
+    assert "temperature_bias" in res.final_model
+    assert res.rejected and res.rejected[0]["effect"] == "scale_factor"
+    assert "not added at step 1: scale_factor" in summary(res)
+    gaps = [res.initial_sim.gap] + [s.gap_after for s in res.steps]
+    assert gaps == sorted(gaps, reverse=True)

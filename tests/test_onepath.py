@@ -116,6 +116,10 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
         msgs = replay_capture(data, cfg, how.get("bias"), how.get("cal"))
         steps = [m for m in msgs if "yaw" in m]
         prep = prepare_drive(log, how.get("bias"), how.get("cal"), cfg.hdr.params.T)
+        # evaluate reads a log's output step from the lattice of its values; the daemon knows
+        # its ADC's LSB: the same step, to a rounding error (HDR+ fits its model to it)
+        assert prep.quant_step_dps == pytest.approx(SENSOR.lsb_dps, rel=1e-6)
+        prep = replace(prep, quant_step_dps=SENSOR.lsb_dps)
         yaw = method_yaw(prep, method, cfg.hdr.params, plus_params(cfg))
         assert len(steps) == prep.steps.u.shape[0] > 100
         assert [m["yaw"] for m in steps] == yaw.tolist()  # bit for bit

@@ -271,7 +271,26 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     ref = Pipeline(PipelineConfig(bias_dps=bias, method="hdr"))
     plain = run_live(ref, make_frames(omega))
     assert all(m["omega"] != 0.0 for m in plain[5:])  # paper HDR has no zero-rate update
-    assert "zupt" not in plain[0]
+    assert "zupt" not in plain[0] and "model" not in plain[0]
+    # which error model is in force: a given bias without a record, no noise model
+    assert {m["model"] for m in msgs} == {"defaults"} and msgs[-1]["bias_sd"] > 0.0
+
+
+def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
+    # A configured grade (a known error model): published as such; a tactical-grade gyro's
+    # bias wanders too little for the binary increment, so I never moves. Measured at
+    # start-up without one: fitted to the calibration window.
+    from hdrd.sim.grades import grade_noise
+
+    rng = np.random.default_rng(5)
+    omega = 0.3 + rng.normal(0, 0.02, 600)
+    known = Pipeline(PipelineConfig(bias_dps=0.3, method="hdr+", noise=grade_noise("tactical")))
+    msgs = run_live(known, make_frames(omega))
+    assert {m["model"] for m in msgs} == {"grade tactical"}
+    assert all(m["I"] == 0.0 for m in msgs)
+    measured = Pipeline(PipelineConfig(method="hdr+", startup_s=5.0))
+    got = [m for m in run_live(measured, make_frames(omega)) if "yaw" in m]
+    assert got and {m["model"] for m in got} == {"calibration"}
 
 
 @pytest.mark.parametrize(("from_gyro", "enabled"), [(False, True), (True, True), (True, False)])

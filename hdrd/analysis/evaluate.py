@@ -49,7 +49,7 @@ from hdrd.analysis.prepare import (
 from hdrd.calibrate import StandstillLimits
 from hdrd.drivelog import DriveLog
 from hdrd.hdr import HdrParams
-from hdrd.hdrplus import HdrPlusParams
+from hdrd.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.methods import StepInputs
 
 __all__ = [
@@ -138,12 +138,16 @@ def method_yaw(
     method: str,
     params: HdrParams = PAPER_PARAMS,
     plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
 ) -> FloatArray:
     """Yaw (deg CCW since the drive's start) at each step end of one method on a prepared
     drive: its batch form with its settings derived as the daemon derives them. params: the
-    HDR parameters (``hdr.*``); plus: HDR+'s base settings (the config's ``standstill.*``)."""
+    HDR parameters (``hdr.*``); plus: HDR+'s base settings (the config's ``standstill.*``);
+    noise: the gyro's error model when known (a configured grade). The output step is the
+    log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
-    ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias)
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias, noise, q)
     return m.batch(prep.steps, m.settings(ctx))
 
 
@@ -152,9 +156,11 @@ def evaluate_prepared(
     params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
     plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
-    ``plus``: HDR+'s base settings (default: HDR+'s defaults)."""
+    ``plus``: HDR+'s base settings (default: HDR+'s defaults); ``noise``: the gyro's error
+    model when known (the config's ``plus.grade`` / ``plus.noise``)."""
     ms = evaluated_methods(methods)
     if params.T != prep.steps.T:
         raise EvaluationError(
@@ -164,7 +170,7 @@ def evaluate_prepared(
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = method_yaw(prep, m, params, plus)
+        yaw = method_yaw(prep, m, params, plus, noise)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
@@ -375,6 +381,7 @@ def evaluate_logs(
     calibrate_seconds: float | None = None,
     limits: StandstillLimits = DEFAULT_LIMITS,
     truth_max_gap_s: float = TRUTH_MAX_GAP_S,
+    noise: GyroNoise | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
     """Every drive that can be evaluated, and why each other one cannot (one line each).
     With a single drive, a drive that cannot be evaluated raises EvaluationError instead."""
@@ -383,7 +390,7 @@ def evaluate_logs(
     for log in logs:
         try:
             prep = prepare_drive(log, bias, calibrate_seconds, params.T, truth_max_gap_s, limits)
-            results.append(evaluate_prepared(prep, params, methods, plus))
+            results.append(evaluate_prepared(prep, params, methods, plus, noise))
         except EvaluationError as e:
             if len(logs) == 1:
                 raise

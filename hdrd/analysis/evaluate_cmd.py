@@ -16,7 +16,7 @@ from hdrd.analysis.evaluate import (
 )
 from hdrd.config import ConfigError, load_config
 from hdrd.errors import EX_CONFIG
-from hdrd.pipeline import plus_params, standstill_limits
+from hdrd.pipeline import plus_noise, plus_params, standstill_limits
 
 __all__ = ["main"]
 
@@ -55,6 +55,7 @@ def main(args: argparse.Namespace) -> int:
             args.bias,
             args.calibrate_seconds,
             standstill_limits(cfg),
+            noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
         )
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)

@@ -41,6 +41,7 @@ from hdrd.hdr import HdrParams
 from hdrd.methods import StepInputs
 from hdrd.pipeline import PipelineConfig, Stepper
 from hdrd.resample import Block, BlockAverager, Missing
+from hdrd.zupt import quantization_step
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -107,7 +108,10 @@ class PreparedDrive:
     calibration window, 0 if the bias was given). bias: the calibration record (None if
     given). samples_per_step: samples in the first step, as the daemon derives its methods'
     settings from (the gyro's sample rate times T). calibration_attempts: start-up windows
-    measured (more than one: the first ones showed motion).
+    measured (more than one: the first ones showed motion). quant_step_dps: the output step
+    of the log's raw rates, deg/s (the lattice of its values, :func:`hdrd.zupt.
+    quantization_step`; 0 = not quantised or not seen): a recorded log's analogue of the LSB
+    the daemon knows of its ADC.
     """
 
     name: str
@@ -122,6 +126,7 @@ class PreparedDrive:
     bias: BiasRecord | None = None
     samples_per_step: float | None = None
     calibration_attempts: int = 0
+    quant_step_dps: float = 0.0
 
 
 # -- where the bias comes from -------------------------------------------------------------
@@ -409,4 +414,5 @@ def prepare_drive(
         bias=rec if measured else None,
         samples_per_step=stepper.samples_per_step,
         calibration_attempts=stepper.window.attempts,
+        quant_step_dps=quantization_step(log.omega),
     )

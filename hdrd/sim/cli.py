@@ -5,6 +5,7 @@ The command-line edge of :mod:`hdrd.sim` (flags in hdrd/cli.py ``_simulate``)::
     hdrd simulate --drive city --minutes 20 --seed 3 --out drive.csv   # one drive
     hdrd simulate --drive rural --model my-gyro.yaml --out -          # CSV to stdout
     hdrd simulate --benchmark train --out bench/train                  # the nine, DIR/<name>.csv
+    hdrd simulate --drive highway --grade tactical --out drive.csv     # a gyro grade preset
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from hdrd.drivelog import write_drive
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.grades import DEFAULT_GRADE, GRADES, Grade, grade_model
 from hdrd.sim.gyro import GyroModel, load_model
 from hdrd.sim.vehicle import DRIVE_TYPES
 
@@ -32,6 +34,12 @@ def _err(msg: str) -> None:
 def simulate_main(args: argparse.Namespace) -> int:
     """Run ``hdrd simulate``; returns the exit status (0 ok, 1 I/O error, 2 usage, 78 bad model)."""
     model: GyroModel | None = None
+    grade = getattr(args, "grade", None)
+    if grade is not None and grade not in GRADES:
+        _err(f"unknown --grade {grade!r} (known: {', '.join(GRADES)})")
+        return EX_USAGE
+    if args.hz is None:
+        args.hz = Grade.from_table(grade or DEFAULT_GRADE).rate_hz
     if args.model:
         try:
             model = load_model(args.model)
@@ -45,14 +53,18 @@ def simulate_main(args: argparse.Namespace) -> int:
         _err(f"--hz must be > 0, got {args.hz}")
         return EX_USAGE
     if args.benchmark:
-        return _benchmark(args, model)
+        return _benchmark(args, model, grade)
     if args.drive not in DRIVE_TYPES:
         _err(f"unknown --drive {args.drive!r} (known: {', '.join(DRIVE_TYPES)})")
         return EX_USAGE
     if not (math.isfinite(args.minutes) and args.minutes > 0):
         _err(f"--minutes must be > 0, got {args.minutes}")
         return EX_USAGE
+    if grade is not None:
+        model = grade_model(grade, args.seed)
     log = simulate_drive(args.drive, args.minutes, args.seed, hz=args.hz, model=model)
+    if grade is not None:
+        log.meta["grade"] = grade
     out = args.out or "-"
     try:
         if out == "-":
@@ -70,7 +82,7 @@ def simulate_main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _benchmark(args: argparse.Namespace, model: GyroModel | None) -> int:
+def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
     if not args.out or args.out == "-":
         _err("--benchmark needs --out DIR (a directory for <name>.csv files)")
         return EX_USAGE
@@ -79,7 +91,11 @@ def _benchmark(args: argparse.Namespace, model: GyroModel | None) -> int:
     try:
         os.makedirs(out, exist_ok=True)
         for spec in specs:
+            if grade is not None:
+                model = grade_model(grade, spec.seed)
             log = generate(spec, hz=args.hz, model=model)
+            if grade is not None:
+                log.meta["grade"] = grade
             path = out / f"{spec.name}.csv"
             write_drive(path, log)
             print(f"{path}: {spec.minutes:g} min, {spec.description}")

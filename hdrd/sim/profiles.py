@@ -118,10 +118,16 @@ def _profile_samples(minutes: float, hz: float, lead_in_s: float = 0.0) -> int:
 
 
 def load_profile(
-    drive: str, minutes: float = 20.0, seed: int = 1, hz: float = 10.0, rate_dps: float = 0.0
+    drive: str,
+    minutes: float = 20.0,
+    seed: int = 1,
+    hz: float = 10.0,
+    rate_dps: float = 0.0,
+    grade: str | None = None,
 ) -> DriveLog:
     """A drive by name: "standstill" and "constant" are built in (:func:`builtin_profile`);
-    any other name is a road type of the simulator (:func:`hdrd.sim.drive.simulate_drive`)."""
+    any other name is a road type of the simulator (:func:`hdrd.sim.drive.simulate_drive`),
+    with the gyro of ``grade`` (:mod:`hdrd.sim.grades`; None: the default CRS03-04 model)."""
     if drive in BUILTIN_DRIVES:
         return builtin_profile(drive, minutes, seed, hz, rate_dps)
     for name, v in (("minutes", minutes), ("hz", hz)):
@@ -129,7 +135,12 @@ def load_profile(
             raise ProfileError(f"{name} must be a finite number > 0, got {v!r}")
     _profile_samples(minutes, hz)
     try:
-        return simulate_drive(drive, minutes, seed, hz=hz)
+        model = None
+        if grade is not None:
+            from hdrd.sim.grades import grade_model
+
+            model = grade_model(grade, seed)
+        return simulate_drive(drive, minutes, seed, hz=hz, model=model)
     except ValueError as e:
         raise ProfileError(str(e)) from None
 

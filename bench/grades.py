@@ -1,0 +1,377 @@
+#!/usr/bin/env python3
+"""HDR+ across gyro grades: none / paper HDR / HDR+ on simulated drives of every grade preset.
+
+    python bench/grades.py [--routes 8] [--criterion 40] [--no-write]
+
+For every grade of :mod:`hdrd.sim.grades` (crs03, phone, automotive, tactical), drives of the
+paper-like benchmark's types with that grade's gyro at its own sample rate
+(``hdrd simulate --grade NAME``; each drive's turn-on bias drawn from its seed), calibrated
+over their 30 s start-up standstill, scored with the temperature given (as ``hdrd simulate``
+writes it), withheld (as on a real recording without a thermometer), and withheld on a
+real-road-like curving road (:func:`curvy`):
+
+- ``none`` (static bias removal), ``hdr`` (paper HDR, Table III), ``hdr+`` as ``hdrd evaluate
+  --method hdr+`` runs it (fitted to the drive by :func:`hdrd.methods.plus_settings` from its
+  calibration and the log's output step; the grade is *not* known), ``hdr+ (grade)`` with the
+  grade's error model given (``plus.grade``, as a daemon configured with it), and
+  *oracle*: the gyro's true error smoothed over 121 s (centred) removed, known only in
+  simulation, a bound on what knowing the bias buys.
+- Sets, fixed before any result (seeds ``spec.seed + 1000 j``): *tuning* = the nine training
+  types, j = 1..4 (the routes HDR+'s design was measured on); *judging* = the five test
+  types, j = 60..(59 + routes), never used before; *criterion* = the five test types,
+  j = 100..(99 + criterion), for the per-type rule "no drive type worse than paper HDR by
+  more than 10 %" (a type's mean over that many held-out routes) and the share of single
+  drives more than 10 % worse than HDR, HDR+ against the oracle.
+
+Rewrites its own section of bench/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from _common import machine_line, replace_section
+
+from hdrd.analysis.evaluate import PreparedDrive, method_yaw, prepare_drive
+from hdrd.analysis.metrics import e_psi
+from hdrd.drivelog import DriveLog
+from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
+from hdrd.sim.grades import GRADES, Grade, grade_model, grade_noise
+
+SECTION = "## HDR+ across gyro grades (simulated; held-out routes)"
+CALIBRATE_S = 30.0
+METHODS = ("none", "hdr", "hdr+", "hdr+ (grade)", "oracle")
+
+
+ROAD_SD_DPS = 0.05
+ROAD_TAU_S = 120.0
+"""The *real-road* variant of a drive: a gentle road curvature, a Gauss-Markov yaw rate of
+this sd (deg/s) and correlation time (s) while moving, added to the truth and the gyro alike.
+The simulator's roads are straighter than real ones: on the real tuning drives the mean true
+rate of the straight-driving windows HDR+ learns from is 0.025 deg/s (sd over drives), on the
+simulator's 0.006; with this curvature 0.022 (measured on the tactical grade's tuning routes)."""
+
+
+def curvy(prep: PreparedDrive, seed: int) -> PreparedDrive:
+    """The drive on a real-road-like curving road (:data:`ROAD_SD_DPS`): the same gyro errors,
+    a truth and a gyro that both turn by the added curvature (none while standing)."""
+    s = prep.steps
+    n = s.u.shape[0]
+    rng = np.random.default_rng([seed, 0x726F6164])  # "road"
+    a = math.exp(-s.T / ROAD_TAU_S)
+    kicks = np.asarray(rng.normal(0.0, ROAD_SD_DPS * math.sqrt(1.0 - a * a), size=n)).tolist()
+    g = np.empty(n)
+    x = float(rng.normal(0.0, ROAD_SD_DPS))
+    for i in range(n):
+        x = a * x + kicks[i]
+        g[i] = x
+    if s.speed is not None:
+        g = np.where(np.isfinite(s.speed) & (s.speed > 0.3), g, 0.0)
+    truth = np.mod(prep.truth - np.cumsum(g * s.T), 360.0)
+    return replace(prep, steps=replace(s, u=s.u + g), truth=truth)
+
+
+@dataclass(frozen=True)
+class Scores:
+    """Eψ (deg) of each method on one drive: temperature given, withheld, and withheld on a
+    real-road-like curving road."""
+
+    name: str
+    kind: str  # drive type
+    td_min: float
+    e: dict[str, float]  # method -> Eψ, temperature given
+    e_nt: dict[str, float]  # method -> Eψ, temperature withheld
+    e_road: dict[str, float]  # method -> Eψ, temperature withheld, curving road
+
+
+def oracle_yaw(log: DriveLog, prep: PreparedDrive, window_s: float = 121.0) -> np.ndarray:
+    """Yaw with the gyro's true error (output minus the scaled true rate, smoothed over
+    ``window_s`` centred) removed from every step: known in simulation only."""
+    gain = 1.0
+    for e in json.loads(log.meta.get("gyro_model", "[]")):
+        if e.get("name") == "scale_factor":
+            gain = 1.0 + float(e["error"])
+    assert log.omega_truth is not None
+    err = log.omega - gain * log.omega_truth
+    t = log.t - log.t[0]
+    T = prep.steps.T
+    idx = np.floor(t / T + 1e-9).astype(np.int64)
+    n_all = int(idx[-1]) + 1
+    sums = np.bincount(idx, weights=err, minlength=n_all)
+    counts = np.bincount(idx, minlength=n_all)
+    step_err = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    k = max(1, int(round(window_s / T)))
+    kernel = np.ones(k) / k
+    smooth = np.convolve(step_err, kernel, mode="same")
+    first = int(round(prep.start_s / T))
+    corr = smooth[first : first + prep.steps.u.shape[0]] - prep.steps.bias_dps
+    # u = raw - eps0 = true + err - eps0: removing (err - eps0) leaves the true rate.
+    return np.cumsum((prep.steps.u - corr) * T)
+
+
+def score_drive(spec: DriveSpec, grade: str) -> Scores:
+    g = Grade.from_table(grade)
+    log = generate(spec, hz=g.rate_hz, model=grade_model(grade, spec.seed))
+    prep = prepare_drive(log, calibrate_seconds=CALIBRATE_S)
+    s = prep.steps
+    noise = grade_noise(grade)
+
+    def methods(p: PreparedDrive) -> dict[str, float]:
+        def ep(yaw: np.ndarray) -> float:
+            return float(e_psi(yaw, p.truth, p.k))
+
+        return {
+            "none": ep(method_yaw(p, "none")),
+            "hdr": ep(method_yaw(p, "hdr")),
+            "hdr+": ep(method_yaw(p, "hdr+")),
+            "hdr+ (grade)": ep(method_yaw(p, "hdr+", noise=noise)),
+            "oracle": ep(oracle_yaw(log, p)),
+        }
+
+    nt = replace(prep, steps=replace(s, temp_c=None))
+    return Scores(
+        spec.name,
+        spec.name,
+        prep.duration_min,
+        methods(prep),
+        methods(nt),
+        methods(curvy(nt, spec.seed)),
+    )
+
+
+def step_timing(prep: PreparedDrive, repeats: int = 3) -> tuple[float, float]:
+    """CPU microseconds per step of HDR+'s two forms on one drive (best of ``repeats``):
+    :func:`hdrd.hdrplus.step` looped, as the daemon runs it once per T, and
+    :func:`hdrd.hdrplus.run_batch`, as evaluate runs it. Settings as evaluate fits them."""
+    from hdrd.analysis.evaluate import PLUS_DEFAULTS
+    from hdrd.hdrplus import INITIAL_PLUS_STATE, run_batch, step
+    from hdrd.methods import plus_settings
+
+    s = prep.steps
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    p = plus_settings(PLUS_DEFAULTS, s.T, prep.samples_per_step, prep.bias, None, q)
+    inputs = [s.input(i) for i in range(s.u.shape[0])]
+    best_step = best_batch = math.inf
+    for _ in range(repeats):
+        t0 = time.process_time()
+        state = INITIAL_PLUS_STATE
+        for inp in inputs:
+            state, _ = step(state, inp, p)
+        t1 = time.process_time()
+        run_batch(s.u, s.omega_std, s.speed, s.temp_c, s.T, p)
+        t2 = time.process_time()
+        best_step, best_batch = min(best_step, t1 - t0), min(best_batch, t2 - t1)
+    n = len(inputs)
+    return 1e6 * best_step / n, 1e6 * best_batch / n
+
+
+def drive_set(specs: Sequence[DriveSpec], js: range, grade: str) -> list[Scores]:
+    return [score_drive(replace(s, seed=s.seed + 1000 * j), grade) for j in js for s in specs]
+
+
+# -- summaries ----------------------------------------------------------------------------------
+
+
+CASES = ("given", "withheld", "withheld, curving road")
+"""The temperature given / withheld / withheld on a real-road-like curving road."""
+
+
+def _e(x: Scores, case: str) -> dict[str, float]:
+    return {"given": x.e, "withheld": x.e_nt}.get(case, x.e_road)
+
+
+def ne(scores: Sequence[Scores], m: str, case: str) -> np.ndarray:
+    return np.array([_e(x, case)[m] / x.td_min for x in scores])
+
+
+def worse(scores: Sequence[Scores], m: str, ref: str, case: str) -> float:
+    """Share of drives whose Eψ exceeds 1.1 x ref's by more than 0.5 deg."""
+    a = np.array([_e(x, case)[m] for x in scores])
+    b = np.array([_e(x, case)[ref] for x in scores])
+    return float(np.mean((a > 1.1 * b) & (a - b > 0.5)))
+
+
+def worse_than_hdr(scores: Sequence[Scores], m: str, case: str) -> float:
+    """Share of drives whose NEψ exceeds 1.1 x paper HDR's (the single-drive criterion)."""
+    return float(np.mean(ne(scores, m, case) > 1.1 * ne(scores, "hdr", case)))
+
+
+def type_ratios(scores: Sequence[Scores], m: str, case: str) -> dict[str, float]:
+    """Per drive type: mean NEψ of m / mean NEψ of paper HDR."""
+    out = {}
+    for kind in dict.fromkeys(x.kind for x in scores):
+        sub = [x for x in scores if x.kind == kind]
+        out[kind] = float(np.mean(ne(sub, m, case)) / np.mean(ne(sub, "hdr", case)))
+    return out
+
+
+def f3(v: float) -> str:
+    return f"{v:.3f}" if math.isfinite(v) else "–"
+
+
+def set_table(sets: dict[str, dict[str, list[Scores]]], label: str) -> str:
+    head = (
+        "| grade | temperature | drives | "
+        + " | ".join(f"NEψ {m}" for m in METHODS)
+        + " | HDR+ / none | HDR / HDR+ | HDR+ drives worse than none (> 1.1x and +0.5°) |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for grade, by in sets.items():
+        sc = by[label]
+        for case in CASES:
+            means = {m: float(np.mean(ne(sc, m, case))) for m in METHODS}
+            lines.append(
+                f"| {grade} | {case} | {len(sc)} | "
+                + " | ".join(f3(means[m]) for m in METHODS)
+                + f" | {means['hdr+'] / means['none']:.2f} | {means['hdr'] / means['hdr+']:.2f}x"
+                + f" | {worse(sc, 'hdr+', 'none', case):.0%} |"
+            )
+    return "\n".join(lines)
+
+
+def criterion_table(sets: dict[str, dict[str, list[Scores]]]) -> str:
+    head = (
+        "| grade | temperature | drives | worst type: HDR+ / HDR (type mean) | types > 1.1 | "
+        "HDR+ drives > 1.1 x HDR | oracle drives > 1.1 x HDR | per type: HDR+ / HDR |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for grade, by in sets.items():
+        sc = by["criterion"]
+        for case in CASES:
+            r = type_ratios(sc, "hdr+", case)
+            worst = max(r, key=lambda k: r[k])
+            lines.append(
+                f"| {grade} | {case} | {len(sc)} | "
+                f"{r[worst]:.2f} ({worst}) | {sum(v > 1.1 for v in r.values())} | "
+                f"{worse_than_hdr(sc, 'hdr+', case):.0%} | {worse_than_hdr(sc, 'oracle', case):.0%} | "
+                + ", ".join(f"{k} {v:.2f}" for k, v in r.items())
+                + " |"
+            )
+    return "\n".join(lines)
+
+
+DISCUSSION = """
+**Reading** (written by hand from the run above; re-read the tables if the code changed).
+
+- **Temperature given** (how `hdrd simulate` writes a drive): on the held-out judging routes
+  HDR+ is below static bias removal on every grade's mean (tactical IMU 0.106 vs 0.124
+  deg/min, the other grades 5-11x below) and 1.71x below paper HDR on the CRS03-04 (0.191 vs
+  0.326); over 40 held-out routes of each test type no type is worse than paper HDR by more
+  than 10 % on any grade (worst: phone city3, 1.08). Single drives more than 10 % worse than
+  paper HDR: 21 / 34 / 19 / 10 % (CRS03-04 / phone / automotive / tactical), against 14 / 23 /
+  21 / 6 % for the oracle. On the tactical grade a quarter to a third of the single drives
+  are still worse than bias removal (> 10 % and 0.5°) when the grade is not known: the default
+  prior on the temperature coefficient (0.01 deg/s/°C) is 20x this gyro's.
+- **Temperature withheld** (a real recording), grade not known: below bias removal on every
+  grade's mean; on the CRS03-04 now 1.05x better than paper HDR (0.98x before: the random walk
+  is learned from stops), on the phone grade still 0.85x of it (a 0.32 deg/s warm-up drift
+  that the online estimate, slow to protect good gyros, follows late). Per type the CRS03-04
+  and phone grades are up to 1.9x and 1.8x worse than paper HDR (rural3, city3); with the
+  grade known (`hdr+ (grade)`) both are 1.3-1.6x better than paper HDR.
+- **Curving road** (the real-road variant, temperature withheld): paper HDR loses about 2x here
+  (it straightens the curves: 0.58-0.63 deg/min on every grade), HDR+ loses too. On the
+  tactical grade HDR+ with the grade not known is 2.1x *worse* than bias removal (0.264 vs
+  0.124), 62 % of the drives worse by > 10 % and 0.5°: the online random walk rises on the
+  curves before the first stop, and the binary increment then follows them. With the grade
+  known (a configured daemon, or noise parameters recorded by `hdrd calibrate`) it is 0.094:
+  below bias removal, the increment off. This is the failure the real judging drives show
+  (bench/RESULTS.md, real drives), and it is not solved without a known error model.
+- **What tuned what**: the tuning routes (plain and curving, temperature given and withheld)
+  and the real tuning drives chose every setting; the judging and criterion routes were run
+  with the settings fixed (one setting was switched off afterwards because of the real judging
+  drives, see docs/hdrplus.md: `q_white_ratio`; these simulated tables are after that change,
+  and on them it had helped: CRS03-04 withheld 0.218, phone 0.333 deg/min on the judging routes).
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--routes", type=int, default=8, help="judging routes per test type")
+    ap.add_argument("--criterion", type=int, default=40, help="criterion routes per test type")
+    ap.add_argument("--grades", default=",".join(GRADES), help="comma-separated grades")
+    ap.add_argument("--no-write", action="store_true")
+    a = ap.parse_args(argv)
+    grades = [g for g in a.grades.split(",") if g]
+    t0 = time.time()
+    sets: dict[str, dict[str, list[Scores]]] = {}
+    for grade in grades:
+        sets[grade] = {
+            "tuning": drive_set(TRAIN_DRIVES, range(1, 5), grade),
+            "judging": drive_set(TEST_DRIVES, range(60, 60 + a.routes), grade),
+            "criterion": drive_set(TEST_DRIVES, range(100, 100 + a.criterion), grade),
+        }
+        print(f"{grade}: {time.time() - t0:.0f} s", flush=True)
+    g0 = Grade.from_table("crs03")
+    timing_prep = prepare_drive(
+        generate(TEST_DRIVES[0], hz=g0.rate_hz, model=grade_model("crs03", 0)),
+        calibrate_seconds=CALIBRATE_S,
+    )
+    us_step, us_batch = step_timing(timing_prep)
+    timing = (
+        f"Speed (CPU time, best of 3, on {TEST_DRIVES[0].name}: "
+        f"{timing_prep.steps.u.shape[0]} steps): `hdrd.hdrplus.step` (the daemon's form, "
+        f"composed of `hdrd.hdr.step` and `hdrd.zupt`'s functions) {us_step:.0f} µs per step, "
+        f"`run_batch` (evaluate's, the same recursion inlined) {us_batch:.1f} µs per step. "
+        "The daemon takes one step per second: either is far inside its budget."
+    )
+    print(timing)
+    tuning = set_table(sets, "tuning")
+    judging = set_table(sets, "judging")
+    crit = criterion_table(sets)
+    print(tuning, judging, crit, sep="\n\n")
+    section = f"""{SECTION}
+
+Generated by `python bench/grades.py --routes {a.routes} --criterion {a.criterion}`
+({machine_line()}; {time.time() - t0:.0f} s). Drives of the benchmark's types with each grade's
+gyro (`hdrd simulate --grade NAME`, docs/gyro-model.md) at the grade's rate, calibrated over
+their 30 s start-up standstill; mean NEψ in deg/min. Each method exactly as `hdrd evaluate
+--calibrate-seconds 30 --method hdr+` runs it (`method_yaw`): *hdr+* fitted to the drive by
+`hdrd.methods.plus_settings` from its calibration and the log's output step (the grade is not
+known); *hdr+ (grade)* with the grade's error model given (`plus.grade` in the config, as a
+configured daemon); *oracle*: the true gyro error (smoothed over 121 s) removed, simulation
+only. Temperature *given* as the simulator writes it, *withheld* as on a real recording, or
+withheld on a *curving road*: the same drive with a gentle road curvature added to truth and
+gyro alike (a Gauss-Markov yaw rate of 0.05 deg/s, 120 s, while moving), so that the
+straight-driving windows HDR+ learns from mislead it as much as on the real tuning drives
+(0.022 vs 0.025 deg/s per drive; the simulator's own roads 0.006). Seeds `spec.seed + 1000 j`:
+**tuning** = the nine training types, j = 1..4 (HDR+'s settings were chosen on these and on
+the real tuning drives, docs/hdrplus.md); **judging** = the five test types, j =
+60..{59 + a.routes}; **criterion** = the five test types, j = 100..{99 + a.criterion}.
+
+Tuning routes:
+
+{tuning}
+
+Judging routes (held out):
+
+{judging}
+
+The per-type criterion (held out; a type's mean over {a.criterion} routes; "> 1.1 x HDR" counts
+single drives whose NEψ exceeds 1.1 x paper HDR's):
+
+{crit}
+
+{timing}
+
+{DISCUSSION.strip()}
+"""
+    if not a.no_write:
+        replace_section(SECTION, section)
+        print(f"wrote {SECTION!r}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

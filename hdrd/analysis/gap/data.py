@@ -1,0 +1,348 @@
+"""A drive log made ready for the model-gap workflow: the true rate, the blocks, the lattice.
+
+Rates deg/s, + = CCW (left turn); heading compass deg, clockwise from north; time s since the
+first sample (= power-on); temperature deg C. Pure.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
+from hdrd.drivelog import DriveLog
+from hdrd.errors import HdrdError
+
+__all__ = [
+    "TIME_GAP_FACTOR",
+    "GapData",
+    "GapError",
+    "excluded_samples",
+    "prepare",
+    "truth_rate_from_heading",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+TIME_GAP_FACTOR = 2.5
+"""A step between two rows longer than this many median sample periods is a time gap (rows
+dropped; a jittery clock's steps stay below it): statistics over consecutive samples (Allan deviation, neighbouring differences)
+do not reach across it."""
+
+
+class GapError(HdrdError, ValueError):
+    """The log cannot be analysed (no truth, too short, ...); the message says why."""
+
+
+# -- the truth and the blocks -----------------------------------------------------------------
+
+
+def _fixes(t: FloatArray, h: FloatArray) -> IntArray:
+    """Row indices of the fixes in a heading column: finite values, a value held over several
+    rows counted once (its first row)."""
+    ok = np.flatnonzero(np.isfinite(h))
+    if ok.shape[0] > 1:
+        keep = np.concatenate(([True], h[ok[1:]] != h[ok[:-1]]))
+        ok = ok[keep]
+    return ok
+
+
+def truth_rate_from_heading(
+    t_s: npt.ArrayLike, heading_deg: npt.ArrayLike, max_gap_s: float = 2.5
+) -> FloatArray:
+    """True yaw rate (deg/s, + = CCW) per sample from a compass heading (deg, clockwise from
+    north; NaN = unknown), e.g. a 1 Hz GPS course.
+
+    Between two consecutive fixes at most ``max_gap_s`` apart the rate is -(heading change the
+    short way round) / (time between them): CW -> CCW. It is given to the samples between the
+    two fixes' rows; a fix's own row, shared by two intervals, gets the mean of both rates (the
+    trapezoid rule: samples are instantaneous values, so a row between two intervals belongs
+    half to each). NaN elsewhere (stops, outages, before the first fix).
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    h = np.asarray(heading_deg, dtype=np.float64)
+    out = np.full(t.shape[0], np.nan)
+    ok = _fixes(t, h)
+    if ok.shape[0] < 2:
+        return out
+    tf, hf = t[ok], h[ok]
+    dt = np.diff(tf)
+    dh = (np.diff(hf) + 180.0) % 360.0 - 180.0  # shortest way round: 359 -> 1 is +2 deg
+    rate = -dh / dt
+    good = dt <= max_gap_s
+    for j in np.flatnonzero(good):
+        out[ok[j] : ok[j + 1]] = rate[j]
+    both = np.flatnonzero(good[1:] & good[:-1]) + 1  # fixes with a good interval on each side
+    out[ok[both]] = 0.5 * (rate[both - 1] + rate[both])
+    return out
+
+
+@dataclass(frozen=True)
+class GapData:
+    """A measured log made ready for the workflow (see :func:`prepare`).
+
+    Samples: t (s since the first sample), omega (deg/s), truth (deg/s; NaN where unknown),
+    truth_filled (NaN replaced by interpolation, for simulating), temp_c (deg C or None),
+    valid (truth known and the sample not excluded), excluded (marked ``valid`` = 0 in the log or
+    inside an excluded period), time_gap (a time gap, rows dropped, just before the sample).
+
+    Blocks of ``block_s`` on a regular grid from ``block_t0`` (0, or the first GPS fix when the
+    truth is a heading): sample i counts with weight ``wprim[i]`` in block ``block_of[i]``
+    (-1: none) and, at a heading truth's fix rows, with weight 1/2 in ``block_prev[i]`` too
+    (trapezoid rule: the fix between two blocks belongs half to each). ``bvalid`` marks the
+    blocks used (complete, with truth), ``bweight`` their weight sums, ``bneff`` the effective
+    number of samples for white noise ((sum w)**2 / sum w**2), ``bt`` their mid times (s),
+    ``btruth`` the mean true rate of each used block (deg/s; with a heading truth exactly the
+    heading change between the block's end fixes over its duration).
+    """
+
+    t: FloatArray
+    omega: FloatArray
+    truth: FloatArray
+    truth_filled: FloatArray
+    temp_c: FloatArray | None
+    valid: BoolArray
+    excluded: BoolArray
+    time_gap: BoolArray
+    truth_source: str
+    fs_hz: float
+    block_s: float
+    block_t0: float
+    nblocks: int
+    block_of: IntArray
+    wprim: FloatArray
+    block_prev: IntArray
+    bvalid: BoolArray
+    bweight: FloatArray
+    bneff: FloatArray
+    bt: FloatArray
+    btruth: FloatArray
+    resolution_dps: float
+    lattice: Lattice | None
+    name: str = ""
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def n_used(self) -> int:
+        """Number of blocks in the likelihood."""
+        return int(self.bvalid.sum())
+
+    @property
+    def heading_mode(self) -> bool:
+        return self.truth_source.startswith("heading_truth")
+
+    def block_mean(self, x: FloatArray) -> FloatArray:
+        """Weighted mean of the sample values x over each used block."""
+        sel = self.block_of >= 0
+        s = np.bincount(self.block_of[sel], weights=(self.wprim * x)[sel], minlength=self.nblocks)
+        sp = self.block_prev >= 0
+        if sp.any():
+            s += np.bincount(self.block_prev[sp], weights=0.5 * x[sp], minlength=self.nblocks)
+        return np.asarray(s[self.bvalid] / self.bweight[self.bvalid])
+
+    def block_residual(self, y: FloatArray) -> FloatArray:
+        """Block means of y (a gyro output, deg/s) minus the true rate: the block residual."""
+        return self.block_mean(y) - self.btruth
+
+
+def _block_length(duration_s: float, truth_source: str) -> float:
+    # 1 s is the paper's step T; longer logs get longer blocks to keep the filter cheap, and a
+    # truth differentiated from 1 Hz GPS needs a few seconds to average its noise down.
+    base = 5.0 if truth_source == "heading_truth" else 1.0
+    return float(max(base, math.ceil(duration_s / 1500.0)))
+
+
+def excluded_samples(log: DriveLog, exclude: Sequence[tuple[float, float]] = ()) -> BoolArray:
+    """Samples left out: ``valid`` = 0 in the log, or t (the log's own time, s) inside one of the
+    ``exclude`` periods (T0, T1), ends included."""
+    out = np.zeros(len(log), dtype=bool) if log.valid is None else np.asarray(log.valid == 0.0)
+    for t0, t1 in exclude:
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+            raise GapError(f"excluded period {t0:g}:{t1:g} s: need finite T0 <= T1")
+        out = out | ((log.t >= t0) & (log.t <= t1))
+    return out
+
+
+def prepare(
+    log: DriveLog,
+    standstill: bool = False,
+    block_s: float | None = None,
+    exclude: Sequence[tuple[float, float]] = (),
+) -> GapData:
+    """Turn a drive log into :class:`GapData`. The truth rate is ``omega_truth`` where it has
+    values, else the derivative of ``heading_truth``, else zero when ``standstill``. Samples
+    marked ``valid`` = 0 or inside an ``exclude`` period (s, the log's own t) count as having
+    no truth. Raises GapError if there is no truth or too little of it."""
+    n = len(log)
+    if n < 100:
+        raise GapError(f"the log has {n} samples; the workflow needs at least 100")
+    t = np.asarray(log.t - log.t[0], dtype=np.float64)
+    omega = np.asarray(log.omega, dtype=np.float64)
+    origin, fix_dt = 0.0, 1.0
+    fixes = np.empty(0, dtype=np.int64)
+    heading = None
+    if log.omega_truth is not None and np.isfinite(log.omega_truth).any():
+        truth = np.asarray(log.omega_truth, dtype=np.float64)
+        source = "omega_truth"
+    elif log.heading_truth is not None and np.isfinite(log.heading_truth).sum() > 2:
+        heading = np.asarray(log.heading_truth, dtype=np.float64)
+        truth = truth_rate_from_heading(t, heading)
+        source = "heading_truth"
+        fixes = _fixes(t, heading)
+        origin = float(t[fixes[0]])
+        fix_dt = float(np.median(np.diff(t[fixes]))) if fixes.shape[0] > 1 else 1.0
+    elif standstill:
+        truth = np.zeros(n)
+        source = "standstill"
+    else:
+        raise GapError(
+            "the log has no truth: it needs an omega_truth or heading_truth column, "
+            "or --standstill for a log taken at rest"
+        )
+    if standstill and source != "standstill":
+        source += " (--standstill ignored: the log has truth)"
+    excluded = excluded_samples(log, exclude)
+    if excluded.all():
+        raise GapError("every sample is excluded (valid = 0 or inside an excluded period)")
+    if excluded.any():
+        truth = np.where(excluded, np.nan, truth)
+    valid = np.isfinite(truth)
+    if valid.sum() < 100:
+        raise GapError(f"only {int(valid.sum())} samples have a known true rate; need >= 100")
+    idx = np.arange(n)
+    truth_filled = np.interp(idx, idx[valid], truth[valid])
+    temp = None
+    if log.temp_c is not None and np.isfinite(log.temp_c).any():
+        tc = np.asarray(log.temp_c, dtype=np.float64)
+        ok = np.isfinite(tc)
+        temp = tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
+    dt = float(np.median(np.diff(t)))
+    fs = 1.0 / dt
+    time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
+    if block_s is not None:
+        bs = float(block_s)
+    else:
+        bs = _block_length(float(t[-1]), source)
+        if heading is not None:
+            bs *= max(1.0, round(fix_dt))  # whole fix intervals
+    if not (math.isfinite(bs) and bs >= dt):
+        raise GapError(f"block length {bs!r} s is shorter than the sample period {dt:g} s")
+    nblocks = math.floor((t[-1] - origin + dt) / bs + 1e-9)
+    if nblocks < 20:
+        raise GapError(
+            f"the log covers {nblocks} blocks of {bs:g} s; the workflow needs at least 20 "
+            f"(a log of {20 * bs:g} s or more)"
+        )
+    # Sample i covers [t_i, t_i + dt); half a sample of margin absorbs float jitter.
+    blk = np.floor((t - origin + 0.5 * dt) / bs - 1e-9).astype(np.int64)
+    inside = (blk >= 0) & (blk < nblocks)
+    bi = np.where(inside, blk, nblocks)  # nblocks: a bin for "outside"
+    total = np.bincount(bi, minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    good = np.bincount(bi[valid], minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    bvalid = (good >= 0.8 * bs * fs) & (good == total)
+    wprim = np.ones(n)
+    block_prev = np.full(n, -1, dtype=np.int64)
+    btruth_full = np.full(nblocks, np.nan)
+    if heading is not None:
+        # Each block must start on a fix and end on the next block's first row, also a fix.
+        is_fix = np.zeros(n, dtype=bool)
+        is_fix[fixes] = True
+        first = np.full(nblocks + 1, -1, dtype=np.int64)
+        rows = np.flatnonzero(inside)
+        first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
+        first[blk[first_rows]] = first_rows
+        after = np.flatnonzero(blk == nblocks)
+        if after.shape[0]:
+            first[nblocks] = after[0]
+        hu = np.full(n, np.nan)  # heading unwrapped along the fixes, deg
+        dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
+        hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
+        for k in range(nblocks):
+            a, b = first[k], first[k + 1]
+            edge_ok = (
+                a >= 0
+                and b >= 0
+                and is_fix[a]
+                and is_fix[b]
+                and bool(valid[a:b].all())
+                and bool(valid[b])
+            )
+            if edge_ok and bvalid[k]:
+                btruth_full[k] = -(hu[b] - hu[a]) / (t[b] - t[a])  # CW heading -> CCW rate
+                wprim[a] = 0.5
+                if k > 0:
+                    block_prev[a] = k - 1
+            else:
+                bvalid[k] = False
+        # The half-row that closes block k is the first row of block k + 1: give it to k even
+        # when block k + 1 itself is not used.
+        for kk in np.flatnonzero(bvalid).tolist():
+            b = first[kk + 1]
+            if b >= 0 and block_prev[b] < 0:
+                block_prev[b] = kk
+    block_of = np.where(inside & valid & bvalid[np.clip(blk, 0, nblocks - 1)], blk, -1)
+    block_prev = np.where(
+        (block_prev >= 0) & bvalid[np.clip(block_prev, 0, nblocks - 1)], block_prev, -1
+    )
+    wsum = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0], minlength=nblocks)
+    w2 = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0] ** 2, minlength=nblocks)
+    if (block_prev >= 0).any():
+        wsum += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.5),
+            minlength=nblocks,
+        )
+        w2 += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.25),
+            minlength=nblocks,
+        )
+    if bvalid.sum() < 20:
+        raise GapError(
+            f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
+        )
+    # The writer's resolution for rates: omega's own digits can look coarse when its values
+    # sit on a round ADC lattice (0.05 deg/s values are all multiples of 0.01), so the true
+    # rate column, written alike, is consulted too.
+    res = decimal_resolution(omega)
+    if log.omega_truth is not None:
+        res = min(res, decimal_resolution(log.omega_truth))
+    kept = omega[~excluded]  # what the sensor gave while it counted (no handling)
+    data = GapData(
+        t=t,
+        omega=omega,
+        truth=truth,
+        truth_filled=truth_filled,
+        temp_c=temp,
+        valid=valid,
+        excluded=excluded,
+        time_gap=time_gap,
+        truth_source=source,
+        fs_hz=fs,
+        block_s=bs,
+        block_t0=origin,
+        nblocks=nblocks,
+        block_of=block_of,
+        wprim=wprim,
+        block_prev=block_prev,
+        bvalid=bvalid,
+        bweight=np.where(wsum > 0, wsum, 1.0),
+        bneff=np.where(w2 > 0, wsum**2 / np.where(w2 > 0, w2, 1.0), 1.0),
+        bt=origin + (np.arange(nblocks) + 0.5) * bs,
+        btruth=np.empty(0),
+        resolution_dps=res,
+        lattice=detect_lattice(kept, res),
+        name=log.name,
+    )
+    bt_used = btruth_full[bvalid] if heading is not None else data.block_mean(truth_filled)
+    return replace(data, btruth=bt_used)

@@ -1,0 +1,473 @@
+"""Fitting a gyro error model to a prepared log: the deterministic prediction D, the
+likelihood (whitened block residual + lattice), BIC, and the alternating least-squares /
+maximum-likelihood fit of every free parameter.
+
+Rates deg/s, + = CCW; times s; temperatures deg C. Effect names and parameters are those of
+:mod:`hdrd.sim.gyro`. Pure.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
+from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.lattice import on_lattice
+from hdrd.analysis.gap.lowpass import (
+    cutoff_hz,
+    differences,
+    fit_lowpass,
+    pole,
+    white_factor,
+)
+from hdrd.analysis.gap.noise import Noise, Whitener
+from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
+from hdrd.sim.gyro import (
+    Bandwidth,
+    BiasInstability,
+    GyroModel,
+    Quantization,
+    RateRandomWalk,
+    Saturation,
+    TemperatureBias,
+    WhiteNoise,
+)
+
+__all__ = [
+    "GLITCH_P",
+    "NOISE_EFFECTS",
+    "Fit",
+    "Fitter",
+    "clipping_rail",
+    "deterministic_part",
+    "fit_model",
+    "with_params",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+NOISE_EFFECTS = ("bias_instability", "rate_random_walk", "white_noise", "quantization")
+"""Effects with a random (or, for quantization, sub-sample) output: they shape the residual's
+covariance and histogram, not its deterministic prediction D."""
+
+GLITCH_P = 1e-3  # per-sample probability of an off-lattice value under a quantised model
+
+
+def _det_model(model: GyroModel) -> GyroModel:
+    return GyroModel(tuple(e for e in model.effects if e.name not in NOISE_EFFECTS))
+
+
+_RNG0 = np.random.default_rng(0)
+
+
+def deterministic_part(data: GapData, model: GyroModel) -> FloatArray:
+    """D: what the model adds to the true rate with every random effect off (deg/s per sample):
+    its bias, gain, lag, bandwidth and clipping effects applied to the truth, minus the truth.
+    Quantization is left out: on a noisy signal it adds a small white error, not a bias."""
+    det = _det_model(model)
+    if not det.effects:
+        return np.zeros_like(data.t)
+    y = det.apply(data.t, data.truth_filled, data.temp_c, _RNG0)
+    return np.asarray(y - data.truth_filled)
+
+
+# -- fitting a model -------------------------------------------------------------------------------
+
+# Free deterministic parameters: (effect, parameter) -> (transform, finite-difference step).
+# "log": the optimiser works on ln(value) (positive parameters).
+_DET_PARAMS: dict[str, tuple[tuple[str, str, float], ...]] = {
+    "static_bias": (("bias_dps", "lin", 1e-3),),
+    "scale_factor": (("error", "lin", 1e-4),),
+    "scale_asymmetry": (("pos_error", "lin", 1e-4), ("neg_error", "lin", 1e-4)),
+    "warmup_transient": (("amplitude_dps", "lin", 1e-3), ("tau_s", "log", 1e-3)),
+    "temperature_bias": (("coeff_dps_per_c", "lin", 1e-4),),
+    "time_offset": (("delay_s", "lin", 1e-3),),
+}
+
+_TAU_BOUNDS = (1.0, 1e6)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A model fitted to the log: its log-likelihood (Gaussian block part + lattice part),
+    number of fitted parameters k, BIC = -2 lnL + k ln(n blocks), the deterministic prediction
+    D (per sample) and its block means Dbar (used blocks)."""
+
+    model: GyroModel
+    lnl: float
+    k: int
+    bic: float
+    d: FloatArray = field(repr=False)
+    dbar: FloatArray = field(repr=False)
+    noise: Noise = field(repr=False)
+    quad: bool = False
+
+
+def _free_det(model: GyroModel, quad: bool) -> list[tuple[str, str, str, float]]:
+    out = []
+    for e in model.effects:
+        for p, kind, h in _DET_PARAMS.get(e.name, ()):
+            out.append((e.name, p, kind, h))
+        if e.name == "temperature_bias" and quad:
+            out.append((e.name, "quad_dps_per_c2", "lin", 1e-5))
+    return out
+
+
+def with_params(
+    model: GyroModel,
+    free: list[tuple[str, str, str, float]],
+    theta: FloatArray,
+    tau_bounds: tuple[float, float] = _TAU_BOUNDS,
+) -> GyroModel:
+    upd: dict[str, dict[str, float]] = {}
+    lo, hi = math.log(tau_bounds[0]), math.log(tau_bounds[1])
+    for (eff, p, kind, _), v in zip(free, theta):
+        val = float(v)
+        if kind == "log":
+            val = float(math.exp(min(max(val, lo), hi)))
+        if eff == "time_offset":
+            val = min(max(val, -DELAY_MAX_S), DELAY_MAX_S)
+        if p in ("error", "pos_error", "neg_error"):
+            val = max(val, GAIN_MIN)
+        upd.setdefault(eff, {})[p] = val
+    effects = []
+    for e in model.effects:
+        if e.name in upd:
+            effects.append(replace(e, **upd[e.name]))
+        else:
+            effects.append(e)
+    return GyroModel(tuple(effects))
+
+
+def _theta(model: GyroModel, free: list[tuple[str, str, str, float]]) -> FloatArray:
+    vals = []
+    for eff, p, kind, _ in free:
+        v = float(getattr(model.get(eff), p))
+        vals.append(math.log(v) if kind == "log" else v)
+    return np.asarray(vals, dtype=np.float64)
+
+
+def _white_var(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
+    """Per-sample white-noise variance (deg/s)**2 at the sensor's input from sample-to-sample
+    differences of the unexplained residual, less the quantization's q**2/12.
+
+    Robust (MAD) unless the values sit on an ADC lattice coarse against the noise, where the
+    differences take a few discrete values and their variance is used. With a ``bandwidth``
+    in the model the differences understate the input noise by (1 - a)**2 / (1 + a): at rest
+    the white level comes from the Whittle fit of their spectrum (:mod:`.lowpass`), otherwise
+    from that factor."""
+    e = data.omega - data.truth_filled - d
+    ok = data.valid[1:] & data.valid[:-1] & ~data.time_gap[1:]
+    de = np.diff(e)[ok]
+    if data.truth_source.startswith("heading_truth"):
+        return _white_var_heading(data, d, q_step, model)
+    if de.shape[0] < 10:
+        return float(np.var(e[data.valid]))
+    bw = model.get("bandwidth")
+    if isinstance(bw, Bandwidth) and at_rest(data):
+        a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
+        fit = fit_lowpass(de, data.block_s * data.fs_hz, q_step**2 / 12.0, 0.0, a)
+        return float(max(fit.white_var, 1e-12))
+    mad = float(np.median(np.abs(de - np.median(de))))
+    v = (1.4826 * mad) ** 2 / 2.0
+    lat = data.lattice
+    if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
+        v = float(np.var(de)) / 2.0
+    v = max(v - q_step**2 / 12.0, 1e-12)
+    if isinstance(bw, Bandwidth):
+        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+    return float(v)
+
+
+STRAIGHT_DPS = 1.0
+"""With a GPS-course truth the white noise is read where the car drives straight (true rate
+below this, deg/s): between fixes the true rate is unknown, and in turns its own changes
+from one sample to the next would pass for noise."""
+
+
+def _white_var_heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
+    """White-noise variance with a heading truth: second differences of omega - D on straight
+    stretches (robust: MAD; a second difference of white noise has variance 6 sigma**2, and a
+    yaw rate changing steadily has none)."""
+    y = data.omega - d
+    ok = data.valid & (np.abs(data.truth_filled) < STRAIGHT_DPS)
+    run = ok[2:] & ok[1:-1] & ok[:-2] & ~data.time_gap[2:] & ~data.time_gap[1:-1]
+    if int(run.sum()) < 30:  # hardly any straight driving: all samples
+        run = data.valid[2:] & data.valid[1:-1] & data.valid[:-2]
+    d2 = np.diff(y, 2)[run]
+    if d2.shape[0] < 10:
+        return float(np.var(y[data.valid]))
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    v = (1.4826 * mad) ** 2 / 6.0 if mad > 0 else float(np.var(d2)) / 6.0
+    v = max(v - q_step**2 / 12.0, 1e-12)
+    bw = model.get("bandwidth")
+    if isinstance(bw, Bandwidth):
+        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+    return float(v)
+
+
+def _noise_of(data: GapData, model: GyroModel, d: FloatArray, extra_var: float) -> Noise:
+    q = model.get("quantization")
+    bi = model.get("bias_instability")
+    rw = model.get("rate_random_walk")
+    q_step = float(q.step_dps) if isinstance(q, Quantization) else 0.0
+    wv = _white_var(data, d, q_step, model) if "white_noise" in model else 1e-10
+    return Noise(
+        white_var=wv,
+        q_step=q_step,
+        bi_sigma=float(bi.sigma_dps) if isinstance(bi, BiasInstability) else 0.0,
+        bi_tau=float(bi.tau_s) if isinstance(bi, BiasInstability) else 300.0,
+        rrw_k=float(rw.k_dps_per_sqrt_s) if isinstance(rw, RateRandomWalk) else 0.0,
+        extra_var=extra_var,
+    )
+
+
+def _model_noise(model: GyroModel, noise: Noise, fs_hz: float) -> GyroModel:
+    """The model with its noise effects' parameters set from ``noise``."""
+    out = model
+    if "white_noise" in model:
+        out = out.with_effect(WhiteNoise(density_dps_per_rthz=math.sqrt(noise.white_var / fs_hz)))
+    if "bias_instability" in model:
+        out = out.with_effect(BiasInstability(sigma_dps=noise.bi_sigma, tau_s=noise.bi_tau))
+    if "rate_random_walk" in model:
+        out = out.with_effect(RateRandomWalk(k_dps_per_sqrt_s=noise.rrw_k))
+    return out
+
+
+def _lattice_loglik(data: GapData, model: GyroModel) -> float:
+    """Log-likelihood gain of the recorded values under the model's ADC lattice against a
+    continuous output recorded at the log's resolution: a value on the lattice has probability
+    ~ f(x) * step instead of f(x) * resolution; off it only a glitch (:data:`GLITCH_P`)."""
+    q = model.get("quantization")
+    if not isinstance(q, Quantization):
+        return 0.0
+    off = data.lattice.offset_dps if data.lattice is not None else 0.0
+    on = on_lattice(data.omega[~data.excluded], q.step_dps, off, data.resolution_dps)
+    n_on = int(on.sum())
+    n_off = int(on.shape[0] - n_on)
+    gain = math.log((1.0 - GLITCH_P) * q.step_dps / data.resolution_dps + GLITCH_P)
+    return n_on * gain + n_off * math.log(GLITCH_P)
+
+
+def _count_params(model: GyroModel, free_det: int, data: GapData) -> int:
+    k = free_det
+    if "bandwidth" in model and at_rest(data):
+        k += 2  # the cutoff, and the white level after the low-pass
+    for e in model.effects:
+        k += {
+            "white_noise": 1,
+            "bias_instability": 2,
+            "rate_random_walk": 1,
+            "quantization": 1,
+            "saturation": 1,
+        }.get(e.name, 0)
+    if data.truth_source.startswith("heading_truth"):
+        k += 1  # the truth's own noise variance
+    return k
+
+
+class Fitter:
+    """Fits the free parameters of one model structure to one log."""
+
+    def __init__(self, data: GapData) -> None:
+        self.data = data
+        self.ebar = data.block_residual(data.omega)
+        self.heading = data.truth_source.startswith("heading_truth")
+        self.rest = at_rest(data)
+        bounds = param_bounds(data)
+        # A warm-up transient must visibly decay within the log; slower it is just a trend.
+        self.tau_bounds = bounds[("warmup_transient", "tau_s")][:2]
+        self.bi_tau_bounds = bounds[("bias_instability", "tau_s")][:2]
+
+    def dbar(self, model: GyroModel) -> tuple[FloatArray, FloatArray]:
+        d = deterministic_part(self.data, model)
+        return d, self.data.block_mean(d)
+
+    def det_problem(
+        self, model: GyroModel, free: list[tuple[str, str, str, float]], wh: Whitener
+    ) -> tuple[Callable[[FloatArray], FloatArray], FloatArray, FloatArray]:
+        """The least-squares problem of the ``free`` deterministic parameters: the whitened
+        residual as a function of theta (log-transformed where positive), its start and
+        finite-difference steps. :func:`with_params` turns theta back into a model."""
+        wy = wh.whiten(self.ebar)
+
+        def res(theta: FloatArray) -> FloatArray:
+            _, db = self.dbar(with_params(model, free, theta, self.tau_bounds))
+            return np.asarray(wy - wh.whiten(db))
+
+        return res, _theta(model, free), np.array([f[3] for f in free])
+
+    def _lsq(
+        self, model: GyroModel, free: list[tuple[str, str, str, float]], wh: Whitener
+    ) -> GyroModel:
+        res, theta0, h = self.det_problem(model, free, wh)
+        lo, hi = self.theta_bounds(free)
+        theta = least_squares_bounded(res, theta0, h, lo, hi)
+        return with_params(model, free, theta, self.tau_bounds)
+
+    def theta_bounds(
+        self, free: list[tuple[str, str, str, float]]
+    ) -> tuple[FloatArray, FloatArray]:
+        """Bounds of the deterministic parameters theta (log of tau), from :func:`param_bounds`."""
+        lo = np.full(len(free), -np.inf)
+        hi = np.full(len(free), np.inf)
+        for i, (eff, p, kind, _) in enumerate(free):
+            if kind == "log":
+                lo[i], hi[i] = math.log(self.tau_bounds[0]), math.log(self.tau_bounds[1])
+            elif eff == "time_offset":
+                lo[i], hi[i] = -DELAY_MAX_S, DELAY_MAX_S
+            elif p in ("error", "pos_error", "neg_error"):
+                lo[i] = GAIN_MIN
+        return lo, hi
+
+    def fit_det(self, model: GyroModel, noise: Noise, quad: bool) -> GyroModel:
+        """Least squares of the deterministic parameters, noise fixed, weighted by the white
+        part of the noise only: deterministic before stochastic, so that a correlated random
+        process in the model (bias instability, random walk) cannot take over part of what a
+        measured regressor explains. The static bias, which is also where a random walk
+        starts at power-on, is then refitted with the full whitening."""
+        free = _free_det(model, quad)
+        if not free:
+            return model
+        white = replace(noise, bi_sigma=0.0, rrw_k=0.0)
+        model = self._lsq(model, free, Whitener(self.data, white))
+        if noise.bi_sigma > 0 or noise.rrw_k > 0:
+            bias = [f for f in free if f[0] == "static_bias"]
+            if bias:
+                model = self._lsq(model, bias, Whitener(self.data, noise))
+        return model
+
+    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float]:
+        """Neighbouring differences of the unexplained residual and the ADC's white variance
+        (deg/s)**2. The slow processes' floor in the differences is left out: above the
+        block frequency it is negligible, and keeping it would make the high-frequency term
+        move with the slow noise's parameters, which the block likelihood alone should judge."""
+        data = self.data
+        de = differences(data.omega - data.truth_filled - d, data.valid, data.time_gap)
+        return de, noise.q_step**2 / 12.0
+
+    def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
+        """At rest: the low-pass cutoff by the Whittle likelihood of the differences."""
+        d, _ = self.dbar(model)
+        de, qv = self._lowpass_input(d, noise)
+        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
+        return model.with_effect(Bandwidth(cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz)))
+
+    def hf_gain(self, model: GyroModel, d: FloatArray, noise: Noise) -> float:
+        """At rest, with a low-pass in the model: the log-likelihood its spectrum gains over
+        white noise in the neighbouring differences (the frequencies above the blocks');
+        0 otherwise (the white model is the reference)."""
+        bw = model.get("bandwidth")
+        if not (self.rest and isinstance(bw, Bandwidth)):
+            return 0.0
+        de, qv = self._lowpass_input(d, noise)
+        a = pole(bw.cutoff_hz, 1.0 / self.data.fs_hz)
+        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, 0.0, a).gain
+
+    def loglik(self, model: GyroModel, noise: Noise, dbar: FloatArray) -> float:
+        return Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
+            self.data, model
+        )
+
+    def noise_problem(
+        self, noise: Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> tuple[Callable[[FloatArray], float], FloatArray, Callable[[FloatArray], Noise]]:
+        """The maximum-likelihood problem of the named noise parameters: the negative
+        log-likelihood of x (their logarithms), its start, and x -> Noise (bounds applied)."""
+        y = self.ebar - dbar
+        lo, hi = self.bi_tau_bounds
+
+        def build(x: FloatArray) -> Noise:
+            kw: dict[str, float] = {}
+            for name, v in zip(which, x):
+                kw[name] = float(math.exp(min(max(v, -40.0), 20.0)))
+            if "bi_tau" in kw:
+                kw["bi_tau"] = min(max(kw["bi_tau"], lo), hi)
+            return replace(noise, **kw)
+
+        def nll(x: FloatArray) -> float:
+            return -Whitener(self.data, build(x)).loglik(y)
+
+        x0 = []
+        for w in which:
+            v = getattr(noise, w)
+            x0.append(math.log(v) if v > 0 else math.log(1e-6))
+        return nll, np.array(x0), build
+
+    def fit_noise(
+        self, model: GyroModel, noise: Noise, dbar: FloatArray, which: Sequence[str]
+    ) -> Noise:
+        """Maximum likelihood of the named noise parameters (log scale), others fixed."""
+        which = [w for w in which if w != "extra_var" or self.heading]
+        if not which:
+            return noise
+        nll, x0, build = self.noise_problem(noise, dbar, which)
+        lo = np.full(len(which), -40.0)
+        hi = np.full(len(which), 20.0)
+        for i, w in enumerate(which):
+            if w == "bi_tau":
+                lo[i], hi[i] = math.log(self.bi_tau_bounds[0]), math.log(self.bi_tau_bounds[1])
+        return build(minimize_simplex(nll, x0, lo, hi))
+
+    def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
+        if "white_noise" not in model:
+            return noise
+        return replace(noise, white_var=_white_var(self.data, d, noise.q_step, model))
+
+    def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
+        d, db = self.dbar(model)
+        noise = self._white(model, d, noise)
+        full = _model_noise(model, noise, self.data.fs_hz)
+        lnl = self.loglik(full, noise, db) + self.hf_gain(full, d, noise)
+        k = _count_params(full, len(_free_det(full, quad)), self.data)
+        bic = -2.0 * lnl + k * math.log(self.data.n_used)
+        return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
+
+    def full(
+        self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2
+    ) -> Fit:
+        """Fit every free parameter of the model: alternate deterministic least squares, the
+        low-pass (at rest) and maximum likelihood of the noise."""
+        d, db = self.dbar(model)
+        noise = _noise_of(self.data, model, d, extra_var)
+        if self.heading and noise.extra_var == 0.0:
+            noise = replace(noise, extra_var=float(np.var(self.ebar - db)))
+        which = ["extra_var"] if self.heading else []
+        if "bias_instability" in model:
+            which += ["bi_sigma", "bi_tau"]
+        if "rate_random_walk" in model:
+            which += ["rrw_k"]
+        for _ in range(rounds):
+            model = self.fit_det(model, noise, quad)
+            if self.rest and "bandwidth" in model:
+                model = self.fit_bandwidth(model, noise)
+            d, db = self.dbar(model)
+            noise = self._white(model, d, noise)
+            noise = self.fit_noise(model, noise, db, which)
+            if not which:
+                break
+        return self.finish(model, noise, quad)
+
+
+def fit_model(data: GapData, model: GyroModel) -> Fit:
+    """Refit all parameters of ``model`` to the log (its structure unchanged)."""
+    f = Fitter(data)
+    tb = model.get("temperature_bias")
+    quad = isinstance(tb, TemperatureBias) and tb.quad_dps_per_c2 != 0.0
+    if "saturation" in model and clipping_rail(data) is not None:
+        model = model.with_effect(Saturation(limit_dps=clipping_rail(data) or 200.0))
+    if "quantization" in model and data.lattice is not None:
+        model = model.with_effect(Quantization(step_dps=data.lattice.step_dps))
+    return f.full(model, quad=quad)
+
+
+def clipping_rail(data: GapData) -> float | None:
+    """The clipping level the histogram suggests: the largest |omega| (deg/s) of the samples
+    that count (not excluded)."""
+    m = float(np.max(np.abs(data.omega[~data.excluded]), initial=0.0))
+    return m if m > 0 else None

@@ -1,0 +1,138 @@
+"""The report JSON and the printed summary of a model-gap run (docs/model-gap.md). Pure."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN
+from hdrd.analysis.gap.metric import GAP_METRIC
+from hdrd.analysis.gap.search import GapResult, sig4
+
+__all__ = ["summary", "to_report"]
+
+
+def to_report(res: GapResult) -> dict[str, Any]:
+    """The report JSON (docs/model-gap.md): the required keys first, then the details."""
+    d = res.data
+    return {
+        "initial_model": res.initial_model.names(),
+        "steps": [
+            {
+                "where": s.where,
+                "effect": s.effect,
+                "params": s.params,
+                "gap_before": sig4(s.gap_before),
+                "gap_after": sig4(s.gap_after),
+                "delta_bic": round(s.delta_bic, 2),
+                "p_value": float(f"{s.p_value:.3g}"),
+                "ambiguous_with": list(s.ambiguous_with),
+                "at_bound": list(s.at_bound),
+                "candidates": list(s.candidates),
+                "diagnostics": s.diagnostics,
+            }
+            for s in res.steps
+        ],
+        "final_model": res.final_model.names(),
+        "gap_initial": sig4(res.initial_sim.gap),
+        "gap_final": sig4(res.final_sim.gap),
+        "gap_metric": GAP_METRIC,
+        "gap_as_given": sig4(res.gap_as_given),
+        "gap_noise": res.gap_noise,
+        "final_at_bound": list(res.final_at_bound),
+        "rejected": list(res.rejected),
+        "ambiguous": [
+            {
+                "step": a.step,
+                "effects": list(a.effects),
+                "chosen": a.chosen,
+                "delta_bic": list(a.delta_bic),
+                "contribution_r": list(a.contribution_r),
+                "note": a.note,
+            }
+            for a in res.ambiguous
+        ],
+        "revisions": list(res.revisions),
+        "not_identifiable": res.not_identifiable,
+        "remaining_candidates": list(res.remaining),
+        "initial_params": res.initial_fit.model.to_dict()["effects"],
+        "final_params": res.final_model.to_dict()["effects"],
+        "final_diagnostics": res.final_diagnostics,
+        "criterion": (
+            f"BIC = -2 lnL + k ln(n) on n = {d.n_used} blocks of {d.block_s:g} s; an effect is "
+            f"added if BIC falls by more than {BIC_MARGIN:g} and the likelihood-ratio test gives "
+            f"p < {ALPHA:g}"
+        ),
+        "log": {
+            "name": d.name,
+            "samples": int(d.t.shape[0]),
+            "duration_s": round(d.duration_s, 3),
+            "rate_hz": round(d.fs_hz, 4),
+            "truth": d.truth_source,
+            "block_s": d.block_s,
+            "blocks_used": d.n_used,
+            "temp_c": d.temp_c is not None,
+            "excluded_samples": int(d.excluded.sum()),
+            "time_gaps": int(d.time_gap.sum()),
+        },
+    }
+
+
+def _bound_line(b: dict[str, Any]) -> str:
+    return (
+        f"  AT BOUND: {b['effect']}.{b['param']} = {b['value']:.4g} is at its {b['bound']} "
+        f"bound ({b['range']}): a limit, not an estimate"
+    )
+
+
+def summary(res: GapResult) -> str:
+    """A few lines for people: what was found, the gap before and after, its noise."""
+    d = res.data
+    left = []
+    if d.excluded.any():
+        left.append(f"{int(d.excluded.sum())} samples excluded")
+    if d.time_gap.any():
+        left.append(f"{int(d.time_gap.sum())} time gaps")
+    lines = [
+        (
+            f"{d.name or 'log'}: {d.t.shape[0]} samples over {d.duration_s / 60.0:.1f} min, "
+            f"truth from {d.truth_source}, {d.n_used} blocks of {d.block_s:g} s"
+            + (f" ({', '.join(left)})" if left else "")
+        ),
+        (
+            f"start: {' + '.join(res.initial_model.names()) or '(empty)'}, gap "
+            f"{res.initial_sim.gap:.3g} (parameters refitted; {res.gap_as_given:.3g} as given)"
+        ),
+    ]
+    amb = {a.step: a for a in res.ambiguous}
+    for i, s in enumerate(res.steps, 1):
+        ps = ", ".join(f"{k}={v:.4g}" for k, v in s.params.items())
+        lines.append(f"step {i}: {s.effect} ({ps})")
+        lines.append(f"  where: {s.where}")
+        lines.append(f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}, dBIC {s.delta_bic:.1f}")
+        if i in amb:
+            lines.append(f"  AMBIGUOUS: {amb[i].note}")
+        lines.extend(_bound_line(b) for b in s.at_bound if b["effect"] == s.effect)
+    for rj in res.rejected:
+        lines.append(
+            f"not added at step {rj['step']}: {rj['effect']} (dBIC {rj['delta_bic']:+.1f}): "
+            f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
+        )
+    for rv in res.revisions:
+        lines.append(
+            f"revised after step {rv['after_step']}: {rv['effect']} {rv['action']} (dBIC {rv['delta_bic']:+.1f})"
+        )
+    if not res.steps:
+        lines.append("no missing effect found: the model explains the log")
+    best = next((c for c in res.remaining), None)
+    if best is not None:
+        lines.append(
+            f"nothing else significant (best remaining: {best['effect']}, dBIC {best['delta_bic']:+.1f})"
+        )
+    gn = res.gap_noise
+    lines.append(
+        f"final: {' + '.join(res.final_model.names())}, gap {res.final_sim.gap:.3g} "
+        f"(seed to seed: sd {gn['gap_final_sd']:.2g}, {gn['gap_final_range'][0]:.3g}-"
+        f"{gn['gap_final_range'][1]:.3g} over {gn['seeds']} seeds)"
+    )
+    lines.extend(_bound_line(b) for b in res.final_at_bound)
+    return "\n".join(lines)

@@ -1,0 +1,338 @@
+"""The model-gap loop: add the preferred significant candidate unless it raises the gap,
+report rivals, refit jointly, revise earlier choices, until nothing significant is left
+(docs/model-gap.md). Pure.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from hdrd.analysis.gap.bounds import params_at_bounds
+from hdrd.analysis.gap.candidates import (
+    CANDIDATES,
+    SLOW_NOISE,
+    Candidate,
+    evaluate_candidate,
+    not_identifiable,
+    slow_noise_forms,
+)
+from hdrd.analysis.gap.choose import AMBIGUITY_BIC, Beyond, rank, revise, rivals
+from hdrd.analysis.gap.data import GapData, GapError, prepare
+from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
+from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
+from hdrd.analysis.gap.metric import GapMeasure, gap_metric
+from hdrd.drivelog import DriveLog
+from hdrd.sim.gyro import DEFAULT_START_MODEL, EFFECTS, Effect, GyroModel
+
+__all__ = [
+    "GAP_NOISE_SEEDS",
+    "MAX_STEPS",
+    "Ambiguity",
+    "GapResult",
+    "Step",
+    "run_gap",
+    "sig4",
+]
+
+MAX_STEPS = 8
+FORM_GAP_RATIO = 0.8
+FORM_GAP_DROP = 0.05
+GAP_NOISE_SEEDS = 6
+"""Seeds over which the final gap is re-measured to state its seed-to-seed noise."""
+
+
+@dataclass(frozen=True)
+class Ambiguity:
+    """Effects the data could not tell apart at a step."""
+
+    step: int
+    effects: tuple[str, ...]
+    chosen: str
+    delta_bic: tuple[float, ...]
+    """BIC of each rival minus the chosen one's."""
+    contribution_r: tuple[float | None, ...]
+    note: str
+
+
+@dataclass(frozen=True)
+class Step:
+    """One accepted effect."""
+
+    effect: str
+    params: dict[str, float]
+    where: str
+    gap_before: float
+    gap_after: float
+    delta_bic: float
+    p_value: float
+    ambiguous_with: tuple[str, ...]
+    candidates: tuple[dict[str, Any], ...]
+    diagnostics: dict[str, Any]
+    regressor: str
+    at_bound: tuple[dict[str, Any], ...]
+    """Parameters of the model after the step that sit at a fit bound."""
+    fit_before: Fit = field(repr=False)
+    fit_after: Fit = field(repr=False)
+    sim_before: GapMeasure = field(repr=False)
+    sim_after: GapMeasure = field(repr=False)
+
+
+@dataclass(frozen=True)
+class GapResult:
+    """Everything :func:`run_gap` found; :func:`to_report` turns it into the report JSON."""
+
+    data: GapData
+    initial_model: GyroModel
+    initial_fit: Fit
+    initial_sim: GapMeasure
+    gap_as_given: float
+    steps: tuple[Step, ...]
+    final_fit: Fit
+    final_sim: GapMeasure
+    remaining: tuple[dict[str, Any], ...]
+    ambiguous: tuple[Ambiguity, ...]
+    revisions: tuple[dict[str, Any], ...]
+    not_identifiable: dict[str, str]
+    final_diagnostics: dict[str, Any]
+    rejected: tuple[dict[str, Any], ...]
+    """Significant candidates not added because the gap rose with them."""
+    final_at_bound: tuple[dict[str, Any], ...]
+    gap_noise: dict[str, Any]
+    """The final gap re-measured with other seeds: its seed-to-seed spread."""
+
+    @property
+    def final_model(self) -> GyroModel:
+        return self.final_fit.model
+
+
+def _cand_row(c: Candidate, beyond: Beyond | None = None) -> dict[str, Any]:
+    eff = c.fit.model.get(c.name)
+    row = {
+        "effect": c.name,
+        "delta_bic": round(c.dbic, 2),
+        "delta_loglik": round(c.dlnl, 2),
+        "p_value": float(f"{c.p:.3g}"),
+        "significant": c.significant,
+        "params": _params(eff) if eff is not None else {},
+    }
+    if beyond is not None:
+        row["beyond_random_processes"] = beyond.row()
+    return row
+
+
+def _params(e: Effect) -> dict[str, float]:
+    return {k: float(f"{v:.6g}") for k, v in e.params().items()}
+
+
+def _ambiguity(step: int, best: Candidate, rv: list[tuple[Candidate, float | None]]) -> Ambiguity:
+    names_r = tuple(c.name for c, _ in rv)
+    return Ambiguity(
+        step=step,
+        effects=(best.name, *names_r),
+        chosen=best.name,
+        delta_bic=tuple(round(c.fit.bic - best.fit.bic, 2) for c, _ in rv),
+        contribution_r=tuple(None if r is None else round(r, 3) for _, r in rv),
+        note=(
+            f"{best.name} and {', '.join(names_r)} explain this disagreement about "
+            f"equally well (BIC within {AMBIGUITY_BIC:g}); {best.name} was added "
+            "because its BIC is lowest, but the log cannot tell them apart"
+        ),
+    )
+
+
+def _gap_noise(data: GapData, fit: Fit, seed: int, gap: float) -> dict[str, Any]:
+    gaps = [gap] + [
+        gap_metric(data, fit.model, seed + 1000 + j, fit.d, fit.noise.extra_var).gap
+        for j in range(GAP_NOISE_SEEDS - 1)
+    ]
+    mean = sum(gaps) / len(gaps)
+    sd = math.sqrt(sum((g - mean) ** 2 for g in gaps) / (len(gaps) - 1))
+    return {
+        "seeds": len(gaps),
+        "gap_final_mean": sig4(mean),
+        "gap_final_sd": sig4(sd),
+        "gap_final_range": [sig4(min(gaps)), sig4(max(gaps))],
+    }
+
+
+def _slow_form(
+    f: Fitter, cur: Fit, cur_sim: GapMeasure, seed: int, step: int
+) -> tuple[Fit, GapMeasure, dict[str, Any] | None]:
+    """If the model has slow noise: of its forms (random walk, bias instability, both) whose
+    BIC is within :data:`AMBIGUITY_BIC` of the best, the one with the lowest gap, if that
+    gap is clearly lower (below :data:`FORM_GAP_RATIO` times the current one and by more
+    than :data:`FORM_GAP_DROP`, beyond the gap's seed-to-seed noise)."""
+    if not any(s in cur.model for s in SLOW_NOISE):
+        return cur, cur_sim, None
+    data = f.data
+    forms = [cur, *slow_noise_forms(f, cur)]
+    best_bic = min(x.bic for x in forms)
+    close = [x for x in forms if x.bic - best_bic < AMBIGUITY_BIC]
+    scored = [
+        (
+            cur_sim.gap
+            if x is cur
+            else gap_metric(data, x.model, seed, x.d, x.noise.extra_var).gap,
+            i,
+            x,
+        )
+        for i, x in enumerate(close)
+    ]
+    gap, _, x = min(scored, key=lambda z: (z[0], z[1]))
+    names = [n for n in x.model.names() if n in SLOW_NOISE]
+    old = [n for n in cur.model.names() if n in SLOW_NOISE]
+    if (
+        x is cur
+        or names == old
+        or not (gap < FORM_GAP_RATIO * cur_sim.gap and cur_sim.gap - gap > FORM_GAP_DROP)
+    ):
+        return cur, cur_sim, None
+    rec = {
+        "after_step": step,
+        "effect": " + ".join(old),
+        "action": f"replaced by {' + '.join(names)}",
+        "delta_bic": round(x.bic - cur.bic, 2),
+        "why": (
+            f"the block likelihood cannot tell these forms of the slow noise apart (BIC within "
+            f"{AMBIGUITY_BIC:g}: {', '.join(' + '.join(n for n in y.model.names() if n in SLOW_NOISE) for y in close)}); "
+            "the Allan deviation over all tau can: the one with the lowest gap is kept"
+        ),
+    }
+    return x, gap_metric(data, x.model, seed, x.d, x.noise.extra_var), rec
+
+
+def run_gap(
+    log: DriveLog | GapData,
+    start: GyroModel = DEFAULT_START_MODEL,
+    *,
+    standstill: bool = False,
+    exclude: Sequence[tuple[float, float]] = (),
+    seed: int = 0,
+    candidates: Sequence[str] = CANDIDATES,
+    max_steps: int = MAX_STEPS,
+) -> GapResult:
+    """Run the model-gap workflow on a measured log from the model ``start``; ``exclude``:
+    periods (T0, T1) of the log's own t (s) left out, besides rows marked ``valid`` = 0.
+
+    Deterministic for a seed (it only seeds the model simulations of the gap metric)."""
+    data = log if isinstance(log, GapData) else prepare(log, standstill, exclude=exclude)
+    unknown = [c for c in candidates if c not in EFFECTS]
+    if unknown:
+        raise GapError(f"unknown candidate effect(s): {', '.join(unknown)}")
+    f = Fitter(data)
+    cur = fit_model(data, start)
+    sim_given = gap_metric(data, start, seed, None, cur.noise.extra_var)
+    cur_sim = gap_metric(data, cur.model, seed, cur.d, cur.noise.extra_var)
+    initial_fit, initial_sim = cur, cur_sim
+    skip = not_identifiable(data, cur.model)
+    steps: list[Step] = []
+    ambiguous: list[Ambiguity] = []
+    remaining: list[dict[str, Any]] = []
+    added: list[str] = []
+    dropped: set[str] = set()  # revised away: never re-added (no loops)
+    revisions: list[dict[str, Any]] = []
+    rejected: list[dict[str, Any]] = []
+    for i in range(max_steps):
+        names = [c for c in candidates if c not in cur.model and c not in skip and c not in dropped]
+        cands = [evaluate_candidate(f, cur, c) for c in names]
+        sig = [c for c in cands if c.significant]
+        order, beyond = rank(f, cur, sig)
+        rows = tuple(_cand_row(c, beyond.get(c.name)) for c in sorted(cands, key=lambda c: c.dbic))
+        remaining = list(rows)
+        chosen = None
+        for best in order:
+            new = f.full(best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var)
+            if new.lnl < best.fit.lnl:
+                new = best.fit  # the joint refit can only keep or improve the candidate's fit
+            new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
+            if new_sim.gap > cur_sim.gap:
+                rejected.append(
+                    {
+                        "step": i + 1,
+                        "effect": best.name,
+                        "delta_bic": round(best.dbic, 2),
+                        "gap_before": sig4(cur_sim.gap),
+                        "gap_with_it": sig4(new_sim.gap),
+                        "why": "significant, but the gap rose with it: the fitted effect "
+                        "makes the simulated log less like the measured one",
+                    }
+                )
+                continue
+            chosen = (best, new, new_sim)
+            break
+        if chosen is None:
+            break
+        best, new, new_sim = chosen
+        rv = rivals(best, [c for c in cands if c in order], data.duration_s)
+        diag = diagnostics(data, cur, cur_sim)
+        if rv:
+            ambiguous.append(_ambiguity(i + 1, best, rv))
+        eff = new.model.get(best.name)
+        steps.append(
+            Step(
+                effect=best.name,
+                params=_params(eff) if eff is not None else {},
+                where=where_phrase(data, best, cur_sim, diag, rows, skip, rejected),
+                gap_before=cur_sim.gap,
+                gap_after=new_sim.gap,
+                delta_bic=best.dbic,
+                p_value=best.p,
+                ambiguous_with=tuple(c.name for c, _ in rv),
+                candidates=rows,
+                diagnostics=diag,
+                regressor=REGRESSOR.get(best.name, "time_s"),
+                at_bound=tuple(params_at_bounds(new.model, data)),
+                fit_before=cur,
+                fit_after=new,
+                sim_before=cur_sim,
+                sim_after=new_sim,
+            )
+        )
+        cur, cur_sim = new, new_sim
+        added.append(best.name)
+        for _ in range(len(added)):
+            made = False
+            for revised, rec in revise(f, cur, added, i + 1):
+                rsim = gap_metric(data, revised.model, seed, revised.d, revised.noise.extra_var)
+                if rsim.gap > cur_sim.gap:
+                    continue  # a revision must not raise the gap either
+                added.remove(rec["effect"])
+                dropped.add(rec["effect"])
+                if rec["action"].startswith("replaced by "):
+                    added.append(rec["action"][len("replaced by ") :])
+                cur, cur_sim = revised, rsim
+                rec["gap_after"] = sig4(cur_sim.gap)
+                revisions.append(rec)
+                made = True
+                break
+            if not made:
+                break
+        cur, cur_sim, form = _slow_form(f, cur, cur_sim, seed, i + 1)
+        if form is not None:
+            form["gap_after"] = sig4(cur_sim.gap)
+            revisions.append(form)
+    return GapResult(
+        data=data,
+        initial_model=start,
+        initial_fit=initial_fit,
+        initial_sim=initial_sim,
+        gap_as_given=sim_given.gap,
+        steps=tuple(steps),
+        final_fit=cur,
+        final_sim=cur_sim,
+        remaining=tuple(remaining),
+        ambiguous=tuple(ambiguous),
+        revisions=tuple(revisions),
+        not_identifiable=skip,
+        final_diagnostics=diagnostics(data, cur, cur_sim),
+        rejected=tuple(rejected),
+        final_at_bound=tuple(params_at_bounds(cur.model, data)),
+        gap_noise=_gap_noise(data, cur, seed, cur_sim.gap),
+    )
+
+
+def sig4(x: float) -> float:
+    return float(f"{x:.4g}")
