@@ -15,7 +15,7 @@ Issue 7 item 1. A seeded generator writes a stream of ``--bytes`` bytes made of
   with a sync pattern.
 
 It is fed to the push parser (:class:`hdrd.frames.Parser`) in random chunks of 1..4096 bytes
-and, whole, to the vectorised decoder (:func:`hdrd.frames.decode_capture`); the recovered
+and, whole, to the vectorised decoder (:func:`hdrd.capture.decode_capture`); the recovered
 frames then go through the pipeline (:meth:`hdrd.pipeline.Pipeline.feed_array`).
 
 What is expected is known from the construction: the frames recovered are exactly the intact
@@ -48,19 +48,19 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hdrd.capture import decode_capture
+from hdrd.clocks import unwrap_us
 from hdrd.frames import (
-    BIN_FRAME_LEN,
     FRAME_DTYPE,
     Parser,
     ParserStats,
     array_to_frames,
     crc16_ccitt_false_rows,
-    decode_capture,
     encode_array,
     encode_text,
 )
 from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.resample import unwrap_us
+from hdrd.protocol import BIN_FRAME_LEN
 from hdrd.sensor import SensorModel
 
 TEXT_SYNC = b"$HDRG,"

@@ -50,8 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import append_section, hdrd_command, machine, machine_line, ratio
 
+from hdrd.clocks import unwrap_us
 from hdrd.fakegyro import FakeGyro
-from hdrd.resample import unwrap_us
 
 SO_TIMESTAMPNS = getattr(
     socket, "SO_TIMESTAMPNS", 35

@@ -59,9 +59,9 @@ from hdrd.analysis.evaluate import (
 )
 from hdrd.analysis.metrics import e_psi
 from hdrd.config import Config
-from hdrd.daemon import plus_params
 from hdrd.drivelog import DriveLog, read_drive
 from hdrd.hdrplus import HdrPlusParams
+from hdrd.pipeline import plus_params
 from hdrd.sim.grades import grade_noise
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"

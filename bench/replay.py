@@ -45,9 +45,9 @@ import numpy
 t.append(time.perf_counter())
 from dataclasses import replace
 from hdrd.cli import build_parser
-from hdrd.daemon import _pipeline_config, config_from_args
-from hdrd.frames import decode_capture
-from hdrd.pipeline import Pipeline
+from hdrd.capture import decode_capture
+from hdrd.cliargs import config_from_args
+from hdrd.pipeline import Pipeline, pipeline_config
 from hdrd.publish import format_json
 t.append(time.perf_counter())
 args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
@@ -56,7 +56,7 @@ data = open(sys.argv[1], "rb").read()
 t.append(time.perf_counter())
 frames, stats = decode_capture(data)
 t.append(time.perf_counter())
-p = Pipeline(replace(_pipeline_config(cfg, None), bias_dps=float(sys.argv[2])))
+p = Pipeline(replace(pipeline_config(cfg), bias_dps=float(sys.argv[2])))
 msgs = p.feed_array(frames, stats.bad_before)
 msgs.extend(p.finish(int(stats.bad_frames)))
 t.append(time.perf_counter())

@@ -51,8 +51,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from hdrd.clocks import unwrap_us
 from hdrd.fakegyro import FakeGyro
-from hdrd.resample import unwrap_us
 
 WAIT = 60.0  # upper bound for anything to happen; only a hung daemon reaches it
 

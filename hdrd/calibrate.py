@@ -31,11 +31,9 @@ calibrate`` and ``hdrd evaluate`` gather their standstill samples in it and meas
 
 from __future__ import annotations
 
-import glob
 import math
 import os
-import tempfile
-import time
+from array import array
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -43,6 +41,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.errors import HdrdError
+from hdrd.files import atomic_write_text
 from hdrd.gyronoise import GyroNoise
 
 __all__ = [
@@ -50,11 +50,8 @@ __all__ = [
     "BiasFileError",
     "BiasRecord",
     "MotionDetected",
-    "SampleClock",
     "StandstillLimits",
     "StartupWindow",
-    "atomic_write_json",
-    "atomic_write_text",
     "estimate_bias",
     "load_bias",
     "noise_sigma",
@@ -71,11 +68,11 @@ NOISE_TEST_MIN_SAMPLES = 6
 fewer (Gaussian noise alone would fail them 1 time in 100 with 5 samples, 1 in 4 with 3)."""
 
 
-class MotionDetected(ValueError):
+class MotionDetected(HdrdError, ValueError):
     """The calibration window does not look like standstill; the message says why."""
 
 
-class BiasFileError(ValueError):
+class BiasFileError(HdrdError, ValueError):
     """A bias file is missing, unreadable, truncated or holds invalid values."""
 
 
@@ -240,6 +237,10 @@ class StartupWindow:
     show motion empty it, and the samples that follow start a new attempt (the daemon keeps
     trying until the vehicle stands still). ``hdrd calibrate`` ends its window by device time
     instead and calls :meth:`measure` itself.
+
+    Samples are kept as C doubles (``array('d')``: 8 bytes each, not a Python float's 32), so
+    an hour of a fast gyro fits in ``hdrd calibrate``; :meth:`measure` hands them to numpy
+    without a copy.
     """
 
     __slots__ = ("_omega", "_temp", "attempts", "block_s", "blocks", "closed", "limits")
@@ -257,8 +258,8 @@ class StartupWindow:
         """Steps of the current attempt closed so far."""
         self.attempts = 0
         """Measurements tried (accepted or rejected)."""
-        self._omega: list[float] = []
-        self._temp: list[float] = []
+        self._omega: array[float] = array("d")
+        self._temp: array[float] = array("d")
 
     @classmethod
     def for_seconds(
@@ -273,9 +274,16 @@ class StartupWindow:
         return len(self._omega)
 
     @property
+    def omega_dps(self) -> npt.NDArray[np.float64]:
+        """The raw rates gathered in the current attempt, deg/s: a numpy view of the window's
+        storage, no copy (drop it before adding more: a lent buffer cannot grow)."""
+        return np.frombuffer(self._omega, dtype=np.float64)
+
+    @property
     def mean_dps(self) -> float:
-        """Mean of the samples gathered so far, deg/s (NaN before the first)."""
-        return math.fsum(self._omega) / len(self._omega) if self._omega else math.nan
+        """Mean of the samples gathered so far, deg/s (NaN before the first): their sum in
+        order over their count (``hdrd calibrate``'s progress lines)."""
+        return sum(self._omega) / len(self._omega) if self._omega else math.nan
 
     def add(self, omega_dps: float, temp_c: float | None = None) -> None:
         """One sample of the window."""
@@ -284,17 +292,19 @@ class StartupWindow:
 
     def add_many(self, omega_dps: npt.ArrayLike, temp_c: npt.ArrayLike | None = None) -> None:
         """Samples in order, as :meth:`add` one by one (temp_c NaN = unknown)."""
-        w = np.asarray(omega_dps, dtype=np.float64)
-        self._omega.extend(w.tolist())
+        w = np.ascontiguousarray(omega_dps, dtype=np.float64)
+        self._omega.frombytes(w.tobytes())
         if temp_c is None:
-            self._temp.extend([math.nan] * w.shape[0])
+            self._temp.frombytes(np.full(w.shape[0], math.nan).tobytes())
         else:
-            self._temp.extend(np.asarray(temp_c, dtype=np.float64).tolist())
+            self._temp.frombytes(np.ascontiguousarray(temp_c, dtype=np.float64).tobytes())
 
     def clear(self) -> None:
         """Start again: no samples, no closed steps (a contiguous window was broken)."""
-        self._omega.clear()
-        self._temp.clear()
+        # New arrays, not emptied ones: a failed measure's exception may still hold a numpy
+        # view of the old ones (an array lending its buffer cannot be resized).
+        self._omega = array("d")
+        self._temp = array("d")
         self.closed = 0
 
     def measure(self, when: float = 0.0) -> BiasRecord:
@@ -302,8 +312,8 @@ class StartupWindow:
         Raises MotionDetected (the window is left as it is)."""
         self.attempts += 1
         rec = estimate_bias(
-            np.asarray(self._omega),
-            temp_c=np.asarray(self._temp),
+            self.omega_dps,
+            temp_c=np.frombuffer(self._temp, dtype=np.float64),
             limits=self.limits,
             when=when,
         )
@@ -321,103 +331,8 @@ class StartupWindow:
         except MotionDetected:
             self.clear()
             raise
-        self._omega = []
-        self._temp = []
-        self.closed = 0
+        self.clear()
         return rec
-
-
-class SampleClock:
-    """How much device time a calibration window spans, robust to a glitched timestamp.
-
-    Pure. ``accept(t_us)`` takes each sample's raw 32-bit device time (us, wrapping at
-    2**32) and says whether the sample counts. :attr:`elapsed_us` sums the forward steps
-    between counted samples; a step is counted only if it is forward and at most
-    ``max_step_us``. A sample whose step is not (one CRC-valid frame with a wild clock, a
-    repeat, a step back) is set aside and counted in :attr:`glitches`, so one bad frame can
-    neither end a 30 s window after 2 s nor stretch it. If ``confirm`` set-aside samples in
-    a row step normally among themselves, the device clock really jumped (a reset, frames
-    lost for a while): the clock continues from them, the jump itself not counted.
-    """
-
-    __slots__ = ("_cand", "_cand_n", "_last", "confirm", "elapsed_us", "glitches", "max_step_us")
-
-    def __init__(self, max_step_us: int = 2_000_000, confirm: int = 3) -> None:
-        self.max_step_us = max_step_us
-        self.confirm = confirm
-        self.elapsed_us = 0
-        self.glitches = 0
-        self._last: int | None = None
-        self._cand: int | None = None  # the last set-aside sample, a possible new reference
-        self._cand_n = 0  # set-aside samples in a row that step normally among themselves
-
-    def _step_ok(self, prev: int, t_us: int) -> bool:
-        return 0 < (t_us - prev) % (1 << 32) <= self.max_step_us
-
-    def accept(self, t_us: int) -> bool:
-        """True if the sample at raw device time ``t_us`` counts (see the class doc)."""
-        if self._last is None:
-            self._last = t_us
-            return True
-        if self._step_ok(self._last, t_us):
-            self.elapsed_us += (t_us - self._last) % (1 << 32)
-            self._last = t_us
-            self._cand, self._cand_n = None, 0
-            return True
-        self.glitches += 1
-        if self._cand is not None and self._step_ok(self._cand, t_us):
-            self._cand_n += 1
-        else:
-            self._cand_n = 1
-        self._cand = t_us
-        if self._cand_n >= self.confirm:  # the device clock moved for good: follow it
-            self._last = t_us
-            self._cand, self._cand_n = None, 0
-        return False
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
-    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
-
-    Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
-    Temp files that an earlier writer left behind (killed, or a power cut, before its rename)
-    are removed first, so they never pile up; one writer per target at a time is assumed (a
-    concurrent writer would lose its temp file and fail with an OSError, the target intact).
-    """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
-        try:
-            stale.unlink()
-        except OSError:
-            pass  # not ours to insist on; at worst one more leftover
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    dfd = os.open(target.parent, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
-
-
-def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
-    """:func:`atomic_write_text` of ``doc`` as indented JSON with a final newline (the
-    ``--json``/``--report`` files of evaluate, tune and gap)."""
-    import json
-
-    atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
 
 
 _BIAS_HEADER = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
@@ -440,12 +355,12 @@ MAX_BIAS_STD_DPS = 1000.0
 def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = None) -> BiasRecord:
     """Read a bias file; BiasFileError (naming the file and the problem) if it is not whole
     and valid. A truncated file lacks the ``# end`` trailer and is refused. The file must be
-    a regular file of at most :data:`hdrd.inputfiles.MAX_BIAS_BYTES`.
+    a regular file of at most :data:`hdrd.files.MAX_BIAS_BYTES`.
 
     max_abs_bias_dps: refuse a bias_dps beyond +/- this, deg/s (the configuration's
     ``calibration.max_bias_dps``); None: any finite value.
     """
-    from hdrd.inputfiles import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
 
     p = Path(path)
     try:
@@ -527,8 +442,3 @@ def _count(data: dict[str, object], key: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
         raise ValueError(f"{key} = {_short(v)} is not an integer")
     return v
-
-
-def now() -> float:
-    """UNIX time, for callers at the edge that stamp records (kept out of the pure functions)."""
-    return time.time()

@@ -1,10 +1,11 @@
 """``hdrd calibrate``: the static bias eps0 measured at standstill and saved to the bias file.
 
-The edge around :func:`hdrd.calibrate.estimate_bias`: it opens the port (exclusively, as
-the daemon does: a port in use is an error at once), times the window by the device clock
-(:class:`hdrd.calibrate.SampleClock`, which a glitched timestamp cannot end early), gives
-up when no frame comes for ``calibration.no_data_timeout_s``, and writes the file
-atomically. Progress goes to stdout; a reader that goes away (``| head -1``) does not stop
+The edge around :class:`hdrd.calibrate.StartupWindow`, the start-up window the daemon's
+pipeline and ``hdrd evaluate`` measure through too: it opens the port (exclusively, as the
+daemon does: a port in use is an error at once), gathers the samples in the window, times it
+by the device clock (:class:`hdrd.clocks.SampleClock`, which a glitched timestamp cannot end
+early), gives up when no frame comes for ``calibration.no_data_timeout_s``, and writes the
+file atomically. Progress goes to stdout; a reader that goes away (``| head -1``) does not stop
 the measurement, and the result is then said on stderr.
 """
 
@@ -17,20 +18,18 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
-from hdrd.calibrate import MotionDetected, estimate_bias, save_bias
-from hdrd.config import EX_CONFIG, Config, ConfigError
-from hdrd.daemon import (
-    _Signals,
-    config_from_args,
-    default_bias_path,
-    log,
-    open_source,
-    setup_logging,
-    standstill_limits,
-)
+from hdrd.calibrate import MotionDetected, StartupWindow, save_bias
+from hdrd.cliargs import config_from_args
+from hdrd.clocks import SampleClock
+from hdrd.config import Config, ConfigError
+from hdrd.errors import EX_CONFIG
+from hdrd.files import default_bias_path
 from hdrd.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise
+from hdrd.logs import log, setup_logging
+from hdrd.pipeline import standstill_limits
+from hdrd.signals import Signals
+from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource, open_source
 
 __all__ = ["main"]
 
@@ -62,14 +61,13 @@ class _Progress:
                 print(text, file=sys.stderr, flush=True)
 
 
-def _noise_of(omega: Any, n: int, duration_s: float) -> GyroNoise | None:
+def _noise_of(window: StartupWindow, duration_s: float) -> GyroNoise | None:
     """The error model the window shows (:func:`hdrd.gyronoise.measure_noise`), recorded
     beside the bias for HDR+; None when the window is too short to tell a rate."""
-    import numpy as np
-
+    n = window.n
     if n < 2 or not duration_s > 0.0:
         return None
-    return measure_noise(np.frombuffer(omega, dtype=np.float64), n / duration_s)
+    return measure_noise(window.omega_dps, n / duration_s)
 
 
 def _noise_line(noise: GyroNoise | None) -> str:
@@ -121,7 +119,7 @@ def main(args: argparse.Namespace) -> int:
         if args.bias_file
         else (Path(cfg.calibration.bias_file) if cfg.calibration.bias_file else default_bias_path())
     )
-    signals = _Signals()
+    signals = Signals()
     signals.install()
     try:
         return _calibrate(cfg, args, seconds, path, signals)
@@ -130,13 +128,8 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _calibrate(
-    cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: _Signals
+    cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: Signals
 ) -> int:
-    from array import array
-
-    from hdrd.calibrate import SampleClock
-    from hdrd.source import DeviceBack, DeviceLost, EndOfInput
-
     def fail(why: str) -> int:
         print(f"hdrd calibrate: {why}; bias file not written", file=sys.stderr, flush=True)
         return 1
@@ -144,14 +137,13 @@ def _calibrate(
     simulate = bool(getattr(args, "simulate", False))
     src = open_source(cfg, simulate)
     port = "the simulated gyro" if simulate else cfg.device.port
-    if getattr(getattr(src, "reader", None), "busy", False):
+    if isinstance(src, SerialSource) and src.reader.busy:
         src.close()
-        return fail(src.reader.last_error)
+        return fail(src.reader.last_error or "the port is in use")
     out = _Progress()
     timeout = cfg.calibration.no_data_timeout_s
     clock = SampleClock()
-    omega: array[float] = array("d")  # 8 bytes a sample, not a Python float's 24
-    temps: array[float] = array("d")
+    window = StartupWindow(1, standstill_limits(cfg))  # ended by device time, not by steps
     last_data = time.monotonic()
     lost: str | None = None
     ended = False
@@ -178,7 +170,8 @@ def _calibrate(
                 continue
             if isinstance(item, DeviceBack):
                 print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, omega, temps, next_report = SampleClock(), array("d"), array("d"), 1.0
+                clock, next_report = SampleClock(), 1.0
+                window.clear()
                 lost, last_data = None, now
                 continue
             if isinstance(item, EndOfInput):
@@ -190,13 +183,11 @@ def _calibrate(
             elapsed = clock.elapsed_us / 1e6
             if elapsed >= seconds:  # this sample starts the time after the window
                 break
-            w = cfg.sensor.to_dps_scalar(item.rate, item.ref)
-            omega.append(w)
-            temps.append(item.temp_c if item.temp_c is not None else float("nan"))
+            window.add(cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
             if elapsed >= next_report:
                 out.say(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {sum(omega) / len(omega):+.4f} deg/s"
-                    f"  n {len(omega)}"
+                    f"  {elapsed:5.1f} / {seconds:g} s  mean {window.mean_dps:+.4f} deg/s"
+                    f"  n {window.n}"
                 )
                 next_report += 1.0
     finally:
@@ -209,20 +200,13 @@ def _calibrate(
         what = "input ended" if ended else "measurement stopped"
         return fail(f"{what} after {duration:.1f} s of the {seconds:g} s needed")
     try:
-        import numpy as np
-
-        rec = estimate_bias(
-            np.frombuffer(omega, dtype=np.float64),
-            temp_c=np.frombuffer(temps, dtype=np.float64),
-            limits=standstill_limits(cfg),
-            when=time.time(),
-        )
+        rec = window.measure(when=time.time())
     except MotionDetected as e:
         print(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
         )
         return 1
-    rec = replace(rec, duration_s=duration, noise=_noise_of(omega, rec.n, duration))
+    rec = replace(rec, duration_s=duration, noise=_noise_of(window, duration))
     try:
         save_bias(path, rec)
     except OSError as e:

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from types import FrameType
 
 from hdrd import __version__
+from hdrd.protocol import PROTOCOLS
+from hdrd.signals import hold_hangup
 
-EX_CONFIG = 78  # sysexits.h; also hdrd.config.EX_CONFIG (not imported here: keeps --help light)
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
 
@@ -95,9 +94,7 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
     p.add_argument(
         "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
     )
-    p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
 
 
 def _log_level(p: argparse.ArgumentParser) -> None:
@@ -164,7 +161,7 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
-@command("tail", "hdrd.publish:tail_main", "print what the daemon publishes (like gpspipe -w)")
+@command("tail", "hdrd.tail:main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--listen",
@@ -210,7 +207,7 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--protocol",
-        choices=("hdr-bin", "hdr-text"),
+        choices=PROTOCOLS,
         default="hdr-bin",
         help="frame format (default hdr-bin)",
     )
@@ -273,9 +270,7 @@ def _replay(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
-    p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
     _bias_group(p)
     _config(p)
     _method(p)
@@ -287,9 +282,7 @@ def _convert(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
-    p.add_argument(
-        "--protocol", choices=("hdr-bin", "hdr-text"), help="frame format (default hdr-bin)"
-    )
+    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
     p.add_argument(
         "--out", metavar="CSV", required=True, help="drive log to write (raw rates, deg/s)"
     )
@@ -336,7 +329,9 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "evaluate", "hdrd.analysis.evaluate:main", "heading error without and with HDR (paper Table II)"
+    "evaluate",
+    "hdrd.analysis.evaluate_cmd:main",
+    "heading error without and with HDR (paper Table II)",
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -453,29 +448,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-# -- SIGHUP during start-up -------------------------------------------------------------------
-
-_held_hangups: list[int] = []
-
-
-def _hold_hangup(signum: int, frame: FrameType | None) -> None:
-    _held_hangups.append(signum)
-
-
-def take_held_hangup() -> bool:
-    """True if a SIGHUP came while held (see :func:`main`); forgets it."""
-    held = bool(_held_hangups)
-    _held_hangups.clear()
-    return held
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    if args.command == "run" and hasattr(signal, "SIGHUP"):
+    if args.command == "run":
         # SIGHUP's default action ends the process: hold it from here, before the slow
         # imports and the config, until the daemon installs its reload handler (which
         # takes a held one as a reload request).
-        signal.signal(signal.SIGHUP, _hold_hangup)
+        hold_hangup()
     module, _, func = args._target.partition(":")
     impl = getattr(importlib.import_module(module), func)
     try:

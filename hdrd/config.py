@@ -2,7 +2,7 @@
 
 Pure apart from :func:`load_config` reading the file. An invalid value raises
 :class:`ConfigError`, whose one-line message names the key, the value and what is allowed;
-the CLI turns it into exit status 78 (EX_CONFIG, sysexits.h). Defaults are the paper's
+the CLI turns it into exit status 78 (:data:`hdrd.errors.EX_CONFIG`). Defaults are the paper's
 (Table III, Tbias = 30 s, T = 1 s; see :mod:`hdrd.hdr` and :mod:`hdrd.calibrate`) and the
 CRS03-04's (:mod:`hdrd.sensor`); ``config/hdrd.yaml`` ships them with comments, and a test
 keeps that file and these defaults equal.
@@ -19,13 +19,16 @@ from typing import Any
 
 from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
+from hdrd.errors import HdrdError
+from hdrd.gpsd import DEFAULT_HOST, DEFAULT_PORT
 from hdrd.gyronoise import GRADE_NAMES
 from hdrd.hdr import HdrParams
+from hdrd.protocol import NMEA_TALKER, PROTOCOLS
+from hdrd.publish import parse_hostport
 from hdrd.sensor import SensorModel
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
-    "EX_CONFIG",
     "CalibrationConfig",
     "Config",
     "ConfigError",
@@ -38,18 +41,14 @@ __all__ = [
     "apply_overrides",
     "load_config",
     "parse_config",
-    "parse_hostport",
 ]
 
-EX_CONFIG = 78
-"""sysexits.h: configuration error."""
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
 
-PROTOCOLS = ("hdr-bin", "hdr-text")
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 
 
-class ConfigError(ValueError):
+class ConfigError(HdrdError, ValueError):
     """An invalid configuration. ``str()`` is the one line shown to the user."""
 
     def __init__(self, key: str, value: Any, allowed: str, source: str | None = None) -> None:
@@ -78,20 +77,6 @@ def _show(value: Any) -> str:
         if not text.isprintable():  # a quoted scalar folded over lines
             text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
-    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
-    if not isinstance(text, str) or ":" not in text:
-        raise ValueError("expected HOST:PORT")
-    host, _, port_s = text.rpartition(":")
-    if host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    if not port_s.isdigit() or not 0 < int(port_s) < 65536:
-        raise ValueError("port must be 1..65535")
-    if any(c.isspace() for c in host):
-        raise ValueError("host must not contain spaces")
-    return host or default_host, int(port_s)
 
 
 # -- sections ---------------------------------------------------------------------------
@@ -158,7 +143,7 @@ class OutputConfig:
     """HOST:PORT destinations of NMEA 0183 ($HNHDT, $HNROT)."""
     nmea_ths: bool = False
     """Also send $HNTHS."""
-    nmea_talker: str = "HN"
+    nmea_talker: str = NMEA_TALKER
     """NMEA talker ID: HN (non-north-seeking gyro); gpsd reads HC (compass), not HN."""
 
 
@@ -190,8 +175,8 @@ class GpsdConfig:
     """Optional GPS aiding through gpsd's JSON protocol."""
 
     enabled: bool = False
-    host: str = "127.0.0.1"
-    port: int = 2947
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
     min_speed_mps: float = 5.0
     """Course from GPS is trusted above this speed, m/s."""
     max_fix_age_s: float = 2.5
@@ -505,7 +490,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
-    from hdrd.inputfiles import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")

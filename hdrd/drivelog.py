@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.errors import HdrdError
+
 __all__ = ["COLUMNS", "OPTIONAL", "DriveLog", "DriveLogError", "read_drive", "write_drive"]
 
 COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed", "valid")
@@ -36,7 +38,7 @@ OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed", "valid")
 FloatArray = npt.NDArray[np.float64]
 
 
-class DriveLogError(ValueError):
+class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
 
 

@@ -38,24 +38,16 @@ import threading
 import time
 import tty
 from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.clocks import device_seconds
 from hdrd.drivelog import DriveLog
-from hdrd.frames import (
-    FRAME_DTYPE,
-    PROTOCOLS,
-    SYNC,
-    Frame,
-    array_to_frames,
-    encode_array,
-    encode_text,
-)
-from hdrd.resample import CLOCK_WRAP_US
+from hdrd.frames import FRAME_DTYPE, Frame, array_to_frames, encode_array, encode_text
+from hdrd.protocol import PROTOCOLS, SYNC
 from hdrd.sensor import SensorModel
-from hdrd.source import ProfileError, load_profile, profile_frames
+from hdrd.sim.profiles import ProfileError, load_profile, profile_frames
 
 __all__ = ["FakeGyro", "Injected", "main"]
 
@@ -91,15 +83,6 @@ class Injected:
         """Frames whose sequence numbers a reader never sees (dropped, pulled, unread, or
         sent corrupted)."""
         return self.dropped + self.pulled_frames + self.unread_frames + self.crc_errors
-
-
-def _device_seconds(t_us: npt.NDArray[np.integer[Any]]) -> npt.NDArray[np.float64]:
-    """Device time of each frame since the first, s (unwrapped; a step back counts as 0)."""
-    if t_us.shape[0] == 0:
-        return np.zeros(0)
-    d = np.mod(np.diff(t_us.astype(np.int64)), CLOCK_WRAP_US)
-    d[d >= CLOCK_WRAP_US // 2] = 0
-    return np.concatenate(([0.0], np.cumsum(d) / 1e6))
 
 
 class _Tally:
@@ -178,7 +161,7 @@ class FakeGyro:
         self.path: str | None = None
         """The pty slave of the current connection (changes at every cable pull)."""
         self._link_target: str | None = None  # what our symlink points at, once made
-        self.t_s = _device_seconds(self.frames["t_us"])
+        self.t_s = device_seconds(self.frames["t_us"])
         self._wire = self._encode_all()
         self._rng = np.random.default_rng(seed)
         self._master: int | None = None

@@ -1,15 +1,19 @@
 """The wire protocol of the gyro's USB ADC: hdr-bin and hdr-text frames (docs/protocol.md).
 
-Pure: no port, no clock. Three layers, in the manner of pyubx2 and pyserial's threaded
-protocols:
+Pure: no port, no clock. Two layers here, in the manner of pyubx2 and pyserial's threaded
+protocols, and a third beside it:
 
 - codecs: :func:`encode_bin` / :func:`decode_bin`, :func:`encode_text` / :func:`decode_text`
   (one frame <-> its bytes; a bad frame raises :class:`FrameError`);
 - :class:`Parser`: a push parser, ``feed(chunk) -> frames``, that keeps partial frames across
   chunks, resynchronises after garbage, drops and counts bad frames and reports sequence gaps
   and device-clock wraps in :class:`ParserStats`;
-- :func:`decode_capture`: a vectorised decoder of a whole capture into a numpy structured
-  array (:data:`FRAME_DTYPE`), giving exactly the frames and counters of the push parser.
+- :func:`hdrd.capture.decode_capture`: a vectorised decoder of a whole capture into a numpy
+  structured array (:data:`FRAME_DTYPE`), giving exactly the frames and counters of the push
+  parser.
+
+The layout's constants (sync bytes, frame length, "no temperature", the device clock's wrap)
+are in :mod:`hdrd.protocol`.
 
 **hdr-bin**, 16 bytes, little-endian: sync ``A5 5A``, seq u16, t_us u32, rate u16, ref u16,
 temp i16 (0.01 degC, -32768 = not fitted), CRC-16/CCITT-FALSE u16 over bytes 2..13.
@@ -29,52 +33,46 @@ import re
 import struct
 from binascii import crc_hqx
 from collections.abc import Iterable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.resample import CLOCK_WRAP_US, RESET_THRESHOLD_US
+from hdrd.errors import HdrdError
+from hdrd.protocol import (
+    BIN_FRAME_LEN,
+    CLOCK_WRAP_US,
+    PROTOCOLS,
+    RESET_THRESHOLD_US,
+    SEQ_REORDER_WINDOW,
+    SYNC,
+    TEMP_NOT_FITTED,
+    TEXT_MAX_LINE,
+    TEXT_SYNC,
+)
 
 __all__ = [
-    "BIN_FRAME_LEN",
     "CRC_TABLE",
     "FRAME_DTYPE",
-    "PROTOCOLS",
-    "SEQ_REORDER_WINDOW",
-    "SYNC",
-    "TEMP_NOT_FITTED",
-    "CaptureStats",
     "Frame",
     "FrameError",
     "Parser",
     "ParserStats",
     "array_to_frames",
+    "check_protocol",
+    "crc_ok_at",
     "crc16_ccitt_false",
     "crc16_ccitt_false_rows",
     "decode_bin",
-    "decode_capture",
-    "decode_frames",
     "decode_text",
     "encode",
     "encode_array",
     "encode_bin",
     "encode_text",
     "frames_to_array",
+    "sequence_stats",
 ]
-
-PROTOCOLS = ("hdr-bin", "hdr-text")
-SYNC = b"\xa5\x5a"
-BIN_FRAME_LEN = 16
-TEMP_NOT_FITTED = -32768
-"""hdr-bin temp value meaning "no temperature sensor fitted" (``Frame.temp_cc is None``)."""
-TEXT_SYNC = b"$HDRG,"
-TEXT_MAX_LINE = 96
-"""Longest hdr-text line the parser waits for, bytes (a valid line has at most 47)."""
-SEQ_REORDER_WINDOW = 64
-"""A sequence number at most this far behind the last one is a repeat or reordering (the
-frame is kept, the counter not moved back); further behind is a device restart."""
 
 _BODY = struct.Struct("<HIHHhH")  # seq, t_us, rate, ref, temp, crc: bytes 2..15
 _PAYLOAD = struct.Struct("<HIHHh")  # bytes 2..13, the CRC's input
@@ -88,7 +86,7 @@ FRAME_DTYPE = np.dtype(
 12 bytes). ``temp`` is in 0.01 degC with -32768 = not fitted; ``ref`` 0 = not wired."""
 
 
-class FrameError(ValueError):
+class FrameError(HdrdError, ValueError):
     """Bytes that are not a valid frame (bad sync, length, CRC, checksum or field)."""
 
 
@@ -197,6 +195,22 @@ def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16
     for j in range(m):
         crc = (crc << 8) ^ CRC_TABLE[(crc >> 8) ^ rows[:, j]]
     return crc
+
+
+def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Whether the hdr-bin frame starting at each position ``cand`` (sorted, each with room
+    for a whole frame) of the bytes ``a`` carries a matching CRC."""
+    k = cand.shape[0]
+    if k == 0:
+        return np.zeros(0, bool)
+    if cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
+        # A clean run of frames with no stray sync pattern: a view, no gather.
+        rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
+    else:
+        rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
+    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
+    stored = words[:, 7]
+    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
 
 
 # --------------------------------------------------------------------------- codecs
@@ -319,7 +333,8 @@ def encode(f: Frame, protocol: str = "hdr-bin") -> bytes:
     raise ValueError(f"unknown protocol {protocol!r} (expected one of {', '.join(PROTOCOLS)})")
 
 
-def _check_protocol(protocol: str) -> None:
+def check_protocol(protocol: str) -> None:
+    """ValueError unless ``protocol`` is one of :data:`hdrd.protocol.PROTOCOLS`."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r} (expected one of {', '.join(PROTOCOLS)})")
 
@@ -353,7 +368,7 @@ def array_to_frames(arr: npt.NDArray[np.void]) -> list[Frame]:
 
 def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
     """A whole :data:`FRAME_DTYPE` array encoded back to back (vectorised for hdr-bin)."""
-    _check_protocol(protocol)
+    check_protocol(protocol)
     arr = np.ascontiguousarray(arr, dtype=FRAME_DTYPE)
     if protocol == "hdr-text":
         return b"".join(encode_text(f) for f in array_to_frames(arr))
@@ -383,7 +398,7 @@ class ParserStats:
     is at most :data:`SEQ_REORDER_WINDOW` behind the last (kept, but the counter is not moved
     back). seq_resets: larger backward jumps (a device restart). clock_wraps: device-clock
     wraps at 2**32 us. clock_back: device-clock steps that did not go forward (a step back of
-    more than 1 s resets the reference, like :class:`hdrd.resample.DeviceClock`).
+    more than 1 s resets the reference, like :class:`hdrd.clocks.DeviceClock`).
     """
 
     frames: int = 0
@@ -407,17 +422,6 @@ class ParserStats:
 
 
 _COUNTERS = tuple(f.name for f in fields(ParserStats))
-
-
-@dataclass(slots=True, eq=False)
-class CaptureStats(ParserStats):
-    """:class:`ParserStats` of a whole capture (equal to a ParserStats with the same counters),
-    plus ``bad_before[i]``: the bad frames that came before good frame i in the byte stream
-    (what a live source reports as ``stats.bad_frames`` when it hands out frame i)."""
-
-    bad_before: npt.NDArray[np.int64] = field(
-        default_factory=lambda: np.zeros(0, np.int64), repr=False
-    )
 
 
 _SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDOW behind
@@ -470,7 +474,7 @@ class Parser:
     __slots__ = ("_buf", "_feed", "_last_seq", "_last_t", "bad_before", "protocol", "stats")
 
     def __init__(self, protocol: str = "hdr-bin") -> None:
-        _check_protocol(protocol)
+        check_protocol(protocol)
         self.protocol = protocol
         self.stats = ParserStats()
         self.bad_before: list[int] = []
@@ -683,131 +687,10 @@ class Parser:
         return out
 
 
-# --------------------------------------------------------------------------- whole captures
-
-
-def _greedy_accept(v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Which CRC-valid frame starts the left-to-right scan takes: a start is taken if it is
-    not inside an already taken frame. Python loops only over the (rare) overlaps."""
-    accepted = np.ones(v.shape[0], bool)
-    if v.shape[0] < 2:
-        return accepted
-    close = np.flatnonzero(np.diff(v) < BIN_FRAME_LEN) + 1
-    if close.size == 0:
-        return accepted
-    ks = close.tolist()
-    vk = v[close].tolist()
-    vprev = v[close - 1].tolist()
-    last = -BIN_FRAME_LEN
-    prev_k = -2
-    for k, x, xp in zip(ks, vk, vprev):
-        if k - 1 != prev_k:
-            last = xp  # start of a chain: its first member was taken
-        if x >= last + BIN_FRAME_LEN:
-            last = x
-        else:
-            accepted[k] = False
-        prev_k = k
-    return accepted
-
-
-def _drop_displaced(a: npt.NDArray[np.uint8], v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Which CRC-valid candidates ``v`` (sorted positions) survive the push parser's
-    :func:`_displaced` rule at the end of input: x is a CRC coincidence, and dropped, if it is
-    not followed by a sync pattern at x + 16 while another valid candidate y, x + 2 <= y <=
-    x + 14, is followed by one at y + 16. Python loops only over valid candidates closer
-    than 15 bytes (rare)."""
-    keep = np.ones(v.shape[0], bool)
-    if v.shape[0] < 2:
-        return keep
-    near = np.flatnonzero(np.diff(v) <= BIN_FRAME_LEN - 2)
-    if near.size == 0:
-        return keep
-    n = a.shape[0]
-
-    def sync_after(x: int) -> bool:
-        return x + BIN_FRAME_LEN + 2 <= n and a[x + 16] == 0xA5 and a[x + 17] == 0x5A
-
-    last = v.shape[0]
-    for k in near.tolist():
-        x = int(v[k])
-        if sync_after(x):
-            continue
-        m = k + 1
-        while m < last and v[m] <= x + BIN_FRAME_LEN - 2:
-            if sync_after(int(v[m])):
-                keep[k] = False
-                break
-            m += 1
-    return keep
-
-
-_SCAN_BYTES = 1 << 20
-"""decode_capture looks for frames in slices of this many bytes: its working memory is a
-few times this, whatever the capture holds (20 MB of ``A5 5A`` is 10 million candidates)."""
-
-
-_KEEP_FAILED = 1 << 20
-"""decode_capture keeps the positions of up to this many failed candidates from its first
-pass (8 MiB); beyond, a second pass finds them again, slice by slice."""
-
-
-def _count_bad(
-    inv: npt.NDArray[np.int64], acc: npt.NDArray[np.int64], counts: npt.NDArray[np.int64]
-) -> None:
-    """Add to ``counts[i]`` the failed candidates ``inv`` (sorted) that lie between accepted
-    frame i - 1 and frame i, leaving out those inside an accepted frame."""
-    if acc.shape[0] and inv.shape[0]:
-        j = np.searchsorted(acc, inv, side="right") - 1
-        inside = (j >= 0) & (inv < acc[np.maximum(j, 0)] + BIN_FRAME_LEN)
-        inv = inv[~inside]
-    if inv.shape[0]:
-        at = np.searchsorted(acc, inv)
-        first = int(at[0])  # sorted: this adds to counts[first .. at[-1]] only
-        add = np.bincount(at - first)
-        counts[first : first + add.shape[0]] += add
-
-
-def _candidates(a: npt.NDArray[np.uint8], lo: int, hi: int) -> npt.NDArray[np.int64]:
-    """Positions i in [lo, hi) where a sync pattern starts (hi <= len(a) - 15: room for a
-    whole frame)."""
-    seg = a[lo : hi + 1]
-    cand = np.flatnonzero((seg[:-1] == 0xA5) & (seg[1:] == 0x5A)).astype(np.int64, copy=False)
-    if lo:
-        cand += lo
-    return cand
-
-
-def _crc_ok(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Whether the frame at each candidate position carries a matching CRC."""
-    k = cand.shape[0]
-    if k == 0:
-        return np.zeros(0, bool)
-    if cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
-        # A clean run of frames with no stray sync pattern: a view, no gather.
-        rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
-    else:
-        rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
-    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
-    stored = words[:, 7]
-    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
-
-
-def _payload(a: npt.NDArray[np.uint8], acc: npt.NDArray[np.int64]) -> npt.NDArray[np.void]:
-    """The :data:`FRAME_DTYPE` array of the frames starting at ``acc`` (bytes 2..13 each)."""
-    k = acc.shape[0]
-    out = np.empty(k, FRAME_DTYPE)
-    view = out.view(np.uint8).reshape(k, 12)
-    windows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)
-    step = max(1, _SCAN_BYTES // BIN_FRAME_LEN)
-    for lo in range(0, k, step):  # gathered in slices: 16 bytes a frame at a time, not all
-        view[lo : lo + step] = windows[acc[lo : lo + step], 2:14]
-    return out
-
-
-def _sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
-    """Fill the sequence/clock counters of ``st`` as the push parser would, vectorised in the
-    common case (all steps forward), else through the push parser's own rule."""
+def sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
+    """Add the sequence/clock counters of the frames ``arr`` (a :data:`FRAME_DTYPE` array, in
+    stream order) to ``st`` as the push parser counts them, vectorised in the common case (all
+    steps forward), else through the push parser's own rule."""
     if arr.shape[0] < 2:
         return
     seq = arr["seq"].astype(np.int64)
@@ -832,91 +715,3 @@ def _sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
     st.seq_resets += ps.seq_resets
     st.clock_wraps += ps.clock_wraps
     st.clock_back += ps.clock_back
-
-
-def decode_capture(
-    data: bytes | bytearray | memoryview, protocol: str = "hdr-bin"
-) -> tuple[npt.NDArray[np.void], CaptureStats]:
-    """Decode a whole capture to a :data:`FRAME_DTYPE` array and the parser's counters.
-
-    Gives exactly the frames and counters of a :class:`Parser` fed the same bytes (in any
-    chunking) and then flushed, plus ``bad_before`` per frame (:class:`CaptureStats`).
-    hdr-bin is vectorised: every sync candidate's CRC is computed at once (table-driven, two
-    payload bytes per step); Python loops only over overlapping candidates. hdr-text uses the
-    push parser.
-    """
-    _check_protocol(protocol)
-    st = CaptureStats()
-    if protocol == "hdr-text":
-        # The push parser, fed in slices (any split gives the same frames), each slice's
-        # frames packed into an array at once: no list of every Frame of the capture.
-        p = Parser("hdr-text")
-        arrays: list[npt.NDArray[np.void]] = []
-        bad: list[npt.NDArray[np.int64]] = []
-        view = memoryview(data).cast("B")
-        for lo in range(0, len(view), _SCAN_BYTES):
-            frames = p.feed(view[lo : lo + _SCAN_BYTES])
-            arrays.append(frames_to_array(frames))
-            bad.append(np.asarray(p.bad_before, np.int64))
-        p.flush()  # hdr-text holds no complete line back: it only counts the leftover
-        for name in _COUNTERS:
-            setattr(st, name, getattr(p.stats, name))
-        st.bad_before = np.concatenate(bad) if bad else np.empty(0, np.int64)
-        return (np.concatenate(arrays) if arrays else np.empty(0, FRAME_DTYPE)), st
-    a = np.frombuffer(data, dtype=np.uint8)
-    n = a.shape[0]
-    if n < BIN_FRAME_LEN:
-        st.garbage_bytes = n
-        return np.empty(0, FRAME_DTYPE), st
-    top = n - 15  # a frame can start at 0 .. n - 16
-    slices = [(lo, min(lo + _SCAN_BYTES, top)) for lo in range(0, top, _SCAN_BYTES)]
-    # Pass 1, slice by slice: the positions of CRC-valid frames (at most the frames), and
-    # of the failed candidates while they are few (else pass 2 finds them again).
-    parts: list[npt.NDArray[np.int64]] = []
-    failed_parts: list[npt.NDArray[np.int64]] | None = []
-    failed = 0
-    for lo, hi in slices:
-        cand = _candidates(a, lo, hi)
-        ok = _crc_ok(a, cand)
-        parts.append(cand[ok])
-        if not ok.all():
-            failed_here = cand[~ok]
-            failed += failed_here.shape[0]
-            if failed_parts is not None:
-                failed_parts.append(failed_here)
-                if failed > _KEEP_FAILED:
-                    failed_parts = None
-    valid = np.concatenate(parts) if parts else np.empty(0, np.int64)
-    del parts
-    keep = _drop_displaced(a, valid)
-    v = valid if keep.all() else valid[keep]
-    acc = v[_greedy_accept(v)]
-    if failed == 0 and v.shape[0] == valid.shape[0]:
-        st.bad_before = np.zeros(acc.shape[0], np.int64)
-    else:
-        # A candidate that failed (CRC, or a coincidence dropped above) counts as a bad
-        # frame unless it lies inside a frame that was taken; bad_before[i] = bad positions
-        # before acc[i].
-        counts = np.zeros(acc.shape[0] + 1, np.int64)
-        if failed_parts is not None:
-            inv = np.sort(np.concatenate([*failed_parts, valid[~keep]]))
-            _count_bad(inv, acc, counts)
-        else:  # pass 2, slice by slice: the failed candidates are those not in v
-            for lo, hi in slices:
-                inv = _candidates(a, lo, hi)
-                if v.shape[0]:
-                    at_v = np.minimum(np.searchsorted(v, inv), v.shape[0] - 1)
-                    inv = inv[v[at_v] != inv]
-                _count_bad(inv, acc, counts)
-        st.bad_frames = int(counts.sum())
-        st.bad_before = np.cumsum(counts[: acc.shape[0]], dtype=np.int64)
-    arr = _payload(a, acc)
-    st.frames = int(arr.shape[0])
-    st.garbage_bytes = n - BIN_FRAME_LEN * st.frames
-    _sequence_stats(arr, st)
-    return arr, st
-
-
-def decode_frames(data: bytes, protocol: str = "hdr-bin") -> list[Frame]:
-    """All good frames of a capture as Frame objects (convenience over decode_capture)."""
-    return array_to_frames(decode_capture(data, protocol)[0])

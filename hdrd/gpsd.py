@@ -14,8 +14,8 @@ a class we do not use) and raises :class:`GpsdProtocolError` for a line that is 
 gpsd JSON object. The edge, :class:`GpsdClient`, owns a TCP socket that never blocks and
 never raises on I/O trouble: it connects, reconnects with backoff, buffers partial lines,
 counts and skips bad ones; :meth:`GpsdClient.poll` returns the fixes that arrived.
-:class:`GpsdLink` wires the client and :class:`hdrd.aiding.GpsAiding` to the daemon's
-pipeline.
+:class:`hdrd.gpslink.GpsdLink` wires the client and :class:`hdrd.aiding.GpsAiding` to the
+daemon's pipeline.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import structlog
+from hdrd.errors import HdrdError
+from hdrd.logs import log
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -47,7 +48,6 @@ __all__ = [
     "Fix",
     "GpsdClient",
     "GpsdError",
-    "GpsdLink",
     "GpsdProtocolError",
     "Report",
     "Satellite",
@@ -72,10 +72,8 @@ LINES_PER_POLL = 32
 daemon polls every loop turn (at least 10 times a second), so these bounds never delay a
 report from a real gpsd."""
 
-log = structlog.get_logger("hdrd")
 
-
-class GpsdProtocolError(ValueError):
+class GpsdProtocolError(HdrdError, ValueError):
     """A line that is not a gpsd JSON report; ``str()`` says why."""
 
 
@@ -696,93 +694,3 @@ class GpsdClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-# -- the daemon's link: client + aiding + pipeline hooks -------------------------------------
-
-
-def aiding_config(gpsd_cfg: Any, step_s: float = 1.0) -> Any:
-    """The :class:`hdrd.aiding.AidingConfig` that a :class:`hdrd.config.GpsdConfig` names
-    (``gpsd.min_speed_mps``, ``max_fix_age_s``, ``max_epd_deg``, ``align_gain``,
-    ``bias_window_s``, ``bias_gain``), with the HDR step period ``step_s``, s."""
-    from hdrd.aiding import AidingConfig
-
-    return AidingConfig(
-        min_speed_mps=gpsd_cfg.min_speed_mps,
-        max_fix_age_s=gpsd_cfg.max_fix_age_s,
-        max_epd_deg=gpsd_cfg.max_epd_deg,
-        align_gain=gpsd_cfg.align_gain,
-        bias_window_s=gpsd_cfg.bias_window_s,
-        bias_gain=gpsd_cfg.bias_gain,
-        step_s=step_s,
-    )
-
-
-class GpsdLink:
-    """What ``hdrd run --gpsd`` adds to the run loop (edge).
-
-    :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
-    and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
-    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
-    ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
-    :class:`hdrd.aiding.GpsAiding`), and a learned bias correction goes to
-    ``Pipeline.adjust_bias(delta, "gps")``.
-    """
-
-    def __init__(
-        self, client: GpsdClient, aiding: Any, clock: Callable[[], float] = time.monotonic
-    ) -> None:
-        self.client = client
-        self.aiding = aiding
-        self._clock = clock
-        self._mode: str | None = None
-        self._bad_logged = 0
-        self._bad_log_at = -math.inf
-
-    @classmethod
-    def from_config(cls, gpsd_cfg: Any, step_s: float = 1.0) -> GpsdLink:
-        """From :class:`hdrd.config.GpsdConfig`: host, port and the aiding's thresholds and
-        gains (the rest of :class:`hdrd.aiding.AidingConfig` keeps its defaults)."""
-        from hdrd.aiding import GpsAiding
-
-        client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
-        return cls(client, GpsAiding(aiding_config(gpsd_cfg, step_s)))
-
-    BAD_LOG_INTERVAL_S = 10.0
-    """At most one ``gpsd_bad_lines`` warning per this many seconds."""
-
-    def poll(self, pipeline: Any, now: float | None = None) -> None:
-        now = self._clock() if now is None else now
-        for f in self.client.poll():
-            self.aiding.on_fix(f, now)
-        pipeline.set_speed(self.aiding.speed(now))
-        bad = self.client.stats.bad_lines
-        if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
-            errors = self.client.stats.errors
-            log.warning(
-                "gpsd_bad_lines",
-                total=bad,
-                new=bad - self._bad_logged,
-                last=errors[-1] if errors else None,
-            )
-            self._bad_logged, self._bad_log_at = bad, now
-
-    def aid(
-        self, msgs: list[dict[str, Any]], pipeline: Any, now: float | None = None
-    ) -> list[dict[str, Any]]:
-        now = self._clock() if now is None else now
-        out = []
-        for m in msgs:
-            m2, delta = self.aiding.on_message(m, now)
-            if delta:
-                pipeline.adjust_bias(delta, "gps")
-            mode = m2.get("mode")
-            if mode is not None and mode != self._mode:
-                self._mode = mode
-                fields_ = {k: m2[k] for k in ("heading", "gps_course", "gps_speed") if k in m2}
-                log.info("gps_mode", mode=mode, **fields_)
-            out.append(m2)
-        return out
-
-    def close(self) -> None:
-        self.client.close()

@@ -16,22 +16,23 @@ evaluated exactly as the daemon would have run it. The caller owns the clock: th
 of a message is passed in, and ``None`` leaves it out (as replay does, having no wall clock for
 recorded bytes).
 
-Message fields are documented in docs/protocol.md ("Published messages"). An unknown value
+Message fields are documented in docs/protocol.md ("Published messages"); their names, order
+and schema version are in :mod:`hdrd.protocol`. An unknown value
 is left out, never sent as null or 0.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
+from hdrd.clocks import DeviceClock
 from hdrd.hdr import HdrParams, HdrState
 from hdrd.hdrplus import (
     INITIAL_PLUS_STATE,
@@ -41,21 +42,23 @@ from hdrd.hdrplus import (
     PlusOutput,
     PlusState,
 )
-from hdrd.resample import Block, BlockAverager, DeviceClock, Missing
+from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
+from hdrd.resample import Block, BlockAverager, Missing
 from hdrd.sensor import SensorModel
 
+if TYPE_CHECKING:
+    from hdrd.config import Config
+
 __all__ = [
-    "SCHEMA_VERSION",
-    "Message",
     "Pipeline",
     "PipelineConfig",
     "Stepper",
     "heading_from_yaw",
+    "pipeline_config",
+    "plus_noise",
+    "plus_params",
+    "standstill_limits",
 ]
-
-SCHEMA_VERSION = 1
-Message = dict[str, Any]
-TEMP_NOT_FITTED = -32768
 
 
 class FrameLike(Protocol):
@@ -79,7 +82,8 @@ def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Everything the pipeline needs; the edges build it from :class:`hdrd.config.Config`."""
+    """Everything the pipeline needs; :func:`pipeline_config` builds it from a
+    :class:`hdrd.config.Config`."""
 
     sensor: SensorModel = SensorModel()
     params: HdrParams = HdrParams()
@@ -110,6 +114,59 @@ def _given_bias(config: PipelineConfig) -> BiasRecord | None:
     if rec is not None and rec.bias_dps == config.bias_dps:
         return rec
     return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+
+
+# -- from a configuration ---------------------------------------------------------------------
+
+
+def standstill_limits(cfg: Config) -> StandstillLimits:
+    """The standstill test's thresholds from the calibration section (deg/s)."""
+    c = cfg.calibration
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
+
+
+def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
+    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
+    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings and error
+    model (:func:`plus_noise`); the static bias of ``bias`` (None: measured at start-up)."""
+    return PipelineConfig(
+        sensor=cfg.sensor,
+        params=cfg.hdr.params,
+        method=cfg.hdr.method,
+        bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
+        startup_s=cfg.calibration.startup_s,
+        limits=standstill_limits(cfg),
+        heading0_deg=cfg.output.heading0_deg,
+        plus=plus_params(cfg),
+        noise=plus_noise(cfg, bias),
+    )
+
+
+def plus_params(cfg: Config) -> HdrPlusParams:
+    """HDR+'s parameters with the config's ``standstill.*`` keys applied (run, replay and
+    evaluate use the same)."""
+    plus = HdrPlusParams()
+    return plus.with_(
+        standstill=replace(
+            plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
+        )
+    )
+
+
+def plus_noise(cfg: Config, bias: BiasRecord | None) -> GyroNoise | None:
+    """The gyro error model HDR+ is fitted to: the noise parameters recorded in the bias file,
+    else the config's ``plus.*`` (:func:`hdrd.gyronoise.noise_in_force`; run, replay and
+    evaluate use the same)."""
+    from dataclasses import asdict
+
+    from hdrd.gyronoise import noise_in_force
+
+    given = {k: v for k, v in asdict(cfg.plus).items() if k != "grade"}
+    return noise_in_force(cfg.plus.grade, given, None if bias is None else bias.noise)
+
+
+# -- stepping ----------------------------------------------------------------------------------
 
 
 class Stepper:
@@ -233,7 +290,7 @@ class Stepper:
     ) -> Message:
         """Step the block and publish it: step number and device time ``t`` (s) as the
         owner counts them, gap_s: seconds without samples before it (0 = none)."""
-        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         msg["t"] = t
@@ -395,10 +452,9 @@ class Pipeline:
         self,
         frames: npt.NDArray[Any],
         bad_before: npt.ArrayLike | None = None,
-        now: Callable[[], float] | None = None,
     ) -> list[Message]:
         """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
-        -32768 = not fitted), as :func:`hdrd.frames.decode_capture` gives.
+        -32768 = not fitted), as :func:`hdrd.capture.decode_capture` gives.
 
         Same messages as :meth:`feed` frame by frame. bad_before[i]: corrupt frames seen
         before frame i in the byte stream.
@@ -415,7 +471,6 @@ class Pipeline:
                 self.feed(
                     _Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp),
                     int(bad[i]),
-                    now() if now else None,
                 )
             )
             i += 1
@@ -435,7 +490,7 @@ class Pipeline:
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
         for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
-            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), now() if now else None))
+            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
         return out
 
     def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:
@@ -521,7 +576,7 @@ class Pipeline:
         self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
     ) -> Message:
         """What to publish while no sample arrives: no new step, the heading held."""
-        msg: Message = {"class": "HDR", "v": SCHEMA_VERSION}
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         if self._last_step is not None:

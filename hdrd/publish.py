@@ -1,7 +1,8 @@
-"""Publishers: where each HDR step's message goes, and ``hdrd tail``, which prints it.
+"""Publishers: where each HDR step's message goes (``hdrd tail``, in :mod:`hdrd.tail`, prints it).
 
 A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
-"Published messages"): ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
+"Published messages", and :mod:`hdrd.protocol`):
+``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
 Yaw rates are deg/s, positive counter-clockwise seen from above (a left turn); yaw is degrees
 CCW since start; heading is compass degrees, clockwise from north, in [0, 360). A value that
 is not known is absent from the dict, never None or 0; keys we do not know are passed through.
@@ -10,8 +11,8 @@ Two layers, as in pyubx2 (pure codec) and python-can (listeners):
 
 - pure formatting: :func:`format_json` (one JSON line), :func:`nmea_sentences` ($HNHDT,
   $HNROT, optional $HNTHS) and :func:`nmea_checksum`; :func:`parse_nmea` for the reader side;
-- sinks with the python-can listener shape (``on_message(msg)``, ``on_error(exc)``,
-  ``stop()`` that flushes): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
+- sinks with the python-can listener shape (``on_message(msg)``, ``stop()`` that flushes;
+  a sink's failures are its own counters, not exceptions handed back to it): :class:`UdpJsonPublisher`, :class:`UdpNmeaPublisher`,
   :class:`StdoutPublisher`.
 
 No publisher blocks the caller, so none can hold up another. A UDP destination that is
@@ -25,13 +26,11 @@ the daemon ends cleanly with exit status 0.
 
 from __future__ import annotations
 
-import argparse
 import errno
 import json
 import math
 import os
 import select
-import signal
 import socket
 import struct
 import sys
@@ -40,51 +39,33 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TextIO
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
-from hdrd.config import parse_hostport
+from hdrd.errors import HdrdError
+from hdrd.protocol import NMEA_TALKER, RATE_VALID_STATUSES
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
 
 __all__ = [
-    "DEFAULT_TAIL_LISTEN",
-    "MESSAGE_CLASS",
-    "RATE_VALID_STATUSES",
-    "SCHEMA_VERSION",
     "DestinationStats",
     "OutputClosed",
     "Publisher",
     "StdoutPublisher",
-    "TailFormatter",
     "UdpJsonPublisher",
     "UdpNmeaPublisher",
     "UdpPublisher",
     "format_json",
+    "heading_field",
     "nmea_checksum",
     "nmea_sentence",
     "nmea_sentences",
+    "parse_hostport",
     "parse_nmea",
-    "printable",
-    "tail_main",
 ]
 
-MESSAGE_CLASS = "HDR"
-"""The ``"class"`` of a per-step message (gpsd style: every object names its class)."""
-SCHEMA_VERSION = 1
-"""The ``"v"`` of a per-step message; bumped only for incompatible changes."""
-DEFAULT_TAIL_LISTEN = "127.0.0.1:10110"
-"""Where ``hdrd tail`` listens by default (10110: the registered NMEA-0183 port)."""
-RATE_VALID_STATUSES = frozenset({"ok", "turning", "standstill", "aided", "dead-reckoning"})
-"""Statuses of a live step, whose rate and heading are current: $HNHDT is sent, $HNROT says
-A (valid) and $HNTHS A or E. In any other status (``stale``: no data, the heading held;
-``calibrating``; a status this version does not know) no $HNHDT is sent and $HNROT and
-$HNTHS say V. ``standstill`` (HDR+'s zero-rate update) is valid: the rate is known to be 0."""
-NMEA_TALKER = "HN"
-"""NMEA 0183 talker: heading, non-north-seeking gyro."""
 
-
-class OutputClosed(Exception):
+class OutputClosed(HdrdError):
     """The reader of an output stream went away (EPIPE): the daemon should end, exit 0."""
 
 
@@ -92,8 +73,6 @@ class Publisher(Protocol):
     """A sink for per-step messages (the python-can ``Listener`` shape)."""
 
     def on_message(self, msg: Mapping[str, Any]) -> None: ...
-
-    def on_error(self, exc: BaseException) -> None: ...
 
     def stop(self) -> None: ...
 
@@ -203,7 +182,8 @@ def _finite(msg: Mapping[str, Any], key: str) -> float | None:
     return f if math.isfinite(f) else None
 
 
-def _heading_field(heading: float) -> str:
+def heading_field(heading: float) -> str:
+    """A compass heading (deg) as NMEA writes it: 2 decimals, in [0, 360)."""
     # Round first, then wrap: 359.996 would otherwise print as 360.00, outside [0, 360).
     h = round(heading % 360.0, 2)
     return f"{0.0 if h >= 360.0 else h:.2f}"
@@ -234,7 +214,7 @@ def nmea_sentences(
     valid = status in RATE_VALID_STATUSES
     heading = _finite(msg, "heading")
     if heading is not None and valid:
-        out.append(nmea_sentence(f"{talker}HDT,{_heading_field(heading)},T"))
+        out.append(nmea_sentence(f"{talker}HDT,{heading_field(heading)},T"))
     omega = _finite(msg, "omega")
     if omega is None:
         out.append(nmea_sentence(f"{talker}ROT,,V"))
@@ -243,7 +223,7 @@ def nmea_sentences(
         out.append(nmea_sentence(f"{talker}ROT,{rot:.1f},{'A' if valid else 'V'}"))
     if ths and heading is not None:
         mode = ("A" if msg.get("mode") == "aided" else "E") if valid else "V"
-        out.append(nmea_sentence(f"{talker}THS,{_heading_field(heading)},{mode}"))
+        out.append(nmea_sentence(f"{talker}THS,{heading_field(heading)},{mode}"))
     return out
 
 
@@ -282,6 +262,20 @@ _HAVE_RECVERR = sys.platform.startswith("linux")
 _ASYNC_ERRNOS = frozenset(
     {errno.ECONNREFUSED, errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.EMSGSIZE}
 )
+
+
+def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
+    if not isinstance(text, str) or ":" not in text:
+        raise ValueError("expected HOST:PORT")
+    host, _, port_s = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not port_s.isdigit() or not 0 < int(port_s) < 65536:
+        raise ValueError("port must be 1..65535")
+    if any(c.isspace() for c in host):
+        raise ValueError("host must not contain spaces")
+    return host or default_host, int(port_s)
 
 
 def _errname(e: int | None) -> str:
@@ -363,8 +357,6 @@ class UdpPublisher:
         self._socks: dict[int, socket.socket | None] = {}
         self._dests = [_Destination(DestinationStats(h, int(p))) for h, p in destinations]
         self._stopped = False
-        self.last_exception: BaseException | None = None
-        """The last exception passed to :meth:`on_error` (kept for the daemon's log)."""
         for d in self._dests:
             self._resolve(d)
 
@@ -488,10 +480,6 @@ class UdpPublisher:
             for dg in datagrams:
                 self._send(d, bytes(dg))
 
-    def on_error(self, exc: BaseException) -> None:
-        """Remember *exc*; a UDP sink has nothing to tell its peers about it."""
-        self.last_exception = exc
-
     def stop(self) -> None:
         """Collect the last error reports and close the sockets (idempotent)."""
         if self._stopped:
@@ -509,11 +497,6 @@ class UdpPublisher:
             self._drain_all()
         with self._lock:
             return [replace(d.stats, by_error=dict(d.stats.by_error)) for d in self._dests]
-
-    @property
-    def errors(self) -> int:
-        """Total failures over all destinations."""
-        return sum(s.errors for s in self.stats())
 
     def __enter__(self) -> Self:
         return self
@@ -592,7 +575,6 @@ class StdoutPublisher:
         """Lines not written: the queue was full (a stalled reader), or left at stop."""
         self.errors = 0
         self.last_error: str | None = None
-        self.last_exception: BaseException | None = None
         self._queue: deque[bytes] = deque()
         self._queued_bytes = 0
         self._busy = 0  # lines being written by the thread
@@ -636,9 +618,6 @@ class StdoutPublisher:
             if self.closed:
                 raise OutputClosed(_CLOSED_MESSAGE)
         return True
-
-    def on_error(self, exc: BaseException) -> None:
-        self.last_exception = exc
 
     def stop(self) -> None:
         """Write what is queued, waiting at most ``stop_wait_s``; what is still queued then
@@ -735,244 +714,3 @@ class StdoutPublisher:
         with self._cond:
             self.closed = True
             self._cond.notify_all()
-
-
-# -- hdrd tail ----------------------------------------------------------------------------
-
-_COLUMNS: tuple[tuple[str, str, int, str], ...] = (
-    # (title, key, width, format); a missing value prints as "-"
-    ("time", "time", 8, "time"),
-    ("step", "step", 6, "d"),
-    ("status", "status", 11, "s"),
-    ("heading", "heading", 7, ".2f"),
-    ("yaw", "yaw", 9, ".2f"),
-    ("omega", "omega", 8, ".3f"),
-    ("I", "I", 8, ".4f"),
-    ("W", "W", 1, "d"),
-    ("r", "r", 4, "d"),
-    ("bias", "bias", 8, ".4f"),
-    ("samples", "samples", 7, "d"),
-    ("bad", "bad_frames", 5, "d"),
-    ("mode", "mode", 14, "s"),  # GPS aiding (hdrd run --gpsd): aided / dead-reckoning
-)
-
-
-def _escape(c: str) -> str:
-    """*c* as a JSON-style escape: ``\\u001b``; beyond the BMP, a surrogate pair."""
-    o = ord(c)
-    if o < 0x10000:
-        return f"\\u{o:04x}"
-    o -= 0x10000
-    return f"\\u{0xD800 + (o >> 10):04x}\\u{0xDC00 + (o & 0x3FF):04x}"
-
-
-def printable(text: str) -> str:
-    """*text* with every character a terminal could act on escaped (``\\u001b`` for ESC):
-    C0 and C1 controls (ESC, BEL, CR, CSI U+009B ...), DEL, format characters such as
-    bidirectional overrides, separators other than the space, surrogates and unassigned
-    code points; i.e. all that ``str.isprintable`` refuses. What ``hdrd tail`` prints goes
-    through it, so no datagram can move the cursor, retitle the window or ring the bell."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else _escape(c) for c in text)
-
-
-def _printable_json(text: str) -> str:
-    """A valid JSON line made printable with the same meaning: raw TAB and CR can only be
-    whitespace between tokens (JSON strings cannot hold them unescaped), so they become
-    spaces; any other non-printable character is inside a string, where ``\\uXXXX`` is the
-    same character."""
-    if text.isprintable():
-        return text
-    return printable(text.replace("\t", " ").replace("\r", " "))
-
-
-class TailFormatter:
-    """Turns received datagrams into printable lines for ``hdrd tail`` (pure, no I/O).
-
-    :meth:`lines` returns (stdout lines, stderr notes, messages counted). In table mode the
-    first HDR message is preceded by a header; NMEA sentences are printed as received with
-    their decoded meaning; other JSON objects as received. With *raw*, everything valid is
-    printed exactly as received (like ``gpspipe -w``).
-    """
-
-    def __init__(self, raw: bool = False) -> None:
-        self.raw = raw
-        self._header_done = False
-
-    @staticmethod
-    def header() -> str:
-        return " ".join(
-            f"{t:<{w}}" if f in ("s", "time") else f"{t:>{w}}" for t, _, w, f in _COLUMNS
-        ).rstrip()
-
-    @staticmethod
-    def row(msg: Mapping[str, Any]) -> str:
-        cells = []
-        for _, key, w, f in _COLUMNS:
-            v = msg.get(key)
-            try:
-                if v is None:
-                    cell = "-"
-                elif f == "time":
-                    cell = time.strftime("%H:%M:%S", time.localtime(float(v)))
-                elif f == "d":
-                    cell = f"{int(v):d}"
-                elif f == "s":
-                    cell = printable(str(v))
-                elif key == "heading":
-                    cell = _heading_field(float(v))
-                else:
-                    cell = format(float(v), f)
-            except (TypeError, ValueError, OverflowError, OSError, RecursionError):
-                cell = "?"
-            cells.append(f"{cell:<{w}}" if f in ("s", "time") else f"{cell:>{w}}")
-        return " ".join(cells).rstrip()
-
-    @staticmethod
-    def describe_nmea(kind: str, fields_: list[str]) -> str:
-        sentence = kind[-3:]
-        if sentence == "HDT" and fields_:
-            return f"heading {fields_[0]} deg true"
-        if sentence == "ROT" and len(fields_) >= 2:
-            if not fields_[0]:
-                return "rate of turn unknown"
-            valid = "valid" if fields_[1] == "A" else "invalid"
-            return f"rate of turn {fields_[0]} deg/min ({valid}; - = to port)"
-        if sentence == "THS" and len(fields_) >= 2:
-            mode = {"E": "estimated", "V": "invalid", "A": "autonomous"}.get(fields_[1], fields_[1])
-            return f"heading {fields_[0]} deg true ({mode})"
-        return ""
-
-    def lines(self, data: bytes, sender: str = "?") -> tuple[list[str], list[str], int]:
-        """Never raises; every line returned is printable (:func:`printable`)."""
-        out, notes, count = self._lines(data, sender)
-        return [printable(x) for x in out], [printable(x) for x in notes], count
-
-    def _lines(self, data: bytes, sender: str) -> tuple[list[str], list[str], int]:
-        out: list[str] = []
-        notes: list[str] = []
-        count = 0
-        for raw_line in data.split(b"\n"):
-            raw_line = raw_line.rstrip(b"\r")
-            if not raw_line.strip():
-                continue
-            shown = raw_line[:60].decode("utf-8", "replace")
-            try:
-                text = raw_line.decode("utf-8")
-            except UnicodeDecodeError:
-                notes.append(f"hdrd tail: ignored non-UTF-8 data from {sender}: {shown!r}")
-                continue
-            if text.startswith(("$", "!")):
-                try:
-                    kind, fields_ = parse_nmea(text)
-                except ValueError as e:
-                    notes.append(
-                        f"hdrd tail: ignored a bad NMEA sentence from {sender}: {e}: {shown!r}"
-                    )
-                    continue
-                count += 1
-                what = "" if self.raw else self.describe_nmea(kind, fields_)
-                out.append(f"{text}    # {what}" if what else text)
-                continue
-            try:
-                msg = json.loads(text)
-            except json.JSONDecodeError as e:
-                notes.append(f"hdrd tail: ignored malformed data from {sender}: {e.msg}: {shown!r}")
-                continue
-            except (ValueError, RecursionError) as e:  # a huge integer; nesting too deep
-                why = "nested too deeply" if isinstance(e, RecursionError) else "a number too long"
-                notes.append(f"hdrd tail: ignored data from {sender}: {why}: {shown!r}")
-                continue
-            if not isinstance(msg, dict):
-                notes.append(
-                    f"hdrd tail: ignored a JSON value that is not an object from {sender}: {shown!r}"
-                )
-                continue
-            count += 1
-            if self.raw or msg.get("class") != MESSAGE_CLASS:
-                out.append(_printable_json(text))
-                continue
-            if not self._header_done:
-                out.append(self.header())
-                self._header_done = True
-            out.append(self.row(msg))
-        return out, notes, count
-
-
-class _Stop(Exception):
-    pass
-
-
-def _raise_stop(signum: int, frame: object) -> None:
-    raise _Stop
-
-
-def _write(stream: TextIO, lines: Sequence[str]) -> None:
-    if lines:
-        stream.write("".join(f"{line}\n" for line in lines))
-        stream.flush()
-
-
-def tail_main(args: argparse.Namespace) -> int:
-    """``hdrd tail [--listen HOST:PORT] [--raw] [--count N]``: print what the daemon sends.
-
-    Binds a UDP socket (default 127.0.0.1:10110) and prints a table row per HDR step, or the
-    JSON lines / NMEA sentences as received with ``--raw``. Malformed data gets a note on
-    stderr and is skipped. SIGINT, SIGTERM, ``--count`` reached, or the reader of stdout
-    going away (``| head``) end it with status 0.
-    """
-    listen = getattr(args, "listen", None) or DEFAULT_TAIL_LISTEN
-    count_max: int | None = getattr(args, "count", None)
-    if count_max is not None and count_max < 1:
-        print("hdrd tail: --count must be at least 1", file=sys.stderr)
-        return 2
-    try:
-        host, port = parse_hostport(listen)
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE)
-    except (ValueError, OSError, UnicodeError) as e:
-        print(f"hdrd tail: bad --listen {listen!r}: {e}", file=sys.stderr)
-        return 2
-    family, _, _, _, sockaddr = infos[0]
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-    try:
-        sock.bind(sockaddr)
-    except OSError as e:
-        sock.close()
-        print(f"hdrd tail: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
-        return 1
-    formatter = TailFormatter(raw=bool(getattr(args, "raw", False)))
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _raise_stop) if in_main else None
-    seen = 0
-    try:
-        while count_max is None or seen < count_max:
-            data, addr = sock.recvfrom(65535)
-            out, notes, n = formatter.lines(data, sender=f"{addr[0]}:{addr[1]}")
-            if count_max is not None and seen + n > count_max:
-                out = out[: len(out) - (seen + n - count_max)]
-            _write(sys.stderr, notes)
-            _write(sys.stdout, out)
-            seen += n
-        return 0
-    except (KeyboardInterrupt, _Stop):
-        return 0
-    except BrokenPipeError:
-        _silence(sys.stdout)
-        return 0
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
-        sock.close()
-
-
-def _silence(stream: TextIO) -> None:
-    """Point *stream*'s descriptor at /dev/null so the exit-time flush cannot fail."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(devnull, stream.fileno())
-        finally:
-            os.close(devnull)
-    except (OSError, ValueError):
-        pass

@@ -1,12 +1,12 @@
 """``hdrd replay`` and ``hdrd convert``: a recorded capture through the daemon's pipeline.
 
-Replay decodes the whole capture at once (:func:`hdrd.frames.decode_capture`) and feeds it
+Replay decodes the whole capture at once (:func:`hdrd.capture.decode_capture`) and feeds it
 to the same :class:`hdrd.pipeline.Pipeline` the daemon uses, as fast as possible; its JSON
 lines are bit-identical to what ``hdrd run`` publishes for the same bytes, except ``time``
 (the UNIX time of publication), which a recording does not have and replay leaves out.
 
 Memory follows the file: its bytes (read whole, a regular file of at most
-:data:`hdrd.inputfiles.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
+:data:`hdrd.files.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
 one chunk of frames at a time; never the device time the capture spans
 (bench/replay_memory.py). A file with no valid frame is an error (exit 1), not an empty run.
 """
@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.calibrate import BiasFileError, BiasRecord, load_bias
-from hdrd.config import EX_CONFIG, Config, ConfigError
+from hdrd.config import Config, ConfigError
+from hdrd.errors import EX_CONFIG
 
 __all__ = ["convert_main", "main", "replay_capture", "replay_steps"]
 
@@ -45,11 +46,10 @@ def replay_steps(
     file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
     from dataclasses import replace
 
-    from hdrd.daemon import _pipeline_config
-    from hdrd.pipeline import Pipeline
+    from hdrd.pipeline import Pipeline, pipeline_config
 
     # the record also brings the noise parameters it holds (HDR+'s error model)
-    pc = replace(_pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
+    pc = replace(pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
     if startup_s is not None:
         pc = replace(pc, startup_s=startup_s)
     p = Pipeline(pc)
@@ -67,7 +67,7 @@ def replay_capture(
 ) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure.
     bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from hdrd.frames import decode_capture
+    from hdrd.capture import decode_capture
 
     frames, stats = decode_capture(data, cfg.device.protocol)
     out: list[dict[str, Any]] = []
@@ -89,8 +89,8 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
-    from hdrd.daemon import check_bias_arg, config_from_args
-    from hdrd.inputfiles import MAX_CAPTURE_BYTES, InputFileError, read_limited
+    from hdrd.cliargs import check_bias_arg, config_from_args
+    from hdrd.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:
         cfg, _ = config_from_args(args)
@@ -121,7 +121,7 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.frames import decode_capture
+    from hdrd.capture import decode_capture
     from hdrd.publish import format_json
 
     loaded = _config_and_capture(args, "replay")
@@ -171,9 +171,10 @@ def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv``: every frame as a drive-log row (raw deg/s)."""
     import numpy as np
 
+    from hdrd.capture import decode_capture
+    from hdrd.clocks import DeviceClock
     from hdrd.drivelog import DriveLog, write_drive
-    from hdrd.frames import decode_capture
-    from hdrd.resample import DeviceClock
+    from hdrd.protocol import TEMP_NOT_FITTED
 
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):
@@ -186,7 +187,7 @@ def convert_main(args: argparse.Namespace) -> int:
         return _no_frames("convert", args.capture, cfg.device.protocol, stats)
     omega = cfg.sensor.to_dps_array(frames["rate"], frames["ref"])
     temp = frames["temp"].astype(np.float64)
-    has_temp = frames["temp"] != -32768
+    has_temp = frames["temp"] != TEMP_NOT_FITTED
     log = DriveLog(
         t=(t_us - t_us[0]) / 1e6,
         omega=omega,

@@ -4,7 +4,7 @@ Pure. Blocks are cut by the device's timestamps, not by counting frames: step i 
 the samples whose device time falls in [t0 + i*T, t0 + (i+1)*T), t0 being the first sample's
 time. A dropped frame only shortens its block; a block without samples is reported as
 :class:`Missing`, never as a zero rate. The device clock is a 32-bit microsecond counter that
-wraps every 2**32 us (71.6 min); :class:`DeviceClock` unwraps it into a monotonic integer
+wraps every 2**32 us (71.6 min); :class:`hdrd.clocks.DeviceClock` unwraps it into a monotonic integer
 count so block edges are exact integers.
 
 Two forms give bit-identical block means: the streaming :class:`BlockAverager` (the live
@@ -22,131 +22,12 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
-    "CLOCK_WRAP_US",
     "Block",
     "BlockAverager",
-    "DeviceClock",
     "Missing",
     "block_average_seconds",
     "block_means",
-    "unwrap_us",
 ]
-
-CLOCK_WRAP_US = 1 << 32
-_HALF_WRAP = 1 << 31
-RESET_THRESHOLD_US = 1_000_000
-"""A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
-
-
-class DeviceClock:
-    """Unwraps the 32-bit microsecond device clock into a monotonic integer (us).
-
-    A forward step of less than half the wrap period is time passing (including across the
-    wrap). A backward step of up to 1 s is a repeated or reordered sample: rejected
-    (``unwrap`` returns None, counted in ``rejected``). A larger backward step is a device
-    reset: time resumes 1 us after the last accepted sample (counted in ``resets``), because
-    the real time elapsed across a reset cannot be known from the device clock.
-    """
-
-    __slots__ = ("_last", "_last_raw", "rejected", "resets", "wraps")
-
-    def __init__(self) -> None:
-        self._last_raw: int | None = None
-        self._last = 0
-        self.wraps = 0
-        self.rejected = 0
-        self.resets = 0
-
-    @property
-    def last_us(self) -> int | None:
-        """The last accepted sample's unwrapped time, us (None before the first)."""
-        return None if self._last_raw is None else self._last
-
-    def unwrap(self, t_us: int) -> int | None:
-        """Monotonic device time in us for a raw 32-bit timestamp, or None if rejected."""
-        if self._last_raw is None:
-            self._last_raw = t_us
-            self._last = t_us
-            return t_us
-        d = (t_us - self._last_raw) % CLOCK_WRAP_US
-        if d == 0 or d >= _HALF_WRAP:
-            back = (CLOCK_WRAP_US - d) % CLOCK_WRAP_US
-            if back <= RESET_THRESHOLD_US:
-                self.rejected += 1
-                return None
-            self.resets += 1
-            d = 1
-        elif t_us < self._last_raw:
-            self.wraps += 1
-        self._last_raw = t_us
-        self._last += d
-        return self._last
-
-    def unwrap_many(
-        self, t_us: npt.ArrayLike
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-        """:meth:`unwrap` over an array, continuing this clock's state: (times, accepted).
-
-        Identical to calling :meth:`unwrap` in order (rejected samples get time -1); numpy
-        when every step is forward (the normal case), the scalar path otherwise.
-        """
-        raw = np.asarray(t_us, dtype=np.int64)
-        n = raw.shape[0]
-        if n == 0:
-            return np.empty(0, np.int64), np.empty(0, bool)
-        if self._last_raw is None:
-            d = np.diff(raw) % CLOCK_WRAP_US
-            start = int(raw[0])
-            head = 1
-        else:
-            d = np.diff(raw, prepend=self._last_raw) % CLOCK_WRAP_US
-            start = self._last
-            head = 0
-        if np.all((d > 0) & (d < _HALF_WRAP)):
-            out = np.empty(n, np.int64)
-            if head:
-                out[0] = start
-            np.cumsum(d, out=out[head:])
-            out[head:] += start
-            prev = np.empty(n, np.int64)  # each sample's predecessor; a wrap goes down
-            prev[0] = raw[0] if self._last_raw is None else self._last_raw
-            prev[1:] = raw[:-1]
-            self.wraps += int(np.count_nonzero(raw < prev))
-            self._last_raw = int(raw[-1])
-            self._last = int(out[-1])
-            return out, np.ones(n, bool)
-        out = np.full(n, -1, np.int64)
-        for i, t in enumerate(raw.tolist()):
-            u = self.unwrap(t)
-            if u is not None:
-                out[i] = u
-        return out, out >= 0
-
-
-def unwrap_us(t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """Vectorised :class:`DeviceClock`: (unwrapped times, accepted mask) for a whole capture.
-
-    Identical to feeding ``DeviceClock.unwrap`` in order; rejected samples get time -1.
-    """
-    raw = np.asarray(t_us, dtype=np.int64)
-    n = raw.shape[0]
-    if n == 0:
-        return np.empty(0, np.int64), np.empty(0, bool)
-    d = np.diff(raw) % CLOCK_WRAP_US
-    if np.all((d > 0) & (d < _HALF_WRAP)):
-        out = np.empty(n, np.int64)
-        out[0] = raw[0]
-        np.cumsum(d, out=out[1:])
-        out[1:] += raw[0]
-        return out, np.ones(n, bool)
-    # Rare: repeats, reordering or resets. Take the exact streaming path.
-    clock = DeviceClock()
-    out = np.full(n, -1, np.int64)
-    for i, t in enumerate(raw.tolist()):
-        u = clock.unwrap(t)
-        if u is not None:
-            out[i] = u
-    return out, out >= 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,7 +71,7 @@ class BlockAverager:
 
     A block closes when the first sample of a later block arrives (that sample's arrival is
     the moment the step can be published). Times are unwrapped device microseconds
-    (see :class:`DeviceClock`); ``T_s`` is the step period (paper: 1 s).
+    (see :class:`hdrd.clocks.DeviceClock`); ``T_s`` is the step period (paper: 1 s).
     """
 
     def __init__(self, T_s: float = 1.0) -> None:

@@ -15,65 +15,21 @@ import errno
 import os
 import select
 import socket
-import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import serial
 from serial.urlhandler import protocol_socket
 
+from hdrd.clocks import Clock, RealClock
+
 __all__ = [
     "CONNECT_TIMEOUT_S",
-    "Clock",
     "DeviceBack",
     "DeviceLost",
     "LinkStats",
-    "ManualClock",
-    "RealClock",
     "SerialReader",
 ]
-
-
-# --------------------------------------------------------------------------- clocks
-
-
-class Clock(Protocol):
-    """Where a source gets time from: real time, or a test's manual clock."""
-
-    def monotonic(self) -> float: ...
-
-    def sleep(self, seconds: float) -> None: ...
-
-
-class RealClock:
-    """``time.monotonic`` and ``time.sleep``."""
-
-    def monotonic(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
-
-
-class ManualClock:
-    """A clock that only moves when slept on (or advanced): for tests and offline pacing.
-    ``slept`` lists every sleep, s."""
-
-    def __init__(self, start: float = 0.0) -> None:
-        self.now = start
-        self.slept: list[float] = []
-
-    def monotonic(self) -> float:
-        return self.now
-
-    def sleep(self, seconds: float) -> None:
-        self.slept.append(seconds)
-        if seconds > 0:
-            self.now += seconds
-
-    def advance(self, seconds: float) -> None:
-        self.now += seconds
 
 
 # --------------------------------------------------------------------------- events

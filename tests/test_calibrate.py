@@ -481,7 +481,7 @@ def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> Non
 
 
 def test_sample_clock_sets_a_glitch_aside() -> None:
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
 
     c = SampleClock()
     t = [k * 100_000 for k in range(50)]
@@ -492,7 +492,7 @@ def test_sample_clock_sets_a_glitch_aside() -> None:
 
 
 def test_sample_clock_repeats_steps_back_and_the_wrap() -> None:
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
 
     c = SampleClock()
     base = 2**32 - 250_000  # wraps after two frames
@@ -506,7 +506,7 @@ def test_sample_clock_follows_a_real_jump() -> None:
     # The device clock jumps for good (a reset, or frames lost for a while): after a few
     # frames that step normally among themselves, the clock follows them; the jump itself
     # is not counted as time at standstill.
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
 
     c = SampleClock(confirm=3)
     before = [k * 100_000 for k in range(10)]

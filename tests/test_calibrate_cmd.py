@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hdrd.calibrate import load_bias
-from hdrd.source import builtin_profile, profile_frames
+from hdrd.sim.profiles import builtin_profile, profile_frames
 
 WAIT = 120.0
 

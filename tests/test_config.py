@@ -20,16 +20,16 @@ from hypothesis import strategies as st
 
 from hdrd import config as config_mod
 from hdrd.config import (
-    EX_CONFIG,
     Config,
     ConfigError,
     apply_overrides,
     config_field_keys,
     load_config,
     parse_config,
-    parse_hostport,
 )
+from hdrd.errors import EX_CONFIG, HdrdError
 from hdrd.hdr import HdrParams
+from hdrd.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
 NAN, INF = math.nan, math.inf
@@ -328,7 +328,7 @@ def test_error_carries_key_value_and_allowed() -> None:
         == "config error in /etc/hdrd/hdrd.yaml: hdr.tau = -1.0: must be a finite number >= 0 and "
         "<= 3600"
     )
-    assert isinstance(e, ValueError) and EX_CONFIG == 78
+    assert isinstance(e, ValueError) and isinstance(e, HdrdError) and EX_CONFIG == 78
 
 
 def test_values_and_keys_with_line_breaks_stay_on_one_line() -> None:

@@ -23,7 +23,7 @@ from hdrd.drivelog import DriveLog
 from hdrd.frames import frames_to_array
 from hdrd.pipeline import Pipeline, PipelineConfig
 from hdrd.publish import nmea_checksum
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
 
@@ -355,6 +355,23 @@ def test_dead_udp_peers_do_not_stop_the_daemon(fake_gyro, daemon, udp):
     rc, _, err = d.stop()
     assert rc == 0 and [m["step"] for m in got] == list(range(59))
     assert b"Traceback" not in err
+    # At stop, each destination's counters are logged: what failed, and why.
+    stats = {(e["output"], e["dest"]): e for e in events(err) if e["event"] == "output_udp_stats"}
+    assert set(stats) == {
+        ("udp", dead),
+        ("udp", "no-such-host.invalid:9"),
+        ("udp", u.addr),
+        ("nmea_udp", dead),
+    }
+    good = stats[("udp", u.addr)]
+    assert good["level"] == "info" and good["errors"] == 0 and good["sent"] >= 59
+    refused = stats[("udp", dead)]
+    assert refused["level"] == "warning" and refused["by_error"].get("ECONNREFUSED", 0) >= 1
+    assert stats[("nmea_udp", dead)]["by_error"].get("ECONNREFUSED", 0) >= 1
+    unresolved = stats[("udp", "no-such-host.invalid:9")]
+    assert unresolved["level"] == "warning" and unresolved["by_error"]["resolve"] >= 1
+    assert unresolved["sent"] == 0 and unresolved["dropped"] >= 59
+    assert events(err)[-1]["event"] == "stop"
 
 
 def test_sigterm_exits_zero(fake_gyro, daemon, udp):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 from tests.test_daemon import WAIT, Daemon, daemon, events, udp  # noqa: F401 - fixtures
 
 STANDSTILL = builtin_profile("standstill", minutes=10, bias_dps=0.2, lead_in_s=0)

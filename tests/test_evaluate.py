@@ -419,7 +419,7 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
     from hdrd.config import parse_config
-    from hdrd.daemon import plus_params
+    from hdrd.pipeline import plus_params
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"

@@ -14,11 +14,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdrd.capture import decode_capture
 from hdrd.drivelog import DriveLog
 from hdrd.fakegyro import FakeGyro
-from hdrd.frames import Frame, Parser, array_to_frames, decode_capture
+from hdrd.frames import Frame, Parser, array_to_frames
 from hdrd.sensor import SensorModel
-from hdrd.source import SerialSource, builtin_profile
+from hdrd.sim.profiles import builtin_profile
+from hdrd.source import SerialSource
 
 WAIT_S = 20.0
 

@@ -32,8 +32,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from hdrd.capture import decode_capture
 from hdrd.config import load_config
-from hdrd.frames import Frame, decode_capture, encode_array, encode_bin, encode_text
+from hdrd.frames import Frame, encode_array, encode_bin, encode_text
 from hdrd.sensor import SensorModel
 
 ROOT = Path(__file__).resolve().parent.parent

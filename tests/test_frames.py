@@ -1,4 +1,5 @@
-"""hdrd.frames: codecs, push parser, vectorised decoder (docs/protocol.md is the contract)."""
+"""hdrd.frames and hdrd.capture: codecs, push parser, vectorised decoder (docs/protocol.md is the
+contract)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,9 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from hdrd.capture import decode_capture, decode_frames
 from hdrd.frames import (
     FRAME_DTYPE,
-    PROTOCOLS,
-    SYNC,
     Frame,
     FrameError,
     Parser,
@@ -21,8 +21,6 @@ from hdrd.frames import (
     crc16_ccitt_false,
     crc16_ccitt_false_rows,
     decode_bin,
-    decode_capture,
-    decode_frames,
     decode_text,
     encode,
     encode_array,
@@ -30,6 +28,7 @@ from hdrd.frames import (
     encode_text,
     frames_to_array,
 )
+from hdrd.protocol import PROTOCOLS, SYNC
 from tests.test_rel_bytes import scan_bin_reference
 
 
@@ -410,13 +409,13 @@ def test_decode_in_slices_is_decode_whole(pieces: list[bytes], scan: int, protoc
     decided exactly as by the push parser over the whole capture."""
     from unittest import mock
 
-    from hdrd import frames as frames_mod
+    from hdrd import capture as capture_mod
 
     data = b"".join(p if protocol == "hdr-bin" else p.replace(b"\xa5", b"$HDRG,")
                     for p in pieces)  # fmt: skip
     bb: list[int] = []
     whole = run(protocol, data, None, bb)
-    with mock.patch.object(frames_mod, "_SCAN_BYTES", scan):
+    with mock.patch.object(capture_mod, "_SCAN_BYTES", scan):
         arr, vstats = decode_capture(data, protocol)
     assert (array_to_frames(arr), vstats) == whole and vstats.bad_before.tolist() == bb
 

@@ -26,7 +26,6 @@ from hdrd.gpsd import (
     Fix,
     GpsdClient,
     GpsdError,
-    GpsdLink,
     GpsdProtocolError,
     Sky,
     Version,
@@ -34,6 +33,7 @@ from hdrd.gpsd import (
     parse_line,
     parse_time,
 )
+from hdrd.gpslink import GpsdLink
 from hdrd.pipeline import Pipeline, PipelineConfig
 
 WAIT = 20.0  # upper bound for a poll loop; only a hung client reaches it
@@ -726,7 +726,7 @@ def test_bad_gpsd_addresses_say_what_is_wrong(text):
 def test_run_gpsd_option_is_the_address_gpsd_listens_on(arg, host, port, tmp_path):
     import argparse
 
-    from hdrd.daemon import config_from_args
+    from hdrd.cliargs import config_from_args
 
     empty = tmp_path / "hdrd.yaml"
     empty.write_text("{}\n")

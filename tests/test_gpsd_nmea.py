@@ -527,7 +527,7 @@ def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs)
             k += 1
             time.sleep(0.05)
             atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
-        assert hn.errors == 0 and hc.errors == 0
+        assert [d.errors for d in hn.stats() + hc.stats()] == [0, 0]
     finally:
         c.close()
         hn.stop()

@@ -84,8 +84,8 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
     from hdrd.calibrate import BiasRecord
     from hdrd.config import parse_config
-    from hdrd.daemon import plus_noise
     from hdrd.gyronoise import noise_in_force
+    from hdrd.pipeline import plus_noise
 
     assert noise_in_force() is None
     assert noise_in_force("phone").source == "grade phone"  # type: ignore[union-attr]

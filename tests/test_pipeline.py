@@ -298,12 +298,12 @@ def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled:
     # No speed source: a stop can only be seen in the gyro's own statistics, and only when
     # the config says so (standstill.from_gyro); standstill.enabled false switches stops off.
     from hdrd.config import parse_config
-    from hdrd.daemon import _pipeline_config
+    from hdrd.pipeline import pipeline_config
 
     cfg = parse_config(
         {"hdr": {"method": "hdr+"}, "standstill": {"enabled": enabled, "from_gyro": from_gyro}}
     )
-    pc = replace(_pipeline_config(cfg, None), bias_dps=0.5)
+    pc = replace(pipeline_config(cfg), bias_dps=0.5)
     rng = np.random.default_rng(4)
     omega = 0.5 + rng.normal(0, 0.05, 400)  # 40 s parked, 10 Hz, eps0 known
     msgs = run_live(Pipeline(pc), make_frames(omega))

@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from hdrd.capture import decode_capture
 from hdrd.fakegyro import FakeGyro
-from hdrd.frames import array_to_frames, decode_capture
+from hdrd.frames import array_to_frames
 from hdrd.record import record
-from hdrd.source import SerialReader, builtin_profile
+from hdrd.sim.profiles import builtin_profile
+from hdrd.source import SerialReader
 
 WAIT_S = 30.0
 

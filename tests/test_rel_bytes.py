@@ -30,21 +30,20 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd.capture import decode_capture
 from hdrd.frames import (
-    BIN_FRAME_LEN,
     FRAME_DTYPE,
-    SYNC,
     Frame,
     FrameError,
     Parser,
     array_to_frames,
     decode_bin,
-    decode_capture,
     encode_array,
     encode_bin,
     encode_text,
 )
 from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.protocol import BIN_FRAME_LEN, SYNC
 from hdrd.sensor import SensorModel
 
 TEXT_SYNC = b"$HDRG,"

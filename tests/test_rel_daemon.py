@@ -38,7 +38,7 @@ from hdrd.calibrate import BiasRecord, load_bias, save_bias
 from hdrd.drivelog import DriveLog
 from hdrd.frames import FRAME_DTYPE
 from hdrd.sensor import SensorModel
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from hdrd.calibrate import BiasRecord, load_bias, save_bias
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 WAIT = 60.0
 

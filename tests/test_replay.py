@@ -201,7 +201,7 @@ def test_replay_capture_is_pure_and_repeatable(tmp_path):
 def test_replay_in_chunks_is_replay_whole(tmp_path):
     # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
     # steps before the next (memory follows the chunk, not the capture): the same messages.
-    from hdrd.frames import decode_capture
+    from hdrd.capture import decode_capture
     from hdrd.replay import replay_steps
 
     cap = tmp_path / "c.bin"

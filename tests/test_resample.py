@@ -12,16 +12,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.resample import (
-    CLOCK_WRAP_US,
-    Block,
-    BlockAverager,
-    DeviceClock,
-    Missing,
-    block_average_seconds,
-    block_means,
-    unwrap_us,
-)
+from hdrd.clocks import DeviceClock, unwrap_us
+from hdrd.protocol import CLOCK_WRAP_US
+from hdrd.resample import Block, BlockAverager, Missing, block_average_seconds, block_means
 
 S = 1_000_000  # us per s
 

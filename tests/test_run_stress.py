@@ -21,8 +21,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from hdrd.daemon import WatchdogGate
 from hdrd.publish import parse_nmea
+from hdrd.sdnotify import WatchdogGate
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Msgs,

@@ -35,7 +35,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.source import builtin_profile
+from hdrd.sim.profiles import builtin_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "hdrd"
@@ -180,7 +180,7 @@ def test_the_daemon_listens_on_nothing(
 
 def test_hdrd_tail_binds_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.publish import DEFAULT_TAIL_LISTEN
+    from hdrd.tail import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
@@ -385,7 +385,7 @@ def test_the_unit_runs_unprivileged_and_writes_only_its_state_directory() -> Non
 def test_the_daemon_finds_its_bias_in_the_units_state_directory(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from hdrd.daemon import default_bias_path
+    from hdrd.files import default_bias_path
 
     monkeypatch.setenv("STATE_DIRECTORY", f"{tmp_path}/hdrd")
     assert default_bias_path() == tmp_path / "hdrd" / "bias.yaml"

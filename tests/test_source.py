@@ -1,11 +1,8 @@
-"""hdrd.source: serial (loop://, real ptys, cable pulls), replay and simulated sources."""
+"""hdrd.source: serial (loop://, real ptys, cable pulls) and simulated sources."""
 
 from __future__ import annotations
 
-import math
 import os
-import re
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,32 +10,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd.capture import decode_capture
+from hdrd.clocks import ManualClock
 from hdrd.drivelog import DriveLog
 from hdrd.frames import (
     FRAME_DTYPE,
     Frame,
     ParserStats,
     array_to_frames,
-    decode_capture,
     encode,
-    encode_array,
     encode_bin,
 )
 from hdrd.sensor import SensorModel
+from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.source import (
     DeviceBack,
     DeviceLost,
     EndOfInput,
-    ManualClock,
-    ProfileError,
-    ReplaySource,
     SerialReader,
     SerialSource,
     SimulatedSource,
     Source,
-    builtin_profile,
-    load_profile,
-    profile_frames,
 )
 
 WAIT_S = 20.0  # upper bound for anything that should happen "soon" (never a timing assertion)
@@ -268,107 +260,7 @@ def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path
 # --------------------------------------------------------------------------- replay
 
 
-def test_replay_bytes_and_file_end_once(tmp_path: Path) -> None:
-    arr = frames_array(300, t0_us=2**32 - 5_000_000)  # the device clock wraps in the capture
-    data = b"junk" + encode_array(arr) + b"\xa5\x5a\x01"
-    path = tmp_path / "cap.bin"
-    path.write_bytes(data)
-    for src_arg in (data, str(path), path):
-        with ReplaySource(src_arg, chunk_size=100) as src:
-            got, events = collect(src)
-            assert got == array_to_frames(arr) and events == [EndOfInput()]
-            assert src.recv(0.0) is None and src.recv(None) is None
-            st = src.stats
-            assert st.frames == 300 and st.clock_wraps == 1 and st.garbage_bytes == 4 + 3
-
-
-def test_replay_text_and_bad_frames_match_capture() -> None:
-    arr = frames_array(50)
-    lines = [encode(f, "hdr-text") for f in array_to_frames(arr)]
-    lines[10] = lines[10][:-4] + b"ZZ\r\n"  # a bad checksum
-    data = b"".join(lines)
-    _, cap = decode_capture(data, "hdr-text")
-    with ReplaySource(data, protocol="hdr-text", chunk_size=7) as src:
-        seen = []
-        while isinstance(item := src.recv(), Frame):
-            seen.append(src.stats.bad_frames)
-        assert item == EndOfInput()
-    assert seen == cap.bad_before.tolist() and cap.bad_frames == 1
-
-
-def test_replay_paced_by_device_time() -> None:
-    clock = ManualClock(100.0)
-    arr = frames_array(21, t0_us=2**32 - 1_000_000, step_us=100_000)  # 2 s, wrapping
-    with ReplaySource(encode_array(arr), paced=True, speedup=2.0, clock=clock) as src:
-        got = []
-        times = []
-        while True:
-            item = src.recv(0.25)
-            if isinstance(item, EndOfInput):
-                break
-            if item is not None:
-                got.append(item)
-                times.append(clock.now - 100.0)
-        assert got == array_to_frames(arr)
-        # 0.1 s of device time = 0.05 s at speedup 2; a recv never sleeps past its timeout.
-        assert times == pytest.approx([0.05 * k for k in range(21)])
-        assert all(w <= 0.25 + 1e-12 for w in clock.slept)
-    with pytest.raises(ValueError):
-        ReplaySource(b"", paced=True, speedup=0.0)
-
-
-def test_replay_timeout_shorter_than_the_next_frame_returns_none() -> None:
-    clock = ManualClock()
-    arr = frames_array(2, step_us=1_000_000)
-    src = ReplaySource(encode_array(arr), paced=True, clock=clock)
-    assert isinstance(src.recv(0.1), Frame)
-    assert src.recv(0.4) is None and src.recv(0.4) is None
-    assert isinstance(src.recv(0.4), Frame) and clock.now == pytest.approx(1.0)
-    assert src.recv(0.4) == EndOfInput()
-    src.close()
-
-
-def test_replay_missing_file_is_a_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError):
-        ReplaySource(tmp_path / "nope.bin")
-
-
 # --------------------------------------------------------------------------- simulated
-
-
-def test_builtin_profiles() -> None:
-    s = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
-    assert len(s) == 900 and s.rate_hz == pytest.approx(10.0)
-    assert np.all(s.omega_truth == 0) and s.omega.mean() == pytest.approx(0.3, abs=0.01)
-    c = builtin_profile(
-        "constant", minutes=1.0, hz=10, rate_dps=-20.0, noise_dps=0.0, lead_in_s=10.0
-    )
-    assert c.omega_truth is not None
-    assert np.all(c.omega_truth[:100] == 0) and np.all(c.omega_truth[100:] == -20.0)
-    assert np.allclose(c.omega - c.omega_truth, 0.2)
-    again = builtin_profile("standstill", minutes=1.0, hz=10, seed=1, bias_dps=0.3, noise_dps=0.05)
-    assert np.array_equal(again.omega, s.omega)  # seeded
-    for bad in (dict(drive="loop"), dict(hz=0.0), dict(minutes=-1.0), dict(minutes=float("nan"))):
-        with pytest.raises(ProfileError):
-            builtin_profile(**bad)
-
-
-def test_profile_frames_counts_time_and_temperature() -> None:
-    sensor = SensorModel()
-    log = DriveLog(
-        t=np.array([0.0, 0.1, 0.2, 0.3]),
-        omega=np.array([0.0, 10.0, -10.0, 500.0]),
-        temp_c=np.array([25.0, np.nan, -12.345, 400.0]),
-    )
-    arr = profile_frames(log, sensor, t0_us=2**32 - 150_000, seq0=65535)
-    assert arr["seq"].tolist() == [65535, 0, 1, 2]
-    assert arr["t_us"].tolist() == [2**32 - 150_000, 2**32 - 50_000, 50_000, 150_000]
-    assert arr["rate"].tolist() == sensor.to_counts(log.omega).tolist()
-    assert arr["rate"][3] == sensor.full_scale  # clipped at the rail
-    assert arr["temp"].tolist() == [2500, -32768, -1234, 32767]
-    assert arr["ref"].tolist() == [0] * 4
-    assert profile_frames(log, sensor, supply_v=5.0)["ref"][0] == sensor.ref_counts_for(5.0)
-    assert profile_frames(DriveLog(t=log.t, omega=log.omega))["temp"].tolist() == [-32768] * 4
 
 
 def test_simulated_source_as_fast_as_possible() -> None:
@@ -385,7 +277,8 @@ def test_simulated_source_as_fast_as_possible() -> None:
 def test_simulated_source_paced_on_a_clock() -> None:
     clock = ManualClock()
     t = np.arange(0, 2.0, 0.1)
-    src = SimulatedSource.from_arrays(t, np.full(t.shape, 3.0), None, speedup=4.0, clock=clock)
+    log = DriveLog(t=t, omega=np.full(t.shape, 3.0))
+    src = SimulatedSource(profile=log, speedup=4.0, clock=clock)
     out = []
     while not isinstance(item := src.recv(0.01), EndOfInput):
         if item is not None:
@@ -399,7 +292,6 @@ def test_simulated_source_paced_on_a_clock() -> None:
 
 
 def test_simulated_drive_from_the_simulator() -> None:
-    pytest.importorskip("hdrd.sim")
     log = load_profile("city", minutes=0.2, seed=2, hz=10)
     assert len(log) > 100 and log.omega_truth is not None
     src = SimulatedSource(profile=log, speedup=0)
@@ -409,17 +301,9 @@ def test_simulated_drive_from_the_simulator() -> None:
         load_profile("no-such-road", minutes=1)
 
 
-def test_missing_simulator_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, "hdrd.sim", None)  # import hdrd.sim now raises ImportError
-    with pytest.raises(ProfileError, match="needs the simulator"):
-        load_profile("city", minutes=1)
-    assert len(load_profile("standstill", minutes=0.1)) > 0  # built-ins still work
-
-
 def test_sources_satisfy_the_protocol_and_close_idempotently(tmp_path: Path) -> None:
     srcs = [
         SerialSource("loop://"),
-        ReplaySource(b""),
         SimulatedSource("standstill", minutes=0.01, speedup=0),
     ]
     for s in srcs:
@@ -501,22 +385,3 @@ def test_the_port_is_opened_exclusively(fake_gyro) -> None:
         assert time.monotonic() < deadline
     assert second.is_open and not second.busy
     second.close()
-
-
-@pytest.mark.parametrize(
-    "kw, why",
-    [
-        ({"minutes": 1e308}, "is inf samples; at most 50,000,000 are made"),
-        ({"minutes": 1e6}, "is 6e+08 samples"),
-        ({"hz": 1e308}, "is inf samples"),
-        ({"rate_dps": math.nan}, "rate_dps must be a finite number, got nan"),
-        ({"rate_dps": math.inf}, "rate_dps must be a finite number, got inf"),
-    ],
-)
-def test_a_drive_too_long_or_not_finite_is_a_profile_error(kw: dict, why: str) -> None:
-    # Was an OverflowError (1e308 minutes), a memory exhaustion (1e6 minutes), or NaN counts.
-    for drive in ("constant", "mixed"):
-        if drive == "mixed" and "rate_dps" in kw:
-            continue
-        with pytest.raises(ProfileError, match=re.escape(why)):
-            load_profile(drive, **kw)

@@ -17,7 +17,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.publish import TailFormatter, format_json, nmea_sentences
+from hdrd.publish import format_json, nmea_sentences
+from hdrd.tail import TailFormatter
 
 GUARD_S = 30.0  # generous guards against a hang; no test asserts a duration
 
@@ -272,7 +273,7 @@ def test_tail_port_in_use() -> None:
 
 
 def test_row_never_prints_heading_360():
-    from hdrd.publish import TailFormatter
+    from hdrd.tail import TailFormatter
 
     row = TailFormatter.row({"class": "HDR", "step": 1, "status": "ok", "heading": 359.996})
     assert "360.00" not in row and "0.00" in row

@@ -1,8 +1,9 @@
 """Evaluation against ground truth: the paper's Table II for any drive logs.
 
 Pure core (:func:`prepare_drive`, :func:`evaluate_prepared`, :func:`evaluate_drive`,
-:func:`summarize`, :func:`to_json`, :func:`format_table`) and the ``hdrd evaluate`` edge
-(:func:`main`). docs/evaluation.md describes the method in full.
+:func:`summarize`, :func:`to_json`, :func:`format_table`) and the reading of drive logs
+(:func:`load_drives`); the ``hdrd evaluate`` command is :mod:`hdrd.analysis.evaluate_cmd`.
+docs/evaluation.md describes the method in full.
 
 How a drive log becomes Table II numbers:
 
@@ -27,9 +28,7 @@ How a drive log becomes Table II numbers:
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,9 +61,9 @@ __all__ = [
     "evaluate_drive",
     "evaluate_logs",
     "evaluate_prepared",
+    "evaluated_methods",
     "format_table",
     "load_drives",
-    "main",
     "method_key",
     "method_yaw",
     "prepare_drive",
@@ -78,8 +77,6 @@ PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
 PLUS_DEFAULTS = HdrPlusParams()
 """HDR+'s own settings (its extras at their defaults; the core is set per drive's T)."""
-DEFAULT_CALIBRATE_S = 30.0
-"""A calibration window's length where a caller wants the paper's Tbias (30 s)."""
 
 
 def method_key(method: str) -> str:
@@ -124,7 +121,9 @@ class DriveResult:
         return improvement(self.e_psi["none"], self.e_psi[method])
 
 
-def _methods(methods: Sequence[str]) -> tuple[str, ...]:
+def evaluated_methods(methods: Sequence[str]) -> tuple[str, ...]:
+    """The methods to evaluate, ``none`` first (every result is against it), each once;
+    EvaluationError naming one that is not registered."""
     out = ["none"] + [m for m in methods if m != "none"]
     unknown = [m for m in out if m not in registry.REGISTRY]
     if unknown:
@@ -162,7 +161,7 @@ def evaluate_prepared(
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
     ``plus``: HDR+'s base settings (default: HDR+'s defaults); ``noise``: the gyro's error
     model when known (the config's ``plus.grade`` / ``plus.noise``)."""
-    ms = _methods(methods)
+    ms = evaluated_methods(methods)
     if params.T != prep.steps.T:
         raise EvaluationError(
             f"{prep.name}: params.T = {params.T} s but the drive was stepped at {prep.steps.T} s"
@@ -333,11 +332,7 @@ def format_table(results: Sequence[DriveResult]) -> str:
     return "\n".join(lines)
 
 
-# -- the command-line edge --------------------------------------------------------------
-
-
-def _err(msg: str) -> None:
-    print(f"hdrd evaluate: error: {msg}", file=sys.stderr)
+# -- reading drive logs ------------------------------------------------------------------
 
 
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
@@ -401,64 +396,3 @@ def evaluate_logs(
                 raise
             skipped.append(str(e))
     return results, skipped
-
-
-def main(args: argparse.Namespace) -> int:
-    """``hdrd evaluate DRIVE.csv|DIR... [--calibrate-seconds S | --bias DPS] [--json FILE]
-    [--plot FILE.png] [--config PATH] [--method METHOD]``."""
-    from hdrd.config import EX_CONFIG, ConfigError, load_config
-    from hdrd.daemon import plus_noise, plus_params, standstill_limits
-
-    try:
-        cfg, _ = load_config(args.config)
-    except ConfigError as e:
-        print(f"hdrd evaluate: {e}", file=sys.stderr)
-        return EX_CONFIG
-    if args.plot:
-        from hdrd.analysis.plots import plotting_unavailable
-
-        problem = plotting_unavailable()
-        if problem:  # said before the work, not after it
-            _err(problem)
-            return 1
-    plus = plus_params(cfg)
-    method = args.method or cfg.hdr.method
-    params = cfg.hdr.params
-    try:
-        # HDR+ is shown beside the paper's HDR it improves on.
-        ms = _methods(["hdr", method] if method == "hdr+" else [method])
-        logs = load_drives(args.drives)
-        results, skipped = evaluate_logs(
-            logs,
-            params,
-            ms,
-            plus,
-            args.bias,
-            args.calibrate_seconds,
-            standstill_limits(cfg),
-            noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
-        )
-        for why in skipped:
-            print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
-        if not results:
-            raise EvaluationError(f"none of the {len(logs)} drives can be evaluated")
-    except EvaluationError as e:
-        _err(str(e))
-        return 1
-    print(format_table(results))
-    if args.json:
-        try:
-            from hdrd.calibrate import atomic_write_json
-
-            atomic_write_json(args.json, to_json(results))
-        except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
-            return 1
-    if args.plot:
-        from hdrd.analysis.plots import plot_evaluation, plot_to_file
-
-        problem = plot_to_file(lambda path: plot_evaluation(results, path), args.plot)
-        if problem:
-            _err(problem)
-            return 1
-    return 0

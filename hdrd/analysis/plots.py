@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdrd.errors import HdrdError
+
 if TYPE_CHECKING:  # pragma: no cover
     from hdrd.analysis.evaluate import DriveResult
 
@@ -27,7 +29,7 @@ _STYLE: dict[str, dict[str, Any]] = {
 _COLS = 3
 
 
-class PlotError(RuntimeError):
+class PlotError(HdrdError, RuntimeError):
     """Plotting is impossible (matplotlib missing); the message says what to do."""
 
 

@@ -36,6 +36,7 @@ import numpy.typing as npt
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
 from hdrd.drivelog import DriveLog
+from hdrd.errors import HdrdError
 from hdrd.hdr import HdrParams
 from hdrd.methods import StepInputs
 from hdrd.pipeline import PipelineConfig, Stepper
@@ -73,7 +74,7 @@ DEFAULT_LIMITS = StandstillLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
 
 
-class EvaluationError(ValueError):
+class EvaluationError(HdrdError, ValueError):
     """A drive that cannot be evaluated; the message names the drive and says why."""
 
 

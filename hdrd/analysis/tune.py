@@ -436,7 +436,7 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv... --test TEST.csv... [--candidates N] [--seed S]
     [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]``."""
     from hdrd.analysis.evaluate import load_drives
-    from hdrd.calibrate import atomic_write_json, atomic_write_text
+    from hdrd.files import atomic_write_json, atomic_write_text
 
     calibrate_s = args.calibrate_seconds
     if args.candidates < 1:

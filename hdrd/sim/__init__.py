@@ -5,6 +5,8 @@
 - :mod:`hdrd.sim.gyro`: the error model of named effects (static_bias, white_noise, ...).
 - :mod:`hdrd.sim.vehicle`: road types and the true motion; :mod:`hdrd.sim.gps`: GPS truth.
 - :mod:`hdrd.sim.benchmark`: the paper-like nine training drives (Table II) and five tests.
+- :mod:`hdrd.sim.profiles`: the drives ``hdrd fakegyro`` and ``hdrd run --simulate`` play
+  (built-in standstill and constant-rate drives, or a road type) and their ADC frames.
 
 Conventions: yaw rate deg/s, + = counter-clockwise (left turn); heading compass deg, clockwise
 from north; time s since power-on; temperature deg C.

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from hdrd.drivelog import write_drive
+from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import DEFAULT_GRADE, GRADES, Grade, grade_model
@@ -24,9 +25,6 @@ from hdrd.sim.gyro import GyroModel, load_model
 from hdrd.sim.vehicle import DRIVE_TYPES
 
 __all__ = ["simulate_main"]
-
-EX_USAGE = 2
-EX_CONFIG = 78
 
 
 def _err(msg: str) -> None:

@@ -83,7 +83,7 @@ def main(args: argparse.Namespace) -> int:
     print(summary(res))
     try:
         if args.report:
-            from hdrd.calibrate import atomic_write_json
+            from hdrd.files import atomic_write_json
 
             atomic_write_json(args.report, to_report(res))
         if args.out:

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
 from hdrd.drivelog import DriveLog
+from hdrd.errors import HdrdError
 
 __all__ = [
     "TIME_GAP_FACTOR",
@@ -36,7 +37,7 @@ dropped; a jittery clock's steps stay below it): statistics over consecutive sam
 do not reach across it."""
 
 
-class GapError(ValueError):
+class GapError(HdrdError, ValueError):
     """The log cannot be analysed (no truth, too short, ...); the message says why."""
 
 

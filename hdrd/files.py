@@ -1,18 +1,29 @@
-"""Reading the files hdrd is handed (configuration, bias file, capture) without trusting them.
+"""hdrd's files: reading the ones it is handed without trusting them, writing its own atomically.
 
-A file must be a regular file (a FIFO would block the reader forever, ``/dev/zero`` never
-ends) no larger than a limit that fits its kind; YAML is parsed with PyYAML's safe loader,
-its nesting depth bounded, and any failure of the parser (syntax, a number with more digits
-than Python converts, an impossible date) becomes one :class:`InputFileError`. Callers turn
-that into their own one-line error (:class:`hdrd.config.ConfigError`,
-:class:`hdrd.calibrate.BiasFileError`, the capture commands' message).
+Reading: a file must be a regular file (a FIFO would block the reader forever, ``/dev/zero``
+never ends) no larger than a limit that fits its kind (:func:`read_limited`); YAML is parsed
+with PyYAML's safe loader, its nesting depth bounded, and any failure of the parser (syntax,
+a number with more digits than Python converts, an impossible date) becomes one
+:class:`InputFileError` (:func:`load_yaml`). Callers turn that into their own one-line error
+(:class:`hdrd.config.ConfigError`, :class:`hdrd.calibrate.BiasFileError`, the capture
+commands' message).
+
+Writing: the bias file, and the ``--json``/``--out``/``--report`` files of evaluate, tune and
+gap, are written whole or not at all (:func:`atomic_write_text`, :func:`atomic_write_json`),
+so a reader or a power cut sees the old or the new content. :func:`default_bias_path` is where
+the bias file lives when none is named.
 """
 
 from __future__ import annotations
 
+import glob
 import os
 import stat
+import tempfile
+from pathlib import Path
 from typing import Any
+
+from hdrd.errors import HdrdError
 
 __all__ = [
     "MAX_BIAS_BYTES",
@@ -20,6 +31,9 @@ __all__ = [
     "MAX_CONFIG_BYTES",
     "MAX_YAML_DEPTH",
     "InputFileError",
+    "atomic_write_json",
+    "atomic_write_text",
+    "default_bias_path",
     "load_yaml",
     "read_limited",
 ]
@@ -43,7 +57,7 @@ _KINDS = (
 )
 
 
-class InputFileError(ValueError):
+class InputFileError(HdrdError, ValueError):
     """A file that cannot be taken. ``str()`` is the problem, without the path; ``where``
     is "line L, column C" for a YAML problem that has a position, else None."""
 
@@ -158,3 +172,56 @@ def _bounded_loader(yaml: Any) -> Any:
 
     _LOADER = BoundedSafeLoader
     return _LOADER
+
+
+# -- writing ----------------------------------------------------------------------------------
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+
+    Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
+    Temp files that an earlier writer left behind (killed, or a power cut, before its rename)
+    are removed first, so they never pile up; one writer per target at a time is assumed (a
+    concurrent writer would lose its temp file and fail with an OSError, the target intact).
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+        try:
+            stale.unlink()
+        except OSError:
+            pass  # not ours to insist on; at worst one more leftover
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    dfd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
+    """:func:`atomic_write_text` of ``doc`` as indented JSON with a final newline (the
+    ``--json``/``--report`` files of evaluate, tune and gap)."""
+    import json
+
+    atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
+
+
+def default_bias_path() -> Path:
+    """$STATE_DIRECTORY/bias.yaml under systemd (StateDirectory=hdrd), else /var/lib/hdrd."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return Path(state or "/var/lib/hdrd") / "bias.yaml"

@@ -1,0 +1,86 @@
+"""hdrd.protocol: the message schema in one place. What the pipeline and the GPS aiding publish
+uses only its keys, in its order, with its class, version and statuses; docs/protocol.md's
+table lists the same keys."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdrd import protocol
+from hdrd.aiding import AidingConfig, GpsAiding
+from hdrd.frames import FRAME_DTYPE
+from hdrd.gpsd import Fix
+from hdrd.pipeline import Pipeline, PipelineConfig
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+
+
+def frames(n: int, hz: float = 10.0, rate: int = 33000, gap_at: int | None = None) -> Any:
+    """n frames at hz, one ADC count level (a standstill a little off the null), with a 5 s
+    hole before frame gap_at and temperatures on every second frame."""
+    arr = np.zeros(n, FRAME_DTYPE)
+    t = np.arange(n, dtype=np.int64) * int(1e6 / hz)
+    if gap_at is not None:
+        t[gap_at:] += 5_000_000
+    arr["seq"] = np.arange(n) & 0xFFFF
+    arr["t_us"] = t
+    arr["rate"] = rate
+    arr["temp"] = np.where(np.arange(n) % 2 == 0, 2500, protocol.TEMP_NOT_FITTED)
+    return arr
+
+
+def published() -> list[dict[str, Any]]:
+    """Messages of every kind: calibrating, steps of hdr and hdr+ (with a standstill), a step
+    after a gap, saturated samples, a stale report, and GPS-aided steps."""
+    out: list[dict[str, Any]] = []
+    for method in ("hdr", "hdr+"):
+        p = Pipeline(PipelineConfig(method=method, startup_s=1.0))
+        p.set_speed(0.0)  # standing: HDR+ makes zero-rate updates
+        arr = frames(400, gap_at=200)
+        arr["rate"][300:310] = 65535  # at the rail: saturated
+        out += p.feed_array(arr)
+        out += p.finish()
+        out.append(p.stale_message(1.0e9, 4.0, 0))
+    a = GpsAiding(AidingConfig())
+    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    for k, m in enumerate(p.feed_array(frames(300))):
+        a.on_fix(Fix(mode=3, track_deg=90.0, speed_mps=15.0, epd=2.0), float(k))
+        out.append(a.on_message(m, k + 0.5)[0])
+    return out
+
+
+def test_messages_use_the_schema() -> None:
+    msgs = published()
+    known = set(protocol.STEP_KEYS) | set(protocol.ADDED_KEYS)
+    seen: set[str] = set()
+    for m in msgs:
+        assert m["class"] == protocol.MESSAGE_CLASS and m["v"] == protocol.SCHEMA_VERSION
+        assert set(m) <= known, set(m) - known
+        assert m["status"] in protocol.STATUSES
+        in_table = [k for k in m if k in protocol.STEP_KEYS]
+        assert in_table == sorted(in_table, key=protocol.STEP_KEYS.index)
+        seen |= set(m)
+    # The test reaches every kind of message it claims to.
+    assert {"status", "zupt", "gap_s", "saturated", "stale_s", "mode", "gps_course"} <= seen
+    assert {m["status"] for m in msgs} >= {"calibrating", "ok", "standstill", "stale"}
+
+
+def doc_table_keys() -> list[str]:
+    section = DOC.read_text().split("\n### JSON lines\n", 1)[1].split("\n### ", 1)[0]
+    return re.findall(r"^\| `([^`]+)` \|", section, flags=re.MULTILINE)
+
+
+def test_the_docs_table_lists_the_step_keys_in_order() -> None:
+    assert doc_table_keys() == list(protocol.STEP_KEYS)
+
+
+def test_the_docs_name_every_added_key_and_the_valid_statuses() -> None:
+    text = DOC.read_text()
+    for key in protocol.ADDED_KEYS:
+        assert f"`{key}`" in text, key
+    for status in protocol.RATE_VALID_STATUSES:
+        assert f"`{status}`" in text, status
