@@ -515,14 +515,31 @@ def test_cli_exits_78_on_file_level_errors(
     assert "not found" in capsys.readouterr().err
 
 
-def test_readme_config_table_matches_the_code() -> None:
-    readme = (SHIPPED.parent.parent / "README.md").read_text()
-    section = readme.split("<!-- section: config -->", 1)[1].split("\n## ", 1)[0]
-    rows = re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", section, flags=re.MULTILINE)
-    table = {k: v.strip() for k, v in rows}
-    assert len(table) == len(rows) and set(table) == set(config_field_keys())
-    for key, shown in table.items():
-        value = yaml.safe_load(shown.strip("`"))
+DOCS = SHIPPED.parent.parent / "docs" / "configuration.md"
+
+
+def docs_section(title: str) -> str:
+    """The text of one `## title` section of docs/configuration.md."""
+    text = DOCS.read_text()
+    head = f"\n## {title}\n"
+    assert head in text, f"docs/configuration.md has no section '## {title}'"
+    return text.split(head, 1)[1].split("\n## ", 1)[0]
+
+
+def docs_key_table() -> dict[str, list[str]]:
+    """docs/configuration.md's key table: key -> its cells (default, unit, meaning, allowed,
+    source)."""
+    rows = re.findall(r"^\| `(\w+\.\w+)` \|(.*)\|$", docs_section("Keys"), flags=re.MULTILINE)
+    table = {k: [c.strip() for c in rest.split(" | ")] for k, rest in rows}
+    assert len(table) == len(rows), "a key appears twice in docs/configuration.md's key table"
+    return table
+
+
+def test_docs_config_table_matches_the_code() -> None:
+    table = docs_key_table()
+    assert set(table) == set(config_field_keys())
+    for key, cells in table.items():
+        value = yaml.safe_load(cells[0].strip("`"))
         default = get(Config(), key)
         assert (tuple(value) if isinstance(value, list) else value) == default, key
 
@@ -673,17 +690,28 @@ def test_a_config_that_is_not_a_regular_file_or_too_big(tmp_path: Path) -> None:
 
 
 def test_docs_state_the_ranges_the_code_checks() -> None:
-    # docs/configuration.md's table gives each bounded key's range as the code words it.
-    doc = (SHIPPED.parent.parent / "docs" / "configuration.md").read_text()
-    rows = dict(re.findall(r"^\| `(\w+\.\w+)` \| ([^|]+) \|", doc, flags=re.MULTILINE))
-    bounded = [k for k, (check, _) in config_mod.RULES.items() if hasattr(check, "bounds")]
-    for key in bounded:
-        shared_row = key.startswith("gpsd.") or key in (
-            "calibration.max_std_dps",
-            "calibration.max_trend_dps",
-            "calibration.max_excursion_dps",
-        )
-        if shared_row:
+    # The key table's allowed column words each numeric range and each list of choices as
+    # the code does, and says "true or false" for the switches.
+    table = docs_key_table()
+    for key in config_field_keys():
+        shown = table[key][3]
+        rule = config_mod.RULES.get(key)
+        if rule is None:
+            if isinstance(get(Config(), key), bool):
+                assert shown == "true or false", key
             continue
-        allowed = config_mod.RULES[key][1].removeprefix("a finite number ")
-        assert rows.get(key, "").strip() == allowed, key
+        check, wording = rule
+        if hasattr(check, "bounds"):
+            assert shown == wording.removeprefix("a finite number "), key
+        elif wording.startswith("one of "):
+            assert shown == wording, key
+    # ... and every bounded key says why its bound is where it is.
+    why = docs_section("Why the ranges are where they are")
+    shared = (
+        "calibration.max_std_dps",
+        "calibration.max_trend_dps",
+        "calibration.max_excursion_dps",
+    )
+    for key, (check, _) in config_mod.RULES.items():
+        if hasattr(check, "bounds") and not key.startswith("gpsd.") and key not in shared:
+            assert f"| `{key}` |" in why, key

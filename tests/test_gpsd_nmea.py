@@ -536,7 +536,8 @@ def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs)
     headings = [a.heading for a in atts]
     hn_seen = [h for h in headings if h is not None and h < 100.0]
     assert not hn_seen, (
-        f"this gpsd reports $HNHDT ({hn_seen}): update README 'GPS aiding' and output.nmea_talker"
+        f"this gpsd reports $HNHDT ({hn_seen}): update docs/protocol.md ('NMEA 0183 and gpsd') "
+        "and output.nmea_talker"
     )
     assert all(h is not None and 222.25 <= h < 222.25 + k for h in headings), headings
     assert all(a.device == f"udp://127.0.0.1:{uport}" for a in atts)

@@ -1,4 +1,4 @@
-"""Issue 7 item 7, security: what the daemon exposes, runs as, executes and writes.
+"""Security: what the daemon exposes, runs as, executes and writes.
 
 - A running `hdrd run`, with every output configured, holds no listening socket: its sockets
   (found through /proc/<pid>/fd) are looked up in /proc/<pid>/net/{tcp,tcp6,udp,udp6,unix}:
@@ -14,8 +14,8 @@
   place it may write.
 
 Covered elsewhere and not repeated: the unit's hardening directives, `systemd-analyze verify`
-and the `systemd-analyze security --offline=true` exposure kept at "OK" and recorded in README
-(tests/test_systemd.py); the bias file's mode 0644 whatever the umask (tests/test_calibrate.py)
+and the `systemd-analyze security --offline=true` exposure kept at "OK" and recorded in
+docs/operations.md (tests/test_systemd.py); the bias file's mode 0644 whatever the umask (tests/test_calibrate.py)
 and as written by `hdrd calibrate` into $STATE_DIRECTORY (tests/test_rel_daemon.py).
 """
 
