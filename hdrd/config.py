@@ -287,7 +287,10 @@ _NONNEG = _num(0)
 # each bound is where it is.
 _SECONDS = _num(0, 3600, lo_open=True)
 RULES: dict[str, tuple[Check, str]] = {
-    "device.port": ((lambda v: bool(v.strip())), "a non-empty device path or pyserial URL"),
+    "device.port": (
+        (lambda v: bool(v.strip()) and "\0" not in v),
+        "a non-empty device path or pyserial URL, without a NUL character",
+    ),
     "device.protocol": _choice(*PROTOCOLS),
     "device.baud": _num(50, 20_000_000),
     "device.reconnect_min_s": _SECONDS,
@@ -310,6 +313,8 @@ RULES: dict[str, tuple[Check, str]] = {
     "hdr.T": _num(0.01, 60),
     "calibration.t_bias_s": _SECONDS,
     "calibration.startup_s": _num(0, 600, lo_open=True),
+    # A path is handed to the OS, which cannot take a NUL character (ValueError).
+    "calibration.bias_file": ((lambda v: "\0" not in v), "a path without a NUL character"),
     "calibration.on_bad_bias_file": _choice("error", "calibrate"),
     "calibration.max_std_dps": _POS,
     "calibration.max_trend_dps": _POS,

@@ -100,9 +100,19 @@ def load_yaml(text: str) -> Any:
     """
     import yaml  # here, not at the top: hdrd run without a file never needs it (~18 ms)
 
-    loader = _bounded_loader(yaml)(text)
+    loader = None
     try:
+        # The reader checks every character on construction: a control character anywhere
+        # (NUL, ESC) is a ReaderError here, before any parsing.
+        loader = _bounded_loader(yaml)(text)
         return loader.get_single_data()
+    except yaml.reader.ReaderError as e:
+        ch = e.character
+        shown = f"#x{ch:04x}" if isinstance(ch, int) else repr(ch)
+        raise InputFileError(
+            f"YAML does not allow the character {shown} (a control or special character)",
+            _line_column(text, e.position),
+        ) from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
@@ -117,7 +127,14 @@ def load_yaml(text: str) -> Any:
     except (ValueError, OverflowError, TypeError) as e:  # a guard, as construct_object's
         raise InputFileError(f"YAML value cannot be converted ({type(e).__name__})") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
+
+
+def _line_column(text: str, position: int) -> str:
+    """"line L, column C" (1-based) of a character offset in *text*."""
+    line = text.count("\n", 0, position) + 1
+    return f"line {line}, column {position - (text.rfind(chr(10), 0, position) + 1) + 1}"
 
 
 _LOADER: Any = None
