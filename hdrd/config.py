@@ -57,6 +57,7 @@ class ConfigError(ValueError):
         shown = _show(value)
         # One line always: a key or a value read from YAML may hold line breaks.
         name = key if key.isprintable() else repr(key)
+        name = name if len(name) <= 80 else name[:77] + "..."  # a key of any length: one line
         super().__init__(f"config error{where}: {name} = {shown}: {allowed}")
 
     def with_source(self, source: str) -> ConfigError:

@@ -124,7 +124,7 @@ def load_yaml(text: str) -> Any:
         raise InputFileError(
             f"YAML collections nested deeper than {MAX_YAML_DEPTH} levels"
         ) from None
-    except (ValueError, OverflowError, TypeError) as e:  # a guard, as construct_object's
+    except Exception as e:  # noqa: BLE001 - a guard, as construct_object's
         raise InputFileError(f"YAML value cannot be converted ({type(e).__name__})") from None
     finally:
         if loader is not None:
@@ -165,10 +165,16 @@ def _bounded_loader(yaml: Any) -> Any:
         def construct_object(self, node: Any, deep: bool = False) -> Any:
             try:
                 return super().construct_object(node, deep)
-            except (ValueError, OverflowError) as e:
-                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45, ...
-                why = (str(e).splitlines() or [type(e).__name__])[0]
-                why = why if len(why) <= 80 else why[:77] + "..."
+            except yaml.YAMLError:
+                raise
+            except Exception as e:  # noqa: BLE001 - PyYAML's constructors on hostile text
+                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45,
+                # AttributeError for `!!timestamp 'not a time'`, ...
+                if isinstance(e, (ValueError, OverflowError)):
+                    why = (str(e).splitlines() or [type(e).__name__])[0]
+                    why = why if len(why) <= 80 else why[:77] + "..."
+                else:  # a message about PyYAML's insides: say what the text is not
+                    why = f"not a valid {str(node.tag).rsplit(':', 1)[-1][:40]}"
                 raise yaml.constructor.ConstructorError(
                     None, None, f"value cannot be converted ({why})", node.start_mark
                 ) from None

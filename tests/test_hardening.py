@@ -107,3 +107,41 @@ def test_a_path_with_a_nul_character_is_a_config_error(
     assert main(["replay", str(capture), "--config", str(p)]) == 78
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and key in err
+
+
+# -- a YAML tag whose constructor fails in an unforeseen way --------------------------------
+# `!!timestamp 'not a time'` made PyYAML's timestamp constructor raise AttributeError, which
+# the loader's guard (ValueError, OverflowError) let through: a traceback, and a daemon that
+# died on SIGHUP.
+
+
+@pytest.mark.parametrize("tag", ["!!timestamp 'not a time'", "!!timestamp 12"])
+def test_a_yaml_value_its_tag_cannot_take_is_one_input_error(
+    tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str], tag: str
+) -> None:
+    with pytest.raises(InputFileError, match=r"value cannot be converted \(not a valid timestamp\)"):
+        load_yaml(f"hdr:\n  c1: {tag}\n")
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(f"hdr:\n  c1: {tag}\n")
+    assert main(["replay", str(capture), "--config", str(p)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "line 2, column 7" in err
+    b = tmp_path / "bias.yaml"
+    b.write_text(_bias_body(tag))
+    with pytest.raises(BiasFileError, match="not a valid timestamp"):
+        load_bias(b)
+
+
+# -- a long unknown key -----------------------------------------------------------------------
+# The value shown in a config error was cut to 60 characters but the key was not: a 500-
+# character key (YAML allows 1024) made a 600-character line.
+
+
+def test_a_long_unknown_key_is_cut_in_the_error(tmp_path: Path) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text("hdr:\n  " + "k" * 1000 + ": 1\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = str(ei.value)
+    assert "hdr.kkk" in msg and "k" * 100 not in msg and "unknown key" in msg
+    assert len(msg) < 300
