@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """A long random byte stream through both parsers: every intact frame back, every bad one counted.
 
-    python bench/fuzz.py [--bytes 10000000] [--seed 0] [--protocol hdr-bin|hdr-text|both] [--json FILE]
+    python bench/fuzz.py --surface stream [--bytes 10000000] [--seed 0] [--protocol hdr-bin|hdr-text|both]
+    python bench/fuzz_stream.py [--bytes 10000000] [--seed 0] [--protocol ...] [--json FILE]
 
 Issue 7 item 1. A seeded generator writes a stream of ``--bytes`` bytes made of
 

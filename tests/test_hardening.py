@@ -119,7 +119,9 @@ def test_a_path_with_a_nul_character_is_a_config_error(
 def test_a_yaml_value_its_tag_cannot_take_is_one_input_error(
     tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str], tag: str
 ) -> None:
-    with pytest.raises(InputFileError, match=r"value cannot be converted \(not a valid timestamp\)"):
+    with pytest.raises(
+        InputFileError, match=r"value cannot be converted \(not a valid timestamp\)"
+    ):
         load_yaml(f"hdr:\n  c1: {tag}\n")
     p = tmp_path / "hdrd.yaml"
     p.write_text(f"hdr:\n  c1: {tag}\n")

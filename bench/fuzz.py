@@ -1,0 +1,461 @@
+#!/usr/bin/env python3
+"""Fuzz every input surface of hdrd: no traceback, no hang, bounded memory, clear refusals.
+
+    python bench/fuzz.py [--surface all|stream|serial|gpsd|tail|config|bias|capture ...]
+                         [--inputs N] [--seconds S] [--seed K] [--hang-s S]
+                         [--process | --process-only] [--process-inputs N] [--process-seconds S]
+                         [--json FILE] [--show SURFACE:I]
+
+Surfaces (what an attacker, a broken cable or a careless edit can hand hdrd): ``serial``
+(the gyro's bytes), ``gpsd`` (lines from whatever answers on the gpsd address), ``tail``
+(UDP datagrams to ``hdrd tail``), ``config`` (the configuration file, at start and on
+SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``).
+``stream`` is the exact-count check of the two frame parsers on a long byte stream
+(bench/fuzz_stream.py; ``--bytes``, ``--protocol``).
+
+Each input is a valid one mutated (huge numbers, NaN/inf, deep nesting, wrong types, control
+bytes, unicode, giant strings, truncation, YAML anchors and tags, frames whose clock jumps
+or whose counts sit at the rails) or random bytes; input *i* of a surface is made from
+(seed, surface, i) alone (bench/fuzz_inputs.py), so ``--show SURFACE:I`` writes it to
+stdout again. In process, each surface's inputs go through the code the daemon runs
+(bench/fuzz_targets.py) in a worker process of its own, which the parent watches:
+
+- a **traceback** is any exception the code raises, or a broken promise (a non-finite number
+  or a heading outside [0, 360) published, a refusal that is not one printable line, tail
+  printing a control character, the gpsd client losing step with its peer); each distinct
+  one is reported with the first input that gave it;
+- a **hang** is an input that takes longer than ``--hang-s`` (the worker is killed and the
+  run goes on after that input); a worker that dies (a crash, the memory limit) is a death;
+- **memory**: the worker's peak RSS (``VmHWM``) over all inputs, its RSS before the first
+  input and at the end, and the input that raised the peak the most. The worker's address
+  space is limited to ``--max-vm-mb`` so that a runaway allocation is a MemoryError (a
+  traceback), not the machine's OOM killer.
+
+``--process`` adds the process-level runs (bench/fuzz_process.py): ``hdrd run`` on a pty
+written with fuzzed serial bytes, ``hdrd run --gpsd`` against a fuzzing gpsd peer,
+``hdrd tail`` receiving fuzzed datagrams, ``hdrd run`` started on fuzzed configuration
+and bias files and reloaded (SIGHUP) with fuzzed configurations, ``hdrd replay`` and
+``hdrd convert`` on fuzzed captures: exit statuses as documented, one line on stderr for a
+refusal, no traceback, a daemon still stepping after every input, its peak RSS.
+
+Exit status 1 if anything failed. Results: bench/RESULTS.md, "Fuzz: every input surface".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import platform
+import resource
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: one core's worth
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fuzz_inputs import SURFACES, generate
+from fuzz_targets import Broken, make_target
+
+ALL = ("stream", *SURFACES)
+
+
+def _status_kb(field_: str, pid: int | str = "self") -> int:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(field_):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+@dataclass
+class Defect:
+    kind: str  # "traceback", "broken", "hang", "death"
+    signature: str
+    first_input: int
+    count: int = 1
+    detail: str = ""
+    input_bytes: int = 0
+
+
+@dataclass
+class SurfaceResult:
+    surface: str
+    seed: int
+    inputs: int = 0
+    seconds: float = 0.0
+    outcomes: dict[str, int] = field(default_factory=dict)
+    defects: list[Defect] = field(default_factory=list)
+    hangs: int = 0
+    deaths: int = 0
+    tracebacks: int = 0
+    slowest_s: float = 0.0
+    slowest_input: int = -1
+    largest_input_bytes: int = 0
+    rss_start_mb: float = 0.0
+    rss_end_mb: float = 0.0
+    peak_rss_mb: float = 0.0
+    peak_rise_mb: float = 0.0
+    peak_rise_input: int = -1
+    peak_rise_input_bytes: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return not self.defects
+
+    def add_defect(self, kind: str, signature: str, i: int, detail: str, nbytes: int) -> None:
+        for d in self.defects:
+            if d.kind == kind and d.signature == signature:
+                d.count += 1
+                return
+        if len(self.defects) < 50:
+            self.defects.append(Defect(kind, signature, i, 1, detail[-3000:], nbytes))
+
+
+# -- the worker ---------------------------------------------------------------------------------
+
+
+def _signature(e: BaseException) -> str:
+    tb = traceback.extract_tb(e.__traceback__)
+    where = next(
+        (f"{Path(fr.filename).name}:{fr.lineno}" for fr in reversed(tb) if "/hdrd/" in fr.filename),
+        f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?",
+    )
+    if isinstance(e, Broken):
+        return f"broken promise at {where}: {str(e)[:120]}"
+    return f"{type(e).__name__} at {where}"
+
+
+def _worker(
+    surface: str,
+    seed: int,
+    start: int,
+    stop: int,
+    deadline: float,
+    progress: Any,
+    conn: Any,
+    workdir: str,
+    max_vm_mb: int,
+) -> None:
+    if max_vm_mb > 0:
+        limit = max_vm_mb << 20
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    res = SurfaceResult(surface, seed)
+    outcomes: Counter[str] = Counter()
+    target = make_target(surface, seed, Path(workdir))
+    hwm = _status_kb("VmHWM")
+    res.rss_start_mb = _status_kb("VmRSS") / 1024
+    last_send = time.monotonic()
+    i = start
+    for i in range(start, stop):
+        if time.monotonic() > deadline:
+            i -= 1
+            break
+        progress.value = i
+        data = generate(surface, seed, i)
+        res.largest_input_bytes = max(res.largest_input_bytes, len(data))
+        t0 = time.perf_counter()
+        try:
+            outcomes[target.run(data)] += 1
+        except Exception as e:  # noqa: BLE001 - every exception is what we are looking for
+            kind = "broken" if isinstance(e, Broken) else "traceback"
+            res.tracebacks += 1
+            res.add_defect(kind, _signature(e), i, traceback.format_exc(), len(data))
+            outcomes["defect"] += 1
+            try:
+                target.close()
+            except Exception:  # noqa: BLE001, S110 - a broken target is rebuilt either way
+                pass
+            target = make_target(surface, seed, Path(workdir))
+        dt = time.perf_counter() - t0
+        if dt > res.slowest_s:
+            res.slowest_s, res.slowest_input = dt, i
+        h = _status_kb("VmHWM")
+        if h > hwm:
+            if (h - hwm) / 1024 > res.peak_rise_mb:
+                res.peak_rise_mb = (h - hwm) / 1024
+                res.peak_rise_input, res.peak_rise_input_bytes = i, len(data)
+            hwm = h
+        res.inputs += 1
+        now = time.monotonic()
+        if now - last_send > 2.0:
+            res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
+            res.rss_end_mb = _status_kb("VmRSS") / 1024
+            conn.send(("progress", i, res))
+            last_send = now
+    target.close()
+    res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
+    res.rss_end_mb = _status_kb("VmRSS") / 1024
+    conn.send(("done", i, res))
+
+
+def _merge(total: SurfaceResult, part: SurfaceResult) -> None:
+    total.inputs += part.inputs
+    for k, v in part.outcomes.items():
+        total.outcomes[k] = total.outcomes.get(k, 0) + v
+    for d in part.defects:
+        for _ in range(d.count):
+            total.add_defect(d.kind, d.signature, d.first_input, d.detail, d.input_bytes)
+    total.tracebacks += part.tracebacks
+    if part.slowest_s > total.slowest_s:
+        total.slowest_s, total.slowest_input = part.slowest_s, part.slowest_input
+    total.largest_input_bytes = max(total.largest_input_bytes, part.largest_input_bytes)
+    if not total.rss_start_mb:
+        total.rss_start_mb = part.rss_start_mb
+    total.rss_end_mb = part.rss_end_mb
+    total.peak_rss_mb = max(total.peak_rss_mb, part.peak_rss_mb)
+    if part.peak_rise_mb > total.peak_rise_mb:
+        total.peak_rise_mb = part.peak_rise_mb
+        total.peak_rise_input = part.peak_rise_input
+        total.peak_rise_input_bytes = part.peak_rise_input_bytes
+
+
+def run_surface(
+    surface: str,
+    inputs: int,
+    seconds: float,
+    seed: int,
+    hang_s: float = 20.0,
+    max_vm_mb: int = 4096,
+    quiet: bool = False,
+) -> SurfaceResult:
+    """*inputs* inputs of *surface* (or as many as *seconds* allow) through its in-process
+    target, in watched worker processes (module doc)."""
+    ctx = mp.get_context("fork")
+    total = SurfaceResult(surface, seed)
+    t_start = time.monotonic()
+    deadline = t_start + seconds
+    start = 0
+    workdir = tempfile.mkdtemp(prefix=f"hdrd-fuzz-{surface}-")
+    try:
+        while start < inputs and time.monotonic() < deadline:
+            progress = ctx.Value("q", start - 1, lock=False)
+            recv, send = ctx.Pipe(duplex=False)
+            w = ctx.Process(
+                target=_worker,
+                args=(surface, seed, start, inputs, deadline, progress, send, workdir, max_vm_mb),
+                daemon=True,
+            )
+            w.start()
+            send.close()
+            last: SurfaceResult | None = None
+            done_at: int | None = None
+            seen, seen_at = progress.value, time.monotonic()
+            while True:
+                if recv.poll(0.25):
+                    try:
+                        kind, at, res = recv.recv()
+                    except EOFError:
+                        kind = ""
+                    else:
+                        last = res
+                        if kind == "done":
+                            done_at = at
+                            break
+                        if not quiet:
+                            print(
+                                f"  {surface}: {at + 1:,} inputs",
+                                end="\r",
+                                file=sys.stderr,
+                                flush=True,
+                            )
+                        continue
+                if not w.is_alive():
+                    break
+                cur = progress.value
+                if cur != seen:
+                    seen, seen_at = cur, time.monotonic()
+                elif time.monotonic() - seen_at > hang_s:
+                    w.kill()
+                    break
+            w.join()
+            cur = progress.value
+            if last is not None:
+                _merge(total, last)
+            if done_at is not None:
+                start = inputs
+                break
+            # killed (a hang) or died: the input it was on is the culprit; go on after it
+            data = generate(surface, seed, cur)
+            if w.exitcode == -9 and time.monotonic() - seen_at > hang_s:
+                total.hangs += 1
+                total.add_defect("hang", f"no progress for {hang_s:g} s", cur, "", len(data))
+            else:
+                total.deaths += 1
+                total.add_defect("death", f"worker exit {w.exitcode}", cur, "", len(data))
+            counted = (last.inputs if last is not None else 0) + start
+            total.inputs += max(0, cur - counted) + 1  # the inputs after the last report
+            start = cur + 1
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    total.seconds = time.monotonic() - t_start
+    return total
+
+
+# -- reports ------------------------------------------------------------------------------------
+
+
+def describe(r: SurfaceResult) -> str:
+    rate = r.inputs / r.seconds if r.seconds else 0.0
+    outcomes = ", ".join(f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1]))
+    lines = [
+        f"{r.surface}: {r.inputs:,} inputs in {r.seconds:.0f} s ({rate:,.0f}/s), seed {r.seed}",
+        f"  outcomes: {outcomes}",
+        f"  tracebacks {r.tracebacks}, hangs {r.hangs}, deaths {r.deaths}; slowest input "
+        f"{r.slowest_s:.3f} s (#{r.slowest_input}); largest input {r.largest_input_bytes:,} bytes",
+        f"  RSS: {r.rss_start_mb:.0f} MB before the first input, peak {r.peak_rss_mb:.0f} MB "
+        f"(largest rise +{r.peak_rise_mb:.1f} MB at #{r.peak_rise_input}, "
+        f"{r.peak_rise_input_bytes:,} bytes), {r.rss_end_mb:.0f} MB at the end",
+    ]
+    for d in r.defects:
+        lines.append(
+            f"  DEFECT {d.kind} x{d.count}: {d.signature} (first: --show {r.surface}:{d.first_input}, "
+            f"{d.input_bytes:,} bytes)"
+        )
+        if d.detail:
+            lines.extend("    " + x for x in d.detail.rstrip().splitlines()[-6:])
+    lines.append(f"  {'OK' if r.ok else 'FAILED'}")
+    return "\n".join(lines)
+
+
+def markdown(results: list[SurfaceResult]) -> str:
+    head = (
+        "| surface | inputs | seconds | tracebacks | hangs | deaths | slowest input, s | "
+        "peak RSS, MB (before the first input) | largest input, bytes | outcomes |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n"
+    )
+    rows = []
+    for r in results:
+        outcomes = ", ".join(
+            f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1])
+        )
+        rows.append(
+            f"| {r.surface} | {r.inputs:,} | {r.seconds:.0f} | {r.tracebacks} | {r.hangs} | "
+            f"{r.deaths} | {r.slowest_s:.2f} | {r.peak_rss_mb:.0f} ({r.rss_start_mb:.0f}) | "
+            f"{r.largest_input_bytes:,} | {outcomes} |"
+        )
+    return head + "\n".join(rows) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument(
+        "--surface",
+        nargs="+",
+        choices=("all", *ALL),
+        default=["all"],
+        help="surfaces to fuzz (default all)",
+    )
+    ap.add_argument("--inputs", type=int, default=2000, help="inputs per surface (default 2000)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=600.0,
+        help="at most this long per surface, s (default 600); whichever ends first",
+    )
+    ap.add_argument("--seed", type=int, default=0, help="seed of every input (default 0)")
+    ap.add_argument(
+        "--hang-s", type=float, default=20.0, help="an input taking longer hangs (default 20)"
+    )
+    ap.add_argument(
+        "--max-vm-mb",
+        type=int,
+        default=4096,
+        help="address-space limit of a worker, MiB (default 4096; 0: none)",
+    )
+    ap.add_argument("--process", action="store_true", help="also the process-level runs")
+    ap.add_argument("--process-only", action="store_true", help="only the process-level runs")
+    ap.add_argument(
+        "--process-inputs",
+        type=int,
+        default=200,
+        help="inputs per process-level run that starts a process per input (default 200)",
+    )
+    ap.add_argument(
+        "--process-seconds",
+        type=float,
+        default=60.0,
+        help="seconds per process-level run against one long-running process (default 60)",
+    )
+    ap.add_argument("--bytes", type=int, default=10_000_000, help="stream: length per protocol")
+    ap.add_argument(
+        "--protocol",
+        choices=("hdr-bin", "hdr-text", "both"),
+        default="both",
+        help="stream: which protocol (default both)",
+    )
+    ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    ap.add_argument(
+        "--show", metavar="SURFACE:I", help="write input I of SURFACE to stdout, and exit"
+    )
+    args = ap.parse_args(argv)
+
+    if args.show:
+        surface, _, i = args.show.partition(":")
+        if surface not in SURFACES or not i.isdigit():
+            ap.error(f"--show wants SURFACE:I with SURFACE one of {', '.join(SURFACES)}")
+        sys.stdout.buffer.write(generate(surface, args.seed, int(i)))
+        return 0
+    surfaces = ALL if "all" in args.surface else tuple(s for s in ALL if s in args.surface)
+    import numpy as np
+
+    print(
+        f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, "
+        f"load average {os.getloadavg()[0]:.2f}",
+        flush=True,
+    )
+    ok = True
+    doc: dict[str, Any] = {"seed": args.seed, "in_process": [], "process": []}
+    results: list[SurfaceResult] = []
+    if not args.process_only:
+        for s in surfaces:
+            if s == "stream":
+                import fuzz_stream
+
+                argv_s = [
+                    "--bytes",
+                    str(args.bytes),
+                    "--seed",
+                    str(args.seed),
+                    "--protocol",
+                    args.protocol,
+                ]
+                ok &= fuzz_stream.main(argv_s) == 0
+                continue
+            r = run_surface(s, args.inputs, args.seconds, args.seed, args.hang_s, args.max_vm_mb)
+            results.append(r)
+            ok &= r.ok
+            print(describe(r), flush=True)
+            doc["in_process"].append(asdict(r))
+        if results:
+            print("\n" + markdown(results))
+    if args.process or args.process_only:
+        import fuzz_process
+
+        for s in surfaces:
+            if s == "stream":
+                continue
+            for pr in fuzz_process.run(s, args.seed, args.process_inputs, args.process_seconds):
+                ok &= pr.ok
+                print(pr.describe(), flush=True)
+                doc["process"].append(asdict(pr))
+    if args.json:
+        Path(args.json).write_text(json.dumps(doc, indent=2) + "\n")
+    print("OK" if ok else "FAILED")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
