@@ -389,6 +389,12 @@ def main(argv: list[str] | None = None) -> int:
         default=60.0,
         help="seconds per process-level run against one long-running process (default 60)",
     )
+    ap.add_argument(
+        "--process-stream-inputs",
+        type=int,
+        default=100_000,
+        help="at most this many inputs per long-running process (default 100000)",
+    )
     ap.add_argument("--bytes", type=int, default=10_000_000, help="stream: length per protocol")
     ap.add_argument(
         "--protocol",
@@ -447,7 +453,9 @@ def main(argv: list[str] | None = None) -> int:
         for s in surfaces:
             if s == "stream":
                 continue
-            for pr in fuzz_process.run(s, args.seed, args.process_inputs, args.process_seconds):
+            for pr in fuzz_process.run(
+                s, args.seed, args.process_inputs, args.process_seconds, args.process_stream_inputs
+            ):
                 ok &= pr.ok
                 print(pr.describe(), flush=True)
                 doc["process"].append(asdict(pr))
