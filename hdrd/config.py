@@ -159,7 +159,9 @@ class OutputConfig:
     nmea_ths: bool = False
     """Also send $HNTHS."""
     nmea_talker: str = "HN"
-    """NMEA talker ID: HN (non-north-seeking gyro); gpsd reads HC (compass), not HN."""
+    """NMEA talker ID, two capital letters: HN (heading, non-north-seeking gyro: what hdrd
+    is, and what chart plotters are told); gpsd drops HN, so for gpsd use II (integrated
+    instrumentation; docs/protocol.md, "NMEA 0183 and gpsd")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -327,7 +329,7 @@ RULES: dict[str, tuple[Check, str]] = {
     "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
     "output.nmea_talker": (
         (lambda v: len(v) == 2 and v.isascii() and v.isalpha() and v.isupper()),
-        "two capital letters, e.g. HN or HC",
+        "two capital letters, e.g. HN, or II for gpsd",
     ),
     "log.level": _choice("debug", "info", "warning", "error"),
     "log.format": _choice("auto", "json", "console"),
