@@ -339,8 +339,16 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
 # -- gpsd ----------------------------------------------------------------------------------------
 
 
-def _gpsd(seed: int, max_inputs: int, seconds: float) -> ProcResult:
+GPSD_DRIVE = "simulate:\n  rate_hz: 250\n  speedup: 2\n"
+"""The simulated gyro of the gpsd run: 500 frames (loop turns, gpsd polls) per second, a step
+every 0.5 s, and the 20-minute drive lasts 10 minutes."""
+
+
+def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResult:
     res = ProcResult("gpsd", "hdrd run --simulate --gpsd (a fuzzing gpsd peer)")
+    seconds = min(seconds, 560.0)  # before the simulated drive ends
+    cfg = workdir / "gpsd-run.yaml"
+    cfg.write_text(GPSD_DRIVE)
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
     udp = _Udp()
@@ -350,8 +358,8 @@ def _gpsd(seed: int, max_inputs: int, seconds: float) -> ProcResult:
             *HDRD,
             "run",
             "--simulate",
-            "--speedup",
-            "50",
+            "--config",
+            str(cfg),
             "--bias",
             "0.1",
             "--udp",
@@ -417,7 +425,7 @@ def _gpsd(seed: int, max_inputs: int, seconds: float) -> ProcResult:
             res.fail(f"no step for {longest_gap:.1f} s while the peer sent")
         res.notes.append(
             f"{udp.steps:,} steps received; longest wait for a step {longest_gap:.2f} s "
-            f"(speedup 50: a step every 0.02 s); {conns} connection(s)"
+            f"(a step every 0.5 s); {conns} connection(s)"
         )
         if conn is not None:
             conn.close()
@@ -785,7 +793,7 @@ def run(
         if surface == "serial":
             return [_serial(seed, pr, stream_inputs, seconds) for pr in ("hdr-bin", "hdr-text")]
         if surface == "gpsd":
-            return [_gpsd(seed, stream_inputs, seconds)]
+            return [_gpsd(seed, stream_inputs, seconds, workdir)]
         if surface == "tail":
             return [_tail(seed, raw, stream_inputs, seconds / 2) for raw in (False, True)]
         if surface == "config":
