@@ -190,7 +190,13 @@ class _Udp:
         self.sock.close()
 
 
-def _stop(p: subprocess.Popen[bytes], res: ProcResult, timeout: float = 10.0) -> None:
+SILENCE_S = 30.0
+"""Longest silence (no step, no WATCHDOG=1) taken for a live daemon. Generous: at nice 10 on
+a shared, loaded machine a daemon can wait seconds for a CPU; the longest gap seen is
+reported either way."""
+
+
+def _stop(p: subprocess.Popen[bytes], res: ProcResult, timeout: float = SILENCE_S) -> None:
     """SIGTERM, then exit 0 expected within *timeout*."""
     if p.poll() is not None:
         res.dead += 1
@@ -211,8 +217,8 @@ def _stop(p: subprocess.Popen[bytes], res: ProcResult, timeout: float = 10.0) ->
 
 
 def _still_publishing(p: subprocess.Popen[bytes], udp: _Udp, res: ProcResult, what: str) -> None:
-    """The daemon is alive and a step comes within 5 s."""
-    end = time.monotonic() + 5.0
+    """The daemon is alive and a step comes within SILENCE_S."""
+    end = time.monotonic() + SILENCE_S
     n0 = udp.steps + udp.stale
     while time.monotonic() < end:
         udp.drain()
@@ -222,7 +228,9 @@ def _still_publishing(p: subprocess.Popen[bytes], udp: _Udp, res: ProcResult, wh
             break
         time.sleep(0.05)
     res.dead += 1
-    res.fail(f"{what}: no message for 5 s (process {'alive' if p.poll() is None else 'gone'})")
+    res.fail(
+        f"{what}: no message for {SILENCE_S:g} s (process {'alive' if p.poll() is None else 'gone'})"
+    )
 
 
 def _wait_started(p: subprocess.Popen[bytes], udp: _Udp, timeout: float = 30.0) -> bool:
@@ -421,7 +429,7 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
             res.fail(f"the daemon exited ({p.returncode}) at input {i}: {err.tail[-3:]}")
         else:
             _still_publishing(p, udp, res, "after the last input")
-        if longest_gap > 5.0:
+        if longest_gap > SILENCE_S:
             res.fail(f"no step for {longest_gap:.1f} s while the peer sent")
         res.notes.append(
             f"{udp.steps:,} steps received; longest wait for a step {longest_gap:.2f} s "
@@ -657,7 +665,7 @@ def _config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) ->
             os.replace(tmp, path)
             n = len(err.reloads)
             p.send_signal(signal.SIGHUP)
-            ev = err.wait_reload(n, 10.0)
+            ev = err.wait_reload(n, SILENCE_S)
             i += 1
             read_pings()
             if ev is None:
@@ -675,15 +683,15 @@ def _config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) ->
             res.dead += 1
             res.fail(f"the daemon exited ({p.returncode}) at input {i}: {err.tail[-3:]}")
         else:
-            end = time.monotonic() + 3.0
+            end = time.monotonic() + SILENCE_S
             n0 = pings
             while time.monotonic() < end and pings == n0:
                 read_pings()
                 time.sleep(0.05)
             if pings == n0:
                 res.dead += 1
-                res.fail("no WATCHDOG=1 for 3 s after the last reload")
-        if longest > 3.0:
+                res.fail(f"no WATCHDOG=1 for {SILENCE_S:g} s after the last reload")
+        if longest > SILENCE_S:
             res.fail(f"WATCHDOG=1 stopped for {longest:.1f} s during the reloads")
         res.notes.append(
             f"answers: {dict(outcomes)}; {pings:,} WATCHDOG=1 received, longest gap {longest:.2f} s"
