@@ -268,6 +268,8 @@ def run_surface(
             )
             w.start()
             send.close()
+            pid = w.pid
+            assert pid is not None
             last: SurfaceResult | None = None
             done_at: int | None = None
             seen, seen_at, seen_cpu = progress.value, time.monotonic(), 0.0
@@ -295,8 +297,8 @@ def run_surface(
                     break
                 cur = progress.value
                 if cur != seen:
-                    seen, seen_at, seen_cpu = cur, time.monotonic(), _cpu_s(w.pid)
-                elif _cpu_s(w.pid) - seen_cpu > hang_s:
+                    seen, seen_at, seen_cpu = cur, time.monotonic(), _cpu_s(pid)
+                elif _cpu_s(pid) - seen_cpu > hang_s:
                     hung = f"{hang_s:g} s of CPU on one input"
                 elif time.monotonic() - seen_at > WALL_FACTOR * hang_s:
                     hung = f"no progress for {WALL_FACTOR * hang_s:g} s (waiting)"

@@ -132,7 +132,7 @@ def load_yaml(text: str) -> Any:
 
 
 def _line_column(text: str, position: int) -> str:
-    """"line L, column C" (1-based) of a character offset in *text*."""
+    """The 1-based "line L, column C" of a character offset in *text*."""
     line = text.count("\n", 0, position) + 1
     return f"line {line}, column {position - (text.rfind(chr(10), 0, position) + 1) + 1}"
 
