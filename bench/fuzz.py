@@ -1,389 +1,501 @@
 #!/usr/bin/env python3
-"""A long random byte stream through both parsers: every intact frame back, every bad one counted.
+"""Fuzz every input surface of hdrd: no traceback, no hang, bounded memory, clear refusals.
 
-    python bench/fuzz.py [--bytes 10000000] [--seed 0] [--protocol hdr-bin|hdr-text|both] [--json FILE]
+    python bench/fuzz.py [--surface all|stream|serial|gpsd|tail|config|bias|capture ...]
+                         [--inputs N] [--seconds S] [--seed K] [--hang-s S]
+                         [--process | --process-only] [--process-inputs N] [--process-seconds S]
+                         [--json FILE] [--show SURFACE:I]
 
-Issue 7 item 1. A seeded generator writes a stream of ``--bytes`` bytes made of
+Surfaces (what an attacker, a broken cable or a careless edit can hand hdrd): ``serial``
+(the gyro's bytes), ``gpsd`` (lines from whatever answers on the gpsd address), ``tail``
+(UDP datagrams to ``hdrd tail``), ``config`` (the configuration file, at start and on
+SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``).
+``stream`` is the exact-count check of the two frame parsers on a long byte stream
+(bench/fuzz_stream.py; ``--bytes``, ``--protocol``).
 
-- intact frames whose sequence numbers and device times carry every irregularity the wire can
-  show: sequence skips, repeats, reorderings (a few behind), restarts; clock jumps forward,
-  repeated times, small steps back, resets, and the 2**32 us wrap; ADC counts at the rails
-  (0 and 65535) and beyond the CRS03-04's +/-200 deg/s;
-- corrupted frames (one bit flipped in hdr-bin, one digit changed in hdr-text);
-- truncated frames (cut anywhere after the sync pattern);
-- random garbage (any byte values, so also stray sync patterns), and garbage that starts
-  with a sync pattern.
+Each input is a valid one mutated (huge numbers, NaN/inf, deep nesting, wrong types, control
+bytes, unicode, giant strings, truncation, YAML anchors and tags, frames whose clock jumps
+or whose counts sit at the rails) or random bytes; input *i* of a surface is made from
+(seed, surface, i) alone (bench/fuzz_inputs.py), so ``--show SURFACE:I`` writes it to
+stdout again. In process, each surface's inputs go through the code the daemon runs
+(bench/fuzz_targets.py) in a worker process of its own, which the parent watches:
 
-It is fed to the push parser (:class:`hdrd.frames.Parser`) in random chunks of 1..4096 bytes
-and, whole, to the vectorised decoder (:func:`hdrd.capture.decode_capture`); the recovered
-frames then go through the pipeline (:meth:`hdrd.pipeline.Pipeline.feed_array`).
+- a **traceback** is any exception the code raises, or a broken promise (a non-finite number
+  or a heading outside [0, 360) published, a refusal that is not one printable line, tail
+  printing a control character, the gpsd client losing step with its peer); each distinct
+  one is reported with the first input that gave it;
+- a **hang** is an input that takes more than ``--hang-s`` of CPU time, or 15 times that of
+  wall-clock time without using CPU (the worker is killed and the run goes on after that
+  input); a worker that dies (a crash, the memory limit) is a death;
+- **memory**: the worker's peak RSS (``VmHWM``) over all inputs, its RSS before the first
+  input and at the end, and the input that raised the peak the most. The worker's address
+  space is limited to ``--max-vm-mb`` so that a runaway allocation is a MemoryError (a
+  traceback), not the machine's OOM killer.
 
-What is expected is known from the construction: the frames recovered are exactly the intact
-frames sent; the bad frames counted are exactly the sync patterns outside the intact frames
-(the parser's documented rule: every sync pattern that does not start a good frame is one bad
-frame, and the scan moves on by one byte), except those in the last bytes of the stream,
-whose frame never completes. Candidates that pass the CRC-16 by coincidence (about 1 in
-65536) are counted and reported: those hiding a real frame are set aside by the parsers'
-coincidence rule (docs/protocol.md), which the reference scan applies too; garbage that forms
-a valid frame overlapping no real one is the exception no receiver can avoid. Saturation: every recovered sample at a
-rail or beyond +/-200 deg/s that the device clock accepts is flagged in its step's
-``saturated`` count.
+``--process`` adds the process-level runs (bench/fuzz_process.py): ``hdrd run`` on a pty
+written with fuzzed serial bytes, ``hdrd run --gpsd`` against a fuzzing gpsd peer,
+``hdrd tail`` receiving fuzzed datagrams, ``hdrd run`` started on fuzzed configuration
+and bias files and reloaded (SIGHUP) with fuzzed configurations, ``hdrd replay`` and
+``hdrd convert`` on fuzzed captures: exit statuses as documented, one line on stderr for a
+refusal, no traceback, a daemon still stepping after every input, its peak RSS.
 
-Exit status 1 if any expectation fails. Results: bench/RESULTS.md, "## Fuzz".
+Exit status 1 if anything failed. Results: bench/RESULTS.md, "Fuzz: every input surface".
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
+import multiprocessing as mp
+import os
 import platform
+import resource
+import shutil
 import sys
+import tempfile
 import time
+import traceback
+from collections import Counter
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import numpy.typing as npt
-
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: one core's worth
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdrd.capture import decode_capture
-from hdrd.clocks import unwrap_us
-from hdrd.frames import (
-    FRAME_DTYPE,
-    Parser,
-    ParserStats,
-    array_to_frames,
-    crc16_ccitt_false_rows,
-    encode_array,
-    encode_text,
-)
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.protocol import BIN_FRAME_LEN
-from hdrd.sensor import SensorModel
+from fuzz_inputs import SURFACES, generate
+from fuzz_targets import Broken, make_target
 
-TEXT_SYNC = b"$HDRG,"
+ALL = (*SURFACES, "stream")
+"""In the order run: the stream check last, so that the memory it takes (its 10^7-byte
+streams) is not in the workers forked for the other surfaces."""
 
 
-def make_frames(n: int, rng: np.random.Generator) -> npt.NDArray[np.void]:
-    """n frames at 100 Hz with irregular sequence numbers and device times (see module doc)."""
-    u = rng.random(n)
-    dseq = np.ones(n, np.int64)
-    dseq[u < 0.02] = rng.integers(2, 300, int((u < 0.02).sum()))  # skips
-    m = (u >= 0.02) & (u < 0.025)
-    dseq[m] = 0  # repeats
-    m = (u >= 0.025) & (u < 0.03)
-    dseq[m] = -rng.integers(1, 65, int(m.sum()))  # reordered, a few behind
-    m = (u >= 0.03) & (u < 0.0303)
-    dseq[m] = -rng.integers(65, 0x8000, int(m.sum()))  # device restarts
-    v = rng.random(n)
-    dt = np.full(n, 10_000, np.int64)
-    dt += rng.integers(-500, 501, n)  # jitter
-    m = v < 0.003
-    dt[m] = rng.integers(20_000, 30_000_000, int(m.sum()))  # jumps forward (gaps)
-    m = (v >= 0.003) & (v < 0.006)
-    dt[m] = 0  # repeated time
-    m = (v >= 0.006) & (v < 0.009)
-    dt[m] = -rng.integers(1, 1_000_000, int(m.sum()))  # small steps back
-    m = (v >= 0.009) & (v < 0.0093)
-    dt[m] = -rng.integers(1_000_001, 2**31, int(m.sum()))  # clock resets
-    arr = np.zeros(n, FRAME_DTYPE)
-    arr["seq"] = (int(rng.integers(0, 65536)) + np.cumsum(dseq)) & 0xFFFF
-    t0 = 2**32 - 60_000_000  # the clock wraps a minute in
-    arr["t_us"] = (t0 + np.cumsum(dt)) % 2**32
-    rate = np.rint(32768 + rng.normal(0, 300, n)).astype(np.int64)
-    w = rng.random(n)
-    rate[w < 0.002] = 0
-    rate[(w >= 0.002) & (w < 0.004)] = 65535
-    m = (w >= 0.004) & (w < 0.006)
-    rate[m] = rng.integers(58983, 65535, int(m.sum()))  # beyond +200 deg/s, not at the rail
-    arr["rate"] = np.clip(rate, 0, 65535)
-    arr["ref"] = np.where(rng.random(n) < 0.5, 0, rng.integers(30000, 36000, n))
-    arr["temp"] = np.where(rng.random(n) < 0.1, -32768, rng.integers(-4000, 8500, n))
-    return arr
+def _status_kb(field_: str, pid: int | str = "self") -> int:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(field_):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
 
 
-def build_stream(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
-    """The stream, the intact frames in it (and where they start), and what was injected."""
-    rng = np.random.default_rng(seed)
-    n_pieces = nbytes // (10 if protocol == "hdr-bin" else 25) + 16  # more than enough
-    frames = make_frames(n_pieces, rng)
-    if protocol == "hdr-bin":
-        wire_all = np.frombuffer(encode_array(frames, "hdr-bin"), np.uint8).reshape(
-            -1, BIN_FRAME_LEN
-        )
-        wires = [wire_all[i].tobytes() for i in range(n_pieces)]
-    else:
-        wires = [encode_text(f) for f in array_to_frames(frames)]
-    kinds = rng.choice(
-        5, n_pieces, p=[0.80, 0.06, 0.04, 0.06, 0.04]
-    )  # good, corrupt, truncated, junk, sync junk
-    parts: list[bytes] = []
-    good_idx: list[int] = []
-    good_pos: list[int] = []
-    injected = {"intact": 0, "corrupted": 0, "truncated": 0, "garbage": 0, "sync_garbage": 0}
-    pos = 0
-    for i in range(n_pieces):
-        if pos >= nbytes:
-            break
-        k = int(kinds[i])
-        w = wires[i]
-        if k == 0:
-            good_idx.append(i)
-            good_pos.append(pos)
-            b = w
-            injected["intact"] += 1
-        elif k == 1:
-            bb = bytearray(w)
-            if protocol == "hdr-bin":
-                bb[int(rng.integers(2, 16))] ^= 1 << int(rng.integers(0, 8))
-            else:
-                star = bb.rindex(b"*")
-                digits = [j for j in range(6, star) if 0x30 <= bb[j] <= 0x39]
-                j = digits[int(rng.integers(0, len(digits)))]
-                bb[j] = 0x30 + (bb[j] - 0x30 + int(rng.integers(1, 10))) % 10
-            b = bytes(bb)
-            injected["corrupted"] += 1
-        elif k == 2:
-            # Cut after the sync pattern's first bytes and before the end of the payload (a
-            # text line cut just before its line end would be made whole by a junk "\r\n").
-            end = len(w) - 1 if protocol == "hdr-bin" else w.rindex(b"*")
-            b = w[: int(rng.integers(2, end))]
-            injected["truncated"] += 1
-        elif k == 3:
-            b = rng.integers(0, 256, int(rng.integers(1, 41)), dtype=np.uint8).tobytes()
-            if protocol == "hdr-text":
-                b = b.replace(b"$", b"#")  # text sync patterns are injected explicitly below
-            injected["garbage"] += 1
-        else:
-            tail = rng.integers(0, 256, int(rng.integers(0, 21)), dtype=np.uint8).tobytes()
-            if protocol == "hdr-bin":
-                b = b"\xa5\x5a" + tail
-            else:
-                b = TEXT_SYNC + tail.replace(b"$", b"#")
-            injected["sync_garbage"] += 1
-        parts.append(b)
-        pos += len(b)
-    data = b"".join(parts)
-    return {
-        "data": data,
-        "sent": frames[np.asarray(good_idx, np.int64)],
-        "good_pos": np.asarray(good_pos, np.int64),
-        "injected": injected,
-    }
+@dataclass
+class Defect:
+    kind: str  # "traceback", "broken", "hang", "death"
+    signature: str
+    first_input: int
+    count: int = 1
+    detail: str = ""
+    input_bytes: int = 0
 
 
-def reference_bin(data: bytes, good_pos: npt.NDArray[np.int64]) -> dict[str, Any]:
-    """What the documented scan must give, from the positions alone: every sync candidate
-    whose 16 bytes pass the CRC is a frame start (the intact frames, and any coincidence in
-    garbage); left to right, a start inside a frame already taken is skipped; every other
-    complete candidate outside the frames taken is one bad frame."""
-    a = np.frombuffer(data, np.uint8)
-    n = a.shape[0]
-    cand = np.flatnonzero((a[:-1] == 0xA5) & (a[1:] == 0x5A))
-    cand = cand[cand + BIN_FRAME_LEN <= n]
-    rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
-    crc = rows[:, 14].astype(np.uint16) | (rows[:, 15].astype(np.uint16) << 8)
-    valid = crc16_ccitt_false_rows(rows[:, 2:14]) == crc
+@dataclass
+class SurfaceResult:
+    surface: str
+    seed: int
+    inputs: int = 0
+    seconds: float = 0.0
+    outcomes: dict[str, int] = field(default_factory=dict)
+    defects: list[Defect] = field(default_factory=list)
+    hangs: int = 0
+    deaths: int = 0
+    tracebacks: int = 0
+    slowest_s: float = 0.0
+    slowest_input: int = -1
+    largest_input_bytes: int = 0
+    rss_start_mb: float = 0.0
+    rss_end_mb: float = 0.0
+    peak_rss_mb: float = 0.0
+    peak_rise_mb: float = 0.0
+    peak_rise_input: int = -1
+    peak_rise_input_bytes: int = 0
 
-    # A CRC coincidence is not a frame: a valid candidate with another valid one starting
-    # 2..14 bytes on that is followed by a sync pattern 16 bytes on while it is not.
-    def sync_at(k: int) -> bool:
-        return k + 2 <= n and a[k] == 0xA5 and a[k + 1] == 0x5A
+    @property
+    def ok(self) -> bool:
+        return not self.defects
 
-    valid_pos = cand[valid].tolist()
-    valid_set = set(valid_pos)
-    coincidence = {
-        p
-        for p in valid_pos
-        if not sync_at(p + BIN_FRAME_LEN)
-        and any(q in valid_set and sync_at(q + BIN_FRAME_LEN) for q in range(p + 2, p + 15))
-    }
-    crc_valid = valid.copy()
-    valid &= ~np.isin(cand, np.fromiter(coincidence, np.int64, len(coincidence)))
-    taken: list[int] = []
-    end = 0
-    for p in cand[valid].tolist():
-        if p >= end:
-            taken.append(p)
-            end = p + BIN_FRAME_LEN
-    taken_a = np.asarray(taken, np.int64)
-    covered = np.zeros(n + 1, np.int64)
-    np.add.at(covered, taken_a, 1)
-    np.add.at(covered, taken_a + BIN_FRAME_LEN, -1)
-    inside = np.cumsum(covered)[:n] > 0
-    bad = int(np.count_nonzero(~valid & ~inside[cand]))
-    frames = (
-        rows[valid][np.isin(cand[valid], taken_a)][:, 2:14].copy().view(FRAME_DTYPE).reshape(-1)
+    def add_defect(self, kind: str, signature: str, i: int, detail: str, nbytes: int) -> None:
+        for d in self.defects:
+            if d.kind == kind and d.signature == signature:
+                d.count += 1
+                return
+        if len(self.defects) < 50:
+            self.defects.append(Defect(kind, signature, i, 1, detail[-3000:], nbytes))
+
+
+# -- the worker ---------------------------------------------------------------------------------
+
+
+def _signature(e: BaseException) -> str:
+    tb = traceback.extract_tb(e.__traceback__)
+    where = next(
+        (f"{Path(fr.filename).name}:{fr.lineno}" for fr in reversed(tb) if "/hdrd/" in fr.filename),
+        f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?",
     )
-    good_set = np.isin(taken_a, good_pos)
-    return {
-        "frames": frames,
-        "bad": bad,
-        "coincidences": int(np.count_nonzero(~np.isin(cand[crc_valid], good_pos))),
-        "coincidences_set_aside": len(coincidence),
-        "intact_recovered": int(np.count_nonzero(good_set)),
-    }
+    if isinstance(e, Broken):
+        return f"broken promise at {where}: {str(e)[:120]}"
+    return f"{type(e).__name__} at {where}"
 
 
-def expected_bad_text(data: bytes, good_pos: npt.NDArray[np.int64]) -> tuple[int, int]:
-    """(sync patterns outside the intact lines, those near the end that may still wait)."""
-    inside = set(good_pos.tolist())
-    syncs = []
-    i = data.find(TEXT_SYNC)
-    while i >= 0:
-        if i not in inside:
-            syncs.append(i)
-        i = data.find(TEXT_SYNC, i + 1)
-    pending = sum(1 for i in syncs if len(data) - i < 96)
-    return len(syncs), pending
+def _worker(
+    surface: str,
+    seed: int,
+    start: int,
+    stop: int,
+    deadline: float,
+    progress: Any,
+    conn: Any,
+    workdir: str,
+    max_vm_mb: int,
+) -> None:
+    if max_vm_mb > 0:
+        limit = max_vm_mb << 20
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    res = SurfaceResult(surface, seed)
+    outcomes: Counter[str] = Counter()
+    target = make_target(surface, seed, Path(workdir))
+    hwm = _status_kb("VmHWM")
+    res.rss_start_mb = _status_kb("VmRSS") / 1024
+    last_send = time.monotonic()
+    i = start
+    for i in range(start, stop):
+        if time.monotonic() > deadline:
+            i -= 1
+            break
+        progress.value = i
+        data = generate(surface, seed, i)
+        res.largest_input_bytes = max(res.largest_input_bytes, len(data))
+        t0 = time.process_time()
+        try:
+            outcomes[target.run(data)] += 1
+        except Exception as e:  # noqa: BLE001 - every exception is what we are looking for
+            kind = "broken" if isinstance(e, Broken) else "traceback"
+            res.tracebacks += 1
+            res.add_defect(kind, _signature(e), i, traceback.format_exc(), len(data))
+            outcomes["defect"] += 1
+            try:
+                target.close()
+            except Exception:  # noqa: BLE001, S110 - a broken target is rebuilt either way
+                pass
+            target = make_target(surface, seed, Path(workdir))
+        dt = time.process_time() - t0  # CPU: the machine's load does not move it
+        if dt > res.slowest_s:
+            res.slowest_s, res.slowest_input = dt, i
+        h = _status_kb("VmHWM")
+        if h > hwm:
+            if (h - hwm) / 1024 > res.peak_rise_mb:
+                res.peak_rise_mb = (h - hwm) / 1024
+                res.peak_rise_input, res.peak_rise_input_bytes = i, len(data)
+            hwm = h
+        res.inputs += 1
+        now = time.monotonic()
+        if now - last_send > 2.0:
+            res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
+            res.rss_end_mb = _status_kb("VmRSS") / 1024
+            conn.send(("progress", i, res))
+            last_send = now
+    target.close()
+    res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
+    res.rss_end_mb = _status_kb("VmRSS") / 1024
+    conn.send(("done", i, res))
 
 
-def push(
-    protocol: str, data: bytes, rng: np.random.Generator
-) -> tuple[list[Any], ParserStats, float]:
-    p = Parser(protocol)
-    out: list[Any] = []
-    cuts = np.cumsum(rng.integers(1, 4097, len(data) // 2048 + 2))
-    edges = [0, *cuts[cuts < len(data)].tolist(), len(data)]
-    t0 = time.perf_counter()
-    for a, b in itertools.pairwise(edges):
-        out += p.feed(data[a:b])
-    out += p.flush()
-    return out, p.stats, time.perf_counter() - t0
+def _merge(total: SurfaceResult, part: SurfaceResult) -> None:
+    total.inputs += part.inputs
+    for k, v in part.outcomes.items():
+        total.outcomes[k] = total.outcomes.get(k, 0) + v
+    for d in part.defects:
+        for _ in range(d.count):
+            total.add_defect(d.kind, d.signature, d.first_input, d.detail, d.input_bytes)
+    total.tracebacks += part.tracebacks
+    if part.slowest_s > total.slowest_s:
+        total.slowest_s, total.slowest_input = part.slowest_s, part.slowest_input
+    total.largest_input_bytes = max(total.largest_input_bytes, part.largest_input_bytes)
+    if not total.rss_start_mb:
+        total.rss_start_mb = part.rss_start_mb
+    total.rss_end_mb = part.rss_end_mb
+    total.peak_rss_mb = max(total.peak_rss_mb, part.peak_rss_mb)
+    if part.peak_rise_mb > total.peak_rise_mb:
+        total.peak_rise_mb = part.peak_rise_mb
+        total.peak_rise_input = part.peak_rise_input
+        total.peak_rise_input_bytes = part.peak_rise_input_bytes
 
 
-def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
-    t_gen = time.perf_counter()
-    s = build_stream(protocol, nbytes, seed)
-    t_gen = time.perf_counter() - t_gen
-    data, sent = s["data"], s["sent"]
-    frames, stats, t_push = push(protocol, data, np.random.default_rng(seed + 1))
-    t0 = time.perf_counter()
-    arr, vstats = decode_capture(data, protocol)
-    t_vec = time.perf_counter() - t0
-    got = array_to_frames(arr)
-    same_push_vec = got == frames and vstats == stats
-    sent_frames = array_to_frames(sent)
-    if protocol == "hdr-bin":
-        ref = reference_bin(data, s["good_pos"])
-        want_bad, pending, coincidences = ref["bad"], 0, ref["coincidences"]
-        set_aside = ref["coincidences_set_aside"]
-        intact = ref["intact_recovered"]
-        as_reference = np.array_equal(arr, ref["frames"]) and stats.bad_frames == want_bad
-    else:
-        # Text: garbage cannot form a line (no '$' in it; a cut line keeps no checksum).
-        want_bad, pending = expected_bad_text(data, s["good_pos"])
-        coincidences = set_aside = 0
-        intact = len(sent_frames) if frames == sent_frames else 0
-        as_reference = (
-            intact == len(sent_frames) and want_bad - pending <= stats.bad_frames <= want_bad
-        )
-    exact = frames == sent_frames
-    # The pipeline on what was recovered: rails and out-of-range samples flagged, no crash.
-    t0 = time.perf_counter()
-    pipe = Pipeline(PipelineConfig(bias_dps=0.0))
-    msgs = pipe.feed_array(arr, vstats.bad_before) + pipe.finish(vstats.bad_frames)
-    t_pipe = time.perf_counter() - t0
-    sensor = SensorModel()
-    _, accepted = unwrap_us(arr["t_us"])
-    rate = arr["rate"][accepted].astype(np.int64)
-    omega = sensor.to_dps_array(rate, arr["ref"][accepted].astype(np.int64))
-    sat_sent = int(np.count_nonzero(np.asarray(sensor.saturated(rate, omega))))
-    sat_flagged = sum(int(m.get("saturated", 0)) for m in msgs)
-    steps = [m["step"] for m in msgs]
-    steps_ok = steps == sorted(set(steps))
-    ok = same_push_vec and as_reference and steps_ok and sat_flagged == sat_sent
-    return {
-        "protocol": protocol,
-        "bytes": len(data),
-        "seed": seed,
-        "injected": s["injected"],
-        "frames_sent": len(sent_frames),
-        "frames_recovered": len(frames),
-        "intact_recovered": intact,
-        "as_reference": as_reference,
-        "recovered_exactly": exact,
-        "bad_expected": want_bad,
-        "bad_expected_pending_at_end": pending,
-        "bad_counted": stats.bad_frames,
-        "crc_coincidences": coincidences,
-        "crc_coincidences_set_aside": set_aside,
-        "push_equals_vectorised": same_push_vec,
-        "counters": stats.as_dict(),
-        "steps": len(msgs),
-        "saturated_samples": sat_sent,
-        "saturated_flagged": sat_flagged,
-        "seconds": {"generate": t_gen, "push": t_push, "vectorised": t_vec, "pipeline": t_pipe},
-        "ok": ok,
-    }
+WALL_FACTOR = 15
+"""An input is a hang after ``hang_s`` of the worker's CPU time (a loop), or after this many
+times ``hang_s`` of wall-clock time (a wait that uses no CPU: a FIFO, a socket). CPU time,
+because on a shared machine a worker at nice 10 beside busy processes can get a few
+percent of a core: 20 s of wall clock is no sign of a hang there."""
 
 
-def report(r: dict[str, Any]) -> str:
-    c = r["counters"]
-    inj = r["injected"]
-    sec = r["seconds"]
-    mb = r["bytes"] / 1e6
-    pending = r["bad_expected_pending_at_end"]
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process *pid* so far (0 if it is gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_surface(
+    surface: str,
+    inputs: int,
+    seconds: float,
+    seed: int,
+    hang_s: float = 20.0,
+    max_vm_mb: int = 4096,
+    quiet: bool = False,
+) -> SurfaceResult:
+    """*inputs* inputs of *surface* (or as many as *seconds* allow) through its in-process
+    target, in watched worker processes (module doc)."""
+    ctx = mp.get_context("fork")
+    total = SurfaceResult(surface, seed)
+    t_start = time.monotonic()
+    deadline = t_start + seconds
+    start = 0
+    workdir = tempfile.mkdtemp(prefix=f"hdrd-fuzz-{surface}-")
+    try:
+        while start < inputs and time.monotonic() < deadline:
+            progress = ctx.Value("q", start - 1, lock=False)
+            recv, send = ctx.Pipe(duplex=False)
+            w = ctx.Process(
+                target=_worker,
+                args=(surface, seed, start, inputs, deadline, progress, send, workdir, max_vm_mb),
+                daemon=True,
+            )
+            w.start()
+            send.close()
+            pid = w.pid
+            assert pid is not None
+            last: SurfaceResult | None = None
+            done_at: int | None = None
+            seen, seen_at, seen_cpu = progress.value, time.monotonic(), 0.0
+            hung = ""
+            while True:
+                if recv.poll(0.25):
+                    try:
+                        kind, at, res = recv.recv()
+                    except EOFError:
+                        kind = ""
+                    else:
+                        last = res
+                        if kind == "done":
+                            done_at = at
+                            break
+                        if not quiet:
+                            print(
+                                f"  {surface}: {at + 1:,} inputs",
+                                end="\r",
+                                file=sys.stderr,
+                                flush=True,
+                            )
+                        continue
+                if not w.is_alive():
+                    break
+                cur = progress.value
+                if cur != seen:
+                    seen, seen_at, seen_cpu = cur, time.monotonic(), _cpu_s(pid)
+                elif _cpu_s(pid) - seen_cpu > hang_s:
+                    hung = f"{hang_s:g} s of CPU on one input"
+                elif time.monotonic() - seen_at > WALL_FACTOR * hang_s:
+                    hung = f"no progress for {WALL_FACTOR * hang_s:g} s (waiting)"
+                if hung:
+                    w.kill()
+                    break
+            w.join()
+            cur = progress.value
+            if last is not None:
+                _merge(total, last)
+            if done_at is not None:
+                start = inputs
+                break
+            # killed (a hang) or died: the input it was on is the culprit; go on after it
+            data = generate(surface, seed, cur)
+            if hung:
+                total.hangs += 1
+                total.add_defect("hang", hung, cur, "", len(data))
+            else:
+                total.deaths += 1
+                total.add_defect("death", f"worker exit {w.exitcode}", cur, "", len(data))
+            counted = (last.inputs if last is not None else 0) + start
+            total.inputs += max(0, cur - counted) + 1  # the inputs after the last report
+            start = cur + 1
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    total.seconds = time.monotonic() - t_start
+    return total
+
+
+# -- reports ------------------------------------------------------------------------------------
+
+
+def describe(r: SurfaceResult) -> str:
+    rate = r.inputs / r.seconds if r.seconds else 0.0
+    outcomes = ", ".join(f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1]))
     lines = [
-        f"{r['protocol']}: {r['bytes']:,} bytes, seed {r['seed']}",
-        (
-            f"  injected: {inj['intact']:,} intact frames, {inj['corrupted']:,} corrupted, "
-            f"{inj['truncated']:,} truncated, {inj['garbage']:,} garbage runs, "
-            f"{inj['sync_garbage']:,} garbage runs headed by a sync pattern"
-        ),
-        (
-            f"  intact frames recovered {r['intact_recovered']:,} of {r['frames_sent']:,} sent; "
-            f"frames out {r['frames_recovered']:,} (exactly the frames sent: {r['recovered_exactly']})"
-        ),
-        (
-            f"  bad frames counted {r['bad_counted']:,}, expected {r['bad_expected']:,}"
-            + (f" (up to {pending} still pending at the end)" if pending else "")
-            + f"; CRC-valid candidates formed by garbage {r['crc_coincidences']}"
-            + f" ({r['crc_coincidences_set_aside']} set aside as coincidences)"
-            + f"; as the reference scan: {r['as_reference']}"
-        ),
-        (
-            f"  sequence: gaps {c['seq_gaps']:,} (lost {c['lost_frames']:,}), "
-            f"repeats/reordered {c['seq_repeats']:,}, restarts {c['seq_resets']:,}; "
-            f"clock: wraps {c['clock_wraps']}, steps back {c['clock_back']:,}"
-        ),
-        (
-            f"  push parser == vectorised decoder: {r['push_equals_vectorised']}; "
-            f"pipeline: {r['steps']:,} steps, saturated samples flagged "
-            f"{r['saturated_flagged']:,} of {r['saturated_samples']:,}"
-        ),
-        (
-            f"  time: push {sec['push']:.2f} s ({mb / sec['push']:.1f} MB/s), "
-            f"vectorised {sec['vectorised']:.2f} s ({mb / sec['vectorised']:.1f} MB/s), "
-            f"pipeline {sec['pipeline']:.2f} s"
-        ),
-        f"  {'OK' if r['ok'] else 'FAILED'}",
+        f"{r.surface}: {r.inputs:,} inputs in {r.seconds:.0f} s ({rate:,.0f}/s), seed {r.seed}",
+        f"  outcomes: {outcomes}",
+        f"  tracebacks {r.tracebacks}, hangs {r.hangs}, deaths {r.deaths}; costliest input "
+        f"{r.slowest_s:.3f} s of CPU (#{r.slowest_input}); largest input "
+        f"{r.largest_input_bytes:,} bytes",
+        f"  RSS: {r.rss_start_mb:.0f} MB before the first input, peak {r.peak_rss_mb:.0f} MB "
+        f"(largest rise +{r.peak_rise_mb:.1f} MB at #{r.peak_rise_input}, "
+        f"{r.peak_rise_input_bytes:,} bytes), {r.rss_end_mb:.0f} MB at the end",
     ]
+    for d in r.defects:
+        lines.append(
+            f"  DEFECT {d.kind} x{d.count}: {d.signature} (first: --show {r.surface}:{d.first_input}, "
+            f"{d.input_bytes:,} bytes)"
+        )
+        if d.detail:
+            lines.extend("    " + x for x in d.detail.rstrip().splitlines()[-6:])
+    lines.append(f"  {'OK' if r.ok else 'FAILED'}")
     return "\n".join(lines)
 
 
+def markdown(results: list[SurfaceResult]) -> str:
+    head = (
+        "| surface | inputs | seconds | tracebacks | hangs | deaths | costliest input, CPU s | "
+        "peak RSS, MB (before the first input; largest rise by one input) | largest input, bytes "
+        "| outcomes |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n"
+    )
+    rows = []
+    for r in results:
+        outcomes = ", ".join(
+            f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1])
+        )
+        rows.append(
+            f"| {r.surface} | {r.inputs:,} | {r.seconds:.0f} | {r.tracebacks} | {r.hangs} | "
+            f"{r.deaths} | {r.slowest_s:.2f} | {r.peak_rss_mb:.0f} ({r.rss_start_mb:.0f}; "
+            f"+{r.peak_rise_mb:.1f}) | "
+            f"{r.largest_input_bytes:,} | {outcomes} |"
+        )
+    return head + "\n".join(rows) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bytes", type=int, default=10_000_000, help="stream length per protocol")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--protocol", choices=("hdr-bin", "hdr-text", "both"), default="both")
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument(
+        "--surface",
+        nargs="+",
+        choices=("all", *ALL),
+        default=["all"],
+        help="surfaces to fuzz (default all)",
+    )
+    ap.add_argument("--inputs", type=int, default=2000, help="inputs per surface (default 2000)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=600.0,
+        help="at most this long per surface, s (default 600); whichever ends first",
+    )
+    ap.add_argument("--seed", type=int, default=0, help="seed of every input (default 0)")
+    ap.add_argument(
+        "--hang-s",
+        type=float,
+        default=20.0,
+        help="an input taking more CPU seconds hangs (default 20; 15x as many wall seconds)",
+    )
+    ap.add_argument(
+        "--max-vm-mb",
+        type=int,
+        default=4096,
+        help="address-space limit of a worker, MiB (default 4096; 0: none)",
+    )
+    ap.add_argument("--process", action="store_true", help="also the process-level runs")
+    ap.add_argument("--process-only", action="store_true", help="only the process-level runs")
+    ap.add_argument(
+        "--process-inputs",
+        type=int,
+        default=200,
+        help="inputs per process-level run that starts a process per input (default 200)",
+    )
+    ap.add_argument(
+        "--process-seconds",
+        type=float,
+        default=60.0,
+        help="seconds per process-level run against one long-running process (default 60)",
+    )
+    ap.add_argument(
+        "--process-stream-inputs",
+        type=int,
+        default=100_000,
+        help="at most this many inputs per long-running process (default 100000)",
+    )
+    ap.add_argument("--bytes", type=int, default=10_000_000, help="stream: length per protocol")
+    ap.add_argument(
+        "--protocol",
+        choices=("hdr-bin", "hdr-text", "both"),
+        default="both",
+        help="stream: which protocol (default both)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    ap.add_argument(
+        "--show", metavar="SURFACE:I", help="write input I of SURFACE to stdout, and exit"
+    )
     args = ap.parse_args(argv)
-    protocols = ("hdr-bin", "hdr-text") if args.protocol == "both" else (args.protocol,)
+
+    if args.show:
+        surface, _, i = args.show.partition(":")
+        if surface not in SURFACES or not i.isdigit():
+            ap.error(f"--show wants SURFACE:I with SURFACE one of {', '.join(SURFACES)}")
+        sys.stdout.buffer.write(generate(surface, args.seed, int(i)))
+        return 0
+    surfaces = ALL if "all" in args.surface else tuple(s for s in ALL if s in args.surface)
+    import numpy as np
+
     print(
-        f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}",
+        f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, "
+        f"load average {os.getloadavg()[0]:.2f}",
         flush=True,
     )
-    results = []
-    for protocol in protocols:
-        r = run(protocol, args.bytes, args.seed)
-        results.append(r)
-        print(report(r), flush=True)
+    ok = True
+    doc: dict[str, Any] = {"seed": args.seed, "in_process": [], "process": []}
+    results: list[SurfaceResult] = []
+    if not args.process_only:
+        for s in surfaces:
+            if s == "stream":
+                import fuzz_stream
+
+                argv_s = [
+                    "--bytes",
+                    str(args.bytes),
+                    "--seed",
+                    str(args.seed),
+                    "--protocol",
+                    args.protocol,
+                ]
+                ok &= fuzz_stream.main(argv_s) == 0
+                continue
+            r = run_surface(s, args.inputs, args.seconds, args.seed, args.hang_s, args.max_vm_mb)
+            results.append(r)
+            ok &= r.ok
+            print(describe(r), flush=True)
+            doc["in_process"].append(asdict(r))
+        if results:
+            print("\n" + markdown(results))
+    if args.process or args.process_only:
+        import fuzz_process
+
+        for s in surfaces:
+            if s == "stream":
+                continue
+            for pr in fuzz_process.run(
+                s, args.seed, args.process_inputs, args.process_seconds, args.process_stream_inputs
+            ):
+                ok &= pr.ok
+                print(pr.describe(), flush=True)
+                doc["process"].append(asdict(pr))
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
-    return 0 if all(r["ok"] for r in results) else 1
+        Path(args.json).write_text(json.dumps(doc, indent=2) + "\n")
+    print("OK" if ok else "FAILED")
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

@@ -57,6 +57,7 @@ class ConfigError(HdrdError, ValueError):
         shown = _show(value)
         # One line always: a key or a value read from YAML may hold line breaks.
         name = key if key.isprintable() else repr(key)
+        name = name if len(name) <= 80 else name[:77] + "..."  # a key of any length: one line
         super().__init__(f"config error{where}: {name} = {shown}: {allowed}")
 
     def with_source(self, source: str) -> ConfigError:
@@ -144,7 +145,9 @@ class OutputConfig:
     nmea_ths: bool = False
     """Also send $HNTHS."""
     nmea_talker: str = NMEA_TALKER
-    """NMEA talker ID: HN (non-north-seeking gyro); gpsd reads HC (compass), not HN."""
+    """NMEA talker ID, two capital letters: HN (heading, non-north-seeking gyro: what hdrd
+    is, and what chart plotters are told); gpsd drops HN, so for gpsd use II (integrated
+    instrumentation; docs/protocol.md, "NMEA 0183 and gpsd")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -298,7 +301,10 @@ _NONNEG = _num(0)
 # each bound is where it is.
 _SECONDS = _num(0, 3600, lo_open=True)
 RULES: dict[str, tuple[Check, str]] = {
-    "device.port": ((lambda v: bool(v.strip())), "a non-empty device path or pyserial URL"),
+    "device.port": (
+        (lambda v: bool(v.strip()) and "\0" not in v),
+        "a non-empty device path or pyserial URL, without a NUL character",
+    ),
     "device.protocol": _choice(*PROTOCOLS),
     "device.baud": _num(50, 20_000_000),
     "device.reconnect_min_s": _SECONDS,
@@ -321,6 +327,8 @@ RULES: dict[str, tuple[Check, str]] = {
     "hdr.T": _num(0.01, 60),
     "calibration.t_bias_s": _SECONDS,
     "calibration.startup_s": _num(0, 600, lo_open=True),
+    # A path is handed to the OS, which cannot take a NUL character (ValueError).
+    "calibration.bias_file": ((lambda v: "\0" not in v), "a path without a NUL character"),
     "calibration.on_bad_bias_file": _choice("error", "calibrate"),
     "calibration.max_std_dps": _POS,
     "calibration.max_trend_dps": _POS,
@@ -332,7 +340,7 @@ RULES: dict[str, tuple[Check, str]] = {
     "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
     "output.nmea_talker": (
         (lambda v: len(v) == 2 and v.isascii() and v.isalpha() and v.isupper()),
-        "two capital letters, e.g. HN or HC",
+        "two capital letters, e.g. HN, or II for gpsd",
     ),
     "log.level": _choice("debug", "info", "warning", "error"),
     "log.format": _choice("auto", "json", "console"),

@@ -114,9 +114,19 @@ def load_yaml(text: str) -> Any:
     """
     import yaml  # here, not at the top: hdrd run without a file never needs it (~18 ms)
 
-    loader = _bounded_loader(yaml)(text)
+    loader = None
     try:
+        # The reader checks every character on construction: a control character anywhere
+        # (NUL, ESC) is a ReaderError here, before any parsing.
+        loader = _bounded_loader(yaml)(text)
         return loader.get_single_data()
+    except yaml.reader.ReaderError as e:
+        ch = e.character
+        shown = f"#x{ch:04x}" if isinstance(ch, int) else repr(ch)
+        raise InputFileError(
+            f"YAML does not allow the character {shown} (a control or special character)",
+            _line_column(text, e.position),
+        ) from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
@@ -128,10 +138,17 @@ def load_yaml(text: str) -> Any:
         raise InputFileError(
             f"YAML collections nested deeper than {MAX_YAML_DEPTH} levels"
         ) from None
-    except (ValueError, OverflowError, TypeError) as e:  # a guard, as construct_object's
+    except Exception as e:  # noqa: BLE001 - a guard, as construct_object's
         raise InputFileError(f"YAML value cannot be converted ({type(e).__name__})") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
+
+
+def _line_column(text: str, position: int) -> str:
+    """The 1-based "line L, column C" of a character offset in *text*."""
+    line = text.count("\n", 0, position) + 1
+    return f"line {line}, column {position - (text.rfind(chr(10), 0, position) + 1) + 1}"
 
 
 _LOADER: Any = None
@@ -162,10 +179,16 @@ def _bounded_loader(yaml: Any) -> Any:
         def construct_object(self, node: Any, deep: bool = False) -> Any:
             try:
                 return super().construct_object(node, deep)
-            except (ValueError, OverflowError) as e:
-                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45, ...
-                why = (str(e).splitlines() or [type(e).__name__])[0]
-                why = why if len(why) <= 80 else why[:77] + "..."
+            except yaml.YAMLError:
+                raise
+            except Exception as e:  # noqa: BLE001 - PyYAML's constructors on hostile text
+                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45,
+                # AttributeError for `!!timestamp 'not a time'`, ...
+                if isinstance(e, (ValueError, OverflowError)):
+                    why = (str(e).splitlines() or [type(e).__name__])[0]
+                    why = why if len(why) <= 80 else why[:77] + "..."
+                else:  # a message about PyYAML's insides: say what the text is not
+                    why = f"not a valid {str(node.tag).rsplit(':', 1)[-1][:40]}"
                 raise yaml.constructor.ConstructorError(
                     None, None, f"value cannot be converted ({why})", node.start_mark
                 ) from None

@@ -277,3 +277,103 @@ def test_numpy_and_hdrd_run_under_memory_deny_write_execute() -> None:
         assert r.returncode == 0, r.stderr
         runs[mode] = json.loads(r.stdout.splitlines()[-1])
     assert runs["mdwe"] == runs["plain"]
+
+
+# -- resources: MemoryMax and friends -------------------------------------------------------
+
+RESULTS = ROOT / "bench" / "RESULTS.md"
+
+
+def _bytes(value: str) -> int:
+    m = re.fullmatch(r"(\d+)([KMG]?)", value)
+    assert m, f"not a size systemd takes here: {value!r}"
+    return int(m.group(1)) << {"": 0, "K": 10, "M": 20, "G": 30}[m.group(2)]
+
+
+def test_unit_bounds_memory_tasks_and_descriptors() -> None:
+    unit = parse_unit(UNIT.read_text())
+    one = {k: v for k, v in unit["Service"]}
+    # A memory fault ends in an OOM kill inside the unit, the unit stopped, and a restart.
+    limit = _bytes(one["MemoryMax"])
+    assert one["MemorySwapMax"] == "0"  # else the runaway swaps instead of reaching the limit
+    assert one["OOMPolicy"] == "stop" and one["Restart"] == "on-failure"
+    assert "MemoryHigh" not in one  # throttling would only delay the restart
+    # The limit keeps a margin over what was measured: the largest peak RSS of the daemon as
+    # the unit runs it (on a serial port, reloaded by SIGHUP) in the process-level fuzz runs,
+    # as bench/RESULTS.md records it.
+    m = re.search(r"daemon as the unit runs it[^*]*: \*\*(\d+) MB\*\*", RESULTS.read_text())
+    assert m, "bench/RESULTS.md does not record the fuzz runs' peak RSS"
+    assert limit >= 3 * (int(m.group(1)) << 20)
+    assert limit <= 1 << 30  # small enough to act before a small board's own OOM killer
+    assert int(one["TasksMax"]) >= 16 and int(one["LimitNOFILE"]) >= 64
+    assert "OPENBLAS_NUM_THREADS=1" in values(unit, "Environment")
+
+
+def test_unit_says_what_the_watchdog_catches() -> None:
+    # The watchdog follows progress: it catches a loop kept from its frames by other work,
+    # not only a hung one (docs/operations.md, "The watchdog").
+    text = UNIT.read_text()
+    assert "so a hung loop is restarted" not in text
+    comment = " ".join(
+        text.split("WatchdogSec=10")[0].split("[Service]")[1].replace("#", " ").split()
+    )
+    assert "only after progress" in comment and "kept from its frames" in comment
+
+
+@pytest.mark.slow
+def test_the_daemon_runs_well_inside_the_units_limits(tmp_path: Path) -> None:
+    """hdrd run with every kind of output and GPS aiding, environment as the unit sets it:
+    its RSS, threads and descriptors leave the unit's limits a wide margin."""
+    import socket
+    import time
+
+    unit = parse_unit(UNIT.read_text())
+    one = {k: v for k, v in unit["Service"]}
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for item in values(unit, "Environment"):
+        k, _, v = item.partition("=")
+        env[k] = v
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp.bind(("127.0.0.1", 0))
+    udp.settimeout(10)
+    dest = f"127.0.0.1:{udp.getsockname()[1]}"
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hdrd",
+            "run",
+            "--simulate",
+            "--speedup",
+            "20",
+            "--bias",
+            "0.1",
+            "--udp",
+            dest,
+            "--udp",
+            "no-such-host.invalid:9",
+            "--nmea-udp",
+            dest,
+            "--stdout",
+            "--gpsd",
+            "127.0.0.1:1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+    try:
+        for _ in range(20):  # steps are coming: the daemon is past its start
+            udp.recv(65535)
+        time.sleep(1.0)
+        status = Path(f"/proc/{p.pid}/status").read_text()
+        hwm_kb = int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1))  # type: ignore[union-attr]
+        threads = int(re.search(r"Threads:\s+(\d+)", status).group(1))  # type: ignore[union-attr]
+        fds = len(os.listdir(f"/proc/{p.pid}/fd"))
+    finally:
+        p.terminate()
+        p.wait(10)
+        udp.close()
+    assert hwm_kb * 1024 * 3 <= _bytes(one["MemoryMax"]), hwm_kb
+    assert threads * 4 <= int(one["TasksMax"]), threads
+    assert fds * 4 <= int(one["LimitNOFILE"]), fds

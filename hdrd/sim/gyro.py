@@ -616,16 +616,28 @@ DEFAULT_START_MODEL = GyroModel((StaticBias(bias_dps=1.0), WhiteNoise(density_dp
 def load_model(path: str | os.PathLike[str]) -> GyroModel:
     """Read a model YAML ``{effects: [{name: static_bias, bias_dps: 0.3}, ...]}``.
 
-    Raises ValueError naming the file and what is wrong (OSError if it cannot be read)."""
-    with open(path, encoding="utf-8") as f:
-        try:
-            data = yaml.safe_load(f)
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    Read as hdrd reads its configuration (:mod:`hdrd.files`): a regular file of at most
+    1 MiB, YAML nested at most 32 deep. Raises ValueError naming the file and what is wrong,
+    in one line (OSError if it cannot be read)."""
+    from hdrd.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+
+    try:
+        text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")
+    except InputFileError as exc:
+        raise ValueError(f"{path}: cannot be read: {exc}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not UTF-8 text") from None
+    try:
+        data = load_yaml(text)
+    except InputFileError as exc:
+        at = f" at {exc.where}" if exc.where else ""
+        raise ValueError(f"{path}: not valid YAML{at}: {exc}") from None
     try:
         return GyroModel.from_dict(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    except (TypeError, OverflowError) as exc:  # a key or value of a type no model has
+        raise ValueError(f"{path}: not a gyro model ({type(exc).__name__}: {exc})") from None
 
 
 def save_model(model: GyroModel, path: str | os.PathLike[str]) -> None:

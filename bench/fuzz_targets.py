@@ -1,0 +1,601 @@
+"""In-process fuzz targets of bench/fuzz.py: each input through the code the daemon runs.
+
+A target is made once per worker (``make_target(surface, workdir)``) and keeps its state
+across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes one input
+(bench/fuzz_inputs.py) and returns a short label of what happened ("accepted",
+"rejected", ...). Anything it raises is a defect; so is a broken promise, raised as
+:class:`Broken`:
+
+- every published message: every number finite, heading in [0, 360), one line of JSON from
+  :func:`hdrd.publish.format_json`, NMEA sentences that :func:`hdrd.publish.parse_nmea`
+  reads back (the talker configured);
+- a refused file: one printable line (:class:`hdrd.config.ConfigError` for a configuration,
+  :class:`hdrd.calibrate.BiasFileError` for a bias file, a capture command's stderr);
+- ``hdrd tail``: every line it would print is printable text;
+- gpsd: the client stays in step with the peer (a marker line sent after each input is
+  read) and the aiding publishes only finite values.
+
+Surfaces and paths: serial, the push parser (:class:`hdrd.frames.Parser`) in random chunks
+and the live pipeline a frame at a time (:meth:`hdrd.pipeline.Pipeline.feed`, ``resync``,
+``stale_message``, ``finish``); gpsd, a :class:`hdrd.gpsd.GpsdLink` (client and aiding) over
+a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
+:meth:`hdrd.publish.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
+SIGHUP read), a :class:`hdrd.daemon.Daemon` built from the result and a running one
+reloaded with it (the SIGHUP handler's body), then the daemon's pipeline stepped;
+bias, :func:`hdrd.calibrate.load_bias` and the daemon's :func:`hdrd.daemon.choose_bias`
+(both ``on_bad_bias_file`` settings), an accepted record replayed; capture, ``hdrd replay``'s
+and ``hdrd convert``'s own entry points (file checks, decode, replay pipeline, output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import os
+import random
+import select
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, MutableMapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from fuzz_inputs import stress_frames
+
+__all__ = ["Broken", "Target", "make_target"]
+
+
+class Broken(AssertionError):
+    """A promise the code under test did not keep (not an exception it raised)."""
+
+
+def _check(ok: bool, what: str) -> None:
+    if not ok:
+        raise Broken(what)
+
+
+def one_line(text: str, what: str) -> None:
+    """A refusal is one printable line of reasonable length."""
+    _check(isinstance(text, str) and bool(text.strip()), f"{what}: empty message")
+    _check("\n" not in text and "\r" not in text, f"{what}: more than one line: {text[:200]!r}")
+    _check(text.isprintable(), f"{what}: not printable: {text[:200]!r}")
+    _check(len(text) <= 600, f"{what}: {len(text)} characters: {text[:200]!r}")
+
+
+def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: bool = True) -> int:
+    """The published messages keep their promises (module doc); returns how many."""
+    from hdrd.publish import format_json, nmea_sentences, parse_nmea
+
+    n = 0
+    for m in msgs:
+        n += 1
+        for k, v in m.items():
+            if isinstance(v, float):
+                _check(math.isfinite(v), f"message {k} = {v!r}: {dict(m)}")
+        h = m.get("heading")
+        if h is not None:
+            _check(0.0 <= h < 360.0, f"heading {h!r} outside [0, 360)")
+        line = format_json(m)
+        _check(line.endswith(b"\n") and line.count(b"\n") == 1, f"JSON line {line[:200]!r}")
+        json.loads(line, parse_constant=_no_constant)
+        for s in nmea_sentences(m, ths=ths, talker=talker):
+            parse_nmea(s)
+    return n
+
+
+def _no_constant(name: str) -> Any:
+    raise Broken(f"JSON line holds {name}")
+
+
+class Target:
+    """One surface's target (see the module doc)."""
+
+    surface = ""
+
+    def run(self, data: bytes) -> str:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+# -- serial: push parser + live pipeline --------------------------------------------------------
+
+
+def _pipeline_variants() -> list[Any]:
+    from hdrd.calibrate import BiasRecord
+    from hdrd.hdr import HdrParams
+    from hdrd.pipeline import PipelineConfig
+
+    rec = BiasRecord(0.3, 0.05, 300, 30.0)
+    return [
+        PipelineConfig(bias_dps=0.1),
+        PipelineConfig(method="hdr+", bias_dps=rec.bias_dps, bias_record=rec),
+        PipelineConfig(method="none", bias_dps=-2.9),
+        PipelineConfig(startup_s=1.0),  # a start-up calibration
+        PipelineConfig(method="hdr+", startup_s=0.5),
+        PipelineConfig(params=HdrParams(T=0.01, c1=1000.0, c2=10.0, i_c=10.0), bias_dps=0.0),
+        PipelineConfig(params=HdrParams(T=60.0, tau=3600.0), bias_dps=0.0),
+    ]
+
+
+class SerialTarget(Target):
+    """The daemon's path for the gyro's bytes: parser fed in random chunks, the live
+    pipeline a frame at a time; one parser and pipeline live across inputs (a daemon that
+    never restarts), a new one every ``RESTART_EVERY`` inputs (another configuration)."""
+
+    surface = "serial"
+    RESTART_EVERY = 500
+
+    def __init__(self, seed: int) -> None:
+        self.rng = random.Random(f"{seed}:serial-target")
+        self.variants = _pipeline_variants()
+        self.count = 0
+        self.now = 1.7e9
+        self._new()
+
+    def _new(self) -> None:
+        from hdrd.frames import Parser
+        from hdrd.pipeline import Pipeline
+
+        k = (self.count // self.RESTART_EVERY) % len(self.variants)
+        self.pipeline = Pipeline(self.variants[k])
+        self.parsers = {"hdr-bin": Parser("hdr-bin"), "hdr-text": Parser("hdr-text")}
+
+    def _shutdown(self) -> None:
+        """What the daemon does at exit: the frames the parser held back, the last block."""
+        msgs: list[dict[str, Any]] = []
+        for parser in self.parsers.values():
+            for f in parser.flush():
+                msgs += self.pipeline.feed(f, parser.stats.bad_frames, self.now)
+        msgs += self.pipeline.finish(0, self.now)
+        check_messages(msgs)
+
+    def run(self, data: bytes) -> str:
+        if self.count and self.count % self.RESTART_EVERY == 0:
+            self._shutdown()
+            self._new()
+        self.count += 1
+        protocol = "hdr-bin" if data[:1] == b"B" else "hdr-text"
+        parser = self.parsers[protocol]
+        p = self.pipeline
+        stream = memoryview(data)[1:]
+        rng = self.rng
+        frames = 0
+        msgs: list[dict[str, Any]] = []
+        pos = 0
+        while pos < len(stream):
+            n = rng.choice((1, 7, 64, 4096))
+            for f in parser.feed(stream[pos : pos + n]):
+                frames += 1
+                msgs += p.feed(f, parser.stats.bad_frames, self.now)
+            pos += n
+        r = rng.random()
+        self.now += 1.0
+        if r < 0.05:
+            msgs += p.resync(
+                rng.choice((0.0, 0.5, 3.0, 1e6, 1e300)), parser.stats.bad_frames, self.now
+            )
+        elif r < 0.1:
+            msgs.append(p.stale_message(self.now, rng.choice((3.0, 1e9)), parser.stats.bad_frames))
+        check_messages(msgs)
+        return "frames" if frames else "no frames"
+
+
+# -- gpsd: client + aiding over a real TCP connection ---------------------------------------------
+
+MARKER = b'{"class":"VERSION","release":"fuzz-%d"}\n'
+
+
+class GpsdTarget(Target):
+    """A :class:`hdrd.gpsd.GpsdLink` connected to a loopback peer that this target plays:
+    each input is sent (without blocking), then a newline and a marker line; the link is
+    polled as the daemon's loop does until the marker is read. Between polls the pipeline
+    gets a step's worth of frames, and each step goes through the link's aid."""
+
+    surface = "gpsd"
+    MAX_POLLS = 2000
+
+    def __init__(self, seed: int) -> None:
+        from hdrd.aiding import AidingConfig, GpsAiding
+        from hdrd.gpsd import GpsdClient, GpsdLink
+        from hdrd.pipeline import Pipeline, PipelineConfig
+
+        self.rng = random.Random(f"{seed}:gpsd-target")
+        self.server = socket.create_server(("127.0.0.1", 0))
+        port = self.server.getsockname()[1]
+        self.clock = 1000.0
+        client = GpsdClient("127.0.0.1", port, clock=lambda: self.clock)
+        self.link = GpsdLink(client, GpsAiding(AidingConfig()), clock=lambda: self.clock)
+        self.pipeline = Pipeline(PipelineConfig(method="hdr+", bias_dps=0.2))
+        self.peer: socket.socket | None = None
+        self.count = 0
+        self.t_us = 0
+        self.frames = stress_frames(random.Random(seed), 10)
+        self._connect()
+
+    def _connect(self) -> None:
+        for _ in range(100):
+            self.link.poll(self.pipeline)
+            r, _, _ = select.select([self.server], [], [], 0.05)
+            if r:
+                self.peer, _ = self.server.accept()
+                self.peer.setblocking(False)
+                break
+        _check(self.peer is not None, "the gpsd client did not connect")
+        for _ in range(100):
+            self.link.poll(self.pipeline)
+            if self.link.client.connected:
+                return
+        raise Broken("the gpsd client did not finish connecting")
+
+    def _step_frames(self) -> list[Any]:
+        from hdrd.frames import Frame
+
+        out = []
+        for k in range(10):
+            self.t_us = (self.t_us + 100_000) % 2**32
+            rate = 32768 + self.rng.choice((0, 0, 5, -5, 400))
+            out.append(Frame(k, self.t_us, rate, 0, None))
+        return out
+
+    def run(self, data: bytes) -> str:
+        from hdrd.gpsd import Version
+
+        assert self.peer is not None
+        self.count += 1
+        marker = MARKER % self.count
+        out = data + b"\n" + marker
+        sent = 0
+        before = self.link.client.stats.bad_lines
+        fixes0 = self.link.client.stats.fixes
+        for _ in range(self.MAX_POLLS):
+            if sent < len(out):
+                try:
+                    sent += self.peer.send(out[sent : sent + 65536])
+                except BlockingIOError:
+                    pass
+            self.clock += 0.1
+            self.link.poll(self.pipeline, self.clock)
+            _check(self.link.client.connected, "the gpsd client dropped the connection")
+            msgs: list[dict[str, Any]] = []
+            for f in self._step_frames():
+                msgs += self.pipeline.feed(f, 0, 1.7e9 + self.clock)
+            aided = self.link.aid(msgs, self.pipeline, self.clock)
+            check_messages(aided)
+            v = self.link.client.version
+            if sent == len(out) and isinstance(v, Version) and v.release == f"fuzz-{self.count}":
+                break
+        else:
+            raise Broken(f"the marker line after input {self.count} was never read")
+        st = self.link.client.stats
+        if st.bad_lines > before:
+            return "bad lines"
+        return "fix" if st.fixes > fixes0 else "other reports"
+
+    def close(self) -> None:
+        self.link.close()
+        if self.peer is not None:
+            self.peer.close()
+        self.server.close()
+
+
+# -- tail -----------------------------------------------------------------------------------------
+
+
+class TailTarget(Target):
+    surface = "tail"
+
+    def __init__(self, seed: int) -> None:
+        from hdrd.tail import TailFormatter
+
+        self.formatters = [TailFormatter(raw=False), TailFormatter(raw=True)]
+        self.count = 0
+
+    def run(self, data: bytes) -> str:
+        self.count += 1
+        f = self.formatters[self.count % 2]
+        out, notes, n = f.lines(data, sender="127.0.0.1:9")
+        _check(isinstance(n, int) and n >= 0, f"count {n!r}")
+        for line in out + notes:
+            _check(isinstance(line, str) and line.isprintable(), f"tail prints {line[:200]!r}")
+            line.encode("utf-8")  # what the terminal gets
+        for note in notes:
+            _check(len(note) <= 400, f"a {len(note)}-character note")
+        return (
+            "printed"
+            if out and not notes
+            else "noted"
+            if notes and not out
+            else "both"
+            if out
+            else "nothing"
+        )
+
+
+# -- config: the loader, the daemon built from it, SIGHUP ---------------------------------------
+
+
+class _Events:
+    """structlog processor that keeps the last events and drops them (no output)."""
+
+    def __init__(self) -> None:
+        self.events: list[dict[str, Any]] = []
+
+    def __call__(self, logger: Any, name: str, event: MutableMapping[str, Any]) -> Any:
+        import structlog
+
+        self.events.append(dict(event))
+        del self.events[:-20]
+        raise structlog.DropEvent
+
+
+def _quiet_logging() -> _Events:
+    import structlog
+
+    events = _Events()
+    structlog.configure(processors=[events], cache_logger_on_first_use=False)
+    return events
+
+
+def stress_capture(seed: int) -> bytes:
+    """A short hdr-bin capture that drives the pipeline's corners (rails, clock jumps)."""
+    from hdrd.frames import encode_array
+
+    arr = stress_frames(random.Random(f"{seed}:capture"), 600)
+    arr["t_us"] = (np.arange(600) * 10_000 + 2**32 - 2_000_000) % 2**32
+    arr["t_us"][300] = (int(arr["t_us"][299]) + 2**31) % 2**32
+    return encode_array(arr, "hdr-bin")
+
+
+class ConfigTarget(Target):
+    """``config_from_args`` on the file, as ``hdrd run`` starts; an accepted configuration
+    builds a :class:`hdrd.daemon.Daemon` (its pipeline, GPS link) and replays a stress
+    capture; a long-lived daemon is reloaded with every input (the SIGHUP handler's body:
+    a refused file must leave the running configuration in place) and stepped."""
+
+    surface = "config"
+
+    def __init__(self, seed: int, workdir: Path) -> None:
+        from hdrd.daemon import BiasChoice, Daemon, build_publishers
+
+        self.events = _quiet_logging()  # its events: did a reload fail?
+        self.path = workdir / "hdrd.yaml"
+        self.args = argparse.Namespace(config=str(self.path))
+        self.path.write_text("hdr: {}\n")
+        from hdrd.config import Config
+
+        self.bias = BiasChoice(None, "startup")
+        self.daemon = Daemon(Config(), "built-in defaults", self.args, self.bias)
+        self.daemon.publishers = build_publishers(self.daemon.cfg)
+        self.capture = stress_capture(seed)
+        self.t_us = 0
+        self.count = 0
+
+    def run(self, data: bytes) -> str:
+        from hdrd.cliargs import config_from_args
+        from hdrd.config import ConfigError
+        from hdrd.daemon import Daemon
+        from hdrd.replay import replay_capture
+
+        self.count += 1
+        _write(self.path, data)
+        try:
+            cfg, where = config_from_args(self.args)
+        except ConfigError as e:
+            one_line(str(e), "config error")
+            outcome = "rejected"
+        else:
+            outcome = "accepted"
+            d = Daemon(cfg, where, self.args, self.bias)
+            if d.gps is not None:
+                d.gps.close()
+            if self.count % 4 == 0:
+                check_messages(
+                    replay_capture(self.capture, cfg, 0.1),
+                    talker=cfg.output.nmea_talker,
+                )
+        self._reload()
+        return outcome
+
+    def _reload(self) -> None:
+        d = self.daemon
+        old = d.cfg
+        self.events.events.clear()
+        d._reload()  # what SIGHUP does (the process-level run sends real ones)
+        names = [e.get("event") for e in self.events.events]
+        if "config_reload_failed" in names:
+            _check(d.cfg is old, "a refused reload changed the running configuration")
+            err = next(e for e in self.events.events if e.get("event") == "config_reload_failed")
+            one_line(str(err.get("error")), "config_reload_failed")
+        else:
+            _check("config_reloaded" in names, f"reload logged {names}")
+        if d.gps is not None:
+            d.gps.poll(d.pipeline)  # connects (or fails to) as the loop would
+        msgs: list[dict[str, Any]] = []
+        for _ in range(12):
+            self.t_us = (self.t_us + 100_000) % 2**32
+            from hdrd.frames import Frame
+
+            msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
+        if d.gps is not None:
+            msgs = d.gps.aid(msgs, d.pipeline)
+        check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
+
+    def close(self) -> None:
+        from hdrd.daemon import _stop_all
+
+        _stop_all(self.daemon.publishers)
+        if self.daemon.gps is not None:
+            self.daemon.gps.close()
+
+
+def _write(path: Path, data: bytes) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+# -- bias ---------------------------------------------------------------------------------------
+
+
+class BiasTarget(Target):
+    """:func:`load_bias` as ``hdrd replay --bias-file`` reads it, and the daemon's
+    :func:`choose_bias` with ``calibration.on_bad_bias_file`` error and calibrate; an accepted
+    record becomes the pipeline's bias (and HDR+'s prior) for a stress capture."""
+
+    surface = "bias"
+
+    def __init__(self, seed: int, workdir: Path) -> None:
+        from dataclasses import replace
+
+        from hdrd.config import Config
+
+        self.path = workdir / "bias.yaml"
+        base = Config()
+        cal = replace(base.calibration, bias_file=str(self.path))
+        self.cfg_error = replace(base, calibration=replace(cal, on_bad_bias_file="error"))
+        self.cfg_cal = replace(base, calibration=replace(cal, on_bad_bias_file="calibrate"))
+        self.cfg_plus = replace(self.cfg_error, hdr=replace(base.hdr, method="hdr+"))
+        self.capture = stress_capture(seed)
+        self.count = 0
+
+    def run(self, data: bytes) -> str:
+        from hdrd.calibrate import BiasFileError, load_bias
+        from hdrd.daemon import choose_bias
+        from hdrd.replay import replay_capture
+
+        self.count += 1
+        _write(self.path, data)
+        limit = self.cfg_error.calibration.max_bias_dps
+        try:
+            rec = load_bias(self.path, limit)
+        except BiasFileError as e:
+            one_line(str(e), "bias file error")
+            rec = None
+        try:
+            choice = choose_bias(self.cfg_error, None)
+            _check(
+                rec is not None and choice.record == rec,
+                "choose_bias took a file load_bias refused",
+            )
+        except BiasFileError as e:
+            _check(rec is None, "choose_bias refused a file load_bias took")
+            one_line(str(e), "bias file error")
+        cal = choose_bias(self.cfg_cal, None)
+        _check((cal.record is None) == (rec is None), "on_bad_bias_file: calibrate disagrees")
+        if rec is None:
+            return "rejected"
+        if self.count % 4 == 0:
+            check_messages(
+                replay_capture(self.capture, self.cfg_plus, rec.bias_dps, bias_record=rec)
+            )
+        return "accepted"
+
+
+# -- capture: hdrd replay and hdrd convert --------------------------------------------------------
+
+
+class _Sink(io.RawIOBase):
+    """A binary stream that keeps only the byte count (replay's stdout)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.lines = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        n = len(b)
+        self.n += n
+        self.lines += bytes(b).count(b"\n")
+        return n
+
+
+class _Stdout:
+    def __init__(self) -> None:
+        self.buffer = _Sink()
+
+    def write(self, s: str) -> int:
+        return len(s)
+
+    def flush(self) -> None:
+        pass
+
+
+class CaptureTarget(Target):
+    """``hdrd replay FILE`` (``hdrd.replay.main``) with stdout counted, not kept; every
+    fourth input also ``hdrd convert FILE --out /dev/null``. Exit 0 with one JSON line per
+    step, or 1 with one line on stderr."""
+
+    surface = "capture"
+
+    def __init__(self, seed: int, workdir: Path) -> None:
+        self.path = workdir / "capture.bin"
+        self.count = 0
+
+    def _call(
+        self, fn: Callable[[argparse.Namespace], int], args: argparse.Namespace
+    ) -> tuple[int, str, _Stdout]:
+        out, err = _Stdout(), io.StringIO()
+        saved = sys.stdout, sys.stderr
+        sys.stdout, sys.stderr = out, err
+        try:
+            rc = fn(args)
+        finally:
+            sys.stdout, sys.stderr = saved
+        return rc, err.getvalue(), out
+
+    def run(self, data: bytes) -> str:
+        from hdrd import replay
+
+        self.count += 1
+        protocol = "hdr-bin" if data[:1] == b"B" else "hdr-text"
+        _write(self.path, data[1:])
+        args = argparse.Namespace(
+            capture=str(self.path),
+            protocol=protocol,
+            bias=None if self.count % 3 == 0 else 0.1,
+            bias_file=None,
+            calibrate_seconds=1.0 if self.count % 3 == 0 else None,
+            method=("hdr", "hdr+", "none")[self.count % 3],
+            out="/dev/null",
+        )
+        rc, err, out = self._call(replay.main, args)
+        _check(rc in (0, 1), f"replay exit {rc}")
+        if rc == 1:
+            one_line(err.rstrip("\n"), "replay's error")
+        else:
+            _check(err == "", f"replay exit 0 wrote to stderr: {err[:200]!r}")
+        if self.count % 4 == 0:
+            rc2, err2, _ = self._call(replay.convert_main, args)
+            _check(rc2 == rc, f"convert exit {rc2}, replay {rc}")
+            one_line(err2.rstrip("\n"), "convert's stderr")
+        return "replayed" if rc == 0 else "no frames"
+
+
+def make_target(surface: str, seed: int, workdir: Path) -> Target:
+    """The target of *surface*; hdrd's log is dropped (ConfigTarget reads its events)."""
+    _quiet_logging()
+    if surface == "serial":
+        return SerialTarget(seed)
+    if surface == "gpsd":
+        return GpsdTarget(seed)
+    if surface == "tail":
+        return TailTarget(seed)
+    if surface == "config":
+        return ConfigTarget(seed, workdir)
+    if surface == "bias":
+        return BiasTarget(seed, workdir)
+    if surface == "capture":
+        return CaptureTarget(seed, workdir)
+    raise ValueError(f"unknown surface {surface!r}")
+
+
+def now() -> float:
+    return time.perf_counter()

@@ -1,0 +1,283 @@
+"""Regression tests for defects that fuzzing (bench/fuzz.py) and review found in the input
+handling: each input here gave a traceback or a wrong answer before its fix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from hdrd.calibrate import BiasFileError, load_bias
+from hdrd.cli import main
+from hdrd.config import ConfigError, load_config
+from hdrd.files import InputFileError, load_yaml
+
+BIAS_HEAD = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
+
+
+def _bias_body(bias: str = "0.25") -> str:
+    return (
+        f"{BIAS_HEAD}bias_dps: {bias}\nstd_dps: 0.01\nn: 300\nduration_s: 30.0\n"
+        "temp_c: null\ntime: 1700000000.0\n# end\n"
+    )
+
+
+@pytest.fixture
+def capture(tmp_path: Path) -> Path:
+    from hdrd.frames import Frame, encode_bin
+
+    p = tmp_path / "c.bin"
+    p.write_bytes(b"".join(encode_bin(Frame(i, i * 100_000, 32768, 0, None)) for i in range(30)))
+    return p
+
+
+# -- a control character in a YAML file -----------------------------------------------------
+# PyYAML's reader refuses control characters (NUL, ESC, ...) when the loader is built, which
+# load_yaml did outside its error handling: a traceback and exit 1 at start, and on SIGHUP the
+# running daemon died (the reload handler only takes ConfigError).
+
+
+@pytest.mark.parametrize("char", ["\x00", "\x1b", "\x07", "\ufffe"])
+def test_yaml_with_a_control_character_is_one_input_error(char: str) -> None:
+    with pytest.raises(InputFileError) as ei:
+        load_yaml(f"hdr:\n  method: a{char}b\n")
+    assert f"#x{ord(char):04x}" in str(ei.value)
+    assert ei.value.where == "line 2, column 12"
+
+
+def test_config_with_a_control_character_is_exit_78_with_one_line(
+    tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_bytes(b'hdr:\n  method: "a\x1bb"\n')
+    with pytest.raises(ConfigError, match=r"\(yaml\) = 'line 2, column 13'.*#x001b"):
+        load_config(p)
+    assert main(["replay", str(capture), "--config", str(p)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "#x001b" in err and "\x1b" not in err
+
+
+def test_bias_file_with_a_control_character_is_refused_in_one_line(
+    tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    p = tmp_path / "bias.yaml"
+    p.write_text(_bias_body("0.25\x00"))
+    with pytest.raises(BiasFileError, match=r"not valid YAML at line 2, column 15: .*#x0000"):
+        load_bias(p)
+    assert main(["replay", "--bias-file", str(p), str(capture)]) == 1
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "#x0000" in err
+
+
+def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_path: Path) -> None:
+    import argparse
+
+    from hdrd.config import Config
+    from hdrd.daemon import BiasChoice, Daemon
+
+    p = tmp_path / "hdrd.yaml"
+    p.write_text("hdr:\n  method: none\n")
+    args = argparse.Namespace(config=str(p))
+    d = Daemon(Config(), "built-in defaults", args, BiasChoice(None, "startup"))
+    p.write_bytes(b"hdr:\n  method: hdr+\n  c1: \x00\n")
+    before = d.cfg
+    d._reload()  # the SIGHUP handler's body: used to raise ReaderError
+    assert d.cfg is before
+
+
+# -- a NUL character in a path from the configuration ---------------------------------------
+# os.open() raises ValueError for a path with a NUL: `calibration.bias_file: "a\0b"` was a
+# traceback at start (run, replay, calibrate); `device.port` made the daemon retry for ever.
+
+
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ('calibration:\n  bias_file: "/tmp/a\\0b"\n', "calibration.bias_file"),
+        ('device:\n  port: "/dev/tty\\0USB0"\n', "device.port"),
+    ],
+)
+def test_a_path_with_a_nul_character_is_a_config_error(
+    tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str], text: str, key: str
+) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=rf"{key} = .*without a NUL character"):
+        load_config(p)
+    assert main(["replay", str(capture), "--config", str(p)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and key in err
+
+
+# -- a YAML tag whose constructor fails in an unforeseen way --------------------------------
+# `!!timestamp 'not a time'` made PyYAML's timestamp constructor raise AttributeError, which
+# the loader's guard (ValueError, OverflowError) let through: a traceback, and a daemon that
+# died on SIGHUP.
+
+
+@pytest.mark.parametrize("tag", ["!!timestamp 'not a time'", "!!timestamp 12"])
+def test_a_yaml_value_its_tag_cannot_take_is_one_input_error(
+    tmp_path: Path, capture: Path, capsys: pytest.CaptureFixture[str], tag: str
+) -> None:
+    with pytest.raises(
+        InputFileError, match=r"value cannot be converted \(not a valid timestamp\)"
+    ):
+        load_yaml(f"hdr:\n  c1: {tag}\n")
+    p = tmp_path / "hdrd.yaml"
+    p.write_text(f"hdr:\n  c1: {tag}\n")
+    assert main(["replay", str(capture), "--config", str(p)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "line 2, column 7" in err
+    b = tmp_path / "bias.yaml"
+    b.write_text(_bias_body(tag))
+    with pytest.raises(BiasFileError, match="not a valid timestamp"):
+        load_bias(b)
+
+
+# -- a long unknown key -----------------------------------------------------------------------
+# The value shown in a config error was cut to 60 characters but the key was not: a 500-
+# character key (YAML allows 1024) made a 600-character line.
+
+
+def test_a_long_unknown_key_is_cut_in_the_error(tmp_path: Path) -> None:
+    p = tmp_path / "hdrd.yaml"
+    p.write_text("hdr:\n  " + "k" * 1000 + ": 1\n")
+    with pytest.raises(ConfigError) as ei:
+        load_config(p)
+    msg = str(ei.value)
+    assert "hdr.kkk" in msg and "k" * 100 not in msg and "unknown key" in msg
+    assert len(msg) < 300
+
+
+# -- hdrd simulate: sizes and the model file ----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv, why",
+    [
+        (["--minutes", "1e308"], "is inf samples; at most 5,000,000 are simulated"),
+        (["--minutes", "1e9"], "is 6e+11 samples; at most 5,000,000"),
+        (["--hz", "1e308"], "at 1e+308 Hz is inf samples"),
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+        (["--benchmark", "train", "--hz", "1e308"], "the longest benchmark drive of 52.1 min"),
+    ],
+)
+def test_simulate_refuses_a_drive_it_cannot_make(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], why: str
+) -> None:
+    # Before: an OverflowError traceback (1e308), or the memory filled (1e6 minutes).
+    out = tmp_path / "d.csv"
+    assert main(["simulate", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and why in err and err.startswith("hdrd simulate: ")
+    assert not out.exists()
+
+
+def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None:
+    import argparse
+
+    from hdrd.sim.cli import MAX_SAMPLES, _too_big
+
+    def args(**kw: object) -> argparse.Namespace:
+        base: dict[str, object] = {"benchmark": None, "seed": 0, "minutes": 20.0, "hz": 10.0}
+        return argparse.Namespace(**{**base, **kw})
+
+    longest = (MAX_SAMPLES / 10.0 - 30.0) / 60.0  # minutes at 10 Hz, 30 s lead-in
+    assert _too_big(args(minutes=longest * 0.99999)) is None
+    assert _too_big(args(minutes=longest * 1.001)) is not None
+    assert _too_big(args(benchmark="test", seed=-1, hz=1000.0)) is None
+
+
+def _unblock_later(fifo: Path, after_s: float = 3.0) -> None:
+    """If a reader is still blocked opening *fifo* after a while (the defect), give it a
+    model to read, so that the test fails instead of hanging."""
+    import os
+    import threading
+    import time
+
+    def unblock() -> None:
+        time.sleep(after_s)
+        try:
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)  # ENXIO: no reader waits
+        except OSError:
+            return
+        os.write(fd, b"effects: []\n")
+        os.close(fd)
+
+    threading.Thread(target=unblock, daemon=True).start()
+
+
+def _model_cases(tmp_path: Path) -> list[tuple[Path, str]]:
+    import os
+
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)  # used to block `hdrd simulate --model` until a writer came
+    _unblock_later(fifo)
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (1 << 20) + "\neffects: []\n")
+    cases = [
+        (fifo, "is a FIFO, not a regular file"),
+        (Path("/dev/zero"), "is a character device"),  # used to fill the memory
+        (big, "larger than the 1 MiB allowed"),
+    ]
+    for name, text, why in (
+        ("deep", "effects: " + "[" * 2000 + "]" * 2000 + "\n", "nested deeper than 32 levels"),
+        ("digits", "effects: [{name: static_bias, bias_dps: " + "1" * 5000 + "}]\n", "converted"),
+        ("esc", 'effects: [{name: "static\x1b"}]\n', "#x001b"),
+        ("unhashable", "effects: [{name: [1]}]\n", "not a gyro model (TypeError"),
+        ("keys", "effects: [{name: white_noise, 1: 2, b: 3}]\n", "not a gyro model (TypeError"),
+    ):
+        p = tmp_path / f"{name}.yaml"
+        p.write_text(text)
+        cases.append((p, why))
+    return cases
+
+
+def test_simulate_model_is_read_as_the_configuration_is(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The model went through open() and yaml.safe_load: a FIFO blocked, /dev/zero filled the
+    # memory, nesting 2,000 deep was a RecursionError, an unhashable name a TypeError.
+    from hdrd.sim.gyro import load_model
+
+    for path, why in _model_cases(tmp_path):
+        with pytest.raises(ValueError, match=why.replace("(", r"\(")) as ei:
+            load_model(path)
+        assert "\n" not in str(ei.value) and str(path) in str(ei.value)
+        out = tmp_path / "d.csv"
+        assert main(["simulate", "--minutes", "1", "--model", str(path), "--out", str(out)]) == 78
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1 and why in err
+
+
+def test_simulate_model_still_reads_a_saved_model(tmp_path: Path) -> None:
+    from hdrd.sim.gyro import crs03_default_model, load_model, save_model
+
+    p = tmp_path / "m.yaml"
+    save_model(crs03_default_model(), p)
+    assert load_model(p) == crs03_default_model()
+
+
+# -- output.nmea_talker's documentation follows docs/protocol.md ---------------------------------
+
+
+def test_nmea_talker_docs_recommend_what_protocol_md_recommends() -> None:
+    # config.py's docstring and the shipped config said gpsd reads HC; docs/protocol.md
+    # recommends II (an instrument; HC claims a magnetic compass).
+    import re
+
+    root = Path(__file__).resolve().parent.parent
+    proto = (root / "docs" / "protocol.md").read_text()
+    m = re.search(r"\*\*For gpsd, set\s+`output\.nmea_talker: (\w\w)`\*\*", proto)
+    assert m, "docs/protocol.md no longer says which talker gpsd needs"
+    talker = m.group(1)
+    src = (root / "hdrd" / "config.py").read_text()
+    doc = re.search(r'nmea_talker: str = "HN"\n\s+"""(.*?)"""', src, re.DOTALL)
+    assert doc and f"for gpsd use {talker}" in " ".join(doc.group(1).split())
+    assert "reads HC" not in doc.group(1)
+    shipped = (root / "config" / "hdrd.yaml").read_text()
+    comment = shipped[: shipped.index("nmea_talker:")].rsplit("nmea_ths", 1)[1]
+    assert f"for gpsd use {talker}" in " ".join(comment.replace("#", " ").split())
+    from hdrd import config as config_mod
+
+    assert talker in config_mod.RULES["output.nmea_talker"][1]
