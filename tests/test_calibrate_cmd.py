@@ -46,6 +46,7 @@ def test_one_glitched_timestamp_does_not_end_the_window(fake_gyro, tmp_path: Pat
     assert b"1 frame(s) with a bad timestamp skipped" in p.stdout
 
 
+@pytest.mark.slow
 def test_a_steady_rotation_is_refused_naming_the_limit(fake_gyro, tmp_path: Path) -> None:
     # 10 deg/s, perfectly steady: spread, trend and excursion all pass; the size does not.
     g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=10.0, lead_in_s=0), speedup=0)
