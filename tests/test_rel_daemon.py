@@ -167,8 +167,14 @@ class Proc:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         rc = self.proc.wait(timeout=WAIT)
-        self._t.join(timeout=10)
+        self._close_log()
         return rc
+
+    def _close_log(self) -> None:
+        """The log is read to its end (the process has exited): close our end of the pipe."""
+        self._t.join(timeout=10)
+        if self.proc.stderr is not None and not self._t.is_alive():
+            self.proc.stderr.close()
 
     @property
     def traceback(self) -> bool:
@@ -178,6 +184,9 @@ class Proc:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=WAIT)
+        self._close_log()
+        if self.proc.stdout is not None:  # stdout=PIPE: the test has read what it wanted
+            self.proc.stdout.close()
 
 
 @pytest.fixture
