@@ -14,6 +14,11 @@ from hypothesis import HealthCheck, settings
 # No per-example deadline: the suite runs on small, busy CI machines, and we never assert timings.
 settings.register_profile("hdrd", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.register_profile("thorough", parent=settings.get_profile("hdrd"), max_examples=2000)
+# tools/mutation.py: the same examples on every run (a mutant's verdict must not depend on
+# the draw) and no example database shared between mutants.
+settings.register_profile(
+    "mutation", parent=settings.get_profile("hdrd"), derandomize=True, database=None
+)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "hdrd"))
 
 
