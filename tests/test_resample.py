@@ -637,3 +637,52 @@ def test_array_clock_forms_at_their_fast_path_limits(raw: list[int]) -> None:
     t, ok = d.unwrap_many(np.array(raw[1:], np.int64))
     assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want[1:]
     assert (d.wraps, d.rejected, d.resets, d.last_us) == (c.wraps, c.rejected, c.resets, c.last_us)
+
+
+def test_array_forms_take_the_frames_uint32_clock_and_give_int64() -> None:
+    # frames["t_us"] is uint32: arithmetic on it in uint32 would overflow at the wrap.
+    raw = [CLOCK_WRAP_US - 300_000, CLOCK_WRAP_US - 100_000, 100_000, 300_000, 500_000]
+    c = DeviceClock()
+    want = [c.unwrap(x) for x in raw]
+    for dtype in (np.uint32, np.int64):
+        t, ok = unwrap_us(np.array(raw, dtype))
+        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
+        d = DeviceClock()
+        t, ok = d.unwrap_many(np.array(raw, dtype))
+        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
+        assert (d.wraps, d.last_us) == (1, want[-1])
+    # the slow path (a repeat) and the empty array are int64 too
+    t, ok = DeviceClock().unwrap_many(np.array([5, 5, 7], np.uint32))
+    assert t.dtype == np.int64 and t.tolist() == [5, -1, 7] and ok.tolist() == [True, False, True]
+    for t, ok in (DeviceClock().unwrap_many([]), unwrap_us([])):
+        assert t.dtype == np.int64 and ok.dtype == bool and t.shape == (0,)
+
+
+def test_unwrap_many_counts_one_wrap_with_samples_after_it() -> None:
+    # Every step forward (the numpy path), the wrap in the middle, three samples after it.
+    raw = [CLOCK_WRAP_US - 250_000, CLOCK_WRAP_US - 150_000, CLOCK_WRAP_US - 50_000,
+           50_000, 150_000, 250_000]  # fmt: skip
+    for head in (0, 1, 2):
+        c = DeviceClock()
+        for x in raw[:head]:
+            c.unwrap(x)
+        c.unwrap_many(np.array(raw[head:], np.int64))
+        assert c.wraps == 1 and c.last_us == CLOCK_WRAP_US + 250_000
+
+
+def test_block_average_seconds_works_in_float64_whatever_comes_in() -> None:
+    # A drive log read with float32 times (e.g. from a compact file): 1077 s after the
+    # first sample is step 1077. In float32, 1077 s * 1e6 rounds to 1076999936 us (24-bit
+    # mantissa) and would land in step 1076.
+    t = np.array([100.0, 1177.0], np.float32)
+    v = np.array([1.0, 2.0], np.float32)
+    idx, mean, n = block_average_seconds(t, v)
+    assert idx.tolist() == [0, 1077] and mean.tolist() == [1.0, 2.0] and n.tolist() == [1, 1]
+    t = (1000.0 + np.arange(25) * 0.1).astype(np.float32)
+    v = np.linspace(-1.0, 1.0, 25).astype(np.float32)
+    want = block_average_seconds(t.astype(np.float64), v.astype(np.float64))
+    got = block_average_seconds(t, v)
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    idx, mean, n = block_average_seconds([], [])
+    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64
