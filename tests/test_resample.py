@@ -292,6 +292,7 @@ def test_unwrap_us_empty_and_fast_path() -> None:
 def test_block_means_empty() -> None:
     idx, mean, n = block_means(np.empty(0, np.int64), np.empty(0))
     assert idx.shape == mean.shape == n.shape == (0,)
+    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64
 
 
 def test_block_average_seconds_for_drive_logs() -> None:
