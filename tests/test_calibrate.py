@@ -740,3 +740,56 @@ def test_sample_clock_limits_exactly() -> None:
     assert [d.accept(x) for x in (5_000_000, 9_000_000, 13_000_000, 13_100_000)] == [False] * 4
     assert d.accept(13_200_000) is False and d.accept(13_300_000) is True
     assert d.elapsed_us == 100_000
+
+
+def test_what_a_failed_scaled_trend_says() -> None:
+    w = np.array([0.0] * 4 + [0.05] * 4 + [0.1] * 4)
+    sigma = calibrate.noise_sigma(w, 0.01)
+    se_trend = sigma * math.sqrt(2.0 / 4)
+    loose = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9}
+    with pytest.raises(MotionDetected) as e:
+        estimate_bias(w, limits=StandstillLimits(**loose, max_shift_se=1e9, max_trend_se=1.0))
+    assert (
+        f"rate trend +0.1000 deg/s between the window's first and last thirds, "
+        f"{0.1 / se_trend:.1f} standard errors (noise {sigma:.4f} deg/s) > 1 allowed"
+        in str(e.value)
+    )
+
+
+def test_a_window_of_three_compares_its_first_and_last_samples() -> None:
+    # Thirds of fewer than 6 samples are single samples: 0.3 deg/s from first to last is a
+    # trend (a pair of samples at each end would halve it to within the limit).
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.300"):
+        estimate_bias([0.0, 0.0, 0.3])
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.300"):
+        estimate_bias([0.0, 0.0, 0.0, 0.3, 0.3])
+    assert estimate_bias([0.0, 0.1, 0.2]).n == 3  # 0.2: at the limit
+
+
+def test_float32_samples_are_measured_in_float64() -> None:
+    # A drive log read as float32: the record is what the same values give in float64.
+    rng = np.random.default_rng(2)
+    w = (0.8 + 0.05 * rng.standard_normal(300)).astype(np.float32)
+    t = (1e4 + np.arange(300) * 0.1).astype(np.float32)
+    tc = (20.0 + 0.01 * np.arange(300)).astype(np.float32)
+    got = estimate_bias(w, t, temp_c=tc)
+    want = estimate_bias(w.astype(np.float64), t.astype(np.float64), temp_c=tc.astype(np.float64))
+    assert got == want
+    assert got.duration_s == float(np.float64(t[-1]) - np.float64(t[0]))
+
+
+def test_two_samples_are_measured_without_a_warning() -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "degrees of freedom <= 0" from a 1-sample spread
+        assert calibrate.noise_sigma(np.array([0.0, 1.0])) == 1.4826 * 0.5
+        estimate_bias([0.1, 0.12])
+
+
+def test_sample_clock_default_largest_step_is_2_s() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    assert c.accept(0) and c.accept(2_000_000) and not c.accept(4_000_001)
+    assert c.elapsed_us == 2_000_000 and c.glitches == 1
