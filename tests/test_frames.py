@@ -771,3 +771,18 @@ def test_sequence_steps_at_their_limits(
     assert (st_.seq_gaps, st_.lost_frames, st_.seq_repeats, st_.seq_resets) == counts
     _, vst = decode_capture(data, protocol)
     assert vst == st_
+
+
+def test_a_sync_pattern_inside_the_first_frame_is_not_a_bad_frame() -> None:
+    # rate 0x5AA5 is sent A5 5A: a sync pattern inside each frame, frame 0 included, whose
+    # CRC fails there. With a real bad frame later (so the counting path runs), only the
+    # bad frame's patterns are counted.
+    f = [Frame(seq=k, t_us=100_000 * k, rate=0x5AA5, ref=0, temp_cc=None) for k in range(4)]
+    bad = bytearray(encode_bin(f[2]))
+    bad[12] ^= 0x01
+    data = encode_bin(f[0]) + encode_bin(f[1]) + bytes(bad) + encode_bin(f[3])
+    frames, st_ = run("hdr-bin", data)
+    arr, vst = decode_capture(data)
+    assert array_to_frames(arr) == frames == [f[0], f[1], f[3]]
+    # the bad frame's two sync patterns (its own and its rate's) count; the good frames' do not
+    assert vst == st_ and vst.bad_frames == 2 and vst.bad_before.tolist() == [0, 0, 2]
