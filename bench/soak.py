@@ -312,6 +312,9 @@ def soak(
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
+            if proc is not None and proc.stderr is not None:
+                log.join(timeout=10)  # the log is read to its end: close our end of the pipe
+                proc.stderr.close()
             g.close()
             rx.close()
         if progress:

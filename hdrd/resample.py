@@ -158,8 +158,10 @@ class BlockAverager:
             self.t0_us = int(t_us[0])
         idx = (t_us - self.t0_us) // self.T_us
         # Samples up to the first one beyond the open block take the scalar path (few).
+        # Times that go back anywhere (not from a DeviceClock) take it all the way: a sample
+        # before j could otherwise close a block that nobody reports.
         j = int(np.searchsorted(idx, self._index, side="right"))
-        if j == n or np.any(np.diff(idx[j:]) < 0):
+        if j == n or np.any(np.diff(idx) < 0):
             for i in range(n):
                 tc = float(temps[i])
                 for b in self.feed(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 from pathlib import Path
@@ -539,3 +540,281 @@ def test_a_bias_file_records_noise_parameters_and_older_files_still_read(tmp_pat
         f.write_text(old.read_text().replace("# end", bad + "# end"))
         with pytest.raises(BiasFileError, match=why):
             load_bias(f)
+
+
+# -- every limit is inclusive: a value exactly at it passes, the next float beyond it does not ---
+
+
+def _above(x: float) -> float:
+    return float(np.nextafter(x, np.inf))
+
+
+def _below(x: float) -> float:
+    return float(np.nextafter(x, -np.inf))
+
+
+LOOSE = dict(
+    max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9, max_bias_dps=1e9, max_shift_se=0.0
+)
+
+
+def test_spread_exactly_at_its_limit_passes() -> None:
+    w, _ = standstill(3.0, sigma=0.3)
+    std = float(np.std(w, ddof=1))
+    at = {**LOOSE, "max_std_dps": std}
+    assert estimate_bias(w, limits=StandstillLimits(**at)).std_dps == std
+    with pytest.raises(MotionDetected, match="rate spread"):
+        estimate_bias(w, limits=StandstillLimits(**{**at, "max_std_dps": _below(std)}))
+
+
+def test_trend_exactly_at_its_limit_passes() -> None:
+    w, _ = standstill(3.0)
+    w = w + np.linspace(0.0, 0.3, w.shape[0])
+    trend = float(np.mean(w[-10:]) - np.mean(w[:10]))
+    at = {**LOOSE, "max_trend_dps": trend}
+    estimate_bias(w, limits=StandstillLimits(**at))
+    with pytest.raises(MotionDetected, match="rate trend"):
+        estimate_bias(w, limits=StandstillLimits(**{**at, "max_trend_dps": _below(trend)}))
+    # a falling trend is held to the same limit, by its size
+    r = w[::-1]
+    fall = float(np.mean(r[-10:]) - np.mean(r[:10]))
+    assert fall < 0
+    estimate_bias(r, limits=StandstillLimits(**{**at, "max_trend_dps": -fall}))
+    with pytest.raises(MotionDetected, match="rate trend -"):
+        estimate_bias(r, limits=StandstillLimits(**{**at, "max_trend_dps": _below(-fall)}))
+
+
+def test_excursion_exactly_at_its_limit_passes() -> None:
+    w = np.array([0.5, 0.5, 0.5, 0.5, 2.0, 0.5, 0.5])
+    at = {**LOOSE, "max_excursion_dps": 1.5}
+    estimate_bias(w, limits=StandstillLimits(**at))
+    with pytest.raises(MotionDetected, match="a sample 1.50 deg/s from the median"):
+        estimate_bias(w, limits=StandstillLimits(**{**at, "max_excursion_dps": _below(1.5)}))
+    with pytest.raises(MotionDetected, match="from the median"):
+        estimate_bias(-w, limits=StandstillLimits(**{**at, "max_excursion_dps": _below(1.5)}))
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_bias_exactly_at_its_limit_passes(sign: float) -> None:
+    w = sign * np.full(12, 2.5)
+    at = {**LOOSE, "max_bias_dps": 2.5}
+    assert estimate_bias(w, limits=StandstillLimits(**at)).bias_dps == sign * 2.5
+    with pytest.raises(MotionDetected, match="beyond the"):
+        estimate_bias(w, limits=StandstillLimits(**{**at, "max_bias_dps": _below(2.5)}))
+
+
+def test_the_noise_scaled_tests_start_at_six_samples() -> None:
+    # A window whose last sample jumps: refused by the shift test from 6 samples on, not
+    # looked at with 5 (too few to know their own noise).
+    w = np.array([0.0, 0.001, -0.001, 0.0005, 0.2, 0.0, 0.0015, -0.0005, 0.2])
+    loose = StandstillLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
+    assert calibrate.NOISE_TEST_MIN_SAMPLES == 6
+    estimate_bias(w[:5], limits=loose)
+    with pytest.raises(MotionDetected, match="pull the mean"):
+        estimate_bias(np.append(w[:4], [0.0, 0.2]), limits=loose)
+    # max_shift_se 0 switches both off, whatever the window
+    estimate_bias(w, limits=StandstillLimits(**LOOSE))
+
+
+def _shift_and_se(w: np.ndarray, floor: float = 0.01) -> tuple[float, float, int]:
+    """What the shift test computes: (|shift|, standard error of the mean, samples in the core)."""
+    sigma = calibrate.noise_sigma(w, floor)
+    med = float(np.median(w))
+    core = w[np.abs(w - med) <= calibrate.SHIFT_INNER_SIGMAS * sigma]
+    return (
+        abs(float(np.mean(w)) - float(np.mean(core))),
+        sigma / math.sqrt(w.shape[0]),
+        core.shape[0],
+    )
+
+
+def test_shift_exactly_at_its_limit_passes() -> None:
+    rng = np.random.default_rng(5)
+    w = 0.05 * rng.standard_normal(40)
+    w[7] += 0.6  # one sample far out: outside the core, it pulls the mean
+    shift, se, n_core = _shift_and_se(w)
+    assert n_core == 39
+    limit = shift / se
+    while limit * se < shift:  # the float whose product with se is exactly the shift, or just above
+        limit = _above(limit)
+    base = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9, "max_trend_se": 1e9}
+    assert limit * se == shift  # there is one for this window
+    estimate_bias(w, limits=StandstillLimits(**base, max_shift_se=limit))
+    with pytest.raises(MotionDetected, match="1 of 40 samples pull the mean"):
+        estimate_bias(w, limits=StandstillLimits(**base, max_shift_se=_below(limit)))
+
+
+def test_a_sample_exactly_four_sigmas_out_is_in_the_core() -> None:
+    # Nine samples whose noise sigma is exactly 0.1 (the floor), and one exactly 4 sigmas
+    # from the median: it belongs to the core, so it does not count as pulling the mean.
+    w = np.array([0.0] * 9 + [0.4])
+    sigma = calibrate.noise_sigma(w, 0.1)
+    assert sigma == 0.1 and float(np.median(w)) == 0.0
+    assert _shift_and_se(w, 0.1)[2] == 10
+    limits = StandstillLimits(
+        max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9, max_trend_se=1e9,
+        noise_floor_dps=0.1, max_shift_se=1e-9,
+    )  # fmt: skip
+    estimate_bias(w, limits=limits)  # shift 0: every sample is in the core
+    w[-1] = _above(0.4)
+    with pytest.raises(MotionDetected, match="1 of 10 samples"):
+        estimate_bias(w, limits=limits)
+
+
+def test_scaled_trend_limit_and_its_floor() -> None:
+    # Twelve samples, a step between the first and last thirds: third = 4.
+    w = np.array([0.0] * 4 + [0.05] * 4 + [0.1] * 4)
+    sigma = calibrate.noise_sigma(w, 0.01)
+    se_trend = sigma * math.sqrt(2.0 / 4)
+    trend = 0.1
+    base = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9, "max_shift_se": 1e9}
+    # the floor alone: a trend below trend_floor_dps is never refused
+    estimate_bias(w, limits=StandstillLimits(**base, max_trend_se=0.0, trend_floor_dps=trend))
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.1000 deg/s .* standard errors"):
+        estimate_bias(
+            w, limits=StandstillLimits(**base, max_trend_se=0.0, trend_floor_dps=_below(trend))
+        )
+    # the scaled limit: trend / se_trend standard errors exactly
+    k = trend / se_trend
+    while k * se_trend < trend:
+        k = _above(k)
+    assert k * se_trend == trend
+    estimate_bias(w, limits=StandstillLimits(**base, max_trend_se=k, trend_floor_dps=0.0))
+    with pytest.raises(MotionDetected, match="standard errors"):
+        estimate_bias(
+            w, limits=StandstillLimits(**base, max_trend_se=_below(k), trend_floor_dps=0.0)
+        )
+
+
+def test_noise_sigma_takes_the_largest_of_its_three() -> None:
+    # the MAD: a Laplace-like window whose sample std without the farthest is smaller
+    w = np.array([-1.0, -1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    dev = np.abs(w - np.median(w))
+    mad = 1.4826 * float(np.median(dev))
+    loo = float(np.std(np.delete(w, int(np.argmax(dev))), ddof=1))
+    assert calibrate.noise_sigma(w) == max(mad, loo) and mad == 0.0 and loo > 0.0
+    v = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 10.0])
+    dev = np.abs(v - np.median(v))
+    mad = 1.4826 * float(np.median(dev))
+    loo = float(np.std(v[:5], ddof=1))
+    assert calibrate.noise_sigma(v) == max(mad, loo) and mad > loo
+    assert calibrate.noise_sigma(v, 100.0) == 100.0
+    # two samples: no leave-one-out spread, the MAD (or the floor)
+    assert calibrate.noise_sigma(np.array([0.0, 1.0])) == 1.4826 * 0.5
+    assert calibrate.noise_sigma(np.array([0.0, 1.0]), 2.0) == 2.0
+
+
+def test_what_the_record_holds() -> None:
+    w = np.array([0.3, 0.5, 0.4, 0.4])
+    rec = estimate_bias(w, [10.0, 10.1, 10.2, 10.35], temp_c=[20.0, np.nan, 22.0, np.nan], when=7.5)
+    assert rec.duration_s == 10.35 - 10.0 and rec.temp_c == 21.0 and rec.time == 7.5
+    assert (
+        rec.n == 4 and rec.bias_dps == float(np.mean(w)) and rec.std_dps == float(np.std(w, ddof=1))
+    )
+    assert estimate_bias(w, temp_c=[np.nan] * 4).temp_c is None
+    assert estimate_bias(w, []).duration_s == 0.0
+    assert rec.to_dict() == {
+        "bias_dps": rec.bias_dps, "std_dps": rec.std_dps, "n": 4, "duration_s": rec.duration_s,
+        "temp_c": 21.0, "time": 7.5,
+    }  # fmt: skip
+    with pytest.raises(MotionDetected, match="only 1 sample"):
+        estimate_bias([0.1])
+    estimate_bias([0.1, 0.1])  # two are enough
+
+
+def test_startup_window_details() -> None:
+    win = calibrate.StartupWindow(2, block_s=0.5)
+    assert np.isnan(win.mean_dps) and win.n == 0
+    win.add(0.45)
+    win.add(0.55, 30.0)
+    assert win.mean_dps == 0.5 and win.n == 2
+    assert win.close_block() is None and win.closed == 1
+    win.add_many([0.5, 0.5], [np.nan, 32.0])
+    rec = win.close_block()
+    assert rec is not None and rec.n == 4 and rec.duration_s == 1.0 and rec.temp_c == 31.0
+    assert rec.bias_dps == pytest.approx(0.5) and win.closed == 0 and win.n == 0
+    assert win.attempts == 1
+    # measure() leaves the window as it is, even when it refuses it
+    win.add_many([0.0, 5.0, 0.0])
+    with pytest.raises(MotionDetected):
+        win.measure()
+    assert win.n == 3 and win.attempts == 2
+    win.clear()
+    assert win.n == 0 and win.closed == 0
+    with pytest.raises(ValueError, match="at least 1 step"):
+        calibrate.StartupWindow(0)
+    # for_seconds rounds up to whole steps, with no step for a rounding error
+    for seconds, T, blocks in [(3.0, 1.0, 3), (3.0000001, 1.0, 4), (0.3, 0.1, 3), (0.0, 1.0, 1)]:
+        w = calibrate.StartupWindow.for_seconds(seconds, T)
+        assert (w.blocks, w.block_s) == (blocks, T)
+
+
+def test_sample_clock_limits_exactly() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock(max_step_us=1_000_000, confirm=2)
+    assert c.accept(0) and c.accept(1_000_000)  # a step of exactly the largest counts
+    assert not c.accept(2_000_001) and c.glitches == 1  # one microsecond more does not
+    assert c.elapsed_us == 1_000_000
+    # two set-aside samples that step normally among themselves: the clock follows them
+    assert not c.accept(2_100_000) and c.glitches == 2
+    assert c.accept(2_200_000) and c.elapsed_us == 1_100_000
+    # set-aside samples that do not step normally among themselves start over each time
+    d = SampleClock(max_step_us=1_000_000, confirm=3)
+    d.accept(0)
+    assert [d.accept(x) for x in (5_000_000, 9_000_000, 13_000_000, 13_100_000)] == [False] * 4
+    assert d.accept(13_200_000) is False and d.accept(13_300_000) is True
+    assert d.elapsed_us == 100_000
+
+
+def test_what_a_failed_scaled_trend_says() -> None:
+    w = np.array([0.0] * 4 + [0.05] * 4 + [0.1] * 4)
+    sigma = calibrate.noise_sigma(w, 0.01)
+    se_trend = sigma * math.sqrt(2.0 / 4)
+    loose = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9}
+    with pytest.raises(MotionDetected) as e:
+        estimate_bias(w, limits=StandstillLimits(**loose, max_shift_se=1e9, max_trend_se=1.0))
+    assert (
+        f"rate trend +0.1000 deg/s between the window's first and last thirds, "
+        f"{0.1 / se_trend:.1f} standard errors (noise {sigma:.4f} deg/s) > 1 allowed"
+        in str(e.value)
+    )
+
+
+def test_a_window_of_three_compares_its_first_and_last_samples() -> None:
+    # Thirds of fewer than 6 samples are single samples: 0.3 deg/s from first to last is a
+    # trend (a pair of samples at each end would halve it to within the limit).
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.300"):
+        estimate_bias([0.0, 0.0, 0.3])
+    with pytest.raises(MotionDetected, match=r"rate trend \+0\.300"):
+        estimate_bias([0.0, 0.0, 0.0, 0.3, 0.3])
+    assert estimate_bias([0.0, 0.1, 0.2]).n == 3  # 0.2: at the limit
+
+
+def test_float32_samples_are_measured_in_float64() -> None:
+    # A drive log read as float32: the record is what the same values give in float64.
+    rng = np.random.default_rng(2)
+    w = (0.8 + 0.05 * rng.standard_normal(300)).astype(np.float32)
+    t = (1e4 + np.arange(300) * 0.1).astype(np.float32)
+    tc = (20.0 + 0.01 * np.arange(300)).astype(np.float32)
+    got = estimate_bias(w, t, temp_c=tc)
+    want = estimate_bias(w.astype(np.float64), t.astype(np.float64), temp_c=tc.astype(np.float64))
+    assert got == want
+    assert got.duration_s == float(np.float64(t[-1]) - np.float64(t[0]))
+
+
+def test_two_samples_are_measured_without_a_warning() -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "degrees of freedom <= 0" from a 1-sample spread
+        assert calibrate.noise_sigma(np.array([0.0, 1.0])) == 1.4826 * 0.5
+        estimate_bias([0.1, 0.12])
+
+
+def test_sample_clock_default_largest_step_is_2_s() -> None:
+    from hdrd.calibrate import SampleClock
+
+    c = SampleClock()
+    assert c.accept(0) and c.accept(2_000_000) and not c.accept(4_000_001)
+    assert c.elapsed_us == 2_000_000 and c.glitches == 1

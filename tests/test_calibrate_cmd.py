@@ -63,6 +63,7 @@ def test_the_noise_parameters_are_recorded_beside_the_bias(fake_gyro, tmp_path: 
     assert b"noise recorded: white" in p.stdout and b"10 min or more" in p.stdout
 
 
+@pytest.mark.slow
 def test_a_steady_rotation_is_refused_naming_the_limit(fake_gyro, tmp_path: Path) -> None:
     # 10 deg/s, perfectly steady: spread, trend and excursion all pass; the size does not.
     g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=10.0, lead_in_s=0), speedup=0)

@@ -223,6 +223,7 @@ def test_startup_calibration_without_a_bias_file(fake_gyro, daemon, udp, tmp_pat
     assert "calibrated" in names and names[0] == "start"
 
 
+@pytest.mark.slow
 def test_sd_notify_ready_status_watchdog(fake_gyro, daemon, udp, tmp_path):
     path = str(tmp_path / "notify.sock")
     ns = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
@@ -256,6 +257,7 @@ def test_sd_notify_ready_status_watchdog(fake_gyro, daemon, udp, tmp_path):
         ns.close()
 
 
+@pytest.mark.slow
 def test_unplug_and_replug_reports_stale_and_resumes(fake_gyro, daemon, udp, tmp_path):
     link = tmp_path / "gyro"
     cfg = tmp_path / "hdrd.yaml"
@@ -297,6 +299,7 @@ def test_unplug_and_replug_reports_stale_and_resumes(fake_gyro, daemon, udp, tmp
     assert d.proc.returncode == 0
 
 
+@pytest.mark.slow
 def test_sighup_reloads_keeping_heading_and_rejects_bad_config(fake_gyro, daemon, udp, tmp_path):
     cfg = tmp_path / "hdrd.yaml"
     u1, u2 = udp(), udp()
@@ -374,6 +377,7 @@ def test_dead_udp_peers_do_not_stop_the_daemon(fake_gyro, daemon, udp):
     assert events(err)[-1]["event"] == "stop"
 
 
+@pytest.mark.slow
 def test_sigterm_exits_zero(fake_gyro, daemon, udp):
     g = fake_gyro(drive_profile(), speedup=1)
     u = udp()
@@ -412,6 +416,7 @@ def test_bad_config_exits_78(tmp_path):
     assert p.returncode == 78 and "output.udp" in p.stderr.decode()
 
 
+@pytest.mark.slow
 def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_path):
     bias_file = tmp_path / "state" / "bias.yaml"
     g = fake_gyro(
@@ -489,6 +494,7 @@ def test_corrupt_bias_file_is_refused(tmp_path):
     assert p.returncode == 1 and b"truncated" in p.stderr
 
 
+@pytest.mark.slow
 def test_sighup_switches_gpsd_aiding_on(fake_gyro, daemon, udp, tmp_path):
     """gpsd settings are reloaded too: a SIGHUP that enables gpsd makes the running daemon
     connect to it and ask for its JSON reports (?WATCH), without a restart."""

@@ -150,6 +150,7 @@ def test_run_bias_must_be_finite_and_within_the_limit(bias: str) -> None:
     ],
     ids=["digits", "depth", "1e308"],
 )
+@pytest.mark.slow
 def test_a_bias_file_the_daemon_cannot_take(tmp_path: Path, body: str) -> None:
     bias_file = tmp_path / "bias.yaml"
     bias_file.write_text(body + "std_dps: 0.01\nn: 10\nduration_s: 1.0\ntime: 0.0\n# end\n")
@@ -213,6 +214,7 @@ def test_run_with_stdout_closed_publishes_elsewhere(udp) -> None:  # noqa: F811
     assert proc.returncode == 0 and b"Traceback" not in err
 
 
+@pytest.mark.slow
 def test_log_level_flag(tmp_path: Path) -> None:
     # A rejected bias file is a warning: shown at --log-level warning, not at error.
     bias_file = tmp_path / "bias.yaml"

@@ -166,6 +166,7 @@ def test_as_fast_as_possible_waits_for_a_reader(fake_gyro) -> None:
     assert got == array_to_frames(g.frames)
 
 
+@pytest.mark.slow
 def test_pull_on_request(fake_gyro, tmp_path: Path) -> None:
     link = tmp_path / "g"
     g = fake_gyro(profile(minutes=0.5, hz=20), speedup=20.0, link=link)

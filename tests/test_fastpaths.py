@@ -98,6 +98,7 @@ def test_decoder_and_push_parser_agree_with_what_was_sent(capture: tuple[bytes, 
     assert cst.garbage_bytes == inj.garbage_bytes + 16 * inj.crc_errors
 
 
+@pytest.mark.slow
 def test_live_daemon_path_equals_replay_on_the_same_bytes(
     capture: tuple[bytes, FakeGyro], drive_frames: np.ndarray, fake_gyro: Any
 ) -> None:

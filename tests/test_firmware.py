@@ -319,6 +319,7 @@ def drive(
     return run_board(tmp_path_factory.mktemp("drive"), harness, builds(), wave)
 
 
+@pytest.mark.slow
 def test_ten_minutes_of_frames_decode_without_crc_errors_or_losses(drive: BoardRun) -> None:
     st, n = drive.stats, drive.frames.shape[0]
     assert n >= 10 * 60 * 100 - 5
@@ -331,6 +332,7 @@ def test_ten_minutes_of_frames_decode_without_crc_errors_or_losses(drive: BoardR
     assert np.all(drive.frames["temp"] == -32768)  # no temperature sensor
 
 
+@pytest.mark.slow
 def test_t_us_advances_at_the_frame_rate_locked_to_the_board_clock(drive: BoardRun) -> None:
     t_us = drive.frames["t_us"].astype(np.int64)
     # No jitter at all in the timestamps: exactly one frame period apart.
@@ -346,6 +348,7 @@ def test_t_us_advances_at_the_frame_rate_locked_to_the_board_clock(drive: BoardR
     assert np.all(np.abs(gaps_us - FRAME_US / SLOTS) <= 8.0)
 
 
+@pytest.mark.slow
 def test_every_frame_carries_the_sums_of_the_codes_its_adc_produced(drive: BoardRun) -> None:
     chans = drive.slots["chan"]
     pattern = np.where(np.arange(SLOTS) % 5 == 4, 1, 0)  # A0 A0 A0 A0 A1 ...
@@ -355,6 +358,7 @@ def test_every_frame_carries_the_sums_of_the_codes_its_adc_produced(drive: Board
     assert np.array_equal(drive.frames["ref"], ref)
 
 
+@pytest.mark.slow
 def test_decoded_rate_is_within_one_lsb_of_the_waveform(drive: BoardRun) -> None:
     starts = window_starts(drive.slots)
     truth = mean_rate(drive.wave, starts, FRAME_US / 1e6, drive.sensor)
@@ -407,6 +411,7 @@ def _check_heading(run: BoardRun, ref_wired: bool) -> float:
     return tolerance
 
 
+@pytest.mark.slow
 def test_heading_from_hdrd_replay_equals_the_integral_of_the_waveform(drive: BoardRun) -> None:
     tolerance = _check_heading(drive, ref_wired=True)
     # The drive turns (and the gyro's bias runs) through hundreds of degrees, so the tolerance
@@ -423,6 +428,7 @@ def short_wave(seconds: float, seed: int = 3) -> Wave:
     return wave
 
 
+@pytest.mark.slow
 def test_hdr_text_build(tmp_path: Path, builds: Callable[..., Path], harness: Path) -> None:
     run = run_board(
         tmp_path,
@@ -444,6 +450,7 @@ def test_hdr_text_build(tmp_path: Path, builds: Callable[..., Path], harness: Pa
     _check_heading(run, ref_wired=True)
 
 
+@pytest.mark.slow
 def test_wiring_a_gyro_on_the_boards_own_5v_is_ratiometric_by_construction(
     tmp_path: Path, builds: Callable[..., Path], harness: Path
 ) -> None:
@@ -473,6 +480,7 @@ def test_wiring_a_gyro_on_the_boards_own_5v_is_ratiometric_by_construction(
     _check_heading(run, ref_wired=False)
 
 
+@pytest.mark.slow
 def test_clock_and_seq_wrap_as_the_protocol_says(
     tmp_path: Path, builds: Callable[..., Path], harness: Path
 ) -> None:
@@ -493,6 +501,7 @@ def test_clock_and_seq_wrap_as_the_protocol_says(
     _check_heading(run, ref_wired=True)
 
 
+@pytest.mark.slow
 def test_live_daemon_on_the_harness_pty_publishes_what_replay_does(
     tmp_path: Path, builds: Callable[..., Path], harness: Path
 ) -> None:

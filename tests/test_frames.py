@@ -660,3 +660,128 @@ def test_a_frame_with_a_sync_pattern_inside_waits_for_the_next_sync_then_flush_d
     assert q.feed(encode_bin(inner)) == []
     assert q.flush() == [inner] and q.bad_before == [0]  # the end of input decides
     assert q.stats.frames == 1 and q.stats.garbage_bytes == 0 and q.flush() == []
+
+
+# -- many bad candidates: the second pass over the slices -----------------------------------------
+
+
+@settings(max_examples=150)
+@given(
+    st.lists(
+        st.one_of(frames_st.map(encode_bin), _NEAR, st.just(SYNC), st.binary(max_size=24)),
+        max_size=30,
+    ),
+    st.sampled_from([3, 16, 17, 64, 1 << 20]),
+    st.sampled_from([0, 1, 2, 5]),
+)
+def test_many_bad_candidates_are_counted_as_few_are(
+    pieces: list[bytes], scan: int, keep_failed: int
+) -> None:
+    """Past _KEEP_FAILED failed candidates, decode_capture stops keeping their positions and
+    finds them again in a second pass over the slices: the same frames, bad-frame count and
+    bad_before as the push parser."""
+    from unittest import mock
+
+    from hdrd import frames as frames_mod
+
+    data = b"".join(pieces)
+    bb: list[int] = []
+    whole = run("hdr-bin", data, None, bb)
+    with (
+        mock.patch.object(frames_mod, "_SCAN_BYTES", scan),
+        mock.patch.object(frames_mod, "_KEEP_FAILED", keep_failed),
+    ):
+        arr, vstats = decode_capture(data)
+    assert (array_to_frames(arr), vstats) == whole and vstats.bad_before.tolist() == bb
+
+
+def test_second_pass_on_a_known_capture() -> None:
+    from unittest import mock
+
+    from hdrd import frames as frames_mod
+
+    f = [Frame(seq=k, t_us=100_000 * k, rate=32768 + k, ref=0, temp_cc=None) for k in range(6)]
+    bad = bytearray(encode_bin(f[2]))
+    bad[9] ^= 0x10  # a CRC error
+    data = encode_bin(f[0]) + SYNC + encode_bin(f[1]) + bytes(bad) + SYNC + SYNC
+    data += b"".join(encode_bin(x) for x in f[3:])
+    for keep in (0, 1 << 20):
+        with mock.patch.object(frames_mod, "_KEEP_FAILED", keep):
+            arr, st_ = decode_capture(data)
+        assert array_to_frames(arr) == [f[0], f[1], f[3], f[4], f[5]]
+        assert st_.bad_frames == 4 and st_.bad_before.tolist() == [0, 1, 4, 4, 4]
+        assert st_.garbage_bytes == len(data) - 5 * 16
+
+
+# -- what the errors say ------------------------------------------------------------------------
+
+
+def test_each_codec_error_says_what_is_wrong() -> None:
+    good = encode_bin(Frame(seq=1, t_us=2, rate=3, ref=4, temp_cc=5))
+    with pytest.raises(FrameError, match=r"^bad sync 0000 \(expected a55a\)$"):
+        decode_bin(b"\x00\x00" + good[2:])
+    text = encode_text(Frame(seq=1, t_us=2, rate=3, ref=4, temp_cc=250)).rstrip(b"\r\n")
+    body = text[: text.index(b"*")]
+    cases = {
+        body: "hdr-text line must end with *HH (two hex digits)",
+        b"$HDRG,1,2,3": "hdr-text line has 3 fields, expected 5",
+        b"$HDRG,1,x,3,4,": "hdr-text t_us b'x' is not a decimal integer",
+        b"$HDRG,1,2,3,y,": "hdr-text ref b'y' is not a decimal integer",
+        b"$HDRG,1,2,3,4,2.5.0": "hdr-text temp_c b'2.5.0' is not a decimal number",
+    }
+    from hdrd.frames import _xor
+
+    for line, message in cases.items():
+        if line is not body:  # a valid checksum: the error is the field's
+            line = line + b"*%02X" % _xor(line[1:])
+        with pytest.raises(FrameError) as e:
+            decode_text(line)
+        assert str(e.value) == message, (line, str(e.value))
+    with pytest.raises(
+        ValueError, match=r"unknown protocol 'x' \(expected one of hdr-bin, hdr-text\)"
+    ):
+        encode(Frame(seq=1, t_us=2, rate=3, ref=4, temp_cc=5), "x")
+
+
+# -- the sequence and clock limits, push parser and vectorised decoder alike ---------------------
+
+
+@pytest.mark.parametrize(
+    "step, counts",
+    [
+        (1, (0, 0, 0, 0)),
+        (0x7FFF, (1, 0x7FFE, 0, 0)),  # the largest gap
+        (0x8000, (0, 0, 0, 1)),  # half the sequence: a reset
+        (0x10000 - 65, (0, 0, 0, 1)),  # 65 back: a reset
+        (0x10000 - 64, (0, 0, 1, 0)),  # 64 back (SEQ_REORDER_WINDOW): a repeat
+        (0, (0, 0, 1, 0)),
+    ],
+)
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_sequence_steps_at_their_limits(
+    step: int, counts: tuple[int, int, int, int], protocol: str
+) -> None:
+    seqs = [1000, 1001, (1001 + step) & 0xFFFF]
+    frames = [
+        Frame(seq=s, t_us=100_000 * k, rate=1, ref=0, temp_cc=None) for k, s in enumerate(seqs)
+    ]
+    data = b"".join(encode(f, protocol) for f in frames)
+    _, st_ = run(protocol, data)
+    assert (st_.seq_gaps, st_.lost_frames, st_.seq_repeats, st_.seq_resets) == counts
+    _, vst = decode_capture(data, protocol)
+    assert vst == st_
+
+
+def test_a_sync_pattern_inside_the_first_frame_is_not_a_bad_frame() -> None:
+    # rate 0x5AA5 is sent A5 5A: a sync pattern inside each frame, frame 0 included, whose
+    # CRC fails there. With a real bad frame later (so the counting path runs), only the
+    # bad frame's patterns are counted.
+    f = [Frame(seq=k, t_us=100_000 * k, rate=0x5AA5, ref=0, temp_cc=None) for k in range(4)]
+    bad = bytearray(encode_bin(f[2]))
+    bad[12] ^= 0x01
+    data = encode_bin(f[0]) + encode_bin(f[1]) + bytes(bad) + encode_bin(f[3])
+    frames, st_ = run("hdr-bin", data)
+    arr, vst = decode_capture(data)
+    assert array_to_frames(arr) == frames == [f[0], f[1], f[3]]
+    # the bad frame's two sync patterns (its own and its rate's) count; the good frames' do not
+    assert vst == st_ and vst.bad_frames == 2 and vst.bad_before.tolist() == [0, 0, 2]

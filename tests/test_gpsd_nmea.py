@@ -274,6 +274,7 @@ def gyro_steps(
     return out
 
 
+@pytest.mark.slow
 def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
     truth, gps = outage_drive()
     port = free_port()
@@ -414,6 +415,7 @@ def straight_gyro(seconds: float, bias: float) -> DriveLog:
     return DriveLog(t=t, omega=bias + rng.normal(0, 0.05, len(t)), omega_truth=np.zeros_like(t))
 
 
+@pytest.mark.slow
 def test_hdrd_run_aided_by_gpsd_through_an_outage(need_gpsfake, procs, fake_gyro, udp, tmp_path):
     """``hdrd run --gpsd``: a straight drive on course 250 deg, GPS lost for 12 s. The
     messages say aided -> dead-reckoning -> aided, the heading is the GPS course, holds
@@ -546,6 +548,7 @@ def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs)
     )
 
 
+@pytest.mark.slow
 def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, tmp_path):
     """A real ``hdrd run`` with ``output.nmea_talker: II`` (what docs/protocol.md says to set
     for gpsd) turning left at 3 deg/s: gpsd's ATT headings are the published headings (HDT,

@@ -428,3 +428,36 @@ def test_variants() -> None:
     o = HdrParams.off()
     assert o.enabled is False and o.lowpass and o.i_c == 0.0422
     assert HdrParams().as_dict()["theta_w"] == 0.564
+
+
+# -- the turn threshold is inclusive: |y| <= Theta_w is straight (Eq. 8) ------------------------
+
+
+def _filtered_first(u: float, tau: float = 0.75, T: float = 1.0) -> float:
+    """y_0 = x_0 from the initial state (x_-1 = 0, I_0 = 0), computed as the stepper does."""
+    return (T * u + tau * 0.0) / (T + tau)
+
+
+@pytest.mark.parametrize("u", [1.0, -0.7])
+def test_y_exactly_at_theta_w_is_straight_and_one_ulp_above_is_a_turn(u: float) -> None:
+    y0 = _filtered_first(u)
+    at = HdrParams(theta_w=abs(y0))
+    below = HdrParams(theta_w=math.nextafter(abs(y0), 0.0))
+    (s_at, o_at), (s_below, o_below) = step(INITIAL_STATE, u, at), step(INITIAL_STATE, u, below)
+    assert o_at.filtered == y0
+    assert (o_at.W, o_below.W) == (1, 0)
+    assert s_at.I == -math.copysign(at.i_c, u) and s_below.I == 0.0
+    # The batch form and the many-parameter form draw the same line.
+    for params, want_I in ((at, s_at.I), (below, 0.0)):
+        trace = run_batch([u, 0.0], params)
+        assert trace.W[0] == (1 if params is at else 0) and trace.I[1] == want_I
+    yaw = run_many([u, 0.0], 0.0422, 0.75, [abs(y0), math.nextafter(abs(y0), 0.0)], 0.16, 1.80)
+    assert yaw[1, 0] == u + (0.0 + s_at.I) and yaw[1, 1] == u
+
+
+def test_batch_outputs_have_their_documented_types() -> None:
+    trace = run_batch([0.3, -0.2, 0.0, 5.0])
+    assert trace.r.dtype == np.int64 and trace.W.dtype == np.int8
+    assert trace.omega.dtype == trace.yaw.dtype == trace.I.dtype == np.float64
+    # signs of y: +, -, - (I was pulled back to 0 by step 1), +: the counter runs 1, 1, 2, 1
+    assert trace.r.tolist() == [1, 1, 2, 1]

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from hdrd.capture import decode_capture
 from hdrd.fakegyro import FakeGyro
@@ -71,6 +72,7 @@ def test_record_from_fake_gyro_decodes_to_exactly_the_frames_sent(
     assert st.garbage_bytes == g.injected.garbage_bytes + 16 * g.injected.crc_errors
 
 
+@pytest.mark.slow
 def test_record_stops_after_seconds(fake_gyro, tmp_path: Path) -> None:
     g = fake_gyro(builtin_profile("standstill", minutes=10, hz=20), speedup=1.0)
     out = tmp_path / "cap.bin"
@@ -85,6 +87,7 @@ def test_record_stops_after_seconds(fake_gyro, tmp_path: Path) -> None:
     assert f"to {out}" in err
 
 
+@pytest.mark.slow
 def test_record_survives_a_cable_pull(tmp_path: Path) -> None:
     link = tmp_path / "gyro"
     prof = builtin_profile("standstill", minutes=0.3, hz=50, lead_in_s=0.0)

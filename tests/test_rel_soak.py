@@ -15,6 +15,8 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import pytest
+
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "soak.py"
 
 
@@ -27,6 +29,7 @@ def load_soak() -> ModuleType:
     return mod
 
 
+@pytest.mark.slow
 def test_short_soak_counts(tmp_path: Path) -> None:
     soak = load_soak()
     r = soak.soak(

@@ -91,6 +91,7 @@ CONFIG_CASES: dict[str, tuple[str | None, list[str], str]] = {
 }
 
 
+@pytest.mark.slow
 def test_run_exits_78_with_one_line_naming_the_key(tmp_path: Path) -> None:
     cases = {}
     files = {}
@@ -124,6 +125,7 @@ def good_bias_text(tmp_path: Path) -> str:
     return p.read_text()
 
 
+@pytest.mark.slow
 def test_corrupted_bias_file_is_a_clear_error(tmp_path: Path) -> None:
     good = good_bias_text(tmp_path)
     variants: dict[str, str | bytes | None] = {
@@ -176,6 +178,7 @@ def test_corrupted_bias_file_is_a_clear_error(tmp_path: Path) -> None:
     assert "truncated" in got["default path"].stderr.decode()
 
 
+@pytest.mark.slow
 def test_bad_bias_file_with_fallback_measures_the_bias_at_start(fake_gyro, tmp_path: Path) -> None:
     """calibration.on_bad_bias_file: calibrate: a truncated file that says 5 deg/s is not
     used; the daemon says it calibrates, then publishes the bias it measured (0.25)."""
@@ -295,6 +298,7 @@ def write_old(state: Path) -> bytes:
     return (state / "bias.yaml").read_bytes()
 
 
+@pytest.mark.slow
 def test_power_cut_at_each_point_of_the_write(tmp_path: Path) -> None:
     """SIGKILL with the temp file just created, written (fsync'd, before chmod), right before
     the rename, right after it; with and without an old bias file."""
@@ -332,6 +336,7 @@ def test_power_cut_at_each_point_of_the_write(tmp_path: Path) -> None:
         assert check_whole(state, old[(point, first)]) == want, (point, first, os.listdir(state))
 
 
+@pytest.mark.slow
 def test_repeated_power_cuts_leave_at_most_one_temp_file(tmp_path: Path) -> None:
     """Killed three times with its temporary file just created, then run to the end: the
     leftovers do not pile up, and a successful write leaves none."""
@@ -361,6 +366,7 @@ def test_repeated_power_cuts_leave_at_most_one_temp_file(tmp_path: Path) -> None
     assert check_whole(state, old) == "new" and temps(state) == []
 
 
+@pytest.mark.slow
 def test_power_cut_at_random_moments(tmp_path: Path) -> None:
     """SIGKILL at random moments of `hdrd calibrate` (start-up, measuring, writing, exiting):
     whatever the moment, the old file or a whole new one."""

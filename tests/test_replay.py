@@ -32,6 +32,7 @@ def replay_cli(capsys, *args: str) -> tuple[int, list[dict], str]:
     return rc, [json.loads(x) for x in cap.out.splitlines()], cap.err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["hdr", "hdr+"])
 def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(
     fake_gyro, tmp_path, capsys, method

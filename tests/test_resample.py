@@ -285,6 +285,7 @@ def test_unwrap_us_empty_and_fast_path() -> None:
 def test_block_means_empty() -> None:
     idx, mean, n = block_means(np.empty(0, np.int64), np.empty(0))
     assert idx.shape == mean.shape == n.shape == (0,)
+    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64
 
 
 def test_block_average_seconds_for_drive_logs() -> None:
@@ -351,3 +352,331 @@ def test_memory_follows_the_samples_not_the_device_time_they_span() -> None:
         Missing(1, 10**11 - 1, 1.0, 1e11),
         Missing(10**11 + 1, 1, 1e11 + 1, 1e11 + 2),
     ]
+
+
+# -- the array forms against their scalar twins: every output, every counter, both paths --------
+
+
+def block_tuple(item: Block | Missing) -> tuple[object, ...]:
+    """Everything a block says, its sum of squares included (Block's == leaves it out)."""
+    if isinstance(item, Missing):
+        return ("missing", item.first, item.count, item.t_start, item.t_end)
+    return (
+        "block", item.index, item.t_start, item.t_end, item.mean, item.n, item.temp_c,
+        item.saturated, item.sumsq,
+    )  # fmt: skip
+
+
+def averager_state(a: BlockAverager) -> tuple[object, ...]:
+    return (a.t0_us, a.open_block, a.late)
+
+
+_STEP = st.one_of(
+    st.integers(1, 400_000),  # time passing within a block or to the next
+    st.integers(1, 400_000),
+    st.integers(1_000_000, 6_000_000),  # a gap of a few steps
+    st.just(0),  # the same time again
+    st.integers(-2_500_000, -1),  # back (after a flush, or a hostile array)
+)
+_SAMPLE = st.tuples(
+    _STEP,
+    st.floats(-300, 300, allow_nan=False, allow_infinity=False),
+    st.one_of(st.none(), st.floats(-40, 85, allow_nan=False)),
+    st.booleans(),
+)
+
+
+@st.composite
+def sample_chunks(draw: st.DrawFn) -> tuple[float, list[tuple[str, bool, list[tuple]]]]:
+    """Samples (unwrapped us, value, temperature or None, saturated) in chunks, each fed
+    either through feed_many or one by one, some followed by a flush. Times mostly go
+    forward by up to 0.4 s; sometimes they jump a few steps ahead, repeat, or go back (as
+    after a flush, or in a hostile array: the slow path)."""
+    T_s = draw(st.sampled_from([1.0, 0.5, 0.1]))
+    t = draw(st.integers(0, 3_000_000))
+    chunks = []
+    for how, flush, drawn in draw(
+        st.lists(
+            st.tuples(
+                st.sampled_from(["many", "one"]), st.booleans(), st.lists(_SAMPLE, max_size=30)
+            ),
+            min_size=1,
+            max_size=4,
+        )
+    ):
+        samples = []
+        for step, value, temp, sat in drawn:
+            t = max(0, t + step)
+            samples.append((t, value, temp, sat))
+        chunks.append((how, flush, samples))
+    return T_s, chunks
+
+
+@settings(max_examples=200, deadline=None)
+@given(case=sample_chunks())
+def test_feed_many_is_feed_in_everything(
+    case: tuple[float, list[tuple[str, bool, list[tuple]]]],
+) -> None:
+    T_s, chunks = case
+    ref, sub = BlockAverager(T_s), BlockAverager(T_s)
+    for how, flush, samples in chunks:
+        want = [
+            (i, block_tuple(b))
+            for i, (t, v, tc, sat) in enumerate(samples)
+            for b in ref.feed(t, v, tc, sat)
+        ]
+        if how == "many":
+            got = [
+                (i, block_tuple(b))
+                for i, b in sub.feed_many(
+                    np.array([s[0] for s in samples], np.int64),
+                    np.array([s[1] for s in samples], np.float64),
+                    np.array([np.nan if s[2] is None else s[2] for s in samples], np.float64),
+                    np.array([s[3] for s in samples], bool),
+                )
+            ]
+        else:
+            got = [
+                (i, block_tuple(b))
+                for i, (t, v, tc, sat) in enumerate(samples)
+                for b in sub.feed(t, v, tc, sat)
+            ]
+        assert got == want
+        assert averager_state(sub) == averager_state(ref)
+        if flush:
+            assert [block_tuple(b) for b in sub.flush()] == [block_tuple(b) for b in ref.flush()]
+    assert [block_tuple(b) for b in sub.flush()] == [block_tuple(b) for b in ref.flush()]
+
+
+def test_feed_many_with_a_time_that_goes_back_reports_every_block() -> None:
+    # Not what a DeviceClock gives (its times only go forward), but an array can hold it:
+    # block 0, its closing sample (1.0 s), one late sample back in block 0, then block 1.
+    # The sample that closes block 0 comes before the first one that a binary search puts
+    # beyond the open block: block 0 used to be closed there and never reported.
+    t = np.array([0, 1, 2, 3, 4, 10, 9, 11, 12, 13, 14, 15], np.int64) * 100_000
+    v = np.arange(12, dtype=np.float64)
+    ref = BlockAverager()
+    want = [(i, block_tuple(b)) for i in range(12) for b in ref.feed(int(t[i]), float(v[i]))]
+    assert want == [(5, ("block", 0, 0.0, 1.0, 2.0, 5, None, 0, 30.0))] and ref.late == 1
+    sub = BlockAverager()
+    assert [(i, block_tuple(b)) for i, b in sub.feed_many(t, v)] == want
+    assert averager_state(sub) == averager_state(ref)
+
+
+def test_feed_many_without_temperatures_or_flags_is_feed_without_them() -> None:
+    t = np.array([0, 400_000, 1_100_000, 1_200_000, 3_500_000, 3_600_000], np.int64)
+    v = np.array([1.0, 2.0, 4.0, 8.0, 16.0, 32.0])
+    ref = BlockAverager()
+    want = [(i, block_tuple(b)) for i in range(6) for b in ref.feed(int(t[i]), float(v[i]))]
+    sub = BlockAverager()
+    assert [(i, block_tuple(b)) for i, b in sub.feed_many(t, v)] == want
+    assert want == [
+        (2, ("block", 0, 0.0, 1.0, 1.5, 2, None, 0, 5.0)),
+        (4, ("block", 1, 1.0, 2.0, 6.0, 2, None, 0, 80.0)),
+        (4, ("missing", 2, 1, 2.0, 3.0)),
+    ]
+    assert averager_state(sub) == averager_state(ref) == (0, (3_000_000, 4_000_000, 2), 0)
+    assert sub.feed_many(np.empty(0, np.int64), np.empty(0)) == []
+
+
+def test_feed_many_closes_each_block_at_the_sample_that_ends_it() -> None:
+    # Blocks 0..3 in one array: each is reported at the position of the first sample of the
+    # next non-empty block (its arrival is when the step can be published), with the
+    # temperatures and saturation flags of its own samples only.
+    t = np.array([0, 500_000, 1_000_000, 1_500_000, 2_000_000, 4_200_000, 4_300_000], np.int64)
+    v = np.array([1.0, 3.0, 10.0, 20.0, -5.0, 7.0, 9.0])
+    temp = np.array([20.0, 22.0, 30.0, np.nan, 41.0, np.nan, 50.0])
+    sat = np.array([False, True, True, True, False, False, True])
+    a = BlockAverager()
+    got = [(i, block_tuple(b)) for i, b in a.feed_many(t, v, temp, sat)]
+    assert got == [
+        (2, ("block", 0, 0.0, 1.0, 2.0, 2, 21.0, 1, 10.0)),
+        (4, ("block", 1, 1.0, 2.0, 15.0, 2, 30.0, 2, 500.0)),
+        (5, ("block", 2, 2.0, 3.0, -5.0, 1, 41.0, 0, 25.0)),
+        (5, ("missing", 3, 1, 3.0, 4.0)),
+    ]
+    assert [block_tuple(b) for b in a.flush()] == [("block", 4, 4.0, 5.0, 8.0, 2, 50.0, 1, 130.0)]
+
+
+def test_flush_of_a_later_block_and_what_follows_it() -> None:
+    a = BlockAverager(0.5)
+    for k in range(7):  # 0 .. 0.6 s in steps of 0.1 s: blocks 0 (5 samples) and 1 (open)
+        a.feed(k * 100_000, float(k), temp_c=10.0 + k, saturated=k == 6)
+    (b,) = a.flush()
+    assert block_tuple(b) == ("block", 1, 0.5, 1.0, 5.5, 2, 15.5, 1, 61.0)
+    assert a.open_block == (1_000_000, 1_500_000, 0)
+    assert a.flush() == []
+    # The flushed step is final: a late sample in it is counted, not added.
+    assert a.feed(900_000, 99.0) == [] and a.late == 1
+    assert a.feed(700_000, 99.0) == [] and a.late == 2
+    # The step after the flushed one is open and empty: a sample two steps on reports one
+    # missing step (1.0 .. 1.5 s), not the flushed one again.
+    assert [block_tuple(x) for x in a.feed(1_600_000, 3.0)] == [("missing", 2, 1, 1.0, 1.5)]
+    assert [block_tuple(x) for x in a.flush()] == [("block", 3, 1.5, 2.0, 3.0, 1, None, 0, 9.0)]
+
+
+def test_temperatures_and_flags_do_not_leak_into_the_next_block() -> None:
+    a = BlockAverager()
+    a.feed(0, 1.0, temp_c=20.0, saturated=True)
+    a.feed(500_000, 1.0, temp_c=30.0, saturated=True)
+    (b0,) = a.feed(1_000_000, 2.0, temp_c=40.0)
+    a.feed(1_500_000, 2.0, temp_c=None, saturated=True)
+    (b1,) = a.feed(2_000_000, 3.0)
+    (b2,) = a.flush()
+    assert isinstance(b0, Block) and isinstance(b1, Block) and isinstance(b2, Block)
+    assert [(b.temp_c, b.saturated) for b in (b0, b1, b2)] == [(25.0, 2), (40.0, 1), (None, 0)]
+    assert [b.sumsq for b in (b0, b1, b2)] == [2.0, 8.0, 9.0]
+
+
+def test_block_std_is_never_nan_for_equal_samples() -> None:
+    # sumsq / n - mean**2 rounds below zero for these: the spread is 0, not NaN.
+    v = [0.1, 0.1, 0.1]
+    a = BlockAverager()
+    for k, x in enumerate(v):
+        a.feed(k * 100_000, x)
+    (b,) = a.flush()
+    assert isinstance(b, Block)
+    assert b.sumsq / b.n - b.mean * b.mean < 0.0
+    assert b.std == 0.0
+    assert Block(0, 0.0, 1.0, 2.0, 4, sumsq=20.0).std == 1.0
+
+
+_CLOCK_STEP = st.one_of(
+    st.integers(1, 300_000),
+    st.integers(1, 300_000),
+    st.integers(300_000, (1 << 31) - 1),
+    st.sampled_from([0, 1 << 31, (1 << 31) - 1, (1 << 31) + 1]),
+    st.sampled_from([-1, -1_000_000, -1_000_001]),
+    st.integers(-1_000_000, -1),
+    st.integers(-(1 << 31), -1_000_001),
+)
+
+
+@st.composite
+def raw_clock(draw: st.DrawFn) -> list[int]:
+    """32-bit device times with every kind of step: forward (to just under half the wrap),
+    across the wrap, repeated, a little back (<= 1 s: rejected), far back (a reset), and
+    exactly at the limits (half the wrap forward, 1 s and 1 s + 1 us back)."""
+    t = draw(st.integers(0, CLOCK_WRAP_US - 1))
+    out = [t]
+    for step in draw(st.lists(_CLOCK_STEP, max_size=60)):
+        t = (t + step) % CLOCK_WRAP_US
+        out.append(t)
+    return out
+
+
+@settings(max_examples=200, deadline=None)
+@given(raw=raw_clock(), cuts=st.lists(st.integers(0, 61), max_size=3))
+def test_unwrap_many_is_unwrap_in_everything(raw: list[int], cuts: list[int]) -> None:
+    ref, sub = DeviceClock(), DeviceClock()
+    want = [ref.unwrap(x) for x in raw]
+    got: list[int | None] = []
+    edges = [0, *sorted(min(c, len(raw)) for c in cuts), len(raw)]
+    for lo, hi in zip(edges, edges[1:]):
+        t, ok = sub.unwrap_many(np.array(raw[lo:hi], np.int64))
+        assert ok.tolist() == [x >= 0 for x in t.tolist()]
+        got += [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())]
+        assert (sub.last_us, sub.wraps, sub.rejected, sub.resets) == (DeviceClock_after(raw[:hi]))
+    assert got == want
+    assert (sub.last_us, sub.wraps, sub.rejected, sub.resets) == (
+        ref.last_us, ref.wraps, ref.rejected, ref.resets,
+    )  # fmt: skip
+    # The function form is a fresh clock over the whole array.
+    t, ok = unwrap_us(np.array(raw, np.int64))
+    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want
+
+
+def DeviceClock_after(raw: list[int]) -> tuple[int | None, int, int, int]:  # noqa: N802
+    c = DeviceClock()
+    for x in raw:
+        c.unwrap(x)
+    return c.last_us, c.wraps, c.rejected, c.resets
+
+
+def test_clock_limits_exactly() -> None:
+    c = DeviceClock()
+    assert c.last_us is None
+    assert c.unwrap(5_000_000) == 5_000_000 and c.last_us == 5_000_000
+    # half the wrap forward is as far back: more than 1 s back, a reset (time moves 1 us)
+    assert c.unwrap(5_000_000 + (1 << 31)) == 5_000_001 and c.resets == 1
+    # just under half the wrap forward is time passing, here across 2**32
+    assert c.unwrap(5_000_000 - 1) == 5_000_001 + (1 << 31) - 1
+    assert c.wraps == 1  # that last step crossed 2**32
+    base, raw = 5_000_001 + (1 << 31) - 1, 5_000_000 - 1
+    assert c.last_us == base
+    # exactly 1 s back: a reordered sample, rejected; 1 s + 1 us back: a reset
+    assert c.unwrap((raw - 1_000_000) % CLOCK_WRAP_US) is None and c.rejected == 1
+    assert c.unwrap((raw - 1_000_001) % CLOCK_WRAP_US) == base + 1 and c.resets == 2
+    # the same time twice: the second is rejected
+    assert c.unwrap((raw - 1_000_001) % CLOCK_WRAP_US) is None and c.rejected == 2
+    assert (c.wraps, c.rejected, c.resets) == (1, 2, 2)
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        [10, 10, 20],  # a repeat: d == 0
+        [10, 10 + (1 << 31), 20],  # d == half the wrap
+        [10, 10 + (1 << 31) - 1, 20 + (1 << 31)],  # just under half: the fast path
+        [CLOCK_WRAP_US - 1, 0, 1],  # across the wrap, 1 us steps
+    ],
+)
+def test_array_clock_forms_at_their_fast_path_limits(raw: list[int]) -> None:
+    c = DeviceClock()
+    want = [c.unwrap(x) for x in raw]
+    t, ok = unwrap_us(np.array(raw, np.int64))
+    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want
+    d = DeviceClock()
+    d.unwrap(raw[0])
+    t, ok = d.unwrap_many(np.array(raw[1:], np.int64))
+    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want[1:]
+    assert (d.wraps, d.rejected, d.resets, d.last_us) == (c.wraps, c.rejected, c.resets, c.last_us)
+
+
+def test_array_forms_take_the_frames_uint32_clock_and_give_int64() -> None:
+    # frames["t_us"] is uint32: arithmetic on it in uint32 would overflow at the wrap.
+    raw = [CLOCK_WRAP_US - 300_000, CLOCK_WRAP_US - 100_000, 100_000, 300_000, 500_000]
+    c = DeviceClock()
+    want = [c.unwrap(x) for x in raw]
+    for dtype in (np.uint32, np.int64):
+        t, ok = unwrap_us(np.array(raw, dtype))
+        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
+        d = DeviceClock()
+        t, ok = d.unwrap_many(np.array(raw, dtype))
+        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
+        assert (d.wraps, d.last_us) == (1, want[-1])
+    # the slow path (a repeat) and the empty array are int64 too
+    t, ok = DeviceClock().unwrap_many(np.array([5, 5, 7], np.uint32))
+    assert t.dtype == np.int64 and t.tolist() == [5, -1, 7] and ok.tolist() == [True, False, True]
+    for t, ok in (DeviceClock().unwrap_many([]), unwrap_us([])):
+        assert t.dtype == np.int64 and ok.dtype == bool and t.shape == (0,)
+
+
+def test_unwrap_many_counts_one_wrap_with_samples_after_it() -> None:
+    # Every step forward (the numpy path), the wrap in the middle, three samples after it.
+    raw = [CLOCK_WRAP_US - 250_000, CLOCK_WRAP_US - 150_000, CLOCK_WRAP_US - 50_000,
+           50_000, 150_000, 250_000]  # fmt: skip
+    for head in (0, 1, 2):
+        c = DeviceClock()
+        for x in raw[:head]:
+            c.unwrap(x)
+        c.unwrap_many(np.array(raw[head:], np.int64))
+        assert c.wraps == 1 and c.last_us == CLOCK_WRAP_US + 250_000
+
+
+def test_block_average_seconds_works_in_float64_whatever_comes_in() -> None:
+    # A drive log read with float32 times (e.g. from a compact file): 1077 s after the
+    # first sample is step 1077. In float32, 1077 s * 1e6 rounds to 1076999936 us (24-bit
+    # mantissa) and would land in step 1076.
+    t = np.array([100.0, 1177.0], np.float32)
+    v = np.array([1.0, 2.0], np.float32)
+    idx, mean, n = block_average_seconds(t, v)
+    assert idx.tolist() == [0, 1077] and mean.tolist() == [1.0, 2.0] and n.tolist() == [1, 1]
+    t = (1000.0 + np.arange(25) * 0.1).astype(np.float32)
+    v = np.linspace(-1.0, 1.0, 25).astype(np.float32)
+    want = block_average_seconds(t.astype(np.float64), v.astype(np.float64))
+    got = block_average_seconds(t, v)
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    idx, mean, n = block_average_seconds([], [])
+    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64

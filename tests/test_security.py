@@ -159,6 +159,7 @@ def daemon_publishing(
         notify.close()
 
 
+@pytest.mark.slow
 def test_the_daemon_listens_on_nothing(
     daemon_publishing: tuple[subprocess.Popen[bytes], Any],
 ) -> None:

@@ -177,3 +177,73 @@ def test_saturation_of_a_rail_even_with_a_small_rate() -> None:
     assert M.saturated(65535, 10.0) is True
     assert M.saturated(0, -10.0) is True
     assert M.saturated(40000, 10.0) is False
+
+
+# -- the daemon's scalar path, and what the array path takes ----------------------------------
+
+
+@pytest.mark.parametrize("polarity", [1, -1])
+@pytest.mark.parametrize("ref", [0, 1, 29491, 32768, 36045, 65535])
+def test_scalar_path_is_the_array_path_bit_for_bit(polarity: int, ref: int) -> None:
+    """Every count, with the monitor not wired (0), at its least (1), at 4.5, 5.0 and 5.5 V
+    and at its rail: the live daemon's plain-float path gives exactly the capture path's
+    deg/s, and flags exactly the same samples."""
+    m = SensorModel(polarity=polarity)
+    counts = np.arange(0, 65536)
+    want = m.to_dps(counts, ref)
+    got = np.array([m.to_dps_scalar(int(c), ref) for c in counts])
+    assert np.array_equal(got, want)
+    sat = m.saturated(counts, want)
+    assert isinstance(sat, np.ndarray)
+    assert [m.saturated_scalar(int(c), float(w)) for c, w in zip(counts, want)] == sat.tolist()
+
+
+def test_one_sample_in_plain_floats_out() -> None:
+    assert type(M.to_dps(32769)) is float
+    assert type(M.to_dps(32769, 32768)) is float
+    assert type(M.supply_v(32768)) is float
+    assert type(M.to_dps_scalar(32769)) is float
+    assert M.saturated(0, 0.0) is True and M.saturated(1, 0.0) is False
+
+
+def test_counts_of_any_numeric_type_give_the_same_rate() -> None:
+    # Frames hold uint16 counts; a CSV or a test may hand float32 or int64 ones. The
+    # conversion is done in float64 whatever comes in (float32 arithmetic would differ).
+    c = np.array([1, 12345, 32769, 40001, 65534])
+    ref = np.array([0, 1, 29491, 36045, 65535])
+    want = M.to_dps(c.astype(np.int64), ref.astype(np.int64))
+    for dtype in (np.uint16, np.int32, np.float32, np.float64):
+        assert np.array_equal(M.to_dps(c.astype(dtype), ref.astype(dtype)), want), dtype
+        assert np.array_equal(M.supply_v(ref.astype(dtype)), M.supply_v(ref)), dtype
+    w = np.array([-123.456789, -0.0123, 0.0, 0.0123, 77.7777, 199.99])
+    assert np.array_equal(
+        M.to_counts(w.astype(np.float32)), M.to_counts(w.astype(np.float32).astype(np.float64))
+    )
+    sat = M.saturated(c.astype(np.uint16), np.float32(199.99999))
+    assert isinstance(sat, np.ndarray) and not sat[1:-1].any()
+
+
+def test_a_monitor_reading_one_count_is_wired() -> None:
+    # ref 0 means "not wired" (nominal supply); 1 is the smallest reading of a wired monitor
+    # (what ref_counts_for gives for 0 V): its supply is used, however implausible.
+    assert M.supply_v(1) == 5.0 / 65536 * 2.0
+    assert M.to_dps(32768, 1) != M.to_dps(32768, 0)
+    assert M.to_dps(32768, 1) == M.to_dps_scalar(32768, 1)
+
+
+@pytest.mark.parametrize(
+    "counts, omega, flagged",
+    [
+        (1, -10.0, False),  # one count above the low rail: not a rail
+        (65534, 10.0, False),  # one count below the high rail
+        (0, 0.0, True),
+        (65535, 0.0, True),
+        (40000, 200.0, True),  # exactly the specified range: beyond what is guaranteed
+        (40000, -200.0, True),
+        (40000, 199.99999, False),
+        (40000, -199.99999, False),
+    ],
+)
+def test_saturation_boundaries(counts: int, omega: float, flagged: bool) -> None:
+    assert M.saturated(counts, omega) is flagged
+    assert M.saturated_scalar(counts, omega) is flagged

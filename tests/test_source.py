@@ -228,6 +228,7 @@ def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:
     assert moving == pytest.approx(12.5, abs=0.02)
 
 
+@pytest.mark.slow
 def test_cable_pull_reports_lost_then_back_and_frames_resume(fake_gyro, tmp_path: Path) -> None:
     prof = builtin_profile("standstill", minutes=0.5, hz=100, lead_in_s=0.0)
     link = tmp_path / "hdrd-gyro"

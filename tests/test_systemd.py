@@ -257,6 +257,7 @@ SANDBOXED = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_numpy_and_hdrd_run_under_memory_deny_write_execute() -> None:
     """MemoryDenyWriteExecute=yes forbids W+X mappings. The kernel's PR_SET_MDWE applies the
     same rule to a process: numpy and every hdrd module must work the same under it."""
