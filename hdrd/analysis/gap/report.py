@@ -113,8 +113,11 @@ def summary(res: GapResult) -> str:
         lines.append(f"  where: {s.where}")
         seeds = ""
         if s.gap_over_seeds is not None:
-            b, a = s.gap_over_seeds
-            seeds = f" (one seed; the mean over {res.gap_noise['seeds']} seeds {b:.3g} -> {a:.3g})"
+            b, a, sd = s.gap_over_seeds
+            seeds = (
+                f" (one seed; the mean over {res.gap_noise['seeds']} seeds {b:.3g} -> {a:.3g}, "
+                f"seed-to-seed sd {sd:.2g})"
+            )
         lines.append(
             f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}{seeds}, dBIC {s.delta_bic:.1f}"
         )
@@ -127,7 +130,7 @@ def summary(res: GapResult) -> str:
             f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
             + (
                 f" (mean over the seeds {rj['gap_over_seeds'][0]:.3g} -> "
-                f"{rj['gap_over_seeds'][1]:.3g})"
+                f"{rj['gap_over_seeds'][1]:.3g}, more than their sd {rj['gap_over_seeds'][2]:.2g})"
                 if "gap_over_seeds" in rj
                 else ""
             )

@@ -6,6 +6,7 @@ report rivals, refit jointly, revise earlier choices, until nothing significant 
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,9 +75,10 @@ class Step:
     regressor: str
     at_bound: tuple[dict[str, Any], ...]
     """Parameters of the model after the step that sit at a fit bound."""
-    gap_over_seeds: tuple[float, float] | None
+    gap_over_seeds: tuple[float, float, float] | None
     """When the first seed's gap rose with the effect: the gap before and after, each the
-    mean over :data:`GAP_NOISE_SEEDS` seeds (the same seeds), which decided; else None."""
+    mean over :data:`GAP_NOISE_SEEDS` seeds (the same seeds), and the seed-to-seed sd of the
+    gap before, which decided (the rise was within it); else None."""
     fit_before: Fit = field(repr=False)
     fit_after: Fit = field(repr=False)
     sim_before: GapMeasure = field(repr=False)
@@ -258,15 +260,20 @@ def run_gap(
             if new.lnl < best.fit.lnl:
                 new = best.fit  # the joint refit can only keep or improve the candidate's fit
             new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
-            over: tuple[float, float] | None = None
+            over: tuple[float, float, float] | None = None
             if new_sim.gap > cur_sim.gap:
-                # One seed's gap differs from the next by its seed-to-seed noise: a rise
-                # there says little. The same seeds, averaged, decide.
+                # One seed's gap differs from the next by its seed-to-seed noise, and a gap
+                # difference smaller than that says nothing: the same seeds decide, averaged,
+                # and the effect is rejected if the gap rises by more than its noise.
                 if cur_seeds is None:
                     cur_seeds = _seed_gaps(data, cur, seed, cur_sim.gap)
                 new_seeds = _seed_gaps(data, new, seed, new_sim.gap)
-                over = (sum(cur_seeds) / len(cur_seeds), sum(new_seeds) / len(new_seeds))
-                if over[1] > over[0]:
+                over = (
+                    statistics.mean(cur_seeds),
+                    statistics.mean(new_seeds),
+                    statistics.stdev(cur_seeds),
+                )
+                if over[1] - over[0] > over[2]:
                     rejected.append(
                         {
                             "step": i + 1,
@@ -274,10 +281,11 @@ def run_gap(
                             "delta_bic": round(best.dbic, 2),
                             "gap_before": sig4(cur_sim.gap),
                             "gap_with_it": sig4(new_sim.gap),
-                            "gap_over_seeds": [sig4(over[0]), sig4(over[1])],
-                            "why": "significant, but the gap rose with it (also as the mean "
-                            f"over {GAP_NOISE_SEEDS} seeds): the fitted effect makes the "
-                            "simulated log less like the measured one",
+                            "gap_over_seeds": [sig4(over[0]), sig4(over[1]), sig4(over[2])],
+                            "why": "significant, but the gap rose with it, also as the mean "
+                            f"over {GAP_NOISE_SEEDS} seeds by more than its seed-to-seed sd: "
+                            "the fitted effect makes the simulated log less like the measured "
+                            "one",
                         }
                     )
                     continue
