@@ -48,7 +48,7 @@ from real import TUNING, drive_set, grade_of
 
 from hdrd.analysis.gap import GapError, prepare, run_gap
 from hdrd.analysis.gap.candidates import evaluate_candidate
-from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import gap_metric
 from hdrd.drivelog import read_drive
@@ -130,6 +130,13 @@ class Measure:
     rrw_dbic: float
     rrw_sig: bool
     course_sd_deg: float  # the heading noise at the fixes fitted with the profile's model
+    bias_moving: float  # the static bias hdrd gap fits while driving (with the latency)
+    bias_stopped: float  # the mean rate inside the stops (nan: no stop)
+    blocks: tuple[np.ndarray, np.ndarray] = field(
+        repr=False, default=(np.zeros(0), np.zeros((0, 4)))
+    )
+    """The block residual with the latency in the model (deg/s) and its regressors per block:
+    speed (m/s), longitudinal and lateral acceleration and |lateral| (m/s**2)."""
 
 
 def _base(data: GapData) -> GyroModel:
@@ -137,6 +144,16 @@ def _base(data: GapData) -> GyroModel:
     if data.lattice is not None:
         m = m.with_effect(Quantization(step_dps=data.lattice.step_dps))
     return m
+
+
+def _trimmed_mean(x: np.ndarray, q: float) -> float:
+    """Mean of x without the values further than 5 robust sd from the median (a stop where
+    the phone was handled), nan when empty."""
+    if x.shape[0] == 0:
+        return math.nan
+    med = float(np.median(x))
+    mad = max(float(np.median(np.abs(x - med))), q)
+    return float(np.mean(x[np.abs(x - med) <= 5.0 * 1.4826 * mad]))
 
 
 def measure(data: GapData) -> Measure:
@@ -155,6 +172,15 @@ def measure(data: GapData) -> Measure:
     k = float(getattr(rw.fit.model.get("rate_random_walk"), "k_dps_per_sqrt_s", math.nan))
     prof = fit_model(data, log_rate_model("driveplotr", 0))
     course_sd = math.sqrt(prof.noise.extra_var / 2.0) * data.block_s
+    stops = stop_interior(data)
+    assert data.speed is not None
+    v = data.block_mean(np.nan_to_num(data.speed))
+    w = data.btruth
+    bt = data.bt[data.bvalid]
+    a_long = np.gradient(v, bt) if v.shape[0] > 2 else np.zeros_like(v)
+    a_lat = np.radians(w) * v
+    e = f.ebar - lag.dbar
+    sb = lag.model.get("static_bias")
     return Measure(
         name=data.name,
         minutes=data.duration_s / 60.0,
@@ -167,6 +193,9 @@ def measure(data: GapData) -> Measure:
         rrw_dbic=rw.dbic,
         rrw_sig=rw.significant,
         course_sd_deg=course_sd,
+        bias_moving=float(getattr(sb, "bias_dps", math.nan)),
+        bias_stopped=_trimmed_mean(data.omega[stops], q),
+        blocks=(e, np.column_stack([v, a_long, a_lat, np.abs(a_lat)])),
     )
 
 
@@ -190,8 +219,10 @@ def pool(ms: list[Measure], profile: str) -> Pooled:
     g = Grade.from_table(r.grade)
     sd = statistics.median(m.stop_sd for m in ms)
     sd_noq = math.sqrt(max(sd * sd - r.quant_step_dps**2 / 12.0, 0.0))
-    white = r.white_dps_per_rthz * sd_noq / point_sampled_sd(
-        r.white_dps_per_rthz, g.bandwidth_hz, r.sensor_hz
+    white = (
+        r.white_dps_per_rthz
+        * sd_noq
+        / point_sampled_sd(r.white_dps_per_rthz, g.bandwidth_hz, r.sensor_hz)
     )
     inf = [m for m in ms if math.isfinite(m.scale_se) and m.scale_se > 0]
     w = np.array([1.0 / m.scale_se**2 for m in inf])
@@ -210,6 +241,36 @@ def pool(ms: list[Measure], profile: str) -> Pooled:
         rrw_from=len(sig),
         course_sd_deg=statistics.median(m.course_sd_deg for m in ms),
     )
+
+
+REGRESSORS = (
+    "speed, per m/s",
+    "longitudinal acceleration, per m/s²",
+    "lateral acceleration, per m/s²",
+    "|lateral acceleration|, per m/s²",
+)
+
+
+def motion_regression(ms: list[Measure]) -> list[tuple[str, float, float]]:
+    """Does the residual while driving follow the motion (a speed- or acceleration-correlated
+    bias, g-sensitivity)? Ordinary least squares of the block residual (the latency in the
+    model) on :data:`REGRESSORS`, with an intercept per drive (its bias), pooled over the
+    tuning drives: (regressor, coefficient deg/s per unit, its se). The se is ordinary least
+    squares' (the residual's neighbouring blocks are correlated: a rough figure)."""
+    ys, xs = [], []
+    for j, m in enumerate(ms):
+        e, x = m.blocks
+        dummies = np.zeros((e.shape[0], len(ms)))
+        dummies[:, j] = 1.0
+        ys.append(e)
+        xs.append(np.hstack([dummies, x]))
+    y, x = np.concatenate(ys), np.vstack(xs)
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    res = y - x @ beta
+    s2 = float(res @ res) / (y.shape[0] - x.shape[1])
+    se = np.sqrt(np.diag(s2 * np.linalg.pinv(x.T @ x)))
+    k = len(ms)
+    return [(REGRESSORS[i], float(beta[k + i]), float(se[k + i])) for i in range(len(REGRESSORS))]
 
 
 def check_profile(p: Pooled, profile: str) -> list[str]:
@@ -331,9 +392,7 @@ def fmt(g: tuple[float, float] | None) -> str:
     return "n/a" if g is None else f"{g[0]:.3g} ± {g[1]:.2g}"
 
 
-def section(
-    ms: list[Measure], p: Pooled, rows: list[Row], skipped: list[str], machine: str
-) -> str:
+def section(ms: list[Measure], p: Pooled, rows: list[Row], skipped: list[str], machine: str) -> str:
     r = Recording.from_table("driveplotr")
     out = [
         SECTION,
@@ -349,15 +408,16 @@ def section(
         "**Tuning drives: what they show** (rates deg/s; `hdrd gap`'s fits with the log's "
         "ADC step in the model; scale and random walk with the course latency in the model):",
         "",
-        "| drive | min | sd per sample in stops | time_offset s (dBIC) | scale error (± se) | random walk K deg/s/√s (dBIC) | course noise at the fixes, deg |",
-        "|---|---|---|---|---|---|---|",
+        "| drive | min | sd per sample in stops | time_offset s (dBIC) | scale error (± se) | random walk K deg/s/√s (dBIC) | course noise at the fixes, deg | bias driving / in stops, deg/s |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for m in ms:
         se = f" ± {m.scale_se:.3f}" if math.isfinite(m.scale_se) else " (no information)"
         out.append(
             f"| {m.name} | {m.minutes:.1f} | {m.stop_sd:.3f} | {m.delay_s:+.2f} ({m.delay_dbic:+.0f}) "
             f"| {m.scale:+.3f}{se} | {m.rrw:.2g} ({m.rrw_dbic:+.1f}"
-            f"{', significant' if m.rrw_sig else ''}) | {m.course_sd_deg:.2f} |"
+            f"{', significant' if m.rrw_sig else ''}) | {m.course_sd_deg:.2f} "
+            f"| {m.bias_moving:+.3f} / {m.bias_stopped:+.3f} |"
         )
     out += [
         "",
@@ -371,6 +431,12 @@ def section(
         f"scatter about it with chi² {p.scale_chi2:.0f} on {p.scale_n - 1} degrees of freedom "
         f"(median {p.scale_median:+.3f}): a gain that differs from drive to drive, or a fit "
         "whose se is too small; not established, so the profile keeps the grade's 1 %.",
+        "",
+        "Does the residual while driving follow the motion? Pooled over the tuning drives, an "
+        "intercept (bias) per drive, ordinary least squares on the blocks (se rough: "
+        "neighbouring blocks are correlated): "
+        + "; ".join(f"{lab} {b:+.4f} ± {e:.4f} deg/s" for lab, b, e in motion_regression(ms))
+        + ".",
         "",
         "**The gap, simulated versus real** (docs/model-gap.md, section 8: mean ± sd over six "
         "seeds, each model *as given*; before = the grade preset bench/real.py configures for "
@@ -396,7 +462,11 @@ def section(
             "What each change does (the gap's mean over the DrivePlotR drives, each change added "
             "to the ones above it):",
             "",
-            "| model | " + " | ".join(f"{len(ws)} {'tuning' if s == 'tune' else 'judging'} drives" for s, ws in sets) + " |",
+            "| model | "
+            + " | ".join(
+                f"{len(ws)} {'tuning' if s == 'tune' else 'judging'} drives" for s, ws in sets
+            )
+            + " |",
             "|---|" + "---|" * len(sets),
         ]
         for i, lab in enumerate(labels):
