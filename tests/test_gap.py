@@ -277,6 +277,42 @@ def test_kalman_likelihood_equals_dense_gaussian() -> None:
     np.testing.assert_allclose(both[:, 1], 2.0 * wh.whiten(y))
 
 
+def test_kalman_likelihood_with_a_heading_truth_equals_dense_gaussian() -> None:
+    """With a GPS-course truth the truth's error is white heading noise at the fixes,
+    differenced over each block: neighbouring blocks share a fix (covariance -extra_var / 2),
+    blocks after a stretch without truth do not. The filter's likelihood equals the dense
+    Gaussian one (white, Gauss-Markov and random walk through the trapezoid block means)."""
+    n = 900
+    t = np.arange(n, dtype=np.float64)  # 1 Hz, a fix at every sample
+    heading = np.mod(100.0 + 0.01 * t, 360.0)
+    heading[300:330] = np.nan  # an outage: the blocks on either side share no fix
+    data = prepare(DriveLog(t=t, omega=np.zeros(n), heading_truth=heading))
+    assert data.heading_mode and data.block_s == 5.0
+    nz = Noise(white_var=0.3, q_step=0.0625, bi_sigma=0.05, bi_tau=60.0, rrw_k=0.002, extra_var=0.8)
+    cov = (
+        nz.bi_sigma**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / nz.bi_tau)
+        + nz.rrw_k**2 * np.minimum(t[:, None], t[None, :])
+        + np.eye(n) * (nz.white_var + nz.q_step**2 / 12.0)
+    )
+    avg = np.array([data.block_mean(row) for row in np.eye(n)]).T  # block means of each sample
+    cb = avg @ cov @ avg.T
+    used = np.flatnonzero(data.bvalid)
+    cb += np.eye(used.shape[0]) * nz.extra_var
+    shared = np.flatnonzero(np.diff(used) == 1)
+    assert 0 < shared.shape[0] < used.shape[0] - 1  # some neighbours share a fix, not all
+    cb[shared, shared + 1] -= nz.extra_var / 2.0
+    cb[shared + 1, shared] -= nz.extra_var / 2.0
+    y = np.random.default_rng(3).multivariate_normal(np.zeros(used.shape[0]), cb)
+    chol = np.linalg.cholesky(cb)
+    w = np.linalg.solve(chol, y)
+    dense = -0.5 * (y.shape[0] * math.log(2 * math.pi) + 2 * np.log(np.diag(chol)).sum() + w @ w)
+    wh = Whitener(data, nz)
+    # Equal up to the Gauss-Markov bias's and the walk's sampled vs continuous time in a block.
+    assert wh.loglik(y) == pytest.approx(dense, abs=1e-3)
+    both = wh.whiten(np.vstack([y, 2.0 * y]).T)
+    np.testing.assert_allclose(both[:, 1], 2.0 * wh.whiten(y))
+
+
 @pytest.mark.parametrize(
     ("x", "k", "p"),
     [

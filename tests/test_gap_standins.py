@@ -37,10 +37,15 @@ NOT_AT_REST = {"temperature_bias", "scale_factor", "scale_asymmetry", "time_offs
 
 
 def gaps_never_rise(res: GapResult) -> None:
+    """No accepted step raises the gap beyond its noise: on the run's seed the gap falls, or
+    (when that one seed rose) its mean over the six seeds rose by less than their sd."""
     gaps = [res.initial_sim.gap] + [s.gap_after for s in res.steps]
-    assert all(b <= a for a, b in zip(gaps, gaps[1:])), summary(res)
     for s in res.steps:
-        assert s.gap_after <= s.gap_before
+        if s.gap_over_seeds is None:
+            assert s.gap_after <= s.gap_before, summary(res)
+        else:
+            before, after, sd = s.gap_over_seeds
+            assert after - before <= sd, summary(res)
     for rv in res.revisions:
         assert rv["gap_after"] <= max(gaps) + 1e-12
 

@@ -38,12 +38,21 @@ def simulate_legs(
     heading0_deg: float | None = None,
     name: str = "",
     meta: dict[str, str] | None = None,
+    sensor_hz: float | None = None,
 ) -> DriveLog:
     """A drive through ``legs`` (road profile, fraction of the time) of ``minutes`` after a
     standstill lead-in of ``lead_in_s``; see :func:`simulate_drive` for the columns.
 
     temperature: the cabin profile (None: drawn from the seed); heading0_deg: compass heading
     at the start (None: drawn from the seed); meta: extra metadata lines for the log.
+
+    sensor_hz: the rate the gyro itself runs at when the log only keeps *point samples* of it
+    at ``hz`` (a logger reading a phone's 100 Hz gyro once a second): the motion, the
+    temperature and the gyro are simulated at ``sensor_hz`` (a whole multiple of ``hz``) and
+    every (sensor_hz / hz)-th sample is kept, so the sensor's noise over its own bandwidth,
+    and any motion faster than ``hz`` / 2, alias into the log as they do in a real one. The
+    true heading (and so the GPS course) integrates the full-rate motion. None (or ``hz``):
+    the gyro is simulated at ``hz``, its samples standing for the whole sample period.
     """
     if not (math.isfinite(minutes) and minutes >= 0):
         raise ValueError(f"minutes must be >= 0, got {minutes!r}")
@@ -51,6 +60,14 @@ def simulate_legs(
         raise ValueError(f"lead_in_s must be >= 0, got {lead_in_s!r}")
     if not (math.isfinite(hz) and hz > 0):
         raise ValueError(f"hz must be > 0, got {hz!r}")
+    step = 1
+    if sensor_hz is not None and sensor_hz != hz:
+        ratio = sensor_hz / hz if math.isfinite(sensor_hz) else math.nan
+        step = round(ratio) if math.isfinite(ratio) else 0
+        if not (step >= 2 and abs(ratio - step) < 1e-9 * ratio):
+            raise ValueError(
+                f"sensor_hz must be a whole multiple of hz ({hz:g}), got {sensor_hz!r}"
+            )
     model = crs03_default_model() if model is None else model
     route_ss, temp_ss, gps_ss, gyro_ss = np.random.SeedSequence(seed).spawn(4)
     route_rng = np.random.default_rng(route_ss)
@@ -59,20 +76,26 @@ def simulate_legs(
         heading0_deg = float(route_rng.uniform(0.0, 360.0))
     if temperature is None:
         temperature = CabinTemperature.random(temp_rng)
-    motion = generate_motion(legs, 60.0 * minutes, hz, route_rng, lead_in_s)
+    motion = generate_motion(legs, 60.0 * minutes, hz * step, route_rng, lead_in_s)
     t = motion.t
-    if t.shape[0] < 2:
+    if t.shape[0] < 2 * step:
         raise ValueError("the drive is shorter than two samples")
     temp = temperature.profile(t, lead_in_s, temp_rng)
     heading = heading_from_rate(t, motion.omega, heading0_deg)
-    truth = gps_course(t, heading, motion.speed, np.random.default_rng(gps_ss), gps)
     omega = model.apply(t, motion.omega, temp, np.random.default_rng(gyro_ss))
+    omega_true, speed = motion.omega, motion.speed
+    if step > 1:  # the log keeps point samples of the sensor's output
+        keep = slice(0, None, step)
+        t, temp, heading, omega = t[keep], temp[keep], heading[keep], omega[keep]
+        omega_true, speed = omega_true[keep], speed[keep]
+    truth = gps_course(t, heading, speed, np.random.default_rng(gps_ss), gps)
     info = {
         "source": f"hdrd {__version__} simulate",
         "seed": str(seed),
         "minutes": f"{minutes:g}",
         "lead_in_s": f"{lead_in_s:g}",
         "hz": f"{hz:g}",
+        **({"sensor_hz": f"{hz * step:g}"} if step > 1 else {}),
         "heading0_deg": f"{heading0_deg:.3f}",
         "legs": json.dumps([[p.name, f] for p, f in legs]),
         "temperature": json.dumps(asdict(temperature)),
@@ -86,8 +109,8 @@ def simulate_legs(
         omega=omega,
         temp_c=temp,
         heading_truth=truth,
-        omega_truth=motion.omega,
-        speed=motion.speed,
+        omega_truth=omega_true,
+        speed=speed,
         name=name,
         meta=info,
     )
@@ -102,6 +125,7 @@ def simulate_drive(
     lead_in_s: float = 30.0,
     temperature: CabinTemperature | None = None,
     gps: GpsModel = DEFAULT_GPS,
+    sensor_hz: float | None = None,
 ) -> DriveLog:
     """A simulated drive of type city|suburbs|rural|highway|mixed|standstill.
 
@@ -112,7 +136,8 @@ def simulate_drive(
     true yaw rate (deg/s, + = CCW); ``heading_truth`` the GPS course (compass deg, clockwise
     from north) at the 1 Hz epochs only, NaN between them and below 2 m/s; ``speed`` (m/s);
     ``temp_c`` the cabin/board temperature (deg C, warm-up profile). Deterministic for a seed.
-    The true heading is heading0 - integral(omega_truth), trapezoid rule.
+    The true heading is heading0 - integral(omega_truth), trapezoid rule. ``sensor_hz``: the
+    log keeps point samples of a gyro running at that rate (:func:`simulate_legs`).
     """
     if drive not in DRIVE_TYPES:
         raise ValueError(f"unknown drive type {drive!r} (known: {', '.join(DRIVE_TYPES)})")
@@ -128,4 +153,5 @@ def simulate_drive(
         gps=gps,
         name=drive,
         meta={"drive": drive},
+        sensor_hz=sensor_hz,
     )

@@ -38,10 +38,17 @@ class GpsModel:
     """Mean number of outages per hour of driving."""
     outage_s: tuple[float, float] = (5.0, 40.0)
     """Outage length range, s."""
+    latency_s: float = 0.0
+    """The course is reported this late, s: the course at an epoch is the vehicle's heading
+    (and the speed threshold its speed) that long before. A receiver's velocity filter and
+    its output path delay the course; against a gyro sampled at the same epochs it is a time
+    offset (``hdrd gap`` names it ``time_offset`` with delay -latency). 0: no latency."""
 
     def __post_init__(self) -> None:
         if not (self.rate_hz > 0 and self.min_speed_mps >= 0 and self.vel_noise_mps >= 0):
             raise ValueError("GpsModel: rate_hz must be > 0, min_speed_mps and vel_noise_mps >= 0")
+        if not (math.isfinite(self.latency_s) and self.latency_s >= 0):
+            raise ValueError(f"GpsModel: latency_s must be finite and >= 0, got {self.latency_s!r}")
 
 
 def heading_from_rate(
@@ -65,7 +72,8 @@ def gps_course(
 ) -> FloatArray:
     """GPS course per sample: NaN except at the sample nearest each GPS epoch (t_s[0] + j /
     rate_hz), where it is the true heading plus noise, unless the speed is below the threshold
-    or an outage covers the epoch. Compass degrees, [0, 360)."""
+    or an outage covers the epoch. With a ``latency_s`` the heading and speed are those of
+    that long before (interpolated; held before the first sample). Compass degrees, [0, 360)."""
     t = np.asarray(t_s, dtype=np.float64)
     hdg = np.asarray(heading_deg, dtype=np.float64)
     v = np.asarray(speed_mps, dtype=np.float64)
@@ -78,11 +86,17 @@ def gps_course(
     prev = np.clip(idx - 1, 0, n - 1)
     idx = np.where(np.abs(t[prev] - epochs) < np.abs(t[idx] - epochs), prev, idx)
     idx = np.unique(idx)
-    speed = v[idx]
+    if model.latency_s > 0:
+        then = t[idx] - model.latency_s
+        speed = np.interp(then, t, v)
+        hdg_then = np.interp(then, t, np.degrees(np.unwrap(np.radians(hdg))))
+    else:
+        speed = v[idx]
+        hdg_then = hdg[idx]
     sd = np.hypot(
         model.floor_deg, np.degrees(np.arctan2(model.vel_noise_mps, np.maximum(speed, 1e-3)))
     )
-    course = np.mod(hdg[idx] + sd * rng.standard_normal((idx.shape[0],)), 360.0)
+    course = np.mod(hdg_then + sd * rng.standard_normal((idx.shape[0],)), 360.0)
     ok = speed >= model.min_speed_mps
     # Outages: a Poisson number over the drive, uniformly placed.
     hours = (t[-1] - t[0]) / 3600.0

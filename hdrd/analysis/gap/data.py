@@ -18,11 +18,14 @@ from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
 
 __all__ = [
+    "STOP_MARGIN_S",
+    "STOP_SPEED_MPS",
     "TIME_GAP_FACTOR",
     "GapData",
     "GapError",
     "excluded_samples",
     "prepare",
+    "stop_interior",
     "truth_rate_from_heading",
 ]
 
@@ -35,6 +38,14 @@ TIME_GAP_FACTOR = 2.5
 """A step between two rows longer than this many median sample periods is a time gap (rows
 dropped; a jittery clock's steps stay below it): statistics over consecutive samples (Allan deviation, neighbouring differences)
 do not reach across it."""
+
+
+STOP_SPEED_MPS = 0.3
+"""At or below this speed (m/s) the vehicle stands still: its true yaw rate is zero."""
+STOP_MARGIN_S = 3.0
+"""Samples closer than this (s) to a stop's first or last row are not taken as standing: a
+speed that lags (a GPS speed filtered over seconds) still reads zero while the car turns out
+of its parking space."""
 
 
 class GapError(HdrdError, ValueError):
@@ -93,6 +104,8 @@ class GapData:
     valid (truth known and the sample not excluded), excluded (marked ``valid`` = 0 in the log or
     inside an excluded period), time_gap (a time gap, rows dropped, just before the sample).
 
+    speed: the vehicle's speed (m/s, NaN unknown) or None.
+
     Blocks of ``block_s`` on a regular grid from ``block_t0`` (0, or the first GPS fix when the
     truth is a heading): sample i counts with weight ``wprim[i]`` in block ``block_of[i]``
     (-1: none) and, at a heading truth's fix rows, with weight 1/2 in ``block_prev[i]`` too
@@ -127,6 +140,9 @@ class GapData:
     resolution_dps: float
     lattice: Lattice | None
     name: str = ""
+    speed: FloatArray | None = None
+    """The vehicle's speed, m/s (NaN = unknown), when the log has it: at a stop the true rate
+    is zero at every sample (:func:`stop_interior`)."""
 
     @property
     def duration_s(self) -> float:
@@ -153,6 +169,31 @@ class GapData:
     def block_residual(self, y: FloatArray) -> FloatArray:
         """Block means of y (a gyro output, deg/s) minus the true rate: the block residual."""
         return self.block_mean(y) - self.btruth
+
+
+def stop_interior(data: GapData) -> BoolArray:
+    """Samples inside a stop: the speed at most :data:`STOP_SPEED_MPS` on a run of rows without
+    a time gap, at least :data:`STOP_MARGIN_S` from the run's first and last row, and not
+    excluded. There the true yaw rate is zero at every sample, whatever the heading truth
+    says (a GPS course is unknown at a stop). All False without a speed column."""
+    n = data.t.shape[0]
+    if data.speed is None:
+        return np.zeros(n, dtype=bool)
+    sp = data.speed
+    st = np.isfinite(sp) & (sp <= STOP_SPEED_MPS) & ~data.excluded
+    if not st.any():
+        return st
+    new_run = st & ~np.concatenate(([False], st[:-1] & ~data.time_gap[1:]))
+    run = np.cumsum(new_run) - 1  # run index of every standing sample
+    idx = run[st]
+    t_first = np.full(int(idx.max()) + 1, np.inf)
+    t_last = np.full(int(idx.max()) + 1, -np.inf)
+    np.minimum.at(t_first, idx, data.t[st])
+    np.maximum.at(t_last, idx, data.t[st])
+    out = np.zeros(n, dtype=bool)
+    ts = data.t[st]
+    out[st] = (ts - t_first[idx] >= STOP_MARGIN_S) & (t_last[idx] - ts >= STOP_MARGIN_S)
+    return out
 
 
 def _block_length(duration_s: float, truth_source: str) -> float:
@@ -343,6 +384,7 @@ def prepare(
         resolution_dps=res,
         lattice=detect_lattice(kept, res),
         name=log.name,
+        speed=None if log.speed is None else np.asarray(log.speed, dtype=np.float64),
     )
     bt_used = btruth_full[bvalid] if heading is not None else data.block_mean(truth_filled)
     return replace(data, btruth=bt_used)

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
-from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.lattice import on_lattice
 from hdrd.analysis.gap.lowpass import (
     cutoff_hz,
@@ -190,11 +190,34 @@ below this, deg/s): between fixes the true rate is unknown, and in turns its own
 from one sample to the next would pass for noise."""
 
 
+MIN_STOP_PAIRS = 30
+"""Neighbouring sample pairs inside stops needed to read the white noise there."""
+
+
 def _white_var_heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
-    """White-noise variance with a heading truth: second differences of omega - D on straight
-    stretches (robust: MAD; a second difference of white noise has variance 6 sigma**2, and a
-    yaw rate changing steadily has none)."""
+    """White-noise variance with a heading truth. Where the log has a speed and stops, from
+    neighbouring differences of omega - D inside the stops (:func:`stop_interior`: the true
+    rate is zero there at every sample); else from second differences of omega - D on
+    straight stretches (robust: MAD; a second difference of white noise has variance
+    6 sigma**2, and a yaw rate changing steadily has none). Between a GPS course's fixes the
+    true rate is unknown: sampled at 1 Hz, a car's swaying and steering corrections change it
+    from one sample to the next on a straight road as much as a phone gyro's noise, so the
+    straights read the road as noise (a simulated 1 Hz phone drive: 10x its white noise)."""
     y = data.omega - d
+    stop = stop_interior(data)
+    pairs = stop[1:] & stop[:-1] & ~data.time_gap[1:]
+    if int(pairs.sum()) >= MIN_STOP_PAIRS:
+        de = np.diff(y)[pairs]
+        mad = float(np.median(np.abs(de - np.median(de))))
+        v = (1.4826 * mad) ** 2 / 2.0
+        lat = data.lattice
+        if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
+            v = float(np.var(de)) / 2.0
+        v = max(v - q_step**2 / 12.0, 1e-12)
+        bw = model.get("bandwidth")
+        if isinstance(bw, Bandwidth):
+            v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+        return float(v)
     ok = data.valid & (np.abs(data.truth_filled) < STRAIGHT_DPS)
     run = ok[2:] & ok[1:-1] & ok[:-2] & ~data.time_gap[2:] & ~data.time_gap[1:-1]
     if int(run.sum()) < 30:  # hardly any straight driving: all samples

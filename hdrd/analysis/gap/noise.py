@@ -110,11 +110,28 @@ class Whitener:
     the values at the block's two ends is independent of everything else:
     gbar = gamma (g_start + g_end) + zeta_g, wbar = (w_start + w_end) / 2 + zeta_w with white
     zeta. The state is (g_start, g_end, w_start, w_end); blocks without truth are predicted
-    through, not updated. With no correlated noise it reduces to dividing by the white sd."""
+    through, not updated. With no correlated noise it reduces to dividing by the white sd.
+
+    With a heading truth, ``extra_var`` is the truth's own error: white heading noise eta at
+    the fixes (variance extra_var / 2, in rate units over a block), entering block k as
+    eta_k - eta_(k+1). Neighbouring blocks share a fix, so this error is negatively
+    correlated between them and does not accumulate; white gyro noise does. The filter then
+    carries the noise at the block's two end fixes as two more states
+    (:class:`_HeadingKalman`), which keeps the two apart (a random walk of the heading from
+    the gyro's white noise against a course that is only noisy at each fix)."""
 
     def __init__(self, data: GapData, noise: Noise) -> None:
         b = data.block_s
         cnt = data.bneff[data.bvalid]
+        self._heading: _HeadingKalman | None = None
+        if data.heading_mode and noise.extra_var > 0:
+            # The truth's error is white heading noise at the fixes, differenced over a
+            # block: neighbouring blocks share a fix, so it is not white per block.
+            self.diag = False
+            self._heading = _HeadingKalman(data, noise)
+            self.s = self._heading.s
+            self.sd = np.sqrt(self.s)
+            return
         r = (noise.white_var + noise.q_step**2 / 12.0) / cnt + noise.extra_var
         self.diag = noise.bi_sigma <= 0 and noise.rrw_k <= 0
         if self.diag:
@@ -197,6 +214,8 @@ class Whitener:
         """Standardised innovations of y (used blocks; 1-D, or 2-D with one column each)."""
         if self.diag:
             return (y.T / self.sd).T if y.ndim > 1 else y / self.sd
+        if self._heading is not None:
+            return self._heading.whiten(y)
         if y.ndim == 1:
             return self._whiten1(y)
         out = np.empty_like(y)
@@ -241,3 +260,99 @@ class Whitener:
     def loglik(self, y: FloatArray) -> float:
         w = self.whiten(y)
         return -0.5 * (w.shape[0] * math.log(2.0 * math.pi) + self.logdet + float(np.dot(w, w)))
+
+
+class _HeadingKalman:
+    """The block likelihood's Kalman filter with a heading truth: state
+    (g_start, g_end, w_start, w_end, eta_start, eta_end, eps_start, eps_end), the Gauss-Markov
+    bias and the random walk at the block's two ends (as in :class:`Whitener`), the heading
+    truth's white noise at its two end fixes (variance extra_var / 2 each, rate units:
+    heading deg / block s) and the gyro's white noise at the two fix rows, which count half in
+    each of the blocks they close and open (trapezoid rule). Consecutive blocks share their
+    fix (the end states become the next block's start states); after a block without truth
+    the next block's start fix is a fresh one, as in the simulated truth."""
+
+    def __init__(self, data: GapData, noise: Noise) -> None:
+        b = data.block_s
+        sig2 = noise.bi_sigma**2
+        x = b / noise.bi_tau
+        a = math.exp(-x)
+        if x < 1e-4:
+            zeta_g = x / 6.0
+            c = 1.0 - 0.5 * x
+        else:
+            c = (1.0 - a) / x
+            fvar = 2.0 * (x - 1.0 + a) / (x * x)
+            zeta_g = max(fvar - 2.0 * c * c / (1.0 + a), 0.0)
+        h = c / (1.0 + a) if sig2 > 0 else 0.0
+        qg = sig2 * (1.0 - a * a)
+        qw = noise.rrw_k**2 * b
+        se2 = noise.extra_var / 2.0
+        sw2 = noise.white_var + noise.q_step**2 / 12.0  # per sample
+        wsum = data.bweight[data.bvalid]
+        # The two fix rows weigh 1/2 each: their noise is in the eps states, the rest in r.
+        inner = np.maximum(1.0 / data.bneff[data.bvalid] - 0.5 / wsum**2, 0.0)
+        r = np.maximum(sw2 * inner + sig2 * zeta_g + qw / 12.0, 1e-18)
+        cfix = 0.5 / wsum
+        f_mat = np.zeros((8, 8))
+        f_mat[0, 1] = 1.0
+        f_mat[1, 1] = a
+        f_mat[2, 3] = 1.0
+        f_mat[3, 3] = 1.0
+        f_mat[4, 5] = 1.0
+        f_mat[6, 7] = 1.0
+        q_mat = np.diag([0.0, qg, 0.0, qw, 0.0, se2, 0.0, sw2])
+        w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
+        p = np.zeros((8, 8))
+        p[0, 0] = p[1, 1] = sig2
+        p[0, 1] = p[1, 0] = a * sig2
+        p[2, 2] = p[2, 3] = p[3, 2] = w0
+        p[3, 3] = w0 + qw
+        p[4, 4] = p[5, 5] = se2
+        p[6, 6] = p[7, 7] = sw2
+        n = int(r.shape[0])
+        hrows = np.empty((n, 8))
+        hrows[:, :6] = [h, h, 0.5, 0.5, 1.0, -1.0]
+        hrows[:, 6] = hrows[:, 7] = cfix
+        s = np.empty(n)
+        gains = np.empty((n, 8))
+        valid = data.bvalid.tolist()
+        j = 0
+        for k in range(data.nblocks):
+            if k:
+                p = f_mat @ p @ f_mat.T + q_mat
+            if not valid[k]:
+                continue
+            v = p @ hrows[j]
+            sj = float(hrows[j] @ v) + float(r[j])
+            kg = v / sj
+            p = p - np.outer(kg, v)
+            s[j] = sj
+            gains[j] = kg
+            j += 1
+        self.s = s
+        self._f = f_mat
+        self._hrows = hrows
+        self._gains = gains
+        self._valid = valid
+        self._nblocks = data.nblocks
+
+    def whiten(self, y: FloatArray) -> FloatArray:
+        """Standardised innovations of y (used blocks; 1-D, or 2-D with one column each)."""
+        two = y.ndim > 1
+        yy = y if two else y[:, None]
+        out = np.empty(yy.shape, dtype=np.float64)
+        st = np.zeros((8, yy.shape[1]))
+        sd = np.sqrt(self.s)
+        f_mat, hrows, gains = self._f, self._hrows, self._gains
+        j = 0
+        for k in range(self._nblocks):
+            if k:
+                st = f_mat @ st
+            if not self._valid[k]:
+                continue
+            nu = yy[j] - hrows[j] @ st
+            out[j] = nu / sd[j]
+            st = st + np.outer(gains[j], nu)
+            j += 1
+        return out if two else out[:, 0]

@@ -23,6 +23,9 @@ def to_report(res: GapResult) -> dict[str, Any]:
                 "params": s.params,
                 "gap_before": sig4(s.gap_before),
                 "gap_after": sig4(s.gap_after),
+                "gap_over_seeds": None
+                if s.gap_over_seeds is None
+                else [sig4(g) for g in s.gap_over_seeds],
                 "delta_bic": round(s.delta_bic, 2),
                 "p_value": float(f"{s.p_value:.3g}"),
                 "ambiguous_with": list(s.ambiguous_with),
@@ -108,7 +111,16 @@ def summary(res: GapResult) -> str:
         ps = ", ".join(f"{k}={v:.4g}" for k, v in s.params.items())
         lines.append(f"step {i}: {s.effect} ({ps})")
         lines.append(f"  where: {s.where}")
-        lines.append(f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}, dBIC {s.delta_bic:.1f}")
+        seeds = ""
+        if s.gap_over_seeds is not None:
+            b, a, sd = s.gap_over_seeds
+            seeds = (
+                f" (one seed; the mean over {res.gap_noise['seeds']} seeds {b:.3g} -> {a:.3g}, "
+                f"seed-to-seed sd {sd:.2g})"
+            )
+        lines.append(
+            f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}{seeds}, dBIC {s.delta_bic:.1f}"
+        )
         if i in amb:
             lines.append(f"  AMBIGUOUS: {amb[i].note}")
         lines.extend(_bound_line(b) for b in s.at_bound if b["effect"] == s.effect)
@@ -116,6 +128,12 @@ def summary(res: GapResult) -> str:
         lines.append(
             f"not added at step {rj['step']}: {rj['effect']} (dBIC {rj['delta_bic']:+.1f}): "
             f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
+            + (
+                f" (mean over the seeds {rj['gap_over_seeds'][0]:.3g} -> "
+                f"{rj['gap_over_seeds'][1]:.3g}, more than their sd {rj['gap_over_seeds'][2]:.2g})"
+                if "gap_over_seeds" in rj
+                else ""
+            )
         )
     for rv in res.revisions:
         lines.append(
