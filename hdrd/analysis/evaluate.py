@@ -49,6 +49,7 @@ from hdrd.analysis.prepare import (
 )
 from hdrd.calibrate import StandstillLimits
 from hdrd.drivelog import DriveLog
+from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.methods import StepInputs
@@ -59,6 +60,7 @@ __all__ = [
     "PreparedDrive",
     "StepInputs",
     "drive_paths",
+    "drive_refs",
     "evaluate_drive",
     "evaluate_logs",
     "evaluate_prepared",
@@ -68,6 +70,7 @@ __all__ = [
     "method_key",
     "method_yaw",
     "prepare_drive",
+    "read_ref",
     "summarize",
     "to_json",
 ]
@@ -340,41 +343,41 @@ def _err(msg: str) -> None:
     print(f"hdrd evaluate: error: {msg}", file=sys.stderr)
 
 
+def drive_refs(paths: Sequence[str]) -> list[DriveRef]:
+    """The drives named (:func:`hdrd.drivesources.find_drives`: files, directories, globs; CSV
+    or Parquet), in order; EvaluationError for a missing path or a directory without logs."""
+    from hdrd.drivelog import DriveLogError
+    from hdrd.drivesources import find_drives
+
+    try:
+        return find_drives(paths)
+    except DriveLogError as e:
+        raise EvaluationError(str(e)) from None
+
+
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
-    """The drive logs named: files as given, directories searched for ``*.csv`` at any depth
-    (sorted). Each with its name: a file's stem, or its path inside the directory given without
-    ``.csv``. EvaluationError for a missing path or a directory without logs."""
-    out: list[tuple[Path, str]] = []
-    for p in paths:
-        path = Path(p)
-        if path.is_dir():
-            found = sorted(f for f in path.rglob("*.csv") if f.is_file())
-            if not found:
-                raise EvaluationError(f"{p}: a directory without drive logs (*.csv)")
-            out.extend((f, f.relative_to(path).with_suffix("").as_posix()) for f in found)
-        elif path.exists():
-            out.append((path, path.stem))
-        else:
-            raise EvaluationError(f"{p}: no such file")
-    return out
+    """Each drive named (:func:`drive_refs`) as (its file or partition directory, its name)."""
+    return [(Path(r.path), r.name) for r in drive_refs(paths)]
+
+
+def read_ref(ref: DriveRef) -> DriveLog:
+    """Read one drive; EvaluationError with a one-line message if it cannot be read."""
+    from hdrd.drivelog import DriveLogError
+
+    try:
+        return ref.read()
+    except FileNotFoundError:
+        raise EvaluationError(f"{ref.path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise EvaluationError(f"{ref.path}: cannot be read: {e.__class__.__name__}: {e}") from None
+    except DriveLogError as e:
+        raise EvaluationError(str(e)) from None
 
 
 def load_drives(paths: Sequence[str]) -> list[DriveLog]:
-    """Read drive logs (files, or directories of them, :func:`drive_paths`); EvaluationError
+    """Read drive logs (files, directories of them, globs: :func:`drive_refs`); EvaluationError
     with a one-line message on any unreadable file."""
-    from hdrd.drivelog import DriveLogError, read_drive
-
-    logs = []
-    for path, name in drive_paths(paths):
-        try:
-            logs.append(read_drive(path, name))
-        except FileNotFoundError:
-            raise EvaluationError(f"{path}: no such file") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise EvaluationError(f"{path}: cannot be read: {e.__class__.__name__}: {e}") from None
-        except DriveLogError as e:
-            raise EvaluationError(str(e)) from None
-    return logs
+    return [read_ref(r) for r in drive_refs(paths)]
 
 
 def evaluate_logs(
@@ -404,8 +407,12 @@ def evaluate_logs(
 
 
 def main(args: argparse.Namespace) -> int:
-    """``hdrd evaluate DRIVE.csv|DIR... [--calibrate-seconds S | --bias DPS] [--json FILE]
-    [--plot FILE.png] [--config PATH] [--method METHOD]``."""
+    """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
+    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--workers N |
+    --scheduler ADDRESS] [--no-progress]``."""
+    from hdrd.analysis.fleet import FleetError
+    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+    from hdrd.analysis.fleet_report import fleet_summary, plot_fleet
     from hdrd.config import EX_CONFIG, ConfigError, load_config
     from hdrd.daemon import plus_noise, plus_params, standstill_limits
 
@@ -427,9 +434,8 @@ def main(args: argparse.Namespace) -> int:
     try:
         # HDR+ is shown beside the paper's HDR it improves on.
         ms = _methods(["hdr", method] if method == "hdr+" else [method])
-        logs = load_drives(args.drives)
-        results, skipped = evaluate_logs(
-            logs,
+        refs = drive_refs(args.drives)
+        job = EvaluateJob(
             params,
             ms,
             plus,
@@ -437,15 +443,20 @@ def main(args: argparse.Namespace) -> int:
             args.calibrate_seconds,
             standstill_limits(cfg),
             noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
+            traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
         )
+        # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
+        results, skipped = run_evaluate(args, refs, job)
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
         if not results:
-            raise EvaluationError(f"none of the {len(logs)} drives can be evaluated")
-    except EvaluationError as e:
+            raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
+    except (EvaluationError, FleetError) as e:
         _err(str(e))
         return 1
     print(format_table(results))
+    if len(results) > PLOT_PANELS_MAX:
+        print(fleet_summary(results, len(skipped)))
     if args.json:
         try:
             from hdrd.calibrate import atomic_write_json
@@ -457,7 +468,8 @@ def main(args: argparse.Namespace) -> int:
     if args.plot:
         from hdrd.analysis.plots import plot_evaluation, plot_to_file
 
-        problem = plot_to_file(lambda path: plot_evaluation(results, path), args.plot)
+        draw = plot_evaluation if job.traces else plot_fleet  # a fleet: NEpsi's distribution
+        problem = plot_to_file(lambda path: draw(results, path), args.plot)
         if problem:
             _err(problem)
             return 1
