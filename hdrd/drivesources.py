@@ -15,12 +15,15 @@ from typing import Any
 
 from hdrd.drivelog import DriveLog, DriveLogError, read_drive
 
-__all__ = ["DriveRef", "find_drives"]
+__all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
 CSV_SUFFIX = ".csv"
 PARQUET_SUFFIX = ".parquet"  # hdrd.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
 PARTITION_PREFIX = "drive="  # hdrd.parquetlog.PARTITION_PREFIX
 GLOB_CHARS = frozenset("*?[")
+FORMATS = ("csv", "parquet", "dataset")
+"""What ``--format`` writes: a CSV file, a Parquet file, a drive of a dataset partitioned by
+drive (OUT/drive=NAME/part-0.parquet)."""
 
 
 @dataclass(frozen=True)
@@ -125,3 +128,28 @@ def find_drives(paths: Sequence[str]) -> list[DriveRef]:
         else:
             out.extend(_one(path, p))
     return out
+
+
+def log_format(out: str, fmt: str | None) -> str:
+    """The format to write ``out`` in: ``fmt``, else parquet for a ``.parquet`` name, else csv."""
+    if fmt is not None:
+        return fmt
+    return "parquet" if out.endswith(PARQUET_SUFFIX) else "csv"
+
+
+def write_log(out: str, log: DriveLog, fmt: str, name: str) -> str:
+    """Write a drive log as ``fmt`` (:data:`FORMATS`); ``name``: the drive's name in a
+    dataset. Returns what was written (the file). OSError if it cannot be written."""
+    if fmt == "csv":
+        from hdrd.drivelog import write_drive
+
+        write_drive(out, log)
+        return out
+    if fmt == "parquet":
+        from hdrd.parquetlog import write_parquet_drive
+
+        write_parquet_drive(out, log)
+        return out
+    from hdrd.parquetlog import write_dataset_drive
+
+    return str(write_dataset_drive(out, log, name))

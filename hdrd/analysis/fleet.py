@@ -50,8 +50,6 @@ WINDOW_PER_THREAD = 4
 """Tasks in flight per worker thread (at least :data:`MIN_WINDOW`): enough to keep every
 worker busy while results travel, few enough that nothing piles up."""
 MIN_WINDOW = 8
-CONNECT_TIMEOUT_S = 30.0
-"""How long ``--scheduler`` waits for the scheduler to answer."""
 
 Progress = Callable[[int, int], None]
 
@@ -169,8 +167,8 @@ class DaskRunner(Runner):
         scheduler is at ``scheduler`` (``tcp://host:8786``). FleetError if it cannot be had."""
         distributed = _dask()
         if scheduler:
-            try:
-                client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            try:  # waits distributed.comm.timeouts.connect (30 s) for the scheduler
+                client = distributed.Client(scheduler)
             except (OSError, TimeoutError, ValueError) as e:
                 raise FleetError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
             return cls(client)
@@ -181,7 +179,7 @@ class DaskRunner(Runner):
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
-            silence_logs=logging.ERROR,
+            silence_logs=logging.CRITICAL,  # its shutdown races are not the user's concern
         )
         try:
             client = distributed.Client(cluster)

@@ -1,20 +1,18 @@
-"""What a fleet's results look like to a person: the distribution of NEψ per method over the
-drives (a few lines, and a plot), and one line per drive of ``hdrd gap`` with how often each
-effect was found. Pure, except :func:`plot_fleet`, which writes a PNG (matplotlib, lazily)."""
+"""What a fleet's evaluation looks like to a person: the distribution of NEψ per method over
+the drives, in a few lines and a plot. Pure, except :func:`plot_fleet`, which writes a PNG
+(matplotlib, lazily)."""
 
 from __future__ import annotations
 
 import math
 import os
-from collections import Counter
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
 from hdrd.analysis.evaluate import DriveResult, method_key
 
-__all__ = ["fleet_summary", "gap_fleet_summary", "gap_row", "gap_table_head", "plot_fleet"]
+__all__ = ["QUANTILES", "fleet_summary", "plot_fleet"]
 
 QUANTILES = (10, 50, 90)
 """Percentiles of NEψ shown per method."""
@@ -93,34 +91,3 @@ def plot_fleet(results: Sequence[DriveResult], path: str | os.PathLike[str]) -> 
         fig.savefig(os.fspath(path), dpi=90)
     finally:
         plt.close(fig)
-
-
-# -- hdrd gap on a fleet ------------------------------------------------------------------------
-
-
-def gap_table_head(name_w: int) -> str:
-    return (
-        f"{'drive':<{name_w}} {'samples':>8} {'min':>6} {'gap':>8} {'-> gap':>8}  "
-        "effects found (final model)"
-    )
-
-
-def gap_row(name: str, report: dict[str, Any], name_w: int) -> str:
-    """One drive of ``hdrd gap`` on a fleet: samples, minutes, the gap before and after, the
-    effects it added (and the final model)."""
-    log = report["log"]
-    added = [s["effect"] for s in report["steps"]]
-    return (
-        f"{name:<{name_w}} {log['samples']:>8} {log['duration_s'] / 60:>6.1f} "
-        f"{report['gap_initial']:>8.3g} {report['gap_final']:>8.3g}  "
-        f"{', '.join(added) or '-'} ({' + '.join(report['final_model'])})"
-    )
-
-
-def gap_fleet_summary(found: Counter[str], n: int, skipped: int) -> str:
-    """How many of the drives each effect was found in."""
-    head = f"fleet: {n} drives analysed" + (f", {skipped} skipped" if skipped else "")
-    if not found:
-        return head + "; no effect missing from the model in any drive"
-    parts = [f"{e} in {k} ({100 * k / n:.0f} %)" for e, k in found.most_common()]
-    return head + "; effects found: " + ", ".join(parts)
