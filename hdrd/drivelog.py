@@ -224,13 +224,14 @@ def csv_values(column: str, values: FloatArray) -> FloatArray:
     digits = _DIGITS[column][1]
     scale = 10.0**digits
     v = np.asarray(values, dtype=np.float64)
-    x = v * scale
+    with np.errstate(over="ignore", invalid="ignore"):
+        x = v * scale  # an overflow goes to the writer's way below
     out: FloatArray = np.rint(x) / scale  # an exact integer over 10**digits: correctly rounded
     # Where the product's own rounding could put x on the other side of a half, or x is too
     # large for rint to be exact, do what the writer does.
     with np.errstate(invalid="ignore"):
         near = np.abs(x - np.floor(x) - 0.5) <= 4 * np.spacing(np.abs(x))
-        huge = np.abs(x) >= 2.0**52
+        huge = ~(np.abs(x) < 2.0**52)
     for i in np.flatnonzero((near | huge) & np.isfinite(v)).tolist():
         out[i] = float(f"{v[i]:.{digits}f}")
     return out
