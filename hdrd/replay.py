@@ -203,7 +203,7 @@ def convert_main(args: argparse.Namespace) -> int:
     try:
         written = write_log(args.out, log, fmt, log.name)
     except (OSError, DriveLogError) as e:
-        print(f"hdrd convert: cannot write {args.out}: {getattr(e, 'strerror', None) or e}", file=sys.stderr)
+        print(f"hdrd convert: cannot write {args.out}: {(e.strerror if isinstance(e, OSError) else None) or e}", file=sys.stderr)
         return 1
     print(
         f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {written}",

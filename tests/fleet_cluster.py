@@ -62,11 +62,13 @@ def kill(drives: str, out: str) -> None:
         while len(runner.client.nthreads()) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)  # the nanny restarts the killed worker
         pids_after = sorted(runner.client.run(os.getpid).values())
-    local, _ = evaluate_refs(refs, job, LocalRunner())
+    local, skipped = evaluate_refs(refs, job, LocalRunner())
     doc: dict[str, Any] = {
-        "fleet": to_json([o.result for o in got]),
+        "fleet": to_json([o.result for o in got if o.skipped is None]),
+        "fleet_skipped": [o.skipped for o in got if o.skipped is not None],
         "names": [o.name for o in got],
         "local": to_json(local),
+        "local_skipped": skipped,
         "killed": Path(marker).read_text(),
         "suspicious_tasks": len(lost),
         "pids_before": pids_before,

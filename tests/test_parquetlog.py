@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
-from hdrd.drivelog import COLUMNS, DriveLog, DriveLogError, csv_values, read_drive, write_drive
+from hdrd.drivelog import DriveLog, DriveLogError, csv_values, read_drive, write_drive
 from hdrd.drivesources import DriveRef, find_drives
 from hdrd.fakegyro import FakeGyro
 from hdrd.parquetlog import (
@@ -153,7 +153,7 @@ def test_integers_booleans_and_nulls_read_as_the_csv_would(tmp_path: Path) -> No
     assert log.t.dtype == np.float64 and list(log.t) == [0.0, 1.0, 2.0]
     assert list(log.omega) == [0.5, 0.25, 0.0]
     assert log.heading_truth is not None and np.isnan(log.heading_truth[[0, 2]]).all()
-    assert list(log.valid) == [1.0, 0.0, 1.0]
+    assert log.valid is not None and list(log.valid) == [1.0, 0.0, 1.0]
     assert log.columns() == ["t", "omega", "heading_truth", "valid"]
 
 
@@ -162,7 +162,9 @@ def test_a_file_holding_many_drives(city: DriveLog, tmp_path: Path) -> None:
     file order, its metadata from hdrd.drive_meta; row groups need not split at drives."""
     a, b = city.slice(0, 700), city.slice(700)
     names = ["veh 7", "veh 3"]
-    tables = [pa.table({"drive": [n] * len(x), "t": x.t, "omega": x.omega}) for n, x in zip(names, (a, b))]
+    tables = [
+        pa.table({"drive": [n] * len(x), "t": x.t, "omega": x.omega}) for n, x in zip(names, (a, b))
+    ]
     meta = {DRIVE_META_KEY: json.dumps({"veh 7": {"lead_in_s": "30"}})}
     path = tmp_path / "fleet.parquet"
     pq.write_table(pa.concat_tables(tables).replace_schema_metadata(meta), path, row_group_size=500)
@@ -225,7 +227,9 @@ def test_directories_globs_and_mixed_formats(city: DriveLog, tmp_path: Path) -> 
         find_drives([str(tmp_path / "empty")])
 
 
-def test_simulate_and_convert_write_parquet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_simulate_and_convert_write_parquet(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     common = ["simulate", "--drive", "city", "--minutes", "1", "--seed", "4"]
     assert cli([*common, "--out", str(tmp_path / "s.csv")]) == 0
     assert cli([*common, "--out", str(tmp_path / "s.parquet")]) == 0
@@ -235,7 +239,12 @@ def test_simulate_and_convert_write_parquet(tmp_path: Path, capsys: pytest.Captu
     csv = read_drive(tmp_path / "s.csv")
     assert_same_log(read_parquet_drive(tmp_path / "s.parquet"), csv)
     assert_same_log(read_parquet_drive(tmp_path / "ds" / "drive=city-4"), csv)
-    assert cli(["simulate", "--benchmark", "test", "--out", str(tmp_path / "b"), "--format", "parquet"]) == 0
+    assert (
+        cli(
+            ["simulate", "--benchmark", "test", "--out", str(tmp_path / "b"), "--format", "parquet"]
+        )
+        == 0
+    )
     assert len(list((tmp_path / "b").glob("*.parquet"))) == 5
     cap = tmp_path / "c.bin"
     FakeGyro(drive_profile(seconds=20)).write_capture(cap)

@@ -25,9 +25,11 @@ run are pure, so a task run twice gives the same result.
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
-from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+import weakref
+from collections.abc import Callable, Generator, Iterator, Sequence
+from typing import Any, TypeVar
 
 __all__ = [
     "INSTALL",
@@ -52,6 +54,7 @@ worker busy while results travel, few enough that nothing piles up."""
 MIN_WINDOW = 8
 
 Progress = Callable[[int, int], None]
+R = TypeVar("R", bound="Runner")
 
 
 class FleetError(RuntimeError):
@@ -108,7 +111,7 @@ class Runner:
     def close(self) -> None:
         pass
 
-    def __enter__(self) -> Runner:
+    def __enter__(self: R) -> R:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -160,6 +163,7 @@ class DaskRunner(Runner):
         self.client = client
         self.cluster = cluster
         self.threads = max(1, sum(client.nthreads().values()))
+        self._open: weakref.WeakSet[Generator[Any, None, None]] = weakref.WeakSet()
 
     @classmethod
     def open(cls, workers: int | None = None, scheduler: str | None = None) -> DaskRunner:
@@ -189,6 +193,10 @@ class DaskRunner(Runner):
         return cls(client, cluster)
 
     def close(self) -> None:
+        # A map left half-read (its consumer raised) cancels its tasks now, while the client
+        # is open, not when it is collected after the client closed (which would wait forever).
+        for gen in list(self._open):
+            gen.close()
         try:
             self.client.close()
         finally:
@@ -216,6 +224,19 @@ class DaskRunner(Runner):
         weights: Sequence[int] | None = None,
         batch: int | None = None,
     ) -> Iterator[Any]:
+        gen = self._map(fn, items, args, progress, weights, batch)
+        self._open.add(gen)
+        return gen
+
+    def _map(
+        self,
+        fn: Callable[..., Any],
+        items: Sequence[Any],
+        args: tuple[Any, ...],
+        progress: Progress | None,
+        weights: Sequence[int] | None,
+        batch: int | None,
+    ) -> Generator[Any, None, None]:
         distributed = _dask()
         n = len(items)
         size = batch or batch_size(n, self.threads)
@@ -246,7 +267,7 @@ class DaskRunner(Runner):
             top_up()
             for fut in pending:
                 ci = chunk_of.pop(fut.key)
-                out = self._result(fut, lambda: _describe(items, chunks[ci]))
+                out = self._result(fut, functools.partial(_describe, items, chunks[ci]))
                 fut.release()
                 finished[ci] = [out] if batch == 1 else out
                 done += sum(w[i] for i in chunks[ci])
@@ -266,7 +287,8 @@ class DaskRunner(Runner):
         return [self.client.submit(fn, item, *args, pure=False) for item in items]
 
     def share(self, value: Any) -> Any:
-        return self.client.scatter(value, broadcast=True, hash=False)
+        # In a list: a dict given alone would be scattered as named values, one per key.
+        return self.client.scatter([value], broadcast=True, hash=False)[0]
 
 
 def _describe(items: Sequence[Any], idx: range) -> str:
@@ -284,4 +306,3 @@ def open_runner(args: argparse.Namespace) -> Runner:
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise FleetError(f"--workers must be >= 1, got {workers}")
     return DaskRunner.open(workers, getattr(args, "scheduler", None))
-

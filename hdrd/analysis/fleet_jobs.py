@@ -68,6 +68,7 @@ __all__ = [
     "evaluate_refs",
     "gap_one",
     "gap_refs",
+    "parameter_blocks",
     "run_evaluate",
     "slim",
     "tune_fleet",
@@ -209,10 +210,12 @@ def evaluate_sets(
     return [[slim(evaluate_prepared(d, p, ("none", "hdr"))) for p in sets] for d in drives]
 
 
-def _blocks(n_sets: int, chunk: int, n_batches: int, threads: int) -> list[tuple[int, int]]:
+def parameter_blocks(
+    n_sets: int, chunk: int, n_batches: int, threads: int
+) -> list[tuple[int, int]]:
     """[a, b) ranges of the parameter sets scored together: the single-process chunks, each
     split into blocks of at least MIN_SUB_BLOCK sets when batches alone leave workers idle."""
-    out = []
+    out: list[tuple[int, int]] = []
     for a in range(0, n_sets, chunk):
         b = min(n_sets, a + chunk)
         parts = 1
@@ -262,7 +265,7 @@ def tune_fleet(
     def score(cand: Candidates) -> FloatArray:
         nonlocal done
         n_sets = cand[PARAM_NAMES[0]].shape[0]
-        blocks = _blocks(n_sets, chunk, len(train), runner.threads)
+        blocks = parameter_blocks(n_sets, chunk, len(train), runner.threads)
         shared = [runner.share({k: cand[k][a:b] for k in PARAM_NAMES}) for a, b in blocks]
         items = [(h, blk) for blk in shared for h in train]
         weights = [batch_steps[j] * (b - a) for a, b in blocks for j in range(len(train))]
@@ -344,11 +347,11 @@ def gap_one(ref: DriveRef, job: GapJob) -> DriveOutcome:
     try:
         log = ref.read()
     except (OSError, UnicodeDecodeError) as e:
-        raise DriveLogError(f"cannot read {ref.path}: {getattr(e, 'strerror', None) or e}") from None
+        raise DriveLogError(
+            f"cannot read {ref.path}: {getattr(e, 'strerror', None) or e}"
+        ) from None
     try:
-        res = run_gap(
-            log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed
-        )
+        res = run_gap(log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed)
     except (GapError, ValueError) as e:
         return DriveOutcome(ref.name, skipped=str(e))
     out = GapOutcome(summary(res), to_report(res), res.final_model, res if job.result else None)

@@ -33,7 +33,8 @@ def fleet_summary(results: Sequence[DriveResult], skipped: int = 0) -> str:
         f"fleet: {len(results)} drives evaluated"
         + (f", {skipped} skipped" if skipped else "")
         + f", {hours:.1f} h driven",
-        f"{'NEpsi deg/min':<14}" + "".join(f"{'p' + str(q):>9}" for q in QUANTILES)
+        f"{'NEpsi deg/min':<14}"
+        + "".join(f"{'p' + str(q):>9}" for q in QUANTILES)
         + f"{'max':>9}  worst drive",
     ]
     for m in ms:
@@ -67,7 +68,8 @@ def plot_fleet(results: Sequence[DriveResult], path: str | os.PathLike[str]) -> 
     lo, hi = (float(pos.min()), float(pos.max())) if pos.shape[0] else (1e-3, 1.0)
     if hi <= lo:
         lo, hi = lo / 2, hi * 2
-    bins = np.geomspace(lo, hi, 41)
+    n_bins = min(60, max(10, round(2 * math.sqrt(len(results)))))
+    bins = np.geomspace(lo, hi, n_bins + 1)
     colors = {"none": "tab:red", "hdr": "tab:green", "hdr+": "tab:purple"}
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
     try:

@@ -37,7 +37,6 @@ import numpy.typing as npt
 from hdrd.analysis.evaluate import (
     PAPER_PARAMS,
     DriveResult,
-    EvaluationError,
     PreparedDrive,
     Summary,
     evaluate_prepared,

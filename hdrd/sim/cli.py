@@ -37,6 +37,10 @@ def _err(msg: str) -> None:
     print(f"hdrd simulate: {msg}", file=sys.stderr)
 
 
+def _why(e: Exception) -> str:
+    return (e.strerror if isinstance(e, OSError) else None) or str(e)
+
+
 def simulate_main(args: argparse.Namespace) -> int:
     """Run ``hdrd simulate``; returns the exit status (0 ok, 1 I/O error, 2 usage, 78 bad model)."""
     model: GyroModel | None = None
@@ -82,7 +86,7 @@ def simulate_main(args: argparse.Namespace) -> int:
         else:
             out = write_log(out, log, fmt, f"{args.drive}-{args.seed}")
     except (OSError, DriveLogError) as e:
-        _err(f"cannot write {out}: {getattr(e, 'strerror', None) or e}")
+        _err(f"cannot write {out}: {_why(e)}")
         return 1
     if out != "-":
         print(
@@ -112,6 +116,6 @@ def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | N
             path = write_log(target, log, fmt, spec.name)
             print(f"{path}: {spec.minutes:g} min, {spec.description}")
     except (OSError, DriveLogError) as e:
-        _err(f"cannot write to {out}: {e.strerror or e}")
+        _err(f"cannot write to {out}: {_why(e)}")
         return 1
     return 0
