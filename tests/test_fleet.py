@@ -226,9 +226,10 @@ def test_a_worker_killed_mid_task_is_retried_without_a_wrong_or_missing_result(
     doc = json.loads(out.read_text())
     killed_pid, first = doc["killed"].split()
     assert int(killed_pid) in doc["pids_before"] and int(killed_pid) not in doc["pids_after"]
-    assert first == "city"  # the first task killed its worker mid-task...
-    assert doc["suspicious_tasks"] == 1  # ...the scheduler saw it lost, and ran it again
-    assert doc["names"] == [r.name for r in find_drives([str(fleet)])]
+    names = [r.name for r in find_drives([str(fleet)])]
+    assert first in names  # the first task to start killed its worker mid-task...
+    assert doc["tasks_run_twice"] >= 1  # ...the scheduler saw its tasks lost, and ran them again
+    assert doc["names"] == names
     assert json.dumps(doc["fleet"]) == json.dumps(doc["local"])
     assert doc["fleet_skipped"] == doc["local_skipped"] and len(doc["local_skipped"]) == 1
 
