@@ -243,9 +243,11 @@ def _table(log: DriveLog) -> Any:
 
 
 def write_parquet_drive(path: str | os.PathLike[str], log: DriveLog) -> None:
-    """Write one drive as a Parquet file (zstd), atomically (a temporary file renamed)."""
+    """Write one drive as a Parquet file (zstd), atomically (a temporary file renamed); its
+    directory is made if need be."""
     _, _, pq = _pyarrow()
     p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
     tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
     try:
         pq.write_table(_table(log), tmp, compression="zstd")

@@ -214,6 +214,13 @@ class DaskRunner(Runner):
             ) from None
         except distributed.client.FutureCancelledError:
             raise FleetError(f"{what()}: the task was cancelled by the cluster") from None
+        except (ImportError, AttributeError, RuntimeError) as e:
+            # The scheduler or a worker could not load the task: another hdrd, or none.
+            first = " ".join(str(e).split())[:160] or type(e).__name__
+            raise FleetError(
+                f"{what()}: the cluster cannot run hdrd's code ({first}); install the same hdrd "
+                f"on the scheduler and every worker: {INSTALL}"
+            ) from None
 
     def map(
         self,
