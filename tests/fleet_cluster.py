@@ -7,7 +7,11 @@ never holds Dask's threads and sockets): ``python tests/fleet_cluster.py COMMAND
   processes where the first task to start kills its own worker process (SIGKILL, mid-task;
   the nanny starts a new one); writes the fleet's and this process's results as JSON, and
   what the scheduler saw.
+- ``always DIR OUT.json``: a drive whose task kills its worker every time: after Dask's
+  allowed failures (set to 1 here), a one-line FleetError naming the drive, not a missing row.
 - ``order OUT.json``: items that finish in the reverse of their order come back in order.
+- ``foreign ADDRESS``: a task the cluster cannot load (its module exists only here) is a
+  one-line FleetError; prints it.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.analysis.evaluate import to_json
-from hdrd.analysis.fleet import DaskRunner, LocalRunner
+from hdrd.analysis.fleet import DaskRunner, FleetError, LocalRunner
 from hdrd.analysis.fleet_jobs import DriveOutcome, EvaluateJob, evaluate_one, evaluate_refs
 from hdrd.drivesources import DriveRef, find_drives
 
@@ -37,6 +41,12 @@ def die_once(ref: DriveRef, job: EvaluateJob, marker: str) -> DriveOutcome:
     os.close(fd)
     os.kill(os.getpid(), signal.SIGKILL)
     raise AssertionError("unreachable")
+
+
+def die_always(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
+    if ref.name == "rural":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return evaluate_one(ref, job)
 
 
 def slow_echo(i: int, n: int) -> int:
@@ -81,6 +91,36 @@ def kill(drives: str, out: str) -> None:
     Path(out).write_text(json.dumps(doc))
 
 
+def always(drives: str, out: str) -> None:
+    import dask
+
+    refs = find_drives([drives])
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        with DaskRunner.open(workers=2) as runner:
+            try:
+                list(runner.map(die_always, refs, EvaluateJob(), batch=1))
+                message = "no error"
+            except FleetError as e:
+                message = str(e)
+    Path(out).write_text(json.dumps({"error": message}))
+
+
+def foreign(address: str) -> None:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        Path(d, "only_here.py").write_text("def double(x):\n    return 2 * x\n")
+        sys.path.insert(0, d)
+        import only_here  # type: ignore[import-not-found]
+
+        with DaskRunner.open(scheduler=address) as runner:
+            try:
+                list(runner.map(only_here.double, [1, 2, 3], batch=1))
+                print("no error")
+            except FleetError as e:
+                print(e)
+
+
 def order(out: str) -> None:
     n = 12
     with DaskRunner.open(workers=2) as runner:
@@ -97,5 +137,9 @@ if __name__ == "__main__":
         kill(sys.argv[2], sys.argv[3])
     elif cmd == "order":
         order(sys.argv[2])
+    elif cmd == "always":
+        always(sys.argv[2], sys.argv[3])
+    elif cmd == "foreign":
+        foreign(sys.argv[2])
     else:
         raise SystemExit(f"unknown command {cmd!r}")

@@ -69,10 +69,13 @@ def hdrd(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
 
 
 def test_the_default_path_does_not_import_dask(fleet: Path) -> None:
+    two = [str(fleet / "city.csv"), str(fleet / "rural.csv")]
     code = (
         "import sys\n"
         "from hdrd.cli import main\n"
-        f"rc = main(['evaluate', {str(fleet / 'city.csv')!r}, {str(fleet / 'rural.csv')!r}])\n"
+        f"rc = [main(['evaluate', *{two!r}]),\n"
+        f"      main(['tune', *{two!r}, '--candidates', '20', '--no-progress']),\n"
+        f"      main(['gap', *{two!r}, '--no-progress'])]\n"
         "heavy = sorted(m for m in sys.modules if m.split('.')[0] in "
         "('dask', 'distributed', 'pyarrow'))\n"
         "print('RC', rc, 'HEAVY', heavy)\n"
@@ -81,7 +84,7 @@ def test_the_default_path_does_not_import_dask(fleet: Path) -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=120
     )
     assert p.returncode == 0, p.stderr
-    assert p.stdout.splitlines()[-1] == "RC 0 HEAVY []"
+    assert p.stdout.splitlines()[-1] == "RC [0, 0, 0] HEAVY []"
 
 
 def test_local_runner_gives_evaluate_logs_results(fleet: Path) -> None:
@@ -235,6 +238,24 @@ def test_a_worker_killed_mid_task_is_retried_without_a_wrong_or_missing_result(
 
 
 @pytest.mark.slow
+def test_a_drive_that_kills_every_worker_is_an_error_not_a_missing_row(
+    fleet: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "always.json"
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "fleet_cluster.py"), "always", str(fleet), str(out)],
+        capture_output=True, text=True, env=ENV, timeout=600,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    error = json.loads(out.read_text())["error"]
+    # The drive named is rural, or one queued on the same worker when it died (Dask counts
+    # the tasks a dying worker held against each of them).
+    name, _, why = error.partition(": ")
+    assert name in {r.name for r in find_drives([str(fleet)])}, error
+    assert why.startswith("its workers died too often") and "\n" not in error
+
+
+@pytest.mark.slow
 def test_results_come_back_in_order_whatever_order_they_finish_in(tmp_path: Path) -> None:
     out = tmp_path / "order.json"
     p = subprocess.run(
@@ -283,6 +304,14 @@ def test_an_existing_cluster_by_its_scheduler_address(
     two = hdrd("evaluate", str(fleet), "--json", str(b), "--scheduler", cluster)
     assert one.returncode == 0 and two.returncode == 0, two.stderr
     assert a.read_bytes() == b.read_bytes() and one.stdout == two.stdout
+    # a cluster that cannot load a task's code (another hdrd, or none): one line, no traceback
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "fleet_cluster.py"), "foreign", cluster],
+        capture_output=True, text=True, env=ENV, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    (line,) = p.stdout.splitlines()
+    assert "the cluster cannot run hdrd's code" in line and "pip install 'hdrd[fleet]'" in line
 
 
 @pytest.mark.slow
