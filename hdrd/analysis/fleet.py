@@ -178,13 +178,18 @@ class DaskRunner(Runner):
             return cls(client)
         if workers is None or workers < 1:
             raise FleetError(f"--workers must be >= 1, got {workers}")
-        cluster = distributed.LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.CRITICAL,  # its shutdown races are not the user's concern
-        )
+        try:
+            cluster = distributed.LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's concern
+            )
+        except (OSError, TimeoutError, RuntimeError) as e:
+            raise FleetError(
+                f"cannot start a local Dask cluster of {workers} workers: {e}"
+            ) from None
         try:
             client = distributed.Client(cluster)
         except BaseException:
