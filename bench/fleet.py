@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"load average {load1:.2f} >= {MAX_LOAD}: the speed figures mean little", flush=True)
 
     from hdrd.analysis.evaluate import to_json
-    from hdrd.analysis.fleet import DaskRunner, LocalRunner, batch_size
+    from hdrd.analysis.fleet import DaskRunner, LocalRunner, batches
     from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, tune_fleet
     from hdrd.drivelog import read_drive, write_drive
     from hdrd.drivesources import find_drives
@@ -144,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     hours = sum(r.duration_min for r in res) / 60
     say(
         f"{n} drives of {a.minutes:g} min ({hours:.0f} h of driving), a Parquet dataset "
-        f"partitioned by drive; batches of {batch_size(n, 1)} (1 worker) and "
-        f"{batch_size(n, 2)} (2 workers) drives per task"
+        f"partitioned by drive; {len(batches(n, 1))} tasks on 1 worker, {len(batches(n, 2))} "
+        f"on 2 (guided: {len(batches(n, 2)[0])} drives in the first, 1 in the last)"
     )
     say()
     say("| evaluate | wall, s | per drive, ms | speed-up | overhead per drive |")
@@ -180,8 +180,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{1000 * w_csv / len(sample):.1f} ms (the same {len(sample)} drives). A local cluster "
         f"starts in {starts[1]:.1f} s (1 worker), {starts[2]:.1f} s (2), not counted above. "
         f"An empty task's round trip through the scheduler, one at a time in a window of "
-        f"tasks in flight: {1000 * per_task:.2f} ms, i.e. {1000 * per_task / batch_size(n, 1):.3f} "
-        f"ms per drive in batches of {batch_size(n, 1)}. "
+        f"tasks in flight: {1000 * per_task:.2f} ms, i.e. "
+        f"{1000 * per_task * len(batches(n, 1)) / n:.3f} ms per drive in {len(batches(n, 1))} "
+        "tasks. "
         f"Targets: speed-up {speedup:.2f}x (>= {TARGET_SPEEDUP}x: "
         f"{'met' if speedup >= TARGET_SPEEDUP else 'NOT met'}); overhead {100 * over:.1f} % "
         f"(<= {100 * TARGET_OVERHEAD:.0f} %: {'met' if over <= TARGET_OVERHEAD else 'NOT met'})."
@@ -249,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         + (f", {1000 * tune_walls[1] / n:.1f} ms tune" if tune_walls else "")
         + f") x 100,000 / (N x {eff:.2f}, the efficiency measured at 2 workers), the cluster's "
         "start-up apart; reading from shared storage instead of a local disk is not counted. "
-        f"The scheduler is no limit there: 100,000 drives are {100_000 // 64 + 1} tasks of 64."
+        f"The scheduler is no limit there: 100,000 drives on 128 workers are "
+        f"{len(batches(100_000, 128))} tasks."
     )
     say()
     head = "| N | evaluate |" + (" tune |" if tune_walls else "")

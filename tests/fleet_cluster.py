@@ -111,7 +111,7 @@ def foreign(address: str) -> None:
     with tempfile.TemporaryDirectory() as d:
         Path(d, "only_here.py").write_text("def double(x):\n    return 2 * x\n")
         sys.path.insert(0, d)
-        import only_here  # type: ignore[import-not-found]
+        import only_here
 
         with DaskRunner.open(scheduler=address) as runner:
             try:

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.evaluate import evaluate_logs, load_drives, to_json
-from hdrd.analysis.fleet import LocalRunner, batch_size
+from hdrd.analysis.fleet import MAX_BATCH, LocalRunner, batches
 from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, parameter_blocks, tune_fleet
 from hdrd.analysis.tune import tune
 from hdrd.cli import main as cli
@@ -126,17 +126,26 @@ def test_tune_on_a_runner_is_tune_bit_for_bit(fleet: Path, threads: int) -> None
             ]
 
 
-def test_parameterparameter_blocks_never_hold_one_set_the_single_process_chunk_did_not() -> None:
+def test_parameter_blocks_never_hold_one_set_the_single_process_chunk_did_not() -> None:
     # numpy's mean over one set sums differently from its mean over several
-    for n, chunk, batches, threads in [(700, 6990, 1, 8), (1401, 700, 2, 4), (33, 16, 1, 64)]:
-        blocks = parameter_blocks(n, chunk, batches, threads)
+    for n, chunk, n_batches, threads in [(700, 6990, 1, 8), (1401, 700, 2, 4), (33, 16, 1, 64)]:
+        blocks = parameter_blocks(n, chunk, n_batches, threads)
         assert blocks[0][0] == 0 and blocks[-1][1] == n
         assert all(a < b and b == c for (a, b), (c, _) in zip(blocks, blocks[1:]))
         chunks = {(a // chunk) for a, _ in blocks}
         for a, b in blocks:
             assert b - a >= 2 or (b - a == 1 and n - a == 1 and n % chunk == 1)
         assert len(chunks) == -(-n // chunk)
-    assert batch_size(1000, 2) == 31 and batch_size(10**5, 100) == 62 and batch_size(3, 2) == 1
+
+
+def test_tasks_shrink_to_single_drives_at_the_end() -> None:
+    for n, threads in [(1000, 2), (10**5, 100), (3, 2), (1, 1), (64 * 9, 1)]:
+        parts = batches(n, threads)
+        assert [i for r in parts for i in r] == list(range(n))  # every item once, in order
+        sizes = [len(r) for r in parts]
+        assert sizes == sorted(sizes, reverse=True) and max(sizes) <= MAX_BATCH
+        assert sizes[-1] == 1  # the last tasks are single drives: the workers finish together
+    assert len(batches(1000, 2)) < 150 and len(batches(10**5, 100)) < 100_000 / 20
 
 
 def test_a_fleet_has_a_summary_and_a_distribution_plot(

@@ -37,15 +37,17 @@ __all__ = [
     "FleetError",
     "LocalRunner",
     "Runner",
-    "batch_size",
+    "batches",
     "fleet_requested",
     "open_runner",
     "run_batch",
 ]
 
 INSTALL = "pip install 'hdrd[fleet]'"
-TASKS_PER_THREAD = 16
-"""Aim for at least this many tasks per worker thread (load balance at the end of a run)."""
+GUIDE = 8
+"""A task takes 1/(GUIDE x threads) of the items not yet sent (guided self-scheduling): large
+tasks first, where the per-task cost matters, then ever smaller ones, so that the workers
+finish together (the last tasks are single drives)."""
 MAX_BATCH = 64
 """At most this many items in one task (a retried task redoes no more than this)."""
 WINDOW_PER_THREAD = 4
@@ -72,10 +74,16 @@ def run_batch(fn: Callable[..., Any], items: Sequence[Any], *args: Any) -> list[
     return [fn(item, *args) for item in items]
 
 
-def batch_size(n: int, threads: int) -> int:
-    """Items per task for n items on ``threads`` worker threads: at least
-    :data:`TASKS_PER_THREAD` tasks per thread where n allows, at most :data:`MAX_BATCH` items."""
-    return max(1, min(MAX_BATCH, n // max(1, threads * TASKS_PER_THREAD)))
+def batches(n: int, threads: int) -> list[range]:
+    """The items of each task, for n items on ``threads`` worker threads: each takes
+    1/(:data:`GUIDE` x threads) of the items left, at least 1, at most :data:`MAX_BATCH`."""
+    out: list[range] = []
+    a = 0
+    while a < n:
+        size = min(MAX_BATCH, max(1, -(-(n - a) // (GUIDE * max(1, threads)))))
+        out.append(range(a, min(n, a + size)))
+        a += size
+    return out
 
 
 class Runner:
@@ -96,7 +104,7 @@ class Runner:
     ) -> Iterator[Any]:
         """``fn(item, *args)`` for every item, yielded in the items' order. progress(done,
         total) after each finished task, in items (or in ``weights``, one per item). batch:
-        items per task (default :func:`batch_size`); 1 passes the item itself (a handle from
+        items per task (default :func:`batches`); 1 passes the item itself (a handle from
         :meth:`persist` or :meth:`share` is then resolved to its value)."""
         raise NotImplementedError
 
@@ -251,8 +259,10 @@ class DaskRunner(Runner):
     ) -> Generator[Any, None, None]:
         distributed = _dask()
         n = len(items)
-        size = batch or batch_size(n, self.threads)
-        chunks = [range(a, min(n, a + size)) for a in range(0, n, size)]
+        if batch:
+            chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)]
+        else:
+            chunks = batches(n, self.threads)
         w = list(weights) if weights is not None else [1] * n
         total, done = sum(w), 0
         window = max(MIN_WINDOW, WINDOW_PER_THREAD * self.threads)

@@ -39,7 +39,7 @@ from hdrd.analysis.evaluate import (
     prepare_drive,
     read_ref,
 )
-from hdrd.analysis.fleet import Progress, Runner, batch_size, open_runner
+from hdrd.analysis.fleet import Progress, Runner, batches, open_runner
 from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
@@ -227,8 +227,7 @@ def parameter_blocks(
 
 
 def _batches(refs: Sequence[DriveRef], threads: int) -> list[list[DriveRef]]:
-    size = batch_size(len(refs), threads)
-    return [list(refs[a : a + size]) for a in range(0, len(refs), size)]
+    return [[refs[i] for i in idx] for idx in batches(len(refs), threads)]
 
 
 def tune_fleet(
