@@ -352,7 +352,7 @@ def test_cluster_errors_are_one_line(fleet: Path, tmp_path: Path) -> None:
     assert "column t is not strictly increasing" in p.stderr.splitlines()[-1]
 
 
-def test_percentile_rows_use_finite_values() -> None:
+def test_the_fleet_summary_counts_skipped_drives() -> None:
     from hdrd.analysis.evaluate import evaluate_drive
     from hdrd.analysis.fleet_jobs import slim
     from hdrd.analysis.fleet_report import fleet_summary
