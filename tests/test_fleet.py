@@ -361,3 +361,23 @@ def test_the_fleet_summary_counts_skipped_drives() -> None:
     text = fleet_summary([r, r], skipped=1)
     assert text.splitlines()[0].startswith("fleet: 2 drives evaluated, 1 skipped")
     assert np.isfinite(float(text.splitlines()[2].split()[1]))
+
+
+def test_the_streamed_gap_report_is_the_json_of_the_whole(tmp_path: Path) -> None:
+    from hdrd.analysis.gap.fleet import ReportStream
+
+    reports: list[dict[str, Any]] = [
+        {"log": {"name": "a"}, "steps": [{"effect": "x", "params": {"k": 1.5}}], "e": []},
+        {"log": {"name": "b"}, "steps": [], "nested": {"deep": [1, {"z": None}]}},
+    ]
+    cases = [(reports, ["c: why"]), (reports[:1], []), ([], ["d: why"])]
+    for i, (drives, skipped) in enumerate(cases):
+        path = tmp_path / f"r{i}.json"
+        with ReportStream(path) as stream:
+            for d in drives:
+                stream.add(d)
+            assert not path.exists()  # not there until whole
+            stream.finish(skipped)
+        want = json.dumps({"drives": drives, "skipped": skipped}, indent=2) + "\n"
+        assert path.read_text() == want
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r0.json", "r1.json", "r2.json"]
