@@ -46,11 +46,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import mmap
 import multiprocessing as mp
 import os
 import platform
 import resource
 import shutil
+import struct
 import sys
 import tempfile
 import time
@@ -242,6 +244,25 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+class SharedIndex:
+    """One int64 shared with forked children through an anonymous ``MAP_SHARED`` mapping."""
+
+    def __init__(self, value: int) -> None:
+        self._mm = mmap.mmap(-1, 8)
+        self.value = value
+
+    @property
+    def value(self) -> int:
+        return int(struct.unpack_from("q", self._mm)[0])
+
+    @value.setter
+    def value(self, v: int) -> None:
+        struct.pack_into("q", self._mm, 0, v)
+
+    def close(self) -> None:
+        self._mm.close()
+
+
 def run_surface(
     surface: str,
     inputs: int,
@@ -261,7 +282,9 @@ def run_surface(
     workdir = tempfile.mkdtemp(prefix=f"hdrd-fuzz-{surface}-")
     try:
         while start < inputs and time.monotonic() < deadline:
-            progress = ctx.Value("q", start - 1, lock=False)
+            # the input the worker is on: an anonymous shared mapping (no descriptor; the
+            # multiprocessing heap behind ctx.Value keeps a /dev/shm file open for good)
+            progress = SharedIndex(start - 1)
             recv, send = ctx.Pipe(duplex=False)
             w = ctx.Process(
                 target=_worker,
@@ -308,7 +331,9 @@ def run_surface(
                     w.kill()
                     break
             w.join()
+            recv.close()
             cur = progress.value
+            progress.close()
             if last is not None:
                 _merge(total, last)
             if done_at is not None:

@@ -202,7 +202,8 @@ class GpsdTarget(Target):
 
     def __init__(self, seed: int) -> None:
         from hdrd.aiding import AidingConfig, GpsAiding
-        from hdrd.gpsd import GpsdClient, GpsdLink
+        from hdrd.gpsd import GpsdClient
+        from hdrd.gpslink import GpsdLink
         from hdrd.pipeline import Pipeline, PipelineConfig
 
         self.rng = random.Random(f"{seed}:gpsd-target")

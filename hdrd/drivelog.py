@@ -21,6 +21,7 @@ import csv
 import io
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -29,7 +30,16 @@ import numpy.typing as npt
 
 from hdrd.errors import HdrdError
 
-__all__ = ["COLUMNS", "OPTIONAL", "DriveLog", "DriveLogError", "read_drive", "write_drive"]
+__all__ = [
+    "COLUMNS",
+    "OPTIONAL",
+    "DriveLog",
+    "DriveLogError",
+    "check_columns",
+    "csv_values",
+    "read_drive",
+    "write_drive",
+]
 
 COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed", "valid")
 REQUIRED = ("t", "omega")
@@ -144,9 +154,17 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
         for h, cell in zip(header, row):
             cols[h].append(_parse_float(cell.strip(), label, lineno, h))
     arrays = {h: np.asarray(v, dtype=np.float64) for h, v in cols.items()}
-    t = arrays["t"]
-    if t.shape[0] == 0:
+    if arrays["t"].shape[0] == 0:
         raise DriveLogError(f"{label}: no data rows")
+    check_columns(arrays, lambda i: f"{label}:{row_lines[i]}")
+    return DriveLog(name=name, meta=meta, **arrays)
+
+
+def check_columns(arrays: dict[str, FloatArray], where: Callable[[int], str]) -> None:
+    """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
+    every row, ``t`` and ``omega`` are present in every row, no value is infinite, ``t``
+    strictly increases. ``where(i)`` names row i for the message (``file:line`` for a CSV,
+    ``file: row N`` for Parquet). DriveLogError on the first problem."""
     if "valid" in arrays:
         vcol = arrays["valid"]
         bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
@@ -154,22 +172,24 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
             i = int(bad_v[0])
             what = "is empty" if math.isnan(vcol[i]) else f"{float(vcol[i])!r} is not 0 or 1"
             raise DriveLogError(
-                f"{label}:{row_lines[i]}: column valid: {what}; every row needs 1 (the sample "
+                f"{where(i)}: column valid: {what}; every row needs 1 (the sample "
                 "counts) or 0 (excluded)"
             )
     for c in REQUIRED:
         if np.isnan(arrays[c]).any():
             bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
-            raise DriveLogError(
-                f"{label}:{row_lines[bad]}: column {c} is empty; it is required in every row"
-            )
+            raise DriveLogError(f"{where(bad)}: column {c} is empty; it is required in every row")
+    for c, a in arrays.items():
+        if np.isinf(a).any():
+            bad = int(np.flatnonzero(np.isinf(a))[0])
+            raise DriveLogError(f"{where(bad)}: column {c}: {float(a[bad])!r} is not finite")
+    t = arrays["t"]
     if np.any(np.diff(t) <= 0):
         bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise DriveLogError(
-            f"{label}:{row_lines[bad]}: column t is not strictly increasing "
+            f"{where(bad)}: column t is not strictly increasing "
             f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
         )
-    return DriveLog(name=name, meta=meta, **arrays)
 
 
 def _fmt(v: float, digits: tuple[int, int]) -> str:
@@ -196,6 +216,27 @@ _DIGITS = {
     "speed": (3, 3),
     "valid": (0, 0),
 }
+
+
+def csv_values(column: str, values: FloatArray) -> FloatArray:
+    """``values`` as a CSV written by :func:`write_drive` reads them back: each rounded to the
+    column's most decimals (the nearest double to the decimal the writer prints; NaN stays
+    NaN). The Parquet writer stores these, so a drive written in either format reads back the
+    same, bit for bit."""
+    digits = _DIGITS[column][1]
+    scale = 10.0**digits
+    v = np.asarray(values, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        x = v * scale  # an overflow goes to the writer's way below
+    out: FloatArray = np.rint(x) / scale  # an exact integer over 10**digits: correctly rounded
+    # Where the product's own rounding could put x on the other side of a half, or x is too
+    # large for rint to be exact, do what the writer does.
+    with np.errstate(invalid="ignore"):
+        near = np.abs(x - np.floor(x) - 0.5) <= 4 * np.spacing(np.abs(x))
+        huge = ~(np.abs(x) < 2.0**52)
+    for i in np.flatnonzero((near | huge) & np.isfinite(v)).tolist():
+        out[i] = float(f"{v[i]:.{digits}f}")
+    return out
 
 
 def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:

@@ -168,12 +168,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 def convert_main(args: argparse.Namespace) -> int:
-    """``hdrd convert CAPTURE --out DRIVE.csv``: every frame as a drive-log row (raw deg/s)."""
+    """``hdrd convert CAPTURE --out DRIVE.csv|DRIVE.parquet|DIR [--format F]``: every frame as a
+    drive-log row (raw deg/s)."""
     import numpy as np
 
     from hdrd.capture import decode_capture
     from hdrd.clocks import DeviceClock
-    from hdrd.drivelog import DriveLog, write_drive
+    from hdrd.drivelog import DriveLog, DriveLogError
+    from hdrd.drivesources import log_format, write_log
     from hdrd.protocol import TEMP_NOT_FITTED
 
     loaded = _config_and_capture(args, "convert")
@@ -198,9 +200,17 @@ def convert_main(args: argparse.Namespace) -> int:
             "bad_frames": str(stats.bad_frames),
         },
     )
-    write_drive(args.out, log)
+    fmt = log_format(args.out, getattr(args, "format", None))
+    try:
+        written = write_log(args.out, log, fmt, log.name)
+    except (OSError, DriveLogError) as e:
+        print(
+            f"hdrd convert: cannot write {args.out}: {(e.strerror if isinstance(e, OSError) else None) or e}",
+            file=sys.stderr,
+        )
+        return 1
     print(
-        f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {args.out}",
+        f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {written}",
         file=sys.stderr,
     )
     return 0

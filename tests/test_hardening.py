@@ -3,6 +3,7 @@ handling: each input here gave a traceback or a wrong answer before its fix."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -188,15 +189,18 @@ def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None
     assert _too_big(args(benchmark="test", seed=-1, hz=1000.0)) is None
 
 
-def _unblock_later(fifo: Path, after_s: float = 3.0) -> None:
+def _unblock_later(fifo: Path, after_s: float = 3.0) -> Callable[[], None]:
     """If a reader is still blocked opening *fifo* after a while (the defect), give it a
-    model to read, so that the test fails instead of hanging."""
+    model to read, so that the test fails instead of hanging. Returns the function that
+    ends the watch (the test calls it when done)."""
     import os
     import threading
-    import time
+
+    done = threading.Event()
 
     def unblock() -> None:
-        time.sleep(after_s)
+        if done.wait(after_s):
+            return
         try:
             fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)  # ENXIO: no reader waits
         except OSError:
@@ -204,15 +208,22 @@ def _unblock_later(fifo: Path, after_s: float = 3.0) -> None:
         os.write(fd, b"effects: []\n")
         os.close(fd)
 
-    threading.Thread(target=unblock, daemon=True).start()
+    t = threading.Thread(target=unblock, daemon=True)
+    t.start()
+
+    def stop() -> None:
+        done.set()
+        t.join()
+
+    return stop
 
 
-def _model_cases(tmp_path: Path) -> list[tuple[Path, str]]:
+def _model_cases(tmp_path: Path, request: pytest.FixtureRequest) -> list[tuple[Path, str]]:
     import os
 
     fifo = tmp_path / "fifo.yaml"
     os.mkfifo(fifo)  # used to block `hdrd simulate --model` until a writer came
-    _unblock_later(fifo)
+    request.addfinalizer(_unblock_later(fifo))
     big = tmp_path / "big.yaml"
     big.write_text("# " + "x" * (1 << 20) + "\neffects: []\n")
     cases = [
@@ -234,13 +245,13 @@ def _model_cases(tmp_path: Path) -> list[tuple[Path, str]]:
 
 
 def test_simulate_model_is_read_as_the_configuration_is(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], request: pytest.FixtureRequest
 ) -> None:
     # The model went through open() and yaml.safe_load: a FIFO blocked, /dev/zero filled the
     # memory, nesting 2,000 deep was a RecursionError, an unhashable name a TypeError.
     from hdrd.sim.gyro import load_model
 
-    for path, why in _model_cases(tmp_path):
+    for path, why in _model_cases(tmp_path, request):
         with pytest.raises(ValueError, match=why.replace("(", r"\(")) as ei:
             load_model(path)
         assert "\n" not in str(ei.value) and str(path) in str(ei.value)
@@ -272,7 +283,7 @@ def test_nmea_talker_docs_recommend_what_protocol_md_recommends() -> None:
     assert m, "docs/protocol.md no longer says which talker gpsd needs"
     talker = m.group(1)
     src = (root / "hdrd" / "config.py").read_text()
-    doc = re.search(r'nmea_talker: str = "HN"\n\s+"""(.*?)"""', src, re.DOTALL)
+    doc = re.search(r'nmea_talker: str = (?:"HN"|NMEA_TALKER)\n\s+"""(.*?)"""', src, re.DOTALL)
     assert doc and f"for gpsd use {talker}" in " ".join(doc.group(1).split())
     assert "reads HC" not in doc.group(1)
     shipped = (root / "config" / "hdrd.yaml").read_text()

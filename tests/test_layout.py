@@ -104,6 +104,11 @@ def test_each_exemption_is_still_needed() -> None:
     assert PRIVATE_IMPORTERS <= private_importers(), "remove it from PRIVATE_IMPORTERS"
 
 
+# These drive the daemon object itself in-process (a reload with a hostile configuration, a
+# bias choice); nothing offline (replay, evaluate, tune, gap) may reach it.
+DAEMON_TESTERS = ["bench/fuzz_targets.py", "tests/test_hardening.py"]
+
+
 def test_only_the_command_line_imports_the_daemon() -> None:
     importers = []
     for top in ("hdrd", "bench", "tools", "tests"):
@@ -121,7 +126,7 @@ def test_only_the_command_line_imports_the_daemon() -> None:
                     names += [f"hdrd.{a.name}" for a in node.names]
                 if "hdrd.daemon" in names:
                     importers.append(str(p.relative_to(ROOT)))
-    assert importers == []
+    assert sorted(set(importers)) == DAEMON_TESTERS
     # The command line reaches it by name, when `hdrd run` runs.
     from hdrd.cli import COMMANDS
 

@@ -13,10 +13,10 @@ import pytest
 import yaml
 
 from hdrd.analysis.evaluate import evaluate_prepared, prepare_drive
+from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import (
     PARAM_NAMES,
     RANGES,
-    ProgressBar,
     params_yaml,
     refine_candidates,
     sample_candidates,

@@ -31,11 +31,12 @@ import sys
 import tempfile
 from pathlib import Path
 
+from hdrd.capture import decode_capture
 from hdrd.fakegyro import FakeGyro
-from hdrd.frames import array_to_frames, decode_capture
-from hdrd.resample import CLOCK_WRAP_US
+from hdrd.frames import array_to_frames
+from hdrd.protocol import CLOCK_WRAP_US
 from hdrd.sim import simulate_drive
-from hdrd.source import builtin_profile, profile_frames
+from hdrd.sim.profiles import builtin_profile, profile_frames
 
 OUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "drive-faults.bin"
 WAIT_S = 120.0

@@ -48,6 +48,7 @@ from hdrd.analysis.prepare import (
 )
 from hdrd.calibrate import StandstillLimits
 from hdrd.drivelog import DriveLog
+from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.methods import StepInputs
@@ -58,6 +59,7 @@ __all__ = [
     "PreparedDrive",
     "StepInputs",
     "drive_paths",
+    "drive_refs",
     "evaluate_drive",
     "evaluate_logs",
     "evaluate_prepared",
@@ -67,6 +69,7 @@ __all__ = [
     "method_key",
     "method_yaw",
     "prepare_drive",
+    "read_ref",
     "summarize",
     "to_json",
 ]
@@ -335,41 +338,41 @@ def format_table(results: Sequence[DriveResult]) -> str:
 # -- reading drive logs ------------------------------------------------------------------
 
 
+def drive_refs(paths: Sequence[str]) -> list[DriveRef]:
+    """The drives named (:func:`hdrd.drivesources.find_drives`: files, directories, globs; CSV
+    or Parquet), in order; EvaluationError for a missing path or a directory without logs."""
+    from hdrd.drivelog import DriveLogError
+    from hdrd.drivesources import find_drives
+
+    try:
+        return find_drives(paths)
+    except DriveLogError as e:
+        raise EvaluationError(str(e)) from None
+
+
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
-    """The drive logs named: files as given, directories searched for ``*.csv`` at any depth
-    (sorted). Each with its name: a file's stem, or its path inside the directory given without
-    ``.csv``. EvaluationError for a missing path or a directory without logs."""
-    out: list[tuple[Path, str]] = []
-    for p in paths:
-        path = Path(p)
-        if path.is_dir():
-            found = sorted(f for f in path.rglob("*.csv") if f.is_file())
-            if not found:
-                raise EvaluationError(f"{p}: a directory without drive logs (*.csv)")
-            out.extend((f, f.relative_to(path).with_suffix("").as_posix()) for f in found)
-        elif path.exists():
-            out.append((path, path.stem))
-        else:
-            raise EvaluationError(f"{p}: no such file")
-    return out
+    """Each drive named (:func:`drive_refs`) as (its file or partition directory, its name)."""
+    return [(Path(r.path), r.name) for r in drive_refs(paths)]
+
+
+def read_ref(ref: DriveRef) -> DriveLog:
+    """Read one drive; EvaluationError with a one-line message if it cannot be read."""
+    from hdrd.drivelog import DriveLogError
+
+    try:
+        return ref.read()
+    except FileNotFoundError:
+        raise EvaluationError(f"{ref.path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise EvaluationError(f"{ref.path}: cannot be read: {e.__class__.__name__}: {e}") from None
+    except DriveLogError as e:
+        raise EvaluationError(str(e)) from None
 
 
 def load_drives(paths: Sequence[str]) -> list[DriveLog]:
-    """Read drive logs (files, or directories of them, :func:`drive_paths`); EvaluationError
+    """Read drive logs (files, directories of them, globs: :func:`drive_refs`); EvaluationError
     with a one-line message on any unreadable file."""
-    from hdrd.drivelog import DriveLogError, read_drive
-
-    logs = []
-    for path, name in drive_paths(paths):
-        try:
-            logs.append(read_drive(path, name))
-        except FileNotFoundError:
-            raise EvaluationError(f"{path}: no such file") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise EvaluationError(f"{path}: cannot be read: {e.__class__.__name__}: {e}") from None
-        except DriveLogError as e:
-            raise EvaluationError(str(e)) from None
-    return logs
+    return [read_ref(r) for r in drive_refs(paths)]
 
 
 def evaluate_logs(

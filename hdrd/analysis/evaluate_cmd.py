@@ -8,10 +8,9 @@ import sys
 
 from hdrd.analysis.evaluate import (
     EvaluationError,
-    evaluate_logs,
+    drive_refs,
     evaluated_methods,
     format_table,
-    load_drives,
     to_json,
 )
 from hdrd.config import ConfigError, load_config
@@ -26,8 +25,13 @@ def _err(msg: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    """``hdrd evaluate DRIVE.csv|DIR... [--calibrate-seconds S | --bias DPS] [--json FILE]
-    [--plot FILE.png] [--config PATH] [--method METHOD]``."""
+    """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
+    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--workers N |
+    --scheduler ADDRESS] [--no-progress]``."""
+    from hdrd.analysis.fleet import FleetError
+    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+    from hdrd.analysis.fleet_report import fleet_summary, plot_fleet
+
     try:
         cfg, _ = load_config(args.config)
     except ConfigError as e:
@@ -46,9 +50,8 @@ def main(args: argparse.Namespace) -> int:
     try:
         # HDR+ is shown beside the paper's HDR it improves on.
         ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
-        logs = load_drives(args.drives)
-        results, skipped = evaluate_logs(
-            logs,
+        refs = drive_refs(args.drives)
+        job = EvaluateJob(
             params,
             ms,
             plus,
@@ -56,15 +59,20 @@ def main(args: argparse.Namespace) -> int:
             args.calibrate_seconds,
             standstill_limits(cfg),
             noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
+            traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
         )
+        # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
+        results, skipped = run_evaluate(args, refs, job)
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
         if not results:
-            raise EvaluationError(f"none of the {len(logs)} drives can be evaluated")
-    except EvaluationError as e:
+            raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
+    except (EvaluationError, FleetError) as e:
         _err(str(e))
         return 1
     print(format_table(results))
+    if len(results) > PLOT_PANELS_MAX:
+        print(fleet_summary(results, len(skipped)))
     if args.json:
         try:
             from hdrd.files import atomic_write_json
@@ -76,7 +84,8 @@ def main(args: argparse.Namespace) -> int:
     if args.plot:
         from hdrd.analysis.plots import plot_evaluation, plot_to_file
 
-        problem = plot_to_file(lambda path: plot_evaluation(results, path), args.plot)
+        draw = plot_evaluation if job.traces else plot_fleet  # a fleet: NEpsi's distribution
+        problem = plot_to_file(lambda path: draw(results, path), args.plot)
         if problem:
             _err(problem)
             return 1

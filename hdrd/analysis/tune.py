@@ -20,15 +20,13 @@ the winner and the starting set are then re-run through :func:`hdrd.analysis.eva
 evaluate_prepared` for the reported numbers, so they are exactly what ``hdrd evaluate``
 prints. Reproducible by seed.
 
-Pure except for the optional progress callback; :func:`main` is the ``hdrd tune`` edge.
+Pure except for the optional progress callback; :mod:`hdrd.analysis.tune_cmd` is the ``hdrd tune``
+edge.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -39,7 +37,6 @@ import numpy.typing as npt
 from hdrd.analysis.evaluate import (
     PAPER_PARAMS,
     DriveResult,
-    EvaluationError,
     PreparedDrive,
     Summary,
     evaluate_prepared,
@@ -51,16 +48,23 @@ from hdrd.drivelog import DriveLog
 from hdrd.hdr import HdrParams, run_many
 
 __all__ = [
+    "CHUNK_ELEMENTS",
     "PARAM_NAMES",
     "RANGES",
     "Progress",
+    "Runs",
+    "Score",
     "TuneResult",
+    "check_budget",
     "format_report",
-    "main",
+    "objective",
+    "outcome",
     "params_yaml",
     "refine_candidates",
     "sample_candidates",
     "score_candidates",
+    "search",
+    "to_json",
     "tune",
 ]
 
@@ -154,8 +158,10 @@ def score_candidates(
     return out
 
 
-def _objective(e: FloatArray, drives: Sequence[PreparedDrive]) -> FloatArray:
-    """Mean NEψ over drives (deg/min) for each parameter set, from Eψ of shape (drives, sets)."""
+def objective(e: FloatArray, drives: Sequence[PreparedDrive]) -> FloatArray:
+    """Mean NEψ over drives (deg/min) for each parameter set, from Eψ of shape (drives, sets).
+    The sum over drives runs in the drives' order, one drive after the other (numpy's
+    reduction along the first axis), which a fleet's sum reproduces bit for bit."""
     td = np.array([d.duration_min for d in drives])[:, None]
     return np.mean(e / td, axis=0)
 
@@ -203,6 +209,80 @@ def _prepare(
     ]
 
 
+Score = Callable[[Candidates], FloatArray]
+"""score(sets) -> the objective of each set (mean training NEψ, deg/min): in this process
+(:func:`tune`) or summed over a fleet's drives on a cluster (:mod:`hdrd.analysis.fleet_jobs`)."""
+
+
+def check_budget(n_candidates: int, base: HdrParams) -> None:
+    """ValueError for a budget or a starting set that :func:`search` cannot take."""
+    if n_candidates < 1:
+        raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
+    if not (base.lowpass and base.turn_switch and base.attenuator and base.enabled):
+        raise ValueError("tuning searches the full HDR (all three enhancements on)")
+
+
+def search(
+    score: Score,
+    n_candidates: int,
+    seed: int,
+    base: HdrParams = PAPER_PARAMS,
+    ranges: dict[str, tuple[float, float]] = RANGES,
+    refine_fraction: float = 0.3,
+    refine_rounds: int = 2,
+    top_k: int = 10,
+) -> tuple[Candidates, FloatArray]:
+    """The search of the module docstring (random phase, then refinement rounds around the
+    best so far): every set scored, and its objective. ``score`` is called once per round, in
+    order; the first set is ``base``'s."""
+    rng = np.random.default_rng(seed)
+    n_refine = round((n_candidates - 1) * refine_fraction) if n_candidates > 1 else 0
+    n_random = n_candidates - 1 - n_refine
+    rounds = max(1, refine_rounds) if n_refine else 0
+    per_round = [n_refine // rounds + (1 if r < n_refine % rounds else 0) for r in range(rounds)]
+
+    start = {k: np.array([getattr(base, k)], dtype=np.float64) for k in PARAM_NAMES}
+    cand = _concat(start, sample_candidates(rng, n_random, ranges))
+    obj = score(cand)
+    spread = 1.5
+    for n_r in per_round:
+        if n_r == 0:
+            continue
+        order = np.argsort(obj, kind="stable")[: max(1, top_k)]
+        new = refine_candidates(rng, _take(cand, order), n_r, spread)
+        obj = np.concatenate([obj, score(new)])
+        cand = _concat(cand, new)
+        spread = 1.0 + (spread - 1.0) / 2.5
+    return cand, obj
+
+
+Runs = Callable[[Sequence[HdrParams]], tuple[list[list[DriveResult]], list[list[DriveResult]]]]
+"""runs(param sets) -> (training, test): per set, the drives evaluated with it."""
+
+
+def outcome(
+    base: HdrParams, cand: Candidates, obj: FloatArray, seed: int, runs: Runs
+) -> TuneResult:
+    """The :class:`TuneResult` of a finished :func:`search`: the best set, the top ten, and
+    the drives evaluated (``runs``) with the starting set and the best."""
+    order = np.argsort(obj, kind="stable")
+    best_i = int(order[0])
+    best = _params(base, cand, best_i)
+    top = [(_params(base, cand, int(i)), float(obj[i])) for i in order[:10]]
+    train, test = runs([base, best])
+    return TuneResult(
+        baseline=base,
+        best=best,
+        train={"baseline": train[0], "tuned": train[1]},
+        test={"baseline": test[0], "tuned": test[1]},
+        objective_baseline=float(obj[0]),
+        objective_best=float(obj[best_i]),
+        n_evaluated=int(cand["i_c"].shape[0]),
+        seed=seed,
+        top=top,
+    )
+
+
 def tune(
     train_logs: Sequence[DriveLog | PreparedDrive],
     test_logs: Sequence[DriveLog | PreparedDrive] = (),
@@ -228,56 +308,31 @@ def tune(
     """
     if not train_logs:
         raise ValueError("tuning needs at least one training drive")
-    if n_candidates < 1:
-        raise ValueError(f"n_candidates must be >= 1, got {n_candidates}")
-    if not (base.lowpass and base.turn_switch and base.attenuator and base.enabled):
-        raise ValueError("tuning searches the full HDR (all three enhancements on)")
+    check_budget(n_candidates, base)
     train = _prepare(train_logs, bias, calibrate_seconds, base.T)
     test = _prepare(test_logs, bias, calibrate_seconds, base.T)
-    rng = np.random.default_rng(seed)
-
-    n_refine = round((n_candidates - 1) * refine_fraction) if n_candidates > 1 else 0
-    n_random = n_candidates - 1 - n_refine
-    rounds = max(1, refine_rounds) if n_refine else 0
-    per_round = [n_refine // rounds + (1 if r < n_refine % rounds else 0) for r in range(rounds)]
     steps_all = sum(d.steps.u.shape[0] for d in train)
     total = steps_all * n_candidates
+    done = 0
 
-    start = {k: np.array([getattr(base, k)], dtype=np.float64) for k in PARAM_NAMES}
-    cand = _concat(start, sample_candidates(rng, n_random, ranges))
-    obj = _objective(score_candidates(train, cand, base.T, progress, 0, total), train)
-    done = steps_all * cand["i_c"].shape[0]
-    spread = 1.5
-    for n_r in per_round:
-        if n_r == 0:
-            continue
-        order = np.argsort(obj, kind="stable")[: max(1, top_k)]
-        new = refine_candidates(rng, _take(cand, order), n_r, spread)
-        e_new = score_candidates(train, new, base.T, progress, done, total)
-        done += steps_all * n_r
-        cand = _concat(cand, new)
-        obj = np.concatenate([obj, _objective(e_new, train)])
-        spread = 1.0 + (spread - 1.0) / 2.5
+    def score(cand: Candidates) -> FloatArray:
+        nonlocal done
+        e = score_candidates(train, cand, base.T, progress, done, total)
+        done += steps_all * cand["i_c"].shape[0]
+        return objective(e, train)
 
-    order = np.argsort(obj, kind="stable")
-    best_i = int(order[0])
-    best = _params(base, cand, best_i)
-    top = [(_params(base, cand, int(i)), float(obj[i])) for i in order[:10]]
+    def runs(
+        sets: Sequence[HdrParams],
+    ) -> tuple[list[list[DriveResult]], list[list[DriveResult]]]:
+        def run(drives: list[PreparedDrive], p: HdrParams) -> list[DriveResult]:
+            return [evaluate_prepared(d, p, ("none", "hdr")) for d in drives]
 
-    def run(drives: list[PreparedDrive], p: HdrParams) -> list[DriveResult]:
-        return [evaluate_prepared(d, p, ("none", "hdr")) for d in drives]
+        return [run(train, p) for p in sets], [run(test, p) for p in sets]
 
-    return TuneResult(
-        baseline=base,
-        best=best,
-        train={"baseline": run(train, base), "tuned": run(train, best)},
-        test={"baseline": run(test, base), "tuned": run(test, best)},
-        objective_baseline=float(obj[0]),
-        objective_best=float(obj[best_i]),
-        n_evaluated=int(cand["i_c"].shape[0]),
-        seed=seed,
-        top=top,
+    cand, obj = search(
+        score, n_candidates, seed, base, ranges, refine_fraction, refine_rounds, top_k
     )
+    return outcome(base, cand, obj, seed, runs)
 
 
 def params_yaml(params: HdrParams, comment: Sequence[str] = ()) -> str:
@@ -375,116 +430,3 @@ def to_json(r: TuneResult, seconds: float | None = None) -> dict[str, Any]:
         "train": block("train"),
         "test": block("test"),
     }
-
-
-# -- the command-line edge --------------------------------------------------------------
-
-
-class ProgressBar:
-    """Progress on stderr: on a terminal a one-line bar redrawn in place (``\\r``) at most
-    every 0.1 s; anywhere else (a log file, journald, a pipe) one plain line per tenth of
-    the work, since a carriage return there only piles up as one endless line."""
-
-    def __init__(self, label: str, stream: Any = None, width: int = 30) -> None:
-        self.label = label
-        self.stream = stream if stream is not None else sys.stderr
-        self.width = width
-        self.t0 = time.monotonic()
-        self._last = 0.0
-        self._drawn = False
-        isatty = getattr(self.stream, "isatty", None)
-        self.tty = bool(isatty is not None and isatty())
-        self._tenths = -1  # off a terminal: the last tenth of the work reported
-
-    def __call__(self, done: int, total: int) -> None:
-        now = time.monotonic()
-        frac = done / total if total else 1.0
-        elapsed = now - self.t0
-        eta = elapsed / frac - elapsed if frac > 0 else 0.0
-        if not self.tty:
-            tenths = int(frac * 10 + 1e-9)
-            if tenths <= self._tenths:
-                return
-            self._tenths = tenths
-            self.stream.write(
-                f"{self.label}: {frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:.0f} s left\n"
-            )
-            self.stream.flush()
-            return
-        if done < total and now - self._last < 0.1:
-            return
-        self._last = now
-        fill = round(frac * self.width)
-        self.stream.write(
-            f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
-            f"{frac * 100:5.1f}%  {elapsed:5.1f} s, ~{eta:4.0f} s left "
-        )
-        self.stream.flush()
-        self._drawn = True
-
-    def close(self) -> None:
-        if self._drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def _err(msg: str) -> None:
-    print(f"hdrd tune: error: {msg}", file=sys.stderr)
-
-
-def main(args: argparse.Namespace) -> int:
-    """``hdrd tune TRAIN.csv... --test TEST.csv... [--candidates N] [--seed S]
-    [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]``."""
-    from hdrd.analysis.evaluate import load_drives
-    from hdrd.files import atomic_write_json, atomic_write_text
-
-    calibrate_s = args.calibrate_seconds
-    if args.candidates < 1:
-        _err(f"--candidates must be >= 1, got {args.candidates}")
-        return 2
-    bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
-    t0 = time.monotonic()
-    try:
-        train = load_drives(args.train)
-        test = load_drives(args.test or [])
-        result = tune(
-            train, test, args.candidates, args.seed, calibrate_seconds=calibrate_s, progress=bar
-        )
-    except EvaluationError as e:
-        if bar is not None:
-            bar.close()
-        _err(str(e))
-        return 1
-    if bar is not None:
-        bar.close()
-    seconds = time.monotonic() - t0
-    print(format_report(result, seconds))
-    if args.out:
-        s_tr = result.summary("train", "tuned")
-        s_te = result.summary("test", "tuned")
-        comment = [
-            f"HDR parameters tuned by `hdrd tune` (seed {args.seed}, {result.n_evaluated} sets) on "
-            f"{len(train)} training drive(s): " + ", ".join(d.name for d in train),
-            f"training: mean NEpsi {s_tr.ne_psi['hdr']:.3f} deg/min, {s_tr.improvement:.2f}x"
-            if s_tr
-            else "",
-            (
-                f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
-                f"on {len(test)} drive(s)"
-            )
-            if s_te
-            else "no test drives",
-            "paste into /etc/hdrd/hdrd.yaml (replacing its hdr: section)",
-        ]
-        try:
-            atomic_write_text(args.out, params_yaml(result.best, [c for c in comment if c]))
-        except OSError as e:
-            _err(f"cannot write {args.out}: {e.strerror or e}")
-            return 1
-    if args.json:
-        try:
-            atomic_write_json(args.json, to_json(result, seconds))
-        except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
-            return 1
-    return 0

@@ -1,4 +1,5 @@
-"""``hdrd simulate``: write a simulated drive log, or the paper-like benchmark, as CSV.
+"""``hdrd simulate``: write a simulated drive log, or the paper-like benchmark, as CSV or
+Parquet (docs/drive-format.md).
 
 The command-line edge of :mod:`hdrd.sim` (flags in hdrd/cli.py ``_simulate``)::
 
@@ -6,6 +7,8 @@ The command-line edge of :mod:`hdrd.sim` (flags in hdrd/cli.py ``_simulate``)::
     hdrd simulate --drive rural --model my-gyro.yaml --out -          # CSV to stdout
     hdrd simulate --benchmark train --out bench/train                  # the nine, DIR/<name>.csv
     hdrd simulate --drive highway --grade tactical --out drive.csv     # a gyro grade preset
+    hdrd simulate --drive city --seed 3 --out drive.parquet            # Parquet, one file
+    hdrd simulate --drive city --seed 3 --out fleet --format dataset   # fleet/drive=city-3/
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import os
 import sys
 from pathlib import Path
 
-from hdrd.drivelog import write_drive
+from hdrd.drivelog import DriveLogError, write_drive
+from hdrd.drivesources import log_format, write_log
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
@@ -29,6 +33,10 @@ __all__ = ["simulate_main"]
 
 def _err(msg: str) -> None:
     print(f"hdrd simulate: {msg}", file=sys.stderr)
+
+
+def _why(e: Exception) -> str:
+    return (e.strerror if isinstance(e, OSError) else None) or str(e)
 
 
 def simulate_main(args: argparse.Namespace) -> int:
@@ -70,13 +78,17 @@ def simulate_main(args: argparse.Namespace) -> int:
     if grade is not None:
         log.meta["grade"] = grade
     out = args.out or "-"
+    fmt = log_format(out, getattr(args, "format", None))
+    if out == "-" and fmt != "csv":
+        _err(f"--format {fmt} needs --out (a file, or a directory for a dataset)")
+        return EX_USAGE
     try:
         if out == "-":
             write_drive(sys.stdout, log)  # type: ignore[arg-type]
         else:
-            write_drive(out, log)
-    except OSError as e:
-        _err(f"cannot write {out}: {e.strerror or e}")
+            out = write_log(out, log, fmt, f"{args.drive}-{args.seed}")
+    except (OSError, DriveLogError) as e:
+        _err(f"cannot write {out}: {_why(e)}")
         return 1
     if out != "-":
         print(
@@ -88,10 +100,12 @@ def simulate_main(args: argparse.Namespace) -> int:
 
 def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
     if not args.out or args.out == "-":
-        _err("--benchmark needs --out DIR (a directory for <name>.csv files)")
+        _err("--benchmark needs --out DIR (a directory for <name>.csv files, or the dataset)")
         return EX_USAGE
     specs = TRAIN_DRIVES if args.benchmark == "train" else TEST_DRIVES
     out = Path(args.out)
+    fmt = getattr(args, "format", None) or "csv"
+    suffix = {"csv": ".csv", "parquet": ".parquet", "dataset": ""}[fmt]
     try:
         os.makedirs(out, exist_ok=True)
         for spec in specs:
@@ -100,11 +114,11 @@ def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | N
             log = generate(spec, hz=args.hz, model=model)
             if grade is not None:
                 log.meta["grade"] = grade
-            path = out / f"{spec.name}.csv"
-            write_drive(path, log)
+            target = str(out) if fmt == "dataset" else str(out / f"{spec.name}{suffix}")
+            path = write_log(target, log, fmt, spec.name)
             print(f"{path}: {spec.minutes:g} min, {spec.description}")
-    except OSError as e:
-        _err(f"cannot write to {out}: {e.strerror or e}")
+    except (OSError, DriveLogError) as e:
+        _err(f"cannot write to {out}: {_why(e)}")
         return 1
     return 0
 

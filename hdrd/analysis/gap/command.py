@@ -1,4 +1,5 @@
-"""The ``hdrd gap`` command: read the log and the starting model, run, print, write."""
+"""The ``hdrd gap`` command: read the logs and the starting model, run (in this process or on a
+Dask cluster), print, write."""
 
 from __future__ import annotations
 
@@ -6,9 +7,6 @@ import argparse
 import math
 import sys
 
-from hdrd.analysis.gap.data import GapError
-from hdrd.analysis.gap.report import summary, to_report
-from hdrd.analysis.gap.search import run_gap
 from hdrd.sim.gyro import DEFAULT_START_MODEL
 
 __all__ = ["main", "parse_period"]
@@ -36,15 +34,20 @@ def parse_period(text: str) -> tuple[float, float]:
 
 
 def main(args: argparse.Namespace) -> int:
-    """``hdrd gap MEASURED.csv [--model MODEL.yaml] [--out FITTED.yaml] [--report REPORT.json]
-    [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N]``. Exit 0 ok, 1 bad
-    input or I/O error, 78 bad model file."""
+    """``hdrd gap MEASURED... [--model MODEL.yaml] [--out FITTED.yaml|DIR] [--report REPORT.json]
+    [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
+    --scheduler ADDRESS] [--no-progress]``. Exit 0 ok, 1 bad input or I/O error, 78 bad
+    model file. Several drives (files, directories, globs): each analysed on its own, one line
+    each (:mod:`hdrd.analysis.gap.fleet`)."""
     try:
         exclude = [parse_period(x) for x in getattr(args, "exclude", None) or []]
     except ValueError as e:
         _err(str(e))
         return 1
-    from hdrd.drivelog import DriveLogError, read_drive
+    from hdrd.analysis.fleet import FleetError, open_runner
+    from hdrd.analysis.fleet_jobs import GapJob, gap_refs
+    from hdrd.drivelog import DriveLogError
+    from hdrd.drivesources import find_drives
     from hdrd.sim.gyro import load_model, save_model
 
     if args.plot:
@@ -65,29 +68,38 @@ def main(args: argparse.Namespace) -> int:
         except ValueError as e:
             _err(str(e))
             return 78
+    measured = [args.measured] if isinstance(args.measured, str) else list(args.measured)
     try:
-        log = read_drive(args.measured)
-    except OSError as e:
-        _err(f"cannot read {args.measured}: {e.strerror or e}")
-        return 1
+        refs = find_drives(measured)
     except DriveLogError as e:
-        _err(str(e))
+        _err(f"cannot read {e}")
         return 1
+    if len(refs) > 1 and args.plot:
+        _err(f"--plot draws one drive; {len(refs)} were given")
+        return 1
+    job = GapJob(start, bool(args.standstill), tuple(exclude), int(args.seed), bool(args.plot))
     try:
-        res = run_gap(
-            log, start, standstill=bool(args.standstill), exclude=exclude, seed=int(args.seed)
-        )
-    except (GapError, ValueError) as e:
+        with open_runner(args) as runner:
+            if len(refs) > 1:
+                from hdrd.analysis.gap.fleet import gap_fleet
+
+                return gap_fleet(args, refs, job, runner)
+            one = next(gap_refs(refs, job, runner))
+    except (DriveLogError, FleetError) as e:
         _err(str(e))
         return 1
-    print(summary(res))
+    if one.skipped is not None:
+        _err(one.skipped)
+        return 1
+    res = one.result
+    print(res.summary)
     try:
         if args.report:
             from hdrd.files import atomic_write_json
 
-            atomic_write_json(args.report, to_report(res))
+            atomic_write_json(args.report, res.report)
         if args.out:
-            save_model(res.final_model, args.out)
+            save_model(res.model, args.out)
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1
@@ -95,7 +107,7 @@ def main(args: argparse.Namespace) -> int:
         from hdrd.analysis.gap.plots import plot_gap
         from hdrd.analysis.plots import plot_to_file
 
-        problem = plot_to_file(lambda path: plot_gap(res, path), args.plot)
+        problem = plot_to_file(lambda path: plot_gap(res.result, path), args.plot)
         if problem:
             _err(problem)
             return 1

@@ -1,0 +1,284 @@
+#!/usr/bin/env python3
+"""Fleet: evaluate and tune 1,000 simulated drives of 10 minutes, in one process and on a Dask
+cluster of 1 and 2 worker processes (docs/fleet.md).
+
+    python bench/fleet.py [--drives 1000] [--minutes 10] [--candidates 2000]
+                          [--memory-drives 100] [--skip-tune] [--no-write] [--force]
+
+The drives (a mix of city, suburbs, rural, highway and mixed, seeds 1..N, CRS03 grade at 10 Hz,
+30 s standstill lead-in) are written once as a dataset partitioned by drive
+(``/tmp/hdrd-bench/fleet-N-M/drive=NAME/part-0.parquet``; not timed) and read by the workers
+themselves. Measured, each run checked against the single-process results (bit for bit):
+
+- the work per drive: ``hdrd evaluate``'s per-drive work in one process (read, prepare, score
+  ``none`` and ``hdr``), wall and CPU per drive; the CSV read for comparison;
+- evaluate on a LocalCluster of 1 and 2 worker processes (one thread each): wall time (the
+  cluster's start-up apart), the speed-up of 2 workers over 1, and the distributed path's
+  overhead per drive as a share of the work per drive ((1 worker - one process) / one process);
+- worker memory (peak and current RSS of each worker process) after evaluating the first
+  ``--memory-drives`` drives and after all of them, each on a fresh cluster of 2 workers;
+- tune (``--candidates`` sets) in one process and on 1 and 2 workers: wall, speed-up,
+  overhead; the best parameters must be the same;
+- the projected time for 100,000 drives on N workers, from the per-drive cost on one worker and
+  the parallel efficiency measured at two.
+
+Targets: 2 workers >= 1.8x faster than 1; overhead <= 5 % of the work per drive; worker memory
+flat from 100 to 1,000 drives. This machine has 2 cores and the client and scheduler share them
+with the workers; figures taken under load mean little: below a 1-minute load average of 0.3
+the section is appended to bench/RESULTS.md, above it only with ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+from collections.abc import Callable, Iterator
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import append_section, machine, machine_line
+
+TARGET_SPEEDUP = 1.8
+TARGET_OVERHEAD = 0.05
+MAX_LOAD = 0.3
+KINDS = ("city", "suburbs", "rural", "highway", "mixed")
+DATA = Path("/tmp/hdrd-bench")
+
+
+def make_fleet(n: int, minutes: float) -> Path:
+    """The dataset of n drives (made once; a marker file says it is complete)."""
+    from hdrd.parquetlog import write_dataset_drive
+    from hdrd.sim.drive import simulate_drive
+
+    root = DATA / f"fleet-{n}-{minutes:g}"
+    done = root / "COMPLETE"
+    if done.exists():
+        return root
+    t0 = time.perf_counter()
+    for i in range(n):
+        kind = KINDS[i % len(KINDS)]
+        write_dataset_drive(root, simulate_drive(kind, minutes, i + 1), f"{kind}-{i + 1:06d}")
+    done.write_text(str(n))
+    print(f"wrote {n} drives to {root} in {time.perf_counter() - t0:.0f} s", flush=True)
+    return root
+
+
+def noop(i: int) -> int:
+    return i
+
+
+def _drain(it: Iterator[Any]) -> list[Any]:
+    return list(it)
+
+
+def timed(fn: Callable[[], Any]) -> tuple[float, float, Any]:
+    """(wall s, CPU s of this process, result)."""
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return time.perf_counter() - w, time.process_time() - c, out
+
+
+def worker_memory(runner: Any) -> list[tuple[float, float]]:
+    """(peak RSS, RSS) of each worker process, MB."""
+
+    def mem() -> tuple[float, float]:
+        status = Path("/proc/self/status").read_text().splitlines()
+        kb = {ln.split(":")[0]: float(ln.split()[1]) for ln in status if ln.startswith("Vm")}
+        return kb["VmHWM"] / 1024, kb["VmRSS"] / 1024
+
+    return sorted(runner.client.run(mem).values())
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--drives", type=int, default=1000)
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--candidates", type=int, default=2000)
+    ap.add_argument("--memory-drives", type=int, default=100)
+    ap.add_argument("--skip-tune", action="store_true")
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--force", action="store_true", help=f"write even at a load >= {MAX_LOAD}")
+    a = ap.parse_args(argv)
+    m = machine()
+    load1 = float(os.getloadavg()[0])
+    print(machine_line(m), flush=True)
+    if load1 >= MAX_LOAD:
+        print(f"load average {load1:.2f} >= {MAX_LOAD}: the speed figures mean little", flush=True)
+
+    from hdrd.analysis.evaluate import to_json
+    from hdrd.analysis.fleet import DaskRunner, LocalRunner, batches
+    from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, tune_fleet
+    from hdrd.drivelog import read_drive, write_drive
+    from hdrd.drivesources import find_drives
+
+    root = make_fleet(a.drives, a.minutes)
+    refs = find_drives([str(root)])
+    assert len(refs) == a.drives, len(refs)
+    n = len(refs)
+    job = EvaluateJob()
+    lines: list[str] = []
+
+    def say(s: str = "") -> None:
+        print(s, flush=True)
+        lines.append(s)
+
+    # -- the work per drive, one process ---------------------------------------------------
+    w_local, c_local, (res, skipped) = timed(lambda: evaluate_refs(refs, job, LocalRunner()))
+    assert not skipped, skipped[:3]
+    want = json.dumps(to_json(res))
+    per = w_local / n
+    sample = refs[: min(50, n)]
+    csv_dir = DATA / "fleet-csv-sample"
+    csv_dir.mkdir(parents=True, exist_ok=True)
+    for r in sample:
+        write_drive(csv_dir / f"{r.name}.csv", r.read())
+    w_pq, _, _ = timed(lambda: [r.read() for r in sample])
+    w_csv, _, _ = timed(lambda: [read_drive(csv_dir / f"{r.name}.csv") for r in sample])
+    hours = sum(r.duration_min for r in res) / 60
+    say(
+        f"{n} drives of {a.minutes:g} min ({hours:.0f} h of driving), a Parquet dataset "
+        f"partitioned by drive; {len(batches(n, 1))} tasks on 1 worker, {len(batches(n, 2))} "
+        f"on 2 (guided: {len(batches(n, 2)[0])} drives in the first, 1 in the last)"
+    )
+    say()
+    say("| evaluate | wall, s | per drive, ms | speed-up | overhead per drive |")
+    say("|---|---|---|---|---|")
+    say(f"| one process | {w_local:.2f} | {1000 * per:.2f} (CPU {1000 * c_local / n:.2f}) | | |")
+
+    # -- evaluate on 1 and 2 workers -------------------------------------------------------
+    walls: dict[int, float] = {}
+    starts: dict[int, float] = {}
+    per_task = 0.0
+    for workers in (1, 2):
+        s0 = time.perf_counter()
+        with DaskRunner.open(workers=workers) as runner:
+            starts[workers] = time.perf_counter() - s0
+            w, _, (got, _) = timed(partial(evaluate_refs, refs, job, runner))
+            if workers == 1:  # a task's round trip through the scheduler, doing nothing
+                k = 300
+                w_noop, _, _ = timed(partial(_drain, runner.map(noop, range(k), batch=1)))
+                per_task = w_noop / k
+        assert json.dumps(to_json(got)) == want, "results differ from one process"
+        walls[workers] = w
+    over = (walls[1] - w_local) / w_local
+    speedup = walls[1] / walls[2]
+    say(
+        f"| 1 worker | {walls[1]:.2f} | {1000 * walls[1] / n:.2f} | | "
+        f"{1000 * (walls[1] - w_local) / n:+.2f} ms ({100 * over:+.1f} %) |"
+    )
+    say(f"| 2 workers | {walls[2]:.2f} | {1000 * walls[2] / n:.2f} | {speedup:.2f}x | |")
+    say()
+    say(
+        f"Read per drive: Parquet {1000 * w_pq / len(sample):.1f} ms, CSV "
+        f"{1000 * w_csv / len(sample):.1f} ms (the same {len(sample)} drives). A local cluster "
+        f"starts in {starts[1]:.1f} s (1 worker), {starts[2]:.1f} s (2), not counted above. "
+        f"An empty task's round trip through the scheduler, one at a time in a window of "
+        f"tasks in flight: {1000 * per_task:.2f} ms, i.e. "
+        f"{1000 * per_task * len(batches(n, 1)) / n:.3f} ms per drive in {len(batches(n, 1))} "
+        "tasks. "
+        f"Targets: speed-up {speedup:.2f}x (>= {TARGET_SPEEDUP}x: "
+        f"{'met' if speedup >= TARGET_SPEEDUP else 'NOT met'}); overhead {100 * over:.1f} % "
+        f"(<= {100 * TARGET_OVERHEAD:.0f} %: {'met' if over <= TARGET_OVERHEAD else 'NOT met'})."
+    )
+
+    # -- worker memory ----------------------------------------------------------------------
+    mems: dict[int, list[tuple[float, float]]] = {}
+    for k in sorted({min(a.memory_drives, n), n}):
+        with DaskRunner.open(workers=2) as runner:
+            idle = worker_memory(runner)
+            list(evaluate_refs(refs[:k], job, runner)[0])
+            mems[k] = worker_memory(runner)
+        say()
+        say(
+            f"Worker memory after {k} drives (2 workers; peak / current RSS, MB): "
+            + ", ".join(f"{p:.0f} / {r:.0f}" for p, r in mems[k])
+            + f" (idle: {', '.join(f'{r:.0f}' for _, r in idle)})"
+        )
+    ks = sorted(mems)
+    growth = max(p for p, _ in mems[ks[-1]]) / max(p for p, _ in mems[ks[0]])
+    say(f"Peak worker RSS at {ks[-1]} / at {ks[0]} drives: {growth:.2f}x (flat: <= 1.10x).")
+    say(
+        f"Client (this process) peak RSS: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB."
+    )
+
+    # -- tune -------------------------------------------------------------------------------
+    tune_walls: dict[int, float] = {}
+    if not a.skip_tune:
+        w_t, _, best = timed(lambda: tune_fleet(LocalRunner(), refs, (), a.candidates, 0))
+        for workers in (1, 2):
+            with DaskRunner.open(workers=workers) as runner:
+                w, _, got_t = timed(partial(tune_fleet, runner, refs, (), a.candidates, 0))
+                if workers == 2:
+                    tune_mem = worker_memory(runner)
+            assert got_t.best == best.best and got_t.top == best.top, "tune differs"
+            tune_walls[workers] = w
+        t_over = (tune_walls[1] - w_t) / w_t
+        say()
+        say(f"| tune, {a.candidates} sets | wall, s | per drive, ms | speed-up | overhead |")
+        say("|---|---|---|---|---|")
+        say(f"| one process | {w_t:.1f} | {1000 * w_t / n:.1f} | | |")
+        say(
+            f"| 1 worker | {tune_walls[1]:.1f} | {1000 * tune_walls[1] / n:.1f} | | "
+            f"{100 * t_over:+.1f} % |"
+        )
+        say(
+            f"| 2 workers | {tune_walls[2]:.1f} | {1000 * tune_walls[2] / n:.1f} | "
+            f"{tune_walls[1] / tune_walls[2]:.2f}x | |"
+        )
+        say()
+        say(f"The same best parameters on every runner: {best.best}.")
+        say(
+            "Worker memory after the tune (2 workers; peak / current RSS, MB): "
+            + ", ".join(f"{p:.0f} / {r:.0f}" for p, r in tune_mem)
+            + f": the prepared drives stay on the workers for the search's rounds "
+            f"(about {n / 2:.0f} drives each)."
+        )
+
+    # -- projection -------------------------------------------------------------------------
+    eff = speedup / 2
+    say()
+    say(
+        "Projected for 100,000 drives of this length on N workers (a core each): the time per "
+        f"drive on one worker ({1000 * walls[1] / n:.2f} ms evaluate"
+        + (f", {1000 * tune_walls[1] / n:.1f} ms tune" if tune_walls else "")
+        + f") x 100,000 / (N x {eff:.2f}, the efficiency measured at 2 workers), the cluster's "
+        "start-up apart; reading from shared storage instead of a local disk is not counted. "
+        f"The scheduler is no limit there: 100,000 drives on 128 workers are "
+        f"{len(batches(100_000, 128))} tasks."
+    )
+    say()
+    head = "| N | evaluate |" + (" tune |" if tune_walls else "")
+    say(head)
+    say("|---|---|" + ("---|" if tune_walls else ""))
+    for workers in (1, 2, 8, 32, 128):
+        ev = 1e5 * walls[1] / n / (workers * (eff if workers > 1 else 1.0))
+        row = f"| {workers} | {_dur(ev)} |"
+        if tune_walls:
+            tu = 1e5 * tune_walls[1] / n / (workers * (eff if workers > 1 else 1.0))
+            row += f" {_dur(tu)} |"
+        say(row)
+
+    cmd = "python bench/fleet.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    body = f"{machine_line(m)}\n\nCommand: `{cmd.strip()}`\n\n" + "\n".join(lines)
+    if a.no_write:
+        return 0
+    if load1 >= MAX_LOAD and not a.force:
+        print(f"not written to RESULTS.md: load average {load1:.2f} >= {MAX_LOAD} (--force)")
+        return 0
+    append_section("fleet (Dask)", body)
+    return 0
+
+
+def _dur(s: float) -> str:
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.1f} h"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""``hdrd gap`` on many drives: each analysed on its own (in this process or on a cluster),
+one line each as they come in, in order; how often each effect was found; the reports in one
+JSON file and the fitted models in a directory, written as the drives come in (the client
+never holds the fleet's reports)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from hdrd.analysis.fleet import Runner
+from hdrd.analysis.fleet_jobs import GapJob, gap_refs
+from hdrd.drivesources import DriveRef
+
+__all__ = ["ReportStream", "gap_fleet", "gap_fleet_summary", "gap_row", "gap_table_head"]
+
+
+def gap_table_head(name_w: int) -> str:
+    return (
+        f"{'drive':<{name_w}} {'samples':>8} {'min':>6} {'gap':>8} {'-> gap':>8}  "
+        "effects found (final model)"
+    )
+
+
+def gap_row(name: str, report: dict[str, Any], name_w: int) -> str:
+    """One drive: samples, minutes, the gap before and after, the effects added (and the
+    final model)."""
+    log = report["log"]
+    added = [s["effect"] for s in report["steps"]]
+    return (
+        f"{name:<{name_w}} {log['samples']:>8} {log['duration_s'] / 60:>6.1f} "
+        f"{report['gap_initial']:>8.3g} {report['gap_final']:>8.3g}  "
+        f"{', '.join(added) or '-'} ({' + '.join(report['final_model'])})"
+    )
+
+
+def gap_fleet_summary(found: Counter[str], n: int, skipped: int) -> str:
+    """How many of the drives each effect was found in."""
+    head = f"fleet: {n} drives analysed" + (f", {skipped} skipped" if skipped else "")
+    if not found:
+        return head + "; no effect missing from the model in any drive"
+    parts = [f"{e} in {k} ({100 * k / n:.0f} %)" for e, k in found.most_common()]
+    return head + "; effects found: " + ", ".join(parts)
+
+
+def _indented(doc: Any, level: int) -> str:
+    """``doc`` as ``json.dumps(..., indent=2)`` writes it ``level`` levels deep."""
+    pad = "  " * level
+    return "\n".join(pad + line for line in json.dumps(doc, indent=2).splitlines())
+
+
+class ReportStream:
+    """``{"drives": [report, ...], "skipped": [...]}`` written a report at a time, exactly as
+    ``json.dumps(doc, indent=2)`` would write it whole; the file appears, whole, only on
+    :meth:`finish` (a temporary file renamed), never half written."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+        )
+        self.tmp = Path(tmp)
+        self.f = os.fdopen(fd, "w", encoding="utf-8")
+        self.f.write('{\n  "drives": [')
+        self.n = 0
+
+    def add(self, report: dict[str, Any]) -> None:
+        self.f.write(("," if self.n else "") + "\n" + _indented(report, 2))
+        self.n += 1
+
+    def finish(self, skipped: Sequence[str]) -> None:
+        self.f.write(("\n  ]" if self.n else "]") + ',\n  "skipped": ')
+        self.f.write(json.dumps(list(skipped), indent=2).replace("\n", "\n  ") + "\n}\n")
+        self.f.flush()
+        os.fsync(self.f.fileno())
+        self.f.close()
+        os.chmod(self.tmp, 0o644)
+        os.replace(self.tmp, self.path)
+
+    def __enter__(self) -> ReportStream:
+        return self
+
+    def __exit__(
+        self, typ: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if not self.f.closed:
+            self.f.close()
+        if self.tmp.exists():
+            self.tmp.unlink()
+
+
+def gap_fleet(
+    args: argparse.Namespace, refs: Sequence[DriveRef], job: GapJob, runner: Runner
+) -> int:
+    """Run ``hdrd gap`` on every drive; print and write as the drives come in. Exit status 0,
+    or 1 if no drive could be analysed or a file could not be written. Raises DriveLogError
+    (a drive cannot be read) and FleetError."""
+    from hdrd.analysis.progress import ProgressBar
+    from hdrd.sim.gyro import save_model
+
+    name_w = max(12, *(len(r.name) for r in refs))
+    show = not getattr(args, "no_progress", False)
+    bar = ProgressBar(f"gap {len(refs)} drives") if show else None
+    skipped: list[str] = []
+    found: Counter[str] = Counter()
+    n_ok = 0
+    print(gap_table_head(name_w), flush=True)
+    try:
+        with ReportStream(args.report) if args.report else _NoReport() as report:
+            for o in gap_refs(refs, job, runner, bar):
+                if o.skipped is not None:
+                    skipped.append(o.skipped)
+                    continue
+                n_ok += 1
+                rep = o.result.report
+                found.update({s["effect"] for s in rep["steps"]})
+                if bar is not None and bar.tty:
+                    sys.stderr.write("\r\033[K")  # the bar's line, cleared for the table's
+                print(gap_row(o.name, rep, name_w), flush=True)
+                report.add(rep)
+                if args.out:
+                    model_path = Path(args.out) / f"{o.name}.yaml"
+                    model_path.parent.mkdir(parents=True, exist_ok=True)
+                    save_model(o.result.model, model_path)
+            if bar is not None:
+                bar.close()
+                bar = None
+            for why in skipped:
+                print(f"hdrd gap: skipped {why}", file=sys.stderr)
+            if n_ok == 0:
+                print(f"hdrd gap: none of the {len(refs)} drives can be analysed", file=sys.stderr)
+                return 1
+            report.finish(skipped)
+    except OSError as e:
+        print(f"hdrd gap: cannot write: {e.strerror or e} ({e.filename or ''})", file=sys.stderr)
+        return 1
+    finally:
+        if bar is not None:
+            bar.close()
+    print(gap_fleet_summary(found, n_ok, len(skipped)))
+    return 0
+
+
+class _NoReport:
+    def add(self, report: dict[str, Any]) -> None:
+        pass
+
+    def finish(self, skipped: Sequence[str]) -> None:
+        pass
+
+    def __enter__(self) -> _NoReport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass

@@ -1,0 +1,113 @@
+"""``hdrd tune``: the command-line edge of :mod:`hdrd.analysis.tune` (the report, the config
+snippet, the JSON), in this process or, with ``--workers`` / ``--scheduler``, on a Dask
+cluster (:func:`hdrd.analysis.fleet_jobs.tune_fleet`: the same result)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from hdrd.analysis.evaluate import EvaluationError, drive_refs, load_drives
+from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
+from hdrd.analysis.progress import ProgressBar
+from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+
+__all__ = ["NAMES_IN_COMMENT", "main"]
+
+NAMES_IN_COMMENT = 20
+"""Training drives named in the config snippet's comment (a fleet's are counted)."""
+
+
+def _err(msg: str) -> None:
+    print(f"hdrd tune: error: {msg}", file=sys.stderr)
+
+
+def _run(args: argparse.Namespace, bar: ProgressBar | None) -> TuneResult:
+    if not fleet_requested(args):
+        train = load_drives(args.train)
+        test = load_drives(args.test or [])
+        return tune(
+            train,
+            test,
+            args.candidates,
+            args.seed,
+            calibrate_seconds=args.calibrate_seconds,
+            progress=bar,
+        )
+    from hdrd.analysis.fleet_jobs import tune_fleet
+
+    train_refs = drive_refs(args.train)
+    test_refs = drive_refs(args.test or [])
+    with open_runner(args) as runner:
+        return tune_fleet(
+            runner,
+            train_refs,
+            test_refs,
+            args.candidates,
+            args.seed,
+            calibrate_seconds=args.calibrate_seconds,
+            progress=bar,
+        )
+
+
+def _comment(result: TuneResult, seed: int) -> list[str]:
+    names = [d.name for d in result.train["baseline"]]
+    n_test = len(result.test["baseline"])
+    shown = ", ".join(names[:NAMES_IN_COMMENT])
+    if len(names) > NAMES_IN_COMMENT:
+        shown += f", and {len(names) - NAMES_IN_COMMENT} more"
+    s_tr = result.summary("train", "tuned")
+    s_te = result.summary("test", "tuned")
+    comment = [
+        f"HDR parameters tuned by `hdrd tune` (seed {seed}, {result.n_evaluated} sets) on "
+        f"{len(names)} training drive(s): " + shown,
+        f"training: mean NEpsi {s_tr.ne_psi['hdr']:.3f} deg/min, {s_tr.improvement:.2f}x"
+        if s_tr
+        else "",
+        (
+            f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
+            f"on {n_test} drive(s)"
+        )
+        if s_te
+        else "no test drives",
+        "paste into /etc/hdrd/hdrd.yaml (replacing its hdr: section)",
+    ]
+    return [c for c in comment if c]
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
+    [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]
+    [--workers N | --scheduler ADDRESS]``."""
+    from hdrd.files import atomic_write_json, atomic_write_text
+
+    if args.candidates < 1:
+        _err(f"--candidates must be >= 1, got {args.candidates}")
+        return 2
+    bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
+    t0 = time.monotonic()
+    try:
+        result = _run(args, bar)
+    except (EvaluationError, FleetError) as e:
+        if bar is not None:
+            bar.close()
+        _err(str(e))
+        return 1
+    if bar is not None:
+        bar.close()
+    seconds = time.monotonic() - t0
+    print(format_report(result, seconds))
+    if args.out:
+        try:
+            atomic_write_text(args.out, params_yaml(result.best, _comment(result, args.seed)))
+        except OSError as e:
+            _err(f"cannot write {args.out}: {e.strerror or e}")
+            return 1
+    if args.json:
+        try:
+            atomic_write_json(args.json, to_json(result, seconds))
+        except OSError as e:
+            _err(f"cannot write {args.json}: {e.strerror or e}")
+            return 1
+    return 0

@@ -1,0 +1,279 @@
+"""Drive logs as Parquet (docs/drive-format.md, "Parquet"): one file per drive, a file holding
+many drives in a ``drive`` column, or a dataset partitioned by drive (``DIR/drive=NAME/``).
+
+The same columns, units and signs as the CSV (:mod:`hdrd.drivelog`); a drive is read into the
+same :class:`~hdrd.drivelog.DriveLog` and passes the same checks. Metadata (the CSV's
+``# key: value`` lines) is the Parquet schema's key-value metadata ``hdrd.meta``: a JSON
+object of strings. The writer keeps the CSV's decimals (:func:`hdrd.drivelog.csv_values`), so
+a drive written as CSV and as Parquet reads back bit for bit the same.
+
+pyarrow is imported only here, and only when a Parquet file is read or written; without it a
+one-line :class:`~hdrd.drivelog.DriveLogError` says how to install it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import urllib.parse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdrd.drivelog import (
+    COLUMNS,
+    REQUIRED,
+    DriveLog,
+    DriveLogError,
+    check_columns,
+    csv_values,
+)
+
+__all__ = [
+    "DRIVE_COLUMN",
+    "DRIVE_META_KEY",
+    "META_KEY",
+    "PARTITION_PREFIX",
+    "SUFFIX",
+    "drives_in_file",
+    "is_partition",
+    "partition_dir",
+    "partition_value",
+    "read_parquet_drive",
+    "write_dataset_drive",
+    "write_parquet_drive",
+]
+
+SUFFIX = ".parquet"
+DRIVE_COLUMN = "drive"
+"""The column (or hive partition key) that names the drive in a file or dataset of many."""
+PARTITION_PREFIX = DRIVE_COLUMN + "="
+META_KEY = "hdrd.meta"
+"""Schema metadata key of a drive's metadata: a JSON object of strings."""
+DRIVE_META_KEY = "hdrd.drive_meta"
+"""In a file holding many drives: a JSON object, drive name -> its metadata object."""
+IGNORED_PREFIX = "__index_level_"
+"""Columns pandas adds for a named index: not drive-log data, skipped."""
+INSTALL = "pip install 'hdrd[fleet]'"
+
+
+def _pyarrow() -> tuple[Any, Any, Any]:
+    """(pyarrow, pyarrow.compute, pyarrow.parquet); DriveLogError if pyarrow is missing."""
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise DriveLogError(f"Parquet drive logs need pyarrow: {INSTALL}") from None
+    return pa, pc, pq
+
+
+def is_partition(path: str | os.PathLike[str]) -> bool:
+    """A directory of a dataset partitioned by drive: its name is ``drive=VALUE``."""
+    return Path(path).name.startswith(PARTITION_PREFIX)
+
+
+def partition_value(path: str | os.PathLike[str]) -> str:
+    """The drive named by a partition directory ``drive=VALUE`` (VALUE URI-decoded, as
+    pyarrow writes it)."""
+    return urllib.parse.unquote(Path(path).name[len(PARTITION_PREFIX) :])
+
+
+def partition_dir(root: str | os.PathLike[str], name: str) -> Path:
+    """The partition directory of drive ``name`` in the dataset at ``root``."""
+    return Path(root) / (PARTITION_PREFIX + urllib.parse.quote(name, safe=""))
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+
+def _meta_of(schema: Any, label: str, key: str = META_KEY) -> dict[str, Any]:
+    raw = (schema.metadata or {}).get(key.encode())
+    if raw is None:
+        return {}
+    try:
+        meta = json.loads(raw)
+    except (UnicodeDecodeError, ValueError):
+        raise DriveLogError(f"{label}: schema metadata {key} is not JSON") from None
+    if not isinstance(meta, dict):
+        raise DriveLogError(f"{label}: schema metadata {key} is not a JSON object")
+    return meta
+
+
+def _strings(meta: dict[str, Any], label: str) -> dict[str, str]:
+    for k, v in meta.items():
+        if not isinstance(v, str):
+            raise DriveLogError(
+                f"{label}: metadata {k!r} is {type(v).__name__}, not a string (as a CSV's "
+                "'# key: value' lines)"
+            )
+    return dict(meta)
+
+
+def _columns(schema: Any, label: str) -> list[str]:
+    """The drive-log columns of a file, checked as the CSV header is."""
+    pa, _, _ = _pyarrow()
+    names = [n for n in schema.names if n != DRIVE_COLUMN and not n.startswith(IGNORED_PREFIX)]
+    for n in names:
+        if n not in COLUMNS:
+            raise DriveLogError(f"{label}: unknown column {n!r} (allowed: {', '.join(COLUMNS)})")
+        typ = schema.field(n).type
+        if not (
+            pa.types.is_floating(typ)
+            or pa.types.is_integer(typ)
+            or pa.types.is_boolean(typ)
+            or pa.types.is_null(typ)
+        ):
+            raise DriveLogError(f"{label}: column {n} holds {typ}, not numbers")
+    for r in REQUIRED:
+        if r not in names:
+            raise DriveLogError(f"{label}: missing required column {r!r}")
+    if len(set(names)) != len(names):
+        raise DriveLogError(f"{label}: repeated column")
+    return names
+
+
+def _arrays(table: Any, names: list[str]) -> dict[str, Any]:
+    """float64 numpy arrays (their own, writable), a null read as NaN as an empty CSV cell."""
+    pa, pc, _ = _pyarrow()
+    out = {}
+    for n in names:
+        col = pc.fill_null(pc.cast(table.column(n), pa.float64()), math.nan)
+        out[n] = np.array(col.to_numpy(), dtype=np.float64, copy=True)
+    return out
+
+
+def _log(arrays: dict[str, Any], label: str, name: str, meta: dict[str, str]) -> DriveLog:
+    if arrays["t"].shape[0] == 0:
+        raise DriveLogError(f"{label}: no data rows")
+    check_columns(arrays, lambda i: f"{label}: row {i + 1}")
+    return DriveLog(name=name, meta=meta, **arrays)
+
+
+def _read_file(path: Path, drive: Any = None) -> tuple[Any, list[str], dict[str, str]]:
+    """(table, columns, metadata) of one file; with ``drive``, only that drive's rows."""
+    _, _, pq = _pyarrow()
+    label = str(path)
+    pf = pq.ParquetFile(path)
+    try:  # closed on every path: a bad file must not keep its descriptor
+        schema = pf.schema_arrow
+        names = _columns(schema, label)
+        if drive is None:
+            table = pf.read(columns=names)
+            meta = _strings(_meta_of(schema, label), label)
+        else:
+            if DRIVE_COLUMN not in schema.names:
+                raise DriveLogError(
+                    f"{label}: no column {DRIVE_COLUMN!r} to find drive {drive!r} in"
+                )
+            table = pq.read_table(
+                path, columns=names, filters=[(DRIVE_COLUMN, "==", drive)], use_threads=False
+            )
+            by_drive = _meta_of(schema, label, DRIVE_META_KEY)
+            meta = _strings(by_drive.get(str(drive), {}), f"{label} (drive {drive})")
+    finally:
+        pf.close()
+    return table, names, meta
+
+
+def read_parquet_drive(
+    path: str | os.PathLike[str], name: str | None = None, drive: Any = None
+) -> DriveLog:
+    """One drive from Parquet: a file (``drive``: the value of its ``drive`` column to take,
+    for a file holding many drives), or a partition directory ``drive=NAME`` of a dataset
+    (its files, in the order of their first ``t``). ``name`` defaults to the file's stem, the
+    drive's value or the partition's. DriveLogError on bad input, naming the file and row;
+    OSError if the file cannot be opened."""
+    pa, _, _ = _pyarrow()
+    p = Path(path)
+    label = str(p) if drive is None else f"{p} (drive {drive})"
+    try:
+        if p.is_dir():
+            files = sorted(f for f in p.rglob("*" + SUFFIX) if f.is_file())
+            if not files:
+                raise DriveLogError(f"{p}: a partition without Parquet files")
+            parts = [_read_file(f) for f in files]
+            parts.sort(key=lambda x: _first_t(x[0]))
+            names = parts[0][1]
+            for f, (_, other, _) in zip(files, parts):
+                if sorted(other) != sorted(names):
+                    raise DriveLogError(f"{f}: columns {other} differ from {names} in {p}")
+            table = pa.concat_tables([t.select(names) for t, _, _ in parts])
+            meta = parts[0][2]
+            default = partition_value(p)
+        else:
+            table, names, meta = _read_file(p, drive)
+            default = p.stem if drive is None else str(drive)
+    except pa.ArrowException as e:
+        raise DriveLogError(f"{label}: not a readable Parquet drive log: {e}") from None
+    return _log(_arrays(table, names), label, name or default, meta)
+
+
+def _first_t(table: Any) -> float:
+    col = table.column("t")
+    return float(col[0].as_py()) if len(col) and col[0].is_valid else math.inf
+
+
+def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
+    """The drives of a Parquet file holding many (its ``drive`` column's values, in the order
+    they first appear; read a row group at a time), or None for a file of one drive."""
+    pa, pc, pq = _pyarrow()
+    try:
+        pf = pq.ParquetFile(path)
+        try:
+            if DRIVE_COLUMN not in pf.schema_arrow.names:
+                return None
+            seen: dict[Any, None] = {}
+            for i in range(pf.num_row_groups):
+                col = pf.read_row_group(i, columns=[DRIVE_COLUMN]).column(0)
+                for v in pc.unique(col).to_pylist():
+                    if v is None:
+                        raise DriveLogError(f"{path}: an empty {DRIVE_COLUMN!r} cell")
+                    seen.setdefault(v, None)
+        finally:
+            pf.close()
+    except pa.ArrowException as e:
+        raise DriveLogError(f"{path}: not a readable Parquet drive log: {e}") from None
+    return list(seen)
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+
+def _table(log: DriveLog) -> Any:
+    pa, _, _ = _pyarrow()
+    cols = log.columns()
+    arrays = [pa.array(csv_values(c, getattr(log, c)), type=pa.float64()) for c in cols]
+    meta = {META_KEY: json.dumps(log.meta, ensure_ascii=False)}
+    return pa.Table.from_arrays(arrays, names=cols).replace_schema_metadata(meta)
+
+
+def write_parquet_drive(path: str | os.PathLike[str], log: DriveLog) -> None:
+    """Write one drive as a Parquet file (zstd), atomically (a temporary file renamed); its
+    directory is made if need be."""
+    _, _, pq = _pyarrow()
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    try:
+        pq.write_table(_table(log), tmp, compression="zstd")
+        os.replace(tmp, p)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_dataset_drive(root: str | os.PathLike[str], log: DriveLog, name: str) -> Path:
+    """Add drive ``name`` to the dataset partitioned by drive at ``root``:
+    ``ROOT/drive=NAME/part-0.parquet`` (NAME URI-encoded, as pyarrow's hive partitioning
+    reads it), replacing the drive if it is there. Returns the file written."""
+    part = partition_dir(root, name)
+    part.mkdir(parents=True, exist_ok=True)
+    for old in part.glob("*" + SUFFIX):
+        if old.name != "part-0" + SUFFIX:
+            old.unlink()
+    path = part / ("part-0" + SUFFIX)
+    write_parquet_drive(path, log)
+    return path

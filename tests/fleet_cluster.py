@@ -1,0 +1,145 @@
+"""A real Dask cluster for tests/test_fleet.py, in its own process (so that the test process
+never holds Dask's threads and sockets): ``python tests/fleet_cluster.py COMMAND ...``.
+
+- ``serve N``: a LocalCluster of N worker processes; prints its scheduler's address, serves
+  until its stdin closes, then closes the cluster.
+- ``kill DIR OUT.json``: evaluates the drives under DIR on a LocalCluster of 2 worker
+  processes where the first task to start kills its own worker process (SIGKILL, mid-task;
+  the nanny starts a new one); writes the fleet's and this process's results as JSON, and
+  what the scheduler saw.
+- ``always DIR OUT.json``: a drive whose task kills its worker every time: after Dask's
+  allowed failures (set to 1 here), a one-line FleetError naming the drive, not a missing row.
+- ``order OUT.json``: items that finish in the reverse of their order come back in order.
+- ``foreign ADDRESS``: a task the cluster cannot load (its module exists only here) is a
+  one-line FleetError; prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from hdrd.analysis.evaluate import to_json
+from hdrd.analysis.fleet import DaskRunner, FleetError, LocalRunner
+from hdrd.analysis.fleet_jobs import DriveOutcome, EvaluateJob, evaluate_one, evaluate_refs
+from hdrd.drivesources import DriveRef, find_drives
+
+
+def die_once(ref: DriveRef, job: EvaluateJob, marker: str) -> DriveOutcome:
+    """evaluate_one, but the first call anywhere (a marker file says) kills its process."""
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return evaluate_one(ref, job)
+    os.write(fd, f"{os.getpid()} {ref.name}".encode())
+    os.close(fd)
+    os.kill(os.getpid(), signal.SIGKILL)
+    raise AssertionError("unreachable")
+
+
+def die_always(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
+    if ref.name == "rural":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return evaluate_one(ref, job)
+
+
+def slow_echo(i: int, n: int) -> int:
+    time.sleep(0.02 * (n - i))  # the last item finishes first
+    return i
+
+
+def serve(n: int) -> None:
+    with DaskRunner.open(workers=n) as runner:
+        print(runner.client.scheduler.address, flush=True)
+        sys.stdin.read()
+
+
+def kill(drives: str, out: str) -> None:
+    refs = find_drives([drives])
+    job = EvaluateJob()
+    marker = str(Path(out).with_suffix(".marker"))
+    with DaskRunner.open(workers=2) as runner:
+        pids_before = sorted(runner.client.run(os.getpid).values())
+        got = list(runner.map(die_once, refs, job, marker, batch=1))
+        # Tasks the scheduler sent to a worker more than once (the log keeps transitions
+        # after the tasks are forgotten).
+        sched = runner.cluster.scheduler
+        starts = Counter(t[0] for t in sched.transition_log if t[2] == "processing")
+        lost = [k for k, n in starts.items() if n > 1]
+        deadline = time.monotonic() + 30
+        while len(runner.client.nthreads()) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)  # the nanny restarts the killed worker
+        pids_after = sorted(runner.client.run(os.getpid).values())
+    local, skipped = evaluate_refs(refs, job, LocalRunner())
+    doc: dict[str, Any] = {
+        "fleet": to_json([o.result for o in got if o.skipped is None]),
+        "fleet_skipped": [o.skipped for o in got if o.skipped is not None],
+        "names": [o.name for o in got],
+        "local": to_json(local),
+        "local_skipped": skipped,
+        "killed": Path(marker).read_text(),
+        "tasks_run_twice": len(lost),
+        "pids_before": pids_before,
+        "pids_after": pids_after,
+    }
+    Path(out).write_text(json.dumps(doc))
+
+
+def always(drives: str, out: str) -> None:
+    import dask
+
+    refs = find_drives([drives])
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        with DaskRunner.open(workers=2) as runner:
+            try:
+                list(runner.map(die_always, refs, EvaluateJob(), batch=1))
+                message = "no error"
+            except FleetError as e:
+                message = str(e)
+    Path(out).write_text(json.dumps({"error": message}))
+
+
+def foreign(address: str) -> None:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        Path(d, "only_here.py").write_text("def double(x):\n    return 2 * x\n")
+        sys.path.insert(0, d)
+        import only_here
+
+        with DaskRunner.open(scheduler=address) as runner:
+            try:
+                list(runner.map(only_here.double, [1, 2, 3], batch=1))
+                print("no error")
+            except FleetError as e:
+                print(e)
+
+
+def order(out: str) -> None:
+    n = 12
+    with DaskRunner.open(workers=2) as runner:
+        got = list(runner.map(slow_echo, list(range(n)), n, batch=1))
+        batched = list(runner.map(slow_echo, list(range(n)), n, batch=5))
+    Path(out).write_text(json.dumps({"batch1": got, "batch5": batched}))
+
+
+if __name__ == "__main__":
+    cmd = sys.argv[1]
+    if cmd == "serve":
+        serve(int(sys.argv[2]))
+    elif cmd == "kill":
+        kill(sys.argv[2], sys.argv[3])
+    elif cmd == "order":
+        order(sys.argv[2])
+    elif cmd == "always":
+        always(sys.argv[2], sys.argv[3])
+    elif cmd == "foreign":
+        foreign(sys.argv[2])
+    else:
+        raise SystemExit(f"unknown command {cmd!r}")

@@ -1,0 +1,278 @@
+"""Drive logs as Parquet (hdrd/parquetlog.py) and the drives a command line names
+(hdrd/drivesources.py): read exactly like the CSV, the same checks, files, a file holding many
+drives, a dataset partitioned by drive, directories and globs."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hdrd.cli import main as cli
+from hdrd.drivelog import DriveLog, DriveLogError, csv_values, read_drive, write_drive
+from hdrd.drivesources import DriveRef, find_drives
+from hdrd.fakegyro import FakeGyro
+from hdrd.parquetlog import (
+    DRIVE_META_KEY,
+    META_KEY,
+    drives_in_file,
+    partition_dir,
+    read_parquet_drive,
+    write_dataset_drive,
+    write_parquet_drive,
+)
+from hdrd.sim.drive import simulate_drive
+from tests.test_daemon import drive_profile
+from tests.test_drivelog import assert_same_log, drive_logs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def city() -> DriveLog:
+    return simulate_drive("city", 2.0, 3)
+
+
+def test_a_drive_reads_back_the_same_from_csv_and_parquet(city: DriveLog, tmp_path: Path) -> None:
+    """The writer keeps the CSV's decimals: both files give the same DriveLog, bit for bit,
+    metadata (lead_in_s, the gyro model JSON) included."""
+    write_drive(tmp_path / "c.csv", city)
+    write_parquet_drive(tmp_path / "c.parquet", city)
+    a = read_drive(tmp_path / "c.csv")
+    b = read_parquet_drive(tmp_path / "c.parquet")
+    assert_same_log(a, b)
+    assert b.name == "c" and b.meta["lead_in_s"] == city.meta["lead_in_s"]
+    assert list(b.meta) == list(city.meta)  # the order kept too
+    for c in a.columns():
+        assert getattr(a, c).tobytes() == getattr(b, c).tobytes(), c
+    # and the arrays are the reader's own: writable, as the CSV reader's
+    b.omega[0] += 1.0
+
+
+@settings(max_examples=60)
+@given(drive_logs())
+def test_parquet_round_trip(tmp_path_factory: pytest.TempPathFactory, log: DriveLog) -> None:
+    path = tmp_path_factory.mktemp("pq") / "d.parquet"
+    write_parquet_drive(path, log)
+    assert_same_log(read_parquet_drive(path), log)
+
+
+VALUES = st.floats(allow_nan=True, allow_infinity=False, width=64) | st.floats(-1e6, 1e6).map(
+    lambda v: round(v, 7) + 5e-8  # near the half of the last decimal written
+)
+
+
+@settings(max_examples=300)
+@given(
+    st.sampled_from(["temp_c", "heading_truth", "omega_truth", "speed", "omega"]),
+    st.lists(VALUES, min_size=1, max_size=30),
+)
+def test_csv_values_are_what_the_csv_reads_back(column: str, values: list[float]) -> None:
+    """csv_values (the Parquet writer's rounding) gives exactly the number a CSV holds, halves
+    and huge values included."""
+    v = np.array(values)
+    if column == "omega":
+        v = np.nan_to_num(v)  # required in every row
+    t = np.arange(v.shape[0], dtype=np.float64)
+    cols = {"omega": np.zeros_like(t), column: v}
+    log = DriveLog(t=t, **cols)  # type: ignore[arg-type]
+    buf = io.StringIO()
+    write_drive(buf, log)
+    back = getattr(read_drive(io.StringIO(buf.getvalue())), column)
+    assert np.array_equal(back, csv_values(column, v), equal_nan=True)
+
+
+@settings(max_examples=100)
+@given(st.lists(st.floats(0, 1e9), min_size=1, max_size=30, unique=True))
+def test_csv_values_of_times(values: list[float]) -> None:
+    t = csv_values("t", np.array(sorted(values)))
+    if np.any(np.diff(t) <= 0):
+        return  # times closer than the CSV's 0.1 ms: not a log either way
+    buf = io.StringIO()
+    write_drive(buf, DriveLog(t=np.array(sorted(values)), omega=np.zeros(len(values))))
+    assert np.array_equal(read_drive(io.StringIO(buf.getvalue())).t, t)
+
+
+def _table(cols: dict[str, object], meta: dict[str, str] | None = None) -> pa.Table:
+    t = pa.table(cols)
+    return t.replace_schema_metadata(meta) if meta else t
+
+
+@pytest.mark.parametrize(
+    "cols, match",
+    [
+        ({"t": [0.0, 1.0], "omega": [0.1, 0.2], "yaw": [1.0, 2.0]}, "unknown column 'yaw'"),
+        ({"t": [0.0, 1.0]}, "missing required column 'omega'"),
+        ({"t": [0.0, 1.0], "omega": ["a", "b"]}, "column omega holds string, not numbers"),
+        ({"t": [0.0, 1.0], "omega": [0.1, float("inf")]}, r"row 2: column omega: inf"),
+        ({"t": [0.0, 0.0], "omega": [0.1, 0.2]}, r"row 2: column t is not strictly increasing"),
+        ({"t": [0.0, 1.0], "omega": [0.1, None]}, r"row 2: column omega is empty"),
+        ({"t": [0.0, 1.0], "omega": [0.1, 0.2], "valid": [1, 2]}, r"row 2: column valid: 2.0"),
+        ({"t": pa.array([], pa.float64()), "omega": pa.array([], pa.float64())}, "no data rows"),
+    ],
+)
+def test_errors_name_the_file_and_row(tmp_path: Path, cols: dict, match: str) -> None:
+    path = tmp_path / "bad.parquet"
+    pq.write_table(_table(cols), path)
+    with pytest.raises(DriveLogError, match=match) as e:
+        read_parquet_drive(path)
+    assert str(path) in str(e.value)
+
+
+def test_not_parquet_and_bad_metadata(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.parquet"
+    junk.write_text("t,omega\n0,1\n")
+    with pytest.raises(DriveLogError, match="not a readable Parquet drive log"):
+        read_parquet_drive(junk)
+    bad = tmp_path / "meta.parquet"
+    pq.write_table(_table({"t": [0.0], "omega": [0.0]}, {META_KEY: '{"a": 1}'}), bad)
+    with pytest.raises(DriveLogError, match="metadata 'a' is int, not a string"):
+        read_parquet_drive(bad)
+
+
+def test_integers_booleans_and_nulls_read_as_the_csv_would(tmp_path: Path) -> None:
+    path = tmp_path / "types.parquet"
+    cols = {
+        "t": pa.array([0, 1, 2], pa.int64()),
+        "omega": pa.array([0.5, 0.25, 0.0], pa.float32()),
+        "heading_truth": pa.array([None, 10.0, None], pa.float64()),
+        "valid": pa.array([True, False, True]),
+        "__index_level_0__": pa.array([7, 8, 9]),  # pandas' index: not data
+    }
+    pq.write_table(_table(cols), path)
+    log = read_parquet_drive(path)
+    assert log.t.dtype == np.float64 and list(log.t) == [0.0, 1.0, 2.0]
+    assert list(log.omega) == [0.5, 0.25, 0.0]
+    assert log.heading_truth is not None and np.isnan(log.heading_truth[[0, 2]]).all()
+    assert log.valid is not None and list(log.valid) == [1.0, 0.0, 1.0]
+    assert log.columns() == ["t", "omega", "heading_truth", "valid"]
+
+
+def test_a_file_holding_many_drives(city: DriveLog, tmp_path: Path) -> None:
+    """A `drive` column (as pandas writes a fleet's table): each value a drive, its rows in
+    file order, its metadata from hdrd.drive_meta; row groups need not split at drives."""
+    a, b = city.slice(0, 700), city.slice(700)
+    names = ["veh 7", "veh 3"]
+    tables = [
+        pa.table({"drive": [n] * len(x), "t": x.t, "omega": x.omega}) for n, x in zip(names, (a, b))
+    ]
+    meta = {DRIVE_META_KEY: json.dumps({"veh 7": {"lead_in_s": "30"}})}
+    path = tmp_path / "fleet.parquet"
+    pq.write_table(pa.concat_tables(tables).replace_schema_metadata(meta), path, row_group_size=500)
+    assert drives_in_file(path) == names
+    refs = find_drives([str(path)])
+    assert [r.name for r in refs] == names and [r.key for r in refs] == names
+    first, second = (r.read() for r in refs)
+    assert np.array_equal(first.t, a.t) and np.array_equal(second.omega, b.omega)
+    assert first.meta == {"lead_in_s": "30"} and second.meta == {}
+    # inside a directory, a file's drives are named under the file
+    assert [r.name for r in find_drives([str(tmp_path)])] == ["fleet/veh 7", "fleet/veh 3"]
+
+
+def test_a_dataset_partitioned_by_drive(city: DriveLog, tmp_path: Path) -> None:
+    root = tmp_path / "ds"
+    write_dataset_drive(root, city, "city/3 a")  # a name pyarrow must URI-encode
+    write_dataset_drive(root, city.slice(0, 500), "short")
+    part = partition_dir(root, "city/3 a")
+    assert part.name == "drive=city%2F3%20a" and (part / "part-0.parquet").is_file()
+    refs = find_drives([str(root)])
+    assert [r.name for r in refs] == ["city/3 a", "short"]
+    assert_same_log(refs[0].read(), read_parquet_drive(part / "part-0.parquet"))
+    # pyarrow's own dataset reader sees the same drives
+    import pyarrow.dataset as ds
+
+    seen = ds.dataset(root, partitioning="hive").to_table(columns=["drive"]).column(0)
+    assert sorted(set(seen.to_pylist())) == ["city/3 a", "short"]
+    # a partition named directly; one split over files, read in the order of their first t
+    split = tmp_path / "drive=split"
+    split.mkdir()
+    write_parquet_drive(split / "b.parquet", city.slice(600))
+    write_parquet_drive(split / "a.parquet", city.slice(0, 600))
+    (split / "a.parquet").rename(split / "z.parquet")  # name order != time order
+    (ref,) = find_drives([str(split)])
+    assert ref.name == "split"
+    assert np.array_equal(ref.read().t, np.concatenate([city.t[:600], city.t[600:]]))
+
+
+def test_directories_globs_and_mixed_formats(city: DriveLog, tmp_path: Path) -> None:
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    write_drive(tmp_path / "a" / "x.csv", city)
+    write_parquet_drive(tmp_path / "a" / "b" / "y.parquet", city)
+    write_dataset_drive(tmp_path / "a" / "ds", city, "z")
+    (tmp_path / "a" / "notes.txt").write_text("not a log")
+    refs = find_drives([str(tmp_path / "a")])
+    assert [r.name for r in refs] == ["b/y", "ds/z", "x"]
+    assert all(isinstance(r, DriveRef) for r in refs)
+    logs = [r.read() for r in refs]
+    for log in logs[1:]:
+        for c in log.columns():
+            assert np.array_equal(getattr(log, c), getattr(logs[0], c), equal_nan=True)
+    globbed = find_drives([str(tmp_path / "a" / "**" / "*.parquet")])
+    assert [Path(r.path).name for r in globbed] == ["y.parquet", "part-0.parquet"]
+    with pytest.raises(DriveLogError, match="no file matches"):
+        find_drives([str(tmp_path / "nothing-*.csv")])
+    with pytest.raises(DriveLogError, match="no such file"):
+        find_drives([str(tmp_path / "missing.csv")])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DriveLogError, match="a directory without drive logs"):
+        find_drives([str(tmp_path / "empty")])
+
+
+def test_simulate_and_convert_write_parquet(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    common = ["simulate", "--drive", "city", "--minutes", "1", "--seed", "4"]
+    assert cli([*common, "--out", str(tmp_path / "s.csv")]) == 0
+    assert cli([*common, "--out", str(tmp_path / "s.parquet")]) == 0
+    assert cli([*common, "--out", str(tmp_path / "ds"), "--format", "dataset"]) == 0
+    assert cli([*common, "--format", "parquet"]) == 2  # Parquet to stdout: refused
+    assert "needs --out" in capsys.readouterr().err
+    csv = read_drive(tmp_path / "s.csv")
+    assert_same_log(read_parquet_drive(tmp_path / "s.parquet"), csv)
+    assert_same_log(read_parquet_drive(tmp_path / "ds" / "drive=city-4"), csv)
+    assert (
+        cli(
+            ["simulate", "--benchmark", "test", "--out", str(tmp_path / "b"), "--format", "parquet"]
+        )
+        == 0
+    )
+    assert len(list((tmp_path / "b").glob("*.parquet"))) == 5
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=20)).write_capture(cap)
+    assert cli(["convert", str(cap), "--out", str(tmp_path / "c.csv")]) == 0
+    assert cli(["convert", str(cap), "--out", str(tmp_path / "c.parquet")]) == 0
+    assert_same_log(read_parquet_drive(tmp_path / "c.parquet"), read_drive(tmp_path / "c.csv"))
+
+
+def test_evaluate_gives_the_same_numbers_on_csv_and_parquet(city: DriveLog, tmp_path: Path) -> None:
+    write_drive(tmp_path / "d.csv", city)
+    write_parquet_drive(tmp_path / "d.parquet", city)
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert cli(["evaluate", str(tmp_path / "d.csv"), "--json", str(a)]) == 0
+    assert cli(["evaluate", str(tmp_path / "d.parquet"), "--json", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_without_pyarrow_a_one_line_error(city: DriveLog, tmp_path: Path) -> None:
+    write_parquet_drive(tmp_path / "d.parquet", city)
+    code = (
+        "import sys; sys.modules['pyarrow'] = None\n"
+        "from hdrd.cli import main\n"
+        f"sys.exit(main(['evaluate', {str(tmp_path / 'd.parquet')!r}]))\n"
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert p.returncode == 1
+    assert p.stderr.strip().splitlines() == [
+        "hdrd evaluate: error: Parquet drive logs need pyarrow: pip install 'hdrd[fleet]'"
+    ]
