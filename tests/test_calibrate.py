@@ -750,7 +750,7 @@ def test_startup_window_details() -> None:
 
 
 def test_sample_clock_limits_exactly() -> None:
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
 
     c = SampleClock(max_step_us=1_000_000, confirm=2)
     assert c.accept(0) and c.accept(1_000_000)  # a step of exactly the largest counts
@@ -813,7 +813,7 @@ def test_two_samples_are_measured_without_a_warning() -> None:
 
 
 def test_sample_clock_default_largest_step_is_2_s() -> None:
-    from hdrd.calibrate import SampleClock
+    from hdrd.clocks import SampleClock
 
     c = SampleClock()
     assert c.accept(0) and c.accept(2_000_000) and not c.accept(4_000_001)

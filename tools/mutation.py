@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MODULES: dict[str, tuple[list[str], list[str] | None]] = {
     "hdr": (["tests/test_hdr.py"], None),
     "resample": (["tests/test_resample.py"], None),
-    "clocks": (["tests/test_resample.py"], None),
+    "clocks": (["tests/test_resample.py", "tests/test_calibrate.py"], None),
     "frames": (["tests/test_frames.py"], None),
     "capture": (["tests/test_frames.py"], None),
     "sensor": (["tests/test_sensor.py"], None),
@@ -57,7 +57,6 @@ MODULES: dict[str, tuple[list[str], list[str] | None]] = {
             "hdrd.calibrate.xǁStandstillLimitsǁ*",
             "hdrd.calibrate.xǁBiasRecordǁ*",
             "hdrd.calibrate.xǁStartupWindowǁ*",
-            "hdrd.calibrate.xǁSampleClockǁ*",
         ],
     ),
     "pipeline": (["tests/test_pipeline.py"], None),
