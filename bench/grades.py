@@ -47,8 +47,8 @@ from _common import machine_line, replace_section
 from hdrd.analysis.evaluate import PreparedDrive, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.drivelog import DriveLog
-from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.gyronoise import GyroNoise
+from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.grades import GRADES, Grade, grade_model, grade_noise
 from hdrd.sim.gyro import StaticBias, WhiteNoise
 
@@ -150,7 +150,9 @@ def noise_of(grade: str) -> GyroNoise:
     """The error model a daemon configured for this gyro would be given (``plus.grade``)."""
     if grade == "coarse":
         g = grade_noise("automotive")
-        return replace(g, white_dps_per_rthz=COARSE_WHITE, temp_coeff_dps_per_c=0.0, source="grade coarse")
+        return replace(
+            g, white_dps_per_rthz=COARSE_WHITE, temp_coeff_dps_per_c=0.0, source="grade coarse"
+        )
     return grade_noise(grade)
 
 
@@ -166,7 +168,9 @@ CASES = ("given", "withheld", "withheld, curving road", "curving, calibration er
 start-up calibration error with a driving offset."""
 
 
-def case_drives(spec: DriveSpec, grade: str) -> tuple[DriveLog, dict[str, tuple[PreparedDrive, np.ndarray]]]:
+def case_drives(
+    spec: DriveSpec, grade: str
+) -> tuple[DriveLog, dict[str, tuple[PreparedDrive, np.ndarray]]]:
     """The drive's log and, per case, its prepared drive and the error added to its steps
     (deg/s; zeros but for the calibration-error case)."""
     log = log_of(spec, grade)
