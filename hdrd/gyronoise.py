@@ -234,7 +234,7 @@ def noise_in_force(
        configured (source ``config``);
     3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.
 
-    None when nothing is known: HDR+ learns the bias's random walk online. ValueError for an
+    None when nothing is known: HDR+ weighs a stable and a drifting bias by evidence. ValueError for an
     unknown grade."""
     if recorded is not None and recorded.known():
         return recorded

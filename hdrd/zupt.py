@@ -1,6 +1,6 @@
-"""Standstill detection and bias refinement (zero-rate updates), pure.
+"""Standstill detection, and what a calibration window says about the gyro; pure.
 
-Two pieces that HDR+ (:mod:`hdrd.hdrplus`) combines, usable on their own:
+Pieces that HDR+ (:mod:`hdrd.hdrplus`) combines, usable on their own:
 
 - :func:`standstill_candidate`: does one step T look like standstill? With a speed (m/s, e.g.
   from gpsd or the CAN bus) a step is a candidate when the speed is at or below
@@ -10,21 +10,9 @@ Two pieces that HDR+ (:mod:`hdrd.hdrplus`) combines, usable on their own:
   mean must both be small, and :class:`StandstillParams` asks for more consecutive steps
   (``steps_gyro``) than with a speed (``steps_speed``). A gyro alone cannot tell a stop from a
   perfectly straight, smooth stretch of road; that is why speed is preferred.
-- :class:`BiasState` with :func:`predict` and :func:`update`: a two-state Kalman filter of
-  the gyro's bias relative to the start-up static bias eps0 (paper Eq. 2),
-  ``bias(temp) = b + k * (temp - t_ref)``: b in deg/s, k the temperature coefficient in
-  deg/s/degC, t_ref the first temperature seen. Each standstill step is a measurement of the
-  bias (the true rate is zero) whose variance is the block's sample variance divided by the
-  number of samples, so a stop contributes in proportion to how long and how quietly the
-  vehicle stood (inverse-variance weighting). Between measurements the bias variance grows by
-  a random walk (``q`` in (deg/s)^2/s), so old measurements count less.
-- A third state, c, the *standstill offset*: what a stop reads minus the bias while driving.
-  A quantised gyro whose noise is below its step reads the same code at every stop (its mean
-  can miss the bias by up to half a step, however long it stands), and vibration can shift a
-  MEMS gyro's bias while driving. Stops measure b + c, straight driving measures b; the
-  start-up calibration itself was a stop, so at start b = -c + (calibration error): prior
-  var(b) = var(eps0) + F, var(c) = F, cov(b, c) = -F, F the offset's variance (a quantisation
-  step's q^2/12). With F = 0 the model is the two-state one exactly.
+- The bias model these stops feed, a Kalman filter of the bias, the standstill offset, the
+  temperature coefficient, the road's curvature and the heading error, is
+  :mod:`hdrd.biasbank`.
 - :class:`CalibrationNoise` and :func:`calibration_noise`: what a start-up calibration window
   says about the gyro's noise (the variance of eps0 and of one step's mean at standstill, the
   quantisation step, the samples per step), for HDR+'s settings (:meth:`hdrd.hdrplus.
@@ -37,24 +25,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 __all__ = [
-    "INITIAL_BIAS",
-    "BiasState",
     "CalibrationNoise",
     "StandstillParams",
     "block_mean_variance",
     "calibration_noise",
-    "correction",
-    "init_bias",
-    "predict",
     "quantization_step",
     "standstill_candidate",
-    "update",
 ]
 
 
@@ -142,79 +123,6 @@ def block_mean_variance(spread_dps: float, params: StandstillParams) -> float:
     """
     s = params.spread_dps if math.isnan(spread_dps) else spread_dps
     return (s * s + params.noise_floor_dps * params.noise_floor_dps) / params.samples_per_step
-
-
-class BiasState(NamedTuple):
-    """The bias model relative to eps0: bias(temp) = b + k * (temp - t_ref) while driving; a
-    stop reads b + c + k * (temp - t_ref). Immutable.
-
-    b, c: deg/s. k: deg/s/degC. p_bb, p_bk, p_kk, p_bc, p_cc, p_ck: the covariance of (b, c,
-    k), in (deg/s)^2, (deg/s)^2/degC, (deg/s/degC)^2; p_bb and p_kk NaN until :func:`init_bias`
-    sets the prior. t_ref: the reference temperature, degC (NaN until a temperature is seen).
-    """
-
-    b: float = 0.0
-    k: float = 0.0
-    p_bb: float = math.nan
-    p_bk: float = 0.0
-    p_kk: float = math.nan
-    t_ref: float = math.nan
-    c: float = 0.0
-    p_bc: float = 0.0
-    p_cc: float = 0.0
-    p_ck: float = 0.0
-
-
-INITIAL_BIAS = BiasState()
-
-
-def init_bias(state: BiasState, p0: float, k_sd: float, offset_var: float = 0.0) -> BiasState:
-    """Set the prior if not yet set: var(b) = p0 + F, sd(k) = k_sd deg/s/degC, var(c) = F,
-    cov(b, c) = -F, with F = ``offset_var`` (deg/s)^2, the standstill offset's variance."""
-    if not math.isnan(state.p_bb):
-        return state
-    f = offset_var
-    return state._replace(p_bb=p0 + f, p_kk=k_sd * k_sd, p_bc=-f, p_cc=f)
-
-
-def correction(state: BiasState, dT: float) -> float:
-    """The modelled bias change since eps0 while driving, at dT degC above t_ref, deg/s."""
-    return state.b + state.k * dT
-
-
-def predict(state: BiasState, q: float, T: float) -> BiasState:
-    """Let T seconds pass: the bias performs a random walk of q (deg/s)^2 per second."""
-    return state._replace(p_bb=state.p_bb + q * T)
-
-
-def update(state: BiasState, z: float, r: float, dT: float, stop: bool = False) -> BiasState:
-    """Kalman update with a measurement z (deg/s) at dT (degC above t_ref) of variance r
-    ((deg/s)^2): of the driving bias (h = [1, 0, dT] over b, c, k), or with ``stop`` of what
-    a stop reads (h = [1, 1, dT]). With dT = 0 k does not move; with F = 0, c does not."""
-    hs = 1.0 if stop else 0.0
-    b, c, k = state.b, state.c, state.k
-    p_bb, p_bc, p_bk = state.p_bb, state.p_bc, state.p_bk
-    p_cc, p_ck, p_kk = state.p_cc, state.p_ck, state.p_kk
-    ph0 = p_bb + hs * p_bc + dT * p_bk  # (P h)_b
-    ph1 = p_bc + hs * p_cc + dT * p_ck  # (P h)_c
-    ph2 = p_bk + hs * p_ck + dT * p_kk  # (P h)_k
-    s = ph0 + hs * ph1 + dT * ph2 + r
-    k0 = ph0 / s
-    k1 = ph1 / s
-    k2 = ph2 / s
-    innov = z - (b + hs * c + k * dT)
-    # P <- P - K (P h)^T, written out for the symmetric 3x3 case.
-    return state._replace(
-        b=b + k0 * innov,
-        c=c + k1 * innov,
-        k=k + k2 * innov,
-        p_bb=p_bb - k0 * ph0,
-        p_bc=p_bc - k0 * ph1,
-        p_bk=p_bk - k0 * ph2,
-        p_cc=p_cc - k1 * ph1,
-        p_ck=p_ck - k1 * ph2,
-        p_kk=p_kk - k2 * ph2,
-    )
 
 
 # -- what a calibration window says about the gyro's noise ------------------------------------

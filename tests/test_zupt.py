@@ -1,4 +1,4 @@
-"""Standstill detection and bias refinement (hdrd/zupt.py), alone and inside HDR+.
+"""Standstill detection (hdrd/zupt.py) and the bias refinement at stops, alone and inside HDR+.
 
 Rates in deg/s, + = CCW; speeds m/s; temperatures degC. Inputs are hand-made step sequences
 (block mean u = raw mean - eps0, within-block spread), not simulator output, so each test
@@ -11,19 +11,11 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
+from hdrd import biasbank as bb
 from hdrd import zupt
 from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, run_batch, step
-from hdrd.zupt import (
-    INITIAL_BIAS,
-    BiasState,
-    StandstillParams,
-    block_mean_variance,
-    standstill_candidate,
-    update,
-)
+from hdrd.zupt import StandstillParams, block_mean_variance, standstill_candidate
 
 NAN = math.nan
 SS = StandstillParams()
@@ -128,7 +120,8 @@ def test_yaw_does_not_move_at_standstill() -> None:
     # Driving with a residual bias makes yaw move; at standstill omega is 0 whatever u is.
     u = [0.2] * 75
     speed = [10.0] * 10 + [0.0] * 60 + [10.0] * 5
-    tr = run_batch(u, [0.15] * 75, speed, None, 1.0, HdrPlusParams())
+    still = HdrPlusParams(heading_fix=False)
+    tr = run_batch(u, [0.15] * 75, speed, None, 1.0, still)
     a = 10 + SS.steps_speed - 1  # the first zero-rate update
     assert tr.standstill.tolist() == [False] * a + [True] * (70 - a) + [False] * 5
     assert np.all(tr.omega[a:70] == 0.0)
@@ -139,6 +132,13 @@ def test_yaw_does_not_move_at_standstill() -> None:
     # moved much in 10 s, so not all of it at once.
     assert abs(tr.omega[70]) < 0.3 * 0.2
     assert tr.bias_corr_dps[69] == pytest.approx(0.2, abs=0.06)
+    # With the heading fix (the default), the yaw moves at a stop only by the correction of
+    # what the bias error bent it while driving (the car did not turn: the truth is 0).
+    fix = run_batch(u, [0.15] * 75, speed, None, 1.0, HdrPlusParams())
+    assert np.all(fix.omega[a:70] == 0.0)
+    moved = np.diff(fix.yaw[a - 1 : 70])
+    assert np.allclose(moved, fix.heading_fix_deg[a:70], rtol=0.0, atol=1e-12)
+    assert abs(fix.yaw[69]) < 0.5 * abs(fix.yaw[a - 1])
 
 
 def test_zero_rate_update_through_step_publishes_standstill() -> None:
@@ -162,7 +162,7 @@ def test_bias_converges_to_the_true_bias_on_a_noisy_stationary_segment() -> None
     u = true_bias + sigma / math.sqrt(n_samples) * rng.standard_normal(steps)
     # A bias that does not wander (q = 0) and a vague start-up prior: the filter's answer
     # is then the mean of the block means, as good as the samples allow.
-    p = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=0.0)
+    p = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=0.0, bank=False)
     tr = run_batch(u, np.full(steps, sigma), np.zeros(steps), None, 1.0, p)
     used = steps - (SS.steps_speed - 1)  # the first steps of a stop are not measurements
     expect_sd = math.sqrt(sigma**2 + SS.noise_floor_dps**2) / math.sqrt(n_samples * used)
@@ -180,11 +180,11 @@ def test_a_wandering_bias_is_followed_from_stop_to_stop() -> None:
     n = 40
     u = [0.10] * n + [0.18] * n
     speed = [0.0] * (2 * n)
-    fast = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=4e-5, stop_offset_var=0.0)
+    fast = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=4e-5, stop_offset_var=0.0, bank=False)
     tr = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, fast)
     assert tr.bias_corr_dps[n - 1] == pytest.approx(0.10, abs=0.005)
     assert tr.bias_corr_dps[-1] == pytest.approx(0.18, abs=0.01)
-    slow = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0))
+    slow = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0, bank=False))
     assert 0.10 < slow.bias_corr_dps[-1] < 0.16
 
 
@@ -196,23 +196,22 @@ def _weighted_mean(z: list[float], r: list[float]) -> float:
 def test_stops_weigh_by_duration_and_quietness() -> None:
     # With a vague prior and no random walk, the estimate is the inverse-variance weighted
     # mean of the stops' block means: a long stop outweighs a short one, a quiet one a loud one.
-    p0 = 1e6
     ss = StandstillParams()
     stops = [(0.10, 0.1, 20), (0.20, 0.4, 20), (0.40, 0.1, 2)]  # (bias seen, spread, steps)
-    state = INITIAL_BIAS
-    state = zupt.init_bias(state, p0, 0.0)
+    f = bb.prior(1e6, 0.0, 0.0, 0.0)
+    x, P = list(f.x), list(f.P)
     z: list[float] = []
     r: list[float] = []
     for bias, spread, steps in stops:
         for _ in range(steps):
             var = block_mean_variance(spread, ss)
-            state = update(state, bias, var, 0.0)
+            bb.update(x, P, 1.0, 0.0, 0.0, bias, var)
             z.append(bias)
             r.append(var)
-    assert state.b == pytest.approx(_weighted_mean(z, r), abs=1e-6)
+    assert x[bb.B] == pytest.approx(_weighted_mean(z, r), abs=1e-6)
     # The quiet 20-step stop dominates: the estimate sits near 0.10, not at the plain mean.
     plain = float(np.mean([s[0] for s in stops]))
-    assert abs(state.b - 0.10) < abs(state.b - plain) / 2
+    assert abs(x[bb.B] - 0.10) < abs(x[bb.B] - plain) / 2
 
 
 def test_temperature_coefficient_is_learned_from_stops_at_different_temperatures() -> None:
@@ -228,99 +227,6 @@ def test_temperature_coefficient_is_learned_from_stops_at_different_temperatures
     tr = run_batch(u, spread, speed, temp, 1.0, p)
     assert tr.temp_coeff_dps_per_c[-1] == pytest.approx(k_true, rel=0.05)
     assert tr.bias_corr_dps[-1] == pytest.approx(b_true + k_true * 12.0, abs=2e-3)
-
-
-@given(
-    b=st.floats(-1, 1),
-    k=st.floats(-0.05, 0.05),
-    p_bb=st.floats(1e-8, 1.0),
-    p_kk=st.floats(1e-8, 1e-2),
-    rho=st.floats(-0.9, 0.9),
-    z=st.floats(-2, 2),
-    r=st.floats(1e-6, 1.0),
-    dT=st.floats(-30, 30),
-)
-def test_update_is_the_kalman_update(
-    b: float, k: float, p_bb: float, p_kk: float, rho: float, z: float, r: float, dT: float
-) -> None:
-    p_bk = rho * math.sqrt(p_bb * p_kk)
-    s = BiasState(b, k, p_bb, p_bk, p_kk, 0.0)
-    out = update(s, z, r, dT)
-    P = np.array([[p_bb, p_bk], [p_bk, p_kk]])
-    h = np.array([1.0, dT])
-    K = P @ h / (h @ P @ h + r)
-    x = np.array([b, k]) + K * (z - h @ np.array([b, k]))
-    P2 = (np.eye(2) - np.outer(K, h)) @ P
-    assert [out.b, out.k] == pytest.approx(x.tolist(), rel=1e-9, abs=1e-12)
-    assert [out.p_bb, out.p_bk, out.p_kk] == pytest.approx(
-        [P2[0, 0], P2[0, 1], P2[1, 1]], rel=1e-6, abs=1e-15
-    )
-    assert out.p_bb <= p_bb + 1e-15  # a measurement never makes the bias less certain
-
-
-def test_predict_and_prior() -> None:
-    s = zupt.init_bias(INITIAL_BIAS, 2.5e-3, 0.01)
-    assert (s.p_bb, s.p_kk, s.p_bk) == (2.5e-3, pytest.approx(1e-4), 0.0)
-    assert zupt.init_bias(s, 1.0, 1.0) is s  # set once
-    assert zupt.predict(s, 1e-6, 10.0).p_bb == pytest.approx(2.5e-3 + 1e-5)
-    assert zupt.correction(s._replace(b=0.1, k=0.01), 5.0) == pytest.approx(0.15)
-
-
-# -- the standstill offset c and the three-state update ------------------------------------------
-
-
-@given(
-    p_bb=st.floats(1e-8, 1.0),
-    p_cc=st.floats(1e-8, 1.0),
-    p_kk=st.floats(1e-8, 1e-2),
-    rho_bc=st.floats(-0.9, 0.9),
-    rho_bk=st.floats(-0.5, 0.5),
-    z=st.floats(-2, 2),
-    r=st.floats(1e-6, 1.0),
-    dT=st.floats(-30, 30),
-    stop=st.booleans(),
-)
-def test_three_state_update_is_the_kalman_update(
-    p_bb: float,
-    p_cc: float,
-    p_kk: float,
-    rho_bc: float,
-    rho_bk: float,
-    z: float,
-    r: float,
-    dT: float,
-    stop: bool,
-) -> None:
-    p_bc = rho_bc * math.sqrt(p_bb * p_cc)
-    p_bk = rho_bk * math.sqrt(p_bb * p_kk)
-    s = BiasState(0.1, 0.002, p_bb, p_bk, p_kk, 0.0, -0.03, p_bc, p_cc, 0.0)
-    got = update(s, z, r, dT, stop=stop)
-    P = np.array([[p_bb, p_bc, p_bk], [p_bc, p_cc, 0.0], [p_bk, 0.0, p_kk]])
-    x = np.array([0.1, -0.03, 0.002])
-    h = np.array([1.0, 1.0 if stop else 0.0, dT])
-    S = h @ P @ h + r
-    K = P @ h / S
-    x2 = x + K * (z - h @ x)
-    P2 = P - np.outer(K, h @ P)
-    assert np.allclose([got.b, got.c, got.k], x2, rtol=1e-9, atol=1e-12)
-    want = [P2[0, 0], P2[0, 1], P2[0, 2], P2[1, 1], P2[1, 2], P2[2, 2]]
-    have = [got.p_bb, got.p_bc, got.p_bk, got.p_cc, got.p_ck, got.p_kk]
-    assert np.allclose(have, want, rtol=1e-8, atol=1e-14)
-
-
-def test_stops_cannot_see_the_driving_bias_through_the_offset() -> None:
-    # Prior: eps0 known to 1e-6, but what a stop reads may differ from the driving bias by
-    # F = 1e-3 (deg/s)^2. A thousand perfect stops do not narrow b below F; one straight
-    # stretch's measurements do.
-    s = zupt.init_bias(INITIAL_BIAS, 1e-6, 0.0, offset_var=1e-3)
-    assert s.p_bb == pytest.approx(1e-6 + 1e-3) and s.p_bc == -1e-3 and s.p_cc == 1e-3
-    for _ in range(1000):
-        s = update(s, 0.0, 1e-6, 0.0, stop=True)
-    assert s.p_bb > 0.9e-3
-    for _ in range(200):
-        s = update(s, 0.05, 0.05, 0.0)
-    assert s.b == pytest.approx(0.05, abs=0.01) and s.p_bb < 3e-4
-    assert s.b + s.c == pytest.approx(0.0, abs=1e-3)  # the stops' reading is kept
 
 
 # -- what a calibration window says ---------------------------------------------------------------
