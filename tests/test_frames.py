@@ -682,14 +682,14 @@ def test_many_bad_candidates_are_counted_as_few_are(
     bad_before as the push parser."""
     from unittest import mock
 
-    from hdrd import frames as frames_mod
+    from hdrd import capture as capture_mod
 
     data = b"".join(pieces)
     bb: list[int] = []
     whole = run("hdr-bin", data, None, bb)
     with (
-        mock.patch.object(frames_mod, "_SCAN_BYTES", scan),
-        mock.patch.object(frames_mod, "_KEEP_FAILED", keep_failed),
+        mock.patch.object(capture_mod, "_SCAN_BYTES", scan),
+        mock.patch.object(capture_mod, "_KEEP_FAILED", keep_failed),
     ):
         arr, vstats = decode_capture(data)
     assert (array_to_frames(arr), vstats) == whole and vstats.bad_before.tolist() == bb
@@ -698,7 +698,7 @@ def test_many_bad_candidates_are_counted_as_few_are(
 def test_second_pass_on_a_known_capture() -> None:
     from unittest import mock
 
-    from hdrd import frames as frames_mod
+    from hdrd import capture as capture_mod
 
     f = [Frame(seq=k, t_us=100_000 * k, rate=32768 + k, ref=0, temp_cc=None) for k in range(6)]
     bad = bytearray(encode_bin(f[2]))
@@ -706,7 +706,7 @@ def test_second_pass_on_a_known_capture() -> None:
     data = encode_bin(f[0]) + SYNC + encode_bin(f[1]) + bytes(bad) + SYNC + SYNC
     data += b"".join(encode_bin(x) for x in f[3:])
     for keep in (0, 1 << 20):
-        with mock.patch.object(frames_mod, "_KEEP_FAILED", keep):
+        with mock.patch.object(capture_mod, "_KEEP_FAILED", keep):
             arr, st_ = decode_capture(data)
         assert array_to_frames(arr) == [f[0], f[1], f[3], f[4], f[5]]
         assert st_.bad_frames == 4 and st_.bad_before.tolist() == [0, 1, 4, 4, 4]
