@@ -381,3 +381,21 @@ def test_the_streamed_gap_report_is_the_json_of_the_whole(tmp_path: Path) -> Non
         want = json.dumps({"drives": drives, "skipped": skipped}, indent=2) + "\n"
         assert path.read_text() == want
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r0.json", "r1.json", "r2.json"]
+
+
+def test_the_gap_fleet_summary_orders_ties_by_name_whatever_the_arrival_order() -> None:
+    from collections import Counter
+
+    from hdrd.analysis.gap.fleet import gap_fleet_summary
+
+    lines = {
+        gap_fleet_summary(Counter(dict(order)), 2, 0)
+        for order in (
+            [("scale_factor", 2), ("quantization", 2), ("white_noise", 1)],
+            [("quantization", 2), ("white_noise", 1), ("scale_factor", 2)],
+        )
+    }
+    assert lines == {
+        "fleet: 2 drives analysed; effects found: quantization in 2 (100 %), "
+        "scale_factor in 2 (100 %), white_noise in 1 (50 %)"
+    }

@@ -47,7 +47,9 @@ def gap_fleet_summary(found: Counter[str], n: int, skipped: int) -> str:
     head = f"fleet: {n} drives analysed" + (f", {skipped} skipped" if skipped else "")
     if not found:
         return head + "; no effect missing from the model in any drive"
-    parts = [f"{e} in {k} ({100 * k / n:.0f} %)" for e, k in found.most_common()]
+    # most often first, ties by name: the same line whatever order the drives came back in
+    ranked = sorted(found.items(), key=lambda ek: (-ek[1], ek[0]))
+    parts = [f"{e} in {k} ({100 * k / n:.0f} %)" for e, k in ranked]
     return head + "; effects found: " + ", ".join(parts)
 
 
