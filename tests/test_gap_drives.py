@@ -36,6 +36,7 @@ def test_stop_interior_leaves_out_the_stop_edges_short_stops_and_excluded_rows()
     assert not stop_interior(no_speed).any()
 
 
+@pytest.mark.slow  # 20+ s of CPU: a whole gap search on a 40-minute drive
 def test_a_1hz_phone_drive_is_read_from_its_gps_course() -> None:
     """The simulator's own phone gyro read once a second, its GPS course the only truth: the
     white noise is read inside the stops (the straights' second differences read the road's
