@@ -13,7 +13,7 @@ simulated drive at 100 Hz (``bench/_common.py``: 363,000 frames, 1 % of the byte
   whole capture at once; its first call in the process is reported apart (fresh memory).
 
 Both give the same frames and counters (checked here too). Figures: best of ``--repeats`` runs,
-wall clock and CPU time (``time.process_time``), against issue 8's targets (push >= 500,000
+wall clock and CPU time (``time.process_time``), against the targets (push >= 500,000
 frames/s, vectorised >= 5,000,000) and the wire's limit (a 3 Mbaud link carries at most 18,750
 hdr-bin frames/s). Prints them and appends them to bench/RESULTS.md.
 """

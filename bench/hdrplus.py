@@ -530,7 +530,7 @@ def tune(n: int, seed: int, routes_n: int) -> None:
         )
 
 
-# -- the city study (issue 9: why HDR+ gains least in city grids; not run by default) ------------
+# -- the city study (why HDR+ gains least in city grids; not run by default) ------------
 
 CITY_SEEDS = {"city": 70001, "suburbs": 80001, "mixed": 90001}
 """First seeds of the city study's extra training routes (seed + 37 j): none is a test

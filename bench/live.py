@@ -24,7 +24,7 @@ measure, over the ``--seconds`` after its first step message (imports and start-
 work does to the figures (CPU time per wake-up grows with cold caches; latency with the wait
 for a core).
 
-Targets (issue 8) at 1 kHz: <= 2 % of one core, peak RSS <= 60 MB, p99 latency <= 2 ms.
+Targets at 1 kHz: <= 2 % of one core, peak RSS <= 60 MB, p99 latency <= 2 ms.
 Prints the figures and appends them, with the machine's description, to bench/RESULTS.md.
 """
 

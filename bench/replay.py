@@ -10,7 +10,7 @@ reading and decoding the capture, the pipeline and one JSON line per step, writt
 time (user + system) and the multiple of real time (device time / wall time). A breakdown by
 phase comes from one more run in a fresh interpreter that times each phase itself.
 
-Target (issue 8): <= 0.5 s, i.e. >= 7,200x real time. Prints the figures and appends them to
+Target: <= 0.5 s, i.e. >= 7,200x real time. Prints the figures and appends them to
 bench/RESULTS.md.
 """
 

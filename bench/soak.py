@@ -5,7 +5,7 @@
                          [--garbage 0.002] [--crc-errors 0.002] [--drop 0.002]
                          [--pull-every-min 30] [--pull-for 2] [--json FILE]
 
-Issue 7 item 6. The daemon runs as a process (`python -m hdrd run`) on a pty written by
+The daemon runs as a process (`python -m hdrd run`) on a pty written by
 :class:`hdrd.fakegyro.FakeGyro` with a simulated drive (``hdrd.sim``), accelerated
 ``--speedup`` times, with garbage, CRC errors and dropped frames at the given per-frame
 probabilities throughout, and a cable pull (pty and its symlink gone, ``--pull-for`` wall

@@ -14,7 +14,7 @@ Takes about 20 s.
   ``READY=1`` datagram. With ``--bias`` the daemon is ready once the port delivers a frame
   (at most 10 ms at 100 Hz after it opens the port), no calibration.
 
-Target (issue 8): ``hdrd --help`` <= 0.3 s. Prints the figures and appends them to
+Target: ``hdrd --help`` <= 0.3 s. Prints the figures and appends them to
 bench/RESULTS.md.
 """
 

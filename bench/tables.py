@@ -15,7 +15,7 @@ them one by one):
    recordings of ../shared/data/ (skipped, and said so, if the folder is absent).
 
 Then it times :func:`hdrd.analysis.tune.tune` in-process on the nine drives with 10,000
-parameter sets (issue 8's target: <= 30 s), computes the continuous-heading Eψ the paper's
+parameter sets (target: <= 30 s), computes the continuous-heading Eψ the paper's
 Table II must have used, and rewrites its own section of bench/RESULTS.md
 ("## Table II analogue (simulated) and real recordings"), leaving every other section as it is.
 """
@@ -412,7 +412,7 @@ def render(
 
     # -- speed ---------------------------------------------------------------------------------
     best = min(times)
-    L.append("### Tuning speed (issue 8)")
+    L.append("### Tuning speed")
     L.append("")
     L.append(
         f"`tune()` with 10,000 parameter sets on the nine drives (4.45 h, "

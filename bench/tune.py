@@ -10,7 +10,7 @@ refinement; every set scored on all nine drives by :func:`hdrd.hdr.run_many`, th
 the paper's set re-run with the scalar stepper). Best and median of ``--repeats`` runs, wall and
 CPU time; a profile split from one more run (scoring vs the rest).
 
-Target (issue 8): <= 30 s. Prints the figures and appends them to bench/RESULTS.md.
+Target: <= 30 s. Prints the figures and appends them to bench/RESULTS.md.
 """
 
 from __future__ import annotations

@@ -458,7 +458,7 @@ def parse_config(data: Any, source: str | None = None) -> Config:
 
 
 def _top_level_method(data: dict[Any, Any]) -> dict[Any, Any]:
-    """A top-level ``method: hdr+`` (issue 9's spelling) is ``hdr.method``; giving both with
+    """A top-level ``method: hdr+`` (an older spelling) is ``hdr.method``; giving both with
     different values is an error. Returns the mapping with it moved into ``hdr``."""
     if "method" not in data:
         return data

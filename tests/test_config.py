@@ -1,7 +1,7 @@
 """Configuration (hdrd/config.py) and the shipped config/hdrd.yaml.
 
 Every key is validated (type, range, finite, known key); a bad file fails with one line that
-names the key, the value and what is allowed (issue 2 item 7, issue 7 item 4).
+names the key, the value and what is allowed.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The fast paths agree (issue 8 item 3): one realistic capture through all of them.
+"""The fast paths agree: one realistic capture through all of them.
 
 The vectorised capture decoder (``hdrd replay``), the push parser (what the live source runs)
 and the live daemon's path (a real pty read by :class:`hdrd.source.SerialSource`, each frame

@@ -1,4 +1,4 @@
-"""Issue 7 item 1, bad bytes: the parsers and the pipeline never crash on anything the wire
+"""Bad bytes: the parsers and the pipeline never crash on anything the wire
 can carry, recover every intact frame, and count every bad one.
 
 What tests/test_frames.py already covers is not repeated here: arbitrary bytes never raise

@@ -1,4 +1,4 @@
-"""Issue 7 items 2, 3 and 5: `hdrd run` as a process under trouble it cannot prevent.
+"""`hdrd run` as a process under trouble it cannot prevent.
 
 A real daemon process reads a fake gyro on a real pty (through a symlink that disappears with
 it on a cable pull) and publishes over real UDP; a NOTIFY_SOCKET listens where systemd would.

@@ -1,4 +1,4 @@
-"""Issue 7 item 6, soak: the short version of bench/soak.py in the test suite.
+"""Soak: the short version of bench/soak.py in the test suite.
 
 Ten minutes of device time of a simulated drive at 100 Hz, played 100 times faster to a real
 `hdrd run` process on a fake-gyro pty, with garbage, CRC errors and dropped frames throughout

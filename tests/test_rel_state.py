@@ -1,4 +1,4 @@
-"""Issue 7 item 4: bad configuration and state, as `hdrd run` and `hdrd calibrate` meet them.
+"""Bad configuration and state, as `hdrd run` and `hdrd calibrate` meet them.
 
 Already covered elsewhere and not repeated: every config key with each kind of bad value
 (wrong type, out of range, NaN/inf), unknown keys per section, empty file, YAML errors and a

@@ -1,4 +1,4 @@
-"""CRS03-04 sensor model (hdrd/sensor.py): ADC counts <-> deg/s (+ = CCW), issue 2 item 4.
+"""CRS03-04 sensor model (hdrd/sensor.py): ADC counts <-> deg/s (+ = CCW).
 
 Defaults: 16-bit unipolar ADC, volts = counts * 5.0 / 2**16, null 2.5 V, 10 mV/(deg/s),
 polarity +1, range +/-200 deg/s; ratiometric with a supply monitor behind a 1:2 divider.

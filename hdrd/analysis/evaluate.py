@@ -261,9 +261,9 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
     """``{"drives": [{"name", "duration_min", "E_psi_raw", "E_psi_<m>", "NE_psi_raw",
     "NE_psi_<m>", "improvement"}], "mean": {same keys except name}}``.
 
-    With the default methods (none, hdr) the keys are exactly those of issue 5:
+    With the default methods (none, hdr) the keys are the original ones:
     E_psi_raw, E_psi_hdr, NE_psi_raw, NE_psi_hdr. With ``--method none`` alone, E_psi_none and
-    NE_psi_none repeat the raw values (issue 9 names keys E_psi_<method>). ``improvement`` is Eψ(raw) / Eψ(primary
+    NE_psi_none repeat the raw values (keys E_psi_<method> name each method). ``improvement`` is Eψ(raw) / Eψ(primary
     method); when more than one method besides ``none`` is evaluated, ``improvement_<m>`` is
     added for each. Non-finite numbers (an improvement over a zero error) are null. The mean
     row's duration_min is the mean duration.
@@ -281,7 +281,7 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
             d[f"E_psi_{method_key(m)}"] = _num(r.e_psi[m] if r else summary.e_psi[m])
         for m in ms:
             d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
-        if list(ms) == ["none"]:  # --method none: issue 9's E_psi_<method> spelling too
+        if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
             d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
         d["improvement"] = _num(r.improvement if r else summary.improvement)
         if len(extra) > 1:

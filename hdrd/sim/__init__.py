@@ -1,4 +1,4 @@
-"""Seeded simulation of drives and of the gyro's errors (issue 5; docs/gyro-model.md).
+"""Seeded simulation of drives and of the gyro's errors (docs/gyro-model.md).
 
 - :func:`simulate_drive`: a drive log (hdrd.drivelog) of a road type, with the raw gyro output
   from a :class:`GyroModel`, the true rate, 1 Hz GPS course, speed and cabin temperature.
