@@ -130,7 +130,7 @@ def load_yaml(text: str) -> Any:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
-        problem = getattr(e, "problem", None) or "syntax error"
+        problem = _clipped(getattr(e, "problem", None) or "syntax error")
         if problem.startswith(("collections nested", "value cannot")):
             raise InputFileError(f"YAML {problem}", where) from None
         raise InputFileError(f"YAML syntax error: {problem}", where) from None
@@ -143,6 +143,18 @@ def load_yaml(text: str) -> Any:
     finally:
         if loader is not None:
             loader.dispose()
+
+
+MAX_PROBLEM_CHARS = 160
+"""Longest YAML problem text quoted in an error: PyYAML quotes the offending text (an
+unknown tag of any length) and the error must stay one readable line."""
+
+
+def _clipped(problem: str) -> str:
+    """*problem*, cut to MAX_PROBLEM_CHARS with an ellipsis."""
+    if len(problem) <= MAX_PROBLEM_CHARS:
+        return problem
+    return problem[: MAX_PROBLEM_CHARS - 1] + "\u2026"
 
 
 def _line_column(text: str, position: int) -> str:
