@@ -342,9 +342,7 @@ class _Run:
     def state(self) -> PlusState:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
         stable = Filter(tuple(self.x0), tuple(self.P0)) if self.p.bank else None
-        bank = BankState(
-            Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref
-        )
+        bank = BankState(Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref)
         return PlusState(core, bank, self.still)
 
     def advance(self, u: float, sp: float, v: float, te: float, T: float) -> PlusOutput:

@@ -114,7 +114,9 @@ def test_log_evidence() -> None:
     assert ratio == pytest.approx(0.5 * (0.09 / 0.01 - 0.09 / 0.04) - 0.5 * math.log(4.0))
     assert ratio > 2.0
     # No variance: no evidence either way.
-    assert bb.log_evidence(0.3, 0.0, 0.0, 0.01) == 0.0 and bb.log_evidence(0.0, 0.01, 0.3, 0.0) == 0.0
+    assert (
+        bb.log_evidence(0.3, 0.0, 0.0, 0.01) == 0.0 and bb.log_evidence(0.0, 0.01, 0.3, 0.0) == 0.0
+    )
 
 
 def test_update_returns_the_innovation_and_its_variance() -> None:
