@@ -361,27 +361,30 @@ calibration error, a coarse-ADC pseudo-grade; bench/grades.py) and the *tuning* 
 evaluate fits HDR+ to each drive (`hdrd.methods.plus_settings`: the calibration record, the
 log's output step). The judging drives were then run once. **Disclosure:** these judging
 drives had been run before with earlier HDR+ designs (judging mean 3.251, then 3.072 after one
-setting of that design was switched off because of them), so they are not untouched; the
-present design (a stable and a drifting bias filter weighed by evidence) was chosen without
-looking at them again.
+setting of that design was switched off because of them, then 2.886 with the bank's first
+form of evidence), so they are not untouched; the present evidence (each filter's prediction
+of every straight step and stop) and `drift_prior` 0.3 were chosen without looking at them
+again.
 
 **Reading** (written by hand from the run above; re-read the tables if the code changed).
-HDR+ does not reach the real-drive targets: on the judging drives its mean NEψ (2.89 deg/min)
-is 0.92 of bias removal's (3.14; the target is 0.67) and below paper HDR's (3.33; the
-previous HDR+ 3.07); one of seven judging drives is more than 10 % and 0.5° worse than bias
-removal (DrivePlotR 8: 4.8° -> 10.2°; the previous HDR+ had two, paper HDR four); rtklib
-drive 0708 (a tactical-grade IMU whose calibrated bias is the best constant one in hindsight)
-1.11° -> 1.45°, within the 0.5° allowance. The tuning drives gain (3.84 -> 2.98; HDR 2.50).
-The DrivePlotR logs are 1 Hz point samples of a phone gyro in 1/16 deg/s steps: aliasing of
-turns and a scale-factor error of 3-17 % against the GPS course dominate their heading error
-(the best constant bias in hindsight leaves 1.1-1.6 deg/min), and their roads curve gently
-(the straight-driving steps have a mean true rate of 0.025 deg/s per drive, 4x the
-simulator's roads). On the 2.4-hour drive 30 with its hindsight bias given, HDR+ 42.3° ->
-26.7° (paper HDR 57.3°); smartLoc with its hindsight bias 1.42° -> 1.44°.
+HDR+ does not reach the real-drive targets: on the judging drives its mean NEψ (2.90 deg/min)
+is 0.92 of bias removal's (3.14; the target is 0.67) and below paper HDR's (3.33). Against
+the bank's first form of evidence the judging drives are slightly worse (2.899 vs 2.886
+deg/min) and two of seven, not one, are more than 10 % and 0.5° worse than bias removal:
+DrivePlotR 8 (4.8° -> 9.3°; it had 10.2°) and DrivePlotR 18 (24.7° -> 28.1°; it had 26.3°);
+rtklib drive 0708 (a tactical-grade IMU whose calibrated bias is the best constant one in
+hindsight) 1.11° -> 1.57° (it had 1.45°), within the 0.5° allowance. The tuning drives gain
+(3.84 -> 2.89; the first form 2.98; HDR 2.50). The DrivePlotR logs are 1 Hz point samples of
+a phone gyro in 1/16 deg/s steps: aliasing of turns and a scale-factor error of 3-17 % against
+the GPS course dominate their heading error (the best constant bias in hindsight leaves
+1.1-1.6 deg/min), and their roads curve gently (the straight-driving steps have a mean true
+rate of 0.025 deg/s per drive, 4x the simulator's roads). On the 2.4-hour drive 30 with its
+hindsight bias given, HDR+ 42.3° -> 18.2° (paper HDR 57.3°); smartLoc with its hindsight
+bias 1.42° -> 1.60°.
 
 *With the grade configured* (the grade chosen from the hardware): rtklib drive 0708 with the
 tactical preset 1.11° -> 1.09°; drive 30 with the phone preset 42.3° -> 14.6°; but the
-DrivePlotR judging drives as a set do worse with the phone preset (3.18 vs 2.89; drive 18
+DrivePlotR judging drives as a set do worse with the phone preset (3.18 vs 2.90; drive 18
 24.7° -> 44.5°): a preset is a guess at a part, and a recorded error model (`hdrd calibrate
 --seconds 1800`) would be the gyro's.
 """

@@ -19,12 +19,13 @@ The start-up calibration was itself a stop, so at start b = -c + (calibration er
 var(b) = p0 + F, var(c) = F, cov(b, c) = -F, var(k) = sd(k)^2, var(r) = road_var, psi = 0.
 
 A *bank* of two such filters differs only in the bias random walk: *stable* (q_stable, a gyro
-whose bias stays put) and *drifting* (q_drifting, a gyro that warms up or wanders). Their
-weight follows evidence (:func:`log_evidence`), from two kinds of residuals of the stable
-filter: each stop's mean against what it predicted (clean: no road in it), and the mean of
-each window of straight steps against its bias (roads in it: a floor allows for them). Under
-"stable" such a residual has variance A, under "drifting" A + D, D the drift the stable
-filter cannot follow: their likelihood ratio moves the log-odds of "drifting".
+whose bias stays put) and *drifting* (q_drifting, a gyro that warms up or wanders). Both take
+every measurement; their weight follows how well each predicted it (:func:`log_evidence`,
+a multiple-model estimator): the log-odds of "drifting" gain log N(nu1; S1) - log N(nu0; S0)
+from each measurement's innovations nu and their variances S. A stop's reading is allowed a
+shared floor in both S (a start-up calibration error is a constant, not a drift). The road
+state is in both filters: a gently curving road is predicted by each alike, and only a bias
+that moves further than the stable filter allows counts for "drifting".
 
 State as flat tuples (mean: 5 floats; covariance: 25, row-major) so that a step is an
 immutable value; the functions below work on lists in place, for the batch form's speed.
@@ -108,10 +109,11 @@ def heading_predict(P: list[float], T: float, dT: float) -> None:
 
 def update(
     x: list[float], P: list[float], hc: float, hk: float, hr: float, z: float, r: float
-) -> None:
+) -> tuple[float, float]:
     """Kalman update in place with a measurement z (deg/s) of variance r ((deg/s)^2) of
     b + hc c + hk k + hr r (a stop: hc = 1, hr = 0; straight driving: hc = 0, hr = 1; hk =
-    the temperature above T_ref)."""
+    the temperature above T_ref). Returns the innovation (deg/s) and its variance
+    ((deg/s)^2), from before the update."""
     ph = [P[i * 5] + hc * P[i * 5 + 1] + hk * P[i * 5 + 2] + hr * P[i * 5 + 3] for i in range(5)]
     s = ph[0] + hc * ph[1] + hk * ph[2] + hr * ph[3] + r
     innov = z - (x[0] + hc * x[1] + hk * x[2] + hr * x[3])
@@ -121,15 +123,16 @@ def update(
         row = i * 5
         for j in range(N_STATES):
             P[row + j] -= g * ph[j]
+    return innov, s
 
 
-def log_evidence(residual: float, var: float, drift_var: float) -> float:
-    """log p(residual | drifting) - log p(residual | stable) for a Gaussian residual of variance
-    var under "stable" and var + drift_var under "drifting" (all in deg/s and (deg/s)^2)."""
-    if not (var > 0.0) or not (drift_var > 0.0):
+def log_evidence(nu1: float, s1: float, nu0: float, s0: float) -> float:
+    """log N(nu1; 0, s1) - log N(nu0; 0, s0): how much better the drifting filter (innovation
+    nu1, deg/s, of variance s1, (deg/s)^2) predicted a measurement than the stable one (nu0,
+    s0). 0 when either variance is not positive."""
+    if not (s1 > 0.0) or not (s0 > 0.0):
         return 0.0
-    z2 = residual * residual
-    return 0.5 * z2 * (1.0 / var - 1.0 / (var + drift_var)) - 0.5 * math.log1p(drift_var / var)
+    return -0.5 * (nu1 * nu1 / s1 - nu0 * nu0 / s0) - 0.5 * math.log(s1 / s0)
 
 
 class BankState(NamedTuple):
@@ -139,25 +142,13 @@ class BankState(NamedTuple):
     then the model's), and the bank's "drifting" one (None until the first step sets the
     prior). stable: the bank's "stable" filter (None when the bank is off). log_odds: log of
     the odds that the gyro drifts (NaN until the first step). t_ref: the reference
-    temperature, degC (NaN until one is seen). since: seconds driven since the last stop
-    closed. stop_z, stop_w: the open stop's inverse-variance weighted sums (deg/s/(deg/s)^2,
-    1/(deg/s)^2); stop_pred, stop_var: what the stable filter predicted it would read, and
-    that prediction's variance. win_n, win_sum, win_var: the open window of straight steps:
-    steps, the sum of (u - the stable filter's bias), deg/s, and that bias's variance.
+    temperature, degC (NaN until one is seen).
     """
 
     drifting: Filter | None = None
     stable: Filter | None = None
     log_odds: float = math.nan
     t_ref: float = math.nan
-    since: float = 0.0
-    stop_z: float = 0.0
-    stop_w: float = 0.0
-    stop_pred: float = 0.0
-    stop_var: float = 0.0
-    win_n: int = 0
-    win_sum: float = 0.0
-    win_var: float = 0.0
 
 
 INITIAL_BANK = BankState()

@@ -12,9 +12,9 @@ measurements behind every default.
    - With a temperature, or with the gyro's error model known (a grade, parameters recorded
      by ``hdrd calibrate``), one filter, whose random walk is the model's.
    - Without either (the default for an unknown recording), a *bank* of two: a *stable* gyro
-     and a *drifting* one, weighed by evidence: each stop's reading and each window of
-     straight steps against what the stable filter expected. The correction is their
-     weighted mean; the heading is corrected when a stop (or the road) moves the estimate.
+     and a *drifting* one, weighed by evidence: how well each predicted every stop's reading
+     and every straight step. The correction is their weighted mean; the heading is
+     corrected when a stop (or the road) moves the estimate.
 2. **The core's increment follows the bias uncertainty**: i_c = ``ic_alpha`` x the bias sd
    (capped at ``i_c_max``). With the bank, only while the evidence says the gyro drifts (on a
    stable gyro the binary increment only straightens real gentle curves); with a known model,
@@ -95,24 +95,15 @@ class HdrPlusParams:
     """The stable gyro's bias random walk, (deg/s)^2/s (0.006 deg/s over an hour)."""
     q_drifting: float = 1e-5
     """The drifting gyro's, (deg/s)^2/s (a 0.1 deg/s warm-up within 15 minutes)."""
-    drift_prior: float = 0.2
+    drift_prior: float = 0.3
     """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
     drift_odds_max: float = 4.6
     """The log-odds of "drifting" stay within +-this (1 % .. 99 %): later evidence can always
     turn the bank round."""
-    drift_window: int = 30
-    """Straight steps per window of evidence."""
-    window_floor_dps: float = 0.04
-    """A window's mean against the stable bias is allowed this much road, deg/s, beyond its
-    own scatter, before it counts as evidence of drift ..."""
-    drift_dps: float = 0.1
-    """... and a drifting gyro's bias is expected this far from a stable one's, deg/s."""
     stop_floor_dps: float = 0.02
-    """A stop's reading against the stable prediction is allowed this much, deg/s (a start-up
-    calibration error is a constant, not a drift); a drifting gyro's bias moves q_drifting per
-    second driven since the last stop (at most ``drift_since_max_s``)."""
-    drift_since_max_s: float = 1200.0
-    """Longest time since the last stop that counts for a stop's drift allowance, s."""
+    """A stop's reading is allowed this much error, deg/s, in both filters' innovation
+    variance when it is weighed as evidence (a start-up calibration error is a constant, not a
+    drift)."""
     heading_fix: bool = True
     """With the bank, correct the heading for the bias error a measurement reveals (by the
     covariance of the heading error and the bias)."""
@@ -164,10 +155,6 @@ class HdrPlusParams:
                 continue
             if f.type in ("bool", bool):
                 object.__setattr__(self, f.name, bool(v))
-            elif f.type in ("int", int):
-                if int(v) < 1:
-                    raise ValueError(f"{f.name} must be >= 1, got {v!r}")
-                object.__setattr__(self, f.name, int(v))
             elif f.name == "block_var":
                 v = float(v)
                 if not (math.isnan(v) or (math.isfinite(v) and v >= 0.0)):
@@ -350,32 +337,12 @@ class _Run:
         self.P0 = list(f0.P) if f0 is not None else []
         lo = k.log_odds
         self.log_odds = math.log(p.drift_prior / (1.0 - p.drift_prior)) if math.isnan(lo) else lo
-        self.t_ref, self.since = k.t_ref, k.since
-        self.stop_z, self.stop_w, self.stop_pred, self.stop_var = (
-            k.stop_z,
-            k.stop_w,
-            k.stop_pred,
-            k.stop_var,
-        )
-        self.win_n, self.win_sum, self.win_var = k.win_n, k.win_sum, k.win_var
+        self.t_ref = k.t_ref
 
     def state(self) -> PlusState:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
         stable = Filter(tuple(self.x0), tuple(self.P0)) if self.p.bank else None
-        bank = BankState(
-            Filter(tuple(self.x1), tuple(self.P1)),
-            stable,
-            self.log_odds,
-            self.t_ref,
-            self.since,
-            self.stop_z,
-            self.stop_w,
-            self.stop_pred,
-            self.stop_var,
-            self.win_n,
-            self.win_sum,
-            self.win_var,
-        )
+        bank = BankState(Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref)
         return PlusState(core, bank, self.still)
 
     def advance(self, u: float, sp: float, v: float, te: float, T: float) -> PlusOutput:
@@ -425,33 +392,29 @@ class _Run:
             cand = abs(level) <= p.stop_gate_sigma * math.sqrt(allow)
         self.still = still = self.still + 1 if cand else 0
         zero = cand and still >= need
-        if bank and self.stop_w > 0.0 and not zero:
-            # A stop closed: its mean against the stable filter's prediction is evidence.
-            nu = self.stop_z / self.stop_w - self.stop_pred
-            var = self.stop_var + 1.0 / self.stop_w + self.q2 + p.stop_floor_dps**2
-            drift = p.q_drifting * min(self.since, p.drift_since_max_s)
-            self.log_odds += bb.log_evidence(nu, var, drift)
-            self.since, self.stop_z, self.stop_w = 0.0, 0.0, 0.0
         fix = bank and p.heading_fix
         if zero:
             # Zero-rate update: the true rate is 0, so u measures what a stop reads, b + c.
-            if bank and self.stop_w == 0.0:
-                self.stop_pred = x0[bb.B] + x0[bb.C]
-                self.stop_var = P0[0] + 2.0 * P0[1] + P0[6]
             s_ = ss.spread_dps if math.isnan(sp) else sp
             rv = (s_ * s_ + ss.noise_floor_dps * ss.noise_floor_dps) / ss.samples_per_step
             if not math.isnan(p.block_var) and p.block_var > rv:
                 rv = p.block_var
-            if bank:
-                self.stop_z += u / rv
-                self.stop_w += 1.0 / rv
             # I is folded into b first (omega = u - b + I = u - (b - I)); I, a sum of +-i_c
             # steps, is only known to about one increment.
-            for xm, Pm in ((x1, P1), (x0, P0)) if p.bank else ((x1, P1),):
-                xm[bb.B] -= self.I
+            x1[bb.B] -= self.I
+            if still == need:
+                P1[0] += inc * inc
+            nu1, s1 = bb.update(x1, P1, 1.0, dT, 0.0, u, rv + self.q2)
+            if p.bank:
+                x0[bb.B] -= self.I
                 if still == need:
-                    Pm[0] += inc * inc
-                bb.update(xm, Pm, 1.0, dT, 0.0, u, rv + self.q2)
+                    P0[0] += inc * inc
+                nu0, s0 = bb.update(x0, P0, 1.0, dT, 0.0, u, rv + self.q2)
+                if bank:
+                    # Evidence: which filter predicted the stop's reading better (both allow
+                    # a calibration error: stop_floor_dps).
+                    f2 = p.stop_floor_dps**2
+                    self.log_odds += bb.log_evidence(nu1, s1 + f2, nu0, s0 + f2)
             self.x, self.I, self.r, self.s, self.n = 0.0, 0.0, 1, 0, self.n + 1
             omega, I_out, W, R, r_out, y = 0.0, 0.0, 0, 1.0, 1, 0.0
         else:
@@ -471,20 +434,11 @@ class _Run:
             self.I = I_out - s * W * R * inc if hp.enabled else 0.0
             self.x, self.r, self.s, self.n = x, r_out, s, self.n + 1
             if p.straight_r > 0.0 and W and abs(omega) <= p.straight_gate_dps:
-                if bank:
-                    self.win_sum += u - corr0
-                    self.win_var = P0[0]
-                    self.win_n += 1
-                bb.update(x1, P1, 0.0, dT, 1.0, u, p.straight_r)
+                nu1, s1 = bb.update(x1, P1, 0.0, dT, 1.0, u, p.straight_r)
                 if p.bank:
-                    bb.update(x0, P0, 0.0, dT, 1.0, u, p.straight_r)
-                if bank and self.win_n >= p.drift_window:
-                    n = self.win_n
-                    var = self.win_var + p.straight_r / n + p.window_floor_dps**2
-                    self.log_odds += bb.log_evidence(self.win_sum / n, var, p.drift_dps**2)
-                    self.win_n, self.win_sum = 0, 0.0
-            if bank:
-                self.since += T
+                    nu0, s0 = bb.update(x0, P0, 0.0, dT, 1.0, u, p.straight_r)
+                    if bank:  # evidence: which filter predicted this step (and its road) better
+                        self.log_odds += bb.log_evidence(nu1, s1, nu0, s0)
         heading = 0.0
         if fix:
             heading = (1.0 - w1) * x0[bb.PSI] + w1 * x1[bb.PSI]

@@ -102,13 +102,32 @@ def test_stops_cannot_see_the_driving_bias_through_the_offset() -> None:
 
 
 def test_log_evidence() -> None:
-    # A residual near 0 favours "stable", a large one "drifting"; the crossing is where
-    # z^2 (1/A - 1/(A + D)) = ln(1 + D/A).
-    A, D = 0.04**2, 0.1**2
-    assert bb.log_evidence(0.0, A, D) == pytest.approx(-0.5 * math.log1p(D / A))
-    assert bb.log_evidence(0.2, A, D) > 5.0
-    z0 = math.sqrt(math.log1p(D / A) / (1 / A - 1 / (A + D)))
-    assert bb.log_evidence(z0, A, D) == pytest.approx(0.0, abs=1e-12)
-    assert bb.log_evidence(-0.2, A, D) == bb.log_evidence(0.2, A, D)
-    # No variance or no drift allowance: no evidence either way.
-    assert bb.log_evidence(0.3, 0.0, D) == 0.0 and bb.log_evidence(0.3, A, 0.0) == 0.0
+    # The same innovation under the same variance: no evidence. A filter that predicted the
+    # measurement better (a smaller innovation at the same variance) gains; a larger variance
+    # costs 0.5 ln(s1/s0) when the innovation is 0 (it spread its bet).
+    assert bb.log_evidence(0.1, 0.01, 0.1, 0.01) == 0.0
+    assert bb.log_evidence(0.0, 0.01, 0.2, 0.01) == pytest.approx(0.5 * 0.04 / 0.01)
+    assert bb.log_evidence(0.2, 0.01, 0.0, 0.01) == pytest.approx(-2.0)
+    assert bb.log_evidence(0.0, 0.04, 0.0, 0.01) == pytest.approx(-0.5 * math.log(4.0))
+    # a large innovation favours the filter that allowed for it
+    ratio = bb.log_evidence(0.3, 0.04, 0.3, 0.01)
+    assert ratio == pytest.approx(0.5 * (0.09 / 0.01 - 0.09 / 0.04) - 0.5 * math.log(4.0))
+    assert ratio > 2.0
+    # No variance: no evidence either way.
+    assert (
+        bb.log_evidence(0.3, 0.0, 0.0, 0.01) == 0.0 and bb.log_evidence(0.0, 0.01, 0.3, 0.0) == 0.0
+    )
+
+
+def test_update_returns_the_innovation_and_its_variance() -> None:
+    # A stop (b + c) measured at 0.1 deg/s against a prior of 0: the innovation is 0.1 and its
+    # variance var(b) + 2 cov(b, c) + var(c) + r (the prior's b + c has variance p_b).
+    f = bb.prior(0.01, 0.002, 0.0, 0.0025)
+    x, P = list(f.x), list(f.P)
+    nu, s = bb.update(x, P, 1.0, 0.0, 0.0, 0.1, 0.003)
+    assert nu == pytest.approx(0.1) and s == pytest.approx(0.01 + 0.003)
+    # straight driving (b + r): var(b) + var(r) + r
+    g = bb.prior(0.01, 0.002, 0.0, 0.0025)
+    y, Q = list(g.x), list(g.P)
+    nu, s = bb.update(y, Q, 0.0, 0.0, 1.0, -0.05, 0.05)
+    assert nu == pytest.approx(-0.05) and s == pytest.approx(0.012 + 0.0025 + 0.05)

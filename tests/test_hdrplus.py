@@ -97,11 +97,7 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         q_stable=draw(st.sampled_from([0.0, 1e-8])),
         q_drifting=draw(st.sampled_from([1e-6, 1e-5, 1e-3])),
         drift_prior=draw(st.floats(0.01, 0.99)),
-        drift_window=draw(st.integers(1, 4)),
-        window_floor_dps=draw(st.sampled_from([0.0, 0.04])),
-        drift_dps=draw(st.sampled_from([0.0, 0.1])),
         stop_floor_dps=draw(st.sampled_from([0.0, 0.02])),
-        drift_since_max_s=draw(st.sampled_from([10.0, 1200.0])),
         drift_odds_max=draw(st.sampled_from([0.5, 4.6])),
         heading_fix=draw(st.booleans()),
         road_var=draw(st.sampled_from([0.0, 0.0025])),
@@ -183,12 +179,12 @@ def test_params_are_checked() -> None:
         HdrPlusParams(straight_r=-1.0)
     with pytest.raises(ValueError, match="bias_q"):
         HdrPlusParams(bias_q=math.inf)
-    with pytest.raises(ValueError, match="drift_window"):
-        HdrPlusParams(drift_window=0)
+    with pytest.raises(ValueError, match="stop_floor_dps"):
+        HdrPlusParams(stop_floor_dps=-0.01)
     with pytest.raises(ValueError, match="drift_prior"):
         HdrPlusParams(drift_prior=1.0)
     assert HdrPlusParams().hdr == PLUS_CORE
-    assert HdrPlusParams().with_(drift_window=2).drift_window == 2
+    assert HdrPlusParams().with_(drift_prior=0.5).drift_prior == 0.5
 
 
 # -- paper HDR is HDR+ with every extra off -------------------------------------------------------
@@ -383,6 +379,38 @@ def test_without_temperature_the_bank_weighs_stable_against_drifting() -> None:
     assert np.all(warm.drift_weight == 1.0) and np.all(warm.bias_q == p.bias_q)
 
 
+def _warm_up_ne(name: str, j: int) -> dict[str, float]:
+    """NEpsi (deg/min) of none / paper HDR / HDR+ on a simulated CRS03-04 drive whose cabin
+    warms (the training type ``name``, seed + 1000 j), calibrated over its 30 s start-up
+    standstill, with the temperature withheld (as on a real recording)."""
+    from hdrd.analysis.evaluate import method_yaw, prepare_drive
+    from hdrd.analysis.metrics import e_psi
+    from hdrd.sim.benchmark import TRAIN_DRIVES, generate
+    from hdrd.sim.grades import grade_model
+
+    spec = next(s for s in TRAIN_DRIVES if s.name == name)
+    spec = replace(spec, seed=spec.seed + 1000 * j)
+    prep = prepare_drive(
+        generate(spec, hz=10.0, model=grade_model("crs03", spec.seed)), calibrate_seconds=30.0
+    )
+    prep = replace(prep, steps=replace(prep.steps, temp_c=None))
+    return {
+        m: float(e_psi(method_yaw(prep, m), prep.truth, prep.k)) / prep.duration_min
+        for m in ("none", "hdr", "hdr+")
+    }
+
+
+@pytest.mark.parametrize(("name", "j", "factor"), [("highway1", 1, 6.0), ("city2", 1, 0.5)])
+def test_a_warm_up_without_temperature_is_followed(name: str, j: int, factor: float) -> None:
+    # A CRS03-04 whose bias warms up by ~0.17 deg/s in the first 20 minutes, the temperature
+    # withheld: the bank must take it for "drifting" soon enough to follow it. Highway: long
+    # straight stretches and few stops (paper HDR's best case, 0.03 deg/min): within 6x of
+    # paper HDR and a tenth of bias removal. City: many stops: below half of paper HDR's.
+    ne = _warm_up_ne(name, j)
+    assert ne["hdr+"] <= factor * ne["hdr"]
+    assert ne["hdr+"] <= 0.25 * ne["none"]
+
+
 def test_one_curving_window_moves_the_evidence_a_bounded_step() -> None:
     # 30 "straight" steps of a long gentle curve at 0.4 deg/s (under the turn switch) after
     # a quiet start: evidence of drift, but the odds stay within +-drift_odds_max, and the
@@ -434,8 +462,10 @@ def test_the_stop_gate_lets_a_calibration_error_in() -> None:
 
 def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
     # 300 s of straight driving with a 0.015 deg/s calibration error, a 30 s stop, 300 s
-    # more: the stop measures the error, and the heading is corrected for the 4.5 deg it
-    # drifted before (heading_fix); without the fix the drift stays in the heading.
+    # more: the stop measures the error, and the heading is corrected for most of the 4.5
+    # deg it drifted before (heading_fix; the stable filter for all of it, the drifting one,
+    # weighted 0.3 at start and less as the evidence comes in, for less: its bias wanders, so
+    # it ties less of the old heading error to today's bias); without the fix the drift stays.
     n1, ns, n2 = 300, 30, 300
     n = n1 + ns + n2
     road = _road(n, 3)
@@ -453,9 +483,9 @@ def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
     err_fix = fix.yaw - truth
     err_keep = keep.yaw - truth
     assert abs(err_keep[n1 - 1]) > 3.0  # the drift before the stop, 4.5 deg less what roads taught
-    assert abs(err_fix[n1 + ns - 1]) < 1.2 < 3.0 < abs(err_keep[n1 + ns - 1])
-    assert float(np.sum(fix.heading_fix_deg)) == pytest.approx(-err_keep[n1 - 1], rel=0.25)
-    assert abs(err_fix[-1]) < 1.5 and fix.bias_corr_dps[-1] == pytest.approx(0.015, abs=0.002)
+    assert abs(err_fix[n1 + ns - 1]) < 0.3 * abs(err_keep[n1 + ns - 1])
+    assert float(np.sum(fix.heading_fix_deg)) == pytest.approx(-err_keep[n1 - 1], rel=0.3)
+    assert abs(err_fix[-1]) < 2.0 and fix.bias_corr_dps[-1] == pytest.approx(0.015, abs=0.002)
 
 
 def test_fitted_from_a_calibration_and_a_noise_model() -> None:
@@ -509,19 +539,19 @@ def _stop_go(
 
 
 def test_stops_say_whether_the_bias_moves() -> None:
-    # An unknown gyro without a temperature: each stop's mean against what the stable filter
-    # predicted is the cleanest evidence. Stops that read the same bias keep the bank with
-    # "stable"; stops that show a drift of 0.05 deg/s per leg turn it to "drifting". (Windows
-    # alone, the bias steps here are small: each leg's is below the road allowance.)
+    # An unknown gyro without a temperature: a stop's reading, which of the two filters
+    # predicted it better, is the cleanest evidence (no road in it). Stops that read the same
+    # bias keep the bank with "stable"; stops that show a drift of 0.05 deg/s per leg turn it
+    # to "drifting".
     p = HdrPlusParams(block_var=0.005**2, bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
     still = run_batch(*_stop_go(8, 0.0, 1), None, 1.0, p)
     drift = run_batch(*_stop_go(8, 0.05, 1), None, 1.0, p)
     assert still.drift_weight[-1] < 0.05 < 0.95 < drift.drift_weight[-1]
-    # the evidence moves when a stop closes (at its first driving step; the weight published
-    # is the one in force at a step's start, so it shows one step later)
-    closes = [140 * i + 1 for i in range(1, 8)]
+    # the large moves come at stops (the weight published is the one in force at a step's
+    # start, so a stop step's evidence shows one step later)
+    at_stops = set((np.flatnonzero(drift.standstill) + 1).tolist())
     jumps = np.flatnonzero(np.diff(drift.drift_weight) > 0.05) + 1
-    assert set(jumps.tolist()) <= set(closes)
+    assert jumps.size > 0 and set(jumps.tolist()) <= at_stops
     # a known model, or a temperature: one filter, no bank
     fixed = run_batch(*_stop_go(8, 0.05, 1), None, 1.0, p.with_(bank=False))
     assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == p.bias_q_no_temp)
@@ -531,7 +561,7 @@ def test_stops_say_whether_the_bias_moves() -> None:
 def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool) -> None:
     # Longer than the hypothesis rows: stops close, the evidence and the heading fix run.
     u, sp, v = _stop_go(4, 0.03, seed)
-    p = HdrPlusParams(block_var=1e-4, drift_window=20, bank=not gated)
+    p = HdrPlusParams(block_var=1e-4, bank=not gated)
     tr = run_batch(u, sp, v, None, 1.0, p)
     outs, final = _loop(list(zip(u, sp, v, [NAN] * len(u), strict=True)), p, 1.0)
     assert _same(tr.final, final)

@@ -133,12 +133,14 @@ def test_yaw_does_not_move_at_standstill() -> None:
     assert abs(tr.omega[70]) < 0.3 * 0.2
     assert tr.bias_corr_dps[69] == pytest.approx(0.2, abs=0.06)
     # With the heading fix (the default), the yaw moves at a stop only by the correction of
-    # what the bias error bent it while driving (the car did not turn: the truth is 0).
+    # what the bias error bent it while driving (the car did not turn: the truth is 0). A
+    # bias 0.2 deg/s off after 10 s is evidence of a drifting gyro (weight 0.99 at the stop),
+    # whose filter ties only part of the old heading error to today's bias: a third of it.
     fix = run_batch(u, [0.15] * 75, speed, None, 1.0, HdrPlusParams())
     assert np.all(fix.omega[a:70] == 0.0)
     moved = np.diff(fix.yaw[a - 1 : 70])
     assert np.allclose(moved, fix.heading_fix_deg[a:70], rtol=0.0, atol=1e-12)
-    assert abs(fix.yaw[69]) < 0.5 * abs(fix.yaw[a - 1])
+    assert abs(fix.yaw[69]) < 0.7 * abs(fix.yaw[a - 1])
 
 
 def test_zero_rate_update_through_step_publishes_standstill() -> None:
