@@ -147,7 +147,7 @@ def test_a_long_unknown_key_is_cut_in_the_error(tmp_path: Path) -> None:
         load_config(p)
     msg = str(ei.value)
     assert "hdr.kkk" in msg and "k" * 100 not in msg and "unknown key" in msg
-    assert len(msg) - len(str(p)) < 300 and msg.endswith("\u2026")
+    assert len(msg) - len(str(p)) < 300
 
 
 # -- hdrd simulate: sizes and the model file ----------------------------------------------------
