@@ -62,6 +62,7 @@ MODULES: dict[str, tuple[list[str], list[str] | None]] = {
     "pipeline": (["tests/test_pipeline.py"], None),
     "zupt": (["tests/test_zupt.py"], None),
     "hdrplus": (["tests/test_hdrplus.py"], None),
+    "biasbank": (["tests/test_biasbank.py"], None),
 }
 TIMEOUT_MULTIPLIER = 5.0
 TIMEOUT_CONSTANT_S = 5.0
