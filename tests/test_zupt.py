@@ -258,3 +258,82 @@ def test_calibration_noise_of_white_noise_at_100_hz() -> None:
     assert c.quant_step_dps == 0.25 and c.codes <= 3
     with pytest.raises(ValueError):
         zupt.calibration_noise([0.1], [0.0])
+
+
+# -- limits and exact arithmetic (each assertion pins one comparison or formula) ----------------
+
+
+def test_every_standstill_limit_is_inclusive() -> None:
+    at = StandstillParams(gyro_only=True)
+    assert standstill_candidate(0.0, at.spread_dps, 0.0, at)[0] is True
+    assert standstill_candidate(at.level_dps, 0.1, 0.0, at)[0] is True
+    assert standstill_candidate(-at.level_dps, 0.1, 0.0, at)[0] is True
+    assert standstill_candidate(0.0, at.gyro_spread_dps, NAN, at)[0] is True
+    assert standstill_candidate(at.gyro_level_dps, 0.05, NAN, at)[0] is True
+    assert standstill_candidate(-at.gyro_level_dps, 0.05, NAN, at)[0] is True
+
+
+def test_one_sample_per_step_is_allowed() -> None:
+    # a 1 Hz log averages one sample per step of 1 s
+    assert StandstillParams(samples_per_step=1.0).samples_per_step == 1.0
+    assert StandstillParams(samples_per_step=0.5).samples_per_step == 0.5
+    with pytest.raises(ValueError, match="samples_per_step must be > 0"):
+        StandstillParams(samples_per_step=0.0)
+
+
+def test_block_mean_variance_adds_the_floor_in_quadrature() -> None:
+    ss = StandstillParams(samples_per_step=4.0, noise_floor_dps=0.5, spread_dps=2.0)
+    assert block_mean_variance(1.0, ss) == (1.0 + 0.25) / 4.0
+    assert block_mean_variance(NAN, ss) == (4.0 + 0.25) / 4.0  # unknown: the largest allowed
+
+
+def test_calibration_noise_counts_samples_per_step_from_the_span() -> None:
+    w = np.tile([0.1, -0.1], 51)[:101]
+    t = np.arange(101) / 10.0  # 10 Hz over exactly 10 s
+    c = zupt.calibration_noise(w, t)  # the default step is 1 s
+    assert c.samples_per_step == 10.0
+    assert zupt.calibration_noise(w, t, 2.0).samples_per_step == 20.0
+    late = t.copy()
+    late[0] = -0.9  # a first sample further back: the span is from the first sample
+    assert zupt.calibration_noise(w, late).samples_per_step == 100 / 10.9
+    short = np.arange(6) / 10.0  # half a second: still 10 samples per second
+    assert zupt.calibration_noise(w[:6], short).samples_per_step == pytest.approx(10.0)
+    same = np.zeros(5)  # no span at all: one sample per step, no division by zero
+    assert zupt.calibration_noise(w[:5], same).samples_per_step == 1.0
+
+
+def test_calibration_noise_takes_two_samples_and_refuses_fewer_or_mismatched() -> None:
+    c = zupt.calibration_noise([0.1, 0.3], [0.0, 0.1])
+    assert c.bias_var == pytest.approx(0.02 / 2) and c.codes == 2
+    for w, t in (([0.1], [0.0]), ([0.1, 0.2], [0.0, 0.1, 0.2]), ([0.1, np.inf], [0.0, 0.1])):
+        with pytest.raises(ValueError, match="2 or more finite samples"):
+            zupt.calibration_noise(w, t)
+
+
+def test_calibration_noise_block_variance_from_whole_steps_only() -> None:
+    # Three whole steps of 10 samples (means 0, 1, 2) and a last step of 2 samples (mean 50):
+    # a step with fewer than half the samples per step does not count.
+    w = np.concatenate([np.zeros(10), np.ones(10), np.full(10, 2.0), [50.0, 50.0]])
+    t = np.arange(32) / 10.0
+    c = zupt.calibration_noise(w, t, 1.0, quant_step_dps=0.0)
+    assert c.samples_per_step == pytest.approx(10.0)
+    assert c.block_var == pytest.approx(1.0)  # var([0, 1, 2], ddof=1)
+    # steps of 2 s: one whole step (mean 0.5) and a part: too few for a variance of means
+    c2 = zupt.calibration_noise(w, t, 2.0, quant_step_dps=0.0)
+    assert c2.block_var == pytest.approx(float(np.var(w, ddof=1)) / c2.samples_per_step)
+
+
+def test_calibration_noise_reads_the_output_step_when_not_given() -> None:
+    rng = np.random.default_rng(3)
+    w = 0.244 * np.round(rng.normal(0.0, 0.5, 300) / 0.244)
+    c = zupt.calibration_noise(w, np.arange(300) / 10.0)
+    assert c.quant_step_dps == pytest.approx(0.244)
+
+
+def test_quantization_step_looks_at_the_central_half_first() -> None:
+    # Dense codes on a 0.1 lattice in the middle, a few sparse values far out on a finer one:
+    # the central half says 0.1; all values together would say nothing (0).
+    w = np.array([-0.2] * 5 + [-0.1] * 10 + [0.0] * 10 + [0.1] * 10 + [0.2] * 5 + [5.0, 5.03, 5.06])
+    assert zupt.quantization_step(w) == pytest.approx(0.1)
+    # three codes in all, the middle half on one of them: the step is read from all three
+    assert zupt.quantization_step([0.0, 0.0, 0.0, 0.0, 0.244, 0.488]) == pytest.approx(0.244)
