@@ -325,3 +325,98 @@ def test_switching_method_keeps_the_heading():
     b = run_live(p, make_frames(np.full(50, 1.0), t0_us=10_000_000))
     assert b[0]["yaw"] - a[-1]["yaw"] == pytest.approx(1.0, abs=0.2)
     assert "zupt" in b[0] and "zupt" not in a[-1]
+
+
+# -- the published message, field by field; the pacing helpers; the configuration's wiring -----
+
+
+def test_a_step_message_has_every_field_under_its_name() -> None:
+    rng = np.random.default_rng(8)
+    bias = 0.5
+    p = Pipeline(PipelineConfig(bias_dps=bias))
+    msgs = []
+    for f in make_frames(bias + rng.normal(0.0, 0.3, 200), temp_cc=2150):
+        msgs.extend(p.feed(f, 4, now=1000.0))
+    trace = hdr.run_batch(np.array([m["omega_raw"] for m in msgs]) - bias)
+    assert [m["R"] for m in msgs] == trace.R.tolist()
+    assert [m["r"] for m in msgs] == trace.r.tolist() and max(trace.r) > 1
+    m = msgs[-1]
+    assert list(m)[:2] == ["class", "v"] and m["class"] == "HDR" and m["v"] == 1
+    assert m["time"] == 1000.0 and m["bad_frames"] == 4 and m["bias"] == bias
+    assert m["temp"] == 21.5 and "gap_s" not in m
+    assert {"omega", "yaw", "heading", "I", "W", "R", "r", "samples", "status"} <= set(m)
+
+
+def test_gaps_add_up_until_the_next_step_reports_them() -> None:
+    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    frames = make_frames(np.zeros(100))
+    # two gaps: the steps of 2-3 s and 4-5 s get no sample; each is reported by the next step
+    msgs = run_live(p, frames[:20] + frames[35:36] + frames[56:])
+    assert [m["step"] for m in msgs] == [0, 1, 3, 5, 6, 7, 8, 9]
+    assert [m.get("gap_s") for m in msgs[2:4]] == [1.0, 1.0] and "gap_s" not in msgs[4]
+
+
+def test_the_stale_message_names_its_fields() -> None:
+    p = Pipeline(PipelineConfig(bias_dps=0.25, heading0_deg=10.0))
+    run_live(p, make_frames(np.full(30, 0.25)))
+    m = p.stale_message(now=None, silent_s=1.0, bad_frames=7)
+    assert m["class"] == "HDR" and m["v"] == 1 and "time" not in m
+    assert m["yaw"] == p.stepper.state.core.yaw and m["bias"] == 0.25 and m["bad_frames"] == 7
+    assert m["step"] == 2
+
+
+def test_a_heading_a_hair_below_north_is_north() -> None:
+    # (0 - 1e-20) % 360 is 360.0 in floating point: published as 0, never 360
+    assert heading_from_yaw(0.0, 1e-20) == 0.0
+    assert heading_from_yaw(0.0, -1e-20) == pytest.approx(1e-20)
+
+
+def test_sample_interval_and_time_to_the_next_step() -> None:
+    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams(T=1.0)))
+    frames = make_frames(np.zeros(14), hz=10.0)
+    assert p.sample_interval_s() is None and p.until_step_s() is None
+    for f in frames[:11]:  # one step closed; the open block [1 s, 2 s) holds the 1.0 s sample
+        p.feed(f)
+    assert p.sample_interval_s() is None  # one sample in the open block: no interval yet
+    p.feed(frames[11])
+    p.feed(frames[12])
+    assert p.sample_interval_s() == pytest.approx(0.1)  # (1.2 - 1.0) s over two intervals
+    # from the last sample (1.2 s) to one interval before the block ends (2.0 s)
+    assert p.until_step_s() == pytest.approx(2.0 - 1.2 - 0.1)
+
+
+def test_a_bias_adjustment_is_recorded_and_moves_eps0() -> None:
+    p = Pipeline(PipelineConfig(bias_dps=0.5))
+    p.adjust_bias(0.0, "gps")
+    assert p.stepper.events == [] and p.stepper.bias is not None
+    p.adjust_bias(0.125, "gps")
+    assert p.stepper.bias.bias_dps == 0.625
+    assert p.stepper.events[-1] == (
+        "bias_adjusted",
+        {"delta_dps": 0.125, "bias_dps": 0.625, "source": "gps"},
+    )
+    cal = Pipeline(PipelineConfig())  # still calibrating: nothing to adjust
+    cal.adjust_bias(0.1, "gps")
+    assert cal.stepper.bias is None and cal.stepper.events == []
+
+
+def test_reconfigure_names_what_cannot_change() -> None:
+    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    with pytest.raises(ValueError, match="^hdr.T cannot change while running; restart"):
+        p.reconfigure(PipelineConfig(bias_dps=0.0, params=HdrParams(T=2.0)))
+
+
+def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> None:
+    from hdrd.calibrate import BiasRecord
+    from hdrd.config import Config
+    from hdrd.gyronoise import GyroNoise
+    from hdrd.pipeline import pipeline_config
+
+    p = Pipeline(PipelineConfig(bias_dps=0.3))
+    assert p.stepper.bias == BiasRecord(0.3, 0.0, 0, 0.0)
+    noise = GyroNoise(white_dps_per_rthz=0.05, rrw_dps_per_sqrt_s=3e-4, quant_step_dps=0.0076)
+    rec = BiasRecord(0.42, 0.1, 300, 30.0, None, 1.0, noise)
+    pc = pipeline_config(Config(), rec)
+    assert pc.bias_dps == 0.42 and pc.bias_record is rec
+    assert pc.noise is not None and pc.noise.to_dict() == noise.to_dict()
+    assert pipeline_config(Config()).bias_dps is None
