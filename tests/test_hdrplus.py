@@ -582,3 +582,29 @@ def test_a_known_good_gyro_does_not_straighten_gentle_curves() -> None:
     truth = float(np.sum(u))
     assert np.all(gated.i_c_dps == 0.0) and np.all(gated.I == 0.0)
     assert abs(gated.yaw[-1] - truth) < abs(free.yaw[-1] - truth)
+
+
+# -- pinned by mutation testing -------------------------------------------------------------------
+
+
+def test_a_column_of_the_wrong_length_is_named() -> None:
+    with pytest.raises(ValueError, match=r"^T must have one value per step \(\(2,\) vs 3\)"):
+        run_batch(np.zeros(3), T=[1.0, 1.0])
+
+
+def test_gyro_only_standstill_needs_a_known_spread_and_no_speed() -> None:
+    params = HdrPlusParams(standstill=StandstillParams(gyro_only=True, steps_gyro=3))
+    n = 8
+    quiet = run_batch(np.zeros(n), np.full(n, 0.05), None, None, 1.0, params)
+    assert quiet.standstill.tolist() == [False] * 2 + [True] * (n - 2)
+    unknown = run_batch(np.zeros(n), None, None, None, 1.0, params)  # spread unknown too
+    assert not unknown.standstill.any()
+
+
+def test_a_standstill_step_publishes_no_correction_and_counts_as_a_step() -> None:
+    n = 10
+    tr = run_batch(np.zeros(n), np.full(n, 0.05), np.zeros(n), None, 1.0)
+    still = tr.standstill
+    assert still[-1] and still.sum() >= 5
+    assert (tr.I[still] == 0.0).all() and (tr.omega[still] == 0.0).all()
+    assert tr.final.core.n == n
