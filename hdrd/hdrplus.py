@@ -43,7 +43,7 @@ from hdrd import biasbank as bb
 from hdrd.biasbank import INITIAL_BANK, BankState, Filter
 from hdrd.gyronoise import GyroNoise
 from hdrd.hdr import INITIAL_STATE, HdrParams, HdrState
-from hdrd.zupt import CalibrationNoise, StandstillParams
+from hdrd.zupt import CalibrationNoise, StandstillParams, standstill_candidate
 
 __all__ = [
     "INITIAL_PLUS_STATE",
@@ -372,18 +372,9 @@ class _Run:
             var_t = P1[0] + dT * (2.0 * P1[bb.K] + dT * P1[bb.K * 5 + bb.K])
             inc = _increment(var_t, q1, p)
         uc = u - corr
-        # Standstill? (zupt.standstill_candidate, inline), then the gate on the level.
+        # Standstill? Then the gate on the level.
         level = uc + self.I
-        if not ss.enabled:
-            cand, need = False, ss.steps_speed
-        elif not math.isnan(v):
-            cand = v <= ss.speed_mps and not sp > ss.spread_dps and abs(level) <= ss.level_dps
-            need = ss.steps_speed
-        elif ss.gyro_only and not math.isnan(sp):
-            cand = sp <= ss.gyro_spread_dps and abs(level) <= ss.gyro_level_dps
-            need = ss.steps_gyro
-        else:
-            cand, need = False, ss.steps_gyro
+        cand, need = standstill_candidate(level, sp, v, ss)
         if cand and p.stop_gate_sigma > 0.0 and not math.isnan(p.block_var):
             hv = P1[0] + 2.0 * P1[1] + P1[6]
             if bank:
