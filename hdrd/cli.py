@@ -472,6 +472,12 @@ def _gap(p: argparse.ArgumentParser) -> None:
         help='write the report (several drives: {"drives": [report, ...], "skipped": [...]})',
     )
     p.add_argument(
+        "--plus-out",
+        metavar="PLUS.yaml",
+        help="write the fitted model as HDR+'s error model, a `plus:` configuration section "
+        "to paste into hdrd.yaml (one drive)",
+    )
+    p.add_argument(
         "--plot", metavar="FILE.png", help="measured vs simulated, before and after (one drive)"
     )
     p.add_argument(

@@ -524,3 +524,43 @@ def test_a_step_that_raises_the_gap_is_not_added(
     assert "not added at step 1: scale_factor" in summary(res)
     gaps = [res.initial_sim.gap] + [s.gap_after for s in res.steps]
     assert gaps == sorted(gaps, reverse=True)
+
+
+def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
+    from hdrd.analysis.gap.command import plus_section
+    from hdrd.config import load_config
+    from hdrd.pipeline import plus_noise
+    from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise
+
+    model = GyroModel(
+        (
+            StaticBias(0.5),
+            TemperatureBias(coeff_dps_per_c=-0.02, ref_temp_c=25.0),
+            WhiteNoise(density_dps_per_rthz=0.05),
+            BiasInstability(sigma_dps=0.01, tau_s=0.2),
+        )
+    )
+    path = tmp_path / "hdrd.yaml"
+    path.write_text(plus_section(model, "drive.csv"))
+    cfg, _ = load_config(path)  # every key valid as written (a tau below 1 s is taken as 1 s)
+    noise = plus_noise(cfg, None)
+    assert noise is not None and noise.source == "config" and noise.known()
+    assert noise.white_dps_per_rthz == 0.05 and noise.temp_coeff_dps_per_c == 0.02
+    assert noise.bias_tau_s == 1.0 and noise.bias_instability_dps > 0
+    assert "plus:\n  white_dps_per_rthz: 0.05\n" in path.read_text()
+    bare = tmp_path / "bare.yaml"
+    bare.write_text(plus_section(GyroModel((StaticBias(0.1),)), "d.csv"))
+    assert plus_noise(load_config(bare)[0], None) is None  # nothing known: nothing claimed
+
+
+def test_gap_writes_the_plus_section_for_one_drive_only(tmp_path: Path) -> None:
+    from hdrd.cli import main as cli
+
+    log = simulate_drive("city", 3.0, 2)
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    write_drive(a, log)
+    write_drive(b, log)
+    out = tmp_path / "plus.yaml"
+    assert cli(["gap", str(a), "--plus-out", str(out)]) == 0
+    assert out.read_text().splitlines()[2] == "plus:"
+    assert cli(["gap", str(a), str(b), "--plus-out", str(tmp_path / "x.yaml")]) == 1

@@ -7,9 +7,9 @@ import argparse
 import math
 import sys
 
-from hdrd.sim.gyro import DEFAULT_START_MODEL
+from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 
-__all__ = ["main", "parse_period"]
+__all__ = ["main", "parse_period", "plus_section"]
 
 
 def _err(msg: str) -> None:
@@ -33,9 +33,30 @@ def parse_period(text: str) -> tuple[float, float]:
     return t0, t1
 
 
+def plus_section(model: GyroModel, drive: str) -> str:
+    """A fitted model as HDR+'s error model: the ``plus:`` section of hdrd.yaml (the keys of
+    docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
+    from hdrd.sim.grades import model_noise
+
+    known = model_noise(model, source="config").to_dict()
+    if "bias_instability_dps" in known:  # its correlation time; the config takes 1 .. 1e6 s
+        known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
+    else:
+        known.pop("bias_tau_s", None)
+    lines = [
+        f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
+        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its plus: section.',
+        "plus:",
+    ]
+    lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
+    if not known:
+        lines.append("  grade: none  # the fit named no noise parameter HDR+ uses")
+    return "\n".join(lines) + "\n"
+
+
 def main(args: argparse.Namespace) -> int:
     """``hdrd gap MEASURED... [--model MODEL.yaml] [--out FITTED.yaml|DIR] [--report REPORT.json]
-    [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
+    [--plus-out PLUS.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
     --scheduler ADDRESS] [--no-progress]``. Exit 0 ok, 1 bad input or I/O error, 78 bad
     model file. Several drives (files, directories, globs): each analysed on its own, one line
     each (:mod:`hdrd.analysis.gap.fleet`)."""
@@ -77,6 +98,10 @@ def main(args: argparse.Namespace) -> int:
     if len(refs) > 1 and args.plot:
         _err(f"--plot draws one drive; {len(refs)} were given")
         return 1
+    plus_out = getattr(args, "plus_out", None)
+    if len(refs) > 1 and plus_out:
+        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+        return 1
     job = GapJob(start, bool(args.standstill), tuple(exclude), int(args.seed), bool(args.plot))
     try:
         with open_runner(args) as runner:
@@ -100,6 +125,10 @@ def main(args: argparse.Namespace) -> int:
             atomic_write_json(args.report, res.report)
         if args.out:
             save_model(res.model, args.out)
+        if plus_out:
+            from hdrd.files import atomic_write_text
+
+            atomic_write_text(plus_out, plus_section(res.model, measured[0]))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1
