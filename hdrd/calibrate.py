@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.errors import HdrdError
+from hdrd.errors import HdrdError, clipped
 from hdrd.files import atomic_write_text
 from hdrd.gyronoise import GyroNoise
 
@@ -410,8 +410,7 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
 
 
 def _short(v: object) -> str:
-    text = repr(v)
-    return text if len(text) <= 40 else text[:37] + "..."
+    return clipped(repr(v), 40)
 
 
 def _noise(data: object) -> GyroNoise | None:

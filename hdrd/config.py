@@ -19,7 +19,7 @@ from typing import Any
 
 from hdrd import methods
 from hdrd.calibrate import T_BIAS_S
-from hdrd.errors import HdrdError
+from hdrd.errors import HdrdError, clipped
 from hdrd.gpsd import DEFAULT_HOST, DEFAULT_PORT
 from hdrd.gyronoise import GRADE_NAMES
 from hdrd.hdr import HdrParams
@@ -57,7 +57,7 @@ class ConfigError(HdrdError, ValueError):
         shown = _show(value)
         # One line always: a key or a value read from YAML may hold line breaks.
         name = key if key.isprintable() else repr(key)
-        name = name if len(name) <= 80 else name[:77] + "..."  # a key of any length: one line
+        name = clipped(name, 80)  # a key of any length: one line
         super().__init__(f"config error{where}: {name} = {shown}: {allowed}")
 
     def with_source(self, source: str) -> ConfigError:
@@ -77,7 +77,7 @@ def _show(value: Any) -> str:
             text = repr(value)
         if not text.isprintable():  # a quoted scalar folded over lines
             text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return clipped(text, 60)
 
 
 # -- sections ---------------------------------------------------------------------------

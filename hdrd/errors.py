@@ -11,7 +11,7 @@ Light on purpose: the command line imports it (``hdrd --help`` loads no numpy).
 
 from __future__ import annotations
 
-__all__ = ["EX_CONFIG", "EX_FAILURE", "EX_OK", "EX_USAGE", "HdrdError"]
+__all__ = ["EX_CONFIG", "EX_FAILURE", "EX_OK", "EX_USAGE", "HdrdError", "clipped"]
 
 EX_OK = 0
 """Success."""
@@ -25,3 +25,9 @@ EX_CONFIG = 78
 
 class HdrdError(Exception):
     """The base of every exception hdrd raises; ``str()`` is the one line for the user."""
+
+
+def clipped(text: str, limit: int) -> str:
+    """``text`` cut to at most ``limit`` characters, ending in "..." when cut: a value, a key
+    or a quoted problem of any length stays within one readable error line."""
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from hdrd.errors import HdrdError
+from hdrd.errors import HdrdError, clipped
 
 __all__ = [
     "MAX_BIAS_BYTES",
@@ -106,6 +106,11 @@ def _size(n: int) -> str:
     return f"{n} bytes"
 
 
+MAX_PROBLEM_CHARS = 160
+"""Longest YAML problem text quoted in an error: PyYAML quotes the offending text (an
+unknown tag of any length) and the error must stay one readable line."""
+
+
 def load_yaml(text: str) -> Any:
     """``yaml.safe_load`` of a document whose collections nest at most MAX_YAML_DEPTH deep.
 
@@ -130,7 +135,7 @@ def load_yaml(text: str) -> Any:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
-        problem = _clipped(getattr(e, "problem", None) or "syntax error")
+        problem = clipped(getattr(e, "problem", None) or "syntax error", MAX_PROBLEM_CHARS)
         if problem.startswith(("collections nested", "value cannot")):
             raise InputFileError(f"YAML {problem}", where) from None
         raise InputFileError(f"YAML syntax error: {problem}", where) from None
@@ -143,18 +148,6 @@ def load_yaml(text: str) -> Any:
     finally:
         if loader is not None:
             loader.dispose()
-
-
-MAX_PROBLEM_CHARS = 160
-"""Longest YAML problem text quoted in an error: PyYAML quotes the offending text (an
-unknown tag of any length) and the error must stay one readable line."""
-
-
-def _clipped(problem: str) -> str:
-    """*problem*, cut to MAX_PROBLEM_CHARS with an ellipsis."""
-    if len(problem) <= MAX_PROBLEM_CHARS:
-        return problem
-    return problem[: MAX_PROBLEM_CHARS - 1] + "\u2026"
 
 
 def _line_column(text: str, position: int) -> str:
@@ -198,7 +191,7 @@ def _bounded_loader(yaml: Any) -> Any:
                 # AttributeError for `!!timestamp 'not a time'`, ...
                 if isinstance(e, (ValueError, OverflowError)):
                     why = (str(e).splitlines() or [type(e).__name__])[0]
-                    why = why if len(why) <= 80 else why[:77] + "..."
+                    why = clipped(why, 80)
                 else:  # a message about PyYAML's insides: say what the text is not
                     why = f"not a valid {str(node.tag).rsplit(':', 1)[-1][:40]}"
                 raise yaml.constructor.ConstructorError(

@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from hdrd.errors import HdrdError
+from hdrd.errors import HdrdError, clipped
 from hdrd.logs import log
 
 if TYPE_CHECKING:
@@ -241,7 +241,7 @@ def _shown(v: Any) -> str:
         text = repr(v)
     except (ValueError, RecursionError):  # an int beyond the str-conversion limit, deep nesting
         text = f"<{type(v).__name__}>"
-    return text if len(text) <= 40 else text[:37] + "..."
+    return clipped(text, 40)
 
 
 def _int(obj: Mapping[str, Any], key: str) -> int | None:

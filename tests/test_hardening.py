@@ -304,4 +304,4 @@ def test_a_yaml_problem_quoting_a_huge_tag_is_still_a_short_line(tmp_path: Path)
         load_bias(p)
     msg = str(ei.value)
     assert "could not determine a constructor" in msg and "\n" not in msg
-    assert len(msg) - len(str(p)) < 300 and msg.endswith("\u2026")
+    assert len(msg) - len(str(p)) < 300 and msg.endswith("...")
