@@ -52,11 +52,11 @@ from hdrd.hdrplus import (
     INITIAL_PLUS_STATE,
     PLUS_CORE,
     HdrPlusParams,
-    PlusInput,
     run_batch,
     step,
 )
 from hdrd.methods import StepInputs, plus_settings
+from hdrd.steps import StepInput
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import ScaleFactor, crs03_default_model
@@ -115,7 +115,7 @@ def gated_yaw(
     measurement, on gated steps: below a speed, or within ``holdoff_steps`` after the turn
     switch opened (the step's own filtered rate beyond theta_w, or the steps after it). The
     production step has no such gates: they did not help (docs/hdrplus.md)."""
-    frozen = p.with_(ic_alpha=0.0, hdr=replace(p.hdr, i_c=0.0), straight_r=0.0)
+    frozen = p.with_(hdr=replace(p.hdr, i_c=0.0)).ablated(ic_alpha=0.0, straight_r=0.0)
     state, hold, yaw = INITIAL_PLUS_STATE, 0, []
     for i in range(steps.u.shape[0]):
         inp = steps.input(i)
@@ -266,17 +266,17 @@ def variants() -> list[tuple[str, list[Variant]]]:
                 Variant(
                     "+ standstill + temperature model",
                     "plus",
-                    paper.with_(standstill=P.standstill, temp_model=True),
+                    paper.with_(standstill=P.standstill).ablated(temp_model=True),
                 ),
                 Variant(
                     "+ straight-driving bias measurements",
                     "plus",
-                    paper.with_(straight_r=P.straight_r),
+                    paper.ablated(straight_r=P.ablation.straight_r),
                 ),
                 Variant(
                     "+ straight measurements + temperature model",
                     "plus",
-                    paper.with_(straight_r=P.straight_r, temp_model=True),
+                    paper.ablated(straight_r=P.ablation.straight_r, temp_model=True),
                 ),
                 Variant("+ speed gate (I frozen below 3 m/s)", "plus", paper, gate_speed_mps=3.0),
                 Variant("+ hold-off 3 steps after a turn", "plus", paper, holdoff_steps=3),
@@ -293,16 +293,16 @@ def variants() -> list[tuple[str, list[Variant]]]:
                     P.with_(standstill=StandstillParams(steps_speed=1)),
                 ),
                 Variant(
-                    "HDR+ without straight-driving measurements", "plus", P.with_(straight_r=0.0)
+                    "HDR+ without straight-driving measurements", "plus", P.ablated(straight_r=0.0)
                 ),
-                Variant("HDR+ without the temperature model", "plus", P.with_(temp_model=False)),
+                Variant("HDR+ without the temperature model", "plus", P.ablated(temp_model=False)),
                 Variant("HDR+ with the paper's core (Table III)", "plus", P.with_(hdr=PAPER)),
                 Variant("HDR+ + speed gate (3 m/s)", "plus", P, gate_speed_mps=3.0),
                 Variant("HDR+ + hold-off 3 steps", "plus", P, holdoff_steps=3),
                 Variant(
                     "HDR+ with the fixed increment (i_c 0.0048, not 0.1 x the bias sd)",
                     "plus",
-                    P.with_(ic_alpha=0.0),
+                    P.ablated(ic_alpha=0.0),
                 ),
             ],
         ),
@@ -468,7 +468,7 @@ def step_cost(prep: PreparedDrive, repeats: int = 3) -> tuple[float, float]:
     P = HdrPlusParams()
     assert s.speed is not None and s.temp_c is not None and s.omega_std is not None
     rows = [
-        PlusInput(float(u), float(sp), float(v), float(tc), s.T)
+        StepInput(float(u), float(sp), float(v), float(tc), s.T)
         for u, sp, v, tc in zip(s.u, s.omega_std, s.speed, s.temp_c, strict=True)
     ]
     best_step = best_batch = math.inf
@@ -639,7 +639,7 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
         W = 1 if abs(y) <= core.theta_w else 0
         I_next = I - sg * W * R * inc
         if W and abs(uc + I) <= P.straight_gate_dps:
-            b, k, p_bb, p_bk, p_kk = _proto_update(b, k, p_bb, p_bk, p_kk, ui, P.straight_r, dT)
+            b, k, p_bb, p_bk, p_kk = _proto_update(b, k, p_bb, p_bk, p_kk, ui, P.ablation.straight_r, dT)
             if idea.win_steps:
                 wsum, wcnt = wsum + ui, wcnt + 1
                 if wcnt == idea.win_steps:

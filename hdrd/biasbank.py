@@ -48,10 +48,14 @@ __all__ = [
     "R",
     "BankState",
     "Filter",
+    "at",
+    "bias_at",
+    "bias_var_at",
     "heading_predict",
     "log_evidence",
     "predict",
     "prior",
+    "stop_var",
     "update",
 ]
 
@@ -59,6 +63,39 @@ N_STATES = 5
 B, C, K, R, PSI = range(N_STATES)
 """Indices of the states: bias b, standstill offset c, temperature coefficient k, road r,
 heading error psi."""
+
+
+def at(i: int, j: int) -> int:
+    """Index of the covariance entry (i, j) in a row-major P."""
+    return i * N_STATES + j
+
+
+BB, BC, BK, CC, KK, RR, PP = (
+    at(B, B),
+    at(B, C),
+    at(B, K),
+    at(C, C),
+    at(K, K),
+    at(R, R),
+    at(PSI, PSI),
+)
+"""The covariance entries read by name: var(b), cov(b, c), cov(b, k), var(c), var(k), var(r),
+var(psi)."""
+
+
+def bias_at(x: list[float] | tuple[float, ...], dT: float) -> float:
+    """The bias correction b + k dT at dT degC above T_ref, deg/s."""
+    return x[B] + x[K] * dT
+
+
+def bias_var_at(P: list[float] | tuple[float, ...], dT: float) -> float:
+    """Its variance, var(b + k dT) = P_bb + dT (2 P_bk + dT P_kk), (deg/s)^2."""
+    return P[BB] + dT * (2.0 * P[BK] + dT * P[KK])
+
+
+def stop_var(P: list[float] | tuple[float, ...]) -> float:
+    """Variance of what a stop reads, var(b + c) = P_bb + 2 P_bc + P_cc, (deg/s)^2."""
+    return P[BB] + 2.0 * P[BC] + P[CC]
 
 
 class Filter(NamedTuple):
@@ -74,37 +111,37 @@ def prior(p_b: float, offset_var: float, k_var: float, road_var: float) -> Filte
     (F = offset_var, (deg/s)^2), var(k) = k_var ((deg/s/degC)^2), var(r) = road_var, psi 0."""
     f = offset_var
     P = [0.0] * (N_STATES * N_STATES)
-    P[B * 5 + B] = p_b + f
-    P[B * 5 + C] = P[C * 5 + B] = -f
-    P[C * 5 + C] = f
-    P[K * 5 + K] = k_var
-    P[R * 5 + R] = road_var
+    P[BB] = p_b + f
+    P[BC] = P[at(C, B)] = -f
+    P[CC] = f
+    P[KK] = k_var
+    P[RR] = road_var
     return Filter((0.0,) * N_STATES, tuple(P))
 
 
 def predict(x: list[float], P: list[float], q: float, T: float, a: float, road_q: float) -> None:
     """Let T seconds pass, in place: the bias performs a random walk of q (deg/s)^2/s; the road
     decays by a (exp(-T / tau)) and gains road_q = road_var (1 - a^2) of variance."""
-    P[0] += q * T
+    P[BB] += q * T
     if a != 1.0:
         x[R] *= a
         for i in range(N_STATES):
-            P[R * 5 + i] *= a
-            P[i * 5 + R] *= a
-        P[R * 5 + R] += road_q
+            P[at(R, i)] *= a
+            P[at(i, R)] *= a
+        P[RR] += road_q
 
 
 def heading_predict(P: list[float], T: float, dT: float) -> None:
     """The yaw integrated T seconds with the bias estimate at dT degC above T_ref: psi' = psi -
     T (b + k dT). Only the covariance changes (the estimate's own error has mean 0)."""
-    g = [P[i * 5 + B] + dT * P[i * 5 + K] for i in range(N_STATES)]  # P h, h = (1, 0, dT, 0, 0)
+    g = [P[at(i, B)] + dT * P[at(i, K)] for i in range(N_STATES)]  # P h, h = (1, 0, dT, 0, 0)
     hph = g[B] + dT * g[K]
-    p44 = P[PSI * 5 + PSI] - 2.0 * T * g[PSI] + T * T * hph
+    p44 = P[PP] - 2.0 * T * g[PSI] + T * T * hph
     for j in range(N_STATES):
-        v = P[PSI * 5 + j] - T * g[j]
-        P[PSI * 5 + j] = v
-        P[j * 5 + PSI] = v
-    P[PSI * 5 + PSI] = p44
+        v = P[at(PSI, j)] - T * g[j]
+        P[at(PSI, j)] = v
+        P[at(j, PSI)] = v
+    P[PP] = p44
 
 
 def update(
@@ -114,13 +151,17 @@ def update(
     b + hc c + hk k + hr r (a stop: hc = 1, hr = 0; straight driving: hc = 0, hr = 1; hk =
     the temperature above T_ref). Returns the innovation (deg/s) and its variance
     ((deg/s)^2), from before the update."""
-    ph = [P[i * 5] + hc * P[i * 5 + 1] + hk * P[i * 5 + 2] + hr * P[i * 5 + 3] for i in range(5)]
-    s = ph[0] + hc * ph[1] + hk * ph[2] + hr * ph[3] + r
-    innov = z - (x[0] + hc * x[1] + hk * x[2] + hr * x[3])
+    # P H' with H = (1, hc, hk, hr, 0); S = H P H' + r.
+    ph = [
+        P[at(i, B)] + hc * P[at(i, C)] + hk * P[at(i, K)] + hr * P[at(i, R)]
+        for i in range(N_STATES)
+    ]
+    s = ph[B] + hc * ph[C] + hk * ph[K] + hr * ph[R] + r
+    innov = z - (x[B] + hc * x[C] + hk * x[K] + hr * x[R])
     for i in range(N_STATES):
         g = ph[i] / s
         x[i] += g * innov
-        row = i * 5
+        row = at(i, 0)
         for j in range(N_STATES):
             P[row + j] -= g * ph[j]
     return innov, s

@@ -17,10 +17,12 @@ are those fixed by ``shared/paper/HDR-NOTES.md``::
 
     initial state: x_{-1} = 0, I_0 = 0, psi_{-1} = 0, r_0 = 1, s_{-1} = 0
 
-Two forms with bit-identical results: :func:`step` (immutable :class:`HdrState` in, new state
-and :class:`HdrOutput` out) for the live daemon, and :func:`run_batch` over a numpy array for
-offline tools. :func:`run_many` steps many parameter sets at once (for tuning); it agrees with
-the scalar forms to rounding (numpy's ``power`` may differ from ``math.pow`` in the last bit).
+One definition of the step, :func:`kernel` (plain floats in, plain floats out), called by
+every scalar form: :func:`step` (immutable :class:`HdrState` in, new state and
+:class:`HdrOutput` out) for the live daemon, :func:`run_batch` over a numpy array for offline
+tools, and HDR+'s core (:mod:`hdrd.hdrplus`). :func:`run_many`, its one vectorised twin, steps
+many parameter sets at once (for tuning); a property test pins it to the kernel to rounding
+(numpy's ``power`` may differ from ``math.pow`` in the last bit).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ __all__ = [
     "HdrState",
     "HdrTrace",
     "attenuation",
+    "kernel",
     "run_batch",
     "run_many",
     "step",
@@ -144,34 +147,50 @@ def attenuation(r: int, c1: float = C1, c2: float = C2) -> float:
     return (1.0 + c1) / (1.0 + c1 * math.pow(r, c2))
 
 
-def _sign(v: float) -> int:
-    return 1 if v > 0.0 else (-1 if v < 0.0 else 0)
+def kernel(
+    u: float,
+    x: float,
+    I: float,  # noqa: E741 - the paper's symbol
+    yaw: float,
+    r: int,
+    s_prev: int,
+    i_c: float,
+    T: float,
+    p: HdrParams,
+) -> tuple[float, float, float, int, int, int, float, float, float]:
+    """The paper's step, Eqs. 3-10 (module docstring): the one definition of it in hdrd.
+
+    u: this step's bias-removed rate, deg/s CCW. x, I, yaw, r, s_prev: the state carried from
+    the previous step (:class:`HdrState`'s fields). i_c: the increment of I, deg/s (the
+    paper's constant; HDR+ passes its own). T: this step's length, s (normally p.T). p: the
+    switches, tau, theta_w, c1 and c2.
+    Returns (x_i, I_{i+1}, psi_i, r, s_i, W, R, y_i, omega_i) as plain floats and ints: the
+    batch forms call it once per step, so it builds no objects.
+    """
+    x = (T * u + p.tau * x) / (T + p.tau) if p.lowpass else u
+    y = x + I
+    omega = u + I
+    yaw = yaw + omega * T
+    s = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
+    r = r + 1 if s == s_prev else 1
+    R = (1.0 + p.c1) / (1.0 + p.c1 * math.pow(r, p.c2)) if p.attenuator else 1.0
+    W = 1 if (not p.turn_switch or abs(y) <= p.theta_w) else 0
+    I_next = I - s * W * R * i_c if p.enabled else 0.0
+    return x, I_next, yaw, r, s, W, R, y, omega
 
 
 def step(state: HdrState, u: float, params: HdrParams = HdrParams()) -> tuple[HdrState, HdrOutput]:
-    """Advance HDR by one period T.
+    """Advance HDR by one period T (:func:`kernel` on an immutable state).
 
     u: block mean of the raw rate minus the static bias eps0 (Eqs. 2, 11), deg/s CCW.
     Returns the new state and this step's output. Pure.
     """
-    u = float(u)
-    T = params.T
-    if params.lowpass:
-        x = (T * u + params.tau * state.x) / (T + params.tau)
-    else:
-        x = u
-    I = state.I  # noqa: E741
-    y = x + I
-    omega = u + I
-    yaw = state.yaw + omega * T
-    s = _sign(y)
-    r = state.r + 1 if s == state.s else 1
-    R = attenuation(r, params.c1, params.c2) if params.attenuator else 1.0
-    W = 1 if (not params.turn_switch or abs(y) <= params.theta_w) else 0
-    I_next = I - s * W * R * params.i_c if params.enabled else 0.0
+    x, I_next, yaw, r, s, W, R, y, omega = kernel(
+        float(u), state.x, state.I, state.yaw, state.r, state.s, params.i_c, params.T, params
+    )
     return (
         HdrState(x=x, I=I_next, yaw=yaw, r=r, s=s, n=state.n + 1),
-        HdrOutput(omega=omega, yaw=yaw, I=I, W=W, R=R, r=r, filtered=y),
+        HdrOutput(omega=omega, yaw=yaw, I=state.I, W=W, R=R, r=r, filtered=y),
     )
 
 
@@ -192,11 +211,8 @@ class HdrTrace:
 def run_batch(
     u: npt.ArrayLike, params: HdrParams = HdrParams(), state: HdrState = INITIAL_STATE
 ) -> HdrTrace:
-    """Run HDR over a whole array of bias-removed step rates u (deg/s CCW).
-
-    Bit-identical to calling :func:`step` in a loop (same operations in the same order);
-    written with local floats because the recursion is sequential.
-    """
+    """Run HDR over a whole array of bias-removed step rates u (deg/s CCW): :func:`kernel`
+    looped on local floats, so bit-identical to calling :func:`step` in a loop."""
     uu = np.asarray(u, dtype=np.float64)
     n = uu.shape[0]
     out_omega = np.empty(n)
@@ -206,42 +222,17 @@ def run_batch(
     out_R = np.empty(n)
     out_r = np.empty(n, dtype=np.int64)
     out_y = np.empty(n)
-    T, tau, i_c, theta_w, c1, c2 = (
-        params.T,
-        params.tau,
-        params.i_c,
-        params.theta_w,
-        params.c1,
-        params.c2,
-    )
-    lowpass, turn_switch, attenuator, enabled = (
-        params.lowpass,
-        params.turn_switch,
-        params.attenuator,
-        params.enabled,
-    )
     x, I, yaw = float(state.x), float(state.I), float(state.yaw)  # noqa: E741
-    r, s_prev = int(state.r), int(state.s)
-    pow_ = math.pow
+    r, s = int(state.r), int(state.s)
+    i_c, T = params.i_c, params.T
     for i, ui in enumerate(uu.tolist()):
-        x = (T * ui + tau * x) / (T + tau) if lowpass else ui
-        y = x + I
-        omega = ui + I
-        yaw = yaw + omega * T
-        s = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
-        r = r + 1 if s == s_prev else 1
-        R = (1.0 + c1) / (1.0 + c1 * pow_(r, c2)) if attenuator else 1.0
-        W = 1 if (not turn_switch or abs(y) <= theta_w) else 0
-        out_omega[i] = omega
-        out_yaw[i] = yaw
         out_I[i] = I
-        out_W[i] = W
-        out_R[i] = R
+        x, I, yaw, r, s, out_W[i], out_R[i], out_y[i], out_omega[i] = kernel(  # noqa: E741
+            ui, x, I, yaw, r, s, i_c, T, params
+        )
+        out_yaw[i] = yaw
         out_r[i] = r
-        out_y[i] = y
-        I = I - s * W * R * i_c if enabled else 0.0  # noqa: E741
-        s_prev = s
-    final = HdrState(x=x, I=I, yaw=yaw, r=r, s=s_prev, n=state.n + n)
+    final = HdrState(x=x, I=I, yaw=yaw, r=r, s=s, n=state.n + n)
     return HdrTrace(out_omega, out_yaw, out_I, out_W, out_R, out_r, out_y, final)
 
 

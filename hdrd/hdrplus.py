@@ -42,15 +42,22 @@ import numpy.typing as npt
 from hdrd import biasbank as bb
 from hdrd.biasbank import INITIAL_BANK, BankState, Filter
 from hdrd.gyronoise import GyroNoise
-from hdrd.hdr import INITIAL_STATE, HdrParams, HdrState
-from hdrd.zupt import CalibrationNoise, StandstillParams, standstill_candidate
+from hdrd.hdr import INITIAL_STATE, HdrParams, HdrState, kernel
+from hdrd.steps import StepInput
+from hdrd.zupt import (
+    CalibrationNoise,
+    StandstillParams,
+    block_mean_variance,
+    standstill_candidate,
+)
 
 __all__ = [
+    "FULL",
     "INITIAL_PLUS_STATE",
     "PLUS_CORE",
+    "Ablation",
     "GyroNoise",
     "HdrPlusParams",
-    "PlusInput",
     "PlusOutput",
     "PlusState",
     "PlusTrace",
@@ -63,8 +70,48 @@ PLUS_CORE = HdrParams(i_c=0.0048, tau=0.5, theta_w=0.45, c1=0.14, c2=0.88)
 
 
 @dataclass(frozen=True, slots=True)
+class Ablation:
+    """The switches of HDR+'s ideas, which benchmarks and tests vary one at a time (the daemon
+    always runs :data:`FULL`). Each is a branch in the filter; :meth:`HdrPlusParams.paper`
+    turns them all off."""
+
+    temp_model: bool = True
+    """Learn the temperature coefficient k (when a temperature is given)."""
+    heading_fix: bool = True
+    """With the bank, correct the heading for the bias error a measurement reveals (by the
+    covariance of the heading error and the bias)."""
+    straight_r: float = 0.05
+    """Variance of a straight-driving measurement beyond the road state, (deg/s)^2 (sway);
+    0 switches these measurements off."""
+    ic_alpha: float = 0.1
+    """The core's increment is ic_alpha x the bias sd at this temperature, deg/s (capped at
+    ``i_c_max``); 0 = the fixed hdr.i_c."""
+    drift_prior: float = 0.3
+    """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+
+    def __post_init__(self) -> None:
+        for name in ("straight_r", "ic_alpha"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "temp_model", bool(self.temp_model))
+        object.__setattr__(self, "heading_fix", bool(self.heading_fix))
+        prior = float(self.drift_prior)
+        if not 0.0 < prior < 1.0:
+            raise ValueError(f"drift_prior must be in (0, 1), got {self.drift_prior!r}")
+        object.__setattr__(self, "drift_prior", prior)
+
+
+FULL = Ablation()
+"""Every idea on: what the daemon runs."""
+
+
+@dataclass(frozen=True, slots=True)
 class HdrPlusParams:
-    """HDR+ tunables. Every extra has an off switch; :meth:`paper` turns them all off."""
+    """HDR+'s settings: the gyro's error model as fitted to it and its calibration
+    (:meth:`fitted`), and the filter's constants. The experiments' switches are apart, in
+    :attr:`ablation`; :meth:`paper` turns every extra off."""
 
     hdr: HdrParams = PLUS_CORE
     """The HDR core (i_c deg/s, tau s, theta_w deg/s, c1, c2, T s; paper Table III names)."""
@@ -95,8 +142,6 @@ class HdrPlusParams:
     """The stable gyro's bias random walk, (deg/s)^2/s (0.006 deg/s over an hour)."""
     q_drifting: float = 1e-5
     """The drifting gyro's, (deg/s)^2/s (a 0.1 deg/s warm-up within 15 minutes)."""
-    drift_prior: float = 0.3
-    """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
     drift_odds_max: float = 4.6
     """The log-odds of "drifting" stay within +-this (1 % .. 99 %): later evidence can always
     turn the bank round."""
@@ -104,21 +149,13 @@ class HdrPlusParams:
     """A stop's reading is allowed this much error, deg/s, in both filters' innovation
     variance when it is weighed as evidence (a start-up calibration error is a constant, not a
     drift)."""
-    heading_fix: bool = True
-    """With the bank, correct the heading for the bias error a measurement reveals (by the
-    covariance of the heading error and the bias)."""
     offset_white_ratio: float = 0.5
     """:meth:`fitted` without an error model: the standstill offset's sd is this times the
     calibration's white noise density N (deg/s/sqrt(Hz): a step's standstill variance x T): a
     gyro that is noisy at rest (a running engine's vibration, a coarse part) is not trusted to
     read the driving bias at a stop."""
-    temp_model: bool = True
-    """Learn the temperature coefficient k (when a temperature is given)."""
     temp_coeff_sd: float = 0.01
     """Prior standard deviation of k, deg/s/degC (prior mean 0)."""
-    straight_r: float = 0.05
-    """Variance of a straight-driving measurement beyond the road state, (deg/s)^2 (sway);
-    0 switches these measurements off."""
     straight_gate_dps: float = 0.93
     """Largest |u_c + I| of a step used as a straight-driving measurement, deg/s."""
     road_var: float = 0.0025
@@ -127,9 +164,6 @@ class HdrPlusParams:
     road_tau_s: float = 120.0
     """... and this correlation time, s: straight driving on real roads misleads a bias
     estimate by 0.025 deg/s per drive, as on the real tuning drives)."""
-    ic_alpha: float = 0.1
-    """The core's increment is ic_alpha x the bias sd at this temperature, deg/s (capped at
-    i_c_max); 0 = the fixed hdr.i_c."""
     i_c_max: float = 0.008
     """Largest increment, deg/s."""
     ic_drift_ratio: float = 0.0
@@ -143,6 +177,9 @@ class HdrPlusParams:
     gate_floor_dps: float = 0.03
     """The stop gate allows at least this much bias error, deg/s (a start-up calibration that
     missed the bias by 0.02 deg/s must not shut its own correction out)."""
+    ablation: Ablation = FULL
+    """Experiments: each idea's switch (:class:`Ablation`); only benchmarks and tests change
+    it."""
     model: str = "defaults"
     """Which error model the settings were fitted to (published by the daemon): ``defaults``,
     ``calibration`` (the start-up window's noise; the bank weighs the evidence), or the known
@@ -151,7 +188,7 @@ class HdrPlusParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("hdr", "standstill", "model"):
+            if f.name in ("hdr", "standstill", "model", "ablation"):
                 continue
             if f.type in ("bool", bool):
                 object.__setattr__(self, f.name, bool(v))
@@ -165,8 +202,6 @@ class HdrPlusParams:
                 if not (math.isfinite(v) and v >= 0.0):
                     raise ValueError(f"{f.name} must be a number >= 0, got {v!r}")
                 object.__setattr__(self, f.name, v)
-        if not 0.0 < self.drift_prior < 1.0:
-            raise ValueError(f"drift_prior must be in (0, 1), got {self.drift_prior!r}")
 
     @classmethod
     def paper(cls, hdr: HdrParams | None = None) -> HdrPlusParams:
@@ -175,18 +210,20 @@ class HdrPlusParams:
         return cls(
             hdr=HdrParams() if hdr is None else hdr,
             standstill=StandstillParams(enabled=False),
-            temp_model=False,
-            straight_r=0.0,
-            ic_alpha=0.0,
             bank=False,
-            heading_fix=False,
             stop_offset_var=0.0,
+            ablation=Ablation(temp_model=False, heading_fix=False, straight_r=0.0, ic_alpha=0.0),
             model="paper",
         )
 
     def with_(self, **kw: object) -> HdrPlusParams:
-        """A copy with some fields replaced (``hdr`` and ``standstill`` by whole objects)."""
+        """A copy with some fields replaced (``hdr``, ``standstill`` and ``ablation`` by whole
+        objects)."""
         return replace(self, **kw)  # type: ignore[arg-type]
+
+    def ablated(self, **kw: object) -> HdrPlusParams:
+        """A copy with some of :class:`Ablation`'s switches replaced (benchmarks, tests)."""
+        return replace(self, ablation=replace(self.ablation, **kw))  # type: ignore[arg-type]
 
     def fitted(
         self,
@@ -240,21 +277,6 @@ class HdrPlusParams:
         return p
 
 
-class PlusInput(NamedTuple):
-    """One step's input. NaN marks an unknown spread, speed or temperature."""
-
-    u: float
-    """Block mean raw rate minus the start-up static bias eps0, deg/s CCW."""
-    spread_dps: float
-    """Standard deviation of the raw samples within the block, deg/s."""
-    speed_mps: float
-    """Vehicle speed, m/s (NaN: gyro-only standstill detection, if enabled)."""
-    temp_c: float
-    """Board temperature, degC."""
-    T: float
-    """Step length, s (normally hdr.T)."""
-
-
 class PlusState(NamedTuple):
     """State carried between steps. Immutable.
 
@@ -301,13 +323,32 @@ class PlusOutput(NamedTuple):
     heading_fix_deg: float
 
 
-# -- one step, shared by both forms ----------------------------------------------------------
+# -- one step, shared by both forms: the filter's phases ---------------------------------------
+
+
+class _Mix(NamedTuple):
+    """The bias correction in force for a step (after predict, before the measurements).
+
+    w1: weight of the drifting filter (1 without the bank's mixture). corr0, corr1: each
+    filter's correction b + k dT, deg/s; corr: their weighted mean, subtracted from u. inc:
+    the core's increment, deg/s. q1: the drifting (or only) filter's random walk,
+    (deg/s)^2/s. mixing: the bank weighs the two filters in this step.
+    """
+
+    w1: float
+    corr0: float
+    corr1: float
+    corr: float
+    inc: float
+    q1: float
+    mixing: bool
 
 
 def _increment(var_t: float, q_i: float, params: HdrPlusParams) -> float:
     """The core's increment without the bank, deg/s (module docstring, 2)."""
-    if params.ic_alpha > 0.0:
-        inc = min(params.i_c_max, params.ic_alpha * math.sqrt(var_t if var_t > 0.0 else 0.0))
+    ab = params.ablation
+    if ab.ic_alpha > 0.0:
+        inc = min(params.i_c_max, ab.ic_alpha * math.sqrt(var_t if var_t > 0.0 else 0.0))
     else:
         inc = params.hdr.i_c
     if params.ic_drift_ratio > 0.0 and q_i * params.road_tau_s < (
@@ -318,14 +359,17 @@ def _increment(var_t: float, q_i: float, params: HdrPlusParams) -> float:
 
 
 class _Run:
-    """The recursion on mutable locals: :func:`step` runs one step of it from a state,
-    :func:`run_batch` many. Any change here changes both forms alike."""
+    """The filter on mutable locals: :func:`step` runs one step of it from a state,
+    :func:`run_batch` many. :meth:`advance` calls the phases in order (predict, mixture,
+    standstill test, then a standstill or a driving update, heading fix, output); each phase
+    is a method below. Any change here changes both forms alike."""
 
     def __init__(self, state: PlusState, p: HdrPlusParams) -> None:
         self.p = p
         c = state.core
         self.x, self.I, self.yaw, self.r, self.s, self.n = c.x, c.I, c.yaw, c.r, c.s, c.n
         self.still = state.still
+        self.need = 0  # consecutive candidates the current standstill test asks for
         k = state.bank
         q2 = p.quant_step_dps * p.quant_step_dps / 12.0
         self.q2 = q2
@@ -336,7 +380,8 @@ class _Run:
         self.x0 = list(f0.x) if f0 is not None else []
         self.P0 = list(f0.P) if f0 is not None else []
         lo = k.log_odds
-        self.log_odds = math.log(p.drift_prior / (1.0 - p.drift_prior)) if math.isnan(lo) else lo
+        prior = p.ablation.drift_prior
+        self.log_odds = math.log(prior / (1.0 - prior)) if math.isnan(lo) else lo
         self.t_ref = k.t_ref
 
     def state(self) -> PlusState:
@@ -345,118 +390,163 @@ class _Run:
         bank = BankState(Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref)
         return PlusState(core, bank, self.still)
 
+    def filters(self) -> list[tuple[list[float], list[float]]]:
+        """The filters that take every measurement: the drifting one, and the stable one
+        when the bank is on."""
+        if self.p.bank:
+            return [(self.x1, self.P1), (self.x0, self.P0)]
+        return [(self.x1, self.P1)]
+
     def advance(self, u: float, sp: float, v: float, te: float, T: float) -> PlusOutput:
-        p, hp, ss = self.p, self.p.hdr, self.p.standstill
-        x1, P1, x0, P0 = self.x1, self.P1, self.x0, self.P0
-        have_temp = p.temp_model and not math.isnan(te)
+        """One step of T seconds: u deg/s CCW, the samples' spread sp deg/s, speed v m/s,
+        temperature te degC (NaN = unknown)."""
+        dT, have_temp = self.temperature(te)
+        mix = self.predict(T, dT, have_temp)
+        zero = self.standstill_test(u - mix.corr, sp, v, mix)
+        if zero:
+            out = self.standstill_update(u, sp, dT, mix)
+        else:
+            out = self.driving_update(u, T, dT, mix)
+        heading = self.heading_fix(mix.w1) if mix.mixing and self.p.ablation.heading_fix else 0.0
+        m = self.p.drift_odds_max
+        self.log_odds = min(max(self.log_odds, -m), m)
+        return self.output(out, zero, dT, mix, heading)
+
+    # -- the phases ------------------------------------------------------------------------
+
+    def temperature(self, te: float) -> tuple[float, bool]:
+        """(dT, a temperature is used): degC above the first one seen, 0 without."""
+        have_temp = self.p.ablation.temp_model and not math.isnan(te)
         if have_temp and math.isnan(self.t_ref):
             self.t_ref = te
-        dT = te - self.t_ref if have_temp else 0.0
-        bank = p.bank and not have_temp
-        # Predict: the random walks, the road's decay.
+        return (te - self.t_ref if have_temp else 0.0), have_temp
+
+    def predict(self, T: float, dT: float, have_temp: bool) -> _Mix:
+        """Let T pass (the random walks, the road's decay) and weigh the bank: the correction
+        and the core's increment in force for this step."""
+        p, x1, P1 = self.p, self.x1, self.P1
         q1 = p.bias_q if have_temp else (p.q_drifting if p.bank else p.bias_q_no_temp)
         a = math.exp(-T / p.road_tau_s) if p.road_var > 0.0 else 1.0
         road_q = p.road_var * (1.0 - a * a)
         bb.predict(x1, P1, q1, T, a, road_q)
         if p.bank:
-            bb.predict(x0, P0, p.q_stable, T, a, road_q)
-        corr1 = x1[bb.B] + x1[bb.K] * dT
-        if bank:
+            bb.predict(self.x0, self.P0, p.q_stable, T, a, road_q)
+        corr1 = bb.bias_at(x1, dT)
+        if p.bank and not have_temp:
             w1 = 1.0 / (1.0 + math.exp(-self.log_odds))
-            corr0 = x0[bb.B] + x0[bb.K] * dT
+            corr0 = bb.bias_at(self.x0, dT)
             corr = (1.0 - w1) * corr0 + w1 * corr1
-            sd1 = math.sqrt(P1[0] if P1[0] > 0.0 else 0.0)
-            inc = min(p.i_c_max, p.ic_alpha * sd1) if w1 >= 0.5 else 0.0
-        else:
-            w1, corr0, corr = 1.0, corr1, corr1
-            var_t = P1[0] + dT * (2.0 * P1[bb.K] + dT * P1[bb.K * 5 + bb.K])
-            inc = _increment(var_t, q1, p)
-        uc = u - corr
-        # Standstill? Then the gate on the level.
+            sd1 = math.sqrt(P1[bb.BB] if P1[bb.BB] > 0.0 else 0.0)
+            inc = min(p.i_c_max, p.ablation.ic_alpha * sd1) if w1 >= 0.5 else 0.0
+            return _Mix(w1, corr0, corr1, corr, inc, q1, True)
+        inc = _increment(bb.bias_var_at(P1, dT), q1, p)
+        return _Mix(1.0, corr1, corr1, corr1, inc, q1, False)
+
+    def standstill_test(self, uc: float, sp: float, v: float, mix: _Mix) -> bool:
+        """Is this step a zero-rate update? A standstill candidate (:func:`hdrd.zupt.
+        standstill_candidate`) whose corrected level is within ``stop_gate_sigma`` of what
+        the model allows at rest, for ``steps_speed`` (or ``steps_gyro``) steps running."""
+        p = self.p
         level = uc + self.I
-        cand, need = standstill_candidate(level, sp, v, ss)
+        cand, need = standstill_candidate(level, sp, v, p.standstill)
         if cand and p.stop_gate_sigma > 0.0 and not math.isnan(p.block_var):
-            hv = P1[0] + 2.0 * P1[1] + P1[6]
-            if bank:
-                hv = max(hv, P0[0] + 2.0 * P0[1] + P0[6]) + (corr1 - corr0) ** 2
-            allow = p.block_var + (hv if hv > 0.0 else 0.0) + inc * inc + p.gate_floor_dps**2
+            hv = bb.stop_var(self.P1)
+            if mix.mixing:
+                hv = max(hv, bb.stop_var(self.P0)) + (mix.corr1 - mix.corr0) ** 2
+            allow = p.block_var + (hv if hv > 0.0 else 0.0) + mix.inc * mix.inc
+            allow += p.gate_floor_dps**2
             cand = abs(level) <= p.stop_gate_sigma * math.sqrt(allow)
-        self.still = still = self.still + 1 if cand else 0
-        zero = cand and still >= need
-        fix = bank and p.heading_fix
-        if zero:
-            # Zero-rate update: the true rate is 0, so u measures what a stop reads, b + c.
-            s_ = ss.spread_dps if math.isnan(sp) else sp
-            rv = (s_ * s_ + ss.noise_floor_dps * ss.noise_floor_dps) / ss.samples_per_step
-            if not math.isnan(p.block_var) and p.block_var > rv:
-                rv = p.block_var
-            # I is folded into b first (omega = u - b + I = u - (b - I)); I, a sum of +-i_c
-            # steps, is only known to about one increment.
-            x1[bb.B] -= self.I
-            if still == need:
-                P1[0] += inc * inc
-            nu1, s1 = bb.update(x1, P1, 1.0, dT, 0.0, u, rv + self.q2)
-            if p.bank:
-                x0[bb.B] -= self.I
-                if still == need:
-                    P0[0] += inc * inc
-                nu0, s0 = bb.update(x0, P0, 1.0, dT, 0.0, u, rv + self.q2)
-                if bank:
-                    # Evidence: which filter predicted the stop's reading better (both allow
-                    # a calibration error: stop_floor_dps).
-                    f2 = p.stop_floor_dps**2
-                    self.log_odds += bb.log_evidence(nu1, s1 + f2, nu0, s0 + f2)
-            self.x, self.I, self.r, self.s, self.n = 0.0, 0.0, 1, 0, self.n + 1
-            omega, I_out, W, R, r_out, y = 0.0, 0.0, 0, 1.0, 1, 0.0
-        else:
-            if fix:
-                bb.heading_predict(P1, T, dT)
-                bb.heading_predict(P0, T, dT)
-            # The paper's step (hdrd.hdr.step, same operations in the same order) on u_c.
-            x = (T * uc + hp.tau * self.x) / (T + hp.tau) if hp.lowpass else uc
-            I_out = self.I
-            y = x + I_out
-            omega = uc + I_out
-            self.yaw = self.yaw + omega * T
-            s = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
-            r_out = self.r + 1 if s == self.s else 1
-            R = (1.0 + hp.c1) / (1.0 + hp.c1 * math.pow(r_out, hp.c2)) if hp.attenuator else 1.0
-            W = 1 if (not hp.turn_switch or abs(y) <= hp.theta_w) else 0
-            self.I = I_out - s * W * R * inc if hp.enabled else 0.0
-            self.x, self.r, self.s, self.n = x, r_out, s, self.n + 1
-            if p.straight_r > 0.0 and W and abs(omega) <= p.straight_gate_dps:
-                nu1, s1 = bb.update(x1, P1, 0.0, dT, 1.0, u, p.straight_r)
-                if p.bank:
-                    nu0, s0 = bb.update(x0, P0, 0.0, dT, 1.0, u, p.straight_r)
-                    if bank:  # evidence: which filter predicted this step (and its road) better
-                        self.log_odds += bb.log_evidence(nu1, s1, nu0, s0)
-        heading = 0.0
-        if fix:
-            heading = (1.0 - w1) * x0[bb.PSI] + w1 * x1[bb.PSI]
-            self.yaw += heading
-            x0[bb.PSI] = 0.0
-            x1[bb.PSI] = 0.0
-        m = p.drift_odds_max
-        self.log_odds = min(max(self.log_odds, -m), m)
-        # What is published: the bias model after this step's measurements.
-        b1 = x1[bb.B] + x1[bb.K] * dT
-        v1 = P1[0] + dT * (2.0 * P1[bb.K] + dT * P1[bb.K * 5 + bb.K])
-        if bank:
-            b0 = x0[bb.B] + x0[bb.K] * dT
-            v0 = P0[0] + dT * (2.0 * P0[bb.K] + dT * P0[bb.K * 5 + bb.K])
+        self.still = self.still + 1 if cand else 0
+        self.need = need
+        return cand and self.still >= need
+
+    def standstill_update(
+        self, u: float, sp: float, dT: float, mix: _Mix
+    ) -> tuple[float, float, int, float, int, float]:
+        """A zero-rate update: the true rate is 0, so u measures what a stop reads, b + c.
+        I is folded into b first (omega = u - b + I = u - (b - I)); I, a sum of +-i_c steps,
+        is only known to about one increment. The core restarts; omega = 0 is published."""
+        p = self.p
+        rv = block_mean_variance(sp, p.standstill)
+        if not math.isnan(p.block_var) and p.block_var > rv:
+            rv = p.block_var
+        first = self.still == self.need
+        evidence = []
+        for x, P in self.filters():
+            x[bb.B] -= self.I
+            if first:
+                P[bb.BB] += mix.inc * mix.inc
+            evidence.append(bb.update(x, P, 1.0, dT, 0.0, u, rv + self.q2))
+        if mix.mixing:
+            # Which filter predicted the stop's reading better (both allow a calibration
+            # error: stop_floor_dps).
+            (nu1, s1), (nu0, s0) = evidence
+            f2 = p.stop_floor_dps**2
+            self.log_odds += bb.log_evidence(nu1, s1 + f2, nu0, s0 + f2)
+        self.x, self.I, self.r, self.s, self.n = 0.0, 0.0, 1, 0, self.n + 1
+        return 0.0, 0.0, 0, 1.0, 1, 0.0
+
+    def driving_update(
+        self, u: float, T: float, dT: float, mix: _Mix
+    ) -> tuple[float, float, int, float, int, float]:
+        """The paper's step (:func:`hdrd.hdr.kernel`) on u_c = u - the correction, with the
+        increment in force; then, on a straight step, a measurement of b + r."""
+        p = self.p
+        if mix.mixing and p.ablation.heading_fix:
+            bb.heading_predict(self.P1, T, dT)
+            bb.heading_predict(self.P0, T, dT)
+        I_out = self.I
+        x, self.I, self.yaw, r, s, W, R, y, omega = kernel(
+            u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, p.hdr
+        )
+        self.x, self.r, self.s, self.n = x, r, s, self.n + 1
+        straight_r = p.ablation.straight_r
+        if straight_r > 0.0 and W and abs(omega) <= p.straight_gate_dps:
+            evidence = [bb.update(x_, P_, 0.0, dT, 1.0, u, straight_r) for x_, P_ in self.filters()]
+            if mix.mixing:  # which filter predicted this step (and its road) better
+                (nu1, s1), (nu0, s0) = evidence
+                self.log_odds += bb.log_evidence(nu1, s1, nu0, s0)
+        return omega, I_out, W, R, r, y
+
+    def heading_fix(self, w1: float) -> float:
+        """Correct the yaw by the heading error the measurements revealed (the bank's
+        weighted psi), deg CCW; psi restarts at 0."""
+        heading = (1.0 - w1) * self.x0[bb.PSI] + w1 * self.x1[bb.PSI]
+        self.yaw += heading
+        self.x0[bb.PSI] = 0.0
+        self.x1[bb.PSI] = 0.0
+        return heading
+
+    def output(
+        self,
+        core: tuple[float, float, int, float, int, float],
+        zero: bool,
+        dT: float,
+        mix: _Mix,
+        heading: float,
+    ) -> PlusOutput:
+        """What is published: the core's output and the bias model after this step."""
+        p, x1, w1 = self.p, self.x1, mix.w1
+        b1 = bb.bias_at(x1, dT)
+        v1 = bb.bias_var_at(self.P1, dT)
+        if mix.mixing:
+            x0 = self.x0
+            b0 = bb.bias_at(x0, dT)
+            v0 = bb.bias_var_at(self.P0, dT)
             bc = (1.0 - w1) * b0 + w1 * b1
             var_b = (1.0 - w1) * (v0 + (b0 - bc) ** 2) + w1 * (v1 + (b1 - bc) ** 2)
             kc = (1.0 - w1) * x0[bb.K] + w1 * x1[bb.K]
-            q_in = (1.0 - w1) * p.q_stable + w1 * q1
+            q_in = (1.0 - w1) * p.q_stable + w1 * mix.q1
         else:
-            bc, var_b, kc, q_in = b1, v1, x1[bb.K], q1
+            bc, var_b, kc, q_in = b1, v1, x1[bb.K], mix.q1
         sd = math.sqrt(var_b if var_b > 0.0 else 0.0)
-        return PlusOutput(omega, self.yaw, I_out, W, R, r_out, y, bc, zero, sd, kc, inc, q_in,
+        omega, I_out, W, R, r, y = core
+        return PlusOutput(omega, self.yaw, I_out, W, R, r, y, bc, zero, sd, kc, mix.inc, q_in,
                           w1, heading)  # fmt: skip
 
 
 def step(
-    state: PlusState, inp: PlusInput, params: HdrPlusParams = HdrPlusParams()
+    state: PlusState, inp: StepInput, params: HdrPlusParams = HdrPlusParams()
 ) -> tuple[PlusState, PlusOutput]:
     """Advance HDR+ by one step of inp.T seconds. Pure (the same code as :func:`run_batch`)."""
     run = _Run(state, params)

@@ -1,20 +1,21 @@
 """The drift reducers by name: the one registry the daemon, replay, evaluate and the CLI use.
 
-A :class:`Method` holds three things:
+A method (:class:`Method`) is a small object with six operations:
 
+- ``initial_state(yaw)``: its state at start, the yaw (deg CCW) carried in, so that a method
+  switched on SIGHUP continues the same heading (:meth:`Method.yaw` reads it back out);
 - ``step(state, input, settings) -> (state, output)``: one step T, the form the daemon's
-  pipeline runs once per closed block. Every method shares one state,
-  :class:`hdrd.hdrplus.PlusState` (HDR+ carries the paper's :class:`hdrd.hdr.HdrState` inside
-  as its core), so a method switched on SIGHUP continues the same heading; and one input,
-  :class:`hdrd.hdrplus.PlusInput` (u = block mean - eps0 in deg/s CCW, the samples' spread,
-  speed, temperature, T), of which each method reads what it uses.
+  pipeline runs once per closed block, on the one input every method takes,
+  :class:`hdrd.steps.StepInput` (u = block mean - eps0 in deg/s CCW, the samples' spread,
+  speed, temperature, T), of which each reads what it uses;
 - ``batch(inputs, settings) -> yaw``: the same recursion over a whole drive's
-  :class:`StepInputs` from the initial state, the fast form for offline tools; bit-identical
-  to looping ``step`` (tests/test_methods.py).
+  :class:`hdrd.steps.StepInputs` from the initial state, the fast form for offline tools;
+  bit-identical to looping ``step`` (tests/test_methods.py);
 - ``settings(context) -> settings``: how its settings follow from what the caller knows
   (:class:`SettingsContext`: the configured HDR parameters, HDR+'s configured base, the
-  gyro's samples per step, the calibration record). HDR+'s are derived in one function,
-  :func:`plus_settings`, for the daemon, replay and evaluate alike.
+  gyro's samples per step, the calibration record, its error model). HDR+'s are derived in
+  one function, :func:`plus_settings`, for the daemon, replay and evaluate alike;
+- ``publish(output, settings) -> Published``: the message fields of a step's output.
 
 A new drift reducer is one more entry in :data:`REGISTRY`. Pure; no I/O.
 """
@@ -22,23 +23,26 @@ A new drift reducer is one more entry in :data:`REGISTRY`. Pure; no I/O.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd import hdr, hdrplus
 from hdrd.calibrate import BiasRecord
-from hdrd.hdr import HdrOutput, HdrParams
-from hdrd.hdrplus import GyroNoise, HdrPlusParams, PlusInput, PlusOutput, PlusState
+from hdrd.hdr import INITIAL_STATE, HdrOutput, HdrParams, HdrState
+from hdrd.hdrplus import INITIAL_PLUS_STATE, GyroNoise, HdrPlusParams, PlusOutput, PlusState
+from hdrd.steps import StepInput, StepInputs
 from hdrd.zupt import CalibrationNoise
 
 __all__ = [
     "REGISTRY",
     "Method",
+    "Published",
     "SettingsContext",
+    "StepInput",
     "StepInputs",
     "StepOutput",
     "calibration_of",
@@ -48,46 +52,25 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 S = TypeVar("S")
+P = TypeVar("P")
 StepOutput = HdrOutput | PlusOutput
 """What a step publishes: omega, yaw, I, W, R, r, filtered (HDR+ adds its bias model's)."""
 
 
-@dataclass(frozen=True)
-class StepInputs:
-    """A drive's steps as arrays, one element per step taken (a step without samples is not
-    a step: it has no element, and the yaw holds across it).
+class Published(NamedTuple):
+    """A step's output as message fields (docs/protocol.md).
 
-    u: block mean of the raw rate minus the static bias, deg/s CCW (Eqs. 2, 11). t_end: end
-    of each step, s since the drive log's first sample. T: step period, s. bias_dps: the static
-    bias removed, deg/s. n_samples: samples averaged in each step. speed: mean speed in each
-    step, m/s (NaN where unknown), None if the log has none. temp_c: mean temperature in each
-    step, deg C (NaN where unknown), or None. omega_std: standard deviation of the raw samples
-    within each step, deg/s (0 for a single sample). bias_var: variance of the static bias
-    estimate, (deg/s)^2 (sample variance / samples of the calibration window; NaN if the bias
-    was given).
+    core: omega, yaw, I, W, R, r, in that order (the heading and the bias are the
+    pipeline's). extra: the method's own fields after the bias (HDR+: zupt, model, bias_sd).
+    bias_corr_dps: what the method adds to the static bias eps0, deg/s (the published bias is
+    eps0 + this). standstill: the step was a zero-rate update (status ``standstill``).
     """
 
-    u: FloatArray
-    t_end: FloatArray
-    T: float
-    bias_dps: float
-    n_samples: IntArray
-    speed: FloatArray | None = None
-    temp_c: FloatArray | None = None
-    omega_std: FloatArray | None = None
-    bias_var: float = math.nan
-
-    def input(self, i: int) -> PlusInput:
-        """Step i as the daemon's pipeline hands it to a method's ``step``."""
-
-        def at(a: FloatArray | None) -> float:
-            return math.nan if a is None else float(a[i])
-
-        return PlusInput(
-            float(self.u[i]), at(self.omega_std), at(self.speed), at(self.temp_c), self.T
-        )
+    core: dict[str, float | int]
+    extra: dict[str, float | int | str]
+    bias_corr_dps: float = 0.0
+    standstill: bool = False
 
 
 @dataclass(frozen=True)
@@ -149,85 +132,122 @@ def plus_settings(
     return p.fitted(calibration_of(bias, samples_per_step), noise, quant_step_dps)
 
 
-@dataclass(frozen=True)
-class Method(Generic[S]):
-    """One drift reducer (see the module docstring). ``bias_model``: the method refines the
-    static bias itself and detects standstill, so the pipeline publishes the corrected bias and
-    the ``zupt`` flag."""
+class Method(ABC, Generic[S, P]):
+    """One drift reducer (see the module docstring); subclasses define the operations.
+    ``bias_model``: the method refines the static bias itself and detects standstill, so the
+    pipeline publishes the corrected bias, the ``zupt`` flag and the error model in force."""
 
-    name: str
-    summary: str
-    step: Callable[[PlusState, PlusInput, S], tuple[PlusState, StepOutput]]
-    batch: Callable[[StepInputs, S], FloatArray]
-    settings: Callable[[SettingsContext], S]
+    name: str = ""
+    summary: str = ""
     bias_model: bool = False
 
+    @abstractmethod
+    def initial_state(self, yaw: float = 0.0) -> S:
+        """The state at start, with ``yaw`` deg CCW carried in."""
 
-# -- none: static bias removal only ------------------------------------------------------------
+    @abstractmethod
+    def yaw(self, state: S) -> float:
+        """The yaw of a state, deg CCW since start."""
 
+    @abstractmethod
+    def step(self, state: S, inp: StepInput, settings: P) -> tuple[S, StepOutput]:
+        """One step T."""
 
-def _hdr_step(state: PlusState, inp: PlusInput, params: HdrParams) -> tuple[PlusState, StepOutput]:
-    core, out = hdr.step(state.core, inp.u, params)
-    return state._replace(core=core), out
+    @abstractmethod
+    def batch(self, steps: StepInputs, settings: P) -> FloatArray:
+        """The yaw of every step of a drive from the initial state, deg CCW."""
 
+    @abstractmethod
+    def settings(self, ctx: SettingsContext) -> P:
+        """The settings for this gyro and drive."""
 
-def _none_batch(steps: StepInputs, params: HdrParams) -> FloatArray:
-    # psi_i = psi_{i-1} + u_i * T (Eq. 3 with I = 0). A sequential cumsum: bit-identical to
-    # hdr.step with I frozen at 0 (tests/test_methods.py).
-    return np.cumsum(steps.u * params.T)
-
-
-def _none_settings(ctx: SettingsContext) -> HdrParams:
-    return replace(ctx.hdr, enabled=False)
-
-
-# -- hdr: the paper --------------------------------------------------------------------------
-
-
-def _hdr_batch(steps: StepInputs, params: HdrParams) -> FloatArray:
-    return hdr.run_batch(steps.u, params).yaw
-
-
-def _hdr_settings(ctx: SettingsContext) -> HdrParams:
-    return ctx.hdr
+    def publish(self, out: StepOutput, settings: P) -> Published:
+        """A step's output as message fields."""
+        return Published(_core_fields(out), {})
 
 
-# -- hdr+ ------------------------------------------------------------------------------------
+def _core_fields(o: StepOutput) -> dict[str, float | int]:
+    return {"omega": o.omega, "yaw": o.yaw, "I": o.I, "W": o.W, "R": o.R, "r": o.r}
 
 
-def _plus_step(
-    state: PlusState, inp: PlusInput, params: HdrPlusParams
-) -> tuple[PlusState, StepOutput]:
-    return hdrplus.step(state, inp, params)
+class _Hdr(Method[HdrState, HdrParams]):
+    """The paper's HDR (Table III by default)."""
+
+    name = "hdr"
+    summary = "the paper's HDR (Table III)"
+
+    def initial_state(self, yaw: float = 0.0) -> HdrState:
+        return INITIAL_STATE._replace(yaw=yaw)
+
+    def yaw(self, state: HdrState) -> float:
+        return state.yaw
+
+    def step(
+        self, state: HdrState, inp: StepInput, settings: HdrParams
+    ) -> tuple[HdrState, StepOutput]:
+        return hdr.step(state, inp.u, settings)
+
+    def batch(self, steps: StepInputs, settings: HdrParams) -> FloatArray:
+        return hdr.run_batch(steps.u, settings).yaw
+
+    def settings(self, ctx: SettingsContext) -> HdrParams:
+        return ctx.hdr
 
 
-def _plus_batch(steps: StepInputs, params: HdrPlusParams) -> FloatArray:
-    return hdrplus.run_batch(
-        steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, params
-    ).yaw
+class _None(_Hdr):
+    """Static bias removal only: the paper's HDR with I frozen at 0."""
+
+    name = "none"
+    summary = "static bias removal only"
+
+    def batch(self, steps: StepInputs, settings: HdrParams) -> FloatArray:
+        # psi_i = psi_{i-1} + u_i * T (Eq. 3 with I = 0). A sequential cumsum: bit-identical
+        # to hdr.step with I frozen at 0 (tests/test_methods.py).
+        return np.cumsum(steps.u * settings.T)
+
+    def settings(self, ctx: SettingsContext) -> HdrParams:
+        return replace(ctx.hdr, enabled=False)
 
 
-def _plus_settings(ctx: SettingsContext) -> HdrPlusParams:
-    return plus_settings(
-        ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias, ctx.noise, ctx.quant_step_dps
-    )
+class _Plus(Method[PlusState, HdrPlusParams]):
+    """HDR+ (:mod:`hdrd.hdrplus`)."""
+
+    name = "hdr+"
+    summary = "HDR with standstill re-calibration and a bias model"
+    bias_model = True
+
+    def initial_state(self, yaw: float = 0.0) -> PlusState:
+        return INITIAL_PLUS_STATE._replace(core=INITIAL_STATE._replace(yaw=yaw))
+
+    def yaw(self, state: PlusState) -> float:
+        return state.core.yaw
+
+    def step(
+        self, state: PlusState, inp: StepInput, settings: HdrPlusParams
+    ) -> tuple[PlusState, StepOutput]:
+        return hdrplus.step(state, inp, settings)
+
+    def batch(self, steps: StepInputs, settings: HdrPlusParams) -> FloatArray:
+        return hdrplus.run_batch(
+            steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, settings
+        ).yaw
+
+    def settings(self, ctx: SettingsContext) -> HdrPlusParams:
+        return plus_settings(
+            ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias, ctx.noise, ctx.quant_step_dps
+        )
+
+    def publish(self, out: StepOutput, settings: HdrPlusParams) -> Published:
+        assert isinstance(out, PlusOutput)
+        extra: dict[str, float | int | str] = {
+            "zupt": int(out.standstill),
+            "model": settings.model,  # the error model in force
+            "bias_sd": out.bias_sd_dps,
+        }
+        return Published(_core_fields(out), extra, out.bias_corr_dps, out.standstill)
 
 
-REGISTRY: dict[str, Method[Any]] = {
-    m.name: m
-    for m in (
-        Method("none", "static bias removal only", _hdr_step, _none_batch, _none_settings),
-        Method("hdr", "the paper's HDR (Table III)", _hdr_step, _hdr_batch, _hdr_settings),
-        Method(
-            "hdr+",
-            "HDR with standstill re-calibration and a bias model",
-            _plus_step,
-            _plus_batch,
-            _plus_settings,
-            bias_model=True,
-        ),
-    )
-}
+REGISTRY: dict[str, Method[Any, Any]] = {m.name: m for m in (_None(), _Hdr(), _Plus())}
 """Drift reducers by name (``hdr.method``, ``--method``)."""
 
 
@@ -236,7 +256,7 @@ def names() -> tuple[str, ...]:
     return tuple(REGISTRY)
 
 
-def get(name: str) -> Method[Any]:
+def get(name: str) -> Method[Any, Any]:
     """The method called ``name``; ValueError naming the allowed ones."""
     try:
         return REGISTRY[name]

@@ -33,18 +33,12 @@ import numpy.typing as npt
 from hdrd import methods
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.clocks import DeviceClock
-from hdrd.hdr import HdrParams, HdrState
-from hdrd.hdrplus import (
-    INITIAL_PLUS_STATE,
-    GyroNoise,
-    HdrPlusParams,
-    PlusInput,
-    PlusOutput,
-    PlusState,
-)
+from hdrd.hdr import HdrParams
+from hdrd.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 from hdrd.resample import Block, BlockAverager, Missing
 from hdrd.sensor import SensorModel
+from hdrd.steps import StepInput
 
 if TYPE_CHECKING:
     from hdrd.config import Config
@@ -182,9 +176,7 @@ class Stepper:
     def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
         self.config = config
         self.method = methods.get(config.method)
-        # One state for every method: HDR+ carries the paper HDR state as its core, so a
-        # method switched on SIGHUP continues the same heading.
-        self.state: PlusState = INITIAL_PLUS_STATE
+        self.state: Any = self.method.initial_state()
         self.bias: BiasRecord | None = _given_bias(config)
         self.window = StartupWindow.for_seconds(config.startup_s, config.params.T, config.limits)
         self.events: list[tuple[str, dict[str, Any]]] = []
@@ -211,7 +203,10 @@ class Stepper:
         ):
             self.bias = _given_bias(config)
         self.config = config
-        self.method = methods.get(config.method)
+        method = methods.get(config.method)
+        if method is not self.method:  # a new method continues the heading
+            self.state = method.initial_state(self.method.yaw(self.state))
+            self.method = method
         self.window.limits = config.limits
         self.samples_per_step = None
         self._settings = None  # derived again at the next step
@@ -228,17 +223,22 @@ class Stepper:
             )
         )
 
-    def input_for(self, block: Block) -> PlusInput:
+    @property
+    def yaw(self) -> float:
+        """The yaw in force, deg CCW since start."""
+        return self.method.yaw(self.state)
+
+    def input_for(self, block: Block) -> StepInput:
         """The method's input for a block: u = block mean - eps0 (Eqs. 2, 11), the samples'
         spread, the speed set last (NaN = unknown), the block's temperature, T."""
         assert self.bias is not None
         temp = math.nan if block.temp_c is None else block.temp_c
         speed = math.nan if self.speed_mps is None else self.speed_mps
-        return PlusInput(
+        return StepInput(
             block.mean - self.bias.bias_dps, block.std, speed, temp, self.config.params.T
         )
 
-    def prepare(self, block: Block) -> PlusInput | None:
+    def prepare(self, block: Block) -> StepInput | None:
         """A block closed: None while calibrating (it was a step of the start-up window),
         else the method's input for it. The first block after (re)configuring also fixes the
         samples per step the method's settings are derived with: the gyro's sample rate
@@ -265,19 +265,15 @@ class Stepper:
             self._settings = self.method.settings(ctx)
         return self._settings
 
-    def step(self, block: Block) -> tuple[methods.StepOutput, float, bool] | None:
+    def step(self, block: Block) -> methods.Published | None:
         """One block: None while calibrating (the window closes a step), else the method's
-        output, the published bias (deg/s) and whether the step was a standstill."""
+        output as message fields (:meth:`hdrd.methods.Method.publish`)."""
         inp = self.prepare(block)
-        bias = self.bias
-        if inp is None or bias is None:
+        if inp is None:
             return None
         settings = self.derive_settings()
         self.state, o = self.method.step(self.state, inp, settings)
-        if self.method.bias_model:
-            assert isinstance(o, PlusOutput)
-            return o, bias.bias_dps + o.bias_corr_dps, o.standstill
-        return o, bias.bias_dps, False
+        return self.method.publish(o, settings)
 
     def message(
         self,
@@ -296,25 +292,19 @@ class Stepper:
         msg["t"] = t
         msg["step"] = step
         msg["omega_raw"] = block.mean
-        stepped = self.step(block)
-        if stepped is None:
+        pub = self.step(block)
+        if pub is None or self.bias is None:
             status = "calibrating"
         else:
-            o, published_bias, still = stepped
-            msg["omega"] = o.omega
-            msg["yaw"] = o.yaw
-            msg["heading"] = heading_from_yaw(self.config.heading0_deg, o.yaw)
-            msg["I"] = o.I
-            msg["W"] = o.W
-            msg["R"] = o.R
-            msg["r"] = o.r
-            msg["bias"] = published_bias
-            status = "standstill" if still else ("ok" if o.W else "turning")
-            if self.method.bias_model:
-                msg["zupt"] = int(still)
-                assert isinstance(o, PlusOutput)
-                msg["model"] = getattr(self.settings, "model", "")  # the error model in force
-                msg["bias_sd"] = o.bias_sd_dps
+            core = pub.core
+            msg["omega"] = core["omega"]
+            msg["yaw"] = core["yaw"]
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
+            for key in ("I", "W", "R", "r"):
+                msg[key] = core[key]
+            msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
+            status = "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
+            msg.update(pub.extra)
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status
@@ -395,14 +385,14 @@ class Pipeline:
         return self.stepper.bias is None
 
     @property
-    def hdr_state(self) -> HdrState:
-        """The HDR core's state (x, I, yaw, r, s, n)."""
-        return self.stepper.state.core
+    def method_state(self) -> Any:
+        """The drift reducer's state (its method's own type)."""
+        return self.stepper.state
 
     @property
     def heading(self) -> float:
         """Current compass heading, deg."""
-        return heading_from_yaw(self.config.heading0_deg, self.stepper.state.core.yaw)
+        return heading_from_yaw(self.config.heading0_deg, self.stepper.yaw)
 
     @property
     def clock(self) -> DeviceClock:
@@ -582,7 +572,7 @@ class Pipeline:
         if self._last_step is not None:
             msg["step"] = self._last_step
         if self.bias is not None and self._last_step is not None:
-            msg["yaw"] = self.stepper.state.core.yaw
+            msg["yaw"] = self.stepper.yaw
             msg["heading"] = self.heading
             msg["bias"] = self.bias.bias_dps
         msg["bad_frames"] = bad_frames

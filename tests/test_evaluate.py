@@ -249,13 +249,14 @@ def test_json_shape_is_exactly_the_issues() -> None:
 def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) -> None:
     # A new drift reducer is one entry in hdrd.methods.REGISTRY; evaluate and the JSON pick
     # it up.
-    def perfect_bias(steps: StepInputs, params: HdrParams) -> np.ndarray:
-        return np.cumsum((steps.u - 0.1) * params.T)
+    class Perfect(type(methods.REGISTRY["hdr"])):  # type: ignore[misc]
+        name = "perfect"
+        summary = "knows the drift"
 
-    entry = methods.Method(
-        "perfect", "knows the drift", methods.REGISTRY["hdr"].step, perfect_bias, lambda c: c.hdr
-    )
-    monkeypatch.setitem(methods.REGISTRY, "perfect", entry)
+        def batch(self, steps: StepInputs, params: HdrParams) -> np.ndarray:
+            return np.cumsum((steps.u - 0.1) * params.T)
+
+    monkeypatch.setitem(methods.REGISTRY, "perfect", Perfect())
     r = evaluate_drive(make_drive(drift_dps=0.1, noise_dps=0.0), methods=("hdr", "perfect"))
     assert r.methods == ("none", "hdr", "perfect")
     assert r.e_psi["perfect"] < 1e-6 < r.e_psi["hdr"]

@@ -25,8 +25,8 @@ from hdrd.hdr import HdrParams
 from hdrd.hdrplus import (
     INITIAL_PLUS_STATE,
     PLUS_CORE,
+    Ablation,
     HdrPlusParams,
-    PlusInput,
     PlusOutput,
     PlusState,
     run_batch,
@@ -35,6 +35,7 @@ from hdrd.hdrplus import (
 from hdrd.sim import simulate_legs
 from hdrd.sim.benchmark import VARIANTS
 from hdrd.sim.vehicle import CabinTemperature
+from hdrd.steps import StepInput
 from hdrd.zupt import StandstillParams
 
 NAN = math.nan
@@ -82,11 +83,8 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         bias_p0=draw(st.floats(1e-6, 1.0)),
         bias_q=draw(st.floats(0.0, 1e-3)),
         bias_q_no_temp=draw(st.floats(0.0, 1e-3)),
-        temp_model=draw(st.booleans()),
         temp_coeff_sd=draw(st.floats(0.0, 0.05)),
-        straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
         straight_gate_dps=draw(st.floats(0.0, 2.0)),
-        ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
         i_c_max=draw(st.floats(0.0, 0.05)),
         stop_offset_var=draw(st.sampled_from([0.0, 1e-4])),
         quant_step_dps=draw(st.sampled_from([0.0, 0.0625])),
@@ -96,12 +94,17 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         bank=draw(st.booleans()),
         q_stable=draw(st.sampled_from([0.0, 1e-8])),
         q_drifting=draw(st.sampled_from([1e-6, 1e-5, 1e-3])),
-        drift_prior=draw(st.floats(0.01, 0.99)),
         stop_floor_dps=draw(st.sampled_from([0.0, 0.02])),
         drift_odds_max=draw(st.sampled_from([0.5, 4.6])),
-        heading_fix=draw(st.booleans()),
         road_var=draw(st.sampled_from([0.0, 0.0025])),
         ic_drift_ratio=draw(st.sampled_from([0.0, 0.01, 1e6])),
+        ablation=Ablation(
+            temp_model=draw(st.booleans()),
+            heading_fix=draw(st.booleans()),
+            straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
+            ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
+            drift_prior=draw(st.floats(0.01, 0.99)),
+        ),
     )
 
 
@@ -120,7 +123,7 @@ def _loop(
     s = INITIAL_PLUS_STATE
     outs = []
     for u, sp, v, tc in data:
-        s, o = step(s, PlusInput(u, sp, v, tc, T), params)
+        s, o = step(s, StepInput(u, sp, v, tc, T), params)
         outs.append(o)
     return outs, s
 
@@ -176,15 +179,16 @@ def test_inputs_may_be_none_scalar_or_per_step() -> None:
 
 def test_params_are_checked() -> None:
     with pytest.raises(ValueError, match="straight_r"):
-        HdrPlusParams(straight_r=-1.0)
+        Ablation(straight_r=-1.0)
     with pytest.raises(ValueError, match="bias_q"):
         HdrPlusParams(bias_q=math.inf)
     with pytest.raises(ValueError, match="stop_floor_dps"):
         HdrPlusParams(stop_floor_dps=-0.01)
     with pytest.raises(ValueError, match="drift_prior"):
-        HdrPlusParams(drift_prior=1.0)
+        Ablation(drift_prior=1.0)
     assert HdrPlusParams().hdr == PLUS_CORE
-    assert HdrPlusParams().with_(drift_prior=0.5).drift_prior == 0.5
+    assert HdrPlusParams().ablated(drift_prior=0.5).ablation.drift_prior == 0.5
+    assert HdrPlusParams().ablation == Ablation()  # the daemon's: every idea on
 
 
 # -- paper HDR is HDR+ with every extra off -------------------------------------------------------
@@ -207,7 +211,7 @@ def test_all_extras_off_is_paper_hdr_bit_identical(
     # ... and the per-step form against hdr.step.
     s, hs = INITIAL_PLUS_STATE, hdr.INITIAL_STATE
     for i in range(n):
-        s, o = step(s, PlusInput(u[i], sp[i], v[i], tc[i], core.T), HdrPlusParams.paper(core))
+        s, o = step(s, StepInput(u[i], sp[i], v[i], tc[i], core.T), HdrPlusParams.paper(core))
         hs, ho = hdr.step(hs, u[i], core)
         assert tuple(o)[:7] == tuple(ho)
 
@@ -332,7 +336,7 @@ def test_the_increment_follows_the_bias_uncertainty() -> None:
         bias_p0=1e-8, quant_step_dps=0.0, stop_offset_var=0.0, bias_q_no_temp=1e-10, bank=False
     )
     a = run_batch(u, *args, good)
-    b = run_batch(u, *args, HdrPlusParams(ic_alpha=0.0, bank=False))
+    b = run_batch(u, *args, HdrPlusParams(bank=False).ablated(ic_alpha=0.0))
     # i_c = 0.1 x the bias sd before this step's measurement (the last step's, plus q T)
     assert np.allclose(a.i_c_dps[1:], 0.1 * a.bias_sd_dps[:-1], rtol=0.01)
     assert np.max(np.abs(a.I)) < 0.002 < 0.02 < np.max(np.abs(b.I))
@@ -365,7 +369,7 @@ def test_without_temperature_the_bank_weighs_stable_against_drifting() -> None:
     args = (np.full(n, 0.2), np.full(n, 15.0), None, 1.0)
     p = HdrPlusParams()
     ramp = run_batch(0.3 * t / n + _sway(n, 7), *args, p)
-    assert ramp.drift_weight[0] == pytest.approx(p.drift_prior, rel=0.01)
+    assert ramp.drift_weight[0] == pytest.approx(p.ablation.drift_prior, rel=0.01)
     assert ramp.drift_weight[-1] > 0.95 and ramp.i_c_dps[-1] > 0.0
     assert ramp.bias_corr_dps[-1] - ramp.I[-1] == pytest.approx(0.3, abs=0.05)
     assert abs(ramp.yaw[-1]) < 0.1 * 0.3 * n / 2  # none: 225 deg
@@ -420,7 +424,7 @@ def test_one_curving_window_moves_the_evidence_a_bounded_step() -> None:
     tr = run_batch(u, np.full(660, 0.2), np.full(660, 15.0), None, 1.0, p)
     w_max = 1.0 / (1.0 + math.exp(-p.drift_odds_max))
     assert tr.drift_weight.max() <= w_max * (1 + 1e-12)
-    assert tr.drift_weight[-1] < p.drift_prior
+    assert tr.drift_weight[-1] < p.ablation.drift_prior
 
 
 def test_a_stale_speed_turn_is_not_a_stop() -> None:
@@ -478,7 +482,7 @@ def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
     # (a calibration known to 0.003 deg/s: the stop's 28 steps know the bias far better)
     p = HdrPlusParams(block_var=0.002**2, bias_p0=1e-5, quant_step_dps=0.0, stop_offset_var=0.0)
     fix = run_batch(u, *args, p)
-    keep = run_batch(u, *args, p.with_(heading_fix=False))
+    keep = run_batch(u, *args, p.ablated(heading_fix=False))
     truth = np.cumsum(road)
     err_fix = fix.yaw - truth
     err_keep = keep.yaw - truth

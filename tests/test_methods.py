@@ -19,7 +19,7 @@ from hdrd import methods
 from hdrd.calibrate import BiasRecord
 from hdrd.config import ConfigError, parse_config
 from hdrd.hdr import HdrParams
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusOutput
+from hdrd.hdrplus import HdrPlusParams, PlusOutput
 from hdrd.methods import REGISTRY, SettingsContext, StepInputs, plus_settings
 from tests.test_hdrplus import core_params, plus_params
 
@@ -70,7 +70,7 @@ def test_batch_is_the_step_looped_bit_for_bit(
     m = REGISTRY[name]
     steps = _steps(data, hdr.T)
     s = m.settings(SettingsContext(hdr, plus, n, bias))
-    state = INITIAL_PLUS_STATE
+    state = m.initial_state()
     yaw = []
     for i in range(len(data)):
         state, out = m.step(state, steps.input(i), s)
@@ -78,18 +78,41 @@ def test_batch_is_the_step_looped_bit_for_bit(
     assert m.batch(steps, s).tolist() == yaw
 
 
-def test_one_state_for_every_method_a_switch_keeps_the_heading() -> None:
-    # The daemon switches method on SIGHUP with the state it has: the yaw carries on.
+def test_a_method_switch_carries_the_yaw() -> None:
+    # The daemon switches method on SIGHUP: the new method starts from its initial state with
+    # the old one's yaw, and the heading carries on.
     steps = _steps([(0.3, 0.1, NAN, NAN)] * 5, 1.0)
     ctx = SettingsContext()
-    state = INITIAL_PLUS_STATE
-    for name in ("hdr", "hdr+", "none", "hdr"):
-        m = REGISTRY[name]
-        before = state.core.yaw
+    m = REGISTRY["hdr"]
+    state = m.initial_state()
+    for name in ("hdr", "hdr+", "none", "hdr", "hdr+"):
+        new = REGISTRY[name]
+        before = m.yaw(state)
+        state, m = new.initial_state(before), new
+        assert m.yaw(state) == before
         state, out = m.step(state, steps.input(0), m.settings(ctx))
         # (HDR+ may also correct the heading for a bias error its model has just seen)
         fix = out.heading_fix_deg if isinstance(out, PlusOutput) else 0.0
         assert out.yaw == pytest.approx(before + out.omega * 1.0 + fix, rel=1e-12)
+        assert m.yaw(state) == out.yaw
+    assert m.yaw(state) == pytest.approx(5 * 0.3, rel=0.2)  # a whole step each, none lost
+
+
+def test_publish_gives_the_message_fields_of_each_method() -> None:
+    steps = _steps([(0.3, 0.1, 0.0, NAN)] * 5, 1.0)
+    for name in REGISTRY:
+        m = REGISTRY[name]
+        s = m.settings(SettingsContext())
+        state, out = m.step(m.initial_state(), steps.input(0), s)
+        pub = m.publish(out, s)
+        assert list(pub.core) == ["omega", "yaw", "I", "W", "R", "r"]
+        assert pub.core["yaw"] == out.yaw and pub.core["omega"] == out.omega
+        if m.bias_model:
+            assert isinstance(out, PlusOutput)
+            assert list(pub.extra) == ["zupt", "model", "bias_sd"]
+            assert pub.extra["model"] == s.model and pub.bias_corr_dps == out.bias_corr_dps
+        else:
+            assert pub.extra == {} and pub.bias_corr_dps == 0.0 and not pub.standstill
 
 
 def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:

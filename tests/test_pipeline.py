@@ -197,9 +197,9 @@ def test_method_none_is_plain_integration():
 def test_reconfigure_keeps_state_and_refuses_new_T():
     p = Pipeline(PipelineConfig(bias_dps=0.1))
     run_live_no_finish(p, make_frames(np.full(50, 0.4)))
-    before = p.hdr_state
+    before = p.method_state
     p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(i_c=0.1)))
-    assert p.hdr_state == before
+    assert p.method_state == before
     with pytest.raises(ValueError, match="T"):
         p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(T=2.0)))
 
@@ -361,7 +361,7 @@ def test_the_stale_message_names_its_fields() -> None:
     run_live(p, make_frames(np.full(30, 0.25)))
     m = p.stale_message(now=None, silent_s=1.0, bad_frames=7)
     assert m["class"] == "HDR" and m["v"] == 1 and "time" not in m
-    assert m["yaw"] == p.stepper.state.core.yaw and m["bias"] == 0.25 and m["bad_frames"] == 7
+    assert m["yaw"] == p.stepper.yaw and m["bias"] == 0.25 and m["bad_frames"] == 7
     assert m["step"] == 2
 
 

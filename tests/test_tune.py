@@ -231,7 +231,6 @@ def test_run_many_steps_the_same_yaw_as_the_daemons_hdr_step() -> None:
     # through the daemon's block code: for drives with gaps, at 1 Hz and at 100 Hz, each
     # candidate's yaw is the daemon's HDR step looped (to rounding: numpy's power vs math.pow).
     from hdrd import hdr
-    from hdrd.hdrplus import INITIAL_PLUS_STATE
     from hdrd.methods import REGISTRY
     from tests.test_onepath import drive
 
@@ -253,7 +252,7 @@ def test_run_many_steps_the_same_yaw_as_the_daemons_hdr_step() -> None:
                 c1=float(c["c1"][j]),
                 c2=float(c["c2"][j]),
             )
-            state, stepped = INITIAL_PLUS_STATE, []
+            state, stepped = REGISTRY["hdr"].initial_state(), []
             for i in range(prep.steps.u.shape[0]):
                 state, out = REGISTRY["hdr"].step(state, prep.steps.input(i), p)
                 stepped.append(out.yaw)

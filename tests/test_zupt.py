@@ -14,7 +14,8 @@ import pytest
 
 from hdrd import biasbank as bb
 from hdrd import zupt
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusInput, run_batch, step
+from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
+from hdrd.steps import StepInput
 from hdrd.zupt import StandstillParams, block_mean_variance, standstill_candidate
 
 NAN = math.nan
@@ -120,7 +121,7 @@ def test_yaw_does_not_move_at_standstill() -> None:
     # Driving with a residual bias makes yaw move; at standstill omega is 0 whatever u is.
     u = [0.2] * 75
     speed = [10.0] * 10 + [0.0] * 60 + [10.0] * 5
-    still = HdrPlusParams(heading_fix=False)
+    still = HdrPlusParams().ablated(heading_fix=False)
     tr = run_batch(u, [0.15] * 75, speed, None, 1.0, still)
     a = 10 + SS.steps_speed - 1  # the first zero-rate update
     assert tr.standstill.tolist() == [False] * a + [True] * (70 - a) + [False] * 5
@@ -147,10 +148,10 @@ def test_zero_rate_update_through_step_publishes_standstill() -> None:
     # A start-up bias known to +-1 deg/s only; stops count from their first step.
     vague = HdrPlusParams(bias_p0=1.0, standstill=StandstillParams(steps_speed=1))
     s = INITIAL_PLUS_STATE
-    s, o = step(s, PlusInput(0.5, 0.1, 0.0, NAN, 1.0), vague)
+    s, o = step(s, StepInput(0.5, 0.1, 0.0, NAN, 1.0), vague)
     assert o.standstill and o.omega == 0.0 and o.yaw == 0.0 and o.W == 0
     assert o.bias_corr_dps == pytest.approx(0.5, rel=0.01)
-    s, o = step(s, PlusInput(0.5, 0.1, 5.0, NAN, 1.0), vague)
+    s, o = step(s, StepInput(0.5, 0.1, 5.0, NAN, 1.0), vague)
     assert not o.standstill and abs(o.omega) < 0.05
 
 
