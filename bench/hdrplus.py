@@ -56,10 +56,10 @@ from hdrd.hdrplus import (
     step,
 )
 from hdrd.methods import StepInputs, plus_settings
-from hdrd.steps import StepInput
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import ScaleFactor, crs03_default_model
+from hdrd.steps import StepInput
 from hdrd.zupt import StandstillParams
 
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -639,7 +639,9 @@ def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
         W = 1 if abs(y) <= core.theta_w else 0
         I_next = I - sg * W * R * inc
         if W and abs(uc + I) <= P.straight_gate_dps:
-            b, k, p_bb, p_bk, p_kk = _proto_update(b, k, p_bb, p_bk, p_kk, ui, P.ablation.straight_r, dT)
+            b, k, p_bb, p_bk, p_kk = _proto_update(
+                b, k, p_bb, p_bk, p_kk, ui, P.ablation.straight_r, dT
+            )
             if idea.win_steps:
                 wsum, wcnt = wsum + ui, wcnt + 1
                 if wcnt == idea.win_steps:
