@@ -634,6 +634,7 @@ def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
         heading = np.full(t.shape[0], np.nan)
         rows, near = _nearest_rows(tg, tf, 0.02)
         heading[rows] = np.where(ok[near], course[near], np.nan)
+        speed[rows] = fix[near, 2]  # a fix's own speed at its row (also past the last fix)
         m = {
             "source": f"Open Aided Navigation {stem} (github.com/{meta['repo']} "
             f"{meta['commit'][:12]}), MIT",
