@@ -212,3 +212,161 @@ def test_cli_multi_needs_out_dir(tmp_path: Path) -> None:
     with pytest.raises(SystemExit):
         cr.main(["driveplotr", "--out", str(tmp_path / "x.csv")])
     assert cr.main(["rtklib", "--data", str(tmp_path), "--out", str(tmp_path / "x.csv")]) == 1
+
+
+# -- command line: 'all' and absent folders --------------------------------------------------
+
+
+def test_cli_all_takes_data_root(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # 'all --data ROOT' reads ROOT/<folder>, not the default folders.
+    assert cr.main(["all", "--data", str(tmp_path), "--out-dir", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'smartloc_berlin'} is absent" in err
+    assert "--data" not in err  # the user's own folder: no hint about the default
+    with pytest.raises(SystemExit):
+        cr.main(["all", "--data", str(tmp_path)])
+    assert "--out-dir" in capsys.readouterr().err  # the option that is missing
+    with pytest.raises(SystemExit):
+        cr.main(["all", "--out", str(tmp_path / "x.csv")])
+    assert "--out-dir" in capsys.readouterr().err
+
+
+def test_cli_absent_default_folder_hints(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(cr, "DATA", tmp_path / "no-shared-data")
+    assert cr.main(["rtklib", "--out", str(tmp_path / "x.csv")]) == 1
+    err = capsys.readouterr().err
+    assert "no-shared-data/rtklib_drive0708 is absent" in err and "--data" in err
+    assert cr.main(["all", "--out-dir", str(tmp_path)]) == 1
+    assert "HDRD_REAL_DATA" in capsys.readouterr().err
+    monkeypatch.setattr(cr, "MIRRORS", tmp_path / "no-mirrors")
+    assert cr.main(["psins", "--out", str(tmp_path / "p.csv")]) == 1
+    err = capsys.readouterr().err
+    assert "clone github.com/WangShanpeng/PSINS" in err
+    assert "c1706f136d1a8dc64245e851cc77c8cac00a94b6" in err
+    assert not (tmp_path / "p.csv").exists()
+
+
+@pytest.mark.skipif(not cr.DATA.is_dir(), reason="../shared/data is absent")
+def test_cli_all_with_explicit_root(tmp_path: Path) -> None:
+    assert cr.main(["all", "--data", str(cr.DATA), "--out-dir", str(tmp_path)]) == 0
+    names = {f.stem for f in tmp_path.glob("*.csv")}
+    assert {"smartloc_berlin", "comma2k19", "rtklib_drive0708", "nds_drive01"} <= names
+    assert not any(n.startswith(("oan_", "psins")) for n in names)  # 'all': shared/data only
+
+
+# -- public repositories (tools/real_sources.yaml) ---------------------------------------------
+
+OAN = cr.default_clone("oan")
+PSINS = cr.default_clone("psins")
+
+
+def wrapped_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> float:
+    """Mean |error| (deg, each wrapped to +-180) of heading0 - integral(sign * (omega - bias))
+    against the truth: a course with gaps may not unwrap."""
+    assert log.heading_truth is not None
+    u = sign * (log.omega - bias_dps)
+    yaw = np.concatenate(([0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * np.diff(log.t))))
+    ok = np.isfinite(log.heading_truth)
+    h = log.heading_truth[ok]
+    err = ((h[0] - (yaw[ok] - yaw[ok][0]) - h + 180.0) % 360.0) - 180.0
+    return float(np.mean(np.abs(err)))
+
+
+def test_source_file_is_checked(tmp_path: Path) -> None:
+    (tmp_path / "LICENSE.md").write_text("not the MIT text\n", encoding="utf-8")
+    with pytest.raises(ValueError, match="sha256"):
+        cr.read_source_file(tmp_path, "oan", "LICENSE.md")
+    with pytest.raises(ValueError, match="not listed"):
+        cr.read_source_file(tmp_path, "oan", "README.md")
+    with pytest.raises(ValueError, match="clone github.com/fedorbaklanov/open-aided-navigation"):
+        cr.read_source_file(
+            tmp_path, "oan", "data/nsr/drive/20201104_093418/20201104_093418_Gyro.csv"
+        )
+    meta = cr.public_source("psins")
+    assert len(meta["commit"]) == 40 and all(len(f["sha256"]) == 64 for f in meta["files"])
+
+
+def test_semicolon_table_hand_case() -> None:
+    text = (
+        b"Sensor: X Gyroscope\nVendor: Y\n"
+        b"TimestampGyro [ns]; GyroX [rad/s]; GyroY [rad/s]; GyroZ [rad/s]\n"
+        b"1000;0.1;0.2;0.3;\n2000;0.4;0.5;x;\n3000;0.7;0.8;\n4000;1.0;1.1;1.2;\n"
+    )
+    rows = cr._semicolon_table(text, "g.csv", ("TimestampGyro", "GyroZ"))
+    np.testing.assert_array_equal(rows, [[1000.0, 0.3], [4000.0, 1.2]])  # bad rows skipped
+    with pytest.raises(ValueError, match="no column Speed"):
+        cr._semicolon_table(text, "g.csv", ("TimestampGyro", "Speed"))
+    with pytest.raises(ValueError, match="no header"):
+        cr._semicolon_table(b"1;2;3\n", "g.csv", ("TimestampGyro",))
+
+
+@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+def test_oan(tmp_path: Path) -> None:
+    assert cr.main(["oan", "--data", str(OAN), "--out-dir", str(tmp_path)]) == 0
+    logs = {f.stem: read_drive(f) for f in sorted(tmp_path.glob("oan_*.csv"))}
+    assert sorted(logs) == ["oan_20201104_091730", "oan_20201104_093418", "oan_20201121_152755"]
+    durations = [lg.duration_s for lg in logs.values()]
+    assert durations == pytest.approx([1000.0, 100.0, 1579.7], abs=1.0)
+    leads = {n: float(lg.meta["lead_in_s"]) for n, lg in logs.items() if "lead_in_s" in lg.meta}
+    # Drive 1 turns out of its space ~6.5 s in; the city drive stands ~270 s but the phone is
+    # handled at ~120 s; the 100 s drive starts moving.
+    assert 4.0 <= leads["oan_20201104_091730"] <= 6.0
+    assert 110.0 <= leads["oan_20201121_152755"] < 121.0
+    assert "oan_20201104_093418" not in leads
+    for name, lg in logs.items():
+        assert lg.rate_hz == pytest.approx(50.0, rel=0.01)
+        assert lg.heading_truth is not None and lg.speed is not None
+        h = lg.heading_truth[np.isfinite(lg.heading_truth)]
+        assert h.min() >= 0.0 and h.max() < 360.0  # no -3000 placeholder
+        assert np.all(lg.speed[np.isfinite(lg.heading_truth)] > 2.0)
+        assert 80.0 < float(lg.meta["phone_tilt_deg"].split()[0]) < 90.0  # phone upright
+        # CCW positive: the gyro turns against the compass course, at zero lag.
+        corr, pairs = course_rate_correlation(lg)
+        assert corr > 0.9 and pairs > 90, name
+        bias = float(np.mean(lg.omega[lg.t < leads[name]])) if name in leads else 0.0
+        assert abs(bias) < 0.1
+        ok, flipped = wrapped_heading_error(lg, bias), wrapped_heading_error(lg, bias, -1.0)
+        assert ok < 20.0 and flipped > 50.0 and flipped > 3 * ok, name
+
+
+@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+def test_source_file_from_a_work_tree(tmp_path: Path) -> None:
+    # The same bytes from a bare git directory (the fetched snapshot) and from a work tree.
+    from_git = cr.read_source_file(OAN, "oan", "LICENSE.md")
+    assert b"Permission is hereby granted" in from_git
+    (tmp_path / "LICENSE.md").write_bytes(from_git)
+    assert cr.read_source_file(tmp_path, "oan", "LICENSE.md") == from_git
+
+
+@pytest.mark.skipif(not PSINS.exists(), reason=f"{PSINS} (a clone of PSINS) is absent")
+def test_psins(tmp_path: Path) -> None:
+    out = tmp_path / "p.csv"
+    assert cr.main(["psins", "--src", str(PSINS), "--out", str(out)]) == 0
+    log = read_drive(out)
+    assert log.columns() == ["t", "omega", "heading_truth", "omega_truth", "speed"]
+    assert len(log) == 10001 and log.rate_hz == pytest.approx(100.0)
+    assert log.duration_s == pytest.approx(100.0) and "lead_in_s" not in log.meta
+    assert float(log.meta["imu_tilt_deg"]) == pytest.approx(2.3, abs=0.3)
+    assert log.heading_truth is not None and log.omega_truth is not None
+    assert log.speed is not None and 11.0 < np.nanmin(log.speed) and np.nanmax(log.speed) < 16.0
+    assert np.isfinite(log.heading_truth).sum() == 1000  # every 10 Hz epoch
+    # Heading north (compass = minus PSINS's counter-clockwise yaw): within a few degrees of 0.
+    h = log.heading_truth[np.isfinite(log.heading_truth)]
+    assert np.all(np.abs(((h + 180.0) % 360.0) - 180.0) < 5.0)
+    # CCW positive: 1 s means of the gyro follow the INS yaw rate (slope ~0.93), and the gyro
+    # turns against the INS velocity's compass course.
+    sec = np.floor(log.t).astype(int)
+    g = np.bincount(sec, log.omega) / np.bincount(sec)
+    ok = np.isfinite(log.omega_truth)
+    r = np.bincount(sec[ok], log.omega_truth[ok]) / np.bincount(sec[ok])
+    assert np.corrcoef(g, r)[0, 1] > 0.8
+    assert np.polyfit(r, g, 1)[0] == pytest.approx(0.93, abs=0.1)
+    corr, pairs = course_rate_correlation(log)
+    assert corr > 0.5 and pairs > 900
+    bias = float(np.nanmean(log.omega - log.omega_truth))
+    assert bias == pytest.approx(0.028, abs=0.005)
+    mean_ok, _ = mean_heading_error(log, bias)
+    mean_flipped, _ = mean_heading_error(log, bias, sign=-1.0)
+    assert mean_ok < 0.6 and mean_flipped > mean_ok

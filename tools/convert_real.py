@@ -1,14 +1,25 @@
 #!/usr/bin/env python3
-"""Convert the real recordings in ../shared/data/ into hdrd drive logs (docs/drive-format.md).
+"""Convert real recordings into hdrd drive logs (docs/drive-format.md): those of ../shared/data/
+and those of public repositories listed in tools/real_sources.yaml (docs/real-data.md).
 
     python tools/convert_real.py smartloc   --out /tmp/smartloc_berlin.csv
     python tools/convert_real.py comma2k19  --out /tmp/comma2k19.csv
     python tools/convert_real.py rtklib     --out /tmp/rtklib_drive0708.csv
     python tools/convert_real.py driveplotr --out-dir /tmp/real   # 28 logs, nds_drive<NN>.csv
-    python tools/convert_real.py all --out-dir /tmp/real
+    python tools/convert_real.py all --out-dir /tmp/real [--data ../shared/data]
+    python tools/convert_real.py oan   --data CLONE --out-dir /tmp/real   # 3 logs, oan_<stamp>.csv
+    python tools/convert_real.py psins --data CLONE --out /tmp/real/psins_fog_mems.csv
 
-The recordings are third-party (see each folder's README.txt and licence) and are read in
-place, never copied into this repository; write the output outside it (e.g. /tmp).
+``--data`` (alias ``--src``) is the recording's folder, for oan and psins a clone of the public
+repository (its work tree, or a bare git directory read at the recorded commit); with ``all``
+the folder holding the recordings' folders. Defaults: ../shared/data beside the repository (or
+$HDRD_REAL_DATA), and for oan and psins the snapshot the search tool's fetch leaves under
+$HDRD_MIRRORS (default /work/.mirror). ``all`` converts the ../shared/data recordings only.
+
+The recordings are third-party (see each folder's README.txt and licence, and
+tools/real_sources.yaml) and are read in place, never copied into this repository; write the
+output outside it (e.g. /tmp). A public source's file whose sha256 differs from the recorded one
+is refused.
 
 Sign conventions (checked against the data, see the README.txt files):
 
@@ -52,6 +63,36 @@ Sign conventions (checked against the data, see the README.txt files):
   pairs of fixes at > 3 m/s) on each of the 21 drives with more than 100 such pairs; the
   short, nearly straight drives 2, 3, 19 and 28 have too little turning to say (-0.09..0.36). Rows without a gyro value are
   dropped; the logs keep their gaps (up to 74 s where the logger paused).
+- oan (Open Aided Navigation, data/nsr/drive/; three drives ``oan_<date>_<time>``): a phone
+  (STM LSM6DSL gyro, 50 Hz, rad/s) held upright in the car, recorded by Nav Sensor Recorder
+  with the phone's GNSS fix at 1 Hz (speed, and heading = Android's bearing, compass degrees;
+  -3000 or 0 when standing). The phone's y axis is near vertical (~85 deg from z), so omega =
+  the gyro vector projected on the mean accelerometer vector (specific force, up) over the
+  lead-in (the whole drive where there is none). Times: the sensors' and the fixes' ns stamps
+  (one clock). heading_truth = the bearing where the fix's speed > 2 m/s and it lies in
+  [0, 360), at the gyro row nearest each fix; speed = the fixes' speed interpolated. Lead-in:
+  the first fix reads standstill, rows before it take its speed; margin 2 s; the city drive's
+  stops at 119 s where the phone was handled while the car still stood (a 1 s swing of 20
+  deg/s). **Sign, verified**: the gyro's mean rate between fixes correlates +0.947, +0.975 and
+  +0.969 (991, 97, 882 fix pairs over 3 m/s) with minus the GNSS course rate, best at zero lag
+  (0.77-0.79 and 0.86-0.92 one fix earlier or later); integrated from the lead-in's bias
+  (0.036 and -0.005 deg/s; none on the 100 s drive) the heading follows the course with a mean
+  |error| of 14.2, 7.9 and 2.4 deg (wrapped to +-180: the city drive's course has a 53 s gap),
+  and with the sign flipped 63.9, 91.3 and 87.4 deg.
+- psins (PSINS data/transfer_align_fog_mems.mat; one run ``psins_fog_mems``): 100 s of a car at
+  11.5-15.8 m/s on a nearly straight road (4 deg of course change). ``mimu``: a MEMS IMU's
+  angle and velocity increments at 100 Hz (rad, m/s; z up: +9.69 m/s^2 at rest); ``fogavp``: a
+  FOG INS's pitch, roll, yaw (rad), vE, vN, vU, lat, lon, h at 10 Hz, used as the reference.
+  PSINS's yaw is counter-clockwise from north (its vn2att: atan2(-vE, vN)), so heading_truth =
+  -yaw (compass), at the row nearest each epoch; omega_truth = d(yaw)/dt; speed = the INS's
+  horizontal speed. omega = the increments / 0.01 s projected on the run's mean specific force
+  (no standstill; tilt ~2.3 deg); no lead-in. **Sign, verified**: the gyro's 1 s means
+  correlate +0.84 with the INS yaw rate (slope 0.93, offset 0.027 deg/s: the bias), the
+  10-sample means +0.62 at zero lag (0.50 half a second off); over the 10 Hz epochs it
+  correlates +0.62 with minus the INS velocity's course rate; integrated with the bias
+  mean(omega - omega_truth) = 0.028 deg/s the heading stays within 0.4 deg (mean) of the INS,
+  1.0 deg flipped (little turning: the correlations are the evidence). The INS heading and its
+  velocity's course differ by ~4.4 deg on average (mounting).
 
 Each log that starts at standstill says so in ``lead_in_s`` (docs/drive-format.md): the seconds
 from the first sample during which the vehicle stood still, so that the static bias can be
@@ -59,7 +100,7 @@ measured there. From the speed: the initial run of rows with speed <= 0.3 m/s (R
 <= 0.3 m/s and |omega - median| <= 0.5 deg/s (driveplotr: its GPS speed lags and reads ~0.1 m/s
 while the car already turns out of a parking space), ended a margin before the first row that
 fails (1 s for rtklib, 3 s for driveplotr's lagging speed); a lead-in under 3 s is not written.
-smartLoc and comma2k19 start moving: they carry no ``lead_in_s``.
+smartLoc, comma2k19, psins and the 100 s oan drive start moving: they carry no ``lead_in_s``.
 
 Times are shifted to start at 0 (the original start is in the metadata).
 """
@@ -68,9 +109,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -79,7 +122,10 @@ from hdrd.drivelog import DriveLog, write_drive
 
 FloatArray = npt.NDArray[np.float64]
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(
+    os.environ.get("HDRD_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")
+)
+"""../shared/data beside the repository (or $HDRD_REAL_DATA): the recordings' folders."""
 MIN_COURSE_SPEED_MPS = 2.0
 
 # WGS84
@@ -459,6 +505,200 @@ def driveplotr_to_drives(folder: Path = DATA / "driveplotr_nds") -> list[DriveLo
     return drives
 
 
+# -- public repositories (tools/real_sources.yaml) -------------------------------------------
+
+SOURCES_YAML = Path(__file__).resolve().parent / "real_sources.yaml"
+MIRRORS = Path(os.environ.get("HDRD_MIRRORS", "/work/.mirror"))
+"""Where the search tool's ``fetch`` puts repository snapshots (``<owner>+<name>/repo``, bare git
+directories): the default source of the recordings of tools/real_sources.yaml."""
+
+
+def public_source(key: str) -> dict[str, Any]:
+    """The entry ``sources.<key>`` of tools/real_sources.yaml (repo, commit, files, drives...)."""
+    import yaml
+
+    with open(SOURCES_YAML, encoding="utf-8") as f:
+        doc = yaml.safe_load(f)
+    return dict(doc["sources"][key])
+
+
+def default_clone(key: str) -> Path:
+    """Default location of a public source: the fetched snapshot of its repository."""
+    return MIRRORS / public_source(key)["repo"].replace("/", "+") / "repo"
+
+
+def read_source_file(src: Path, key: str, path: str) -> bytes:
+    """The bytes of ``path`` of public source ``key``: from a clone's work tree (src/path), or
+    from a bare git directory at the recorded commit; refused when its sha256 is not the one
+    recorded in tools/real_sources.yaml (another version of the file)."""
+    import hashlib
+    import subprocess
+
+    meta = public_source(key)
+    files = {f["path"]: f for f in meta["files"]}
+    if path not in files:
+        raise ValueError(f"{path}: not listed for {key} in {SOURCES_YAML.name}")
+    if (src / path).is_file():
+        data = (src / path).read_bytes()
+    elif (src / "HEAD").is_file() and (src / "objects").is_dir():
+        run = subprocess.run(
+            ["git", "--git-dir", str(src), "show", f"{meta['commit']}:{path}"],
+            capture_output=True,
+            check=False,
+        )
+        if run.returncode != 0:
+            raise ValueError(f"{src}: git cannot show {meta['commit'][:12]}:{path}")
+        data = run.stdout
+    else:
+        raise ValueError(
+            f"{src}: holds no {path}; clone github.com/{meta['repo']} (commit "
+            f"{meta['commit'][:12]}) and pass the clone with --data"
+        )
+    digest = hashlib.sha256(data).hexdigest()
+    if digest != files[path]["sha256"]:
+        raise ValueError(
+            f"{src}/{path}: sha256 {digest[:12]}... is not the recorded "
+            f"{files[path]['sha256'][:12]}... (check out commit {meta['commit'][:12]})"
+        )
+    return data
+
+
+def _semicolon_table(data: bytes, label: str, columns: tuple[str, ...]) -> FloatArray:
+    """The numeric rows of a Nav Sensor Recorder CSV (``;``-separated, ``Name [unit]`` header
+    after free text lines), only the named columns (matched by the text before " ["), in that
+    order. Rows that are not all numbers are skipped."""
+    names: list[str] | None = None
+    rows = []
+    for line in data.decode("utf-8", errors="replace").splitlines():
+        parts = [p.strip() for p in line.strip().rstrip(";").split(";")]
+        if names is None:
+            if any(p.startswith(columns[0] + " [") for p in parts):
+                names = [p.split(" [")[0] for p in parts]
+                missing = [c for c in columns if c not in names]
+                if missing:
+                    raise ValueError(f"{label}: no column {', '.join(missing)}")
+                idx = [names.index(c) for c in columns]
+            continue
+        if len(parts) != len(names):
+            continue
+        try:
+            rows.append([float(parts[i]) for i in idx])
+        except ValueError:
+            continue
+    if names is None or len(rows) < 2:
+        raise ValueError(f"{label}: no header with {columns[0]!r} or fewer than 2 rows")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _increasing(t: FloatArray) -> np.ndarray:
+    """Mask keeping the rows whose time is above every earlier row's (strictly increasing t)."""
+    prev = np.concatenate(([-np.inf], np.maximum.accumulate(t)[:-1]))
+    return np.asarray(t > prev)
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    return np.asarray(v / np.linalg.norm(v), dtype=np.float64)
+
+
+def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
+    """The Open Aided Navigation car drives as drive logs (see the module docstring)."""
+    src = default_clone("oan") if src is None else src
+    meta = public_source("oan")
+    logs = []
+    for name, folder in meta["drives"].items():
+        folder = str(folder)
+        stem = f"data/nsr/drive/{folder}/{folder[:15]}"
+
+        def table(kind: str, cols: tuple[str, ...], stem: str = stem) -> FloatArray:
+            path = f"{stem}_{kind}.csv"
+            return _semicolon_table(read_source_file(src, "oan", path), path, cols)
+
+        gyro = table("Gyro", ("TimestampGyro", "GyroX", "GyroY", "GyroZ"))
+        acc = table("Acc", ("TimestampAcc", "AccX", "AccY", "AccZ"))
+        fix = table("GNSS", ("TimestampGNSS", "UTC time", "Speed", "Heading"))
+        gyro, fix = gyro[_increasing(gyro[:, 0])], fix[_increasing(fix[:, 0])]
+        tg, ta, tf = gyro[:, 0] * 1e-9, acc[:, 0] * 1e-9, fix[:, 0] * 1e-9
+        t = tg - tg[0]
+        # The lead-in: the first fix reads standstill and the car stands until a fix says it
+        # moves; rows before the first fix take its speed (checked by the gyro's 1 s mean, about
+        # the whole drive's mean specific force: the phone's rough vertical).
+        speed = np.interp(tg, tf, fix[:, 2], left=np.nan, right=np.nan)
+        lead_speed = np.where(tg < tf[0], fix[0, 2], speed)
+        omega0 = np.degrees(gyro[:, 1:4] @ _unit(acc[:, 1:4].mean(axis=0)))
+        lead = lead_in_seconds(t, lead_speed, omega0, margin_s=2.0)
+        still = (ta - tg[0]) < lead if lead is not None else np.ones(ta.shape, dtype=bool)
+        up = _unit(acc[still, 1:4].mean(axis=0))
+        omega = np.degrees(gyro[:, 1:4] @ up)
+        course = fix[:, 3]
+        ok = (fix[:, 2] > MIN_COURSE_SPEED_MPS) & (course >= 0.0) & (course < 360.0)
+        heading = np.full(t.shape[0], np.nan)
+        rows, near = _nearest_rows(tg, tf, 0.02)
+        heading[rows] = np.where(ok[near], course[near], np.nan)
+        speed[rows] = fix[near, 2]  # a fix's own speed at its row (also past the last fix)
+        m = {
+            "source": f"Open Aided Navigation {stem} (github.com/{meta['repo']} "
+            f"{meta['commit'][:12]}), MIT",
+            "omega": "phone gyro (LSM6DSL) vector projected on the static vertical, deg/s, CCW positive, 50 Hz, raw",
+            "heading_truth": f"phone GNSS course (Android bearing) at 1 Hz, speed > {MIN_COURSE_SPEED_MPS:g} m/s, at the row nearest each fix",
+            "speed": "phone GNSS speed, interpolated",
+            "t0_s": f"{tg[0]:.6f} (phone elapsed-realtime clock); first fix UTC ms {fix[0, 1]:.0f}",
+            "phone_tilt_deg": f"{math.degrees(math.acos(min(1.0, abs(float(up[2]))))):.1f} (vertical from the phone's z axis)",
+        }
+        if lead is not None:
+            m["lead_in_s"] = f"{lead:g}"
+        logs.append(
+            DriveLog(t=t, omega=omega, heading_truth=heading, speed=speed, name=name, meta=m)
+        )
+    return logs
+
+
+def psins_to_drive(src: Path | None = None) -> DriveLog:
+    """PSINS's MEMS-vs-FOG-INS car run as a drive log (see the module docstring)."""
+    import io
+
+    from scipy.io import loadmat
+
+    src = default_clone("psins") if src is None else src
+    meta = public_source("psins")
+    path = meta["drives"]["psins_fog_mems"]
+    mat = loadmat(io.BytesIO(read_source_file(src, "psins", path)))
+    imu = np.asarray(mat["mimu"], dtype=np.float64)  # dtheta xyz (rad), dv xyz (m/s), t (s)
+    avp = np.asarray(
+        mat["fogavp"], dtype=np.float64
+    )  # pitch roll yaw (rad), vE vN vU, lat lon h, t
+    if imu.ndim != 2 or imu.shape[1] != 7 or avp.ndim != 2 or avp.shape[1] != 10:
+        raise ValueError(f"{path}: mimu is not (n, 7) or fogavp not (n, 10)")
+    imu = imu[_increasing(imu[:, 6])]
+    avp = avp[_increasing(avp[:, 9]) & (avp[:, 6] > 0.1)]  # the INS is valid (as PSINS's demo)
+    t_imu = imu[:, 6]
+    dt = float(np.median(np.diff(t_imu)))
+    up = _unit(imu[:, 3:6].mean(axis=0))  # no standstill: the run's mean specific force
+    omega = np.degrees(imu[:, 0:3] @ up) / dt
+    t_avp = avp[:, 9]
+    yaw = np.degrees(np.unwrap(avp[:, 2]))  # PSINS: yaw counter-clockwise from north
+    heading = np.full(t_imu.shape[0], np.nan)
+    rows, near = _nearest_rows(t_imu, t_avp, dt / 2)
+    heading[rows] = np.mod(-yaw[near], 360.0)
+    omega_truth = np.interp(t_imu, t_avp, np.gradient(yaw, t_avp), left=np.nan, right=np.nan)
+    speed = np.interp(t_imu, t_avp, np.hypot(avp[:, 3], avp[:, 4]), left=np.nan, right=np.nan)
+    return DriveLog(
+        t=t_imu - t_imu[0],
+        omega=omega,
+        heading_truth=heading,
+        omega_truth=omega_truth,
+        speed=speed,
+        name="psins_fog_mems",
+        meta={
+            "source": f"PSINS {path} (github.com/{meta['repo']} {meta['commit'][:12]}), BSD-2-Clause",
+            "omega": f"MEMS gyro increments / {dt:g} s projected on the run's mean specific force, deg/s, CCW positive, raw",
+            "heading_truth": "FOG INS heading (minus PSINS's counter-clockwise yaw), at the row nearest each 10 Hz epoch",
+            "omega_truth": "d/dt of the FOG INS yaw, interpolated",
+            "speed": "FOG INS horizontal speed, interpolated",
+            "imu_tilt_deg": f"{math.degrees(math.acos(min(1.0, abs(float(up[2]))))):.2f}",
+        },
+    )
+
+
 def _one(fn: Callable[[Path], DriveLog]) -> Callable[[Path], list[DriveLog]]:
     return lambda folder: [fn(folder)]
 
@@ -469,42 +709,76 @@ CONVERTERS: dict[str, tuple[Callable[[Path], list[DriveLog]], str]] = {
     "rtklib": (_one(rtklib_to_drive), "rtklib_drive0708"),
     "driveplotr": (driveplotr_to_drives, "driveplotr_nds"),
 }
-"""Recording name -> (converter to drive logs, folder under ../shared/data)."""
-MULTI = {"driveplotr"}
+"""Recording of ../shared/data -> (converter to drive logs, its folder there); ``all`` converts
+these."""
+PUBLIC: dict[str, tuple[Callable[[Path], list[DriveLog]], str]] = {
+    "oan": (oan_to_drives, "oan"),
+    "psins": (_one(psins_to_drive), "psins"),
+}
+"""Recording of a public repository -> (converter, its key in tools/real_sources.yaml); read from
+a clone (--data) or the fetched snapshot. Not part of ``all``."""
+MULTI = {"driveplotr", "oan"}
 """Recordings that become several logs (written with --out-dir)."""
+
+
+def _absent_hint(name: str) -> str:
+    """What to do when a recording's default location is absent."""
+    if name in PUBLIC:
+        meta = public_source(PUBLIC[name][1])
+        return (
+            f"; clone github.com/{meta['repo']}, check out {meta['commit']} and pass the "
+            "clone with --data (docs/real-data.md)"
+        )
+    return (
+        "; the default is ../shared/data beside the repository (or $HDRD_REAL_DATA): pass the "
+        "recording's folder with --data ('all': the folder holding every recording's folder)"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("which", choices=(*CONVERTERS, "all"))
+    p.add_argument("which", choices=(*CONVERTERS, *PUBLIC, "all"))
     p.add_argument(
-        "--data", type=Path, help="the recording's folder (default ../shared/data/<name>)"
+        "--data",
+        "--src",
+        dest="data",
+        type=Path,
+        help="the recording's folder, or for oan/psins a clone of its repository (default: "
+        "../shared/data/<folder>, or the fetched snapshot); with 'all', the folder holding the "
+        "recordings' folders (default ../shared/data)",
     )
     p.add_argument("--out", type=Path, help="drive log CSV to write (one single-log recording)")
     p.add_argument(
-        "--out-dir", type=Path, help="directory for <name>.csv (with 'all' and driveplotr)"
+        "--out-dir", type=Path, help="directory for <name>.csv (with 'all', driveplotr and oan)"
     )
     args = p.parse_args(argv)
-    jobs = list(CONVERTERS) if args.which == "all" else [args.which]
-    if args.which == "all" and (args.out_dir is None or args.data is not None):
-        p.error("'all' needs --out-dir (and takes the default data folders)")
-    if args.which in MULTI and args.out_dir is None:
-        p.error(f"{args.which} writes several logs: --out-dir is required")
-    if args.which != "all" and args.which not in MULTI and args.out is None:
+    multi = args.which == "all" or args.which in MULTI
+    if multi and (args.out_dir is None or args.out is not None):
+        p.error(f"{args.which} writes several logs: give --out-dir (not --out)")
+    if not multi and args.out is None:
         p.error("--out is required")
-    for name in jobs:
-        convert, folder = CONVERTERS[name]
-        src = args.data if args.data is not None else DATA / folder
+    jobs: list[tuple[str, Callable[[Path], list[DriveLog]], Path]] = []
+    if args.which == "all":
+        root = args.data if args.data is not None else DATA
+        jobs = [(name, fn, root / folder) for name, (fn, folder) in CONVERTERS.items()]
+    elif args.which in PUBLIC:
+        fn, key = PUBLIC[args.which]
+        jobs = [(args.which, fn, args.data if args.data is not None else default_clone(key))]
+    else:
+        fn, folder = CONVERTERS[args.which]
+        jobs = [(args.which, fn, args.data if args.data is not None else DATA / folder)]
+    for name, convert, src in jobs:
+        if not src.exists():
+            hint = _absent_hint(name) if args.data is None else ""
+            print(f"convert_real: {name}: {src} is absent{hint}", file=sys.stderr)
+            return 1
         try:
             logs = convert(src)
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, KeyError) as e:
             print(f"convert_real: {name}: {e}", file=sys.stderr)
             return 1
         for log in logs:
-            if args.which == "all" or name in MULTI:
-                out = args.out_dir / f"{log.name}.csv"
-            else:
-                out = args.out
+            out = args.out_dir / f"{log.name}.csv" if multi else args.out
             out.parent.mkdir(parents=True, exist_ok=True)
             write_drive(out, log)
             fixes = (
