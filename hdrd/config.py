@@ -192,6 +192,9 @@ class GpsdConfig:
     """Straight-driving window over which GPS makes one bias estimate, s."""
     bias_gain: float = 0.3
     """Share of a window's bias estimate applied, 0 .. 1."""
+    device: str = ""
+    """The GPS receiver to follow, as gpsd names it (TPV ``device``, e.g. /dev/ttyUSB0);
+    empty: the first that reports a fix."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -365,6 +368,11 @@ RULES: dict[str, tuple[Check, str]] = {
     "gpsd.align_gain": _num(0, 1),
     "gpsd.bias_window_s": _POS,
     "gpsd.bias_gain": _num(0, 1),
+    "gpsd.device": (
+        (lambda v: "\0" not in v and v == v.strip()),
+        "a device path as gpsd names it (no NUL, no surrounding spaces), or empty for the "
+        "first receiver with a fix",
+    ),
 }
 
 

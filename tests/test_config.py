@@ -110,6 +110,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.align_gain": (0.5, [-0.1, 1.5, NAN]),
     "gpsd.bias_window_s": (60.0, [0.0, -5.0, INF]),
     "gpsd.bias_gain": (1.0, [1.01, -0.3, True]),
+    "gpsd.device": ("/dev/ttyUSB1", [" /dev/ttyUSB1", "a\0b", 1, None, ["/dev/ttyUSB1"]]),
     "standstill.enabled": (False, ["no", 0, None]),
     "standstill.from_gyro": (True, ["yes", 1, 1.0]),
     "simulate.grade": ("tactical", ["nav", "", 1]),
