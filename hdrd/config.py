@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
@@ -376,17 +377,32 @@ RULES: dict[str, tuple[Check, str]] = {
 }
 
 
+_YAML11_TEXT_NUMBER = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)[eE][-+]?[0-9]+")
+"""A number in exponent form that YAML 1.1 (PyYAML) reads as text: its floats need a dot
+and a signed exponent (``1.0e+9``), so ``1.0e9`` and ``1e-2`` are strings to it; YAML 1.2
+reads them as numbers, and so does a number key here. Other text stays text (``"0.5"``,
+quoted, is a string, refused)."""
+
+
 def _coerce(key: str, value: Any, default: Any) -> Any:
-    """Check the YAML value's type against the default's type; return it in that type."""
+    """Check the YAML value's type against the default's type; return it in that type.
+
+    A number key also takes a number that YAML 1.1 reads as text (``1e-2``, ``1.0e9``:
+    :data:`_YAML11_TEXT_NUMBER`)."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(key, value, "must be true or false")
         return value
     if isinstance(default, int):
+        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+            raise ConfigError(key, value, "must be an integer, written out in digits")
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(key, value, "must be an integer")
         return value
     if isinstance(default, float):
+        written = value
+        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(key, value, "must be a number")
         try:
@@ -394,7 +410,7 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
         except OverflowError:  # an integer too large for a float
             raise ConfigError(key, value, "must be a finite number") from None
         if not math.isfinite(number):
-            raise ConfigError(key, value, "must be a finite number")
+            raise ConfigError(key, written, "must be a finite number")
         return number
     if isinstance(default, str):
         if not isinstance(value, str):

@@ -380,6 +380,44 @@ def test_apply_overrides_unknown(dotted: str) -> None:
     assert "unknown" in str(ei.value) and "\n" not in str(ei.value)
 
 
+# -- numbers YAML 1.1 reads as text ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "written, value",
+    [("1e-2", 0.01), ("1.0e9", 1e9), ("5E-1", 0.5), ("+2e0", 2.0), (".5e1", 5.0), ("1.e1", 10.0)],
+)
+def test_exponent_numbers_yaml_reads_as_text_are_numbers(
+    tmp_path: Path, written: str, value: float
+) -> None:
+    """PyYAML (YAML 1.1) reads 1e-2 and 1.0e9 as strings; they used to be refused with
+    "must be a number". A number key takes them, as YAML 1.2 would."""
+    assert isinstance(yaml.safe_load(f"x: {written}")["x"], str)  # what the parser gives
+    f = tmp_path / "hdrd.yaml"
+    f.write_text(f"gpsd:\n  bias_window_s: {written}\n  max_fix_age_s: {written}\n")
+    cfg, _ = load_config(f)
+    assert cfg.gpsd.bias_window_s == value and type(cfg.gpsd.bias_window_s) is float
+    assert cfg.gpsd.max_fix_age_s == value
+
+
+@pytest.mark.parametrize(
+    "key, text, why",
+    [
+        ("hdr.tau", "1e", "must be a number"),
+        ("hdr.tau", "e5", "must be a number"),
+        ("hdr.tau", "1e-2 s", "must be a number"),
+        ("hdr.tau", "1e999", "must be a finite number"),
+        ("hdr.tau", "1e4", "hdr.tau = 10000.0: must be a finite number >= 0 and <= 3600"),
+        ("device.baud", "1e6", "must be an integer, written out in digits"),
+    ],
+)
+def test_text_that_is_no_number_is_still_refused(key: str, text: str, why: str) -> None:
+    with pytest.raises(ConfigError) as e:
+        parse_config(nested(key, text))
+    assert why in str(e.value), str(e.value)
+    assert "10000" in str(e.value) or f"{key} = '{text}'" in str(e.value), str(e.value)
+
+
 # -- the shipped config/hdrd.yaml --------------------------------------------------------------
 
 
