@@ -288,12 +288,16 @@ def _method() -> tuple[Check, str]:
     )
 
 
+_HOSTPORTS = "a list of HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
+
+
 def _hostports(v: tuple[str, ...]) -> bool:
-    try:
-        for item in v:
+    """True if every item is a HOST:PORT; ValueError naming the first that is not, and why."""
+    for item in v:
+        try:
             parse_hostport(item)
-    except ValueError:
-        return False
+        except ValueError as e:
+            raise ValueError(f"{clipped(repr(item), 60)} is not: {e}") from None
     return True
 
 
@@ -340,8 +344,8 @@ RULES: dict[str, tuple[Check, str]] = {
     "calibration.max_bias_dps": _num(0, 1000, lo_open=True),
     "calibration.no_data_timeout_s": _SECONDS,
     "output.heading0_deg": _num(0, 360, hi_open=True),
-    "output.udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
-    "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
+    "output.udp": (_hostports, _HOSTPORTS),
+    "output.nmea_udp": (_hostports, _HOSTPORTS),
     "output.nmea_talker": (
         (lambda v: len(v) == 2 and v.isascii() and v.isalpha() and v.isupper()),
         "two capital letters, e.g. HN, or II for gpsd",
@@ -427,7 +431,13 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
 
 def _check(key: str, value: Any) -> None:
     rule = RULES.get(key)
-    if rule is not None and not rule[0](value):
+    if rule is None:
+        return
+    try:
+        ok = rule[0](value)
+    except ValueError as e:  # a check that says what is wrong
+        raise ConfigError(key, value, f"must be {rule[1]}; {e}") from None
+    if not ok:
         raise ConfigError(key, value, f"must be {rule[1]}")
 
 

@@ -265,12 +265,21 @@ _ASYNC_ERRNOS = frozenset(
 
 
 def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
-    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
+    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed.
+
+    An IPv6 address must be in brackets: ``::1:7400`` could be the address ``::1:7400`` with
+    no port as well as ``::1`` port 7400, so it is refused, saying to write ``[::1]:7400``."""
     if not isinstance(text, str) or ":" not in text:
         raise ValueError("expected HOST:PORT")
     host, _, port_s = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
+        if not host:
+            raise ValueError("empty host in []")
+    elif ":" in host:
+        raise ValueError(f"an IPv6 address goes in brackets: [{host}]:{port_s}")
+    if "[" in host or "]" in host:
+        raise ValueError("brackets belong around a whole IPv6 address: [::1]:PORT")
     if not port_s.isdigit() or not 0 < int(port_s) < 65536:
         raise ValueError("port must be 1..65535")
     if any(c.isspace() for c in host):

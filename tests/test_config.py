@@ -509,11 +509,26 @@ def test_parse_hostport(text: str, want: tuple[str, int]) -> None:
 
 
 @pytest.mark.parametrize(
-    "text", ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5]
+    "text",
+    ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5, "[]:1", "[::1:7400"],
 )
 def test_parse_hostport_rejects(text: Any) -> None:
     with pytest.raises(ValueError):
         parse_hostport(text)
+
+
+@pytest.mark.parametrize("text", ["::1:7400", "fe80::1:10110", "2001:db8::2:53"])
+def test_an_ipv6_destination_needs_brackets(text: str) -> None:
+    """'::1:7400' is the address ::1 port 7400, or the address ::1:7400 with no port: it used
+    to be taken as the first. Refused, saying how to write it."""
+    host, _, port = text.rpartition(":")
+    with pytest.raises(ValueError, match=re.escape(f"in brackets: [{host}]:{port}")):
+        parse_hostport(text)
+    assert parse_hostport(f"[{host}]:{port}") == (host, int(port))
+    with pytest.raises(ConfigError) as e:
+        parse_config({"output": {"udp": ["127.0.0.1:10110", text]}})
+    msg = check_error(e.value, "output.udp")
+    assert f"{text!r} is not: an IPv6 address goes in brackets: [{host}]:{port}" in msg
 
 
 # -- the CLI: exit 78 (EX_CONFIG) with the one line on stderr -----------------------------------
