@@ -128,6 +128,20 @@ def test_piped_to_head_still_writes_the_bias_file(tmp_path: Path) -> None:
     assert "written to" in err and "Traceback" not in err
 
 
+def test_a_write_that_fails_says_where_in_one_line(tmp_path: Path) -> None:
+    # /proc takes no new file: the temporary file beside the bias file cannot be made.
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 100\n")
+    p = calibrate("--simulate", "--config", str(cfg), "--seconds", "1",
+                  "--bias-file", "/proc/hdrd-bias.yaml")  # fmt: skip
+    last = p.stderr.decode().strip().splitlines()[-1]
+    assert p.returncode == 1
+    assert last == (
+        "hdrd calibrate: cannot write /proc/hdrd-bias.yaml: No such file or directory "
+        "(its temporary file in /proc); bias file not written"
+    )
+
+
 def test_bad_seconds_is_a_config_error() -> None:
     for value in ("nan", "0", "-3", "1e308"):
         p = calibrate("--simulate", "--seconds", value, timeout=60)
