@@ -122,22 +122,50 @@ def build_publishers(cfg: Config) -> list[Publisher]:
     return pubs
 
 
+UDP_STATS_LINES = 10
+"""At stop, up to this many UDP destinations of an output get a log line each; more are
+summed up in one line (``output_udp_summary``) plus a line for each of the
+``UDP_STATS_LINES`` that failed most."""
+
+
 def _stop_all(pubs: list[Publisher]) -> None:
-    """Stop every publisher (each flushes), then log each UDP destination's counters: what
-    was sent, and what failed and why (a peer that refused, a name that never resolved)."""
+    """Stop every publisher (each flushes), then log the UDP destinations' counters: what
+    was sent, and what failed and why (a peer that refused, a name that never resolved). One
+    line per destination, or, for an output with more than :data:`UDP_STATS_LINES`, one
+    summary line and the lines of those that failed most."""
     for p in pubs:
         try:
             p.stop()
         except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
             log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
     for p in pubs:
-        if isinstance(p, UdpPublisher):
-            for d in p.stats():
-                fields = d.to_dict()
-                output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
-                (log.warning if d.errors or d.dropped else log.info)(
-                    "output_udp_stats", output=output, **fields
-                )
+        if not isinstance(p, UdpPublisher):
+            continue
+        output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
+        stats = p.stats()
+        shown = stats
+        if len(stats) > UDP_STATS_LINES:
+            failing = [d for d in stats if d.errors or d.dropped]
+            by_error: dict[str, int] = {}
+            for d in failing:
+                for kind, n in d.by_error.items():
+                    by_error[kind] = by_error.get(kind, 0) + n
+            (log.warning if failing else log.info)(
+                "output_udp_summary",
+                output=output,
+                destinations=len(stats),
+                sent=sum(d.sent for d in stats),
+                errors=sum(d.errors for d in stats),
+                dropped=sum(d.dropped for d in stats),
+                failing=len(failing),
+                by_error=by_error,
+            )
+            failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
+            shown = failing[:UDP_STATS_LINES]
+        for d in shown:
+            (log.warning if d.errors or d.dropped else log.info)(
+                "output_udp_stats", output=output, **d.to_dict()
+            )
 
 
 # -- hdrd run ----------------------------------------------------------------------------
