@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 from hdrd import __version__
 from hdrd.protocol import PROTOCOLS
-from hdrd.signals import hold_hangup
+from hdrd.signals import command_of, hold_hangup
 
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
@@ -523,12 +523,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    if args.command == "run":
-        # SIGHUP's default action ends the process: hold it from here, before the slow
-        # imports and the config, until the daemon installs its reload handler (which
-        # takes a held one as a reload request).
+    if command_of(list(sys.argv[1:] if argv is None else argv)) == "run":
+        # SIGHUP's default action ends the process: hold it from here (the entry point,
+        # hdrd.__main__, already has), before parsing, the slow imports and the config,
+        # until the daemon installs its reload handler (which takes a held one as a reload).
         hold_hangup()
+    args = parse_args(argv)
     module, _, func = args._target.partition(":")
     impl = getattr(importlib.import_module(module), func)
     try:

@@ -54,6 +54,111 @@ def test_sighup_during_start_up_does_not_kill_the_daemon(fake_gyro, daemon, udp)
     assert 1 <= len(reloads) <= 2  # the held one (if it came after the handler) and the later
 
 
+# Starts `hdrd` the way ENTRY says (python -m hdrd, or the console script's import of the
+# entry point pyproject.toml names) and sends itself SIGHUP when hdrd.cli is first imported:
+# the earliest moment after hdrd's own first statement, long before the argument parser and
+# the daemon. Found through the interpreter's audit events (PEP 578).
+HUP_AT_CLI_IMPORT = r"""
+import os, runpy, signal, sys
+entry, argv = sys.argv[1], sys.argv[2:]
+def hook(event, args):
+    if event == "import" and args[0] == "hdrd.cli":
+        os.kill(os.getpid(), signal.SIGHUP)
+sys.addaudithook(hook)
+sys.argv = ["hdrd", *argv]
+if entry == "-m":
+    runpy.run_module("hdrd", run_name="__main__", alter_sys=True)
+else:
+    module, _, func = entry.partition(":")
+    sys.exit(getattr(__import__(module, fromlist=[func]), func)())
+"""
+
+
+def _console_entry() -> str:
+    """The ``hdrd`` console script's entry point, ``module:function``, from pyproject.toml."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    m = re.search(r'^\[project\.scripts\]\s*\nhdrd = "([\w.]+:\w+)"', text, flags=re.MULTILINE)
+    assert m, "no hdrd entry in pyproject.toml's [project.scripts]"
+    return m.group(1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("entry", ["-m", "console script"])
+def test_sighup_at_hdrds_first_import_is_a_reload(entry: str, udp, tmp_path: Path) -> None:  # noqa: F811
+    """SIGHUP in the first few hundredths of a second of `hdrd run` (sent here the moment
+    hdrd.cli is imported, before argument parsing) used to end the daemon: the hold came
+    after parsing. It is the entry point's first statement now: the daemon lives, reloads."""
+    u = udp()
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 20\n")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    target = "-m" if entry == "-m" else _console_entry()
+    argv = ["run", "--simulate", "--config", str(cfg), "--udp", u.addr, "--log-format", "json"]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HUP_AT_CLI_IMPORT, target, *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
+    try:
+        got = u.messages(lambda ms: len(ms) >= 3)
+    except (AssertionError, OSError):
+        proc.kill()
+        _, err = proc.communicate(timeout=WAIT)
+        raise AssertionError(
+            f"no messages; exit {proc.returncode}: {err.decode()[-800:]}"
+        ) from None
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0, err.decode()[-800:]
+    assert got[-1]["step"] >= 2
+    reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
+    assert len(reloads) == 1, err.decode()[-800:]  # the held SIGHUP, taken as a reload
+
+
+def _block_hangup() -> None:
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+
+
+@pytest.mark.slow
+def test_a_sighup_the_parent_blocked_is_a_reload_once_the_daemon_runs(udp, tmp_path: Path) -> None:  # noqa: F811
+    """Before hdrd's first statement the interpreter starts, and no handler can exist yet:
+    a sender that must not kill a starting daemon starts it with SIGHUP blocked (the mask
+    passes through exec). Here a SIGHUP is sent at once, before the interpreter has started.
+    hdrd used to leave SIGHUP blocked: no reload, ever. Now it unblocks it once its handler
+    is in place: the waiting SIGHUP is a reload, and so is a later one."""
+    u = udp()
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 20\n")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", "--simulate", "--config", str(cfg),
+         "--udp", u.addr, "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+        preexec_fn=_block_hangup,
+    )  # fmt: skip
+    proc.send_signal(signal.SIGHUP)  # pending until hdrd unblocks it
+    try:
+        u.messages(lambda ms: len(ms) >= 3)
+        proc.send_signal(signal.SIGHUP)  # and once running
+        u.messages(lambda ms: len(ms) >= 3)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0, err.decode()[-800:]
+    reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
+    assert len(reloads) == 2, err.decode()[-800:]
+
+
 @pytest.mark.slow
 def test_sighup_with_a_file_the_yaml_parser_cannot_take_keeps_the_old_config(
     fake_gyro,
