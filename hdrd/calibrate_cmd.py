@@ -156,8 +156,11 @@ def _calibrate(
             if item is None or isinstance(item, DeviceLost):
                 if isinstance(item, DeviceLost):
                     lost = item.reason
+                    never = isinstance(src, SerialSource) and not src.reader.opened_once
                     print(
-                        f"device lost ({item.reason}); waiting for it to come back",
+                        f"{item.reason}; waiting up to {timeout:g} s for it to appear"
+                        if never
+                        else f"device lost ({item.reason}); waiting for it to come back",
                         file=sys.stderr,
                         flush=True,
                     )

@@ -287,6 +287,8 @@ class Daemon:
         self._last_stale = 0.0
         self._last_bad = 0
         self._last_bad_log = 0.0
+        self._waiting_since: float | None = None  # the device has not been there since then
+        self._waiting_logged_at = 0.0
 
     def run(self) -> int:
         src = self._start()
@@ -419,11 +421,26 @@ class Daemon:
             return []
         if isinstance(item, DeviceLost):
             self._lost_at = now
+            if self._never_opened():
+                # At start: not a lost device, one that is not there (yet). Say so, and
+                # that the daemon waits for it (as gpsd does), or it looks like a silent gyro.
+                self._waiting_since = now
+                self._log_waiting(now, item.reason)
+                self._set_status(f"waiting for {self.src_name}: {item.reason}")
+                return []
             log.warning("device_lost", port=self.src_name, reason=item.reason)
             self._set_status(f"stale: {self.src_name} lost ({item.reason}); reconnecting")
             return []
         if isinstance(item, DeviceBack):
             gap = now - (self._lost_at if self._lost_at is not None else self._last_data)
+            if self._waiting_since is not None:  # it appeared: opened for the first time
+                log.info("device_open", port=self.src_name, waited_s=round(gap, 3))
+                self._waiting_since = None
+                self._lost_at = None
+                self._last_data = now  # the stale clock starts now
+                if self.pacer is not None:
+                    self.pacer.reset()
+                return []
             self.reconnects += 1
             log.info(
                 "device_back",
@@ -439,6 +456,25 @@ class Daemon:
         assert isinstance(item, Frame)
         self._last_data = now
         return self.pipeline.feed(item, bad, time.time())
+
+    WAITING_LOG_INTERVAL_S = 60.0
+    """While the device has never been there, ``device_waiting`` is logged again this often."""
+
+    def _never_opened(self) -> bool:
+        """The serial device has not been open once since start (not there yet)."""
+        return self.serial is not None and not self.serial.reader.opened_once
+
+    def _log_waiting(self, now: float, reason: str | None) -> None:
+        s = self.cfg.device
+        log.warning(
+            "device_waiting",
+            port=self.src_name,
+            reason=reason,
+            waiting=f"hdrd opens {self.src_name} when it appears (tried every "
+            f"{s.reconnect_min_s:g} s, backing off to {s.reconnect_max_s:g} s)",
+            waited_s=round(now - (self._waiting_since or now), 1),
+        )
+        self._waiting_logged_at = now
 
     def _status_after(self, last: Message, bad: int) -> None:
         """systemd's status line after publishing steps (once the bias is known)."""
@@ -465,6 +501,13 @@ class Daemon:
         if self.watchdog.due(now):
             self.notifier.notify("WATCHDOG=1")
         self._log_drops(now)
+        if (
+            self._waiting_since is not None
+            and now - self._waiting_logged_at >= self.WAITING_LOG_INTERVAL_S
+            and self._never_opened()
+        ):
+            assert self.serial is not None
+            self._log_waiting(now, self.serial.reader.last_error)
 
     def _pace(self, now: float) -> None:
         """After a frame, with everything read processed: let the next frames gather in the

@@ -97,6 +97,10 @@ def test_no_device_gives_up_and_says_so(fake_gyro, tmp_path: Path) -> None:
     assert p.returncode == 1 and not bias_file.exists()
     assert "no data from" in err and "for 1 s" in err and "calibration.no_data_timeout_s" in err
     assert "bias file not written" in err.splitlines()[-1]
+    # said at once, plainly: not "device lost" with pyserial's message
+    none = tmp_path / "ttyNONE"
+    assert f"{none} does not exist; waiting up to 1 s for it to appear" in err.splitlines()
+    assert "device lost" not in err
     # ... and a device that is there but sends nothing.
     g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)  # never started
     p = calibrate("--config", str(cfg), "--port", g.path, "--bias-file", str(bias_file),

@@ -6,13 +6,16 @@ No timings are asserted; the waits are generous bounds that only fail a hung dae
 
 from __future__ import annotations
 
+import json
 import os
+import select
 import signal
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -388,3 +391,77 @@ def test_a_socket_port_whose_listener_never_answers_does_not_stall_the_loop(
         for c in fillers:
             c.close()
         srv.close()
+
+
+class _Log:
+    """The daemon's JSON log lines on its stderr, read as they come (never blocking past
+    WAIT)."""
+
+    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stderr is not None
+        self.fd = proc.stderr.fileno()
+        self.buf = b""
+        self.events: list[dict[str, Any]] = []
+
+    def until(self, want: str) -> dict[str, Any]:
+        """Read until an event named ``want`` (one not returned before); fail on EOF/WAIT."""
+        seen = len(self.events)
+        deadline = time.monotonic() + WAIT
+        while True:
+            for e in self.events[seen:]:
+                if e.get("event") == want:
+                    return e
+            seen = len(self.events)
+            left = deadline - time.monotonic()
+            ready = select.select([self.fd], [], [], max(0.0, left))[0] if left > 0 else []
+            chunk = os.read(self.fd, 65536) if ready else b""
+            if not chunk:
+                raise AssertionError(f"no {want}; got {[e.get('event') for e in self.events]}")
+            self.buf += chunk
+            *lines, self.buf = self.buf.split(b"\n")
+            for line in lines:
+                try:
+                    self.events.append(json.loads(line))
+                except json.JSONDecodeError:
+                    pass
+
+
+@pytest.mark.slow
+def test_a_port_that_does_not_exist_is_said_at_once_and_waited_for(
+    fake_gyro,
+    udp,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    """`hdrd run --port /dev/nonexistent` used to look like a silent gyro for ever (a
+    "device_lost" with a long pyserial message, then only stale reports). At start it now
+    says that the port does not exist and that it waits for it; when the device appears it
+    is opened and the steps come."""
+    u = udp()
+    port = tmp_path / "hdrd-gyro"  # not there yet
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", "--port", str(port), "--bias", "0.2",
+         "--udp", u.addr, "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+    )  # fmt: skip
+    log = _Log(proc)
+    try:
+        waiting = log.until("device_waiting")
+        assert waiting["level"] == "warning" and waiting["port"] == str(port)
+        assert waiting["reason"] == f"{port} does not exist"
+        assert f"hdrd opens {port} when it appears" in waiting["waiting"]
+        assert "device_lost" not in [e.get("event") for e in log.events]
+        g = fake_gyro(STANDSTILL, speedup=5, link=port)
+        g.start()
+        opened = log.until("device_open")
+        assert opened["port"] == str(port) and opened["waited_s"] >= 0
+        got = u.messages(lambda ms: sum(1 for m in ms if m["status"] != "stale") >= 2)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=WAIT)
+    assert proc.returncode == 0, log.events[-5:]
+    assert any(m["status"] == "ok" for m in got)
