@@ -1,7 +1,22 @@
-"""``python -m hdrd`` is the ``hdrd`` command."""
+"""``python -m hdrd`` and the ``hdrd`` command (its entry point, :func:`main`).
+
+First of all, before any import but the signals' own: ``hdrd run`` holds SIGHUP
+(:func:`hdrd.signals.hold_hangup_for`), whose default action would end the daemon while it
+starts (a reload sent early); the daemon takes a held one as a reload.
+"""
 
 import sys
 
-from hdrd.cli import main
+from hdrd.signals import hold_hangup_for
 
-sys.exit(main())
+
+def main() -> int:
+    """The ``hdrd`` command."""
+    hold_hangup_for(sys.argv[1:])
+    from hdrd.cli import main as cli_main
+
+    return cli_main()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

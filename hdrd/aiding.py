@@ -27,8 +27,30 @@ least ``min_speed_mps``, a course error estimate (``epd``, when sent) within
   Learning eps0 rather than correcting HDR's output leaves the I-controller (Eqs. 4, 9) to
   do its job during outages with the best static bias known; HDR's I then relaxes to 0.
 
-``"dead-reckoning"`` otherwise (no fix, a tunnel, standing at a light, gpsd gone): the
-heading continues from the last alignment, carried by the HDR yaw, and nothing is learned.
+``"dead-reckoning"`` otherwise (no fix, a tunnel, standing at a light, gpsd gone, a course
+the gate rejected): the heading continues from the last alignment, carried by the HDR yaw,
+and nothing is learned.
+
+**The gate.** Each new course is tested against the heading the gyro predicts (the HDR
+heading plus the offset) before it is used: the innovation ``wrap180(course - predicted)``
+must be within ``gate_deg`` (:meth:`GpsAiding.gate_deg`): the fix's own course error (95 %:
+gpsd's ``epd``; else from the speed error, ``atan(eps / speed)``; else
+``default_course_err_deg``), plus what the gyro may have drifted since the last course
+accepted (``max_drift_dps`` times that time), plus the fix's latency in a turn
+(``|omega| * latency_s``), and at least ``gate_min_deg``. A course outside it is rejected
+(a multipath glitch, a reversed course, another receiver): that step is dead reckoning.
+``realign_after`` rejections in a row that agree with one another (their implied offsets
+within each one's own gate) mean the gyro's heading is what is wrong (a wrong start, a long
+outage): the offset is set to the GPS course at once (a ``gps_realigned`` event).
+
+**One receiver.** gpsd reports every receiver it reads, each TPV naming its ``device``.
+Aiding follows one: ``device`` when configured (``gpsd.device``), else the first that
+reports a 2D/3D fix; the others' reports are ignored (counted in ``fixes_ignored``). A
+followed receiver (not a configured one) that has had no fix for ``device_timeout_s``
+hands over to the next receiver with a fix (a ``gps_device`` event).
+
+Events for the log are appended to :attr:`GpsAiding.events` as ``(name, fields)``, for the
+caller to log and clear (:class:`hdrd.gpslink.GpsdLink` does).
 
 Messages are the pipeline's dicts (docs/protocol.md); keys are only added or, for
 ``heading``, replaced by the aligned value: ``mode``; ``heading_offset`` (deg, once
@@ -70,6 +92,10 @@ class FixLike(Protocol):
     def speed_mps(self) -> float | None: ...
     @property
     def epd(self) -> float | None: ...
+    @property
+    def eps(self) -> float | None: ...
+    @property
+    def device(self) -> str | None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +128,25 @@ class AidingConfig:
     """A window estimate beyond this is discarded as a glitch, deg/s."""
     max_bias_step_dps: float = 0.1
     """Largest correction applied at once, deg/s."""
+    default_course_err_deg: float = 5.0
+    """A fix's course error (95 %, deg) when it gives neither ``epd`` nor ``eps``."""
+    gate_min_deg: float = 5.0
+    """The gate is never narrower than this, deg."""
+    max_drift_dps: float = 0.1
+    """How fast the gyro heading may drift from the truth, deg/s: the gate widens by this
+    times the time since the last course accepted (after a 2-minute outage, by 12 deg)."""
+    latency_s: float = 0.5
+    """A fix's latency that the gyro's carrying-forward may miss, s: the gate widens by
+    ``|omega|`` times this in a turn."""
+    realign_after: int = 3
+    """Rejections in a row that agree with one another after which the offset is set to the
+    GPS course (the gyro heading is what is wrong)."""
+    device: str | None = None
+    """The receiver to follow (gpsd's TPV ``device``, e.g. ``/dev/ttyUSB0``); None: the
+    first that reports a fix."""
+    device_timeout_s: float = 10.0
+    """A followed receiver (not a configured one) without a fix for this long hands over to
+    another that has one, s."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -115,6 +160,11 @@ class AidingConfig:
             "max_bias_step_dps",
             "align_max_rate_dps",
             "max_course_step_deg",
+            "default_course_err_deg",
+            "gate_min_deg",
+            "max_drift_dps",
+            "latency_s",
+            "device_timeout_s",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0) or (
@@ -127,6 +177,12 @@ class AidingConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"AidingConfig.{name} must be in [0, 1], got {v!r}")
+        if isinstance(self.realign_after, bool) or not (
+            isinstance(self.realign_after, int) and self.realign_after >= 1
+        ):
+            raise ValueError(
+                f"AidingConfig.realign_after must be an integer >= 1, got {self.realign_after!r}"
+            )
 
 
 class GpsAiding:
@@ -143,6 +199,9 @@ class GpsAiding:
         self._fix_at = -math.inf
         self._course_fix: FixLike | None = None  # the latest 2D/3D TPV with course and speed
         self._course_at = -math.inf
+        self._course_seq = 0  # +1 per course received; the gate judges each once
+        self._judged_seq = 0
+        self._course_ok = False  # the gate's verdict on the latest course
         self._speed: float | None = None  # the latest 2D/3D TPV's speed
         self._speed_at = -math.inf
         self.offset_deg: float | None = None
@@ -153,6 +212,20 @@ class GpsAiding:
         self.windows = 0
         """Bias windows completed (applied or discarded)."""
         self.windows_discarded = 0
+        self.device: str | None = config.device
+        """The receiver followed (TPV ``device``); None until one has reported a fix."""
+        self._following = config.device is not None
+        self._device_fix_at = -math.inf  # when the followed receiver last reported a fix
+        self.fixes_ignored = 0
+        """TPVs from receivers not followed."""
+        self.courses_rejected = 0
+        """Courses the gate rejected."""
+        self.realignments = 0
+        """Offsets set anew after ``realign_after`` agreeing rejections."""
+        self._accepted_at = -math.inf  # when the gate last accepted a course
+        self._streak: list[float] = []  # the implied offsets of the rejections in a row
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        """``(name, fields)`` for the log: gps_device, gps_course_rejected, gps_realigned."""
         self._prev_t: float | None = None
         self._prev_course: float | None = None
         self._win_dt = 0.0
@@ -160,16 +233,42 @@ class GpsAiding:
         self._win_course = 0.0  # GPS course change, unwrapped, deg CW
 
     # -- inputs --
+    def _follows(self, fix: FixLike, now: float) -> bool:
+        """Whether ``fix`` comes from the receiver followed (see the module doc); picks one
+        when none is followed yet, or when the followed one has gone quiet."""
+        dev = fix.device
+        has_fix = fix.mode >= 2
+        if self._following and dev == self.device:
+            return True
+        if self.config.device is not None:
+            return False  # a configured receiver only
+        quiet = now - self._device_fix_at > self.config.device_timeout_s
+        if has_fix and (not self._following or quiet):
+            was = self.device if self._following else None
+            self.device, self._following = dev, True
+            fields: dict[str, Any] = {"device": dev}
+            if was is not None or dev is None:
+                fields["previous"] = was
+            self.events.append(("gps_device", fields))
+            return True
+        return not self._following  # no fix and nobody followed yet: harmless either way
+
     def on_fix(self, fix: FixLike, now: float) -> None:
         """A TPV report received at ``now`` (s, the caller's monotonic clock).
 
-        A TPV without a course (gpsd reports one per sentence until it has found the
-        receiver's cycle end, e.g. after a GGA and again after the RMC) does not hide the
-        course of an earlier fix that is still fresh; a TPV without a fix (mode < 2) ends
-        aiding at once. A negative or non-finite speed is treated as no speed (the fix
-        gives neither a speed nor a course).
+        A report from a receiver that is not followed is ignored (counted). A TPV without a
+        course (gpsd reports one per sentence until it has found the receiver's cycle end,
+        e.g. after a GGA and again after the RMC) does not hide the course of an earlier fix
+        that is still fresh; a TPV without a fix (mode < 2) ends aiding at once. A negative
+        or non-finite speed is treated as no speed (the fix gives neither a speed nor a
+        course).
         """
+        if not self._follows(fix, now):
+            self.fixes_ignored += 1
+            return
         self._fix, self._fix_at = fix, now
+        if fix.mode >= 2:
+            self._device_fix_at = now
         spd = fix.speed_mps
         # A ground speed is a magnitude: a negative (or non-finite) one is no speed at all,
         # never a standstill (it would let a zero-rate update fire while the car moves).
@@ -177,13 +276,15 @@ class GpsAiding:
             self._speed, self._speed_at = fix.speed_mps, now
             if fix.track_deg is not None and math.isfinite(fix.track_deg):
                 self._course_fix, self._course_at = fix, now
+                self._course_seq += 1
 
     def _has_fix(self, now: float) -> bool:
         f = self._fix
         return f is not None and f.mode >= 2 and now - self._fix_at <= self.config.max_fix_age_s
 
     def good_fix(self, now: float) -> FixLike | None:
-        """The fix to align to, if good enough (see the module doc), else None."""
+        """The fix to align to, if good enough (see the module doc; the gate aside), else
+        None."""
         c = self.config
         f = self._course_fix
         if f is None or not self._has_fix(now) or now - self._course_at > c.max_fix_age_s:
@@ -192,6 +293,71 @@ class GpsAiding:
         if f.speed_mps < c.min_speed_mps or (f.epd is not None and f.epd > c.max_epd_deg):
             return None
         return f
+
+    def course_err_deg(self, fix: FixLike) -> float:
+        """The fix's course error, 95 %, deg: ``epd``; else from the speed error,
+        ``atan(eps / speed)``; else ``default_course_err_deg``."""
+        if fix.epd is not None and math.isfinite(fix.epd):
+            return float(fix.epd)
+        spd = fix.speed_mps
+        if fix.eps is not None and math.isfinite(fix.eps) and spd is not None and spd > 0.0:
+            return math.degrees(math.atan2(fix.eps, spd))
+        return self.config.default_course_err_deg
+
+    def gate_deg(self, fix: FixLike, omega_dps: float, now: float) -> float:
+        """The largest innovation (deg) a course from ``fix`` may have at ``now``, the
+        yaw rate being ``omega_dps`` (see the module doc)."""
+        c = self.config
+        since = max(0.0, now - self._accepted_at) if math.isfinite(self._accepted_at) else 0.0
+        width = self.course_err_deg(fix) + c.max_drift_dps * since + abs(omega_dps) * c.latency_s
+        return max(c.gate_min_deg, width)
+
+    def _judge(self, fix: FixLike, course: float, h_hdr: float, omega: float, now: float) -> bool:
+        """The gate's verdict on a new course (True: use it); a run of agreeing rejections
+        sets the offset anew."""
+        if self.offset_deg is None:  # nothing to test against yet: the first course aligns
+            self._accepted_at = now
+            self._streak.clear()
+            return True
+        innovation = wrap180(course - (h_hdr + self.offset_deg))
+        gate = self.gate_deg(fix, omega, now)
+        if abs(innovation) <= gate:
+            self._accepted_at = now
+            self._streak.clear()
+            return True
+        implied = wrap180(course - h_hdr)  # the offset this course asks for
+        own = max(
+            self.config.gate_min_deg, self.course_err_deg(fix) + abs(omega) * self.config.latency_s
+        )
+        if self._streak and abs(wrap180(implied - self._streak[-1])) > own:
+            self._streak.clear()  # it disagrees with the rejections before it: a new run
+        self._streak.append(implied)
+        self.courses_rejected += 1
+        self.events.append(
+            (
+                "gps_course_rejected",
+                {
+                    "course": fix.track_deg,
+                    "innovation_deg": round(innovation, 2),
+                    "gate_deg": round(gate, 2),
+                    "in_a_row": len(self._streak),
+                },
+            )
+        )
+        if len(self._streak) < self.config.realign_after:
+            return False
+        old = self.offset_deg
+        self.offset_deg = implied
+        self.realignments += 1
+        self._accepted_at = now
+        self._streak.clear()
+        self.events.append(
+            (
+                "gps_realigned",
+                {"offset_deg": round(implied, 2), "previous_offset_deg": round(old, 2)},
+            )
+        )
+        return True
 
     def speed(self, now: float) -> float | None:
         """Ground speed of a fresh 2D/3D fix, m/s; None when unknown."""
@@ -214,6 +380,12 @@ class GpsAiding:
             assert fix.track_deg is not None
             age = max(0.0, now - self._course_at)
             course = _compass(fix.track_deg - omega * age)
+            if self._judged_seq != self._course_seq:
+                self._judged_seq = self._course_seq
+                self._course_ok = self._judge(fix, course, h_hdr, omega, now)
+            if not self._course_ok:
+                fix = course = None
+        if fix is not None and course is not None:
             if self.offset_deg is None:
                 self.offset_deg = wrap180(course - h_hdr)
             elif is_step and abs(omega) <= self.config.align_max_rate_dps:

@@ -156,8 +156,11 @@ def _calibrate(
             if item is None or isinstance(item, DeviceLost):
                 if isinstance(item, DeviceLost):
                     lost = item.reason
+                    never = isinstance(src, SerialSource) and not src.reader.opened_once
                     print(
-                        f"device lost ({item.reason}); waiting for it to come back",
+                        f"{item.reason}; waiting up to {timeout:g} s for it to appear"
+                        if never
+                        else f"device lost ({item.reason}); waiting for it to come back",
                         file=sys.stderr,
                         flush=True,
                     )
@@ -210,7 +213,16 @@ def _calibrate(
     try:
         save_bias(path, rec)
     except OSError as e:
-        print(f"hdrd calibrate: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+        # e.g. "cannot write /var/lib/hdrd/bias.yaml: Permission denied (/var/lib/hdrd)"
+        where = ""
+        if e.filename is not None and str(e.filename) != str(path):
+            f = Path(str(e.filename))
+            temp = f.parent == path.parent and f.name.startswith(f".{path.name}.")
+            where = f" (its temporary file in {path.parent})" if temp else f" ({f})"
+        print(
+            f"hdrd calibrate: cannot write {path}: {e.strerror or e}{where}; bias file not written",
+            file=sys.stderr,
+        )
         return 1
     out.done(
         f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"

@@ -18,10 +18,34 @@ from collections.abc import Callable, Iterator, Sequence
 
 from hdrd import __version__
 from hdrd.protocol import PROTOCOLS
-from hdrd.signals import hold_hangup
+from hdrd.signals import command_of, hold_hangup
 
 DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 """Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Every option's help shows its default: an option with a value and a default (not None)
+    whose help does not give it already gets `` (default: X)``, as
+    ``argparse.ArgumentDefaultsHelpFormatter`` does, but not for a switch (off unless given)
+    nor for a default of None (the option's help then says where the default comes from,
+    e.g. a configuration key). An empty list shows as ``none``."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        d = action.default
+        if (
+            not action.option_strings
+            or action.nargs == 0
+            or d is None
+            or d is argparse.SUPPRESS
+            or "%(default)" in text
+            or "default" in text
+        ):
+            return action.help
+        shown = "none" if isinstance(d, (list, tuple)) and not d else "%(default)s"
+        return f"{text} (default: {shown})"
+
 
 Adder = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, str, Adder]] = {}
@@ -37,14 +61,26 @@ def command(name: str, target: str, help: str) -> Callable[[Adder], Adder]:
 
 def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> None:
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--bias", type=float, metavar="DPS", help="static bias eps0 to remove, deg/s")
-    g.add_argument("--bias-file", metavar="PATH", help="bias file written by `hdrd calibrate`")
+    g.add_argument(
+        "--bias",
+        type=float,
+        metavar="DPS",
+        help="static bias eps0 to remove, deg/s (default: the bias file's, else measured at "
+        "start over calibration.startup_s, 1 s)",
+    )
+    g.add_argument(
+        "--bias-file",
+        metavar="PATH",
+        help="bias file written by `hdrd calibrate` (default calibration.bias_file, else "
+        "$STATE_DIRECTORY or /var/lib/hdrd/bias.yaml when it exists)",
+    )
     if calibrate_seconds:
         g.add_argument(
             "--calibrate-seconds",
             type=float,
             metavar="S",
-            help="measure the bias over the first S seconds (the vehicle must stand still)",
+            help="measure the bias over the first S seconds (the vehicle must stand still; "
+            "default calibration.startup_s, 1 s, when there is no bias file)",
         )
 
 
@@ -71,7 +107,7 @@ def _method(p: argparse.ArgumentParser) -> None:
         choices=_MethodNames(),
         metavar="METHOD",  # a metavar keeps argparse from listing the choices at parser set-up
         help="drift reduction, one of %(choices)s (none: static bias removal only; hdr: the "
-        "paper's; see docs/evaluation.md)",
+        "paper's; see docs/evaluation.md); default hdr.method, hdr",
     )
 
 
@@ -94,7 +130,11 @@ def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
     p.add_argument(
         "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
     )
-    p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
+    p.add_argument(
+        "--protocol",
+        choices=PROTOCOLS,
+        help="frame format (default device.protocol, hdr-bin)",
+    )
 
 
 def _log_level(p: argparse.ArgumentParser) -> None:
@@ -122,12 +162,14 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
         "--workers",
         type=_positive_int,
         metavar="N",
-        help="run on a local Dask cluster of N worker processes (pip install 'hdrd[fleet]')",
+        help="run on a local Dask cluster of N worker processes (pip install 'hdrd[fleet]'); "
+        "default: in this process",
     )
     g.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:8786)",
+        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:8786); "
+        "default: in this process",
     )
     if progress:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
@@ -149,13 +191,30 @@ def _run(p: argparse.ArgumentParser) -> None:
     _port(p)
     _bias_group(p, calibrate_seconds=False)
     p.add_argument(
-        "--udp", action="append", metavar="HOST:PORT", help="send JSON lines here (repeatable)"
+        "--udp",
+        action="append",
+        metavar="HOST:PORT",
+        help="send JSON lines here (repeatable; IPv6 as [::1]:PORT); default output.udp, none",
     )
     p.add_argument(
-        "--nmea-udp", action="append", metavar="HOST:PORT", help="send NMEA 0183 here (repeatable)"
+        "--nmea-udp",
+        action="append",
+        metavar="HOST:PORT",
+        help="send NMEA 0183 here (repeatable); default output.nmea_udp, none",
     )
-    p.add_argument("--nmea-ths", action="store_true", default=None, help="also send $HNTHS")
-    p.add_argument("--stdout", action="store_true", default=None, help="print JSON lines to stdout")
+    p.add_argument(
+        "--nmea-ths",
+        action="store_true",
+        default=None,
+        help="also send $HNTHS (default output.nmea_ths, off)",
+    )
+    p.add_argument(
+        "--stdout",
+        action="store_true",
+        default=None,
+        help="print JSON lines to stdout, rounded on a terminal (default output.stdout, off; on "
+        "when no UDP destination is configured)",
+    )
     p.add_argument(
         "--simulate", action="store_true", help="read the built-in simulated gyro, no hardware"
     )
@@ -163,18 +222,31 @@ def _run(p: argparse.ArgumentParser) -> None:
         "--drive", choices=DRIVES, help="with --simulate: the drive (default simulate.drive, mixed)"
     )
     p.add_argument(
-        "--speedup", type=float, metavar="X", help="with --simulate: play the drive X times faster"
+        "--speedup",
+        type=float,
+        metavar="X",
+        help="with --simulate: play the drive X times faster (default simulate.speedup, 1)",
     )
-    p.add_argument("--heading0", type=float, metavar="DEG", help="compass heading at start, deg")
+    p.add_argument(
+        "--heading0",
+        type=float,
+        metavar="DEG",
+        help="compass heading at start, deg (default output.heading0_deg, 0)",
+    )
     _method(p)
     p.add_argument(
         "--gpsd",
         metavar="HOST[:PORT]",
         nargs="?",
         const="127.0.0.1:2947",
-        help="aid with GPS from gpsd (default 127.0.0.1:2947; IPv6 as [::1]:2947)",
+        help="aid with GPS from gpsd (default: gpsd.enabled, off; given alone: 127.0.0.1:2947; "
+        "IPv6 as [::1]:2947)",
     )
-    p.add_argument("--log-format", choices=("auto", "json", "console"), help="log format on stderr")
+    p.add_argument(
+        "--log-format",
+        choices=("auto", "json", "console"),
+        help="log format on stderr (default log.format, auto: JSON when stderr is not a terminal)",
+    )
     _log_level(p)
 
 
@@ -186,12 +258,13 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
         "--seconds",
         type=float,
         metavar="S",
-        help="averaging time Tbias, s (default 30, the paper's)",
+        help="averaging time Tbias, s (default calibration.t_bias_s, 30, the paper's)",
     )
     p.add_argument(
         "--bias-file",
         metavar="PATH",
-        help="where to write (default $STATE_DIRECTORY or /var/lib/hdrd)/bias.yaml",
+        help="where to write (default calibration.bias_file, else $STATE_DIRECTORY or "
+        "/var/lib/hdrd)/bias.yaml",
     )
     p.add_argument(
         "--simulate", action="store_true", help="calibrate on the built-in simulated gyro"
@@ -207,8 +280,14 @@ def _tail(p: argparse.ArgumentParser) -> None:
         default="127.0.0.1:10110",
         help="UDP address to listen on (default 127.0.0.1:10110)",
     )
-    p.add_argument("--raw", action="store_true", help="print the JSON lines as received")
-    p.add_argument("--count", type=int, metavar="N", help="exit after N messages")
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="print the JSON lines as received (on a terminal, numbers rounded)",
+    )
+    p.add_argument(
+        "--count", type=int, metavar="N", help="exit after N messages (default: until stopped)"
+    )
 
 
 @command("fakegyro", "hdrd.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
@@ -216,7 +295,7 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--drive",
         default="mixed",
-        help="drive profile: city|suburbs|rural|highway|mixed|standstill|constant",
+        help="drive profile: city|suburbs|rural|highway|mixed|standstill|constant (default mixed)",
     )
     p.add_argument(
         "--rate-dps",
@@ -241,7 +320,11 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--hz", type=float, default=10.0, help="frame rate, Hz (default 10)")
     p.add_argument(
-        "--speedup", type=float, default=1.0, help="1 = real time; 0 = as fast as possible"
+        "--speedup",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="play the drive X times faster (default 1: real time; 0: as fast as the reader reads)",
     )
     p.add_argument(
         "--protocol",
@@ -252,7 +335,7 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--link",
         metavar="PATH",
-        help="also make a symlink here to the pty (stable path across pulls)",
+        help="also make a symlink here to the pty (stable path across pulls; default: none)",
     )
     p.add_argument(
         "--garbage",
@@ -276,13 +359,15 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
         type=float,
         action="append",
         metavar="S",
-        help="pull the cable at device time S (repeatable)",
+        help="pull the cable at device time S (repeatable; default: never)",
     )
     p.add_argument(
         "--pull-for", type=float, default=5.0, metavar="S", help="how long a pull lasts, s"
     )
     p.add_argument(
-        "--out", metavar="FILE", help="write the frames to a capture file instead of a pty"
+        "--out",
+        metavar="FILE",
+        help="write the frames to a capture file instead of a pty (default: a pty)",
     )
 
 
@@ -506,7 +591,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"hdrd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (target, help_, add) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_, description=help_)
+        p = sub.add_parser(name, help=help_, description=help_, formatter_class=HelpFormatter)
         add(p)
         p.set_defaults(_target=target, _parser=p)
     return parser
@@ -523,12 +608,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    if args.command == "run":
-        # SIGHUP's default action ends the process: hold it from here, before the slow
-        # imports and the config, until the daemon installs its reload handler (which
-        # takes a held one as a reload request).
+    if command_of(list(sys.argv[1:] if argv is None else argv)) == "run":
+        # SIGHUP's default action ends the process: hold it from here (the entry point,
+        # hdrd.__main__, already has), before parsing, the slow imports and the config,
+        # until the daemon installs its reload handler (which takes a held one as a reload).
         hold_hangup()
+    args = parse_args(argv)
     module, _, func = args._target.partition(":")
     impl = getattr(importlib.import_module(module), func)
     try:

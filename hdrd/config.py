@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
@@ -192,6 +193,9 @@ class GpsdConfig:
     """Straight-driving window over which GPS makes one bias estimate, s."""
     bias_gain: float = 0.3
     """Share of a window's bias estimate applied, 0 .. 1."""
+    device: str = ""
+    """The GPS receiver to follow, as gpsd names it (TPV ``device``, e.g. /dev/ttyUSB0);
+    empty: the first that reports a fix."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -284,12 +288,16 @@ def _method() -> tuple[Check, str]:
     )
 
 
+_HOSTPORTS = "a list of HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
+
+
 def _hostports(v: tuple[str, ...]) -> bool:
-    try:
-        for item in v:
+    """True if every item is a HOST:PORT; ValueError naming the first that is not, and why."""
+    for item in v:
+        try:
             parse_hostport(item)
-    except ValueError:
-        return False
+        except ValueError as e:
+            raise ValueError(f"{clipped(repr(item), 60)} is not: {e}") from None
     return True
 
 
@@ -336,8 +344,8 @@ RULES: dict[str, tuple[Check, str]] = {
     "calibration.max_bias_dps": _num(0, 1000, lo_open=True),
     "calibration.no_data_timeout_s": _SECONDS,
     "output.heading0_deg": _num(0, 360, hi_open=True),
-    "output.udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
-    "output.nmea_udp": (_hostports, "a list of HOST:PORT (port 1..65535)"),
+    "output.udp": (_hostports, _HOSTPORTS),
+    "output.nmea_udp": (_hostports, _HOSTPORTS),
     "output.nmea_talker": (
         (lambda v: len(v) == 2 and v.isascii() and v.isalpha() and v.isupper()),
         "two capital letters, e.g. HN, or II for gpsd",
@@ -365,20 +373,40 @@ RULES: dict[str, tuple[Check, str]] = {
     "gpsd.align_gain": _num(0, 1),
     "gpsd.bias_window_s": _POS,
     "gpsd.bias_gain": _num(0, 1),
+    "gpsd.device": (
+        (lambda v: "\0" not in v and v == v.strip()),
+        "a device path as gpsd names it (no NUL, no surrounding spaces), or empty for the "
+        "first receiver with a fix",
+    ),
 }
 
 
+_YAML11_TEXT_NUMBER = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)[eE][-+]?[0-9]+")
+"""A number in exponent form that YAML 1.1 (PyYAML) reads as text: its floats need a dot
+and a signed exponent (``1.0e+9``), so ``1.0e9`` and ``1e-2`` are strings to it; YAML 1.2
+reads them as numbers, and so does a number key here. Other text stays text (``"0.5"``,
+quoted, is a string, refused)."""
+
+
 def _coerce(key: str, value: Any, default: Any) -> Any:
-    """Check the YAML value's type against the default's type; return it in that type."""
+    """Check the YAML value's type against the default's type; return it in that type.
+
+    A number key also takes a number that YAML 1.1 reads as text (``1e-2``, ``1.0e9``:
+    :data:`_YAML11_TEXT_NUMBER`)."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(key, value, "must be true or false")
         return value
     if isinstance(default, int):
+        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+            raise ConfigError(key, value, "must be an integer, written out in digits")
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(key, value, "must be an integer")
         return value
     if isinstance(default, float):
+        written = value
+        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(key, value, "must be a number")
         try:
@@ -386,7 +414,7 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
         except OverflowError:  # an integer too large for a float
             raise ConfigError(key, value, "must be a finite number") from None
         if not math.isfinite(number):
-            raise ConfigError(key, value, "must be a finite number")
+            raise ConfigError(key, written, "must be a finite number")
         return number
     if isinstance(default, str):
         if not isinstance(value, str):
@@ -403,7 +431,13 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
 
 def _check(key: str, value: Any) -> None:
     rule = RULES.get(key)
-    if rule is not None and not rule[0](value):
+    if rule is None:
+        return
+    try:
+        ok = rule[0](value)
+    except ValueError as e:  # a check that says what is wrong
+        raise ConfigError(key, value, f"must be {rule[1]}; {e}") from None
+    if not ok:
         raise ConfigError(key, value, f"must be {rule[1]}")
 
 

@@ -122,22 +122,50 @@ def build_publishers(cfg: Config) -> list[Publisher]:
     return pubs
 
 
+UDP_STATS_LINES = 10
+"""At stop, up to this many UDP destinations of an output get a log line each; more are
+summed up in one line (``output_udp_summary``) plus a line for each of the
+``UDP_STATS_LINES`` that failed most."""
+
+
 def _stop_all(pubs: list[Publisher]) -> None:
-    """Stop every publisher (each flushes), then log each UDP destination's counters: what
-    was sent, and what failed and why (a peer that refused, a name that never resolved)."""
+    """Stop every publisher (each flushes), then log the UDP destinations' counters: what
+    was sent, and what failed and why (a peer that refused, a name that never resolved). One
+    line per destination, or, for an output with more than :data:`UDP_STATS_LINES`, one
+    summary line and the lines of those that failed most."""
     for p in pubs:
         try:
             p.stop()
         except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
             log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
     for p in pubs:
-        if isinstance(p, UdpPublisher):
-            for d in p.stats():
-                fields = d.to_dict()
-                output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
-                (log.warning if d.errors or d.dropped else log.info)(
-                    "output_udp_stats", output=output, **fields
-                )
+        if not isinstance(p, UdpPublisher):
+            continue
+        output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
+        stats = p.stats()
+        shown = stats
+        if len(stats) > UDP_STATS_LINES:
+            failing = [d for d in stats if d.errors or d.dropped]
+            by_error: dict[str, int] = {}
+            for d in failing:
+                for kind, n in d.by_error.items():
+                    by_error[kind] = by_error.get(kind, 0) + n
+            (log.warning if failing else log.info)(
+                "output_udp_summary",
+                output=output,
+                destinations=len(stats),
+                sent=sum(d.sent for d in stats),
+                errors=sum(d.errors for d in stats),
+                dropped=sum(d.dropped for d in stats),
+                failing=len(failing),
+                by_error=by_error,
+            )
+            failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
+            shown = failing[:UDP_STATS_LINES]
+        for d in shown:
+            (log.warning if d.errors or d.dropped else log.info)(
+                "output_udp_stats", output=output, **d.to_dict()
+            )
 
 
 # -- hdrd run ----------------------------------------------------------------------------
@@ -259,6 +287,8 @@ class Daemon:
         self._last_stale = 0.0
         self._last_bad = 0
         self._last_bad_log = 0.0
+        self._waiting_since: float | None = None  # the device has not been there since then
+        self._waiting_logged_at = 0.0
 
     def run(self) -> int:
         src = self._start()
@@ -391,11 +421,26 @@ class Daemon:
             return []
         if isinstance(item, DeviceLost):
             self._lost_at = now
+            if self._never_opened():
+                # At start: not a lost device, one that is not there (yet). Say so, and
+                # that the daemon waits for it (as gpsd does), or it looks like a silent gyro.
+                self._waiting_since = now
+                self._log_waiting(now, item.reason)
+                self._set_status(f"waiting for {self.src_name}: {item.reason}")
+                return []
             log.warning("device_lost", port=self.src_name, reason=item.reason)
             self._set_status(f"stale: {self.src_name} lost ({item.reason}); reconnecting")
             return []
         if isinstance(item, DeviceBack):
             gap = now - (self._lost_at if self._lost_at is not None else self._last_data)
+            if self._waiting_since is not None:  # it appeared: opened for the first time
+                log.info("device_open", port=self.src_name, waited_s=round(gap, 3))
+                self._waiting_since = None
+                self._lost_at = None
+                self._last_data = now  # the stale clock starts now
+                if self.pacer is not None:
+                    self.pacer.reset()
+                return []
             self.reconnects += 1
             log.info(
                 "device_back",
@@ -411,6 +456,25 @@ class Daemon:
         assert isinstance(item, Frame)
         self._last_data = now
         return self.pipeline.feed(item, bad, time.time())
+
+    WAITING_LOG_INTERVAL_S = 60.0
+    """While the device has never been there, ``device_waiting`` is logged again this often."""
+
+    def _never_opened(self) -> bool:
+        """The serial device has not been open once since start (not there yet)."""
+        return self.serial is not None and not self.serial.reader.opened_once
+
+    def _log_waiting(self, now: float, reason: str | None) -> None:
+        s = self.cfg.device
+        log.warning(
+            "device_waiting",
+            port=self.src_name,
+            reason=reason,
+            waiting=f"hdrd opens {self.src_name} when it appears (tried every "
+            f"{s.reconnect_min_s:g} s, backing off to {s.reconnect_max_s:g} s)",
+            waited_s=round(now - (self._waiting_since or now), 1),
+        )
+        self._waiting_logged_at = now
 
     def _status_after(self, last: Message, bad: int) -> None:
         """systemd's status line after publishing steps (once the bias is known)."""
@@ -437,6 +501,13 @@ class Daemon:
         if self.watchdog.due(now):
             self.notifier.notify("WATCHDOG=1")
         self._log_drops(now)
+        if (
+            self._waiting_since is not None
+            and now - self._waiting_logged_at >= self.WAITING_LOG_INTERVAL_S
+            and self._never_opened()
+        ):
+            assert self.serial is not None
+            self._log_waiting(now, self.serial.reader.last_error)
 
     def _pace(self, now: float) -> None:
         """After a frame, with everything read processed: let the next frames gather in the

@@ -16,6 +16,7 @@ the bias file lives when none is named.
 
 from __future__ import annotations
 
+import fcntl
 import glob
 import os
 import stat
@@ -205,29 +206,63 @@ def _bounded_loader(yaml: Any) -> Any:
 # -- writing ----------------------------------------------------------------------------------
 
 
-def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
-    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+def _writer_alive(pid: int) -> bool:
+    """Whether process ``pid`` (a temp file's writer, from its name) still runs."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: another user's process, alive
+        return True
+    return True
 
-    Temp file in the same directory, fsync, chmod, rename over the target, fsync the directory.
-    Temp files that an earlier writer left behind (killed, or a power cut, before its rename)
-    are removed first, so they never pile up; one writer per target at a time is assumed (a
-    concurrent writer would lose its temp file and fail with an OSError, the target intact).
-    """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+
+def _remove_stale_temps(target: Path) -> None:
+    """Remove the temp files of writers to ``target`` that died before their rename (killed,
+    or a power cut). A temp file is another writer's work in progress while that writer
+    lives: its name holds the writer's pid, and the writer holds an exclusive flock on it from
+    its creation to its rename; such a file is left alone. (Removing every temp file, as was
+    done, made a concurrent writer's rename fail: "No such file or directory".)"""
     for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+        pid = stale.name[len(target.name) + 2 :].split(".", 1)[0]
+        if pid.isdigit() and _writer_alive(int(pid)):
+            continue
         try:
+            fd = os.open(stale, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+        except OSError:
+            continue  # gone already, or not ours to open
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held: a live writer's
             stale.unlink()
         except OSError:
             pass  # not ours to insist on; at worst one more leftover
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        finally:
+            os.close(fd)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+
+    Temp file in the same directory (``.NAME.PID.RANDOM.tmp``, unique, flocked by its writer
+    until renamed), fsync, chmod, rename over the target, fsync the directory. Temp files
+    that an earlier writer left behind (killed, or a power cut, before its rename) are
+    removed first, so they never pile up; a live concurrent writer's is left alone, so
+    writers may run at once (the last rename wins, each file whole).
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temps(target)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent
+    )
     try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours: no cleaner may take it
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
+            os.chmod(tmp, mode)
+            os.replace(tmp, target)  # still locked: a cleaner never sees it unlocked
     except BaseException:
         try:
             os.unlink(tmp)

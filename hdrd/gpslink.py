@@ -25,8 +25,10 @@ __all__ = ["AidedPipeline", "GpsdLink", "aiding_config"]
 def aiding_config(gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> AidingConfig:
     """The :class:`hdrd.aiding.AidingConfig` that a :class:`hdrd.config.GpsdConfig` names
     (``gpsd.min_speed_mps``, ``max_fix_age_s``, ``max_epd_deg``, ``align_gain``,
-    ``bias_window_s``, ``bias_gain``), with the HDR step period ``step_s``, s."""
+    ``bias_window_s``, ``bias_gain``, ``device``: empty = the first receiver with a fix), with
+    the HDR step period ``step_s``, s."""
     return AidingConfig(
+        device=gpsd_cfg.device or None,
         min_speed_mps=gpsd_cfg.min_speed_mps,
         max_fix_age_s=gpsd_cfg.max_fix_age_s,
         max_epd_deg=gpsd_cfg.max_epd_deg,
@@ -53,7 +55,9 @@ class GpsdLink:
     fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
     ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
     :class:`hdrd.aiding.GpsAiding`), and a learned bias correction goes to
-    ``Pipeline.adjust_bias(delta, "gps")``.
+    ``Pipeline.adjust_bias(delta, "gps")``. The aiding's events are logged: ``gps_device``
+    (the receiver followed) and ``gps_realigned`` each time, ``gps_course_rejected`` at most
+    every 10 s with the count since the last one.
     """
 
     def __init__(
@@ -65,6 +69,8 @@ class GpsdLink:
         self._mode: str | None = None
         self._bad_logged = 0
         self._bad_log_at = -math.inf
+        self._rejected_logged = 0
+        self._rejected_log_at = -math.inf
 
     @classmethod
     def from_config(cls, gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> GpsdLink:
@@ -80,6 +86,7 @@ class GpsdLink:
         now = self._clock() if now is None else now
         for f in self.client.poll():
             self.aiding.on_fix(f, now)
+        self._log_events(now)
         pipeline.set_speed(self.aiding.speed(now))
         bad = self.client.stats.bad_lines
         if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
@@ -107,7 +114,21 @@ class GpsdLink:
                 fields_ = {k: m2[k] for k in ("heading", "gps_course", "gps_speed") if k in m2}
                 log.info("gps_mode", mode=mode, **fields_)
             out.append(m2)
+        self._log_events(now)
         return out
+
+    def _log_events(self, now: float) -> None:
+        """Log the aiding's events (rejections at most every BAD_LOG_INTERVAL_S)."""
+        a = self.aiding
+        for name, fields_ in a.events:
+            if name != "gps_course_rejected":
+                (log.warning if name == "gps_realigned" else log.info)(name, **fields_)
+                continue
+            total = a.courses_rejected
+            if now - self._rejected_log_at >= self.BAD_LOG_INTERVAL_S:
+                log.warning(name, total=total, new=total - self._rejected_logged, **fields_)
+                self._rejected_logged, self._rejected_log_at = total, now
+        a.events.clear()
 
     def close(self) -> None:
         self.client.close()

@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
+from hdrd.display import for_display
 from hdrd.errors import HdrdError
 from hdrd.protocol import NMEA_TALKER, RATE_VALID_STATUSES
 
@@ -265,12 +266,21 @@ _ASYNC_ERRNOS = frozenset(
 
 
 def parse_hostport(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
-    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed."""
+    """'HOST:PORT', '[v6]:PORT' or ':PORT' -> (host, port); ValueError if malformed.
+
+    An IPv6 address must be in brackets: ``::1:7400`` could be the address ``::1:7400`` with
+    no port as well as ``::1`` port 7400, so it is refused, saying to write ``[::1]:7400``."""
     if not isinstance(text, str) or ":" not in text:
         raise ValueError("expected HOST:PORT")
     host, _, port_s = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
+        if not host:
+            raise ValueError("empty host in []")
+    elif ":" in host:
+        raise ValueError(f"an IPv6 address goes in brackets: [{host}]:{port_s}")
+    if "[" in host or "]" in host:
+        raise ValueError("brackets belong around a whole IPv6 address: [::1]:PORT")
     if not port_s.isdigit() or not 0 < int(port_s) < 65536:
         raise ValueError("port must be 1..65535")
     if any(c.isspace() for c in host):
@@ -556,6 +566,10 @@ class StdoutPublisher:
     The thread writes with ``os.write`` on the stream's descriptor (never through the
     stream's own buffer, whose lock a blocked write would hold at interpreter exit); a
     stream without a descriptor is written through ``write``/``flush``.
+
+    *display*: print the numbers as a person reads them (:func:`hdrd.display.for_display`:
+    rounded to what they mean) instead of with full precision; None (the default): when the
+    stream is a terminal. A pipe or a file gets full precision.
     """
 
     def __init__(
@@ -564,8 +578,15 @@ class StdoutPublisher:
         *,
         max_queue_bytes: int = 256 * 1024,
         stop_wait_s: float = 0.5,
+        display: bool | None = None,
     ) -> None:
         self._stream: BinaryIO = stream if stream is not None else sys.stdout.buffer
+        if display is None:
+            try:
+                display = self._stream.isatty()
+            except (AttributeError, ValueError, OSError):
+                display = False
+        self.display = display
         self.max_queue_bytes = max_queue_bytes
         self.stop_wait_s = stop_wait_s
         self.closed = False
@@ -588,7 +609,7 @@ class StdoutPublisher:
         """Queue one JSON line (never blocks); OutputClosed once the reader has gone."""
         if self.closed:
             raise OutputClosed(_CLOSED_MESSAGE)
-        line = format_json(msg)
+        line = format_json(for_display(msg) if self.display else msg)
         with self._cond:
             if self.closed:
                 raise OutputClosed(_CLOSED_MESSAGE)

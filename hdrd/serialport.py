@@ -102,6 +102,17 @@ class _SocketPort(protocol_socket.Serial):
         self.is_open = False
 
 
+def _open_reason(e: BaseException, url: str) -> str:
+    """Why ``url`` did not open, as the user wants to read it: a missing device or a denied
+    one said plainly, else the exception's own text."""
+    err = getattr(e, "errno", None)
+    if err == errno.ENOENT:
+        return f"{url} does not exist"
+    if err in (errno.EACCES, errno.EPERM):
+        return f"{url}: permission denied (is the user in the device's group, e.g. dialout?)"
+    return _reason(e)
+
+
 def _busy_reason(e: BaseException, url: str) -> str | None:
     """The user's message if ``e`` says another program holds the port (pyserial's
     ``exclusive=True`` lock, or a device that refuses a second opener), else None."""
@@ -165,6 +176,8 @@ class SerialReader:
         self.last_error: str | None = None
         self.busy = False
         """The last open failed because another program holds the port (its lock)."""
+        self.opened_once = False
+        """The port has been open at least once (False: still waiting for it to appear)."""
         try:
             # Validates the URL (unknown schemes raise here), without touching the device.
             serial.serial_for_url(url, baudrate=baud, do_not_open=True)
@@ -213,7 +226,7 @@ class SerialReader:
             self.busy, self.last_error = False, e
         else:
             busy = _busy_reason(e, self.url)
-            self.busy, self.last_error = busy is not None, busy or _reason(e)
+            self.busy, self.last_error = busy is not None, busy or _open_reason(e, self.url)
         self.stats.open_failures += 1
         now = self.clock.monotonic()
         self._next_try = now + self._backoff
@@ -221,6 +234,7 @@ class SerialReader:
 
     def _adopt(self, port: Any) -> None:
         self.port = port
+        self.opened_once = True
         self.busy = False
         self._timeout = 0
         self._fd_poll = _fd_poll(port)

@@ -1,9 +1,12 @@
 """``hdrd tail``: print what the daemon publishes (like gpsd's ``gpspipe -w``).
 
-It binds a UDP socket and prints a table row per HDR step, or the JSON lines and NMEA
-sentences as received (``--raw``). What it prints is printable text only
-(:func:`printable`): no datagram can move the cursor, retitle the window or ring the bell.
-The formatting is pure (:class:`TailFormatter`); :func:`main` is the edge.
+It binds a UDP socket, prints the table's header and says on stderr where it waits, then
+prints a table row per HDR step, or the JSON lines and NMEA sentences as received
+(``--raw``). What it prints is printable text only (:func:`printable`): no datagram can move
+the cursor, retitle the window or ring the bell. Every number fits its column (a yaw of
+1e300 is ``1e+300``, never 300 digits); on a terminal JSON lines show their numbers rounded
+to what they mean (:func:`hdrd.display.for_display`), into a pipe exactly as received. The
+formatting is pure (:class:`TailFormatter`); :func:`main` is the edge.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any, TextIO
 
+from hdrd.display import fit, for_display
 from hdrd.protocol import MESSAGE_CLASS
 from hdrd.publish import heading_field, parse_hostport, parse_nmea
 
@@ -81,14 +85,24 @@ class TailFormatter:
     """Turns received datagrams into printable lines for ``hdrd tail`` (pure, no I/O).
 
     :meth:`lines` returns (stdout lines, stderr notes, messages counted). In table mode the
-    first HDR message is preceded by a header; NMEA sentences are printed as received with
-    their decoded meaning; other JSON objects as received. With *raw*, everything valid is
-    printed exactly as received (like ``gpspipe -w``).
+    header comes first (:meth:`start`, or before the first HDR message); NMEA sentences are
+    printed as received with their decoded meaning; other JSON objects as received. With
+    *raw*, everything valid is printed exactly as received (like ``gpspipe -w``). With
+    *display* (stdout is a terminal), JSON lines are printed with their numbers rounded to
+    what they mean (:func:`hdrd.display.for_display`).
     """
 
-    def __init__(self, raw: bool = False) -> None:
+    def __init__(self, raw: bool = False, display: bool = False) -> None:
         self.raw = raw
+        self.display = display
         self._header_done = False
+
+    def start(self) -> list[str]:
+        """What to print before any data: the header in table mode (once), else nothing."""
+        if self.raw or self._header_done:
+            return []
+        self._header_done = True
+        return [self.header()]
 
     @staticmethod
     def header() -> str:
@@ -107,13 +121,13 @@ class TailFormatter:
                 elif f == "time":
                     cell = time.strftime("%H:%M:%S", time.localtime(float(v)))
                 elif f == "d":
-                    cell = f"{int(v):d}"
+                    cell = fit(int(v), "d", w)
                 elif f == "s":
                     cell = printable(str(v))
                 elif key == "heading":
                     cell = heading_field(float(v))
                 else:
-                    cell = format(float(v), f)
+                    cell = fit(float(v), f, w)
             except (TypeError, ValueError, OverflowError, OSError, RecursionError):
                 cell = "?"
             cells.append(f"{cell:<{w}}" if f in ("s", "time") else f"{cell:>{w}}")
@@ -181,13 +195,22 @@ class TailFormatter:
                 continue
             count += 1
             if self.raw or msg.get("class") != MESSAGE_CLASS:
-                out.append(_printable_json(text))
+                out.append(_printable_json(self._shown_json(text, msg)))
                 continue
             if not self._header_done:
                 out.append(self.header())
                 self._header_done = True
             out.append(self.row(msg))
         return out, notes, count
+
+    def _shown_json(self, text: str, msg: dict[str, Any]) -> str:
+        """The JSON line as received, or (``display``) with its numbers rounded."""
+        if not self.display:
+            return text
+        try:
+            return json.dumps(for_display(msg), separators=(",", ":"), ensure_ascii=False)
+        except (ValueError, TypeError, RecursionError):
+            return text
 
 
 def _raise_stop(signum: int, frame: object) -> None:
@@ -203,8 +226,9 @@ def _write(stream: TextIO, lines: Sequence[str]) -> None:
 def main(args: argparse.Namespace) -> int:
     """``hdrd tail [--listen HOST:PORT] [--raw] [--count N]``: print what the daemon sends.
 
-    Binds a UDP socket (default 127.0.0.1:10110) and prints a table row per HDR step, or the
-    JSON lines / NMEA sentences as received with ``--raw``. Malformed data gets a note on
+    Binds a UDP socket (default 127.0.0.1:10110), prints the table's header at once and
+    says on stderr that it waits on that address, then prints a table row per HDR step, or
+    the JSON lines / NMEA sentences as received with ``--raw``. Malformed data gets a note on
     stderr and is skipped. SIGINT, SIGTERM, ``--count`` reached, or the reader of stdout
     going away (``| head``) end it with status 0.
     """
@@ -227,11 +251,17 @@ def main(args: argparse.Namespace) -> int:
         sock.close()
         print(f"hdrd tail: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
         return 1
-    formatter = TailFormatter(raw=bool(getattr(args, "raw", False)))
+    formatter = TailFormatter(raw=bool(getattr(args, "raw", False)), display=_is_tty(sys.stdout))
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_stop) if in_main else None
     seen = 0
+    shown = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
+        _write(sys.stdout, formatter.start())
+        _write(
+            sys.stderr,
+            [f"hdrd tail: waiting on {shown} (hdrd run --udp {shown} sends there)"],
+        )
         while count_max is None or seen < count_max:
             data, addr = sock.recvfrom(65535)
             out, notes, n = formatter.lines(data, sender=f"{addr[0]}:{addr[1]}")
@@ -250,6 +280,13 @@ def main(args: argparse.Namespace) -> int:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
         sock.close()
+
+
+def _is_tty(stream: TextIO | None) -> bool:
+    try:
+        return stream is not None and stream.isatty()
+    except (ValueError, OSError):
+        return False
 
 
 def _silence(stream: TextIO) -> None:

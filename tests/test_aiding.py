@@ -51,6 +51,18 @@ def good(course: float, speed: float = 15.0, **kw: Any) -> Fix:
     return Fix(mode=3, track_deg=course, speed_mps=speed, **kw)
 
 
+def still(a: GpsAiding, fixes: list[Fix | None], heading: float = 0.0) -> list[dict[str, Any]]:
+    """A gyro standing still in its own frame (HDR heading ``heading``, omega 0) while the
+    vehicle drives straight; fix k (None: none) arrives at k + 0.3 s, step k ends at k + 1."""
+    out = []
+    for k, f in enumerate(fixes):
+        if f is not None:
+            a.on_fix(f, k + 0.3)
+        m, _ = a.on_message(step_msg(heading, t=k + 1.0), k + 1.0)
+        out.append(m)
+    return out
+
+
 # -- helpers -----------------------------------------------------------------------------------
 
 
@@ -133,6 +145,138 @@ def test_speed_for_the_standstill_detector():
     assert a.speed(11.0) is None
 
 
+# -- the gate: each course tested against the gyro's prediction ------------------------------------
+
+
+def test_one_outlier_course_moves_nothing():
+    """The gyro is still, the GPS says 90 each second, and once 270 (a reversed course from
+    a glitch): that course is rejected, its step is dead reckoning, the heading stays."""
+    a = GpsAiding()
+    fixes = [good(90.0)] * 10 + [good(270.0)] + [good(90.0)] * 5
+    msgs = still(a, fixes)
+    headings = [m["heading"] for m in msgs]
+    assert max(herr(h, 90.0) for h in headings) < 1e-9, headings  # was a 36 deg step
+    assert [m["mode"] for m in msgs] == [AIDED] * 10 + [DEAD_RECKONING] + [AIDED] * 5
+    assert "gps_course" not in msgs[10]
+    assert a.courses_rejected == 1 and a.realignments == 0
+    (name, fields_), *_ = [e for e in a.events if e[0] == "gps_course_rejected"]
+    assert fields_["course"] == 270.0 and abs(fields_["innovation_deg"]) == 180.0
+
+
+def test_agreeing_rejections_realign():
+    """The gyro's heading is what is wrong (it drifted 40 deg in an outage): after
+    realign_after rejections in a row that agree, the heading takes the GPS course."""
+    a = GpsAiding(AidingConfig(realign_after=3))
+    msgs = still(a, [good(90.0)] * 5 + [good(130.0)] * 5)
+    assert [m["mode"] for m in msgs] == [AIDED] * 5 + [DEAD_RECKONING] * 2 + [AIDED] * 3
+    assert [round(m["heading"], 6) for m in msgs] == [90.0] * 7 + [130.0] * 3
+    assert a.realignments == 1 and a.courses_rejected == 3
+    assert ("gps_realigned", {"offset_deg": 130.0, "previous_offset_deg": 90.0}) in a.events
+
+
+def test_rejections_that_disagree_never_realign():
+    """Glitches in all directions: each is rejected, none realigns the heading."""
+    a = GpsAiding(AidingConfig(realign_after=2))
+    wild = [good(c) for c in (200.0, 300.0, 20.0, 250.0, 160.0, 330.0)]
+    msgs = still(a, [good(90.0)] * 3 + wild)
+    assert a.realignments == 0 and a.courses_rejected == 6
+    assert all(herr(m["heading"], 90.0) < 1e-9 for m in msgs)
+
+
+def test_the_gate_is_the_fixs_own_error_plus_the_gyros():
+    c = AidingConfig(default_course_err_deg=5.0, gate_min_deg=2.0, max_drift_dps=0.1, latency_s=0.5)
+    a = GpsAiding(c)
+    assert a.course_err_deg(good(0.0, epd=7.5)) == 7.5  # gpsd's course error, 95 %
+    assert a.course_err_deg(good(0.0, 10.0, eps=10.0)) == pytest.approx(45.0)  # atan(eps/speed)
+    assert a.course_err_deg(good(0.0)) == 5.0  # neither sent
+    assert a.gate_deg(good(0.0, epd=1.0), 0.0, 0.0) == 2.0  # never below gate_min_deg
+    a.on_fix(good(10.0), 0.0)
+    a.on_message(step_msg(10.0), 0.0)  # accepted at 0 s
+    # 60 s later, in a 4 deg/s turn: 5 + 0.1 * 60 + 4 * 0.5
+    assert a.gate_deg(good(0.0), 4.0, 60.0) == pytest.approx(13.0)
+    # so a course 12 deg off is taken after a minute's outage, not a second after
+    a.on_fix(good(22.0), 60.0)
+    assert a.on_message(step_msg(10.0, omega=4.0, t=60.0), 60.0)[0]["mode"] == AIDED
+    b = GpsAiding(c)
+    b.on_fix(good(10.0), 0.0)
+    b.on_message(step_msg(10.0), 0.0)
+    b.on_fix(good(22.0), 1.0)
+    assert b.on_message(step_msg(10.0, t=1.0), 1.0)[0]["mode"] == DEAD_RECKONING
+
+
+@given(
+    st.floats(0.0, 359.9),
+    st.floats(-179.0, 179.0),
+    st.floats(0.1, 15.0),  # up to max_epd_deg: a larger error is no good fix at all
+)
+def test_a_course_is_taken_if_and_only_if_it_is_inside_the_gate(course, off, epd):
+    a = GpsAiding(AidingConfig(gate_min_deg=1.0))
+    a.on_fix(good(course), 0.0)
+    a.on_message(step_msg(0.0), 0.0)  # aligned to course
+    a.on_fix(good((course + off) % 360.0, epd=epd), 1.0)
+    out, _ = a.on_message(step_msg(0.0, t=2.0), 1.0)
+    inside = abs(off) <= a.gate_deg(good(0.0, epd=epd), 0.0, 1.0) - 1e-9
+    outside = abs(off) >= a.gate_deg(good(0.0, epd=epd), 0.0, 1.0) + 1e-9
+    if inside:
+        assert out["mode"] == AIDED
+    elif outside:
+        assert out["mode"] == DEAD_RECKONING and herr(out["heading"], course) < 1e-6
+
+
+# -- one receiver followed ---------------------------------------------------------------------------
+
+
+def test_a_second_receiver_without_a_fix_is_ignored():
+    """gpsd reads two receivers; the second has no fix. Its TPVs (mode 1) used to end aiding
+    at every step."""
+    a = GpsAiding()
+    for k in range(100):
+        a.on_fix(good(90.0, device="/dev/ttyUSB0"), k + 0.2)
+        a.on_fix(Fix(mode=1, device="/dev/ttyUSB1"), k + 0.4)
+        out, _ = a.on_message(step_msg(0.0, t=k + 1.0), k + 1.0)
+        assert out["mode"] == AIDED, k
+    assert a.device == "/dev/ttyUSB0" and a.fixes_ignored == 100
+    assert [e for e in a.events if e[0] == "gps_device"] == [
+        ("gps_device", {"device": "/dev/ttyUSB0"})
+    ]
+
+
+def test_two_receivers_courses_never_alternate():
+    """Two receivers with fixes, courses 90 and 93 (a different antenna, a different
+    error): the heading follows the first alone."""
+    a = GpsAiding()
+    for k in range(60):
+        a.on_fix(good(90.0, device="/dev/ttyACM0"), k + 0.2)
+        a.on_fix(good(93.0, device="/dev/ttyACM1"), k + 0.4)
+        out, _ = a.on_message(step_msg(0.0, t=k + 1.0), k + 1.0)
+        assert out["mode"] == AIDED and out["gps_course"] == 90.0
+        assert herr(out["heading"], 90.0) < 1e-9
+    assert a.courses_rejected == 0 and a.fixes_ignored == 60
+
+
+def test_a_configured_receiver_only_and_a_quiet_one_hands_over():
+    a = GpsAiding(AidingConfig(device="/dev/gps1"))
+    a.on_fix(good(50.0, device="/dev/gps0"), 0.0)
+    assert a.on_message(step_msg(0.0), 0.1)[0]["mode"] == DEAD_RECKONING
+    a.on_fix(good(60.0, device="/dev/gps1"), 0.2)
+    out, _ = a.on_message(step_msg(0.0, t=2.0), 0.3)
+    assert out["mode"] == AIDED and out["gps_course"] == 60.0
+    # a configured receiver is never replaced, however long it is quiet
+    a.on_fix(good(50.0, device="/dev/gps0"), 100.0)
+    assert a.on_message(step_msg(0.0, t=3.0), 100.1)[0]["mode"] == DEAD_RECKONING
+
+    b = GpsAiding(AidingConfig(device_timeout_s=10.0))
+    b.on_fix(good(60.0, device="A"), 0.0)
+    b.on_message(step_msg(0.0), 0.1)
+    b.on_fix(Fix(mode=1, device="A"), 1.0)  # A loses its fix
+    b.on_fix(good(61.0, device="B"), 5.0)  # B within the timeout: ignored
+    assert b.on_message(step_msg(0.0, t=5.0), 5.1)[0]["mode"] == DEAD_RECKONING
+    b.on_fix(good(61.0, device="B"), 10.5)  # A has had no fix for 10.5 s: B takes over
+    out, _ = b.on_message(step_msg(0.0, t=11.0), 10.6)
+    assert out["mode"] == AIDED and out["gps_course"] == 61.0 and b.device == "B"
+    assert ("gps_device", {"device": "B", "previous": "A"}) in b.events
+
+
 # -- alignment -------------------------------------------------------------------------------------
 
 
@@ -158,7 +302,7 @@ def test_no_alignment_update_in_a_fast_turn():
     a = GpsAiding(AidingConfig(align_max_rate_dps=3.0))
     a.on_fix(good(90.0), 0.0)
     a.on_message(step_msg(90.0, t=1.0), 0.0)
-    a.on_fix(good(80.0), 1.0)
+    a.on_fix(good(86.0), 1.0)
     a.on_message(step_msg(90.0, omega=10.0, t=2.0), 1.0)
     assert a.offset_deg == 0.0
     a.on_message(step_msg(90.0, omega=2.0, t=3.0), 1.0)
@@ -368,7 +512,7 @@ def test_stale_messages_get_the_alignment_but_change_nothing():
         "status": "stale",
         "stale_s": 3.0,
     }
-    a.on_fix(good(230.0), 1.0)
+    a.on_fix(good(203.0), 1.0)  # within the gate: aided, but a stale report moves nothing
     out, delta = a.on_message(stale, 1.0)
     assert out["heading"] == pytest.approx(200.0) and out["mode"] == AIDED and delta == 0.0
     assert a.offset_deg == pytest.approx(-180.0)  # wrapped to [-180, 180)

@@ -97,6 +97,10 @@ def test_no_device_gives_up_and_says_so(fake_gyro, tmp_path: Path) -> None:
     assert p.returncode == 1 and not bias_file.exists()
     assert "no data from" in err and "for 1 s" in err and "calibration.no_data_timeout_s" in err
     assert "bias file not written" in err.splitlines()[-1]
+    # said at once, plainly: not "device lost" with pyserial's message
+    none = tmp_path / "ttyNONE"
+    assert f"{none} does not exist; waiting up to 1 s for it to appear" in err.splitlines()
+    assert "device lost" not in err
     # ... and a device that is there but sends nothing.
     g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)  # never started
     p = calibrate("--config", str(cfg), "--port", g.path, "--bias-file", str(bias_file),
@@ -126,6 +130,20 @@ def test_piped_to_head_still_writes_the_bias_file(tmp_path: Path) -> None:
     assert rc == 0, err
     assert load_bias(bias_file).n > 0
     assert "written to" in err and "Traceback" not in err
+
+
+def test_a_write_that_fails_says_where_in_one_line(tmp_path: Path) -> None:
+    # /proc takes no new file: the temporary file beside the bias file cannot be made.
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 100\n")
+    p = calibrate("--simulate", "--config", str(cfg), "--seconds", "1",
+                  "--bias-file", "/proc/hdrd-bias.yaml")  # fmt: skip
+    last = p.stderr.decode().strip().splitlines()[-1]
+    assert p.returncode == 1
+    assert last == (
+        "hdrd calibrate: cannot write /proc/hdrd-bias.yaml: No such file or directory "
+        "(its temporary file in /proc); bias file not written"
+    )
 
 
 def test_bad_seconds_is_a_config_error() -> None:

@@ -94,3 +94,95 @@ def test_log_level_is_an_option(command: str) -> None:
 def test_every_command_is_registered_with_a_target() -> None:
     assert set(_subparsers()) == set(COMMANDS)
     assert COMMANDS["calibrate"][0] == "hdrd.calibrate_cmd:main"
+
+
+def _documents(help_text: str, default: object) -> bool:
+    """Whether an option's expanded help gives ``default``: the word and the value (a number
+    in any spelling: 20 for 20.0; an empty list as "none")."""
+    import re
+
+    if "default" not in help_text:
+        return False
+    if isinstance(default, (list, tuple)) and not default:
+        return "none" in help_text
+    if str(default) in help_text:
+        return True
+    if isinstance(default, (int, float)) and not isinstance(default, bool):
+        numbers = re.findall(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", help_text)
+        return any(float(n) == float(default) for n in numbers)
+    return False
+
+
+def test_every_option_with_a_default_shows_it() -> None:
+    """The README promises that `hdrd COMMAND --help` lists every option and its default:
+    each option that takes a value and has a default (not None) must give it in its help,
+    whatever the command, including options added later. A switch is off unless given; an
+    option whose default is None says in its own words where its default comes from."""
+    missing = []
+    for name, sub in _subparsers().items():
+        formatter = sub._get_formatter()
+        for a in sub._actions:
+            if not a.option_strings or a.nargs == 0 or a.default in (None, argparse.SUPPRESS):
+                continue
+            text = formatter._expand_help(a) if a.help else ""
+            if not _documents(" ".join(text.split()), a.default):
+                missing.append(f"hdrd {name} {'/'.join(a.option_strings)}: {text!r}")
+    assert missing == []
+
+
+def test_help_output_ends_each_such_option_with_its_default() -> None:
+    """What a user sees: the default appended where the help did not give it."""
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "fakegyro", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    text = " ".join(p.stdout.split())
+    assert "--garbage P probability of garbage bytes before a frame (default: 0.0)" in text
+    assert "--pull-for S how long a pull lasts, s (default: 5.0)" in text
+    assert "(default: None)" not in text and "(default: False)" not in text
+
+
+def _run_overrides() -> dict[str, str]:
+    """Configuration key -> the `hdrd run` option (dest) that overrides it (hdrd.cliargs)."""
+    from hdrd.cliargs import _overrides
+
+    sub = _subparsers()["run"]
+    dests = {a.dest for a in sub._actions if a.option_strings}
+    marked = argparse.Namespace(**{d: f"@{d}" for d in dests if d != "gpsd"}, gpsd=None)
+    out = {}
+    for key, value in _overrides(marked).items():
+        text = "".join(value) if isinstance(value, tuple) else value
+        if isinstance(text, str) and text.startswith("@"):
+            out[key] = text[1:]
+    return out
+
+
+def test_run_help_names_each_configuration_default() -> None:
+    """`hdrd run`'s options override configuration keys; each says which key, and that key's
+    built-in default, as the configuration has it (so the help cannot drift from it)."""
+    from hdrd.config import Config
+
+    def shown(v: object) -> str:
+        if isinstance(v, bool):
+            return "on" if v else "off"
+        if isinstance(v, tuple) and not v:
+            return "none"
+        if isinstance(v, float):
+            return f"{v:g}"
+        return str(v)
+
+    sub = _subparsers()["run"]
+    helps = {a.dest: " ".join((a.help or "").split()) for a in sub._actions}
+    mapping = _run_overrides()
+    assert len(mapping) >= 12, mapping
+    wrong = []
+    for key, dest in mapping.items():
+        section, name = key.split(".")
+        sec = getattr(Config(), section)
+        default = getattr(sec.params if section == "hdr" and name != "method" else sec, name)
+        want = key if default == "" else f"{key}, {shown(default)}"
+        if want not in helps[dest]:
+            wrong.append(f"--{dest}: wants {want!r}: {helps[dest]!r}")
+    assert wrong == []

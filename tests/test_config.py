@@ -110,6 +110,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.align_gain": (0.5, [-0.1, 1.5, NAN]),
     "gpsd.bias_window_s": (60.0, [0.0, -5.0, INF]),
     "gpsd.bias_gain": (1.0, [1.01, -0.3, True]),
+    "gpsd.device": ("/dev/ttyUSB1", [" /dev/ttyUSB1", "a\0b", 1, None, ["/dev/ttyUSB1"]]),
     "standstill.enabled": (False, ["no", 0, None]),
     "standstill.from_gyro": (True, ["yes", 1, 1.0]),
     "simulate.grade": ("tactical", ["nav", "", 1]),
@@ -379,6 +380,44 @@ def test_apply_overrides_unknown(dotted: str) -> None:
     assert "unknown" in str(ei.value) and "\n" not in str(ei.value)
 
 
+# -- numbers YAML 1.1 reads as text ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "written, value",
+    [("1e-2", 0.01), ("1.0e9", 1e9), ("5E-1", 0.5), ("+2e0", 2.0), (".5e1", 5.0), ("1.e1", 10.0)],
+)
+def test_exponent_numbers_yaml_reads_as_text_are_numbers(
+    tmp_path: Path, written: str, value: float
+) -> None:
+    """PyYAML (YAML 1.1) reads 1e-2 and 1.0e9 as strings; they used to be refused with
+    "must be a number". A number key takes them, as YAML 1.2 would."""
+    assert isinstance(yaml.safe_load(f"x: {written}")["x"], str)  # what the parser gives
+    f = tmp_path / "hdrd.yaml"
+    f.write_text(f"gpsd:\n  bias_window_s: {written}\n  max_fix_age_s: {written}\n")
+    cfg, _ = load_config(f)
+    assert cfg.gpsd.bias_window_s == value and type(cfg.gpsd.bias_window_s) is float
+    assert cfg.gpsd.max_fix_age_s == value
+
+
+@pytest.mark.parametrize(
+    "key, text, why",
+    [
+        ("hdr.tau", "1e", "must be a number"),
+        ("hdr.tau", "e5", "must be a number"),
+        ("hdr.tau", "1e-2 s", "must be a number"),
+        ("hdr.tau", "1e999", "must be a finite number"),
+        ("hdr.tau", "1e4", "hdr.tau = 10000.0: must be a finite number >= 0 and <= 3600"),
+        ("device.baud", "1e6", "must be an integer, written out in digits"),
+    ],
+)
+def test_text_that_is_no_number_is_still_refused(key: str, text: str, why: str) -> None:
+    with pytest.raises(ConfigError) as e:
+        parse_config(nested(key, text))
+    assert why in str(e.value), str(e.value)
+    assert "10000" in str(e.value) or f"{key} = '{text}'" in str(e.value), str(e.value)
+
+
 # -- the shipped config/hdrd.yaml --------------------------------------------------------------
 
 
@@ -470,11 +509,26 @@ def test_parse_hostport(text: str, want: tuple[str, int]) -> None:
 
 
 @pytest.mark.parametrize(
-    "text", ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5]
+    "text",
+    ["localhost", "host:0", "host:65536", "host:", "host:x", "a b:1", 5, "[]:1", "[::1:7400"],
 )
 def test_parse_hostport_rejects(text: Any) -> None:
     with pytest.raises(ValueError):
         parse_hostport(text)
+
+
+@pytest.mark.parametrize("text", ["::1:7400", "fe80::1:10110", "2001:db8::2:53"])
+def test_an_ipv6_destination_needs_brackets(text: str) -> None:
+    """'::1:7400' is the address ::1 port 7400, or the address ::1:7400 with no port: it used
+    to be taken as the first. Refused, saying how to write it."""
+    host, _, port = text.rpartition(":")
+    with pytest.raises(ValueError, match=re.escape(f"in brackets: [{host}]:{port}")):
+        parse_hostport(text)
+    assert parse_hostport(f"[{host}]:{port}") == (host, int(port))
+    with pytest.raises(ConfigError) as e:
+        parse_config({"output": {"udp": ["127.0.0.1:10110", text]}})
+    msg = check_error(e.value, "output.udp")
+    assert f"{text!r} is not: an IPv6 address goes in brackets: [{host}]:{port}" in msg
 
 
 # -- the CLI: exit 78 (EX_CONFIG) with the one line on stderr -----------------------------------

@@ -6,13 +6,16 @@ No timings are asserted; the waits are generous bounds that only fail a hung dae
 
 from __future__ import annotations
 
+import json
 import os
+import select
 import signal
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -52,6 +55,111 @@ def test_sighup_during_start_up_does_not_kill_the_daemon(fake_gyro, daemon, udp)
     assert more[-1]["step"] > got[-1]["step"]
     reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
     assert 1 <= len(reloads) <= 2  # the held one (if it came after the handler) and the later
+
+
+# Starts `hdrd` the way ENTRY says (python -m hdrd, or the console script's import of the
+# entry point pyproject.toml names) and sends itself SIGHUP when hdrd.cli is first imported:
+# the earliest moment after hdrd's own first statement, long before the argument parser and
+# the daemon. Found through the interpreter's audit events (PEP 578).
+HUP_AT_CLI_IMPORT = r"""
+import os, runpy, signal, sys
+entry, argv = sys.argv[1], sys.argv[2:]
+def hook(event, args):
+    if event == "import" and args[0] == "hdrd.cli":
+        os.kill(os.getpid(), signal.SIGHUP)
+sys.addaudithook(hook)
+sys.argv = ["hdrd", *argv]
+if entry == "-m":
+    runpy.run_module("hdrd", run_name="__main__", alter_sys=True)
+else:
+    module, _, func = entry.partition(":")
+    sys.exit(getattr(__import__(module, fromlist=[func]), func)())
+"""
+
+
+def _console_entry() -> str:
+    """The ``hdrd`` console script's entry point, ``module:function``, from pyproject.toml."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    m = re.search(r'^\[project\.scripts\]\s*\nhdrd = "([\w.]+:\w+)"', text, flags=re.MULTILINE)
+    assert m, "no hdrd entry in pyproject.toml's [project.scripts]"
+    return m.group(1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("entry", ["-m", "console script"])
+def test_sighup_at_hdrds_first_import_is_a_reload(entry: str, udp, tmp_path: Path) -> None:  # noqa: F811
+    """SIGHUP in the first few hundredths of a second of `hdrd run` (sent here the moment
+    hdrd.cli is imported, before argument parsing) used to end the daemon: the hold came
+    after parsing. It is the entry point's first statement now: the daemon lives, reloads."""
+    u = udp()
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 20\n")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    target = "-m" if entry == "-m" else _console_entry()
+    argv = ["run", "--simulate", "--config", str(cfg), "--udp", u.addr, "--log-format", "json"]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HUP_AT_CLI_IMPORT, target, *argv],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
+    try:
+        got = u.messages(lambda ms: len(ms) >= 3)
+    except (AssertionError, OSError):
+        proc.kill()
+        _, err = proc.communicate(timeout=WAIT)
+        raise AssertionError(
+            f"no messages; exit {proc.returncode}: {err.decode()[-800:]}"
+        ) from None
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0, err.decode()[-800:]
+    assert got[-1]["step"] >= 2
+    reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
+    assert len(reloads) == 1, err.decode()[-800:]  # the held SIGHUP, taken as a reload
+
+
+def _block_hangup() -> None:
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+
+
+@pytest.mark.slow
+def test_a_sighup_the_parent_blocked_is_a_reload_once_the_daemon_runs(udp, tmp_path: Path) -> None:  # noqa: F811
+    """Before hdrd's first statement the interpreter starts, and no handler can exist yet:
+    a sender that must not kill a starting daemon starts it with SIGHUP blocked (the mask
+    passes through exec). Here a SIGHUP is sent at once, before the interpreter has started.
+    hdrd used to leave SIGHUP blocked: no reload, ever. Now it unblocks it once its handler
+    is in place: the waiting SIGHUP is a reload, and so is a later one."""
+    u = udp()
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: standstill\n  speedup: 20\n")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", "--simulate", "--config", str(cfg),
+         "--udp", u.addr, "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+        preexec_fn=_block_hangup,
+    )  # fmt: skip
+    proc.send_signal(signal.SIGHUP)  # pending until hdrd unblocks it
+    try:
+        u.messages(lambda ms: len(ms) >= 3)
+        proc.send_signal(signal.SIGHUP)  # and once running
+        u.messages(lambda ms: len(ms) >= 3)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=WAIT)
+    assert proc.returncode == 0, err.decode()[-800:]
+    reloads = [e for e in events(err) if e["event"] == "config_reloaded"]
+    assert len(reloads) == 2, err.decode()[-800:]
 
 
 @pytest.mark.slow
@@ -283,3 +391,77 @@ def test_a_socket_port_whose_listener_never_answers_does_not_stall_the_loop(
         for c in fillers:
             c.close()
         srv.close()
+
+
+class _Log:
+    """The daemon's JSON log lines on its stderr, read as they come (never blocking past
+    WAIT)."""
+
+    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stderr is not None
+        self.fd = proc.stderr.fileno()
+        self.buf = b""
+        self.events: list[dict[str, Any]] = []
+
+    def until(self, want: str) -> dict[str, Any]:
+        """Read until an event named ``want`` (one not returned before); fail on EOF/WAIT."""
+        seen = len(self.events)
+        deadline = time.monotonic() + WAIT
+        while True:
+            for e in self.events[seen:]:
+                if e.get("event") == want:
+                    return e
+            seen = len(self.events)
+            left = deadline - time.monotonic()
+            ready = select.select([self.fd], [], [], max(0.0, left))[0] if left > 0 else []
+            chunk = os.read(self.fd, 65536) if ready else b""
+            if not chunk:
+                raise AssertionError(f"no {want}; got {[e.get('event') for e in self.events]}")
+            self.buf += chunk
+            *lines, self.buf = self.buf.split(b"\n")
+            for line in lines:
+                try:
+                    self.events.append(json.loads(line))
+                except json.JSONDecodeError:
+                    pass
+
+
+@pytest.mark.slow
+def test_a_port_that_does_not_exist_is_said_at_once_and_waited_for(
+    fake_gyro,
+    udp,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    """`hdrd run --port /dev/nonexistent` used to look like a silent gyro for ever (a
+    "device_lost" with a long pyserial message, then only stale reports). At start it now
+    says that the port does not exist and that it waits for it; when the device appears it
+    is opened and the steps come."""
+    u = udp()
+    port = tmp_path / "hdrd-gyro"  # not there yet
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "run", "--port", str(port), "--bias", "0.2",
+         "--udp", u.addr, "--log-format", "json"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+    )  # fmt: skip
+    log = _Log(proc)
+    try:
+        waiting = log.until("device_waiting")
+        assert waiting["level"] == "warning" and waiting["port"] == str(port)
+        assert waiting["reason"] == f"{port} does not exist"
+        assert f"hdrd opens {port} when it appears" in waiting["waiting"]
+        assert "device_lost" not in [e.get("event") for e in log.events]
+        g = fake_gyro(STANDSTILL, speedup=5, link=port)
+        g.start()
+        opened = log.until("device_open")
+        assert opened["port"] == str(port) and opened["waited_s"] >= 0
+        got = u.messages(lambda ms: sum(1 for m in ms if m["status"] != "stale") >= 2)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=WAIT)
+    assert proc.returncode == 0, log.events[-5:]
+    assert any(m["status"] == "ok" for m in got)

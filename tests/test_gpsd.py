@@ -462,6 +462,7 @@ def test_link_from_config_takes_the_aiding_keys():
             "gpsd.align_gain": 0.5,
             "gpsd.bias_window_s": 45.0,
             "gpsd.bias_gain": 0.1,
+            "gpsd.device": "/dev/ttyUSB1",
         },
     )
     link = GpsdLink.from_config(cfg.gpsd, step_s=0.5)
@@ -469,6 +470,13 @@ def test_link_from_config_takes_the_aiding_keys():
         a = link.aiding.config
         assert (a.min_speed_mps, a.max_fix_age_s, a.max_epd_deg) == (3.0, 1.5, 8.0)
         assert (a.align_gain, a.bias_window_s, a.bias_gain, a.step_s) == (0.5, 45.0, 0.1, 0.5)
+        assert a.device == "/dev/ttyUSB1" and link.aiding.device == "/dev/ttyUSB1"
+    finally:
+        link.close()
+    # empty (the default): the first receiver with a fix
+    link = GpsdLink.from_config(Config().gpsd)
+    try:
+        assert link.aiding.config.device is None
     finally:
         link.close()
 

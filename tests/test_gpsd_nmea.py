@@ -356,6 +356,74 @@ def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
     }  # crossed north
 
 
+@pytest.mark.slow
+def test_gpsfake_a_receiver_without_a_fix_another_course_and_a_glitch(
+    need_gpsfake, procs, tmp_path
+):
+    """Two receivers through one real gpsd: A drives course 90 (one glitch, course 270, at
+    second 25); B has no fix for 20 s, then a fix with course 180. The gyro is straight on
+    90. Aiding follows A (the first with a fix) alone: B's TPVs without a fix do not end
+    aiding, B's course is never used, A's glitch is rejected, the heading stays on 90."""
+    n = 45
+    course_a: list[float | None] = [90.0] * n
+    course_a[25] = 270.0
+    logs = {
+        "a.nmea": nmea_log(course_a),
+        "b.nmea": nmea_log([None] * 20 + [180.0] * (n - 20), lat=47.0),
+    }
+    for name, text in logs.items():
+        (tmp_path / name).write_text(text)
+    port = free_port()
+    client = GpsdClient("127.0.0.1", port, reconnect_min_s=0.05, reconnect_max_s=0.2)
+    try:
+        client.poll_reports()
+        fake = procs(
+            [shutil.which("gpsfake") or "gpsfake", "-1", "-n", "-q", "-c", "0.05", "-P", str(port)]
+            + [str(tmp_path / name) for name in logs]
+        )
+
+        def a_done(rs: list[Any]) -> bool:
+            return any(isinstance(r, Fix) and r.track_deg == 90.0 and tod(r) == n - 1 for r in rs)
+
+        reports = collect_fixes(client, a_done, fake)
+    finally:
+        client.close()
+    assert client.stats.bad_lines == 0, client.stats.errors
+    fixes = [r for r in reports if isinstance(r, Fix)]
+    devices = {f.device for f in fixes}
+    assert len(devices) == 2, devices  # gpsd reported both receivers
+    assert any(f.mode < 2 for f in fixes)  # B's TPVs without a fix
+    assert any(f.track_deg == 180.0 for f in fixes)  # B's course
+    # each TPV received at (its second, or the last second seen) + 0.3 s, in gpsd's order;
+    # the gyro's step k ends at k + 1
+    aiding = GpsAiding()
+    steps = gyro_steps([90.0] * (n + 2), bias_true=0.2, bias_given=0.2)
+    events: list[tuple[float, int, Any]] = []
+    k = 0
+    for i, f in enumerate(fixes):
+        k = tod(f) if tod(f) is not None else k  # type: ignore[assignment]
+        events.append((k + 0.3 + i * 1e-6, 0, f))
+    events += [(m["t"], 1, m) for m in steps]
+    events.sort(key=lambda e: (e[0], e[1]))
+    pub: list[dict[str, Any]] = []
+    for now, kind, item in events:
+        if kind == 0:
+            aiding.on_fix(item, now)
+        else:
+            pub.append(aiding.on_message(item, now)[0])
+    first = next(i for i, m in enumerate(pub) if m["mode"] == AIDED)
+    after = pub[first:]
+    assert all(abs(wrap180(m["heading"] - 90.0)) < 1.0 for m in after), [
+        round(m["heading"], 1) for m in after
+    ]
+    assert all(m.get("gps_course") in (None, 90.0) for m in pub)
+    dr = [round(m["t"]) for m in after if m["mode"] != AIDED]
+    assert len(dr) <= 2 and all(25 <= t <= 28 for t in dr), dr  # only the glitch's steps
+    a_device = next(f.device for f in fixes if f.track_deg == 90.0)
+    assert aiding.device == a_device and aiding.fixes_ignored > 0
+    assert aiding.courses_rejected == 1 and aiding.realignments == 0
+
+
 # -- GPS -> hdrd: the daemon -------------------------------------------------------------------------
 
 

@@ -305,3 +305,63 @@ def test_a_yaml_problem_quoting_a_huge_tag_is_still_a_short_line(tmp_path: Path)
     msg = str(ei.value)
     assert "could not determine a constructor" in msg and "\n" not in msg
     assert len(msg) - len(str(p)) < 300 and msg.endswith("...")
+
+
+def _dead_ports(n: int) -> list[int]:
+    """n UDP ports on 127.0.0.1 where nothing listens (bound, then closed)."""
+    import socket
+
+    socks = []
+    for _ in range(n):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+    ports = [int(s.getsockname()[1]) for s in socks]
+    for s in socks:
+        s.close()
+    return ports
+
+
+def test_thousands_of_udp_destinations_are_summed_up_at_stop() -> None:
+    """5,000 destinations used to log 5,000 lines at stop: now one summary line and the
+    lines of the destinations that failed most (at most UDP_STATS_LINES)."""
+    import socket
+    import time
+
+    from structlog.testing import capture_logs
+
+    from hdrd import daemon as daemon_mod
+    from hdrd.publish import UdpJsonPublisher, UdpNmeaPublisher
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    good = ("127.0.0.1", int(rx.getsockname()[1]))
+    dead = [("127.0.0.1", p) for p in _dead_ports(15)]
+    many = UdpJsonPublisher([good] * (5000 - len(dead)) + dead)
+    few = UdpNmeaPublisher([good, dead[0]])
+    try:
+        for step in range(3):
+            msg = {"class": "HDR", "v": 1, "step": step, "heading": 1.0, "status": "ok"}
+            many.on_message(msg)
+            few.on_message(msg)
+            time.sleep(0.05)  # lets the ICMP errors come back
+        with capture_logs() as logs:
+            daemon_mod._stop_all([many, few])
+    finally:
+        rx.close()
+    assert len(logs) < 20, len(logs)  # a screenful, not 5,002 lines
+    limit = daemon_mod.UDP_STATS_LINES
+    summary = [e for e in logs if e["event"] == "output_udp_summary"]
+    lines = [e for e in logs if e["event"] == "output_udp_stats"]
+    assert len(logs) <= limit + 3, len(logs)
+    (s,) = summary
+    assert s["output"] == "udp" and s["destinations"] == 5000 and s["sent"] == 3 * 5000
+    assert s["failing"] >= 1 and s["by_error"].get("ECONNREFUSED", 0) >= 1
+    assert s["log_level"] == "warning"
+    udp_lines = [e for e in lines if e["output"] == "udp"]
+    assert 1 <= len(udp_lines) <= limit
+    assert all(e["errors"] >= 1 for e in udp_lines)  # the failing ones, not the 4,985 good
+    # a few destinations: one line each, as before
+    assert sorted(e["dest"] for e in lines if e["output"] == "nmea_udp") == sorted(
+        f"{h}:{p}" for h, p in (good, dead[0])
+    )

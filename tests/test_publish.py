@@ -656,3 +656,66 @@ def test_documented_nmea_examples_are_what_nmea_sentences_writes() -> None:
     assert [e.encode() + b"\r\n" for e in examples] == nmea_sentences(
         {"heading": 123.456, "omega": 2.0, "status": "turning"}
     )
+
+
+# -- stdout on a terminal: numbers as a person reads them ------------------------------------
+
+
+def _run_stdout(tmp_path: Any, on_tty: bool, steps: int = 6) -> list[dict[str, Any]]:
+    """``hdrd run --simulate --stdout`` with stdout on a pty (a terminal) or a pipe, until
+    ``steps`` steps with a rate are out; its messages."""
+    import re
+
+    cfg = tmp_path / "hdrd.yaml"
+    cfg.write_text("simulate:\n  drive: city\n  speedup: 50\n")
+    env = dict(os.environ)
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    env["STATE_DIRECTORY"] = str(tmp_path)  # no bias file: measured at start
+    argv = [sys.executable, "-m", "hdrd", "run", "--simulate", "--config", str(cfg), "--stdout"]
+    master, slave = os.openpty() if on_tty else os.pipe()  # (read, write) both
+    proc = subprocess.Popen(argv, stdout=slave, stderr=subprocess.DEVNULL, env=env)
+    os.close(slave)
+    text = ""
+    try:
+        deadline = time.monotonic() + 60
+        while text.count('"omega":') < steps and time.monotonic() < deadline:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            text += chunk.decode()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=60)
+        os.close(master)
+    lines = [x for x in re.split(r"\r?\n", text) if x.startswith("{")]
+    assert sum('"omega":' in x for x in lines) >= steps, text[-500:]
+    return [json.loads(x) for x in lines if x.endswith("}")]
+
+
+def _decimals(v: float) -> int:
+    text = repr(v)
+    return len(text.split(".", 1)[1]) if "." in text and "e" not in text else 0
+
+
+@pytest.mark.slow
+def test_run_stdout_on_a_terminal_rounds_numbers_and_a_pipe_keeps_them(tmp_path: Any) -> None:
+    """A yaw of -0.0025271484375000014 is noise on a terminal: there hdrd run --stdout shows
+    each number to what it means; a pipe (a program, a file) gets every digit."""
+    from hdrd.display import DECIMALS
+
+    shown = _run_stdout(tmp_path, on_tty=True)
+    for m in shown:
+        for k, v in m.items():
+            if isinstance(v, float) and k in DECIMALS:
+                assert _decimals(v) <= DECIMALS[k], (k, v)
+    piped = _run_stdout(tmp_path, on_tty=False)
+    assert any(
+        _decimals(v) > DECIMALS[k]
+        for m in piped
+        for k, v in m.items()
+        if isinstance(v, float) and k in DECIMALS
+    ), piped[-1]

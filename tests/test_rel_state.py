@@ -407,3 +407,68 @@ def test_power_cut_at_random_moments(tmp_path: Path) -> None:
                 p.kill()
                 p.wait()
     assert set(outcomes) <= {"old", "new"}
+
+
+# --------------------------------------------------------------------------- writers at once
+
+# Writes the bias file N times, as `hdrd calibrate` does (hdrd.calibrate.save_bias).
+WRITER = r"""
+import sys
+from hdrd.calibrate import BiasRecord, save_bias
+path, who, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+for k in range(n):
+    save_bias(path, BiasRecord(0.001 * who, 0.01, k + 1, 10.0, None, 1.7e9))
+"""
+
+
+def test_concurrent_writers_of_the_bias_file_all_succeed(tmp_path: Path) -> None:
+    """Four processes writing the same bias file at once (two `hdrd calibrate` runs
+    finishing together, on two ports or --simulate). Each writer used to remove every temp
+    file it found, the others' live ones too, whose rename then failed with "No such file
+    or directory". Now every write succeeds, the file is one writer's whole record, and no
+    temp file is left."""
+    target = tmp_path / "bias.yaml"
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", WRITER, str(target), str(who), "60"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            env=env_with(),
+        )
+        for who in range(1, 5)
+    ]
+    errors = [(p.wait(timeout=WAIT), p.stderr.read().decode()) for p in procs if p.stderr]
+    assert all(rc == 0 for rc, _ in errors), [e[-300:] for rc, e in errors if rc]
+    rec = load_bias(target)
+    assert rec.n == 60 and round(rec.bias_dps * 1000) in (1, 2, 3, 4)
+    assert temps(tmp_path) == []
+
+
+def test_only_dead_writers_temp_files_are_removed(tmp_path: Path) -> None:
+    """A temp file is removed only when its writer is gone: not while the pid in its name
+    runs, nor while someone holds its lock (a writer in another pid namespace)."""
+    import fcntl
+
+    target = tmp_path / "bias.yaml"
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, check=True)  # fmt: skip
+    dead = int(done.stdout)  # a pid that ran and is gone (reuse within the test: unlikely)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        dead_one = tmp_path / f".bias.yaml.{dead}.aaaa.tmp"
+        live_one = tmp_path / f".bias.yaml.{live.pid}.bbbb.tmp"
+        locked = tmp_path / f".bias.yaml.{dead}.cccc.tmp"
+        old_style = tmp_path / ".bias.yaml.dddd.tmp"  # an older hdrd's name: no pid
+        for f in (dead_one, live_one, locked, old_style):
+            f.write_text("partial")
+        with locked.open() as held:
+            fcntl.flock(held.fileno(), fcntl.LOCK_EX)
+            save_bias(target, OLD)
+            assert sorted(temps(tmp_path)) == sorted([live_one.name, locked.name])
+        save_bias(target, OLD)
+        assert temps(tmp_path) == [live_one.name]
+    finally:
+        live.kill()
+        live.wait()
+    save_bias(target, OLD)
+    assert temps(tmp_path) == [] and load_bias(target) == OLD

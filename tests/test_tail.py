@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -192,6 +193,81 @@ def test_tail_table_end_to_end(sender: socket.socket) -> None:
     assert "malformed" in err.decode() and "Traceback" not in err.decode()
 
 
+def _line_within(stream: Any, what: str) -> bytes:
+    """One line from a pipe, failing (not hanging) when none comes within GUARD_S."""
+    import select
+
+    ready, _, _ = select.select([stream], [], [], GUARD_S)
+    assert ready, f"no {what} within {GUARD_S} s"
+    return bytes(stream.readline())
+
+
+def test_tail_prints_its_header_and_where_it_waits_at_once() -> None:
+    """Before any data: the header on stdout, "waiting on HOST:PORT" on stderr (it used to
+    print nothing until the first message, which looks like a hang)."""
+    proc, port = start_tail()
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        header = _line_within(proc.stdout, "header").decode()
+        note = _line_within(proc.stderr, "note").decode()
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=GUARD_S)
+    assert header.split()[:3] == ["time", "step", "status"]
+    assert note.strip() == (
+        f"hdrd tail: waiting on 127.0.0.1:{port} (hdrd run --udp 127.0.0.1:{port} sends there)"
+    )
+
+
+def _tail_on_a_terminal(sender: socket.socket, msg: dict[str, Any], *extra: str) -> list[str]:
+    """Run ``hdrd tail`` with stdout on a pty (a terminal), send ``msg`` once; its lines."""
+    master, slave = os.openpty()
+    try:
+        proc, port = start_tail("--count", "1", *extra, stdout=slave)
+        os.close(slave)
+        slave = -1
+        sender.sendto(format_json(msg), ("127.0.0.1", port))
+        proc.wait(timeout=GUARD_S)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # EIO: the terminal's other side has closed
+                break
+            if not chunk:
+                break
+            out += chunk
+    finally:
+        os.close(master)
+        if slave >= 0:
+            os.close(slave)
+    assert proc.returncode == 0
+    return out.decode().replace("\r\n", "\n").splitlines()
+
+
+NOISY = {"time": 1700000001.123456, "omega": 0.058123456789, "yaw": -0.0025271484375000014,
+         "heading": 359.99747285156, "bias": 0.24190000000000003, "gap_s": 2.0000000001}  # fmt: skip
+
+
+def test_tail_raw_on_a_terminal_rounds_numbers_to_what_they_mean(sender: socket.socket) -> None:
+    """On a terminal the JSON's digits beyond a value's meaning are noise; piped, they are
+    kept (test_tail_raw_end_to_end: exactly as received)."""
+    (line,) = _tail_on_a_terminal(sender, dict(hdr(1), **NOISY), "--raw")
+    shown = json.loads(line)
+    assert list(shown) == list(dict(hdr(1), **NOISY))  # every key, in order
+    assert (shown["time"], shown["omega"], shown["yaw"], shown["heading"]) == (
+        1700000001.12, 0.0581, 0.0, 0.0,  # -0.0 shows as 0.0, 359.997 as 0.0 (as NMEA)
+    )  # fmt: skip
+    assert (shown["bias"], shown["gap_s"], shown["status"]) == (0.2419, 2.0, "ok")
+    assert '"yaw":0.0,' in line and not re.search(r"\.[0-9]{5}", line), line
+
+
+def test_tail_table_on_a_terminal(sender: socket.socket) -> None:
+    header, row = _tail_on_a_terminal(sender, dict(hdr(7), **NOISY))
+    assert header.split()[:2] == ["time", "step"]
+    assert row.split()[1:6] == ["7", "ok", "0.00", "0.00", "0.058"]  # no "-0.00"
+
+
 def test_tail_raw_end_to_end(sender: socket.socket) -> None:
     proc, port = start_tail("--raw", "--count", "4")
     sent = [format_json(hdr(i)) for i in (1, 2)]
@@ -277,6 +353,39 @@ def test_row_never_prints_heading_360():
 
     row = TailFormatter.row({"class": "HDR", "step": 1, "status": "ok", "heading": 359.996})
     assert "360.00" not in row and "0.00" in row
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [("yaw", 1e300), ("yaw", -1e300), ("omega", 1e300), ("bias", -1e30), ("I", 5e20),
+     ("step", 10**300), ("samples", -(10**400)), ("bad_frames", 10**20)],
+    ids=lambda v: v if isinstance(v, str) else f"{len(str(int(abs(v))))}digits",
+)  # fmt: skip
+def test_a_huge_number_fits_its_column(key: str, value: float) -> None:
+    """A yaw of 1e300 used to print as 301 digits, the rest of the row pushed off the line."""
+    f = TailFormatter()
+    out, _, n = f.lines(format_json(dict(hdr(1), **{key: value})))
+    header, row = out
+    assert n == 1 and len(row) <= len(header) + 1, row
+    cells = row.split()
+    col = {"bad_frames": "bad"}.get(key, key)
+    shown = cells[header.split().index(col)]
+    assert "e+" in shown, shown
+    if key == "yaw":
+        assert shown == ("1e+300" if value > 0 else "-1e+300")
+
+
+@given(st.floats(allow_nan=False, allow_infinity=False), st.integers(-(10**500), 10**500))
+def test_any_number_fits_every_column(x: float, i: int) -> None:
+    """Each cell within its column, or (a column too narrow for any exponent form, W's one
+    character) within the 7 characters of ``-1e+300``."""
+    from hdrd.tail import _COLUMNS
+
+    msg = dict(hdr(1), yaw=x, omega=x, I=x, bias=x, heading=x, step=i, r=i, samples=i, W=i)
+    header, row = TailFormatter().lines(format_json(msg))[0]
+    cells = row.split()
+    assert len(cells) == len(_COLUMNS)
+    assert all(len(c) <= max(w, 7) for c, (_, _, w, _) in zip(cells, _COLUMNS)), row
 
 
 # -- hostile datagrams: nothing kills tail, nothing reaches the terminal raw ----------------
@@ -379,3 +488,37 @@ def test_tail_survives_hostile_datagrams_end_to_end(sender: socket.socket) -> No
     assert [line.split()[1] for line in lines[1:]] == ["1", "2"]
     assert "ok\\u001b[2J\\u0007" in lines[1]
     assert "a number too long" in err.decode()
+
+
+@pytest.mark.slow
+def test_the_readmes_run_and_tail_commands_work(tmp_path: Any) -> None:
+    """README.md, "Two commands": ``hdrd run --simulate --speedup 20 --udp 127.0.0.1:10110``
+    in one terminal and ``hdrd tail`` in another. Run as written, on a free port in place of
+    10110 (which is tail's default: the substitution changes nothing else)."""
+    from pathlib import Path
+
+    from hdrd.tail import DEFAULT_TAIL_LISTEN
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    run_cmd = "hdrd run --simulate --speedup 20 --udp 127.0.0.1:10110"
+    assert f"\n{run_cmd}\nhdrd tail\n" in readme
+    assert run_cmd.endswith(DEFAULT_TAIL_LISTEN)
+    tail, port = start_tail("--count", "5")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path))
+    for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC"):
+        env.pop(k, None)
+    argv = run_cmd.split()[1:-1] + [f"127.0.0.1:{port}"]
+    run = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        env=env,
+    )  # fmt: skip
+    try:
+        out, err = tail.communicate(timeout=GUARD_S)
+    finally:
+        run.terminate()
+        run_out, _ = run.communicate(timeout=GUARD_S)
+    assert tail.returncode == 0, err
+    header, *rows = out.decode().splitlines()
+    assert header.split()[:3] == ["time", "step", "status"] and len(rows) == 5
+    assert rows[0].split()[2] == "calibrating" and rows[-1].split()[2] in ("ok", "turning")
+    assert run.returncode == 0 and run_out == b""  # --udp given: nothing on stdout
