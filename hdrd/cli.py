@@ -133,6 +133,16 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
 
+def _strict(p: argparse.ArgumentParser) -> None:
+    """What a drive that cannot be used does to a run of many (docs/evaluation.md)."""
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="stop at the first drive that cannot be used (default: report it on stderr, "
+        "skip it and go on with the others)",
+    )
+
+
 def _log_format(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument(
         "--format",
@@ -494,6 +504,7 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
     )
+    _strict(p)
     _fleet(p)
 
 

@@ -14,16 +14,29 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.drivelog import DriveLog, DriveLogError, read_drive
+from hdrd.errors import clipped
+from hdrd.files import printable
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
 CSV_SUFFIX = ".csv"
 PARQUET_SUFFIX = ".parquet"  # hdrd.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
 PARTITION_PREFIX = "drive="  # hdrd.parquetlog.PARTITION_PREFIX
+MAX_NAME_CHARS = 200
+"""A drive's name is cut to this many characters (ending in "..."): names come from data (a
+``drive`` column, a folder's name) and are shown in every line about the drive."""
 GLOB_CHARS = frozenset("*?[")
 FORMATS = ("csv", "parquet", "dataset")
 """What ``--format`` writes: a CSV file, a Parquet file, a drive of a dataset partitioned by
 drive (OUT/drive=NAME/part-0.parquet)."""
+
+
+def drive_name(value: Any) -> str:
+    """What results and messages call a drive whose name in the data is ``value``: its text
+    with non-printable characters escaped (:func:`hdrd.files.printable`), at most
+    :data:`MAX_NAME_CHARS` characters. A name becomes a path only through
+    :func:`hdrd.files.path_inside`."""
+    return clipped(printable(str(value)), MAX_NAME_CHARS)
 
 
 @dataclass(frozen=True)
@@ -61,8 +74,8 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
 
         keys = drives_in_file(path)
         if keys is not None:
-            return [DriveRef(str(path), f"{name}/{k}" if name else str(k), k) for k in keys]
-    return [DriveRef(str(path), name or path.stem)]
+            return [DriveRef(str(path), drive_name(f"{name}/{k}" if name else k), k) for k in keys]
+    return [DriveRef(str(path), drive_name(name or path.stem))]
 
 
 def _scan(root: Path) -> list[Path]:
@@ -82,7 +95,7 @@ def _partition(path: Path, parent: str = ".") -> DriveRef:
     from hdrd.parquetlog import partition_value
 
     value = partition_value(path)
-    return DriveRef(str(path), value if parent == "." else f"{parent}/{value}")
+    return DriveRef(str(path), drive_name(value if parent == "." else f"{parent}/{value}"))
 
 
 def _in_dir(root: Path, given: str) -> list[DriveRef]:

@@ -82,8 +82,17 @@ def partition_value(path: str | os.PathLike[str]) -> str:
 
 
 def partition_dir(root: str | os.PathLike[str], name: str) -> Path:
-    """The partition directory of drive ``name`` in the dataset at ``root``."""
-    return Path(root) / (PARTITION_PREFIX + urllib.parse.quote(name, safe=""))
+    """The partition directory of drive ``name`` in the dataset at ``root``: ``drive=NAME``
+    with NAME URI-encoded (a ``/`` is ``%2F``), always directly inside ``root``
+    (:func:`hdrd.files.path_inside`); DriveLogError for an empty name or one too long."""
+    from hdrd.files import UnsafeNameError, path_inside
+
+    if not name:
+        raise DriveLogError(f"{root}: a drive needs a name to be a partition of the dataset")
+    try:
+        return path_inside(root, PARTITION_PREFIX + urllib.parse.quote(name, safe=""))
+    except UnsafeNameError as e:
+        raise DriveLogError(str(e)) from None
 
 
 # -- reading ------------------------------------------------------------------------------------
