@@ -415,6 +415,7 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
     )
     _config(p)
     _method(p)
+    _strict(p)
     _fleet(p)
 
 
@@ -452,6 +453,7 @@ def _tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    _strict(p)
     _fleet(p)
 
 

@@ -30,6 +30,8 @@ from hdrd.drivelog import (
     check_columns,
     csv_values,
 )
+from hdrd.errors import clipped
+from hdrd.files import printable
 
 __all__ = [
     "DRIVE_COLUMN",
@@ -106,12 +108,18 @@ def _meta_of(schema: Any, label: str, key: str = META_KEY) -> dict[str, Any]:
         meta = json.loads(raw)
     except (UnicodeDecodeError, ValueError):
         raise DriveLogError(f"{label}: schema metadata {key} is not JSON") from None
+    except RecursionError:
+        raise DriveLogError(
+            f"{label}: schema metadata {key} nests too deep (an object of strings expected)"
+        ) from None
     if not isinstance(meta, dict):
         raise DriveLogError(f"{label}: schema metadata {key} is not a JSON object")
     return meta
 
 
-def _strings(meta: dict[str, Any], label: str) -> dict[str, str]:
+def _strings(meta: Any, label: str) -> dict[str, str]:
+    if not isinstance(meta, dict):
+        raise DriveLogError(f"{label}: a drive's metadata is {type(meta).__name__}, not an object")
     for k, v in meta.items():
         if not isinstance(v, str):
             raise DriveLogError(
@@ -125,9 +133,14 @@ def _columns(schema: Any, label: str) -> list[str]:
     """The drive-log columns of a file, checked as the CSV header is."""
     pa, _, _ = _pyarrow()
     names = [n for n in schema.names if n != DRIVE_COLUMN and not n.startswith(IGNORED_PREFIX)]
+    if len(set(names)) != len(names) or schema.names.count(DRIVE_COLUMN) > 1:
+        twice = next(n for n in schema.names if schema.names.count(n) > 1)
+        raise DriveLogError(f"{label}: column {clipped(repr(twice), 60)} appears more than once")
     for n in names:
         if n not in COLUMNS:
-            raise DriveLogError(f"{label}: unknown column {n!r} (allowed: {', '.join(COLUMNS)})")
+            raise DriveLogError(
+                f"{label}: unknown column {clipped(repr(n), 60)} (allowed: {', '.join(COLUMNS)})"
+            )
         typ = schema.field(n).type
         if not (
             pa.types.is_floating(typ)
@@ -139,17 +152,31 @@ def _columns(schema: Any, label: str) -> list[str]:
     for r in REQUIRED:
         if r not in names:
             raise DriveLogError(f"{label}: missing required column {r!r}")
-    if len(set(names)) != len(names):
-        raise DriveLogError(f"{label}: repeated column")
     return names
 
 
-def _arrays(table: Any, names: list[str]) -> dict[str, Any]:
-    """float64 numpy arrays (their own, writable), a null read as NaN as an empty CSV cell."""
+EXACT_INT = 2**53
+"""Integers beyond +/- this are not all float64 values: such a cell is refused, not rounded."""
+
+
+def _arrays(table: Any, names: list[str], label: str) -> dict[str, Any]:
+    """float64 numpy arrays (their own, writable), a null read as NaN as an empty CSV cell;
+    DriveLogError for an integer that no float64 holds exactly."""
     pa, pc, _ = _pyarrow()
     out = {}
     for n in names:
-        col = pc.fill_null(pc.cast(table.column(n), pa.float64()), math.nan)
+        col = table.column(n)
+        if pa.types.is_integer(col.type) and col.type.bit_width == 64:
+            over = pc.greater(col, EXACT_INT)
+            if pa.types.is_signed_integer(col.type):
+                over = pc.or_(over, pc.less(col, -EXACT_INT))
+            i = pc.index(over, True).as_py()
+            if i >= 0:
+                raise DriveLogError(
+                    f"{label}: row {i + 1}: column {n}: the integer {col[i].as_py()} is beyond "
+                    "2^53, which a float64 does not hold exactly"
+                )
+        col = pc.fill_null(pc.cast(col, pa.float64()), math.nan)
         out[n] = np.array(col.to_numpy(), dtype=np.float64, copy=True)
     return out
 
@@ -164,7 +191,7 @@ def _log(arrays: dict[str, Any], label: str, name: str, meta: dict[str, str]) ->
 def _read_file(path: Path, drive: Any = None) -> tuple[Any, list[str], dict[str, str]]:
     """(table, columns, metadata) of one file; with ``drive``, only that drive's rows."""
     _, _, pq = _pyarrow()
-    label = str(path)
+    label = printable(str(path))
     pf = pq.ParquetFile(path)
     try:  # closed on every path: a bad file must not keep its descriptor
         schema = pf.schema_arrow
@@ -175,13 +202,13 @@ def _read_file(path: Path, drive: Any = None) -> tuple[Any, list[str], dict[str,
         else:
             if DRIVE_COLUMN not in schema.names:
                 raise DriveLogError(
-                    f"{label}: no column {DRIVE_COLUMN!r} to find drive {drive!r} in"
+                    f"{label}: no column {DRIVE_COLUMN!r} to find drive {clipped(repr(drive), 80)} in"
                 )
             table = pq.read_table(
                 path, columns=names, filters=[(DRIVE_COLUMN, "==", drive)], use_threads=False
             )
             by_drive = _meta_of(schema, label, DRIVE_META_KEY)
-            meta = _strings(by_drive.get(str(drive), {}), f"{label} (drive {drive})")
+            meta = _strings(by_drive.get(str(drive), {}), label)
     finally:
         pf.close()
     return table, names, meta
@@ -197,7 +224,7 @@ def read_parquet_drive(
     OSError if the file cannot be opened."""
     pa, _, _ = _pyarrow()
     p = Path(path)
-    label = str(p) if drive is None else f"{p} (drive {drive})"
+    label = printable(str(p) if drive is None else f"{p} (drive {clipped(str(drive), 80)})")
     try:
         if p.is_dir():
             files = sorted(f for f in p.rglob("*" + SUFFIX) if f.is_file())
@@ -215,9 +242,15 @@ def read_parquet_drive(
         else:
             table, names, meta = _read_file(p, drive)
             default = p.stem if drive is None else str(drive)
+        arrays = _arrays(table, names, label)
     except pa.ArrowException as e:
-        raise DriveLogError(f"{label}: not a readable Parquet drive log: {e}") from None
-    return _log(_arrays(table, names), label, name or default, meta)
+        raise DriveLogError(f"{label}: not a readable Parquet drive log: {_why(e)}") from None
+    return _log(arrays, label, name or default, meta)
+
+
+def _why(e: Exception) -> str:
+    """pyarrow's message, on one line and cut short."""
+    return clipped(printable(" ".join(str(e).split())), 200)
 
 
 def _first_t(table: Any) -> float:
@@ -239,12 +272,16 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
                 col = pf.read_row_group(i, columns=[DRIVE_COLUMN]).column(0)
                 for v in pc.unique(col).to_pylist():
                     if v is None:
-                        raise DriveLogError(f"{path}: an empty {DRIVE_COLUMN!r} cell")
+                        raise DriveLogError(
+                            f"{printable(str(path))}: an empty {DRIVE_COLUMN!r} cell"
+                        )
                     seen.setdefault(v, None)
         finally:
             pf.close()
     except pa.ArrowException as e:
-        raise DriveLogError(f"{path}: not a readable Parquet drive log: {e}") from None
+        raise DriveLogError(
+            f"{printable(str(path))}: not a readable Parquet drive log: {_why(e)}"
+        ) from None
     return list(seen)
 
 

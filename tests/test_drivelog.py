@@ -138,7 +138,7 @@ def test_metadata_blank_lines_and_properties() -> None:
         ),
         ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
         ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
-        ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: 'inf' is not finite"),
+        ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: inf is not finite"),
         ("t,omega\n0,1\n0.1,1,2\n", r"<stream>:3: 3 fields, header has 2"),
         ("t,omega\n0,1\n0.1\n", r"<stream>:3: 1 fields, header has 2"),
         ("t,omega\n0,1\n,2\n", r"<stream>:3: column t is empty; it is required in every row"),

@@ -26,7 +26,7 @@ def _err(msg: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
-    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--workers N |
+    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--strict] [--workers N |
     --scheduler ADDRESS] [--no-progress]``."""
     from hdrd.analysis.fleet import FleetError
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
@@ -60,6 +60,7 @@ def main(args: argparse.Namespace) -> int:
             standstill_limits(cfg),
             noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
             traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
+            strict=bool(getattr(args, "strict", False)),
         )
         # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
         results, skipped = run_evaluate(args, refs, job)

@@ -128,6 +128,12 @@ def gap_fleet(
         with ReportStream(args.report) if args.report else _NoReport() as report:
             for o in gap_refs(refs, job, runner, bar):
                 if o.skipped is not None:
+                    if getattr(args, "strict", False):
+                        if bar is not None:
+                            bar.close()
+                            bar = None
+                        print(f"hdrd gap: {o.skipped}", file=sys.stderr)
+                        return 1
                     skipped.append(o.skipped)
                     continue
                 n_ok += 1

@@ -1,0 +1,160 @@
+"""Drive logs that are wrong in every way a file can be wrong, through ``hdrd evaluate``,
+``hdrd tune`` and ``hdrd gap`` as a user runs them: one line naming the drive, never a
+traceback; among many drives the bad one is skipped and the others are scored (``--strict``:
+the first bad one stops the command). The format's own rules: tests/test_drivelog.py,
+tests/test_parquetlog.py."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrd.drivelog import DriveLog, write_drive
+from hdrd.sim.drive import simulate_drive
+
+pa = pytest.importorskip("pyarrow")
+pq = pytest.importorskip("pyarrow.parquet")
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def hdrd(*args: str, cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hdrd", *args],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=cwd,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+@pytest.fixture(scope="module")
+def good() -> DriveLog:
+    return simulate_drive("city", 3.0, 3)
+
+
+def _parquet(path: Path, cols: dict[str, object], meta: dict[bytes, bytes] | None = None) -> None:
+    names = list(cols)
+    table = pa.Table.from_arrays([pa.array(v) for v in cols.values()], names=names)
+    pq.write_table(table.replace_schema_metadata(meta), path)
+
+
+def _bad_drives(d: Path, log: DriveLog) -> dict[str, str]:
+    """Each bad drive's file, and a piece of the one line that must name its trouble."""
+    write_drive(d / "long_cell.csv", log)
+    lines = (d / "long_cell.csv").read_text().splitlines()
+    row = next(i for i, x in enumerate(lines) if x.startswith("t,")) + 5
+    lines[row] += "9" * 131_073
+    (d / "long_cell.csv").write_text("\n".join(lines) + "\n")
+    h = log.heading_truth
+    _parquet(d / "two_omega.parquet", {"t": log.t, "omega": log.omega, "omega ": log.omega})
+    table = pq.read_table(d / "two_omega.parquet")
+    pq.write_table(table.rename_columns(["t", "omega", "omega"]), d / "two_omega.parquet")
+    t_int = (np.arange(len(log)) + 2**53).astype(np.int64)
+    _parquet(d / "huge_t.parquet", {"t": t_int, "omega": log.omega, "heading_truth": h})
+    deep = {b"hdrd.meta": b"[" * 100_000 + b"]" * 100_000}
+    _parquet(d / "deep_meta.parquet", {"t": log.t, "omega": log.omega, "heading_truth": h}, deep)
+    return {
+        "long_cell": "long_cell.csv:",
+        "two_omega": "two_omega.parquet: column 'omega' appears more than once",
+        "huge_t": "huge_t.parquet: row 2: column t: the integer 9007199254740993",
+        "deep_meta": "deep_meta.parquet: schema metadata hdrd.meta nests too deep",
+    }
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory, good: DriveLog) -> tuple[Path, dict[str, str]]:
+    d = tmp_path_factory.mktemp("bad")
+    write_drive(d / "a_good.csv", good)
+    return d, _bad_drives(d, good)
+
+
+def _skips(stderr: str, command: str) -> list[str]:
+    return [x for x in stderr.splitlines() if x.startswith(f"hdrd {command}: skipped ")]
+
+
+def _check_skipped(p: subprocess.CompletedProcess[str], command: str, bad: dict[str, str]) -> None:
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr and "Error:" not in p.stderr, p.stderr
+    skips = _skips(p.stderr, command)
+    assert len(skips) == len(bad), p.stderr
+    for name, why in bad.items():
+        assert sum(why in s for s in skips) == 1, (name, p.stderr)
+
+
+RUNS = {
+    "evaluate": ("evaluate", "--no-progress"),
+    "tune": ("tune", "--candidates", "20", "--no-progress"),
+    "gap": ("gap", "--no-progress"),
+}
+
+
+@pytest.mark.parametrize("command", list(RUNS))
+def test_a_bad_drive_is_skipped_and_the_good_one_scored(
+    command: str, fleet: tuple[Path, dict[str, str]]
+) -> None:
+    d, bad = fleet
+    cmd, *opts = RUNS[command]
+    files = sorted(os.listdir(d))
+    p = hdrd(cmd, *files, *opts, cwd=d)
+    _check_skipped(p, cmd, bad)
+    if cmd == "evaluate":
+        assert p.stdout.splitlines()[2].startswith("a_good ")
+        assert "mean (1)" in p.stdout
+    elif cmd == "tune":
+        assert "1 training drive(s)" in p.stdout
+    else:
+        assert p.stdout.splitlines()[1].startswith("a_good ")
+        assert "fleet: 1 drives analysed, 4 skipped" in p.stdout
+
+
+@pytest.mark.parametrize("command", list(RUNS))
+def test_strict_stops_at_the_first_bad_drive_with_one_line(
+    command: str, fleet: tuple[Path, dict[str, str]]
+) -> None:
+    d, bad = fleet
+    cmd, *opts = RUNS[command]
+    p = hdrd(cmd, "a_good.csv", "deep_meta.parquet", "huge_t.parquet", *opts, "--strict", cwd=d)
+    assert p.returncode == 1, p.stderr
+    lines = [x for x in p.stderr.splitlines() if x.startswith("hdrd")]
+    assert len(lines) == 1 and bad["deep_meta"] in lines[0], p.stderr
+    assert "Traceback" not in p.stderr
+
+
+@pytest.mark.parametrize("name", ["long_cell", "two_omega", "huge_t", "deep_meta"])
+def test_one_bad_drive_alone_is_one_line(name: str, fleet: tuple[Path, dict[str, str]]) -> None:
+    d, bad = fleet
+    f = next(x for x in os.listdir(d) if x.startswith(name + "."))
+    p = hdrd("evaluate", f, cwd=d)
+    assert p.returncode == 1
+    assert p.stderr.count("\n") == 1 and bad[name] in p.stderr, p.stderr
+
+
+@pytest.mark.slow  # a Dask cluster of two worker processes per command
+@pytest.mark.parametrize("command", list(RUNS))
+def test_a_bad_drive_is_skipped_on_a_cluster_too(
+    command: str, fleet: tuple[Path, dict[str, str]]
+) -> None:
+    d, bad = fleet
+    cmd, *opts = RUNS[command]
+    p = hdrd(cmd, *sorted(os.listdir(d)), *opts, "--workers", "2", cwd=d)
+    _check_skipped(p, cmd, bad)
+
+
+def test_a_drive_without_truth_is_still_just_skipped(good: DriveLog, tmp_path: Path) -> None:
+    write_drive(tmp_path / "a.csv", good)
+    write_drive(tmp_path / "b.csv", replace(good, heading_truth=None))
+    p = hdrd("evaluate", "a.csv", "b.csv", cwd=tmp_path)
+    assert p.returncode == 0
+    assert _skips(p.stderr, "evaluate") == [
+        "hdrd evaluate: skipped b: no truth heading (column heading_truth is absent or empty)"
+    ]
