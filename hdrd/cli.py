@@ -133,6 +133,26 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
 
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if not (v > 0 and v != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return v
+
+
+def _input_limits(p: argparse.ArgumentParser) -> None:
+    """What a drive log may hold (docs/drive-format.md, "Limits")."""
+    p.add_argument(
+        "--max-gap",
+        type=_positive_float,
+        metavar="S",
+        help="longest time gap a drive may have, s (default 3600); a longer one is refused",
+    )
+
+
 def _strict(p: argparse.ArgumentParser) -> None:
     """What a drive that cannot be used does to a run of many (docs/evaluation.md)."""
     p.add_argument(
@@ -415,6 +435,7 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
     )
     _config(p)
     _method(p)
+    _input_limits(p)
     _strict(p)
     _fleet(p)
 
@@ -453,6 +474,7 @@ def _tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    _input_limits(p)
     _strict(p)
     _fleet(p)
 
@@ -506,6 +528,7 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
     )
+    _input_limits(p)
     _strict(p)
     _fleet(p)
 

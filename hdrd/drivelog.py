@@ -34,9 +34,12 @@ from hdrd.files import printable
 
 __all__ = [
     "COLUMNS",
+    "DEFAULT_READ_LIMITS",
+    "MAX_GAP_S",
     "OPTIONAL",
     "DriveLog",
     "DriveLogError",
+    "ReadLimits",
     "check_columns",
     "csv_values",
     "read_drive",
@@ -52,6 +55,23 @@ FloatArray = npt.NDArray[np.float64]
 
 class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
+
+
+MAX_GAP_S = 3600.0
+"""Longest time gap a drive may have, s (``--max-gap``): a longer one is two drives, or a
+clock that jumped; the analyses' work and Td would follow the span, not the samples."""
+
+
+@dataclass(frozen=True)
+class ReadLimits:
+    """What a drive log may hold beyond the format's own rules, each refused with a one-line
+    error naming the row (docs/drive-format.md, "Limits"): ``max_gap_s``, the longest step
+    in ``t`` between rows that count (``valid`` not 0), s."""
+
+    max_gap_s: float = MAX_GAP_S
+
+
+DEFAULT_READ_LIMITS = ReadLimits()
 
 
 @dataclass(frozen=True)
@@ -110,14 +130,19 @@ def _parse_float(text: str, path: str, line: int, col: str) -> float:
     return v
 
 
-def read_drive(path: str | os.PathLike[str] | io.TextIOBase, name: str | None = None) -> DriveLog:
+def read_drive(
+    path: str | os.PathLike[str] | io.TextIOBase,
+    name: str | None = None,
+    limits: ReadLimits = DEFAULT_READ_LIMITS,
+) -> DriveLog:
     """Read a drive log CSV. Lines starting with '#' before the header are metadata
-    (``# key: value``). Raises DriveLogError naming the file, line and column on bad input."""
+    (``# key: value``). Raises DriveLogError naming the file, line and column on bad input
+    (and on a value beyond ``limits``)."""
     if isinstance(path, (str, os.PathLike)):
         label = printable(str(path))
         with open(path, newline="", encoding="utf-8") as f:
-            return _read(f, label, name or Path(path).stem)
-    return _read(path, "<stream>", name or "")
+            return _read(f, label, name or Path(path).stem, limits)
+    return _read(path, "<stream>", name or "", limits)
 
 
 def _lines(f: io.TextIOBase, label: str) -> Iterator[str]:
@@ -136,7 +161,7 @@ def _lines(f: io.TextIOBase, label: str) -> Iterator[str]:
         yield line
 
 
-def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
+def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveLog:
     meta: dict[str, str] = {}
     lines = _lines(f, label)
     header_line = None
@@ -198,15 +223,20 @@ def _read(f: io.TextIOBase, label: str, name: str) -> DriveLog:
     del table, flat
     if arrays["t"].shape[0] == 0:
         raise DriveLogError(f"{label}: no data rows")
-    check_columns(arrays, lambda i: f"{label}:{row_lines[i]}")
+    check_columns(arrays, lambda i: f"{label}:{row_lines[i]}", limits)
     return DriveLog(name=name, meta=meta, **arrays)
 
 
-def check_columns(arrays: dict[str, FloatArray], where: Callable[[int], str]) -> None:
+def check_columns(
+    arrays: dict[str, FloatArray],
+    where: Callable[[int], str],
+    limits: ReadLimits | None = DEFAULT_READ_LIMITS,
+) -> None:
     """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
     every row, ``t`` and ``omega`` are present in every row, no value is infinite, ``t``
-    strictly increases. ``where(i)`` names row i for the message (``file:line`` for a CSV,
-    ``file: row N`` for Parquet). DriveLogError on the first problem."""
+    strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
+    names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet).
+    DriveLogError on the first problem."""
     if "valid" in arrays:
         vcol = arrays["valid"]
         bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
@@ -232,6 +262,28 @@ def check_columns(arrays: dict[str, FloatArray], where: Callable[[int], str]) ->
             f"{where(bad)}: column t is not strictly increasing "
             f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
         )
+    if limits is not None:
+        _check_limits(arrays, where, limits)
+
+
+def _check_limits(
+    arrays: dict[str, FloatArray], where: Callable[[int], str], limits: ReadLimits
+) -> None:
+    counts = np.ones(arrays["t"].shape[0], dtype=bool)
+    if "valid" in arrays:
+        counts = arrays["valid"] != 0.0
+    rows = np.flatnonzero(counts)
+    t = arrays["t"][rows]
+    if t.shape[0] > 1:
+        steps = np.diff(t)
+        j = int(np.argmax(steps))
+        if steps[j] > limits.max_gap_s:
+            i = int(rows[j + 1])
+            raise DriveLogError(
+                f"{where(i)}: column t jumps by {float(steps[j]):.6g} s (from {float(t[j])!r} to "
+                f"{float(t[j + 1])!r}); a drive may have gaps of at most {limits.max_gap_s:g} s "
+                "(--max-gap): split the log there"
+            )
 
 
 def _fmt(v: float, digits: tuple[int, int]) -> str:

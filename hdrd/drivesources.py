@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hdrd.drivelog import DriveLog, DriveLogError, read_drive
+from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, DriveLogError, ReadLimits, read_drive
 from hdrd.errors import clipped
 from hdrd.files import printable
 
@@ -55,14 +55,14 @@ class DriveRef:
             PARTITION_PREFIX
         )
 
-    def read(self) -> DriveLog:
-        """The drive's samples; DriveLogError on bad content, OSError (or UnicodeDecodeError)
-        if the file cannot be read."""
+    def read(self, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
+        """The drive's samples; DriveLogError on bad content (or beyond ``limits``), OSError
+        (or UnicodeDecodeError) if the file cannot be read."""
         if self.parquet:
             from hdrd.parquetlog import read_parquet_drive
 
-            return read_parquet_drive(self.path, self.name, self.key)
-        return read_drive(self.path, self.name)
+            return read_parquet_drive(self.path, self.name, self.key, limits)
+        return read_drive(self.path, self.name, limits)
 
 
 def _in_file(path: Path, name: str) -> list[DriveRef]:

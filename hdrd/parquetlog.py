@@ -24,9 +24,11 @@ import numpy as np
 
 from hdrd.drivelog import (
     COLUMNS,
+    DEFAULT_READ_LIMITS,
     REQUIRED,
     DriveLog,
     DriveLogError,
+    ReadLimits,
     check_columns,
     csv_values,
 )
@@ -181,10 +183,12 @@ def _arrays(table: Any, names: list[str], label: str) -> dict[str, Any]:
     return out
 
 
-def _log(arrays: dict[str, Any], label: str, name: str, meta: dict[str, str]) -> DriveLog:
+def _log(
+    arrays: dict[str, Any], label: str, name: str, meta: dict[str, str], limits: ReadLimits
+) -> DriveLog:
     if arrays["t"].shape[0] == 0:
         raise DriveLogError(f"{label}: no data rows")
-    check_columns(arrays, lambda i: f"{label}: row {i + 1}")
+    check_columns(arrays, lambda i: f"{label}: row {i + 1}", limits)
     return DriveLog(name=name, meta=meta, **arrays)
 
 
@@ -215,13 +219,16 @@ def _read_file(path: Path, drive: Any = None) -> tuple[Any, list[str], dict[str,
 
 
 def read_parquet_drive(
-    path: str | os.PathLike[str], name: str | None = None, drive: Any = None
+    path: str | os.PathLike[str],
+    name: str | None = None,
+    drive: Any = None,
+    limits: ReadLimits = DEFAULT_READ_LIMITS,
 ) -> DriveLog:
     """One drive from Parquet: a file (``drive``: the value of its ``drive`` column to take,
     for a file holding many drives), or a partition directory ``drive=NAME`` of a dataset
     (its files, in the order of their first ``t``). ``name`` defaults to the file's stem, the
-    drive's value or the partition's. DriveLogError on bad input, naming the file and row;
-    OSError if the file cannot be opened."""
+    drive's value or the partition's. DriveLogError on bad input (or beyond ``limits``),
+    naming the file and row; OSError if the file cannot be opened."""
     pa, _, _ = _pyarrow()
     p = Path(path)
     label = printable(str(p) if drive is None else f"{p} (drive {clipped(str(drive), 80)})")
@@ -245,7 +252,7 @@ def read_parquet_drive(
         arrays = _arrays(table, names, label)
     except pa.ArrowException as e:
         raise DriveLogError(f"{label}: not a readable Parquet drive log: {_why(e)}") from None
-    return _log(arrays, label, name or default, meta)
+    return _log(arrays, label, name or default, meta, limits)
 
 
 def _why(e: Exception) -> str:

@@ -63,7 +63,11 @@ def _bad_drives(d: Path, log: DriveLog) -> dict[str, str]:
     _parquet(d / "huge_t.parquet", {"t": t_int, "omega": log.omega, "heading_truth": h})
     deep = {b"hdrd.meta": b"[" * 100_000 + b"]" * 100_000}
     _parquet(d / "deep_meta.parquet", {"t": log.t, "omega": log.omega, "heading_truth": h}, deep)
+    t_gap = log.t.copy()
+    t_gap[len(log) // 2 :] += 1e9
+    write_drive(d / "time_gap.csv", replace(log, t=t_gap))
     return {
+        "time_gap": "column t jumps by 1e+09 s",
         "long_cell": "long_cell.csv:",
         "two_omega": "two_omega.parquet: column 'omega' appears more than once",
         "huge_t": "huge_t.parquet: row 2: column t: the integer 9007199254740993",
@@ -114,7 +118,7 @@ def test_a_bad_drive_is_skipped_and_the_good_one_scored(
         assert "1 training drive(s)" in p.stdout
     else:
         assert p.stdout.splitlines()[1].startswith("a_good ")
-        assert "fleet: 1 drives analysed, 4 skipped" in p.stdout
+        assert "fleet: 1 drives analysed, 5 skipped" in p.stdout
 
 
 @pytest.mark.parametrize("command", list(RUNS))
@@ -130,7 +134,7 @@ def test_strict_stops_at_the_first_bad_drive_with_one_line(
     assert "Traceback" not in p.stderr
 
 
-@pytest.mark.parametrize("name", ["long_cell", "two_omega", "huge_t", "deep_meta"])
+@pytest.mark.parametrize("name", ["long_cell", "two_omega", "huge_t", "deep_meta", "time_gap"])
 def test_one_bad_drive_alone_is_one_line(name: str, fleet: tuple[Path, dict[str, str]]) -> None:
     d, bad = fleet
     f = next(x for x in os.listdir(d) if x.startswith(name + "."))
@@ -158,3 +162,47 @@ def test_a_drive_without_truth_is_still_just_skipped(good: DriveLog, tmp_path: P
     assert _skips(p.stderr, "evaluate") == [
         "hdrd evaluate: skipped b: no truth heading (column heading_truth is absent or empty)"
     ]
+
+
+# -- memory follows the rows, not the time they span ---------------------------------------------
+
+
+@pytest.mark.parametrize("speed", [True, False])
+def test_a_jump_in_time_costs_no_memory(good: DriveLog, speed: bool) -> None:
+    """2,100 rows with one jump of 10^9 s (allowed here): the steps are the rows', not one per
+    second of the span (once 7.45 GiB per array)."""
+    import tracemalloc
+
+    from hdrd.analysis.prepare import prepare_drive
+
+    log = good.slice(0, 2100)
+    t = log.t.copy()
+    t[1500:] += 1e9
+    log = replace(log, t=t, speed=log.speed if speed else None, meta={})
+    tracemalloc.start()
+    try:
+        prep = prepare_drive(log, calibrate_seconds=20.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20 << 20, f"{peak / 2**20:.0f} MiB"
+    assert prep.steps.u.shape[0] < 300
+    assert prep.missing_steps > 10**8  # the gap is there: a billion missing steps, counted
+
+
+def test_a_time_gap_over_the_limit_is_refused_naming_the_row(
+    good: DriveLog, tmp_path: Path
+) -> None:
+    t = good.t.copy()
+    t[1000:] += 7200.0
+    write_drive(tmp_path / "g.csv", replace(good, t=t))
+    p = hdrd("evaluate", "g.csv", cwd=tmp_path)
+    assert p.returncode == 1
+    lines = (tmp_path / "g.csv").read_text().splitlines()
+    line = next(i for i, x in enumerate(lines) if x.startswith("t,")) + 1 + 1000 + 1
+    assert p.stderr.startswith(f"hdrd evaluate: error: g.csv:{line}: column t jumps by 7200.1 s")
+    assert p.stderr.count("\n") == 1 and "--max-gap" in p.stderr
+    allowed = hdrd("evaluate", "g.csv", "--max-gap", "7201", cwd=tmp_path)
+    assert allowed.returncode == 0, allowed.stderr
+    bad = hdrd("evaluate", "g.csv", "--max-gap", "-1", cwd=tmp_path)
+    assert bad.returncode == 2 and "--max-gap" in bad.stderr

@@ -47,7 +47,7 @@ from hdrd.analysis.prepare import (
     prepare_drive,
 )
 from hdrd.calibrate import StandstillLimits
-from hdrd.drivelog import DriveLog
+from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
@@ -69,6 +69,7 @@ __all__ = [
     "method_key",
     "method_yaw",
     "prepare_drive",
+    "read_limits",
     "read_ref",
     "summarize",
     "to_json",
@@ -355,12 +356,21 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
     return [(Path(r.path), r.name) for r in drive_refs(paths)]
 
 
-def read_ref(ref: DriveRef) -> DriveLog:
+def read_limits(args: Any) -> ReadLimits:
+    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-gap``); the
+    defaults for what it does not give."""
+    from hdrd.drivelog import ReadLimits
+
+    given = {"max_gap_s": getattr(args, "max_gap", None)}
+    return ReadLimits(**{k: v for k, v in given.items() if v is not None})
+
+
+def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
     from hdrd.drivelog import DriveLogError
 
     try:
-        return ref.read()
+        return ref.read(limits)
     except FileNotFoundError:
         raise EvaluationError(f"{ref.path}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:

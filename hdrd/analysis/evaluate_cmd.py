@@ -11,6 +11,7 @@ from hdrd.analysis.evaluate import (
     drive_refs,
     evaluated_methods,
     format_table,
+    read_limits,
     to_json,
 )
 from hdrd.config import ConfigError, load_config
@@ -61,6 +62,7 @@ def main(args: argparse.Namespace) -> int:
             noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
             traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
             strict=bool(getattr(args, "strict", False)),
+            read_limits=read_limits(args),
         )
         # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
         results, skipped = run_evaluate(args, refs, job)

@@ -52,6 +52,7 @@ from hdrd.analysis.tune import (
     search,
 )
 from hdrd.calibrate import StandstillLimits
+from hdrd.drivelog import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
@@ -121,7 +122,7 @@ def read_prepared(ref: DriveRef, job: PrepareJob) -> PreparedDrive | str:
     """One drive read and prepared as :func:`prepare_refs` prepares it, or why it cannot be
     (:func:`why_skipped`)."""
     try:
-        return prepare_drive(read_ref(ref), job.bias, job.calibrate_seconds, job.T)
+        return prepare_drive(read_ref(ref, job.read_limits), job.bias, job.calibrate_seconds, job.T)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return why_skipped(ref.name, e)
 
@@ -145,13 +146,14 @@ class EvaluateJob:
     noise: GyroNoise | None = None
     traces: bool = False
     strict: bool = False
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
 def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     """Read one drive and score it as :func:`~hdrd.analysis.evaluate.evaluate_logs` does;
     skipped (with the reason, :func:`why_skipped`) if it cannot be read or evaluated."""
     try:
-        log = read_ref(ref)
+        log = read_ref(ref, job.read_limits)
         prep = prepare_drive(
             log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
         )
@@ -209,6 +211,7 @@ class PrepareJob:
     bias: float | None = None
     calibrate_seconds: float | None = None
     T: float = PAPER_PARAMS.T
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
 def prepare_refs(refs: Sequence[DriveRef], job: PrepareJob) -> list[PreparedDrive | str]:
@@ -276,6 +279,7 @@ def tune_fleet(
     progress: Progress | None = None,
     strict: bool = False,
     skipped: list[str] | None = None,
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS,
 ) -> TuneResult:
     """:func:`hdrd.analysis.tune.tune` over drives a runner reads and prepares where it runs:
     the same search, the same objective bit for bit (the module docstring), the same result.
@@ -285,7 +289,7 @@ def tune_fleet(
     if not train_refs:
         raise ValueError("tuning needs at least one training drive")
     check_budget(n_candidates, base)
-    job = PrepareJob(bias, calibrate_seconds, base.T)
+    job = PrepareJob(bias, calibrate_seconds, base.T, read_limits)
     train = runner.persist(prepare_refs, _batches(train_refs, runner.threads), job)
     test = runner.persist(prepare_refs, _batches(test_refs, runner.threads), job)
     all_steps = list(runner.map(steps_of, train, batch=1))
@@ -367,6 +371,7 @@ class GapJob:
     exclude: tuple[tuple[float, float], ...] = ()
     seed: int = 0
     result: bool = False
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
 @dataclass(frozen=True)
@@ -387,7 +392,7 @@ def gap_one(ref: DriveRef, job: GapJob) -> DriveOutcome:
     from hdrd.analysis.gap.search import run_gap
 
     try:
-        log = read_ref(ref)
+        log = read_ref(ref, job.read_limits)
         res = run_gap(log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))

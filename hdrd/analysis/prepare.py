@@ -188,8 +188,9 @@ def _standstill_from_gyro(
     s1 = np.concatenate(([0.0], np.cumsum(c)))
     s2 = np.concatenate(([0.0], np.cumsum(c * c)))
     block = t_us // T_us
-    starts = np.searchsorted(block, np.arange(int(block[-1]) + 1))
-    for i in np.unique(starts).tolist():
+    # each block's first sample (a block without samples starts where the next one does)
+    starts = np.flatnonzero(np.diff(block, prepend=block[0] - 1))
+    for i in starts.tolist():
         if i >= n:
             break
         for length in lengths:
@@ -266,15 +267,17 @@ class _Stepped:
     stepper: Stepper
 
 
-def _speed_per_block(t_us: IntArray, speed: FloatArray, T_us: int) -> FloatArray:
-    """Mean of the finite speeds in each block (NaN for a block without any), m/s."""
-    idx = t_us // T_us
-    n = int(idx[-1]) + 1
+def _speed_per_block(t_us: IntArray, speed: FloatArray, T_us: int) -> dict[int, float]:
+    """Block index -> mean of the finite speeds in the block (NaN for a block without any),
+    m/s, for the blocks that have samples: memory follows the samples, not the time they
+    span."""
+    blocks, idx = np.unique(t_us // T_us, return_inverse=True)
     ok = np.isfinite(speed)
-    sums = np.bincount(idx[ok], weights=speed[ok], minlength=n)
-    counts = np.bincount(idx[ok], minlength=n)
+    sums = np.bincount(idx[ok], weights=speed[ok], minlength=blocks.shape[0])
+    counts = np.bincount(idx[ok], minlength=blocks.shape[0])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    return dict(zip(blocks.tolist(), mean.tolist()))
 
 
 def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None) -> _Stepped:
@@ -304,7 +307,7 @@ def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None
             continue
         was_calibrating = stepper.calibrating
         if speed is not None:
-            v = float(speed[item.index])
+            v = speed[item.index]
             stepper.speed_mps = None if math.isnan(v) else v
         inp = stepper.prepare(item)
         if inp is None:

@@ -9,7 +9,7 @@ import sys
 import time
 from collections.abc import Sequence
 
-from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs
+from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
 from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
 from hdrd.analysis.progress import ProgressBar
@@ -50,7 +50,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
     train_refs = drive_refs(args.train)
     test_refs = drive_refs(args.test or [])
     if not fleet_requested(args):
-        job = PrepareJob(None, args.calibrate_seconds)
+        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
         if not train:
@@ -74,6 +74,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
             progress=bar,
             strict=strict,
             skipped=skipped,
+            read_limits=read_limits(args),
         )
 
 

@@ -102,7 +102,16 @@ def main(args: argparse.Namespace) -> int:
     if len(refs) > 1 and plus_out:
         _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
         return 1
-    job = GapJob(start, bool(args.standstill), tuple(exclude), int(args.seed), bool(args.plot))
+    from hdrd.analysis.evaluate import read_limits
+
+    job = GapJob(
+        start,
+        bool(args.standstill),
+        tuple(exclude),
+        int(args.seed),
+        bool(args.plot),
+        read_limits(args),
+    )
     try:
         with open_runner(args) as runner:
             if len(refs) > 1:
