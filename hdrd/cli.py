@@ -133,18 +133,30 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
 
-def _positive_float(text: str) -> float:
+def _positive_float(text: str, most: float = float("inf")) -> float:
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
-    if not (v > 0 and v != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    if not (0 < v <= most and v != float("inf")):
+        limit = f" and at most {most:g}" if most != float("inf") else ""
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0{limit}, got {text}")
     return v
+
+
+def _max_rate(text: str) -> float:
+    return _positive_float(text, 1e5)  # beyond, a block's sum of squares loses its meaning
 
 
 def _input_limits(p: argparse.ArgumentParser) -> None:
     """What a drive log may hold (docs/drive-format.md, "Limits")."""
+    p.add_argument(
+        "--max-rate",
+        type=_max_rate,
+        metavar="DPS",
+        help="largest |omega| a drive may hold, deg/s (default 1000, a gyro's range); a "
+        "larger rate in a row that counts is refused",
+    )
     p.add_argument(
         "--max-gap",
         type=_positive_float,

@@ -36,6 +36,7 @@ __all__ = [
     "COLUMNS",
     "DEFAULT_READ_LIMITS",
     "MAX_GAP_S",
+    "MAX_RATE_DPS",
     "OPTIONAL",
     "DriveLog",
     "DriveLogError",
@@ -57,6 +58,10 @@ class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
 
 
+MAX_RATE_DPS = 1000.0
+"""Largest yaw rate a drive log may hold, deg/s (``--max-rate``): beyond what a vehicle's
+gyro measures (a +/-1000 deg/s MEMS is the widest common range; a car turns at < 100)."""
+RATE_COLUMNS = ("omega", "omega_truth")
 MAX_GAP_S = 3600.0
 """Longest time gap a drive may have, s (``--max-gap``): a longer one is two drives, or a
 clock that jumped; the analyses' work and Td would follow the span, not the samples."""
@@ -65,9 +70,11 @@ clock that jumped; the analyses' work and Td would follow the span, not the samp
 @dataclass(frozen=True)
 class ReadLimits:
     """What a drive log may hold beyond the format's own rules, each refused with a one-line
-    error naming the row (docs/drive-format.md, "Limits"): ``max_gap_s``, the longest step
-    in ``t`` between rows that count (``valid`` not 0), s."""
+    error naming the row (docs/drive-format.md, "Limits"): ``max_rate_dps``, the largest
+    ``|omega|`` and ``|omega_truth|``, deg/s; ``max_gap_s``, the longest step in ``t``, s;
+    both in the rows that count (``valid`` not 0)."""
 
+    max_rate_dps: float = MAX_RATE_DPS
     max_gap_s: float = MAX_GAP_S
 
 
@@ -273,6 +280,16 @@ def _check_limits(
     if "valid" in arrays:
         counts = arrays["valid"] != 0.0
     rows = np.flatnonzero(counts)
+    for c in RATE_COLUMNS:
+        if c in arrays:
+            with np.errstate(invalid="ignore"):
+                over = counts & (np.abs(arrays[c]) > limits.max_rate_dps)
+            if over.any():
+                i = int(np.flatnonzero(over)[0])
+                raise DriveLogError(
+                    f"{where(i)}: column {c}: {float(arrays[c][i]):.6g} deg/s is beyond the "
+                    f"+/-{limits.max_rate_dps:g} deg/s a gyro measures (--max-rate)"
+                )
     t = arrays["t"][rows]
     if t.shape[0] > 1:
         steps = np.diff(t)

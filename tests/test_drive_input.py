@@ -206,3 +206,40 @@ def test_a_time_gap_over_the_limit_is_refused_naming_the_row(
     assert allowed.returncode == 0, allowed.stderr
     bad = hdrd("evaluate", "g.csv", "--max-gap", "-1", cwd=tmp_path)
     assert bad.returncode == 2 and "--max-gap" in bad.stderr
+
+
+# -- a rate no gyro gives, a score that is no number ------------------------------------------------
+
+
+def test_an_absurd_rate_is_refused_naming_the_row(good: DriveLog, tmp_path: Path) -> None:
+    """One omega of 1e200 once turned Epsi raw from 3.35 into 0.25 deg, exit 0."""
+    w = good.omega.copy()
+    w[1000] = 1e200
+    write_drive(tmp_path / "h.csv", replace(good, omega=w))
+    lines = (tmp_path / "h.csv").read_text().splitlines()
+    line = next(i for i, x in enumerate(lines) if x.startswith("t,")) + 1 + 1000 + 1
+    for cmd in ("evaluate", "tune", "gap"):
+        p = hdrd(cmd, "h.csv", "--no-progress", cwd=tmp_path)
+        assert p.returncode == 1, p.stderr
+        assert p.stderr == (
+            f"hdrd {cmd}: {'error: ' if cmd != 'gap' else ''}h.csv:{line}: column omega: 1e+200 "
+            "deg/s is beyond the +/-1000 deg/s a gyro measures (--max-rate)\n"
+        )
+    v = np.ones(len(good))
+    v[1000] = 0.0  # a row left out may hold what it likes
+    write_drive(tmp_path / "v.csv", replace(good, omega=w, valid=v))
+    assert hdrd("evaluate", "v.csv", cwd=tmp_path).returncode == 0
+    w[1000] = 1500.0
+    write_drive(tmp_path / "fast.csv", replace(good, omega=w))
+    assert hdrd("evaluate", "fast.csv", cwd=tmp_path).returncode == 1
+    assert hdrd("evaluate", "fast.csv", "--max-rate", "2000", cwd=tmp_path).returncode == 0
+    assert hdrd("evaluate", "fast.csv", "--max-rate", "1e300", cwd=tmp_path).returncode == 2
+
+
+def test_a_score_that_is_not_a_number_is_an_error(good: DriveLog) -> None:
+    from hdrd.analysis.evaluate import EvaluationError, evaluate_drive
+
+    w = good.omega.copy()
+    w[1000:1003] = 1.7e308  # in memory, past the reader's limits: the block's sum overflows
+    with np.errstate(all="ignore"), pytest.raises(EvaluationError, match="not a number to report"):
+        evaluate_drive(replace(good, omega=w))

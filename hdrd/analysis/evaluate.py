@@ -177,6 +177,11 @@ def evaluate_prepared(
         yaw = method_yaw(prep, m, params, plus, noise)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
+        if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
+            raise EvaluationError(
+                f"{prep.name}: {m} gives a heading error of {e[m]!r} deg over "
+                f"{prep.duration_min!r} min, not a number to report"
+            )
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
     return DriveResult(
         name=prep.name,
@@ -357,11 +362,14 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 
 def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-gap``); the
-    defaults for what it does not give."""
+    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-rate``,
+    ``--max-gap``); the defaults for what it does not give."""
     from hdrd.drivelog import ReadLimits
 
-    given = {"max_gap_s": getattr(args, "max_gap", None)}
+    given = {
+        "max_rate_dps": getattr(args, "max_rate", None),
+        "max_gap_s": getattr(args, "max_gap", None),
+    }
     return ReadLimits(**{k: v for k, v in given.items() if v is not None})
 
 

@@ -297,10 +297,12 @@ def tune_fleet(
     why = [x for s in all_steps + test_steps for x in s if isinstance(x, str)]
     if why and strict:
         raise EvaluationError(why[0])
-    if skipped is not None:
-        skipped.extend(why)
     steps = [[x for x in s if not isinstance(x, str)] for s in all_steps]
     n_drives = sum(len(s) for s in steps)
+    if n_drives == 0 and len(train_refs) == 1:
+        raise EvaluationError(why.pop(0))
+    if skipped is not None:
+        skipped.extend(why)
     if n_drives == 0:
         raise EvaluationError(f"none of the {len(train_refs)} training drives can be used")
     longest = max(max(s, default=0) for s in steps)

@@ -54,7 +54,11 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
         if not train:
-            raise EvaluationError(f"none of the {len(train_refs)} training drives can be used")
+            raise EvaluationError(
+                skipped.pop(0)
+                if len(train_refs) == 1
+                else f"none of the {len(train_refs)} training drives can be used"
+            )
         return tune(
             train,
             test,
@@ -120,6 +124,8 @@ def main(args: argparse.Namespace) -> int:
     except (EvaluationError, FleetError) as e:
         if bar is not None:
             bar.close()
+        for why in skipped:
+            print(f"hdrd tune: skipped {why}", file=sys.stderr)
         _err(str(e))
         return 1
     if bar is not None:
