@@ -116,6 +116,15 @@ class DriveLog:
         kw = {c: getattr(self, c)[start:stop] for c in self.columns()}
         return replace(self, **kw)
 
+    def counted(self) -> DriveLog:
+        """The rows that count: those with ``valid`` 1 (all, without a ``valid`` column), as if
+        the others had been dropped from the file (a time gap where they were)."""
+        if self.valid is None or bool((self.valid != 0.0).all()):
+            return self
+        keep = self.valid != 0.0
+        kw = {c: getattr(self, c)[keep] for c in self.columns()}
+        return replace(self, **kw)
+
 
 MAX_LINE_CHARS = 1 << 16
 """Longest line of a drive-log CSV, characters: a row of seven numbers takes ~70, a metadata

@@ -243,3 +243,45 @@ def test_a_score_that_is_not_a_number_is_an_error(good: DriveLog) -> None:
     w[1000:1003] = 1.7e308  # in memory, past the reader's limits: the block's sum overflows
     with np.errstate(all="ignore"), pytest.raises(EvaluationError, match="not a number to report"):
         evaluate_drive(replace(good, omega=w))
+
+
+# -- valid = 0: the row is left out, as if dropped ---------------------------------------------------
+
+
+def test_evaluate_and_tune_leave_out_rows_marked_not_valid(good: DriveLog, tmp_path: Path) -> None:
+    """The device handled for 20 s (its rate all over the place), marked valid = 0: scored as
+    the drive with those rows dropped from the file, not with them (gap always honoured it)."""
+    w = good.omega.copy()
+    rng = np.random.default_rng(1)
+    handled = slice(900, 1100)
+    w[handled] += rng.normal(0.0, 200.0, 200)
+    v = np.ones(len(good))
+    v[handled] = 0.0
+    write_drive(tmp_path / "marked.csv", replace(good, omega=w, valid=v, name="x"))
+    dropped = replace(good, omega=w, name="x").slice(0, 900)
+    rest = replace(good, omega=w).slice(1100)
+    cols = {c: np.concatenate([getattr(dropped, c), getattr(rest, c)]) for c in good.columns()}
+    write_drive(tmp_path / "dropped.csv", replace(dropped, **cols))
+    write_drive(tmp_path / "kept.csv", replace(good, omega=w))
+
+    def table(f: str) -> list[str]:
+        p = hdrd("evaluate", f, "--method", "hdr+", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        return [x.split(None, 1)[1] for x in p.stdout.splitlines()[2:3]]
+
+    assert table("marked.csv") == table("dropped.csv")
+    assert table("marked.csv") != table("kept.csv")
+
+    def tuned(f: str) -> str:
+        p = hdrd("tune", f, "--candidates", "30", "--no-progress", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        return p.stdout.split("\n", 1)[1].rsplit("\n", 3)[0]
+
+    assert tuned("marked.csv") == tuned("dropped.csv")
+
+
+def test_a_drive_with_every_row_left_out_is_one_line(good: DriveLog, tmp_path: Path) -> None:
+    write_drive(tmp_path / "none.csv", replace(good, valid=np.zeros(len(good))))
+    p = hdrd("evaluate", "none.csv", cwd=tmp_path)
+    assert p.returncode == 1
+    assert p.stderr == "hdrd evaluate: error: none: every row has valid = 0; nothing to evaluate\n"

@@ -28,7 +28,7 @@ publishes the same yaw at every step (tests/test_onepath.py).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -349,6 +349,15 @@ def prepare_drive(
     be measured.
     """
     name = log.name or "drive"
+    if log.valid is not None:  # rows with valid = 0 are left out, as if dropped: a time gap
+        kept = log.counted()
+        if len(kept) == 0:
+            raise EvaluationError(f"{name}: every row has valid = 0; nothing to evaluate")
+        lead = _lead_in_s(log)
+        if lead is not None and kept.t[0] > log.t[0]:  # the lead-in lost its first rows
+            left = lead - float(kept.t[0] - log.t[0])
+            kept = replace(kept, meta={**kept.meta, "lead_in_s": f"{max(left, 0.0)!r}"})
+        log = kept
     n_rows = len(log)
     if n_rows < 2:
         raise EvaluationError(f"{name}: only {n_rows} sample(s); a drive needs at least 2")
