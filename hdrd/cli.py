@@ -151,6 +151,13 @@ def _max_rate(text: str) -> float:
 def _input_limits(p: argparse.ArgumentParser) -> None:
     """What a drive log may hold (docs/drive-format.md, "Limits")."""
     p.add_argument(
+        "--max-rows",
+        type=_positive_int,
+        metavar="N",
+        help="most rows a drive may have (default 10000000; a Parquet file's counted before "
+        "it is read)",
+    )
+    p.add_argument(
         "--max-rate",
         type=_max_rate,
         metavar="DPS",

@@ -37,6 +37,8 @@ __all__ = [
     "DEFAULT_READ_LIMITS",
     "MAX_GAP_S",
     "MAX_RATE_DPS",
+    "MAX_ROWS",
+    "NO_LIMITS",
     "OPTIONAL",
     "DriveLog",
     "DriveLogError",
@@ -58,6 +60,9 @@ class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
 
 
+MAX_ROWS = 10_000_000
+"""Most rows a drive log may have (``--max-rows``): 28 hours at 100 Hz, 11 days at 10 Hz; a
+drive of that many takes ~0.6 GB to read and a few times that to analyse."""
 MAX_RATE_DPS = 1000.0
 """Largest yaw rate a drive log may hold, deg/s (``--max-rate``): beyond what a vehicle's
 gyro measures (a +/-1000 deg/s MEMS is the widest common range; a car turns at < 100)."""
@@ -70,15 +75,19 @@ clock that jumped; the analyses' work and Td would follow the span, not the samp
 @dataclass(frozen=True)
 class ReadLimits:
     """What a drive log may hold beyond the format's own rules, each refused with a one-line
-    error naming the row (docs/drive-format.md, "Limits"): ``max_rate_dps``, the largest
-    ``|omega|`` and ``|omega_truth|``, deg/s; ``max_gap_s``, the longest step in ``t``, s;
-    both in the rows that count (``valid`` not 0)."""
+    error naming the row (docs/drive-format.md, "Limits"): ``max_rows``, the most rows (a
+    Parquet file's counted from its metadata before any is read); ``max_rate_dps``, the
+    largest ``|omega|`` and ``|omega_truth|``, deg/s; ``max_gap_s``, the longest step in
+    ``t``, s; both in the rows that count (``valid`` not 0)."""
 
+    max_rows: int = MAX_ROWS
     max_rate_dps: float = MAX_RATE_DPS
     max_gap_s: float = MAX_GAP_S
 
 
 DEFAULT_READ_LIMITS = ReadLimits()
+NO_LIMITS = ReadLimits(max_rows=2**62, max_rate_dps=math.inf, max_gap_s=math.inf)
+"""The format's own rules only (a test of the format, a tool that splits long logs)."""
 
 
 @dataclass(frozen=True)
@@ -213,7 +222,7 @@ def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveL
         raise DriveLogError(f"{label}:{lineno}: repeated column in header")
     width = len(header)
     flat = array("d")  # the rows' values one after the other: 8 bytes a cell
-    row_lines: list[int] = []  # the file line of each data row, for error messages
+    row_lines = array("q")  # the file line of each data row, for error messages
     header_lineno = lineno
     reader = csv.reader(lines)
     try:
@@ -222,6 +231,11 @@ def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveL
             if not row or (len(row) == 1 and not row[0].strip()):
                 continue
             row_lines.append(lineno)
+            if len(row_lines) > limits.max_rows:
+                raise DriveLogError(
+                    f"{label}:{lineno}: more than the {limits.max_rows} rows a drive may have "
+                    "(--max-rows)"
+                )
             if len(row) != width:
                 raise DriveLogError(f"{label}:{lineno}: {len(row)} fields, header has {width}")
             try:  # the common row: plain numbers and empty cells, taken at C speed

@@ -192,30 +192,92 @@ def _log(
     return DriveLog(name=name, meta=meta, **arrays)
 
 
-def _read_file(path: Path, drive: Any = None) -> tuple[Any, list[str], dict[str, str]]:
-    """(table, columns, metadata) of one file; with ``drive``, only that drive's rows."""
-    _, _, pq = _pyarrow()
+def _too_many(label: str, rows: int, limits: ReadLimits) -> DriveLogError:
+    return DriveLogError(
+        f"{label}: {rows} rows, more than the {limits.max_rows} a drive may have (--max-rows)"
+    )
+
+
+def _read_file(
+    path: Path, drive: Any = None, limits: ReadLimits = DEFAULT_READ_LIMITS
+) -> tuple[Any, list[str], dict[str, str]]:
+    """(table, columns, metadata) of one file; with ``drive``, only that drive's rows. The
+    columns and the number of rows are checked from the file's metadata before any is read."""
+    pa, pc, pq = _pyarrow()
     label = printable(str(path))
     pf = pq.ParquetFile(path)
     try:  # closed on every path: a bad file must not keep its descriptor
         schema = pf.schema_arrow
         names = _columns(schema, label)
         if drive is None:
+            if pf.metadata.num_rows > limits.max_rows:
+                raise _too_many(label, pf.metadata.num_rows, limits)
             table = pf.read(columns=names)
             meta = _strings(_meta_of(schema, label), label)
         else:
             if DRIVE_COLUMN not in schema.names:
                 raise DriveLogError(
-                    f"{label}: no column {DRIVE_COLUMN!r} to find drive {clipped(repr(drive), 80)} in"
+                    f"{label}: no column {DRIVE_COLUMN!r} to find drive "
+                    f"{clipped(repr(drive), 80)} in"
                 )
-            table = pq.read_table(
-                path, columns=names, filters=[(DRIVE_COLUMN, "==", drive)], use_threads=False
-            )
+            label = printable(f"{path} (drive {clipped(str(drive), 80)})")
+            parts = []
+            n = 0
+            for batch in pf.iter_batches(
+                batch_size=BATCH_ROWS,
+                row_groups=_groups_with(pf, drive),
+                columns=[*names, DRIVE_COLUMN],
+                use_threads=False,
+            ):
+                part = batch.filter(pc.equal(batch.column(DRIVE_COLUMN), drive))
+                n += part.num_rows
+                if n > limits.max_rows:
+                    raise _too_many(label, n, limits)
+                if part.num_rows:
+                    parts.append(part.select(names))
+            if not parts:
+                raise DriveLogError(f"{label}: no rows of this drive")
+            table = pa.Table.from_batches(parts)
             by_drive = _meta_of(schema, label, DRIVE_META_KEY)
             meta = _strings(by_drive.get(str(drive), {}), label)
     finally:
         pf.close()
     return table, names, meta
+
+
+BATCH_ROWS = 1 << 16
+"""Rows read at a time from a file holding many drives (a row group may hold millions)."""
+
+
+def _groups_with(pf: Any, drive: Any) -> list[int]:
+    """The row groups whose statistics of the ``drive`` column allow ``drive`` (all of them
+    where there are no statistics): a worker reads only the row groups of its drive."""
+    col = pf.schema_arrow.get_field_index(DRIVE_COLUMN)
+    out = []
+    for i in range(pf.num_row_groups):
+        st = pf.metadata.row_group(i).column(col).statistics
+        try:
+            if st is not None and st.has_min_max and not (st.min <= drive <= st.max):
+                continue
+        except TypeError:  # statistics of another type than the value: read the group
+            pass
+        out.append(i)
+    return out
+
+
+def _partition_rows(files: list[Path], label: str, limits: ReadLimits) -> None:
+    """DriveLogError if a partition's files hold more rows than a drive may (from their
+    metadata, before any is read)."""
+    _, _, pq = _pyarrow()
+    total = 0
+    for f in files:
+        pf = pq.ParquetFile(f)
+        try:
+            total += pf.metadata.num_rows
+        finally:
+            pf.close()
+        if total > limits.max_rows:
+            raise _too_many(label, total, limits)
 
 
 def read_parquet_drive(
@@ -227,8 +289,9 @@ def read_parquet_drive(
     """One drive from Parquet: a file (``drive``: the value of its ``drive`` column to take,
     for a file holding many drives), or a partition directory ``drive=NAME`` of a dataset
     (its files, in the order of their first ``t``). ``name`` defaults to the file's stem, the
-    drive's value or the partition's. DriveLogError on bad input (or beyond ``limits``),
-    naming the file and row; OSError if the file cannot be opened."""
+    drive's value or the partition's. DriveLogError on bad input (or beyond ``limits``, the
+    number of rows checked before any is read), naming the file and row; OSError if the file
+    cannot be opened."""
     pa, _, _ = _pyarrow()
     p = Path(path)
     label = printable(str(p) if drive is None else f"{p} (drive {clipped(str(drive), 80)})")
@@ -236,18 +299,21 @@ def read_parquet_drive(
         if p.is_dir():
             files = sorted(f for f in p.rglob("*" + SUFFIX) if f.is_file())
             if not files:
-                raise DriveLogError(f"{p}: a partition without Parquet files")
-            parts = [_read_file(f) for f in files]
+                raise DriveLogError(f"{label}: a partition without Parquet files")
+            _partition_rows(files, label, limits)
+            parts = [_read_file(f, None, limits) for f in files]
             parts.sort(key=lambda x: _first_t(x[0]))
             names = parts[0][1]
             for f, (_, other, _) in zip(files, parts):
                 if sorted(other) != sorted(names):
-                    raise DriveLogError(f"{f}: columns {other} differ from {names} in {p}")
+                    raise DriveLogError(
+                        f"{printable(str(f))}: columns {other} differ from {names} in {label}"
+                    )
             table = pa.concat_tables([t.select(names) for t, _, _ in parts])
             meta = parts[0][2]
             default = partition_value(p)
         else:
-            table, names, meta = _read_file(p, drive)
+            table, names, meta = _read_file(p, drive, limits)
             default = p.stem if drive is None else str(drive)
         arrays = _arrays(table, names, label)
     except pa.ArrowException as e:
@@ -265,30 +331,50 @@ def _first_t(table: Any) -> float:
     return float(col[0].as_py()) if len(col) and col[0].is_valid else math.inf
 
 
+MAX_DRIVES_PER_FILE = 1_000_000
+"""Most drives one Parquet file may hold (its ``drive`` column's distinct values)."""
+
+
 def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
     """The drives of a Parquet file holding many (its ``drive`` column's values, in the order
-    they first appear; read a row group at a time), or None for a file of one drive."""
+    they first appear; read :data:`BATCH_ROWS` rows at a time), or None for a file of one
+    drive. DriveLogError beyond :data:`MAX_DRIVES_PER_FILE` drives."""
     pa, pc, pq = _pyarrow()
+    label = printable(str(path))
     try:
         pf = pq.ParquetFile(path)
         try:
-            if DRIVE_COLUMN not in pf.schema_arrow.names:
+            names = pf.schema_arrow.names
+            if DRIVE_COLUMN not in names:
                 return None
+            if names.count(DRIVE_COLUMN) > 1:
+                raise DriveLogError(f"{label}: column {DRIVE_COLUMN!r} appears more than once")
+            typ = pf.schema_arrow.field(DRIVE_COLUMN).type
+            if pa.types.is_dictionary(typ):
+                typ = typ.value_type
+            if not (
+                pa.types.is_string(typ) or pa.types.is_large_string(typ) or pa.types.is_integer(typ)
+            ):
+                raise DriveLogError(
+                    f"{label}: column {DRIVE_COLUMN!r} holds {typ}; a drive's name is a string "
+                    "or an integer"
+                )
             seen: dict[Any, None] = {}
-            for i in range(pf.num_row_groups):
-                col = pf.read_row_group(i, columns=[DRIVE_COLUMN]).column(0)
-                for v in pc.unique(col).to_pylist():
+            for batch in pf.iter_batches(
+                batch_size=BATCH_ROWS, columns=[DRIVE_COLUMN], use_threads=False
+            ):
+                for v in pc.unique(batch.column(0)).to_pylist():
                     if v is None:
-                        raise DriveLogError(
-                            f"{printable(str(path))}: an empty {DRIVE_COLUMN!r} cell"
-                        )
+                        raise DriveLogError(f"{label}: an empty {DRIVE_COLUMN!r} cell")
                     seen.setdefault(v, None)
+                if len(seen) > MAX_DRIVES_PER_FILE:
+                    raise DriveLogError(
+                        f"{label}: more than {MAX_DRIVES_PER_FILE} drives in one file"
+                    )
         finally:
             pf.close()
     except pa.ArrowException as e:
-        raise DriveLogError(
-            f"{printable(str(path))}: not a readable Parquet drive log: {_why(e)}"
-        ) from None
+        raise DriveLogError(f"{label}: not a readable Parquet drive log: {_why(e)}") from None
     return list(seen)
 
 

@@ -285,3 +285,65 @@ def test_a_drive_with_every_row_left_out_is_one_line(good: DriveLog, tmp_path: P
     p = hdrd("evaluate", "none.csv", cwd=tmp_path)
     assert p.returncode == 1
     assert p.stderr == "hdrd evaluate: error: none: every row has valid = 0; nothing to evaluate\n"
+
+
+# -- rows counted before they are read ---------------------------------------------------------------
+
+_MAKE_40M = """
+import sys
+import numpy as np, pyarrow as pa, pyarrow.parquet as pq
+n = 40_000_000
+table = pa.table({"t": np.arange(n, dtype=np.int64), "omega": np.zeros(n, dtype=np.int32)})
+pq.write_table(table, sys.argv[1], use_dictionary=False, compression="zstd",
+               column_encoding={"t": "DELTA_BINARY_PACKED", "omega": "DELTA_BINARY_PACKED"})
+"""
+
+_PEAK = """
+import resource, subprocess, sys
+p = subprocess.run(sys.argv[1:], capture_output=True, text=True)
+sys.stdout.write(p.stderr)
+print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024, "MiB")
+"""
+
+
+def test_a_tiny_file_of_40_million_rows_is_refused_before_it_is_read(tmp_path: Path) -> None:
+    """360 KB of delta-encoded rows once took evaluate to 2.4 GB before any check."""
+    f = tmp_path / "tiny.parquet"
+    subprocess.run([sys.executable, "-c", _MAKE_40M, str(f)], check=True, timeout=300)
+    assert f.stat().st_size < 1 << 20
+    p = subprocess.run(
+        [sys.executable, "-c", _PEAK, sys.executable, "-m", "hdrd", "evaluate", str(f)],
+        capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    err, peak = p.stdout.rsplit("\n", 2)[:2]
+    assert err == (
+        f"hdrd evaluate: error: {f}: 40000000 rows, more than the 10000000 a drive may have "
+        "(--max-rows)"
+    )
+    assert int(peak.split()[0]) < 400, peak
+
+
+def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) -> None:
+    from hdrd.drivelog import ReadLimits
+    from hdrd.drivesources import find_drives
+    from hdrd.parquetlog import write_dataset_drive, write_parquet_drive
+
+    write_drive(tmp_path / "a.csv", good)
+    write_parquet_drive(tmp_path / "b.parquet", good)
+    n = len(good)
+    _parquet(tmp_path / "many.parquet", {"drive": ["x"] * n + ["y"] * 10, "t": [*good.t, *good.t[:10]],
+             "omega": [*good.omega, *good.omega[:10]]})  # fmt: skip
+    write_dataset_drive(tmp_path / "ds", good.slice(0, 1000), "p")
+    part = next((tmp_path / "ds").glob("drive=p"))
+    write_parquet_drive(part / "part-1.parquet", good.slice(1000))
+    limits = ReadLimits(max_rows=n - 1)
+    for ref in find_drives([str(tmp_path)]):
+        if ref.name == "many/y":
+            assert len(ref.read(limits)) == 10
+            continue
+        with pytest.raises(Exception, match=r"more than the \d+ (rows a drive may have|a drive)"):
+            ref.read(limits)
+        assert len(ref.read(ReadLimits(max_rows=n))) == n
+    p = hdrd("evaluate", "a.csv", "--max-rows", str(n - 1), cwd=tmp_path)
+    assert p.returncode == 1 and f"more than the {n - 1} rows" in p.stderr
+    assert p.stderr.count("\n") == 1

@@ -362,11 +362,12 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 
 def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-rate``,
-    ``--max-gap``); the defaults for what it does not give."""
+    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
     from hdrd.drivelog import ReadLimits
 
     given = {
+        "max_rows": getattr(args, "max_rows", None),
         "max_rate_dps": getattr(args, "max_rate", None),
         "max_gap_s": getattr(args, "max_gap", None),
     }
