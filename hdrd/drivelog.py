@@ -42,6 +42,7 @@ __all__ = [
     "OPTIONAL",
     "DriveLog",
     "DriveLogError",
+    "HEADING_LIMIT_DEG",
     "ReadLimits",
     "check_columns",
     "csv_values",
@@ -60,6 +61,10 @@ class DriveLogError(HdrdError, ValueError):
     """A drive log that does not follow docs/drive-format.md; the message says where."""
 
 
+HEADING_LIMIT_DEG = 360.0
+"""``heading_truth`` is a direction: compass [0, 360), a signed course in [-180, 180] read as
+the same direction; anything beyond +/- this (an unwrapped heading, radians times 1000, a
+sentinel such as 999) is refused."""
 MAX_ROWS = 10_000_000
 """Most rows a drive log may have (``--max-rows``): 28 hours at 100 Hz, 11 days at 10 Hz; a
 drive of that many takes ~0.6 GB to read and a few times that to analyse."""
@@ -142,8 +147,16 @@ refused before it is held."""
 
 
 def _parse_float(text: str, path: str, line: int, col: str) -> float:
+    """A cell: a decimal number in ASCII (``1.5``, ``-2e-3``), empty or ``nan`` for unknown.
+    Python's float() takes more, which a drive log does not: ``1_000`` (a digit separator,
+    most likely a typo) and digits of other scripts (``١٢``)."""
     if text == "" or text.lower() == "nan":
         return math.nan
+    if "_" in text or not text.isascii():
+        raise DriveLogError(
+            f"{path}:{line}: column {col}: {clipped(repr(text), 60)} is not a number (only "
+            "ASCII digits, '.', a sign and an exponent)"
+        )
     try:
         v = float(text)
     except ValueError:
@@ -193,6 +206,8 @@ def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveL
     lineno = 0
     for raw in lines:
         lineno += 1
+        if lineno == 1:
+            raw = raw.removeprefix("\ufeff")  # a byte-order mark (Excel's "CSV UTF-8")
         s = raw.strip()
         if not s:
             continue
@@ -238,11 +253,13 @@ def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveL
                 )
             if len(row) != width:
                 raise DriveLogError(f"{label}:{lineno}: {len(row)} fields, header has {width}")
-            try:  # the common row: plain numbers and empty cells, taken at C speed
-                flat.extend([float(c or "nan") for c in row])
-                continue
-            except ValueError:
-                pass
+            plain = "".join(row)
+            if plain.isascii() and "_" not in plain:
+                try:  # the common row: plain numbers and empty cells, taken at C speed
+                    flat.extend([float(c or "nan") for c in row])
+                    continue
+                except ValueError:
+                    pass
             flat.extend([_parse_float(c.strip(), label, lineno, h) for h, c in zip(header, row)])
     except csv.Error as e:
         raise DriveLogError(
@@ -285,6 +302,17 @@ def check_columns(
         if np.isinf(a).any():
             bad = int(np.flatnonzero(np.isinf(a))[0])
             raise DriveLogError(f"{where(bad)}: column {c}: {float(a[bad])!r} is not finite")
+    if "heading_truth" in arrays:
+        h = arrays["heading_truth"]
+        with np.errstate(invalid="ignore"):
+            out = np.abs(h) > HEADING_LIMIT_DEG
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            raise DriveLogError(
+                f"{where(i)}: column heading_truth: {float(h[i])!r} deg is outside "
+                f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
+                "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
+            )
     t = arrays["t"]
     if np.any(np.diff(t) <= 0):
         bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1

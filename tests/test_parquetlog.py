@@ -89,6 +89,8 @@ def test_csv_values_are_what_the_csv_reads_back(column: str, values: list[float]
     v = np.array(values)
     if column == "omega":
         v = np.nan_to_num(v)  # required in every row
+    if column == "heading_truth":  # the format takes headings within +/-360 deg only
+        v = np.where(np.abs(v) <= 360.0, v, np.fmod(v, 360.0))
     t = np.arange(v.shape[0], dtype=np.float64)
     cols = {"omega": np.zeros_like(t), column: v}
     log = DriveLog(t=t, **cols)  # type: ignore[arg-type]
