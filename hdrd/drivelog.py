@@ -21,10 +21,13 @@ import csv
 import io
 import math
 import os
+import shlex
+import stat
 from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import numpy.typing as npt
@@ -178,13 +181,79 @@ def read_drive(
     (and on a value beyond ``limits``)."""
     if isinstance(path, (str, os.PathLike)):
         label = printable(str(path))
-        with open(path, newline="", encoding="utf-8") as f:
-            return _read(f, label, name or Path(path).stem, limits)
+        try:
+            with _open_regular(path, label) as f:
+                return _read(f, label, name or Path(path).stem, limits)
+        except DriveLogError:
+            what = _not_a_drive_log(path, label)
+            if what is not None:
+                raise DriveLogError(what) from None
+            raise
     return _read(path, "<stream>", name or "", limits)
 
 
-def _lines(f: io.TextIOBase, label: str) -> Iterator[str]:
-    """The lines of ``f``, none longer than :data:`MAX_LINE_CHARS` (DriveLogError)."""
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _open_regular(path: str | os.PathLike[str], label: str) -> BinaryIO:
+    """The file, if it is a regular file (a FIFO would block the reader, a device never end):
+    opened without blocking, then checked; DriveLogError otherwise."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = next((k for test, k in _KINDS if test(mode)), "not a regular file")
+            raise DriveLogError(f"{label}: is {kind}, not a drive log file")
+        return open(fd, "rb", closefd=True)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+SNIFF_BYTES = 4096
+"""Bytes looked at to say what a file that is no drive log is."""
+
+
+def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
+    """What a file that failed to read as a drive log is instead, if its first bytes say: a
+    capture of the gyro's frames (hdr-bin or hdr-text: ``hdrd convert`` makes a drive log of
+    it), a Parquet file under another name, binary data. None: a text file, whose own error
+    stands."""
+    try:
+        with _open_regular(path, "") as f:
+            head = f.read(SNIFF_BYTES)
+    except (OSError, DriveLogError):
+        return None
+    from hdrd.capture import decode_capture
+
+    for protocol in ("hdr-bin", "hdr-text"):
+        frames, _ = decode_capture(head, protocol)
+        if frames.shape[0] >= 3:
+            stem = Path(path).stem or "drive"
+            cmd = f"hdrd convert {shlex.quote(str(path))} --out {shlex.quote(stem + '.csv')}"
+            return (
+                f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
+                f"make one with `{printable(cmd)}`"
+            )
+    if head.startswith(b"PAR1"):
+        return f"{label}: a Parquet file; name it {printable(Path(path).stem)}.parquet"
+    if b"\x00" in head:
+        return (
+            f"{label}: binary data, not a drive log (a CSV file in UTF-8, or a .parquet file: "
+            "docs/drive-format.md)"
+        )
+    return None
+
+
+def _lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
+    """The lines of ``f`` as text, none longer than :data:`MAX_LINE_CHARS`; bytes are UTF-8
+    (DriveLogError naming the line otherwise)."""
     n = 0
     while True:
         line = f.readline(MAX_LINE_CHARS + 1)
@@ -196,10 +265,18 @@ def _lines(f: io.TextIOBase, label: str) -> Iterator[str]:
                 f"{label}:{n}: a line longer than {MAX_LINE_CHARS} characters; a drive log's "
                 "rows are a few numbers each"
             )
+        if isinstance(line, bytes):
+            try:
+                line = line.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise DriveLogError(
+                    f"{label}:{n}: not UTF-8 text (byte 0x{line[e.start]:02x} at column "
+                    f"{e.start + 1}); save the CSV as UTF-8"
+                ) from None
         yield line
 
 
-def _read(f: io.TextIOBase, label: str, name: str, limits: ReadLimits) -> DriveLog:
+def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits) -> DriveLog:
     meta: dict[str, str] = {}
     lines = _lines(f, label)
     header_line = None

@@ -48,6 +48,9 @@ class DriveRef:
     path: str
     name: str
     key: Any = None
+    problem: str | None = None
+    """Why the file could not even be listed (a Parquet file that cannot be opened): reading
+    the drive raises it, so that it is that drive's error, not the whole fleet's."""
 
     @property
     def parquet(self) -> bool:
@@ -58,6 +61,8 @@ class DriveRef:
     def read(self, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
         """The drive's samples; DriveLogError on bad content (or beyond ``limits``), OSError
         (or UnicodeDecodeError) if the file cannot be read."""
+        if self.problem is not None:
+            raise DriveLogError(self.problem)
         if self.parquet:
             from hdrd.parquetlog import read_parquet_drive
 
@@ -72,7 +77,11 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
     if path.suffix == PARQUET_SUFFIX:
         from hdrd.parquetlog import drives_in_file
 
-        keys = drives_in_file(path)
+        try:
+            keys = drives_in_file(path)
+        except (DriveLogError, OSError) as e:
+            why = str(e) if isinstance(e, DriveLogError) else f"{path}: {e.strerror or e}"
+            return [DriveRef(str(path), drive_name(name or path.stem), problem=printable(why))]
         if keys is not None:
             return [DriveRef(str(path), drive_name(f"{name}/{k}" if name else k), k) for k in keys]
     return [DriveRef(str(path), drive_name(name or path.stem))]

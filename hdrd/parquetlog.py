@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import urllib.parse
 from pathlib import Path
 from typing import Any
@@ -198,6 +199,14 @@ def _too_many(label: str, rows: int, limits: ReadLimits) -> DriveLogError:
     )
 
 
+def _regular(path: str | os.PathLike[str], label: str) -> None:
+    """DriveLogError unless ``path`` is a regular file (opening a FIFO would wait for ever)."""
+    mode = os.stat(path).st_mode
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "not a regular file"
+        raise DriveLogError(f"{label}: is {kind}, not a drive log file")
+
+
 def _read_file(
     path: Path, drive: Any = None, limits: ReadLimits = DEFAULT_READ_LIMITS
 ) -> tuple[Any, list[str], dict[str, str]]:
@@ -205,6 +214,7 @@ def _read_file(
     columns and the number of rows are checked from the file's metadata before any is read."""
     pa, pc, pq = _pyarrow()
     label = printable(str(path))
+    _regular(path, label)
     pf = pq.ParquetFile(path)
     try:  # closed on every path: a bad file must not keep its descriptor
         schema = pf.schema_arrow
@@ -271,6 +281,7 @@ def _partition_rows(files: list[Path], label: str, limits: ReadLimits) -> None:
     _, _, pq = _pyarrow()
     total = 0
     for f in files:
+        _regular(f, printable(str(f)))
         pf = pq.ParquetFile(f)
         try:
             total += pf.metadata.num_rows
@@ -341,6 +352,7 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
     drive. DriveLogError beyond :data:`MAX_DRIVES_PER_FILE` drives."""
     pa, pc, pq = _pyarrow()
     label = printable(str(path))
+    _regular(path, label)
     try:
         pf = pq.ParquetFile(path)
         try:

@@ -347,3 +347,58 @@ def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) ->
     p = hdrd("evaluate", "a.csv", "--max-rows", str(n - 1), cwd=tmp_path)
     assert p.returncode == 1 and f"more than the {n - 1} rows" in p.stderr
     assert p.stderr.count("\n") == 1
+
+
+# -- files that are no drive log ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("protocol", ["hdr-bin", "hdr-text"])
+def test_a_capture_is_recognised_and_convert_named(protocol: str, tmp_path: Path) -> None:
+    """``hdrd evaluate drive.cap`` once showed a UnicodeDecodeError."""
+    f = hdrd("fakegyro", "--drive", "city", "--minutes", "0.1", "--protocol", protocol,
+             "--out", "drive.cap", cwd=tmp_path)  # fmt: skip
+    assert f.returncode == 0, f.stderr
+    for cmd in ("evaluate", "tune", "gap"):
+        p = hdrd(cmd, "drive.cap", "--no-progress", cwd=tmp_path)
+        assert p.returncode == 1
+        prefix = "" if cmd == "gap" else "error: "
+        assert p.stderr == (
+            f"hdrd {cmd}: {prefix}drive.cap: a capture of the gyro's frames ({protocol}), not a "
+            "drive log; make one with `hdrd convert drive.cap --out drive.csv`\n"
+        )
+    c = hdrd("convert", "drive.cap", "--protocol", protocol, "--out", "drive.csv", cwd=tmp_path)
+    assert c.returncode == 0, c.stderr
+
+
+def test_files_that_are_no_drive_log_are_one_line(good: DriveLog, tmp_path: Path) -> None:
+    from hdrd.parquetlog import write_parquet_drive
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "random.csv").write_bytes(rng.bytes(10_000))
+    (tmp_path / "zeros.csv").write_bytes(bytes(100_000))
+    write_parquet_drive(tmp_path / "p.parquet", good)
+    (tmp_path / "p.csv").write_bytes((tmp_path / "p.parquet").read_bytes())
+    (tmp_path / "latin1.csv").write_bytes("# who: Jos\xe9\nt,omega\n0,1\n".encode("latin-1"))
+    (tmp_path / "late.csv").write_bytes(b"t,omega\n0,1\n0.1,2\n0.2,\xff3\n")
+    os.mkfifo(tmp_path / "fifo.csv")
+    os.mkfifo(tmp_path / "fifo.parquet")
+    (tmp_path / "csv.parquet").write_bytes(b"t,omega\n0,1\n")
+    expected = {
+        "random.csv": "random.csv: binary data, not a drive log",
+        "zeros.csv": "zeros.csv: binary data, not a drive log",
+        "p.csv": "p.csv: a Parquet file; name it p.parquet",
+        "latin1.csv": "latin1.csv:1: not UTF-8 text (byte 0xe9 at column 11); save the CSV as UTF-8",
+        "late.csv": "late.csv:4: not UTF-8 text (byte 0xff at column 5)",
+        "fifo.csv": "fifo.csv: is a FIFO, not a drive log file",
+        "fifo.parquet": "fifo.parquet: is a FIFO, not a drive log file",
+        "csv.parquet": "csv.parquet: not a readable Parquet drive log: ",
+    }
+    for f, why in expected.items():
+        p = hdrd("evaluate", f, cwd=tmp_path, timeout=60)
+        assert p.returncode == 1, (f, p.stderr)
+        assert p.stderr.startswith(f"hdrd evaluate: error: {why}"), p.stderr
+        assert p.stderr.count("\n") == 1
+        assert p.stderr[:-1].isprintable(), p.stderr
+    write_drive(tmp_path / "ok.csv", good)
+    p = hdrd("evaluate", "ok.csv", *expected, cwd=tmp_path, timeout=60)
+    assert p.returncode == 0 and len(_skips(p.stderr, "evaluate")) == len(expected), p.stderr
