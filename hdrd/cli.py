@@ -424,6 +424,64 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 
 @command(
+    "import",
+    "hdrd.importcsv:main",
+    "make a drive log of your own CSV: its columns, units and signs mapped",
+)
+def _import(p: argparse.ArgumentParser) -> None:
+    # the units are hdrd.importcsv's (not imported here: it needs numpy; a test keeps them equal)
+    p.add_argument("source", metavar="SOURCE.csv", help="your CSV: a header line, then rows")
+    p.add_argument("--out", metavar="FILE", required=True, help="drive log to write")
+    p.add_argument("--t", required=True, metavar="COL", help="the column of sample times")
+    p.add_argument("--time-unit", choices=TIME_UNITS, default="s", help="unit of --t (default s)")
+    p.add_argument("--omega", required=True, metavar="COL", help="the column of the yaw rate")
+    p.add_argument("--omega-unit", choices=OMEGA_UNITS, default="deg/s", help="default deg/s")
+    p.add_argument(
+        "--omega-sign",
+        choices=("ccw", "cw"),
+        default="ccw",
+        help="the turn the rate counts positive, seen from above: ccw, a left turn (hdrd's; a "
+        "z axis pointing up; default) or cw (a z axis pointing down)",
+    )
+    p.add_argument("--heading", metavar="COL", help="the column of the true heading")
+    p.add_argument("--heading-unit", choices=HEADING_UNITS, default="deg", help="default deg")
+    p.add_argument(
+        "--heading-ref",
+        choices=("compass", "enu"),
+        default="compass",
+        help="compass: clockwise from north (a GPS course; default); enu: counter-clockwise "
+        "from east (a yaw in an east-north-up frame)",
+    )
+    p.add_argument("--speed", metavar="COL", help="the column of the vehicle's speed")
+    p.add_argument("--speed-unit", choices=SPEED_UNITS, default="m/s", help="default m/s")
+    p.add_argument("--temp", metavar="COL", help="the column of the temperature, deg C")
+    p.add_argument(
+        "--delimiter",
+        type=_delimiter,
+        default=",",
+        metavar="CHAR",
+        help="the character between cells: , (default), ; or tab",
+    )
+    _log_format(p, "the drive log's format")
+    _input_limits(p)
+
+
+TIME_UNITS = ("s", "ms", "us", "ns")
+OMEGA_UNITS = ("deg/s", "rad/s")
+HEADING_UNITS = ("deg", "rad")
+SPEED_UNITS = ("m/s", "km/h", "mph")
+
+
+def _delimiter(text: str) -> str:
+    d = {"tab": "\t", "\\t": "\t", "comma": ",", "semicolon": ";"}.get(text, text)
+    if len(d) != 1 or d in '\r\n"' or d.isalnum():
+        raise argparse.ArgumentTypeError(
+            f"one character (or tab), not a letter, digit or quote, got {text!r}"
+        )
+    return d
+
+
+@command(
     "evaluate",
     "hdrd.analysis.evaluate_cmd:main",
     "heading error without and with HDR (paper Table II)",

@@ -49,7 +49,10 @@ __all__ = [
     "ReadLimits",
     "check_columns",
     "csv_values",
+    "open_regular",
+    "parse_cell",
     "read_drive",
+    "text_lines",
     "write_drive",
 ]
 
@@ -149,7 +152,7 @@ line a few thousand; a longer line (a cell of megabytes, a file without line bre
 refused before it is held."""
 
 
-def _parse_float(text: str, path: str, line: int, col: str) -> float:
+def parse_cell(text: str, path: str, line: int, col: str) -> float:
     """A cell: a decimal number in ASCII (``1.5``, ``-2e-3``), empty or ``nan`` for unknown.
     Python's float() takes more, which a drive log does not: ``1_000`` (a digit separator,
     most likely a typo) and digits of other scripts (``١٢``)."""
@@ -182,7 +185,7 @@ def read_drive(
     if isinstance(path, (str, os.PathLike)):
         label = printable(str(path))
         try:
-            with _open_regular(path, label) as f:
+            with open_regular(path, label) as f:
                 return _read(f, label, name or Path(path).stem, limits)
         except DriveLogError:
             what = _not_a_drive_log(path, label)
@@ -201,7 +204,7 @@ _KINDS = (
 )
 
 
-def _open_regular(path: str | os.PathLike[str], label: str) -> BinaryIO:
+def open_regular(path: str | os.PathLike[str], label: str) -> BinaryIO:
     """The file, if it is a regular file (a FIFO would block the reader, a device never end):
     opened without blocking, then checked; DriveLogError otherwise."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
@@ -226,7 +229,7 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
     it), a Parquet file under another name, binary data. None: a text file, whose own error
     stands."""
     try:
-        with _open_regular(path, "") as f:
+        with open_regular(path, "") as f:
             head = f.read(SNIFF_BYTES)
     except (OSError, DriveLogError):
         return None
@@ -251,7 +254,7 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
     return None
 
 
-def _lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
+def text_lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
     """The lines of ``f`` as text, none longer than :data:`MAX_LINE_CHARS`; bytes are UTF-8
     (DriveLogError naming the line otherwise)."""
     n = 0
@@ -278,7 +281,7 @@ def _lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
 
 def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits) -> DriveLog:
     meta: dict[str, str] = {}
-    lines = _lines(f, label)
+    lines = text_lines(f, label)
     header_line = None
     lineno = 0
     for raw in lines:
@@ -337,7 +340,7 @@ def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits
                     continue
                 except ValueError:
                     pass
-            flat.extend([_parse_float(c.strip(), label, lineno, h) for h, c in zip(header, row)])
+            flat.extend([parse_cell(c.strip(), label, lineno, h) for h, c in zip(header, row)])
     except csv.Error as e:
         raise DriveLogError(
             f"{label}:{header_lineno + reader.line_num}: not a CSV row ({e})"
@@ -355,12 +358,19 @@ def check_columns(
     arrays: dict[str, FloatArray],
     where: Callable[[int], str],
     limits: ReadLimits | None = DEFAULT_READ_LIMITS,
+    names: dict[str, str] | None = None,
 ) -> None:
     """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
     every row, ``t`` and ``omega`` are present in every row, no value is infinite, ``t``
     strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
-    names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet).
+    names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet);
+    ``names`` what to call a column in it (``hdrd import``: the source's own column).
     DriveLogError on the first problem."""
+    shown = names or {}
+
+    def col(c: str) -> str:
+        return shown.get(c, c)
+
     if "valid" in arrays:
         vcol = arrays["valid"]
         bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
@@ -368,17 +378,19 @@ def check_columns(
             i = int(bad_v[0])
             what = "is empty" if math.isnan(vcol[i]) else f"{float(vcol[i])!r} is not 0 or 1"
             raise DriveLogError(
-                f"{where(i)}: column valid: {what}; every row needs 1 (the sample "
+                f"{where(i)}: column {col('valid')}: {what}; every row needs 1 (the sample "
                 "counts) or 0 (excluded)"
             )
     for c in REQUIRED:
         if np.isnan(arrays[c]).any():
             bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
-            raise DriveLogError(f"{where(bad)}: column {c} is empty; it is required in every row")
+            raise DriveLogError(
+                f"{where(bad)}: column {col(c)} is empty; it is required in every row"
+            )
     for c, a in arrays.items():
         if np.isinf(a).any():
             bad = int(np.flatnonzero(np.isinf(a))[0])
-            raise DriveLogError(f"{where(bad)}: column {c}: {float(a[bad])!r} is not finite")
+            raise DriveLogError(f"{where(bad)}: column {col(c)}: {float(a[bad])!r} is not finite")
     if "heading_truth" in arrays:
         h = arrays["heading_truth"]
         with np.errstate(invalid="ignore"):
@@ -386,7 +398,7 @@ def check_columns(
         if out.any():
             i = int(np.flatnonzero(out)[0])
             raise DriveLogError(
-                f"{where(i)}: column heading_truth: {float(h[i])!r} deg is outside "
+                f"{where(i)}: column {col('heading_truth')}: {float(h[i])!r} deg is outside "
                 f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
                 "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
             )
@@ -394,15 +406,18 @@ def check_columns(
     if np.any(np.diff(t) <= 0):
         bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise DriveLogError(
-            f"{where(bad)}: column t is not strictly increasing "
+            f"{where(bad)}: column {col('t')} is not strictly increasing "
             f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
         )
     if limits is not None:
-        _check_limits(arrays, where, limits)
+        _check_limits(arrays, where, limits, col)
 
 
 def _check_limits(
-    arrays: dict[str, FloatArray], where: Callable[[int], str], limits: ReadLimits
+    arrays: dict[str, FloatArray],
+    where: Callable[[int], str],
+    limits: ReadLimits,
+    col: Callable[[str], str],
 ) -> None:
     counts = np.ones(arrays["t"].shape[0], dtype=bool)
     if "valid" in arrays:
@@ -415,7 +430,7 @@ def _check_limits(
             if over.any():
                 i = int(np.flatnonzero(over)[0])
                 raise DriveLogError(
-                    f"{where(i)}: column {c}: {float(arrays[c][i]):.6g} deg/s is beyond the "
+                    f"{where(i)}: column {col(c)}: {float(arrays[c][i]):.6g} deg/s is beyond the "
                     f"+/-{limits.max_rate_dps:g} deg/s a gyro measures (--max-rate)"
                 )
     t = arrays["t"][rows]
@@ -425,7 +440,7 @@ def _check_limits(
         if steps[j] > limits.max_gap_s:
             i = int(rows[j + 1])
             raise DriveLogError(
-                f"{where(i)}: column t jumps by {float(steps[j]):.6g} s (from {float(t[j])!r} to "
+                f"{where(i)}: column {col('t')} jumps by {float(steps[j]):.6g} s (from {float(t[j])!r} to "
                 f"{float(t[j + 1])!r}); a drive may have gaps of at most {limits.max_gap_s:g} s "
                 "(--max-gap): split the log there"
             )

@@ -46,6 +46,7 @@ from hdrd.analysis.prepare import (
     PreparedDrive,
     prepare_drive,
 )
+from hdrd.analysis.signcheck import sign_warning
 from hdrd.calibrate import StandstillLimits
 from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 from hdrd.drivesources import DriveRef
@@ -96,7 +97,8 @@ class DriveResult:
     Eψ(primary), the primary method being the last one evaluated. heading: the aligned gyro
     heading per method, deg CW, continuous (not wrapped), at each step end. bias_source: where
     the static bias came from (given, the first S s, the log's lead-in, a standstill found from
-    the speed or the gyro).
+    the speed or the gyro). warnings: what looks wrong with the drive's data, one line each
+    (a rate whose sign or unit does not follow the truth: :mod:`hdrd.analysis.signcheck`).
     """
 
     name: str
@@ -112,6 +114,7 @@ class DriveResult:
     t_end: FloatArray = field(repr=False)
     truth: FloatArray = field(repr=False)
     heading: dict[str, FloatArray] = field(repr=False)
+    warnings: tuple[str, ...] = ()
 
     @property
     def primary(self) -> str:
@@ -197,6 +200,7 @@ def evaluate_prepared(
         t_end=prep.steps.t_end,
         truth=prep.truth,
         heading=heading,
+        warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
     )
 
 
@@ -272,7 +276,8 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
     NE_psi_none repeat the raw values (keys E_psi_<method> name each method). ``improvement`` is Eψ(raw) / Eψ(primary
     method); when more than one method besides ``none`` is evaluated, ``improvement_<m>`` is
     added for each. Non-finite numbers (an improvement over a zero error) are null. The mean
-    row's duration_min is the mean duration.
+    row's duration_min is the mean duration. A drive whose data looks wrong has
+    ``warnings``, one line each.
     """
     summary = summarize(results)
     ms = results[0].methods
@@ -289,6 +294,8 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
             d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
         if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
             d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
+        if r is not None and r.warnings:
+            d["warnings"] = list(r.warnings)
         d["improvement"] = _num(r.improvement if r else summary.improvement)
         if len(extra) > 1:
             for m in extra:

@@ -68,6 +68,9 @@ def main(args: argparse.Namespace) -> int:
         results, skipped = run_evaluate(args, refs, job)
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
+        for r in results:
+            for w in r.warnings:
+                print(f"hdrd evaluate: warning: {w}", file=sys.stderr)
         if not results:
             raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
     except (EvaluationError, FleetError) as e:

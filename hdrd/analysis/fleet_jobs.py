@@ -160,6 +160,8 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
         r = evaluate_prepared(prep, job.params, job.methods, job.plus, job.noise)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
+    if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored
+        return DriveOutcome(ref.name, skipped=r.warnings[0])
     return DriveOutcome(ref.name, r if job.traces else slim(r))
 
 

@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
+from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
 from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
@@ -127,6 +128,9 @@ class PreparedDrive:
     samples_per_step: float | None = None
     calibration_attempts: int = 0
     quant_step_dps: float = 0.0
+    sign: SignCheck = NO_CHECK
+    """How the log's rate follows its truth heading over the turns (a flipped sign, a wrong
+    unit: :mod:`hdrd.analysis.signcheck`)."""
 
 
 # -- where the bias comes from -------------------------------------------------------------
@@ -427,4 +431,5 @@ def prepare_drive(
         samples_per_step=stepper.samples_per_step,
         calibration_attempts=stepper.window.attempts,
         quant_step_dps=quantization_step(log.omega),
+        sign=check_sign(log.t, log.omega, log.heading_truth),
     )
