@@ -29,6 +29,7 @@ How a drive log becomes Table II numbers:
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,6 +70,7 @@ __all__ = [
     "load_drives",
     "method_key",
     "method_yaw",
+    "plus_model",
     "prepare_drive",
     "read_limits",
     "read_ref",
@@ -115,6 +117,9 @@ class DriveResult:
     truth: FloatArray = field(repr=False)
     heading: dict[str, FloatArray] = field(repr=False)
     warnings: tuple[str, ...] = ()
+    plus_model: str | None = None
+    """With ``hdr+`` evaluated: the error model its settings were fitted to
+    (:func:`plus_model`)."""
 
     @property
     def primary(self) -> str:
@@ -153,9 +158,34 @@ def method_yaw(
     noise: the gyro's error model when known (a configured grade). The output step is the
     log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
+    return m.batch(prep.steps, _settings(prep, method, params, plus, noise))
+
+
+def _settings(
+    prep: PreparedDrive,
+    method: str,
+    params: HdrParams,
+    plus: HdrPlusParams,
+    noise: GyroNoise | None,
+) -> Any:
+    """A method's settings for a prepared drive, derived as the daemon derives them."""
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias, noise, q)
-    return m.batch(prep.steps, m.settings(ctx))
+    return registry.get(method).settings(ctx)
+
+
+PLUS = "hdr+"
+
+
+def plus_model(
+    prep: PreparedDrive,
+    params: HdrParams = PAPER_PARAMS,
+    plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
+) -> str:
+    """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
+    ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
+    return str(getattr(_settings(prep, PLUS, params, plus, noise), "model", ""))
 
 
 def evaluate_prepared(
@@ -201,6 +231,7 @@ def evaluate_prepared(
         truth=prep.truth,
         heading=heading,
         warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
+        plus_model=plus_model(prep, params, plus, noise) if PLUS in ms else None,
     )
 
 
@@ -294,6 +325,8 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
             d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
         if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
             d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
+        if r is not None and r.plus_model is not None:
+            d["plus_model"] = r.plus_model
         if r is not None and r.warnings:
             d["warnings"] = list(r.warnings)
         d["improvement"] = _num(r.improvement if r else summary.improvement)
@@ -345,6 +378,13 @@ def format_table(results: Sequence[DriveResult]) -> str:
         f"total duration {s.total_min:.1f} min ({s.total_min / 60:.2f} h); "
         f"improvement = Epsi raw / Epsi {method_key(ms[-1])}; Epsi in deg, NEpsi in deg/min"
     )
+    models = Counter(r.plus_model for r in results if r.plus_model is not None)
+    if models:
+        if len(models) == 1:
+            named = next(iter(models))
+        else:
+            named = ", ".join(f"{m} ({k} drives)" for m, k in sorted(models.items()))
+        lines.append(f'hdr+ error model: {named} (docs/hdrplus.md, "Configuration")')
     return "\n".join(lines)
 
 
