@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError, clipped
-from hdrd.files import printable
+from hdrd.files import printable, shown_path
 
 __all__ = [
     "COLUMNS",
@@ -183,7 +183,7 @@ def read_drive(
     (``# key: value``). Raises DriveLogError naming the file, line and column on bad input
     (and on a value beyond ``limits``)."""
     if isinstance(path, (str, os.PathLike)):
-        label = printable(str(path))
+        label = shown_path(path)
         try:
             with open_regular(path, label) as f:
                 return _read(f, label, name or Path(path).stem, limits)
@@ -239,10 +239,11 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
         frames, _ = decode_capture(head, protocol)
         if frames.shape[0] >= 3:
             stem = Path(path).stem or "drive"
-            cmd = f"hdrd convert {shlex.quote(str(path))} --out {shlex.quote(stem + '.csv')}"
+            given = str(path) if len(str(path)) <= 80 else Path(path).name
+            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(stem + '.csv')}"
             return (
                 f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
-                f"make one with `{printable(cmd)}`"
+                f"make one with `{clipped(printable(cmd), 200)}`"
             )
     if head.startswith(b"PAR1"):
         return f"{label}: a Parquet file; name it {printable(Path(path).stem)}.parquet"

@@ -22,7 +22,7 @@ __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 CSV_SUFFIX = ".csv"
 PARQUET_SUFFIX = ".parquet"  # hdrd.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
 PARTITION_PREFIX = "drive="  # hdrd.parquetlog.PARTITION_PREFIX
-MAX_NAME_CHARS = 200
+MAX_NAME_CHARS = 100
 """A drive's name is cut to this many characters (ending in "..."): names come from data (a
 ``drive`` column, a folder's name) and are shown in every line about the drive."""
 GLOB_CHARS = frozenset("*?[")

@@ -42,6 +42,7 @@ __all__ = [
     "path_inside",
     "printable",
     "read_limited",
+    "shown_path",
 ]
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -279,6 +280,20 @@ def printable(text: str) -> str:
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+MAX_SHOWN_PATH = 120
+"""Longest path shown in a message, characters: a longer one keeps its end (the file's own
+name), behind "..."."""
+
+
+def shown_path(path: str | os.PathLike[str]) -> str:
+    """A path for a message: :func:`printable`, and at most :data:`MAX_SHOWN_PATH`
+    characters (its end kept)."""
+    text = printable(os.fspath(path) if not isinstance(path, bytes) else os.fsdecode(path))
+    if len(text) <= MAX_SHOWN_PATH:
+        return text
+    return "..." + text[len(text) - MAX_SHOWN_PATH + 3 :]
 
 
 def _name_problem(name: str) -> str | None:

@@ -40,7 +40,7 @@ from hdrd.drivelog import (
     text_lines,
 )
 from hdrd.errors import clipped
-from hdrd.files import printable
+from hdrd.files import printable, shown_path
 
 __all__ = [
     "HEADING_UNITS",
@@ -202,7 +202,7 @@ def import_csv(
     mapped columns are kept, 8 bytes a cell) and make a drive log of it (:func:`convert`),
     named by the file's stem. DriveLogError naming the line and column; OSError if it cannot
     be opened."""
-    label = printable(str(path))
+    label = shown_path(path)
     with open_regular(path, label) as f:
         lines = text_lines(f, label)
         header, header_no = _header(lines, label, delimiter)
@@ -306,7 +306,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     except OSError as e:
         print(
-            f"hdrd import: error: cannot read {printable(str(args.source))}: {e.strerror or e}",
+            f"hdrd import: error: cannot read {shown_path(args.source)}: {e.strerror or e}",
             file=sys.stderr,
         )
         return 1

@@ -34,7 +34,7 @@ from hdrd.drivelog import (
     csv_values,
 )
 from hdrd.errors import clipped
-from hdrd.files import printable
+from hdrd.files import printable, shown_path
 
 __all__ = [
     "DRIVE_COLUMN",
@@ -126,7 +126,7 @@ def _strings(meta: Any, label: str) -> dict[str, str]:
     for k, v in meta.items():
         if not isinstance(v, str):
             raise DriveLogError(
-                f"{label}: metadata {k!r} is {type(v).__name__}, not a string (as a CSV's "
+                f"{label}: metadata {clipped(repr(k), 60)} is {type(v).__name__}, not a string (as a CSV's "
                 "'# key: value' lines)"
             )
     return dict(meta)
@@ -151,7 +151,7 @@ def _columns(schema: Any, label: str) -> list[str]:
             or pa.types.is_boolean(typ)
             or pa.types.is_null(typ)
         ):
-            raise DriveLogError(f"{label}: column {n} holds {typ}, not numbers")
+            raise DriveLogError(f"{label}: column {n} holds {clipped(str(typ), 60)}, not numbers")
     for r in REQUIRED:
         if r not in names:
             raise DriveLogError(f"{label}: missing required column {r!r}")
@@ -213,7 +213,7 @@ def _read_file(
     """(table, columns, metadata) of one file; with ``drive``, only that drive's rows. The
     columns and the number of rows are checked from the file's metadata before any is read."""
     pa, pc, pq = _pyarrow()
-    label = printable(str(path))
+    label = shown_path(path)
     _regular(path, label)
     pf = pq.ParquetFile(path)
     try:  # closed on every path: a bad file must not keep its descriptor
@@ -230,7 +230,7 @@ def _read_file(
                     f"{label}: no column {DRIVE_COLUMN!r} to find drive "
                     f"{clipped(repr(drive), 80)} in"
                 )
-            label = printable(f"{path} (drive {clipped(str(drive), 80)})")
+            label = f"{label} (drive {printable(clipped(str(drive), 80))})"
             parts = []
             n = 0
             for batch in pf.iter_batches(
@@ -281,7 +281,7 @@ def _partition_rows(files: list[Path], label: str, limits: ReadLimits) -> None:
     _, _, pq = _pyarrow()
     total = 0
     for f in files:
-        _regular(f, printable(str(f)))
+        _regular(f, shown_path(f))
         pf = pq.ParquetFile(f)
         try:
             total += pf.metadata.num_rows
@@ -305,7 +305,9 @@ def read_parquet_drive(
     cannot be opened."""
     pa, _, _ = _pyarrow()
     p = Path(path)
-    label = printable(str(p) if drive is None else f"{p} (drive {clipped(str(drive), 80)})")
+    label = shown_path(p)
+    if drive is not None:
+        label += f" (drive {printable(clipped(str(drive), 80))})"
     try:
         if p.is_dir():
             files = sorted(f for f in p.rglob("*" + SUFFIX) if f.is_file())
@@ -318,7 +320,8 @@ def read_parquet_drive(
             for f, (_, other, _) in zip(files, parts):
                 if sorted(other) != sorted(names):
                     raise DriveLogError(
-                        f"{printable(str(f))}: columns {other} differ from {names} in {label}"
+                        f"{shown_path(f)}: columns {clipped(str(other), 100)} differ from "
+                        f"those of the partition's first file, {names}"
                     )
             table = pa.concat_tables([t.select(names) for t, _, _ in parts])
             meta = parts[0][2]
@@ -327,9 +330,17 @@ def read_parquet_drive(
             table, names, meta = _read_file(p, drive, limits)
             default = p.stem if drive is None else str(drive)
         arrays = _arrays(table, names, label)
-    except pa.ArrowException as e:
-        raise DriveLogError(f"{label}: not a readable Parquet drive log: {_why(e)}") from None
+    except (pa.ArrowException, OSError) as e:
+        raise DriveLogError(_unreadable(label, e)) from None
     return _log(arrays, label, name or default, meta, limits)
+
+
+def _unreadable(label: str, e: Exception) -> str:
+    """One line for a file pyarrow cannot read: the system's reason for an I/O error, else
+    pyarrow's (a corrupt file: pyarrow raises OSError for those too)."""
+    if isinstance(e, OSError) and e.errno is not None:
+        return f"{label}: cannot be read: {e.strerror or e}"
+    return f"{label}: not a readable Parquet drive log: {_why(e)}"
 
 
 def _why(e: Exception) -> str:
@@ -351,7 +362,7 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
     they first appear; read :data:`BATCH_ROWS` rows at a time), or None for a file of one
     drive. DriveLogError beyond :data:`MAX_DRIVES_PER_FILE` drives."""
     pa, pc, pq = _pyarrow()
-    label = printable(str(path))
+    label = shown_path(path)
     _regular(path, label)
     try:
         pf = pq.ParquetFile(path)
@@ -368,7 +379,7 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
                 pa.types.is_string(typ) or pa.types.is_large_string(typ) or pa.types.is_integer(typ)
             ):
                 raise DriveLogError(
-                    f"{label}: column {DRIVE_COLUMN!r} holds {typ}; a drive's name is a string "
+                    f"{label}: column {DRIVE_COLUMN!r} holds {clipped(str(typ), 60)}; a drive's name is a string "
                     "or an integer"
                 )
             seen: dict[Any, None] = {}
@@ -385,8 +396,8 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
                     )
         finally:
             pf.close()
-    except pa.ArrowException as e:
-        raise DriveLogError(f"{label}: not a readable Parquet drive log: {_why(e)}") from None
+    except (pa.ArrowException, OSError) as e:
+        raise DriveLogError(_unreadable(label, e)) from None
     return list(seen)
 
 

@@ -247,6 +247,68 @@ def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
     check_messages(replay_capture(_CAPTURE[:3000] + data, cfg, None, startup_s=1.0))
 
 
+# -- drive logs and the names in them ------------------------------------------------------------
+
+CELLS = st.one_of(
+    st.sampled_from(["", "nan", "inf", "1_000", "\u0661", "1e309", "725", "-1e200", "0", "1"]),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.text(max_size=8),
+)
+
+
+@FUZZ
+@given(
+    header=st.lists(
+        st.sampled_from(["t", "omega", "heading_truth", "speed", "valid", "x", "", "\ufefft"]),
+        min_size=1,
+        max_size=5,
+    ),
+    rows=st.lists(st.lists(CELLS, max_size=6), max_size=12),
+    meta=st.text(max_size=30),
+)
+def test_a_drive_log_csv_is_read_or_one_drive_log_error(
+    header: list[str], rows: list[list[str]], meta: str
+) -> None:
+    import io
+
+    from hdrd.drivelog import DriveLogError, read_drive
+
+    text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
+    try:
+        log = read_drive(io.StringIO(text))
+    except DriveLogError as e:
+        one_line(str(e), "drive log error")
+        return
+    assert len(log) >= 1 and all(math.isfinite(v) for v in log.t.tolist())
+    assert bool((abs(log.omega) <= 1000).all())
+    if log.heading_truth is not None:
+        h = log.heading_truth[~(log.heading_truth != log.heading_truth)]
+        assert bool((abs(h) <= 360).all())
+
+
+@FUZZ
+@given(name=st.text(max_size=300), suffix=st.sampled_from(["", ".yaml"]))
+def test_a_name_from_data_is_a_path_inside_or_refused(
+    tmp_path_factory: pytest.TempPathFactory, name: str, suffix: str
+) -> None:
+    import os
+
+    from hdrd.drivesources import drive_name
+    from hdrd.files import UnsafeNameError, path_inside
+
+    root = tmp_path_factory.mktemp("out")
+    shown = drive_name(name)
+    assert shown.isprintable() and len(shown) <= 100
+    for candidate in (name, shown):
+        try:
+            p = path_inside(root, candidate, suffix)
+        except UnsafeNameError as e:
+            one_line(str(e), "unsafe name")
+            continue
+        real = os.path.realpath(p)
+        assert real.startswith(str(root.resolve()) + os.sep), (candidate, real)
+
+
 # -- the bench harness ----------------------------------------------------------------------------
 
 

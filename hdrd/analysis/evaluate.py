@@ -428,9 +428,15 @@ def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLo
     try:
         return ref.read(limits)
     except FileNotFoundError:
-        raise EvaluationError(f"{ref.path}: no such file") from None
+        from hdrd.files import shown_path
+
+        raise EvaluationError(f"{shown_path(ref.path)}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
-        raise EvaluationError(f"{ref.path}: cannot be read: {e.__class__.__name__}: {e}") from None
+        from hdrd.errors import clipped
+        from hdrd.files import printable, shown_path
+
+        why = getattr(e, "strerror", None) or clipped(printable(" ".join(str(e).split())), 200)
+        raise EvaluationError(f"{shown_path(ref.path)}: cannot be read: {why}") from None
     except DriveLogError as e:
         raise EvaluationError(str(e)) from None
 

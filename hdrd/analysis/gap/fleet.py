@@ -171,7 +171,7 @@ def model_paths(
     such a file (:func:`hdrd.files.path_inside`: never outside OUT), their paths, and why each
     other drive is left out (a name that would lead out of OUT, or a file another drive
     already takes)."""
-    from hdrd.files import UnsafeNameError, path_inside
+    from hdrd.files import UnsafeNameError, path_inside, shown_path
 
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}
@@ -184,7 +184,9 @@ def model_paths(
             why.append(f"{r.name}: {e}")
             continue
         if path in taken or r.name in paths:
-            why.append(f"{r.name}: its model would be {path}, as that of {taken.get(path, r.name)}")
+            why.append(
+                f"{r.name}: its model would be {shown_path(path)}, as that of an earlier drive"
+            )
             continue
         taken[path] = r.name
         paths[r.name] = path
