@@ -120,6 +120,9 @@ HOSTILE_NAMES = (
 
 
 def _mutate_lines(rng: random.Random, lines: list[str]) -> None:
+    if not lines:  # cut to nothing by an earlier mutation
+        lines.append(rng.choice(("", "t,omega", "#")))
+        return
     head = next((i for i, x in enumerate(lines) if x and not x.startswith("#")), 0)
     cols = lines[head].split(",")
     data = list(range(head + 1, len(lines)))
@@ -340,6 +343,8 @@ def _parquet_bytes(rng: random.Random, log: Any, plain: bool = False) -> bytes:
     names = list(cols)
     names = [x.split("\x00")[0] for x in names]  # a duplicate's name back to its original
     table = pa.Table.from_arrays(list(cols.values()), names=names).replace_schema_metadata(meta)
+    if table.num_rows > 100_000:  # ten million rows in row groups of one: gigabytes of footer
+        kw.pop("row_group_size", None)
     buf = io.BytesIO()
     pq.write_table(table, buf, **kw)
     return buf.getvalue()
@@ -388,6 +393,8 @@ class DriveLogTarget(Target):
         self.surface = surface
         self.root = workdir / "case"
         self.count = 0
+        self.every_command = False
+        """Run tune and gap on every input too (a saved input that once found a defect)."""
         base_logs()  # made once, before the first input
 
     def _layout(self, data: bytes) -> Path:
@@ -474,10 +481,10 @@ class DriveLogTarget(Target):
                     if isinstance(v, float) and not math.isfinite(v):
                         raise Broken(f"--json {k} = {v!r}")
         outcome = "scored" if rc == 0 else "refused"
-        if self.count % 8 == 0:
+        if self.count % 8 == 0 or self.every_command:
             rc, out, err = self._run(["tune", given, "--candidates", "6", "--no-progress", *extra])
             self._check("tune", rc, out, err)
-        if self.count % 16 == 3:
+        if self.count % 16 == 3 or self.every_command:
             rc, out, err = self._run(["gap", given, "--out", str(out_dir / "m"), "--report",
                                       str(out_dir / "r.json"), "--no-progress"])  # fmt: skip
             self._check("gap", rc, out, err)

@@ -174,3 +174,30 @@ def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None
         "...cap", "ds", "ds/drive=..", "ds/drive=../part-0.parquet", "ds/drive=city-3",
         "ds/drive=city-3/part-0.parquet",
     ]  # fmt: skip
+
+
+def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None:
+    """Drive names go into the comments of the YAML that tune --out and gap --plus-out write:
+    a name with a line break would start a key of its own there."""
+    import yaml
+
+    from hdrd.drivelog import write_drive
+
+    log = simulate_drive("city", 1.0, 4)
+    evil = "x\nhdr:\n  c1: 999\n#"
+    cols = {c: getattr(log, c) for c in log.columns()}
+    pq.write_table(pa.table({"drive": [evil] * len(log), **cols}), tmp_path / "f.parquet")
+    p = hdrd("tune", "f.parquet", "--candidates", "4", "--no-progress", "--out", "t.yaml",
+             cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    text = (tmp_path / "t.yaml").read_text()
+    assert "x\\nhdr:\\n  c1: 999" in text  # the name, escaped, in the comment
+    doc = yaml.safe_load(text)
+    assert list(doc) == ["hdr"] and doc["hdr"]["c1"] != 999
+    named = tmp_path / "a\nplus:\n  grade: phone\n.csv"
+    write_drive(named, log)
+    g = hdrd("gap", named.name, "--plus-out", "plus.yaml", "--no-progress", cwd=tmp_path)
+    assert g.returncode == 0, g.stderr
+    text = (tmp_path / "plus.yaml").read_text()
+    assert "grade" not in yaml.safe_load(text)["plus"]
+    assert text.startswith("# HDR+'s error model, fitted by `hdrd gap` to a\\nplus:")

@@ -309,6 +309,21 @@ def test_a_name_from_data_is_a_path_inside_or_refused(
         assert real.startswith(str(root.resolve()) + os.sep), (candidate, real)
 
 
+@pytest.mark.parametrize(
+    "path", sorted((ROOT / "tests" / "data" / "fuzz").glob("*.bin")), ids=lambda p: p.stem
+)
+def test_the_drive_logs_that_once_found_a_defect_keep_every_promise(
+    path: Path, tmp_path: Path
+) -> None:
+    """Inputs of the drive-log surfaces that found a defect (bench/RESULTS.md, "Fuzz: drive
+    logs"), kept as bytes: evaluate, tune and gap on each, as bench/fuzz.py runs them."""
+    from fuzz_drivelog import DriveLogTarget
+
+    target = DriveLogTarget(path.name.split("-")[0], 0, tmp_path)
+    target.every_command = True
+    assert target.run(path.read_bytes()) in ("scored", "refused")
+
+
 # -- the bench harness ----------------------------------------------------------------------------
 
 
@@ -327,7 +342,7 @@ def test_inputs_are_reproducible_from_seed_surface_and_index() -> None:
 
 @pytest.mark.parametrize("surface", SURFACES)
 def test_a_short_seeded_run_of_each_surface(surface: str) -> None:
-    n = 40 if surface == "config" else 120
+    n = {"config": 40, "drivecsv": 48, "driveparquet": 48}.get(surface, 120)  # evaluate, tune, gap
     r = fuzz.run_surface(surface, n, seconds=120, seed=7, hang_s=60, quiet=True)
     assert r.inputs == n
     assert r.ok, fuzz.describe(r)

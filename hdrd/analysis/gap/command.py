@@ -137,7 +137,10 @@ def main(args: argparse.Namespace) -> int:
         if plus_out:
             from hdrd.files import atomic_write_text
 
-            atomic_write_text(plus_out, plus_section(res.model, measured[0]))
+            from hdrd.files import shown_path
+
+            # the name goes into a YAML comment: one printable line, whatever the file is called
+            atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1
