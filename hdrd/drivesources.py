@@ -15,7 +15,7 @@ from typing import Any
 
 from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, DriveLogError, ReadLimits, read_drive
 from hdrd.errors import clipped
-from hdrd.files import printable
+from hdrd.files import printable, shown_path
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
@@ -82,6 +82,9 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
         except (DriveLogError, OSError) as e:
             why = str(e) if isinstance(e, DriveLogError) else f"{path}: {e.strerror or e}"
             return [DriveRef(str(path), drive_name(name or path.stem), problem=printable(why))]
+        if keys == []:  # a drive column, but no row: no drive to name
+            why = f"{shown_path(path)}: a file with a {'drive'!r} column and no rows"
+            return [DriveRef(str(path), drive_name(name or path.stem), problem=why)]
         if keys is not None:
             return [DriveRef(str(path), drive_name(f"{name}/{k}" if name else k), k) for k in keys]
     return [DriveRef(str(path), drive_name(name or path.stem))]

@@ -135,9 +135,7 @@ def main(args: argparse.Namespace) -> int:
         if args.out:
             save_model(res.model, args.out)
         if plus_out:
-            from hdrd.files import atomic_write_text
-
-            from hdrd.files import shown_path
+            from hdrd.files import atomic_write_text, shown_path
 
             # the name goes into a YAML comment: one printable line, whatever the file is called
             atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
