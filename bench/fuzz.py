@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Fuzz every input surface of hdrd: no traceback, no hang, bounded memory, clear refusals.
 
-    python bench/fuzz.py [--surface all|stream|serial|gpsd|tail|config|bias|capture ...]
+    python bench/fuzz.py [--surface all|stream|serial|gpsd|tail|config|bias|capture
+                          |drivecsv|driveparquet ...]
                          [--inputs N] [--seconds S] [--seed K] [--hang-s S]
                          [--process | --process-only] [--process-inputs N] [--process-seconds S]
                          [--json FILE] [--show SURFACE:I]
@@ -9,7 +10,9 @@
 Surfaces (what an attacker, a broken cable or a careless edit can hand hdrd): ``serial``
 (the gyro's bytes), ``gpsd`` (lines from whatever answers on the gpsd address), ``tail``
 (UDP datagrams to ``hdrd tail``), ``config`` (the configuration file, at start and on
-SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``).
+SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``),
+``drivecsv`` and ``driveparquet`` (drive logs, and the names in them that become paths, for
+``hdrd evaluate``/``tune``/``gap``: bench/fuzz_drivelog.py).
 ``stream`` is the exact-count check of the two frame parsers on a long byte stream
 (bench/fuzz_stream.py; ``--bytes``, ``--protocol``).
 

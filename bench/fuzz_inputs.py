@@ -8,8 +8,10 @@ so any input can be made again on its own (``python bench/fuzz.py --show SURFACE
 Surfaces: ``serial`` (bytes from the gyro's ADC, hdr-bin or hdr-text, as the daemon reads
 them), ``gpsd`` (what a gpsd peer sends, one or more lines), ``tail`` (one UDP datagram for
 ``hdrd tail``), ``config`` (a configuration file), ``bias`` (a bias file), ``capture`` (a
-capture file for ``hdrd replay``/``convert``). A serial or capture input starts with one
-byte naming its protocol (``B`` hdr-bin, ``T`` hdr-text); the rest is the stream.
+capture file for ``hdrd replay``/``convert``), ``drivecsv`` and ``driveparquet`` (drive logs
+for ``hdrd evaluate``/``tune``/``gap``: bench/fuzz_drivelog.py). A serial or capture input
+starts with one byte naming its protocol (``B`` hdr-bin, ``T`` hdr-text); the rest is the
+stream.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from hdrd.frames import FRAME_DTYPE, SYNC, encode_array
 
 __all__ = ["SURFACES", "generate", "rng_for"]
 
-SURFACES = ("serial", "gpsd", "tail", "config", "bias", "capture")
+SURFACES = ("serial", "gpsd", "tail", "config", "bias", "capture", "drivecsv", "driveparquet")
 
 MAX_DATAGRAM = 65507
 """Largest UDP payload over IPv4."""
@@ -467,6 +469,18 @@ def bias_input(rng: random.Random) -> bytes:
     return data
 
 
+def drivecsv_input(rng: random.Random) -> bytes:
+    from fuzz_drivelog import drivecsv_input as make  # not at the top: it imports fuzz_targets
+
+    return make(rng)
+
+
+def driveparquet_input(rng: random.Random) -> bytes:
+    from fuzz_drivelog import driveparquet_input as make
+
+    return make(rng)
+
+
 _GENERATORS = {
     "serial": serial_input,
     "gpsd": gpsd_input,
@@ -474,6 +488,8 @@ _GENERATORS = {
     "config": config_input,
     "bias": bias_input,
     "capture": capture_input,
+    "drivecsv": drivecsv_input,
+    "driveparquet": driveparquet_input,
 }
 
 

@@ -595,6 +595,10 @@ def make_target(surface: str, seed: int, workdir: Path) -> Target:
         return BiasTarget(seed, workdir)
     if surface == "capture":
         return CaptureTarget(seed, workdir)
+    if surface in ("drivecsv", "driveparquet"):
+        from fuzz_drivelog import DriveLogTarget
+
+        return DriveLogTarget(surface, seed, workdir)
     raise ValueError(f"unknown surface {surface!r}")
 
 

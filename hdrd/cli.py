@@ -175,6 +175,55 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
 
+def _positive_float(text: str, most: float = float("inf")) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if not (0 < v <= most and v != float("inf")):
+        limit = f" and at most {most:g}" if most != float("inf") else ""
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0{limit}, got {text}")
+    return v
+
+
+def _max_rate(text: str) -> float:
+    return _positive_float(text, 1e5)  # beyond, a block's sum of squares loses its meaning
+
+
+def _input_limits(p: argparse.ArgumentParser) -> None:
+    """What a drive log may hold (docs/drive-format.md, "Limits")."""
+    p.add_argument(
+        "--max-rows",
+        type=_positive_int,
+        metavar="N",
+        help="most rows a drive may have (default 10000000; a Parquet file's counted before "
+        "it is read)",
+    )
+    p.add_argument(
+        "--max-rate",
+        type=_max_rate,
+        metavar="DPS",
+        help="largest |omega| a drive may hold, deg/s (default 1000, a gyro's range); a "
+        "larger rate in a row that counts is refused",
+    )
+    p.add_argument(
+        "--max-gap",
+        type=_positive_float,
+        metavar="S",
+        help="longest time gap a drive may have, s (default 3600); a longer one is refused",
+    )
+
+
+def _strict(p: argparse.ArgumentParser) -> None:
+    """What a drive that cannot be used does to a run of many (docs/evaluation.md)."""
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="stop at the first drive that cannot be used (default: report it on stderr, "
+        "skip it and go on with the others)",
+    )
+
+
 def _log_format(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument(
         "--format",
@@ -460,6 +509,64 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 
 @command(
+    "import",
+    "hdrd.importcsv:main",
+    "make a drive log of your own CSV: its columns, units and signs mapped",
+)
+def _import(p: argparse.ArgumentParser) -> None:
+    # the units are hdrd.importcsv's (not imported here: it needs numpy; a test keeps them equal)
+    p.add_argument("source", metavar="SOURCE.csv", help="your CSV: a header line, then rows")
+    p.add_argument("--out", metavar="FILE", required=True, help="drive log to write")
+    p.add_argument("--t", required=True, metavar="COL", help="the column of sample times")
+    p.add_argument("--time-unit", choices=TIME_UNITS, default="s", help="unit of --t (default s)")
+    p.add_argument("--omega", required=True, metavar="COL", help="the column of the yaw rate")
+    p.add_argument("--omega-unit", choices=OMEGA_UNITS, default="deg/s", help="default deg/s")
+    p.add_argument(
+        "--omega-sign",
+        choices=("ccw", "cw"),
+        default="ccw",
+        help="the turn the rate counts positive, seen from above: ccw, a left turn (hdrd's; a "
+        "z axis pointing up; default) or cw (a z axis pointing down)",
+    )
+    p.add_argument("--heading", metavar="COL", help="the column of the true heading")
+    p.add_argument("--heading-unit", choices=HEADING_UNITS, default="deg", help="default deg")
+    p.add_argument(
+        "--heading-ref",
+        choices=("compass", "enu"),
+        default="compass",
+        help="compass: clockwise from north (a GPS course; default); enu: counter-clockwise "
+        "from east (a yaw in an east-north-up frame)",
+    )
+    p.add_argument("--speed", metavar="COL", help="the column of the vehicle's speed")
+    p.add_argument("--speed-unit", choices=SPEED_UNITS, default="m/s", help="default m/s")
+    p.add_argument("--temp", metavar="COL", help="the column of the temperature, deg C")
+    p.add_argument(
+        "--delimiter",
+        type=_delimiter,
+        default=",",
+        metavar="CHAR",
+        help="the character between cells: , (default), ; or tab",
+    )
+    _log_format(p, "the drive log's format")
+    _input_limits(p)
+
+
+TIME_UNITS = ("s", "ms", "us", "ns")
+OMEGA_UNITS = ("deg/s", "rad/s")
+HEADING_UNITS = ("deg", "rad")
+SPEED_UNITS = ("m/s", "km/h", "mph")
+
+
+def _delimiter(text: str) -> str:
+    d = {"tab": "\t", "\\t": "\t", "comma": ",", "semicolon": ";"}.get(text, text)
+    if len(d) != 1 or d in '\r\n"' or d.isalnum():
+        raise argparse.ArgumentTypeError(
+            f"one character (or tab), not a letter, digit or quote, got {text!r}"
+        )
+    return d
+
+
+@command(
     "evaluate",
     "hdrd.analysis.evaluate_cmd:main",
     "heading error without and with HDR (paper Table II)",
@@ -490,6 +597,8 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
     )
     _config(p)
     _method(p)
+    _input_limits(p)
+    _strict(p)
     _fleet(p)
 
 
@@ -527,6 +636,8 @@ def _tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
+    _input_limits(p)
+    _strict(p)
     _fleet(p)
 
 
@@ -579,6 +690,8 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
     )
+    _input_limits(p)
+    _strict(p)
     _fleet(p)
 
 

@@ -13,17 +13,30 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hdrd.drivelog import DriveLog, DriveLogError, read_drive
+from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, DriveLogError, ReadLimits, read_drive
+from hdrd.errors import clipped
+from hdrd.files import printable, shown_path
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
 CSV_SUFFIX = ".csv"
 PARQUET_SUFFIX = ".parquet"  # hdrd.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
 PARTITION_PREFIX = "drive="  # hdrd.parquetlog.PARTITION_PREFIX
+MAX_NAME_CHARS = 100
+"""A drive's name is cut to this many characters (ending in "..."): names come from data (a
+``drive`` column, a folder's name) and are shown in every line about the drive."""
 GLOB_CHARS = frozenset("*?[")
 FORMATS = ("csv", "parquet", "dataset")
 """What ``--format`` writes: a CSV file, a Parquet file, a drive of a dataset partitioned by
 drive (OUT/drive=NAME/part-0.parquet)."""
+
+
+def drive_name(value: Any) -> str:
+    """What results and messages call a drive whose name in the data is ``value``: its text
+    with non-printable characters escaped (:func:`hdrd.files.printable`), at most
+    :data:`MAX_NAME_CHARS` characters. A name becomes a path only through
+    :func:`hdrd.files.path_inside`."""
+    return clipped(printable(str(value)), MAX_NAME_CHARS)
 
 
 @dataclass(frozen=True)
@@ -35,6 +48,9 @@ class DriveRef:
     path: str
     name: str
     key: Any = None
+    problem: str | None = None
+    """Why the file could not even be listed (a Parquet file that cannot be opened): reading
+    the drive raises it, so that it is that drive's error, not the whole fleet's."""
 
     @property
     def parquet(self) -> bool:
@@ -42,14 +58,16 @@ class DriveRef:
             PARTITION_PREFIX
         )
 
-    def read(self) -> DriveLog:
-        """The drive's samples; DriveLogError on bad content, OSError (or UnicodeDecodeError)
-        if the file cannot be read."""
+    def read(self, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
+        """The drive's samples; DriveLogError on bad content (or beyond ``limits``), OSError
+        (or UnicodeDecodeError) if the file cannot be read."""
+        if self.problem is not None:
+            raise DriveLogError(self.problem)
         if self.parquet:
             from hdrd.parquetlog import read_parquet_drive
 
-            return read_parquet_drive(self.path, self.name, self.key)
-        return read_drive(self.path, self.name)
+            return read_parquet_drive(self.path, self.name, self.key, limits)
+        return read_drive(self.path, self.name, limits)
 
 
 def _in_file(path: Path, name: str) -> list[DriveRef]:
@@ -59,10 +77,17 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
     if path.suffix == PARQUET_SUFFIX:
         from hdrd.parquetlog import drives_in_file
 
-        keys = drives_in_file(path)
+        try:
+            keys = drives_in_file(path)
+        except (DriveLogError, OSError) as e:
+            why = str(e) if isinstance(e, DriveLogError) else f"{path}: {e.strerror or e}"
+            return [DriveRef(str(path), drive_name(name or path.stem), problem=printable(why))]
+        if keys == []:  # a drive column, but no row: no drive to name
+            why = f"{shown_path(path)}: a file with a {'drive'!r} column and no rows"
+            return [DriveRef(str(path), drive_name(name or path.stem), problem=why)]
         if keys is not None:
-            return [DriveRef(str(path), f"{name}/{k}" if name else str(k), k) for k in keys]
-    return [DriveRef(str(path), name or path.stem)]
+            return [DriveRef(str(path), drive_name(f"{name}/{k}" if name else k), k) for k in keys]
+    return [DriveRef(str(path), drive_name(name or path.stem))]
 
 
 def _scan(root: Path) -> list[Path]:
@@ -82,7 +107,7 @@ def _partition(path: Path, parent: str = ".") -> DriveRef:
     from hdrd.parquetlog import partition_value
 
     value = partition_value(path)
-    return DriveRef(str(path), value if parent == "." else f"{parent}/{value}")
+    return DriveRef(str(path), drive_name(value if parent == "." else f"{parent}/{value}"))
 
 
 def _in_dir(root: Path, given: str) -> list[DriveRef]:

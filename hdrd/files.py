@@ -11,7 +11,9 @@ commands' message).
 Writing: the bias file, and the ``--json``/``--out``/``--report`` files of evaluate, tune and
 gap, are written whole or not at all (:func:`atomic_write_text`, :func:`atomic_write_json`),
 so a reader or a power cut sees the old or the new content. :func:`default_bias_path` is where
-the bias file lives when none is named.
+the bias file lives when none is named. A name that comes from data (a drive's name: a
+Parquet ``drive`` value, a hive folder ``drive=NAME``) becomes a path only through
+:func:`path_inside`, which refuses any name that would lead out of the output folder.
 """
 
 from __future__ import annotations
@@ -30,13 +32,18 @@ __all__ = [
     "MAX_BIAS_BYTES",
     "MAX_CAPTURE_BYTES",
     "MAX_CONFIG_BYTES",
+    "MAX_NAME_BYTES",
     "MAX_YAML_DEPTH",
     "InputFileError",
+    "UnsafeNameError",
     "atomic_write_json",
     "atomic_write_text",
     "default_bias_path",
     "load_yaml",
+    "path_inside",
+    "printable",
     "read_limited",
+    "shown_path",
 ]
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -48,6 +55,9 @@ MAX_CAPTURE_BYTES = 2 << 30
 134 million hdr-bin frames; replay holds the file and its frames in memory (bench/RESULTS.md)."""
 MAX_YAML_DEPTH = 32
 """Deepest nesting of YAML collections accepted (hdrd's files need 3)."""
+MAX_NAME_BYTES = 200
+"""Longest name from data that :func:`path_inside` turns into a path, UTF-8 bytes (a file
+name may take 255; the suffix and a temporary file's decoration need the rest)."""
 
 _KINDS = (
     (stat.S_ISDIR, "a directory"),
@@ -288,3 +298,73 @@ def default_bias_path() -> Path:
     """$STATE_DIRECTORY/bias.yaml under systemd (StateDirectory=hdrd), else /var/lib/hdrd."""
     state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
     return Path(state or "/var/lib/hdrd") / "bias.yaml"
+
+
+# -- names from data as paths -----------------------------------------------------------------
+
+
+class UnsafeNameError(HdrdError, ValueError):
+    """A name from data that cannot become a path inside the output folder; the message names
+    it (escaped, clipped) and says why."""
+
+
+def printable(text: str) -> str:
+    """``text`` with every character a terminal could act on (controls, ESC, bidirectional
+    overrides: all that ``str.isprintable`` refuses) written as its Python escape, ``\\x1b``:
+    a name from data shown in a message or a table cannot move the cursor or hide itself."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+MAX_SHOWN_PATH = 120
+"""Longest path shown in a message, characters: a longer one keeps its end (the file's own
+name), behind "..."."""
+
+
+def shown_path(path: str | os.PathLike[str]) -> str:
+    """A path for a message: :func:`printable`, and at most :data:`MAX_SHOWN_PATH`
+    characters (its end kept)."""
+    text = printable(os.fspath(path) if not isinstance(path, bytes) else os.fsdecode(path))
+    if len(text) <= MAX_SHOWN_PATH:
+        return text
+    return "..." + text[len(text) - MAX_SHOWN_PATH + 3 :]
+
+
+def _name_problem(name: str) -> str | None:
+    if not name:
+        return "is empty"
+    size = len(name.encode("utf-8", "surrogatepass"))
+    if size > MAX_NAME_BYTES:
+        return f"is {size} bytes long, more than the {MAX_NAME_BYTES} a name may have"
+    if not name.isprintable():
+        return "holds a control or other non-printable character"
+    if name.startswith("/"):
+        return "is an absolute path"
+    if any(part in ("", ".", "..") for part in name.split("/")):
+        return "has an empty, '.' or '..' part"
+    return None
+
+
+def path_inside(root: str | os.PathLike[str], name: str, suffix: str = "") -> Path:
+    """``root / (name + suffix)``, for a ``name`` that comes from data (a drive's name), made
+    sure to lie inside ``root``: ``/`` in a name makes sub-folders of ``root`` (a drive found
+    at ``DIR/phone/drive05.csv`` is ``phone/drive05``), but an empty name, one with a NUL or
+    another control character, an absolute name, a ``.`` or ``..`` part, a name over
+    :data:`MAX_NAME_BYTES` bytes, or one whose folders lead out of ``root`` through a symbolic
+    link raise :class:`UnsafeNameError`. Nothing is created."""
+    problem = _name_problem(name)
+    base = Path(root)
+    path = base / (name + suffix)
+    if problem is None:
+        # the folders that exist already (a symbolic link among them) must stay inside too
+        real_root = base.resolve()
+        real_parent = path.parent.resolve()
+        if real_parent != real_root and real_root not in real_parent.parents:
+            problem = f"leads out of {printable(str(base))} through a symbolic link"
+    if problem is not None:
+        raise UnsafeNameError(
+            f"the name {clipped(repr(name), 80)} cannot name a file inside "
+            f"{clipped(printable(str(base)), 120)}: it {problem}"
+        )
+    return path

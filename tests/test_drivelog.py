@@ -48,7 +48,8 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
         if c == "valid":  # 0 or 1 in every row
             cols[c] = np.array(draw(st.lists(st.sampled_from([0.0, 1.0]), min_size=n, max_size=n)))
             continue
-        ks = draw(st.lists(st.integers(-(10**9), 10**9), min_size=n, max_size=n))
+        bound = 360 * 10**d if c == "heading_truth" else 10**9  # a heading: within +/-360
+        ks = draw(st.lists(st.integers(-bound, bound), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
             holes = draw(st.lists(st.booleans(), min_size=n, max_size=n))
@@ -138,7 +139,7 @@ def test_metadata_blank_lines_and_properties() -> None:
         ),
         ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
         ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
-        ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: 'inf' is not finite"),
+        ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: inf is not finite"),
         ("t,omega\n0,1\n0.1,1,2\n", r"<stream>:3: 3 fields, header has 2"),
         ("t,omega\n0,1\n0.1\n", r"<stream>:3: 1 fields, header has 2"),
         ("t,omega\n0,1\n,2\n", r"<stream>:3: column t is empty; it is required in every row"),
@@ -199,3 +200,58 @@ def test_rates_keep_an_adc_step(step: float) -> None:
     buf = io.StringIO()
     write_drive(buf, DriveLog(t=np.array([0.0, 0.1]), omega=np.array([0.09983, -1.5])))
     assert buf.getvalue().splitlines()[1:] == ["0.0000,0.09983", "0.1000,-1.50000"]
+
+
+@pytest.mark.parametrize(
+    ("cell", "where"),
+    [
+        ("1_000", "1_000"),  # float() reads 1000: a digit separator, most likely a typo
+        ("1_0.5", "1_0.5"),
+        ("\u0661\u0662", "\u0661\u0662"),  # Arabic-Indic digits, which float() reads as 12
+        ("\uff11", "\uff11"),  # a full-width 1
+    ],
+)
+def test_a_cell_is_an_ascii_decimal_number(cell: str, where: str) -> None:
+    for col in ("omega", "heading_truth"):
+        text = (
+            f"t,{col}\n0,1\n0.1,{cell}\n"
+            if col == "omega"
+            else f"t,omega,{col}\n0,1,2\n0.1,1,{cell}\n"
+        )
+        with pytest.raises(DriveLogError) as ei:
+            read_drive(io.StringIO(text))
+        msg = str(ei.value)
+        assert msg.startswith(f"<stream>:3: column {col}: {where!r} is not a number"), msg
+        assert msg.isprintable()
+
+
+@pytest.mark.parametrize("h", [-360.0, -180.0, -0.001, 0.0, 359.999, 360.0])
+def test_a_heading_within_a_turn_either_way_is_taken(h: float) -> None:
+    log = read_drive(io.StringIO(f"t,omega,heading_truth\n0,1,10\n0.1,1,{h}\n"))
+    assert log.heading_truth is not None and log.heading_truth[1] == h
+
+
+@pytest.mark.parametrize("h", ["360.001", "-360.5", "720", "725", "999", "-721", "6.3e3"])
+def test_a_heading_beyond_a_turn_is_refused_naming_row_and_column(h: str) -> None:
+    """Values beyond +/-720 were once accepted silently (an unwrapped heading, a sentinel)."""
+    text = f"# x: y\nt,omega,heading_truth\n0,1,10\n0.1,1,\n0.2,1,{h}\n"
+    with pytest.raises(DriveLogError) as ei:
+        read_drive(io.StringIO(text))
+    assert str(ei.value).startswith(
+        f"<stream>:5: column heading_truth: {float(h)!r} deg is outside [-360, 360]"
+    )
+
+
+def test_a_byte_order_mark_before_the_header_is_taken(tmp_path: Path) -> None:
+    """Excel's "CSV UTF-8" starts with a byte-order mark; it was once an unknown column."""
+    p = tmp_path / "excel.csv"
+    p.write_bytes(b"\xef\xbb\xbft,omega\r\n0,1\r\n0.1,2\r\n")
+    assert read_drive(p).omega.tolist() == [1.0, 2.0]
+    q = tmp_path / "meta.csv"
+    q.write_bytes(b"\xef\xbb\xbf# source: x\nt,omega\n0,1\n")
+    log = read_drive(q)
+    assert log.meta == {"source": "x"} and len(log) == 1
+    r = tmp_path / "late.csv"  # a mark anywhere else is no mark: an unknown column
+    r.write_bytes(b"t,\xef\xbb\xbfomega\n0,1\n")
+    with pytest.raises(DriveLogError, match="unknown column"):
+        read_drive(r)

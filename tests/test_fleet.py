@@ -348,7 +348,12 @@ def test_cluster_errors_are_one_line(fleet: Path, tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     bad.write_text("t,omega\n0,1\n0,2\n")
     p = hdrd("evaluate", str(fleet / "city.csv"), str(bad), "--workers", "2")
+    assert p.returncode == 0  # a drive that cannot be read is skipped, the others scored
+    assert p.stderr.splitlines()[-1].startswith("hdrd evaluate: skipped ")
+    assert "column t is not strictly increasing" in p.stderr.splitlines()[-1]
+    p = hdrd("evaluate", str(fleet / "city.csv"), str(bad), "--workers", "2", "--strict")
     assert p.returncode == 1
+    assert p.stderr.splitlines()[-1].startswith("hdrd evaluate: error: ")
     assert "column t is not strictly increasing" in p.stderr.splitlines()[-1]
 
 

@@ -247,6 +247,83 @@ def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
     check_messages(replay_capture(_CAPTURE[:3000] + data, cfg, None, startup_s=1.0))
 
 
+# -- drive logs and the names in them ------------------------------------------------------------
+
+CELLS = st.one_of(
+    st.sampled_from(["", "nan", "inf", "1_000", "\u0661", "1e309", "725", "-1e200", "0", "1"]),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.text(max_size=8),
+)
+
+
+@FUZZ
+@given(
+    header=st.lists(
+        st.sampled_from(["t", "omega", "heading_truth", "speed", "valid", "x", "", "\ufefft"]),
+        min_size=1,
+        max_size=5,
+    ),
+    rows=st.lists(st.lists(CELLS, max_size=6), max_size=12),
+    meta=st.text(max_size=30),
+)
+def test_a_drive_log_csv_is_read_or_one_drive_log_error(
+    header: list[str], rows: list[list[str]], meta: str
+) -> None:
+    import io
+
+    from hdrd.drivelog import DriveLogError, read_drive
+
+    text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
+    try:
+        log = read_drive(io.StringIO(text))
+    except DriveLogError as e:
+        one_line(str(e), "drive log error")
+        return
+    assert len(log) >= 1 and all(math.isfinite(v) for v in log.t.tolist())
+    assert bool((abs(log.omega) <= 1000).all())
+    if log.heading_truth is not None:
+        h = log.heading_truth[~(log.heading_truth != log.heading_truth)]
+        assert bool((abs(h) <= 360).all())
+
+
+@FUZZ
+@given(name=st.text(max_size=300), suffix=st.sampled_from(["", ".yaml"]))
+def test_a_name_from_data_is_a_path_inside_or_refused(
+    tmp_path_factory: pytest.TempPathFactory, name: str, suffix: str
+) -> None:
+    import os
+
+    from hdrd.drivesources import drive_name
+    from hdrd.files import UnsafeNameError, path_inside
+
+    root = tmp_path_factory.mktemp("out")
+    shown = drive_name(name)
+    assert shown.isprintable() and len(shown) <= 100
+    for candidate in (name, shown):
+        try:
+            p = path_inside(root, candidate, suffix)
+        except UnsafeNameError as e:
+            one_line(str(e), "unsafe name")
+            continue
+        real = os.path.realpath(p)
+        assert real.startswith(str(root.resolve()) + os.sep), (candidate, real)
+
+
+@pytest.mark.parametrize(
+    "path", sorted((ROOT / "tests" / "data" / "fuzz").glob("*.bin")), ids=lambda p: p.stem
+)
+def test_the_drive_logs_that_once_found_a_defect_keep_every_promise(
+    path: Path, tmp_path: Path
+) -> None:
+    """Inputs of the drive-log surfaces that found a defect (bench/RESULTS.md, "Fuzz: drive
+    logs"), kept as bytes: evaluate, tune and gap on each, as bench/fuzz.py runs them."""
+    from fuzz_drivelog import DriveLogTarget
+
+    target = DriveLogTarget(path.name.split("-")[0], 0, tmp_path)
+    target.every_command = True
+    assert target.run(path.read_bytes()) in ("scored", "refused")
+
+
 # -- the bench harness ----------------------------------------------------------------------------
 
 
@@ -265,7 +342,7 @@ def test_inputs_are_reproducible_from_seed_surface_and_index() -> None:
 
 @pytest.mark.parametrize("surface", SURFACES)
 def test_a_short_seeded_run_of_each_surface(surface: str) -> None:
-    n = 40 if surface == "config" else 120
+    n = {"config": 40, "drivecsv": 48, "driveparquet": 48}.get(surface, 120)  # evaluate, tune, gap
     r = fuzz.run_surface(surface, n, seconds=120, seed=7, hang_s=60, quiet=True)
     assert r.inputs == n
     assert r.ok, fuzz.describe(r)

@@ -564,3 +564,20 @@ def test_gap_writes_the_plus_section_for_one_drive_only(tmp_path: Path) -> None:
     assert cli(["gap", str(a), "--plus-out", str(out)]) == 0
     assert out.read_text().splitlines()[2] == "plus:"
     assert cli(["gap", str(a), str(b), "--plus-out", str(tmp_path / "x.yaml")]) == 1
+
+
+def test_a_short_slow_log_has_no_frequency_above_its_blocks_and_still_fits() -> None:
+    """A 2 Hz log in blocks of 1 s: a block is two samples, so no frequency lies between the
+    blocks' and the Nyquist frequency, where the low-pass is fitted (an empty spectrum: once a
+    ZeroDivisionError, then a math domain error for the cutoff): no pole, no gain, the white
+    level from the differences' variance."""
+    from hdrd.analysis.gap.lowpass import A_MIN, fit_lowpass
+
+    de = np.random.default_rng(0).normal(0.0, 0.1, 200)
+    fit = fit_lowpass(de, 2.0, 1e-6)  # blocks of two samples
+    assert fit.a == A_MIN and fit.gain == 0.0
+    assert fit.white_var == pytest.approx(np.var(de) / 2 - 1e-6)
+    for drive in ("city", "standstill"):
+        log = simulate_drive(drive, 1.0, 3, hz=2.0)
+        res = run_gap(log, DEFAULT_START_MODEL, standstill=drive == "standstill")
+        assert math.isfinite(res.final_sim.gap) and "white_noise" in res.final_model

@@ -29,6 +29,7 @@ How a drive log becomes Table II numbers:
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,8 +47,9 @@ from hdrd.analysis.prepare import (
     PreparedDrive,
     prepare_drive,
 )
+from hdrd.analysis.signcheck import sign_warning
 from hdrd.calibrate import StandstillLimits
-from hdrd.drivelog import DriveLog
+from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
@@ -68,7 +70,9 @@ __all__ = [
     "load_drives",
     "method_key",
     "method_yaw",
+    "plus_model",
     "prepare_drive",
+    "read_limits",
     "read_ref",
     "summarize",
     "to_json",
@@ -95,7 +99,8 @@ class DriveResult:
     Eψ(primary), the primary method being the last one evaluated. heading: the aligned gyro
     heading per method, deg CW, continuous (not wrapped), at each step end. bias_source: where
     the static bias came from (given, the first S s, the log's lead-in, a standstill found from
-    the speed or the gyro).
+    the speed or the gyro). warnings: what looks wrong with the drive's data, one line each
+    (a rate whose sign or unit does not follow the truth: :mod:`hdrd.analysis.signcheck`).
     """
 
     name: str
@@ -111,6 +116,10 @@ class DriveResult:
     t_end: FloatArray = field(repr=False)
     truth: FloatArray = field(repr=False)
     heading: dict[str, FloatArray] = field(repr=False)
+    warnings: tuple[str, ...] = ()
+    plus_model: str | None = None
+    """With ``hdr+`` evaluated: the error model its settings were fitted to
+    (:func:`plus_model`)."""
 
     @property
     def primary(self) -> str:
@@ -149,9 +158,34 @@ def method_yaw(
     noise: the gyro's error model when known (a configured grade). The output step is the
     log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
+    return m.batch(prep.steps, _settings(prep, method, params, plus, noise))
+
+
+def _settings(
+    prep: PreparedDrive,
+    method: str,
+    params: HdrParams,
+    plus: HdrPlusParams,
+    noise: GyroNoise | None,
+) -> Any:
+    """A method's settings for a prepared drive, derived as the daemon derives them."""
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias, noise, q)
-    return m.batch(prep.steps, m.settings(ctx))
+    return registry.get(method).settings(ctx)
+
+
+PLUS = "hdr+"
+
+
+def plus_model(
+    prep: PreparedDrive,
+    params: HdrParams = PAPER_PARAMS,
+    plus: HdrPlusParams = PLUS_DEFAULTS,
+    noise: GyroNoise | None = None,
+) -> str:
+    """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
+    ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
+    return str(getattr(_settings(prep, PLUS, params, plus, noise), "model", ""))
 
 
 def evaluate_prepared(
@@ -176,6 +210,11 @@ def evaluate_prepared(
         yaw = method_yaw(prep, m, params, plus, noise)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
+        if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
+            raise EvaluationError(
+                f"{prep.name}: {m} gives a heading error of {e[m]!r} deg over "
+                f"{prep.duration_min!r} min, not a number to report"
+            )
         heading[m] = gyro_heading(yaw, prep.truth, prep.k)
     return DriveResult(
         name=prep.name,
@@ -191,6 +230,8 @@ def evaluate_prepared(
         t_end=prep.steps.t_end,
         truth=prep.truth,
         heading=heading,
+        warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
+        plus_model=plus_model(prep, params, plus, noise) if PLUS in ms else None,
     )
 
 
@@ -266,7 +307,8 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
     NE_psi_none repeat the raw values (keys E_psi_<method> name each method). ``improvement`` is Eψ(raw) / Eψ(primary
     method); when more than one method besides ``none`` is evaluated, ``improvement_<m>`` is
     added for each. Non-finite numbers (an improvement over a zero error) are null. The mean
-    row's duration_min is the mean duration.
+    row's duration_min is the mean duration. A drive whose data looks wrong has
+    ``warnings``, one line each.
     """
     summary = summarize(results)
     ms = results[0].methods
@@ -283,6 +325,10 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
             d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
         if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
             d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
+        if r is not None and r.plus_model is not None:
+            d["plus_model"] = r.plus_model
+        if r is not None and r.warnings:
+            d["warnings"] = list(r.warnings)
         d["improvement"] = _num(r.improvement if r else summary.improvement)
         if len(extra) > 1:
             for m in extra:
@@ -332,6 +378,13 @@ def format_table(results: Sequence[DriveResult]) -> str:
         f"total duration {s.total_min:.1f} min ({s.total_min / 60:.2f} h); "
         f"improvement = Epsi raw / Epsi {method_key(ms[-1])}; Epsi in deg, NEpsi in deg/min"
     )
+    models = Counter(r.plus_model for r in results if r.plus_model is not None)
+    if models:
+        if len(models) == 1:
+            named = next(iter(models))
+        else:
+            named = ", ".join(f"{m} ({k} drives)" for m, k in sorted(models.items()))
+        lines.append(f'hdr+ error model: {named} (docs/hdrplus.md, "Configuration")')
     return "\n".join(lines)
 
 
@@ -355,16 +408,35 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
     return [(Path(r.path), r.name) for r in drive_refs(paths)]
 
 
-def read_ref(ref: DriveRef) -> DriveLog:
+def read_limits(args: Any) -> ReadLimits:
+    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
+    from hdrd.drivelog import ReadLimits
+
+    given = {
+        "max_rows": getattr(args, "max_rows", None),
+        "max_rate_dps": getattr(args, "max_rate", None),
+        "max_gap_s": getattr(args, "max_gap", None),
+    }
+    return ReadLimits(**{k: v for k, v in given.items() if v is not None})
+
+
+def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
     from hdrd.drivelog import DriveLogError
 
     try:
-        return ref.read()
+        return ref.read(limits)
     except FileNotFoundError:
-        raise EvaluationError(f"{ref.path}: no such file") from None
+        from hdrd.files import shown_path
+
+        raise EvaluationError(f"{shown_path(ref.path)}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
-        raise EvaluationError(f"{ref.path}: cannot be read: {e.__class__.__name__}: {e}") from None
+        from hdrd.errors import clipped
+        from hdrd.files import printable, shown_path
+
+        why = getattr(e, "strerror", None) or clipped(printable(" ".join(str(e).split())), 200)
+        raise EvaluationError(f"{shown_path(ref.path)}: cannot be read: {why}") from None
     except DriveLogError as e:
         raise EvaluationError(str(e)) from None
 

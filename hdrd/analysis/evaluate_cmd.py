@@ -11,6 +11,7 @@ from hdrd.analysis.evaluate import (
     drive_refs,
     evaluated_methods,
     format_table,
+    read_limits,
     to_json,
 )
 from hdrd.config import ConfigError, load_config
@@ -26,7 +27,7 @@ def _err(msg: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
-    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--workers N |
+    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--strict] [--workers N |
     --scheduler ADDRESS] [--no-progress]``."""
     from hdrd.analysis.fleet import FleetError
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
@@ -60,11 +61,16 @@ def main(args: argparse.Namespace) -> int:
             standstill_limits(cfg),
             noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
             traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
+            strict=bool(getattr(args, "strict", False)),
+            read_limits=read_limits(args),
         )
         # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
         results, skipped = run_evaluate(args, refs, job)
         for why in skipped:
             print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
+        for r in results:
+            for w in r.warnings:
+                print(f"hdrd evaluate: warning: {w}", file=sys.stderr)
         if not results:
             raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
     except (EvaluationError, FleetError) as e:

@@ -52,7 +52,7 @@ from hdrd.analysis.tune import (
     search,
 )
 from hdrd.calibrate import StandstillLimits
-from hdrd.drivelog import DriveLogError
+from hdrd.drivelog import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.drivesources import DriveRef
 from hdrd.hdr import HdrParams
 from hdrd.hdrplus import GyroNoise, HdrPlusParams
@@ -100,6 +100,33 @@ class DriveOutcome:
     skipped: str | None = None
 
 
+def why_skipped(name: str, e: Exception) -> str:
+    """The one line that says why drive ``name`` could not be used: the message of hdrd's own
+    error (it names the file and row, or the drive); for anything else, the drive and what
+    went wrong, so that one bad drive never stops a fleet with a traceback."""
+    from hdrd.errors import HdrdError, clipped
+    from hdrd.files import printable
+
+    if isinstance(e, HdrdError):
+        msg = str(e)
+        return msg if name in msg else f"{name}: {msg}"
+    if isinstance(e, (MemoryError, RecursionError)):
+        return f"{name}: too large to analyse in the memory available ({type(e).__name__})"
+    what = clipped(printable(" ".join(str(e).split())), 160)
+    return (
+        f"{name}: cannot be analysed: internal error {type(e).__name__}: {what} (please report it)"
+    )
+
+
+def read_prepared(ref: DriveRef, job: PrepareJob) -> PreparedDrive | str:
+    """One drive read and prepared as :func:`prepare_refs` prepares it, or why it cannot be
+    (:func:`why_skipped`)."""
+    try:
+        return prepare_drive(read_ref(ref, job.read_limits), job.bias, job.calibrate_seconds, job.T)
+    except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
+        return why_skipped(ref.name, e)
+
+
 # -- hdrd evaluate ------------------------------------------------------------------------------
 
 
@@ -118,19 +145,23 @@ class EvaluateJob:
     truth_max_gap_s: float = TRUTH_MAX_GAP_S
     noise: GyroNoise | None = None
     traces: bool = False
+    strict: bool = False
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
 def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     """Read one drive and score it as :func:`~hdrd.analysis.evaluate.evaluate_logs` does;
-    skipped (with the reason) if it cannot be evaluated; EvaluationError if it cannot be read."""
-    log = read_ref(ref)
+    skipped (with the reason, :func:`why_skipped`) if it cannot be read or evaluated."""
     try:
+        log = read_ref(ref, job.read_limits)
         prep = prepare_drive(
             log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
         )
         r = evaluate_prepared(prep, job.params, job.methods, job.plus, job.noise)
-    except EvaluationError as e:
-        return DriveOutcome(ref.name, skipped=str(e))
+    except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
+        return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
+    if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored
+        return DriveOutcome(ref.name, skipped=r.warnings[0])
     return DriveOutcome(ref.name, r if job.traces else slim(r))
 
 
@@ -159,13 +190,13 @@ def evaluate_refs(
 ) -> tuple[list[DriveResult], list[str]]:
     """Every drive's result in the drives' order, and why each skipped one was skipped (as
     :func:`~hdrd.analysis.evaluate.evaluate_logs`: a single drive that cannot be evaluated
-    raises EvaluationError)."""
+    raises EvaluationError; so does the first one with ``job.strict``)."""
     results: list[DriveResult] = []
     skipped: list[str] = []
     for o in runner.map(evaluate_one, refs, job, progress=progress):
         if o.skipped is None:
             results.append(o.result)
-        elif len(refs) == 1:
+        elif len(refs) == 1 or job.strict:
             raise EvaluationError(o.skipped)
         else:
             skipped.append(o.skipped)
@@ -182,32 +213,39 @@ class PrepareJob:
     bias: float | None = None
     calibrate_seconds: float | None = None
     T: float = PAPER_PARAMS.T
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
-def prepare_refs(refs: Sequence[DriveRef], job: PrepareJob) -> list[PreparedDrive]:
-    """Read and prepare a batch of drives (kept on the worker for the search's rounds)."""
-    return [prepare_drive(read_ref(r), job.bias, job.calibrate_seconds, job.T) for r in refs]
+def prepare_refs(refs: Sequence[DriveRef], job: PrepareJob) -> list[PreparedDrive | str]:
+    """Read and prepare a batch of drives (kept on the worker for the search's rounds); a
+    drive that cannot be is why (:func:`read_prepared`), and takes no part in the search."""
+    return [read_prepared(r, job) for r in refs]
 
 
-def steps_of(drives: Sequence[PreparedDrive]) -> list[int]:
-    """Steps of each prepared drive (the search's units of work)."""
-    return [int(d.steps.u.shape[0]) for d in drives]
+def _good(drives: Sequence[PreparedDrive | str]) -> list[PreparedDrive]:
+    return [d for d in drives if not isinstance(d, str)]
 
 
-def score_block(item: tuple[Sequence[PreparedDrive], Candidates], T: float) -> FloatArray:
-    """Eψ / Td of every parameter set of a block on every drive of a batch: shape
+def steps_of(drives: Sequence[PreparedDrive | str]) -> list[int | str]:
+    """Steps of each prepared drive (the search's units of work), or why it was left out."""
+    return [d if isinstance(d, str) else int(d.steps.u.shape[0]) for d in drives]
+
+
+def score_block(item: tuple[Sequence[PreparedDrive | str], Candidates], T: float) -> FloatArray:
+    """Eψ / Td of every parameter set of a block on every prepared drive of a batch: shape
     (drives, sets), each row a drive's share of the objective's sum."""
     drives, block = item
-    e = score_candidates(drives, block, T)
-    td = np.array([d.duration_min for d in drives])[:, None]
+    good = _good(drives)
+    e = score_candidates(good, block, T)
+    td = np.array([d.duration_min for d in good])[:, None]
     return e / td
 
 
 def evaluate_sets(
-    drives: Sequence[PreparedDrive], sets: Sequence[HdrParams]
+    drives: Sequence[PreparedDrive | str], sets: Sequence[HdrParams]
 ) -> list[list[DriveResult]]:
-    """Per drive of a batch, its result with each parameter set (``none`` and ``hdr``)."""
-    return [[slim(evaluate_prepared(d, p, ("none", "hdr"))) for p in sets] for d in drives]
+    """Per prepared drive of a batch, its result with each parameter set (``none``, ``hdr``)."""
+    return [[slim(evaluate_prepared(d, p, ("none", "hdr"))) for p in sets] for d in _good(drives)]
 
 
 def parameter_blocks(
@@ -241,21 +279,35 @@ def tune_fleet(
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     progress: Progress | None = None,
+    strict: bool = False,
+    skipped: list[str] | None = None,
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS,
 ) -> TuneResult:
     """:func:`hdrd.analysis.tune.tune` over drives a runner reads and prepares where it runs:
     the same search, the same objective bit for bit (the module docstring), the same result.
-    EvaluationError for a drive that cannot be read or evaluated, ValueError for a bad
-    budget."""
+    A drive that cannot be read or evaluated takes no part, and why is added to ``skipped``
+    (with ``strict``, or when no training drive is left: EvaluationError); ValueError for a
+    bad budget."""
     if not train_refs:
         raise ValueError("tuning needs at least one training drive")
     check_budget(n_candidates, base)
-    job = PrepareJob(bias, calibrate_seconds, base.T)
+    job = PrepareJob(bias, calibrate_seconds, base.T, read_limits)
     train = runner.persist(prepare_refs, _batches(train_refs, runner.threads), job)
     test = runner.persist(prepare_refs, _batches(test_refs, runner.threads), job)
-    steps = list(runner.map(steps_of, train, batch=1))  # and so: each drive could be prepared
-    list(runner.map(steps_of, test, batch=1))
-    n_drives = len(train_refs)
-    longest = max(max(s) for s in steps)
+    all_steps = list(runner.map(steps_of, train, batch=1))
+    test_steps = list(runner.map(steps_of, test, batch=1))
+    why = [x for s in all_steps + test_steps for x in s if isinstance(x, str)]
+    if why and strict:
+        raise EvaluationError(why[0])
+    steps = [[x for x in s if not isinstance(x, str)] for s in all_steps]
+    n_drives = sum(len(s) for s in steps)
+    if n_drives == 0 and len(train_refs) == 1:
+        raise EvaluationError(why.pop(0))
+    if skipped is not None:
+        skipped.extend(why)
+    if n_drives == 0:
+        raise EvaluationError(f"none of the {len(train_refs)} training drives can be used")
+    longest = max(max(s, default=0) for s in steps)
     chunk = max(16, CHUNK_ELEMENTS // max(longest, 1))
     batch_steps = [sum(s) for s in steps]
     total = sum(batch_steps) * n_candidates
@@ -323,6 +375,7 @@ class GapJob:
     exclude: tuple[tuple[float, float], ...] = ()
     seed: int = 0
     result: bool = False
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
 
 
 @dataclass(frozen=True)
@@ -337,22 +390,16 @@ class GapOutcome:
 
 
 def gap_one(ref: DriveRef, job: GapJob) -> DriveOutcome:
-    """Read one drive and run the model-gap workflow on it; skipped (with the reason) if it
-    cannot be analysed; DriveLogError if it cannot be read."""
-    from hdrd.analysis.gap.data import GapError
+    """Read one drive and run the model-gap workflow on it; skipped (with the reason,
+    :func:`why_skipped`) if it cannot be read or analysed."""
     from hdrd.analysis.gap.report import summary, to_report
     from hdrd.analysis.gap.search import run_gap
 
     try:
-        log = ref.read()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DriveLogError(
-            f"cannot read {ref.path}: {getattr(e, 'strerror', None) or e}"
-        ) from None
-    try:
+        log = read_ref(ref, job.read_limits)
         res = run_gap(log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed)
-    except (GapError, ValueError) as e:
-        return DriveOutcome(ref.name, skipped=str(e))
+    except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
+        return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
     out = GapOutcome(summary(res), to_report(res), res.final_model, res if job.result else None)
     return DriveOutcome(ref.name, out)
 

@@ -28,12 +28,13 @@ publishes the same yaw at every step (tests/test_onepath.py).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
+from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
 from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
 from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
@@ -127,6 +128,9 @@ class PreparedDrive:
     samples_per_step: float | None = None
     calibration_attempts: int = 0
     quant_step_dps: float = 0.0
+    sign: SignCheck = NO_CHECK
+    """How the log's rate follows its truth heading over the turns (a flipped sign, a wrong
+    unit: :mod:`hdrd.analysis.signcheck`)."""
 
 
 # -- where the bias comes from -------------------------------------------------------------
@@ -188,8 +192,9 @@ def _standstill_from_gyro(
     s1 = np.concatenate(([0.0], np.cumsum(c)))
     s2 = np.concatenate(([0.0], np.cumsum(c * c)))
     block = t_us // T_us
-    starts = np.searchsorted(block, np.arange(int(block[-1]) + 1))
-    for i in np.unique(starts).tolist():
+    # each block's first sample (a block without samples starts where the next one does)
+    starts = np.flatnonzero(np.diff(block, prepend=block[0] - 1))
+    for i in starts.tolist():
         if i >= n:
             break
         for length in lengths:
@@ -266,15 +271,17 @@ class _Stepped:
     stepper: Stepper
 
 
-def _speed_per_block(t_us: IntArray, speed: FloatArray, T_us: int) -> FloatArray:
-    """Mean of the finite speeds in each block (NaN for a block without any), m/s."""
-    idx = t_us // T_us
-    n = int(idx[-1]) + 1
+def _speed_per_block(t_us: IntArray, speed: FloatArray, T_us: int) -> dict[int, float]:
+    """Block index -> mean of the finite speeds in the block (NaN for a block without any),
+    m/s, for the blocks that have samples: memory follows the samples, not the time they
+    span."""
+    blocks, idx = np.unique(t_us // T_us, return_inverse=True)
     ok = np.isfinite(speed)
-    sums = np.bincount(idx[ok], weights=speed[ok], minlength=n)
-    counts = np.bincount(idx[ok], minlength=n)
+    sums = np.bincount(idx[ok], weights=speed[ok], minlength=blocks.shape[0])
+    counts = np.bincount(idx[ok], minlength=blocks.shape[0])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    return dict(zip(blocks.tolist(), mean.tolist()))
 
 
 def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None) -> _Stepped:
@@ -304,7 +311,7 @@ def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None
             continue
         was_calibrating = stepper.calibrating
         if speed is not None:
-            v = float(speed[item.index])
+            v = speed[item.index]
             stepper.speed_mps = None if math.isnan(v) else v
         inp = stepper.prepare(item)
         if inp is None:
@@ -346,6 +353,15 @@ def prepare_drive(
     be measured.
     """
     name = log.name or "drive"
+    if log.valid is not None:  # rows with valid = 0 are left out, as if dropped: a time gap
+        kept = log.counted()
+        if len(kept) == 0:
+            raise EvaluationError(f"{name}: every row has valid = 0; nothing to evaluate")
+        lead = _lead_in_s(log)
+        if lead is not None and kept.t[0] > log.t[0]:  # the lead-in lost its first rows
+            left = lead - float(kept.t[0] - log.t[0])
+            kept = replace(kept, meta={**kept.meta, "lead_in_s": f"{max(left, 0.0)!r}"})
+        log = kept
     n_rows = len(log)
     if n_rows < 2:
         raise EvaluationError(f"{name}: only {n_rows} sample(s); a drive needs at least 2")
@@ -415,4 +431,5 @@ def prepare_drive(
         samples_per_step=stepper.samples_per_step,
         calibration_attempts=stepper.window.attempts,
         quant_step_dps=quantization_step(log.omega),
+        sign=check_sign(log.t, log.omega, log.heading_truth),
     )

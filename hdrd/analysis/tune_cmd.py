@@ -7,11 +7,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Sequence
 
-from hdrd.analysis.evaluate import EvaluationError, drive_refs, load_drives
+from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
 from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
+from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
 from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+from hdrd.drivesources import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
 
@@ -23,10 +26,39 @@ def _err(msg: str) -> None:
     print(f"hdrd tune: error: {msg}", file=sys.stderr)
 
 
-def _run(args: argparse.Namespace, bar: ProgressBar | None) -> TuneResult:
+def _prepared(
+    refs: Sequence[DriveRef], job: PrepareJob, strict: bool, skipped: list[str]
+) -> list[PreparedDrive]:
+    """Each drive read and prepared (:func:`hdrd.analysis.fleet_jobs.read_prepared`); why each
+    other one cannot be is added to ``skipped`` (``strict``: EvaluationError at the first)."""
+    out: list[PreparedDrive] = []
+    for r in refs:
+        d = read_prepared(r, job)
+        if isinstance(d, str):
+            if strict:
+                raise EvaluationError(d)
+            skipped.append(d)
+        else:
+            out.append(d)
+    return out
+
+
+def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) -> TuneResult:
+    from hdrd.analysis.fleet_jobs import tune_fleet
+
+    strict = bool(getattr(args, "strict", False))
+    train_refs = drive_refs(args.train)
+    test_refs = drive_refs(args.test or [])
     if not fleet_requested(args):
-        train = load_drives(args.train)
-        test = load_drives(args.test or [])
+        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
+        train = _prepared(train_refs, job, strict, skipped)
+        test = _prepared(test_refs, job, strict, skipped)
+        if not train:
+            raise EvaluationError(
+                skipped.pop(0)
+                if len(train_refs) == 1
+                else f"none of the {len(train_refs)} training drives can be used"
+            )
         return tune(
             train,
             test,
@@ -35,10 +67,6 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None) -> TuneResult:
             calibrate_seconds=args.calibrate_seconds,
             progress=bar,
         )
-    from hdrd.analysis.fleet_jobs import tune_fleet
-
-    train_refs = drive_refs(args.train)
-    test_refs = drive_refs(args.test or [])
     with open_runner(args) as runner:
         return tune_fleet(
             runner,
@@ -48,6 +76,9 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None) -> TuneResult:
             args.seed,
             calibrate_seconds=args.calibrate_seconds,
             progress=bar,
+            strict=strict,
+            skipped=skipped,
+            read_limits=read_limits(args),
         )
 
 
@@ -78,7 +109,7 @@ def _comment(result: TuneResult, seed: int) -> list[str]:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
-    [--calibrate-seconds S] [--out YAML] [--json FILE] [--no-progress]
+    [--calibrate-seconds S] [--out YAML] [--json FILE] [--strict] [--no-progress]
     [--workers N | --scheduler ADDRESS]``."""
     from hdrd.files import atomic_write_json, atomic_write_text
 
@@ -87,15 +118,20 @@ def main(args: argparse.Namespace) -> int:
         return 2
     bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
     t0 = time.monotonic()
+    skipped: list[str] = []
     try:
-        result = _run(args, bar)
+        result = _run(args, bar, skipped)
     except (EvaluationError, FleetError) as e:
         if bar is not None:
             bar.close()
+        for why in skipped:
+            print(f"hdrd tune: skipped {why}", file=sys.stderr)
         _err(str(e))
         return 1
     if bar is not None:
         bar.close()
+    for why in skipped:
+        print(f"hdrd tune: skipped {why}", file=sys.stderr)
     seconds = time.monotonic() - t0
     print(format_report(result, seconds))
     if args.out:

@@ -102,7 +102,16 @@ def main(args: argparse.Namespace) -> int:
     if len(refs) > 1 and plus_out:
         _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
         return 1
-    job = GapJob(start, bool(args.standstill), tuple(exclude), int(args.seed), bool(args.plot))
+    from hdrd.analysis.evaluate import read_limits
+
+    job = GapJob(
+        start,
+        bool(args.standstill),
+        tuple(exclude),
+        int(args.seed),
+        bool(args.plot),
+        read_limits(args),
+    )
     try:
         with open_runner(args) as runner:
             if len(refs) > 1:
@@ -126,9 +135,10 @@ def main(args: argparse.Namespace) -> int:
         if args.out:
             save_model(res.model, args.out)
         if plus_out:
-            from hdrd.files import atomic_write_text
+            from hdrd.files import atomic_write_text, shown_path
 
-            atomic_write_text(plus_out, plus_section(res.model, measured[0]))
+            # the name goes into a YAML comment: one printable line, whatever the file is called
+            atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1

@@ -75,7 +75,8 @@ def diagnostics(data: GapData, fit: Fit, sim: GapMeasure) -> dict[str, Any]:
     a = np.vstack([regs["true_rate_left"], regs["true_rate_right"], np.ones_like(e)]).T
     coef, *_ = np.linalg.lstsq(a, e, rcond=None)
     parts = np.array_split(np.arange(e.shape[0]), 10)
-    ratio = sim.adev_meas / sim.adev_sim
+    with np.errstate(divide="ignore", invalid="ignore"):  # no deviation at a tau: no ratio
+        ratio = sim.adev_meas / sim.adev_sim
     rail = clipping_rail(data)
     at_rail = int(
         np.sum(np.abs(np.abs(data.omega) - (rail or 0.0)) <= max(data.resolution_dps, 1e-9) * 1.01)
@@ -112,7 +113,8 @@ def diagnostics(data: GapData, fit: Fit, sim: GapMeasure) -> dict[str, Any]:
 
 
 def _allan_phrase(sim: GapMeasure) -> str:
-    r = sim.adev_meas / sim.adev_sim
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = sim.adev_meas / sim.adev_sim
     ok = np.isfinite(r) & (r > 0)
     if not ok.any():
         return "Allan deviation not available"

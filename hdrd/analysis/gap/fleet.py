@@ -111,8 +111,16 @@ def gap_fleet(
 
     name_w = max(12, *(len(r.name) for r in refs))
     show = not getattr(args, "no_progress", False)
-    bar = ProgressBar(f"gap {len(refs)} drives") if show else None
     skipped: list[str] = []
+    n_given = len(refs)
+    paths: dict[str, Path] = {}
+    if args.out:
+        refs, paths, unnamed = model_paths(refs, args.out)
+        skipped.extend(unnamed)
+        if unnamed and getattr(args, "strict", False):
+            print(f"hdrd gap: {unnamed[0]}", file=sys.stderr)
+            return 1
+    bar = ProgressBar(f"gap {len(refs)} drives") if show else None
     found: Counter[str] = Counter()
     n_ok = 0
     print(gap_table_head(name_w), flush=True)
@@ -120,6 +128,12 @@ def gap_fleet(
         with ReportStream(args.report) if args.report else _NoReport() as report:
             for o in gap_refs(refs, job, runner, bar):
                 if o.skipped is not None:
+                    if getattr(args, "strict", False):
+                        if bar is not None:
+                            bar.close()
+                            bar = None
+                        print(f"hdrd gap: {o.skipped}", file=sys.stderr)
+                        return 1
                     skipped.append(o.skipped)
                     continue
                 n_ok += 1
@@ -130,16 +144,14 @@ def gap_fleet(
                 print(gap_row(o.name, rep, name_w), flush=True)
                 report.add(rep)
                 if args.out:
-                    model_path = Path(args.out) / f"{o.name}.yaml"
-                    model_path.parent.mkdir(parents=True, exist_ok=True)
-                    save_model(o.result.model, model_path)
+                    _save(save_model, o.result.model, paths[o.name])
             if bar is not None:
                 bar.close()
                 bar = None
             for why in skipped:
                 print(f"hdrd gap: skipped {why}", file=sys.stderr)
             if n_ok == 0:
-                print(f"hdrd gap: none of the {len(refs)} drives can be analysed", file=sys.stderr)
+                print(f"hdrd gap: none of the {n_given} drives can be analysed", file=sys.stderr)
                 return 1
             report.finish(skipped)
     except OSError as e:
@@ -150,6 +162,51 @@ def gap_fleet(
             bar.close()
     print(gap_fleet_summary(found, n_ok, len(skipped)))
     return 0
+
+
+def model_paths(
+    refs: Sequence[DriveRef], out: str
+) -> tuple[list[DriveRef], dict[str, Path], list[str]]:
+    """Where each drive's fitted model goes, ``OUT/NAME.yaml``: the drives whose name can be
+    such a file (:func:`hdrd.files.path_inside`: never outside OUT), their paths, and why each
+    other drive is left out (a name that would lead out of OUT, or a file another drive
+    already takes)."""
+    from hdrd.files import UnsafeNameError, path_inside, shown_path
+
+    kept: list[DriveRef] = []
+    paths: dict[str, Path] = {}
+    taken: dict[Path, str] = {}
+    why: list[str] = []
+    for r in refs:
+        try:
+            path = path_inside(out, r.name, ".yaml")
+        except UnsafeNameError as e:
+            why.append(f"{r.name}: {e}")
+            continue
+        if path in taken or r.name in paths:
+            why.append(
+                f"{r.name}: its model would be {shown_path(path)}, as that of an earlier drive"
+            )
+            continue
+        taken[path] = r.name
+        paths[r.name] = path
+        kept.append(r)
+    return kept, paths, why
+
+
+def _save(save: Any, model: Any, path: Path) -> None:
+    """``save(model, path)`` through a temporary file renamed over ``path``: a file (or a
+    symbolic link) already at ``path`` is replaced, never written through."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        save(model, tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 class _NoReport:

@@ -154,6 +154,11 @@ def fit_lowpass(
     variance W and the white variance after the low-pass (at least the ADC's ``q_var`` =
     q**2/12), with the slow processes' flat ``floor`` ((deg/s)**2) known."""
     sp = _spectrum(np.asarray(de, dtype=np.float64), 2.0 * math.pi / max(block_samples, 2.0))
+    if not float(np.sum(sp.m)) > 0:  # no frequency above the block's: nothing to fit a pole to
+        white = max(float(np.var(de)) / 2.0 - q_var, 0.0) if len(de) else 0.0
+        return LowpassFit(
+            a=A_MIN if a is None else a, white_var=white, loglik=0.0, loglik_white=0.0
+        )
     g0 = sp.d2 * q_var + floor
     _, ll_white = sp.best_linear([sp.d2], g0)
 

@@ -1,0 +1,203 @@
+"""Names that come from data (a Parquet ``drive`` value, a hive folder ``drive=NAME``) become
+paths only inside the output folder (hdrd.files.path_inside): ``hdrd gap --out DIR`` on a fleet,
+``hdrd simulate``/``hdrd convert --format dataset``. Each command is run as a user runs it and
+the file system is searched afterwards for anything written outside the output folder."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hdrd.drivesources import drive_name, find_drives
+from hdrd.files import MAX_NAME_BYTES, UnsafeNameError, path_inside
+from hdrd.sim.drive import simulate_drive
+
+pa = pytest.importorskip("pyarrow")
+pq = pytest.importorskip("pyarrow.parquet")
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def hdrd(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hdrd", *args],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=cwd,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def files_under(root: Path) -> set[str]:
+    return {str(p.relative_to(root)) for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["", "/abs/x", "../../x", "a/../../x", "a/./b", "a//b", "a/", "..", ".", "a\x00b", "a\nb",
+     "x" * (MAX_NAME_BYTES + 1), "é" * (MAX_NAME_BYTES // 2 + 1)],
+)  # fmt: skip
+def test_path_inside_refuses_a_name_that_could_lead_out(tmp_path: Path, name: str) -> None:
+    with pytest.raises(UnsafeNameError) as e:
+        path_inside(tmp_path, name, ".yaml")
+    msg = str(e.value)
+    assert "\n" not in msg and "\x00" not in msg and msg.isprintable()
+    assert "cannot name a file inside" in msg
+
+
+def test_path_inside_keeps_folders_of_a_name_inside(tmp_path: Path) -> None:
+    assert path_inside(tmp_path, "phone/drive05", ".yaml") == tmp_path / "phone/drive05.yaml"
+    assert path_inside(tmp_path, "a..b", "") == tmp_path / "a..b"
+    assert path_inside(tmp_path, "x" * MAX_NAME_BYTES) == tmp_path / ("x" * MAX_NAME_BYTES)
+
+
+def test_path_inside_refuses_a_symbolic_link_out_of_the_folder(tmp_path: Path) -> None:
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    out.mkdir()
+    elsewhere.mkdir()
+    (out / "etc").symlink_to(elsewhere)
+    with pytest.raises(UnsafeNameError, match="symbolic link"):
+        path_inside(out, "etc/hdrd", ".yaml")
+    (out / "inner").mkdir()
+    (out / "in").symlink_to(out / "inner")
+    assert path_inside(out, "in/x", ".yaml") == out / "in" / "x.yaml"
+
+
+def test_a_name_from_data_is_shown_escaped_and_clipped() -> None:
+    assert drive_name("a\x1b[2Jb") == "a\\x1b[2Jb"
+    assert drive_name("\u202eevil") == "\\u202eevil"
+    long = drive_name("y" * 100_000)
+    assert len(long) == 100 and long.endswith("...")
+    assert drive_name(17) == "17"
+
+
+def _fleet_file(path: Path, names: list[str]) -> None:
+    """A Parquet file holding one short standstill drive per name (a ``drive`` column)."""
+    log = simulate_drive("standstill", 0.5, 2)
+    n = len(log)
+    cols: dict[str, list[object]] = {"drive": [], "t": [], "omega": []}
+    for name in names:
+        cols["drive"] += [name] * n
+        cols["t"] += log.t.tolist()
+        cols["omega"] += log.omega.tolist()
+    pq.write_table(pa.table(cols), path)
+
+
+def test_gap_out_writes_every_model_inside_its_folder(tmp_path: Path) -> None:
+    """Drives named ``../../x``, ``/abs/x`` and ``../../y`` (a hive folder
+    ``drive=..%2F..%2Fy``) once wrote ``x.yaml`` and ``y.yaml`` outside ``--out``."""
+    work = tmp_path / "work" / "deep"
+    work.mkdir(parents=True)
+    _fleet_file(work / "fleet.parquet", ["../../x", "/abs/x", "ok"])
+    part = work / "ds" / "drive=..%2F..%2Fy"
+    part.mkdir(parents=True)
+    _fleet_file(tmp_path / "one.parquet", ["z"])
+    table = pq.read_table(tmp_path / "one.parquet").drop_columns(["drive"])
+    pq.write_table(table, part / "part-0.parquet")
+    (tmp_path / "one.parquet").unlink()
+    assert [r.name for r in find_drives([str(work / "ds")])] == ["../../y"]
+    before = files_under(tmp_path)
+    out = work / "models"
+    p = hdrd("gap", "fleet.parquet", "ds", "--standstill", "--out", "models", "--no-progress",
+             cwd=work)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    written = files_under(tmp_path) - before
+    assert {w for w in written if not w.startswith("work/deep/models")} == set(), written
+    assert sorted(os.listdir(out)) == ["ok.yaml"]
+    skips = [x for x in p.stderr.splitlines() if x.startswith("hdrd gap: skipped")]
+    assert len(skips) == 3, p.stderr
+    for name in ("../../x", "/abs/x", "../../y"):
+        assert any(s.startswith(f"hdrd gap: skipped {name}: ") for s in skips), p.stderr
+    assert not Path("/abs/x.yaml").exists()
+    strict = hdrd("gap", "fleet.parquet", "--standstill", "--out", "m2", "--no-progress",
+                  "--strict", cwd=work)  # fmt: skip
+    assert strict.returncode == 1 and len(strict.stderr.splitlines()) == 1, strict.stderr
+    assert "../../x" in strict.stderr and not (work / "m2").exists()
+
+
+def test_gap_out_leaves_out_a_second_drive_with_the_same_file(tmp_path: Path) -> None:
+    """city.csv and city.parquet are both the drive ``city``: one model file, not one written
+    over the other."""
+    from hdrd.drivelog import write_drive
+    from hdrd.parquetlog import write_parquet_drive
+
+    log = simulate_drive("standstill", 0.5, 3)
+    write_drive(tmp_path / "city.csv", log)
+    write_parquet_drive(tmp_path / "city.parquet", log)
+    p = hdrd("gap", "city.csv", "city.parquet", "--standstill", "--out", "m", "--no-progress",
+             cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert os.listdir(tmp_path / "m") == ["city.yaml"]
+    assert "hdrd gap: skipped city: its model would be" in p.stderr
+
+
+def test_a_dataset_partition_stays_inside_its_folder(tmp_path: Path) -> None:
+    from hdrd.drivelog import DriveLogError
+    from hdrd.parquetlog import partition_value, write_dataset_drive
+
+    log = simulate_drive("standstill", 0.2, 1)
+    root = tmp_path / "ds"
+    for name in ("../../x", "/abs/x", "..", "a\x00b", "a/b"):
+        path = write_dataset_drive(root, log, name)
+        assert path.parent.parent == root
+        assert partition_value(path.parent) == name
+    for bad in ("", "x" * 300):
+        with pytest.raises(DriveLogError):
+            write_dataset_drive(root, log, bad)
+    assert {p.parent.name for p in tmp_path.rglob("*.parquet")} == {
+        "drive=..%2F..%2Fx", "drive=%2Fabs%2Fx", "drive=..", "drive=a%00b", "drive=a%2Fb"
+    }  # fmt: skip
+
+
+def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None:
+    """``--format dataset`` names the partition from the drive (simulate) or the capture's
+    stem (convert; ``...cap``'s stem is ``..``): a folder directly inside OUT either way."""
+    p = hdrd("simulate", "--drive", "city", "--minutes", "0.2", "--seed", "3", "--out", "ds",
+             "--format", "dataset", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    cap = tmp_path / "...cap"
+    f = hdrd("fakegyro", "--drive", "standstill", "--minutes", "0.05", "--out", str(cap),
+             cwd=tmp_path)  # fmt: skip
+    assert f.returncode == 0, f.stderr
+    c = hdrd("convert", "...cap", "--out", "ds", "--format", "dataset", cwd=tmp_path)
+    assert c.returncode == 0, c.stderr
+    assert sorted(os.listdir(tmp_path / "ds")) == ["drive=..", "drive=city-3"]
+    assert sorted(files_under(tmp_path)) == [
+        "...cap", "ds", "ds/drive=..", "ds/drive=../part-0.parquet", "ds/drive=city-3",
+        "ds/drive=city-3/part-0.parquet",
+    ]  # fmt: skip
+
+
+def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None:
+    """Drive names go into the comments of the YAML that tune --out and gap --plus-out write:
+    a name with a line break would start a key of its own there."""
+    import yaml
+
+    from hdrd.drivelog import write_drive
+
+    log = simulate_drive("city", 1.0, 4)
+    evil = "x\nhdr:\n  c1: 999\n#"
+    cols = {c: getattr(log, c) for c in log.columns()}
+    pq.write_table(pa.table({"drive": [evil] * len(log), **cols}), tmp_path / "f.parquet")
+    p = hdrd("tune", "f.parquet", "--candidates", "4", "--no-progress", "--out", "t.yaml",
+             cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    text = (tmp_path / "t.yaml").read_text()
+    assert "x\\nhdr:\\n  c1: 999" in text  # the name, escaped, in the comment
+    doc = yaml.safe_load(text)
+    assert list(doc) == ["hdr"] and doc["hdr"]["c1"] != 999
+    named = tmp_path / "a\nplus:\n  grade: phone\n.csv"
+    write_drive(named, log)
+    g = hdrd("gap", named.name, "--plus-out", "plus.yaml", "--no-progress", cwd=tmp_path)
+    assert g.returncode == 0, g.stderr
+    text = (tmp_path / "plus.yaml").read_text()
+    assert "grade" not in yaml.safe_load(text)["plus"]
+    assert text.startswith("# HDR+'s error model, fitted by `hdrd gap` to a\\nplus:")

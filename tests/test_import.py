@@ -1,0 +1,203 @@
+"""``hdrd import``: a user's own CSV, its columns, units and signs named on the command line,
+made into a drive log that ``hdrd evaluate`` scores as it scores the drive the CSV was made
+from. Run as a user runs it: ``python -m hdrd import ...`` in a subprocess."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrd.drivelog import DriveLog, read_drive, write_drive
+from hdrd.sim.drive import simulate_drive
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def hdrd(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hdrd", *args],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=cwd,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+@pytest.fixture(scope="module")
+def drive() -> DriveLog:
+    return simulate_drive("city", 5.0, 4)
+
+
+def _their_csv(path: Path, log: DriveLog, *, bom: bool = True, sep: str = ";") -> None:
+    """The drive as a logger of its own writes it: epoch milliseconds, the rate in rad/s
+    about a z axis pointing down (clockwise positive), the course, km/h, a column hdrd does
+    not know, a byte-order mark."""
+    assert log.heading_truth is not None and log.speed is not None and log.temp_c is not None
+    t_ms = 1_700_000_000_000 + np.rint(log.t * 1000).astype(np.int64)
+    lines = [sep.join(["time_ms", "gz", "course", "vel_kmh", "tempC", "note"])]
+    for i in range(len(log)):
+        h = log.heading_truth[i]
+        lines.append(
+            sep.join(
+                [
+                    str(t_ms[i]),
+                    f"{-math.radians(log.omega[i]):.10f}",
+                    "" if math.isnan(h) else f"{h:.3f}",
+                    f"{log.speed[i] * 3.6:.4f}",
+                    f"{log.temp_c[i]:.3f}",
+                    "x",
+                ]
+            )
+        )
+    path.write_text(("\ufeff" if bom else "") + "\n".join(lines) + "\n", encoding="utf-8")
+
+
+IMPORT = ("--t", "time_ms", "--time-unit", "ms", "--omega", "gz", "--omega-unit", "rad/s",
+          "--omega-sign", "cw", "--heading", "course", "--speed", "vel_kmh", "--speed-unit",
+          "km/h", "--temp", "tempC", "--delimiter", ";")  # fmt: skip
+
+
+def _scores(cwd: Path, f: str) -> dict[str, float]:
+    p = hdrd("evaluate", f, "--calibrate-seconds", "30", "--json", f + ".json", cwd=cwd)
+    assert p.returncode == 0, p.stderr
+    assert "warning" not in p.stderr, p.stderr
+    return json.loads((cwd / (f + ".json")).read_text())["drives"][0]  # type: ignore[no-any-return]
+
+
+def test_their_csv_imported_scores_as_the_drive_it_came_from(
+    drive: DriveLog, tmp_path: Path
+) -> None:
+    _their_csv(tmp_path / "their.csv", drive)
+    write_drive(tmp_path / "orig.csv", drive)
+    p = hdrd("import", "their.csv", "--out", "mine.csv", *IMPORT, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr == f"{len(drive)} rows, {drive.duration_s:.1f} s (t, omega, temp_c, " \
+        "heading_truth, speed) -> mine.csv\n"  # fmt: skip
+    mine = read_drive(tmp_path / "mine.csv")
+    assert np.array_equal(mine.t, drive.t)  # epoch ms, exactly, from the first row
+    assert np.max(np.abs(mine.omega - drive.omega)) < 1e-6
+    assert mine.heading_truth is not None and drive.heading_truth is not None
+    assert np.array_equal(np.isnan(mine.heading_truth), np.isnan(drive.heading_truth))
+    assert mine.speed is not None and drive.speed is not None
+    assert np.max(np.abs(mine.speed - drive.speed)) < 1e-3
+    assert mine.meta["imported"].startswith("t=time_ms (ms, from the first row); omega=gz")
+    a, b = _scores(tmp_path, "mine.csv"), _scores(tmp_path, "orig.csv")
+    for k in ("E_psi_raw", "E_psi_hdr", "duration_min"):
+        assert a[k] == pytest.approx(b[k], abs=0.01), k
+
+
+def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path) -> None:
+    """A yaw angle in an east-north-up frame, radians, unwrapped past a turn; epoch ns."""
+    assert drive.heading_truth is not None
+    yaw = np.radians(90.0 - drive.heading_truth) + 4 * math.pi
+    t_ns = 1_700_000_000_123_456_789 + np.rint(drive.t * 1e9).astype(np.int64)
+    rows = ["stamp,wz,yaw"] + [
+        f"{t_ns[i]},{drive.omega[i]:.7f},{'' if math.isnan(yaw[i]) else f'{yaw[i]:.9f}'}"
+        for i in range(len(drive))
+    ]
+    (tmp_path / "ros.csv").write_text("\n".join(rows) + "\n")
+    p = hdrd("import", "ros.csv", "--out", "ros.parquet", "--t", "stamp", "--time-unit", "ns",
+             "--omega", "wz", "--heading", "yaw", "--heading-unit", "rad", "--heading-ref", "enu",
+             cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    from hdrd.parquetlog import read_parquet_drive
+
+    got = read_parquet_drive(tmp_path / "ros.parquet")
+    assert np.array_equal(got.t, drive.t)  # nanoseconds since 2023: every digit kept
+    assert got.heading_truth is not None
+    ok = np.isfinite(drive.heading_truth)
+    diff = (got.heading_truth[ok] - drive.heading_truth[ok] + 180.0) % 360.0 - 180.0
+    assert np.max(np.abs(diff)) < 2e-3
+    assert np.all((got.heading_truth[ok] >= 0) & (got.heading_truth[ok] < 360))
+
+
+def test_a_wrong_sign_or_unit_is_warned_with_the_option_that_fixes_it(
+    drive: DriveLog, tmp_path: Path
+) -> None:
+    _their_csv(tmp_path / "their.csv", drive)
+    no_sign = [x for x in IMPORT if x not in ("--omega-sign", "cw")]
+    p = hdrd("import", "their.csv", "--out", "a.csv", *no_sign, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    warning = p.stderr.splitlines()[0]
+    assert warning.startswith("hdrd import: warning: their: omega turns against heading_truth")
+    assert warning.endswith("--omega-sign cw flips it")
+    e = hdrd("evaluate", "a.csv", cwd=tmp_path)
+    assert e.returncode == 0 and "hdrd evaluate: warning: a: omega turns against" in e.stderr
+    no_unit = [x for x in IMPORT if x not in ("--omega-unit", "rad/s")]
+    q = hdrd("import", "their.csv", "--out", "b.csv", *no_unit, cwd=tmp_path)
+    assert q.returncode == 0, q.stderr
+    assert "times as far as heading_truth" in q.stderr and "(--omega-unit)" in q.stderr
+    ok = hdrd("import", "their.csv", "--out", "c.csv", *IMPORT, cwd=tmp_path)
+    assert "warning" not in ok.stderr
+
+
+@pytest.mark.parametrize(
+    ("row", "extra", "error"),
+    [
+        ("1000,abc,", (), "src.csv:4: column 'gz' (--omega): 'abc' is not a number"),
+        ("1000,1_000,", (), "src.csv:4: column 'gz' (--omega): '1_000' is not a number"),
+        ("1000,,", (), "src.csv:4: column 'gz' (--omega) is empty; it is required in every row"),
+        (",1,", (), "src.csv:4: column 'time' (--t) is empty; it is required in every row"),
+        ("100,1,", (), "src.csv:4: column 'time' (--t) is not strictly increasing"),
+        ("1000,1,", (), ""),
+        ("1000,30,", ("--omega-unit", "rad/s"),
+         "src.csv:4: column 'gz' (--omega): 1718.87 deg/s is beyond the +/-1000 deg/s"),
+        ("1000,1,725", ("--heading-unit", "rad"), ""),  # radians wrapped: any angle is taken
+        ("1000,1,x", (), "src.csv:4: column 'hdg' (--heading): 'x' is not a number"),
+        ("1000.00001,1,", ("--time-unit", "s"), "src.csv:4: column 'time' (--t): 1000 s, 1e-05 s "
+         "after the row before"),
+        ("1000,1", (), "src.csv:4: 2 fields, the header has 3"),
+    ],
+)  # fmt: skip
+def test_errors_name_the_line_and_their_column(
+    tmp_path: Path, row: str, extra: tuple[str, ...], error: str
+) -> None:
+    unit = "s" if "--time-unit" in extra else "ms"
+    rest = [x for x in extra if x not in ("--time-unit", "s")]
+    before = "500" if unit == "ms" else "1000"  # ms: 0.5 s before the row; s: 1000 s
+    (tmp_path / "src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,10\n{row}\n")
+    p = hdrd("import", "src.csv", "--out", "o.csv", "--t", "time", "--time-unit", unit,
+             "--omega", "gz", "--heading", "hdg", *rest, cwd=tmp_path)  # fmt: skip
+    if not error:
+        assert p.returncode == 0, p.stderr
+        return
+    assert p.returncode == 1, p.stderr
+    assert p.stderr.startswith(f"hdrd import: error: {error}"), p.stderr
+    assert p.stderr.count("\n") == 1
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_missing_column_lists_the_header(tmp_path: Path) -> None:
+    (tmp_path / "s.csv").write_text("a,b\n0,1\n")
+    p = hdrd("import", "s.csv", "--out", "o.csv", "--t", "a", "--omega", "gyro", cwd=tmp_path)
+    assert p.returncode == 1
+    assert p.stderr == "hdrd import: error: s.csv: no column 'gyro' (--omega); the header has " \
+        "'a', 'b'\n"  # fmt: skip
+    bad = hdrd("import", "s.csv", "--out", "o.csv", "--t", "a", "--omega", "b",
+               "--delimiter", "ab", cwd=tmp_path)  # fmt: skip
+    assert bad.returncode == 2 and "--delimiter" in bad.stderr
+    binary = tmp_path / "b.csv"
+    binary.write_bytes(b"t,w\n0,\xff\n")
+    q = hdrd("import", "b.csv", "--out", "o.csv", "--t", "t", "--omega", "w", cwd=tmp_path)
+    assert q.returncode == 1
+    assert q.stderr == "hdrd import: error: b.csv:2: not UTF-8 text (byte 0xff at column 3); " \
+        "save the CSV as UTF-8\n"  # fmt: skip
+
+
+def test_the_command_lines_units_are_the_modules() -> None:
+    from hdrd import cli, importcsv
+
+    assert cli.TIME_UNITS == tuple(importcsv.TIME_UNITS)
+    assert cli.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)
+    assert cli.HEADING_UNITS == tuple(importcsv.HEADING_UNITS)
+    assert cli.SPEED_UNITS == tuple(importcsv.SPEED_UNITS)
