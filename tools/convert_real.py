@@ -71,14 +71,16 @@ Sign conventions (checked against the data, see the README.txt files):
   lead-in (the whole drive where there is none). Times: the sensors' and the fixes' ns stamps
   (one clock). heading_truth = the bearing where the fix's speed > 2 m/s and it lies in
   [0, 360), at the gyro row nearest each fix; speed = the fixes' speed interpolated. Lead-in:
-  the first fix reads standstill, rows before it take its speed; margin 2 s; the city drive's
-  stops at 119 s where the phone was handled while the car still stood (a 1 s swing of 20
-  deg/s). **Sign, verified**: the gyro's mean rate between fixes correlates +0.947, +0.975 and
-  +0.969 (991, 97, 882 fix pairs over 3 m/s) with minus the GNSS course rate, best at zero lag
-  (0.77-0.79 and 0.86-0.92 one fix earlier or later); integrated from the lead-in's bias
-  (0.036 and -0.005 deg/s; none on the 100 s drive) the heading follows the course with a mean
-  |error| of 14.2, 7.9 and 2.4 deg (wrapped to +-180: the city drive's course has a 53 s gap),
-  and with the sign flipped 63.9, 91.3 and 87.4 deg.
+  the first fix reads standstill, rows before it take its speed; margin 2 s. The phone was
+  handled while the city drive's car still stood (at 121.6 s: a 1 s mean rate over 20 deg/s,
+  two samples beyond 1,000 deg/s), so that drive starts 2 s after it (``_after_handling``),
+  its lead-in (bias and vertical) measured as the phone then sat. **Sign, verified**: the
+  gyro's mean rate between fixes correlates +0.947, +0.975 and +0.969 (991, 98, 882 fix pairs
+  over 3 m/s) with minus the GNSS course rate, best at zero lag (0.77-0.79 and 0.86-0.92 one
+  fix earlier or later); integrated from the lead-in's bias (0.036 and -0.0005 deg/s; none on
+  the 100 s drive) the heading follows the course with a mean |error| of 14.2, 7.9 and 3.6 deg
+  (wrapped to +-180: the city drive's course has a 53 s gap), and with the sign flipped 63.9,
+  91.3 and 88.0 deg.
 - psins (PSINS data/transfer_align_fog_mems.mat; one run ``psins_fog_mems``): 100 s of a car at
   11.5-15.8 m/s on a nearly straight road (4 deg of course change). ``mimu``: a MEMS IMU's
   angle and velocity increments at 100 Hz (rad, m/s; z up: +9.69 m/s^2 at rest); ``fogavp``: a
@@ -600,6 +602,22 @@ def _unit(v: FloatArray) -> FloatArray:
     return np.asarray(v / np.linalg.norm(v), dtype=np.float64)
 
 
+def _after_handling(gyro: FloatArray, fix: FloatArray, margin_s: float = 2.0) -> np.ndarray:
+    """Rows of a phone's gyro table (ns, rad/s) from the end of the last handling of the phone
+    in the standing start: a 1 s mean rate above 20 deg/s while every fix so far reads
+    standstill (a hand, not the car) ends ``margin_s`` before the rows kept, which start the
+    drive there, so that its lead-in (the bias, the vertical) is measured as the phone then
+    sits. All rows when the phone was not handled."""
+    t = gyro[:, 0] * 1e-9
+    moving = np.flatnonzero(fix[:, 2] > 0.3)
+    t_move = fix[moving[0], 0] * 1e-9 if moving.shape[0] else t[-1]
+    rate = _moving_mean(t, np.degrees(np.linalg.norm(gyro[:, 1:4], axis=1)), 1.0)
+    handled = np.flatnonzero((rate > 20.0) & (t < t_move))
+    if handled.shape[0] == 0:
+        return np.ones(t.shape[0], dtype=bool)
+    return np.asarray(t > t[handled[-1]] + margin_s)
+
+
 def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
     """The Open Aided Navigation car drives as drive logs (see the module docstring)."""
     src = default_clone("oan") if src is None else src
@@ -617,6 +635,7 @@ def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
         acc = table("Acc", ("TimestampAcc", "AccX", "AccY", "AccZ"))
         fix = table("GNSS", ("TimestampGNSS", "UTC time", "Speed", "Heading"))
         gyro, fix = gyro[_increasing(gyro[:, 0])], fix[_increasing(fix[:, 0])]
+        gyro = gyro[_after_handling(gyro, fix)]
         tg, ta, tf = gyro[:, 0] * 1e-9, acc[:, 0] * 1e-9, fix[:, 0] * 1e-9
         t = tg - tg[0]
         # The lead-in: the first fix reads standstill and the car stands until a fix says it
