@@ -215,7 +215,7 @@ def make_capture(
         m = json.loads(meta.read_text())
         if m.get("key") == key:
             return m
-    from hdrd.fakegyro import FakeGyro
+    from hdrd.commands.fakegyro import FakeGyro
     from hdrd.sim import simulate_drive
 
     profile = simulate_drive("mixed", minutes, seed, hz=hz)

@@ -54,7 +54,7 @@ DATA = Path("/tmp/hdrd-bench")
 
 def make_fleet(n: int, minutes: float) -> Path:
     """The dataset of n drives (made once; a marker file says it is complete)."""
-    from hdrd.parquetlog import write_dataset_drive
+    from hdrd.io.parquetlog import write_dataset_drive
     from hdrd.sim.drive import simulate_drive
 
     root = DATA / f"fleet-{n}-{minutes:g}"
@@ -115,8 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     from hdrd.analysis.evaluate import to_json
     from hdrd.analysis.fleet import DaskRunner, LocalRunner, batches
     from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, tune_fleet
-    from hdrd.drivelog import read_drive, write_drive
-    from hdrd.drivesources import find_drives
+    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.drivelog import read_drive, write_drive
 
     root = make_fleet(a.drives, a.minutes)
     refs = find_drives([str(root)])

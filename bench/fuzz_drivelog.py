@@ -3,7 +3,7 @@
 
 Two surfaces:
 
-- ``drivecsv``: a drive log CSV (a short simulated drive written by :func:`hdrd.drivelog.
+- ``drivecsv``: a drive log CSV (a short simulated drive written by :func:`hdrd.io.drivelog.
   write_drive`) with its cells, header, metadata, times and rows mutated (hostile numbers,
   ``1_000``, digits of other scripts, giant cells, time jumps, a flipped or scaled rate, a
   ``valid`` column of anything), its bytes damaged, or another file entirely (random bytes, a
@@ -97,7 +97,7 @@ def base_logs() -> tuple[Any, ...]:
 
 
 def _csv_text(log: Any) -> str:
-    from hdrd.drivelog import write_drive
+    from hdrd.io.drivelog import write_drive
 
     buf = io.StringIO()
     write_drive(buf, log)
@@ -450,8 +450,8 @@ class DriveLogTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.analysis.gap.fleet import model_paths
-        from hdrd.drivelog import DriveLogError
-        from hdrd.drivesources import find_drives
+        from hdrd.io.drivefiles import find_drives
+        from hdrd.io.drivelog import DriveLogError
 
         self.count += 1
         target = self._layout(data)

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from fuzz_mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 
-from hdrd.frames import FRAME_DTYPE, SYNC, encode_array
+from hdrd.io.frames import FRAME_DTYPE, SYNC, encode_array
 
 __all__ = ["SURFACES", "generate", "rng_for"]
 
@@ -291,8 +291,8 @@ def gpsd_input(rng: random.Random) -> bytes:
 @cache
 def _hdr_messages() -> tuple[str, ...]:
     """Real per-step messages (JSON lines) of the daemon's pipeline, and a stale report."""
-    from hdrd.pipeline import Pipeline, PipelineConfig
-    from hdrd.publish import format_json
+    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+    from hdrd.io.publish import format_json
 
     arr = stress_frames(random.Random(1), 3000)
     arr["t_us"] = np.arange(3000) * 10_000
@@ -303,7 +303,7 @@ def _hdr_messages() -> tuple[str, ...]:
 
 
 def _nmea(rng: random.Random) -> str:
-    from hdrd.publish import nmea_checksum
+    from hdrd.io.publish import nmea_checksum
 
     kind = rng.choice(("HNHDT", "HNROT", "HNTHS", "HCHDT", "GPRMC", "IIHDT"))
     fields_ = rng.choice((["123.45", "T"], ["-12.3", "A"], ["", "V"], ["359.99", "E"]))

@@ -15,9 +15,9 @@ A seeded generator writes a stream of ``--bytes`` bytes made of
 - random garbage (any byte values, so also stray sync patterns), and garbage that starts
   with a sync pattern.
 
-It is fed to the push parser (:class:`hdrd.frames.Parser`) in random chunks of 1..4096 bytes
-and, whole, to the vectorised decoder (:func:`hdrd.capture.decode_capture`); the recovered
-frames then go through the pipeline (:meth:`hdrd.pipeline.Pipeline.feed_array`).
+It is fed to the push parser (:class:`hdrd.io.frames.Parser`) in random chunks of 1..4096 bytes
+and, whole, to the vectorised decoder (:func:`hdrd.io.capture.decode_capture`); the recovered
+frames then go through the pipeline (:meth:`hdrd.daemon.pipeline.Pipeline.feed_array`).
 
 What is expected is known from the construction: the frames recovered are exactly the intact
 frames sent; the bad frames counted are exactly the sync patterns outside the intact frames
@@ -49,9 +49,11 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hdrd.capture import decode_capture
-from hdrd.clocks import unwrap_us
-from hdrd.frames import (
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.capture import decode_capture
+from hdrd.io.clocks import unwrap_us
+from hdrd.io.frames import (
     FRAME_DTYPE,
     Parser,
     ParserStats,
@@ -60,9 +62,7 @@ from hdrd.frames import (
     encode_array,
     encode_text,
 )
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.protocol import BIN_FRAME_LEN
-from hdrd.sensor import SensorModel
+from hdrd.io.protocol import BIN_FRAME_LEN
 
 TEXT_SYNC = b"$HDRG,"
 

@@ -7,22 +7,22 @@ across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes o
 :class:`Broken`:
 
 - every published message: every number finite, heading in [0, 360), one line of JSON from
-  :func:`hdrd.publish.format_json`, NMEA sentences that :func:`hdrd.publish.parse_nmea`
+  :func:`hdrd.io.publish.format_json`, NMEA sentences that :func:`hdrd.io.publish.parse_nmea`
   reads back (the talker configured);
 - a refused file: one printable line (:class:`hdrd.config.ConfigError` for a configuration,
-  :class:`hdrd.calibrate.BiasFileError` for a bias file, a capture command's stderr);
+  :class:`hdrd.io.biasfile.BiasFileError` for a bias file, a capture command's stderr);
 - ``hdrd tail``: every line it would print is printable text;
 - gpsd: the client stays in step with the peer (a marker line sent after each input is
   read) and the aiding publishes only finite values.
 
-Surfaces and paths: serial, the push parser (:class:`hdrd.frames.Parser`) in random chunks
-and the live pipeline a frame at a time (:meth:`hdrd.pipeline.Pipeline.feed`, ``resync``,
-``stale_message``, ``finish``); gpsd, a :class:`hdrd.gpsd.GpsdLink` (client and aiding) over
+Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in random chunks
+and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
+``stale_message``, ``finish``); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
 a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
-:meth:`hdrd.publish.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
-SIGHUP read), a :class:`hdrd.daemon.Daemon` built from the result and a running one
+:meth:`hdrd.io.publish.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
+SIGHUP read), a :class:`hdrd.daemon.run.Daemon` built from the result and a running one
 reloaded with it (the SIGHUP handler's body), then the daemon's pipeline stepped;
-bias, :func:`hdrd.calibrate.load_bias` and the daemon's :func:`hdrd.daemon.choose_bias`
+bias, :func:`hdrd.io.biasfile.load_bias` and the daemon's :func:`hdrd.daemon.run.choose_bias`
 (both ``on_bad_bias_file`` settings), an accepted record replayed; capture, ``hdrd replay``'s
 and ``hdrd convert``'s own entry points (file checks, decode, replay pipeline, output).
 """
@@ -68,7 +68,7 @@ def one_line(text: str, what: str) -> None:
 
 def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: bool = True) -> int:
     """The published messages keep their promises (module doc); returns how many."""
-    from hdrd.publish import format_json, nmea_sentences, parse_nmea
+    from hdrd.io.publish import format_json, nmea_sentences, parse_nmea
 
     n = 0
     for m in msgs:
@@ -107,9 +107,9 @@ class Target:
 
 
 def _pipeline_variants() -> list[Any]:
-    from hdrd.calibrate import BiasRecord
-    from hdrd.hdr import HdrParams
-    from hdrd.pipeline import PipelineConfig
+    from hdrd.core.calibrate import BiasRecord
+    from hdrd.core.hdr import HdrParams
+    from hdrd.daemon.pipeline import PipelineConfig
 
     rec = BiasRecord(0.3, 0.05, 300, 30.0)
     return [
@@ -139,8 +139,8 @@ class SerialTarget(Target):
         self._new()
 
     def _new(self) -> None:
-        from hdrd.frames import Parser
-        from hdrd.pipeline import Pipeline
+        from hdrd.daemon.pipeline import Pipeline
+        from hdrd.io.frames import Parser
 
         k = (self.count // self.RESTART_EVERY) % len(self.variants)
         self.pipeline = Pipeline(self.variants[k])
@@ -192,7 +192,7 @@ MARKER = b'{"class":"VERSION","release":"fuzz-%d"}\n'
 
 
 class GpsdTarget(Target):
-    """A :class:`hdrd.gpsd.GpsdLink` connected to a loopback peer that this target plays:
+    """A :class:`hdrd.io.gpsd.GpsdLink` connected to a loopback peer that this target plays:
     each input is sent (without blocking), then a newline and a marker line; the link is
     polled as the daemon's loop does until the marker is read. Between polls the pipeline
     gets a step's worth of frames, and each step goes through the link's aid."""
@@ -201,10 +201,10 @@ class GpsdTarget(Target):
     MAX_POLLS = 2000
 
     def __init__(self, seed: int) -> None:
-        from hdrd.aiding import AidingConfig, GpsAiding
-        from hdrd.gpsd import GpsdClient
-        from hdrd.gpslink import GpsdLink
-        from hdrd.pipeline import Pipeline, PipelineConfig
+        from hdrd.daemon.aiding import AidingConfig, GpsAiding
+        from hdrd.daemon.gpslink import GpsdLink
+        from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+        from hdrd.io.gpsd import GpsdClient
 
         self.rng = random.Random(f"{seed}:gpsd-target")
         self.server = socket.create_server(("127.0.0.1", 0))
@@ -235,7 +235,7 @@ class GpsdTarget(Target):
         raise Broken("the gpsd client did not finish connecting")
 
     def _step_frames(self) -> list[Any]:
-        from hdrd.frames import Frame
+        from hdrd.io.frames import Frame
 
         out = []
         for k in range(10):
@@ -245,7 +245,7 @@ class GpsdTarget(Target):
         return out
 
     def run(self, data: bytes) -> str:
-        from hdrd.gpsd import Version
+        from hdrd.io.gpsd import Version
 
         assert self.peer is not None
         self.count += 1
@@ -292,7 +292,7 @@ class TailTarget(Target):
     surface = "tail"
 
     def __init__(self, seed: int) -> None:
-        from hdrd.tail import TailFormatter
+        from hdrd.commands.tail import TailFormatter
 
         self.formatters = [TailFormatter(raw=False), TailFormatter(raw=True)]
         self.count = 0
@@ -345,7 +345,7 @@ def _quiet_logging() -> _Events:
 
 def stress_capture(seed: int) -> bytes:
     """A short hdr-bin capture that drives the pipeline's corners (rails, clock jumps)."""
-    from hdrd.frames import encode_array
+    from hdrd.io.frames import encode_array
 
     arr = stress_frames(random.Random(f"{seed}:capture"), 600)
     arr["t_us"] = (np.arange(600) * 10_000 + 2**32 - 2_000_000) % 2**32
@@ -355,14 +355,15 @@ def stress_capture(seed: int) -> bytes:
 
 class ConfigTarget(Target):
     """``config_from_args`` on the file, as ``hdrd run`` starts; an accepted configuration
-    builds a :class:`hdrd.daemon.Daemon` (its pipeline, GPS link) and replays a stress
+    builds a :class:`hdrd.daemon.run.Daemon` (its pipeline, GPS link) and replays a stress
     capture; a long-lived daemon is reloaded with every input (the SIGHUP handler's body:
     a refused file must leave the running configuration in place) and stepped."""
 
     surface = "config"
 
     def __init__(self, seed: int, workdir: Path) -> None:
-        from hdrd.daemon import BiasChoice, Daemon, build_publishers
+        from hdrd.commands.options import config_from_args
+        from hdrd.daemon.run import BiasChoice, Daemon, build_publishers
 
         self.events = _quiet_logging()  # its events: did a reload fail?
         self.path = workdir / "hdrd.yaml"
@@ -371,17 +372,18 @@ class ConfigTarget(Target):
         from hdrd.config import Config
 
         self.bias = BiasChoice(None, "startup")
-        self.daemon = Daemon(Config(), "built-in defaults", self.args, self.bias)
+        self.reload = lambda: config_from_args(self.args)
+        self.daemon = Daemon(Config(), "built-in defaults", self.reload, self.bias)
         self.daemon.publishers = build_publishers(self.daemon.cfg)
         self.capture = stress_capture(seed)
         self.t_us = 0
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.cliargs import config_from_args
+        from hdrd.commands.options import config_from_args
+        from hdrd.commands.replay import replay_capture
         from hdrd.config import ConfigError
-        from hdrd.daemon import Daemon
-        from hdrd.replay import replay_capture
+        from hdrd.daemon.run import Daemon
 
         self.count += 1
         _write(self.path, data)
@@ -392,7 +394,7 @@ class ConfigTarget(Target):
             outcome = "rejected"
         else:
             outcome = "accepted"
-            d = Daemon(cfg, where, self.args, self.bias)
+            d = Daemon(cfg, where, self.reload, self.bias)
             if d.gps is not None:
                 d.gps.close()
             if self.count % 4 == 0:
@@ -420,7 +422,7 @@ class ConfigTarget(Target):
         msgs: list[dict[str, Any]] = []
         for _ in range(12):
             self.t_us = (self.t_us + 100_000) % 2**32
-            from hdrd.frames import Frame
+            from hdrd.io.frames import Frame
 
             msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
         if d.gps is not None:
@@ -428,7 +430,7 @@ class ConfigTarget(Target):
         check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
 
     def close(self) -> None:
-        from hdrd.daemon import _stop_all
+        from hdrd.daemon.run import _stop_all
 
         _stop_all(self.daemon.publishers)
         if self.daemon.gps is not None:
@@ -466,9 +468,9 @@ class BiasTarget(Target):
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.calibrate import BiasFileError, load_bias
-        from hdrd.daemon import choose_bias
-        from hdrd.replay import replay_capture
+        from hdrd.commands.replay import replay_capture
+        from hdrd.daemon.run import choose_bias
+        from hdrd.io.biasfile import BiasFileError, load_bias
 
         self.count += 1
         _write(self.path, data)
@@ -530,7 +532,7 @@ class _Stdout:
 
 
 class CaptureTarget(Target):
-    """``hdrd replay FILE`` (``hdrd.replay.main``) with stdout counted, not kept; every
+    """``hdrd replay FILE`` (``hdrd.commands.replay.main``) with stdout counted, not kept; every
     fourth input also ``hdrd convert FILE --out /dev/null``. Exit 0 with one JSON line per
     step, or 1 with one line on stderr."""
 
@@ -553,7 +555,7 @@ class CaptureTarget(Target):
         return rc, err.getvalue(), out
 
     def run(self, data: bytes) -> str:
-        from hdrd import replay
+        from hdrd.commands import replay
 
         self.count += 1
         protocol = "hdr-bin" if data[:1] == b"B" else "hdr-text"

@@ -43,7 +43,7 @@ from hdrd.analysis.gap.data import GapData, prepare
 from hdrd.analysis.gap.fit import Fitter, with_params
 from hdrd.analysis.gap.noise import Noise, Whitener, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf, least_squares_bounded, minimize_simplex
-from hdrd.drivelog import DriveLog
+from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.gyro import (
     Bandwidth,

@@ -36,7 +36,7 @@ import numpy as np
 from _common import append_section, machine_line
 
 from hdrd.analysis.gap import run_gap
-from hdrd.drivelog import DriveLog
+from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from tests.gap_standins import MPU_STEP_DPS, imu_log, least_squares_slope, phone_log
 

@@ -45,22 +45,22 @@ sys.path.insert(0, str(REPO))
 
 from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
 from hdrd.analysis.metrics import align_index, e_psi
-from hdrd.drivelog import DriveLog
-from hdrd.hdr import HdrParams
-from hdrd.hdr import run_batch as hdr_batch
-from hdrd.hdrplus import (
+from hdrd.core.hdr import HdrParams
+from hdrd.core.hdr import run_batch as hdr_batch
+from hdrd.core.hdrplus import (
     INITIAL_PLUS_STATE,
     PLUS_CORE,
     HdrPlusParams,
     run_batch,
     step,
 )
-from hdrd.methods import StepInputs, plus_settings
+from hdrd.core.methods import StepInputs, plus_settings
+from hdrd.core.standstill import StandstillParams
+from hdrd.core.steps import StepInput
+from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import ScaleFactor, crs03_default_model
-from hdrd.steps import StepInput
-from hdrd.zupt import StandstillParams
 
 RESULTS = REPO / "bench" / "RESULTS.md"
 SECTION = "## Beyond the paper: HDR+ and standstill re-calibration (held-out)"
@@ -111,7 +111,7 @@ class Variant:
 def gated_yaw(
     steps: StepInputs, p: HdrPlusParams, gate_speed_mps: float, holdoff_steps: int, temp: bool
 ) -> np.ndarray:
-    """HDR+ step by step (:func:`hdrd.hdrplus.step`) with I frozen, and no straight-driving
+    """HDR+ step by step (:func:`hdrd.core.hdrplus.step`) with I frozen, and no straight-driving
     measurement, on gated steps: below a speed, or within ``holdoff_steps`` after the turn
     switch opened (the step's own filtered rate beyond theta_w, or the steps after it). The
     production step has no such gates: they did not help (docs/hdrplus.md)."""
@@ -140,7 +140,7 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
         return hdr_batch(s.u, PAPER).yaw
     assert v.params is not None
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    # as hdrd evaluate fits HDR+ to the drive (hdrd.methods.plus_settings)
+    # as hdrd evaluate fits HDR+ to the drive (hdrd.core.methods.plus_settings)
     p = plus_settings(v.params, s.T, prep.samples_per_step, prep.bias, None, q)
     if v.gate_speed_mps > 0.0 or v.holdoff_steps > 0:
         return gated_yaw(s, p, v.gate_speed_mps, v.holdoff_steps, v.temp)
@@ -416,7 +416,7 @@ def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], 
 
 def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
     """Eψ (deg) of HDR+ variants on the converted real recordings (post hoc diagnostics)."""
-    from hdrd.drivelog import read_drive
+    from hdrd.io.drivelog import read_drive
 
     P = HdrPlusParams()
     out = []
@@ -584,7 +584,7 @@ class CityIdea:
 def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
     """HDR+'s run_batch with the defaults' branches only (no gate, hold-off, adaptive
     increment, gyro-only detection) and the idea's switches; yaw per step. With
-    ``CityIdea("")`` it equals hdrd.hdrplus.run_batch (checked in :func:`city_study`)."""
+    ``CityIdea("")`` it equals hdrd.core.hdrplus.run_batch (checked in :func:`city_study`)."""
     s = prep.steps
     P = HdrPlusParams()
     p0 = s.bias_var if math.isfinite(s.bias_var) else P.bias_p0
@@ -980,7 +980,7 @@ def main() -> int:
 
     # In-process: the same drives (prepared as hdrd evaluate does) and more routes per type.
     print("preparing drive sets ...", flush=True)
-    from hdrd.drivelog import read_drive
+    from hdrd.io.drivelog import read_drive
 
     sets: dict[str, tuple[list[PreparedDrive], int]] = {
         "train": ([prepare_drive(read_drive(f)) for f in train_files], len(TRAIN_DRIVES)),

@@ -45,10 +45,10 @@ import numpy
 t.append(time.perf_counter())
 from dataclasses import replace
 from hdrd.cli import build_parser
-from hdrd.capture import decode_capture
-from hdrd.cliargs import config_from_args
-from hdrd.pipeline import Pipeline, pipeline_config
-from hdrd.publish import format_json
+from hdrd.io.capture import decode_capture
+from hdrd.commands.options import config_from_args
+from hdrd.daemon.pipeline import Pipeline, pipeline_config
+from hdrd.io.publish import format_json
 t.append(time.perf_counter())
 args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
 cfg, _ = config_from_args(args)

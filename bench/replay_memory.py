@@ -38,7 +38,7 @@ from _common import REPO, append_section, machine_line
 
 
 def _jumps(n: int) -> bytes:
-    from hdrd.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     arr = np.zeros(n, FRAME_DTYPE)
     arr["seq"] = np.arange(n) & 0xFFFF
@@ -49,7 +49,7 @@ def _jumps(n: int) -> bytes:
 
 
 def _clean(n: int, hz: float) -> bytes:
-    from hdrd.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     rng = np.random.default_rng(1)
     arr = np.zeros(n, FRAME_DTYPE)

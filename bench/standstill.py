@@ -3,7 +3,7 @@
 
     python bench/standstill.py [--no-write]
 
-Takes about 5 s. ``hdrd.calibrate.estimate_bias`` (the daemon's start-up window, ``hdrd
+Takes about 5 s. ``hdrd.core.calibrate.estimate_bias`` (the daemon's start-up window, ``hdrd
 calibrate`` and ``hdrd evaluate`` use it) judged with its absolute limits alone (as before the
 noise-scaled tests; ``max_shift_se = 0``) and with all its tests (the default):
 
@@ -35,7 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from hdrd.calibrate import MotionDetected, StandstillLimits, estimate_bias
+from hdrd.core.calibrate import MotionDetected, StandstillLimits, estimate_bias
 
 DATA = REPO.parent / "shared" / "data"
 SECTION = "## Start-up standstill test: real standstills and a 1 Hz turn start"

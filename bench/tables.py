@@ -88,7 +88,7 @@ def continuous_errors(
     """Continuous-heading Eψ (raw, hdr) per drive, same steps and alignment as hdrd evaluate."""
     from hdrd.analysis.evaluate import method_yaw, prepare_drive
     from hdrd.analysis.metrics import e_psi_continuous
-    from hdrd.drivelog import read_drive
+    from hdrd.io.drivelog import read_drive
 
     out = {}
     for p in paths:
@@ -182,7 +182,7 @@ def main() -> int:
     real: list[tuple[str, str, dict[str, Any], str]] = []
     if DATA.is_dir() and paper_grade:
         run(py + ["tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
-        from hdrd.drivelog import read_drive
+        from hdrd.io.drivelog import read_drive
 
         comma = W / "real" / "comma2k19.csv"
         android = float(read_drive(comma).meta["android_bias_dps"])
@@ -419,7 +419,7 @@ def render(
         f"{round(sum(PAPER_TABLE_II[k][0] for k in PAPER_TABLE_II) * 60)} steps of 1 s), "
         f"in-process, {len(times)} runs: best {best:.1f} s, median {statistics.median(times):.1f} s "
         f"(target ≤ 30 s: {30 / best:.1f}× inside it). Most of it (about 70 % in a profile) is "
-        "`hdrd.hdr.run_many` stepping all sets together, the rest is Eψ of every set. "
+        "`hdrd.core.hdr.run_many` stepping all sets together, the rest is Eψ of every set. "
         f"`hdrd tune` as a command, reading the nine and five CSV files and evaluating the "
         f"winner on both: {tj['seconds']:.1f} s."
     )

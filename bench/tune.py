@@ -6,7 +6,7 @@
 Takes about 30 s. The nine training drives of :mod:`hdrd.sim.benchmark` (4.45 h, generated
 in memory at 10 Hz, not timed) are prepared (block means, truth; timed) and searched by
 :func:`hdrd.analysis.tune.tune` with ``--candidates`` parameter sets (random search, then
-refinement; every set scored on all nine drives by :func:`hdrd.hdr.run_many`, the winner and
+refinement; every set scored on all nine drives by :func:`hdrd.core.hdr.run_many`, the winner and
 the paper's set re-run with the scalar stepper). Best and median of ``--repeats`` runs, wall and
 CPU time; a profile split from one more run (scoring vs the rest).
 

@@ -1,13 +1,13 @@
 """``python -m hdrd`` and the ``hdrd`` command (its entry point, :func:`main`).
 
 First of all, before any import but the signals' own: ``hdrd run`` holds SIGHUP
-(:func:`hdrd.signals.hold_hangup_for`), whose default action would end the daemon while it
+(:func:`hdrd.daemon.signals.hold_hangup_for`), whose default action would end the daemon while it
 starts (a reload sent early); the daemon takes a held one as a reload.
 """
 
 import sys
 
-from hdrd.signals import hold_hangup_for
+from hdrd.daemon.signals import hold_hangup_for
 
 
 def main() -> int:

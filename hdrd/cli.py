@@ -17,11 +17,8 @@ import sys
 from collections.abc import Callable, Iterator, Sequence
 
 from hdrd import __version__
-from hdrd.protocol import PROTOCOLS
-from hdrd.signals import command_of, hold_hangup
-
-DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
-"""Simulated drives (hdrd.config.DRIVES; not imported here, a test keeps the two equal)."""
+from hdrd.daemon.signals import command_of, hold_hangup
+from hdrd.io.protocol import PROTOCOLS
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -84,27 +81,41 @@ def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> N
         )
 
 
-class _MethodNames:
-    """The drift reducers' names, read from :data:`hdrd.methods.REGISTRY` when argparse
-    first needs them (to check a value or print a command's help). Importing the registry up
-    front would load numpy and slow ``hdrd --help``."""
+class _LazyChoices:
+    """Choices read from their home when argparse first needs them (to check a value or print
+    a command's help): importing the method registry or the simulator up front would load
+    numpy and slow ``hdrd --help``."""
 
-    def _names(self) -> tuple[str, ...]:
-        from hdrd.methods import names
-
-        return names()
+    def __init__(self, load: Callable[[], Sequence[str]]) -> None:
+        self._load = load
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._names())
+        return iter(self._load())
 
     def __contains__(self, value: object) -> bool:
-        return value in self._names()
+        return value in self._load()
+
+
+def _method_names() -> Sequence[str]:
+    from hdrd.core.methods import names
+
+    return names()
+
+
+def _drive_names() -> Sequence[str]:
+    from hdrd.sim.vehicle import DRIVE_TYPES
+
+    return tuple(DRIVE_TYPES)
+
+
+DRIVES = _LazyChoices(_drive_names)
+"""The simulated drives (:data:`hdrd.sim.vehicle.DRIVE_TYPES`)."""
 
 
 def _method(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--method",
-        choices=_MethodNames(),
+        choices=_LazyChoices(_method_names),
         metavar="METHOD",  # a metavar keeps argparse from listing the choices at parser set-up
         help="drift reduction, one of %(choices)s (none: static bias removal only; hdr: the "
         "paper's; see docs/evaluation.md); default hdr.method, hdr",
@@ -234,7 +245,7 @@ def _log_format(p: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-@command("run", "hdrd.daemon:main", "run the daemon: gyro -> HDR -> publishers")
+@command("run", "hdrd.commands.run:main", "run the daemon: gyro -> HDR -> publishers")
 def _run(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)
@@ -268,7 +279,10 @@ def _run(p: argparse.ArgumentParser) -> None:
         "--simulate", action="store_true", help="read the built-in simulated gyro, no hardware"
     )
     p.add_argument(
-        "--drive", choices=DRIVES, help="with --simulate: the drive (default simulate.drive, mixed)"
+        "--drive",
+        choices=DRIVES,
+        metavar="DRIVE",
+        help="with --simulate: the drive (default simulate.drive, mixed)",
     )
     p.add_argument(
         "--speedup",
@@ -299,7 +313,7 @@ def _run(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
-@command("calibrate", "hdrd.calibrate_cmd:main", "measure the static bias at standstill")
+@command("calibrate", "hdrd.commands.calibrate:main", "measure the static bias at standstill")
 def _calibrate(p: argparse.ArgumentParser) -> None:
     _config(p)
     _port(p)
@@ -321,7 +335,7 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
-@command("tail", "hdrd.tail:main", "print what the daemon publishes (like gpspipe -w)")
+@command("tail", "hdrd.commands.tail:main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--listen",
@@ -339,7 +353,7 @@ def _tail(p: argparse.ArgumentParser) -> None:
     )
 
 
-@command("fakegyro", "hdrd.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
+@command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
 def _fakegyro(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--drive",
@@ -420,7 +434,7 @@ def _fakegyro(p: argparse.ArgumentParser) -> None:
     )
 
 
-@command("record", "hdrd.record:main", "record raw bytes from the gyro to a capture file")
+@command("record", "hdrd.commands.record:main", "record raw bytes from the gyro to a capture file")
 def _record(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", metavar="URL", required=True, help="serial device or pyserial URL")
     p.add_argument(
@@ -436,7 +450,9 @@ def _record(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "replay", "hdrd.replay:main", "run the daemon's pipeline on a capture, as fast as possible"
+    "replay",
+    "hdrd.commands.replay:main",
+    "run the daemon's pipeline on a capture, as fast as possible",
 )
 def _replay(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -449,7 +465,11 @@ def _replay(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heading0", type=float, metavar="DEG", help="compass heading at start, deg")
 
 
-@command("convert", "hdrd.replay:convert_main", "convert a capture into a drive log (CSV, Parquet)")
+@command(
+    "convert",
+    "hdrd.commands.replay:convert_main",
+    "convert a capture into a drive log (CSV, Parquet)",
+)
 def _convert(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
@@ -465,7 +485,11 @@ def _convert(p: argparse.ArgumentParser) -> None:
     _config(p)
 
 
-@command("simulate", "hdrd.sim.cli:simulate_main", "simulate a drive and its gyro into a drive log")
+@command(
+    "simulate",
+    "hdrd.commands.simulate:simulate_main",
+    "simulate a drive and its gyro into a drive log",
+)
 def _simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--drive",
@@ -510,11 +534,11 @@ def _simulate(p: argparse.ArgumentParser) -> None:
 
 @command(
     "import",
-    "hdrd.importcsv:main",
+    "hdrd.commands.importcsv:main",
     "make a drive log of your own CSV: its columns, units and signs mapped",
 )
 def _import(p: argparse.ArgumentParser) -> None:
-    # the units are hdrd.importcsv's (not imported here: it needs numpy; a test keeps them equal)
+    # the units are hdrd.io.csvimport's (not imported here: it needs numpy; a test keeps them equal)
     p.add_argument("source", metavar="SOURCE.csv", help="your CSV: a header line, then rows")
     p.add_argument("--out", metavar="FILE", required=True, help="drive log to write")
     p.add_argument("--t", required=True, metavar="COL", help="the column of sample times")
@@ -568,7 +592,7 @@ def _delimiter(text: str) -> str:
 
 @command(
     "evaluate",
-    "hdrd.analysis.evaluate_cmd:main",
+    "hdrd.commands.evaluate:main",
     "heading error without and with HDR (paper Table II)",
 )
 def _evaluate(p: argparse.ArgumentParser) -> None:
@@ -604,7 +628,7 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
 
 @command(
     "tune",
-    "hdrd.analysis.tune_cmd:main",
+    "hdrd.commands.tune:main",
     "tune HDR parameters on training drives, check on test drives",
 )
 def _tune(p: argparse.ArgumentParser) -> None:
@@ -642,7 +666,7 @@ def _tune(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "gap", "hdrd.analysis.gap:main", "find the gyro effects a model misses (model-gap workflow)"
+    "gap", "hdrd.commands.gap:main", "find the gyro effects a model misses (model-gap workflow)"
 )
 def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(

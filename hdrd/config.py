@@ -3,8 +3,8 @@
 Pure apart from :func:`load_config` reading the file. An invalid value raises
 :class:`ConfigError`, whose one-line message names the key, the value and what is allowed;
 the CLI turns it into exit status 78 (:data:`hdrd.errors.EX_CONFIG`). Defaults are the paper's
-(Table III, Tbias = 30 s, T = 1 s; see :mod:`hdrd.hdr` and :mod:`hdrd.calibrate`) and the
-CRS03-04's (:mod:`hdrd.sensor`); ``config/hdrd.yaml`` ships them with comments, and a test
+(Table III, Tbias = 30 s, T = 1 s; see :mod:`hdrd.core.hdr` and :mod:`hdrd.core.calibrate`) and the
+CRS03-04's (:mod:`hdrd.core.sensor`); ``config/hdrd.yaml`` ships them with comments, and a test
 keeps that file and these defaults equal.
 """
 
@@ -18,15 +18,15 @@ from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from hdrd import methods
-from hdrd.calibrate import T_BIAS_S
+from hdrd.core import methods
+from hdrd.core.calibrate import T_BIAS_S
+from hdrd.core.grades import GRADES
+from hdrd.core.hdr import HdrParams
+from hdrd.core.sensor import SensorModel
 from hdrd.errors import HdrdError, clipped
-from hdrd.gpsd import DEFAULT_HOST, DEFAULT_PORT
-from hdrd.gyronoise import GRADE_NAMES
-from hdrd.hdr import HdrParams
-from hdrd.protocol import NMEA_TALKER, PROTOCOLS
-from hdrd.publish import parse_hostport
-from hdrd.sensor import SensorModel
+from hdrd.io.gpsd import DEFAULT_HOST, DEFAULT_PORT
+from hdrd.io.protocol import NMEA_TALKER, PROTOCOLS
+from hdrd.io.publish import parse_hostport
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -45,8 +45,6 @@ __all__ = [
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
-
-DRIVES = ("city", "suburbs", "rural", "highway", "mixed", "standstill")
 
 
 class ConfigError(HdrdError, ValueError):
@@ -171,7 +169,7 @@ class SimulateConfig:
     speedup: float = 1.0
     """1 = real time; larger plays the drive faster."""
     grade: str = "crs03"
-    """The simulated gyro's grade preset (:mod:`hdrd.sim.grades`, docs/gyro-model.md)."""
+    """The simulated gyro's grade preset (:mod:`hdrd.core.grades`, docs/gyro-model.md)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,7 +198,7 @@ class GpsdConfig:
 
 @dataclass(frozen=True, slots=True)
 class StandstillConfig:
-    """HDR+'s standstill re-calibration (zero-rate updates, :mod:`hdrd.zupt`)."""
+    """HDR+'s standstill re-calibration (zero-rate updates, :mod:`hdrd.core.standstill`)."""
 
     enabled: bool = True
     """Use stops: publish omega 0 and re-measure the bias while the vehicle stands still."""
@@ -216,7 +214,7 @@ class PlusConfig:
     calibrate`` recorded in the bias file take precedence when they say how the bias moves."""
 
     grade: str = "none"
-    """A grade preset (:mod:`hdrd.sim.grades`), or ``none``."""
+    """A grade preset (:mod:`hdrd.core.grades`), or ``none``."""
     white_dps_per_rthz: float = 0.0
     """White rate noise N, deg/s/sqrt(Hz)."""
     bias_instability_dps: float = 0.0
@@ -281,11 +279,23 @@ def _choice(*options: Any) -> tuple[Check, str]:
 
 
 def _method() -> tuple[Check, str]:
-    """A registered drift reducer (:data:`hdrd.methods.REGISTRY`, read when checked)."""
+    """A registered drift reducer (:data:`hdrd.core.methods.REGISTRY`, read when checked)."""
     return (
         (lambda v: isinstance(v, str) and v in methods.REGISTRY),
         "one of " + ", ".join(methods.names()),
     )
+
+
+def _drive() -> tuple[Check, Callable[[], str]]:
+    """A simulated drive (:data:`hdrd.sim.vehicle.DRIVE_TYPES`, read when checked: the
+    simulator is not loaded with the configuration)."""
+
+    def drives() -> tuple[str, ...]:
+        from hdrd.sim.vehicle import DRIVE_TYPES
+
+        return tuple(DRIVE_TYPES)
+
+    return (lambda v: v in drives()), lambda: "one of " + ", ".join(drives())
 
 
 _HOSTPORTS = "a list of HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
@@ -308,7 +318,7 @@ _NONNEG = _num(0)
 # the pipeline with every key at both ends of its range). docs/configuration.md says why
 # each bound is where it is.
 _SECONDS = _num(0, 3600, lo_open=True)
-RULES: dict[str, tuple[Check, str]] = {
+RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "device.port": (
         (lambda v: bool(v.strip()) and "\0" not in v),
         "a non-empty device path or pyserial URL, without a NUL character",
@@ -353,12 +363,12 @@ RULES: dict[str, tuple[Check, str]] = {
     "log.level": _choice("debug", "info", "warning", "error"),
     "log.format": _choice("auto", "json", "console"),
     "log.bad_frame_interval_s": _SECONDS,
-    "simulate.drive": _choice(*DRIVES),
+    "simulate.drive": _drive(),
     "simulate.seed": _num(0, 2**32 - 1),
     "simulate.rate_hz": _num(1, 10_000),
     "simulate.speedup": _num(0.001, 1_000_000),
-    "simulate.grade": _choice(*GRADE_NAMES),
-    "plus.grade": _choice("none", *GRADE_NAMES),
+    "simulate.grade": _choice(*GRADES),
+    "plus.grade": _choice("none", *GRADES),
     "plus.white_dps_per_rthz": _num(0, 100),
     "plus.bias_instability_dps": _num(0, 100),
     "plus.bias_tau_s": _num(1, 1_000_000),
@@ -433,12 +443,13 @@ def _check(key: str, value: Any) -> None:
     rule = RULES.get(key)
     if rule is None:
         return
+    check, allowed = rule[0], rule[1]() if callable(rule[1]) else rule[1]
     try:
-        ok = rule[0](value)
+        ok = check(value)
     except ValueError as e:  # a check that says what is wrong
-        raise ConfigError(key, value, f"must be {rule[1]}; {e}") from None
+        raise ConfigError(key, value, f"must be {allowed}; {e}") from None
     if not ok:
-        raise ConfigError(key, value, f"must be {rule[1]}")
+        raise ConfigError(key, value, f"must be {allowed}")
 
 
 def _build(cls: type, data: Any, prefix: str) -> Any:
@@ -532,7 +543,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
-    from hdrd.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")

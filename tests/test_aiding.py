@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -14,10 +14,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
-from hdrd.gpsd import Fix
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.gpsd import Fix
 
 KNOT = 0.514444
 
@@ -51,7 +51,7 @@ def good(course: float, speed: float = 15.0, **kw: Any) -> Fix:
     return Fix(mode=3, track_deg=course, speed_mps=speed, **kw)
 
 
-def still(a: GpsAiding, fixes: list[Fix | None], heading: float = 0.0) -> list[dict[str, Any]]:
+def still(a: GpsAiding, fixes: Sequence[Fix | None], heading: float = 0.0) -> list[dict[str, Any]]:
     """A gyro standing still in its own frame (HDR heading ``heading``, omega 0) while the
     vehicle drives straight; fix k (None: none) arrives at k + 0.3 s, step k ends at k + 1."""
     out = []

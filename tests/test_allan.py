@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hdrd.analysis.allan import (
+from hdrd.core.allan import (
     allan_deviation,
     arw_from_adev,
     bias_instability_from_adev,

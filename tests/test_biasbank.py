@@ -1,4 +1,4 @@
-"""HDR+'s bias model (hdrd/biasbank.py): the filter's steps against the Kalman equations in
+"""HDR+'s bias model (hdrd/core/biasbank.py): the filter's steps against the Kalman equations in
 matrix form, and the evidence that a gyro drifts.
 
 States (b, c, k, r, psi): bias deg/s, standstill offset deg/s, temperature coefficient
@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd import biasbank as bb
+from hdrd.core import biasbank as bb
 
 
 def _random_filter(seed: int) -> tuple[list[float], list[float]]:

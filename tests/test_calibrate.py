@@ -1,4 +1,4 @@
-"""Static bias eps0 (hdrd/calibrate.py; paper Sec. 2, Eq. 2) and the atomic bias file."""
+"""Static bias eps0 (hdrd/core/calibrate.py; paper Sec. 2, Eq. 2) and the atomic bias file."""
 
 from __future__ import annotations
 
@@ -12,17 +12,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd import calibrate
-from hdrd.calibrate import (
+from hdrd.core import calibrate
+from hdrd.core.calibrate import (
     T_BIAS_S,
-    BiasFileError,
     BiasRecord,
     MotionDetected,
     StandstillLimits,
     estimate_bias,
-    load_bias,
-    save_bias,
 )
+from hdrd.io import biasfile
+from hdrd.io.biasfile import BiasFileError, load_bias, save_bias
 
 HZ = 10.0  # the paper's sample rate
 
@@ -206,9 +205,9 @@ def test_failed_write_leaves_old_file_whole_and_no_temp(
         raise OSError(28, "No space left on device")
 
     if fail_in == "replace":
-        monkeypatch.setattr(calibrate.os, "replace", boom)
+        monkeypatch.setattr(biasfile.os, "replace", boom)
     elif fail_in == "fsync":
-        monkeypatch.setattr(calibrate.os, "fsync", boom)
+        monkeypatch.setattr(biasfile.os, "fsync", boom)
     else:
         real_fdopen = os.fdopen
 
@@ -230,7 +229,7 @@ def test_failed_write_leaves_old_file_whole_and_no_temp(
                 raise OSError(5, "Input/output error")
 
         monkeypatch.setattr(
-            calibrate.os, "fdopen", lambda fd, *a, **k: HalfWriter(real_fdopen(fd, *a, **k))
+            biasfile.os, "fdopen", lambda fd, *a, **k: HalfWriter(real_fdopen(fd, *a, **k))
         )
     with pytest.raises(OSError):
         save_bias(p, BiasRecord(5.0, 0.1, 10, 1.0))
@@ -249,7 +248,7 @@ def test_interrupt_during_write_leaves_no_temp(
     def interrupted(*a: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(calibrate.os, "replace", interrupted)
+    monkeypatch.setattr(biasfile.os, "replace", interrupted)
     with pytest.raises(KeyboardInterrupt):
         save_bias(p, BiasRecord(5.0, 0.1, 10, 1.0))
     assert load_bias(p) == REC and _leftovers(tmp_path) == []
@@ -482,7 +481,7 @@ def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> Non
 
 
 def test_sample_clock_sets_a_glitch_aside() -> None:
-    from hdrd.clocks import SampleClock
+    from hdrd.io.clocks import SampleClock
 
     c = SampleClock()
     t = [k * 100_000 for k in range(50)]
@@ -493,7 +492,7 @@ def test_sample_clock_sets_a_glitch_aside() -> None:
 
 
 def test_sample_clock_repeats_steps_back_and_the_wrap() -> None:
-    from hdrd.clocks import SampleClock
+    from hdrd.io.clocks import SampleClock
 
     c = SampleClock()
     base = 2**32 - 250_000  # wraps after two frames
@@ -507,7 +506,7 @@ def test_sample_clock_follows_a_real_jump() -> None:
     # The device clock jumps for good (a reset, or frames lost for a while): after a few
     # frames that step normally among themselves, the clock follows them; the jump itself
     # is not counted as time at standstill.
-    from hdrd.clocks import SampleClock
+    from hdrd.io.clocks import SampleClock
 
     c = SampleClock(confirm=3)
     before = [k * 100_000 for k in range(10)]
@@ -518,7 +517,7 @@ def test_sample_clock_follows_a_real_jump() -> None:
 
 
 def test_a_bias_file_records_noise_parameters_and_older_files_still_read(tmp_path: Path) -> None:
-    from hdrd.gyronoise import GyroNoise
+    from hdrd.core.gyronoise import GyroNoise
 
     noise = GyroNoise(white_dps_per_rthz=0.05, rrw_dps_per_sqrt_s=3e-4, quant_step_dps=0.0076)
     p = tmp_path / "bias.yaml"
@@ -750,7 +749,7 @@ def test_startup_window_details() -> None:
 
 
 def test_sample_clock_limits_exactly() -> None:
-    from hdrd.clocks import SampleClock
+    from hdrd.io.clocks import SampleClock
 
     c = SampleClock(max_step_us=1_000_000, confirm=2)
     assert c.accept(0) and c.accept(1_000_000)  # a step of exactly the largest counts
@@ -813,7 +812,7 @@ def test_two_samples_are_measured_without_a_warning() -> None:
 
 
 def test_sample_clock_default_largest_step_is_2_s() -> None:
-    from hdrd.clocks import SampleClock
+    from hdrd.io.clocks import SampleClock
 
     c = SampleClock()
     assert c.accept(0) and c.accept(2_000_000) and not c.accept(4_000_001)

@@ -1,4 +1,4 @@
-"""``hdrd calibrate`` as a user runs it (hdrd/calibrate_cmd.py): a process reading a fake gyro
+"""``hdrd calibrate`` as a user runs it (hdrd/commands/calibrate.py): a process reading a fake gyro
 on a real pty, or the simulated gyro, writing the bias file.
 
 No timings are asserted; the waits are generous bounds that only fail a hung command.
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.calibrate import load_bias
+from hdrd.io.biasfile import load_bias
 from hdrd.sim.profiles import builtin_profile, profile_frames
 
 WAIT = 120.0
@@ -159,7 +159,7 @@ def test_the_port_of_a_running_daemon_is_refused_at_once(fake_gyro, tmp_path: Pa
     # The daemon holds the port (exclusively); calibrate must not steal half its frames.
     frames = profile_frames(builtin_profile("standstill", minutes=5, lead_in_s=0))
     g = fake_gyro(frames, speedup=20)
-    from hdrd.source import SerialSource
+    from hdrd.io.sources import SerialSource
 
     with SerialSource(g.path) as holder:  # the first opener, as `hdrd run` opens it
         g.start()

@@ -27,9 +27,9 @@ from hdrd.config import (
     load_config,
     parse_config,
 )
+from hdrd.core.hdr import HdrParams
 from hdrd.errors import EX_CONFIG, HdrdError
-from hdrd.hdr import HdrParams
-from hdrd.publish import parse_hostport
+from hdrd.io.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
 NAN, INF = math.nan, math.inf
@@ -651,7 +651,7 @@ def _hard_capture() -> bytes:
     """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
-    from hdrd.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)
@@ -674,7 +674,7 @@ def _hard_capture() -> bytes:
 
 @pytest.mark.parametrize("key, value", EDGES, ids=[f"{k}={v!r}" for k, v in EDGES])
 def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) -> None:
-    from hdrd.replay import replay_capture
+    from hdrd.commands.replay import replay_capture
 
     data = nested(key, value)
     if key.startswith("device.reconnect_"):  # the cross-check wants min <= max
@@ -693,7 +693,7 @@ def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) 
 def test_the_attenuator_stays_finite_for_any_run_length() -> None:
     # hdr.c2 <= 10 and hdr.c1 <= 1000: R(r) = (1 + c1) / (1 + c1 r^c2) is finite and > 0 for
     # any repetition count a run can reach (r < 2**63; 2**63**10 ~ 1e190).
-    from hdrd.hdr import attenuation
+    from hdrd.core.hdr import attenuation
 
     assert 0.0 < attenuation(2**63, c1=1000.0, c2=10.0) < 1.0
     assert attenuation(2**63, c1=0.0, c2=10.0) == 1.0
@@ -754,7 +754,7 @@ def test_docs_state_the_ranges_the_code_checks() -> None:
             if isinstance(get(Config(), key), bool):
                 assert shown == "true or false", key
             continue
-        check, wording = rule
+        check, wording = rule[0], rule[1]() if callable(rule[1]) else rule[1]
         if hasattr(check, "bounds"):
             assert shown == wording.removeprefix("a finite number "), key
         elif wording.startswith("one of "):

@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.drivelog import DriveLog
-from hdrd.frames import frames_to_array
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.publish import nmea_checksum
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.frames import frames_to_array
+from hdrd.io.publish import nmea_checksum
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
@@ -138,7 +138,7 @@ def expected_messages(
 ) -> list[dict[str, Any]]:
     """What the HDR core says the daemon must publish for these frames (without time)."""
     p = Pipeline(PipelineConfig(bias_dps=bias, heading0_deg=heading0))
-    from hdrd.frames import array_to_frames
+    from hdrd.io.frames import array_to_frames
 
     out: list[dict[str, Any]] = []
     for f in array_to_frames(frames):
@@ -443,7 +443,7 @@ def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_
     assert p.returncode == 0, p.stderr.decode()
     assert b"written to" in p.stdout
     assert oct(bias_file.stat().st_mode & 0o777) == "0o644"
-    from hdrd.calibrate import load_bias
+    from hdrd.io.biasfile import load_bias
 
     rec = load_bias(bias_file)
     assert rec.bias_dps == pytest.approx(0.42, abs=0.02) and rec.duration_s == pytest.approx(

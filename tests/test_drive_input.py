@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.drivelog import DriveLog, write_drive
+from hdrd.io.drivelog import DriveLog, write_drive
 from hdrd.sim.drive import simulate_drive
 
 pa = pytest.importorskip("pyarrow")
@@ -261,7 +261,7 @@ def test_evaluate_and_tune_leave_out_rows_marked_not_valid(good: DriveLog, tmp_p
     dropped = replace(good, omega=w, name="x").slice(0, 900)
     rest = replace(good, omega=w).slice(1100)
     cols = {c: np.concatenate([getattr(dropped, c), getattr(rest, c)]) for c in good.columns()}
-    write_drive(tmp_path / "dropped.csv", replace(dropped, **cols))
+    write_drive(tmp_path / "dropped.csv", replace(dropped, **cols))  # type: ignore[arg-type]
     write_drive(tmp_path / "kept.csv", replace(good, omega=w))
 
     def table(f: str) -> list[str]:
@@ -324,9 +324,9 @@ def test_a_tiny_file_of_40_million_rows_is_refused_before_it_is_read(tmp_path: P
 
 
 def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) -> None:
-    from hdrd.drivelog import ReadLimits
-    from hdrd.drivesources import find_drives
-    from hdrd.parquetlog import write_dataset_drive, write_parquet_drive
+    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.drivelog import ReadLimits
+    from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
 
     write_drive(tmp_path / "a.csv", good)
     write_parquet_drive(tmp_path / "b.parquet", good)
@@ -371,7 +371,7 @@ def test_a_capture_is_recognised_and_convert_named(protocol: str, tmp_path: Path
 
 
 def test_files_that_are_no_drive_log_are_one_line(good: DriveLog, tmp_path: Path) -> None:
-    from hdrd.parquetlog import write_parquet_drive
+    from hdrd.io.parquetlog import write_parquet_drive
 
     rng = np.random.default_rng(0)
     (tmp_path / "random.csv").write_bytes(rng.bytes(10_000))

@@ -1,4 +1,4 @@
-"""Drive log CSV (hdrd/drivelog.py): round trip, empty cells = NaN, errors naming the line."""
+"""Drive log CSV (hdrd/io/drivelog.py): round trip, empty cells = NaN, errors naming the line."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.drivelog import COLUMNS, OPTIONAL, DriveLog, DriveLogError, read_drive, write_drive
+from hdrd.io.drivelog import COLUMNS, OPTIONAL, DriveLog, DriveLogError, read_drive, write_drive
 
 DIGITS = {
     "t": 4,

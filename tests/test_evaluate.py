@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd import methods
 from hdrd.analysis import evaluate as ev
 from hdrd.analysis.evaluate import (
     EvaluationError,
@@ -23,9 +22,10 @@ from hdrd.analysis.evaluate import (
     to_json,
 )
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, read_drive, write_drive
-from hdrd.hdr import HdrParams, run_batch
-from hdrd.hdrplus import HdrPlusParams
+from hdrd.core import methods
+from hdrd.core.hdr import HdrParams, run_batch
+from hdrd.core.hdrplus import HdrPlusParams
+from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 
 
 def make_drive(
@@ -247,7 +247,7 @@ def test_json_shape_is_exactly_the_issues() -> None:
 
 
 def test_a_registered_method_gets_its_own_keys(monkeypatch: pytest.MonkeyPatch) -> None:
-    # A new drift reducer is one entry in hdrd.methods.REGISTRY; evaluate and the JSON pick
+    # A new drift reducer is one entry in hdrd.core.methods.REGISTRY; evaluate and the JSON pick
     # it up.
     class Perfect(type(methods.REGISTRY["hdr"])):  # type: ignore[misc]
         name = "perfect"
@@ -420,7 +420,7 @@ def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path)
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
     from hdrd.config import parse_config
-    from hdrd.pipeline import plus_params
+    from hdrd.daemon.pipeline import plus_params
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"

@@ -1,4 +1,4 @@
-"""hdrd.fakegyro: the pty fake ADC, its fault injection, and the ``hdrd fakegyro`` command."""
+"""hdrd.commands.fakegyro: the pty fake ADC, its fault injection, and the ``hdrd fakegyro`` command."""
 
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.capture import decode_capture
-from hdrd.drivelog import DriveLog
-from hdrd.fakegyro import FakeGyro
-from hdrd.frames import Frame, Parser, array_to_frames
-from hdrd.sensor import SensorModel
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.core.sensor import SensorModel
+from hdrd.io.capture import decode_capture
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.frames import Frame, Parser, array_to_frames
+from hdrd.io.sources import SerialSource
 from hdrd.sim.profiles import builtin_profile
-from hdrd.source import SerialSource
 
 WAIT_S = 20.0
 

@@ -1,10 +1,10 @@
 """The fast paths agree: one realistic capture through all of them.
 
 The vectorised capture decoder (``hdrd replay``), the push parser (what the live source runs)
-and the live daemon's path (a real pty read by :class:`hdrd.source.SerialSource`, each frame
-through :meth:`hdrd.pipeline.Pipeline.feed`) must give the same frames, the same counters and
-the same messages as the replay path (:func:`hdrd.capture.decode_capture` then
-:meth:`~hdrd.pipeline.Pipeline.feed_array`) on the same bytes. test_frames, test_pipeline and
+and the live daemon's path (a real pty read by :class:`hdrd.io.sources.SerialSource`, each frame
+through :meth:`hdrd.daemon.pipeline.Pipeline.feed`) must give the same frames, the same counters and
+the same messages as the replay path (:func:`hdrd.io.capture.decode_capture` then
+:meth:`~hdrd.daemon.pipeline.Pipeline.feed_array`) on the same bytes. test_frames, test_pipeline and
 test_replay check each pair on small or synthetic inputs; this module ties all of them together
 on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a device-clock wrap.
 
@@ -27,16 +27,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.capture import decode_capture
-from hdrd.fakegyro import FakeGyro
-from hdrd.frames import Frame, Parser, array_to_frames
-from hdrd.hdr import HdrParams
-from hdrd.pacing import ReadPacer
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.publish import _format_clean, format_json
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.core.hdr import HdrParams
+from hdrd.daemon.pacing import ReadPacer
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.capture import decode_capture
+from hdrd.io.frames import Frame, Parser, array_to_frames
+from hdrd.io.publish import _format_clean, format_json
+from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
 from hdrd.sim import simulate_drive
 from hdrd.sim.profiles import profile_frames
-from hdrd.source import DeviceBack, DeviceLost, EndOfInput, SerialSource
 
 FAULTS: dict[str, Any] = {"garbage": 0.01, "crc_errors": 0.005, "drop": 0.002, "seed": 5}
 
@@ -60,7 +60,7 @@ def capture(
 
 
 def replay_messages(data: bytes, config: PipelineConfig) -> list[dict[str, Any]]:
-    """What ``hdrd replay`` publishes (hdrd.replay.replay_capture, with a PipelineConfig)."""
+    """What ``hdrd replay`` publishes (hdrd.commands.replay.replay_capture, with a PipelineConfig)."""
     arr, st_ = decode_capture(data)
     p = Pipeline(config)
     msgs = p.feed_array(arr, st_.bad_before)

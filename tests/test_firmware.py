@@ -32,10 +32,10 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from hdrd.capture import decode_capture
 from hdrd.config import load_config
-from hdrd.frames import Frame, encode_array, encode_bin, encode_text
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
+from hdrd.io.capture import decode_capture
+from hdrd.io.frames import Frame, encode_array, encode_bin, encode_text
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware"
@@ -631,7 +631,7 @@ int main(void) {
 
 
 def test_the_firmwares_encoder_writes_what_hdrd_frames_writes(tmp_path: Path) -> None:
-    """firmware/src/frame.c, compiled for the host, against hdrd.frames on the protocol's
+    """firmware/src/frame.c, compiled for the host, against hdrd.io.frames on the protocol's
     worked examples, the field limits and random frames (temperature included, which the
     board itself does not send)."""
     driver = tmp_path / "driver.c"

@@ -1,4 +1,4 @@
-"""hdrd.frames and hdrd.capture: codecs, push parser, vectorised decoder (docs/protocol.md is the
+"""hdrd.io.frames and hdrd.io.capture: codecs, push parser, vectorised decoder (docs/protocol.md is the
 contract)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from hdrd.capture import decode_capture, decode_frames
-from hdrd.frames import (
+from hdrd.io.capture import decode_capture, decode_frames
+from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
     FrameError,
@@ -28,7 +28,7 @@ from hdrd.frames import (
     encode_text,
     frames_to_array,
 )
-from hdrd.protocol import PROTOCOLS, SYNC
+from hdrd.io.protocol import PROTOCOLS, SYNC
 from tests.test_rel_bytes import scan_bin_reference
 
 
@@ -409,7 +409,7 @@ def test_decode_in_slices_is_decode_whole(pieces: list[bytes], scan: int, protoc
     decided exactly as by the push parser over the whole capture."""
     from unittest import mock
 
-    from hdrd import capture as capture_mod
+    from hdrd.io import capture as capture_mod
 
     data = b"".join(p if protocol == "hdr-bin" else p.replace(b"\xa5", b"$HDRG,")
                     for p in pieces)  # fmt: skip
@@ -682,7 +682,7 @@ def test_many_bad_candidates_are_counted_as_few_are(
     bad_before as the push parser."""
     from unittest import mock
 
-    from hdrd import capture as capture_mod
+    from hdrd.io import capture as capture_mod
 
     data = b"".join(pieces)
     bb: list[int] = []
@@ -698,7 +698,7 @@ def test_many_bad_candidates_are_counted_as_few_are(
 def test_second_pass_on_a_known_capture() -> None:
     from unittest import mock
 
-    from hdrd import capture as capture_mod
+    from hdrd.io import capture as capture_mod
 
     f = [Frame(seq=k, t_us=100_000 * k, rate=32768 + k, ref=0, temp_cc=None) for k in range(6)]
     bad = bytearray(encode_bin(f[2]))
@@ -729,7 +729,7 @@ def test_each_codec_error_says_what_is_wrong() -> None:
         b"$HDRG,1,2,3,y,": "hdr-text ref b'y' is not a decimal integer",
         b"$HDRG,1,2,3,4,2.5.0": "hdr-text temp_c b'2.5.0' is not a decimal number",
     }
-    from hdrd.frames import _xor
+    from hdrd.io.frames import _xor
 
     for line, message in cases.items():
         if line is not body:  # a valid checksum: the error is the field's

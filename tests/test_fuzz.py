@@ -85,8 +85,8 @@ GPSD_CLASSES = st.sampled_from(
 def test_gpsd_lines_are_reports_or_protocol_errors(
     cls: str, body: dict[str, Any], tail: bytes
 ) -> None:
-    from hdrd.aiding import GpsAiding
-    from hdrd.gpsd import Fix, GpsdProtocolError, parse_line
+    from hdrd.daemon.aiding import GpsAiding
+    from hdrd.io.gpsd import Fix, GpsdProtocolError, parse_line
 
     for key in ("mode", "track", "speed", "epd"):  # the fields aiding reads, made hostile too
         body.setdefault(key, body.get(key))
@@ -128,7 +128,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     raw=st.booleans(),
 )
 def test_tail_prints_only_printable_lines(parts: list[bytes], raw: bool) -> None:
-    from hdrd.tail import TailFormatter
+    from hdrd.commands.tail import TailFormatter
 
     out, notes, n = TailFormatter(raw=raw).lines(b"\n".join(parts), "127.0.0.1:9")
     assert n >= 0
@@ -160,8 +160,8 @@ def test_a_config_is_valid_or_one_config_error(
     raw: bytes,
     at: int,
 ) -> None:
+    from hdrd.commands.replay import replay_capture
     from hdrd.config import ConfigError, load_config
-    from hdrd.replay import replay_capture
 
     p = tmp_path_factory.mktemp("cfg") / "hdrd.yaml"
     text = emit_yaml(doc, block_depth=block).encode("utf-8", "surrogatepass")
@@ -192,7 +192,7 @@ def test_a_bias_file_is_valid_or_one_bias_file_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.calibrate import BiasFileError, load_bias
+    from hdrd.io.biasfile import BiasFileError, load_bias
 
     p = tmp_path_factory.mktemp("bias") / "bias.yaml"
     text = ("# hdrd static bias\n" + emit_yaml(fields)).encode("utf-8", "surrogatepass")
@@ -224,8 +224,8 @@ _CAPTURE = _capture()
     protocol=st.sampled_from(["hdr-bin", "hdr-text"]),
 )
 def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: str) -> None:
-    from hdrd.frames import Parser
-    from hdrd.pipeline import Pipeline, PipelineConfig
+    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+    from hdrd.io.frames import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]
     parser, p = Parser(protocol), Pipeline(PipelineConfig(bias_dps=0.1))
@@ -240,8 +240,8 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
 @FUZZ
 @given(data=st.binary(max_size=2000), protocol=st.sampled_from(["hdr-bin", "hdr-text"]))
 def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
+    from hdrd.commands.replay import replay_capture
     from hdrd.config import Config, apply_overrides
-    from hdrd.replay import replay_capture
 
     cfg = apply_overrides(Config(), {"device.protocol": protocol, "hdr.method": "hdr+"})
     check_messages(replay_capture(_CAPTURE[:3000] + data, cfg, None, startup_s=1.0))
@@ -271,7 +271,7 @@ def test_a_drive_log_csv_is_read_or_one_drive_log_error(
 ) -> None:
     import io
 
-    from hdrd.drivelog import DriveLogError, read_drive
+    from hdrd.io.drivelog import DriveLogError, read_drive
 
     text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
     try:
@@ -293,8 +293,8 @@ def test_a_name_from_data_is_a_path_inside_or_refused(
 ) -> None:
     import os
 
-    from hdrd.drivesources import drive_name
-    from hdrd.files import UnsafeNameError, path_inside
+    from hdrd.io.drivefiles import drive_name
+    from hdrd.io.files import UnsafeNameError, path_inside
 
     root = tmp_path_factory.mktemp("out")
     shown = drive_name(name)

@@ -19,7 +19,6 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from hdrd.analysis.allan import allan_deviation
 from hdrd.analysis.gap import (
     GAP_METRIC,
     GapData,
@@ -37,8 +36,9 @@ from hdrd.analysis.gap import (
 from hdrd.analysis.gap.metric import GapMeasure
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, read_drive, write_drive
-from hdrd.sensor import SensorModel
+from hdrd.core.allan import allan_deviation
+from hdrd.core.sensor import SensorModel
+from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.gyro import (
     BiasInstability,
@@ -527,9 +527,9 @@ def test_a_step_that_raises_the_gap_is_not_added(
 
 
 def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
-    from hdrd.analysis.gap.command import plus_section
+    from hdrd.commands.gap import plus_section
     from hdrd.config import load_config
-    from hdrd.pipeline import plus_noise
+    from hdrd.daemon.pipeline import plus_noise
     from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise
 
     model = GyroModel(

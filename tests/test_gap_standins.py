@@ -15,7 +15,7 @@ import pytest
 
 from hdrd.analysis.gap import GapResult, run_gap, summary, to_report
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import DriveLog, write_drive
+from hdrd.io.drivelog import DriveLog, write_drive
 from hdrd.sim.gyro import (
     DEFAULT_START_MODEL,
     Bandwidth,

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.capture import decode_capture
 from hdrd.cli import main as cli
-from hdrd.clocks import DeviceClock
+from hdrd.io.capture import decode_capture
+from hdrd.io.clocks import DeviceClock
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "golden"
 CAPTURE = GOLDEN / "drive-faults.bin"

@@ -17,8 +17,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.aiding import AIDED, GpsAiding
-from hdrd.gpsd import (
+from hdrd.daemon.aiding import AIDED, GpsAiding
+from hdrd.daemon.gpslink import GpsdLink
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.gpsd import (
     WATCH_COMMAND,
     Attitude,
     Device,
@@ -33,8 +35,6 @@ from hdrd.gpsd import (
     parse_line,
     parse_time,
 )
-from hdrd.gpslink import GpsdLink
-from hdrd.pipeline import Pipeline, PipelineConfig
 
 WAIT = 20.0  # upper bound for a poll loop; only a hung client reaches it
 
@@ -660,7 +660,7 @@ def test_client_counts_lines_it_cannot_use_and_carries_on(peer):
 def test_a_flooding_peer_gets_bounded_work_per_poll_and_loses_nothing(peer):
     """Each poll reads at most READ_CHUNK bytes and parses at most LINES_PER_POLL lines;
     the rest stays in the kernel (TCP flow control slows the peer) and comes in order."""
-    from hdrd.gpsd import LINES_PER_POLL, READ_CHUNK
+    from hdrd.io.gpsd import LINES_PER_POLL, READ_CHUNK
 
     n = 20_000
     lines = [f'{{"class":"TPV","mode":3,"speed":{k}}}\n'.encode() for k in range(n)]
@@ -697,7 +697,7 @@ def test_a_flooding_peer_gets_bounded_work_per_poll_and_loses_nothing(peer):
     ],
 )
 def test_gpsd_address(text, addr):
-    from hdrd.gpsd import parse_address
+    from hdrd.io.gpsd import parse_address
 
     assert parse_address(text) == addr
 
@@ -721,7 +721,7 @@ def test_gpsd_address(text, addr):
     ],
 )
 def test_bad_gpsd_addresses_say_what_is_wrong(text):
-    from hdrd.gpsd import parse_address
+    from hdrd.io.gpsd import parse_address
 
     with pytest.raises(ValueError):
         parse_address(text)
@@ -734,7 +734,7 @@ def test_bad_gpsd_addresses_say_what_is_wrong(text):
 def test_run_gpsd_option_is_the_address_gpsd_listens_on(arg, host, port, tmp_path):
     import argparse
 
-    from hdrd.cliargs import config_from_args
+    from hdrd.commands.options import config_from_args
 
     empty = tmp_path / "hdrd.yaml"
     empty.write_text("{}\n")

@@ -1,8 +1,8 @@
 """hdrd and the real gpsd, both directions.
 
 GPS -> hdrd: gpsfake (gpsd-clients) replays an NMEA log we write ($GPGGA/$GPRMC, a drive
-through north, a GPS outage) into a real gpsd; :class:`hdrd.gpsd.GpsdClient` receives the
-TPV reports, :class:`hdrd.aiding.GpsAiding` switches aided -> dead-reckoning -> aided and
+through north, a GPS outage) into a real gpsd; :class:`hdrd.io.gpsd.GpsdClient` receives the
+TPV reports, :class:`hdrd.daemon.aiding.GpsAiding` switches aided -> dead-reckoning -> aided and
 the heading stays continuous; and a real ``hdrd run --gpsd`` does the same end to end.
 
 hdrd -> gpsd: gpsd reading hdrd's NMEA over ``udp://`` reports the heading as ATT. What
@@ -37,12 +37,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
-from hdrd.drivelog import DriveLog
-from hdrd.gpsd import Attitude, Fix, GpsdClient
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.gpsd import Attitude, Fix, GpsdClient
+from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
 KNOT_MPS = 1852.0 / 3600.0
@@ -671,7 +671,7 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
 
 
 def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
-    from hdrd.publish import nmea_sentences
+    from hdrd.io.publish import nmea_sentences
 
     base = {"class": "HDR", "v": 1, "omega": -0.5, "heading": 359.996, "status": "ok"}
 

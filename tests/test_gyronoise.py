@@ -1,4 +1,4 @@
-"""The gyro error model HDR+ is fitted to (hdrd/gyronoise.py): its parameters by name, the
+"""The gyro error model HDR+ is fitted to (hdrd/core/gyronoise.py): its parameters by name, the
 random walk derived from them, and what a standstill shows of them.
 
 Rates in deg/s, + = CCW; white noise deg/s/sqrt(Hz); times s.
@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from hdrd.gyronoise import NOISE_KEYS, GyroNoise, measure_noise
-from hdrd.sim.grades import grade_model, grade_noise
+from hdrd.core.gyronoise import NOISE_KEYS, GyroNoise, grade_noise, measure_noise
+from hdrd.sim.grades import grade_model
 
 
 def test_parameters_by_name_round_trip_and_are_checked() -> None:
@@ -82,10 +82,10 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 
 
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
-    from hdrd.calibrate import BiasRecord
     from hdrd.config import parse_config
-    from hdrd.gyronoise import noise_in_force
-    from hdrd.pipeline import plus_noise
+    from hdrd.core.calibrate import BiasRecord
+    from hdrd.core.gyronoise import noise_in_force
+    from hdrd.daemon.pipeline import plus_noise
 
     assert noise_in_force() is None
     assert noise_in_force("phone").source == "grade phone"  # type: ignore[union-attr]
@@ -109,10 +109,10 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
 def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> None:
     # `hdrd replay --bias-file F` (and `hdrd run`) fits HDR+ to the noise recorded in F,
     # else to plus.grade, and says which in every step.
-    from hdrd.calibrate import BiasRecord
+    from hdrd.commands.replay import replay_capture
     from hdrd.config import parse_config
-    from hdrd.frames import FRAME_DTYPE, encode_array
-    from hdrd.replay import replay_capture
+    from hdrd.core.calibrate import BiasRecord
+    from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     n = 600
     a = np.zeros(n, FRAME_DTYPE)

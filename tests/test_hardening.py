@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.calibrate import BiasFileError, load_bias
 from hdrd.cli import main
 from hdrd.config import ConfigError, load_config
-from hdrd.files import InputFileError, load_yaml
+from hdrd.io.biasfile import BiasFileError, load_bias
+from hdrd.io.files import InputFileError, load_yaml
 
 BIAS_HEAD = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
 
@@ -25,7 +25,7 @@ def _bias_body(bias: str = "0.25") -> str:
 
 @pytest.fixture
 def capture(tmp_path: Path) -> Path:
-    from hdrd.frames import Frame, encode_bin
+    from hdrd.io.frames import Frame, encode_bin
 
     p = tmp_path / "c.bin"
     p.write_bytes(b"".join(encode_bin(Frame(i, i * 100_000, 32768, 0, None)) for i in range(30)))
@@ -73,13 +73,16 @@ def test_bias_file_with_a_control_character_is_refused_in_one_line(
 def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_path: Path) -> None:
     import argparse
 
+    from hdrd.commands.options import config_from_args
     from hdrd.config import Config
-    from hdrd.daemon import BiasChoice, Daemon
+    from hdrd.daemon.run import BiasChoice, Daemon
 
     p = tmp_path / "hdrd.yaml"
     p.write_text("hdr:\n  method: none\n")
     args = argparse.Namespace(config=str(p))
-    d = Daemon(Config(), "built-in defaults", args, BiasChoice(None, "startup"))
+    d = Daemon(
+        Config(), "built-in defaults", lambda: config_from_args(args), BiasChoice(None, "startup")
+    )
     p.write_bytes(b"hdr:\n  method: hdr+\n  c1: \x00\n")
     before = d.cfg
     d._reload()  # the SIGHUP handler's body: used to raise ReaderError
@@ -177,7 +180,7 @@ def test_simulate_refuses_a_drive_it_cannot_make(
 def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None:
     import argparse
 
-    from hdrd.sim.cli import MAX_SAMPLES, _too_big
+    from hdrd.commands.simulate import MAX_SAMPLES, _too_big
 
     def args(**kw: object) -> argparse.Namespace:
         base: dict[str, object] = {"benchmark": None, "seed": 0, "minutes": 20.0, "hz": 10.0}
@@ -291,7 +294,7 @@ def test_nmea_talker_docs_recommend_what_protocol_md_recommends() -> None:
     assert f"for gpsd use {talker}" in " ".join(comment.replace("#", " ").split())
     from hdrd import config as config_mod
 
-    assert talker in config_mod.RULES["output.nmea_talker"][1]
+    assert talker in str(config_mod.RULES["output.nmea_talker"][1])
 
 
 def test_a_yaml_problem_quoting_a_huge_tag_is_still_a_short_line(tmp_path: Path) -> None:
@@ -330,8 +333,8 @@ def test_thousands_of_udp_destinations_are_summed_up_at_stop() -> None:
 
     from structlog.testing import capture_logs
 
-    from hdrd import daemon as daemon_mod
-    from hdrd.publish import UdpJsonPublisher, UdpNmeaPublisher
+    from hdrd.daemon import run as daemon_mod
+    from hdrd.io.publish import UdpJsonPublisher, UdpNmeaPublisher
 
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))

@@ -1,4 +1,4 @@
-"""HDR stepper (hdrd/hdr.py) against shared/paper/HDR-NOTES.md.
+"""HDR stepper (hdrd/core/hdr.py) against shared/paper/HDR-NOTES.md.
 
 Rates in deg/s, + = counter-clockwise; yaw in deg CCW. Defaults are the paper's Table III:
 i_c = 0.0422 deg/s, tau = 0.75 s, Theta_w = 0.564 deg/s, c1 = 0.16, c2 = 1.80, T = 1 s.
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.hdr import (
+from hdrd.core.hdr import (
     INITIAL_STATE,
     HdrOutput,
     HdrParams,

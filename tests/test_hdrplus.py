@@ -1,4 +1,4 @@
-"""HDR+ (hdrd/hdrplus.py): per-step vs batch, paper HDR as the all-off special case, the bias
+"""HDR+ (hdrd/core/hdrplus.py): per-step vs batch, paper HDR as the all-off special case, the bias
 model while driving, a simulated drive where it beats HDR, and `hdrd evaluate --method hdr+`.
 
 Rates in deg/s, + = CCW; speeds m/s; temperatures degC; steps of T seconds.
@@ -17,12 +17,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd import hdr
 from hdrd.analysis.evaluate import evaluate_drive
 from hdrd.cli import main as cli_main
-from hdrd.drivelog import read_drive, write_drive
-from hdrd.hdr import HdrParams
-from hdrd.hdrplus import (
+from hdrd.core import hdr
+from hdrd.core.hdr import HdrParams
+from hdrd.core.hdrplus import (
     INITIAL_PLUS_STATE,
     PLUS_CORE,
     Ablation,
@@ -32,11 +31,12 @@ from hdrd.hdrplus import (
     run_batch,
     step,
 )
+from hdrd.core.standstill import StandstillParams
+from hdrd.core.steps import StepInput
+from hdrd.io.drivelog import read_drive, write_drive
 from hdrd.sim import simulate_legs
 from hdrd.sim.benchmark import VARIANTS
 from hdrd.sim.vehicle import CabinTemperature
-from hdrd.steps import StepInput
-from hdrd.zupt import StandstillParams
 
 NAN = math.nan
 
@@ -493,8 +493,8 @@ def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
 
 
 def test_fitted_from_a_calibration_and_a_noise_model() -> None:
-    from hdrd.hdrplus import GyroNoise
-    from hdrd.zupt import CalibrationNoise
+    from hdrd.core.hdrplus import GyroNoise
+    from hdrd.core.standstill import CalibrationNoise
 
     cal = CalibrationNoise(
         bias_var=1e-6, block_var=4e-4, quant_step_dps=0.0625, samples_per_step=1.0

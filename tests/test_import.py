@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +71,7 @@ def _scores(cwd: Path, f: str) -> dict[str, float]:
     p = hdrd("evaluate", f, "--calibrate-seconds", "30", "--json", f + ".json", cwd=cwd)
     assert p.returncode == 0, p.stderr
     assert "warning" not in p.stderr, p.stderr
-    return json.loads((cwd / (f + ".json")).read_text())["drives"][0]  # type: ignore[no-any-return]
+    return json.loads((cwd / (f + ".json")).read_text())["drives"][0]
 
 
 def test_their_csv_imported_scores_as_the_drive_it_came_from(
@@ -110,7 +110,7 @@ def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path)
              "--omega", "wz", "--heading", "yaw", "--heading-unit", "rad", "--heading-ref", "enu",
              cwd=tmp_path)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    from hdrd.parquetlog import read_parquet_drive
+    from hdrd.io.parquetlog import read_parquet_drive
 
     got = read_parquet_drive(tmp_path / "ros.parquet")
     assert np.array_equal(got.t, drive.t)  # nanoseconds since 2023: every digit kept
@@ -195,7 +195,8 @@ def test_a_missing_column_lists_the_header(tmp_path: Path) -> None:
 
 
 def test_the_command_lines_units_are_the_modules() -> None:
-    from hdrd import cli, importcsv
+    from hdrd import cli
+    from hdrd.io import csvimport as importcsv
 
     assert cli.TIME_UNITS == tuple(importcsv.TIME_UNITS)
     assert cli.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)

@@ -1,4 +1,4 @@
-"""The drift-reducer registry (hdrd/methods.py): each method's batch form is its step looped,
+"""The drift-reducer registry (hdrd/core/methods.py): each method's batch form is its step looped,
 settings are derived in one place, and the config and the command line take their names from it.
 
 Rates in deg/s, + = CCW; speeds m/s; temperatures degC; steps of T seconds.
@@ -15,12 +15,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd import methods
-from hdrd.calibrate import BiasRecord
 from hdrd.config import ConfigError, parse_config
-from hdrd.hdr import HdrParams
-from hdrd.hdrplus import HdrPlusParams, PlusOutput
-from hdrd.methods import REGISTRY, SettingsContext, StepInputs, plus_settings
+from hdrd.core import methods
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.hdr import HdrParams
+from hdrd.core.hdrplus import HdrPlusParams, PlusOutput
+from hdrd.core.methods import REGISTRY, SettingsContext, StepInputs, plus_settings
 from tests.test_hdrplus import core_params, plus_params
 
 NAN = math.nan

@@ -16,14 +16,14 @@ import pytest
 
 from hdrd.analysis.evaluate import evaluate_prepared, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
-from hdrd.calibrate import BiasRecord
+from hdrd.commands.replay import replay_capture
 from hdrd.config import Config, parse_config
-from hdrd.drivelog import DriveLog
-from hdrd.frames import FRAME_DTYPE, encode_array
-from hdrd.methods import names
-from hdrd.pipeline import Pipeline, PipelineConfig, plus_params
-from hdrd.replay import replay_capture
-from hdrd.sensor import SensorModel
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.methods import names
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig, plus_params
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.frames import FRAME_DTYPE, encode_array
 
 SENSOR = SensorModel()
 T0_US = (1 << 32) - 45_000_000  # the device clock wraps 45 s into the capture
@@ -145,7 +145,7 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
 def test_a_1_hz_gyro_has_one_sample_per_step_in_the_daemon_and_in_evaluate() -> None:
     data, log = capture(drive(1.0, noise_dps=0.02))
     p = Pipeline(PipelineConfig(method="hdr+", bias_dps=0.4, plus=plus_params(_config("hdr+"))))
-    from hdrd.capture import decode_capture
+    from hdrd.io.capture import decode_capture
 
     frames, _ = decode_capture(data)
     p.feed_array(frames)
@@ -160,7 +160,7 @@ def test_a_bias_file_sets_hdr_plus_prior_in_the_daemon_as_in_evaluate() -> None:
     rec = BiasRecord(0.41, 0.05, 300, 30.0)
     msgs = replay_capture(data, _config("hdr+"), rec.bias_dps, None, rec)
     p = Pipeline(PipelineConfig(method="hdr+", bias_dps=rec.bias_dps, bias_record=rec))
-    from hdrd.capture import decode_capture
+    from hdrd.io.capture import decode_capture
 
     p.feed_array(decode_capture(data)[0])
     assert p.stepper.settings.bias_p0 == 0.05 * 0.05 / 300

@@ -1,5 +1,5 @@
-"""Drive logs as Parquet (hdrd/parquetlog.py) and the drives a command line names
-(hdrd/drivesources.py): read exactly like the CSV, the same checks, files, a file holding many
+"""Drive logs as Parquet (hdrd/io/parquetlog.py) and the drives a command line names
+(hdrd/io/drivefiles.py): read exactly like the CSV, the same checks, files, a file holding many
 drives, a dataset partitioned by drive, directories and globs."""
 
 from __future__ import annotations
@@ -18,7 +18,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
-from hdrd.drivelog import (
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.io.drivefiles import DriveRef, find_drives
+from hdrd.io.drivelog import (
     NO_LIMITS,
     DriveLog,
     DriveLogError,
@@ -26,9 +28,7 @@ from hdrd.drivelog import (
     read_drive,
     write_drive,
 )
-from hdrd.drivesources import DriveRef, find_drives
-from hdrd.fakegyro import FakeGyro
-from hdrd.parquetlog import (
+from hdrd.io.parquetlog import (
     DRIVE_META_KEY,
     META_KEY,
     drives_in_file,

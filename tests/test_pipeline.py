@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd import hdr
-from hdrd.hdr import HdrParams
-from hdrd.pipeline import Pipeline, PipelineConfig, heading_from_yaw
-from hdrd.sensor import SensorModel
+from hdrd.core import hdr
+from hdrd.core.hdr import HdrParams
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig, heading_from_yaw
 
 CAPTURE_DTYPE = np.dtype(
     [("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")]
@@ -282,7 +282,7 @@ def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
     # A configured grade (a known error model): published as such; a tactical-grade gyro's
     # bias wanders too little for the binary increment, so I never moves. Measured at
     # start-up without one: fitted to the calibration window.
-    from hdrd.sim.grades import grade_noise
+    from hdrd.core.gyronoise import grade_noise
 
     rng = np.random.default_rng(5)
     omega = 0.3 + rng.normal(0, 0.02, 600)
@@ -300,7 +300,7 @@ def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled:
     # No speed source: a stop can only be seen in the gyro's own statistics, and only when
     # the config says so (standstill.from_gyro); standstill.enabled false switches stops off.
     from hdrd.config import parse_config
-    from hdrd.pipeline import pipeline_config
+    from hdrd.daemon.pipeline import pipeline_config
 
     cfg = parse_config(
         {"hdr": {"method": "hdr+"}, "standstill": {"enabled": enabled, "from_gyro": from_gyro}}
@@ -407,10 +407,10 @@ def test_reconfigure_names_what_cannot_change() -> None:
 
 
 def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> None:
-    from hdrd.calibrate import BiasRecord
     from hdrd.config import Config
-    from hdrd.gyronoise import GyroNoise
-    from hdrd.pipeline import pipeline_config
+    from hdrd.core.calibrate import BiasRecord
+    from hdrd.core.gyronoise import GyroNoise
+    from hdrd.daemon.pipeline import pipeline_config
 
     p = Pipeline(PipelineConfig(bias_dps=0.3))
     assert p.stepper.bias == BiasRecord(0.3, 0.0, 0, 0.0)

@@ -1,4 +1,4 @@
-"""hdrd.protocol: the message schema in one place. What the pipeline and the GPS aiding publish
+"""hdrd.io.protocol: the message schema in one place. What the pipeline and the GPS aiding publish
 uses only its keys, in its order, with its class, version and statuses; docs/protocol.md's
 table lists the same keys."""
 
@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from hdrd import protocol
-from hdrd.aiding import AidingConfig, GpsAiding
-from hdrd.frames import FRAME_DTYPE
-from hdrd.gpsd import Fix
-from hdrd.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.aiding import AidingConfig, GpsAiding
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io import protocol
+from hdrd.io.frames import FRAME_DTYPE
+from hdrd.io.gpsd import Fix
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.publish import (
+from hdrd.io.publish import (
     OutputClosed,
     StdoutPublisher,
     UdpJsonPublisher,
@@ -292,7 +292,7 @@ def test_nmea_property(omega: float, heading: float, ths: bool) -> None:
 
 def _pipeline_messages(method: str, speed: float | None) -> list[dict[str, Any]]:
     """Real pipeline messages: 40 s of a parked car at 10 Hz, eps0 known."""
-    from hdrd.pipeline import Pipeline, PipelineConfig
+    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
     from tests.test_pipeline import make_frames, run_live
 
     rng = np.random.default_rng(7)
@@ -602,7 +602,7 @@ def test_stdout_closed_by_head_exits_without_traceback() -> None:
     code = textwrap.dedent(
         """
         import sys
-        from hdrd.publish import OutputClosed, StdoutPublisher
+        from hdrd.io.publish import OutputClosed, StdoutPublisher
         pub = StdoutPublisher()
         try:
             for i in range(1_000_000):
@@ -705,7 +705,7 @@ def _decimals(v: float) -> int:
 def test_run_stdout_on_a_terminal_rounds_numbers_and_a_pipe_keeps_them(tmp_path: Any) -> None:
     """A yaw of -0.0025271484375000014 is noise on a terminal: there hdrd run --stdout shows
     each number to what it means; a pipe (a program, a file) gets every digit."""
-    from hdrd.display import DECIMALS
+    from hdrd.io.display import DECIMALS
 
     shown = _run_stdout(tmp_path, on_tty=True)
     for m in shown:

@@ -1,4 +1,4 @@
-"""hdrd.record: raw bytes from the port to a capture file, losing nothing."""
+"""hdrd.commands.record: raw bytes from the port to a capture file, losing nothing."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.capture import decode_capture
-from hdrd.fakegyro import FakeGyro
-from hdrd.frames import array_to_frames
-from hdrd.record import record
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.commands.record import record
+from hdrd.io.capture import decode_capture
+from hdrd.io.frames import array_to_frames
+from hdrd.io.sources import SerialReader
 from hdrd.sim.profiles import builtin_profile
-from hdrd.source import SerialReader
 
 WAIT_S = 30.0
 

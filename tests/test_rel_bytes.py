@@ -30,8 +30,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.capture import decode_capture
-from hdrd.frames import (
+from hdrd.core.sensor import SensorModel
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.io.capture import decode_capture
+from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
     FrameError,
@@ -42,9 +44,7 @@ from hdrd.frames import (
     encode_bin,
     encode_text,
 )
-from hdrd.pipeline import Pipeline, PipelineConfig
-from hdrd.protocol import BIN_FRAME_LEN, SYNC
-from hdrd.sensor import SensorModel
+from hdrd.io.protocol import BIN_FRAME_LEN, SYNC
 
 TEXT_SYNC = b"$HDRG,"
 

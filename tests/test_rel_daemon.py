@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.calibrate import BiasRecord, load_bias, save_bias
-from hdrd.drivelog import DriveLog
-from hdrd.frames import FRAME_DTYPE
-from hdrd.sensor import SensorModel
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.sensor import SensorModel
+from hdrd.io.biasfile import load_bias, save_bias
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.frames import FRAME_DTYPE
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it

@@ -14,13 +14,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.calibrate import BiasRecord, save_bias
 from hdrd.cli import main as cli
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.commands.replay import replay_capture
 from hdrd.config import Config
-from hdrd.drivelog import read_drive
-from hdrd.fakegyro import FakeGyro
-from hdrd.replay import replay_capture
-from hdrd.sensor import SensorModel
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.sensor import SensorModel
+from hdrd.io.biasfile import save_bias
+from hdrd.io.drivelog import read_drive
 from tests.test_daemon import drive_profile, strip_time
 
 WAIT = 30.0
@@ -202,8 +203,8 @@ def test_replay_capture_is_pure_and_repeatable(tmp_path):
 def test_replay_in_chunks_is_replay_whole(tmp_path):
     # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
     # steps before the next (memory follows the chunk, not the capture): the same messages.
-    from hdrd.capture import decode_capture
-    from hdrd.replay import replay_steps
+    from hdrd.commands.replay import replay_steps
+    from hdrd.io.capture import decode_capture
 
     cap = tmp_path / "c.bin"
     FakeGyro(drive_profile(seconds=60), crc_errors=0.05, garbage=0.05, seed=3).write_capture(cap)

@@ -1,4 +1,4 @@
-"""Block averaging by device time (hdrd/resample.py; paper Eq. 11, HDR-NOTES "Conventions").
+"""Block averaging by device time (hdrd/core/resample.py; paper Eq. 11, HDR-NOTES "Conventions").
 
 Step i averages the samples whose device time is in [t0 + iT, t0 + (i+1)T); a dropped frame
 shortens a block, an empty block is Missing (never a zero rate), the 32-bit microsecond clock
@@ -12,9 +12,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.clocks import DeviceClock, unwrap_us
-from hdrd.protocol import CLOCK_WRAP_US
-from hdrd.resample import Block, BlockAverager, Missing, block_average_seconds, block_means
+from hdrd.core.resample import Block, BlockAverager, Missing, block_average_seconds, block_means
+from hdrd.io.clocks import DeviceClock, unwrap_us
+from hdrd.io.protocol import CLOCK_WRAP_US
 
 S = 1_000_000  # us per s
 

@@ -21,8 +21,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from hdrd.publish import parse_nmea
-from hdrd.sdnotify import WatchdogGate
+from hdrd.daemon.sdnotify import WatchdogGate
+from hdrd.io.publish import parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Msgs,

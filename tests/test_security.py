@@ -181,7 +181,7 @@ def test_the_daemon_listens_on_nothing(
 
 def test_hdrd_tail_binds_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.tail import DEFAULT_TAIL_LISTEN
+    from hdrd.commands.tail import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
@@ -386,7 +386,7 @@ def test_the_unit_runs_unprivileged_and_writes_only_its_state_directory() -> Non
 def test_the_daemon_finds_its_bias_in_the_units_state_directory(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from hdrd.files import default_bias_path
+    from hdrd.io.files import default_bias_path
 
     monkeypatch.setenv("STATE_DIRECTORY", f"{tmp_path}/hdrd")
     assert default_bias_path() == tmp_path / "hdrd" / "bias.yaml"

@@ -1,4 +1,4 @@
-"""CRS03-04 sensor model (hdrd/sensor.py): ADC counts <-> deg/s (+ = CCW).
+"""CRS03-04 sensor model (hdrd/core/sensor.py): ADC counts <-> deg/s (+ = CCW).
 
 Defaults: 16-bit unipolar ADC, volts = counts * 5.0 / 2**16, null 2.5 V, 10 mV/(deg/s),
 polarity +1, range +/-200 deg/s; ratiometric with a supply monitor behind a 1:2 divider.
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
 
 M = SensorModel()
 COUNTS_PER_V = 2**16 / 5.0  # 13107.2 counts per volt

@@ -10,14 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.analysis.allan import allan_deviation, arw_from_adev
 from hdrd.cli import build_parser
-from hdrd.drivelog import read_drive
+from hdrd.commands.simulate import simulate_main
+from hdrd.core.allan import allan_deviation, arw_from_adev
+from hdrd.core.grades import GRADE_TABLE, GRADES, Grade
+from hdrd.io.drivelog import read_drive
 from hdrd.sim import simulate_drive
-from hdrd.sim.cli import simulate_main
-from hdrd.sim.grades import GRADE_TABLE, GRADES, Grade, grade_model
+from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import BiasInstability, StaticBias, crs03_default_model
-from hdrd.source import SimulatedSource
+from hdrd.sim.source import SimulatedSource
 
 PARAMS = [f.name for f in fields(Grade) if f.name not in ("name", "description", "sources")]
 
@@ -161,7 +162,7 @@ def test_simulated_source_takes_a_grade() -> None:
 
 
 def test_grade_noise_for_hdrplus() -> None:
-    from hdrd.sim.grades import grade_noise
+    from hdrd.core.gyronoise import grade_noise
 
     q = {g: grade_noise(g).bias_q() for g in GRADES}
     qnt = {g: grade_noise(g).bias_q_no_temp() for g in GRADES}
@@ -174,7 +175,9 @@ def test_grade_noise_for_hdrplus() -> None:
 def test_a_model_reads_back_as_its_grade_error_model() -> None:
     # A grade's effects, read as HDR+'s error model, give the grade's own parameters (what
     # `hdrd gap` needs to turn a fitted model into plus.* keys or a bias file's noise).
-    from hdrd.sim.grades import GRADES, grade_model, grade_noise, model_noise
+    from hdrd.core.grades import GRADES
+    from hdrd.core.gyronoise import grade_noise
+    from hdrd.sim.grades import grade_model, model_noise
 
     for name in GRADES:
         got = model_noise(grade_model(name, 1), source=f"grade {name}")

@@ -11,14 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.analysis.allan import (
+from hdrd.core.allan import (
     allan_deviation,
     arw_from_adev,
     bias_instability_from_adev,
     gauss_markov_adev,
     rrw_from_adev,
 )
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
 from hdrd.sim.gyro import (
     DEFAULT_START_MODEL,
     EFFECT_NAMES,

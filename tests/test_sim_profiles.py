@@ -9,8 +9,8 @@ import re
 import numpy as np
 import pytest
 
-from hdrd.drivelog import DriveLog
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
+from hdrd.io.drivelog import DriveLog
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile, profile_frames
 
 

@@ -1,4 +1,4 @@
-"""hdrd.source: serial (loop://, real ptys, cable pulls) and simulated sources."""
+"""hdrd.io.sources: serial (loop://, real ptys, cable pulls) and simulated sources."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.capture import decode_capture
-from hdrd.clocks import ManualClock
-from hdrd.drivelog import DriveLog
-from hdrd.frames import (
+from hdrd.core.sensor import SensorModel
+from hdrd.io.capture import decode_capture
+from hdrd.io.clocks import ManualClock
+from hdrd.io.drivelog import DriveLog
+from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
     ParserStats,
@@ -21,17 +22,9 @@ from hdrd.frames import (
     encode,
     encode_bin,
 )
-from hdrd.sensor import SensorModel
+from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialReader, SerialSource, Source
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
-from hdrd.source import (
-    DeviceBack,
-    DeviceLost,
-    EndOfInput,
-    SerialReader,
-    SerialSource,
-    SimulatedSource,
-    Source,
-)
+from hdrd.sim.source import SimulatedSource
 
 WAIT_S = 20.0  # upper bound for anything that should happen "soon" (never a timing assertion)
 

@@ -244,8 +244,8 @@ SANDBOXED = textwrap.dedent(
     a = rng.normal(size=(64, 64))
     checks = [float((a @ a).sum()), float(np.abs(np.fft.rfft(a[0])).sum()),
               float(np.linalg.solve(a + 64 * np.eye(64), a[0]).sum())]
-    import hdrd, hdrd.hdr
-    checks.append(float(hdrd.hdr.run_batch(rng.normal(0.1, 0.3, 600)).omega.sum()))
+    import hdrd, hdrd.core.hdr
+    checks.append(float(hdrd.core.hdr.run_batch(rng.normal(0.1, 0.3, 600)).omega.sum()))
     failures = {}
     for m in pkgutil.walk_packages(hdrd.__path__, "hdrd."):
         try:

@@ -25,8 +25,8 @@ from hdrd.analysis.tune import (
 )
 from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
-from hdrd.drivelog import write_drive
-from hdrd.hdr import HdrParams
+from hdrd.core.hdr import HdrParams
+from hdrd.io.drivelog import write_drive
 from tests.test_evaluate import CITY_TURNS, make_drive
 
 
@@ -230,8 +230,8 @@ def test_run_many_steps_the_same_yaw_as_the_daemons_hdr_step() -> None:
     # Tuning scores its candidates with the vectorised run_many on the steps evaluate prepared
     # through the daemon's block code: for drives with gaps, at 1 Hz and at 100 Hz, each
     # candidate's yaw is the daemon's HDR step looped (to rounding: numpy's power vs math.pow).
-    from hdrd import hdr
-    from hdrd.methods import REGISTRY
+    from hdrd.core import hdr
+    from hdrd.core.methods import REGISTRY
     from tests.test_onepath import drive
 
     c = sample_candidates(np.random.default_rng(9), 5)

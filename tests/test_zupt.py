@@ -1,4 +1,4 @@
-"""Standstill detection (hdrd/zupt.py) and the bias refinement at stops, alone and inside HDR+.
+"""Standstill detection (hdrd/core/standstill.py) and the bias refinement at stops, alone and inside HDR+.
 
 Rates in deg/s, + = CCW; speeds m/s; temperatures degC. Inputs are hand-made step sequences
 (block mean u = raw mean - eps0, within-block spread), not simulator output, so each test
@@ -12,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from hdrd import biasbank as bb
-from hdrd import zupt
-from hdrd.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
-from hdrd.steps import StepInput
-from hdrd.zupt import StandstillParams, block_mean_variance, standstill_candidate
+from hdrd.core import biasbank as bb
+from hdrd.core import standstill as zupt
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
+from hdrd.core.standstill import StandstillParams, block_mean_variance, standstill_candidate
+from hdrd.core.steps import StepInput
 
 NAN = math.nan
 SS = StandstillParams()

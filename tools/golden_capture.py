@@ -31,10 +31,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hdrd.capture import decode_capture
-from hdrd.fakegyro import FakeGyro
-from hdrd.frames import array_to_frames
-from hdrd.protocol import CLOCK_WRAP_US
+from hdrd.commands.fakegyro import FakeGyro
+from hdrd.io.capture import decode_capture
+from hdrd.io.frames import array_to_frames
+from hdrd.io.protocol import CLOCK_WRAP_US
 from hdrd.sim import simulate_drive
 from hdrd.sim.profiles import builtin_profile, profile_frames
 

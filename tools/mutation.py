@@ -51,12 +51,12 @@ MODULES: dict[str, tuple[list[str], list[str] | None]] = {
     "calibrate": (
         ["tests/test_calibrate.py"],
         [
-            "hdrd.calibrate.x_estimate_bias__mutmut_*",
-            "hdrd.calibrate.x_noise_sigma__mutmut_*",
-            "hdrd.calibrate.x__check_noise_scaled__mutmut_*",
-            "hdrd.calibrate.xǁStandstillLimitsǁ*",
-            "hdrd.calibrate.xǁBiasRecordǁ*",
-            "hdrd.calibrate.xǁStartupWindowǁ*",
+            "hdrd.core.calibrate.x_estimate_bias__mutmut_*",
+            "hdrd.core.calibrate.x_noise_sigma__mutmut_*",
+            "hdrd.core.calibrate.x__check_noise_scaled__mutmut_*",
+            "hdrd.core.calibrate.xǁStandstillLimitsǁ*",
+            "hdrd.core.calibrate.xǁBiasRecordǁ*",
+            "hdrd.core.calibrate.xǁStartupWindowǁ*",
         ],
     ),
     "pipeline": (["tests/test_pipeline.py"], None),

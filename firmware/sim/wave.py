@@ -6,7 +6,7 @@
 
 Rows ``t, rate_volts, supply_volts``: t in s from power-on; supply_volts the gyro's supply, V;
 rate_volts the CRS03-04's output, V, for a yaw rate omega (deg/s, + = CCW, a left turn),
-ratiometric to the supply as the datasheet gives it (hdrd.sensor's model, inverted):
+ratiometric to the supply as the datasheet gives it (hdrd.core.sensor's model, inverted):
 
     rate_volts = (supply / 5 V) * (2.5 V + polarity * 0.010 V/(deg/s) * omega)
 
@@ -45,7 +45,7 @@ def drive_wave(
     supply: str = "wander",
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(t s, rate_volts V, supply_volts V) of a simulated drive (see the module doc)."""
-    from hdrd.sensor import SensorModel
+    from hdrd.core.sensor import SensorModel
     from hdrd.sim import crs03_default_model, simulate_drive
 
     model = crs03_default_model().without("quantization")
@@ -88,9 +88,9 @@ def rate_at(
     sensor: object | None = None,
 ) -> FloatArray:
     """The yaw rate the waveform carries at times t_query (s), deg/s (+ = CCW): the gyro's
-    ratiometric output read back through ``sensor`` (an hdrd.sensor.SensorModel; default
+    ratiometric output read back through ``sensor`` (an hdrd.core.sensor.SensorModel; default
     the CRS03-04's), with the voltages interpolated linearly as firmware/sim/run does."""
-    from hdrd.sensor import SensorModel
+    from hdrd.core.sensor import SensorModel
 
     m = sensor if isinstance(sensor, SensorModel) else SensorModel()
     t, v, vs = wave

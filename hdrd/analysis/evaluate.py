@@ -2,7 +2,7 @@
 
 Pure core (:func:`prepare_drive`, :func:`evaluate_prepared`, :func:`evaluate_drive`,
 :func:`summarize`, :func:`to_json`, :func:`format_table`) and the reading of drive logs
-(:func:`load_drives`); the ``hdrd evaluate`` command is :mod:`hdrd.analysis.evaluate_cmd`.
+(:func:`load_drives`); the ``hdrd evaluate`` command is :mod:`hdrd.commands.evaluate`.
 docs/evaluation.md describes the method in full.
 
 How a drive log becomes Table II numbers:
@@ -11,9 +11,9 @@ How a drive log becomes Table II numbers:
    (:mod:`hdrd.analysis.prepare`): blocks of T by sample time (Eq. 11), the static bias eps0
    measured per drive as the daemon's start-up window would (or given), u_i = block mean -
    eps0 (Eq. 2) per step. A step without samples is no step: the yaw holds, it is not scored.
-2. Each method (:mod:`hdrd.methods`: ``none``, static bias only; ``hdr``, the paper; ``hdr+``)
+2. Each method (:mod:`hdrd.core.methods`: ``none``, static bias only; ``hdr``, the paper; ``hdr+``)
    runs its batch form over those steps from yaw 0 at the drive's start, with its settings
-   derived as the daemon derives them (HDR+: :func:`hdrd.methods.plus_settings`, from the
+   derived as the daemon derives them (HDR+: :func:`hdrd.core.methods.plus_settings`, from the
    samples per step and the calibration record), giving the yaw at each step's end. The batch
    forms are bit-identical to the steps the daemon takes, so ``hdrd replay`` of the same
    samples publishes the same yaw at every step.
@@ -38,7 +38,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from hdrd import methods as registry
 from hdrd.analysis.metrics import e_psi, gyro_heading, improvement, ne_psi
 from hdrd.analysis.prepare import (
     DEFAULT_LIMITS,
@@ -48,12 +47,13 @@ from hdrd.analysis.prepare import (
     prepare_drive,
 )
 from hdrd.analysis.signcheck import sign_warning
-from hdrd.calibrate import StandstillLimits
-from hdrd.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
-from hdrd.drivesources import DriveRef
-from hdrd.hdr import HdrParams
-from hdrd.hdrplus import GyroNoise, HdrPlusParams
-from hdrd.methods import StepInputs
+from hdrd.core import methods as registry
+from hdrd.core.calibrate import StandstillLimits
+from hdrd.core.hdr import HdrParams
+from hdrd.core.hdrplus import GyroNoise, HdrPlusParams
+from hdrd.core.methods import StepInputs
+from hdrd.io.drivefiles import DriveRef
+from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
 __all__ = [
     "DriveResult",
@@ -392,10 +392,10 @@ def format_table(results: Sequence[DriveResult]) -> str:
 
 
 def drive_refs(paths: Sequence[str]) -> list[DriveRef]:
-    """The drives named (:func:`hdrd.drivesources.find_drives`: files, directories, globs; CSV
+    """The drives named (:func:`hdrd.io.drivefiles.find_drives`: files, directories, globs; CSV
     or Parquet), in order; EvaluationError for a missing path or a directory without logs."""
-    from hdrd.drivelog import DriveLogError
-    from hdrd.drivesources import find_drives
+    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.drivelog import DriveLogError
 
     try:
         return find_drives(paths)
@@ -409,9 +409,9 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 
 def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
     ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.drivelog import ReadLimits
+    from hdrd.io.drivelog import ReadLimits
 
     given = {
         "max_rows": getattr(args, "max_rows", None),
@@ -423,17 +423,17 @@ def read_limits(args: Any) -> ReadLimits:
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
-    from hdrd.drivelog import DriveLogError
+    from hdrd.io.drivelog import DriveLogError
 
     try:
         return ref.read(limits)
     except FileNotFoundError:
-        from hdrd.files import shown_path
+        from hdrd.io.files import shown_path
 
         raise EvaluationError(f"{shown_path(ref.path)}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
         from hdrd.errors import clipped
-        from hdrd.files import printable, shown_path
+        from hdrd.io.files import printable, shown_path
 
         why = getattr(e, "strerror", None) or clipped(printable(" ".join(str(e).split())), 200)
         raise EvaluationError(f"{shown_path(ref.path)}: cannot be read: {why}") from None

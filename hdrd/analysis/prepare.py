@@ -5,11 +5,11 @@ and stepper, not a re-implementation of them:
 
 1. times: t (s) -> integer microseconds since the log's first sample (``round``); raw omega
    (deg/s), temperature (deg C) and, per step, the mean of the log's speed (m/s);
-2. blocks: :meth:`hdrd.resample.BlockAverager.feed_many` then ``flush`` (the last, partial
+2. blocks: :meth:`hdrd.core.resample.BlockAverager.feed_many` then ``flush`` (the last, partial
    block is a step, as at the end of a replay); a step without samples is
-   :class:`hdrd.resample.Missing`: no step, the yaw holds, nothing is evaluated there;
-3. the static bias and the steps: :class:`hdrd.pipeline.Stepper`, the daemon's per-block
-   stepper with its start-up window (:class:`hdrd.calibrate.StartupWindow`): it measures the
+   :class:`hdrd.core.resample.Missing`: no step, the yaw holds, nothing is evaluated there;
+3. the static bias and the steps: :class:`hdrd.daemon.pipeline.Stepper`, the daemon's per-block
+   stepper with its start-up window (:class:`hdrd.core.calibrate.StartupWindow`): it measures the
    bias over the window's steps, starts again after a window that shows motion, then hands
    each block's input (u = block mean - eps0, spread, speed, temperature, T) to the method;
 4. where the bias comes from, per drive (:func:`plan_calibration`): ``bias`` when given;
@@ -35,14 +35,14 @@ import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
-from hdrd.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
-from hdrd.drivelog import DriveLog
+from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd.core.hdr import HdrParams
+from hdrd.core.methods import StepInputs
+from hdrd.core.resample import Block, BlockAverager, Missing
+from hdrd.core.standstill import quantization_step
+from hdrd.daemon.pipeline import PipelineConfig, Stepper
 from hdrd.errors import HdrdError
-from hdrd.hdr import HdrParams
-from hdrd.methods import StepInputs
-from hdrd.pipeline import PipelineConfig, Stepper
-from hdrd.resample import Block, BlockAverager, Missing
-from hdrd.zupt import quantization_step
+from hdrd.io.drivelog import DriveLog
 
 __all__ = [
     "DEFAULT_LIMITS",
@@ -110,7 +110,7 @@ class PreparedDrive:
     given). samples_per_step: samples in the first step, as the daemon derives its methods'
     settings from (the gyro's sample rate times T). calibration_attempts: start-up windows
     measured (more than one: the first ones showed motion). quant_step_dps: the output step
-    of the log's raw rates, deg/s (the lattice of its values, :func:`hdrd.zupt.
+    of the log's raw rates, deg/s (the lattice of its values, :func:`hdrd.core.standstill.
     quantization_step`; 0 = not quantised or not seen): a recorded log's analogue of the LSB
     the daemon knows of its ADC.
     """

@@ -14,13 +14,13 @@ unchanged to five further drives: 9.2x better than no HDR on the nine training d
 
 The drives are prepared once, as ``hdrd evaluate`` prepares them (:mod:`hdrd.analysis.prepare`:
 the daemon's block code and stepper, the bias measured per drive), and every candidate is
-scored on those steps with :func:`hdrd.hdr.run_many`, which steps thousands of parameter sets
+scored on those steps with :func:`hdrd.core.hdr.run_many`, which steps thousands of parameter sets
 together as numpy arrays, yaw for yaw what the daemon's HDR step gives (tests/test_tune.py);
 the winner and the starting set are then re-run through :func:`hdrd.analysis.evaluate.
 evaluate_prepared` for the reported numbers, so they are exactly what ``hdrd evaluate``
 prints. Reproducible by seed.
 
-Pure except for the optional progress callback; :mod:`hdrd.analysis.tune_cmd` is the ``hdrd tune``
+Pure except for the optional progress callback; :mod:`hdrd.commands.tune` is the ``hdrd tune``
 edge.
 """
 
@@ -44,8 +44,8 @@ from hdrd.analysis.evaluate import (
     summarize,
 )
 from hdrd.analysis.metrics import e_psi
-from hdrd.drivelog import DriveLog
-from hdrd.hdr import HdrParams, run_many
+from hdrd.core.hdr import HdrParams, run_many
+from hdrd.io.drivelog import DriveLog
 
 __all__ = [
     "CHUNK_ELEMENTS",
@@ -134,7 +134,7 @@ def score_candidates(
 ) -> FloatArray:
     """Eψ (deg, Eq. 12) of every parameter set on every drive: shape (drives, sets).
 
-    Runs :func:`hdrd.hdr.run_many` (all three enhancements on) over blocks of parameter sets
+    Runs :func:`hdrd.core.hdr.run_many` (all three enhancements on) over blocks of parameter sets
     small enough to bound memory.
     """
     P = cand[PARAM_NAMES[0]].shape[0]

@@ -45,7 +45,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
-from hdrd.sensor import SensorModel
+from hdrd.core.sensor import SensorModel
 
 __all__ = [
     "DEFAULT_START_MODEL",
@@ -364,7 +364,7 @@ class Saturation(Effect):
 @dataclass(frozen=True)
 class Quantization(Effect):
     """ADC resolution: output rounded to the nearest multiple of step_dps (deg/s; the CRS03-04
-    on a 16-bit 5 V ADC: 5 V / 2**16 / (10 mV/(deg/s)) = 0.00763 deg/s, hdrd.sensor lsb_dps).
+    on a 16-bit 5 V ADC: 5 V / 2**16 / (10 mV/(deg/s)) = 0.00763 deg/s, hdrd.core.sensor lsb_dps).
     Zero rate sits on a code (null at exactly half scale)."""
 
     name: ClassVar[str] = "quantization"
@@ -591,7 +591,7 @@ def crs03_default_model() -> GyroModel:
       drift well inside the specified < 1.1 deg/min (0.018 deg/s, 66 deg/h);
     - white noise 0.05 deg/s/sqrt(Hz) (ARW 3 deg/sqrt(h); 0.16 deg/s rms at 10 Hz);
     - scale factor error 0.5 %; bandwidth 10 Hz; saturation +/-200 deg/s;
-    - 16-bit ADC quantization, 0.00763 deg/s (hdrd.sensor.SensorModel().lsb_dps).
+    - 16-bit ADC quantization, 0.00763 deg/s (hdrd.core.sensor.SensorModel().lsb_dps).
     """
     return GyroModel(
         (
@@ -616,10 +616,10 @@ DEFAULT_START_MODEL = GyroModel((StaticBias(bias_dps=1.0), WhiteNoise(density_dp
 def load_model(path: str | os.PathLike[str]) -> GyroModel:
     """Read a model YAML ``{effects: [{name: static_bias, bias_dps: 0.3}, ...]}``.
 
-    Read as hdrd reads its configuration (:mod:`hdrd.files`): a regular file of at most
+    Read as hdrd reads its configuration (:mod:`hdrd.io.files`): a regular file of at most
     1 MiB, YAML nested at most 32 deep. Raises ValueError naming the file and what is wrong,
     in one line (OSError if it cannot be read)."""
-    from hdrd.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")

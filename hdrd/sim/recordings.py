@@ -3,9 +3,9 @@ recording's *tuning* drives where the preset missed it (docs/model-gap.md, "The
 simulated-versus-real gap on the shared drives"; bench/gap_real.py measures every value).
 
 A recording profile says how a log of that recording is made: the gyro (a grade of
-:mod:`hdrd.sim.grades` with some values replaced and effects added), how the log samples it
+:mod:`hdrd.core.grades` with some values replaced and effects added), how the log samples it
 (point samples of a sensor running faster than the log), and its GPS course (a latency). Plain
-data with a source per value, like :data:`hdrd.sim.grades.GRADE_TABLE`; the table is the one
+data with a source per value, like :data:`hdrd.core.grades.GRADE_TABLE`; the table is the one
 place to change a profile.
 
 Parameters of a profile (rates deg/s, + = counter-clockwise; times s):
@@ -30,10 +30,11 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from hdrd.drivelog import DriveLog
+from hdrd.core.grades import Grade
+from hdrd.io.drivelog import DriveLog
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.gps import GpsModel
-from hdrd.sim.grades import Grade, grade_model
+from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import (
     Bandwidth,
     GyroModel,

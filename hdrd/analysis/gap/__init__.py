@@ -2,7 +2,8 @@
 explains it, and how much the gap shrinks once that effect is fitted (docs/model-gap.md).
 
 Pure core (:func:`prepare`, :func:`run_gap`, :func:`to_report`, :func:`summary` and the
-statistics they use) and the ``hdrd gap`` edge (:func:`main`), one module per stage:
+statistics they use; the ``hdrd gap`` command is :mod:`hdrd.commands.gap`), one module per
+stage:
 
 =============== =================================================================================
 lattice         the log's recording resolution and the ADC lattice its values sit on
@@ -18,7 +19,6 @@ diagnose        the discrepancy measures and the "where" sentence
 search          the loop: choose, refit, revise (:func:`run_gap`)
 report          the report JSON and the printed summary
 plots           the figure (matplotlib, lazily)
-command         ``hdrd gap``
 =============== =================================================================================
  Rates deg/s, + = CCW (left
 turn); heading compass deg, clockwise from north; time s since the first sample; temperature
@@ -45,7 +45,6 @@ The loop, each step visible in the report:
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN, CANDIDATES
 from hdrd.analysis.gap.choose import AMBIGUITY_BIC, AMBIGUITY_R
-from hdrd.analysis.gap.command import main
 from hdrd.analysis.gap.data import GapData, GapError, prepare, truth_rate_from_heading
 from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, deterministic_part, fit_model
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
@@ -77,7 +76,6 @@ __all__ = [
     "deterministic_part",
     "fit_model",
     "gap_metric",
-    "main",
     "prepare",
     "run_gap",
     "summary",

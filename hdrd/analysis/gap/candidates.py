@@ -10,12 +10,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.analysis.allan import gauss_markov_adev
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, at_rest
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, Fitter, clipping_rail
 from hdrd.analysis.gap.noise import Whitener, adev_cluster_sizes, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
+from hdrd.core.allan import gauss_markov_adev
 from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,

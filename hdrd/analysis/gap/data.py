@@ -14,8 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
-from hdrd.drivelog import DriveLog
 from hdrd.errors import HdrdError
+from hdrd.io.drivelog import DriveLog
 
 __all__ = [
     "STOP_MARGIN_S",

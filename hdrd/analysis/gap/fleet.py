@@ -18,7 +18,7 @@ from typing import Any
 
 from hdrd.analysis.fleet import Runner
 from hdrd.analysis.fleet_jobs import GapJob, gap_refs
-from hdrd.drivesources import DriveRef
+from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["ReportStream", "gap_fleet", "gap_fleet_summary", "gap_row", "gap_table_head"]
 
@@ -168,10 +168,10 @@ def model_paths(
     refs: Sequence[DriveRef], out: str
 ) -> tuple[list[DriveRef], dict[str, Path], list[str]]:
     """Where each drive's fitted model goes, ``OUT/NAME.yaml``: the drives whose name can be
-    such a file (:func:`hdrd.files.path_inside`: never outside OUT), their paths, and why each
+    such a file (:func:`hdrd.io.files.path_inside`: never outside OUT), their paths, and why each
     other drive is left out (a name that would lead out of OUT, or a file another drive
     already takes)."""
-    from hdrd.files import UnsafeNameError, path_inside, shown_path
+    from hdrd.io.files import UnsafeNameError, path_inside, shown_path
 
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}

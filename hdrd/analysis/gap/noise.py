@@ -40,7 +40,7 @@ def allan_deviation_masked(
     clusters whose 2m samples are all valid and contiguous (``breaks[i]``: a time gap just
     before sample i, rows dropped); NaN where there are fewer than 4 such clusters. So each
     cluster lies inside one contiguous valid run. With every sample valid and no break it
-    equals :func:`hdrd.analysis.allan.allan_deviation`."""
+    equals :func:`hdrd.core.allan.allan_deviation`."""
     v = np.asarray(valid, dtype=bool)
     y = np.asarray(x, dtype=np.float64)
     ms = np.asarray(m, dtype=np.int64)

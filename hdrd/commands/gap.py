@@ -1,0 +1,153 @@
+"""The ``hdrd gap`` command: read the logs and the starting model, run (in this process or on a
+Dask cluster), print, write."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
+
+__all__ = ["main", "parse_period", "plus_section"]
+
+
+def _err(msg: str) -> None:
+    print(f"hdrd gap: {msg}", file=sys.stderr)
+
+
+def parse_period(text: str) -> tuple[float, float]:
+    """``T0:T1`` (s) -> (T0, T1); ValueError naming what is wrong."""
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        t0, t1 = float(a), float(b)
+    except ValueError:
+        raise ValueError(
+            f"--exclude {text!r}: expected T0:T1, two times in seconds of the log's t "
+            "(e.g. 120:185)"
+        ) from None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+        raise ValueError(f"--exclude {text!r}: need finite times with T0 <= T1")
+    return t0, t1
+
+
+def plus_section(model: GyroModel, drive: str) -> str:
+    """A fitted model as HDR+'s error model: the ``plus:`` section of hdrd.yaml (the keys of
+    docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
+    from hdrd.sim.grades import model_noise
+
+    known = model_noise(model, source="config").to_dict()
+    if "bias_instability_dps" in known:  # its correlation time; the config takes 1 .. 1e6 s
+        known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
+    else:
+        known.pop("bias_tau_s", None)
+    lines = [
+        f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
+        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its plus: section.',
+        "plus:",
+    ]
+    lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
+    if not known:
+        lines.append("  grade: none  # the fit named no noise parameter HDR+ uses")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd gap MEASURED... [--model MODEL.yaml] [--out FITTED.yaml|DIR] [--report REPORT.json]
+    [--plus-out PLUS.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
+    --scheduler ADDRESS] [--no-progress]``. Exit 0 ok, 1 bad input or I/O error, 78 bad
+    model file. Several drives (files, directories, globs): each analysed on its own, one line
+    each (:mod:`hdrd.analysis.gap.fleet`)."""
+    try:
+        exclude = [parse_period(x) for x in getattr(args, "exclude", None) or []]
+    except ValueError as e:
+        _err(str(e))
+        return 1
+    from hdrd.analysis.fleet import FleetError, open_runner
+    from hdrd.analysis.fleet_jobs import GapJob, gap_refs
+    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.drivelog import DriveLogError
+    from hdrd.sim.gyro import load_model, save_model
+
+    if args.plot:
+        from hdrd.analysis.plots import plotting_unavailable
+
+        problem = plotting_unavailable()
+        if problem:  # said before the work, not after it
+            _err(problem)
+            return 1
+
+    start = DEFAULT_START_MODEL
+    if args.model:
+        try:
+            start = load_model(args.model)
+        except OSError as e:
+            _err(f"cannot read the model {args.model}: {e.strerror or e}")
+            return 78
+        except ValueError as e:
+            _err(str(e))
+            return 78
+    measured = [args.measured] if isinstance(args.measured, str) else list(args.measured)
+    try:
+        refs = find_drives(measured)
+    except DriveLogError as e:
+        _err(f"cannot read {e}")
+        return 1
+    if len(refs) > 1 and args.plot:
+        _err(f"--plot draws one drive; {len(refs)} were given")
+        return 1
+    plus_out = getattr(args, "plus_out", None)
+    if len(refs) > 1 and plus_out:
+        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+        return 1
+    from hdrd.analysis.evaluate import read_limits
+
+    job = GapJob(
+        start,
+        bool(args.standstill),
+        tuple(exclude),
+        int(args.seed),
+        bool(args.plot),
+        read_limits(args),
+    )
+    try:
+        with open_runner(args) as runner:
+            if len(refs) > 1:
+                from hdrd.analysis.gap.fleet import gap_fleet
+
+                return gap_fleet(args, refs, job, runner)
+            one = next(gap_refs(refs, job, runner))
+    except (DriveLogError, FleetError) as e:
+        _err(str(e))
+        return 1
+    if one.skipped is not None:
+        _err(one.skipped)
+        return 1
+    res = one.result
+    print(res.summary)
+    try:
+        if args.report:
+            from hdrd.io.files import atomic_write_json
+
+            atomic_write_json(args.report, res.report)
+        if args.out:
+            save_model(res.model, args.out)
+        if plus_out:
+            from hdrd.io.files import atomic_write_text, shown_path
+
+            # the name goes into a YAML comment: one printable line, whatever the file is called
+            atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
+    except OSError as e:
+        _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
+        return 1
+    if args.plot:
+        from hdrd.analysis.gap.plots import plot_gap
+        from hdrd.analysis.plots import plot_to_file
+
+        problem = plot_to_file(lambda path: plot_gap(res.result, path), args.plot)
+        if problem:
+            _err(problem)
+            return 1
+    return 0

@@ -1,0 +1,217 @@
+"""``hdrd replay`` and ``hdrd convert``: a recorded capture through the daemon's pipeline.
+
+Replay decodes the whole capture at once (:func:`hdrd.io.capture.decode_capture`) and feeds it
+to the same :class:`hdrd.daemon.pipeline.Pipeline` the daemon uses, as fast as possible; its JSON
+lines are bit-identical to what ``hdrd run`` publishes for the same bytes, except ``time``
+(the UNIX time of publication), which a recording does not have and replay leaves out.
+
+Memory follows the file: its bytes (read whole, a regular file of at most
+:data:`hdrd.io.files.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
+one chunk of frames at a time; never the device time the capture spans
+(bench/replay_memory.py). A file with no valid frame is an error (exit 1), not an empty run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from hdrd.config import Config, ConfigError
+from hdrd.core.calibrate import BiasRecord
+from hdrd.errors import EX_CONFIG
+from hdrd.io.biasfile import BiasFileError, load_bias
+
+__all__ = ["convert_main", "main", "replay_capture", "replay_steps"]
+
+STEP_CHUNK_FRAMES = 16384
+"""Frames fed to the pipeline at once by ``hdrd replay``, whose messages are written out
+before the next chunk: the messages of a long capture are never all held at once."""
+
+
+def replay_steps(
+    frames: Any,
+    bad_before: Any,
+    bad_frames: int,
+    cfg: Config,
+    bias_dps: float | None,
+    startup_s: float | None = None,
+    chunk: int = STEP_CHUNK_FRAMES,
+    bias_record: BiasRecord | None = None,
+) -> Iterator[list[dict[str, Any]]]:
+    """The daemon's messages (without ``time``) for decoded frames, a list per chunk of
+    frames: the same messages, in the same order, as one pass (the pipeline's state carries
+    over, and its block sums run in sample order either way). Pure. bias_record: the bias
+    file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
+    from dataclasses import replace
+
+    from hdrd.daemon.pipeline import Pipeline, pipeline_config
+
+    # the record also brings the noise parameters it holds (HDR+'s error model)
+    pc = replace(pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
+    if startup_s is not None:
+        pc = replace(pc, startup_s=startup_s)
+    p = Pipeline(pc)
+    for lo in range(0, frames.shape[0], chunk):
+        yield p.feed_array(frames[lo : lo + chunk], bad_before[lo : lo + chunk])
+    yield p.finish(int(bad_frames))
+
+
+def replay_capture(
+    data: bytes,
+    cfg: Config,
+    bias_dps: float | None,
+    startup_s: float | None = None,
+    bias_record: BiasRecord | None = None,
+) -> list[dict[str, Any]]:
+    """Every message the daemon would publish for these bytes (without ``time``). Pure.
+    bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
+    from hdrd.io.capture import decode_capture
+
+    frames, stats = decode_capture(data, cfg.device.protocol)
+    out: list[dict[str, Any]] = []
+    for msgs in replay_steps(
+        frames,
+        stats.bad_before,
+        stats.bad_frames,
+        cfg,
+        bias_dps,
+        startup_s,
+        bias_record=bias_record,
+    ):
+        out.extend(msgs)
+    return out
+
+
+def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config, bytes] | int:
+    """The configuration and the capture's bytes, or the exit status after saying why.
+
+    The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
+    would block or never end)."""
+    from hdrd.commands.options import check_bias_arg, config_from_args
+    from hdrd.io.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
+
+    try:
+        cfg, _ = config_from_args(args)
+        check_bias_arg(getattr(args, "bias", None), cfg)
+    except ConfigError as e:
+        print(f"hdrd: {e}", file=sys.stderr)
+        return EX_CONFIG
+    try:
+        return cfg, read_limited(args.capture, MAX_CAPTURE_BYTES)
+    except InputFileError as e:
+        print(f"hdrd {command}: cannot read {args.capture}: {e}", file=sys.stderr)
+    except OSError as e:
+        print(f"hdrd {command}: cannot read {args.capture}: {e.strerror or e}", file=sys.stderr)
+    return 1
+
+
+def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
+    """A file that holds no valid frame (not a capture, or another --protocol): exit 1."""
+    other = "hdr-text" if protocol == "hdr-bin" else "hdr-bin"
+    print(
+        f"hdrd {command}: no valid frames in {capture} ({stats.bad_frames} bad frames, "
+        f"{stats.garbage_bytes} bytes of garbage as {protocol}); is it a capture from "
+        f"`hdrd record`, and is it {other} (--protocol {other})?",
+        file=sys.stderr,
+    )
+    return 1
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
+    from hdrd.io.capture import decode_capture
+    from hdrd.io.publish import format_json
+
+    loaded = _config_and_capture(args, "replay")
+    if isinstance(loaded, int):
+        return loaded
+    cfg, data = loaded
+    del loaded
+    startup_s: float | None = None
+    bias: float | None = None
+    record: BiasRecord | None = None
+    limit = cfg.calibration.max_bias_dps
+    try:
+        if args.bias is not None:
+            bias = args.bias
+        elif args.bias_file:
+            record = load_bias(args.bias_file, limit)
+        elif args.calibrate_seconds is not None:
+            if not 0 < args.calibrate_seconds <= 600:  # calibration.startup_s's range
+                print(
+                    "hdrd replay: --calibrate-seconds must be a number > 0 and <= 600",
+                    file=sys.stderr,
+                )
+                return 2
+            startup_s = args.calibrate_seconds
+        elif cfg.calibration.bias_file:
+            record = load_bias(cfg.calibration.bias_file, limit)
+    except BiasFileError as e:
+        print(f"hdrd replay: {e}", file=sys.stderr)
+        return 1
+    if record is not None:
+        bias = record.bias_dps
+    frames, stats = decode_capture(data, cfg.device.protocol)
+    del data  # the frames are all that is needed from here on
+    if frames.shape[0] == 0:
+        return _no_frames("replay", args.capture, cfg.device.protocol, stats)
+    out = sys.stdout.buffer
+    for msgs in replay_steps(
+        frames, stats.bad_before, stats.bad_frames, cfg, bias, startup_s, bias_record=record
+    ):
+        if msgs:
+            out.write(b"".join(format_json(m) for m in msgs))
+    out.flush()
+    return 0
+
+
+def convert_main(args: argparse.Namespace) -> int:
+    """``hdrd convert CAPTURE --out DRIVE.csv|DRIVE.parquet|DIR [--format F]``: every frame as a
+    drive-log row (raw deg/s)."""
+    import numpy as np
+
+    from hdrd.io.capture import decode_capture
+    from hdrd.io.clocks import DeviceClock
+    from hdrd.io.drivefiles import log_format, write_log
+    from hdrd.io.drivelog import DriveLog, DriveLogError
+    from hdrd.io.protocol import TEMP_NOT_FITTED
+
+    loaded = _config_and_capture(args, "convert")
+    if isinstance(loaded, int):
+        return loaded
+    cfg, data = loaded
+    frames, stats = decode_capture(data, cfg.device.protocol)
+    t_us, ok = DeviceClock().unwrap_many(frames["t_us"])
+    frames, t_us = frames[ok], t_us[ok]
+    if frames.shape[0] == 0:
+        return _no_frames("convert", args.capture, cfg.device.protocol, stats)
+    omega = cfg.sensor.to_dps_array(frames["rate"], frames["ref"])
+    temp = frames["temp"].astype(np.float64)
+    has_temp = frames["temp"] != TEMP_NOT_FITTED
+    log = DriveLog(
+        t=(t_us - t_us[0]) / 1e6,
+        omega=omega,
+        temp_c=np.where(has_temp, temp / 100, np.nan) if has_temp.any() else None,
+        name=Path(args.capture).stem,
+        meta={
+            "source": f"hdrd convert {Path(args.capture).name}",
+            "bad_frames": str(stats.bad_frames),
+        },
+    )
+    fmt = log_format(args.out, getattr(args, "format", None))
+    try:
+        written = write_log(args.out, log, fmt, log.name)
+    except (OSError, DriveLogError) as e:
+        print(
+            f"hdrd convert: cannot write {args.out}: {(e.strerror if isinstance(e, OSError) else None) or e}",
+            file=sys.stderr,
+        )
+        return 1
+    print(
+        f"{frames.shape[0]} samples, {log.duration_s:.1f} s, {stats.bad_frames} bad frames -> {written}",
+        file=sys.stderr,
+    )
+    return 0

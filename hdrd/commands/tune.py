@@ -1,0 +1,149 @@
+"""``hdrd tune``: the command-line edge of :mod:`hdrd.analysis.tune` (the report, the config
+snippet, the JSON), in this process or, with ``--workers`` / ``--scheduler``, on a Dask
+cluster (:func:`hdrd.analysis.fleet_jobs.tune_fleet`: the same result)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+
+from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
+from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
+from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
+from hdrd.analysis.progress import ProgressBar
+from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+from hdrd.io.drivefiles import DriveRef
+
+__all__ = ["NAMES_IN_COMMENT", "main"]
+
+NAMES_IN_COMMENT = 20
+"""Training drives named in the config snippet's comment (a fleet's are counted)."""
+
+
+def _err(msg: str) -> None:
+    print(f"hdrd tune: error: {msg}", file=sys.stderr)
+
+
+def _prepared(
+    refs: Sequence[DriveRef], job: PrepareJob, strict: bool, skipped: list[str]
+) -> list[PreparedDrive]:
+    """Each drive read and prepared (:func:`hdrd.analysis.fleet_jobs.read_prepared`); why each
+    other one cannot be is added to ``skipped`` (``strict``: EvaluationError at the first)."""
+    out: list[PreparedDrive] = []
+    for r in refs:
+        d = read_prepared(r, job)
+        if isinstance(d, str):
+            if strict:
+                raise EvaluationError(d)
+            skipped.append(d)
+        else:
+            out.append(d)
+    return out
+
+
+def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) -> TuneResult:
+    from hdrd.analysis.fleet_jobs import tune_fleet
+
+    strict = bool(getattr(args, "strict", False))
+    train_refs = drive_refs(args.train)
+    test_refs = drive_refs(args.test or [])
+    if not fleet_requested(args):
+        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
+        train = _prepared(train_refs, job, strict, skipped)
+        test = _prepared(test_refs, job, strict, skipped)
+        if not train:
+            raise EvaluationError(
+                skipped.pop(0)
+                if len(train_refs) == 1
+                else f"none of the {len(train_refs)} training drives can be used"
+            )
+        return tune(
+            train,
+            test,
+            args.candidates,
+            args.seed,
+            calibrate_seconds=args.calibrate_seconds,
+            progress=bar,
+        )
+    with open_runner(args) as runner:
+        return tune_fleet(
+            runner,
+            train_refs,
+            test_refs,
+            args.candidates,
+            args.seed,
+            calibrate_seconds=args.calibrate_seconds,
+            progress=bar,
+            strict=strict,
+            skipped=skipped,
+            read_limits=read_limits(args),
+        )
+
+
+def _comment(result: TuneResult, seed: int) -> list[str]:
+    names = [d.name for d in result.train["baseline"]]
+    n_test = len(result.test["baseline"])
+    shown = ", ".join(names[:NAMES_IN_COMMENT])
+    if len(names) > NAMES_IN_COMMENT:
+        shown += f", and {len(names) - NAMES_IN_COMMENT} more"
+    s_tr = result.summary("train", "tuned")
+    s_te = result.summary("test", "tuned")
+    comment = [
+        f"HDR parameters tuned by `hdrd tune` (seed {seed}, {result.n_evaluated} sets) on "
+        f"{len(names)} training drive(s): " + shown,
+        f"training: mean NEpsi {s_tr.ne_psi['hdr']:.3f} deg/min, {s_tr.improvement:.2f}x"
+        if s_tr
+        else "",
+        (
+            f"test: mean NEpsi {s_te.ne_psi['hdr']:.3f} deg/min, {s_te.improvement:.2f}x "
+            f"on {n_test} drive(s)"
+        )
+        if s_te
+        else "no test drives",
+        "paste into /etc/hdrd/hdrd.yaml (replacing its hdr: section)",
+    ]
+    return [c for c in comment if c]
+
+
+def main(args: argparse.Namespace) -> int:
+    """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
+    [--calibrate-seconds S] [--out YAML] [--json FILE] [--strict] [--no-progress]
+    [--workers N | --scheduler ADDRESS]``."""
+    from hdrd.io.files import atomic_write_json, atomic_write_text
+
+    if args.candidates < 1:
+        _err(f"--candidates must be >= 1, got {args.candidates}")
+        return 2
+    bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
+    t0 = time.monotonic()
+    skipped: list[str] = []
+    try:
+        result = _run(args, bar, skipped)
+    except (EvaluationError, FleetError) as e:
+        if bar is not None:
+            bar.close()
+        for why in skipped:
+            print(f"hdrd tune: skipped {why}", file=sys.stderr)
+        _err(str(e))
+        return 1
+    if bar is not None:
+        bar.close()
+    for why in skipped:
+        print(f"hdrd tune: skipped {why}", file=sys.stderr)
+    seconds = time.monotonic() - t0
+    print(format_report(result, seconds))
+    if args.out:
+        try:
+            atomic_write_text(args.out, params_yaml(result.best, _comment(result, args.seed)))
+        except OSError as e:
+            _err(f"cannot write {args.out}: {e.strerror or e}")
+            return 1
+    if args.json:
+        try:
+            atomic_write_json(args.json, to_json(result, seconds))
+        except OSError as e:
+            _err(f"cannot write {args.json}: {e.strerror or e}")
+            return 1
+    return 0

@@ -1,0 +1,11 @@
+"""The core: what hdrd computes, pure (no port, socket, file or clock).
+
+The drift reducers (:mod:`~hdrd.core.hdr`, the paper's HDR; :mod:`~hdrd.core.hdrplus`, HDR+,
+with its bias filters :mod:`~hdrd.core.biasbank` and stop detection
+:mod:`~hdrd.core.standstill`), the method registry (:mod:`~hdrd.core.methods`) and what a step
+sees (:mod:`~hdrd.core.steps`); counts to deg/s (:mod:`~hdrd.core.sensor`), block means
+(:mod:`~hdrd.core.resample`), the static bias and the standstill test
+(:mod:`~hdrd.core.calibrate`); the gyro's error model (:mod:`~hdrd.core.gyronoise`), the grade
+table (:mod:`~hdrd.core.grades`) and the Allan deviation (:mod:`~hdrd.core.allan`).
+It imports nothing of hdrd's other layers (tests/test_layout.py).
+"""

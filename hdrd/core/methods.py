@@ -1,0 +1,264 @@
+"""The drift reducers by name: the one registry the daemon, replay, evaluate and the CLI use.
+
+A method (:class:`Method`) is a small object with six operations:
+
+- ``initial_state(yaw)``: its state at start, the yaw (deg CCW) carried in, so that a method
+  switched on SIGHUP continues the same heading (:meth:`Method.yaw` reads it back out);
+- ``step(state, input, settings) -> (state, output)``: one step T, the form the daemon's
+  pipeline runs once per closed block, on the one input every method takes,
+  :class:`hdrd.core.steps.StepInput` (u = block mean - eps0 in deg/s CCW, the samples' spread,
+  speed, temperature, T), of which each reads what it uses;
+- ``batch(inputs, settings) -> yaw``: the same recursion over a whole drive's
+  :class:`hdrd.core.steps.StepInputs` from the initial state, the fast form for offline tools;
+  bit-identical to looping ``step`` (tests/test_methods.py);
+- ``settings(context) -> settings``: how its settings follow from what the caller knows
+  (:class:`SettingsContext`: the configured HDR parameters, HDR+'s configured base, the
+  gyro's samples per step, the calibration record, its error model). HDR+'s are derived in
+  one function, :func:`plus_settings`, for the daemon, replay and evaluate alike;
+- ``publish(output, settings) -> Published``: the message fields of a step's output.
+
+A new drift reducer is one more entry in :data:`REGISTRY`. Pure; no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, replace
+from typing import Any, Generic, NamedTuple, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.core import hdr, hdrplus
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.hdr import INITIAL_STATE, HdrOutput, HdrParams, HdrState
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, GyroNoise, HdrPlusParams, PlusOutput, PlusState
+from hdrd.core.standstill import CalibrationNoise
+from hdrd.core.steps import StepInput, StepInputs
+
+__all__ = [
+    "REGISTRY",
+    "Method",
+    "Published",
+    "SettingsContext",
+    "StepInput",
+    "StepInputs",
+    "StepOutput",
+    "calibration_of",
+    "get",
+    "names",
+    "plus_settings",
+]
+
+FloatArray = npt.NDArray[np.float64]
+S = TypeVar("S")
+P = TypeVar("P")
+StepOutput = HdrOutput | PlusOutput
+"""What a step publishes: omega, yaw, I, W, R, r, filtered (HDR+ adds its bias model's)."""
+
+
+class Published(NamedTuple):
+    """A step's output as message fields (docs/protocol.md).
+
+    core: omega, yaw, I, W, R, r, in that order (the heading and the bias are the
+    pipeline's). extra: the method's own fields after the bias (HDR+: zupt, model, bias_sd).
+    bias_corr_dps: what the method adds to the static bias eps0, deg/s (the published bias is
+    eps0 + this). standstill: the step was a zero-rate update (status ``standstill``).
+    """
+
+    core: dict[str, float | int]
+    extra: dict[str, float | int | str]
+    bias_corr_dps: float = 0.0
+    standstill: bool = False
+
+
+@dataclass(frozen=True)
+class SettingsContext:
+    """What a method's settings are derived from.
+
+    hdr: the configured HDR parameters (``hdr.*``; T is the step period, s). plus: HDR+'s
+    base settings (its defaults with the config's ``standstill.*`` applied). samples_per_step:
+    samples averaged in one step, from the gyro's own sample rate (None = unknown). bias: the
+    calibration record behind the static bias (None, or n = 0, when the bias was given).
+    noise: the gyro's error model when known (configured grade, recorded parameters).
+    quant_step_dps: the gyro's output step, deg/s, when known.
+    """
+
+    hdr: HdrParams = HdrParams()
+    plus: HdrPlusParams = HdrPlusParams()
+    samples_per_step: float | None = None
+    bias: BiasRecord | None = None
+    noise: GyroNoise | None = None
+    quant_step_dps: float | None = None
+
+
+def calibration_of(
+    bias: BiasRecord | None, samples_per_step: float | None
+) -> CalibrationNoise | None:
+    """What a start-up calibration record says about the gyro's noise at standstill
+    (:class:`hdrd.core.standstill.CalibrationNoise`): var(eps0) = std^2 / n, a step's mean's variance
+    std^2 / (samples per step), and whether the window sat on one output code (std 0: a
+    coarse ADC whose noise is below its step). None without a measured record (n < 2)."""
+    if bias is None or bias.n < 2 or not math.isfinite(bias.std_dps):
+        return None
+    per = samples_per_step if samples_per_step is not None and samples_per_step > 0 else 1.0
+    var = bias.std_dps * bias.std_dps
+    return CalibrationNoise(var / bias.n, var / per, math.nan, per, 1 if var == 0.0 else 0)
+
+
+def plus_settings(
+    base: HdrPlusParams,
+    T: float,
+    samples_per_step: float | None = None,
+    bias: BiasRecord | None = None,
+    noise: GyroNoise | None = None,
+    quant_step_dps: float | None = None,
+) -> HdrPlusParams:
+    """HDR+'s settings for this gyro and this drive: the one place they are derived.
+
+    base: HDR+'s configured settings (its own core, tuned with its extras; the configured
+    ``hdr.*`` parameters are not used). T: the step period, s, given to the core. Samples per
+    step (the gyro's sample rate times T; a 1 Hz gyro has 1) turns a step's spread into the
+    variance of its mean at a standstill. bias: the start-up calibration record (its noise:
+    :func:`calibration_of`; a given bias has none, and base.bias_p0 stays). noise: the gyro's
+    error model when known (a configured grade, or parameters recorded by ``hdrd calibrate``).
+    quant_step_dps: the gyro's output step, deg/s, when known (the ADC's LSB; for a recorded
+    log, the lattice of its values). :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` does the rest.
+    """
+    p = base.with_(hdr=replace(base.hdr, T=T))
+    if samples_per_step is not None and samples_per_step > 0:
+        p = p.with_(standstill=replace(p.standstill, samples_per_step=float(samples_per_step)))
+    return p.fitted(calibration_of(bias, samples_per_step), noise, quant_step_dps)
+
+
+class Method(ABC, Generic[S, P]):
+    """One drift reducer (see the module docstring); subclasses define the operations.
+    ``bias_model``: the method refines the static bias itself and detects standstill, so the
+    pipeline publishes the corrected bias, the ``zupt`` flag and the error model in force."""
+
+    name: str = ""
+    summary: str = ""
+    bias_model: bool = False
+
+    @abstractmethod
+    def initial_state(self, yaw: float = 0.0) -> S:
+        """The state at start, with ``yaw`` deg CCW carried in."""
+
+    @abstractmethod
+    def yaw(self, state: S) -> float:
+        """The yaw of a state, deg CCW since start."""
+
+    @abstractmethod
+    def step(self, state: S, inp: StepInput, settings: P) -> tuple[S, StepOutput]:
+        """One step T."""
+
+    @abstractmethod
+    def batch(self, steps: StepInputs, settings: P) -> FloatArray:
+        """The yaw of every step of a drive from the initial state, deg CCW."""
+
+    @abstractmethod
+    def settings(self, ctx: SettingsContext) -> P:
+        """The settings for this gyro and drive."""
+
+    def publish(self, out: StepOutput, settings: P) -> Published:
+        """A step's output as message fields."""
+        return Published(_core_fields(out), {})
+
+
+def _core_fields(o: StepOutput) -> dict[str, float | int]:
+    return {"omega": o.omega, "yaw": o.yaw, "I": o.I, "W": o.W, "R": o.R, "r": o.r}
+
+
+class _Hdr(Method[HdrState, HdrParams]):
+    """The paper's HDR (Table III by default)."""
+
+    name = "hdr"
+    summary = "the paper's HDR (Table III)"
+
+    def initial_state(self, yaw: float = 0.0) -> HdrState:
+        return INITIAL_STATE._replace(yaw=yaw)
+
+    def yaw(self, state: HdrState) -> float:
+        return state.yaw
+
+    def step(
+        self, state: HdrState, inp: StepInput, settings: HdrParams
+    ) -> tuple[HdrState, StepOutput]:
+        return hdr.step(state, inp.u, settings)
+
+    def batch(self, steps: StepInputs, settings: HdrParams) -> FloatArray:
+        return hdr.run_batch(steps.u, settings).yaw
+
+    def settings(self, ctx: SettingsContext) -> HdrParams:
+        return ctx.hdr
+
+
+class _None(_Hdr):
+    """Static bias removal only: the paper's HDR with I frozen at 0."""
+
+    name = "none"
+    summary = "static bias removal only"
+
+    def batch(self, steps: StepInputs, settings: HdrParams) -> FloatArray:
+        # psi_i = psi_{i-1} + u_i * T (Eq. 3 with I = 0). A sequential cumsum: bit-identical
+        # to hdr.step with I frozen at 0 (tests/test_methods.py).
+        return np.cumsum(steps.u * settings.T)
+
+    def settings(self, ctx: SettingsContext) -> HdrParams:
+        return replace(ctx.hdr, enabled=False)
+
+
+class _Plus(Method[PlusState, HdrPlusParams]):
+    """HDR+ (:mod:`hdrd.core.hdrplus`)."""
+
+    name = "hdr+"
+    summary = "HDR with standstill re-calibration and a bias model"
+    bias_model = True
+
+    def initial_state(self, yaw: float = 0.0) -> PlusState:
+        return INITIAL_PLUS_STATE._replace(core=INITIAL_STATE._replace(yaw=yaw))
+
+    def yaw(self, state: PlusState) -> float:
+        return state.core.yaw
+
+    def step(
+        self, state: PlusState, inp: StepInput, settings: HdrPlusParams
+    ) -> tuple[PlusState, StepOutput]:
+        return hdrplus.step(state, inp, settings)
+
+    def batch(self, steps: StepInputs, settings: HdrPlusParams) -> FloatArray:
+        return hdrplus.run_batch(
+            steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, settings
+        ).yaw
+
+    def settings(self, ctx: SettingsContext) -> HdrPlusParams:
+        return plus_settings(
+            ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias, ctx.noise, ctx.quant_step_dps
+        )
+
+    def publish(self, out: StepOutput, settings: HdrPlusParams) -> Published:
+        assert isinstance(out, PlusOutput)
+        extra: dict[str, float | int | str] = {
+            "zupt": int(out.standstill),
+            "model": settings.model,  # the error model in force
+            "bias_sd": out.bias_sd_dps,
+        }
+        return Published(_core_fields(out), extra, out.bias_corr_dps, out.standstill)
+
+
+REGISTRY: dict[str, Method[Any, Any]] = {m.name: m for m in (_None(), _Hdr(), _Plus())}
+"""Drift reducers by name (``hdr.method``, ``--method``)."""
+
+
+def names() -> tuple[str, ...]:
+    """The registered methods' names, in registry order."""
+    return tuple(REGISTRY)
+
+
+def get(name: str) -> Method[Any, Any]:
+    """The method called ``name``; ValueError naming the allowed ones."""
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r} (allowed: {', '.join(REGISTRY)})") from None

@@ -1,0 +1,270 @@
+"""Block averaging of raw gyro samples into one value per step T (paper Eq. 11).
+
+Pure. Blocks are cut by the device's timestamps, not by counting frames: step i averages
+the samples whose device time falls in [t0 + i*T, t0 + (i+1)*T), t0 being the first sample's
+time. A dropped frame only shortens its block; a block without samples is reported as
+:class:`Missing`, never as a zero rate. The device clock is a 32-bit microsecond counter that
+wraps every 2**32 us (71.6 min); :class:`hdrd.io.clocks.DeviceClock` unwraps it into a monotonic integer
+count so block edges are exact integers.
+
+Two forms give bit-identical block means: the streaming :class:`BlockAverager` (the live
+daemon, one sample at a time, sums in arrival order) and :func:`block_means` (whole
+captures; ``numpy.bincount`` also sums in order, one bin per non-empty block, so memory
+follows the number of samples, not the device time they span).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "Block",
+    "BlockAverager",
+    "Missing",
+    "block_average_seconds",
+    "block_means",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class Block:
+    """One step's averaged rate (Eq. 11).
+
+    index: step number i since t0. t_start, t_end: the block's edges in device seconds since
+    the first sample. mean: mean of the samples, in the unit fed (deg/s for the gyro). n:
+    number of samples. temp_c: mean board temperature, deg C, None if unknown. saturated:
+    how many samples were flagged saturated. sumsq: sum of the squared samples, from which
+    :attr:`std` (the samples' spread, same unit as mean) follows.
+    """
+
+    index: int
+    t_start: float
+    t_end: float
+    mean: float
+    n: int
+    temp_c: float | None = None
+    saturated: int = 0
+    sumsq: float = field(default=math.nan, compare=False)
+
+    @property
+    def std(self) -> float:
+        """Population standard deviation of the block's samples (NaN if unknown)."""
+        return math.sqrt(max(self.sumsq / self.n - self.mean * self.mean, 0.0))
+
+
+@dataclass(frozen=True, slots=True)
+class Missing:
+    """A run of ``count`` steps, from step ``first``, in which no sample arrived."""
+
+    first: int
+    count: int
+    t_start: float
+    t_end: float
+
+
+class BlockAverager:
+    """Streaming block averager: ``feed`` samples, get closed blocks back.
+
+    A block closes when the first sample of a later block arrives (that sample's arrival is
+    the moment the step can be published). Times are unwrapped device microseconds
+    (see :class:`hdrd.io.clocks.DeviceClock`); ``T_s`` is the step period (paper: 1 s).
+    """
+
+    def __init__(self, T_s: float = 1.0) -> None:
+        if not T_s > 0:
+            raise ValueError(f"T must be > 0 s, got {T_s!r}")
+        self.T_us = round(T_s * 1_000_000)
+        self.t0_us: int | None = None
+        self._index = 0
+        self._sum = 0.0
+        self._sumsq = 0.0
+        self._n = 0
+        self._temp_sum = 0.0
+        self._temp_n = 0
+        self._sat = 0
+        self.late = 0  # samples in a step already closed (only after flush, with DeviceClock)
+
+    @property
+    def open_block(self) -> tuple[int, int, int] | None:
+        """The open block: (start, end) in unwrapped device us and its sample count; None
+        before the first sample."""
+        if self.t0_us is None:
+            return None
+        start = self.t0_us + self._index * self.T_us
+        return start, start + self.T_us, self._n
+
+    def _edges(self, index: int, count: int = 1) -> tuple[float, float]:
+        T = self.T_us
+        return index * T / 1e6, (index + count) * T / 1e6
+
+    def _close(self) -> Block:
+        t_start, t_end = self._edges(self._index)
+        temp = self._temp_sum / self._temp_n if self._temp_n else None
+        block = Block(
+            self._index, t_start, t_end, self._sum / self._n, self._n, temp, self._sat, self._sumsq
+        )
+        self._sum = 0.0
+        self._sumsq = 0.0
+        self._n = 0
+        self._temp_sum = 0.0
+        self._temp_n = 0
+        self._sat = 0
+        return block
+
+    def feed(
+        self, t_us: int, value: float, temp_c: float | None = None, saturated: bool = False
+    ) -> list[Block | Missing]:
+        """Add one sample at unwrapped device time t_us; return the blocks this closed."""
+        if self.t0_us is None:
+            self.t0_us = t_us
+        index = (t_us - self.t0_us) // self.T_us
+        if index < self._index:
+            self.late += 1
+            return []
+        out = self._advance(index)
+        self._sum += value
+        self._sumsq += value * value
+        self._n += 1
+        if temp_c is not None:
+            self._temp_sum += temp_c
+            self._temp_n += 1
+        self._sat += bool(saturated)
+        return out
+
+    def feed_many(
+        self,
+        t_us: npt.NDArray[np.int64],
+        values: npt.NDArray[np.float64],
+        temp_c: npt.NDArray[np.float64] | None = None,
+        saturated: npt.NDArray[np.bool_] | None = None,
+    ) -> list[tuple[int, Block | Missing]]:
+        """:meth:`feed` over arrays of increasing unwrapped times; bit-identical results.
+
+        Returns (position of the sample that closed it, block) pairs. temp_c: NaN = unknown.
+        Samples joining the open block are added one by one (sequential sums); the blocks
+        after it are summed with ``numpy.bincount``, which also adds in order from 0.0.
+        """
+        n = t_us.shape[0]
+        out: list[tuple[int, Block | Missing]] = []
+        if n == 0:
+            return out
+        temps = np.full(n, np.nan) if temp_c is None else np.asarray(temp_c, np.float64)
+        sat = np.zeros(n, bool) if saturated is None else np.asarray(saturated, bool)
+        if self.t0_us is None:
+            self.t0_us = int(t_us[0])
+        idx = (t_us - self.t0_us) // self.T_us
+        # Samples up to the first one beyond the open block take the scalar path (few).
+        # Times that go back anywhere (not from a DeviceClock) take it all the way: a sample
+        # before j could otherwise close a block that nobody reports.
+        j = int(np.searchsorted(idx, self._index, side="right"))
+        if j == n or np.any(np.diff(idx) < 0):
+            for i in range(n):
+                tc = float(temps[i])
+                for b in self.feed(
+                    int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i])
+                ):
+                    out.append((i, b))
+            return out
+        for i in range(j):
+            tc = float(temps[i])
+            self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]))
+        # One bin per non-empty block, not per step index: memory follows the samples,
+        # never the device time they span (a clock that jumps 2**31 us per frame).
+        starts, labels = _runs(idx[j:])
+        sums = np.bincount(labels, weights=values[j:])
+        sumsq = np.bincount(labels, weights=values[j:] * values[j:])
+        counts = np.bincount(labels)
+        has_t = ~np.isnan(temps[j:])
+        tsum = np.bincount(labels, weights=np.where(has_t, temps[j:], 0.0))
+        tn = np.bincount(labels, weights=has_t.astype(np.float64))
+        sn = np.bincount(labels, weights=sat[j:].astype(np.float64))
+        first_pos = j + starts
+        block_index = idx[j:][starts]
+        # Close the block that was open before these samples (as the j-th sample's feed would).
+        closer = j
+        last = len(starts) - 1
+        for k, index in enumerate(block_index.tolist()):
+            for item in self._advance(index):
+                out.append((closer, item))
+            self._sum, self._sumsq, self._n = float(sums[k]), float(sumsq[k]), int(counts[k])
+            self._temp_sum, self._temp_n, self._sat = float(tsum[k]), int(tn[k]), int(sn[k])
+            if k < last:
+                closer = int(first_pos[k + 1])
+        return out
+
+    def _advance(self, index: int) -> list[Block | Missing]:
+        """Move the open block to ``index`` (> the open one): close it, report the gap."""
+        out: list[Block | Missing] = []
+        if index <= self._index:
+            return out
+        if self._n:
+            out.append(self._close())
+            first = self._index + 1
+        else:
+            first = self._index
+        if index > first:
+            out.append(Missing(first, index - first, *self._edges(first, index - first)))
+        self._index = index
+        return out
+
+    def flush(self) -> list[Block | Missing]:
+        """Close the open block at end of input (a partial block is still a block).
+
+        The flushed block is final: a later sample in the same step counts as ``late``, and
+        one in a later step reports only the steps after it as missing.
+        """
+        if not self._n:
+            return []
+        block = self._close()
+        self._index += 1
+        return [block]
+
+
+def block_means(
+    t_us: npt.NDArray[np.int64], values: npt.NDArray[np.float64], T_s: float = 1.0
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Vectorised :class:`BlockAverager` over unwrapped, increasing device times (us).
+
+    Returns (index, mean, n) of the non-empty blocks, in order, the last (partial) block
+    included as ``flush`` would. Means are bit-identical to the streaming form.
+    """
+    if t_us.shape[0] == 0:
+        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
+    T_us = round(T_s * 1_000_000)
+    idx = (t_us - t_us[0]) // T_us
+    starts, labels = _runs(idx)
+    sums = np.bincount(labels, weights=values)
+    counts = np.bincount(labels)
+    return idx[starts].astype(np.int64), sums / counts, counts.astype(np.int64)
+
+
+def _runs(idx: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """For non-decreasing block indices: (position where each run of equal indices starts,
+    each sample's run number 0, 1, ...). ``numpy.bincount`` over run numbers sums each block
+    in sample order, as over the indices themselves, with one bin per non-empty block."""
+    n = idx.shape[0]
+    change = np.empty(n, bool)
+    change[:1] = True
+    np.not_equal(idx[1:], idx[:-1], out=change[1:])
+    labels = np.cumsum(change, dtype=np.int64)
+    labels -= 1
+    return np.flatnonzero(change), labels
+
+
+def block_average_seconds(
+    t_s: npt.ArrayLike, values: npt.ArrayLike, T_s: float = 1.0
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Block means of samples timed in seconds (drive logs): (index, mean, n), non-empty only.
+
+    Step i holds the samples with t in [t[0] + i*T, t[0] + (i+1)*T).
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if t.shape[0] == 0:
+        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
+    t_us = np.rint((t - t[0]) * 1e6).astype(np.int64)
+    return block_means(t_us, v, T_s)

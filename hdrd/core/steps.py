@@ -1,0 +1,72 @@
+"""What a drift reducer sees of a step: one step's input, and a drive's steps as arrays. Pure.
+
+Every method (:mod:`hdrd.core.methods`) takes the same input, of which it reads what it uses: the
+paper's HDR only ``u``; HDR+ also the spread, the speed and the temperature. Units: rates
+deg/s, + = counter-clockwise seen from above (a left turn); speed m/s; temperature degC;
+time s. NaN marks an unknown value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["StepInput", "StepInputs"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+class StepInput(NamedTuple):
+    """One step's input. NaN marks an unknown spread, speed or temperature."""
+
+    u: float
+    """Block mean raw rate minus the start-up static bias eps0 (paper Eqs. 2, 11), deg/s CCW."""
+    spread_dps: float
+    """Standard deviation of the raw samples within the block, deg/s."""
+    speed_mps: float
+    """Vehicle speed, m/s."""
+    temp_c: float
+    """Board temperature, degC."""
+    T: float
+    """Step length, s."""
+
+
+@dataclass(frozen=True)
+class StepInputs:
+    """A drive's steps as arrays, one element per step taken (a step without samples is not
+    a step: it has no element, and the yaw holds across it).
+
+    u: block mean of the raw rate minus the static bias, deg/s CCW (Eqs. 2, 11). t_end: end
+    of each step, s since the drive log's first sample. T: step period, s. bias_dps: the static
+    bias removed, deg/s. n_samples: samples averaged in each step. speed: mean speed in each
+    step, m/s (NaN where unknown), None if the log has none. temp_c: mean temperature in each
+    step, deg C (NaN where unknown), or None. omega_std: standard deviation of the raw samples
+    within each step, deg/s (0 for a single sample). bias_var: variance of the static bias
+    estimate, (deg/s)^2 (sample variance / samples of the calibration window; NaN if the bias
+    was given).
+    """
+
+    u: FloatArray
+    t_end: FloatArray
+    T: float
+    bias_dps: float
+    n_samples: IntArray
+    speed: FloatArray | None = None
+    temp_c: FloatArray | None = None
+    omega_std: FloatArray | None = None
+    bias_var: float = math.nan
+
+    def input(self, i: int) -> StepInput:
+        """Step i as the daemon's pipeline hands it to a method's ``step``."""
+
+        def at(a: FloatArray | None) -> float:
+            return math.nan if a is None else float(a[i])
+
+        return StepInput(
+            float(self.u[i]), at(self.omega_std), at(self.speed), at(self.temp_c), self.T
+        )

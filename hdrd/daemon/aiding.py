@@ -1,0 +1,449 @@
+"""GPS aiding of the HDR heading, pure: mode, heading alignment and bias learning.
+
+hdrd's heading is dead reckoning: heading = (heading0 - yaw) mod 360, yaw the integral of the
+drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.gpsd`) the course over
+ground is an absolute heading whenever the vehicle moves fast enough for it to mean
+something. :class:`GpsAiding` uses it two ways, and says which mode it is in:
+
+``"aided"`` while the latest fix is good: 2D/3D (``mode >= 2``), a course and a speed of at
+least ``min_speed_mps``, a course error estimate (``epd``, when sent) within
+``max_epd_deg``, and fresh (received within ``max_fix_age_s``). Then
+
+- **alignment**: the published heading is the HDR heading plus an offset, compass degrees,
+  ``heading = (heading_hdr + offset) mod 360``. The first good fix sets the offset at once;
+  afterwards each step moves it by ``align_gain`` times the heading error (wrapped to
+  [-180, 180)), and only while the rate is below ``align_max_rate_dps`` (in a turn the
+  fix's course lags by its latency). The course is carried forward to the step by the
+  gyro over the fix's age: ``course - omega * age`` (omega + CCW turns the compass
+  course down).
+- **bias learning**: over windows of ``bias_window_s`` of straight driving (|omega| at
+  each step and the window's mean GPS course rate within ``straight_max_dps``, no course
+  jump over ``max_course_step_deg``), the gyro's yaw change with only
+  the static bias removed, ``sum((omega_raw - bias) * dt)`` (deg, CCW), is compared with
+  the GPS's, ``-(course change)`` (compass course is CW): the difference over the window's
+  length is the error of the static bias eps0 (deg/s, paper Eq. 2). ``bias_gain`` times it
+  (at most ``max_bias_step_dps``) is returned for ``Pipeline.adjust_bias(delta, "gps")``;
+  a window whose estimate exceeds ``max_residual_dps`` is discarded (a GPS glitch, a skid).
+  Learning eps0 rather than correcting HDR's output leaves the I-controller (Eqs. 4, 9) to
+  do its job during outages with the best static bias known; HDR's I then relaxes to 0.
+
+``"dead-reckoning"`` otherwise (no fix, a tunnel, standing at a light, gpsd gone, a course
+the gate rejected): the heading continues from the last alignment, carried by the HDR yaw,
+and nothing is learned.
+
+**The gate.** Each new course is tested against the heading the gyro predicts (the HDR
+heading plus the offset) before it is used: the innovation ``wrap180(course - predicted)``
+must be within ``gate_deg`` (:meth:`GpsAiding.gate_deg`): the fix's own course error (95 %:
+gpsd's ``epd``; else from the speed error, ``atan(eps / speed)``; else
+``default_course_err_deg``), plus what the gyro may have drifted since the last course
+accepted (``max_drift_dps`` times that time), plus the fix's latency in a turn
+(``|omega| * latency_s``), and at least ``gate_min_deg``. A course outside it is rejected
+(a multipath glitch, a reversed course, another receiver): that step is dead reckoning.
+``realign_after`` rejections in a row that agree with one another (their implied offsets
+within each one's own gate) mean the gyro's heading is what is wrong (a wrong start, a long
+outage): the offset is set to the GPS course at once (a ``gps_realigned`` event).
+
+**One receiver.** gpsd reports every receiver it reads, each TPV naming its ``device``.
+Aiding follows one: ``device`` when configured (``gpsd.device``), else the first that
+reports a 2D/3D fix; the others' reports are ignored (counted in ``fixes_ignored``). A
+followed receiver (not a configured one) that has had no fix for ``device_timeout_s``
+hands over to the next receiver with a fix (a ``gps_device`` event).
+
+Events for the log are appended to :attr:`GpsAiding.events` as ``(name, fields)``, for the
+caller to log and clear (:class:`hdrd.daemon.gpslink.GpsdLink` does).
+
+Messages are the pipeline's dicts (docs/protocol.md); keys are only added or, for
+``heading``, replaced by the aligned value: ``mode``; ``heading_offset`` (deg, once
+aligned); ``gps_course`` (deg, while aided) and ``gps_speed`` (m/s, with a fresh fix).
+A message without a heading (calibrating) passes unchanged. Time ``now`` is any monotonic
+clock in seconds, passed in by the caller; fixes are stamped with it when received.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+__all__ = ["AIDED", "DEAD_RECKONING", "AidingConfig", "FixLike", "GpsAiding", "wrap180"]
+
+AIDED = "aided"
+DEAD_RECKONING = "dead-reckoning"
+
+
+def wrap180(deg: float) -> float:
+    """An angle difference wrapped to [-180, 180), deg."""
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+def _compass(deg: float) -> float:
+    h = deg % 360.0
+    return 0.0 if h >= 360.0 else h
+
+
+class FixLike(Protocol):
+    """What aiding reads from a gpsd fix (:class:`hdrd.io.gpsd.Fix`)."""
+
+    @property
+    def mode(self) -> int: ...
+    @property
+    def track_deg(self) -> float | None: ...
+    @property
+    def speed_mps(self) -> float | None: ...
+    @property
+    def epd(self) -> float | None: ...
+    @property
+    def eps(self) -> float | None: ...
+    @property
+    def device(self) -> str | None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class AidingConfig:
+    """Thresholds and gains of :class:`GpsAiding` (units in the names)."""
+
+    min_speed_mps: float = 5.0
+    """GPS course is trusted at or above this ground speed (config ``gpsd.min_speed_mps``)."""
+    max_fix_age_s: float = 2.5
+    """A fix older than this (since received) is stale: two missed 1 Hz fixes."""
+    max_epd_deg: float = 15.0
+    """Course error estimate (gpsd ``epd``, 95 %) above which the course is not used."""
+    step_s: float = 1.0
+    """HDR step period T, s (paper: 1 s); a step interval off by more than half of it
+    (a gap) restarts the bias window."""
+    align_gain: float = 0.2
+    """Fraction of the heading error removed per step while aided (time constant ~5 steps)."""
+    align_max_rate_dps: float = 3.0
+    """No alignment update while |omega| exceeds this (the fix's latency matters in turns)."""
+    bias_window_s: float = 20.0
+    """Straight-driving window over which one bias estimate is made, s."""
+    bias_gain: float = 0.3
+    """Fraction of a window's bias estimate applied."""
+    straight_max_dps: float = 1.0
+    """Straight: |omega| at every step, and the GPS course change over the window divided
+    by its length, at most this, deg/s."""
+    max_course_step_deg: float = 3.0
+    """A larger GPS course change from one step to the next restarts the window (a jump)."""
+    max_residual_dps: float = 1.0
+    """A window estimate beyond this is discarded as a glitch, deg/s."""
+    max_bias_step_dps: float = 0.1
+    """Largest correction applied at once, deg/s."""
+    default_course_err_deg: float = 5.0
+    """A fix's course error (95 %, deg) when it gives neither ``epd`` nor ``eps``."""
+    gate_min_deg: float = 5.0
+    """The gate is never narrower than this, deg."""
+    max_drift_dps: float = 0.1
+    """How fast the gyro heading may drift from the truth, deg/s: the gate widens by this
+    times the time since the last course accepted (after a 2-minute outage, by 12 deg)."""
+    latency_s: float = 0.5
+    """A fix's latency that the gyro's carrying-forward may miss, s: the gate widens by
+    ``|omega|`` times this in a turn."""
+    realign_after: int = 3
+    """Rejections in a row that agree with one another after which the offset is set to the
+    GPS course (the gyro heading is what is wrong)."""
+    device: str | None = None
+    """The receiver to follow (gpsd's TPV ``device``, e.g. ``/dev/ttyUSB0``); None: the
+    first that reports a fix."""
+    device_timeout_s: float = 10.0
+    """A followed receiver (not a configured one) without a fix for this long hands over to
+    another that has one, s."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "min_speed_mps",
+            "max_fix_age_s",
+            "max_epd_deg",
+            "step_s",
+            "bias_window_s",
+            "straight_max_dps",
+            "max_residual_dps",
+            "max_bias_step_dps",
+            "align_max_rate_dps",
+            "max_course_step_deg",
+            "default_course_err_deg",
+            "gate_min_deg",
+            "max_drift_dps",
+            "latency_s",
+            "device_timeout_s",
+        ):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0) or (
+                name in ("step_s", "max_fix_age_s", "bias_window_s") and v == 0
+            ):
+                raise ValueError(
+                    f"AidingConfig.{name} must be a finite number >= 0 (> 0 for step_s, max_fix_age_s, bias_window_s), got {v!r}"
+                )
+        for name in ("align_gain", "bias_gain"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"AidingConfig.{name} must be in [0, 1], got {v!r}")
+        if isinstance(self.realign_after, bool) or not (
+            isinstance(self.realign_after, int) and self.realign_after >= 1
+        ):
+            raise ValueError(
+                f"AidingConfig.realign_after must be an integer >= 1, got {self.realign_after!r}"
+            )
+
+
+class GpsAiding:
+    """Turns the pipeline's messages into GPS-aided ones (see the module doc). Pure.
+
+    ``on_fix(fix, now)`` for each fix received; ``on_message(msg, now) -> (msg, delta)`` for
+    each message before publishing, delta (deg/s) to add to the static bias (0.0: none);
+    ``speed(now)`` the fresh GPS ground speed for ``Pipeline.set_speed``.
+    """
+
+    def __init__(self, config: AidingConfig = AidingConfig()) -> None:
+        self.config = config
+        self._fix: FixLike | None = None  # the latest TPV: fix or no fix
+        self._fix_at = -math.inf
+        self._course_fix: FixLike | None = None  # the latest 2D/3D TPV with course and speed
+        self._course_at = -math.inf
+        self._course_seq = 0  # +1 per course received; the gate judges each once
+        self._judged_seq = 0
+        self._course_ok = False  # the gate's verdict on the latest course
+        self._speed: float | None = None  # the latest 2D/3D TPV's speed
+        self._speed_at = -math.inf
+        self.offset_deg: float | None = None
+        """Added to the HDR heading (compass deg), None until the first alignment."""
+        self.mode = DEAD_RECKONING
+        self.bias_learned_dps = 0.0
+        """Sum of the corrections returned so far, deg/s."""
+        self.windows = 0
+        """Bias windows completed (applied or discarded)."""
+        self.windows_discarded = 0
+        self.device: str | None = config.device
+        """The receiver followed (TPV ``device``); None until one has reported a fix."""
+        self._following = config.device is not None
+        self._device_fix_at = -math.inf  # when the followed receiver last reported a fix
+        self.fixes_ignored = 0
+        """TPVs from receivers not followed."""
+        self.courses_rejected = 0
+        """Courses the gate rejected."""
+        self.realignments = 0
+        """Offsets set anew after ``realign_after`` agreeing rejections."""
+        self._accepted_at = -math.inf  # when the gate last accepted a course
+        self._streak: list[float] = []  # the implied offsets of the rejections in a row
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        """``(name, fields)`` for the log: gps_device, gps_course_rejected, gps_realigned."""
+        self._prev_t: float | None = None
+        self._prev_course: float | None = None
+        self._win_dt = 0.0
+        self._win_yaw = 0.0  # gyro yaw change, static bias removed, deg CCW
+        self._win_course = 0.0  # GPS course change, unwrapped, deg CW
+
+    # -- inputs --
+    def _follows(self, fix: FixLike, now: float) -> bool:
+        """Whether ``fix`` comes from the receiver followed (see the module doc); picks one
+        when none is followed yet, or when the followed one has gone quiet."""
+        dev = fix.device
+        has_fix = fix.mode >= 2
+        if self._following and dev == self.device:
+            return True
+        if self.config.device is not None:
+            return False  # a configured receiver only
+        quiet = now - self._device_fix_at > self.config.device_timeout_s
+        if has_fix and (not self._following or quiet):
+            was = self.device if self._following else None
+            self.device, self._following = dev, True
+            fields: dict[str, Any] = {"device": dev}
+            if was is not None or dev is None:
+                fields["previous"] = was
+            self.events.append(("gps_device", fields))
+            return True
+        return not self._following  # no fix and nobody followed yet: harmless either way
+
+    def on_fix(self, fix: FixLike, now: float) -> None:
+        """A TPV report received at ``now`` (s, the caller's monotonic clock).
+
+        A report from a receiver that is not followed is ignored (counted). A TPV without a
+        course (gpsd reports one per sentence until it has found the receiver's cycle end,
+        e.g. after a GGA and again after the RMC) does not hide the course of an earlier fix
+        that is still fresh; a TPV without a fix (mode < 2) ends aiding at once. A negative
+        or non-finite speed is treated as no speed (the fix gives neither a speed nor a
+        course).
+        """
+        if not self._follows(fix, now):
+            self.fixes_ignored += 1
+            return
+        self._fix, self._fix_at = fix, now
+        if fix.mode >= 2:
+            self._device_fix_at = now
+        spd = fix.speed_mps
+        # A ground speed is a magnitude: a negative (or non-finite) one is no speed at all,
+        # never a standstill (it would let a zero-rate update fire while the car moves).
+        if fix.mode >= 2 and spd is not None and math.isfinite(spd) and spd >= 0.0:
+            self._speed, self._speed_at = fix.speed_mps, now
+            if fix.track_deg is not None and math.isfinite(fix.track_deg):
+                self._course_fix, self._course_at = fix, now
+                self._course_seq += 1
+
+    def _has_fix(self, now: float) -> bool:
+        f = self._fix
+        return f is not None and f.mode >= 2 and now - self._fix_at <= self.config.max_fix_age_s
+
+    def good_fix(self, now: float) -> FixLike | None:
+        """The fix to align to, if good enough (see the module doc; the gate aside), else
+        None."""
+        c = self.config
+        f = self._course_fix
+        if f is None or not self._has_fix(now) or now - self._course_at > c.max_fix_age_s:
+            return None
+        assert f.speed_mps is not None
+        if f.speed_mps < c.min_speed_mps or (f.epd is not None and f.epd > c.max_epd_deg):
+            return None
+        return f
+
+    def course_err_deg(self, fix: FixLike) -> float:
+        """The fix's course error, 95 %, deg: ``epd``; else from the speed error,
+        ``atan(eps / speed)``; else ``default_course_err_deg``."""
+        if fix.epd is not None and math.isfinite(fix.epd):
+            return float(fix.epd)
+        spd = fix.speed_mps
+        if fix.eps is not None and math.isfinite(fix.eps) and spd is not None and spd > 0.0:
+            return math.degrees(math.atan2(fix.eps, spd))
+        return self.config.default_course_err_deg
+
+    def gate_deg(self, fix: FixLike, omega_dps: float, now: float) -> float:
+        """The largest innovation (deg) a course from ``fix`` may have at ``now``, the
+        yaw rate being ``omega_dps`` (see the module doc)."""
+        c = self.config
+        since = max(0.0, now - self._accepted_at) if math.isfinite(self._accepted_at) else 0.0
+        width = self.course_err_deg(fix) + c.max_drift_dps * since + abs(omega_dps) * c.latency_s
+        return max(c.gate_min_deg, width)
+
+    def _judge(self, fix: FixLike, course: float, h_hdr: float, omega: float, now: float) -> bool:
+        """The gate's verdict on a new course (True: use it); a run of agreeing rejections
+        sets the offset anew."""
+        if self.offset_deg is None:  # nothing to test against yet: the first course aligns
+            self._accepted_at = now
+            self._streak.clear()
+            return True
+        innovation = wrap180(course - (h_hdr + self.offset_deg))
+        gate = self.gate_deg(fix, omega, now)
+        if abs(innovation) <= gate:
+            self._accepted_at = now
+            self._streak.clear()
+            return True
+        implied = wrap180(course - h_hdr)  # the offset this course asks for
+        own = max(
+            self.config.gate_min_deg, self.course_err_deg(fix) + abs(omega) * self.config.latency_s
+        )
+        if self._streak and abs(wrap180(implied - self._streak[-1])) > own:
+            self._streak.clear()  # it disagrees with the rejections before it: a new run
+        self._streak.append(implied)
+        self.courses_rejected += 1
+        self.events.append(
+            (
+                "gps_course_rejected",
+                {
+                    "course": fix.track_deg,
+                    "innovation_deg": round(innovation, 2),
+                    "gate_deg": round(gate, 2),
+                    "in_a_row": len(self._streak),
+                },
+            )
+        )
+        if len(self._streak) < self.config.realign_after:
+            return False
+        old = self.offset_deg
+        self.offset_deg = implied
+        self.realignments += 1
+        self._accepted_at = now
+        self._streak.clear()
+        self.events.append(
+            (
+                "gps_realigned",
+                {"offset_deg": round(implied, 2), "previous_offset_deg": round(old, 2)},
+            )
+        )
+        return True
+
+    def speed(self, now: float) -> float | None:
+        """Ground speed of a fresh 2D/3D fix, m/s; None when unknown."""
+        if not self._has_fix(now) or now - self._speed_at > self.config.max_fix_age_s:
+            return None
+        return self._speed
+
+    # -- per message --
+    def on_message(self, msg: dict[str, Any], now: float) -> tuple[dict[str, Any], float]:
+        """The message as published (a new dict) and the bias correction to apply, deg/s."""
+        if "heading" not in msg:
+            return msg, 0.0
+        out = dict(msg)
+        h_hdr = float(msg["heading"])
+        is_step = "omega" in msg
+        omega = float(msg["omega"]) if is_step else 0.0
+        fix = self.good_fix(now)
+        course: float | None = None
+        if fix is not None:
+            assert fix.track_deg is not None
+            age = max(0.0, now - self._course_at)
+            course = _compass(fix.track_deg - omega * age)
+            if self._judged_seq != self._course_seq:
+                self._judged_seq = self._course_seq
+                self._course_ok = self._judge(fix, course, h_hdr, omega, now)
+            if not self._course_ok:
+                fix = course = None
+        if fix is not None and course is not None:
+            if self.offset_deg is None:
+                self.offset_deg = wrap180(course - h_hdr)
+            elif is_step and abs(omega) <= self.config.align_max_rate_dps:
+                err = wrap180(course - (h_hdr + self.offset_deg))
+                self.offset_deg = wrap180(self.offset_deg + self.config.align_gain * err)
+            self.mode = AIDED
+        else:
+            self.mode = DEAD_RECKONING
+        if self.offset_deg is not None:
+            out["heading"] = _compass(h_hdr + self.offset_deg)
+            out["heading_offset"] = self.offset_deg
+        out["mode"] = self.mode
+        if fix is not None:
+            out["gps_course"] = fix.track_deg
+        spd = self.speed(now)
+        if spd is not None:
+            out["gps_speed"] = spd
+        delta = self._learn(msg, course) if is_step else 0.0
+        return out, delta
+
+    # -- bias learning --
+    def _restart_window(self, t: float | None, course: float | None) -> None:
+        self._prev_t, self._prev_course = t, course
+        self._win_dt = self._win_yaw = self._win_course = 0.0
+
+    def _learn(self, msg: dict[str, Any], course: float | None) -> float:
+        c = self.config
+        t = msg.get("t")
+        raw, bias = msg.get("omega_raw"), msg.get("bias")
+        if course is None or t is None or raw is None or bias is None or "gap_s" in msg:
+            self._restart_window(None, None)
+            return 0.0
+        t = float(t)
+        if self._prev_t is None or self._prev_course is None:
+            self._restart_window(t, course)
+            return 0.0
+        dt = t - self._prev_t
+        dcourse = wrap180(course - self._prev_course)
+        straight = (
+            abs(float(msg["omega"])) <= c.straight_max_dps and abs(dcourse) <= c.max_course_step_deg
+        )
+        if not (abs(dt - c.step_s) <= 0.5 * c.step_s and straight):
+            self._restart_window(t, course)
+            return 0.0
+        self._prev_t, self._prev_course = t, course
+        self._win_dt += dt
+        self._win_yaw += (float(raw) - float(bias)) * dt
+        self._win_course += dcourse
+        if self._win_dt < c.bias_window_s - 1e-9:
+            return 0.0
+        # gyro yaw change (CCW) minus the true one (-course change): the static bias error
+        window_s, course_rate = self._win_dt, self._win_course / self._win_dt
+        residual = (self._win_yaw + self._win_course) / window_s
+        self._restart_window(t, course)
+        self.windows += 1
+        if abs(residual) > c.max_residual_dps or abs(course_rate) > c.straight_max_dps:
+            self.windows_discarded += 1
+            return 0.0
+        delta = float(max(-c.max_bias_step_dps, min(c.max_bias_step_dps, c.bias_gain * residual)))
+        self.bias_learned_dps += delta
+        return delta

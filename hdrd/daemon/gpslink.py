@@ -1,0 +1,134 @@
+"""The daemon's GPS link (``hdrd run --gpsd``): the gpsd client, the aiding, and the pipeline's
+hooks, wired together. An edge: it reads gpsd's socket (through :class:`hdrd.io.gpsd.GpsdClient`),
+stamps fixes with the monotonic clock and logs state changes; the aiding itself is pure
+(:class:`hdrd.daemon.aiding.GpsAiding`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
+
+from hdrd.daemon.aiding import AidingConfig, GpsAiding
+from hdrd.io.gpsd import GpsdClient
+from hdrd.io.logs import log
+from hdrd.io.protocol import Message
+
+if TYPE_CHECKING:
+    from hdrd.config import GpsdConfig
+
+__all__ = ["AidedPipeline", "GpsdLink", "aiding_config"]
+
+
+def aiding_config(gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> AidingConfig:
+    """The :class:`hdrd.daemon.aiding.AidingConfig` that a :class:`hdrd.config.GpsdConfig` names
+    (``gpsd.min_speed_mps``, ``max_fix_age_s``, ``max_epd_deg``, ``align_gain``,
+    ``bias_window_s``, ``bias_gain``, ``device``: empty = the first receiver with a fix), with
+    the HDR step period ``step_s``, s."""
+    return AidingConfig(
+        device=gpsd_cfg.device or None,
+        min_speed_mps=gpsd_cfg.min_speed_mps,
+        max_fix_age_s=gpsd_cfg.max_fix_age_s,
+        max_epd_deg=gpsd_cfg.max_epd_deg,
+        align_gain=gpsd_cfg.align_gain,
+        bias_window_s=gpsd_cfg.bias_window_s,
+        bias_gain=gpsd_cfg.bias_gain,
+        step_s=step_s,
+    )
+
+
+class AidedPipeline(Protocol):
+    """What :class:`GpsdLink` tells the pipeline (:class:`hdrd.daemon.pipeline.Pipeline`)."""
+
+    def set_speed(self, speed_mps: float | None) -> None: ...
+
+    def adjust_bias(self, delta_dps: float, source: str) -> None: ...
+
+
+class GpsdLink:
+    """What ``hdrd run --gpsd`` adds to the run loop (edge).
+
+    :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
+    and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
+    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
+    ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
+    :class:`hdrd.daemon.aiding.GpsAiding`), and a learned bias correction goes to
+    ``Pipeline.adjust_bias(delta, "gps")``. The aiding's events are logged: ``gps_device``
+    (the receiver followed) and ``gps_realigned`` each time, ``gps_course_rejected`` at most
+    every 10 s with the count since the last one.
+    """
+
+    def __init__(
+        self, client: GpsdClient, aiding: GpsAiding, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.client = client
+        self.aiding = aiding
+        self._clock = clock
+        self._mode: str | None = None
+        self._bad_logged = 0
+        self._bad_log_at = -math.inf
+        self._rejected_logged = 0
+        self._rejected_log_at = -math.inf
+
+    @classmethod
+    def from_config(cls, gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> GpsdLink:
+        """From :class:`hdrd.config.GpsdConfig`: host, port and the aiding's thresholds and
+        gains (the rest of :class:`hdrd.daemon.aiding.AidingConfig` keeps its defaults)."""
+        client = GpsdClient(gpsd_cfg.host, gpsd_cfg.port)
+        return cls(client, GpsAiding(aiding_config(gpsd_cfg, step_s)))
+
+    BAD_LOG_INTERVAL_S = 10.0
+    """At most one ``gpsd_bad_lines`` warning per this many seconds."""
+
+    def poll(self, pipeline: AidedPipeline, now: float | None = None) -> None:
+        now = self._clock() if now is None else now
+        for f in self.client.poll():
+            self.aiding.on_fix(f, now)
+        self._log_events(now)
+        pipeline.set_speed(self.aiding.speed(now))
+        bad = self.client.stats.bad_lines
+        if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
+            errors = self.client.stats.errors
+            log.warning(
+                "gpsd_bad_lines",
+                total=bad,
+                new=bad - self._bad_logged,
+                last=errors[-1] if errors else None,
+            )
+            self._bad_logged, self._bad_log_at = bad, now
+
+    def aid(
+        self, msgs: list[Message], pipeline: AidedPipeline, now: float | None = None
+    ) -> list[Message]:
+        now = self._clock() if now is None else now
+        out = []
+        for m in msgs:
+            m2, delta = self.aiding.on_message(m, now)
+            if delta:
+                pipeline.adjust_bias(delta, "gps")
+            mode = m2.get("mode")
+            if mode is not None and mode != self._mode:
+                self._mode = mode
+                fields_ = {k: m2[k] for k in ("heading", "gps_course", "gps_speed") if k in m2}
+                log.info("gps_mode", mode=mode, **fields_)
+            out.append(m2)
+        self._log_events(now)
+        return out
+
+    def _log_events(self, now: float) -> None:
+        """Log the aiding's events (rejections at most every BAD_LOG_INTERVAL_S)."""
+        a = self.aiding
+        for name, fields_ in a.events:
+            if name != "gps_course_rejected":
+                (log.warning if name == "gps_realigned" else log.info)(name, **fields_)
+                continue
+            total = a.courses_rejected
+            if now - self._rejected_log_at >= self.BAD_LOG_INTERVAL_S:
+                log.warning(name, total=total, new=total - self._rejected_logged, **fields_)
+                self._rejected_logged, self._rejected_log_at = total, now
+        a.events.clear()
+
+    def close(self) -> None:
+        self.client.close()

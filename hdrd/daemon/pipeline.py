@@ -1,0 +1,591 @@
+"""The daemon's pipeline, pure: frames -> deg/s -> blocks of T -> HDR -> messages.
+
+One :class:`Pipeline` serves ``hdrd run`` (a frame at a time, :meth:`Pipeline.feed`) and
+``hdrd replay`` (a whole decoded capture, :meth:`Pipeline.feed_array`). Both give
+bit-identical messages for the same bytes: the array path uses the same formulas elementwise
+(:meth:`hdrd.core.sensor.SensorModel.to_dps_array`) and sums each block in the same order
+(:meth:`hdrd.core.resample.BlockAverager.feed_many`).
+
+Stages: counts -> deg/s, + = CCW (:mod:`hdrd.core.sensor`); block means over T by device time
+(Eq. 11, :mod:`hdrd.core.resample`); then the :class:`Stepper`, one call per closed block: static
+bias eps0 removed (Eq. 2; given, or measured over the first ``startup_s`` at standstill, paper
+Sec. 6, in :class:`hdrd.core.calibrate.StartupWindow`), one step of the configured drift reducer
+(:mod:`hdrd.core.methods`), the message's fields. ``hdrd evaluate`` runs a drive log's samples
+through the same :class:`hdrd.core.resample.BlockAverager` and :class:`Stepper`, so a drive is
+evaluated exactly as the daemon would have run it. The caller owns the clock: the UNIX ``time``
+of a message is passed in, and ``None`` leaves it out (as replay does, having no wall clock for
+recorded bytes).
+
+Message fields are documented in docs/protocol.md ("Published messages"); their names, order
+and schema version are in :mod:`hdrd.io.protocol`. An unknown value
+is left out, never sent as null or 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.core import methods
+from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
+from hdrd.core.hdr import HdrParams
+from hdrd.core.hdrplus import GyroNoise, HdrPlusParams
+from hdrd.core.resample import Block, BlockAverager, Missing
+from hdrd.core.sensor import SensorModel
+from hdrd.core.steps import StepInput
+from hdrd.io.clocks import DeviceClock
+from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
+
+if TYPE_CHECKING:
+    from hdrd.config import Config
+
+__all__ = [
+    "Pipeline",
+    "PipelineConfig",
+    "Stepper",
+    "heading_from_yaw",
+    "pipeline_config",
+    "plus_noise",
+    "plus_params",
+    "standstill_limits",
+]
+
+
+class FrameLike(Protocol):
+    """What the pipeline reads of a frame (hdrd.io.frames.Frame, or a capture row)."""
+
+    @property
+    def t_us(self) -> int: ...
+    @property
+    def rate(self) -> int: ...
+    @property
+    def ref(self) -> int: ...
+    @property
+    def temp_c(self) -> float | None: ...
+
+
+def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
+    """Compass heading (deg clockwise from north, [0, 360)) from yaw (deg CCW since start)."""
+    h = (heading0_deg - yaw_deg) % 360.0
+    return 0.0 if h >= 360.0 else h
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything the pipeline needs; :func:`pipeline_config` builds it from a
+    :class:`hdrd.config.Config`."""
+
+    sensor: SensorModel = SensorModel()
+    params: HdrParams = HdrParams()
+    method: str = "hdr"
+    bias_dps: float | None = None
+    """Static bias eps0, deg/s; None = measure it over the first startup_s at standstill."""
+    bias_record: BiasRecord | None = None
+    """The calibration record behind bias_dps (a bias file), when there is one: its spread
+    and sample count set HDR+'s prior on the bias. Ignored unless its bias is bias_dps."""
+    startup_s: float = 1.0
+    """Start-up calibration window, s, rounded up to whole steps (paper Sec. 6: 1 s)."""
+    limits: StandstillLimits = StandstillLimits()
+    heading0_deg: float = 0.0
+    """Compass heading at start, deg."""
+    plus: HdrPlusParams = HdrPlusParams()
+    """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
+    noise: GyroNoise | None = None
+    """The gyro's error model when known (a configured grade, or the noise parameters
+    recorded beside the bias): HDR+ fits its bias model to it (:func:`hdrd.core.methods.
+    plus_settings`). None: fitted from the start-up calibration alone."""
+
+
+def _given_bias(config: PipelineConfig) -> BiasRecord | None:
+    """The bias record of a configured bias (None: measure it at start-up)."""
+    if config.bias_dps is None:
+        return None
+    rec = config.bias_record
+    if rec is not None and rec.bias_dps == config.bias_dps:
+        return rec
+    return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+
+
+# -- from a configuration ---------------------------------------------------------------------
+
+
+def standstill_limits(cfg: Config) -> StandstillLimits:
+    """The standstill test's thresholds from the calibration section (deg/s)."""
+    c = cfg.calibration
+    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
+
+
+def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
+    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
+    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings and error
+    model (:func:`plus_noise`); the static bias of ``bias`` (None: measured at start-up)."""
+    return PipelineConfig(
+        sensor=cfg.sensor,
+        params=cfg.hdr.params,
+        method=cfg.hdr.method,
+        bias_dps=None if bias is None else bias.bias_dps,
+        bias_record=bias,
+        startup_s=cfg.calibration.startup_s,
+        limits=standstill_limits(cfg),
+        heading0_deg=cfg.output.heading0_deg,
+        plus=plus_params(cfg),
+        noise=plus_noise(cfg, bias),
+    )
+
+
+def plus_params(cfg: Config) -> HdrPlusParams:
+    """HDR+'s parameters with the config's ``standstill.*`` keys applied (run, replay and
+    evaluate use the same)."""
+    plus = HdrPlusParams()
+    return plus.with_(
+        standstill=replace(
+            plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
+        )
+    )
+
+
+def plus_noise(cfg: Config, bias: BiasRecord | None) -> GyroNoise | None:
+    """The gyro error model HDR+ is fitted to: the noise parameters recorded in the bias file,
+    else the config's ``plus.*`` (:func:`hdrd.core.gyronoise.noise_in_force`; run, replay and
+    evaluate use the same)."""
+    from dataclasses import asdict
+
+    from hdrd.core.gyronoise import noise_in_force
+
+    given = {k: v for k, v in asdict(cfg.plus).items() if k != "grade"}
+    return noise_in_force(cfg.plus.grade, given, None if bias is None else bias.noise)
+
+
+# -- stepping ----------------------------------------------------------------------------------
+
+
+class Stepper:
+    """One closed block in, one message out: the start-up calibration window, one step of the
+    configured drift reducer, the message's fields. Pure; not thread-safe.
+
+    The :class:`Pipeline` (``hdrd run``, ``hdrd replay``) and ``hdrd evaluate`` both step
+    through it. While calibrating, the owner adds each sample's raw rate to :attr:`window`
+    before the block that holds it closes. ``events`` collects state changes for the edge to
+    log ("calibrated", "calibration_rejected", "bias_adjusted").
+    """
+
+    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+        self.config = config
+        self.method = methods.get(config.method)
+        self.state: Any = self.method.initial_state()
+        self.bias: BiasRecord | None = _given_bias(config)
+        self.window = StartupWindow.for_seconds(config.startup_s, config.params.T, config.limits)
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        self.speed_mps: float | None = None
+        self.samples_per_step: float | None = None
+        """Samples per step the method's settings were derived with (the first block stepped:
+        the gyro's sample rate times T)."""
+        self._settings: Any = None  # derived at the first step (methods.Method.settings)
+
+    @property
+    def calibrating(self) -> bool:
+        """True until the static bias is known."""
+        return self.bias is None
+
+    @property
+    def settings(self) -> Any:
+        """The method's settings in force (None until the first step after (re)configuring)."""
+        return self._settings
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """New parameters, method or bias; the state (heading, controller) is kept."""
+        if config.bias_dps is not None and (
+            self.bias is None or config.bias_dps != self.bias.bias_dps
+        ):
+            self.bias = _given_bias(config)
+        self.config = config
+        method = methods.get(config.method)
+        if method is not self.method:  # a new method continues the heading
+            self.state = method.initial_state(self.method.yaw(self.state))
+            self.method = method
+        self.window.limits = config.limits
+        self.samples_per_step = None
+        self._settings = None  # derived again at the next step
+
+    def adjust_bias(self, delta_dps: float, source: str) -> None:
+        """Add delta_dps to the static bias eps0 (deg/s); no effect while calibrating."""
+        if self.bias is None or delta_dps == 0.0:
+            return
+        self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
+        self.events.append(
+            (
+                "bias_adjusted",
+                {"delta_dps": delta_dps, "bias_dps": self.bias.bias_dps, "source": source},
+            )
+        )
+
+    @property
+    def yaw(self) -> float:
+        """The yaw in force, deg CCW since start."""
+        return self.method.yaw(self.state)
+
+    def input_for(self, block: Block) -> StepInput:
+        """The method's input for a block: u = block mean - eps0 (Eqs. 2, 11), the samples'
+        spread, the speed set last (NaN = unknown), the block's temperature, T."""
+        assert self.bias is not None
+        temp = math.nan if block.temp_c is None else block.temp_c
+        speed = math.nan if self.speed_mps is None else self.speed_mps
+        return StepInput(
+            block.mean - self.bias.bias_dps, block.std, speed, temp, self.config.params.T
+        )
+
+    def prepare(self, block: Block) -> StepInput | None:
+        """A block closed: None while calibrating (it was a step of the start-up window),
+        else the method's input for it. The first block after (re)configuring also fixes the
+        samples per step the method's settings are derived with: the gyro's sample rate
+        times T, as this block holds it (a 1 Hz gyro: 1)."""
+        if self.bias is None:
+            self._calibration_step()
+            return None
+        if self.samples_per_step is None:
+            self.samples_per_step = float(block.n)
+        return self.input_for(block)
+
+    def derive_settings(self) -> Any:
+        """The method's settings for this gyro and drive (:mod:`hdrd.core.methods`): the config,
+        the samples per step, the bias record (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
+        if self._settings is None:
+            ctx = methods.SettingsContext(
+                self.config.params,
+                self.config.plus,
+                self.samples_per_step,
+                self.bias,
+                self.config.noise,
+                self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
+            )
+            self._settings = self.method.settings(ctx)
+        return self._settings
+
+    def step(self, block: Block) -> methods.Published | None:
+        """One block: None while calibrating (the window closes a step), else the method's
+        output as message fields (:meth:`hdrd.core.methods.Method.publish`)."""
+        inp = self.prepare(block)
+        if inp is None:
+            return None
+        settings = self.derive_settings()
+        self.state, o = self.method.step(self.state, inp, settings)
+        return self.method.publish(o, settings)
+
+    def message(
+        self,
+        block: Block,
+        step: int,
+        t: float,
+        bad_frames: int,
+        now: float | None,
+        gap_s: float = 0.0,
+    ) -> Message:
+        """Step the block and publish it: step number and device time ``t`` (s) as the
+        owner counts them, gap_s: seconds without samples before it (0 = none)."""
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        msg["t"] = t
+        msg["step"] = step
+        msg["omega_raw"] = block.mean
+        pub = self.step(block)
+        if pub is None or self.bias is None:
+            status = "calibrating"
+        else:
+            core = pub.core
+            msg["omega"] = core["omega"]
+            msg["yaw"] = core["yaw"]
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
+            for key in ("I", "W", "R", "r"):
+                msg[key] = core[key]
+            msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
+            status = "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
+            msg.update(pub.extra)
+        msg["samples"] = block.n
+        msg["bad_frames"] = bad_frames
+        msg["status"] = status
+        if block.temp_c is not None:
+            msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
+        if gap_s:
+            msg["gap_s"] = gap_s
+        if block.saturated:
+            msg["saturated"] = block.saturated
+        return msg
+
+    def _calibration_step(self) -> None:
+        """A calibration block closed (its samples are in the window): measure once the
+        window is complete; on motion, log it and start again."""
+        try:
+            rec = self.window.close_block()
+        except MotionDetected as e:
+            self.events.append(
+                ("calibration_rejected", {"reason": str(e), "attempt": self.window.attempts})
+            )
+            return
+        if rec is None:
+            return
+        self.bias = rec
+        self.events.append(
+            (
+                "calibrated",
+                {
+                    "bias_dps": rec.bias_dps,
+                    "std_dps": rec.std_dps,
+                    "samples": rec.n,
+                    "source": "startup",
+                },
+            )
+        )
+
+
+class Pipeline:
+    """Frames in, one message per closed step out. Pure; not thread-safe.
+
+    ``events`` collects state changes for the edge to log ("calibrated",
+    "calibration_rejected"); the edge drains it.
+    """
+
+    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+        self.config = config
+        self._clock = DeviceClock()
+        self._avg = BlockAverager(config.params.T)
+        self.stepper = Stepper(config)
+        self._step_offset = 0  # step numbers continue across a device resync
+        self._t_offset = 0.0  # device seconds continue across a device resync
+        self._last_step: int | None = None
+        self._t_last = 0.0
+        self._pending_gap_s = 0.0
+
+    # -- state ---------------------------------------------------------------------------
+
+    @property
+    def bias(self) -> BiasRecord | None:
+        """The static bias in force (None while calibrating)."""
+        return self.stepper.bias
+
+    @property
+    def events(self) -> list[tuple[str, dict[str, Any]]]:
+        return self.stepper.events
+
+    @property
+    def speed_mps(self) -> float | None:
+        return self.stepper.speed_mps
+
+    @property
+    def calibration_attempts(self) -> int:
+        return self.stepper.window.attempts
+
+    @property
+    def calibrating(self) -> bool:
+        """True until the static bias is known."""
+        return self.stepper.bias is None
+
+    @property
+    def method_state(self) -> Any:
+        """The drift reducer's state (its method's own type)."""
+        return self.stepper.state
+
+    @property
+    def heading(self) -> float:
+        """Current compass heading, deg."""
+        return heading_from_yaw(self.config.heading0_deg, self.stepper.yaw)
+
+    @property
+    def clock(self) -> DeviceClock:
+        return self._clock
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """New parameters, method, heading0 or bias (SIGHUP), keeping heading and controller
+        state. T cannot change while running: it defines the block edges."""
+        if config.params.T != self.config.params.T:
+            raise ValueError("hdr.T cannot change while running; restart the daemon")
+        self.config = config
+        self.stepper.reconfigure(config)
+
+    def set_speed(self, speed_mps: float | None) -> None:
+        """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
+        the next closed step (standstill detection); the edge keeps it fresh."""
+        self.stepper.speed_mps = speed_mps
+
+    def adjust_bias(self, delta_dps: float, source: str) -> None:
+        """Add delta_dps to the static bias eps0 (deg/s), e.g. learned from GPS course or a
+        standstill; the controller state is kept. No effect while still calibrating."""
+        self.stepper.adjust_bias(delta_dps, source)
+
+    # -- input ---------------------------------------------------------------------------
+
+    def feed(
+        self, frame: FrameLike, bad_frames: int = 0, now: float | None = None
+    ) -> list[Message]:
+        """One frame; the messages of the steps it closed (usually none, at most a few).
+
+        bad_frames: corrupt frames counted so far, published as is. now: UNIX time to stamp.
+        """
+        t = self._clock.unwrap(frame.t_us)
+        if t is None:
+            return []
+        sensor = self.config.sensor
+        omega = sensor.to_dps_scalar(frame.rate, frame.ref)
+        sat = sensor.saturated_scalar(frame.rate, omega)
+        temp = frame.temp_c
+        closed = self._avg.feed(t, omega, temp, sat)
+        out = self._on_blocks(closed, bad_frames, now) if closed else []
+        if self.stepper.bias is None:
+            self.stepper.window.add(omega, temp)
+        return out
+
+    def feed_array(
+        self,
+        frames: npt.NDArray[Any],
+        bad_before: npt.ArrayLike | None = None,
+    ) -> list[Message]:
+        """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
+        -32768 = not fitted), as :func:`hdrd.io.capture.decode_capture` gives.
+
+        Same messages as :meth:`feed` frame by frame. bad_before[i]: corrupt frames seen
+        before frame i in the byte stream.
+        """
+        n = frames.shape[0]
+        bad = np.zeros(n, np.int64) if bad_before is None else np.asarray(bad_before, np.int64)
+        out: list[Message] = []
+        i = 0
+        # The start-up calibration gathers per-sample rates: take it a frame at a time.
+        while self.stepper.bias is None and i < n:
+            f = frames[i]
+            temp = None if int(f["temp"]) == TEMP_NOT_FITTED else int(f["temp"]) / 100
+            out.extend(
+                self.feed(
+                    _Row(int(f["t_us"]), int(f["rate"]), int(f["ref"]), temp),
+                    int(bad[i]),
+                )
+            )
+            i += 1
+        if i >= n:
+            return out
+        rest = frames[i:]
+        t_us, ok = self._clock.unwrap_many(rest["t_us"])
+        keep = np.flatnonzero(ok) + i
+        if keep.shape[0] < rest.shape[0]:  # samples the clock rejected (else: no copy)
+            rest = frames[keep]
+            t_us = t_us[ok]
+        rate = rest["rate"].astype(np.int64)
+        ref = rest["ref"].astype(np.int64)
+        sensor = self.config.sensor
+        omega = sensor.to_dps_array(rate, ref)
+        sat = np.asarray(sensor.saturated(rate, omega), bool)
+        raw_temp = rest["temp"].astype(np.int64)
+        temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
+        for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
+            out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
+        return out
+
+    def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:
+        """End of input: close the open, partial block."""
+        return self._on_blocks(self._avg.flush(), bad_frames, now)
+
+    def resync(
+        self, gap_s: float | None = None, bad_frames: int = 0, now: float | None = None
+    ) -> list[Message]:
+        """The device went away and is back (its clock may have restarted from zero).
+
+        Closes the open block, then cuts new block edges from the next sample; heading and
+        the controller carry on. ``gap_s`` (wall-clock seconds without data) is reported in
+        the next step's message, and step numbers and ``t`` move on by it, as they do across
+        a gap within a connection: the steps missed are skipped, not invented.
+        """
+        out = self.finish(bad_frames, now)
+        if self._last_step is not None:
+            missed = int(gap_s // self.config.params.T) if gap_s and gap_s > 0 else 0
+            self._step_offset = self._last_step + 1 + missed
+            self._t_offset = self._t_last + missed * self.config.params.T
+        self._clock = DeviceClock()
+        self._avg = BlockAverager(self.config.params.T)
+        if gap_s:
+            self._pending_gap_s += gap_s
+        if self.stepper.bias is None:  # a calibration window must be contiguous
+            self.stepper.window.clear()
+        return out
+
+    # -- steps ---------------------------------------------------------------------------
+
+    def _on_blocks(
+        self,
+        items: tuple[Block | Missing, ...] | list[Block | Missing],
+        bad_frames: int,
+        now: float | None,
+    ) -> list[Message]:
+        out: list[Message] = []
+        for item in items:
+            if isinstance(item, Missing):
+                self._pending_gap_s += item.t_end - item.t_start
+            else:
+                out.append(self._on_block(item, bad_frames, now))
+        return out
+
+    def _on_block(self, block: Block, bad_frames: int, now: float | None) -> Message:
+        step = block.index + self._step_offset
+        self._last_step = step
+        self._t_last = self._t_offset + block.t_end
+        gap = self._pending_gap_s
+        self._pending_gap_s = 0.0
+        return self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+
+    def sample_interval_s(self) -> float | None:
+        """Sample interval of the open block, device s: (last - block start) / (n - 1), never
+        less than the mean interval (the first sample is at or after the start). None until
+        the open block holds two samples."""
+        block = self._avg.open_block
+        last = self._clock.last_us
+        if block is None or last is None or block[2] < 2:
+            return None
+        return max(last - block[0], 0) / (block[2] - 1) / 1e6
+
+    def until_step_s(self) -> float | None:
+        """Device seconds from the last sample to one sample interval before the open block
+        ends: how long the port may go unread without delaying the next step, if the device
+        clock runs at the host's rate (the sample that closes the step arrives at the block's
+        end at the earliest). None until the open block holds two samples.
+
+        The interval (:meth:`sample_interval_s`) errs long, so the answer errs early. The
+        daemon uses it to read the port in batches (:mod:`hdrd.daemon.pacing`).
+        """
+        interval = self.sample_interval_s()
+        block = self._avg.open_block
+        last = self._clock.last_us
+        if interval is None or block is None or last is None:
+            return None
+        return (block[1] - last) / 1e6 - interval
+
+    # -- while no data arrives -------------------------------------------------------------
+
+    def stale_message(
+        self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
+    ) -> Message:
+        """What to publish while no sample arrives: no new step, the heading held."""
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        if self._last_step is not None:
+            msg["step"] = self._last_step
+        if self.bias is not None and self._last_step is not None:
+            msg["yaw"] = self.stepper.yaw
+            msg["heading"] = self.heading
+            msg["bias"] = self.bias.bias_dps
+        msg["bad_frames"] = bad_frames
+        msg["status"] = status
+        msg["stale_s"] = silent_s
+        return msg
+
+
+@dataclass(frozen=True, slots=True)
+class _Row:
+    """One row of a decoded capture, shaped like a frame for :meth:`Pipeline.feed`."""
+
+    t_us: int
+    rate: int
+    ref: int
+    temp_c: float | None

@@ -1,0 +1,552 @@
+"""The daemon's run loop: the edge that wires source -> pipeline -> publishers (``hdrd run``,
+:mod:`hdrd.commands.run`, starts it).
+
+Everything with a clock, a port, a socket or a signal is at this edge; the stages it wires are
+pure (:mod:`hdrd.daemon.pipeline`), and so are their set-up from a configuration
+(:func:`hdrd.daemon.pipeline.pipeline_config`, :func:`hdrd.daemon.inputs.open_source`). Behaviour under
+trouble, as gpsd does it: a lost device is reported ("stale") and reopened with backoff, the
+heading carrying on; a publisher that fails never stops the loop; SIGTERM/SIGINT end it
+cleanly (exit 0) within a second; SIGHUP reloads the configuration, keeping the heading, and
+keeps the old one if the new one is invalid (and a SIGHUP during start-up is a reload, not
+the end, :mod:`hdrd.daemon.signals`); systemd is told READY=1, STATUS= and WATCHDOG=1
+(:mod:`hdrd.daemon.sdnotify`). At stop, each UDP destination's counters are logged.
+
+Only the commands import this module.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from hdrd.config import Config, ConfigError
+from hdrd.core.calibrate import BiasRecord
+from hdrd.daemon.inputs import open_source
+from hdrd.daemon.pacing import ReadPacer
+from hdrd.daemon.pipeline import Pipeline, pipeline_config
+from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
+from hdrd.daemon.signals import Signals
+from hdrd.io.biasfile import BiasFileError, load_bias
+from hdrd.io.files import default_bias_path
+from hdrd.io.frames import Frame
+from hdrd.io.logs import log
+from hdrd.io.protocol import Message
+from hdrd.io.publish import (
+    OutputClosed,
+    Publisher,
+    StdoutPublisher,
+    UdpJsonPublisher,
+    UdpNmeaPublisher,
+    UdpPublisher,
+    parse_hostport,
+)
+from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source, SourceEvent
+
+if TYPE_CHECKING:
+    from hdrd.daemon.gpslink import GpsdLink
+
+__all__ = ["BiasChoice", "Daemon", "build_publishers", "choose_bias"]
+
+
+# -- bias ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BiasChoice:
+    record: BiasRecord | None  # None: measure at start-up
+    source: str  # "--bias", the file path, or "startup"
+
+
+def choose_bias(cfg: Config, bias_arg: float | None) -> BiasChoice:
+    """Where eps0 comes from: --bias, else the bias file, else a start-up measurement.
+
+    A bias file named explicitly must exist. A corrupt or truncated file is an error
+    (BiasFileError) unless calibration.on_bad_bias_file is "calibrate".
+    """
+    if bias_arg is not None:
+        return BiasChoice(BiasRecord(bias_arg, 0.0, 0, 0.0), "--bias")
+    explicit = bool(cfg.calibration.bias_file)
+    path = Path(cfg.calibration.bias_file) if explicit else default_bias_path()
+    if not explicit and not path.exists():
+        return BiasChoice(None, "startup")
+    try:
+        return BiasChoice(load_bias(path, cfg.calibration.max_bias_dps), str(path))
+    except BiasFileError as e:
+        if cfg.calibration.on_bad_bias_file == "calibrate" and not (explicit and not path.exists()):
+            log.warning(
+                "bias_file_rejected", path=str(path), error=str(e), fallback="startup calibration"
+            )
+            return BiasChoice(None, "startup")
+        raise
+
+
+# -- inputs and outputs ----------------------------------------------------------------------
+
+
+def _gps_link(cfg: Config) -> GpsdLink | None:
+    """The GPS aiding link that ``cfg.gpsd`` asks for, or None."""
+    if not cfg.gpsd.enabled:
+        return None
+    from hdrd.daemon.gpslink import GpsdLink
+
+    return GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
+
+
+def build_publishers(cfg: Config) -> list[Publisher]:
+    """Publishers for the configured outputs; stdout when nothing else is configured."""
+    o = cfg.output
+    pubs: list[Publisher] = []
+    if o.udp:
+        pubs.append(UdpJsonPublisher([parse_hostport(a) for a in o.udp]))
+    if o.nmea_udp:
+        pubs.append(
+            UdpNmeaPublisher(
+                [parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths, talker=o.nmea_talker
+            )
+        )
+    if o.stdout or not pubs:
+        pubs.append(StdoutPublisher())
+    return pubs
+
+
+UDP_STATS_LINES = 10
+"""At stop, up to this many UDP destinations of an output get a log line each; more are
+summed up in one line (``output_udp_summary``) plus a line for each of the
+``UDP_STATS_LINES`` that failed most."""
+
+
+def _stop_all(pubs: list[Publisher]) -> None:
+    """Stop every publisher (each flushes), then log the UDP destinations' counters: what
+    was sent, and what failed and why (a peer that refused, a name that never resolved). One
+    line per destination, or, for an output with more than :data:`UDP_STATS_LINES`, one
+    summary line and the lines of those that failed most."""
+    for p in pubs:
+        try:
+            p.stop()
+        except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
+            log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
+    for p in pubs:
+        if not isinstance(p, UdpPublisher):
+            continue
+        output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
+        stats = p.stats()
+        shown = stats
+        if len(stats) > UDP_STATS_LINES:
+            failing = [d for d in stats if d.errors or d.dropped]
+            by_error: dict[str, int] = {}
+            for d in failing:
+                for kind, n in d.by_error.items():
+                    by_error[kind] = by_error.get(kind, 0) + n
+            (log.warning if failing else log.info)(
+                "output_udp_summary",
+                output=output,
+                destinations=len(stats),
+                sent=sum(d.sent for d in stats),
+                errors=sum(d.errors for d in stats),
+                dropped=sum(d.dropped for d in stats),
+                failing=len(failing),
+                by_error=by_error,
+            )
+            failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
+            shown = failing[:UDP_STATS_LINES]
+        for d in shown:
+            (log.warning if d.errors or d.dropped else log.info)(
+                "output_udp_stats", output=output, **d.to_dict()
+            )
+
+
+class Daemon:
+    """The run loop. Construct, then :meth:`run` (returns the exit status).
+
+    :meth:`run` starts (:meth:`_start`), turns the loop (:meth:`_turn`: one item from the
+    source, then the periodic duties) until a stop signal, the end of the input or the stdout
+    reader going away, and shuts down (:meth:`_shutdown`: the frames the port still holds, the
+    open step, the outputs flushed, the counters logged).
+    """
+
+    RECV_TIMEOUT_S = 0.1
+    READ_BATCH_S = 0.02
+    """Longest pause before reading the serial port again while no step is about to close.
+    Why: a read per frame costs a wake-up per frame, 50-150 us of CPU each on a busy 2-core
+    machine, which was most of the daemon's cost at 1 kHz (bench/live.py); pausing lets the
+    frames gather in the kernel's tty buffer and come in one read. 20 ms is 6 KB at 3 Mbaud,
+    well inside what the tty layer buffers."""
+    READ_GUARD_S = 0.002
+    """Pausing stops this long before the step-closing frame can arrive (:mod:`hdrd.daemon.pacing`),
+    so that frame is read as it arrives."""
+    DROP_LOG_INTERVAL_S = 10.0
+    """At most one ``output_dropped`` warning per this many seconds."""
+    DRAIN_S = 0.25
+    """At shutdown, frames the port already holds are read for at most this long (s)."""
+
+    def __init__(
+        self,
+        cfg: Config,
+        where: str,
+        reload: Callable[[], tuple[Config, str]],
+        bias: BiasChoice,
+        signals: Signals | None = None,
+        simulate: bool = False,
+    ) -> None:
+        self.cfg = cfg
+        self.where = where
+        self.reload = reload
+        self.simulate = simulate
+        self.bias_choice = bias
+        self.pipeline = Pipeline(pipeline_config(cfg, bias.record))
+        self.signals = signals or Signals()
+        self.notifier = SdNotifier()
+        self.publishers: list[Publisher] = []
+        self.ready = False
+        self.status = ""
+        self.steps = 0
+        self.reconnects = 0
+        self.watchdog = WatchdogGate(self.notifier.watchdog_s)
+        self._dropped_logged = 0
+        self._dropped_log_at = -math.inf
+        self.gps = _gps_link(cfg)  # GPS aiding through gpsd
+        # Set by _start: the input, its name, and the pacing of a serial port's reads.
+        self.src: Source | None = None
+        self.src_name = ""
+        self.serial: SerialSource | None = None
+        self.pacer: ReadPacer | None = None
+        # The loop's clocks (time.monotonic, s) and counters between turns.
+        self._last_data = 0.0
+        self._lost_at: float | None = None
+        self._last_stale = 0.0
+        self._last_bad = 0
+        self._last_bad_log = 0.0
+        self._waiting_since: float | None = None  # the device has not been there since then
+        self._waiting_logged_at = 0.0
+
+    def run(self) -> int:
+        src = self._start()
+        try:
+            while not self.signals.stop and self._turn(src):
+                pass
+        except OutputClosed:
+            log.info("output_closed", reason="stdout reader went away")
+        finally:
+            self._shutdown(src)
+        return 0
+
+    # -- start and stop ------------------------------------------------------------------
+
+    def _start(self) -> Source:
+        """Signals, publishers, the ``start`` event, the input opened."""
+        self.signals.install()
+        self.publishers = build_publishers(self.cfg)
+        self.src_name = "simulated gyro" if self.simulate else self.cfg.device.port
+        log.info(
+            "start",
+            config=self.where,
+            source=self.src_name,
+            protocol=self.cfg.device.protocol,
+            method=self.cfg.hdr.method,
+            bias=self.bias_choice.source,
+            bias_dps=None if self.bias_choice.record is None else self.bias_choice.record.bias_dps,
+        )
+        if self.bias_choice.record is None:
+            self._set_status(
+                f"calibrating: measuring the bias over {self.cfg.calibration.startup_s:g} s at standstill"
+            )
+        src = self.src = open_source(self.cfg, self.simulate)
+        # Batched reads of a serial port (hdrd.daemon.pacing); the other sources pace themselves.
+        if isinstance(src, SerialSource):
+            self.serial = src
+            self.pacer = ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S)
+        self._last_data = time.monotonic()
+        T = self.cfg.hdr.params.T
+        wd = self.notifier.watchdog_s
+        if wd is not None and T > wd:
+            log.warning(
+                "watchdog_too_short",
+                watchdog_s=2 * wd,
+                step_s=T,
+                reason="WATCHDOG=1 follows published steps: make WatchdogSec at least 2 hdr.T",
+            )
+        return src
+
+    def _shutdown(self, src: Source) -> None:
+        """The frames the port already holds and the open step published, everything closed,
+        the ``stop`` event with the counters."""
+        self.notifier.notify("STOPPING=1")
+        try:
+            if self.serial is not None:
+                self._drain_port(self.serial)
+            self._publish(self.pipeline.finish(int(src.stats.bad_frames), time.time()))
+        except OutputClosed:
+            pass
+        src.close()
+        if self.gps is not None:
+            self.gps.close()
+        _stop_all(self.publishers)
+        log.info(
+            "stop",
+            steps=self.steps,
+            bad_frames=int(src.stats.bad_frames),
+            reconnects=self.reconnects,
+            output_dropped=self._dropped(),
+        )
+        self.notifier.close()
+        self.signals.restore()
+
+    def _drain_port(self, src: SerialSource) -> None:
+        """Flush at shutdown: publish the frames the kernel already holds for us (read
+        without waiting; paced reads leave up to a few in the tty buffer), then stop."""
+        deadline = time.monotonic() + self.DRAIN_S
+        ended = False
+        while time.monotonic() < deadline:
+            item = src.recv(0.0)
+            if item is None and not ended:
+                src.end_input()  # the input ends here: frames the parser held back, decided
+                ended = True
+                continue
+            if not isinstance(item, Frame):  # nothing left, or a device event
+                return
+            self._publish(self.pipeline.feed(item, src.bad_frames, time.time()))
+
+    # -- one turn of the loop ------------------------------------------------------------
+
+    def _turn(self, src: Source) -> bool:
+        """Reload if asked, take one item from the source and publish what it closed, then the
+        periodic duties. False when the input has ended (a capture or a simulated drive)."""
+        if self.signals.reload:
+            self.signals.reload = False
+            self._reload()
+        item = src.recv(self.RECV_TIMEOUT_S)
+        if item is None:
+            self.watchdog.progress()  # all input handled: idle, not stuck
+        if self.gps is not None:
+            # never blocks; bounded work per turn (hdrd.io.gpsd.LINES_PER_POLL)
+            self.gps.poll(self.pipeline)
+        now = time.monotonic()
+        bad = src.bad_frames  # not src.stats: that copies every counter, per frame
+        if isinstance(item, EndOfInput):
+            self._publish(self.pipeline.finish(bad, time.time()))
+            log.info("end_of_input", source=self.src_name)
+            return False
+        got_frame = isinstance(item, Frame)
+        msgs = self._take(item, now, bad)
+        if msgs:
+            self._drain_events()
+            self._publish(msgs)
+            self._status_after(msgs[-1], bad)
+        elif self.pipeline.events:
+            self._drain_events()
+        if not self.ready and self.pipeline.bias is not None and got_frame:
+            self.ready = True  # the port delivers and the bias is known (given or measured)
+            self.notifier.notify("READY=1")
+        self._duties(now, bad)
+        if got_frame:
+            self._pace(now)
+        return True
+
+    def _take(self, item: Frame | SourceEvent | None, now: float, bad: int) -> list[Message]:
+        """One item from the source (not the end of input): the messages of the steps it
+        closed. A frame goes to the pipeline; a lost device is reported; a device back
+        resynchronises the pipeline across the gap."""
+        if item is None:
+            return []
+        if isinstance(item, DeviceLost):
+            self._lost_at = now
+            if self._never_opened():
+                # At start: not a lost device, one that is not there (yet). Say so, and
+                # that the daemon waits for it (as gpsd does), or it looks like a silent gyro.
+                self._waiting_since = now
+                self._log_waiting(now, item.reason)
+                self._set_status(f"waiting for {self.src_name}: {item.reason}")
+                return []
+            log.warning("device_lost", port=self.src_name, reason=item.reason)
+            self._set_status(f"stale: {self.src_name} lost ({item.reason}); reconnecting")
+            return []
+        if isinstance(item, DeviceBack):
+            gap = now - (self._lost_at if self._lost_at is not None else self._last_data)
+            if self._waiting_since is not None:  # it appeared: opened for the first time
+                log.info("device_open", port=self.src_name, waited_s=round(gap, 3))
+                self._waiting_since = None
+                self._lost_at = None
+                self._last_data = now  # the stale clock starts now
+                if self.pacer is not None:
+                    self.pacer.reset()
+                return []
+            self.reconnects += 1
+            log.info(
+                "device_back",
+                port=self.src_name,
+                gap_s=round(gap, 3),
+                reconnects=self.reconnects,
+            )
+            msgs = self.pipeline.resync(gap, bad, time.time())
+            self._lost_at = None
+            if self.pacer is not None:
+                self.pacer.reset()  # a new device clock
+            return msgs
+        assert isinstance(item, Frame)
+        self._last_data = now
+        return self.pipeline.feed(item, bad, time.time())
+
+    WAITING_LOG_INTERVAL_S = 60.0
+    """While the device has never been there, ``device_waiting`` is logged again this often."""
+
+    def _never_opened(self) -> bool:
+        """The serial device has not been open once since start (not there yet)."""
+        return self.serial is not None and not self.serial.reader.opened_once
+
+    def _log_waiting(self, now: float, reason: str | None) -> None:
+        s = self.cfg.device
+        log.warning(
+            "device_waiting",
+            port=self.src_name,
+            reason=reason,
+            waiting=f"hdrd opens {self.src_name} when it appears (tried every "
+            f"{s.reconnect_min_s:g} s, backing off to {s.reconnect_max_s:g} s)",
+            waited_s=round(now - (self._waiting_since or now), 1),
+        )
+        self._waiting_logged_at = now
+
+    def _status_after(self, last: Message, bad: int) -> None:
+        """systemd's status line after publishing steps (once the bias is known)."""
+        bias = self.pipeline.bias
+        if bias is not None:
+            self._set_status(
+                f"{last['status']}: heading {last.get('heading', float('nan')):.1f} deg, "
+                f"bias {bias.bias_dps:+.4f} deg/s, bad frames {bad}"
+            )
+
+    def _duties(self, now: float, bad: int) -> None:
+        """Every turn: a stale report while the device is silent, the bad-frames warning, the
+        watchdog ping, the output-dropped warning, each at most as often as allowed."""
+        silent = now - self._last_data
+        if (
+            silent > self.cfg.device.stale_after_s
+            and now - self._last_stale >= self.cfg.hdr.params.T
+        ):
+            self._last_stale = now
+            self._publish_stale(silent, bad)
+        if bad > self._last_bad and now - self._last_bad_log >= self.cfg.log.bad_frame_interval_s:
+            log.warning("bad_frames", total=bad, new=bad - self._last_bad)
+            self._last_bad, self._last_bad_log = bad, now
+        if self.watchdog.due(now):
+            self.notifier.notify("WATCHDOG=1")
+        self._log_drops(now)
+        if (
+            self._waiting_since is not None
+            and now - self._waiting_logged_at >= self.WAITING_LOG_INTERVAL_S
+            and self._never_opened()
+        ):
+            assert self.serial is not None
+            self._log_waiting(now, self.serial.reader.last_error)
+
+    def _pace(self, now: float) -> None:
+        """After a frame, with everything read processed: let the next frames gather in the
+        serial port's buffer (READ_BATCH_S), short of the frame that closes the step."""
+        if self.pacer is None or self.serial is None or self.serial.pending:
+            return
+        t_dev = self.pipeline.clock.last_us
+        if t_dev is not None:
+            pl = self.pipeline
+            pause = self.pacer.pause(
+                now, t_dev / 1e6, pl.until_step_s(), time.monotonic(), pl.sample_interval_s()
+            )
+            if pause:
+                time.sleep(pause)
+
+    # -- publishing ------------------------------------------------------------------------
+
+    # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
+    def _set_status(self, text: str) -> None:
+        if text != self.status:
+            self.status = text
+            self.notifier.notify(f"STATUS={text}")
+
+    def _publish(self, msgs: list[Message], steps: bool = True) -> None:
+        if msgs:
+            self.watchdog.progress()
+        if self.gps is not None:  # mode, GPS-aligned heading; learned bias -> pipeline
+            msgs = self.gps.aid(msgs, self.pipeline)
+        for m in msgs:
+            for p in self.publishers:
+                try:
+                    p.on_message(m)
+                except OutputClosed:
+                    raise
+                except Exception as e:  # noqa: BLE001 - one bad sink must not stop the others
+                    log.warning("publish_failed", publisher=type(p).__name__, error=str(e))
+        if steps:
+            self.steps += len(msgs)
+
+    def _publish_stale(self, silent: float, bad: int) -> None:
+        msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
+        self._set_status(f"stale: no data for {silent:.0f} s")
+        self._publish([msg], steps=False)  # a stale report is not a step
+
+    def _dropped(self) -> int:
+        """Messages dropped by the publishers so far (stdout with a stalled reader)."""
+        return sum(int(getattr(p, "dropped", 0)) for p in self.publishers)
+
+    def _log_drops(self, now: float) -> None:
+        if now - self._dropped_log_at < self.DROP_LOG_INTERVAL_S:
+            return
+        total = self._dropped()
+        if total < self._dropped_logged:  # the publishers were rebuilt (SIGHUP)
+            self._dropped_logged = 0
+        if total > self._dropped_logged:
+            log.warning(
+                "output_dropped",
+                output="stdout",
+                reason="the reader does not keep up",
+                total=total,
+                new=total - self._dropped_logged,
+            )
+            self._dropped_logged, self._dropped_log_at = total, now
+
+    def _drain_events(self) -> None:
+        for name, fields in self.pipeline.events:
+            # rejections are worth a warning; calibrations and bias updates are news
+            (log.warning if name.endswith("_rejected") else log.info)(name, **fields)
+        self.pipeline.events.clear()
+
+    # -- SIGHUP --------------------------------------------------------------------------
+
+    def _reload(self) -> None:
+        try:
+            cfg, where = self.reload()
+        except ConfigError as e:
+            log.error("config_reload_failed", error=str(e), kept=self.where)
+            return
+        old = self.cfg
+        if cfg.device != old.device and not self.simulate:
+            log.warning(
+                "config_reload_partial",
+                reason="device settings need a restart",
+                kept=str(old.device.port),
+            )
+            cfg = replace(cfg, device=old.device)
+        if cfg.hdr.params.T != old.hdr.params.T:
+            log.warning(
+                "config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T
+            )
+            cfg = replace(
+                cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T))
+            )
+        self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
+        if cfg.output != old.output:
+            _stop_all(self.publishers)
+            self.publishers = build_publishers(cfg)
+        if cfg.gpsd != old.gpsd:  # a new gpsd connection and aiding state, or none
+            if self.gps is not None:
+                self.gps.close()
+            self.gps = _gps_link(cfg)
+            log.info(
+                "gpsd_reconfigured",
+                enabled=cfg.gpsd.enabled,
+                host=cfg.gpsd.host,
+                port=cfg.gpsd.port,
+            )
+        self.cfg, self.where = cfg, where
+        log.info("config_reloaded", source=where, method=cfg.hdr.method, **cfg.hdr.params.as_dict())

@@ -1,0 +1,234 @@
+"""Whole captures: the vectorised decoder of a capture file's bytes (``hdrd replay``,
+``hdrd convert``, the benches).
+
+Pure. :func:`decode_capture` gives exactly the frames and counters of a
+:class:`hdrd.io.frames.Parser` fed the same bytes and flushed, plus for each frame the bad frames
+that came before it (:class:`CaptureStats`), as a numpy structured array
+(:data:`hdrd.io.frames.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
+bounded memory; hdr-text through the push parser.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.io.frames import (
+    FRAME_DTYPE,
+    Frame,
+    Parser,
+    ParserStats,
+    array_to_frames,
+    check_protocol,
+    crc_ok_at,
+    frames_to_array,
+    sequence_stats,
+)
+from hdrd.io.protocol import BIN_FRAME_LEN
+
+__all__ = ["CaptureStats", "decode_capture", "decode_frames"]
+
+
+@dataclass(slots=True, eq=False)
+class CaptureStats(ParserStats):
+    """:class:`ParserStats` of a whole capture (equal to a ParserStats with the same counters),
+    plus ``bad_before[i]``: the bad frames that came before good frame i in the byte stream
+    (what a live source reports as ``stats.bad_frames`` when it hands out frame i)."""
+
+    bad_before: npt.NDArray[np.int64] = field(
+        default_factory=lambda: np.zeros(0, np.int64), repr=False
+    )
+
+
+def _greedy_accept(v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Which CRC-valid frame starts the left-to-right scan takes: a start is taken if it is
+    not inside an already taken frame. Python loops only over the (rare) overlaps."""
+    accepted = np.ones(v.shape[0], bool)
+    if v.shape[0] < 2:
+        return accepted
+    close = np.flatnonzero(np.diff(v) < BIN_FRAME_LEN) + 1
+    if close.size == 0:
+        return accepted
+    ks = close.tolist()
+    vk = v[close].tolist()
+    vprev = v[close - 1].tolist()
+    last = -BIN_FRAME_LEN
+    prev_k = -2
+    for k, x, xp in zip(ks, vk, vprev):
+        if k - 1 != prev_k:
+            last = xp  # start of a chain: its first member was taken
+        if x >= last + BIN_FRAME_LEN:
+            last = x
+        else:
+            accepted[k] = False
+        prev_k = k
+    return accepted
+
+
+def _drop_displaced(a: npt.NDArray[np.uint8], v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Which CRC-valid candidates ``v`` (sorted positions) survive the push parser's
+    :func:`_displaced` rule at the end of input: x is a CRC coincidence, and dropped, if it is
+    not followed by a sync pattern at x + 16 while another valid candidate y, x + 2 <= y <=
+    x + 14, is followed by one at y + 16. Python loops only over valid candidates closer
+    than 15 bytes (rare)."""
+    keep = np.ones(v.shape[0], bool)
+    if v.shape[0] < 2:
+        return keep
+    near = np.flatnonzero(np.diff(v) <= BIN_FRAME_LEN - 2)
+    if near.size == 0:
+        return keep
+    n = a.shape[0]
+
+    def sync_after(x: int) -> bool:
+        return x + BIN_FRAME_LEN + 2 <= n and a[x + 16] == 0xA5 and a[x + 17] == 0x5A
+
+    last = v.shape[0]
+    for k in near.tolist():
+        x = int(v[k])
+        if sync_after(x):
+            continue
+        m = k + 1
+        while m < last and v[m] <= x + BIN_FRAME_LEN - 2:
+            if sync_after(int(v[m])):
+                keep[k] = False
+                break
+            m += 1
+    return keep
+
+
+_SCAN_BYTES = 1 << 20
+"""decode_capture looks for frames in slices of this many bytes: its working memory is a
+few times this, whatever the capture holds (20 MB of ``A5 5A`` is 10 million candidates)."""
+
+
+_KEEP_FAILED = 1 << 20
+"""decode_capture keeps the positions of up to this many failed candidates from its first
+pass (8 MiB); beyond, a second pass finds them again, slice by slice."""
+
+
+def _count_bad(
+    inv: npt.NDArray[np.int64], acc: npt.NDArray[np.int64], counts: npt.NDArray[np.int64]
+) -> None:
+    """Add to ``counts[i]`` the failed candidates ``inv`` (sorted) that lie between accepted
+    frame i - 1 and frame i, leaving out those inside an accepted frame."""
+    if acc.shape[0] and inv.shape[0]:
+        j = np.searchsorted(acc, inv, side="right") - 1
+        inside = (j >= 0) & (inv < acc[np.maximum(j, 0)] + BIN_FRAME_LEN)
+        inv = inv[~inside]
+    if inv.shape[0]:
+        at = np.searchsorted(acc, inv)
+        first = int(at[0])  # sorted: this adds to counts[first .. at[-1]] only
+        add = np.bincount(at - first)
+        counts[first : first + add.shape[0]] += add
+
+
+def _candidates(a: npt.NDArray[np.uint8], lo: int, hi: int) -> npt.NDArray[np.int64]:
+    """Positions i in [lo, hi) where a sync pattern starts (hi <= len(a) - 15: room for a
+    whole frame)."""
+    seg = a[lo : hi + 1]
+    cand = np.flatnonzero((seg[:-1] == 0xA5) & (seg[1:] == 0x5A)).astype(np.int64, copy=False)
+    if lo:
+        cand += lo
+    return cand
+
+
+def _payload(a: npt.NDArray[np.uint8], acc: npt.NDArray[np.int64]) -> npt.NDArray[np.void]:
+    """The :data:`FRAME_DTYPE` array of the frames starting at ``acc`` (bytes 2..13 each)."""
+    k = acc.shape[0]
+    out = np.empty(k, FRAME_DTYPE)
+    view = out.view(np.uint8).reshape(k, 12)
+    windows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)
+    step = max(1, _SCAN_BYTES // BIN_FRAME_LEN)
+    for lo in range(0, k, step):  # gathered in slices: 16 bytes a frame at a time, not all
+        view[lo : lo + step] = windows[acc[lo : lo + step], 2:14]
+    return out
+
+
+def decode_capture(
+    data: bytes | bytearray | memoryview, protocol: str = "hdr-bin"
+) -> tuple[npt.NDArray[np.void], CaptureStats]:
+    """Decode a whole capture to a :data:`FRAME_DTYPE` array and the parser's counters.
+
+    Gives exactly the frames and counters of a :class:`Parser` fed the same bytes (in any
+    chunking) and then flushed, plus ``bad_before`` per frame (:class:`CaptureStats`).
+    hdr-bin is vectorised: every sync candidate's CRC is computed at once (table-driven, two
+    payload bytes per step); Python loops only over overlapping candidates. hdr-text uses the
+    push parser.
+    """
+    check_protocol(protocol)
+    st = CaptureStats()
+    if protocol == "hdr-text":
+        # The push parser, fed in slices (any split gives the same frames), each slice's
+        # frames packed into an array at once: no list of every Frame of the capture.
+        p = Parser("hdr-text")
+        arrays: list[npt.NDArray[np.void]] = []
+        bad: list[npt.NDArray[np.int64]] = []
+        view = memoryview(data).cast("B")
+        for lo in range(0, len(view), _SCAN_BYTES):
+            frames = p.feed(view[lo : lo + _SCAN_BYTES])
+            arrays.append(frames_to_array(frames))
+            bad.append(np.asarray(p.bad_before, np.int64))
+        p.flush()  # hdr-text holds no complete line back: it only counts the leftover
+        for name, value in p.stats.as_dict().items():
+            setattr(st, name, value)
+        st.bad_before = np.concatenate(bad) if bad else np.empty(0, np.int64)
+        return (np.concatenate(arrays) if arrays else np.empty(0, FRAME_DTYPE)), st
+    a = np.frombuffer(data, dtype=np.uint8)
+    n = a.shape[0]
+    if n < BIN_FRAME_LEN:
+        st.garbage_bytes = n
+        return np.empty(0, FRAME_DTYPE), st
+    top = n - 15  # a frame can start at 0 .. n - 16
+    slices = [(lo, min(lo + _SCAN_BYTES, top)) for lo in range(0, top, _SCAN_BYTES)]
+    # Pass 1, slice by slice: the positions of CRC-valid frames (at most the frames), and
+    # of the failed candidates while they are few (else pass 2 finds them again).
+    parts: list[npt.NDArray[np.int64]] = []
+    failed_parts: list[npt.NDArray[np.int64]] | None = []
+    failed = 0
+    for lo, hi in slices:
+        cand = _candidates(a, lo, hi)
+        ok = crc_ok_at(a, cand)
+        parts.append(cand[ok])
+        if not ok.all():
+            failed_here = cand[~ok]
+            failed += failed_here.shape[0]
+            if failed_parts is not None:
+                failed_parts.append(failed_here)
+                if failed > _KEEP_FAILED:
+                    failed_parts = None
+    valid = np.concatenate(parts) if parts else np.empty(0, np.int64)
+    del parts
+    keep = _drop_displaced(a, valid)
+    v = valid if keep.all() else valid[keep]
+    acc = v[_greedy_accept(v)]
+    if failed == 0 and v.shape[0] == valid.shape[0]:
+        st.bad_before = np.zeros(acc.shape[0], np.int64)
+    else:
+        # A candidate that failed (CRC, or a coincidence dropped above) counts as a bad
+        # frame unless it lies inside a frame that was taken; bad_before[i] = bad positions
+        # before acc[i].
+        counts = np.zeros(acc.shape[0] + 1, np.int64)
+        if failed_parts is not None:
+            inv = np.sort(np.concatenate([*failed_parts, valid[~keep]]))
+            _count_bad(inv, acc, counts)
+        else:  # pass 2, slice by slice: the failed candidates are those not in v
+            for lo, hi in slices:
+                inv = _candidates(a, lo, hi)
+                if v.shape[0]:
+                    at_v = np.minimum(np.searchsorted(v, inv), v.shape[0] - 1)
+                    inv = inv[v[at_v] != inv]
+                _count_bad(inv, acc, counts)
+        st.bad_frames = int(counts.sum())
+        st.bad_before = np.cumsum(counts[: acc.shape[0]], dtype=np.int64)
+    arr = _payload(a, acc)
+    st.frames = int(arr.shape[0])
+    st.garbage_bytes = n - BIN_FRAME_LEN * st.frames
+    sequence_stats(arr, st)
+    return arr, st
+
+
+def decode_frames(data: bytes, protocol: str = "hdr-bin") -> list[Frame]:
+    """All good frames of a capture as Frame objects (convenience over decode_capture)."""
+    return array_to_frames(decode_capture(data, protocol)[0])

@@ -1,0 +1,274 @@
+"""A drive log made from your own CSV, its columns, units and signs mapped (``hdrd import``,
+:mod:`hdrd.commands.importcsv`; docs/drive-format.md, "Your own CSV: hdrd import").
+
+A logger writes its own columns (``timestamp_ms``, ``gyro_z``, ``yaw``, ``vel_kmh``), in its
+own units (ms, rad/s, km/h) and signs (a z axis pointing down turns clockwise positive). Each
+is named on the command line with its unit and sign; the result is a drive log in hdrd's
+units and signs (t s from the first row, omega deg/s + = counter-clockwise, heading_truth
+compass deg [0, 360), speed m/s, temp_c deg C) that reads back as it was written. Every error
+names the source's line and its column (and the option that named it). The command checks
+the rate against the heading where the log has one.
+
+Pure except :func:`import_csv` (which reads a file).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.errors import clipped
+from hdrd.io.drivelog import (
+    DEFAULT_READ_LIMITS,
+    DriveLog,
+    DriveLogError,
+    ReadLimits,
+    check_columns,
+    csv_values,
+    open_regular,
+    parse_cell,
+    text_lines,
+)
+from hdrd.io.files import printable, shown_path
+
+__all__ = [
+    "HEADING_UNITS",
+    "OMEGA_UNITS",
+    "SPEED_UNITS",
+    "TIME_UNITS",
+    "Mapping",
+    "convert",
+    "import_csv",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""Seconds per unit of the source's time column."""
+OMEGA_UNITS = {"deg/s": 1.0, "rad/s": 180.0 / math.pi}
+"""deg/s per unit of the source's rate."""
+HEADING_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
+"""deg per unit of the source's heading."""
+SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6, "mph": 0.44704}
+"""m/s per unit of the source's speed."""
+HEADING_REFS = ("compass", "enu")
+"""compass: clockwise from north (a GPS course); enu: counter-clockwise from east (a yaw angle
+in an east-north-up frame, ROS REP 103): compass = 90 - yaw."""
+
+
+class SourceCsvError(DriveLogError):
+    """A source CSV that cannot be imported; the message names the line and column."""
+
+
+@dataclass(frozen=True)
+class Mapping:
+    """Which source column is which drive-log column, and in what unit and sign.
+
+    t, omega: required source column names; heading, speed, temp: optional (None). Units and
+    signs as the command line's options (:data:`TIME_UNITS` ...)."""
+
+    t: str
+    omega: str
+    heading: str | None = None
+    speed: str | None = None
+    temp: str | None = None
+    time_unit: str = "s"
+    omega_unit: str = "deg/s"
+    omega_sign: str = "ccw"
+    heading_unit: str = "deg"
+    heading_ref: str = "compass"
+    speed_unit: str = "m/s"
+
+    def columns(self) -> dict[str, tuple[str, str]]:
+        """Drive-log column -> (source column, the option that named it)."""
+        out = {"t": (self.t, "--t"), "omega": (self.omega, "--omega")}
+        if self.heading is not None:
+            out["heading_truth"] = (self.heading, "--heading")
+        if self.speed is not None:
+            out["speed"] = (self.speed, "--speed")
+        if self.temp is not None:
+            out["temp_c"] = (self.temp, "--temp")
+        return out
+
+
+def _integer(text: str) -> int | None:
+    """``text`` as an integer if it is one in plain ASCII digits that fits in 64 bits (a time
+    in ms, us or ns keeps every digit that way), else None."""
+    body = text[1:] if text[:1] in "+-" else text
+    if not (body.isascii() and body.isdigit()):
+        return None
+    v = int(text)
+    return v if -(2**63) <= v < 2**63 else None
+
+
+def _index(
+    header: list[str], mapping: Mapping, label: str
+) -> tuple[dict[str, int], dict[str, str]]:
+    """Drive-log column -> its index in the source's header, and what to call it in a message
+    (the source's name and the option that named it)."""
+    index: dict[str, int] = {}
+    shown: dict[str, str] = {}
+    for col, (src, opt) in mapping.columns().items():
+        hits = [i for i, h in enumerate(header) if h == src]
+        if not hits:
+            have = clipped(", ".join(repr(h) for h in header), 200)
+            raise SourceCsvError(
+                f"{label}: no column {clipped(repr(src), 60)} ({opt}); the header has {have}"
+            )
+        if len(hits) > 1:
+            raise SourceCsvError(f"{label}: column {clipped(repr(src), 60)} ({opt}) appears twice")
+        index[col] = hits[0]
+        shown[col] = f"{clipped(repr(src), 60)} ({opt})"
+    return index, shown
+
+
+def convert(
+    arrays: dict[str, FloatArray],
+    t_s: FloatArray,
+    mapping: Mapping,
+    where: Callable[[int], str],
+    shown: dict[str, str],
+    limits: ReadLimits = DEFAULT_READ_LIMITS,
+) -> DriveLog:
+    """The drive log of a source's columns as read (``arrays``: drive-log column -> values in
+    the source's units; ``t_s``: seconds since the first row): each converted to hdrd's units
+    and signs, then checked as a drive log is, ``where(i)`` naming row i and ``shown`` each
+    column in a message. DriveLogError on the first problem."""
+    out = dict(arrays)
+    out["t"] = t_s
+    sign = -1.0 if mapping.omega_sign == "cw" else 1.0
+    out["omega"] = arrays["omega"] * (OMEGA_UNITS[mapping.omega_unit] * sign)
+    if "heading_truth" in arrays:
+        h = arrays["heading_truth"] * HEADING_UNITS[mapping.heading_unit]
+        if mapping.heading_ref == "enu":
+            h = 90.0 - h
+        with np.errstate(invalid="ignore"):
+            h = np.mod(h, 360.0)
+            h = np.where(h >= 360.0, 0.0, h)  # a tiny negative's mod rounds to 360
+        out["heading_truth"] = h
+    if "speed" in arrays:
+        out["speed"] = arrays["speed"] * SPEED_UNITS[mapping.speed_unit]
+    check_columns(out, where, limits, shown)
+    written = csv_values("t", out["t"])  # what the drive log will hold: 0.1 ms steps
+    close = np.flatnonzero(np.diff(written) <= 0)
+    if close.shape[0]:
+        k = int(close[0]) + 1
+        raise SourceCsvError(
+            f"{where(k)}: column {shown['t']}: {out['t'][k]:.6g} s, "
+            f"{out['t'][k] - out['t'][k - 1]:.2g} s after the row before; a drive log keeps t "
+            "to 0.1 ms (10 kHz at most)"
+        )
+    return DriveLog(**out)  # type: ignore[arg-type]
+
+
+def _header(lines: Iterator[str], label: str, delimiter: str) -> tuple[list[str], int]:
+    """The header's cells (the first line that is neither empty nor a ``#`` comment) and its
+    line number."""
+    lineno = 0
+    for raw in lines:
+        lineno += 1
+        if lineno == 1:
+            raw = raw.removeprefix("\ufeff")
+        s = raw.strip()
+        if s and not s.startswith("#"):
+            try:
+                return [h.strip() for h in next(csv.reader([s], delimiter=delimiter))], lineno
+            except csv.Error as e:
+                raise SourceCsvError(
+                    f"{label}:{lineno}: the header is not a CSV line ({e})"
+                ) from None
+    raise SourceCsvError(f"{label}: empty file, expected a header line naming the columns")
+
+
+def import_csv(
+    path: str | os.PathLike[str],
+    mapping: Mapping,
+    delimiter: str = ",",
+    limits: ReadLimits = DEFAULT_READ_LIMITS,
+) -> DriveLog:
+    """Read a source CSV (a regular file of UTF-8 text, a byte-order mark skipped; only the
+    mapped columns are kept, 8 bytes a cell) and make a drive log of it (:func:`convert`),
+    named by the file's stem. DriveLogError naming the line and column; OSError if it cannot
+    be opened."""
+    label = shown_path(path)
+    with open_regular(path, label) as f:
+        lines = text_lines(f, label)
+        header, header_no = _header(lines, label, delimiter)
+        index, shown = _index(header, mapping, label)
+        width = len(header)
+        cols = {c: array("d") for c in index}
+        t_int: array[int] | None = array("q")
+        line_nos = array("q")
+        reader = csv.reader(lines, delimiter=delimiter)
+        try:
+            for cells in reader:
+                line = header_no + reader.line_num
+                if not cells or (len(cells) == 1 and not cells[0].strip()):
+                    continue
+                if len(line_nos) >= limits.max_rows:
+                    raise SourceCsvError(
+                        f"{label}:{line}: more than the {limits.max_rows} rows a drive may "
+                        "have (--max-rows)"
+                    )
+                if len(cells) != width:
+                    raise SourceCsvError(
+                        f"{label}:{line}: {len(cells)} fields, the header has {width}"
+                    )
+                line_nos.append(line)
+                for c, i in index.items():
+                    text = cells[i].strip()
+                    cols[c].append(parse_cell(text, label, line, shown[c]))
+                if t_int is not None:
+                    ti = _integer(cells[index["t"]].strip())
+                    if ti is None:
+                        t_int = None  # a time that is no integer: all are taken as decimals
+                    else:
+                        t_int.append(ti)
+        except csv.Error as e:
+            raise SourceCsvError(
+                f"{label}:{header_no + reader.line_num}: not a CSV row ({e})"
+            ) from None
+    if not line_nos:
+        raise SourceCsvError(f"{label}: no data rows")
+    arrays = {c: np.frombuffer(v, dtype=np.float64).copy() for c, v in cols.items()}
+    t_src = arrays.pop("t")
+    scale = TIME_UNITS[mapping.time_unit]
+    if t_int is not None:  # integers: subtracted exactly before they are scaled
+        ti64 = np.frombuffer(t_int, dtype=np.int64)
+        t_s = (ti64 - ti64[0]).astype(np.float64) * scale
+    else:
+        t_s = (t_src - t_src[0]) * scale
+    t_s[np.isnan(t_src)] = math.nan  # an empty time stays empty: refused by the checks
+    log = convert(arrays, t_s, mapping, lambda k: f"{label}:{line_nos[k]}", shown, limits)
+    return DriveLog(
+        t=log.t,
+        omega=log.omega,
+        temp_c=log.temp_c,
+        heading_truth=log.heading_truth,
+        speed=log.speed,
+        name=Path(path).stem,
+        meta={"source": f"hdrd import {Path(path).name}", **_described(mapping)},
+    )
+
+
+def _described(mapping: Mapping) -> dict[str, str]:
+    """The metadata that says where each column came from, in what unit and sign."""
+    parts = [f"t={mapping.t} ({mapping.time_unit}, from the first row)"]
+    parts.append(f"omega={mapping.omega} ({mapping.omega_unit}, {mapping.omega_sign})")
+    if mapping.heading is not None:
+        parts.append(
+            f"heading_truth={mapping.heading} ({mapping.heading_unit}, {mapping.heading_ref})"
+        )
+    if mapping.speed is not None:
+        parts.append(f"speed={mapping.speed} ({mapping.speed_unit})")
+    if mapping.temp is not None:
+        parts.append(f"temp_c={mapping.temp} (deg C)")
+    return {"imported": printable("; ".join(parts))}

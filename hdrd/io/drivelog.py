@@ -1,0 +1,514 @@
+"""The drive log: one CSV row per gyro sample, with optional ground truth (docs/drive-format.md).
+
+Columns (header required, any order, unknown columns are an error):
+
+=============== ======== ===============================================================
+t               s        monotonic sample time (required)
+omega           deg/s    raw gyro rate, + = CCW (left turn), bias NOT removed (required)
+temp_c          deg C    board/cabin temperature (optional)
+heading_truth   deg      compass heading, clockwise from north, [0, 360); empty = unknown
+omega_truth     deg/s    true yaw rate, + = CCW (optional)
+speed           m/s      vehicle speed (optional)
+valid           0 / 1    1 = the sample counts, 0 = excluded (handling, ...) (optional)
+=============== ======== ===============================================================
+
+Empty cells are NaN in memory ("unknown"), never 0.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import shlex
+import stat
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+import numpy.typing as npt
+
+from hdrd.errors import HdrdError, clipped
+from hdrd.io.files import printable, shown_path
+
+__all__ = [
+    "COLUMNS",
+    "DEFAULT_READ_LIMITS",
+    "MAX_GAP_S",
+    "MAX_RATE_DPS",
+    "MAX_ROWS",
+    "NO_LIMITS",
+    "OPTIONAL",
+    "DriveLog",
+    "DriveLogError",
+    "HEADING_LIMIT_DEG",
+    "ReadLimits",
+    "check_columns",
+    "csv_values",
+    "open_regular",
+    "parse_cell",
+    "read_drive",
+    "text_lines",
+    "write_drive",
+]
+
+COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed", "valid")
+REQUIRED = ("t", "omega")
+OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed", "valid")
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class DriveLogError(HdrdError, ValueError):
+    """A drive log that does not follow docs/drive-format.md; the message says where."""
+
+
+HEADING_LIMIT_DEG = 360.0
+"""``heading_truth`` is a direction: compass [0, 360), a signed course in [-180, 180] read as
+the same direction; anything beyond +/- this (an unwrapped heading, radians times 1000, a
+sentinel such as 999) is refused."""
+MAX_ROWS = 10_000_000
+"""Most rows a drive log may have (``--max-rows``): 28 hours at 100 Hz, 11 days at 10 Hz; a
+drive of that many takes ~0.6 GB to read and a few times that to analyse."""
+MAX_RATE_DPS = 1000.0
+"""Largest yaw rate a drive log may hold, deg/s (``--max-rate``): beyond what a vehicle's
+gyro measures (a +/-1000 deg/s MEMS is the widest common range; a car turns at < 100)."""
+RATE_COLUMNS = ("omega", "omega_truth")
+MAX_GAP_S = 3600.0
+"""Longest time gap a drive may have, s (``--max-gap``): a longer one is two drives, or a
+clock that jumped; the analyses' work and Td would follow the span, not the samples."""
+
+
+@dataclass(frozen=True)
+class ReadLimits:
+    """What a drive log may hold beyond the format's own rules, each refused with a one-line
+    error naming the row (docs/drive-format.md, "Limits"): ``max_rows``, the most rows (a
+    Parquet file's counted from its metadata before any is read); ``max_rate_dps``, the
+    largest ``|omega|`` and ``|omega_truth|``, deg/s; ``max_gap_s``, the longest step in
+    ``t``, s; both in the rows that count (``valid`` not 0)."""
+
+    max_rows: int = MAX_ROWS
+    max_rate_dps: float = MAX_RATE_DPS
+    max_gap_s: float = MAX_GAP_S
+
+
+DEFAULT_READ_LIMITS = ReadLimits()
+NO_LIMITS = ReadLimits(max_rows=2**62, max_rate_dps=math.inf, max_gap_s=math.inf)
+"""The format's own rules only (a test of the format, a tool that splits long logs)."""
+
+
+@dataclass(frozen=True)
+class DriveLog:
+    """A drive's samples. Optional columns are None when absent, NaN where a cell is empty."""
+
+    t: FloatArray
+    omega: FloatArray
+    temp_c: FloatArray | None = None
+    heading_truth: FloatArray | None = None
+    omega_truth: FloatArray | None = None
+    speed: FloatArray | None = None
+    valid: FloatArray | None = None
+    """1.0 where the sample counts, 0.0 where it is excluded (e.g. the device was handled)."""
+    name: str = ""
+    meta: dict[str, str] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self) else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        """Median sample rate, Hz."""
+        return float(1.0 / np.median(np.diff(self.t))) if len(self) > 1 else 0.0
+
+    def columns(self) -> list[str]:
+        return [c for c in COLUMNS if getattr(self, c) is not None]
+
+    def slice(self, start: int, stop: int | None = None) -> DriveLog:
+        """Rows [start, stop)."""
+        kw = {c: getattr(self, c)[start:stop] for c in self.columns()}
+        return replace(self, **kw)
+
+    def counted(self) -> DriveLog:
+        """The rows that count: those with ``valid`` 1 (all, without a ``valid`` column), as if
+        the others had been dropped from the file (a time gap where they were)."""
+        if self.valid is None or bool((self.valid != 0.0).all()):
+            return self
+        keep = self.valid != 0.0
+        kw = {c: getattr(self, c)[keep] for c in self.columns()}
+        return replace(self, **kw)
+
+
+MAX_LINE_CHARS = 1 << 16
+"""Longest line of a drive-log CSV, characters: a row of seven numbers takes ~70, a metadata
+line a few thousand; a longer line (a cell of megabytes, a file without line breaks) is
+refused before it is held."""
+
+
+def parse_cell(text: str, path: str, line: int, col: str) -> float:
+    """A cell: a decimal number in ASCII (``1.5``, ``-2e-3``), empty or ``nan`` for unknown.
+    Python's float() takes more, which a drive log does not: ``1_000`` (a digit separator,
+    most likely a typo) and digits of other scripts (``١٢``)."""
+    if text == "" or text.lower() == "nan":
+        return math.nan
+    if "_" in text or not text.isascii():
+        raise DriveLogError(
+            f"{path}:{line}: column {col}: {clipped(repr(text), 60)} is not a number (only "
+            "ASCII digits, '.', a sign and an exponent)"
+        )
+    try:
+        v = float(text)
+    except ValueError:
+        raise DriveLogError(
+            f"{path}:{line}: column {col}: {clipped(repr(text), 60)} is not a number"
+        ) from None
+    if math.isinf(v):
+        raise DriveLogError(f"{path}:{line}: column {col}: {clipped(repr(text), 60)} is not finite")
+    return v
+
+
+def read_drive(
+    path: str | os.PathLike[str] | io.TextIOBase,
+    name: str | None = None,
+    limits: ReadLimits = DEFAULT_READ_LIMITS,
+) -> DriveLog:
+    """Read a drive log CSV. Lines starting with '#' before the header are metadata
+    (``# key: value``). Raises DriveLogError naming the file, line and column on bad input
+    (and on a value beyond ``limits``)."""
+    if isinstance(path, (str, os.PathLike)):
+        label = shown_path(path)
+        try:
+            with open_regular(path, label) as f:
+                return _read(f, label, name or Path(path).stem, limits)
+        except DriveLogError:
+            what = _not_a_drive_log(path, label)
+            if what is not None:
+                raise DriveLogError(what) from None
+            raise
+    return _read(path, "<stream>", name or "", limits)
+
+
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def open_regular(path: str | os.PathLike[str], label: str) -> BinaryIO:
+    """The file, if it is a regular file (a FIFO would block the reader, a device never end):
+    opened without blocking, then checked; DriveLogError otherwise."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = next((k for test, k in _KINDS if test(mode)), "not a regular file")
+            raise DriveLogError(f"{label}: is {kind}, not a drive log file")
+        return open(fd, "rb", closefd=True)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+SNIFF_BYTES = 4096
+"""Bytes looked at to say what a file that is no drive log is."""
+
+
+def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
+    """What a file that failed to read as a drive log is instead, if its first bytes say: a
+    capture of the gyro's frames (hdr-bin or hdr-text: ``hdrd convert`` makes a drive log of
+    it), a Parquet file under another name, binary data. None: a text file, whose own error
+    stands."""
+    try:
+        with open_regular(path, "") as f:
+            head = f.read(SNIFF_BYTES)
+    except (OSError, DriveLogError):
+        return None
+    from hdrd.io.capture import decode_capture
+
+    for protocol in ("hdr-bin", "hdr-text"):
+        frames, _ = decode_capture(head, protocol)
+        if frames.shape[0] >= 3:
+            stem = Path(path).stem or "drive"
+            given = str(path) if len(str(path)) <= 80 else Path(path).name
+            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(stem + '.csv')}"
+            return (
+                f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
+                f"make one with `{clipped(printable(cmd), 200)}`"
+            )
+    if head.startswith(b"PAR1"):
+        return f"{label}: a Parquet file; name it {printable(Path(path).stem)}.parquet"
+    if b"\x00" in head:
+        return (
+            f"{label}: binary data, not a drive log (a CSV file in UTF-8, or a .parquet file: "
+            "docs/drive-format.md)"
+        )
+    return None
+
+
+def text_lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
+    """The lines of ``f`` as text, none longer than :data:`MAX_LINE_CHARS`; bytes are UTF-8
+    (DriveLogError naming the line otherwise)."""
+    n = 0
+    while True:
+        line = f.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        n += 1
+        if len(line) > MAX_LINE_CHARS:
+            raise DriveLogError(
+                f"{label}:{n}: a line longer than {MAX_LINE_CHARS} characters; a drive log's "
+                "rows are a few numbers each"
+            )
+        if isinstance(line, bytes):
+            try:
+                line = line.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise DriveLogError(
+                    f"{label}:{n}: not UTF-8 text (byte 0x{line[e.start]:02x} at column "
+                    f"{e.start + 1}); save the CSV as UTF-8"
+                ) from None
+        yield line
+
+
+def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits) -> DriveLog:
+    meta: dict[str, str] = {}
+    lines = text_lines(f, label)
+    header_line = None
+    lineno = 0
+    for raw in lines:
+        lineno += 1
+        if lineno == 1:
+            raw = raw.removeprefix("\ufeff")  # a byte-order mark (Excel's "CSV UTF-8")
+        s = raw.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            k, _, v = s[1:].partition(":")
+            if v:
+                meta[k.strip()] = v.strip()
+            continue
+        header_line = s
+        break
+    if header_line is None:
+        raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+    try:
+        header = [h.strip() for h in next(csv.reader([header_line]))]
+    except csv.Error as e:
+        raise DriveLogError(f"{label}:{lineno}: the header is not a CSV line ({e})") from None
+    for h in header:
+        if h not in COLUMNS:
+            raise DriveLogError(
+                f"{label}:{lineno}: unknown column {clipped(repr(h), 60)} "
+                f"(allowed: {', '.join(COLUMNS)})"
+            )
+    for r in REQUIRED:
+        if r not in header:
+            raise DriveLogError(f"{label}:{lineno}: missing required column {r!r}")
+    if len(set(header)) != len(header):
+        raise DriveLogError(f"{label}:{lineno}: repeated column in header")
+    width = len(header)
+    flat = array("d")  # the rows' values one after the other: 8 bytes a cell
+    row_lines = array("q")  # the file line of each data row, for error messages
+    header_lineno = lineno
+    reader = csv.reader(lines)
+    try:
+        for row in reader:
+            lineno = header_lineno + reader.line_num
+            if not row or (len(row) == 1 and not row[0].strip()):
+                continue
+            row_lines.append(lineno)
+            if len(row_lines) > limits.max_rows:
+                raise DriveLogError(
+                    f"{label}:{lineno}: more than the {limits.max_rows} rows a drive may have "
+                    "(--max-rows)"
+                )
+            if len(row) != width:
+                raise DriveLogError(f"{label}:{lineno}: {len(row)} fields, header has {width}")
+            plain = "".join(row)
+            if plain.isascii() and "_" not in plain:
+                try:  # the common row: plain numbers and empty cells, taken at C speed
+                    flat.extend([float(c or "nan") for c in row])
+                    continue
+                except ValueError:
+                    pass
+            flat.extend([parse_cell(c.strip(), label, lineno, h) for h, c in zip(header, row)])
+    except csv.Error as e:
+        raise DriveLogError(
+            f"{label}:{header_lineno + reader.line_num}: not a CSV row ({e})"
+        ) from None
+    table = np.frombuffer(flat, dtype=np.float64).reshape(-1, width)
+    arrays = {h: np.array(table[:, j]) for j, h in enumerate(header)}
+    del table, flat
+    if arrays["t"].shape[0] == 0:
+        raise DriveLogError(f"{label}: no data rows")
+    check_columns(arrays, lambda i: f"{label}:{row_lines[i]}", limits)
+    return DriveLog(name=name, meta=meta, **arrays)
+
+
+def check_columns(
+    arrays: dict[str, FloatArray],
+    where: Callable[[int], str],
+    limits: ReadLimits | None = DEFAULT_READ_LIMITS,
+    names: dict[str, str] | None = None,
+) -> None:
+    """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
+    every row, ``t`` and ``omega`` are present in every row, no value is infinite, ``t``
+    strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
+    names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet);
+    ``names`` what to call a column in it (``hdrd import``: the source's own column).
+    DriveLogError on the first problem."""
+    shown = names or {}
+
+    def col(c: str) -> str:
+        return shown.get(c, c)
+
+    if "valid" in arrays:
+        vcol = arrays["valid"]
+        bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
+        if bad_v.shape[0]:
+            i = int(bad_v[0])
+            what = "is empty" if math.isnan(vcol[i]) else f"{float(vcol[i])!r} is not 0 or 1"
+            raise DriveLogError(
+                f"{where(i)}: column {col('valid')}: {what}; every row needs 1 (the sample "
+                "counts) or 0 (excluded)"
+            )
+    for c in REQUIRED:
+        if np.isnan(arrays[c]).any():
+            bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
+            raise DriveLogError(
+                f"{where(bad)}: column {col(c)} is empty; it is required in every row"
+            )
+    for c, a in arrays.items():
+        if np.isinf(a).any():
+            bad = int(np.flatnonzero(np.isinf(a))[0])
+            raise DriveLogError(f"{where(bad)}: column {col(c)}: {float(a[bad])!r} is not finite")
+    if "heading_truth" in arrays:
+        h = arrays["heading_truth"]
+        with np.errstate(invalid="ignore"):
+            out = np.abs(h) > HEADING_LIMIT_DEG
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            raise DriveLogError(
+                f"{where(i)}: column {col('heading_truth')}: {float(h[i])!r} deg is outside "
+                f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
+                "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
+            )
+    t = arrays["t"]
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise DriveLogError(
+            f"{where(bad)}: column {col('t')} is not strictly increasing "
+            f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
+        )
+    if limits is not None:
+        _check_limits(arrays, where, limits, col)
+
+
+def _check_limits(
+    arrays: dict[str, FloatArray],
+    where: Callable[[int], str],
+    limits: ReadLimits,
+    col: Callable[[str], str],
+) -> None:
+    counts = np.ones(arrays["t"].shape[0], dtype=bool)
+    if "valid" in arrays:
+        counts = arrays["valid"] != 0.0
+    rows = np.flatnonzero(counts)
+    for c in RATE_COLUMNS:
+        if c in arrays:
+            with np.errstate(invalid="ignore"):
+                over = counts & (np.abs(arrays[c]) > limits.max_rate_dps)
+            if over.any():
+                i = int(np.flatnonzero(over)[0])
+                raise DriveLogError(
+                    f"{where(i)}: column {col(c)}: {float(arrays[c][i]):.6g} deg/s is beyond the "
+                    f"+/-{limits.max_rate_dps:g} deg/s a gyro measures (--max-rate)"
+                )
+    t = arrays["t"][rows]
+    if t.shape[0] > 1:
+        steps = np.diff(t)
+        j = int(np.argmax(steps))
+        if steps[j] > limits.max_gap_s:
+            i = int(rows[j + 1])
+            raise DriveLogError(
+                f"{where(i)}: column {col('t')} jumps by {float(steps[j]):.6g} s (from {float(t[j])!r} to "
+                f"{float(t[j + 1])!r}); a drive may have gaps of at most {limits.max_gap_s:g} s "
+                "(--max-gap): split the log there"
+            )
+
+
+def _fmt(v: float, digits: tuple[int, int]) -> str:
+    """``v`` with up to digits[1] decimals, trailing zeros dropped down to digits[0]."""
+    if math.isnan(v):
+        return ""
+    lo, hi = digits
+    s = f"{v:.{hi}f}"
+    if hi > lo:
+        s = s[: len(s) - hi + lo] + s[len(s) - hi + lo :].rstrip("0")
+    return s
+
+
+# Decimals per column, (at least, at most). Rates keep 7 decimals where they have them, so that
+# an ADC's step survives the CSV: a CRS03-04 on a 16-bit ADC steps by 0.00763 deg/s, a
+# +/-1000 deg/s MEMS by 0.0305 deg/s (1/32.8), neither a round decimal; rounded to 1e-7 deg/s
+# their codes stay within 1e-5 of a step. A value with 5 decimals or fewer is written as before.
+_DIGITS = {
+    "t": (4, 4),
+    "omega": (5, 7),
+    "temp_c": (3, 3),
+    "heading_truth": (3, 3),
+    "omega_truth": (5, 7),
+    "speed": (3, 3),
+    "valid": (0, 0),
+}
+
+
+def csv_values(column: str, values: FloatArray) -> FloatArray:
+    """``values`` as a CSV written by :func:`write_drive` reads them back: each rounded to the
+    column's most decimals (the nearest double to the decimal the writer prints; NaN stays
+    NaN). The Parquet writer stores these, so a drive written in either format reads back the
+    same, bit for bit."""
+    digits = _DIGITS[column][1]
+    scale = 10.0**digits
+    v = np.asarray(values, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        x = v * scale  # an overflow goes to the writer's way below
+    out: FloatArray = np.rint(x) / scale  # an exact integer over 10**digits: correctly rounded
+    # Where the product's own rounding could put x on the other side of a half, or x is too
+    # large for rint to be exact, do what the writer does.
+    with np.errstate(invalid="ignore"):
+        near = np.abs(x - np.floor(x) - 0.5) <= 4 * np.spacing(np.abs(x))
+        huge = ~(np.abs(x) < 2.0**52)
+    for i in np.flatnonzero((near | huge) & np.isfinite(v)).tolist():
+        out[i] = float(f"{v[i]:.{digits}f}")
+    return out
+
+
+def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
+    """Write a drive log CSV (metadata as leading '# key: value' lines)."""
+    if isinstance(path, (str, os.PathLike)):
+        with open(path, "w", newline="", encoding="utf-8") as f:
+            _write(f, log)
+    else:
+        _write(path, log)
+
+
+def _write(f: io.TextIOBase, log: DriveLog) -> None:
+    for k, v in log.meta.items():
+        f.write(f"# {k}: {v}\n")
+    cols = log.columns()
+    f.write(",".join(cols) + "\n")
+    data = [getattr(log, c).tolist() for c in cols]
+    digits = [_DIGITS[c] for c in cols]
+    for row in zip(*data):
+        f.write(",".join(_fmt(v, d) for v, d in zip(row, digits)) + "\n")

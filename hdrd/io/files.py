@@ -1,0 +1,370 @@
+"""hdrd's files: reading the ones it is handed without trusting them, writing its own atomically.
+
+Reading: a file must be a regular file (a FIFO would block the reader forever, ``/dev/zero``
+never ends) no larger than a limit that fits its kind (:func:`read_limited`); YAML is parsed
+with PyYAML's safe loader, its nesting depth bounded, and any failure of the parser (syntax,
+a number with more digits than Python converts, an impossible date) becomes one
+:class:`InputFileError` (:func:`load_yaml`). Callers turn that into their own one-line error
+(:class:`hdrd.config.ConfigError`, :class:`hdrd.io.biasfile.BiasFileError`, the capture
+commands' message).
+
+Writing: the bias file, and the ``--json``/``--out``/``--report`` files of evaluate, tune and
+gap, are written whole or not at all (:func:`atomic_write_text`, :func:`atomic_write_json`),
+so a reader or a power cut sees the old or the new content. :func:`default_bias_path` is where
+the bias file lives when none is named. A name that comes from data (a drive's name: a
+Parquet ``drive`` value, a hive folder ``drive=NAME``) becomes a path only through
+:func:`path_inside`, which refuses any name that would lead out of the output folder.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import glob
+import os
+import stat
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from hdrd.errors import HdrdError, clipped
+
+__all__ = [
+    "MAX_BIAS_BYTES",
+    "MAX_CAPTURE_BYTES",
+    "MAX_CONFIG_BYTES",
+    "MAX_NAME_BYTES",
+    "MAX_YAML_DEPTH",
+    "InputFileError",
+    "UnsafeNameError",
+    "atomic_write_json",
+    "atomic_write_text",
+    "default_bias_path",
+    "load_yaml",
+    "path_inside",
+    "printable",
+    "read_limited",
+    "shown_path",
+]
+
+MAX_CONFIG_BYTES = 1 << 20
+"""A configuration file: 1 MiB (the shipped one, every key with its comment, is ~10 KB)."""
+MAX_BIAS_BYTES = 64 << 10
+"""A bias file: 64 KiB (``hdrd calibrate`` writes ~250 bytes)."""
+MAX_CAPTURE_BYTES = 2 << 30
+"""A capture for ``hdrd replay``/``convert``: 2 GiB, 1.5 days of a 115200-baud link and
+134 million hdr-bin frames; replay holds the file and its frames in memory (bench/RESULTS.md)."""
+MAX_YAML_DEPTH = 32
+"""Deepest nesting of YAML collections accepted (hdrd's files need 3)."""
+MAX_NAME_BYTES = 200
+"""Longest name from data that :func:`path_inside` turns into a path, UTF-8 bytes (a file
+name may take 255; the suffix and a temporary file's decoration need the rest)."""
+
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+class InputFileError(HdrdError, ValueError):
+    """A file that cannot be taken. ``str()`` is the problem, without the path; ``where``
+    is "line L, column C" for a YAML problem that has a position, else None."""
+
+    def __init__(self, problem: str, where: str | None = None) -> None:
+        super().__init__(problem)
+        self.problem = problem
+        self.where = where
+
+
+def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``.
+
+    Raises FileNotFoundError if there is no such file, InputFileError if it is not a regular
+    file or is too large, OSError if it cannot be read. Opened non-blocking, so a FIFO is
+    refused at once instead of waiting for a writer.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+            raise InputFileError(f"is {kind}, not a regular file")
+        if st.st_size > max_bytes:
+            raise InputFileError(
+                f"is {_size(st.st_size)}, larger than the {_size(max_bytes)} allowed"
+            )
+        chunks: list[bytes] = []
+        got = 0
+        while True:  # to the end, as it is now: a file still growing stops at the limit
+            chunk = os.read(fd, min(1 << 20, max_bytes + 1 - got))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            got += len(chunk)
+            if got > max_bytes:
+                raise InputFileError(f"grew beyond the {_size(max_bytes)} allowed while read")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def _size(n: int) -> str:
+    for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if n >= 1 << shift:
+            return f"{n / (1 << shift):.3g} {unit}"
+    return f"{n} bytes"
+
+
+MAX_PROBLEM_CHARS = 160
+"""Longest YAML problem text quoted in an error: PyYAML quotes the offending text (an
+unknown tag of any length) and the error must stay one readable line."""
+
+
+def load_yaml(text: str) -> Any:
+    """``yaml.safe_load`` of a document whose collections nest at most MAX_YAML_DEPTH deep.
+
+    Any problem (syntax, depth, a number of more digits than Python converts, an invalid
+    timestamp, a tag the safe loader refuses) raises InputFileError naming it.
+    """
+    import yaml  # here, not at the top: hdrd run without a file never needs it (~18 ms)
+
+    loader = None
+    try:
+        # The reader checks every character on construction: a control character anywhere
+        # (NUL, ESC) is a ReaderError here, before any parsing.
+        loader = _bounded_loader(yaml)(text)
+        return loader.get_single_data()
+    except yaml.reader.ReaderError as e:
+        ch = e.character
+        shown = f"#x{ch:04x}" if isinstance(ch, int) else repr(ch)
+        raise InputFileError(
+            f"YAML does not allow the character {shown} (a control or special character)",
+            _line_column(text, e.position),
+        ) from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else None
+        problem = clipped(getattr(e, "problem", None) or "syntax error", MAX_PROBLEM_CHARS)
+        if problem.startswith(("collections nested", "value cannot")):
+            raise InputFileError(f"YAML {problem}", where) from None
+        raise InputFileError(f"YAML syntax error: {problem}", where) from None
+    except RecursionError:  # a guard: the depth bound should come first
+        raise InputFileError(
+            f"YAML collections nested deeper than {MAX_YAML_DEPTH} levels"
+        ) from None
+    except Exception as e:  # noqa: BLE001 - a guard, as construct_object's
+        raise InputFileError(f"YAML value cannot be converted ({type(e).__name__})") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def _line_column(text: str, position: int) -> str:
+    """The 1-based "line L, column C" of a character offset in *text*."""
+    line = text.count("\n", 0, position) + 1
+    return f"line {line}, column {position - (text.rfind(chr(10), 0, position) + 1) + 1}"
+
+
+_LOADER: Any = None
+
+
+def _bounded_loader(yaml: Any) -> Any:
+    """SafeLoader that refuses collections nested deeper than MAX_YAML_DEPTH (before the
+    recursive composer and constructor could exhaust Python's stack)."""
+    global _LOADER
+    if _LOADER is not None:
+        return _LOADER
+
+    class BoundedSafeLoader(yaml.SafeLoader):
+        _depth = 0
+
+        def compose_node(self, parent: Any, index: Any) -> Any:
+            self._depth += 1
+            try:
+                if self._depth > MAX_YAML_DEPTH:
+                    mark = self.peek_event().start_mark
+                    raise yaml.composer.ComposerError(
+                        None, None, f"collections nested deeper than {MAX_YAML_DEPTH} levels", mark
+                    )
+                return super().compose_node(parent, index)
+            finally:
+                self._depth -= 1
+
+        def construct_object(self, node: Any, deep: bool = False) -> Any:
+            try:
+                return super().construct_object(node, deep)
+            except yaml.YAMLError:
+                raise
+            except Exception as e:  # noqa: BLE001 - PyYAML's constructors on hostile text
+                # int() beyond sys.get_int_max_str_digits(), a date like 2024-13-45,
+                # AttributeError for `!!timestamp 'not a time'`, ...
+                if isinstance(e, (ValueError, OverflowError)):
+                    why = (str(e).splitlines() or [type(e).__name__])[0]
+                    why = clipped(why, 80)
+                else:  # a message about PyYAML's insides: say what the text is not
+                    why = f"not a valid {str(node.tag).rsplit(':', 1)[-1][:40]}"
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"value cannot be converted ({why})", node.start_mark
+                ) from None
+
+    _LOADER = BoundedSafeLoader
+    return _LOADER
+
+
+# -- writing ----------------------------------------------------------------------------------
+
+
+def _writer_alive(pid: int) -> bool:
+    """Whether process ``pid`` (a temp file's writer, from its name) still runs."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: another user's process, alive
+        return True
+    return True
+
+
+def _remove_stale_temps(target: Path) -> None:
+    """Remove the temp files of writers to ``target`` that died before their rename (killed,
+    or a power cut). A temp file is another writer's work in progress while that writer
+    lives: its name holds the writer's pid, and the writer holds an exclusive flock on it from
+    its creation to its rename; such a file is left alone. (Removing every temp file, as was
+    done, made a concurrent writer's rename fail: "No such file or directory".)"""
+    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+        pid = stale.name[len(target.name) + 2 :].split(".", 1)[0]
+        if pid.isdigit() and _writer_alive(int(pid)):
+            continue
+        try:
+            fd = os.open(stale, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+        except OSError:
+            continue  # gone already, or not ours to open
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held: a live writer's
+            stale.unlink()
+        except OSError:
+            pass  # not ours to insist on; at worst one more leftover
+        finally:
+            os.close(fd)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+
+    Temp file in the same directory (``.NAME.PID.RANDOM.tmp``, unique, flocked by its writer
+    until renamed), fsync, chmod, rename over the target, fsync the directory. Temp files
+    that an earlier writer left behind (killed, or a power cut, before its rename) are
+    removed first, so they never pile up; a live concurrent writer's is left alone, so
+    writers may run at once (the last rename wins, each file whole).
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temps(target)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent
+    )
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours: no cleaner may take it
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+            os.chmod(tmp, mode)
+            os.replace(tmp, target)  # still locked: a cleaner never sees it unlocked
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    dfd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
+    """:func:`atomic_write_text` of ``doc`` as indented JSON with a final newline (the
+    ``--json``/``--report`` files of evaluate, tune and gap)."""
+    import json
+
+    atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
+
+
+def default_bias_path() -> Path:
+    """$STATE_DIRECTORY/bias.yaml under systemd (StateDirectory=hdrd), else /var/lib/hdrd."""
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return Path(state or "/var/lib/hdrd") / "bias.yaml"
+
+
+# -- names from data as paths -----------------------------------------------------------------
+
+
+class UnsafeNameError(HdrdError, ValueError):
+    """A name from data that cannot become a path inside the output folder; the message names
+    it (escaped, clipped) and says why."""
+
+
+def printable(text: str) -> str:
+    """``text`` with every character a terminal could act on (controls, ESC, bidirectional
+    overrides: all that ``str.isprintable`` refuses) written as its Python escape, ``\\x1b``:
+    a name from data shown in a message or a table cannot move the cursor or hide itself."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+MAX_SHOWN_PATH = 120
+"""Longest path shown in a message, characters: a longer one keeps its end (the file's own
+name), behind "..."."""
+
+
+def shown_path(path: str | os.PathLike[str]) -> str:
+    """A path for a message: :func:`printable`, and at most :data:`MAX_SHOWN_PATH`
+    characters (its end kept)."""
+    text = printable(os.fspath(path) if not isinstance(path, bytes) else os.fsdecode(path))
+    if len(text) <= MAX_SHOWN_PATH:
+        return text
+    return "..." + text[len(text) - MAX_SHOWN_PATH + 3 :]
+
+
+def _name_problem(name: str) -> str | None:
+    if not name:
+        return "is empty"
+    size = len(name.encode("utf-8", "surrogatepass"))
+    if size > MAX_NAME_BYTES:
+        return f"is {size} bytes long, more than the {MAX_NAME_BYTES} a name may have"
+    if not name.isprintable():
+        return "holds a control or other non-printable character"
+    if name.startswith("/"):
+        return "is an absolute path"
+    if any(part in ("", ".", "..") for part in name.split("/")):
+        return "has an empty, '.' or '..' part"
+    return None
+
+
+def path_inside(root: str | os.PathLike[str], name: str, suffix: str = "") -> Path:
+    """``root / (name + suffix)``, for a ``name`` that comes from data (a drive's name), made
+    sure to lie inside ``root``: ``/`` in a name makes sub-folders of ``root`` (a drive found
+    at ``DIR/phone/drive05.csv`` is ``phone/drive05``), but an empty name, one with a NUL or
+    another control character, an absolute name, a ``.`` or ``..`` part, a name over
+    :data:`MAX_NAME_BYTES` bytes, or one whose folders lead out of ``root`` through a symbolic
+    link raise :class:`UnsafeNameError`. Nothing is created."""
+    problem = _name_problem(name)
+    base = Path(root)
+    path = base / (name + suffix)
+    if problem is None:
+        # the folders that exist already (a symbolic link among them) must stay inside too
+        real_root = base.resolve()
+        real_parent = path.parent.resolve()
+        if real_parent != real_root and real_root not in real_parent.parents:
+            problem = f"leads out of {printable(str(base))} through a symbolic link"
+    if problem is not None:
+        raise UnsafeNameError(
+            f"the name {clipped(repr(name), 80)} cannot name a file inside "
+            f"{clipped(printable(str(base)), 120)}: it {problem}"
+        )
+    return path
