@@ -44,10 +44,17 @@ sys.path.insert(0, str(REPO))
 
 from _common import machine_line, replace_section
 
-from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, method_yaw, prepare_drive
+from hdrd.analysis.evaluate import (
+    DEFAULTS,
+    EvaluationError,
+    PreparedDrive,
+    method_yaw,
+    prepare_drive,
+)
 from hdrd.analysis.metrics import e_psi
 from hdrd.core.grades import GRADES, Grade
 from hdrd.core.gyronoise import GyroNoise, grade_noise
+from hdrd.core.methods import SettingsContext
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.grades import grade_model
@@ -229,6 +236,11 @@ def oracle_yaw(
     return np.cumsum((prep.steps.u - corr) * T)
 
 
+def with_noise(noise: GyroNoise) -> SettingsContext:
+    """The default configuration with ``noise`` given as HDR+'s error model (as ``plus.*``)."""
+    return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
+
+
 def method_scores(
     log: DriveLog, p: PreparedDrive, extra: np.ndarray, noise: GyroNoise
 ) -> dict[str, float]:
@@ -239,7 +251,7 @@ def method_scores(
         "none": ep(method_yaw(p, "none")),
         "hdr": ep(method_yaw(p, "hdr")),
         "hdr+": ep(method_yaw(p, "hdr+")),
-        "hdr+ (grade)": ep(method_yaw(p, "hdr+", noise=noise)),
+        "hdr+ (grade)": ep(method_yaw(p, "hdr+", context=with_noise(noise))),
         "oracle": ep(oracle_yaw(log, p, extra)),
     }
 
@@ -256,13 +268,11 @@ def step_timing(prep: PreparedDrive, repeats: int = 3) -> tuple[float, float]:
     """CPU microseconds per step of HDR+'s two forms on one drive (best of ``repeats``):
     :func:`hdrd.core.hdrplus.step` looped, as the daemon runs it once per T, and
     :func:`hdrd.core.hdrplus.run_batch`, as evaluate runs it. Settings as evaluate fits them."""
-    from hdrd.analysis.evaluate import PLUS_DEFAULTS
+    from hdrd.analysis.evaluate import method_settings
     from hdrd.core.hdrplus import INITIAL_PLUS_STATE, run_batch, step
-    from hdrd.core.methods import plus_settings
 
     s = prep.steps
-    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    p = plus_settings(PLUS_DEFAULTS, s.T, prep.samples_per_step, prep.bias, None, q)
+    p = method_settings(prep, "hdr+")
     inputs = [s.input(i) for i in range(s.u.shape[0])]
     best_step = best_batch = math.inf
     for _ in range(repeats):

@@ -54,7 +54,7 @@ from hdrd.core.hdrplus import (
     run_batch,
     step,
 )
-from hdrd.core.methods import StepInputs, plus_settings
+from hdrd.core.methods import SettingsContext, StepInputs, plus_settings
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import DriveLog
@@ -141,7 +141,8 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     assert v.params is not None
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     # as hdrd evaluate fits HDR+ to the drive (hdrd.core.methods.plus_settings)
-    p = plus_settings(v.params, s.T, prep.samples_per_step, prep.bias, None, q)
+    ctx = SettingsContext(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
+    p = plus_settings(ctx)
     if v.gate_speed_mps > 0.0 or v.holdoff_steps > 0:
         return gated_yaw(s, p, v.gate_speed_mps, v.holdoff_steps, v.temp)
     return run_batch(

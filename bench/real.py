@@ -38,7 +38,7 @@ import shlex
 import subprocess
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -58,10 +58,8 @@ from hdrd.analysis.evaluate import (
     prepare_drive,
 )
 from hdrd.analysis.metrics import e_psi
-from hdrd.config import Config
-from hdrd.core.gyronoise import grade_noise
-from hdrd.core.hdrplus import HdrPlusParams
-from hdrd.daemon.pipeline import plus_params
+from hdrd.config import Config, settings_context
+from hdrd.core.methods import SettingsContext
 from hdrd.io.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
@@ -93,8 +91,8 @@ def drive_set(name: str) -> str:
 
 # -- scoring --------------------------------------------------------------------------------
 
-PLUS = plus_params(Config())
-"""HDR+'s base settings as ``hdrd evaluate`` takes them from the default configuration."""
+PLUS = settings_context(Config())
+"""What ``hdrd evaluate`` takes from the default configuration for the methods' settings."""
 METHOD_NAMES = ("none", "hdr", "hdr+")
 """What ``hdrd evaluate --method hdr+`` evaluates: none, paper HDR (Table III), HDR+."""
 
@@ -109,13 +107,12 @@ def grade_of(name: str) -> str:
     return GRADE_OF.get(name, "phone")
 
 
-def scores(prep: PreparedDrive, plus: HdrPlusParams = PLUS) -> dict[str, float]:
+def scores(prep: PreparedDrive, plus: SettingsContext = PLUS) -> dict[str, float]:
     """Eψ (deg) of each method on one prepared drive, as ``hdrd evaluate`` computes it, and
     ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``plus.grade`` set to the
     recording's gyro (:func:`grade_of`)."""
     e = dict(evaluate_prepared(prep, PAPER_PARAMS, METHOD_NAMES, plus).e_psi)
-    noise = grade_noise(grade_of(prep.name))
-    g = evaluate_prepared(prep, PAPER_PARAMS, ("hdr+",), plus, noise)
+    g = evaluate_prepared(prep, PAPER_PARAMS, ("hdr+",), replace(plus, grade=grade_of(prep.name)))
     e["hdr+ (grade)"] = g.e_psi["hdr+"]
     return e
 

@@ -42,6 +42,7 @@ __all__ = [
     "apply_overrides",
     "load_config",
     "parse_config",
+    "settings_context",
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
@@ -601,3 +602,20 @@ def config_field_keys() -> list[str]:
             else:
                 keys.append(f"{sec.name}.{f.name}")
     return keys
+
+
+def settings_context(cfg: Config) -> methods.SettingsContext:
+    """What the configuration says about the drift reducers' settings (``hdr.*``,
+    ``plus.grade`` and the ``plus.*`` noise parameters, ``standstill.*``), for
+    :func:`hdrd.core.methods.plus_settings` and its kind to derive them from, with what the
+    gyro and the drive show (the daemon, replay and evaluate fill that in)."""
+    from dataclasses import asdict
+
+    given = tuple((k, float(v)) for k, v in asdict(cfg.plus).items() if k != "grade")
+    return methods.SettingsContext(
+        hdr=cfg.hdr.params,
+        grade=cfg.plus.grade,
+        given_noise=given,
+        standstill=cfg.standstill.enabled,
+        standstill_from_gyro=cfg.standstill.from_gyro,
+    )

@@ -24,7 +24,6 @@ from hdrd.analysis.evaluate import (
 from hdrd.cli import main as cli_main
 from hdrd.core import methods
 from hdrd.core.hdr import HdrParams, run_batch
-from hdrd.core.hdrplus import HdrPlusParams
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 
 
@@ -419,17 +418,16 @@ def test_nonfinite_improvement_is_null_in_json() -> None:
 def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path) -> None:
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
-    from hdrd.config import parse_config
-    from hdrd.daemon.pipeline import plus_params
+    from hdrd.config import parse_config, settings_context
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"
     write_drive(path, generate(next(s for s in TRAIN_DRIVES if s.name == "city1")))
     prep = ev.prepare_drive(read_drive(path))
-    off = plus_params(parse_config({"standstill": {"enabled": False}}))
-    assert not off.standstill.enabled
-    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), plus=off).e_psi["hdr+"]
-    got_on = ev.evaluate_prepared(prep, methods=("hdr+",), plus=HdrPlusParams()).e_psi["hdr+"]
+    off = settings_context(parse_config({"standstill": {"enabled": False}}))
+    assert not ev.method_settings(prep, "hdr+", HdrParams(), off).standstill.enabled
+    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), context=off).e_psi["hdr+"]
+    got_on = ev.evaluate_prepared(prep, methods=("hdr+",)).e_psi["hdr+"]
     yaw = ev.method_yaw(prep, "hdr+", HdrParams(), off)
     assert got_off == pytest.approx(float(ev.e_psi(yaw, prep.truth, prep.k)), abs=0)
     assert got_off != got_on

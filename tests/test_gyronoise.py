@@ -7,6 +7,7 @@ Rates in deg/s, + = CCW; white noise deg/s/sqrt(Hz); times s.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -82,10 +83,10 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 
 
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
-    from hdrd.config import parse_config
+    from hdrd.config import parse_config, settings_context
     from hdrd.core.calibrate import BiasRecord
     from hdrd.core.gyronoise import noise_in_force
-    from hdrd.daemon.pipeline import plus_noise
+    from hdrd.core.methods import plus_settings
 
     assert noise_in_force() is None
     assert noise_in_force("phone").source == "grade phone"  # type: ignore[union-attr]
@@ -96,12 +97,13 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
     assert noise_in_force("phone", {}, recorded) is recorded
     short = GyroNoise(white_dps_per_rthz=0.01, source="recorded")  # says nothing of the walk
     assert noise_in_force("phone", {}, short).source == "grade phone"  # type: ignore[union-attr]
-    # the daemon's choice from its config and bias file
-    cfg = parse_config({"plus": {"grade": "tactical"}})
-    assert plus_noise(cfg, None).source == "grade tactical"  # type: ignore[union-attr]
+    # the daemon's choice from its config and bias file, in the one place HDR+'s settings
+    # are derived
+    cfg = settings_context(parse_config({"plus": {"grade": "tactical"}}))
+    assert plus_settings(cfg).model == "grade tactical"
     rec = BiasRecord(0.1, 0.01, 100, 10.0, noise=recorded)
-    assert plus_noise(cfg, rec) is recorded
-    assert plus_noise(parse_config({}), None) is None
+    assert plus_settings(replace(cfg, bias=rec)).model == "recorded"
+    assert plus_settings(settings_context(parse_config({}))).model == "defaults"
     with pytest.raises(ValueError, match="unknown gyro grade"):
         noise_in_force("nav")
 

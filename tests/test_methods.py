@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -69,7 +70,7 @@ def test_batch_is_the_step_looped_bit_for_bit(
 ) -> None:
     m = REGISTRY[name]
     steps = _steps(data, hdr.T)
-    s = m.settings(SettingsContext(hdr, plus, n, bias))
+    s = m.settings(SettingsContext(hdr, plus, n, bias))  # (fields in order: hdr, plus, ...)
     state = m.initial_state()
     yaw = []
     for i in range(len(data)):
@@ -119,15 +120,20 @@ def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
     base = HdrPlusParams()
     # A 1 Hz gyro has one sample per step; a measured bias sets the prior.
     rec = BiasRecord(0.5, 0.2, 30, 30.0)
-    p = plus_settings(base, 1.0, 1.0, rec)
+    ctx = SettingsContext(HdrParams(T=1.0), base, samples_per_step=1.0, bias=rec)
+    p = plus_settings(ctx)
     assert p.standstill.samples_per_step == 1.0
     assert p.bias_p0 == 0.2 * 0.2 / 30
     assert p.hdr.T == 1.0 and p.hdr.i_c == base.hdr.i_c
     # A given bias (no record of its spread) keeps the configured prior.
-    assert plus_settings(base, 2.0, None, BiasRecord(0.5, 0.0, 0, 0.0)).bias_p0 == base.bias_p0
-    assert plus_settings(base, 2.0).hdr.T == 2.0
+    given = SettingsContext(HdrParams(T=2.0), base, bias=BiasRecord(0.5, 0.0, 0, 0.0))
+    assert plus_settings(given).bias_p0 == base.bias_p0
+    assert plus_settings(SettingsContext(HdrParams(T=2.0))).hdr.T == 2.0
+    # The configuration's standstill keys and grade reach it there, and only there.
+    off = plus_settings(replace(ctx, standstill=False, standstill_from_gyro=True))
+    assert not off.standstill.enabled and off.standstill.gyro_only
+    assert plus_settings(replace(ctx, grade="tactical")).model == "grade tactical"
     # The registry's hdr+ entry derives exactly these.
-    ctx = SettingsContext(HdrParams(T=1.0), base, 1.0, rec)
     assert REGISTRY["hdr+"].settings(ctx) == p
     assert REGISTRY["none"].settings(ctx) == HdrParams(enabled=False)
     assert REGISTRY["hdr"].settings(ctx) == HdrParams()

@@ -282,11 +282,12 @@ def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
     # A configured grade (a known error model): published as such; a tactical-grade gyro's
     # bias wanders too little for the binary increment, so I never moves. Measured at
     # start-up without one: fitted to the calibration window.
-    from hdrd.core.gyronoise import grade_noise
+    from hdrd.core.methods import SettingsContext
 
     rng = np.random.default_rng(5)
     omega = 0.3 + rng.normal(0, 0.02, 600)
-    known = Pipeline(PipelineConfig(bias_dps=0.3, method="hdr+", noise=grade_noise("tactical")))
+    tactical = SettingsContext(grade="tactical")
+    known = Pipeline(PipelineConfig(bias_dps=0.3, method="hdr+", context=tactical))
     msgs = run_live(known, make_frames(omega))
     assert {m["model"] for m in msgs} == {"grade tactical"}
     assert all(m["I"] == 0.0 for m in msgs)
@@ -418,5 +419,8 @@ def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> N
     rec = BiasRecord(0.42, 0.1, 300, 30.0, None, 1.0, noise)
     pc = pipeline_config(Config(), rec)
     assert pc.bias_dps == 0.42 and pc.bias_record is rec
-    assert pc.noise is not None and pc.noise.to_dict() == noise.to_dict()
+    # the recorded error model is the one HDR+ is fitted to
+    hp = Pipeline(replace(pc, method="hdr+"))
+    run_live(hp, make_frames(np.full(30, 0.42)))
+    assert hp.stepper.settings.model == noise.source
     assert pipeline_config(Config()).bias_dps is None

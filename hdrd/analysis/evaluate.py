@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +50,7 @@ from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
-from hdrd.core.hdrplus import GyroNoise, HdrPlusParams
-from hdrd.core.methods import StepInputs
+from hdrd.core.methods import SettingsContext, StepInputs
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
@@ -69,6 +68,7 @@ __all__ = [
     "format_table",
     "load_drives",
     "method_key",
+    "method_settings",
     "method_yaw",
     "plus_model",
     "prepare_drive",
@@ -82,8 +82,9 @@ FloatArray = npt.NDArray[np.float64]
 
 PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
-PLUS_DEFAULTS = HdrPlusParams()
-"""HDR+'s own settings (its extras at their defaults; the core is set per drive's T)."""
+DEFAULTS = SettingsContext()
+"""What the built-in configuration says about the methods' settings (HDR+'s defaults, no
+grade, standstill on; :func:`hdrd.config.settings_context` of a configuration)."""
 
 
 def method_key(method: str) -> str:
@@ -149,28 +150,30 @@ def method_yaw(
     prep: PreparedDrive,
     method: str,
     params: HdrParams = PAPER_PARAMS,
-    plus: HdrPlusParams = PLUS_DEFAULTS,
-    noise: GyroNoise | None = None,
+    context: SettingsContext = DEFAULTS,
 ) -> FloatArray:
     """Yaw (deg CCW since the drive's start) at each step end of one method on a prepared
     drive: its batch form with its settings derived as the daemon derives them. params: the
-    HDR parameters (``hdr.*``); plus: HDR+'s base settings (the config's ``standstill.*``);
-    noise: the gyro's error model when known (a configured grade). The output step is the
-    log's own (its lattice), as the daemon knows its ADC's."""
+    HDR parameters (``hdr.*``); context: what the configuration says about the settings
+    (:func:`hdrd.config.settings_context`: the grade, ``standstill.*``; HDR+'s base). The
+    output step is the log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
-    return m.batch(prep.steps, _settings(prep, method, params, plus, noise))
+    return m.batch(prep.steps, method_settings(prep, method, params, context))
 
 
-def _settings(
+def method_settings(
     prep: PreparedDrive,
     method: str,
-    params: HdrParams,
-    plus: HdrPlusParams,
-    noise: GyroNoise | None,
+    params: HdrParams = PAPER_PARAMS,
+    context: SettingsContext = DEFAULTS,
 ) -> Any:
-    """A method's settings for a prepared drive, derived as the daemon derives them."""
+    """A method's settings for a prepared drive, derived as the daemon derives them: the
+    context with this drive's samples per step, calibration record and output step."""
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    ctx = registry.SettingsContext(params, plus, prep.samples_per_step, prep.bias, noise, q)
+    ctx = replace(
+        context, hdr=params, samples_per_step=prep.samples_per_step, bias=prep.bias,
+        quant_step_dps=q,
+    )  # fmt: skip
     return registry.get(method).settings(ctx)
 
 
@@ -180,24 +183,22 @@ PLUS = "hdr+"
 def plus_model(
     prep: PreparedDrive,
     params: HdrParams = PAPER_PARAMS,
-    plus: HdrPlusParams = PLUS_DEFAULTS,
-    noise: GyroNoise | None = None,
+    context: SettingsContext = DEFAULTS,
 ) -> str:
     """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
     ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
-    return str(getattr(_settings(prep, PLUS, params, plus, noise), "model", ""))
+    return str(getattr(method_settings(prep, PLUS, params, context), "model", ""))
 
 
 def evaluate_prepared(
     prep: PreparedDrive,
     params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    plus: HdrPlusParams = PLUS_DEFAULTS,
-    noise: GyroNoise | None = None,
+    context: SettingsContext = DEFAULTS,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
-    ``plus``: HDR+'s base settings (default: HDR+'s defaults); ``noise``: the gyro's error
-    model when known (the config's ``plus.grade`` / ``plus.noise``)."""
+    ``context``: what the configuration says about the methods' settings (default: the
+    built-in configuration's; :func:`hdrd.config.settings_context`)."""
     ms = evaluated_methods(methods)
     if params.T != prep.steps.T:
         raise EvaluationError(
@@ -207,7 +208,7 @@ def evaluate_prepared(
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = method_yaw(prep, m, params, plus, noise)
+        yaw = method_yaw(prep, m, params, context)
         e[m] = float(e_psi(yaw, prep.truth, prep.k))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
@@ -231,7 +232,7 @@ def evaluate_prepared(
         truth=prep.truth,
         heading=heading,
         warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
-        plus_model=plus_model(prep, params, plus, noise) if PLUS in ms else None,
+        plus_model=plus_model(prep, params, context) if PLUS in ms else None,
     )
 
 
@@ -241,7 +242,7 @@ def evaluate_drive(
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     methods: Sequence[str] = ("none", "hdr"),
-    plus: HdrPlusParams = PLUS_DEFAULTS,
+    context: SettingsContext = DEFAULTS,
 ) -> DriveResult:
     """Table II's row for one drive log: Eψ (Eq. 12) and NEψ (Eq. 13) per method.
 
@@ -249,7 +250,7 @@ def evaluate_drive(
     the log's lead-in, else a standstill found in it; EvaluationError if there is none).
     """
     prep = prepare_drive(log, bias, calibrate_seconds, params.T)
-    return evaluate_prepared(prep, params, methods, plus)
+    return evaluate_prepared(prep, params, methods, context)
 
 
 def _mean_std(values: Sequence[float]) -> tuple[float, float]:
@@ -451,12 +452,11 @@ def evaluate_logs(
     logs: Sequence[DriveLog],
     params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    plus: HdrPlusParams = PLUS_DEFAULTS,
+    context: SettingsContext = DEFAULTS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     limits: StandstillLimits = DEFAULT_LIMITS,
     truth_max_gap_s: float = TRUTH_MAX_GAP_S,
-    noise: GyroNoise | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
     """Every drive that can be evaluated, and why each other one cannot (one line each).
     With a single drive, a drive that cannot be evaluated raises EvaluationError instead."""
@@ -465,7 +465,7 @@ def evaluate_logs(
     for log in logs:
         try:
             prep = prepare_drive(log, bias, calibrate_seconds, params.T, truth_max_gap_s, limits)
-            results.append(evaluate_prepared(prep, params, methods, plus, noise))
+            results.append(evaluate_prepared(prep, params, methods, context))
         except EvaluationError as e:
             if len(logs) == 1:
                 raise

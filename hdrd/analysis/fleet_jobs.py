@@ -30,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
+    DEFAULTS,
     PAPER_PARAMS,
-    PLUS_DEFAULTS,
     DriveResult,
     EvaluationError,
     PreparedDrive,
@@ -53,7 +53,7 @@ from hdrd.analysis.tune import (
 )
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
-from hdrd.core.hdrplus import GyroNoise, HdrPlusParams
+from hdrd.core.methods import SettingsContext
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, ReadLimits
 
@@ -138,12 +138,11 @@ class EvaluateJob:
 
     params: HdrParams = PAPER_PARAMS
     methods: tuple[str, ...] = ("none", "hdr")
-    plus: HdrPlusParams = PLUS_DEFAULTS
+    context: SettingsContext = DEFAULTS
     bias: float | None = None
     calibrate_seconds: float | None = None
     limits: StandstillLimits = DEFAULT_LIMITS
     truth_max_gap_s: float = TRUTH_MAX_GAP_S
-    noise: GyroNoise | None = None
     traces: bool = False
     strict: bool = False
     read_limits: ReadLimits = DEFAULT_READ_LIMITS
@@ -157,7 +156,7 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
         prep = prepare_drive(
             log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
         )
-        r = evaluate_prepared(prep, job.params, job.methods, job.plus, job.noise)
+        r = evaluate_prepared(prep, job.params, job.methods, job.context)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
     if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored

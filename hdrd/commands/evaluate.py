@@ -14,8 +14,8 @@ from hdrd.analysis.evaluate import (
     read_limits,
     to_json,
 )
-from hdrd.config import ConfigError, load_config
-from hdrd.daemon.pipeline import plus_noise, plus_params, standstill_limits
+from hdrd.config import ConfigError, load_config, settings_context
+from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG
 
 __all__ = ["main"]
@@ -45,7 +45,6 @@ def main(args: argparse.Namespace) -> int:
         if problem:  # said before the work, not after it
             _err(problem)
             return 1
-    plus = plus_params(cfg)
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params
     try:
@@ -55,11 +54,10 @@ def main(args: argparse.Namespace) -> int:
         job = EvaluateJob(
             params,
             ms,
-            plus,
+            settings_context(cfg),  # the configured grade, plus.*, standstill.*
             args.bias,
             args.calibrate_seconds,
             standstill_limits(cfg),
-            noise=plus_noise(cfg, None),  # the configured grade / plus.* (no bias file here)
             traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
             strict=bool(getattr(args, "strict", False)),
             read_limits=read_limits(args),

@@ -32,8 +32,9 @@ import numpy.typing as npt
 
 from hdrd.core import hdr, hdrplus
 from hdrd.core.calibrate import BiasRecord
+from hdrd.core.gyronoise import noise_in_force
 from hdrd.core.hdr import INITIAL_STATE, HdrOutput, HdrParams, HdrState
-from hdrd.core.hdrplus import INITIAL_PLUS_STATE, GyroNoise, HdrPlusParams, PlusOutput, PlusState
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusOutput, PlusState
 from hdrd.core.standstill import CalibrationNoise
 from hdrd.core.steps import StepInput, StepInputs
 
@@ -75,22 +76,30 @@ class Published(NamedTuple):
 
 @dataclass(frozen=True)
 class SettingsContext:
-    """What a method's settings are derived from.
+    """What a method's settings are derived from: what the configuration says, and what the
+    gyro and this drive's calibration show.
 
-    hdr: the configured HDR parameters (``hdr.*``; T is the step period, s). plus: HDR+'s
-    base settings (its defaults with the config's ``standstill.*`` applied). samples_per_step:
-    samples averaged in one step, from the gyro's own sample rate (None = unknown). bias: the
-    calibration record behind the static bias (None, or n = 0, when the bias was given).
-    noise: the gyro's error model when known (configured grade, recorded parameters).
-    quant_step_dps: the gyro's output step, deg/s, when known.
+    From the configuration (:func:`hdrd.config.settings_context`): hdr, the HDR parameters
+    (``hdr.*``; T is the step period, s); grade, ``plus.grade`` (``none``: no preset);
+    given_noise, the ``plus.*`` noise parameters given (name, value; 0 = not given);
+    standstill and standstill_from_gyro, ``standstill.enabled`` and ``standstill.from_gyro``.
+    plus: HDR+'s base settings (its defaults; benchmarks ablate them).
+
+    From the gyro and the drive: samples_per_step, samples averaged in one step (the gyro's
+    sample rate times T; None = unknown); bias, the calibration record behind the static bias
+    (None, or n = 0, when the bias was given; a bias file's record carries the error model
+    ``hdrd calibrate`` measured); quant_step_dps, the gyro's output step, deg/s, when known.
     """
 
     hdr: HdrParams = HdrParams()
     plus: HdrPlusParams = HdrPlusParams()
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
-    noise: GyroNoise | None = None
     quant_step_dps: float | None = None
+    grade: str = "none"
+    given_noise: tuple[tuple[str, float], ...] = ()
+    standstill: bool = True
+    standstill_from_gyro: bool = False
 
 
 def calibration_of(
@@ -107,29 +116,29 @@ def calibration_of(
     return CalibrationNoise(var / bias.n, var / per, math.nan, per, 1 if var == 0.0 else 0)
 
 
-def plus_settings(
-    base: HdrPlusParams,
-    T: float,
-    samples_per_step: float | None = None,
-    bias: BiasRecord | None = None,
-    noise: GyroNoise | None = None,
-    quant_step_dps: float | None = None,
-) -> HdrPlusParams:
-    """HDR+'s settings for this gyro and this drive: the one place they are derived.
+def plus_settings(ctx: SettingsContext) -> HdrPlusParams:
+    """HDR+'s settings for this gyro and this drive: the one place they are derived (the
+    daemon, replay and evaluate all come here).
 
-    base: HDR+'s configured settings (its own core, tuned with its extras; the configured
-    ``hdr.*`` parameters are not used). T: the step period, s, given to the core. Samples per
-    step (the gyro's sample rate times T; a 1 Hz gyro has 1) turns a step's spread into the
-    variance of its mean at a standstill. bias: the start-up calibration record (its noise:
-    :func:`calibration_of`; a given bias has none, and base.bias_p0 stays). noise: the gyro's
-    error model when known (a configured grade, or parameters recorded by ``hdrd calibrate``).
-    quant_step_dps: the gyro's output step, deg/s, when known (the ADC's LSB; for a recorded
-    log, the lattice of its values). :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` does the rest.
+    From ctx (:class:`SettingsContext`): HDR+'s base settings with ``standstill.*`` applied
+    (its own core, tuned with its extras; the configured ``hdr.*`` parameters are not used
+    but for T, the step period); the samples per step (a 1 Hz gyro has 1), which turn a
+    step's spread into the variance of its mean at a standstill; the calibration record's
+    noise (:func:`calibration_of`; a given bias has none, and the base's bias_p0 stays); the
+    gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded by
+    ``hdrd calibrate``, else the ``plus.*`` parameters given, else the grade's); the output
+    step (the ADC's LSB; for a recorded log, the lattice of its values).
+    :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` fits the bias model to them.
     """
-    p = base.with_(hdr=replace(base.hdr, T=T))
-    if samples_per_step is not None and samples_per_step > 0:
-        p = p.with_(standstill=replace(p.standstill, samples_per_step=float(samples_per_step)))
-    return p.fitted(calibration_of(bias, samples_per_step), noise, quant_step_dps)
+    base = ctx.plus
+    ss = replace(base.standstill, enabled=ctx.standstill, gyro_only=ctx.standstill_from_gyro)
+    p = base.with_(hdr=replace(base.hdr, T=ctx.hdr.T), standstill=ss)
+    n = ctx.samples_per_step
+    if n is not None and n > 0:
+        p = p.with_(standstill=replace(p.standstill, samples_per_step=float(n)))
+    recorded = ctx.bias.noise if ctx.bias is not None else None
+    noise = noise_in_force(ctx.grade, dict(ctx.given_noise), recorded)
+    return p.fitted(calibration_of(ctx.bias, n), noise, ctx.quant_step_dps)
 
 
 class Method(ABC, Generic[S, P]):
@@ -233,9 +242,7 @@ class _Plus(Method[PlusState, HdrPlusParams]):
         ).yaw
 
     def settings(self, ctx: SettingsContext) -> HdrPlusParams:
-        return plus_settings(
-            ctx.plus, ctx.hdr.T, ctx.samples_per_step, ctx.bias, ctx.noise, ctx.quant_step_dps
-        )
+        return plus_settings(ctx)
 
     def publish(self, out: StepOutput, settings: HdrPlusParams) -> Published:
         assert isinstance(out, PlusOutput)

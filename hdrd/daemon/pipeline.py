@@ -33,7 +33,6 @@ import numpy.typing as npt
 from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.core.hdr import HdrParams
-from hdrd.core.hdrplus import GyroNoise, HdrPlusParams
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
@@ -49,8 +48,6 @@ __all__ = [
     "Stepper",
     "heading_from_yaw",
     "pipeline_config",
-    "plus_noise",
-    "plus_params",
     "standstill_limits",
 ]
 
@@ -92,12 +89,12 @@ class PipelineConfig:
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
-    plus: HdrPlusParams = HdrPlusParams()
-    """HDR+'s parameters (method "hdr+"); its core is its own, not ``params``."""
-    noise: GyroNoise | None = None
-    """The gyro's error model when known (a configured grade, or the noise parameters
-    recorded beside the bias): HDR+ fits its bias model to it (:func:`hdrd.core.methods.
-    plus_settings`). None: fitted from the start-up calibration alone."""
+    context: methods.SettingsContext = methods.SettingsContext()
+    """What the configuration says about the method's settings (:func:`hdrd.config.
+    settings_context`: HDR+'s error model, ``standstill.*``); the stepper adds the gyro's
+    samples per step, the bias record (a bias file's carries the error model ``hdrd
+    calibrate`` measured) and the ADC's step, and the method derives its settings from it
+    (HDR+: :func:`hdrd.core.methods.plus_settings`). Its ``hdr`` is ``params``."""
 
 
 def _given_bias(config: PipelineConfig) -> BiasRecord | None:
@@ -121,8 +118,11 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
 
 def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
     """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
-    HDR parameters, start-up window and standstill test, heading0, HDR+'s settings and error
-    model (:func:`plus_noise`); the static bias of ``bias`` (None: measured at start-up)."""
+    HDR parameters, start-up window and standstill test, heading0, what the method's settings
+    are derived from (:func:`hdrd.config.settings_context`); the static bias of ``bias``
+    (None: measured at start-up)."""
+    from hdrd.config import settings_context
+
     return PipelineConfig(
         sensor=cfg.sensor,
         params=cfg.hdr.params,
@@ -132,32 +132,8 @@ def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConf
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
-        plus=plus_params(cfg),
-        noise=plus_noise(cfg, bias),
+        context=settings_context(cfg),
     )
-
-
-def plus_params(cfg: Config) -> HdrPlusParams:
-    """HDR+'s parameters with the config's ``standstill.*`` keys applied (run, replay and
-    evaluate use the same)."""
-    plus = HdrPlusParams()
-    return plus.with_(
-        standstill=replace(
-            plus.standstill, enabled=cfg.standstill.enabled, gyro_only=cfg.standstill.from_gyro
-        )
-    )
-
-
-def plus_noise(cfg: Config, bias: BiasRecord | None) -> GyroNoise | None:
-    """The gyro error model HDR+ is fitted to: the noise parameters recorded in the bias file,
-    else the config's ``plus.*`` (:func:`hdrd.core.gyronoise.noise_in_force`; run, replay and
-    evaluate use the same)."""
-    from dataclasses import asdict
-
-    from hdrd.core.gyronoise import noise_in_force
-
-    given = {k: v for k, v in asdict(cfg.plus).items() if k != "grade"}
-    return noise_in_force(cfg.plus.grade, given, None if bias is None else bias.noise)
 
 
 # -- stepping ----------------------------------------------------------------------------------
@@ -254,13 +230,12 @@ class Stepper:
         """The method's settings for this gyro and drive (:mod:`hdrd.core.methods`): the config,
         the samples per step, the bias record (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
         if self._settings is None:
-            ctx = methods.SettingsContext(
-                self.config.params,
-                self.config.plus,
-                self.samples_per_step,
-                self.bias,
-                self.config.noise,
-                self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
+            ctx = replace(
+                self.config.context,
+                hdr=self.config.params,
+                samples_per_step=self.samples_per_step,
+                bias=self.bias,
+                quant_step_dps=self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
             )
             self._settings = self.method.settings(ctx)
         return self._settings
