@@ -66,15 +66,17 @@ SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration p
 DATA = REPO.parent / "shared" / "data"
 
 TUNING: frozenset[str] = frozenset(
-    {"comma2k19"}
+    {"comma2k19", "oan_20201104_091730", "oan_20201104_093418", "psins_fog_mems"}
     | {f"nds_drive{d:02d}" for d in (1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 23, 25, 31, 33)}
 )
-"""Drives that may tune (DrivePlotR odd drive numbers, comma2k19). Fixed before any result."""
+"""Drives that may tune (DrivePlotR odd drive numbers, comma2k19; of the public sources, the
+first two oan drives and psins). Fixed before any result (docs/real-data.md, "The split")."""
 JUDGING: frozenset[str] = frozenset(
-    {"rtklib_drive0708", "smartloc_berlin"}
+    {"rtklib_drive0708", "smartloc_berlin", "oan_20201121_152755"}
     | {f"nds_drive{d:02d}" for d in (2, 4, 6, 8, 10, 12, 14, 16, 18, 24, 28, 30, 32, 34)}
 )
-"""Drives that only judge (DrivePlotR even drive numbers, rtklib, smartLoc)."""
+"""Drives that only judge (DrivePlotR even drive numbers, rtklib, smartLoc, the third oan
+drive)."""
 
 MIN_SCORED_MIN = 5.0
 """Drives whose scored part is shorter than this, min, are listed but not scored."""

@@ -619,6 +619,13 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
         help="heading vs time and error bars; beyond 12 drives, the distribution of NEpsi per "
         "method (needs matplotlib)",
     )
+    p.add_argument(
+        "--outages",
+        metavar="SPEC",
+        help="also drive each log through the daemon's GPS aiding with GNSS outages of "
+        "DURATION every PERIOD of driving (e.g. 120s/10min) and report each method's "
+        "heading error at their ends (docs/evaluation.md)",
+    )
     _config(p)
     _method(p)
     _input_limits(p)

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,11 +39,15 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.metrics import e_psi, gyro_heading, improvement, ne_psi
+from hdrd.analysis.outages import OutageResult, outages_json
 from hdrd.analysis.prepare import (
     DEFAULT_LIMITS,
+    DEFAULTS,
+    PAPER_PARAMS,
     TRUTH_MAX_GAP_S,
     EvaluationError,
     PreparedDrive,
+    method_settings,
     prepare_drive,
 )
 from hdrd.analysis.signcheck import sign_warning
@@ -80,12 +84,6 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 
-PAPER_PARAMS = HdrParams()
-"""The paper's Table III parameters (HDR's defaults)."""
-DEFAULTS = SettingsContext()
-"""What the built-in configuration says about the methods' settings (HDR+'s defaults, no
-grade, standstill on; :func:`hdrd.config.settings_context` of a configuration)."""
-
 
 def method_key(method: str) -> str:
     """The suffix of a method's JSON keys: ``none`` -> ``raw`` (Table II's "without HDR")."""
@@ -121,6 +119,9 @@ class DriveResult:
     plus_model: str | None = None
     """With ``hdr+`` evaluated: the error model its settings were fitted to
     (:func:`plus_model`)."""
+    outages: OutageResult | None = None
+    """With ``--outages``: each method's heading error at the end of each GNSS outage
+    (:mod:`hdrd.analysis.outages`)."""
 
     @property
     def primary(self) -> str:
@@ -159,22 +160,6 @@ def method_yaw(
     output step is the log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
     return m.batch(prep.steps, method_settings(prep, method, params, context))
-
-
-def method_settings(
-    prep: PreparedDrive,
-    method: str,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> Any:
-    """A method's settings for a prepared drive, derived as the daemon derives them: the
-    context with this drive's samples per step, calibration record and output step."""
-    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    ctx = replace(
-        context, hdr=params, samples_per_step=prep.samples_per_step, bias=prep.bias,
-        quant_step_dps=q,
-    )  # fmt: skip
-    return registry.get(method).settings(ctx)
 
 
 PLUS = "hdr+"
@@ -338,7 +323,11 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
                 )
         return d
 
-    return {"drives": [row(r) for r in results], "mean": row(None)}
+    doc: dict[str, Any] = {"drives": [row(r) for r in results], "mean": row(None)}
+    runs = [r.outages for r in results if r.outages is not None]
+    if runs:
+        doc["outages"] = outages_json(runs)
+    return doc
 
 
 def _fmt(v: float, digits: int) -> str:

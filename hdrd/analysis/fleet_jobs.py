@@ -40,6 +40,7 @@ from hdrd.analysis.evaluate import (
     read_ref,
 )
 from hdrd.analysis.fleet import Progress, Runner, batches, open_runner
+from hdrd.analysis.outages import OutageSpec, run_outages
 from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
@@ -55,7 +56,7 @@ from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import SettingsContext
 from hdrd.io.drivefiles import DriveRef
-from hdrd.io.drivelog import DEFAULT_READ_LIMITS, ReadLimits
+from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
 __all__ = [
     "PLOT_PANELS_MAX",
@@ -146,6 +147,22 @@ class EvaluateJob:
     traces: bool = False
     strict: bool = False
     read_limits: ReadLimits = DEFAULT_READ_LIMITS
+    outages: OutageSpec | None = None
+    """``--outages``: each drive's GNSS outages through the aiding path too."""
+
+
+def with_outages(
+    r: DriveResult, prep: PreparedDrive, log: DriveLog, job: EvaluateJob
+) -> DriveResult:
+    """The result with its GNSS outages (:func:`hdrd.analysis.outages.run_outages`); a drive
+    too short for one, or without a course to aid from, says so among its warnings."""
+    assert job.outages is not None
+    try:
+        o = run_outages(prep, log, job.outages, job.methods, job.params, job.context)
+    except EvaluationError as e:
+        why = str(e).removeprefix(f"{r.name}: ")
+        return replace(r, warnings=(*r.warnings, f"{r.name}: no outages scored: {why}"))
+    return replace(r, outages=o)
 
 
 def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
@@ -157,6 +174,8 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
             log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
         )
         r = evaluate_prepared(prep, job.params, job.methods, job.context)
+        if job.outages is not None:
+            r = with_outages(r, prep, log, job)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
     if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored

@@ -29,15 +29,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
+from hdrd.core import methods as registry
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
 from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import StepInputs
+from hdrd.core.methods import SettingsContext, StepInputs
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
 from hdrd.daemon.pipeline import PipelineConfig, Stepper
@@ -45,7 +47,9 @@ from hdrd.errors import HdrdError
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [
+    "DEFAULTS",
     "DEFAULT_LIMITS",
+    "PAPER_PARAMS",
     "STANDSTILL_MAX_S",
     "STANDSTILL_MIN_S",
     "STANDSTILL_SPEED_MPS",
@@ -53,6 +57,7 @@ __all__ = [
     "CalibrationPlan",
     "EvaluationError",
     "PreparedDrive",
+    "method_settings",
     "plan_calibration",
     "prepare_drive",
     "step_log",
@@ -73,6 +78,11 @@ STANDSTILL_MAX_S = 30.0
 """Longest window taken from a found standstill, s (the paper's Tbias)."""
 DEFAULT_LIMITS = StandstillLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
+PAPER_PARAMS = HdrParams()
+"""The paper's Table III parameters (HDR's defaults)."""
+DEFAULTS = SettingsContext()
+"""What the built-in configuration says about the methods' settings (HDR+'s defaults, no
+grade, standstill on; :func:`hdrd.config.settings_context` of a configuration)."""
 
 
 class EvaluationError(HdrdError, ValueError):
@@ -433,3 +443,19 @@ def prepare_drive(
         quant_step_dps=quantization_step(log.omega),
         sign=check_sign(log.t, log.omega, log.heading_truth),
     )
+
+
+def method_settings(
+    prep: PreparedDrive,
+    method: str,
+    params: HdrParams = PAPER_PARAMS,
+    context: SettingsContext = DEFAULTS,
+) -> Any:
+    """A method's settings for a prepared drive, derived as the daemon derives them: the
+    context with this drive's samples per step, calibration record and output step."""
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    ctx = replace(
+        context, hdr=params, samples_per_step=prep.samples_per_step, bias=prep.bias,
+        quant_step_dps=q,
+    )  # fmt: skip
+    return registry.get(method).settings(ctx)

@@ -16,7 +16,7 @@ from hdrd.analysis.evaluate import (
 )
 from hdrd.config import ConfigError, load_config, settings_context
 from hdrd.daemon.pipeline import standstill_limits
-from hdrd.errors import EX_CONFIG
+from hdrd.errors import EX_CONFIG, EX_USAGE
 
 __all__ = ["main"]
 
@@ -27,8 +27,8 @@ def _err(msg: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
-    [--json FILE] [--plot FILE.png] [--config PATH] [--method METHOD] [--strict] [--workers N |
-    --scheduler ADDRESS] [--no-progress]``."""
+    [--json FILE] [--plot FILE.png] [--outages SPEC] [--config PATH] [--method METHOD] [--strict]
+    [--workers N | --scheduler ADDRESS] [--no-progress]``."""
     from hdrd.analysis.fleet import FleetError
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
     from hdrd.analysis.fleet_report import fleet_summary, plot_fleet
@@ -45,6 +45,15 @@ def main(args: argparse.Namespace) -> int:
         if problem:  # said before the work, not after it
             _err(problem)
             return 1
+    outages = None
+    if getattr(args, "outages", None):
+        from hdrd.analysis.outages import OutageSpec
+
+        try:
+            outages = OutageSpec.parse(args.outages)
+        except ValueError as e:
+            _err(f"--outages: {e}")
+            return EX_USAGE
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params
     try:
@@ -61,6 +70,7 @@ def main(args: argparse.Namespace) -> int:
             traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
             strict=bool(getattr(args, "strict", False)),
             read_limits=read_limits(args),
+            outages=outages,
         )
         # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
         results, skipped = run_evaluate(args, refs, job)
@@ -75,6 +85,12 @@ def main(args: argparse.Namespace) -> int:
         _err(str(e))
         return 1
     print(format_table(results))
+    runs = [r.outages for r in results if r.outages is not None]
+    if outages is not None:
+        from hdrd.analysis.outages import format_outages
+
+        print()
+        print(format_outages(runs) if runs else "GNSS outages: none could be scored")
     if len(results) > PLOT_PANELS_MAX:
         print(fleet_summary(results, len(skipped)))
     if args.json:

@@ -10,6 +10,8 @@ heading_truth   deg      compass heading, clockwise from north, [0, 360); empty 
 omega_truth     deg/s    true yaw rate, + = CCW (optional)
 speed           m/s      vehicle speed (optional)
 valid           0 / 1    1 = the sample counts, 0 = excluded (handling, ...) (optional)
+gps_course      deg      a GPS receiver's course, compass, at its fixes (optional)
+gps_speed       m/s      that receiver's ground speed at its fixes (optional)
 =============== ======== ===============================================================
 
 Empty cells are NaN in memory ("unknown"), never 0.
@@ -56,9 +58,20 @@ __all__ = [
     "write_drive",
 ]
 
-COLUMNS = ("t", "omega", "temp_c", "heading_truth", "omega_truth", "speed", "valid")
+COLUMNS = (
+    "t",
+    "omega",
+    "temp_c",
+    "heading_truth",
+    "omega_truth",
+    "speed",
+    "valid",
+    "gps_course",
+    "gps_speed",
+)
 REQUIRED = ("t", "omega")
-OPTIONAL = ("temp_c", "heading_truth", "omega_truth", "speed", "valid")
+OPTIONAL = COLUMNS[2:]
+DIRECTION_COLUMNS = ("heading_truth", "gps_course")
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -113,6 +126,11 @@ class DriveLog:
     speed: FloatArray | None = None
     valid: FloatArray | None = None
     """1.0 where the sample counts, 0.0 where it is excluded (e.g. the device was handled)."""
+    gps_course: FloatArray | None = None
+    """A GPS receiver's course over ground, compass deg, at its fixes (NaN between them),
+    when the log has one beside a better truth (``hdrd evaluate --outages`` aids from it)."""
+    gps_speed: FloatArray | None = None
+    """That receiver's ground speed, m/s, at its fixes."""
     name: str = ""
     meta: dict[str, str] = field(default_factory=dict)
 
@@ -392,14 +410,16 @@ def check_columns(
         if np.isinf(a).any():
             bad = int(np.flatnonzero(np.isinf(a))[0])
             raise DriveLogError(f"{where(bad)}: column {col(c)}: {float(a[bad])!r} is not finite")
-    if "heading_truth" in arrays:
-        h = arrays["heading_truth"]
+    for c in DIRECTION_COLUMNS:
+        if c not in arrays:
+            continue
+        h = arrays[c]
         with np.errstate(invalid="ignore"):
             out = np.abs(h) > HEADING_LIMIT_DEG
         if out.any():
             i = int(np.flatnonzero(out)[0])
             raise DriveLogError(
-                f"{where(i)}: column {col('heading_truth')}: {float(h[i])!r} deg is outside "
+                f"{where(i)}: column {col(c)}: {float(h[i])!r} deg is outside "
                 f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
                 "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
             )
@@ -470,6 +490,8 @@ _DIGITS = {
     "omega_truth": (5, 7),
     "speed": (3, 3),
     "valid": (0, 0),
+    "gps_course": (3, 3),
+    "gps_speed": (3, 3),
 }
 
 
