@@ -20,6 +20,8 @@ DIGITS = {
     "omega_truth": 7,
     "speed": 3,
     "valid": 0,
+    "gps_course": 3,
+    "gps_speed": 3,
 }
 
 
@@ -48,7 +50,7 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
         if c == "valid":  # 0 or 1 in every row
             cols[c] = np.array(draw(st.lists(st.sampled_from([0.0, 1.0]), min_size=n, max_size=n)))
             continue
-        bound = 360 * 10**d if c == "heading_truth" else 10**9  # a heading: within +/-360
+        bound = 360 * 10**d if c in ("heading_truth", "gps_course") else 10**9  # within +/-360
         ks = draw(st.lists(st.integers(-bound, bound), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
