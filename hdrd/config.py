@@ -104,6 +104,10 @@ class HdrConfig:
 
     method: str = "hdr"
     """none: static bias only; hdr: the paper's HDR; hdr+: hdrd's improved reducer."""
+    i_c_from: str = "gyro"
+    """gyro: with the gyro's error model known (plus.grade, plus.*, a recorded bias file),
+    HDR's increment is at most what its bias drifts in I_C_WINDOW_S (a good gyro's I moves
+    less); config: hdr.i_c as given."""
     params: HdrParams = HdrParams()
 
 
@@ -338,6 +342,7 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "sensor.ref_divider": _num(0.01, 100),
     "sensor.supply_nominal_v": _num(0.01, 100),
     "hdr.method": _method(),
+    "hdr.i_c_from": _choice("gyro", "config"),
     "hdr.i_c": _num(0, 10),
     "hdr.tau": _num(0, 3600),
     "hdr.theta_w": _num(0, 100_000, lo_open=True),
@@ -614,6 +619,7 @@ def settings_context(cfg: Config) -> methods.SettingsContext:
     given = tuple((k, float(v)) for k, v in asdict(cfg.plus).items() if k != "grade")
     return methods.SettingsContext(
         hdr=cfg.hdr.params,
+        hdr_i_c_from_gyro=cfg.hdr.i_c_from == "gyro",
         grade=cfg.plus.grade,
         given_noise=given,
         standstill=cfg.standstill.enabled,

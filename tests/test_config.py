@@ -38,7 +38,7 @@ NAN, INF = math.nan, math.inf
 def get(cfg: Config, key: str) -> Any:
     section, name = key.split(".")
     sec = getattr(cfg, section)
-    if section == "hdr" and name != "method":
+    if section == "hdr" and name not in ("method", "i_c_from"):
         return getattr(sec.params, name)
     return getattr(sec, name)
 
@@ -66,6 +66,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF, 1e-300, 1e308]),
     "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF, 1e-320, 1e308]),
     "hdr.method": ("none", ["kalman", "HDR", 1, None]),
+    "hdr.i_c_from": ("config", ["paper", "", 1, None]),
     "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", True, 1e308]),
     "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75], 1e308]),
     "hdr.theta_w": (1.0, [0.0, -0.564, NAN, INF, "0.564", 1e308]),

@@ -16,6 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd import config as config_mod
 from hdrd.config import ConfigError, parse_config
 from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord
@@ -137,6 +138,25 @@ def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
     assert REGISTRY["hdr+"].settings(ctx) == p
     assert REGISTRY["none"].settings(ctx) == HdrParams(enabled=False)
     assert REGISTRY["hdr"].settings(ctx) == HdrParams()
+
+
+def test_hdr_takes_its_increment_from_a_known_error_model() -> None:
+    paper = HdrParams()
+    # No error model known (a start-up calibration shows white noise only): Table III.
+    assert methods.hdr_settings(SettingsContext(paper)) == paper
+    # A tactical grade's bias barely moves: the increment is its drift over 30 s, far below.
+    tactical = methods.hdr_settings(SettingsContext(paper, grade="tactical"))
+    assert 0.0 < tactical.i_c < paper.i_c / 5
+    assert replace(tactical, i_c=paper.i_c) == paper  # only i_c changes
+    assert REGISTRY["hdr"].settings(SettingsContext(paper, grade="tactical")) == tactical
+    # A phone's bias drifts more in 30 s than Table III's increment, which stays.
+    assert methods.hdr_settings(SettingsContext(paper, grade="phone")) == paper
+    # hdr.i_c_from: config keeps what is configured whatever the gyro.
+    asked = SettingsContext(paper, grade="tactical", hdr_i_c_from_gyro=False)
+    assert methods.hdr_settings(asked) == paper
+    # The configuration reaches it.
+    cfg = parse_config({"hdr": {"i_c_from": "config"}, "plus": {"grade": "tactical"}})
+    assert REGISTRY["hdr"].settings(config_mod.settings_context(cfg)) == paper
 
 
 def test_the_config_and_the_command_line_take_the_names_from_the_registry(

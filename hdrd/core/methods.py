@@ -32,7 +32,7 @@ import numpy.typing as npt
 
 from hdrd.core import hdr, hdrplus
 from hdrd.core.calibrate import BiasRecord
-from hdrd.core.gyronoise import noise_in_force
+from hdrd.core.gyronoise import GyroNoise, noise_in_force
 from hdrd.core.hdr import INITIAL_STATE, HdrOutput, HdrParams, HdrState
 from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusOutput, PlusState
 from hdrd.core.standstill import CalibrationNoise
@@ -47,7 +47,9 @@ __all__ = [
     "StepInputs",
     "StepOutput",
     "calibration_of",
+    "error_model",
     "get",
+    "hdr_settings",
     "names",
     "plus_settings",
 ]
@@ -80,7 +82,8 @@ class SettingsContext:
     gyro and this drive's calibration show.
 
     From the configuration (:func:`hdrd.config.settings_context`): hdr, the HDR parameters
-    (``hdr.*``; T is the step period, s); grade, ``plus.grade`` (``none``: no preset);
+    (``hdr.*``; T is the step period, s); hdr_i_c_from_gyro, ``hdr.i_c_from: gyro`` (HDR's
+    increment follows a known error model's drift, :func:`hdr_settings`); grade, ``plus.grade`` (``none``: no preset);
     given_noise, the ``plus.*`` noise parameters given (name, value; 0 = not given);
     standstill and standstill_from_gyro, ``standstill.enabled`` and ``standstill.from_gyro``.
     plus: HDR+'s base settings (its defaults; benchmarks ablate them).
@@ -96,6 +99,7 @@ class SettingsContext:
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
     quant_step_dps: float | None = None
+    hdr_i_c_from_gyro: bool = True
     grade: str = "none"
     given_noise: tuple[tuple[str, float], ...] = ()
     standstill: bool = True
@@ -114,6 +118,40 @@ def calibration_of(
     per = samples_per_step if samples_per_step is not None and samples_per_step > 0 else 1.0
     var = bias.std_dps * bias.std_dps
     return CalibrationNoise(var / bias.n, var / per, math.nan, per, 1 if var == 0.0 else 0)
+
+
+def error_model(ctx: SettingsContext) -> GyroNoise | None:
+    """The gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded
+    by ``hdrd calibrate`` in the bias file, else the ``plus.*`` parameters given, else the
+    grade's); None when nothing is known."""
+    recorded = ctx.bias.noise if ctx.bias is not None else None
+    return noise_in_force(ctx.grade, dict(ctx.given_noise), recorded)
+
+
+I_C_WINDOW_S = 30.0
+"""HDR's increment with a known error model is at most the bias's drift over this long, s:
+sqrt(Q x 30 s), Q the model's random walk without a temperature (K^2 + 2 sigma^2 / tau + a
+warm-up). For the CRS03-04 grade 0.024 deg/s (Table III: 0.0422), the automotive grade
+0.016, the tactical grade 0.0016; a phone's drift is above Table III's, which stays. Chosen on simulated tuning routes of every grade (bench/
+RESULTS.md, "HDR's increment from the gyro")."""
+
+
+def hdr_settings(ctx: SettingsContext) -> HdrParams:
+    """The paper's HDR parameters for this gyro: the configured ``hdr.*`` (Table III by
+    default); with ``hdr.i_c_from: gyro`` and the gyro's error model known
+    (:func:`error_model`), i_c = min(hdr.i_c, sqrt(Q x :data:`I_C_WINDOW_S`)), Q its bias random
+    walk without a temperature, (deg/s)^2/s: a gyro whose bias barely moves is not "corrected"
+    by a binary increment meant for a CRS03-04's drift, which only straightens real curves.
+    Without a known model Table III stays (the start-up calibration shows the white noise, not
+    how the bias drifts)."""
+    p = ctx.hdr
+    if not ctx.hdr_i_c_from_gyro:
+        return p
+    noise = error_model(ctx)
+    if noise is None or not noise.known():
+        return p
+    drift = math.sqrt(max(noise.bias_q_no_temp(), 0.0) * I_C_WINDOW_S)
+    return p if drift >= p.i_c else replace(p, i_c=drift)
 
 
 def plus_settings(ctx: SettingsContext) -> HdrPlusParams:
@@ -136,9 +174,7 @@ def plus_settings(ctx: SettingsContext) -> HdrPlusParams:
     n = ctx.samples_per_step
     if n is not None and n > 0:
         p = p.with_(standstill=replace(p.standstill, samples_per_step=float(n)))
-    recorded = ctx.bias.noise if ctx.bias is not None else None
-    noise = noise_in_force(ctx.grade, dict(ctx.given_noise), recorded)
-    return p.fitted(calibration_of(ctx.bias, n), noise, ctx.quant_step_dps)
+    return p.fitted(calibration_of(ctx.bias, n), error_model(ctx), ctx.quant_step_dps)
 
 
 class Method(ABC, Generic[S, P]):
@@ -200,7 +236,7 @@ class _Hdr(Method[HdrState, HdrParams]):
         return hdr.run_batch(steps.u, settings).yaw
 
     def settings(self, ctx: SettingsContext) -> HdrParams:
-        return ctx.hdr
+        return hdr_settings(ctx)
 
 
 class _None(_Hdr):

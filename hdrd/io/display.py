@@ -72,8 +72,8 @@ def shown_number(key: str, v: float) -> float:
         r = float(f"{v:.{SIGNIFICANT}g}")
     else:
         r = round(v, d)
-    if key == "heading" and r >= 360.0:
-        r -= 360.0
+    if key == "heading" and r == 360.0 and v < 360.0:
+        r = 0.0
     return r + 0.0  # + 0.0 turns -0.0 into 0.0
 
 
