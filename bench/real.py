@@ -33,6 +33,7 @@ noise) is listed, not scored, and so is a drive evaluate cannot calibrate.
 from __future__ import annotations
 
 import argparse
+import os
 import math
 import shlex
 import subprocess
@@ -64,6 +65,9 @@ from hdrd.io.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
 DATA = REPO.parent / "shared" / "data"
+MIRRORS = Path(os.environ.get("HDRD_MIRRORS", "/work/.mirror"))
+"""Where tools/convert_real.py looks for the public sources' snapshots (docs/real-data.md)."""
+REPOS = {"oan": "fedorbaklanov+open-aided-navigation", "psins": "WangShanpeng+PSINS"}
 
 TUNING: frozenset[str] = frozenset(
     {"comma2k19", "oan_20201104_091730", "oan_20201104_093418", "psins_fog_mems"}
@@ -406,6 +410,12 @@ def main(argv: list[str] | None = None) -> int:
     folder = work / "real"
     shown: list[str] = []
     run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
+    for which, out in (("oan", ["--out-dir", str(folder)]),
+                       ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
+        if (MIRRORS / REPOS[which] / "repo").exists():
+            run([sys.executable, "tools/convert_real.py", which, *out], shown)
+        else:
+            print(f"bench/real.py: no snapshot of {REPOS[which]} in {MIRRORS}: {which} left out")
     json_path = work / "evaluate.json"
     run(
         [sys.executable, "-m", "hdrd", "evaluate", str(folder), "--method", "hdr+"]
