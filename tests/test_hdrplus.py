@@ -430,12 +430,16 @@ def test_one_curving_window_moves_the_evidence_a_bounded_step() -> None:
 def test_a_stale_speed_turn_is_not_a_stop() -> None:
     # 1 Hz, speed still 0 while the car turns at 0.8 deg/s (a lagging GPS speed), single
     # samples per step (spread 0): with the standstill noise known (sd 0.1 deg/s per step)
-    # the level is 8 sigma off and the turn is kept; without it, it is zeroed.
+    # the level is 8 sigma off and the turn is kept; without it (a given bias, no
+    # calibration) the step's own spread stands for it and the turn is kept too; with the
+    # gate off, it is zeroed.
     u = np.concatenate([np.zeros(10), np.full(10, 0.8), np.zeros(5)])
     args = (np.zeros(25), np.zeros(25), None, 1.0)
     kept = run_batch(u, *args, HdrPlusParams(block_var=0.01))
-    lost = run_batch(u, *args, HdrPlusParams())
-    assert not kept.standstill[10:20].any() and kept.yaw[-1] == pytest.approx(8.0, abs=0.1)
+    spread = run_batch(u, *args, HdrPlusParams())
+    lost = run_batch(u, *args, HdrPlusParams(stop_gate_sigma=0.0))
+    for tr in (kept, spread):
+        assert not tr.standstill[10:20].any() and tr.yaw[-1] == pytest.approx(8.0, abs=0.1)
     assert lost.standstill[10:20].all() and abs(lost.yaw[-1]) < 1.0  # the turn is lost
 
 

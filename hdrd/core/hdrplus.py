@@ -88,9 +88,14 @@ class Ablation:
     ``i_c_max``); 0 = the fixed hdr.i_c."""
     drift_prior: float = 0.3
     """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+    motion_offset_var: float = 0.0
+    """Prior variance of a *motion offset*, (deg/s)^2: how far the bias while driving may sit
+    from what the stops read (vibration rectification, g-sensitivity), added to the
+    standstill offset's F of the drifting (or only) filter; the stable filter keeps F. 0: off
+    (bench/RESULTS.md, "HDR+ round two: ideas tried", has why it is not on)."""
 
     def __post_init__(self) -> None:
-        for name in ("straight_r", "ic_alpha"):
+        for name in ("straight_r", "ic_alpha", "motion_offset_var"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
@@ -172,8 +177,8 @@ class HdrPlusParams:
     stop_gate_sigma: float = 4.0
     """A standstill step's corrected level must be within this many standard deviations of
     what the model allows at rest (block_var + the bias variance + i_c^2 + gate_floor_dps^2): a
-    turn that a stale speed calls standstill is not taken for the bias (0 = off; needs
-    block_var)."""
+    turn that a stale speed calls standstill is not taken for the bias (0 = off; without
+    block_var, the step's own spread stands for it)."""
     gate_floor_dps: float = 0.03
     """The stop gate allows at least this much bias error, deg/s (a start-up calibration that
     missed the bias by 0.02 deg/s must not shut its own correction out)."""
@@ -375,6 +380,9 @@ class _Run:
         self.q2 = q2
         init = bb.prior(p.bias_p0 + q2, p.stop_offset_var, p.temp_coeff_sd**2, p.road_var)
         f1 = init if k.drifting is None else k.drifting
+        if k.drifting is None and p.ablation.motion_offset_var > 0.0:
+            f = p.stop_offset_var + p.ablation.motion_offset_var
+            f1 = bb.prior(p.bias_p0 + q2, f, p.temp_coeff_sd**2, p.road_var)
         self.x1, self.P1 = list(f1.x), list(f1.P)
         f0 = (init if k.stable is None else k.stable) if p.bank else None
         self.x0 = list(f0.x) if f0 is not None else []
@@ -449,11 +457,14 @@ class _Run:
         p = self.p
         level = uc + self.I
         cand, need = standstill_candidate(level, sp, v, p.standstill)
-        if cand and p.stop_gate_sigma > 0.0 and not math.isnan(p.block_var):
+        if cand and p.stop_gate_sigma > 0.0:
             hv = bb.stop_var(self.P1)
             if mix.mixing:
                 hv = max(hv, bb.stop_var(self.P0)) + (mix.corr1 - mix.corr0) ** 2
-            allow = p.block_var + (hv if hv > 0.0 else 0.0) + mix.inc * mix.inc
+            bv = p.block_var
+            if math.isnan(bv):  # no calibration (a given bias): this step's own spread
+                bv = block_mean_variance(sp, p.standstill)
+            allow = bv + (hv if hv > 0.0 else 0.0) + mix.inc * mix.inc
             allow += p.gate_floor_dps**2
             cand = abs(level) <= p.stop_gate_sigma * math.sqrt(allow)
         self.still = self.still + 1 if cand else 0
