@@ -62,7 +62,7 @@ from hdrd.sim.gyro import StaticBias, WhiteNoise
 
 SECTION = "## HDR+ across gyro grades (simulated; held-out routes)"
 CALIBRATE_S = 30.0
-METHODS = ("none", "hdr", "hdr+", "hdr+ (grade)", "oracle")
+METHODS = ("none", "hdr", "hdr (grade)", "hdr+", "hdr+ (grade)", "oracle")
 
 
 ROAD_SD_DPS = 0.05
@@ -251,6 +251,7 @@ def method_scores(
         "none": ep(method_yaw(p, "none")),
         "hdr": ep(method_yaw(p, "hdr")),
         "hdr+": ep(method_yaw(p, "hdr+")),
+        "hdr (grade)": ep(method_yaw(p, "hdr", context=with_noise(noise))),
         "hdr+ (grade)": ep(method_yaw(p, "hdr+", context=with_noise(noise))),
         "oracle": ep(oracle_yaw(log, p, extra)),
     }
