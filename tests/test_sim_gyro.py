@@ -23,9 +23,11 @@ from hdrd.sim.gyro import (
     DEFAULT_START_MODEL,
     EFFECT_NAMES,
     EFFECTS,
+    STREAMS,
     Bandwidth,
     BiasInstability,
     GyroModel,
+    MotionOffset,
     Quantization,
     RateRandomWalk,
     Saturation,
@@ -50,6 +52,7 @@ ISSUE_VOCABULARY = {
     "rate_random_walk": {"k_dps_per_sqrt_s"},
     "quantization": {"step_dps"},
     "temperature_bias": {"coeff_dps_per_c", "ref_temp_c", "quad_dps_per_c2"},
+    "motion_offset": {"offset_dps", "moving_mps", "coeff_dps_per_mps"},
     "warmup_transient": {"amplitude_dps", "tau_s"},
     "scale_factor": {"error"},
     "scale_asymmetry": {"pos_error", "neg_error"},
@@ -114,6 +117,40 @@ def test_quantization_rounds_to_steps() -> None:
     # Rounding is idempotent, and the default step is the 16-bit CRS03-04 LSB.
     np.testing.assert_array_equal(_run(GyroModel((Quantization(step),)), out), out)
     assert Quantization().step_dps == pytest.approx(5.0 / 65536 / 0.010)
+
+
+def test_motion_offset_only_while_moving() -> None:
+    """+ offset (+ coeff * speed) above the speed threshold, nothing at or below it; the sign
+    as given (a negative offset reads less while driving)."""
+    x = np.array([0.0, 2.0, -3.0, 0.0, 10.0, -0.5])
+    v = np.array([0.0, 0.3, 0.5, 0.51, 10.0, 30.0])  # m/s
+    moving = v > 0.5
+    m = GyroModel((MotionOffset(offset_dps=0.09),))
+    out = m.apply(np.arange(6.0), x, None, np.random.default_rng(0), speed_mps=v)
+    np.testing.assert_array_equal(out, np.where(moving, x + 0.09, x))
+    neg = GyroModel((MotionOffset(offset_dps=-0.2, moving_mps=2.0, coeff_dps_per_mps=0.001),))
+    out = neg.apply(np.arange(6.0), x, None, np.random.default_rng(0), speed_mps=v)
+    np.testing.assert_allclose(out, np.where(v > 2.0, x - 0.2 + 0.001 * v, x), atol=1e-15)
+    assert out[5] == pytest.approx(-0.5 - 0.2 + 0.03)
+
+
+def test_motion_offset_needs_the_speed_and_interpolates_its_gaps() -> None:
+    m = GyroModel((MotionOffset(offset_dps=0.1),))
+    t, x = np.arange(5.0), np.zeros(5)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="motion_offset needs the vehicle's speed"):
+        m.apply(t, x, None, rng)
+    with pytest.raises(ValueError, match="motion_offset needs the vehicle's speed"):
+        m.apply(t, x, None, rng, speed_mps=np.full(5, np.nan))  # no speed at all
+    with pytest.raises(ValueError, match="speed_mps must have one value per sample"):
+        m.apply(t, x, None, rng, speed_mps=np.zeros(4))
+    v = np.array([0.0, np.nan, 2.0, np.nan, np.nan])  # gaps: 1.0, then held at 2.0
+    np.testing.assert_array_equal(m.apply(t, x, None, rng, speed_mps=v), [0, 0.1, 0.1, 0.1, 0.1])
+    # Models without it ignore the speed.
+    plain = GyroModel((StaticBias(0.3),))
+    np.testing.assert_array_equal(plain.apply(t, x, None, rng, speed_mps=np.ones(5)), x + 0.3)
+    with pytest.raises(ValueError, match="moving_mps: -1.0 must be >= 0"):
+        MotionOffset(offset_dps=0.1, moving_mps=-1.0)
 
 
 def test_time_offset_lags_the_truth() -> None:
@@ -277,6 +314,21 @@ def test_adding_an_effect_leaves_the_others_noise_unchanged() -> None:
     np.testing.assert_allclose(_run(more, x, seed=3) - _run(base, x, seed=3), 0.7, atol=1e-12)
 
 
+def test_random_streams_are_fixed_per_effect() -> None:
+    """Each effect's stream number is its own and never moves with the order of application:
+    a new effect placed among the others leaves every other effect's output bit for bit."""
+    assert set(STREAMS) == set(EFFECTS)
+    assert len(set(STREAMS.values())) == len(STREAMS)
+    m = crs03_default_model()
+    x, temp, v = np.zeros(600), np.full(600, 20.0), np.full(600, 8.0)
+    a = _run(m, x, temp=temp, seed=4)
+    t = np.arange(600) / 10.0
+    b = m.with_effect(MotionOffset(offset_dps=0.0)).apply(
+        t, x, temp, np.random.default_rng(4), speed_mps=v
+    )
+    np.testing.assert_array_equal(a, b)
+
+
 def test_names_get_with_without() -> None:
     m = GyroModel((StaticBias(0.1),))
     assert m.names() == ["static_bias"] and "static_bias" in m
@@ -326,6 +378,20 @@ def test_yaml_round_trip(tmp_path: Path) -> None:
     assert load_model(path) == m
     text = path.read_text()
     assert "name: static_bias" in text and "bias_dps: 1.0" in text
+
+
+def test_yaml_round_trip_with_a_motion_offset(tmp_path: Path) -> None:
+    m = crs03_default_model().with_effect(MotionOffset(offset_dps=0.09, coeff_dps_per_mps=-1e-3))
+    path = tmp_path / "m.yaml"
+    save_model(m, path)
+    back = load_model(path)
+    assert back == m
+    assert back.names().index("motion_offset") == back.names().index("temperature_bias") + 1
+    path.write_text("effects:\n  - {name: motion_offset, offset_dps: -0.09}\n")
+    assert load_model(path) == GyroModel((MotionOffset(-0.09, 0.5, 0.0),))  # defaults
+    path.write_text("effects:\n  - {name: motion_offset, moving_mps: 1}\n")
+    with pytest.raises(ValueError, match="motion_offset: missing parameter\\(s\\) offset_dps"):
+        load_model(path)
 
 
 def test_yaml_in_the_documented_form(tmp_path: Path) -> None:

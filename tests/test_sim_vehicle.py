@@ -14,6 +14,7 @@ from hdrd.sim import (
     CabinTemperature,
     GpsModel,
     GyroModel,
+    MotionOffset,
     StaticBias,
     count_turns,
     gps_course,
@@ -96,6 +97,19 @@ def test_lead_in_is_standstill_with_the_raw_bias() -> None:
     np.testing.assert_allclose(log.omega, log.omega_truth + 0.75, atol=1e-12)
     assert log.duration_s == pytest.approx(20.0 + 120.0 - 0.1)
     assert log.speed[~lead].max() > 20.0
+
+
+def test_the_gyro_reads_a_motion_offset_while_the_car_moves() -> None:
+    """A motion-dependent bias in the model: the gyro reads it while the car moves and not at
+    its stops (the lead-in and the traffic lights), the truth unchanged."""
+    model = GyroModel((StaticBias(0.5), MotionOffset(offset_dps=0.09)))
+    log = simulate_drive("city", 4.0, 3, model=model, lead_in_s=20.0)
+    plain = simulate_drive("city", 4.0, 3, model=GyroModel((StaticBias(0.5),)), lead_in_s=20.0)
+    assert log.speed is not None and log.omega_truth is not None
+    np.testing.assert_array_equal(log.omega_truth, plain.omega_truth)
+    moving = log.speed > 0.5
+    assert (~moving[log.t > 60.0]).sum() > 100  # a stop after the lead-in
+    np.testing.assert_allclose(log.omega - plain.omega, np.where(moving, 0.09, 0.0), atol=1e-12)
 
 
 @pytest.mark.parametrize("kind", ["city", "suburbs", "rural", "highway", "mixed"])

@@ -82,7 +82,7 @@ def simulate_legs(
         raise ValueError("the drive is shorter than two samples")
     temp = temperature.profile(t, lead_in_s, temp_rng)
     heading = heading_from_rate(t, motion.omega, heading0_deg)
-    omega = model.apply(t, motion.omega, temp, np.random.default_rng(gyro_ss))
+    omega = model.apply(t, motion.omega, temp, np.random.default_rng(gyro_ss), motion.speed)
     omega_true, speed = motion.omega, motion.speed
     if step > 1:  # the log keeps point samples of the sensor's output
         keep = slice(0, None, step)

@@ -14,6 +14,8 @@ static_bias          bias_dps (deg/s)                                           
 warmup_transient     amplitude_dps (deg/s), tau_s (s): amplitude*exp(-t/tau)          bias
 temperature_bias     coeff_dps_per_c (deg/s/degC), ref_temp_c (degC),                 bias
                      quad_dps_per_c2 (deg/s/degC^2, optional)
+motion_offset        offset_dps (deg/s), coeff_dps_per_mps (deg/s per m/s, opt.):     bias
+                     offset + coeff*v while the speed v > moving_mps (m/s, opt. 0.5)
 bias_instability     sigma_dps (deg/s), tau_s (s): first-order Gauss-Markov           bias
 rate_random_walk     k_dps_per_sqrt_s (deg/s/sqrt(s)): random walk of the bias        bias
 white_noise          density_dps_per_rthz (deg/s/sqrt(Hz)): angle random walk         noise
@@ -26,6 +28,7 @@ The effects apply in that fixed physical order whatever order a model lists them
 sensing element sees the (delayed) true rate, multiplies it by its gain, adds its bias terms
 and noise; its output amplifier has a finite bandwidth and rails; the ADC quantises last.
 Time t in the effects is time since power-on, taken as the first sample's time (``t - t[0]``).
+Every effect draws from a random stream of its own, numbered once and for all (:data:`STREAMS`).
 
 Noise conventions (IEEE Std 952 coefficients, so that the Allan deviation reads them back):
 white noise of density N gives samples of standard deviation N / sqrt(dt) and an Allan deviation
@@ -55,8 +58,10 @@ __all__ = [
     "BiasInstability",
     "Effect",
     "GyroModel",
+    "MotionOffset",
     "Quantization",
     "RateRandomWalk",
+    "STREAMS",
     "Saturation",
     "ScaleAsymmetry",
     "ScaleFactor",
@@ -139,12 +144,14 @@ def ar1(decay: FloatArray, u: FloatArray, x0: float) -> FloatArray:
 
 @dataclass(frozen=True)
 class _Ctx:
-    """What every effect may use: time since power-on (s), sample steps (s), temperature (C)."""
+    """What every effect may use: time since power-on (s), sample steps (s), temperature (C),
+    the vehicle's speed (m/s; None: not known)."""
 
     t: FloatArray
     dt: FloatArray
     temp_c: FloatArray | None
     rng: np.random.Generator
+    speed_mps: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -270,13 +277,46 @@ class TemperatureBias(Effect):
 
 
 @dataclass(frozen=True)
+class MotionOffset(Effect):
+    """Bias that differs between standstill and driving (vibration rectification,
+    g-sensitivity): while the vehicle's speed v (m/s) is above moving_mps the gyro reads::
+
+        + offset_dps + coeff_dps_per_mps * v
+
+    and nothing at or below it, so a bias measured at a stop misses it while driving. The
+    effect needs the speed of every sample (``GyroModel.apply(..., speed_mps=...)``):
+    ValueError without it, as temperature_bias without a temperature."""
+
+    name: ClassVar[str] = "motion_offset"
+    order: ClassVar[int] = 6
+    offset_dps: float = 0.0
+    moving_mps: float = 0.5
+    coeff_dps_per_mps: float = 0.0
+
+    def __post_init__(self) -> None:
+        _finite(self.name, "offset_dps", self.offset_dps)
+        _nonneg(self.name, "moving_mps", self.moving_mps)
+        _finite(self.name, "coeff_dps_per_mps", self.coeff_dps_per_mps)
+
+    def moving(self, speed_mps: FloatArray) -> npt.NDArray[np.bool_]:
+        """Samples taken while the vehicle moves: speed above moving_mps."""
+        return np.asarray(speed_mps > self.moving_mps)
+
+    def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
+        if ctx.speed_mps is None:
+            raise ValueError("motion_offset needs the vehicle's speed (speed_mps) for every sample")
+        v = ctx.speed_mps
+        return x + np.where(self.moving(v), self.offset_dps + self.coeff_dps_per_mps * v, 0.0)
+
+
+@dataclass(frozen=True)
 class BiasInstability(Effect):
     """First-order Gauss-Markov bias: stationary standard deviation sigma_dps (deg/s),
     correlation time tau_s (s); exact discretisation b[k] = a b[k-1] + sigma sqrt(1 - a^2) w,
     a = exp(-dt / tau). Its Allan deviation peaks near 0.62 sigma at tau ~ 1.9 tau_s."""
 
     name: ClassVar[str] = "bias_instability"
-    order: ClassVar[int] = 6
+    order: ClassVar[int] = 7
     sigma_dps: float = 0.0
     tau_s: float = 300.0
 
@@ -298,7 +338,7 @@ class RateRandomWalk(Effect):
     (deg/s/sqrt(s)); Allan deviation K * sqrt(tau / 3)."""
 
     name: ClassVar[str] = "rate_random_walk"
-    order: ClassVar[int] = 7
+    order: ClassVar[int] = 8
     k_dps_per_sqrt_s: float = 0.0
 
     def __post_init__(self) -> None:
@@ -316,7 +356,7 @@ class WhiteNoise(Effect):
     random walk coefficient N). Sample standard deviation N / sqrt(dt); Allan deviation N at 1 s."""
 
     name: ClassVar[str] = "white_noise"
-    order: ClassVar[int] = 8
+    order: ClassVar[int] = 9
     density_dps_per_rthz: float = 0.0
 
     def __post_init__(self) -> None:
@@ -334,7 +374,7 @@ class Bandwidth(Effect):
     a = exp(-2 pi cutoff dt); starts settled (y[0] = x[0])."""
 
     name: ClassVar[str] = "bandwidth"
-    order: ClassVar[int] = 9
+    order: ClassVar[int] = 10
     cutoff_hz: float = 10.0
 
     def __post_init__(self) -> None:
@@ -351,7 +391,7 @@ class Saturation(Effect):
     """Output clipped to +/- limit_dps (deg/s; CRS03-04: 200 deg/s)."""
 
     name: ClassVar[str] = "saturation"
-    order: ClassVar[int] = 10
+    order: ClassVar[int] = 11
     limit_dps: float = 200.0
 
     def __post_init__(self) -> None:
@@ -368,7 +408,7 @@ class Quantization(Effect):
     Zero rate sits on a code (null at exactly half scale)."""
 
     name: ClassVar[str] = "quantization"
-    order: ClassVar[int] = 11
+    order: ClassVar[int] = 12
     step_dps: float = SensorModel().lsb_dps
 
     def __post_init__(self) -> None:
@@ -388,6 +428,7 @@ EFFECTS: dict[str, type[Effect]] = {
             StaticBias,
             WarmupTransient,
             TemperatureBias,
+            MotionOffset,
             BiasInstability,
             RateRandomWalk,
             WhiteNoise,
@@ -402,6 +443,25 @@ EFFECTS: dict[str, type[Effect]] = {
 
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 
+STREAMS: dict[str, int] = {
+    "time_offset": 0,
+    "scale_factor": 1,
+    "scale_asymmetry": 2,
+    "static_bias": 3,
+    "warmup_transient": 4,
+    "temperature_bias": 5,
+    "bias_instability": 6,
+    "rate_random_walk": 7,
+    "white_noise": 8,
+    "bandwidth": 9,
+    "saturation": 10,
+    "quantization": 11,
+    "motion_offset": 12,
+}
+"""The random stream of each effect (:meth:`GyroModel.apply`): a number fixed per effect and
+never reused, apart from the order of application, so that a new effect (given the next
+number) leaves every other effect's noise, and so every earlier simulated output, unchanged."""
+
 
 def _param_names(cls: type[Effect]) -> list[str]:
     return [f.name for f in fields(cls)]
@@ -409,7 +469,7 @@ def _param_names(cls: type[Effect]) -> list[str]:
 
 def _required(cls: type[Effect]) -> list[str]:
     # Every parameter is required in a file except the documented optional ones.
-    optional = {"quad_dps_per_c2"}
+    optional = {"quad_dps_per_c2", "moving_mps", "coeff_dps_per_mps"}
     return [p for p in _param_names(cls) if p not in optional]
 
 
@@ -517,13 +577,16 @@ class GyroModel:
         omega_true_dps: npt.ArrayLike,
         temp_c: npt.ArrayLike | None,
         rng: np.random.Generator,
+        speed_mps: npt.ArrayLike | None = None,
     ) -> FloatArray:
         """The gyro's output (deg/s, + = CCW, bias included) for the true rate at times t_s.
 
         t_s: strictly increasing sample times, s (power-on = t_s[0]). temp_c: temperature per
         sample, deg C (NaN gaps are interpolated; None is allowed without temperature_bias).
-        Randomness comes from ``rng`` only (one draw seeds a separate stream per effect, so
-        adding or removing an effect leaves the others' noise unchanged).
+        speed_mps: the vehicle's speed per sample, m/s (NaN gaps interpolated; None is allowed
+        without motion_offset). Randomness comes from ``rng`` only (one draw seeds a separate
+        stream per effect, :data:`STREAMS`, so adding or removing an effect leaves the others'
+        noise unchanged).
         """
         t = np.asarray(t_s, dtype=np.float64)
         x = np.array(omega_true_dps, dtype=np.float64)
@@ -536,7 +599,8 @@ class GyroModel:
             raise ValueError("t_s and omega_true_dps must be finite")
         if n > 1 and np.any(np.diff(t) <= 0):
             raise ValueError("t_s must be strictly increasing")
-        temp = _temperature(temp_c, n)
+        temp = _per_sample("temp_c", temp_c, n)
+        speed = _per_sample("speed_mps", speed_mps, n)
         base = int(rng.integers(0, 2**63 - 1))
         if n == 0:
             return x
@@ -548,7 +612,7 @@ class GyroModel:
             dt[0] = 1.0
         t0 = t - t[0]
         for e in self.effects:
-            ctx = _Ctx(t0, dt, temp, np.random.default_rng([base, e.order]))
+            ctx = _Ctx(t0, dt, temp, np.random.default_rng([base, STREAMS[e.name]]), speed)
             x = e.apply(x, ctx)
         return x
 
@@ -558,21 +622,23 @@ def _check_name(name: str) -> None:
         raise ValueError(f"unknown effect name {name!r} (known: {', '.join(EFFECT_NAMES)})")
 
 
-def _temperature(temp_c: npt.ArrayLike | None, n: int) -> FloatArray | None:
-    if temp_c is None:
+def _per_sample(what: str, values: npt.ArrayLike | None, n: int) -> FloatArray | None:
+    """A column of one value per sample (a scalar: the same for all), NaN gaps interpolated;
+    None if absent or all NaN."""
+    if values is None:
         return None
-    temp = np.array(temp_c, dtype=np.float64)
-    if temp.ndim == 0:
-        return np.full(n, float(temp))
-    if temp.shape != (n,):
-        raise ValueError(f"temp_c must have one value per sample ({temp.shape} vs {n})")
-    ok = np.isfinite(temp)
+    arr = np.array(values, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ValueError(f"{what} must have one value per sample ({arr.shape} vs {n})")
+    ok = np.isfinite(arr)
     if ok.all():
-        return temp
+        return arr
     if not ok.any():
         return None
     idx = np.arange(n)
-    return np.interp(idx, idx[ok], temp[ok])
+    return np.interp(idx, idx[ok], arr[ok])
 
 
 # -- defaults and files -------------------------------------------------------------------------

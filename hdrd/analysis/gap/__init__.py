@@ -30,10 +30,10 @@ The loop, each step visible in the report:
    course ``heading_truth``, else zero with ``standstill``) is split into the current model's
    *deterministic* prediction D (its bias, gain, lag, clipping effects applied to the true
    rate, noise off) and an unexplained part e = r - D.
-2. The model is simulated under the log's conditions (same t, truth, temp_c; several seeds) and
-   compared with the measurement: Allan deviation of e against that of the simulated e over
-   tau; e against time, temp_c, the true rate and its sign, the rate's derivative; the
-   histogram of omega (ADC lattice, clipping rails). The gap (:func:`gap_metric`) condenses it.
+2. The model is simulated under the log's conditions (same t, truth, temp_c, speed; several
+   seeds) and compared with the measurement: Allan deviation of e against that of the
+   simulated e over tau; e against time, temp_c, moving or standing, the true rate and its
+   sign, the rate's derivative; the histogram of omega (ADC lattice, clipping rails). The gap (:func:`gap_metric`) condenses it.
 3. Every candidate effect not in the model is fitted (Gaussian likelihood of the block-averaged
    residual, whitened by a Kalman filter for the correlated noise effects; lattice likelihood
    for quantization), scored by BIC, and the best one is added only if BIC falls by more than

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, at_rest
-from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.data import GapData, moving_indicator
 from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, Fitter, clipping_rail
 from hdrd.analysis.gap.noise import Whitener, adev_cluster_sizes, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
@@ -20,6 +20,7 @@ from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,
     GyroModel,
+    MotionOffset,
     Quantization,
     RateRandomWalk,
     Saturation,
@@ -37,6 +38,7 @@ __all__ = [
     "BIC_MARGIN",
     "CANDIDATES",
     "DETERMINISTIC",
+    "MIN_PHASE_BLOCKS",
     "MIN_TEMP_STD_C",
     "SLOW_NOISE",
     "Candidate",
@@ -52,6 +54,7 @@ CANDIDATES = (
     "white_noise",
     "temperature_bias",
     "warmup_transient",
+    "motion_offset",
     "scale_factor",
     "scale_asymmetry",
     "time_offset",
@@ -70,13 +73,15 @@ DETERMINISTIC = (
     "static_bias",
     "temperature_bias",
     "warmup_transient",
+    "motion_offset",
     "scale_factor",
     "scale_asymmetry",
     "time_offset",
     "saturation",
 )
-"""Candidates read against a measured regressor (temperature, time since power-on, the true
-rate and its derivative): preferred over a random process that explains the same variance."""
+"""Candidates read against a measured regressor (temperature, time since power-on, moving or
+standing, the true rate and its derivative): preferred over a random process that explains
+the same variance."""
 
 SLOW_NOISE = ("bias_instability", "rate_random_walk")
 """Random processes slow enough to take over what a deterministic drift explains."""
@@ -89,6 +94,9 @@ ALPHA = 1e-3
 """...and only if the likelihood-ratio test rejects "effect absent" at this level."""
 MIN_TEMP_STD_C = 0.3  # below this temp_c carries no usable information on temperature_bias
 MIN_AT_RAIL = 3  # samples at the largest |omega| for a clipping rail to be a candidate
+MIN_PHASE_BLOCKS = 5
+"""Used blocks needed both standing and moving for ``motion_offset`` (the bias while moving
+against the bias at rest)."""
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,9 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
             "dynamics a low-pass is a lag of 1 / (2 pi f_c), not told from time_offset "
             "(a candidate at rest only)"
         )
+    why_motion = _motion_unidentifiable(data)
+    if why_motion:
+        out["motion_offset"] = why_motion
     if data.lattice is None:
         out["quantization"] = (
             f"no lattice of values coarser than the log's resolution ({data.resolution_dps:g} deg/s)"
@@ -148,6 +159,22 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
         for c in ("warmup_transient", "bias_instability", "rate_random_walk"):
             out[c] = "the log is shorter than 60 s"
     return out
+
+
+def _motion_unidentifiable(data: GapData) -> str:
+    """Why the log cannot tell a bias while moving from the bias at rest ('' if it can)."""
+    mv = moving_indicator(data)
+    if mv is None:
+        return "no speed column: moving and standing cannot be told apart"
+    frac = data.block_mean(mv)
+    stand, move = int((frac < 0.1).sum()), int((frac > 0.9).sum())
+    if min(stand, move) >= MIN_PHASE_BLOCKS:
+        return ""
+    gps = " (a GPS course is unknown at a stop)" if data.heading_mode else ""
+    return (
+        f"{stand} block(s) standing and {move} moving have a known true rate{gps}: the bias "
+        f"while moving is read against the bias at rest, {MIN_PHASE_BLOCKS} blocks of each needed"
+    )
 
 
 def _adev_excess_init(
@@ -226,6 +253,8 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
     wh = Whitener(data, noise)
     if name == "static_bias":
         variants = [(model.with_effect(StaticBias(bias_dps=float(np.mean(e_bar)))), cur.quad)]
+    elif name == "motion_offset":
+        variants = [(model.with_effect(MotionOffset(offset_dps=0.0)), cur.quad)]
     elif name == "scale_factor":
         variants = [(model.with_effect(ScaleFactor(error=0.0)), cur.quad)]
     elif name == "scale_asymmetry":

@@ -16,6 +16,7 @@ import numpy.typing as npt
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
 from hdrd.errors import HdrdError
 from hdrd.io.drivelog import DriveLog
+from hdrd.sim.gyro import GyroModel, MotionOffset
 
 __all__ = [
     "STOP_MARGIN_S",
@@ -24,6 +25,7 @@ __all__ = [
     "GapData",
     "GapError",
     "excluded_samples",
+    "moving_indicator",
     "prepare",
     "stop_interior",
     "truth_rate_from_heading",
@@ -194,6 +196,17 @@ def stop_interior(data: GapData) -> BoolArray:
     ts = data.t[st]
     out[st] = (ts - t_first[idx] >= STOP_MARGIN_S) & (t_last[idx] - ts >= STOP_MARGIN_S)
     return out
+
+
+def moving_indicator(data: GapData) -> FloatArray | None:
+    """1 at the samples where the vehicle moves as ``motion_offset`` sees it (speed above its
+    default moving_mps, m/s; the speed's gaps interpolated), 0 where it stands; None without
+    a speed. The regressor of a motion-dependent bias."""
+    if data.speed is None or not np.isfinite(data.speed).any():
+        return None
+    unit = GyroModel((MotionOffset(offset_dps=1.0),))
+    zero = np.zeros_like(data.t)
+    return unit.apply(data.t, zero, None, np.random.default_rng(0), speed_mps=data.speed)
 
 
 def _block_length(duration_s: float, truth_source: str) -> float:

@@ -12,11 +12,11 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.candidates import Candidate
-from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.data import GapData, moving_indicator
 from hdrd.analysis.gap.fit import Fit, clipping_rail
 from hdrd.analysis.gap.lowpass import pole, white_factor
 from hdrd.analysis.gap.metric import GapMeasure
-from hdrd.sim.gyro import Bandwidth, WarmupTransient
+from hdrd.sim.gyro import Bandwidth, MotionOffset, WarmupTransient
 
 __all__ = ["REGRESSOR", "correlation", "diagnostics", "regressors", "where_phrase"]
 
@@ -33,6 +33,7 @@ def correlation(a: FloatArray, b: FloatArray) -> float:
 REGRESSOR = {
     "temperature_bias": "temp_c",
     "warmup_transient": "time_s",
+    "motion_offset": "moving",
     "scale_factor": "true_rate",
     "scale_asymmetry": "true_rate",
     "time_offset": "rate_derivative",
@@ -58,6 +59,9 @@ def regressors(data: GapData) -> dict[str, FloatArray]:
     }
     if data.temp_c is not None:
         out["temp_c"] = data.block_mean(data.temp_c)
+    mv = moving_indicator(data)
+    if mv is not None:
+        out["moving"] = data.block_mean(mv)  # the share of each block driven
     return out
 
 
@@ -143,6 +147,7 @@ def _fmt_tau(t: float) -> str:
 
 _EFFECT_OF = {
     "temp_c": "temperature_bias",
+    "moving": "motion_offset",
     "time_s": "warmup_transient",
     "true_rate": "scale_factor",
     "rate_derivative": "time_offset",
@@ -203,6 +208,14 @@ def where_phrase(
         return (
             f"{allan}; residual vs time: {parts[0]:+.3f} deg/s in the first tenth of the log "
             f"against the mean (decays like exp(-t / {tau:.0f} s))"
+        )
+    if n == "motion_offset":
+        mo = cand.fit.model.get("motion_offset")
+        off = float(mo.offset_dps) if isinstance(mo, MotionOffset) else 0.0
+        return (
+            f"{allan}; residual correlates with moving (against standing), "
+            f"r = {c.get('moving', 0.0):.2f}: the bias while moving is {off:+.3f} deg/s off "
+            "the bias at rest"
         )
     if n == "scale_factor":
         return f"{allan}; residual correlates with the true rate, r = {c['true_rate']:.2f}"

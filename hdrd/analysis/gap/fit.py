@@ -72,7 +72,7 @@ def deterministic_part(data: GapData, model: GyroModel) -> FloatArray:
     det = _det_model(model)
     if not det.effects:
         return np.zeros_like(data.t)
-    y = det.apply(data.t, data.truth_filled, data.temp_c, _RNG0)
+    y = det.apply(data.t, data.truth_filled, data.temp_c, _RNG0, data.speed)
     return np.asarray(y - data.truth_filled)
 
 
@@ -86,6 +86,7 @@ _DET_PARAMS: dict[str, tuple[tuple[str, str, float], ...]] = {
     "scale_asymmetry": (("pos_error", "lin", 1e-4), ("neg_error", "lin", 1e-4)),
     "warmup_transient": (("amplitude_dps", "lin", 1e-3), ("tau_s", "log", 1e-3)),
     "temperature_bias": (("coeff_dps_per_c", "lin", 1e-4),),
+    "motion_offset": (("offset_dps", "lin", 1e-3),),
     "time_offset": (("delay_s", "lin", 1e-3),),
 }
 

@@ -74,7 +74,7 @@ def sim_truth(data: GapData) -> FloatArray:
 
 def simulate_like(data: GapData, model: GyroModel, seed: int, r: int) -> FloatArray:
     truth = sim_truth(data)
-    y = model.apply(data.t, truth, data.temp_c, np.random.default_rng([seed, r]))
+    y = model.apply(data.t, truth, data.temp_c, np.random.default_rng([seed, r]), data.speed)
     if data.resolution_dps > 1e-9:
         y = np.round(y / data.resolution_dps) * data.resolution_dps  # as the log recorded it
     return np.asarray(y)

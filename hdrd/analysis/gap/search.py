@@ -21,7 +21,7 @@ from hdrd.analysis.gap.candidates import (
     slow_noise_forms,
 )
 from hdrd.analysis.gap.choose import AMBIGUITY_BIC, Beyond, rank, revise, rivals
-from hdrd.analysis.gap.data import GapData, GapError, prepare
+from hdrd.analysis.gap.data import GapData, GapError, moving_indicator, prepare
 from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import GapMeasure, gap_metric
@@ -233,6 +233,8 @@ def run_gap(
     unknown = [c for c in candidates if c not in EFFECTS]
     if unknown:
         raise GapError(f"unknown candidate effect(s): {', '.join(unknown)}")
+    if "motion_offset" in start and moving_indicator(data) is None:
+        raise GapError("the model has motion_offset, which needs the log's speed: it has none")
     f = Fitter(data)
     cur = fit_model(data, start)
     sim_given = gap_metric(data, start, seed, None, cur.noise.extra_var)
