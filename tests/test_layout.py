@@ -276,8 +276,6 @@ UNSPLIT: set[str] = {
     "hdrd/analysis/gap/search.py:_slow_form",
     "hdrd/analysis/gap/search.py:run_gap",
     "hdrd/analysis/prepare.py:prepare_drive",
-    "hdrd/cli.py:_fakegyro",
-    "hdrd/cli.py:_run",
     "hdrd/commands/calibrate.py:_calibrate",
     "hdrd/commands/evaluate.py:main",
     "hdrd/commands/fakegyro.py:_run",
