@@ -293,10 +293,6 @@ UNSPLIT: set[str] = {
     "hdrd/io/csvimport.py:import_csv",
     "hdrd/io/drivelog.py:_read",
     "hdrd/io/frames.py:_feed_bin",
-    "hdrd/io/gpsd.py:_read",
-    "hdrd/io/gpsd.py:_report",
-    "hdrd/io/gpsd.py:parse_address",
-    "hdrd/io/gpsd.py:poll_reports",
     "hdrd/io/parquetlog.py:_columns",
     "hdrd/sim/drive.py:simulate_legs",
 }
