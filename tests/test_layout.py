@@ -288,12 +288,6 @@ UNSPLIT: set[str] = {
     "hdrd/config.py:_coerce",
     "hdrd/daemon/aiding.py:on_message",
     "hdrd/daemon/run.py:_stop_all",
-    "hdrd/io/biasfile.py:load_bias",
-    "hdrd/io/capture.py:decode_capture",
-    "hdrd/io/csvimport.py:import_csv",
-    "hdrd/io/drivelog.py:_read",
-    "hdrd/io/frames.py:_feed_bin",
-    "hdrd/io/parquetlog.py:_columns",
     "hdrd/sim/drive.py:simulate_legs",
 }
 
