@@ -284,11 +284,6 @@ UNSPLIT: set[str] = {
     "hdrd/commands/record.py:main",
     "hdrd/commands/simulate.py:simulate_main",
     "hdrd/commands/tail.py:main",
-    "hdrd/config.py:_build",
-    "hdrd/config.py:_coerce",
-    "hdrd/daemon/aiding.py:on_message",
-    "hdrd/daemon/run.py:_stop_all",
-    "hdrd/sim/drive.py:simulate_legs",
 }
 
 
