@@ -261,19 +261,7 @@ SIZE_EXEMPT = {
     "hdrd/sim/gyro.py",
 }
 # Functions still to split, as "path:name"; the list may only shrink.
-UNSPLIT: set[str] = {
-    "hdrd/analysis/gap/candidates.py:_candidate_fits",
-    "hdrd/analysis/gap/choose.py:rank",
-    "hdrd/analysis/gap/data.py:prepare",
-    "hdrd/analysis/gap/diagnose.py:where_phrase",
-    "hdrd/analysis/gap/fleet.py:gap_fleet",
-    "hdrd/analysis/gap/metric.py:gap_metric",
-    "hdrd/analysis/gap/noise.py:__init__",
-    "hdrd/analysis/gap/report.py:summary",
-    "hdrd/analysis/gap/report.py:to_report",
-    "hdrd/analysis/gap/search.py:_slow_form",
-    "hdrd/analysis/gap/search.py:run_gap",
-}
+UNSPLIT: set[str] = set()
 
 
 def complexity(func: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
