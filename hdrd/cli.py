@@ -247,6 +247,7 @@ def _log_format(p: argparse.ArgumentParser, what: str) -> None:
 
 @command("run", "hdrd.commands.run:main", "run the daemon: gyro -> HDR -> publishers")
 def _run(p: argparse.ArgumentParser) -> None:
+    """Long because it is a flat list of the daemon's options, read best in one place."""
     _config(p)
     _port(p)
     _bias_group(p, calibrate_seconds=False)
@@ -355,6 +356,7 @@ def _tail(p: argparse.ArgumentParser) -> None:
 
 @command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
 def _fakegyro(p: argparse.ArgumentParser) -> None:
+    """Long because it is a flat list of the fake gyro's options, read best in one place."""
     p.add_argument(
         "--drive",
         default="mixed",

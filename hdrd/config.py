@@ -414,35 +414,48 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
             raise ConfigError(key, value, "must be true or false")
         return value
     if isinstance(default, int):
-        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
-            raise ConfigError(key, value, "must be an integer, written out in digits")
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, value, "must be an integer")
-        return value
+        return _coerce_int(key, value)
     if isinstance(default, float):
-        written = value
-        if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
-            value = float(value)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(key, value, "must be a number")
-        try:
-            number = float(value)
-        except OverflowError:  # an integer too large for a float
-            raise ConfigError(key, value, "must be a finite number") from None
-        if not math.isfinite(number):
-            raise ConfigError(key, written, "must be a finite number")
-        return number
+        return _coerce_float(key, value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise ConfigError(key, value, "must be a string")
         return value
     if isinstance(default, tuple):
-        if isinstance(value, str):
-            value = [value]
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise ConfigError(key, value, "must be a list of strings")
-        return tuple(value)
+        return _coerce_strings(key, value)
     raise AssertionError(f"no coercion for {key}")  # pragma: no cover - a programming error
+
+
+def _coerce_int(key: str, value: Any) -> int:
+    if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+        raise ConfigError(key, value, "must be an integer, written out in digits")
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(key, value, "must be an integer")
+    return value
+
+
+def _coerce_float(key: str, value: Any) -> float:
+    written = value
+    if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value):
+        value = float(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(key, value, "must be a number")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer too large for a float
+        raise ConfigError(key, value, "must be a finite number") from None
+    if not math.isfinite(number):
+        raise ConfigError(key, written, "must be a finite number")
+    return number
+
+
+def _coerce_strings(key: str, value: Any) -> tuple[str, ...]:
+    """A list of strings, or one string as a list of one."""
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(key, value, "must be a list of strings")
+    return tuple(value)
 
 
 def _check(key: str, value: Any) -> None:
@@ -478,19 +491,22 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
             _check(key, v)
             params[k] = v
         elif k in names and k != "params":
-            default = getattr(defaults, k)
-            if is_dataclass(default):
-                v = _build(type(default), v, key)
-            else:
-                v = _coerce(key, v, default)
-                _check(key, v)
-            values[k] = v
+            values[k] = _value(key, v, getattr(defaults, k))
         else:
             what = "unknown key" if prefix else "unknown section"
             raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(allowed) + ")")
     if flat:
         values["params"] = replace(defaults.params, **params)
     return replace(defaults, **values)
+
+
+def _value(key: str, value: Any, default: Any) -> Any:
+    """One key's value, checked: a section of its own when the default is a dataclass."""
+    if is_dataclass(default):
+        return _build(type(default), value, key)
+    value = _coerce(key, value, default)
+    _check(key, value)
+    return value
 
 
 def parse_config(data: Any, source: str | None = None) -> Config:

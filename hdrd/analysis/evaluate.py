@@ -300,34 +300,43 @@ def to_json(results: Sequence[DriveResult]) -> dict[str, Any]:
     ms = results[0].methods
     extra = [m for m in ms if m != "none"]
 
-    def row(r: DriveResult | None) -> dict[str, Any]:
-        d: dict[str, Any] = {}
-        if r is not None:
-            d["name"] = r.name
-        d["duration_min"] = _num(r.duration_min if r else summary.duration_min)
-        for m in ms:
-            d[f"E_psi_{method_key(m)}"] = _num(r.e_psi[m] if r else summary.e_psi[m])
-        for m in ms:
-            d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
-        if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
-            d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
-        if r is not None and r.plus_model is not None:
-            d["plus_model"] = r.plus_model
-        if r is not None and r.warnings:
-            d["warnings"] = list(r.warnings)
-        d["improvement"] = _num(r.improvement if r else summary.improvement)
-        if len(extra) > 1:
-            for m in extra:
-                d[f"improvement_{m}"] = _num(
-                    r.improvement_of(m) if r else summary.improvement_of[m][0]
-                )
-        return d
-
-    doc: dict[str, Any] = {"drives": [row(r) for r in results], "mean": row(None)}
+    drives = [_json_row(r, summary, ms, extra) for r in results]
+    doc: dict[str, Any] = {"drives": drives, "mean": _json_row(None, summary, ms, extra)}
     runs = [r.outages for r in results if r.outages is not None]
     if runs:
         doc["outages"] = outages_json(runs)
     return doc
+
+
+def _json_row(
+    r: DriveResult | None, summary: Summary, ms: Sequence[str], extra: list[str]
+) -> dict[str, Any]:
+    """One drive's row of :func:`to_json`, or the mean row (``r`` None)."""
+    d: dict[str, Any] = {}
+    if r is not None:
+        d["name"] = r.name
+    d["duration_min"] = _num(r.duration_min if r else summary.duration_min)
+    for m in ms:
+        d[f"E_psi_{method_key(m)}"] = _num(r.e_psi[m] if r else summary.e_psi[m])
+    for m in ms:
+        d[f"NE_psi_{method_key(m)}"] = _num(r.ne_psi[m] if r else summary.ne_psi[m])
+    if list(ms) == ["none"]:  # --method none: the E_psi_<method> spelling too
+        d["E_psi_none"], d["NE_psi_none"] = d["E_psi_raw"], d["NE_psi_raw"]
+    if r is not None:
+        _drive_notes(d, r)
+    d["improvement"] = _num(r.improvement if r else summary.improvement)
+    if len(extra) > 1:
+        for m in extra:
+            d[f"improvement_{m}"] = _num(r.improvement_of(m) if r else summary.improvement_of[m][0])
+    return d
+
+
+def _drive_notes(d: dict[str, Any], r: DriveResult) -> None:
+    """Add a drive's HDR+ model and its warnings, when it has them, to its row."""
+    if r.plus_model is not None:
+        d["plus_model"] = r.plus_model
+    if r.warnings:
+        d["warnings"] = list(r.warnings)
 
 
 def _fmt(v: float, digits: int) -> str:

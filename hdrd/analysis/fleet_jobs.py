@@ -286,6 +286,77 @@ def _batches(refs: Sequence[DriveRef], threads: int) -> list[list[DriveRef]]:
     return [[refs[i] for i in idx] for idx in batches(len(refs), threads)]
 
 
+def _usable_steps(
+    all_steps: list[list[int | str]],
+    test_steps: list[list[int | str]],
+    n_train: int,
+    strict: bool,
+    skipped: list[str] | None,
+) -> tuple[list[list[int]], int]:
+    """The training drives' step counts per batch, without the drives that cannot be used
+    (why is added to ``skipped``; EvaluationError with ``strict`` or when none is left), and
+    how many drives are left."""
+    why = [x for s in all_steps + test_steps for x in s if isinstance(x, str)]
+    if why and strict:
+        raise EvaluationError(why[0])
+    steps = [[x for x in s if not isinstance(x, str)] for s in all_steps]
+    n_drives = sum(len(s) for s in steps)
+    if n_drives == 0 and n_train == 1:
+        raise EvaluationError(why.pop(0))
+    if skipped is not None:
+        skipped.extend(why)
+    if n_drives == 0:
+        raise EvaluationError(f"none of the {n_train} training drives can be used")
+    return steps, n_drives
+
+
+@dataclass
+class _FleetScore:
+    """The tuning objective over the training drives where they are held: each candidate
+    set's error summed over the drives, over ``n_drives``; progress counts steps times sets
+    over all the calls (``total``)."""
+
+    runner: Runner
+    train: list[Any]
+    T: float
+    chunk: int
+    batch_steps: list[int]
+    n_drives: int
+    total: int
+    progress: Progress | None
+    done: int = 0
+
+    def __call__(self, cand: Candidates) -> FloatArray:
+        runner, train, batch_steps = self.runner, self.train, self.batch_steps
+        n_sets = cand[PARAM_NAMES[0]].shape[0]
+        blocks = parameter_blocks(n_sets, self.chunk, len(train), runner.threads)
+        shared = [runner.share({k: cand[k][a:b] for k in PARAM_NAMES}) for a, b in blocks]
+        items = [(h, blk) for blk in shared for h in train]
+        weights = [batch_steps[j] * (b - a) for a, b in blocks for j in range(len(train))]
+        start = self.done
+
+        def report(d: int, _: int) -> None:
+            if self.progress is not None:
+                self.progress(start + d, self.total)
+
+        sums: list[FloatArray | None] = [None] * len(blocks)
+        rows = runner.map(score_block, items, self.T, progress=report, weights=weights, batch=1)
+        for i, part in enumerate(rows):
+            q = i // len(train)
+            for row in part:  # the drives in order, one after the other
+                acc = sums[q]
+                if acc is None:
+                    sums[q] = row.copy()
+                else:
+                    acc += row
+        self.done = start + sum(weights)
+        out = np.empty(n_sets)
+        for (a, b), acc in zip(blocks, sums):
+            assert acc is not None
+            out[a:b] = acc / self.n_drives
+        return out
+
+
 def tune_fleet(
     runner: Runner,
     train_refs: Sequence[DriveRef],
@@ -314,52 +385,19 @@ def tune_fleet(
     test = runner.persist(prepare_refs, _batches(test_refs, runner.threads), job)
     all_steps = list(runner.map(steps_of, train, batch=1))
     test_steps = list(runner.map(steps_of, test, batch=1))
-    why = [x for s in all_steps + test_steps for x in s if isinstance(x, str)]
-    if why and strict:
-        raise EvaluationError(why[0])
-    steps = [[x for x in s if not isinstance(x, str)] for s in all_steps]
-    n_drives = sum(len(s) for s in steps)
-    if n_drives == 0 and len(train_refs) == 1:
-        raise EvaluationError(why.pop(0))
-    if skipped is not None:
-        skipped.extend(why)
-    if n_drives == 0:
-        raise EvaluationError(f"none of the {len(train_refs)} training drives can be used")
+    steps, n_drives = _usable_steps(all_steps, test_steps, len(train_refs), strict, skipped)
     longest = max(max(s, default=0) for s in steps)
-    chunk = max(16, CHUNK_ELEMENTS // max(longest, 1))
     batch_steps = [sum(s) for s in steps]
-    total = sum(batch_steps) * n_candidates
-    done = 0
-
-    def score(cand: Candidates) -> FloatArray:
-        nonlocal done
-        n_sets = cand[PARAM_NAMES[0]].shape[0]
-        blocks = parameter_blocks(n_sets, chunk, len(train), runner.threads)
-        shared = [runner.share({k: cand[k][a:b] for k in PARAM_NAMES}) for a, b in blocks]
-        items = [(h, blk) for blk in shared for h in train]
-        weights = [batch_steps[j] * (b - a) for a, b in blocks for j in range(len(train))]
-        start = done
-
-        def report(d: int, _: int) -> None:
-            if progress is not None:
-                progress(start + d, total)
-
-        sums: list[FloatArray | None] = [None] * len(blocks)
-        rows = runner.map(score_block, items, base.T, progress=report, weights=weights, batch=1)
-        for i, part in enumerate(rows):
-            q = i // len(train)
-            for row in part:  # the drives in order, one after the other
-                acc = sums[q]
-                if acc is None:
-                    sums[q] = row.copy()
-                else:
-                    acc += row
-        done = start + sum(weights)
-        out = np.empty(n_sets)
-        for (a, b), acc in zip(blocks, sums):
-            assert acc is not None
-            out[a:b] = acc / n_drives
-        return out
+    score = _FleetScore(
+        runner,
+        train,
+        base.T,
+        chunk=max(16, CHUNK_ELEMENTS // max(longest, 1)),
+        batch_steps=batch_steps,
+        n_drives=n_drives,
+        total=sum(batch_steps) * n_candidates,
+        progress=progress,
+    )
 
     def runs(
         sets: Sequence[HdrParams],

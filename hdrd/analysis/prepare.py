@@ -347,6 +347,79 @@ def _calibration_failure(name: str, plan: CalibrationPlan, stepper: Stepper) -> 
     )
 
 
+def _usable_rows(log: DriveLog, name: str, T: float) -> tuple[DriveLog, FloatArray]:
+    """The log without its rows marked valid = 0 (as if dropped: a time gap; a lead-in that
+    lost its first rows is shortened in the metadata), checked: at least 2 rows, some truth
+    heading, T > 0 s; and its truth heading."""
+    if log.valid is not None:
+        kept = log.counted()
+        if len(kept) == 0:
+            raise EvaluationError(f"{name}: every row has valid = 0; nothing to evaluate")
+        lead = _lead_in_s(log)
+        if lead is not None and kept.t[0] > log.t[0]:  # the lead-in lost its first rows
+            left = lead - float(kept.t[0] - log.t[0])
+            kept = replace(kept, meta={**kept.meta, "lead_in_s": f"{max(left, 0.0)!r}"})
+        log = kept
+    n_rows = len(log)
+    if n_rows < 2:
+        raise EvaluationError(f"{name}: only {n_rows} sample(s); a drive needs at least 2")
+    if log.heading_truth is None or not np.isfinite(log.heading_truth).any():
+        raise EvaluationError(f"{name}: no truth heading (column heading_truth is absent or empty)")
+    if not T > 0:
+        raise EvaluationError(f"{name}: step period T must be > 0 s, got {T!r}")
+    return log, log.heading_truth
+
+
+def _stepped_after_calibration(
+    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: StandstillLimits
+) -> tuple[_Stepped, float]:
+    """The drive stepped from the plan's start, with its bias measured or given (else
+    EvaluationError: why not, or too few steps left), and where it starts after the log's
+    first row, s."""
+    drive = log.slice(plan.start) if plan.start else log
+    offset = float(drive.t[0] - log.t[0])
+    config = PipelineConfig(
+        params=HdrParams(T=T),
+        method="none",
+        bias_dps=plan.bias_dps,
+        startup_s=plan.window_s if plan.window_s is not None else 1.0,
+        limits=limits,
+    )
+    t_us = _t_us(log.t)[plan.start :]
+    stepped = step_log(drive, config, t_us - t_us[0])
+    if stepped.stepper.bias is None:
+        raise EvaluationError(_calibration_failure(name, plan, stepped.stepper))
+    if len(stepped.blocks) < 2:
+        raise EvaluationError(
+            f"{name}: nothing left to evaluate after the calibration ({plan.source}): "
+            f"{len(stepped.blocks)} step(s) of {T:g} s; at least 2 are needed"
+        )
+    return stepped, offset
+
+
+def _step_inputs(
+    log: DriveLog,
+    stepped: _Stepped,
+    t_end: FloatArray,
+    T: float,
+    rec: BiasRecord,
+    measured: bool,
+) -> StepInputs:
+    """The methods' inputs of a stepped drive; ``measured``: the bias ``rec`` was measured on
+    the drive (its variance of the mean is known), not given."""
+    return StepInputs(
+        u=np.array(stepped.u),
+        t_end=t_end,
+        T=T,
+        bias_dps=rec.bias_dps,
+        n_samples=np.array([b.n for b in stepped.blocks], np.int64),
+        speed=None if log.speed is None else np.array(stepped.speed),
+        temp_c=None if log.temp_c is None else np.array(stepped.temp),
+        omega_std=np.array(stepped.spread),
+        bias_var=rec.std_dps * rec.std_dps / rec.n if measured else math.nan,
+    )
+
+
 def prepare_drive(
     log: DriveLog,
     bias: float | None = None,
@@ -363,64 +436,23 @@ def prepare_drive(
     be measured.
     """
     name = log.name or "drive"
-    if log.valid is not None:  # rows with valid = 0 are left out, as if dropped: a time gap
-        kept = log.counted()
-        if len(kept) == 0:
-            raise EvaluationError(f"{name}: every row has valid = 0; nothing to evaluate")
-        lead = _lead_in_s(log)
-        if lead is not None and kept.t[0] > log.t[0]:  # the lead-in lost its first rows
-            left = lead - float(kept.t[0] - log.t[0])
-            kept = replace(kept, meta={**kept.meta, "lead_in_s": f"{max(left, 0.0)!r}"})
-        log = kept
-    n_rows = len(log)
-    if n_rows < 2:
-        raise EvaluationError(f"{name}: only {n_rows} sample(s); a drive needs at least 2")
-    if log.heading_truth is None or not np.isfinite(log.heading_truth).any():
-        raise EvaluationError(f"{name}: no truth heading (column heading_truth is absent or empty)")
-    if not T > 0:
-        raise EvaluationError(f"{name}: step period T must be > 0 s, got {T!r}")
+    log, heading_truth = _usable_rows(log, name, T)
     plan = plan_calibration(log, bias, calibrate_seconds, T, limits)
-    drive = log.slice(plan.start) if plan.start else log
-    offset = float(drive.t[0] - log.t[0])
-    config = PipelineConfig(
-        params=HdrParams(T=T),
-        method="none",
-        bias_dps=plan.bias_dps,
-        startup_s=plan.window_s if plan.window_s is not None else 1.0,
-        limits=limits,
-    )
-    t_us = _t_us(log.t)[plan.start :]
-    stepped = step_log(drive, config, t_us - t_us[0])
+    stepped, offset = _stepped_after_calibration(log, name, plan, T, limits)
     stepper = stepped.stepper
-    if stepper.bias is None:
-        raise EvaluationError(_calibration_failure(name, plan, stepper))
-    if len(stepped.blocks) < 2:
-        raise EvaluationError(
-            f"{name}: nothing left to evaluate after the calibration ({plan.source}): "
-            f"{len(stepped.blocks)} step(s) of {T:g} s; at least 2 are needed"
-        )
     rec = stepper.bias
+    assert rec is not None
     measured = plan.bias_dps is None
     t_end = np.array([b.t_end for b in stepped.blocks]) + offset
     start_s = stepped.start_s + offset
-    truth = truth_at(log.t - log.t[0], log.heading_truth, t_end, truth_max_gap_s)
+    truth = truth_at(log.t - log.t[0], heading_truth, t_end, truth_max_gap_s)
     k = align_index(np.zeros(t_end.shape[0]), truth)
     if k is None:
         raise EvaluationError(
             f"{name}: no truth heading at any step end after the start (fixes further than "
             f"{truth_max_gap_s:g} s apart, or only during calibration)"
         )
-    steps = StepInputs(
-        u=np.array(stepped.u),
-        t_end=t_end,
-        T=T,
-        bias_dps=rec.bias_dps,
-        n_samples=np.array([b.n for b in stepped.blocks], np.int64),
-        speed=None if log.speed is None else np.array(stepped.speed),
-        temp_c=None if log.temp_c is None else np.array(stepped.temp),
-        omega_std=np.array(stepped.spread),
-        bias_var=rec.std_dps * rec.std_dps / rec.n if measured else math.nan,
-    )
+    steps = _step_inputs(log, stepped, t_end, T, rec, measured)
     source = plan.source
     if measured and stepper.window.attempts > 1:
         source = (
@@ -441,7 +473,7 @@ def prepare_drive(
         samples_per_step=stepper.samples_per_step,
         calibration_attempts=stepper.window.attempts,
         quant_step_dps=quantization_step(log.omega),
-        sign=check_sign(log.t, log.omega, log.heading_truth),
+        sign=check_sign(log.t, log.omega, heading_truth),
     )
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from hdrd.commands.options import config_from_args
 from hdrd.config import Config, ConfigError
-from hdrd.core.calibrate import MotionDetected, StartupWindow
+from hdrd.core.calibrate import BiasRecord, MotionDetected, StartupWindow
 from hdrd.core.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise
 from hdrd.daemon.inputs import open_source
 from hdrd.daemon.pipeline import standstill_limits
@@ -30,8 +30,9 @@ from hdrd.errors import EX_CONFIG
 from hdrd.io.biasfile import save_bias
 from hdrd.io.clocks import SampleClock
 from hdrd.io.files import default_bias_path
+from hdrd.io.frames import Frame
 from hdrd.io.logs import log, setup_logging
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
+from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
 
 __all__ = ["main"]
 
@@ -129,89 +130,150 @@ def main(args: argparse.Namespace) -> int:
         signals.restore()
 
 
+def _fail(why: str) -> int:
+    print(f"hdrd calibrate: {why}; bias file not written", file=sys.stderr, flush=True)
+    return 1
+
+
+class _Measurement:
+    """The samples of the window as they come: timed by the device clock (a glitched
+    timestamp neither ends the window nor counts), progress said each second, restarted when
+    the device comes back, given up after ``calibration.no_data_timeout_s`` without data."""
+
+    def __init__(self, cfg: Config, seconds: float, port: str, out: _Progress) -> None:
+        self.cfg, self.seconds, self.port, self.out = cfg, seconds, port, out
+        self.timeout = cfg.calibration.no_data_timeout_s
+        self.clock = SampleClock()
+        self.window = StartupWindow(1, standstill_limits(cfg))  # ended by device time
+        self.last_data = time.monotonic()
+        self.lost: str | None = None
+        self.ended = False
+        self.next_report = 1.0
+
+    def run(self, src: Source, signals: Signals) -> int | None:
+        """Gather until the window is over, the input ends or a stop signal; the exit status
+        when it cannot go on, else None."""
+        while not signals.stop:
+            item = src.recv(0.1)
+            now = time.monotonic()
+            if item is None or isinstance(item, DeviceLost):
+                status = self._no_data(src, item, now)
+                if status is not None:
+                    return status
+                continue
+            if isinstance(item, DeviceBack):
+                print("device back; restarting the measurement", file=sys.stderr, flush=True)
+                self.clock, self.next_report = SampleClock(), 1.0
+                self.window.clear()
+                self.lost, self.last_data = None, now
+                continue
+            if isinstance(item, EndOfInput):
+                self.ended = True
+                break
+            self.last_data = now
+            if self._add(item):
+                break
+        return None
+
+    def _no_data(self, src: Source, lost: DeviceLost | None, now: float) -> int | None:
+        """Nothing came (or the device was lost, said on stderr); the exit status once
+        nothing has come for too long."""
+        timeout = self.timeout
+        if lost is not None:
+            self.lost = lost.reason
+            never = isinstance(src, SerialSource) and not src.reader.opened_once
+            print(
+                f"{lost.reason}; waiting up to {timeout:g} s for it to appear"
+                if never
+                else f"device lost ({lost.reason}); waiting for it to come back",
+                file=sys.stderr,
+                flush=True,
+            )
+        if now - self.last_data > timeout:
+            why = f" ({self.lost})" if self.lost else ""
+            return _fail(
+                f"no data from {self.port} for {timeout:g} s{why} "
+                "(calibration.no_data_timeout_s); is the gyro connected and sending?"
+            )
+        return None
+
+    def _add(self, item: Frame) -> bool:
+        """Take a frame into the window; True when it starts the time after the window."""
+        if not self.clock.accept(item.t_us):
+            return False  # a glitched timestamp: neither its time nor its rate counts
+        elapsed = self.clock.elapsed_us / 1e6
+        if elapsed >= self.seconds:
+            return True
+        window = self.window
+        window.add(self.cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
+        if elapsed >= self.next_report:
+            self.out.say(
+                f"  {elapsed:5.1f} / {self.seconds:g} s  mean {window.mean_dps:+.4f} deg/s"
+                f"  n {window.n}"
+            )
+            self.next_report += 1.0
+        return False
+
+
 def _calibrate(
     cfg: Config, args: argparse.Namespace, seconds: float, path: Path, signals: Signals
 ) -> int:
-    def fail(why: str) -> int:
-        print(f"hdrd calibrate: {why}; bias file not written", file=sys.stderr, flush=True)
-        return 1
-
     simulate = bool(getattr(args, "simulate", False))
     src = open_source(cfg, simulate)
     port = "the simulated gyro" if simulate else cfg.device.port
     if isinstance(src, SerialSource) and src.reader.busy:
         src.close()
-        return fail(src.reader.last_error or "the port is in use")
+        return _fail(src.reader.last_error or "the port is in use")
     out = _Progress()
-    timeout = cfg.calibration.no_data_timeout_s
-    clock = SampleClock()
-    window = StartupWindow(1, standstill_limits(cfg))  # ended by device time, not by steps
-    last_data = time.monotonic()
-    lost: str | None = None
-    ended = False
-    next_report = 1.0
+    m = _Measurement(cfg, seconds, port, out)
     out.say(f"calibrating: keep the vehicle still for {seconds:g} s")
     try:
-        while not signals.stop:
-            item = src.recv(0.1)
-            now = time.monotonic()
-            if item is None or isinstance(item, DeviceLost):
-                if isinstance(item, DeviceLost):
-                    lost = item.reason
-                    never = isinstance(src, SerialSource) and not src.reader.opened_once
-                    print(
-                        f"{item.reason}; waiting up to {timeout:g} s for it to appear"
-                        if never
-                        else f"device lost ({item.reason}); waiting for it to come back",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                if now - last_data > timeout:
-                    why = f" ({lost})" if lost else ""
-                    return fail(
-                        f"no data from {port} for {timeout:g} s{why} "
-                        "(calibration.no_data_timeout_s); is the gyro connected and sending?"
-                    )
-                continue
-            if isinstance(item, DeviceBack):
-                print("device back; restarting the measurement", file=sys.stderr, flush=True)
-                clock, next_report = SampleClock(), 1.0
-                window.clear()
-                lost, last_data = None, now
-                continue
-            if isinstance(item, EndOfInput):
-                ended = True
-                break
-            last_data = now
-            if not clock.accept(item.t_us):
-                continue  # a glitched timestamp: neither its time nor its rate counts
-            elapsed = clock.elapsed_us / 1e6
-            if elapsed >= seconds:  # this sample starts the time after the window
-                break
-            window.add(cfg.sensor.to_dps_scalar(item.rate, item.ref), item.temp_c)
-            if elapsed >= next_report:
-                out.say(
-                    f"  {elapsed:5.1f} / {seconds:g} s  mean {window.mean_dps:+.4f} deg/s"
-                    f"  n {window.n}"
-                )
-                next_report += 1.0
+        status = m.run(src, signals)
+        if status is not None:
+            return status
     finally:
         src.close()
     if signals.stop:
         print("calibration interrupted; bias file not written", file=sys.stderr)
         return 0
-    duration = clock.elapsed_us / 1e6
+    duration = m.clock.elapsed_us / 1e6
     if duration < seconds * 0.99:
-        what = "input ended" if ended else "measurement stopped"
-        return fail(f"{what} after {duration:.1f} s of the {seconds:g} s needed")
+        what = "input ended" if m.ended else "measurement stopped"
+        return _fail(f"{what} after {duration:.1f} s of the {seconds:g} s needed")
     try:
-        rec = window.measure(when=time.time())
+        rec = m.window.measure(when=time.time())
     except MotionDetected as e:
         print(
             f"hdrd calibrate: refused: {e}; keep the vehicle still and try again", file=sys.stderr
         )
         return 1
-    rec = replace(rec, duration_s=duration, noise=_noise_of(window, duration))
+    rec = replace(rec, duration_s=duration, noise=_noise_of(m.window, duration))
+    if not _saved(path, rec):
+        return 1
+    out.done(
+        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
+        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
+        + f") written to {path}"
+        + (
+            f"; {m.clock.glitches} frame(s) with a bad timestamp skipped"
+            if m.clock.glitches
+            else ""
+        )
+        + _noise_line(rec.noise)
+    )
+    log.info(
+        "calibrated",
+        bias_dps=rec.bias_dps,
+        std_dps=rec.std_dps,
+        samples=rec.n,
+        path=str(path),
+        source="calibrate",
+    )
+    return 0
+
+
+def _saved(path: Path, rec: BiasRecord) -> bool:
+    """Write the bias file; False, with why on stderr, when it cannot be written."""
     try:
         save_bias(path, rec)
     except OSError as e:
@@ -225,20 +287,5 @@ def _calibrate(
             f"hdrd calibrate: cannot write {path}: {e.strerror or e}{where}; bias file not written",
             file=sys.stderr,
         )
-        return 1
-    out.done(
-        f"bias {rec.bias_dps:+.5f} deg/s (std {rec.std_dps:.4f}, n {rec.n}, {rec.duration_s:.1f} s"
-        + (f", {rec.temp_c:.1f} degC" if rec.temp_c is not None else "")
-        + f") written to {path}"
-        + (f"; {clock.glitches} frame(s) with a bad timestamp skipped" if clock.glitches else "")
-        + _noise_line(rec.noise)
-    )
-    log.info(
-        "calibrated",
-        bias_dps=rec.bias_dps,
-        std_dps=rec.std_dps,
-        samples=rec.n,
-        path=str(path),
-        source="calibrate",
-    )
-    return 0
+        return False
+    return True

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from hdrd.analysis.evaluate import (
+    DriveResult,
     EvaluationError,
     drive_refs,
     evaluated_methods,
@@ -14,9 +16,13 @@ from hdrd.analysis.evaluate import (
     read_limits,
     to_json,
 )
-from hdrd.config import ConfigError, load_config, settings_context
+from hdrd.config import Config, ConfigError, load_config, settings_context
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
+
+if TYPE_CHECKING:
+    from hdrd.analysis.fleet_jobs import EvaluateJob
+    from hdrd.analysis.outages import OutageSpec
 
 __all__ = ["main"]
 
@@ -30,21 +36,14 @@ def main(args: argparse.Namespace) -> int:
     [--json FILE] [--plot FILE.png] [--outages SPEC] [--config PATH] [--method METHOD] [--strict]
     [--workers N | --scheduler ADDRESS] [--no-progress]``."""
     from hdrd.analysis.fleet import FleetError
-    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
-    from hdrd.analysis.fleet_report import fleet_summary, plot_fleet
 
     try:
         cfg, _ = load_config(args.config)
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if args.plot:
-        from hdrd.analysis.plots import plotting_unavailable
-
-        problem = plotting_unavailable()
-        if problem:  # said before the work, not after it
-            _err(problem)
-            return 1
+    if args.plot and _plotting_unavailable():  # said before the work, not after it
+        return 1
     outages = None
     if getattr(args, "outages", None):
         from hdrd.analysis.outages import OutageSpec
@@ -54,45 +53,81 @@ def main(args: argparse.Namespace) -> int:
         except ValueError as e:
             _err(f"--outages: {e}")
             return EX_USAGE
-    method = args.method or cfg.hdr.method
-    params = cfg.hdr.params
     try:
-        # HDR+ is shown beside the paper's HDR it improves on.
-        ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
-        refs = drive_refs(args.drives)
-        job = EvaluateJob(
-            params,
-            ms,
-            settings_context(cfg),  # the configured grade, plus.*, standstill.*
-            args.bias,
-            args.calibrate_seconds,
-            standstill_limits(cfg),
-            traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
-            strict=bool(getattr(args, "strict", False)),
-            read_limits=read_limits(args),
-            outages=outages,
-        )
-        # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
-        results, skipped = run_evaluate(args, refs, job)
-        for why in skipped:
-            print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
-        for r in results:
-            for w in r.warnings:
-                print(f"hdrd evaluate: warning: {w}", file=sys.stderr)
-        if not results:
-            raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
+        results, skipped, job = _evaluate(args, cfg, outages)
     except (EvaluationError, FleetError) as e:
         _err(str(e))
         return 1
+    _print_results(results, len(skipped), outages is not None)
+    return _write_files(args, results, job.traces)
+
+
+def _plotting_unavailable() -> bool:
+    """Whether plots cannot be drawn here (why said on stderr)."""
+    from hdrd.analysis.plots import plotting_unavailable
+
+    problem = plotting_unavailable()
+    if problem:
+        _err(problem)
+        return True
+    return False
+
+
+def _evaluate(
+    args: argparse.Namespace, cfg: Config, outages: OutageSpec | None
+) -> tuple[list[DriveResult], list[str], EvaluateJob]:
+    """The drives' results, why each drive left out was skipped (both said on stderr, with
+    each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
+    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+
+    method = args.method or cfg.hdr.method
+    params = cfg.hdr.params
+    # HDR+ is shown beside the paper's HDR it improves on.
+    ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
+    refs = drive_refs(args.drives)
+    job = EvaluateJob(
+        params,
+        ms,
+        settings_context(cfg),  # the configured grade, plus.*, standstill.*
+        args.bias,
+        args.calibrate_seconds,
+        standstill_limits(cfg),
+        traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
+        strict=bool(getattr(args, "strict", False)),
+        read_limits=read_limits(args),
+        outages=outages,
+    )
+    # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
+    results, skipped = run_evaluate(args, refs, job)
+    for why in skipped:
+        print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
+    for r in results:
+        for w in r.warnings:
+            print(f"hdrd evaluate: warning: {w}", file=sys.stderr)
+    if not results:
+        raise EvaluationError(f"none of the {len(refs)} drives can be evaluated")
+    return results, skipped, job
+
+
+def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) -> None:
+    """The table; with ``outages``, the outages' table; for a fleet, its summary."""
+    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX
+    from hdrd.analysis.fleet_report import fleet_summary
+
     print(format_table(results))
     runs = [r.outages for r in results if r.outages is not None]
-    if outages is not None:
+    if outages:
         from hdrd.analysis.outages import format_outages
 
         print()
         print(format_outages(runs) if runs else "GNSS outages: none could be scored")
     if len(results) > PLOT_PANELS_MAX:
-        print(fleet_summary(results, len(skipped)))
+        print(fleet_summary(results, n_skipped))
+
+
+def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: bool) -> int:
+    """The --json file and the --plot (each drive's traces, or a fleet's NEpsi distribution);
+    the exit status."""
     if args.json:
         try:
             from hdrd.io.files import atomic_write_json
@@ -102,9 +137,10 @@ def main(args: argparse.Namespace) -> int:
             _err(f"cannot write {args.json}: {e.strerror or e}")
             return 1
     if args.plot:
+        from hdrd.analysis.fleet_report import plot_fleet
         from hdrd.analysis.plots import plot_evaluation, plot_to_file
 
-        draw = plot_evaluation if job.traces else plot_fleet  # a fleet: NEpsi's distribution
+        draw = plot_evaluation if traces else plot_fleet  # a fleet: NEpsi's distribution
         problem = plot_to_file(lambda path: draw(results, path), args.plot)
         if problem:
             _err(problem)

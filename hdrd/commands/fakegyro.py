@@ -449,29 +449,11 @@ class FakeGyro:
             if req is None and pulls and t[k] >= pulls[0]:
                 req = self.pull_for
             if req is not None:
-                while pulls and t[k] >= pulls[0]:
-                    pulls.pop(0)
-                t_pull = t[k]
-                self._do_pull(req)
-                resume = t_pull + req * (self.speedup if self.speedup > 0 else 1.0)
-                k_next = int(np.searchsorted(t, resume, side="left"))
-                with self._lock:
-                    self.injected.pulled_frames += k_next - k
-                k = k_next
+                k = self._pull_at(k, req, pulls)
                 continue
-            if self.speedup > 0:
-                wait = wall0 + t[k] / self.speedup - time.monotonic()
-                if wait > 0:
-                    self._stop.wait(min(wait, 0.5))
-                    continue
-                # Every frame already due goes in one write.
-                due_t = (time.monotonic() - wall0) * self.speedup
-                j = int(np.searchsorted(t, due_t, side="right"))
-            else:
-                j = n
-            j = min(max(j, k + 1), k + batch_max, n)
-            if pulls:
-                j = min(j, max(k + 1, int(np.searchsorted(t, pulls[0], side="left"))))
+            j = self._batch_end(k, wall0, batch_max, pulls)
+            if j is None:
+                continue
             out = bytearray()
             tally = _Tally()
             for i in range(k, j):
@@ -480,6 +462,40 @@ class FakeGyro:
             self._commit(tally, written)
             k = j
         self._drain()  # "done" means the reader has had everything
+
+    def _pull_at(self, k: int, seconds: float, pulls: list[float]) -> int:
+        """Pull the cable at frame k for ``seconds`` (scaled by the speed-up), dropping the
+        scheduled pulls that are due; the frame to resume at."""
+        t = self.t_s
+        while pulls and t[k] >= pulls[0]:
+            pulls.pop(0)
+        t_pull = t[k]
+        self._do_pull(seconds)
+        resume = t_pull + seconds * (self.speedup if self.speedup > 0 else 1.0)
+        k_next = int(np.searchsorted(t, resume, side="left"))
+        with self._lock:
+            self.injected.pulled_frames += k_next - k
+        return k_next
+
+    def _batch_end(self, k: int, wall0: float, batch_max: int, pulls: list[float]) -> int | None:
+        """The end of the next write from frame k: every frame already due (paced), at most
+        ``batch_max``, none past the next pull; None after waiting for frame k to be due."""
+        n = self.frames.shape[0]
+        t = self.t_s
+        if self.speedup > 0:
+            wait = wall0 + t[k] / self.speedup - time.monotonic()
+            if wait > 0:
+                self._stop.wait(min(wait, 0.5))
+                return None
+            # Every frame already due goes in one write.
+            due_t = (time.monotonic() - wall0) * self.speedup
+            j = int(np.searchsorted(t, due_t, side="right"))
+        else:
+            j = n
+        j = min(max(j, k + 1), k + batch_max, n)
+        if pulls:
+            j = min(j, max(k + 1, int(np.searchsorted(t, pulls[0], side="left"))))
+        return j
 
     # -- a capture file instead of a pty ---------------------------------------------------
 
@@ -553,7 +569,12 @@ def main(args: argparse.Namespace) -> int:
             return 1
         _err(f"wrote {args.out}: {_summary(gyro)}")
         return 0
+    return _serve(gyro, args.speedup)
 
+
+def _serve(gyro: FakeGyro, speedup: float) -> int:
+    """Serve the drive on the pty until it ends or SIGINT / SIGTERM (their handlers restored
+    after); the exit status."""
     stop = threading.Event()
 
     def on_signal(signum: int, frame: object) -> None:
@@ -578,7 +599,7 @@ def main(args: argparse.Namespace) -> int:
                 print(gyro.link, flush=True)
         except BrokenPipeError:
             pass
-        if args.speedup == 0:
+        if speedup == 0:
             _err("as fast as possible: waiting for a reader to open the port")
         gyro.start()
         while not stop.is_set() and not gyro.wait(0.2):

@@ -6,8 +6,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from typing import TYPE_CHECKING
 
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
+
+if TYPE_CHECKING:
+    from hdrd.analysis.fleet_jobs import GapOutcome
+    from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["main", "parse_period", "plus_section"]
 
@@ -67,40 +72,16 @@ def main(args: argparse.Namespace) -> int:
         return 1
     from hdrd.analysis.fleet import FleetError, open_runner
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
-    from hdrd.io.drivefiles import find_drives
     from hdrd.io.drivelog import DriveLogError
-    from hdrd.sim.gyro import load_model, save_model
 
-    if args.plot:
-        from hdrd.analysis.plots import plotting_unavailable
-
-        problem = plotting_unavailable()
-        if problem:  # said before the work, not after it
-            _err(problem)
-            return 1
-
-    start = DEFAULT_START_MODEL
-    if args.model:
-        try:
-            start = load_model(args.model)
-        except OSError as e:
-            _err(f"cannot read the model {args.model}: {e.strerror or e}")
-            return 78
-        except ValueError as e:
-            _err(str(e))
-            return 78
+    if args.plot and _plotting_unavailable():  # said before the work, not after it
+        return 1
+    start = _start_model(args)
+    if start is None:
+        return 78
     measured = [args.measured] if isinstance(args.measured, str) else list(args.measured)
-    try:
-        refs = find_drives(measured)
-    except DriveLogError as e:
-        _err(f"cannot read {e}")
-        return 1
-    if len(refs) > 1 and args.plot:
-        _err(f"--plot draws one drive; {len(refs)} were given")
-        return 1
-    plus_out = getattr(args, "plus_out", None)
-    if len(refs) > 1 and plus_out:
-        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+    refs = _drives(args, measured)
+    if refs is None:
         return 1
     from hdrd.analysis.evaluate import read_limits
 
@@ -125,8 +106,62 @@ def main(args: argparse.Namespace) -> int:
     if one.skipped is not None:
         _err(one.skipped)
         return 1
-    res = one.result
-    print(res.summary)
+    print(one.result.summary)
+    return _write_files(args, one.result, measured)
+
+
+def _plotting_unavailable() -> bool:
+    """Whether plots cannot be drawn here (why said on stderr)."""
+    from hdrd.analysis.plots import plotting_unavailable
+
+    problem = plotting_unavailable()
+    if problem:
+        _err(problem)
+        return True
+    return False
+
+
+def _start_model(args: argparse.Namespace) -> GyroModel | None:
+    """The model the fit starts from (--model, else the default); None when it cannot be
+    read (why said on stderr)."""
+    from hdrd.sim.gyro import load_model
+
+    if not args.model:
+        return DEFAULT_START_MODEL
+    try:
+        return load_model(args.model)
+    except OSError as e:
+        _err(f"cannot read the model {args.model}: {e.strerror or e}")
+    except ValueError as e:
+        _err(str(e))
+    return None
+
+
+def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
+    """The drives named; None when they cannot be found or are too many for --plot or
+    --plus-out, which describe one drive (why said on stderr)."""
+    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.drivelog import DriveLogError
+
+    try:
+        refs = find_drives(measured)
+    except DriveLogError as e:
+        _err(f"cannot read {e}")
+        return None
+    if len(refs) > 1 and args.plot:
+        _err(f"--plot draws one drive; {len(refs)} were given")
+        return None
+    if len(refs) > 1 and getattr(args, "plus_out", None):
+        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+        return None
+    return refs
+
+
+def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str]) -> int:
+    """One drive's --report, --out, --plus-out and --plot; the exit status."""
+    from hdrd.sim.gyro import save_model
+
+    plus_out = getattr(args, "plus_out", None)
     try:
         if args.report:
             from hdrd.io.files import atomic_write_json

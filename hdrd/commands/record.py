@@ -121,6 +121,30 @@ def main(args: argparse.Namespace) -> int:
         _note(f"cannot write {args.out}: {e.strerror or e}")
         return 1
 
+    result, error, stopping = _record_until_stopped(reader, out, seconds)
+    n = int(result.get("bytes", 0))
+    if error is not None:
+        _note(
+            f"cannot write {args.out}: {error.strerror or error}; recording stopped, "
+            f"{n} bytes read from {args.port}"
+        )
+        return 1
+    _note(
+        f"{n} bytes in {result.get('seconds', 0.0):.1f} s to {args.out}"
+        + (f", {int(result['losses'])} device losses" if result.get("losses") else "")
+    )
+    if n == 0 and not stopping:
+        _note(f"nothing came from {args.port}; is the gyro sending?")
+        return 1
+    return 0
+
+
+def _record_until_stopped(
+    reader: SerialReader, out: Any, seconds: float | None
+) -> tuple[dict[str, Any], OSError | None, bool]:
+    """:func:`record` until done or SIGINT / SIGTERM (their handlers restored after); the
+    file and the reader closed. The result, the first write error, and whether a signal
+    stopped it."""
     stopping = False
 
     def on_signal(signum: int, frame: object) -> None:
@@ -138,18 +162,4 @@ def main(args: argparse.Namespace) -> int:
         reader.close()
         for s, h in old.items():
             signal.signal(s, h)
-    n = int(result.get("bytes", 0))
-    if error is not None:
-        _note(
-            f"cannot write {args.out}: {error.strerror or error}; recording stopped, "
-            f"{n} bytes read from {args.port}"
-        )
-        return 1
-    _note(
-        f"{n} bytes in {result.get('seconds', 0.0):.1f} s to {args.out}"
-        + (f", {int(result['losses'])} device losses" if result.get("losses") else "")
-    )
-    if n == 0 and not stopping:
-        _note(f"nothing came from {args.port}; is the gyro sending?")
-        return 1
-    return 0
+    return result, error, stopping

@@ -67,6 +67,11 @@ def simulate_main(args: argparse.Namespace) -> int:
         return EX_USAGE
     if args.benchmark:
         return _benchmark(args, model, grade)
+    return _one_drive(args, model, grade)
+
+
+def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
+    """``hdrd simulate --drive``: one drive, to a file or stdout."""
     if args.drive not in DRIVE_TYPES:
         _err(f"unknown --drive {args.drive!r} (known: {', '.join(DRIVE_TYPES)})")
         return EX_USAGE

@@ -254,7 +254,6 @@ def main(args: argparse.Namespace) -> int:
     formatter = TailFormatter(raw=bool(getattr(args, "raw", False)), display=_is_tty(sys.stdout))
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_stop) if in_main else None
-    seen = 0
     shown = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
     try:
         _write(sys.stdout, formatter.start())
@@ -262,14 +261,7 @@ def main(args: argparse.Namespace) -> int:
             sys.stderr,
             [f"hdrd tail: waiting on {shown} (hdrd run --udp {shown} sends there)"],
         )
-        while count_max is None or seen < count_max:
-            data, addr = sock.recvfrom(65535)
-            out, notes, n = formatter.lines(data, sender=f"{addr[0]}:{addr[1]}")
-            if count_max is not None and seen + n > count_max:
-                out = out[: len(out) - (seen + n - count_max)]
-            _write(sys.stderr, notes)
-            _write(sys.stdout, out)
-            seen += n
+        _print_messages(sock, formatter, count_max)
         return 0
     except KeyboardInterrupt:
         return 0
@@ -280,6 +272,20 @@ def main(args: argparse.Namespace) -> int:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
         sock.close()
+
+
+def _print_messages(sock: socket.socket, formatter: TailFormatter, count_max: int | None) -> None:
+    """Print what comes (notes on stderr) until ``count_max`` messages (None: until
+    stopped)."""
+    seen = 0
+    while count_max is None or seen < count_max:
+        data, addr = sock.recvfrom(65535)
+        out, notes, n = formatter.lines(data, sender=f"{addr[0]}:{addr[1]}")
+        if count_max is not None and seen + n > count_max:
+            out = out[: len(out) - (seen + n - count_max)]
+        _write(sys.stderr, notes)
+        _write(sys.stdout, out)
+        seen += n
 
 
 def _is_tty(stream: TextIO | None) -> bool:

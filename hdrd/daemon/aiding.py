@@ -374,17 +374,7 @@ class GpsAiding:
         h_hdr = float(msg["heading"])
         is_step = "omega" in msg
         omega = float(msg["omega"]) if is_step else 0.0
-        fix = self.good_fix(now)
-        course: float | None = None
-        if fix is not None:
-            assert fix.track_deg is not None
-            age = max(0.0, now - self._course_at)
-            course = _compass(fix.track_deg - omega * age)
-            if self._judged_seq != self._course_seq:
-                self._judged_seq = self._course_seq
-                self._course_ok = self._judge(fix, course, h_hdr, omega, now)
-            if not self._course_ok:
-                fix = course = None
+        fix, course = self._trusted_course(h_hdr, omega, now)
         if fix is not None and course is not None:
             if self.offset_deg is None:
                 self.offset_deg = wrap180(course - h_hdr)
@@ -405,6 +395,25 @@ class GpsAiding:
             out["gps_speed"] = spd
         delta = self._learn(msg, course) if is_step else 0.0
         return out, delta
+
+    def _trusted_course(
+        self, h_hdr: float, omega: float, now: float
+    ) -> tuple[FixLike | None, float | None]:
+        """The good fix and its course carried forward to ``now`` with the yaw rate
+        (compass deg), each new course judged once against HDR's heading; (None, None) when
+        there is no good fix or its course was judged wrong."""
+        fix = self.good_fix(now)
+        course: float | None = None
+        if fix is not None:
+            assert fix.track_deg is not None
+            age = max(0.0, now - self._course_at)
+            course = _compass(fix.track_deg - omega * age)
+            if self._judged_seq != self._course_seq:
+                self._judged_seq = self._course_seq
+                self._course_ok = self._judge(fix, course, h_hdr, omega, now)
+            if not self._course_ok:
+                fix = course = None
+        return fix, course
 
     # -- bias learning --
     def _restart_window(self, t: float | None, course: float | None) -> None:

@@ -130,33 +130,37 @@ def _stop_all(pubs: list[Publisher]) -> None:
         except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
             log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
     for p in pubs:
-        if not isinstance(p, UdpPublisher):
-            continue
-        output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
-        stats = p.stats()
-        shown = stats
-        if len(stats) > UDP_STATS_LINES:
-            failing = [d for d in stats if d.errors or d.dropped]
-            by_error: dict[str, int] = {}
-            for d in failing:
-                for kind, n in d.by_error.items():
-                    by_error[kind] = by_error.get(kind, 0) + n
-            (log.warning if failing else log.info)(
-                "output_udp_summary",
-                output=output,
-                destinations=len(stats),
-                sent=sum(d.sent for d in stats),
-                errors=sum(d.errors for d in stats),
-                dropped=sum(d.dropped for d in stats),
-                failing=len(failing),
-                by_error=by_error,
-            )
-            failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
-            shown = failing[:UDP_STATS_LINES]
-        for d in shown:
-            (log.warning if d.errors or d.dropped else log.info)(
-                "output_udp_stats", output=output, **d.to_dict()
-            )
+        if isinstance(p, UdpPublisher):
+            _log_udp_stats(p)
+
+
+def _log_udp_stats(p: UdpPublisher) -> None:
+    """Log one UDP output's destinations as :func:`_stop_all` says."""
+    output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
+    stats = p.stats()
+    shown = stats
+    if len(stats) > UDP_STATS_LINES:
+        failing = [d for d in stats if d.errors or d.dropped]
+        by_error: dict[str, int] = {}
+        for d in failing:
+            for kind, n in d.by_error.items():
+                by_error[kind] = by_error.get(kind, 0) + n
+        (log.warning if failing else log.info)(
+            "output_udp_summary",
+            output=output,
+            destinations=len(stats),
+            sent=sum(d.sent for d in stats),
+            errors=sum(d.errors for d in stats),
+            dropped=sum(d.dropped for d in stats),
+            failing=len(failing),
+            by_error=by_error,
+        )
+        failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
+        shown = failing[:UDP_STATS_LINES]
+    for d in shown:
+        (log.warning if d.errors or d.dropped else log.info)(
+            "output_udp_stats", output=output, **d.to_dict()
+        )
 
 
 class Daemon:

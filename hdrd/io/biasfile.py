@@ -48,26 +48,8 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
     max_abs_bias_dps: refuse a bias_dps beyond +/- this, deg/s (the configuration's
     ``calibration.max_bias_dps``); None: any finite value.
     """
-    from hdrd.io.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
-
     p = Path(path)
-    try:
-        text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
-    except FileNotFoundError:
-        raise BiasFileError(f"bias file {p}: not found") from None
-    except InputFileError as e:
-        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
-    if not text.rstrip().endswith("# end"):
-        raise BiasFileError(f"bias file {p}: truncated (no '# end' line); run `hdrd calibrate`")
-    try:
-        data = load_yaml(text)
-    except InputFileError as e:
-        at = f" at {e.where}" if e.where else ""
-        raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
-    if not isinstance(data, dict):
-        raise BiasFileError(f"bias file {p}: expected a mapping of bias_dps, std_dps, n, ...")
+    data = _mapping(p)
     try:
         record = BiasRecord(
             bias_dps=_finite(data, "bias_dps"),
@@ -95,6 +77,30 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
             f"+/-{max_abs_bias_dps:g} deg/s allowed (calibration.max_bias_dps)"
         )
     return record
+
+
+def _mapping(p: Path) -> dict[str, object]:
+    """The bias file's text, whole (ending in ``# end``), read as a YAML mapping."""
+    from hdrd.io.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+
+    try:
+        text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
+    except FileNotFoundError:
+        raise BiasFileError(f"bias file {p}: not found") from None
+    except InputFileError as e:
+        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise BiasFileError(f"bias file {p}: cannot be read: {e}") from None
+    if not text.rstrip().endswith("# end"):
+        raise BiasFileError(f"bias file {p}: truncated (no '# end' line); run `hdrd calibrate`")
+    try:
+        data = load_yaml(text)
+    except InputFileError as e:
+        at = f" at {e.where}" if e.where else ""
+        raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
+    if not isinstance(data, dict):
+        raise BiasFileError(f"bias file {p}: expected a mapping of bias_dps, std_dps, n, ...")
+    return data
 
 
 def _short(v: object) -> str:

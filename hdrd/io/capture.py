@@ -146,44 +146,33 @@ def _payload(a: npt.NDArray[np.uint8], acc: npt.NDArray[np.int64]) -> npt.NDArra
     return out
 
 
-def decode_capture(
-    data: bytes | bytearray | memoryview, protocol: str = "hdr-bin"
+def _decode_text(
+    data: bytes | bytearray | memoryview, st: CaptureStats
 ) -> tuple[npt.NDArray[np.void], CaptureStats]:
-    """Decode a whole capture to a :data:`FRAME_DTYPE` array and the parser's counters.
+    """:func:`decode_capture` for hdr-text: the push parser, fed in slices (any split gives
+    the same frames), each slice's frames packed into an array at once: no list of every
+    Frame of the capture."""
+    p = Parser("hdr-text")
+    arrays: list[npt.NDArray[np.void]] = []
+    bad: list[npt.NDArray[np.int64]] = []
+    view = memoryview(data).cast("B")
+    for lo in range(0, len(view), _SCAN_BYTES):
+        frames = p.feed(view[lo : lo + _SCAN_BYTES])
+        arrays.append(frames_to_array(frames))
+        bad.append(np.asarray(p.bad_before, np.int64))
+    p.flush()  # hdr-text holds no complete line back: it only counts the leftover
+    for name, value in p.stats.as_dict().items():
+        setattr(st, name, value)
+    st.bad_before = np.concatenate(bad) if bad else np.empty(0, np.int64)
+    return (np.concatenate(arrays) if arrays else np.empty(0, FRAME_DTYPE)), st
 
-    Gives exactly the frames and counters of a :class:`Parser` fed the same bytes (in any
-    chunking) and then flushed, plus ``bad_before`` per frame (:class:`CaptureStats`).
-    hdr-bin is vectorised: every sync candidate's CRC is computed at once (table-driven, two
-    payload bytes per step); Python loops only over overlapping candidates. hdr-text uses the
-    push parser.
-    """
-    check_protocol(protocol)
-    st = CaptureStats()
-    if protocol == "hdr-text":
-        # The push parser, fed in slices (any split gives the same frames), each slice's
-        # frames packed into an array at once: no list of every Frame of the capture.
-        p = Parser("hdr-text")
-        arrays: list[npt.NDArray[np.void]] = []
-        bad: list[npt.NDArray[np.int64]] = []
-        view = memoryview(data).cast("B")
-        for lo in range(0, len(view), _SCAN_BYTES):
-            frames = p.feed(view[lo : lo + _SCAN_BYTES])
-            arrays.append(frames_to_array(frames))
-            bad.append(np.asarray(p.bad_before, np.int64))
-        p.flush()  # hdr-text holds no complete line back: it only counts the leftover
-        for name, value in p.stats.as_dict().items():
-            setattr(st, name, value)
-        st.bad_before = np.concatenate(bad) if bad else np.empty(0, np.int64)
-        return (np.concatenate(arrays) if arrays else np.empty(0, FRAME_DTYPE)), st
-    a = np.frombuffer(data, dtype=np.uint8)
-    n = a.shape[0]
-    if n < BIN_FRAME_LEN:
-        st.garbage_bytes = n
-        return np.empty(0, FRAME_DTYPE), st
-    top = n - 15  # a frame can start at 0 .. n - 16
-    slices = [(lo, min(lo + _SCAN_BYTES, top)) for lo in range(0, top, _SCAN_BYTES)]
-    # Pass 1, slice by slice: the positions of CRC-valid frames (at most the frames), and
-    # of the failed candidates while they are few (else pass 2 finds them again).
+
+def _crc_valid(
+    a: npt.NDArray[np.uint8], slices: list[tuple[int, int]]
+) -> tuple[npt.NDArray[np.int64], list[npt.NDArray[np.int64]] | None, int]:
+    """Pass 1, slice by slice: the positions of CRC-valid frames (at most the frames), those
+    of the failed candidates while they are few (None past :data:`_KEEP_FAILED`: pass 2
+    finds them again) and how many failed."""
     parts: list[npt.NDArray[np.int64]] = []
     failed_parts: list[npt.NDArray[np.int64]] | None = []
     failed = 0
@@ -199,7 +188,48 @@ def decode_capture(
                 if failed > _KEEP_FAILED:
                     failed_parts = None
     valid = np.concatenate(parts) if parts else np.empty(0, np.int64)
-    del parts
+    return valid, failed_parts, failed
+
+
+def _count_bad_again(
+    a: npt.NDArray[np.uint8],
+    slices: list[tuple[int, int]],
+    v: npt.NDArray[np.int64],
+    acc: npt.NDArray[np.int64],
+    counts: npt.NDArray[np.int64],
+) -> None:
+    """Pass 2, slice by slice: the failed candidates are those not in ``v``."""
+    for lo, hi in slices:
+        inv = _candidates(a, lo, hi)
+        if v.shape[0]:
+            at_v = np.minimum(np.searchsorted(v, inv), v.shape[0] - 1)
+            inv = inv[v[at_v] != inv]
+        _count_bad(inv, acc, counts)
+
+
+def decode_capture(
+    data: bytes | bytearray | memoryview, protocol: str = "hdr-bin"
+) -> tuple[npt.NDArray[np.void], CaptureStats]:
+    """Decode a whole capture to a :data:`FRAME_DTYPE` array and the parser's counters.
+
+    Gives exactly the frames and counters of a :class:`Parser` fed the same bytes (in any
+    chunking) and then flushed, plus ``bad_before`` per frame (:class:`CaptureStats`).
+    hdr-bin is vectorised: every sync candidate's CRC is computed at once (table-driven, two
+    payload bytes per step); Python loops only over overlapping candidates. hdr-text uses the
+    push parser.
+    """
+    check_protocol(protocol)
+    st = CaptureStats()
+    if protocol == "hdr-text":
+        return _decode_text(data, st)
+    a = np.frombuffer(data, dtype=np.uint8)
+    n = a.shape[0]
+    if n < BIN_FRAME_LEN:
+        st.garbage_bytes = n
+        return np.empty(0, FRAME_DTYPE), st
+    top = n - 15  # a frame can start at 0 .. n - 16
+    slices = [(lo, min(lo + _SCAN_BYTES, top)) for lo in range(0, top, _SCAN_BYTES)]
+    valid, failed_parts, failed = _crc_valid(a, slices)
     keep = _drop_displaced(a, valid)
     v = valid if keep.all() else valid[keep]
     acc = v[_greedy_accept(v)]
@@ -213,13 +243,8 @@ def decode_capture(
         if failed_parts is not None:
             inv = np.sort(np.concatenate([*failed_parts, valid[~keep]]))
             _count_bad(inv, acc, counts)
-        else:  # pass 2, slice by slice: the failed candidates are those not in v
-            for lo, hi in slices:
-                inv = _candidates(a, lo, hi)
-                if v.shape[0]:
-                    at_v = np.minimum(np.searchsorted(v, inv), v.shape[0] - 1)
-                    inv = inv[v[at_v] != inv]
-                _count_bad(inv, acc, counts)
+        else:
+            _count_bad_again(a, slices, v, acc, counts)
         st.bad_frames = int(counts.sum())
         st.bad_before = np.cumsum(counts[: acc.shape[0]], dtype=np.int64)
     arr = _payload(a, acc)

@@ -188,6 +188,65 @@ def _header(lines: Iterator[str], label: str, delimiter: str) -> tuple[list[str]
     raise SourceCsvError(f"{label}: empty file, expected a header line naming the columns")
 
 
+def _rows(
+    lines: Iterator[str],
+    header_no: int,
+    width: int,
+    index: dict[str, int],
+    shown: dict[str, str],
+    label: str,
+    limits: ReadLimits,
+    delimiter: str = ",",
+) -> tuple[dict[str, array[float]], array[int] | None, array[int]]:
+    """The data rows after the header: each mapped column's values (8 bytes a cell), the
+    times as integers (None once one is not an integer) and each row's file line."""
+    cols = {c: array("d") for c in index}
+    t_int: array[int] | None = array("q")
+    line_nos = array("q")
+    reader = csv.reader(lines, delimiter=delimiter)
+    try:
+        for cells in reader:
+            line = header_no + reader.line_num
+            if not cells or (len(cells) == 1 and not cells[0].strip()):
+                continue
+            if len(line_nos) >= limits.max_rows:
+                raise SourceCsvError(
+                    f"{label}:{line}: more than the {limits.max_rows} rows a drive may "
+                    "have (--max-rows)"
+                )
+            if len(cells) != width:
+                raise SourceCsvError(f"{label}:{line}: {len(cells)} fields, the header has {width}")
+            line_nos.append(line)
+            for c, i in index.items():
+                text = cells[i].strip()
+                cols[c].append(parse_cell(text, label, line, shown[c]))
+            if t_int is not None:
+                ti = _integer(cells[index["t"]].strip())
+                if ti is None:
+                    t_int = None  # a time that is no integer: all are taken as decimals
+                else:
+                    t_int.append(ti)
+    except csv.Error as e:
+        raise SourceCsvError(
+            f"{label}:{header_no + reader.line_num}: not a CSV row ({e})"
+        ) from None
+    return cols, t_int, line_nos
+
+
+def _seconds(
+    t_src: npt.NDArray[np.float64], t_int: array[int] | None, scale: float
+) -> npt.NDArray[np.float64]:
+    """The times in seconds from the first row; integers are subtracted exactly before they
+    are scaled; an empty time stays empty (NaN: refused by the checks)."""
+    if t_int is not None:
+        ti64 = np.frombuffer(t_int, dtype=np.int64)
+        t_s = (ti64 - ti64[0]).astype(np.float64) * scale
+    else:
+        t_s = (t_src - t_src[0]) * scale
+    t_s[np.isnan(t_src)] = math.nan
+    return t_s
+
+
 def import_csv(
     path: str | os.PathLike[str],
     mapping: Mapping,
@@ -203,50 +262,13 @@ def import_csv(
         lines = text_lines(f, label)
         header, header_no = _header(lines, label, delimiter)
         index, shown = _index(header, mapping, label)
-        width = len(header)
-        cols = {c: array("d") for c in index}
-        t_int: array[int] | None = array("q")
-        line_nos = array("q")
-        reader = csv.reader(lines, delimiter=delimiter)
-        try:
-            for cells in reader:
-                line = header_no + reader.line_num
-                if not cells or (len(cells) == 1 and not cells[0].strip()):
-                    continue
-                if len(line_nos) >= limits.max_rows:
-                    raise SourceCsvError(
-                        f"{label}:{line}: more than the {limits.max_rows} rows a drive may "
-                        "have (--max-rows)"
-                    )
-                if len(cells) != width:
-                    raise SourceCsvError(
-                        f"{label}:{line}: {len(cells)} fields, the header has {width}"
-                    )
-                line_nos.append(line)
-                for c, i in index.items():
-                    text = cells[i].strip()
-                    cols[c].append(parse_cell(text, label, line, shown[c]))
-                if t_int is not None:
-                    ti = _integer(cells[index["t"]].strip())
-                    if ti is None:
-                        t_int = None  # a time that is no integer: all are taken as decimals
-                    else:
-                        t_int.append(ti)
-        except csv.Error as e:
-            raise SourceCsvError(
-                f"{label}:{header_no + reader.line_num}: not a CSV row ({e})"
-            ) from None
+        cols, t_int, line_nos = _rows(
+            lines, header_no, len(header), index, shown, label, limits, delimiter
+        )
     if not line_nos:
         raise SourceCsvError(f"{label}: no data rows")
     arrays = {c: np.frombuffer(v, dtype=np.float64).copy() for c, v in cols.items()}
-    t_src = arrays.pop("t")
-    scale = TIME_UNITS[mapping.time_unit]
-    if t_int is not None:  # integers: subtracted exactly before they are scaled
-        ti64 = np.frombuffer(t_int, dtype=np.int64)
-        t_s = (ti64 - ti64[0]).astype(np.float64) * scale
-    else:
-        t_s = (t_src - t_src[0]) * scale
-    t_s[np.isnan(t_src)] = math.nan  # an empty time stays empty: refused by the checks
+    t_s = _seconds(arrays.pop("t"), t_int, TIME_UNITS[mapping.time_unit])
     log = convert(arrays, t_s, mapping, lambda k: f"{label}:{line_nos[k]}", shown, limits)
     return DriveLog(
         t=log.t,

@@ -298,10 +298,9 @@ def text_lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
         yield line
 
 
-def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits) -> DriveLog:
+def _meta_and_header(lines: Iterator[str], label: str) -> tuple[dict[str, str], str, int]:
+    """The ``# key: value`` lines before the header, the header line and its line number."""
     meta: dict[str, str] = {}
-    lines = text_lines(f, label)
-    header_line = None
     lineno = 0
     for raw in lines:
         lineno += 1
@@ -315,10 +314,12 @@ def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits
             if v:
                 meta[k.strip()] = v.strip()
             continue
-        header_line = s
-        break
-    if header_line is None:
-        raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+        return meta, s, lineno
+    raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+
+
+def _header(header_line: str, label: str, lineno: int) -> list[str]:
+    """The column names of the header line, checked: known, the required ones, none twice."""
     try:
         header = [h.strip() for h in next(csv.reader([header_line]))]
     except csv.Error as e:
@@ -334,10 +335,17 @@ def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits
             raise DriveLogError(f"{label}:{lineno}: missing required column {r!r}")
     if len(set(header)) != len(header):
         raise DriveLogError(f"{label}:{lineno}: repeated column in header")
+    return header
+
+
+def _rows(
+    lines: Iterator[str], header: list[str], label: str, header_lineno: int, limits: ReadLimits
+) -> tuple[array[float], array[int]]:
+    """The data rows' values one after the other (8 bytes a cell) and each row's file line
+    (for error messages)."""
     width = len(header)
-    flat = array("d")  # the rows' values one after the other: 8 bytes a cell
-    row_lines = array("q")  # the file line of each data row, for error messages
-    header_lineno = lineno
+    flat = array("d")
+    row_lines = array("q")
     reader = csv.reader(lines)
     try:
         for row in reader:
@@ -364,7 +372,15 @@ def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits
         raise DriveLogError(
             f"{label}:{header_lineno + reader.line_num}: not a CSV row ({e})"
         ) from None
-    table = np.frombuffer(flat, dtype=np.float64).reshape(-1, width)
+    return flat, row_lines
+
+
+def _read(f: io.TextIOBase | BinaryIO, label: str, name: str, limits: ReadLimits) -> DriveLog:
+    lines = text_lines(f, label)
+    meta, header_line, header_lineno = _meta_and_header(lines, label)
+    header = _header(header_line, label, header_lineno)
+    flat, row_lines = _rows(lines, header, label, header_lineno, limits)
+    table = np.frombuffer(flat, dtype=np.float64).reshape(-1, len(header))
     arrays = {h: np.array(table[:, j]) for j, h in enumerate(header)}
     del table, flat
     if arrays["t"].shape[0] == 0:

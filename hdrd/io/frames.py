@@ -548,6 +548,9 @@ class Parser:
                     self._last_t = t_us
 
     def _feed_bin(self, chunk: bytes, final: bool = False) -> list[Frame]:
+        """Long because and Complex because it is the binary parser's hot path: one loop over
+        the buffer with its names bound to locals and :meth:`_track` copied inline, as a call
+        per frame would cost."""
         buf = self._buf + chunk if self._buf else chunk
         n = len(buf)
         find = buf.find

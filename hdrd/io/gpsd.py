@@ -376,17 +376,9 @@ def _report(cls: str, obj: Mapping[str, Any]) -> Report | None:
             device=_str(obj, "device"),
         )
     if cls == "VERSION":
-        return Version(
-            release=_str(obj, "release") or _str(obj, "version") or "",
-            rev=_str(obj, "rev"),
-            proto_major=_int(obj, "proto_major"),
-            proto_minor=_int(obj, "proto_minor"),
-        )
+        return _version(obj)
     if cls == "DEVICES":
-        devs = obj.get("devices", [])
-        if not isinstance(devs, list) or not all(isinstance(d, dict) for d in devs):
-            raise GpsdProtocolError("'devices' is not a list of objects")
-        return Devices(tuple(_device(d) for d in devs))
+        return _devices(obj)
     if cls == "DEVICE":
         return _device(obj)
     if cls == "WATCH":
@@ -394,6 +386,37 @@ def _report(cls: str, obj: Mapping[str, Any]) -> Report | None:
     if cls == "ERROR":
         return GpsdError(_str(obj, "message") or "")
     return None
+
+
+def _version(obj: Mapping[str, Any]) -> Version:
+    return Version(
+        release=_str(obj, "release") or _str(obj, "version") or "",
+        rev=_str(obj, "rev"),
+        proto_major=_int(obj, "proto_major"),
+        proto_minor=_int(obj, "proto_minor"),
+    )
+
+
+def _devices(obj: Mapping[str, Any]) -> Devices:
+    devs = obj.get("devices", [])
+    if not isinstance(devs, list) or not all(isinstance(d, dict) for d in devs):
+        raise GpsdProtocolError("'devices' is not a list of objects")
+    return Devices(tuple(_device(d) for d in devs))
+
+
+def _split_bracketed(text: str) -> tuple[str, str | None]:
+    """``[IPv6]`` or ``[IPv6]:PORT`` -> (host, port text or None when no port is given)."""
+    end = text.find("]")
+    if end < 0:
+        raise ValueError("'[' without ']'")
+    host, rest = text[1:end], text[end + 1 :]
+    if not host:
+        raise ValueError("empty host in []")
+    if not rest:
+        return host, None
+    if not rest.startswith(":"):
+        raise ValueError(f"unexpected {rest[:20]!r} after ']'")
+    return host, rest[1:]
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -410,16 +433,7 @@ def parse_address(text: str) -> tuple[str, int]:
         raise ValueError("an address has no spaces or control characters")
     host, port_s = text, None  # None: no port given
     if text.startswith("["):
-        end = text.find("]")
-        if end < 0:
-            raise ValueError("'[' without ']'")
-        host, rest = text[1:end], text[end + 1 :]
-        if not host:
-            raise ValueError("empty host in []")
-        if rest:
-            if not rest.startswith(":"):
-                raise ValueError(f"unexpected {rest[:20]!r} after ']'")
-            port_s = rest[1:]
+        host, port_s = _split_bracketed(text)
     elif text.count(":") == 1:
         host, _, port_s = text.partition(":")
         host = host or DEFAULT_HOST
@@ -587,27 +601,9 @@ class GpsdClient:
         """At most :data:`LINES_PER_POLL` complete lines, reading at most one chunk of
         :data:`READ_CHUNK` bytes, and only when fewer than a chunk's worth of bytes or no
         complete line is buffered (so the buffer stays under MAX_LINE + READ_CHUNK)."""
-        assert self._sock is not None
         buf = self._buf
-        if len(buf) < READ_CHUNK or buf.find(b"\n") < 0:
-            try:
-                chunk = self._sock.recv(READ_CHUNK)
-            except (BlockingIOError, InterruptedError):
-                chunk = None
-            except OSError as e:
-                self._fail(f"recv: {e.strerror or e}")
-                return []
-            if chunk is not None:
-                if not chunk:
-                    self._fail("gpsd closed the connection")
-                    return []
-                if self._skip_line:  # the rest of a line too long to keep
-                    nl = chunk.find(b"\n")
-                    if nl < 0:
-                        return []
-                    chunk = chunk[nl + 1 :]
-                    self._skip_line = False
-                buf += chunk
+        if (len(buf) < READ_CHUNK or buf.find(b"\n") < 0) and not self._receive():
+            return []
         lines: list[bytes] = []
         pos = 0
         while len(lines) < LINES_PER_POLL:
@@ -626,6 +622,29 @@ class GpsdClient:
             self._skip_line = True
         return lines
 
+    def _receive(self) -> bool:
+        """Read at most one chunk into the buffer, without the rest of a line too long to
+        keep; False when the connection failed or the chunk was all such a rest."""
+        assert self._sock is not None
+        try:
+            chunk = self._sock.recv(READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return True
+        except OSError as e:
+            self._fail(f"recv: {e.strerror or e}")
+            return False
+        if not chunk:
+            self._fail("gpsd closed the connection")
+            return False
+        if self._skip_line:  # the rest of a line too long to keep
+            nl = chunk.find(b"\n")
+            if nl < 0:
+                return False
+            chunk = chunk[nl + 1 :]
+            self._skip_line = False
+        self._buf += chunk
+        return True
+
     def _too_long(self) -> None:
         self.stats.bad_lines += 1
         self.stats.note(f"a line longer than {MAX_LINE} bytes dropped")
@@ -634,18 +653,8 @@ class GpsdClient:
         """The reports received since the last call, oldest first: at most
         :data:`LINES_PER_POLL` lines are parsed per call, the rest wait for the next ones.
         Never blocks, never raises (bad lines are counted in ``stats`` and skipped)."""
-        if self.closed:
+        if not self._ready():
             return []
-        if self._sock is None:
-            if self._clock() < self._next_try:
-                return []
-            self._start_connect()
-            if self._sock is None:
-                return []
-        if self._connecting:
-            self._check_connect()
-            if not self.connected:
-                return []
         out: list[Report] = []
         for raw in self._read():
             if not raw.strip():
@@ -657,22 +666,41 @@ class GpsdClient:
                 self.stats.bad_lines += 1
                 self.stats.note(f"bad line ({e}): {raw[:80]!r}")
                 continue
-            if rep is None:
-                continue
-            if isinstance(rep, Fix):
-                self.stats.fixes += 1
-            elif isinstance(rep, Version):
-                self.version = rep
-            elif isinstance(rep, Devices):
-                self.devices = rep
-            elif isinstance(rep, Sky):
-                self.sky = rep
-            elif isinstance(rep, Attitude):
-                self.attitude = rep
-            elif isinstance(rep, GpsdError):
-                self.stats.note(f"gpsd error: {rep.message}")
-            out.append(rep)
+            if rep is not None:
+                self._keep(rep)
+                out.append(rep)
         return out
+
+    def _ready(self) -> bool:
+        """Connected, after connecting when due; False while not (or closed)."""
+        if self.closed:
+            return False
+        if self._sock is None:
+            if self._clock() < self._next_try:
+                return False
+            self._start_connect()
+            if self._sock is None:
+                return False
+        if self._connecting:
+            self._check_connect()
+            if not self.connected:
+                return False
+        return True
+
+    def _keep(self, rep: Report) -> None:
+        """Count a fix; keep the latest version, devices, sky and attitude; note an error."""
+        if isinstance(rep, Fix):
+            self.stats.fixes += 1
+        elif isinstance(rep, Version):
+            self.version = rep
+        elif isinstance(rep, Devices):
+            self.devices = rep
+        elif isinstance(rep, Sky):
+            self.sky = rep
+        elif isinstance(rep, Attitude):
+            self.attitude = rep
+        elif isinstance(rep, GpsdError):
+            self.stats.note(f"gpsd error: {rep.message}")
 
     def poll(self) -> list[Fix]:
         """The fixes (TPV reports) received since the last call, oldest first."""

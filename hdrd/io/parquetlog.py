@@ -132,6 +132,16 @@ def _strings(meta: Any, label: str) -> dict[str, str]:
     return dict(meta)
 
 
+def _numeric(pa: Any, typ: Any) -> bool:
+    """Whether a column of this Arrow type reads as numbers (nulls read as NaN)."""
+    return bool(
+        pa.types.is_floating(typ)
+        or pa.types.is_integer(typ)
+        or pa.types.is_boolean(typ)
+        or pa.types.is_null(typ)
+    )
+
+
 def _columns(schema: Any, label: str) -> list[str]:
     """The drive-log columns of a file, checked as the CSV header is."""
     pa, _, _ = _pyarrow()
@@ -145,12 +155,7 @@ def _columns(schema: Any, label: str) -> list[str]:
                 f"{label}: unknown column {clipped(repr(n), 60)} (allowed: {', '.join(COLUMNS)})"
             )
         typ = schema.field(n).type
-        if not (
-            pa.types.is_floating(typ)
-            or pa.types.is_integer(typ)
-            or pa.types.is_boolean(typ)
-            or pa.types.is_null(typ)
-        ):
+        if not _numeric(pa, typ):
             raise DriveLogError(f"{label}: column {n} holds {clipped(str(typ), 60)}, not numbers")
     for r in REQUIRED:
         if r not in names:

@@ -26,6 +26,63 @@ DEFAULT_GPS = GpsModel()
 """1 Hz course, unusable below 2 m/s, no outages."""
 
 
+def _streams(seed: int) -> list[np.random.Generator]:
+    """Independent random streams of a seed: the route's, the temperature's, the GPS's and
+    the gyro's."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
+
+
+def _sensor_step(minutes: float, lead_in_s: float, hz: float, sensor_hz: float | None) -> int:
+    """The arguments of :func:`simulate_legs` checked; how many sensor samples a logged
+    sample stands for (1: the gyro is simulated at ``hz``)."""
+    if not (math.isfinite(minutes) and minutes >= 0):
+        raise ValueError(f"minutes must be >= 0, got {minutes!r}")
+    if not (math.isfinite(lead_in_s) and lead_in_s >= 0):
+        raise ValueError(f"lead_in_s must be >= 0, got {lead_in_s!r}")
+    if not (math.isfinite(hz) and hz > 0):
+        raise ValueError(f"hz must be > 0, got {hz!r}")
+    step = 1
+    if sensor_hz is not None and sensor_hz != hz:
+        ratio = sensor_hz / hz if math.isfinite(sensor_hz) else math.nan
+        step = round(ratio) if math.isfinite(ratio) else 0
+        if not (step >= 2 and abs(ratio - step) < 1e-9 * ratio):
+            raise ValueError(
+                f"sensor_hz must be a whole multiple of hz ({hz:g}), got {sensor_hz!r}"
+            )
+    return step
+
+
+def _metadata(
+    seed: int, minutes: float, lead_in_s: float, hz: float, step: int, heading0_deg: float
+) -> dict[str, str]:
+    """The metadata lines that say where the drive came from and how it was sampled."""
+    return {
+        "source": f"hdrd {__version__} simulate",
+        "seed": str(seed),
+        "minutes": f"{minutes:g}",
+        "lead_in_s": f"{lead_in_s:g}",
+        "hz": f"{hz:g}",
+        **({"sensor_hz": f"{hz * step:g}"} if step > 1 else {}),
+        "heading0_deg": f"{heading0_deg:.3f}",
+    }
+
+
+def _model_metadata(
+    legs: Sequence[tuple[RoadProfile, float]],
+    temperature: CabinTemperature,
+    model: GyroModel,
+    gps: GpsModel,
+) -> dict[str, str]:
+    """The metadata lines that say which route, cabin, gyro and GPS made the drive."""
+    return {
+        "legs": json.dumps([[p.name, f] for p, f in legs]),
+        "temperature": json.dumps(asdict(temperature)),
+        "gyro_model": json.dumps(model.to_dict()["effects"]),
+        "heading_truth": "GPS course at 1 Hz epochs only, empty between epochs and below "
+        f"{gps.min_speed_mps:g} m/s",
+    }
+
+
 def simulate_legs(
     legs: Sequence[tuple[RoadProfile, float]],
     minutes: float,
@@ -54,24 +111,9 @@ def simulate_legs(
     true heading (and so the GPS course) integrates the full-rate motion. None (or ``hz``):
     the gyro is simulated at ``hz``, its samples standing for the whole sample period.
     """
-    if not (math.isfinite(minutes) and minutes >= 0):
-        raise ValueError(f"minutes must be >= 0, got {minutes!r}")
-    if not (math.isfinite(lead_in_s) and lead_in_s >= 0):
-        raise ValueError(f"lead_in_s must be >= 0, got {lead_in_s!r}")
-    if not (math.isfinite(hz) and hz > 0):
-        raise ValueError(f"hz must be > 0, got {hz!r}")
-    step = 1
-    if sensor_hz is not None and sensor_hz != hz:
-        ratio = sensor_hz / hz if math.isfinite(sensor_hz) else math.nan
-        step = round(ratio) if math.isfinite(ratio) else 0
-        if not (step >= 2 and abs(ratio - step) < 1e-9 * ratio):
-            raise ValueError(
-                f"sensor_hz must be a whole multiple of hz ({hz:g}), got {sensor_hz!r}"
-            )
+    step = _sensor_step(minutes, lead_in_s, hz, sensor_hz)
     model = crs03_default_model() if model is None else model
-    route_ss, temp_ss, gps_ss, gyro_ss = np.random.SeedSequence(seed).spawn(4)
-    route_rng = np.random.default_rng(route_ss)
-    temp_rng = np.random.default_rng(temp_ss)
+    route_rng, temp_rng, gps_rng, gyro_rng = _streams(seed)
     if heading0_deg is None:
         heading0_deg = float(route_rng.uniform(0.0, 360.0))
     if temperature is None:
@@ -82,27 +124,14 @@ def simulate_legs(
         raise ValueError("the drive is shorter than two samples")
     temp = temperature.profile(t, lead_in_s, temp_rng)
     heading = heading_from_rate(t, motion.omega, heading0_deg)
-    omega = model.apply(t, motion.omega, temp, np.random.default_rng(gyro_ss), motion.speed)
+    omega = model.apply(t, motion.omega, temp, gyro_rng, motion.speed)
     omega_true, speed = motion.omega, motion.speed
     if step > 1:  # the log keeps point samples of the sensor's output
-        keep = slice(0, None, step)
-        t, temp, heading, omega = t[keep], temp[keep], heading[keep], omega[keep]
-        omega_true, speed = omega_true[keep], speed[keep]
-    truth = gps_course(t, heading, speed, np.random.default_rng(gps_ss), gps)
-    info = {
-        "source": f"hdrd {__version__} simulate",
-        "seed": str(seed),
-        "minutes": f"{minutes:g}",
-        "lead_in_s": f"{lead_in_s:g}",
-        "hz": f"{hz:g}",
-        **({"sensor_hz": f"{hz * step:g}"} if step > 1 else {}),
-        "heading0_deg": f"{heading0_deg:.3f}",
-        "legs": json.dumps([[p.name, f] for p, f in legs]),
-        "temperature": json.dumps(asdict(temperature)),
-        "gyro_model": json.dumps(model.to_dict()["effects"]),
-        "heading_truth": "GPS course at 1 Hz epochs only, empty between epochs and below "
-        f"{gps.min_speed_mps:g} m/s",
-    }
+        kept = [a[::step] for a in (t, temp, heading, omega, omega_true, speed)]
+        t, temp, heading, omega, omega_true, speed = kept
+    truth = gps_course(t, heading, speed, gps_rng, gps)
+    info = _metadata(seed, minutes, lead_in_s, hz, step, heading0_deg)
+    info.update(_model_metadata(legs, temperature, model, gps))
     info.update(meta or {})
     return DriveLog(
         t=t,

@@ -214,101 +214,119 @@ def _adev_excess_init(
 
 def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
     """Fitted models of the current model plus effect ``name`` (one per variant)."""
+    if name == "bandwidth":  # the cutoff is fitted by Fitter.full (at rest)
+        m = cur.model.with_effect(Bandwidth(cutoff_hz=0.25 * f.data.fs_hz))
+        return [f.full(m, quad=cur.quad, extra_var=cur.noise.extra_var)]
+    if name in NOISE_EFFECTS:
+        return _noise_fits(f, cur, name)
+    fits: list[Fit] = []
+    for m, quad in _variants(f, cur, name):
+        m = f.fit_det(m, cur.noise, quad)
+        fits.append(f.finish(m, cur.noise, quad))
+    return fits
+
+
+def _noise_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
+    """:func:`_candidate_fits` for a noise effect."""
     data = f.data
     model = cur.model
     noise = cur.noise
-    e_bar = f.ebar - cur.dbar
-    fits: list[Fit] = []
-    if name == "bandwidth":  # the cutoff is fitted by Fitter.full (at rest)
-        m = model.with_effect(Bandwidth(cutoff_hz=0.25 * data.fs_hz))
-        return [f.full(m, quad=cur.quad, extra_var=noise.extra_var)]
-    if name in NOISE_EFFECTS:
-        e = data.omega - data.truth_filled - cur.d
-        if name == "white_noise":
-            m = model.with_effect(WhiteNoise(density_dps_per_rthz=0.05))
-            return [f.full(m, quad=cur.quad, extra_var=noise.extra_var, rounds=1)]
-        if name == "quantization":
-            assert data.lattice is not None
-            m = model.with_effect(Quantization(step_dps=data.lattice.step_dps))
-            nz = replace(noise, q_step=data.lattice.step_dps)
-            return [f.finish(m, nz, cur.quad)]
-        if name == "bias_instability":
-            s0, tc0 = _adev_excess_init(data, e, noise.white_var, name)
-            nz = f.fit_noise(
-                model, replace(noise, bi_sigma=s0, bi_tau=tc0), cur.dbar, ["bi_sigma", "bi_tau"]
-            )
-            m = model.with_effect(BiasInstability(sigma_dps=nz.bi_sigma, tau_s=nz.bi_tau))
-        else:
-            k0, _ = _adev_excess_init(data, e, noise.white_var, name)
-            nz = f.fit_noise(model, replace(noise, rrw_k=k0), cur.dbar, ["rrw_k"])
-            m = model.with_effect(RateRandomWalk(k_dps_per_sqrt_s=nz.rrw_k))
-        m = f.fit_det(m, nz, cur.quad)
-        first = f.finish(m, nz, cur.quad)
-        if any(s in model for s in SLOW_NOISE):
-            # Another slow process is in already: refit them all jointly (a random walk that
-            # took over a Gauss-Markov bias's block-to-block changes gives some back).
-            return [first, f.full(first.model, quad=cur.quad, extra_var=nz.extra_var)]
-        return [first]
+    e = data.omega - data.truth_filled - cur.d
+    if name == "white_noise":
+        m = model.with_effect(WhiteNoise(density_dps_per_rthz=0.05))
+        return [f.full(m, quad=cur.quad, extra_var=noise.extra_var, rounds=1)]
+    if name == "quantization":
+        assert data.lattice is not None
+        m = model.with_effect(Quantization(step_dps=data.lattice.step_dps))
+        nz = replace(noise, q_step=data.lattice.step_dps)
+        return [f.finish(m, nz, cur.quad)]
+    if name == "bias_instability":
+        s0, tc0 = _adev_excess_init(data, e, noise.white_var, name)
+        nz = f.fit_noise(
+            model, replace(noise, bi_sigma=s0, bi_tau=tc0), cur.dbar, ["bi_sigma", "bi_tau"]
+        )
+        m = model.with_effect(BiasInstability(sigma_dps=nz.bi_sigma, tau_s=nz.bi_tau))
+    else:
+        k0, _ = _adev_excess_init(data, e, noise.white_var, name)
+        nz = f.fit_noise(model, replace(noise, rrw_k=k0), cur.dbar, ["rrw_k"])
+        m = model.with_effect(RateRandomWalk(k_dps_per_sqrt_s=nz.rrw_k))
+    m = f.fit_det(m, nz, cur.quad)
+    first = f.finish(m, nz, cur.quad)
+    if any(s in model for s in SLOW_NOISE):
+        # Another slow process is in already: refit them all jointly (a random walk that
+        # took over a Gauss-Markov bias's block-to-block changes gives some back).
+        return [first, f.full(first.model, quad=cur.quad, extra_var=nz.extra_var)]
+    return [first]
 
-    wh = Whitener(data, noise)
+
+def _variants(f: Fitter, cur: Fit, name: str) -> list[tuple[GyroModel, bool]]:
+    """The starting models (with whether the fit has a quadratic term) of a deterministic
+    effect added to the current model."""
+    data = f.data
+    model = cur.model
+    e_bar = f.ebar - cur.dbar
+    wh = Whitener(data, cur.noise)
     if name == "static_bias":
-        variants = [(model.with_effect(StaticBias(bias_dps=float(np.mean(e_bar)))), cur.quad)]
-    elif name == "motion_offset":
-        variants = [(model.with_effect(MotionOffset(offset_dps=0.0)), cur.quad)]
-    elif name == "scale_factor":
-        variants = [(model.with_effect(ScaleFactor(error=0.0)), cur.quad)]
-    elif name == "scale_asymmetry":
-        variants = [(model.with_effect(ScaleAsymmetry(pos_error=0.0, neg_error=0.0)), cur.quad)]
-    elif name == "temperature_bias":
-        # Reference where the curve's slope equals the straight line's least-squares slope
-        # over the log: for c (T - r) + q (T - r)**2 that line's slope is
-        # c + q (2 (m - r) + mu3 / var), m, var, mu3 the temperatures' mean, variance and
-        # third central moment, so r = m + mu3 / (2 var). coeff is then what a user fitting a
-        # line to rate against temperature gets, whatever a (possibly spurious) quadratic term
-        # does; without skew r is the mean temperature.
-        assert data.temp_c is not None
-        tv = data.temp_c[data.valid]
-        tmean, tvar = float(np.mean(tv)), float(np.var(tv))
-        mu3 = float(np.mean((tv - tmean) ** 3))
-        ref = round(tmean + (mu3 / (2.0 * tvar) if tvar > 0 else 0.0), 1)
+        return [(model.with_effect(StaticBias(bias_dps=float(np.mean(e_bar)))), cur.quad)]
+    if name == "motion_offset":
+        return [(model.with_effect(MotionOffset(offset_dps=0.0)), cur.quad)]
+    if name == "scale_factor":
+        return [(model.with_effect(ScaleFactor(error=0.0)), cur.quad)]
+    if name == "scale_asymmetry":
+        return [(model.with_effect(ScaleAsymmetry(pos_error=0.0, neg_error=0.0)), cur.quad)]
+    if name == "temperature_bias":
+        ref = _temperature_ref(data)
         tb = TemperatureBias(coeff_dps_per_c=0.0, ref_temp_c=ref, quad_dps_per_c2=0.0)
-        variants = [
+        return [
             (model.with_effect(tb), False),
             (model.with_effect(replace(tb, quad_dps_per_c2=1e-6)), True),
         ]
-    elif name == "saturation":
-        variants = [
-            (model.with_effect(Saturation(limit_dps=clipping_rail(data) or 200.0)), cur.quad)
-        ]
-    elif name == "time_offset":
+    if name == "saturation":
+        return [(model.with_effect(Saturation(limit_dps=clipping_rail(data) or 200.0)), cur.quad)]
+    if name == "time_offset":
         # Start from the linear lag regression: e ~ -delay * d(truth)/dt.
         der = data.block_mean(np.gradient(data.truth_filled, data.t))
         wx, wy = wh.whiten(-der), wh.whiten(e_bar)
         d0 = float(np.dot(wx, wy) / max(np.dot(wx, wx), 1e-30))
         d0 = min(max(d0, -DELAY_MAX_S), DELAY_MAX_S)
-        variants = [(model.with_effect(TimeOffset(delay_s=d0)), cur.quad)]
-    elif name == "warmup_transient":
-        # Grid over tau with the amplitude (and a constant) by whitened least squares.
-        wy = wh.whiten(e_bar)
-        one = wh.whiten(np.ones_like(e_bar))
-        best = (math.inf, 0.0, 60.0)
-        lo, hi = f.tau_bounds
-        for tau in np.logspace(math.log10(lo), math.log10(hi), 16):
-            x = wh.whiten(data.block_mean(np.exp(-data.t / tau)))
-            a = np.vstack([x, one]).T
-            coef, *_ = np.linalg.lstsq(a, wy, rcond=None)
-            sse = float(np.sum((wy - a @ coef) ** 2))
-            if sse < best[0]:
-                best = (sse, float(coef[0]), float(tau))
-        variants = [
-            (model.with_effect(WarmupTransient(amplitude_dps=best[1], tau_s=best[2])), cur.quad)
-        ]
-    else:  # pragma: no cover - CANDIDATES and this function are kept in step
-        raise ValueError(f"no fitting rule for {name}")
-    for m, quad in variants:
-        m = f.fit_det(m, noise, quad)
-        fits.append(f.finish(m, noise, quad))
-    return fits
+        return [(model.with_effect(TimeOffset(delay_s=d0)), cur.quad)]
+    if name == "warmup_transient":
+        amplitude, tau = _warmup_init(f, wh, e_bar)
+        return [(model.with_effect(WarmupTransient(amplitude_dps=amplitude, tau_s=tau)), cur.quad)]
+    # CANDIDATES and this function are kept in step.
+    raise ValueError(f"no fitting rule for {name}")  # pragma: no cover
+
+
+def _temperature_ref(data: GapData) -> float:
+    """The temperature bias's reference, deg C: where the curve's slope equals the straight
+    line's least-squares slope over the log. For c (T - r) + q (T - r)**2 that line's slope
+    is c + q (2 (m - r) + mu3 / var), m, var, mu3 the temperatures' mean, variance and third
+    central moment, so r = m + mu3 / (2 var). coeff is then what a user fitting a line to
+    rate against temperature gets, whatever a (possibly spurious) quadratic term does;
+    without skew r is the mean temperature."""
+    assert data.temp_c is not None
+    tv = data.temp_c[data.valid]
+    tmean, tvar = float(np.mean(tv)), float(np.var(tv))
+    mu3 = float(np.mean((tv - tmean) ** 3))
+    return round(tmean + (mu3 / (2.0 * tvar) if tvar > 0 else 0.0), 1)
+
+
+def _warmup_init(f: Fitter, wh: Whitener, e_bar: FloatArray) -> tuple[float, float]:
+    """A warm-up transient's start (amplitude deg/s, tau s): a grid over tau with the
+    amplitude (and a constant) by whitened least squares."""
+    data = f.data
+    wy = wh.whiten(e_bar)
+    one = wh.whiten(np.ones_like(e_bar))
+    best = (math.inf, 0.0, 60.0)
+    lo, hi = f.tau_bounds
+    for tau in np.logspace(math.log10(lo), math.log10(hi), 16):
+        x = wh.whiten(data.block_mean(np.exp(-data.t / tau)))
+        a = np.vstack([x, one]).T
+        coef, *_ = np.linalg.lstsq(a, wy, rcond=None)
+        sse = float(np.sum((wy - a @ coef) ** 2))
+        if sse < best[0]:
+            best = (sse, float(coef[0]), float(tau))
+    return best[1], best[2]
 
 
 def evaluate_candidate(f: Fitter, cur: Fit, name: str) -> Candidate:

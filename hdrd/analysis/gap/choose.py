@@ -101,26 +101,35 @@ def rank(f: Fitter, cur: Fit, sig: list[Candidate]) -> tuple[list[Candidate], di
     beyond: dict[str, Beyond] = {}
     det_ok = det
     if det and slow:
-        model = cur.model
-        for c in slow:
-            e = c.fit.model.get(c.name)
-            if e is not None:
-                model = model.with_effect(e)
-        bg = f.full(model, quad=cur.quad, extra_var=cur.noise.extra_var)
-        names = tuple(c.name for c in slow)
-        det_ok = []
-        for c in det:
-            e = c.fit.model.get(c.name)
-            if e is None:
-                continue
-            both = f.full(bg.model.with_effect(e), quad=c.fit.quad, extra_var=bg.noise.extra_var)
-            dlnl = both.lnl - bg.lnl
-            p = chi2_sf(2.0 * dlnl, max(both.k - bg.k, 1)) if dlnl > 0 else 1.0
-            beyond[c.name] = Beyond(background=names, delta_bic=both.bic - bg.bic, p_value=p)
-            if beyond[c.name].holds:
-                det_ok.append(c)
+        det_ok = _beyond_slow_noise(f, cur, det, slow, beyond)
     others = [c for c in sig if c.name not in DETERMINISTIC]
     return _prefer_special(det_ok) + _prefer_special(others), beyond
+
+
+def _beyond_slow_noise(
+    f: Fitter, cur: Fit, det: list[Candidate], slow: list[Candidate], beyond: dict[str, Beyond]
+) -> list[Candidate]:
+    """The deterministic candidates that still hold with every significant slow random
+    process in the model, all jointly refitted; each one's test is put in ``beyond``."""
+    model = cur.model
+    for c in slow:
+        e = c.fit.model.get(c.name)
+        if e is not None:
+            model = model.with_effect(e)
+    bg = f.full(model, quad=cur.quad, extra_var=cur.noise.extra_var)
+    names = tuple(c.name for c in slow)
+    det_ok = []
+    for c in det:
+        e = c.fit.model.get(c.name)
+        if e is None:
+            continue
+        both = f.full(bg.model.with_effect(e), quad=c.fit.quad, extra_var=bg.noise.extra_var)
+        dlnl = both.lnl - bg.lnl
+        p = chi2_sf(2.0 * dlnl, max(both.k - bg.k, 1)) if dlnl > 0 else 1.0
+        beyond[c.name] = Beyond(background=names, delta_bic=both.bic - bg.bic, p_value=p)
+        if beyond[c.name].holds:
+            det_ok.append(c)
+    return det_ok
 
 
 def _slow_gm(a: Candidate, duration_s: float) -> bool:

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -227,6 +228,197 @@ def excluded_samples(log: DriveLog, exclude: Sequence[tuple[float, float]] = ())
     return out
 
 
+@dataclass(frozen=True)
+class _Truth:
+    """The true rate of every sample (deg/s, + = CCW; NaN unknown), where it comes from and,
+    with a heading truth, the heading (compass deg), its fixes' rows, the first fix's time and
+    the median time between fixes (s)."""
+
+    rate: FloatArray
+    source: str
+    heading: FloatArray | None = None
+    fixes: IntArray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    origin: float = 0.0
+    fix_dt: float = 1.0
+
+
+def _truth(log: DriveLog, t: FloatArray, standstill: bool) -> _Truth:
+    """The log's truth: ``omega_truth`` where it has values, else the derivative of
+    ``heading_truth``, else zero when ``standstill``; GapError when there is none."""
+    n = len(log)
+    if log.omega_truth is not None and np.isfinite(log.omega_truth).any():
+        truth = _Truth(np.asarray(log.omega_truth, dtype=np.float64), "omega_truth")
+    elif log.heading_truth is not None and np.isfinite(log.heading_truth).sum() > 2:
+        heading = np.asarray(log.heading_truth, dtype=np.float64)
+        fixes = _fixes(t, heading)
+        truth = _Truth(
+            truth_rate_from_heading(t, heading),
+            "heading_truth",
+            heading,
+            fixes,
+            float(t[fixes[0]]),
+            float(np.median(np.diff(t[fixes]))) if fixes.shape[0] > 1 else 1.0,
+        )
+    elif standstill:
+        truth = _Truth(np.zeros(n), "standstill")
+    else:
+        raise GapError(
+            "the log has no truth: it needs an omega_truth or heading_truth column, "
+            "or --standstill for a log taken at rest"
+        )
+    if standstill and truth.source != "standstill":
+        truth = replace(truth, source=truth.source + " (--standstill ignored: the log has truth)")
+    return truth
+
+
+def _filled_temp(log: DriveLog, idx: IntArray) -> FloatArray | None:
+    """The temperature column with its gaps interpolated; None without one."""
+    if log.temp_c is None or not np.isfinite(log.temp_c).any():
+        return None
+    tc = np.asarray(log.temp_c, dtype=np.float64)
+    ok = np.isfinite(tc)
+    return tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
+
+
+def _block_size(block_s: float | None, t: FloatArray, dt: float, truth: _Truth) -> float:
+    """The block length, s: as asked, else by the log's length and truth (whole fix intervals
+    with a heading truth); GapError when shorter than a sample period."""
+    if block_s is not None:
+        bs = float(block_s)
+    else:
+        bs = _block_length(float(t[-1]), truth.source)
+        if truth.heading is not None:
+            bs *= max(1.0, round(truth.fix_dt))  # whole fix intervals
+    if not (math.isfinite(bs) and bs >= dt):
+        raise GapError(f"block length {bs!r} s is shorter than the sample period {dt:g} s")
+    return bs
+
+
+@dataclass
+class _Blocks:
+    """The block grid of :class:`GapData` (its fields of the same names) while it is made;
+    ``wsum`` and ``w2``: each block's sum of weights and of squared weights, ``btruth_full``
+    each block's true rate from the heading (NaN without)."""
+
+    nblocks: int
+    blk: IntArray
+    inside: BoolArray
+    bvalid: BoolArray
+    wprim: FloatArray
+    block_prev: IntArray
+    btruth_full: FloatArray
+    block_of: IntArray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+    wsum: npt.NDArray[Any] = field(default_factory=lambda: np.empty(0))
+    w2: npt.NDArray[Any] = field(default_factory=lambda: np.empty(0))
+
+
+def _blocks(t: FloatArray, dt: float, bs: float, truth: _Truth, valid: BoolArray) -> _Blocks:
+    """The blocks of ``bs`` seconds from the truth's origin: which are used (complete, with
+    truth; GapError when fewer than 20 are, or the log covers fewer than 20), each sample's
+    block and weight."""
+    n = t.shape[0]
+    origin = truth.origin
+    nblocks = math.floor((t[-1] - origin + dt) / bs + 1e-9)
+    if nblocks < 20:
+        raise GapError(
+            f"the log covers {nblocks} blocks of {bs:g} s; the workflow needs at least 20 "
+            f"(a log of {20 * bs:g} s or more)"
+        )
+    # Sample i covers [t_i, t_i + dt); half a sample of margin absorbs float jitter.
+    blk = np.floor((t - origin + 0.5 * dt) / bs - 1e-9).astype(np.int64)
+    inside = (blk >= 0) & (blk < nblocks)
+    bi = np.where(inside, blk, nblocks)  # nblocks: a bin for "outside"
+    total = np.bincount(bi, minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    good = np.bincount(bi[valid], minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    b = _Blocks(
+        nblocks=nblocks,
+        blk=blk,
+        inside=inside,
+        bvalid=(good >= 0.8 * bs * (1.0 / dt)) & (good == total),
+        wprim=np.ones(n),
+        block_prev=np.full(n, -1, dtype=np.int64),
+        btruth_full=np.full(nblocks, np.nan),
+    )
+    if truth.heading is not None:
+        _heading_blocks(b, t, truth.heading, truth.fixes, valid)
+    bvalid = b.bvalid
+    b.block_of = np.where(inside & valid & bvalid[np.clip(blk, 0, nblocks - 1)], blk, -1)
+    b.block_prev = np.where(
+        (b.block_prev >= 0) & bvalid[np.clip(b.block_prev, 0, nblocks - 1)], b.block_prev, -1
+    )
+    _block_weights(b)
+    if bvalid.sum() < 20:
+        raise GapError(
+            f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
+        )
+    return b
+
+
+def _heading_blocks(
+    b: _Blocks, t: FloatArray, heading: FloatArray, fixes: IntArray, valid: BoolArray
+) -> None:
+    """With a heading truth: each block must start on a fix and end on the next block's first
+    row, also a fix; its true rate is the heading change between them. Sets ``btruth_full``,
+    the fix rows' weights (half in each of the two blocks they close and open) and drops the
+    blocks whose edges are not fixes."""
+    n, nblocks, blk, bvalid = t.shape[0], b.nblocks, b.blk, b.bvalid
+    is_fix = np.zeros(n, dtype=bool)
+    is_fix[fixes] = True
+    first = np.full(nblocks + 1, -1, dtype=np.int64)
+    rows = np.flatnonzero(b.inside)
+    first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
+    first[blk[first_rows]] = first_rows
+    after = np.flatnonzero(blk == nblocks)
+    if after.shape[0]:
+        first[nblocks] = after[0]
+    hu = np.full(n, np.nan)  # heading unwrapped along the fixes, deg
+    dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
+    hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
+    for k in range(nblocks):
+        a, e = first[k], first[k + 1]
+        edge_ok = (
+            a >= 0
+            and e >= 0
+            and is_fix[a]
+            and is_fix[e]
+            and bool(valid[a:e].all())
+            and bool(valid[e])
+        )
+        if edge_ok and bvalid[k]:
+            b.btruth_full[k] = -(hu[e] - hu[a]) / (t[e] - t[a])  # CW heading -> CCW rate
+            b.wprim[a] = 0.5
+            if k > 0:
+                b.block_prev[a] = k - 1
+        else:
+            bvalid[k] = False
+    # The half-row that closes block k is the first row of block k + 1: give it to k even
+    # when block k + 1 itself is not used.
+    for kk in np.flatnonzero(bvalid).tolist():
+        e = first[kk + 1]
+        if e >= 0 and b.block_prev[e] < 0:
+            b.block_prev[e] = kk
+
+
+def _block_weights(b: _Blocks) -> None:
+    """Each block's sum of weights and of squared weights (a fix row's half counted in the
+    block it closes too)."""
+    block_of, block_prev, wprim, nblocks = b.block_of, b.block_prev, b.wprim, b.nblocks
+    wsum = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0], minlength=nblocks)
+    w2 = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0] ** 2, minlength=nblocks)
+    if (block_prev >= 0).any():
+        wsum += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.5),
+            minlength=nblocks,
+        )
+        w2 += np.bincount(
+            block_prev[block_prev >= 0],
+            weights=np.full(int((block_prev >= 0).sum()), 0.25),
+            minlength=nblocks,
+        )
+    b.wsum, b.w2 = wsum, w2
+
+
 def prepare(
     log: DriveLog,
     standstill: bool = False,
@@ -242,30 +434,51 @@ def prepare(
         raise GapError(f"the log has {n} samples; the workflow needs at least 100")
     t = np.asarray(log.t - log.t[0], dtype=np.float64)
     omega = np.asarray(log.omega, dtype=np.float64)
-    origin, fix_dt = 0.0, 1.0
-    fixes = np.empty(0, dtype=np.int64)
-    heading = None
-    if log.omega_truth is not None and np.isfinite(log.omega_truth).any():
-        truth = np.asarray(log.omega_truth, dtype=np.float64)
-        source = "omega_truth"
-    elif log.heading_truth is not None and np.isfinite(log.heading_truth).sum() > 2:
-        heading = np.asarray(log.heading_truth, dtype=np.float64)
-        truth = truth_rate_from_heading(t, heading)
-        source = "heading_truth"
-        fixes = _fixes(t, heading)
-        origin = float(t[fixes[0]])
-        fix_dt = float(np.median(np.diff(t[fixes]))) if fixes.shape[0] > 1 else 1.0
-    elif standstill:
-        truth = np.zeros(n)
-        source = "standstill"
-    else:
-        raise GapError(
-            "the log has no truth: it needs an omega_truth or heading_truth column, "
-            "or --standstill for a log taken at rest"
-        )
-    if standstill and source != "standstill":
-        source += " (--standstill ignored: the log has truth)"
+    tr = _truth(log, t, standstill)
     excluded = excluded_samples(log, exclude)
+    truth = _counted_truth(tr.rate, excluded)
+    valid = np.isfinite(truth)
+    idx = np.arange(n)
+    truth_filled = np.interp(idx, idx[valid], truth[valid])
+    dt = float(np.median(np.diff(t)))
+    bs = _block_size(block_s, t, dt, tr)
+    b = _blocks(t, dt, bs, tr, valid)
+    res = _resolution(log, omega)
+    data = GapData(
+        t=t,
+        omega=omega,
+        truth=truth,
+        truth_filled=truth_filled,
+        temp_c=_filled_temp(log, idx),
+        valid=valid,
+        excluded=excluded,
+        time_gap=np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt)),
+        truth_source=tr.source,
+        fs_hz=1.0 / dt,
+        block_s=bs,
+        block_t0=tr.origin,
+        nblocks=b.nblocks,
+        block_of=b.block_of,
+        wprim=b.wprim,
+        block_prev=b.block_prev,
+        bvalid=b.bvalid,
+        bweight=np.where(b.wsum > 0, b.wsum, 1.0),
+        bneff=np.where(b.w2 > 0, b.wsum**2 / np.where(b.w2 > 0, b.w2, 1.0), 1.0),
+        bt=np.asarray(tr.origin + (np.arange(b.nblocks) + 0.5) * bs),
+        btruth=np.empty(0),
+        resolution_dps=res,
+        lattice=detect_lattice(omega[~excluded], res),  # the sensor's values while they count
+        name=log.name,
+        speed=None if log.speed is None else np.asarray(log.speed, dtype=np.float64),
+    )
+    heading_mode = tr.heading is not None
+    bt_used = b.btruth_full[b.bvalid] if heading_mode else data.block_mean(truth_filled)
+    return replace(data, btruth=bt_used)
+
+
+def _counted_truth(truth: FloatArray, excluded: BoolArray) -> FloatArray:
+    """The true rate unknown (NaN) at the excluded samples; GapError when every sample is
+    excluded or fewer than 100 have a known true rate."""
     if excluded.all():
         raise GapError("every sample is excluded (valid = 0 or inside an excluded period)")
     if excluded.any():
@@ -273,131 +486,14 @@ def prepare(
     valid = np.isfinite(truth)
     if valid.sum() < 100:
         raise GapError(f"only {int(valid.sum())} samples have a known true rate; need >= 100")
-    idx = np.arange(n)
-    truth_filled = np.interp(idx, idx[valid], truth[valid])
-    temp = None
-    if log.temp_c is not None and np.isfinite(log.temp_c).any():
-        tc = np.asarray(log.temp_c, dtype=np.float64)
-        ok = np.isfinite(tc)
-        temp = tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
-    dt = float(np.median(np.diff(t)))
-    fs = 1.0 / dt
-    time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
-    if block_s is not None:
-        bs = float(block_s)
-    else:
-        bs = _block_length(float(t[-1]), source)
-        if heading is not None:
-            bs *= max(1.0, round(fix_dt))  # whole fix intervals
-    if not (math.isfinite(bs) and bs >= dt):
-        raise GapError(f"block length {bs!r} s is shorter than the sample period {dt:g} s")
-    nblocks = math.floor((t[-1] - origin + dt) / bs + 1e-9)
-    if nblocks < 20:
-        raise GapError(
-            f"the log covers {nblocks} blocks of {bs:g} s; the workflow needs at least 20 "
-            f"(a log of {20 * bs:g} s or more)"
-        )
-    # Sample i covers [t_i, t_i + dt); half a sample of margin absorbs float jitter.
-    blk = np.floor((t - origin + 0.5 * dt) / bs - 1e-9).astype(np.int64)
-    inside = (blk >= 0) & (blk < nblocks)
-    bi = np.where(inside, blk, nblocks)  # nblocks: a bin for "outside"
-    total = np.bincount(bi, minlength=nblocks + 1)[:nblocks].astype(np.float64)
-    good = np.bincount(bi[valid], minlength=nblocks + 1)[:nblocks].astype(np.float64)
-    bvalid = (good >= 0.8 * bs * fs) & (good == total)
-    wprim = np.ones(n)
-    block_prev = np.full(n, -1, dtype=np.int64)
-    btruth_full = np.full(nblocks, np.nan)
-    if heading is not None:
-        # Each block must start on a fix and end on the next block's first row, also a fix.
-        is_fix = np.zeros(n, dtype=bool)
-        is_fix[fixes] = True
-        first = np.full(nblocks + 1, -1, dtype=np.int64)
-        rows = np.flatnonzero(inside)
-        first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
-        first[blk[first_rows]] = first_rows
-        after = np.flatnonzero(blk == nblocks)
-        if after.shape[0]:
-            first[nblocks] = after[0]
-        hu = np.full(n, np.nan)  # heading unwrapped along the fixes, deg
-        dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
-        hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
-        for k in range(nblocks):
-            a, b = first[k], first[k + 1]
-            edge_ok = (
-                a >= 0
-                and b >= 0
-                and is_fix[a]
-                and is_fix[b]
-                and bool(valid[a:b].all())
-                and bool(valid[b])
-            )
-            if edge_ok and bvalid[k]:
-                btruth_full[k] = -(hu[b] - hu[a]) / (t[b] - t[a])  # CW heading -> CCW rate
-                wprim[a] = 0.5
-                if k > 0:
-                    block_prev[a] = k - 1
-            else:
-                bvalid[k] = False
-        # The half-row that closes block k is the first row of block k + 1: give it to k even
-        # when block k + 1 itself is not used.
-        for kk in np.flatnonzero(bvalid).tolist():
-            b = first[kk + 1]
-            if b >= 0 and block_prev[b] < 0:
-                block_prev[b] = kk
-    block_of = np.where(inside & valid & bvalid[np.clip(blk, 0, nblocks - 1)], blk, -1)
-    block_prev = np.where(
-        (block_prev >= 0) & bvalid[np.clip(block_prev, 0, nblocks - 1)], block_prev, -1
-    )
-    wsum = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0], minlength=nblocks)
-    w2 = np.bincount(block_of[block_of >= 0], weights=wprim[block_of >= 0] ** 2, minlength=nblocks)
-    if (block_prev >= 0).any():
-        wsum += np.bincount(
-            block_prev[block_prev >= 0],
-            weights=np.full(int((block_prev >= 0).sum()), 0.5),
-            minlength=nblocks,
-        )
-        w2 += np.bincount(
-            block_prev[block_prev >= 0],
-            weights=np.full(int((block_prev >= 0).sum()), 0.25),
-            minlength=nblocks,
-        )
-    if bvalid.sum() < 20:
-        raise GapError(
-            f"only {int(bvalid.sum())} blocks of {bs:g} s have a complete true rate; need >= 20"
-        )
-    # The writer's resolution for rates: omega's own digits can look coarse when its values
-    # sit on a round ADC lattice (0.05 deg/s values are all multiples of 0.01), so the true
-    # rate column, written alike, is consulted too.
+    return truth
+
+
+def _resolution(log: DriveLog, omega: FloatArray) -> float:
+    """The writer's resolution for rates, deg/s: omega's own digits can look coarse when its
+    values sit on a round ADC lattice (0.05 deg/s values are all multiples of 0.01), so the
+    true rate column, written alike, is consulted too."""
     res = decimal_resolution(omega)
     if log.omega_truth is not None:
         res = min(res, decimal_resolution(log.omega_truth))
-    kept = omega[~excluded]  # what the sensor gave while it counted (no handling)
-    data = GapData(
-        t=t,
-        omega=omega,
-        truth=truth,
-        truth_filled=truth_filled,
-        temp_c=temp,
-        valid=valid,
-        excluded=excluded,
-        time_gap=time_gap,
-        truth_source=source,
-        fs_hz=fs,
-        block_s=bs,
-        block_t0=origin,
-        nblocks=nblocks,
-        block_of=block_of,
-        wprim=wprim,
-        block_prev=block_prev,
-        bvalid=bvalid,
-        bweight=np.where(wsum > 0, wsum, 1.0),
-        bneff=np.where(w2 > 0, wsum**2 / np.where(w2 > 0, w2, 1.0), 1.0),
-        bt=origin + (np.arange(nblocks) + 0.5) * bs,
-        btruth=np.empty(0),
-        resolution_dps=res,
-        lattice=detect_lattice(kept, res),
-        name=log.name,
-        speed=None if log.speed is None else np.asarray(log.speed, dtype=np.float64),
-    )
-    bt_used = btruth_full[bvalid] if heading is not None else data.block_mean(truth_filled)
-    return replace(data, btruth=bt_used)
+    return res

@@ -197,6 +197,16 @@ def where_phrase(
     was not chosen (``rows``: the step's candidates; ``skip``: the effects not identifiable;
     ``rejected``: those that raised the gap), so the sentence never contradicts the choice."""
     allan = _allan_phrase(sim)
+    phrase = _effect_phrase(data, cand, allan, diag)
+    if phrase is not None:
+        return phrase
+    lead = _bandwidth_lead(data, cand, allan) if cand.name == "bandwidth" else allan
+    return _random_phrase(lead, diag["correlation"], rows, skip or {}, rejected)
+
+
+def _effect_phrase(data: GapData, cand: Candidate, allan: str, diag: dict[str, Any]) -> str | None:
+    """:func:`where_phrase` for a deterministic effect (and quantization): what its own
+    diagnostic shows; None for a random effect."""
     c = diag["correlation"]
     n = cand.name
     if n == "temperature_bias":
@@ -240,17 +250,31 @@ def where_phrase(
             f"{h.get('lattice_dps', 0.0):.6g} deg/s (log resolution {data.resolution_dps:g} deg/s), "
             "the model's output is continuous"
         )
-    lead = allan
-    if n == "bandwidth":
-        bw = cand.fit.model.get("bandwidth")
-        if isinstance(bw, Bandwidth):
-            a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
-            lead = (
-                f"{allan}; neighbouring samples correlate (a low-pass at {bw.cutoff_hz:.3g} Hz: "
-                f"the white noise is {math.sqrt(white_factor(a)):.3g}x what their differences "
-                "alone suggest)"
-            )
-    # Random effects: name the strongest regressor and why its effect was not chosen.
+    return None
+
+
+def _bandwidth_lead(data: GapData, cand: Candidate, allan: str) -> str:
+    """The Allan phrase, with what the fitted low-pass does to neighbouring samples."""
+    bw = cand.fit.model.get("bandwidth")
+    if not isinstance(bw, Bandwidth):
+        return allan
+    a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
+    return (
+        f"{allan}; neighbouring samples correlate (a low-pass at {bw.cutoff_hz:.3g} Hz: "
+        f"the white noise is {math.sqrt(white_factor(a)):.3g}x what their differences "
+        "alone suggest)"
+    )
+
+
+def _random_phrase(
+    lead: str,
+    c: dict[str, float],
+    rows: Sequence[dict[str, Any]],
+    skip: dict[str, str],
+    rejected: Sequence[dict[str, Any]],
+) -> str:
+    """For a random effect: the regressor that correlates most with the residual (``c``: each
+    regressor's r) and why its own effect was not chosen."""
     regs = {k: v for k, v in c.items() if k in _EFFECT_OF}
     if not regs:
         return lead
@@ -260,5 +284,5 @@ def where_phrase(
             f"{lead}; no measured regressor explains it (largest |r|: {big[0]}, r = {big[1]:.2f})"
         )
     eff = _EFFECT_OF[big[0]]
-    why = _why_not(eff, rows, skip or {}, rejected)
+    why = _why_not(eff, rows, skip, rejected)
     return f"{lead}; {big[0]} correlates with the residual (r = {big[1]:.2f}), but {eff} {why}"

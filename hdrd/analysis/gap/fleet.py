@@ -14,11 +14,14 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hdrd.analysis.fleet import Runner
-from hdrd.analysis.fleet_jobs import GapJob, gap_refs
+from hdrd.analysis.fleet_jobs import DriveOutcome, GapJob, gap_refs
 from hdrd.io.drivefiles import DriveRef
+
+if TYPE_CHECKING:
+    from hdrd.analysis.progress import ProgressBar
 
 __all__ = ["ReportStream", "gap_fleet", "gap_fleet_summary", "gap_row", "gap_table_head"]
 
@@ -107,7 +110,6 @@ def gap_fleet(
     or 1 if no drive could be analysed or a file could not be written. Raises DriveLogError
     (a drive cannot be read) and FleetError."""
     from hdrd.analysis.progress import ProgressBar
-    from hdrd.sim.gyro import save_model
 
     name_w = max(12, *(len(r.name) for r in refs))
     show = not getattr(args, "no_progress", False)
@@ -121,36 +123,17 @@ def gap_fleet(
             print(f"hdrd gap: {unnamed[0]}", file=sys.stderr)
             return 1
     bar = ProgressBar(f"gap {len(refs)} drives") if show else None
-    found: Counter[str] = Counter()
-    n_ok = 0
+    run = _FleetRun(args, name_w, paths, skipped, bar)
     print(gap_table_head(name_w), flush=True)
     try:
         with ReportStream(args.report) if args.report else _NoReport() as report:
             for o in gap_refs(refs, job, runner, bar):
-                if o.skipped is not None:
-                    if getattr(args, "strict", False):
-                        if bar is not None:
-                            bar.close()
-                            bar = None
-                        print(f"hdrd gap: {o.skipped}", file=sys.stderr)
-                        return 1
-                    skipped.append(o.skipped)
-                    continue
-                n_ok += 1
-                rep = o.result.report
-                found.update({s["effect"] for s in rep["steps"]})
-                if bar is not None and bar.tty:
-                    sys.stderr.write("\r\033[K")  # the bar's line, cleared for the table's
-                print(gap_row(o.name, rep, name_w), flush=True)
-                report.add(rep)
-                if args.out:
-                    _save(save_model, o.result.model, paths[o.name])
-            if bar is not None:
-                bar.close()
-                bar = None
+                if not run.take(o, report):
+                    return 1
+            run.close_bar()
             for why in skipped:
                 print(f"hdrd gap: skipped {why}", file=sys.stderr)
-            if n_ok == 0:
+            if run.n_ok == 0:
                 print(f"hdrd gap: none of the {n_given} drives can be analysed", file=sys.stderr)
                 return 1
             report.finish(skipped)
@@ -158,10 +141,55 @@ def gap_fleet(
         print(f"hdrd gap: cannot write: {e.strerror or e} ({e.filename or ''})", file=sys.stderr)
         return 1
     finally:
-        if bar is not None:
-            bar.close()
-    print(gap_fleet_summary(found, n_ok, len(skipped)))
+        run.close_bar()
+    print(gap_fleet_summary(run.found, run.n_ok, len(skipped)))
     return 0
+
+
+class _FleetRun:
+    """What :func:`gap_fleet` keeps as the drives come in: the progress bar, the drives
+    analysed and skipped, how often each effect was found."""
+
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        name_w: int,
+        paths: dict[str, Path],
+        skipped: list[str],
+        bar: ProgressBar | None,
+    ) -> None:
+        self.args, self.name_w, self.paths = args, name_w, paths
+        self.skipped, self.bar = skipped, bar
+        self.found: Counter[str] = Counter()
+        self.n_ok = 0
+
+    def close_bar(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+    def take(self, o: DriveOutcome, report: ReportStream | _NoReport) -> bool:
+        """Print and write one drive's outcome (its row, report and model); False when a
+        drive skipped stops the run (--strict)."""
+        from hdrd.sim.gyro import save_model
+
+        if o.skipped is not None:
+            if getattr(self.args, "strict", False):
+                self.close_bar()
+                print(f"hdrd gap: {o.skipped}", file=sys.stderr)
+                return False
+            self.skipped.append(o.skipped)
+            return True
+        self.n_ok += 1
+        rep = o.result.report
+        self.found.update({s["effect"] for s in rep["steps"]})
+        if self.bar is not None and self.bar.tty:
+            sys.stderr.write("\r\033[K")  # the bar's line, cleared for the table's
+        print(gap_row(o.name, rep, self.name_w), flush=True)
+        report.add(rep)
+        if self.args.out:
+            _save(save_model, o.result.model, self.paths[o.name])
+        return True
 
 
 def model_paths(

@@ -125,7 +125,13 @@ def gap_metric(
     ok = np.isfinite(adev_m) & np.isfinite(adev_s) & (adev_m > 0) & (adev_s > 0)
     a = float(np.sqrt(np.mean(np.log(adev_m[ok] / adev_s[ok]) ** 2))) if ok.any() else 0.0
     taus = np.asarray(ms * data.block_s if per_block else ms / data.fs_hz, dtype=np.float64)
-    # Histogram term: lattices found in the measurement or in the simulation.
+    h = _histogram_term(data, sims)
+    return GapMeasure(taus=taus, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
+
+
+def _histogram_term(data: GapData, sims: list[FloatArray]) -> float:
+    """The histogram term: over the lattices found in the measurement or in the (first)
+    simulation, the largest difference between the shares of values on the lattice."""
     h = 0.0
     lattices = [data.lattice] if data.lattice is not None else []
     sim_lat = detect_lattice(sims[0], data.resolution_dps)
@@ -142,4 +148,4 @@ def gap_metric(
             )
         )
         h = max(h, abs(fm - fs))
-    return GapMeasure(taus=taus, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
+    return h

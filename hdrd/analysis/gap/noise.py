@@ -98,6 +98,75 @@ class Noise:
     extra_var: float = 0.0
 
 
+def _gauss_markov_block(b: float, tau: float) -> tuple[float, float, float]:
+    """A Gauss-Markov bias of correlation time ``tau`` over a block of ``b`` seconds, per
+    sigma**2: a = its correlation between the block's ends, c = Cov(block mean, end value),
+    zeta_g = the block mean's variance left given both ends."""
+    x = b / tau
+    a = math.exp(-x)
+    if x < 1e-4:
+        zeta_g = x / 6.0
+        c = 1.0 - 0.5 * x
+    else:
+        c = (1.0 - a) / x  # Cov(block mean, end value) / sigma**2
+        fvar = 2.0 * (x - 1.0 + a) / (x * x)  # Var(block mean) / sigma**2
+        zeta_g = max(fvar - 2.0 * c * c / (1.0 + a), 0.0)
+    return a, c, zeta_g
+
+
+def _filter4(
+    rl: list[float], valid: list[bool], a: float, h: float, sig2: float, qw: float, w0: float
+) -> tuple[list[float], list[tuple[float, float, float, float]]]:
+    """:class:`Whitener`'s filter over the blocks, written out on the state (g_start, g_end,
+    w_start, w_end): each used block's innovation variance and gains. ``rl``: the white
+    variance of each used block; ``w0``: the walk's variance at the first block's start."""
+    qg = sig2 * (1.0 - a * a)
+    n = len(rl)
+    s = [0.0] * n
+    gains = [(0.0, 0.0, 0.0, 0.0)] * n
+    # P at block 0: g at its two ends stationary with correlation a; w from zero at power-on.
+    p00, p01, p02, p03 = sig2, a * sig2, 0.0, 0.0
+    p11, p12, p13 = sig2, 0.0, 0.0
+    p22, p23, p33 = w0, w0, w0 + qw
+    j = 0
+    for k in range(len(valid)):
+        if k:
+            p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = (
+                p11,
+                a * p11,
+                p13,
+                p13,
+                a * a * p11 + qg,
+                a * p13,
+                a * p13,
+                p33,
+                p33,
+                p33 + qw,
+            )
+        if not valid[k]:
+            continue
+        v0 = h * (p00 + p01) + 0.5 * (p02 + p03)
+        v1 = h * (p01 + p11) + 0.5 * (p12 + p13)
+        v2 = h * (p02 + p12) + 0.5 * (p22 + p23)
+        v3 = h * (p03 + p13) + 0.5 * (p23 + p33)
+        sj = h * (v0 + v1) + 0.5 * (v2 + v3) + rl[j]
+        k0, k1, k2, k3 = v0 / sj, v1 / sj, v2 / sj, v3 / sj
+        p00 -= k0 * v0
+        p01 -= k0 * v1
+        p02 -= k0 * v2
+        p03 -= k0 * v3
+        p11 -= k1 * v1
+        p12 -= k1 * v2
+        p13 -= k1 * v3
+        p22 -= k2 * v2
+        p23 -= k2 * v3
+        p33 -= k3 * v3
+        s[j] = sj
+        gains[j] = (k0, k1, k2, k3)
+        j += 1
+    return s, gains
+
+
 class Whitener:
     """Innovations of a Kalman filter over the block grid: whitening the block residual with them
     gives the exact Gaussian log-likelihood of the noise model
@@ -140,65 +209,13 @@ class Whitener:
             self.sd = np.sqrt(r)
             return
         sig2 = noise.bi_sigma**2
-        x = b / noise.bi_tau
-        a = math.exp(-x)
-        if x < 1e-4:
-            zeta_g = x / 6.0
-            c = 1.0 - 0.5 * x
-        else:
-            c = (1.0 - a) / x  # Cov(block mean, end value) / sigma**2
-            fvar = 2.0 * (x - 1.0 + a) / (x * x)  # Var(block mean) / sigma**2
-            zeta_g = max(fvar - 2.0 * c * c / (1.0 + a), 0.0)
+        a, c, zeta_g = _gauss_markov_block(b, noise.bi_tau)
         h = c / (1.0 + a)
-        qg = sig2 * (1.0 - a * a)
         qw = noise.rrw_k**2 * b
         r = np.maximum(r + sig2 * zeta_g + qw / 12.0, 1e-18)
-        rl = r.tolist()
-        n = int(r.shape[0])
-        s = [0.0] * n
-        gains = [(0.0, 0.0, 0.0, 0.0)] * n
-        # P at block 0: g at its two ends stationary with correlation a; w from zero at power-on.
-        p00, p01, p02, p03 = sig2, a * sig2, 0.0, 0.0
-        p11, p12, p13 = sig2, 0.0, 0.0
-        w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
-        p22, p23, p33 = w0, w0, w0 + qw
         valid = data.bvalid.tolist()
-        j = 0
-        for k in range(data.nblocks):
-            if k:
-                p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = (
-                    p11,
-                    a * p11,
-                    p13,
-                    p13,
-                    a * a * p11 + qg,
-                    a * p13,
-                    a * p13,
-                    p33,
-                    p33,
-                    p33 + qw,
-                )
-            if not valid[k]:
-                continue
-            v0 = h * (p00 + p01) + 0.5 * (p02 + p03)
-            v1 = h * (p01 + p11) + 0.5 * (p12 + p13)
-            v2 = h * (p02 + p12) + 0.5 * (p22 + p23)
-            v3 = h * (p03 + p13) + 0.5 * (p23 + p33)
-            sj = h * (v0 + v1) + 0.5 * (v2 + v3) + rl[j]
-            k0, k1, k2, k3 = v0 / sj, v1 / sj, v2 / sj, v3 / sj
-            p00 -= k0 * v0
-            p01 -= k0 * v1
-            p02 -= k0 * v2
-            p03 -= k0 * v3
-            p11 -= k1 * v1
-            p12 -= k1 * v2
-            p13 -= k1 * v3
-            p22 -= k2 * v2
-            p23 -= k2 * v3
-            p33 -= k3 * v3
-            s[j] = sj
-            gains[j] = (k0, k1, k2, k3)
-            j += 1
+        w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
+        s, gains = _filter4(r.tolist(), valid, a, h, sig2, qw, w0)
         self.s = np.asarray(s)
         self.sd = np.sqrt(self.s)
         self._gains = gains
@@ -262,6 +279,35 @@ class Whitener:
         return -0.5 * (w.shape[0] * math.log(2.0 * math.pi) + self.logdet + float(np.dot(w, w)))
 
 
+def _heading_transition(a: float) -> FloatArray:
+    """:class:`_HeadingKalman`'s transition from a block to the next: the end states become
+    the start states; the Gauss-Markov bias decays by ``a``, the walk holds."""
+    f_mat = np.zeros((8, 8))
+    f_mat[0, 1] = 1.0
+    f_mat[1, 1] = a
+    f_mat[2, 3] = 1.0
+    f_mat[3, 3] = 1.0
+    f_mat[4, 5] = 1.0
+    f_mat[6, 7] = 1.0
+    return f_mat
+
+
+def _heading_start(
+    a: float, sig2: float, qw: float, w0: float, se2: float, sw2: float
+) -> FloatArray:
+    """:class:`_HeadingKalman`'s covariance at block 0: the bias stationary at the block's
+    two ends with correlation ``a``; the walk from power-on (``w0`` at the start); the fixes'
+    and the fix rows' white noise."""
+    p = np.zeros((8, 8))
+    p[0, 0] = p[1, 1] = sig2
+    p[0, 1] = p[1, 0] = a * sig2
+    p[2, 2] = p[2, 3] = p[3, 2] = w0
+    p[3, 3] = w0 + qw
+    p[4, 4] = p[5, 5] = se2
+    p[6, 6] = p[7, 7] = sw2
+    return p
+
+
 class _HeadingKalman:
     """The block likelihood's Kalman filter with a heading truth: state
     (g_start, g_end, w_start, w_end, eta_start, eta_end, eps_start, eps_end), the Gauss-Markov
@@ -275,15 +321,7 @@ class _HeadingKalman:
     def __init__(self, data: GapData, noise: Noise) -> None:
         b = data.block_s
         sig2 = noise.bi_sigma**2
-        x = b / noise.bi_tau
-        a = math.exp(-x)
-        if x < 1e-4:
-            zeta_g = x / 6.0
-            c = 1.0 - 0.5 * x
-        else:
-            c = (1.0 - a) / x
-            fvar = 2.0 * (x - 1.0 + a) / (x * x)
-            zeta_g = max(fvar - 2.0 * c * c / (1.0 + a), 0.0)
+        a, c, zeta_g = _gauss_markov_block(b, noise.bi_tau)
         h = c / (1.0 + a) if sig2 > 0 else 0.0
         qg = sig2 * (1.0 - a * a)
         qw = noise.rrw_k**2 * b
@@ -294,22 +332,10 @@ class _HeadingKalman:
         inner = np.maximum(1.0 / data.bneff[data.bvalid] - 0.5 / wsum**2, 0.0)
         r = np.maximum(sw2 * inner + sig2 * zeta_g + qw / 12.0, 1e-18)
         cfix = 0.5 / wsum
-        f_mat = np.zeros((8, 8))
-        f_mat[0, 1] = 1.0
-        f_mat[1, 1] = a
-        f_mat[2, 3] = 1.0
-        f_mat[3, 3] = 1.0
-        f_mat[4, 5] = 1.0
-        f_mat[6, 7] = 1.0
+        f_mat = _heading_transition(a)
         q_mat = np.diag([0.0, qg, 0.0, qw, 0.0, se2, 0.0, sw2])
         w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
-        p = np.zeros((8, 8))
-        p[0, 0] = p[1, 1] = sig2
-        p[0, 1] = p[1, 0] = a * sig2
-        p[2, 2] = p[2, 3] = p[3, 2] = w0
-        p[3, 3] = w0 + qw
-        p[4, 4] = p[5, 5] = se2
-        p[6, 6] = p[7, 7] = sw2
+        p = _heading_start(a, sig2, qw, w0, se2, sw2)
         n = int(r.shape[0])
         hrows = np.empty((n, 8))
         hrows[:, :6] = [h, h, 0.5, 0.5, 1.0, -1.0]

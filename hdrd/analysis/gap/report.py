@@ -5,8 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN
+from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.metric import GAP_METRIC
-from hdrd.analysis.gap.search import GapResult, sig4
+from hdrd.analysis.gap.search import Ambiguity, GapResult, Step, sig4
 
 __all__ = ["summary", "to_report"]
 
@@ -16,25 +17,7 @@ def to_report(res: GapResult) -> dict[str, Any]:
     d = res.data
     return {
         "initial_model": res.initial_model.names(),
-        "steps": [
-            {
-                "where": s.where,
-                "effect": s.effect,
-                "params": s.params,
-                "gap_before": sig4(s.gap_before),
-                "gap_after": sig4(s.gap_after),
-                "gap_over_seeds": None
-                if s.gap_over_seeds is None
-                else [sig4(g) for g in s.gap_over_seeds],
-                "delta_bic": round(s.delta_bic, 2),
-                "p_value": float(f"{s.p_value:.3g}"),
-                "ambiguous_with": list(s.ambiguous_with),
-                "at_bound": list(s.at_bound),
-                "candidates": list(s.candidates),
-                "diagnostics": s.diagnostics,
-            }
-            for s in res.steps
-        ],
+        "steps": [_step_json(s) for s in res.steps],
         "final_model": res.final_model.names(),
         "gap_initial": sig4(res.initial_sim.gap),
         "gap_final": sig4(res.final_sim.gap),
@@ -43,17 +26,7 @@ def to_report(res: GapResult) -> dict[str, Any]:
         "gap_noise": res.gap_noise,
         "final_at_bound": list(res.final_at_bound),
         "rejected": list(res.rejected),
-        "ambiguous": [
-            {
-                "step": a.step,
-                "effects": list(a.effects),
-                "chosen": a.chosen,
-                "delta_bic": list(a.delta_bic),
-                "contribution_r": list(a.contribution_r),
-                "note": a.note,
-            }
-            for a in res.ambiguous
-        ],
+        "ambiguous": [_ambiguity_json(a) for a in res.ambiguous],
         "revisions": list(res.revisions),
         "not_identifiable": res.not_identifiable,
         "remaining_candidates": list(res.remaining),
@@ -65,18 +38,50 @@ def to_report(res: GapResult) -> dict[str, Any]:
             f"added if BIC falls by more than {BIC_MARGIN:g} and the likelihood-ratio test gives "
             f"p < {ALPHA:g}"
         ),
-        "log": {
-            "name": d.name,
-            "samples": int(d.t.shape[0]),
-            "duration_s": round(d.duration_s, 3),
-            "rate_hz": round(d.fs_hz, 4),
-            "truth": d.truth_source,
-            "block_s": d.block_s,
-            "blocks_used": d.n_used,
-            "temp_c": d.temp_c is not None,
-            "excluded_samples": int(d.excluded.sum()),
-            "time_gaps": int(d.time_gap.sum()),
-        },
+        "log": _log_json(d),
+    }
+
+
+def _step_json(s: Step) -> dict[str, Any]:
+    return {
+        "where": s.where,
+        "effect": s.effect,
+        "params": s.params,
+        "gap_before": sig4(s.gap_before),
+        "gap_after": sig4(s.gap_after),
+        "gap_over_seeds": None if s.gap_over_seeds is None else [sig4(g) for g in s.gap_over_seeds],
+        "delta_bic": round(s.delta_bic, 2),
+        "p_value": float(f"{s.p_value:.3g}"),
+        "ambiguous_with": list(s.ambiguous_with),
+        "at_bound": list(s.at_bound),
+        "candidates": list(s.candidates),
+        "diagnostics": s.diagnostics,
+    }
+
+
+def _ambiguity_json(a: Ambiguity) -> dict[str, Any]:
+    return {
+        "step": a.step,
+        "effects": list(a.effects),
+        "chosen": a.chosen,
+        "delta_bic": list(a.delta_bic),
+        "contribution_r": list(a.contribution_r),
+        "note": a.note,
+    }
+
+
+def _log_json(d: GapData) -> dict[str, Any]:
+    return {
+        "name": d.name,
+        "samples": int(d.t.shape[0]),
+        "duration_s": round(d.duration_s, 3),
+        "rate_hz": round(d.fs_hz, 4),
+        "truth": d.truth_source,
+        "block_s": d.block_s,
+        "blocks_used": d.n_used,
+        "temp_c": d.temp_c is not None,
+        "excluded_samples": int(d.excluded.sum()),
+        "time_gaps": int(d.time_gap.sum()),
     }
 
 
@@ -84,6 +89,38 @@ def _bound_line(b: dict[str, Any]) -> str:
     return (
         f"  AT BOUND: {b['effect']}.{b['param']} = {b['value']:.4g} is at its {b['bound']} "
         f"bound ({b['range']}): a limit, not an estimate"
+    )
+
+
+def _step_lines(i: int, s: Step, amb: Ambiguity | None, gap_noise: dict[str, Any]) -> list[str]:
+    """The summary's lines of step ``i`` (``amb``: its rivals; ``gap_noise``: the final gap's
+    seed-to-seed noise, :attr:`GapResult.gap_noise`)."""
+    ps = ", ".join(f"{k}={v:.4g}" for k, v in s.params.items())
+    lines = [f"step {i}: {s.effect} ({ps})", f"  where: {s.where}"]
+    seeds = ""
+    if s.gap_over_seeds is not None:
+        b, a, sd = s.gap_over_seeds
+        seeds = (
+            f" (one seed; the mean over {gap_noise['seeds']} seeds {b:.3g} -> {a:.3g}, "
+            f"seed-to-seed sd {sd:.2g})"
+        )
+    lines.append(f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}{seeds}, dBIC {s.delta_bic:.1f}")
+    if amb is not None:
+        lines.append(f"  AMBIGUOUS: {amb.note}")
+    lines.extend(_bound_line(b) for b in s.at_bound if b["effect"] == s.effect)
+    return lines
+
+
+def _rejected_line(rj: dict[str, Any]) -> str:
+    return (
+        f"not added at step {rj['step']}: {rj['effect']} (dBIC {rj['delta_bic']:+.1f}): "
+        f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
+        + (
+            f" (mean over the seeds {rj['gap_over_seeds'][0]:.3g} -> "
+            f"{rj['gap_over_seeds'][1]:.3g}, more than their sd {rj['gap_over_seeds'][2]:.2g})"
+            if "gap_over_seeds" in rj
+            else ""
+        )
     )
 
 
@@ -108,33 +145,8 @@ def summary(res: GapResult) -> str:
     ]
     amb = {a.step: a for a in res.ambiguous}
     for i, s in enumerate(res.steps, 1):
-        ps = ", ".join(f"{k}={v:.4g}" for k, v in s.params.items())
-        lines.append(f"step {i}: {s.effect} ({ps})")
-        lines.append(f"  where: {s.where}")
-        seeds = ""
-        if s.gap_over_seeds is not None:
-            b, a, sd = s.gap_over_seeds
-            seeds = (
-                f" (one seed; the mean over {res.gap_noise['seeds']} seeds {b:.3g} -> {a:.3g}, "
-                f"seed-to-seed sd {sd:.2g})"
-            )
-        lines.append(
-            f"  gap {s.gap_before:.3g} -> {s.gap_after:.3g}{seeds}, dBIC {s.delta_bic:.1f}"
-        )
-        if i in amb:
-            lines.append(f"  AMBIGUOUS: {amb[i].note}")
-        lines.extend(_bound_line(b) for b in s.at_bound if b["effect"] == s.effect)
-    for rj in res.rejected:
-        lines.append(
-            f"not added at step {rj['step']}: {rj['effect']} (dBIC {rj['delta_bic']:+.1f}): "
-            f"the gap rose with it, {rj['gap_before']:.3g} -> {rj['gap_with_it']:.3g}"
-            + (
-                f" (mean over the seeds {rj['gap_over_seeds'][0]:.3g} -> "
-                f"{rj['gap_over_seeds'][1]:.3g}, more than their sd {rj['gap_over_seeds'][2]:.2g})"
-                if "gap_over_seeds" in rj
-                else ""
-            )
-        )
+        lines.extend(_step_lines(i, s, amb.get(i), res.gap_noise))
+    lines.extend(_rejected_line(rj) for rj in res.rejected)
     for rv in res.revisions:
         lines.append(
             f"revised after step {rv['after_step']}: {rv['effect']} {rv['action']} (dBIC {rv['delta_bic']:+.1f})"

@@ -193,8 +193,8 @@ def _slow_form(
         for i, x in enumerate(close)
     ]
     gap, _, x = min(scored, key=lambda z: (z[0], z[1]))
-    names = [n for n in x.model.names() if n in SLOW_NOISE]
-    old = [n for n in cur.model.names() if n in SLOW_NOISE]
+    names = _slow_names(x)
+    old = _slow_names(cur)
     if (
         x is cur
         or names == old
@@ -208,11 +208,182 @@ def _slow_form(
         "delta_bic": round(x.bic - cur.bic, 2),
         "why": (
             f"the block likelihood cannot tell these forms of the slow noise apart (BIC within "
-            f"{AMBIGUITY_BIC:g}: {', '.join(' + '.join(n for n in y.model.names() if n in SLOW_NOISE) for y in close)}); "
+            f"{AMBIGUITY_BIC:g}: {', '.join(' + '.join(_slow_names(y)) for y in close)}); "
             "the Allan deviation over all tau can: the one with the lowest gap is kept"
         ),
     }
     return x, gap_metric(data, x.model, seed, x.d, x.noise.extra_var), rec
+
+
+def _slow_names(fit: Fit) -> list[str]:
+    """The slow-noise effects of a fit's model, in the model's order."""
+    return [n for n in fit.model.names() if n in SLOW_NOISE]
+
+
+def _rejection(
+    step: int,
+    best: Candidate,
+    gap_before: float,
+    gap_with_it: float,
+    over: tuple[float, float, float],
+) -> dict[str, Any]:
+    """The record of a significant effect rejected because the gap rose with it."""
+    return {
+        "step": step,
+        "effect": best.name,
+        "delta_bic": round(best.dbic, 2),
+        "gap_before": sig4(gap_before),
+        "gap_with_it": sig4(gap_with_it),
+        "gap_over_seeds": [sig4(over[0]), sig4(over[1]), sig4(over[2])],
+        "why": "significant, but the gap rose with it, also as the mean "
+        f"over {GAP_NOISE_SEEDS} seeds by more than its seed-to-seed sd: "
+        "the fitted effect makes the simulated log less like the measured "
+        "one",
+    }
+
+
+_Chosen = tuple[Candidate, Fit, GapMeasure, tuple[float, float, float] | None]
+"""A step's choice: the candidate, its joint refit and that fit's gap, and the gap before and
+after over seeds when the first seed's gap rose (:attr:`Step.gap_over_seeds`)."""
+
+
+class _Search:
+    """The forward search of :func:`run_gap`: the current fit and its gap, and what the
+    steps record (the steps, rivals, the last step's candidates, revisions, rejections)."""
+
+    def __init__(
+        self, f: Fitter, seed: int, cur: Fit, cur_sim: GapMeasure, skip: dict[str, str]
+    ) -> None:
+        self.f, self.data, self.seed = f, f.data, seed
+        self.cur, self.cur_sim = cur, cur_sim
+        self.skip = skip
+        self.steps: list[Step] = []
+        self.ambiguous: list[Ambiguity] = []
+        self.remaining: list[dict[str, Any]] = []
+        self.added: list[str] = []
+        self.dropped: set[str] = set()  # revised away: never re-added (no loops)
+        self.revisions: list[dict[str, Any]] = []
+        self.rejected: list[dict[str, Any]] = []
+
+    def step(self, n: int, candidates: Sequence[str]) -> bool:
+        """Step ``n`` (from 1): add the preferred significant candidate that does not raise
+        the gap, then revise; False when there is none."""
+        f, cur = self.f, self.cur
+        names = [
+            c
+            for c in candidates
+            if c not in cur.model and c not in self.skip and c not in self.dropped
+        ]
+        cands = [evaluate_candidate(f, cur, c) for c in names]
+        sig = [c for c in cands if c.significant]
+        order, beyond = rank(f, cur, sig)
+        rows = tuple(_cand_row(c, beyond.get(c.name)) for c in sorted(cands, key=lambda c: c.dbic))
+        self.remaining = list(rows)
+        chosen = self._first_kept(order, n)
+        if chosen is None:
+            return False
+        self._add(n, chosen, [c for c in cands if c in order], rows)
+        self._revise(n)
+        self.cur, self.cur_sim, form = _slow_form(f, self.cur, self.cur_sim, self.seed, n)
+        if form is not None:
+            form["gap_after"] = sig4(self.cur_sim.gap)
+            self.revisions.append(form)
+        return True
+
+    def _first_kept(self, order: list[Candidate], n: int) -> _Chosen | None:
+        """The first candidate in order whose joint refit does not raise the gap (beyond the
+        gap's seed-to-seed noise); those that do are recorded as rejected."""
+        data, seed, cur, cur_sim = self.data, self.seed, self.cur, self.cur_sim
+        cur_seeds: list[float] | None = None
+        for best in order:
+            new = self.f.full(
+                best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var
+            )
+            if new.lnl < best.fit.lnl:
+                new = best.fit  # the joint refit can only keep or improve the candidate's fit
+            new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
+            over: tuple[float, float, float] | None = None
+            if new_sim.gap > cur_sim.gap:
+                # One seed's gap differs from the next by its seed-to-seed noise, and a gap
+                # difference smaller than that says nothing: the same seeds decide, averaged,
+                # and the effect is rejected if the gap rises by more than its noise.
+                if cur_seeds is None:
+                    cur_seeds = _seed_gaps(data, cur, seed, cur_sim.gap)
+                new_seeds = _seed_gaps(data, new, seed, new_sim.gap)
+                over = (
+                    statistics.mean(cur_seeds),
+                    statistics.mean(new_seeds),
+                    statistics.stdev(cur_seeds),
+                )
+                if over[1] - over[0] > over[2]:
+                    self.rejected.append(_rejection(n, best, cur_sim.gap, new_sim.gap, over))
+                    continue
+            return best, new, new_sim, over
+        return None
+
+    def _add(
+        self,
+        n: int,
+        chosen: _Chosen,
+        ranked: list[Candidate],
+        rows: tuple[dict[str, Any], ...],
+    ) -> None:
+        """Take the chosen candidate as step ``n``: its record, its rivals among the ranked
+        candidates; it becomes the current fit."""
+        best, new, new_sim, over = chosen
+        data, cur, cur_sim = self.data, self.cur, self.cur_sim
+        rv = rivals(best, ranked, data.duration_s)
+        diag = diagnostics(data, cur, cur_sim)
+        if rv:
+            self.ambiguous.append(_ambiguity(n, best, rv))
+        eff = new.model.get(best.name)
+        self.steps.append(
+            Step(
+                effect=best.name,
+                params=_params(eff) if eff is not None else {},
+                where=where_phrase(data, best, cur_sim, diag, rows, self.skip, self.rejected),
+                gap_before=cur_sim.gap,
+                gap_after=new_sim.gap,
+                delta_bic=best.dbic,
+                p_value=best.p,
+                ambiguous_with=tuple(c.name for c, _ in rv),
+                candidates=rows,
+                diagnostics=diag,
+                regressor=REGRESSOR.get(best.name, "time_s"),
+                at_bound=tuple(params_at_bounds(new.model, data)),
+                gap_over_seeds=over,
+                fit_before=cur,
+                fit_after=new,
+                sim_before=cur_sim,
+                sim_after=new_sim,
+            )
+        )
+        self.cur, self.cur_sim = new, new_sim
+        self.added.append(best.name)
+
+    def _revise(self, n: int) -> None:
+        """Revise the earlier choices (:func:`revise`) one at a time while one is found that
+        does not raise the gap."""
+        added = self.added
+        for _ in range(len(added)):
+            made = False
+            for revised, rec in revise(self.f, self.cur, added, n):
+                rsim = gap_metric(
+                    self.data, revised.model, self.seed, revised.d, revised.noise.extra_var
+                )
+                if rsim.gap > self.cur_sim.gap:
+                    continue  # a revision must not raise the gap either
+                added.remove(rec["effect"])
+                self.dropped.add(rec["effect"])
+                if rec["action"].startswith("replaced by "):
+                    added.append(rec["action"][len("replaced by ") :])
+                self.cur, self.cur_sim = revised, rsim
+                rec["gap_after"] = sig4(self.cur_sim.gap)
+                self.revisions.append(rec)
+                made = True
+                break
+            if not made:
+                break
 
 
 def run_gap(
@@ -239,129 +410,27 @@ def run_gap(
     cur = fit_model(data, start)
     sim_given = gap_metric(data, start, seed, None, cur.noise.extra_var)
     cur_sim = gap_metric(data, cur.model, seed, cur.d, cur.noise.extra_var)
-    initial_fit, initial_sim = cur, cur_sim
-    skip = not_identifiable(data, cur.model)
-    steps: list[Step] = []
-    ambiguous: list[Ambiguity] = []
-    remaining: list[dict[str, Any]] = []
-    added: list[str] = []
-    dropped: set[str] = set()  # revised away: never re-added (no loops)
-    revisions: list[dict[str, Any]] = []
-    rejected: list[dict[str, Any]] = []
+    s = _Search(f, seed, cur, cur_sim, not_identifiable(data, cur.model))
     for i in range(max_steps):
-        names = [c for c in candidates if c not in cur.model and c not in skip and c not in dropped]
-        cands = [evaluate_candidate(f, cur, c) for c in names]
-        sig = [c for c in cands if c.significant]
-        order, beyond = rank(f, cur, sig)
-        rows = tuple(_cand_row(c, beyond.get(c.name)) for c in sorted(cands, key=lambda c: c.dbic))
-        remaining = list(rows)
-        chosen = None
-        cur_seeds: list[float] | None = None
-        for best in order:
-            new = f.full(best.fit.model, quad=best.fit.quad, extra_var=best.fit.noise.extra_var)
-            if new.lnl < best.fit.lnl:
-                new = best.fit  # the joint refit can only keep or improve the candidate's fit
-            new_sim = gap_metric(data, new.model, seed, new.d, new.noise.extra_var)
-            over: tuple[float, float, float] | None = None
-            if new_sim.gap > cur_sim.gap:
-                # One seed's gap differs from the next by its seed-to-seed noise, and a gap
-                # difference smaller than that says nothing: the same seeds decide, averaged,
-                # and the effect is rejected if the gap rises by more than its noise.
-                if cur_seeds is None:
-                    cur_seeds = _seed_gaps(data, cur, seed, cur_sim.gap)
-                new_seeds = _seed_gaps(data, new, seed, new_sim.gap)
-                over = (
-                    statistics.mean(cur_seeds),
-                    statistics.mean(new_seeds),
-                    statistics.stdev(cur_seeds),
-                )
-                if over[1] - over[0] > over[2]:
-                    rejected.append(
-                        {
-                            "step": i + 1,
-                            "effect": best.name,
-                            "delta_bic": round(best.dbic, 2),
-                            "gap_before": sig4(cur_sim.gap),
-                            "gap_with_it": sig4(new_sim.gap),
-                            "gap_over_seeds": [sig4(over[0]), sig4(over[1]), sig4(over[2])],
-                            "why": "significant, but the gap rose with it, also as the mean "
-                            f"over {GAP_NOISE_SEEDS} seeds by more than its seed-to-seed sd: "
-                            "the fitted effect makes the simulated log less like the measured "
-                            "one",
-                        }
-                    )
-                    continue
-            chosen = (best, new, new_sim, over)
+        if not s.step(i + 1, candidates):
             break
-        if chosen is None:
-            break
-        best, new, new_sim, over = chosen
-        rv = rivals(best, [c for c in cands if c in order], data.duration_s)
-        diag = diagnostics(data, cur, cur_sim)
-        if rv:
-            ambiguous.append(_ambiguity(i + 1, best, rv))
-        eff = new.model.get(best.name)
-        steps.append(
-            Step(
-                effect=best.name,
-                params=_params(eff) if eff is not None else {},
-                where=where_phrase(data, best, cur_sim, diag, rows, skip, rejected),
-                gap_before=cur_sim.gap,
-                gap_after=new_sim.gap,
-                delta_bic=best.dbic,
-                p_value=best.p,
-                ambiguous_with=tuple(c.name for c, _ in rv),
-                candidates=rows,
-                diagnostics=diag,
-                regressor=REGRESSOR.get(best.name, "time_s"),
-                at_bound=tuple(params_at_bounds(new.model, data)),
-                gap_over_seeds=over,
-                fit_before=cur,
-                fit_after=new,
-                sim_before=cur_sim,
-                sim_after=new_sim,
-            )
-        )
-        cur, cur_sim = new, new_sim
-        added.append(best.name)
-        for _ in range(len(added)):
-            made = False
-            for revised, rec in revise(f, cur, added, i + 1):
-                rsim = gap_metric(data, revised.model, seed, revised.d, revised.noise.extra_var)
-                if rsim.gap > cur_sim.gap:
-                    continue  # a revision must not raise the gap either
-                added.remove(rec["effect"])
-                dropped.add(rec["effect"])
-                if rec["action"].startswith("replaced by "):
-                    added.append(rec["action"][len("replaced by ") :])
-                cur, cur_sim = revised, rsim
-                rec["gap_after"] = sig4(cur_sim.gap)
-                revisions.append(rec)
-                made = True
-                break
-            if not made:
-                break
-        cur, cur_sim, form = _slow_form(f, cur, cur_sim, seed, i + 1)
-        if form is not None:
-            form["gap_after"] = sig4(cur_sim.gap)
-            revisions.append(form)
     return GapResult(
         data=data,
         initial_model=start,
-        initial_fit=initial_fit,
-        initial_sim=initial_sim,
+        initial_fit=cur,
+        initial_sim=cur_sim,
         gap_as_given=sim_given.gap,
-        steps=tuple(steps),
-        final_fit=cur,
-        final_sim=cur_sim,
-        remaining=tuple(remaining),
-        ambiguous=tuple(ambiguous),
-        revisions=tuple(revisions),
-        not_identifiable=skip,
-        final_diagnostics=diagnostics(data, cur, cur_sim),
-        rejected=tuple(rejected),
-        final_at_bound=tuple(params_at_bounds(cur.model, data)),
-        gap_noise=_gap_noise(data, cur, seed, cur_sim.gap),
+        steps=tuple(s.steps),
+        final_fit=s.cur,
+        final_sim=s.cur_sim,
+        remaining=tuple(s.remaining),
+        ambiguous=tuple(s.ambiguous),
+        revisions=tuple(s.revisions),
+        not_identifiable=s.skip,
+        final_diagnostics=diagnostics(data, s.cur, s.cur_sim),
+        rejected=tuple(s.rejected),
+        final_at_bound=tuple(params_at_bounds(s.cur.model, data)),
+        gap_noise=_gap_noise(data, s.cur, seed, s.cur_sim.gap),
     )
 
 
