@@ -477,45 +477,6 @@ def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> Non
     assert win.n == 0 and win.closed == 0 and win.attempts == 2
 
 
-# -- the window's device time (SampleClock) -------------------------------------------------------
-
-
-def test_sample_clock_sets_a_glitch_aside() -> None:
-    from hdrd.io.clocks import SampleClock
-
-    c = SampleClock()
-    t = [k * 100_000 for k in range(50)]
-    t[20] += 1_800_000_000  # one frame 30 min ahead
-    kept = [c.accept(x) for x in t]
-    assert kept.count(False) == 1 and not kept[20] and c.glitches == 1
-    assert c.elapsed_us == 4_900_000  # the 49 steps of the good frames only
-
-
-def test_sample_clock_repeats_steps_back_and_the_wrap() -> None:
-    from hdrd.io.clocks import SampleClock
-
-    c = SampleClock()
-    base = 2**32 - 250_000  # wraps after two frames
-    seq = [base, base + 100_000, base + 100_000, base + 50_000, (base + 200_000) % 2**32,
-           (base + 300_000) % 2**32]  # fmt: skip
-    assert [c.accept(x) for x in seq] == [True, True, False, False, True, True]
-    assert c.elapsed_us == 300_000 and c.glitches == 2
-
-
-def test_sample_clock_follows_a_real_jump() -> None:
-    # The device clock jumps for good (a reset, or frames lost for a while): after a few
-    # frames that step normally among themselves, the clock follows them; the jump itself
-    # is not counted as time at standstill.
-    from hdrd.io.clocks import SampleClock
-
-    c = SampleClock(confirm=3)
-    before = [k * 100_000 for k in range(10)]
-    after = [50_000_000 + k * 100_000 for k in range(10)]
-    kept = [c.accept(x) for x in before + after]
-    assert kept[:10] == [True] * 10 and kept[10:13] == [False] * 3 and all(kept[13:])
-    assert c.elapsed_us == 900_000 + 7 * 100_000  # from the third frame after the jump
-
-
 def test_a_bias_file_records_noise_parameters_and_older_files_still_read(tmp_path: Path) -> None:
     from hdrd.core.gyronoise import GyroNoise
 
@@ -748,24 +709,6 @@ def test_startup_window_details() -> None:
         assert (w.blocks, w.block_s) == (blocks, T)
 
 
-def test_sample_clock_limits_exactly() -> None:
-    from hdrd.io.clocks import SampleClock
-
-    c = SampleClock(max_step_us=1_000_000, confirm=2)
-    assert c.accept(0) and c.accept(1_000_000)  # a step of exactly the largest counts
-    assert not c.accept(2_000_001) and c.glitches == 1  # one microsecond more does not
-    assert c.elapsed_us == 1_000_000
-    # two set-aside samples that step normally among themselves: the clock follows them
-    assert not c.accept(2_100_000) and c.glitches == 2
-    assert c.accept(2_200_000) and c.elapsed_us == 1_100_000
-    # set-aside samples that do not step normally among themselves start over each time
-    d = SampleClock(max_step_us=1_000_000, confirm=3)
-    d.accept(0)
-    assert [d.accept(x) for x in (5_000_000, 9_000_000, 13_000_000, 13_100_000)] == [False] * 4
-    assert d.accept(13_200_000) is False and d.accept(13_300_000) is True
-    assert d.elapsed_us == 100_000
-
-
 def test_what_a_failed_scaled_trend_says() -> None:
     w = np.array([0.0] * 4 + [0.05] * 4 + [0.1] * 4)
     sigma = calibrate.noise_sigma(w, 0.01)
@@ -809,11 +752,3 @@ def test_two_samples_are_measured_without_a_warning() -> None:
         warnings.simplefilter("error")  # no "degrees of freedom <= 0" from a 1-sample spread
         assert calibrate.noise_sigma(np.array([0.0, 1.0])) == 1.4826 * 0.5
         estimate_bias([0.1, 0.12])
-
-
-def test_sample_clock_default_largest_step_is_2_s() -> None:
-    from hdrd.io.clocks import SampleClock
-
-    c = SampleClock()
-    assert c.accept(0) and c.accept(2_000_000) and not c.accept(4_000_001)
-    assert c.elapsed_us == 2_000_000 and c.glitches == 1
