@@ -10,9 +10,9 @@ on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a dev
 
 It also covers the other shortcuts taken for speed: the daemon's batched reading
 (:meth:`Pipeline.until_step_s`: how long the port may go unread without delaying a step; the
-pauses it makes are tested in test_pacing.py), the
-direct read path of a local serial port, the JSON formatter's fast path, and the lazy imports
-that keep ``hdrd replay`` light.
+pauses it makes are tested in test_pacing.py), the JSON formatter's fast path, and the lazy
+imports that keep ``hdrd replay`` light. The direct read path of a local serial port:
+test_serialport.py.
 """
 
 from __future__ import annotations
@@ -135,11 +135,6 @@ def test_live_daemon_path_equals_replay_on_the_same_bytes(
     steps = [m["step"] for m in replayed]
     assert steps == list(range(len(steps)))  # a step per second of device time, across the wrap
     assert replayed[-1]["bad_frames"] == written.injected.expected_bad_frames
-
-
-def test_local_ports_take_the_direct_read_path_and_url_handlers_do_not() -> None:
-    with SerialSource("loop://") as src:
-        assert src.reader._fd_poll is None  # pyserial's own read (loop://, socket://, spy://)
 
 
 # --------------------------------------------------------------------------- batched reads
