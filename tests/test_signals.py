@@ -1,6 +1,6 @@
 """hdrd.daemon.signals: handlers that only set flags, SIGHUP held from the entry point until the
 daemon's handlers take it over, and signals a parent left blocked. Real signals sent to this
-process (os.kill), each test restoring the handlers and the signal mask it found.
+thread (pthread_kill), each test restoring the handlers and the signal mask it found.
 
 The same as processes (a SIGHUP during start-up, at the first import, blocked by the parent):
 test_daemon_startup.py.
@@ -8,8 +8,8 @@ test_daemon_startup.py.
 
 from __future__ import annotations
 
-import os
 import signal
+import threading
 from collections.abc import Iterator
 
 import pytest
@@ -23,6 +23,13 @@ from hdrd.daemon.signals import (
 )
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+
+
+def send(sig: int) -> None:
+    """``sig`` to this thread (the main thread, where Python runs handlers): a signal sent to
+    the process while this thread blocks it could go to another thread of the test run that
+    does not, and end the run. Its handler has run when this returns."""
+    signal.pthread_kill(threading.get_ident(), sig)
 
 
 @pytest.fixture(autouse=True)
@@ -50,14 +57,14 @@ def test_term_and_int_ask_to_stop(sig: int) -> None:
     s = Signals()
     s.install()
     assert not s.stop and not s.reload
-    os.kill(os.getpid(), sig)  # delivered before os.kill returns (to this, the main thread)
+    send(sig)
     assert s.stop and not s.reload
 
 
 def test_hup_asks_to_reload_and_not_to_stop() -> None:
     s = Signals()
     s.install()
-    os.kill(os.getpid(), signal.SIGHUP)
+    send(signal.SIGHUP)
     assert s.reload and not s.stop
 
 
@@ -83,7 +90,7 @@ def test_install_is_idempotent_and_keeps_the_first_saved_handlers() -> None:
 
 def test_a_hangup_while_held_does_not_end_the_process_and_becomes_a_reload() -> None:
     hold_hangup()
-    os.kill(os.getpid(), signal.SIGHUP)  # default action: the end of the process
+    send(signal.SIGHUP)  # default action: the end of the process
     s = Signals()
     s.install()
     assert s.reload and not s.stop
@@ -92,8 +99,8 @@ def test_a_hangup_while_held_does_not_end_the_process_and_becomes_a_reload() -> 
 def test_take_held_hangup_forgets_it() -> None:
     hold_hangup()
     assert not take_held_hangup()
-    os.kill(os.getpid(), signal.SIGHUP)
-    os.kill(os.getpid(), signal.SIGHUP)
+    send(signal.SIGHUP)
+    send(signal.SIGHUP)
     assert take_held_hangup()
     assert not take_held_hangup()
     s = Signals()
@@ -106,7 +113,7 @@ def test_hold_hangup_for_holds_only_for_run() -> None:
     hold_hangup_for(["calibrate", "--seconds", "5"])
     assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
     hold_hangup_for(["run", "--config", "x.yaml"])
-    os.kill(os.getpid(), signal.SIGHUP)
+    send(signal.SIGHUP)
     assert take_held_hangup()
 
 
@@ -114,7 +121,7 @@ def test_a_hangup_the_parent_blocked_is_a_reload_once_installed() -> None:
     """A parent that starts the daemon with SIGHUP blocked (the mask survives exec): the
     signal waits, pending, and is delivered when install unblocks it."""
     signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
-    os.kill(os.getpid(), signal.SIGHUP)
+    send(signal.SIGHUP)
     assert signal.SIGHUP in signal.sigpending()
     s = Signals()
     s.install()
@@ -124,7 +131,7 @@ def test_a_hangup_the_parent_blocked_is_a_reload_once_installed() -> None:
 
 def test_a_term_the_parent_blocked_is_a_stop_once_installed() -> None:
     signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGTERM])
-    os.kill(os.getpid(), signal.SIGTERM)
+    send(signal.SIGTERM)
     s = Signals()
     s.install()
     assert s.stop and not s.reload
@@ -132,7 +139,7 @@ def test_a_term_the_parent_blocked_is_a_stop_once_installed() -> None:
 
 def test_hold_hangup_unblocks_and_holds_a_pending_one() -> None:
     signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGHUP])
-    os.kill(os.getpid(), signal.SIGHUP)
+    send(signal.SIGHUP)
     hold_hangup()
     assert signal.SIGHUP not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
     assert take_held_hangup()
