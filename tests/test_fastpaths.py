@@ -9,9 +9,10 @@ test_replay check each pair on small or synthetic inputs; this module ties all o
 on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a device-clock wrap.
 
 It also covers the other shortcuts taken for speed: the daemon's batched reading
-(:meth:`Pipeline.until_step_s`: how long the port may go unread without delaying a step), the
-direct read path of a local serial port, the JSON formatter's fast path, and the lazy imports
-that keep ``hdrd replay`` light.
+(:meth:`Pipeline.until_step_s`: how long the port may go unread without delaying a step; the
+pauses it makes are tested in test_pacing.py), the JSON formatter's fast path, and the lazy
+imports that keep ``hdrd replay`` light. The direct read path of a local serial port:
+test_serialport.py.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from hypothesis import strategies as st
 
 from hdrd.commands.fakegyro import FakeGyro
 from hdrd.core.hdr import HdrParams
-from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
 from hdrd.io.frames import Frame, Parser, array_to_frames
@@ -137,11 +137,6 @@ def test_live_daemon_path_equals_replay_on_the_same_bytes(
     assert replayed[-1]["bad_frames"] == written.injected.expected_bad_frames
 
 
-def test_local_ports_take_the_direct_read_path_and_url_handlers_do_not() -> None:
-    with SerialSource("loop://") as src:
-        assert src.reader._fd_poll is None  # pyserial's own read (loop://, socket://, spy://)
-
-
 # --------------------------------------------------------------------------- batched reads
 
 
@@ -245,86 +240,3 @@ def test_replay_imports_neither_structlog_nor_yaml(tmp_path: Path) -> None:
         [sys.executable, "-c", code, str(cap)], capture_output=True, text=True, check=True
     ).stdout
     assert out.splitlines()[-1] == "0 []"
-
-
-# --------------------------------------------------------------------------- read pacing
-
-
-def simulate_reader(hz: float, seconds: float, delays: np.ndarray, pacer: ReadPacer) -> list[float]:
-    """A reader that reads everything arrived, then pauses as the pacer says (or, not pausing,
-    wakes at the next arrival), on a simulated clock. Frame k has device time k/hz and arrives
-    at k/hz + 5 s + delays[k]. Returns how late each step-closing frame was read, s."""
-    n = int(hz * seconds)
-    t_dev = np.arange(n) / hz
-    arrive = np.maximum.accumulate(t_dev + 5.0 + delays[:n])  # a stream: delivered in order
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
-    late: list[float] = []
-    now = arrive[0]
-    k = 0
-    while k < n:
-        j = int(np.searchsorted(arrive, now, side="right"))  # everything arrived by now
-        for i in range(k, j):
-            if p.feed(Frame(i & 0xFFFF, round(t_dev[i] * 1e6), 32768, 0, None)):
-                late.append(now - arrive[i])  # frame i closed a step
-        k = j
-        if k >= n:
-            break
-        last = p.clock.last_us
-        assert last is not None
-        pause = pacer.pause(now, last / 1e6, p.until_step_s(), now, p.sample_interval_s())
-        now = max(now + pause, arrive[k])
-    return late
-
-
-@settings(
-    max_examples=40, derandomize=True
-)  # a simulation, not a proof: the same examples each run
-@given(
-    hz=st.sampled_from([100.0, 1000.0, 2000.0]),
-    jitter_ms=st.floats(0.0, 15.0),
-    prompt=st.floats(0.05, 1.0),
-    seed=st.integers(0, 2**31),
-)
-def test_paced_reads_never_read_a_step_closing_frame_late(
-    hz: float, jitter_ms: float, prompt: float, seed: int
-) -> None:
-    """Bursty delivery (each frame late by up to jitter_ms, a fraction `prompt` on time): the
-    pacer's pauses end before any step-closing frame arrives, so each is read on arrival."""
-    rng = np.random.default_rng(seed)
-    n = int(hz * 12)
-    delays = np.where(rng.random(n) < prompt, 0.0, rng.uniform(0, jitter_ms / 1e3, n))
-    pacer = ReadPacer(max_pause_s=0.02, guard_s=0.002)
-    late = simulate_reader(hz, 12.0, delays, pacer)
-    assert len(late) >= 10
-    assert max(late[2:]) == 0.0  # the first steps come before the delay is known
-    assert pacer.lag_s >= 5.0 - 1e-6  # never below the true delay (device times in whole us)
-
-
-def test_paced_reads_at_the_wires_limit() -> None:
-    """18,750 frames/s (3 Mbaud), delivery late by up to 3 ms for half the frames."""
-    rng = np.random.default_rng(1)
-    n = 18750 * 5
-    delays = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(0, 0.003, n))
-    late = simulate_reader(18750.0, 5.0, delays, ReadPacer())
-    assert len(late) == 4 and max(late[1:]) == 0.0
-
-
-def test_pacing_batches_reads_and_gives_up_nothing_on_steady_delivery() -> None:
-    pacer = ReadPacer(max_pause_s=0.02, guard_s=0.002)
-    assert pacer.pause(10.0, 5.0, None, 10.0) == 0.0  # unknown: read now
-    assert pacer.lag_s == 5.0
-    assert pacer.pause(10.01, 5.01, 0.5, 10.0101) == 0.02  # far from the step: the longest pause
-    assert pacer.pause(10.9, 5.9, 0.0025, 10.9) == 0.0  # the closing frame is 2.5 ms away
-    assert pacer.pause(10.9, 5.9, 0.0035, 10.9) == pytest.approx(0.0015)
-    # A late batch (lag 5.1 s) does not raise the estimate beyond its drift allowance.
-    pacer.pause(11.5, 6.4, 0.1, 11.5)
-    assert pacer.lag_s == pytest.approx(5.0 + 2e-4 * 0.6)
-    pacer.pause(11.6, 6.6, 0.1, 11.6)  # a device clock running fast: followed at once
-    assert pacer.lag_s == pytest.approx(5.0)
-    pacer.reset()
-    assert pacer.lag_s == math.inf and pacer.pause(20.0, 1.0, 0.5, 20.0) == 0.02
-    # At 18,750 frames/s (a 3 Mbaud link's limit) no more than 128 frames gather: 6.8 ms.
-    assert pacer.pause(20.1, 1.1, 0.5, 20.1, 1 / 18750) == pytest.approx(128 / 18750)
-    assert pacer.pause(20.2, 1.2, 0.5, 20.2, 1 / 1000) == 0.02
-    with pytest.raises(ValueError):
-        ReadPacer(guard_s=-1.0)

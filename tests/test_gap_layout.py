@@ -39,7 +39,8 @@ def test_every_module_is_small() -> None:
 
 def test_no_private_name_crosses_a_module() -> None:
     crossing = []
-    for name, tree in modules().items():
+    mods = modules()  # parsed once (not once per attribute node)
+    for name, tree in mods.items():
         for target, names in sibling_imports(tree):
             crossing += [f"{name} imports {target}.{n}" for n in names if n.startswith("_")]
         for node in ast.walk(tree):  # module._private through an imported module object
@@ -48,7 +49,7 @@ def test_no_private_name_crosses_a_module() -> None:
                 and node.attr.startswith("_")
                 and not node.attr.startswith("__")
                 and isinstance(node.value, ast.Name)
-                and node.value.id in modules()
+                and node.value.id in mods
             ):
                 crossing.append(f"{name} uses {node.value.id}.{node.attr}")
     assert crossing == []

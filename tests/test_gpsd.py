@@ -17,9 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.daemon.aiding import AIDED, GpsAiding
-from hdrd.daemon.gpslink import GpsdLink
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.aiding import GpsAiding
 from hdrd.io.gpsd import (
     WATCH_COMMAND,
     Attitude,
@@ -406,79 +404,6 @@ def test_refused_connections_back_off_and_never_raise():
     assert 10 <= len(tries) <= 25, tries  # not 600: backed off
     assert gaps[0] < gaps[2] < gaps[4]  # doubling ...
     assert max(gaps) <= 4.0 + 0.25  # ... up to the maximum
-
-
-def test_link_feeds_speed_and_aids_messages(peer):
-    c = GpsdClient("127.0.0.1", peer.port)
-    link = GpsdLink(c, GpsAiding())
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
-    try:
-        link.poll(p, now=0.0)
-        peer.accept()
-        deadline = time.monotonic() + WAIT
-        while not c.connected and time.monotonic() < deadline:
-            link.poll(p, now=0.0)
-        peer.send(REAL_TPV + "\n")
-        while p.speed_mps is None and time.monotonic() < deadline:
-            link.poll(p, now=1.0)
-        assert p.speed_mps == pytest.approx(10.289)
-        msg = {
-            "class": "HDR",
-            "v": 1,
-            "t": 1.0,
-            "step": 0,
-            "omega_raw": 0.0,
-            "omega": 0.0,
-            "yaw": 0.0,
-            "heading": 0.0,
-            "bias": 0.0,
-            "status": "ok",
-        }
-        (out,) = link.aid([msg], p, now=1.2)
-        assert (
-            out["mode"] == AIDED
-            and out["heading"] == pytest.approx(31.0)
-            and out["gps_course"] == 31.0
-        )
-        link.poll(p, now=10.0)  # the fix is stale now
-        assert p.speed_mps is None
-        (out,) = link.aid([dict(msg, t=2.0, step=1)], p, now=10.0)
-        assert out["mode"] == "dead-reckoning" and out["heading"] == pytest.approx(31.0)
-    finally:
-        link.close()
-    assert c.closed
-
-
-def test_link_from_config_takes_the_aiding_keys():
-    from hdrd.config import Config, apply_overrides
-
-    cfg = apply_overrides(
-        Config(),
-        {
-            "gpsd.enabled": True,
-            "gpsd.min_speed_mps": 3.0,
-            "gpsd.max_fix_age_s": 1.5,
-            "gpsd.max_epd_deg": 8.0,
-            "gpsd.align_gain": 0.5,
-            "gpsd.bias_window_s": 45.0,
-            "gpsd.bias_gain": 0.1,
-            "gpsd.device": "/dev/ttyUSB1",
-        },
-    )
-    link = GpsdLink.from_config(cfg.gpsd, step_s=0.5)
-    try:
-        a = link.aiding.config
-        assert (a.min_speed_mps, a.max_fix_age_s, a.max_epd_deg) == (3.0, 1.5, 8.0)
-        assert (a.align_gain, a.bias_window_s, a.bias_gain, a.step_s) == (0.5, 45.0, 0.1, 0.5)
-        assert a.device == "/dev/ttyUSB1" and link.aiding.device == "/dev/ttyUSB1"
-    finally:
-        link.close()
-    # empty (the default): the first receiver with a fix
-    link = GpsdLink.from_config(Config().gpsd)
-    try:
-        assert link.aiding.config.device is None
-    finally:
-        link.close()
 
 
 # -- hostile input: anything that answers on the gpsd address -----------------------------------

@@ -7,6 +7,7 @@ constant, and the command line's few light copies equal to their homes."""
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import inspect
 from pathlib import Path
@@ -28,8 +29,14 @@ def module_name(path: Path) -> str:
     return ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
 
 
+@functools.cache
+def parsed(path: Path) -> ast.Module:
+    """A source file's tree, parsed once for all the tests here (none changes a tree)."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def modules() -> dict[str, ast.Module]:
-    return {module_name(p): ast.parse(p.read_text(), str(p)) for p in sorted(PKG.rglob("*.py"))}
+    return {module_name(p): parsed(p) for p in sorted(PKG.rglob("*.py"))}
 
 
 def imports(tree: ast.Module, known: set[str]) -> set[str]:
@@ -153,15 +160,20 @@ def test_the_layer_rules_are_not_empty_words() -> None:
 
 
 # These drive the daemon's run loop itself in-process (a reload with a hostile configuration, a
-# bias choice); nothing offline (replay, evaluate, tune, gap) may reach it.
-DAEMON_TESTERS = ["bench/fuzz_targets.py", "hdrd/commands/run.py", "tests/test_hardening.py"]
+# bias choice, a whole run on the simulated gyro); nothing offline (replay, evaluate, tune, gap) may reach it.
+DAEMON_TESTERS = [
+    "bench/fuzz_targets.py",
+    "hdrd/commands/run.py",
+    "tests/test_hardening.py",
+    "tests/test_run.py",  # the run loop's own tests
+]
 
 
 def test_only_the_run_command_imports_the_run_loop() -> None:
     importers = []
     for top in ("hdrd", "bench", "tools", "tests"):
         for p in sorted((ROOT / top).rglob("*.py")):
-            tree = ast.parse(p.read_text(), str(p))
+            tree = parsed(p)
             for node in ast.walk(tree):
                 names = (
                     [node.module or ""]

@@ -1,6 +1,7 @@
-"""Drive logs as Parquet (hdrd/io/parquetlog.py) and the drives a command line names
-(hdrd/io/drivefiles.py): read exactly like the CSV, the same checks, files, a file holding many
-drives, a dataset partitioned by drive, directories and globs."""
+"""Drive logs as Parquet (hdrd/io/parquetlog.py): read exactly like the CSV, the same checks,
+files, a file holding many drives, a dataset partitioned by drive, as the drives a command
+line names find them (hdrd/io/drivefiles.py; its directories, globs and mixed formats:
+test_drivefiles.py)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
 from hdrd.commands.fakegyro import FakeGyro
-from hdrd.io.drivefiles import DriveRef, find_drives
+from hdrd.io.drivefiles import find_drives
 from hdrd.io.drivelog import (
     NO_LIMITS,
     DriveLog,
@@ -210,30 +211,6 @@ def test_a_dataset_partitioned_by_drive(city: DriveLog, tmp_path: Path) -> None:
     (ref,) = find_drives([str(split)])
     assert ref.name == "split"
     assert np.array_equal(ref.read().t, np.concatenate([city.t[:600], city.t[600:]]))
-
-
-def test_directories_globs_and_mixed_formats(city: DriveLog, tmp_path: Path) -> None:
-    (tmp_path / "a" / "b").mkdir(parents=True)
-    write_drive(tmp_path / "a" / "x.csv", city)
-    write_parquet_drive(tmp_path / "a" / "b" / "y.parquet", city)
-    write_dataset_drive(tmp_path / "a" / "ds", city, "z")
-    (tmp_path / "a" / "notes.txt").write_text("not a log")
-    refs = find_drives([str(tmp_path / "a")])
-    assert [r.name for r in refs] == ["b/y", "ds/z", "x"]
-    assert all(isinstance(r, DriveRef) for r in refs)
-    logs = [r.read() for r in refs]
-    for log in logs[1:]:
-        for c in log.columns():
-            assert np.array_equal(getattr(log, c), getattr(logs[0], c), equal_nan=True)
-    globbed = find_drives([str(tmp_path / "a" / "**" / "*.parquet")])
-    assert [Path(r.path).name for r in globbed] == ["y.parquet", "part-0.parquet"]
-    with pytest.raises(DriveLogError, match="no file matches"):
-        find_drives([str(tmp_path / "nothing-*.csv")])
-    with pytest.raises(DriveLogError, match="no such file"):
-        find_drives([str(tmp_path / "missing.csv")])
-    (tmp_path / "empty").mkdir()
-    with pytest.raises(DriveLogError, match="a directory without drive logs"):
-        find_drives([str(tmp_path / "empty")])
 
 
 def test_simulate_and_convert_write_parquet(

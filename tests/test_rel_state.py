@@ -4,7 +4,7 @@ Already covered elsewhere and not repeated: every config key with each kind of b
 (wrong type, out of range, NaN/inf), unknown keys per section, empty file, YAML errors and a
 missing file, through the parser and through `hdrd replay` (tests/test_config.py); every
 truncation and many corruptions of a bias file, the 0644 mode whatever the umask, a failed
-or interrupted write (tests/test_calibrate.py); a truncated bias file refused by `hdrd run`
+or interrupted write (tests/test_biasfile.py); a truncated bias file refused by `hdrd run`
 (tests/test_daemon.py).
 
 Here, as processes: `hdrd run` exits 78 with one line naming the key for a representative

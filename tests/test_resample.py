@@ -107,47 +107,6 @@ def test_clock_wrap_in_the_middle_of_a_block() -> None:
     assert not any(isinstance(x, Missing) for x in out)
 
 
-def test_device_clock_unwraps_monotonically_across_wraps() -> None:
-    clock = DeviceClock()
-    t = CLOCK_WRAP_US - 10
-    assert clock.unwrap(t) == t
-    assert clock.unwrap(5) == CLOCK_WRAP_US + 5
-    # Forward jumps of less than half the wrap period (35.8 min) are time passing.
-    assert clock.unwrap((1 << 31) - 1) == CLOCK_WRAP_US + (1 << 31) - 1
-    assert clock.unwrap(CLOCK_WRAP_US - 2) == 2 * CLOCK_WRAP_US - 2
-    assert clock.unwrap(3) == 2 * CLOCK_WRAP_US + 3
-    assert clock.wraps == 2
-    # 2**32 - 6 us "forward" is 6 us back: a reordered sample, rejected.
-    assert clock.unwrap(CLOCK_WRAP_US - 3) is None
-
-
-@pytest.mark.parametrize("back_us", [0, 1, 50_000, 1_000_000])
-def test_repeated_and_out_of_order_timestamps_are_rejected(back_us: int) -> None:
-    clock = DeviceClock()
-    assert clock.unwrap(2_000_000) == 2_000_000
-    assert clock.unwrap(2_100_000) == 2_100_000
-    assert clock.unwrap(2_100_000 - back_us) is None
-    assert clock.rejected == 1 and clock.resets == 0
-    assert clock.unwrap(2_200_000) == 2_200_000  # resumes as if the bad one never came
-
-
-def test_rejected_sample_across_the_wrap() -> None:
-    clock = DeviceClock()
-    clock.unwrap(10)
-    assert clock.unwrap(CLOCK_WRAP_US - 100) is None  # 110 us back, across the wrap
-    assert clock.unwrap(20) == 20
-
-
-def test_device_reset_resumes_after_the_last_sample() -> None:
-    clock = DeviceClock()
-    assert clock.unwrap(50_000_000) == 50_000_000
-    assert clock.unwrap(50_100_000) == 50_100_000
-    # The device rebooted: its clock starts again near 0 (more than 1 s back).
-    assert clock.unwrap(1_000) == 50_100_001
-    assert clock.resets == 1 and clock.rejected == 0
-    assert clock.unwrap(101_000) == 50_200_001  # then time passes normally
-
-
 def test_device_reset_in_the_resampler() -> None:
     raw = [k * 100_000 for k in range(15)] + [500 + k * 100_000 for k in range(10)]
     out, clock, _ = run_stream(raw, [1.0] * 15 + [2.0] * 10)
@@ -274,14 +233,6 @@ def test_vectorised_equals_streaming(cap: tuple[list[int], list[float]], T_s: fl
     assert covered == list(range(len(covered)))
 
 
-def test_unwrap_us_empty_and_fast_path() -> None:
-    t, ok = unwrap_us([])
-    assert t.shape == (0,) and ok.shape == (0,)
-    raw = np.array([CLOCK_WRAP_US - 5, 2, 10])
-    t, ok = unwrap_us(raw)
-    assert ok.all() and t.tolist() == [CLOCK_WRAP_US - 5, CLOCK_WRAP_US + 2, CLOCK_WRAP_US + 10]
-
-
 def test_block_means_empty() -> None:
     idx, mean, n = block_means(np.empty(0, np.int64), np.empty(0))
     assert idx.shape == mean.shape == n.shape == (0,)
@@ -315,22 +266,6 @@ def test_block_spread_streaming_equals_vectorised_and_numpy():
     idx = (t - t[0]) // 1_000_000
     for blk in sb:
         np.testing.assert_allclose(blk.std, np.std(v[idx == blk.index]), rtol=1e-9, atol=1e-12)
-
-
-@given(
-    st.integers(0, 2**32 - 1),
-    st.lists(st.integers(1, 3_000_000), min_size=1, max_size=300),
-    st.integers(0, 300),
-)
-def test_unwrap_many_continues_the_clock_like_unwrap(t0, steps, cut):
-    raw = (t0 + np.cumsum([0, *steps])) % 2**32
-    a, b = DeviceClock(), DeviceClock()
-    stream = [a.unwrap(int(t)) for t in raw]
-    cut = min(cut, len(raw))
-    first, _ = b.unwrap_many(raw[:cut])
-    second, _ = b.unwrap_many(raw[cut:])
-    assert [*first.tolist(), *second.tolist()] == stream
-    assert (b.wraps, b._last, b._last_raw) == (a.wraps, a._last, a._last_raw)
 
 
 def test_memory_follows_the_samples_not_the_device_time_they_span() -> None:
@@ -539,129 +474,6 @@ def test_block_std_is_never_nan_for_equal_samples() -> None:
     assert b.sumsq / b.n - b.mean * b.mean < 0.0
     assert b.std == 0.0
     assert Block(0, 0.0, 1.0, 2.0, 4, sumsq=20.0).std == 1.0
-
-
-_CLOCK_STEP = st.one_of(
-    st.integers(1, 300_000),
-    st.integers(1, 300_000),
-    st.integers(300_000, (1 << 31) - 1),
-    st.sampled_from([0, 1 << 31, (1 << 31) - 1, (1 << 31) + 1]),
-    st.sampled_from([-1, -1_000_000, -1_000_001]),
-    st.integers(-1_000_000, -1),
-    st.integers(-(1 << 31), -1_000_001),
-)
-
-
-@st.composite
-def raw_clock(draw: st.DrawFn) -> list[int]:
-    """32-bit device times with every kind of step: forward (to just under half the wrap),
-    across the wrap, repeated, a little back (<= 1 s: rejected), far back (a reset), and
-    exactly at the limits (half the wrap forward, 1 s and 1 s + 1 us back)."""
-    t = draw(st.integers(0, CLOCK_WRAP_US - 1))
-    out = [t]
-    for step in draw(st.lists(_CLOCK_STEP, max_size=60)):
-        t = (t + step) % CLOCK_WRAP_US
-        out.append(t)
-    return out
-
-
-@settings(max_examples=200, deadline=None)
-@given(raw=raw_clock(), cuts=st.lists(st.integers(0, 61), max_size=3))
-def test_unwrap_many_is_unwrap_in_everything(raw: list[int], cuts: list[int]) -> None:
-    ref, sub = DeviceClock(), DeviceClock()
-    want = [ref.unwrap(x) for x in raw]
-    got: list[int | None] = []
-    edges = [0, *sorted(min(c, len(raw)) for c in cuts), len(raw)]
-    for lo, hi in zip(edges, edges[1:]):
-        t, ok = sub.unwrap_many(np.array(raw[lo:hi], np.int64))
-        assert ok.tolist() == [x >= 0 for x in t.tolist()]
-        got += [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())]
-        assert (sub.last_us, sub.wraps, sub.rejected, sub.resets) == (DeviceClock_after(raw[:hi]))
-    assert got == want
-    assert (sub.last_us, sub.wraps, sub.rejected, sub.resets) == (
-        ref.last_us, ref.wraps, ref.rejected, ref.resets,
-    )  # fmt: skip
-    # The function form is a fresh clock over the whole array.
-    t, ok = unwrap_us(np.array(raw, np.int64))
-    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want
-
-
-def DeviceClock_after(raw: list[int]) -> tuple[int | None, int, int, int]:  # noqa: N802
-    c = DeviceClock()
-    for x in raw:
-        c.unwrap(x)
-    return c.last_us, c.wraps, c.rejected, c.resets
-
-
-def test_clock_limits_exactly() -> None:
-    c = DeviceClock()
-    assert c.last_us is None
-    assert c.unwrap(5_000_000) == 5_000_000 and c.last_us == 5_000_000
-    # half the wrap forward is as far back: more than 1 s back, a reset (time moves 1 us)
-    assert c.unwrap(5_000_000 + (1 << 31)) == 5_000_001 and c.resets == 1
-    # just under half the wrap forward is time passing, here across 2**32
-    assert c.unwrap(5_000_000 - 1) == 5_000_001 + (1 << 31) - 1
-    assert c.wraps == 1  # that last step crossed 2**32
-    base, raw = 5_000_001 + (1 << 31) - 1, 5_000_000 - 1
-    assert c.last_us == base
-    # exactly 1 s back: a reordered sample, rejected; 1 s + 1 us back: a reset
-    assert c.unwrap((raw - 1_000_000) % CLOCK_WRAP_US) is None and c.rejected == 1
-    assert c.unwrap((raw - 1_000_001) % CLOCK_WRAP_US) == base + 1 and c.resets == 2
-    # the same time twice: the second is rejected
-    assert c.unwrap((raw - 1_000_001) % CLOCK_WRAP_US) is None and c.rejected == 2
-    assert (c.wraps, c.rejected, c.resets) == (1, 2, 2)
-
-
-@pytest.mark.parametrize(
-    "raw",
-    [
-        [10, 10, 20],  # a repeat: d == 0
-        [10, 10 + (1 << 31), 20],  # d == half the wrap
-        [10, 10 + (1 << 31) - 1, 20 + (1 << 31)],  # just under half: the fast path
-        [CLOCK_WRAP_US - 1, 0, 1],  # across the wrap, 1 us steps
-    ],
-)
-def test_array_clock_forms_at_their_fast_path_limits(raw: list[int]) -> None:
-    c = DeviceClock()
-    want = [c.unwrap(x) for x in raw]
-    t, ok = unwrap_us(np.array(raw, np.int64))
-    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want
-    d = DeviceClock()
-    d.unwrap(raw[0])
-    t, ok = d.unwrap_many(np.array(raw[1:], np.int64))
-    assert [int(x) if k else None for x, k in zip(t.tolist(), ok.tolist())] == want[1:]
-    assert (d.wraps, d.rejected, d.resets, d.last_us) == (c.wraps, c.rejected, c.resets, c.last_us)
-
-
-def test_array_forms_take_the_frames_uint32_clock_and_give_int64() -> None:
-    # frames["t_us"] is uint32: arithmetic on it in uint32 would overflow at the wrap.
-    raw = [CLOCK_WRAP_US - 300_000, CLOCK_WRAP_US - 100_000, 100_000, 300_000, 500_000]
-    c = DeviceClock()
-    want = [c.unwrap(x) for x in raw]
-    for dtype in (np.uint32, np.int64):
-        t, ok = unwrap_us(np.array(raw, dtype))
-        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
-        d = DeviceClock()
-        t, ok = d.unwrap_many(np.array(raw, dtype))
-        assert t.dtype == np.int64 and ok.all() and t.tolist() == want
-        assert (d.wraps, d.last_us) == (1, want[-1])
-    # the slow path (a repeat) and the empty array are int64 too
-    t, ok = DeviceClock().unwrap_many(np.array([5, 5, 7], np.uint32))
-    assert t.dtype == np.int64 and t.tolist() == [5, -1, 7] and ok.tolist() == [True, False, True]
-    for t, ok in (DeviceClock().unwrap_many([]), unwrap_us([])):
-        assert t.dtype == np.int64 and ok.dtype == bool and t.shape == (0,)
-
-
-def test_unwrap_many_counts_one_wrap_with_samples_after_it() -> None:
-    # Every step forward (the numpy path), the wrap in the middle, three samples after it.
-    raw = [CLOCK_WRAP_US - 250_000, CLOCK_WRAP_US - 150_000, CLOCK_WRAP_US - 50_000,
-           50_000, 150_000, 250_000]  # fmt: skip
-    for head in (0, 1, 2):
-        c = DeviceClock()
-        for x in raw[:head]:
-            c.unwrap(x)
-        c.unwrap_many(np.array(raw[head:], np.int64))
-        assert c.wraps == 1 and c.last_us == CLOCK_WRAP_US + 250_000
 
 
 def test_block_average_seconds_works_in_float64_whatever_comes_in() -> None:

@@ -1,13 +1,13 @@
 # ruff: noqa: F811 - the fixtures hdrd and receivers come from test_rel_daemon by import
 """``hdrd run`` beside inputs and outputs that misbehave: whatever answers on the gpsd address
 (lines no parser can use, negative speeds, a flood), a stdout reader that stalls, a device
-that is not there; and the rule that feeds the systemd watchdog.
+that is not there; and the systemd watchdog fed only while the loop makes progress.
 
 Real components: a daemon process reading a fake gyro on a real pty (or its simulated gyro),
 a TCP listener speaking as gpsd would (the real gpsd never sends such lines; tests with the
 real gpsd are in test_gpsd_nmea.py), real UDP receivers, a real pipe that nobody reads, a
 real NOTIFY_SOCKET. No timings are asserted: every wait is a generous upper bound that only a
-hung or starved daemon reaches.
+hung or starved daemon reaches. The watchdog rule itself, call by call: test_sdnotify.py.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from collections.abc import Iterator
 
 import pytest
 
-from hdrd.daemon.sdnotify import WatchdogGate
 from hdrd.io.publish import parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
@@ -284,45 +283,3 @@ def test_no_hdt_while_the_gyro_is_unplugged(hdrd, receivers, fake_gyro, tmp_path
     for m, grp in live:
         assert grp["HDT"] == [f"{m['heading']:.2f}", "T"] and grp["THS"][1] == "E"
         assert grp["ROT"][1] == "A"
-
-
-# -- the rule, unit by unit ---------------------------------------------------------------
-
-
-def test_watchdog_gate_pings_only_after_progress():
-    gate = WatchdogGate(5.0)
-    assert not gate.due(0.0)  # no progress yet
-    gate.progress()
-    assert gate.due(0.1)
-    gate.progress()
-    assert not gate.due(1.0)  # at most every interval
-    assert gate.due(5.1)
-    # a loop that turns without publishing or idling: no ping, however long
-    assert not any(gate.due(t) for t in (10.0, 20.0, 100.0))
-    gate.progress()  # ... until it catches up: at once
-    assert gate.due(100.5)
-
-
-def test_watchdog_gate_off_outside_systemd():
-    gate = WatchdogGate(None)
-    gate.progress()
-    assert not gate.due(1e9)
-
-
-def test_a_starved_loop_stops_feeding_the_watchdog():
-    """The run loop's rule over a scripted run: steps every second, then a loop starved for
-    30 s (no step, never idle), then the device gone (idle turns, stale reports)."""
-    gate = WatchdogGate(2.5)  # WatchdogSec=5
-    pings: list[float] = []
-    t = 0.0
-    while t < 90.0:
-        healthy = t < 20.0 or t >= 50.0
-        if healthy and abs(t - round(t)) < 1e-9:
-            gate.progress()  # a step (or, after 50 s, a stale report / an idle recv)
-        if gate.due(t):
-            pings.append(t)
-        t = round(t + 0.1, 1)
-    gaps = [b - a for a, b in zip(pings, pings[1:])]
-    assert max(g for a, g in zip(pings, gaps) if a < 17.0) <= 3.0  # fed while stepping
-    assert not [p for p in pings if 22.6 <= p < 50.0]  # starved: none after the last step
-    assert pings[-1] > 85.0  # fed again once it catches up

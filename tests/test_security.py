@@ -15,7 +15,7 @@
 
 Covered elsewhere and not repeated: the unit's hardening directives, `systemd-analyze verify`
 and the `systemd-analyze security --offline=true` exposure kept at "OK" and recorded in
-docs/operations.md (tests/test_systemd.py); the bias file's mode 0644 whatever the umask (tests/test_calibrate.py)
+docs/operations.md (tests/test_systemd.py); the bias file's mode 0644 whatever the umask (tests/test_biasfile.py)
 and as written by `hdrd calibrate` into $STATE_DIRECTORY (tests/test_rel_daemon.py).
 """
 

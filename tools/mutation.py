@@ -1,15 +1,16 @@
 #!/usr/bin/env python3
-"""Mutation testing of hdrd's core modules, each against its own tests (docs/testing.md).
+"""Mutation testing of hdrd's modules, each against its own tests (docs/testing.md).
 
     pip install mutmut        # not a dependency of hdrd: it brings textual, libcst, ...
     nice -n 10 python tools/mutation.py resample [hdr frames ...] [--max-children 1]
     nice -n 10 python tools/mutation.py frames --sample 200     # a seeded random sample
 
-For each module named, mutmut (3.x) mutates that module only (``hdrd/<module>.py``) and runs
-only the module's own test file against each mutant, in a copy of the tree under
-``$TMPDIR/hdrd-mutation/<module>`` (the work tree is not touched). Hypothesis runs
-derandomized and without its example database (the ``mutation`` profile in
-tests/conftest.py), so a run is reproducible. A test run that takes more than
+For each module named (a module of hdrd/core, hdrd/io or hdrd/daemon, by its name), mutmut
+(3.x) mutates that module only (``hdrd/<layer>/<module>.py``) and runs only the module's own
+test file (``tests/test_<module>.py``, and for a few the files in EXTRA) against each mutant,
+in a copy of the tree under ``$TMPDIR/hdrd-mutation/<module>`` (the work tree is not
+touched). Hypothesis runs derandomized and without its example database (the ``mutation``
+profile in tests/conftest.py), so a run is reproducible. A test run that takes more than
 TIMEOUT_MULTIPLIER times its clean duration plus TIMEOUT_CONSTANT_S is stopped and its
 mutant counted as timed out.
 
@@ -38,18 +39,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# module -> its own test files, and the mutants in scope (mutmut names, fnmatch patterns;
-# None: all of the module). calibrate: the pure estimation only; its bias-file I/O (atomic
-# writes, save_bias, load_bias) is tested through real files in tests/test_rel_state.py.
-MODULES: dict[str, tuple[list[str], list[str] | None]] = {
-    "hdr": (["tests/test_hdr.py"], None),
-    "resample": (["tests/test_resample.py"], None),
-    "clocks": (["tests/test_resample.py", "tests/test_calibrate.py"], None),
-    "frames": (["tests/test_frames.py"], None),
-    "capture": (["tests/test_frames.py"], None),
-    "sensor": (["tests/test_sensor.py"], None),
+# The layers whose modules have their own test file, tests/test_<module>.py (docs/development.md).
+LAYERS = ("core", "io", "daemon")
+
+# module -> test files run beside its own, and the mutants in scope (mutmut names, fnmatch
+# patterns; None: all of the module). calibrate: the pure estimation only; its bias file's I/O
+# (atomic writes, save_bias, load_bias) is hdrd/io/biasfile.py and hdrd/io/files.py's, tested
+# through real files in tests/test_biasfile.py and tests/test_files.py.
+EXTRA: dict[str, tuple[list[str], list[str] | None]] = {
+    "clocks": (["tests/test_resample.py"], None),  # the device clock under the resampler
+    "capture": (["tests/test_frames.py"], None),  # the decoder beside the push parser
+    "standstill": (["tests/test_zupt.py"], None),  # the detector inside HDR+
     "calibrate": (
-        ["tests/test_calibrate.py"],
+        [],
         [
             "hdrd.core.calibrate.x_estimate_bias__mutmut_*",
             "hdrd.core.calibrate.x_noise_sigma__mutmut_*",
@@ -59,23 +61,44 @@ MODULES: dict[str, tuple[list[str], list[str] | None]] = {
             "hdrd.core.calibrate.xǁStartupWindowǁ*",
         ],
     ),
-    "pipeline": (["tests/test_pipeline.py"], None),
-    "zupt": (["tests/test_zupt.py"], None),
-    "hdrplus": (["tests/test_hdrplus.py"], None),
-    "biasbank": (["tests/test_biasbank.py"], None),
 }
+
+
+def find_modules(root: Path = ROOT) -> dict[str, str]:
+    """Module name -> its source file relative to the repository (``hdrd/core/hdr.py``), for
+    every module of :data:`LAYERS` that has its own test file."""
+    found: dict[str, str] = {}
+    for layer in LAYERS:
+        for src in sorted((root / "hdrd" / layer).glob("*.py")):
+            if src.stem != "__init__" and (root / "tests" / f"test_{src.stem}.py").exists():
+                found[src.stem] = src.relative_to(root).as_posix()
+    return found
+
+
+MODULES = find_modules()
+
+
+def tests_of(module: str) -> list[str]:
+    """The test files run against the mutants of ``module``: its own, then :data:`EXTRA`'s."""
+    return [f"tests/test_{module}.py", *EXTRA.get(module, ([], None))[0]]
+
+
+def scope_of(module: str) -> list[str] | None:
+    return EXTRA.get(module, ([], None))[1]
+
+
 TIMEOUT_MULTIPLIER = 5.0
 TIMEOUT_CONSTANT_S = 5.0
 
 
 def mutmut_config(module: str) -> str:
     """The [tool.mutmut] section for one module's run."""
-    tests = MODULES[module][0]
+    tests = tests_of(module)
     lines = [
         "",
         "[tool.mutmut]",
         'source_paths = ["hdrd"]',
-        f'only_mutate = ["hdrd/{module}.py"]',
+        f'only_mutate = ["{MODULES[module]}"]',
         f"pytest_add_cli_args_test_selection = {tests!r}",
         'pytest_add_cli_args = ["-p", "no:cacheprovider", "-m", "not slow"]',
         f"timeout_multiplier = {TIMEOUT_MULTIPLIER}",
@@ -121,7 +144,7 @@ def all_mutants(work: Path, module: str, mutmut: str, env: dict[str, str]) -> li
         env=env,
         capture_output=True,
     )
-    meta = work / "mutants" / "hdrd" / f"{module}.py.meta"
+    meta = work / "mutants" / f"{MODULES[module]}.meta"
     return sorted(json.loads(meta.read_text())["exit_code_by_key"])
 
 
@@ -157,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     env.pop("PYTHONPATH", None)  # the copy's hdrd, as mutmut sets up sys.path, nothing else
     for module in args.modules:
         work = prepare(module, args.workdir)
-        scope = MODULES[module][1]
+        scope = scope_of(module)
         if args.sample:
             names = all_mutants(work, module, mutmut, env)
             if scope is not None:

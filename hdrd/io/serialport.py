@@ -380,7 +380,7 @@ class SerialReader:
         of the daemon's CPU. The descriptor is non-blocking (pyserial opens it O_NONBLOCK), so
         a read takes what the driver holds. Losses are what pyserial reports: an error from
         poll or read (EIO once a pty's other side has closed), or a readable descriptor that
-        gives no bytes (an unplugged USB adapter). tests/test_source.py (ptys, cable pulls).
+        gives no bytes (an unplugged USB adapter). tests/test_serialport.py (ptys, sockets).
         """
         try:
             if not poller.poll(None if timeout is None else timeout * 1000.0):

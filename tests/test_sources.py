@@ -1,4 +1,5 @@
-"""hdrd.io.sources: serial (loop://, real ptys, cable pulls) and simulated sources."""
+"""hdrd.io.sources: serial (loop://, real ptys, cable pulls) and simulated sources: frames and
+link events. The raw link underneath (reopening, backoff, sockets): test_serialport.py."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from hdrd.io.frames import (
     encode,
     encode_bin,
 )
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialReader, SerialSource, Source
+from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.sim.source import SimulatedSource
 
@@ -122,8 +123,6 @@ def test_bad_frames_are_reported_per_frame_as_in_a_capture() -> None:
 def test_unusable_url_is_a_clear_error() -> None:
     with pytest.raises(ValueError, match="unusable serial port URL"):
         SerialSource("nosuchscheme://x")
-    with pytest.raises(ValueError):
-        SerialReader("loop://", reconnect_min_s=2.0, reconnect_max_s=1.0)
 
 
 # --------------------------------------------------------------------------- serial: ptys
@@ -358,24 +357,3 @@ def test_end_input_hands_out_a_held_frame(tmp_path: Path) -> None:
             assert src.stats.frames == 1 and src.parser.pending == 0
     finally:
         os.close(master)
-
-
-def test_the_port_is_opened_exclusively(fake_gyro) -> None:
-    # A second opener of the same device (hdrd calibrate on the running daemon's port) gets
-    # a clear "in use" instead of half the frames; once the first closes, the port is free.
-    g = fake_gyro(builtin_profile("standstill", minutes=1), speedup=0)
-    first = SerialReader(g.path)
-    assert first.is_open and not first.busy
-    second = SerialReader(g.path, reconnect_min_s=0.01, reconnect_max_s=0.02)
-    assert not second.is_open and second.busy
-    assert second.last_error == (
-        f"{g.path} is in use by another program (another hdrd run, calibrate or record?)"
-    )
-    lost = second.read(0)
-    assert isinstance(lost, DeviceLost) and "in use by another program" in lost.reason
-    first.close()
-    deadline = time.monotonic() + 10
-    while not isinstance(second.read(0.05), DeviceBack):
-        assert time.monotonic() < deadline
-    assert second.is_open and not second.busy
-    second.close()

@@ -1,0 +1,269 @@
+"""hdrd.daemon.run: the run loop in this process: where the bias comes from, which publishers
+a configuration makes, a whole run on the built-in simulated gyro (published over a real UDP
+socket, systemd told on a real NOTIFY_SOCKET, the signal handlers put back), and what a
+reload takes and what it keeps.
+
+``hdrd run`` as a process (a fake gyro on a pty, signals, cable pulls, start-up under
+trouble): test_daemon.py, test_daemon_startup.py, test_rel_daemon.py, test_run_stress.py.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hdrd.config import Config, ConfigError, apply_overrides
+from hdrd.core.calibrate import BiasRecord
+from hdrd.daemon.run import BiasChoice, Daemon, build_publishers, choose_bias
+from hdrd.io.biasfile import BiasFileError, save_bias
+from hdrd.io.publish import StdoutPublisher, UdpJsonPublisher, UdpNmeaPublisher
+
+WAIT_S = 60.0  # upper bound for a run that should take a second or two
+
+# -- where the bias comes from -------------------------------------------------------------
+
+
+@pytest.fixture
+def state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The unit's state directory (where the default bias file is), empty."""
+    d = tmp_path / "state"
+    d.mkdir()
+    monkeypatch.setenv("STATE_DIRECTORY", str(d))
+    return d
+
+
+def test_bias_from_the_command_line_wins(state_dir: Path) -> None:
+    save_bias(state_dir / "bias.yaml", BiasRecord(0.5, 0.01, 300, 30.0))
+    choice = choose_bias(Config(), -0.125)
+    assert choice.source == "--bias" and choice.record is not None
+    assert choice.record.bias_dps == -0.125
+
+
+def test_bias_from_the_default_file_else_measured_at_start(state_dir: Path) -> None:
+    assert choose_bias(Config(), None) == BiasChoice(None, "startup")
+    rec = BiasRecord(0.5, 0.01, 300, 30.0, 21.0, 1.7e9)
+    save_bias(state_dir / "bias.yaml", rec)
+    assert choose_bias(Config(), None) == BiasChoice(rec, str(state_dir / "bias.yaml"))
+
+
+def test_a_named_bias_file_must_exist(state_dir: Path, tmp_path: Path) -> None:
+    named = tmp_path / "mine.yaml"
+    cfg = apply_overrides(Config(), {"calibration.bias_file": str(named)})
+    with pytest.raises(BiasFileError, match="not found"):
+        choose_bias(cfg, None)
+    # ... even when a bad file may fall back to measuring: a typo is not a bad file
+    lenient = apply_overrides(cfg, {"calibration.on_bad_bias_file": "calibrate"})
+    with pytest.raises(BiasFileError, match="not found"):
+        choose_bias(lenient, None)
+    save_bias(named, BiasRecord(0.25, 0.01, 300, 30.0))
+    assert choose_bias(cfg, None).source == str(named)
+
+
+def test_a_bad_bias_file_stops_the_start_unless_told_to_measure(state_dir: Path) -> None:
+    (state_dir / "bias.yaml").write_text("bias_dps: 0.5\n")  # truncated: no "# end"
+    with pytest.raises(BiasFileError, match="truncated"):
+        choose_bias(Config(), None)
+    lenient = apply_overrides(Config(), {"calibration.on_bad_bias_file": "calibrate"})
+    assert choose_bias(lenient, None) == BiasChoice(None, "startup")
+
+
+def test_a_bias_beyond_the_configured_limit_is_a_bad_file(state_dir: Path) -> None:
+    save_bias(state_dir / "bias.yaml", BiasRecord(2.5, 0.01, 300, 30.0))
+    cfg = apply_overrides(Config(), {"calibration.max_bias_dps": 2.0})
+    with pytest.raises(BiasFileError, match="beyond"):
+        choose_bias(cfg, None)
+
+
+# -- publishers ----------------------------------------------------------------------------
+
+
+def test_stdout_when_nothing_else_is_configured() -> None:
+    (pub,) = build_publishers(Config())
+    assert isinstance(pub, StdoutPublisher)
+
+
+def test_each_configured_output_gets_its_publisher() -> None:
+    cfg = apply_overrides(
+        Config(),
+        {"output.udp": ["127.0.0.1:9"], "output.nmea_udp": ["127.0.0.1:10"], "output.stdout": True},
+    )
+    pubs = build_publishers(cfg)
+    try:
+        assert [type(p) for p in pubs] == [UdpJsonPublisher, UdpNmeaPublisher, StdoutPublisher]
+    finally:
+        for p in pubs:
+            p.stop()
+    only_udp = build_publishers(apply_overrides(Config(), {"output.udp": ["127.0.0.1:9"]}))
+    try:
+        assert [type(p) for p in only_udp] == [UdpJsonPublisher]  # no stdout then
+    finally:
+        for p in only_udp:
+            p.stop()
+
+
+# -- a whole run ---------------------------------------------------------------------------
+
+
+class Receiver:
+    """A UDP socket on 127.0.0.1 read by a thread into ``lines``, until :meth:`close`."""
+
+    def __init__(self, kind: int = socket.SOCK_DGRAM, family: int = socket.AF_INET) -> None:
+        self.sock = socket.socket(family, kind)
+        self.lines: list[str] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.sock.settimeout(0.05)
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            self.lines += data.decode().splitlines()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(WAIT_S)
+        self.sock.close()
+
+
+@pytest.fixture
+def udp() -> Iterator[Receiver]:
+    r = Receiver()
+    r.sock.bind(("127.0.0.1", 0))
+    r.start()
+    yield r
+    r.close()
+
+
+@pytest.fixture
+def notify(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Receiver]:
+    r = Receiver(family=socket.AF_UNIX)
+    path = tmp_path / "notify.sock"
+    r.sock.bind(str(path))
+    r.start()
+    monkeypatch.setenv("NOTIFY_SOCKET", str(path))
+    monkeypatch.delenv("WATCHDOG_USEC", raising=False)
+    yield r
+    r.close()
+
+
+def simulated(udp: Receiver, **more: object) -> Config:
+    port = udp.sock.getsockname()[1]
+    return apply_overrides(
+        Config(),
+        {
+            "simulate.drive": "standstill",  # 20 minutes, played as fast as the loop goes
+            "simulate.rate_hz": 10.0,
+            "simulate.speedup": 1_000_000.0,
+            "output.udp": [f"127.0.0.1:{port}"],
+            **more,
+        },
+    )
+
+
+def wait_for(cond: object, what: str) -> None:
+    import time
+
+    deadline = time.monotonic() + WAIT_S
+    while not cond():  # type: ignore[operator]
+        assert time.monotonic() < deadline, what
+        time.sleep(0.01)
+
+
+def test_a_run_on_the_simulated_gyro_publishes_every_step_and_tells_systemd(
+    udp: Receiver, notify: Receiver
+) -> None:
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    cfg = simulated(udp)
+    d = Daemon(cfg, "test", lambda: (cfg, "test"), BiasChoice(None, "startup"), simulate=True)
+    assert d.run() == 0
+    wait_for(lambda: len(udp.lines) >= d.steps and "STOPPING=1" in notify.lines, "all sent")
+    msgs = [json.loads(x) for x in udp.lines]
+    steps = [m["step"] for m in msgs if m["class"] == "HDR"]
+    # the drive's 1,230 s (a 30 s lead-in and 20 minutes) at 10 Hz: a step a second
+    assert d.steps == len(steps) == 1230
+    assert steps == list(range(steps[0], steps[0] + len(steps)))  # none lost, none twice
+    status = [m["status"] for m in msgs if m["class"] == "HDR"]
+    assert status[0] == "calibrating" and set(status[1:]) == {"ok"}  # the first step measures
+    said = notify.lines
+    assert said[0] == "STATUS=calibrating: measuring the bias over 1 s at standstill"
+    assert said.count("READY=1") == 1 and said[-1] == "STOPPING=1"
+    assert any(x.startswith("STATUS=") for x in said[said.index("READY=1") :])
+    # the handlers it took over are put back at the end
+    assert {s: signal.getsignal(s) for s in handlers} == handlers
+
+
+def test_a_stop_request_ends_the_run_cleanly(udp: Receiver) -> None:
+    """SIGTERM's handler only sets a flag; the loop ends at its next turn and shuts down."""
+    cfg = simulated(udp, **{"simulate.speedup": 100.0})  # the whole drive: 12 s
+    d = Daemon(cfg, "test", lambda: (cfg, "test"), BiasChoice(None, "startup"), simulate=True)
+
+    def stop_after_three_steps() -> None:
+        wait_for(lambda: len(udp.lines) >= 3, "three steps")
+        d.signals.stop = True  # what SIGTERM's handler does (test_signals.py)
+
+    stopper = threading.Thread(target=stop_after_three_steps)
+    stopper.start()
+    try:
+        assert d.run() == 0
+    finally:
+        stopper.join(WAIT_S)
+    assert d.signals.stop and 3 <= d.steps < 1230  # ended by the request, not by the drive
+
+
+# -- a reload ------------------------------------------------------------------------------
+
+
+def test_a_reload_takes_the_new_method_and_keeps_what_needs_a_restart() -> None:
+    old = Config()
+    new = apply_overrides(
+        Config(),
+        {"hdr.method": "hdr+", "hdr.T": 2.0, "device.port": "/dev/ttyUSB7"},
+    )
+    d = Daemon(old, "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
+    d._reload()
+    assert d.where == "new.yaml" and d.cfg.hdr.method == "hdr+"
+    assert d.cfg.hdr.params.T == old.hdr.params.T  # a step period needs a restart
+    assert d.cfg.device == old.device  # so does the device
+    assert d.pipeline.config.method == "hdr+"
+
+
+def test_a_reload_that_fails_keeps_the_running_configuration() -> None:
+    cfg = Config()
+
+    def broken() -> tuple[Config, str]:
+        raise ConfigError("hdr.c1", "x", "must be a number")
+
+    d = Daemon(cfg, "old.yaml", broken, BiasChoice(BiasRecord(0.1, 0.0, 0, 0.0), "--bias"))
+    pipeline_config = d.pipeline.config
+    d._reload()
+    assert d.cfg is cfg and d.where == "old.yaml" and d.pipeline.config == pipeline_config
+
+
+def test_a_reload_with_other_outputs_makes_new_publishers(udp: Receiver) -> None:
+    port = udp.sock.getsockname()[1]
+    new = apply_overrides(Config(), {"output.udp": [f"127.0.0.1:{port}"]})
+    d = Daemon(Config(), "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
+    d.publishers = build_publishers(d.cfg)
+    assert [type(p) for p in d.publishers] == [StdoutPublisher]
+    d._reload()
+    try:
+        assert [type(p) for p in d.publishers] == [UdpJsonPublisher]
+    finally:
+        for p in d.publishers:
+            p.stop()
