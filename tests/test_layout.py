@@ -154,7 +154,7 @@ def test_the_layer_rules_are_not_empty_words() -> None:
 
 # These drive the daemon's run loop itself in-process (a reload with a hostile configuration, a
 # bias choice); nothing offline (replay, evaluate, tune, gap) may reach it.
-DAEMON_TESTERS = ["bench/fuzz_targets.py", "hdrd/commands/run.py", "tests/test_hardening.py"]
+DAEMON_TESTERS = ["hdrd/commands/run.py", "tests/test_hardening.py", "tools/fuzz/targets.py"]
 
 
 def test_only_the_run_command_imports_the_run_loop() -> None:
