@@ -1,6 +1,8 @@
-"""Shared helpers of the performance benchmarks (bench/decode.py, replay.py, live.py, tune.py,
-startup.py): the machine's description, timing helpers, the 1-hour test capture, and
-appending a dated "## Performance: ..." section to bench/RESULTS.md.
+"""Shared helpers of the benchmarks: the machine's description, timing helpers, the 1-hour
+test capture, the scoring that more than one script needs (NEψ of a yaw, means per drive type
+and the share of drives worse than a reference over a set, the bias oracle of a simulated
+drive), and report writing (a command run and recorded, a figure formatted, a dated
+"## Performance: ..." section appended to bench/RESULTS.md or a script's own section replaced).
 
 Benchmarks measure; tests never assert timings. Every figure is reported with the machine it
 was taken on, including the load average at the time: this 2-core machine is shared with other
@@ -11,9 +13,12 @@ spent) vary much less, and each script prints both.
 from __future__ import annotations
 
 import datetime as _dt
+import json
+import math
 import os
 import platform
 import resource
+import shlex
 import shutil
 import statistics
 import subprocess
@@ -22,7 +27,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from hdrd.analysis.evaluate import PreparedDrive
+    from hdrd.io.drivelog import DriveLog
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -307,3 +318,106 @@ def replace_section(heading: str, section: str) -> None:
     RESULTS.write_text(
         "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
     )
+
+
+# --------------------------------------------------------------------------- report writing
+
+
+def run_recorded(cmd: list[str], shown: list[str]) -> subprocess.CompletedProcess[str]:
+    """Run a command from the repository root as a user would, append it to ``shown`` (as
+    the report lists it: ``python`` for this interpreter), print its time; stop the benchmark
+    with the command's output if it fails."""
+    text = " ".join(shlex.quote(c) for c in cmd).replace(sys.executable, "python")
+    print(f"$ {text}", flush=True)
+    shown.append(text)
+    t0 = time.monotonic()
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
+    if p.returncode != 0:
+        sys.stderr.write(p.stdout + p.stderr)
+        raise SystemExit(f"command failed ({p.returncode}): {text}")
+    print(f"  ({time.monotonic() - t0:.1f} s)", flush=True)
+    return p
+
+
+def fmt(v: float | None, d: int = 3) -> str:
+    """A figure with ``d`` decimals; a dash for a missing or non-finite one."""
+    return "–" if v is None or not math.isfinite(v) else f"{v:.{d}f}"
+
+
+# --------------------------------------------------------------------------- scoring
+
+
+def ne_psi(prep: PreparedDrive, yaw: np.ndarray, drop: int = 0) -> float:
+    """NEψ (deg/min, paper Eq. 13) of ``yaw`` (deg, one per step of ``prep``) over the steps
+    from ``drop`` on, aligned at the first step with truth there."""
+    from hdrd.analysis.metrics import align_index, e_psi
+
+    truth = prep.truth[drop:]
+    y = yaw[drop:]
+    k = align_index(y, truth)
+    return float(e_psi(y, truth, k)) / (y.shape[0] * prep.steps.T / 60.0)
+
+
+def type_means(values: Sequence[float] | np.ndarray, kinds: Sequence[str]) -> dict[str, float]:
+    """Mean of ``values`` per drive type (``kinds[i]`` is drive i's type), in order of first
+    appearance."""
+    import numpy as np
+
+    v = np.asarray(values, dtype=np.float64)
+    k = np.asarray(kinds, dtype=object)
+    return {t: float(np.mean(v[k == t])) for t in dict.fromkeys(kinds)}
+
+
+def share_worse(
+    values: Sequence[float] | np.ndarray, ref: Sequence[float] | np.ndarray, factor: float = 1.1
+) -> float:
+    """Share of drives whose figure exceeds ``factor`` x the reference's on the same drive
+    (the single-drive criterion: NEψ above 1.1 x paper HDR's)."""
+    import numpy as np
+
+    return float(np.mean(np.asarray(values) > factor * np.asarray(ref)))
+
+
+def true_gyro_error(log: DriveLog) -> np.ndarray:
+    """Per sample, the simulated gyro's output minus its true rate times the gyro's scale
+    factor (from the log's ``gyro_model`` metadata, 1 if none), deg/s: its bias and noise,
+    known in simulation only."""
+    gain = 1.0
+    for e in json.loads(log.meta.get("gyro_model", "[]")):
+        if e.get("name") == "scale_factor":
+            gain = 1.0 + float(e["error"])
+    assert log.omega_truth is not None
+    return log.omega - gain * log.omega_truth
+
+
+def oracle_yaw(
+    log: DriveLog, prep: PreparedDrive, extra: np.ndarray | None = None, window_s: float = 121.0
+) -> np.ndarray:
+    """Yaw (deg, one per step of ``prep``) with the gyro's true error (:func:`true_gyro_error`
+    per step, averaged over ``window_s`` centred, a window cut to the log at its ends, plus
+    ``extra``, an error added per step,
+    deg/s) removed from every step, white noise left in: a smoother's bias, known in
+    simulation only; not causal, a bound no real-time method reaches."""
+    import numpy as np
+
+    err = true_gyro_error(log)
+    t = log.t - log.t[0]
+    T = prep.steps.T
+    idx = np.floor(t / T + 1e-9).astype(np.int64)
+    n_all = int(idx[-1]) + 1
+    sums = np.bincount(idx, weights=err, minlength=n_all)
+    counts = np.bincount(idx, minlength=n_all)
+    step_err = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    k = max(1, int(round(window_s / T)))
+    # the window shrinks at the ends to the steps there are: zeros beyond the ends would take
+    # a bias B for B/2 there, and repeating the end step would weigh its noise 60 times
+    ones = np.ones(k)
+    smooth = np.convolve(step_err, ones, mode="same") / np.convolve(
+        np.ones(n_all), ones, mode="same"
+    )
+    first = int(round(prep.start_s / T))
+    corr = smooth[first : first + prep.steps.u.shape[0]] - prep.steps.bias_dps
+    if extra is not None:
+        corr = corr + extra
+    # u = raw - eps0 = true + err - eps0: removing (err - eps0) leaves the true rate.
+    return np.cumsum((prep.steps.u - corr) * T)

@@ -29,7 +29,6 @@ Rewrites its own section of bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -42,7 +41,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from _common import machine_line, replace_section
+from _common import fmt, machine_line, oracle_yaw, replace_section, share_worse, type_means
 
 from hdrd.analysis.evaluate import (
     DEFAULTS,
@@ -206,36 +205,6 @@ class Scores:
     e: dict[str, dict[str, float]]  # case -> method -> Eψ
 
 
-def oracle_yaw(
-    log: DriveLog, prep: PreparedDrive, extra: np.ndarray | None = None, window_s: float = 121.0
-) -> np.ndarray:
-    """Yaw with the gyro's true error (output minus the scaled true rate, smoothed over
-    ``window_s`` centred, plus ``extra``, an error added per step, deg/s) removed from every
-    step: known in simulation only."""
-    gain = 1.0
-    for e in json.loads(log.meta.get("gyro_model", "[]")):
-        if e.get("name") == "scale_factor":
-            gain = 1.0 + float(e["error"])
-    assert log.omega_truth is not None
-    err = log.omega - gain * log.omega_truth
-    t = log.t - log.t[0]
-    T = prep.steps.T
-    idx = np.floor(t / T + 1e-9).astype(np.int64)
-    n_all = int(idx[-1]) + 1
-    sums = np.bincount(idx, weights=err, minlength=n_all)
-    counts = np.bincount(idx, minlength=n_all)
-    step_err = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
-    k = max(1, int(round(window_s / T)))
-    kernel = np.ones(k) / k
-    smooth = np.convolve(step_err, kernel, mode="same")
-    first = int(round(prep.start_s / T))
-    corr = smooth[first : first + prep.steps.u.shape[0]] - prep.steps.bias_dps
-    if extra is not None:
-        corr = corr + extra
-    # u = raw - eps0 = true + err - eps0: removing (err - eps0) leaves the true rate.
-    return np.cumsum((prep.steps.u - corr) * T)
-
-
 def with_noise(noise: GyroNoise) -> SettingsContext:
     """The default configuration with ``noise`` given as HDR+'s error model (as ``plus.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
@@ -325,20 +294,14 @@ def worse(scores: Sequence[Scores], m: str, ref: str, case: str) -> float:
 
 def worse_than_hdr(scores: Sequence[Scores], m: str, case: str) -> float:
     """Share of drives whose NEψ exceeds 1.1 x paper HDR's (the single-drive criterion)."""
-    return float(np.mean(ne(scores, m, case) > 1.1 * ne(scores, "hdr", case)))
+    return share_worse(ne(scores, m, case), ne(scores, "hdr", case))
 
 
 def type_ratios(scores: Sequence[Scores], m: str, case: str) -> dict[str, float]:
     """Per drive type: mean NEψ of m / mean NEψ of paper HDR."""
-    out = {}
-    for kind in dict.fromkeys(x.kind for x in scores):
-        sub = [x for x in scores if x.kind == kind]
-        out[kind] = float(np.mean(ne(sub, m, case)) / np.mean(ne(sub, "hdr", case)))
-    return out
-
-
-def f3(v: float) -> str:
-    return f"{v:.3f}" if math.isfinite(v) else "–"
+    kinds = [x.kind for x in scores]
+    mine, hdr = type_means(ne(scores, m, case), kinds), type_means(ne(scores, "hdr", case), kinds)
+    return {k: mine[k] / hdr[k] for k in mine}
 
 
 def set_table(sets: dict[str, dict[str, list[Scores]]], label: str) -> str:
@@ -354,7 +317,7 @@ def set_table(sets: dict[str, dict[str, list[Scores]]], label: str) -> str:
             means = {m: float(np.mean(ne(sc, m, case))) for m in METHODS}
             lines.append(
                 f"| {grade} | {case} | {len(sc)} | "
-                + " | ".join(f3(means[m]) for m in METHODS)
+                + " | ".join(fmt(means[m]) for m in METHODS)
                 + f" | {means['hdr+'] / means['none']:.2f} | {means['hdr'] / means['hdr+']:.2f}x"
                 + f" | {worse(sc, 'hdr+', 'none', case):.0%} |"
             )

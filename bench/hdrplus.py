@@ -3,7 +3,6 @@
 
     python bench/hdrplus.py [--workdir /tmp/hdrd-hdrplus] [--routes 12] [--no-write]
     python bench/hdrplus.py --tune 300 [--seed 0]     # the training-set search (no write)
-    python bench/hdrplus.py --city-study train|held-out  # the city study's rows (no write)
     python bench/hdrplus.py --single-drive 40  # how often one drive is worse than paper HDR
 
 1. As processes, the commands a user runs (listed in bench/RESULTS.md): ``hdrd simulate
@@ -30,7 +29,6 @@ import json
 import math
 import os
 import shlex
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -43,8 +41,20 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from _common import (
+    fmt,
+    machine_line,
+    ne_psi,
+    oracle_yaw,
+    replace_section,
+    run_recorded,
+    share_worse,
+    true_gyro_error,
+    type_means,
+)
+
 from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
-from hdrd.analysis.metrics import align_index, e_psi
+from hdrd.analysis.metrics import e_psi
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdr import run_batch as hdr_batch
 from hdrd.core.hdrplus import (
@@ -54,13 +64,12 @@ from hdrd.core.hdrplus import (
     run_batch,
     step,
 )
-from hdrd.core.methods import SettingsContext, StepInputs, plus_settings
+from hdrd.core.methods import SettingsContext, plus_settings
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, VARIANTS, DriveSpec, generate
 from hdrd.sim.drive import simulate_legs
-from hdrd.sim.gyro import ScaleFactor, crs03_default_model
 
 RESULTS = REPO / "bench" / "RESULTS.md"
 SECTION = "## Beyond the paper: HDR+ and standstill re-calibration (held-out)"
@@ -71,18 +80,6 @@ PAPER = HdrParams()
 
 
 # -- running the user's commands ------------------------------------------------------------
-
-
-def run(cmd: list[str], log: list[str]) -> subprocess.CompletedProcess[str]:
-    """Run a command from the repository root, record it, fail loudly if it fails."""
-    shown = " ".join(shlex.quote(c) for c in cmd).replace(sys.executable, "python")
-    print(f"$ {shown}", flush=True)
-    log.append(shown)
-    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
-    if p.returncode != 0:
-        sys.stderr.write(p.stdout + p.stderr)
-        raise SystemExit(f"command failed ({p.returncode}): {shown}")
-    return p
 
 
 def hdrd(*args: str) -> list[str]:
@@ -101,35 +98,6 @@ class Variant:
     params: HdrPlusParams | None = None
     speed: bool = True
     temp: bool = True
-    gate_speed_mps: float = 0.0
-    """Ablation (bench only): below this known speed, m/s, I does not move and no
-    straight-driving measurement is taken."""
-    holdoff_steps: int = 0
-    """Ablation (bench only): steps after the turn switch opened during which I stays frozen."""
-
-
-def gated_yaw(
-    steps: StepInputs, p: HdrPlusParams, gate_speed_mps: float, holdoff_steps: int, temp: bool
-) -> np.ndarray:
-    """HDR+ step by step (:func:`hdrd.core.hdrplus.step`) with I frozen, and no straight-driving
-    measurement, on gated steps: below a speed, or within ``holdoff_steps`` after the turn
-    switch opened (the step's own filtered rate beyond theta_w, or the steps after it). The
-    production step has no such gates: they did not help (docs/hdrplus.md)."""
-    frozen = p.with_(hdr=replace(p.hdr, i_c=0.0)).ablated(ic_alpha=0.0, straight_r=0.0)
-    state, hold, yaw = INITIAL_PLUS_STATE, 0, []
-    for i in range(steps.u.shape[0]):
-        inp = steps.input(i)
-        if not temp:
-            inp = inp._replace(temp_c=math.nan)
-        held = hold > 0
-        gated = held or (gate_speed_mps > 0.0 and inp.speed_mps < gate_speed_mps)
-        state, o = step(state, inp, frozen if gated else p)
-        if holdoff_steps and abs(o.filtered) > p.hdr.theta_w:
-            hold = holdoff_steps  # the switch opened (W = 0 here anyway): freeze the next ones
-        elif held:
-            hold -= 1
-        yaw.append(o.yaw)
-    return np.array(yaw)
 
 
 def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
@@ -143,8 +111,6 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     # as hdrd evaluate fits HDR+ to the drive (hdrd.core.methods.plus_settings)
     ctx = SettingsContext(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
     p = plus_settings(ctx)
-    if v.gate_speed_mps > 0.0 or v.holdoff_steps > 0:
-        return gated_yaw(s, p, v.gate_speed_mps, v.holdoff_steps, v.temp)
     return run_batch(
         s.u,
         s.omega_std,
@@ -153,14 +119,6 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
         s.T,
         p,
     ).yaw
-
-
-def ne(prep: PreparedDrive, yaw: np.ndarray, drop: int = 0) -> float:
-    """NEψ (deg/min) over the steps from ``drop`` on, aligned at the first with truth there."""
-    truth = prep.truth[drop:]
-    y = yaw[drop:]
-    k = align_index(y, truth)
-    return float(e_psi(y, truth, k)) / (y.shape[0] * prep.steps.T / 60.0)
 
 
 @dataclass
@@ -184,16 +142,15 @@ class SetScores:
 
     @property
     def worst_type(self) -> tuple[float, str]:
-        ratios = [
-            float(np.mean(self.values[t :: self.types]) / np.mean(self.hdr[t :: self.types]))
-            for t in range(self.types)
-        ]
-        i = int(np.argmax(ratios))
-        return ratios[i], self.names[i]
+        """The drive type whose mean NEψ is the largest multiple of paper HDR's, and that
+        multiple."""
+        mine, hdr = type_means(self.values, self.names), type_means(self.hdr, self.names)
+        kind = max(mine, key=lambda k: mine[k] / hdr[k])
+        return mine[kind] / hdr[kind], kind
 
 
 def score(v: Variant, preps: Sequence[PreparedDrive], hdr: np.ndarray, types: int) -> SetScores:
-    vals = np.array([ne(p, yaw_of(v, p)) for p in preps])
+    vals = np.array([ne_psi(p, yaw_of(v, p)) for p in preps])
     return SetScores([p.name for p in preps], vals, hdr, types)
 
 
@@ -218,15 +175,6 @@ def drive_off(spec: DriveSpec, lead_in_s: float = 1.0) -> DriveLog:
         temperature=spec.temperature,
         name=spec.name,
     )
-
-
-def true_gyro_error(log: DriveLog) -> np.ndarray:
-    """Per sample, the simulated gyro's output minus its true rate scaled by the default
-    model's scale factor, deg/s: its bias and noise, known in simulation only."""
-    sf = crs03_default_model().get("scale_factor")
-    gain = 1.0 + (sf.error if isinstance(sf, ScaleFactor) else 0.0)
-    assert log.omega_truth is not None
-    return log.omega - gain * log.omega_truth
 
 
 def truth_bias_30s(log: DriveLog) -> float:
@@ -279,8 +227,6 @@ def variants() -> list[tuple[str, list[Variant]]]:
                     "plus",
                     paper.ablated(straight_r=P.ablation.straight_r, temp_model=True),
                 ),
-                Variant("+ speed gate (I frozen below 3 m/s)", "plus", paper, gate_speed_mps=3.0),
-                Variant("+ hold-off 3 steps after a turn", "plus", paper, holdoff_steps=3),
             ],
         ),
         (
@@ -298,8 +244,6 @@ def variants() -> list[tuple[str, list[Variant]]]:
                 ),
                 Variant("HDR+ without the temperature model", "plus", P.ablated(temp_model=False)),
                 Variant("HDR+ with the paper's core (Table III)", "plus", P.with_(hdr=PAPER)),
-                Variant("HDR+ + speed gate (3 m/s)", "plus", P, gate_speed_mps=3.0),
-                Variant("HDR+ + hold-off 3 steps", "plus", P, holdoff_steps=3),
                 Variant(
                     "HDR+ with the fixed increment (i_c 0.0048, not 0.1 x the bias sd)",
                     "plus",
@@ -363,16 +307,16 @@ def calibration_rows(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
         p30 = prepare_drive(log, calibrate_seconds=30.0)
         p1 = one_second(log)
         drop = 30
-        add("HDR, 30 s calibration", ne(p30, hdr_batch(p30.steps.u).yaw))
-        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw, drop))
-        add("HDR+, 30 s calibration", ne(p30, yaw_of(Variant("", "plus", P), p30)))
+        add("HDR, 30 s calibration", ne_psi(p30, hdr_batch(p30.steps.u).yaw))
+        add("HDR, 1 s calibration", ne_psi(p1, hdr_batch(p1.steps.u).yaw, drop))
+        add("HDR+, 30 s calibration", ne_psi(p30, yaw_of(Variant("", "plus", P), p30)))
         add(
             "HDR+, 1 s calibration + standstill re-calibration",
-            ne(p1, yaw_of(Variant("", "plus", P), p1), drop),
+            ne_psi(p1, yaw_of(Variant("", "plus", P), p1), drop),
         )
         add(
             "HDR+ without standstill updates, 1 s calibration",
-            ne(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
+            ne_psi(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
         )
     return out
 
@@ -397,20 +341,20 @@ def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], 
         stopped += int(np.count_nonzero(pb.steps.speed[drop:] <= 0.3))
         add(
             "HDR, bias of a 30 s standstill (known in simulation only)",
-            ne(pb, hdr_batch(pb.steps.u).yaw, drop),
+            ne_psi(pb, hdr_batch(pb.steps.u).yaw, drop),
         )
         add(
             "HDR+, bias of a 30 s standstill (known in simulation only)",
-            ne(pb, yaw_of(Variant("", "plus", P.with_(bias_p0=0.155**2 / 300)), pb), drop),
+            ne_psi(pb, yaw_of(Variant("", "plus", P.with_(bias_p0=0.155**2 / 300)), pb), drop),
         )
-        add("HDR, 1 s calibration", ne(p1, hdr_batch(p1.steps.u).yaw, drop))
+        add("HDR, 1 s calibration", ne_psi(p1, hdr_batch(p1.steps.u).yaw, drop))
         add(
             "HDR+, 1 s calibration + standstill re-calibration",
-            ne(p1, yaw_of(Variant("", "plus", P), p1), drop),
+            ne_psi(p1, yaw_of(Variant("", "plus", P), p1), drop),
         )
         add(
             "HDR+ without standstill updates, 1 s calibration",
-            ne(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
+            ne_psi(p1, yaw_of(Variant("", "plus", no_ss), p1), drop),
         )
     return out, stopped
 
@@ -436,7 +380,6 @@ def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
             ),
             ("HDR+, speed withheld", Variant("", "plus", P, speed=False)),
             ("HDR+, bias_p0 2.6e-3", Variant("", "plus", P.with_(bias_p0=2.6e-3))),
-            ("HDR+ + speed gate 3 m/s", Variant("", "plus", P, gate_speed_mps=3.0)),
         ):
             yaw = yaw_of(v, prep)
             cols[name] = float(e_psi(yaw, prep.truth, prep.k))
@@ -456,7 +399,7 @@ def perfect_gyro(logs: Sequence[DriveLog]) -> dict[str, list[float]]:
             ("paper HDR", Variant("", "hdr")),
             ("HDR+", Variant("", "plus", HdrPlusParams())),
         ):
-            out.setdefault(label, []).append(ne(prep, yaw_of(v, prep), 30))
+            out.setdefault(label, []).append(ne_psi(prep, yaw_of(v, prep), 30))
     return out
 
 
@@ -494,7 +437,7 @@ def tune(n: int, seed: int, routes_n: int) -> None:
     training drives), printing the best sets by mean NEψ; the test drives are never used."""
     rng = np.random.default_rng(seed)
     preps = [prepare_drive(d) for d in routes(TRAIN_DRIVES, routes_n)]
-    hdr = np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in preps])
+    hdr = np.array([ne_psi(p, hdr_batch(p.steps.u).yaw) for p in preps])
 
     def lu(a: float, b: float) -> float:
         return float(math.exp(rng.uniform(math.log(a), math.log(b))))
@@ -531,214 +474,6 @@ def tune(n: int, seed: int, routes_n: int) -> None:
         )
 
 
-# -- the city study (why HDR+ gains least in city grids; not run by default) ------------
-
-CITY_SEEDS = {"city": 70001, "suburbs": 80001, "mixed": 90001}
-"""First seeds of the city study's extra training routes (seed + 37 j): none is a test
-spec's seed + 1000 j (checked in :func:`city_training_specs`)."""
-
-
-def city_training_specs() -> list[tuple[str, DriveSpec]]:
-    """The city study's training set: 24 downtown ("city" profile, 18 min) routes, 12 suburbs
-    (22 min) and 12 suburbs/highway/city (30 min) routes with new seeds, the training drives'
-    temperature profiles in turn; then the 108 training-type routes and the nine drives."""
-    temps = [s.temperature for s in TRAIN_DRIVES]
-    legs = {
-        "city": (18.0, (("city", 1.0),)),
-        "suburbs": (22.0, (("suburbs", 1.0),)),
-        "mixed": (30.0, (("suburbs", 0.3), ("highway", 0.4), ("city", 0.3))),
-    }
-    out: list[tuple[str, DriveSpec]] = []
-    for kind, n in (("city", 24), ("suburbs", 12), ("mixed", 12)):
-        minutes, lg = legs[kind]
-        for j in range(n):
-            seed = CITY_SEEDS[kind] + 37 * j
-            out.append(
-                (f"new {kind}", DriveSpec(f"{kind}N{j}", "", minutes, lg, seed, temps[j % 9]))
-            )
-    out += [
-        (s.name, replace(s, seed=s.seed + 1000 * j)) for j in range(1, 13) for s in TRAIN_DRIVES
-    ]
-    out += [("the nine", s) for s in TRAIN_DRIVES]
-    taken = {s.seed + 1000 * j for s in TEST_DRIVES for j in range(100)}
-    assert not taken & {s.seed for _, s in out}, "a city-study seed is a test seed"
-    return out
-
-
-@dataclass(frozen=True)
-class CityIdea:
-    """A prototype variant of HDR+'s stop and straight-driving handling (city study)."""
-
-    label: str
-    fold: str = "hard"  # at a stop's first update: "hard" b -= I, "soft" Kalman, "drop" I discarded
-    bump: float = -1.0  # p_bb added at a stop's first update, (deg/s)^2 (-1: i_c^2, the default)
-    bump_i2: bool = False  # ... plus I^2 (the size of what is folded)
-    win_steps: int = 0  # windowed straight measurement: mean u over this many gated steps
-    win_r: float = 0.01  # its variance, (deg/s)^2
-    i_c: float = 0.0  # core increment (0: PLUS_CORE's)
-    slow_core: HdrParams | None = None  # core used while the smoothed speed is below slow_mps
-    slow_mps: float = 0.0  # speed-aware core: threshold, m/s
-    slow_tc_s: float = 0.0  # ... on the speed low-passed with this time constant, s (0: raw)
-    blend_hdr: float = 0.0  # published yaw = w * paper HDR's + (1 - w) * the prototype's
-
-
-def city_prototype(prep: PreparedDrive, idea: CityIdea) -> np.ndarray:
-    """HDR+'s run_batch with the defaults' branches only (no gate, hold-off, adaptive
-    increment, gyro-only detection) and the idea's switches; yaw per step. With
-    ``CityIdea("")`` it equals hdrd.core.hdrplus.run_batch (checked in :func:`city_study`)."""
-    s = prep.steps
-    P = HdrPlusParams()
-    p0 = s.bias_var if math.isfinite(s.bias_var) else P.bias_p0
-    hp, ss = P.hdr, P.standstill
-    i_c = idea.i_c or hp.i_c
-    bump0 = hp.i_c * hp.i_c if idea.bump < 0 else idea.bump
-    assert s.speed is not None and s.temp_c is not None and s.omega_std is not None
-    b, k, p_bb, p_bk, p_kk, t_ref = 0.0, 0.0, p0, 0.0, P.temp_coeff_sd**2, math.nan
-    x = I = yaw = 0.0
-    r, s_prev, still, wsum, wcnt = 0, 0, 0, 0.0, 0
-    T = s.T
-    out = np.empty(s.u.shape[0])
-    v_s = math.nan  # the speed, low-passed (speed-aware core)
-    for i, (ui, sp, v, te) in enumerate(
-        zip(s.u.tolist(), s.omega_std.tolist(), s.speed.tolist(), s.temp_c.tolist(), strict=True)
-    ):
-        have_temp = not math.isnan(te)
-        if have_temp and math.isnan(t_ref):
-            t_ref = te
-        dT = te - t_ref if have_temp else 0.0
-        p_bb += (P.bias_q if have_temp else P.bias_q_no_temp) * T
-        uc = ui - (b + k * dT)
-        if idea.slow_core is not None and not math.isnan(v):
-            v_s = v if math.isnan(v_s) else v_s + (v - v_s) * T / (idea.slow_tc_s + T)
-        core = idea.slow_core if idea.slow_core is not None and v_s < idea.slow_mps else hp
-        inc = idea.slow_core.i_c if core is idea.slow_core else i_c
-        level = uc + I
-        cand = not math.isnan(v) and v <= ss.speed_mps and not sp > ss.spread_dps
-        cand = cand and abs(level) <= ss.level_dps
-        still = still + 1 if cand else 0
-        if cand and still >= ss.steps_speed:
-            if still == ss.steps_speed:
-                p_bb += bump0 + (I * I if idea.bump_i2 else 0.0)
-                if idea.fold == "hard":
-                    b -= I
-                elif idea.fold == "soft":
-                    b, k, p_bb, p_bk, p_kk = _proto_update(
-                        b, k, p_bb, p_bk, p_kk, b + k * dT - I, hp.i_c * hp.i_c, dT
-                    )
-            sp_ = ss.spread_dps if math.isnan(sp) else sp
-            rr = (sp_ * sp_ + ss.noise_floor_dps**2) / ss.samples_per_step
-            b, k, p_bb, p_bk, p_kk = _proto_update(b, k, p_bb, p_bk, p_kk, ui, rr, dT)
-            x, I, r, s_prev, wsum, wcnt = 0.0, 0.0, 1, 0, 0.0, 0
-            out[i] = yaw
-            continue
-        x = (T * uc + core.tau * x) / (T + core.tau)
-        y = x + I
-        yaw = yaw + (uc + I) * T
-        sg = 1 if y > 0.0 else (-1 if y < 0.0 else 0)
-        r = r + 1 if sg == s_prev else 1
-        R = (1.0 + core.c1) / (1.0 + core.c1 * math.pow(r, core.c2))
-        W = 1 if abs(y) <= core.theta_w else 0
-        I_next = I - sg * W * R * inc
-        if W and abs(uc + I) <= P.straight_gate_dps:
-            b, k, p_bb, p_bk, p_kk = _proto_update(
-                b, k, p_bb, p_bk, p_kk, ui, P.ablation.straight_r, dT
-            )
-            if idea.win_steps:
-                wsum, wcnt = wsum + ui, wcnt + 1
-                if wcnt == idea.win_steps:
-                    z = wsum / wcnt
-                    b, k, p_bb, p_bk, p_kk = _proto_update(
-                        b, k, p_bb, p_bk, p_kk, z, idea.win_r, dT
-                    )
-                    wsum, wcnt = 0.0, 0
-        else:
-            wsum, wcnt = 0.0, 0
-        out[i] = yaw
-        I = I_next
-        s_prev = sg
-    if idea.blend_hdr:
-        return idea.blend_hdr * hdr_batch(s.u, PAPER).yaw + (1.0 - idea.blend_hdr) * out
-    return out
-
-
-def _proto_update(
-    b: float, k: float, p_bb: float, p_bk: float, p_kk: float, z: float, r: float, dT: float
-) -> tuple[float, float, float, float, float]:
-    ph0, ph1 = p_bb + dT * p_bk, p_bk + dT * p_kk
-    sv = ph0 + dT * ph1 + r
-    k0, k1 = ph0 / sv, ph1 / sv
-    innov = z - (b + k * dT)
-    return b + k0 * innov, k + k1 * innov, p_bb - k0 * ph0, p_bk - k0 * ph1, p_kk - k1 * ph1
-
-
-CITY_IDEAS = (
-    CityIdea("HDR+ (defaults)"),
-    CityIdea("stop: I folded into b, P_bb += 2e-4 (not i_c^2)", bump=2e-4),
-    CityIdea("stop: I folded into b, P_bb += 1e-3", bump=1e-3),
-    CityIdea("stop: I folded into b, P_bb += i_c^2 + 4 I^2", bump_i2=True),
-    CityIdea("stop: I folded as a Kalman measurement (b and k share it)", fold="soft"),
-    CityIdea("stop: I discarded, P_bb += 3e-4", fold="drop", bump=3e-4),
-    CityIdea("stop: I discarded, P_bb += 1e-3", fold="drop", bump=1e-3),
-    CityIdea("+ windowed straight measurement (10 steps, r 0.01)", win_steps=10),
-    CityIdea("+ windowed (10 steps, r 0.003), i_c 0.0025", win_steps=10, win_r=0.003, i_c=0.0025),
-    # session 3: a core that depends on how fast the car goes (the issue's "speed-aware
-    # gating"; paper HDR does comparatively well downtown), and a blend with paper HDR
-    CityIdea("speed-aware core: paper Table III below 8 m/s", slow_core=PAPER, slow_mps=8.0),
-    CityIdea(
-        "speed-aware core: paper Table III below 8 m/s (speed low-passed 60 s)",
-        slow_core=PAPER,
-        slow_mps=8.0,
-        slow_tc_s=60.0,
-    ),
-    CityIdea(
-        "speed-aware core: i_c 0.015 below 8 m/s (speed low-passed 60 s)",
-        slow_core=replace(PLUS_CORE, i_c=0.015),
-        slow_mps=8.0,
-        slow_tc_s=60.0,
-    ),
-    CityIdea("blend: 0.3 x paper HDR's yaw + 0.7 x HDR+'s", blend_hdr=0.3),
-    CityIdea("blend: 0.5 x paper HDR's yaw + 0.5 x HDR+'s", blend_hdr=0.5),
-)
-
-
-def city_study(held_out: bool) -> None:
-    """Print mean NEψ per drive group of every CITY_IDEAS row on the city study's training
-    set, and with ``held_out`` on the five test drives and 12 routes of each test type."""
-    from multiprocessing import Pool
-
-    groups = city_training_specs()
-    if held_out:
-        groups = [("test", s) for s in TEST_DRIVES] + [
-            (f"{s.name} type", replace(s, seed=s.seed + 1000 * j))
-            for j in range(1, 13)
-            for s in TEST_DRIVES
-        ]
-    with Pool(min(2, os.cpu_count() or 1)) as pool:
-        preps = pool.map(_city_prep, [s for _, s in groups], chunksize=4)
-    names = [g for g, _ in groups]
-    keys = list(dict.fromkeys(names))
-    P = HdrPlusParams()
-    ref = [yaw_of(Variant("", "plus", P), p) for p in preps[:20]]
-    got = [city_prototype(p, CityIdea("")) for p in preps[:20]]
-    assert all(np.array_equal(a, b) for a, b in zip(ref, got, strict=True)), "prototype != HDR+"
-    hdr = np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in preps])
-    print("row | all | " + " | ".join(keys) + " | drives > 1.1 x paper HDR")
-    for row in [None, *CITY_IDEAS]:
-        v = hdr if row is None else np.array([ne(p, city_prototype(p, row)) for p in preps])
-        per = [float(np.mean(v[[n == k for n in names]])) for k in keys]
-        label = "paper HDR" if row is None else row.label
-        worse = float(np.mean(v > 1.1 * hdr))
-        print(
-            f"{label} | {np.mean(v):.4f} | " + " | ".join(f"{x:.3f}" for x in per),
-            f"| {100 * worse:.0f}%",
-            flush=True,
-        )
-
-
-def _city_prep(spec: DriveSpec) -> PreparedDrive:
-    return prepare_drive(generate(spec))
-
-
 # -- single drives: how often HDR+ (or anything) is worse than paper HDR on one drive -----------
 
 SINGLE_SECTION = "## HDR+ vs paper HDR on single drives (how often one drive is worse)"
@@ -747,33 +482,16 @@ SINGLE_FIRST_ROUTE = 13
 (j = 1..12 at most) or any study above."""
 
 
-def oracle_yaw(log: DriveLog, prep: PreparedDrive, window_s: int = 121) -> np.ndarray:
-    """Yaw with the gyro's true error removed as a smoother would: the error (gyro output
-    minus its scaled true rate, known in simulation only) averaged over a centred
-    ``window_s`` window, white noise left in. Not causal: a bound no real-time method reaches."""
-    s = prep.steps
-    n = s.u.shape[0]
-    per = round(s.T * log.rate_hz)
-    off = round(prep.start_s * log.rate_hz)
-    err = true_gyro_error(log)[off : off + n * per].reshape(n, per).mean(axis=1)
-    eps0 = float(np.mean(log.omega[:off])) if off else 0.0
-    half = window_s // 2
-    smooth = np.convolve(
-        np.pad(err, (half, half), mode="edge"), np.ones(window_s) / window_s, "valid"
-    )
-    return np.cumsum((s.u - (smooth - eps0)) * s.T)
-
-
 def _single_drive(spec: DriveSpec) -> tuple[str, float, float, float, float]:
     log = generate(spec)
     prep = prepare_drive(log)
     plus = Variant("", "plus", HdrPlusParams())
     return (
         spec.name,
-        ne(prep, np.cumsum(prep.steps.u * prep.steps.T)),
-        ne(prep, hdr_batch(prep.steps.u, PAPER).yaw),
-        ne(prep, yaw_of(plus, prep)),
-        ne(prep, oracle_yaw(log, prep)),
+        ne_psi(prep, np.cumsum(prep.steps.u * prep.steps.T)),
+        ne_psi(prep, hdr_batch(prep.steps.u, PAPER).yaw),
+        ne_psi(prep, yaw_of(plus, prep)),
+        ne_psi(prep, oracle_yaw(log, prep)),
     )
 
 
@@ -793,7 +511,7 @@ def single_drive_odds(n_routes: int, write: bool) -> None:
         "",
         (
             f"Generated by `python bench/hdrplus.py --single-drive {n_routes}` "
-            f"({time.strftime('%Y-%m-%d')}, {machine()}): {n_routes} new routes of each drive "
+            f"({time.strftime('%Y-%m-%d')}, {machine_line()}): {n_routes} new routes of each drive "
             f"type (seeds `spec.seed + 1000 j`, j = {js.start}..{js.stop - 1}: used by no search and "
             "no study; computed once, after every HDR+ choice was settled). NEψ in deg/min; "
             "*> 1.1 HDR* = the share of single drives on which the method's NEψ exceeds 1.1 × "
@@ -818,21 +536,21 @@ def single_drive_odds(n_routes: int, write: bool) -> None:
             for t in dict.fromkeys(names):
                 m = np.array([n == t for n in names])
                 v = a[m]
-                f_plus = float(np.mean(v[:, 2] > 1.1 * v[:, 1]))
-                f_orc = float(np.mean(v[:, 3] > 1.1 * v[:, 1]))
+                f_plus = share_worse(v[:, 2], v[:, 1])
+                f_orc = share_worse(v[:, 3], v[:, 1])
                 p_plus *= 1.0 - f_plus
                 type_ratios.append(float(v[:, 2].mean() / v[:, 1].mean()))
                 p_orc *= 1.0 - f_orc
                 L.append(
-                    f"| {set_name} | {t} | {int(m.sum())} | {fm(float(v[:, 0].mean()))} | "
-                    f"{fm(float(v[:, 1].mean()))} | {fm(float(v[:, 2].mean()))} | "
-                    f"{fm(float(v[:, 3].mean()))} | {f_plus:.0%} | {f_orc:.0%} |"
+                    f"| {set_name} | {t} | {int(m.sum())} | {fmt(float(v[:, 0].mean()))} | "
+                    f"{fmt(float(v[:, 1].mean()))} | {fmt(float(v[:, 2].mean()))} | "
+                    f"{fmt(float(v[:, 3].mean()))} | {f_plus:.0%} | {f_orc:.0%} |"
                 )
             L.append(
-                f"| **{set_name}** | all | {a.shape[0]} | **{fm(float(a[:, 0].mean()))}** | "
-                f"**{fm(float(a[:, 1].mean()))}** | **{fm(float(a[:, 2].mean()))}** | "
-                f"**{fm(float(a[:, 3].mean()))}** | **{np.mean(a[:, 2] > 1.1 * a[:, 1]):.0%}** | "
-                f"**{np.mean(a[:, 3] > 1.1 * a[:, 1]):.0%}** |"
+                f"| **{set_name}** | all | {a.shape[0]} | **{fmt(float(a[:, 0].mean()))}** | "
+                f"**{fmt(float(a[:, 1].mean()))}** | **{fmt(float(a[:, 2].mean()))}** | "
+                f"**{fmt(float(a[:, 3].mean()))}** | **{share_worse(a[:, 2], a[:, 1]):.0%}** | "
+                f"**{share_worse(a[:, 3], a[:, 1]):.0%}** |"
             )
             pass_all[set_name] = (p_plus, p_orc)
     L += [
@@ -862,24 +580,11 @@ def single_drive_odds(n_routes: int, write: bool) -> None:
     text = "\n".join(L) + "\n"
     print(text)
     if write:
-        from _common import replace_section
-
         replace_section(SINGLE_SECTION, text)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SINGLE_SECTION})")
 
 
 # -- formatting -------------------------------------------------------------------------------
-
-
-def fm(v: float, d: int = 3) -> str:
-    return "–" if not math.isfinite(v) else f"{v:.{d}f}"
-
-
-def machine() -> str:
-    """What the figures were measured on (bench/_common.py, shared by every benchmark)."""
-    from _common import machine_line  # bench/ is on sys.path when run as a script
-
-    return machine_line()
 
 
 def evaluate_json(path: Path) -> dict[str, Any]:
@@ -894,11 +599,6 @@ def main() -> int:
     ap.add_argument("--tune", type=int, default=0, metavar="N", help="only run the training search")
     ap.add_argument("--seed", type=int, default=0, help="seed of --tune")
     ap.add_argument(
-        "--city-study",
-        choices=("train", "held-out"),
-        help="only the city study's prototype rows (docs/hdrplus.md), on its training set or held out",
-    )
-    ap.add_argument(
         "--single-drive",
         type=int,
         default=0,
@@ -908,9 +608,6 @@ def main() -> int:
     args = ap.parse_args()
     if args.single_drive:
         single_drive_odds(args.single_drive, not args.no_write)
-        return 0
-    if args.city_study:
-        city_study(args.city_study == "held-out")
         return 0
     if args.tune:
         tune(args.tune, args.seed, args.routes)
@@ -922,22 +619,24 @@ def main() -> int:
     wq = shlex.quote(str(W))
     train_files = [W / "train" / f"{s.name}.csv" for s in TRAIN_DRIVES]
     test_files = [W / "test" / f"{s.name}.csv" for s in TEST_DRIVES]
-    run(hdrd("simulate", "--benchmark", "train", "--out", str(W / "train")), cmds)
-    run(hdrd("simulate", "--benchmark", "test", "--out", str(W / "test")), cmds)
-    run(
+    run_recorded(hdrd("simulate", "--benchmark", "train", "--out", str(W / "train")), cmds)
+    run_recorded(hdrd("simulate", "--benchmark", "test", "--out", str(W / "test")), cmds)
+    run_recorded(
         hdrd(
             "evaluate", *map(str, train_files), "--method", "hdr+", "--json", str(W / "train.json")
         ),
         cmds,
     )
-    run(
+    run_recorded(
         hdrd("evaluate", *map(str, test_files), "--method", "hdr+", "--json", str(W / "test.json")),
         cmds,
     )
     cli = {k: evaluate_json(W / f"{k}.json") for k in ("train", "test")}
     real: list[tuple[str, str, dict[str, Any]]] = []
     if DATA.is_dir():
-        run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(W / "real")], cmds)
+        run_recorded(
+            [sys.executable, "tools/convert_real.py", "all", "--out-dir", str(W / "real")], cmds
+        )
         sl, cm = W / "real" / "smartloc_berlin.csv", W / "real" / "comma2k19.csv"
         for label, bias_args, f, out in (
             (
@@ -965,7 +664,7 @@ def main() -> int:
                 "cm1",
             ),
         ):
-            run(
+            run_recorded(
                 hdrd(
                     "evaluate",
                     str(f),
@@ -996,7 +695,8 @@ def main() -> int:
         ),
     }
     hdr_ref = {
-        k: np.array([ne(p, hdr_batch(p.steps.u).yaw) for p in ps]) for k, (ps, _) in sets.items()
+        k: np.array([ne_psi(p, hdr_batch(p.steps.u).yaw) for p in ps])
+        for k, (ps, _) in sets.items()
     }
     table: list[tuple[str, list[tuple[Variant, dict[str, SetScores]]]]] = []
     for group, vs in variants():
@@ -1041,7 +741,7 @@ def main() -> int:
     )
     print(section)
     if not args.no_write:
-        write_section(section)
+        replace_section(SECTION, section)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SECTION})")
     return 0
 
@@ -1063,7 +763,7 @@ def render(
 ) -> str:
     L: list[str] = [SECTION, ""]
     L.append(
-        f"Generated by `python bench/hdrplus.py` ({time.strftime('%Y-%m-%d')}, {machine()}; "
+        f"Generated by `python bench/hdrplus.py` ({time.strftime('%Y-%m-%d')}, {machine_line()}; "
         f"--routes {args.routes}). It runs these commands (outputs in `{wq}`), then the ablation "
         "and calibration study in-process on the same drives:"
     )
@@ -1092,14 +792,14 @@ def render(
     for k in ("test", "train"):
         for d in cli[k]["drives"]:
             L.append(
-                f"| {k} | {d['name']} | {d['duration_min']:.1f} | {fm(d['NE_psi_raw'])} | "
-                f"{fm(d['NE_psi_hdr'])} | {fm(d['NE_psi_hdr+'])} | {d['NE_psi_hdr+'] / d['NE_psi_hdr']:.2f} |"
+                f"| {k} | {d['name']} | {d['duration_min']:.1f} | {fmt(d['NE_psi_raw'])} | "
+                f"{fmt(d['NE_psi_hdr'])} | {fmt(d['NE_psi_hdr+'])} | {d['NE_psi_hdr+'] / d['NE_psi_hdr']:.2f} |"
             )
         m = cli[k]["mean"]
         ratios = [d["NE_psi_hdr+"] / d["NE_psi_hdr"] for d in cli[k]["drives"]]
         L.append(
-            f"| **{k} mean** | | | **{fm(m['NE_psi_raw'])}** | **{fm(m['NE_psi_hdr'])}** | "
-            f"**{fm(m['NE_psi_hdr+'])}** | **{m['NE_psi_hdr+'] / m['NE_psi_hdr']:.2f}** "
+            f"| **{k} mean** | | | **{fmt(m['NE_psi_raw'])}** | **{fmt(m['NE_psi_hdr'])}** | "
+            f"**{fmt(m['NE_psi_hdr+'])}** | **{m['NE_psi_hdr+'] / m['NE_psi_hdr']:.2f}** "
             f"(HDR / HDR+ = {m['NE_psi_hdr'] / m['NE_psi_hdr+']:.2f}×; worst drive {max(ratios):.2f}) |"
         )
     L.append("")
@@ -1124,7 +824,7 @@ def render(
         )
         wt, wn = plus_.worst_type
         L.append(
-            f"| {k} | {len(sets[k][0])} | {fm(none_.mean)} | {fm(hdr_.mean)} | {fm(plus_.mean)} | "
+            f"| {k} | {len(sets[k][0])} | {fmt(none_.mean)} | {fmt(hdr_.mean)} | {fmt(plus_.mean)} | "
             f"{hdr_.mean / plus_.mean:.2f}× | {wt:.2f} ({wn}) |"
         )
     L.append("")
@@ -1136,7 +836,7 @@ def render(
         h, q = refs["paper HDR, Table III"][k], refs["**HDR+ (defaults)**"][k]
         for t in range(h.types):
             mh, mq = float(np.mean(h.values[t :: h.types])), float(np.mean(q.values[t :: q.types]))
-            L.append(f"| {h.names[t]} | {k} | {fm(mh)} | {fm(mq)} | {mq / mh:.2f} |")
+            L.append(f"| {h.names[t]} | {k} | {fmt(mh)} | {fmt(mq)} | {mq / mh:.2f} |")
     L.append("")
 
     # Ablation.
@@ -1158,8 +858,8 @@ def render(
             wd = f"{r['train'].worst_drive[0]:.2f} / {r['test'].worst_drive[0]:.2f}"
             wts = f"{r['train types'].worst_type[0]:.2f} / {r['test types'].worst_type[0]:.2f}"
             L.append(
-                f"| {v.label} | {fm(r['train'].mean)} | {fm(r['test'].mean)} | {wd} | "
-                f"{fm(r['train types'].mean)} | {fm(r['test types'].mean)} | {wts} |"
+                f"| {v.label} | {fmt(r['train'].mean)} | {fmt(r['test'].mean)} | {wd} | "
+                f"{fmt(r['train types'].mean)} | {fmt(r['test types'].mean)} | {wts} |"
             )
     L.append("")
 
@@ -1173,8 +873,8 @@ def render(
     L.append("|---|---|---|")
     for key in perfect["train"]:
         L.append(
-            f"| {key} | {fm(float(np.mean(perfect['train'][key])))} | "
-            f"{fm(float(np.mean(perfect['test'][key])))} |"
+            f"| {key} | {fmt(float(np.mean(perfect['train'][key])))} | "
+            f"{fmt(float(np.mean(perfect['test'][key])))} |"
         )
     L.append("")
 
@@ -1196,7 +896,7 @@ def render(
     L.append("|---|---|---|---|---|")
     for key in cal_a["train"]:
         L.append(
-            f"| {key} | " + " | ".join(fm(float(np.mean(cal_a[c][key]))) for c in cal_cols) + " |"
+            f"| {key} | " + " | ".join(fmt(float(np.mean(cal_a[c][key]))) for c in cal_cols) + " |"
         )
     L.append("")
     L.append(
@@ -1214,7 +914,7 @@ def render(
     for key in cal_b["train"][0]:
         L.append(
             f"| {key} | "
-            + " | ".join(fm(float(np.mean(cal_b[c][0][key]))) for c in cal_cols)
+            + " | ".join(fmt(float(np.mean(cal_b[c][0][key]))) for c in cal_cols)
             + " |"
         )
     L.append("")
@@ -1232,8 +932,8 @@ def render(
         for label, bias, doc in real:
             d = doc["drives"][0]
             L.append(
-                f"| {label} | `{bias}` | {d['duration_min']:.1f} | {fm(d['E_psi_raw'], 2)}° | {fm(d['E_psi_hdr'], 2)}° | "
-                f"{fm(d['E_psi_hdr+'], 2)}° | {fm(d['NE_psi_raw'])} | {fm(d['NE_psi_hdr'])} | {fm(d['NE_psi_hdr+'])} |"
+                f"| {label} | `{bias}` | {d['duration_min']:.1f} | {fmt(d['E_psi_raw'], 2)}° | {fmt(d['E_psi_hdr'], 2)}° | "
+                f"{fmt(d['E_psi_hdr+'], 2)}° | {fmt(d['NE_psi_raw'])} | {fmt(d['NE_psi_hdr'])} | {fmt(d['NE_psi_hdr+'])} |"
             )
     L.append("")
     if real_diag:
@@ -1249,7 +949,7 @@ def render(
         for label, bias, cols in real_diag:
             L.append(
                 f"| {label} | `{bias}` | "
-                + " | ".join(f"{fm(v, 2)}°" for v in cols.values())
+                + " | ".join(f"{fmt(v, 2)}°" for v in cols.values())
                 + " |"
             )
         L.append("")
@@ -1259,8 +959,6 @@ def render(
     )
     L.append("")
     L.append(DISCUSSION.strip())
-    L.append("")
-    L.append(CITY_STUDY.strip())
     L.append("")
     return "\n".join(L) + "\n"
 
@@ -1306,8 +1004,9 @@ equations: docs/hdrplus.md.
   default: the simulator has no engine vibration or road noise, so quiet straight driving
   looks exactly like a stop and the detector takes sway for bias (route sets 0.157 -> 0.197);
   on a real car the spread may separate them, which this simulator cannot show.
-- **Not kept:** the speed gate (I frozen below 3 m/s: neutral, 0.164 -> 0.165), the hold-off
-  after turns (worse, 0.177), the adaptive increment (max(i_c, sd of the bias model): worse,
+- **Not kept:** the speed gate (I frozen below 3 m/s: neutral, 0.164 -> 0.165) and the
+  hold-off after turns (worse, 0.177), both retired from this script with their rows (last
+  recorded 2026-12-01, "Retired studies" in bench/RESULTS.md); the adaptive increment (max(i_c, sd of the bias model): worse,
   0.238 — larger steps undo what the small increment gains).
 - **Withheld inputs.** With neither speed nor temperature HDR+ still scores 0.164 / 0.208 on
   the route sets (HDR 0.253 / 0.298): it needs neither. Withholding the speed only switches
@@ -1338,150 +1037,6 @@ equations: docs/hdrplus.md.
   seconds. Neither recording has a temperature, and both are far shorter than the drift HDR+
   is built for; they show conventions and robustness, not its benefit.
 """
-
-
-CITY_STUDY = """
-### Why HDR+ gains least in the city (a study on training routes; nothing kept)
-
-The question: test drive city3 is the one drive where HDR+ is clearly worse than paper HDR
-(0.181 vs 0.066 deg/min), and downtown driving is HDR+'s weakest type on average. Studied on
-*training* routes only: the nine drives, their 108 extra routes, and 48 new routes with seeds
-that no test spec uses (24 downtown routes of the `city` profile, 18 min; 12 suburbs, 22 min;
-12 suburbs/highway/city, 30 min; seeds 70001/80001/90001 + 37 j, the training drives'
-temperature profiles in turn). On the 24 new downtown routes paper HDR scores 0.223 and HDR+
-0.208 deg/min (0.93; on suburbs 0.61, on the mixed routes 0.57).
-
-**What the error is.** Diagnostics on the same routes (scripts not kept; the numbers are
-seeded): fed a *perfect* gyro, HDR+ scores 0.148 on the downtown routes against 0.085 for no
-correction (GPS-truth noise), and with the core's integrator I switched off 0.083: the
-self-inflicted part is the integrator's. With the drift removed from the simulated gyro (its
-121 s moving-average error subtracted, white noise left) HDR+ scores 0.172 against 0.100 for
-no correction and 0.208 with the drift: about two thirds of HDR+'s excess error downtown is
-I reacting to real motion, one third following the temperature drift. Regenerating 12 of these
-routes with less sway (a diagnosis, not an evaluation; the benchmark's simulator is
-unchanged) moves the perfect-gyro score 0.124 -> 0.100 -> 0.081 for sway 0.5 -> 0.25 -> 0
-deg: the downtown profile's sway (0.5 deg heading wiggle with a 2 s correlation time, four
-times the highway's rate) makes the sign of the low-passed rate a coin toss often enough for
-I to wander (its standard deviation while driving 0.016 deg/s, correlation time ~30 s). Steps within 4 s of a
-turn push I against the turn (the turn's ramp is taken for drift: net -0.10 to -0.20 deg/s
-of increments per drive, against the turn's sign), but freezing I around the true turns
-(an oracle gate from the simulated truth, ±2 to ±5 steps) did not help on average.
-At a stop HDR+ folds I into b with a variance of only i_c² and the stop's precise
-measurements then move b only part of the way: the wander I had at that moment becomes part
-of b until the next stop. Paper HDR, by contrast, does comparatively well downtown (0.209
-with the drift removed, against 0.644 in the suburbs): short sharp corners are far above Θw,
-so its turn switch closes cleanly.
-
-**What was tried** (a prototype of HDR+'s loop with each change, `python bench/hdrplus.py
---city-study train`; it reproduces HDR+'s defaults bit for bit). Mean NEψ, deg/min; *all* =
-the 165 training drives; then the new routes by type, and the training types whose mean got
-worse than the defaults':
-
-| row | all (165) | new city (24) | new suburbs (12) | new mixed (12) | city1 type | city2 type | the nine | training types worse |
-|---|---|---|---|---|---|---|---|---|
-| paper HDR | 0.285 | 0.223 | 0.610 | 0.363 | 0.171 | 0.283 | 0.290 | |
-| **HDR+ (defaults)** | **0.188** | **0.208** | **0.371** | **0.207** | **0.129** | **0.178** | **0.152** | |
-| stop: I folded into b, P_bb += 2e-4 (not i_c²) | 0.185 | 0.205 | 0.355 | 0.211 | 0.131 | 0.167 | 0.142 | new mixed +2 %, city1 +2 %, mixed +1 %, highway1 +6 % |
-| stop: I folded into b, P_bb += 1e-3 | 0.183 | 0.203 | 0.335 | 0.212 | 0.135 | 0.164 | 0.129 | new mixed +2 %, city1 +5 %, mixed +3 %, rural2 +2 %, highway1 +6 % |
-| stop: I folded into b, P_bb += i_c² + 4 I² | 0.184 | 0.204 | 0.350 | 0.209 | 0.131 | 0.164 | 0.143 | new mixed +1 %, city1 +2 %, mixed +2 %, highway2 +2 % |
-| stop: I folded as a Kalman measurement (b and k share it) | 0.202 | 0.223 | 0.398 | 0.287 | 0.153 | 0.236 | 0.156 | 8 of the 12 types (city1 +19 %, city2 +33 %, new mixed +39 %) |
-| stop: I discarded, P_bb += 3e-4 | 0.179 | 0.193 | 0.328 | 0.200 | 0.134 | 0.162 | 0.145 | city1 +4 %, rural2 +0.5 %, highway1 +2 % |
-| stop: I discarded, P_bb += 1e-3 | 0.179 | 0.190 | 0.325 | 0.198 | 0.134 | 0.158 | 0.135 | city1 +4 %, rural2 +2 %, highway1 +4 % |
-| + windowed straight measurement (mean u of 10 gated steps, r 0.01) | 0.183 | 0.202 | 0.330 | 0.193 | 0.138 | 0.193 | 0.154 | city1 +7 %, mixed +1 %, highway1 +14 %, highwaymix +2 %, city2 +8 %, the nine +1 % |
-| + windowed (10 steps, r 0.003) and i_c 0.0025 | 0.170 | 0.201 | 0.252 | 0.182 | 0.131 | 0.190 | 0.151 | city1 +2 %, highway1 +6 %, highwaymix +6 %, city2 +7 % |
-
-The ideas: (1) a stop should reset what I wandered to rather than keep it — the stop itself
-measures the bias to ~0.01 deg/s in 20 s, so the fold's variance should be I's wander, not one
-increment, or I should be dropped; (2) sway is a heading *wiggle* that integrates back to zero,
-so the mean rate over 10 straight steps measures the bias far better than 10 single steps
-(sd ~0.07 vs ~0.35 deg/s each), and a better bias model lets the increment shrink. Each but the Kalman fold helps
-the training mean by 2-10 % and the new downtown routes by at most 9 % (0.208 -> 0.190), but
-every one makes at least one training type worse (city1 in every row, by 2-19 %), so by this
-study's rule (no training type worse) none was kept; hdrd/ is unchanged. The increment's
-wander downtown is the sign controller doing its job on a noisier signal: what would remove
-it is a decision signal that averages the sway away without smearing the corners, which no
-variant here achieved without costing elsewhere.
-
-**Held out, evaluated once** after the rows above were settled (the five test drives, mean,
-and 12 routes of each test type; `--city-study held-out`; no row was changed afterwards):
-
-| row | all (65) | test (5) | city3 type | suburbs2 type | rural3 type | highway3 type | mixed2 type |
-|---|---|---|---|---|---|---|---|
-| paper HDR | 0.306 | 0.397 | 0.306 | 0.451 | 0.199 | 0.209 | 0.328 |
-| **HDR+ (defaults)** | **0.196** | **0.159** | **0.245** | **0.302** | **0.153** | **0.090** | **0.203** |
-| stop: I folded, P_bb += 2e-4 | 0.197 | 0.166 | 0.241 | 0.311 | 0.152 | 0.091 | 0.201 |
-| stop: I folded, P_bb += 1e-3 | 0.197 | 0.156 | 0.230 | 0.331 | 0.149 | 0.093 | 0.198 |
-| stop: I folded, P_bb += i_c² + 4 I² | 0.194 | 0.156 | 0.236 | 0.311 | 0.149 | 0.090 | 0.198 |
-| stop: I folded as a Kalman measurement | 0.233 | 0.217 | 0.250 | 0.390 | 0.158 | 0.087 | 0.285 |
-| stop: I discarded, P_bb += 3e-4 | 0.192 | 0.144 | 0.238 | 0.318 | 0.142 | 0.090 | 0.191 |
-| stop: I discarded, P_bb += 1e-3 | 0.194 | 0.150 | 0.230 | 0.332 | 0.143 | 0.092 | 0.193 |
-| + windowed straight measurement (10, 0.01) | 0.191 | 0.149 | 0.245 | 0.301 | 0.137 | 0.089 | 0.198 |
-| + windowed (10, 0.003), i_c 0.0025 | 0.187 | 0.147 | 0.238 | 0.275 | 0.125 | 0.083 | 0.228 |
-
-Held out the picture is the same: gains of at most 5 % over all 65 (9 % on the five test
-drives' mean), the city3 type at best
-0.245 -> 0.230 (HDR 0.306), and a worse type in most rows. None would have made the single
-drive city3 (HDR's luckiest: 0.066) no worse than paper HDR; that criterion holds per drive
-type, not per drive (see the discussion above).
-
-**Later, an ensemble (session 2; prototype scripts not kept).** Averaging HDR+'s heading
-with that of a second, linear estimator (no sign controller: a Kalman bias model with a fast
-random walk, q = 1e-4 (deg/s)²/s, fed by the stops, the single straight steps and the mean
-rate of every 10 consecutive straight steps, gated at 3 σ) lowered mean NEψ on the 165
-training drives above by 6 % (geometric mean of per-drive ratios 0.94) and on 480 further
-training-type routes by 9 % (0.188 -> 0.172), with rural2 and highway1 worse by 6-8 %. Held
-out, evaluated once: the 65 drives 0.196 -> 0.180 (four of the five test types better,
-highway3 0.090 -> 0.094), but the five test drives' mean worse (0.159 -> 0.180), city3
-unchanged (0.184), and the share of held-out drives more than 10 % worse than paper HDR
-unchanged (25 %). Not kept: a second estimator for a gain that does not reach the per-drive
-criterion and does not hold on the test drives.
-
-Also tried on training routes only (prototype scripts not kept; none reached a held-out look):
-dropping I at a stop instead of folding it into b (learns the temperature coefficient, 0.008
-instead of 0.005 deg/s/°C, but within noise on 480 further training-type routes: geometric
-mean of per-drive ratios 1.007 ± 0.012); a process noise raised when the straight-driving
-innovations stay one-sided (no gain); a search minimising the share of single drives worse
-than 1.1 × paper HDR (0.261 -> 0.188 on the 165 search drives, 0.198 -> 0.192 on the 480:
-no real change); sign decisions on the mean of 3-20 straight steps instead of every step
-(worse by 8-18 %).
-
-**Session 3: a speed-aware core and a blend with paper HDR** (`python bench/hdrplus.py
---city-study train`, training routes only; neither reached a held-out look). Paper HDR does
-comparatively well downtown, so two ways to borrow from it: switch HDR+'s core to the paper's
-Table III core (or a 3× larger increment) while the car is slow — the issue's "speed-aware
-gating" — or publish a weighted mean of paper HDR's and HDR+'s yaw, which bounds how much
-worse than HDR a drive can get (|e| ≤ w |e_HDR| + (1 − w) |e_HDR+| at every step). Mean NEψ,
-deg/min, as in the table above; last column: share of the 165 drives more than 10 % worse
-than paper HDR:
-
-| row | all (165) | new city (24) | new suburbs (12) | new mixed (12) | city1 type | city2 type | the nine | groups worse than the defaults | drives > 1.1 × HDR |
-|---|---|---|---|---|---|---|---|---|---|
-| **HDR+ (defaults)** | **0.188** | **0.208** | **0.371** | **0.207** | **0.129** | **0.178** | **0.152** | | **26 %** |
-| core: paper Table III below 8 m/s | 0.329 | 0.441 | 0.640 | 0.460 | 0.394 | 0.463 | 0.347 | 13 of 13 (city1 +205 %) | 48 % |
-| core: paper Table III below 8 m/s (speed low-passed 60 s) | 0.253 | 0.357 | 0.374 | 0.387 | 0.170 | 0.386 | 0.271 | 12 of 13 (new mixed +87 %) | 38 % |
-| core: i_c 0.015 below 8 m/s (speed low-passed 60 s) | 0.211 | 0.260 | 0.344 | 0.267 | 0.185 | 0.245 | 0.189 | 10 of 13 (city1 +43 %) | 29 % |
-| blend: 0.3 × paper HDR + 0.7 × HDR+ | 0.196 | 0.203 | 0.374 | 0.239 | 0.126 | 0.185 | 0.180 | 9 of 13 (new mixed +15 %) | 18 % |
-| blend: 0.5 × paper HDR + 0.5 × HDR+ | 0.213 | 0.204 | 0.421 | 0.271 | 0.132 | 0.205 | 0.209 | 11 of 13 (new mixed +31 %) | 15 % |
-
-A larger increment while slow makes the city *worse* (new downtown routes 0.208 -> 0.26-0.44):
-beside the bias model the paper's increment over-corrects, and paper HDR's good city score
-belongs to its whole loop, not to its increment. The blend lowers the share of single drives
-worse than 1.1 × paper HDR (26 % -> 18 % -> 15 %) only by taking on HDR's own error
-everywhere else (mean 0.188 -> 0.196 -> 0.213; 9-11 of the 13 groups worse). Neither kept.
-
-The standstill updates, once more: the ablation above shows HDR+ *without* them passing the
-five test drives (worst 0.93 × HDR, city3 included). On training routes they are neutral
-(NEψ without / with, geometric mean of per-drive ratios: 0.98 ± 0.04 on the 165, 1.01 ± 0.02
-on 480 further training-type routes), so switching them off would be a choice made on the
-test drives; they stay on.
-"""
-
-
-def write_section(section: str) -> None:
-    """Replace this script's section of RESULTS.md (or append it), leaving the rest alone."""
-    from _common import replace_section  # bench/ is on sys.path when run as a script
-
-    replace_section(SECTION, section)
 
 
 if __name__ == "__main__":

@@ -33,10 +33,8 @@ noise) is listed, not scored, and so is a drive evaluate cannot calibrate.
 from __future__ import annotations
 
 import argparse
-import os
 import math
-import shlex
-import subprocess
+import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -49,7 +47,7 @@ sys.path.insert(0, str(REPO))
 
 import json
 
-from _common import machine_line, replace_section
+from _common import fmt, machine_line, replace_section, run_recorded
 
 from hdrd.analysis.evaluate import (
     PAPER_PARAMS,
@@ -215,20 +213,6 @@ def check_against_cli(drives: Sequence[RealDrive], json_path: Path) -> None:
 # -- the report -------------------------------------------------------------------------------
 
 
-def run(cmd: list[str], shown: list[str]) -> None:
-    text = " ".join(shlex.quote(c) for c in cmd).replace(sys.executable, "python")
-    print(f"$ {text}", flush=True)
-    shown.append(text)
-    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
-    if p.returncode != 0:
-        sys.stderr.write(p.stdout + p.stderr)
-        raise SystemExit(f"command failed ({p.returncode}): {text}")
-
-
-def _f(v: float, d: int = 3) -> str:
-    return f"{v:.{d}f}" if math.isfinite(v) else "–"
-
-
 def table(
     drives: Sequence[RealDrive], methods: Sequence[str]
 ) -> tuple[str, dict[str, dict[str, float]]]:
@@ -256,8 +240,8 @@ def table(
             f"{d.prep.steps.bias_dps:+.4f} | {d.prep.steps.bias_dps + delta:+.4f} | "
             + " | ".join(f"{e[m]:.2f}°" for m in methods)
             + f" | {e_best:.2f}° | "
-            + " | ".join(_f(e[m] / td) for m in methods)
-            + f" | {_f(e_best / td)} |"
+            + " | ".join(fmt(e[m] / td) for m in methods)
+            + f" | {fmt(e_best / td)} |"
         )
         s = per_set.setdefault(d.set, {})
         for m in methods:
@@ -326,7 +310,7 @@ def given_table(drives: Sequence[RealDrive], methods: Sequence[str]) -> str:
             f"| {d.set} | {d.name} | {td:.1f} | {prep.steps.bias_dps:+.4f} | "
             + " | ".join(f"{e[m]:.2f}°" for m in methods)
             + " | "
-            + " | ".join(_f(e[m] / td) for m in methods)
+            + " | ".join(fmt(e[m] / td) for m in methods)
             + " |"
         )
     return "\n".join(lines)
@@ -350,8 +334,8 @@ def summary(means: dict[str, dict[str, float]], methods: Sequence[str]) -> str:
         n = int(s["n"])
         lines.append(
             f"| {'judging' if k == 'judge' else 'tuning'} | {n} | "
-            + " | ".join(_f(s[m]) for m in methods)
-            + f" | {_f(s['best'])} | "
+            + " | ".join(fmt(s[m]) for m in methods)
+            + f" | {fmt(s['best'])} | "
             + " | ".join(
                 f"{int(s[f'better {m}'])} / {int(s[f'worse {m}'])}" for m in methods if m != "none"
             )
@@ -417,15 +401,15 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(a.workdir)
     folder = work / "real"
     shown: list[str] = []
-    run([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
+    run_recorded([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
     for which, out in (("oan", ["--out-dir", str(folder)]),
                        ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
         if (MIRRORS / REPOS[which] / "repo").exists():
-            run([sys.executable, "tools/convert_real.py", which, *out], shown)
+            run_recorded([sys.executable, "tools/convert_real.py", which, *out], shown)
         else:
             print(f"bench/real.py: no snapshot of {REPOS[which]} in {MIRRORS}: {which} left out")
     json_path = work / "evaluate.json"
-    run(
+    run_recorded(
         [sys.executable, "-m", "hdrd", "evaluate", str(folder), "--method", "hdr+"]
         + ["--json", str(json_path)],
         shown,

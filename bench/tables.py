@@ -25,13 +25,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shlex
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from _common import fmt, machine_line, replace_section, run_recorded
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -54,32 +54,6 @@ PAPER_TABLE_II: dict[str, tuple[float, float, float, float, float, float]] = {
 PAPER_MEAN = (61.0, 7.0, 2.2, 0.28, 9.2, 7.57)  # Eψ raw, hdr, NEψ raw, hdr, improvement, σ
 PAPER_TEST = (6.9, 3.44)  # improvement, σ on the five test drives (Sec. 5.2.3)
 SMARTLOC_FIT_BIAS_DPS = 0.053  # least-squares bias of the whole smartLoc run (its README.txt)
-
-
-def run(cmd: list[str], log: list[str]) -> subprocess.CompletedProcess[str]:
-    """Run a command from the repository root, record it, fail loudly if it fails."""
-    shown = " ".join(shlex.quote(c) for c in cmd).replace(sys.executable, "python")
-    print(f"$ {shown}", flush=True)
-    log.append(shown)
-    t0 = time.monotonic()
-    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False)
-    dt = time.monotonic() - t0
-    if p.returncode != 0:
-        sys.stderr.write(p.stdout + p.stderr)
-        raise SystemExit(f"command failed ({p.returncode}): {shown}")
-    print(f"  ({dt:.1f} s)", flush=True)
-    return p
-
-
-def machine() -> str:
-    """What the figures were measured on (bench/_common.py, shared by every benchmark)."""
-    from _common import machine_line  # bench/ is on sys.path when run as a script
-
-    return machine_line()
-
-
-def f(v: float | None, d: int = 2) -> str:
-    return "–" if v is None or not math.isfinite(v) else f"{v:.{d}f}"
 
 
 def continuous_errors(
@@ -143,15 +117,23 @@ def main() -> int:
     cmds: list[str] = []
     hdrd = ["hdrd"]
     py = [sys.executable]
-    run(hdrd + ["simulate", "--benchmark", "train", "--out", f"{W}/train", *grade_args], cmds)
-    run(hdrd + ["simulate", "--benchmark", "test", "--out", f"{W}/test", *grade_args], cmds)
+    run_recorded(
+        hdrd + ["simulate", "--benchmark", "train", "--out", f"{W}/train", *grade_args], cmds
+    )
+    run_recorded(
+        hdrd + ["simulate", "--benchmark", "test", "--out", f"{W}/test", *grade_args], cmds
+    )
     train = [W / "train" / f"{s.name}.csv" for s in TRAIN_DRIVES]  # the paper's order
     test = [W / "test" / f"{s.name}.csv" for s in TEST_DRIVES]
     tr_s = [str(p) for p in train]
     te_s = [str(p) for p in test]
-    run(hdrd + ["evaluate", *tr_s, "--json", f"{W}/train.json", "--plot", f"{W}/train.png"], cmds)
-    run(hdrd + ["evaluate", *te_s, "--json", f"{W}/test.json", "--plot", f"{W}/test.png"], cmds)
-    run(
+    run_recorded(
+        hdrd + ["evaluate", *tr_s, "--json", f"{W}/train.json", "--plot", f"{W}/train.png"], cmds
+    )
+    run_recorded(
+        hdrd + ["evaluate", *te_s, "--json", f"{W}/test.json", "--plot", f"{W}/test.png"], cmds
+    )
+    run_recorded(
         hdrd
         + [
             "tune",
@@ -170,7 +152,7 @@ def main() -> int:
         ],
         cmds,
     )
-    run(
+    run_recorded(
         hdrd + ["evaluate", *te_s, "--config", f"{W}/tuned.yaml", "--json", f"{W}/test_tuned.json"],
         cmds,
     )
@@ -181,7 +163,7 @@ def main() -> int:
 
     real: list[tuple[str, str, dict[str, Any], str]] = []
     if DATA.is_dir() and paper_grade:
-        run(py + ["tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
+        run_recorded(py + ["tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
         from hdrd.io.drivelog import read_drive
 
         comma = W / "real" / "comma2k19.csv"
@@ -198,7 +180,7 @@ def main() -> int:
         ]
         for i, (path, bias, label) in enumerate(cases):
             out = W / "real" / f"eval{i}.json"
-            p = run(
+            p = run_recorded(
                 hdrd
                 + ["evaluate", str(path), "--bias", bias, "--json", str(out)]
                 + (["--plot", f"{W}/real/eval{i}.png"] if i != 1 else []),
@@ -206,7 +188,7 @@ def main() -> int:
             )
             real.append((label, bias, json.loads(out.read_text()), p.stdout))
         # The standstill test cannot tell a straight road from standing still: it accepts this.
-        p = run(hdrd + ["evaluate", str(comma), "--calibrate-seconds", "1"], cmds)
+        p = run_recorded(hdrd + ["evaluate", str(comma), "--calibrate-seconds", "1"], cmds)
         real.append(("comma2k19, bias from its first second (moving!)", "1 s", {}, p.stdout))
     else:
         print(f"no real recordings at {DATA}: skipped", file=sys.stderr)
@@ -233,7 +215,7 @@ def main() -> int:
     )
     print(section)
     if not a.no_write:
-        write_section(section)
+        replace_section(SECTION, section)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SECTION})")
     return 0
 
@@ -256,7 +238,7 @@ def render(
     L: list[str] = [SECTION, ""]
     L.append(
         f"Generated by `python bench/tables.py{'' if a.grade == 'crs03' else ' --grade ' + a.grade}` "
-        f"({time.strftime('%Y-%m-%d')}, on {machine()}). "
+        f"({time.strftime('%Y-%m-%d')}, on {machine_line()}). "
         "It runs these commands (outputs in a scratch directory, here "
         f"`{W}`; drive files listed in the paper's order):"
     )
@@ -297,9 +279,9 @@ def render(
         pn = f"{p[3]:.2f} → {p[4]:.2f}" if p else "–"
         pi = f"{p[5]:g}×" if p else "–"
         L.append(
-            f"| {d['name']} | {d['duration_min']:.1f} | {pe} | {f(d['E_psi_raw'], 1)}° → "
-            f"{f(d['E_psi_hdr'], 1)}° | {pn} | {f(d['NE_psi_raw'])} → {f(d['NE_psi_hdr'], 3)} | "
-            f"{pi} | {f(d['improvement'], 1)}× | {ce[0]:.1f}° → {ce[1]:.1f}° ({ce[0] / ce[1]:.1f}×) |"
+            f"| {d['name']} | {d['duration_min']:.1f} | {pe} | {fmt(d['E_psi_raw'], 1)}° → "
+            f"{fmt(d['E_psi_hdr'], 1)}° | {pn} | {fmt(d['NE_psi_raw'], 2)} → {fmt(d['NE_psi_hdr'], 3)} | "
+            f"{pi} | {fmt(d['improvement'], 1)}× | {ce[0]:.1f}° → {ce[1]:.1f}° ({ce[0] / ce[1]:.1f}×) |"
         )
     m = ev_train["mean"]
     imps = [d["improvement"] for d in ev_train["drives"] if d["improvement"] is not None]
@@ -309,9 +291,9 @@ def render(
     c_hdr = statistics.mean(v[1] for v in cont_train.values())
     L.append(
         f"| **mean** | {sum(d['duration_min'] for d in ev_train['drives']) / 60:.2f} h total | "
-        f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {f(m['E_psi_raw'], 1)}° → {f(m['E_psi_hdr'], 1)}° | "
-        f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {f(m['NE_psi_raw'])} → {f(m['NE_psi_hdr'], 3)} | "
-        f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {f(m['improvement'], 1)}× (σ {f(sd)}) | "
+        f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {fmt(m['E_psi_raw'], 1)}° → {fmt(m['E_psi_hdr'], 1)}° | "
+        f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {fmt(m['NE_psi_raw'], 2)} → {fmt(m['NE_psi_hdr'], 3)} | "
+        f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {fmt(m['improvement'], 1)}× (σ {fmt(sd, 2)}) | "
         f"{c_raw:.1f}° → {c_hdr:.1f}° ({statistics.mean(c_imps):.1f}×, σ {statistics.stdev(c_imps):.2f}) |"
     )
     L.append("")
@@ -344,16 +326,16 @@ def render(
         t = tuned_by[d["name"]]
         ce = cont_test.get(d["name"], (math.nan, math.nan))
         L.append(
-            f"| {d['name']} | {d['duration_min']:.1f} | {f(d['E_psi_raw'], 1)}° | {f(d['E_psi_hdr'], 1)}° | "
-            f"{f(t['E_psi_hdr'], 1)}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'], 3)} | "
-            f"{f(t['NE_psi_hdr'], 3)} | {f(d['improvement'], 1)}× | {f(t['improvement'], 1)}× | "
+            f"| {d['name']} | {d['duration_min']:.1f} | {fmt(d['E_psi_raw'], 1)}° | {fmt(d['E_psi_hdr'], 1)}° | "
+            f"{fmt(t['E_psi_hdr'], 1)}° | {fmt(d['NE_psi_raw'], 2)} | {fmt(d['NE_psi_hdr'], 3)} | "
+            f"{fmt(t['NE_psi_hdr'], 3)} | {fmt(d['improvement'], 1)}× | {fmt(t['improvement'], 1)}× | "
             f"{ce[0]:.1f}° → {ce[1]:.1f}° |"
         )
     m, mt = ev_test["mean"], ev_test_tuned["mean"]
     L.append(
-        f"| **mean** | | {f(m['E_psi_raw'], 1)}° | {f(m['E_psi_hdr'], 1)}° | {f(mt['E_psi_hdr'], 1)}° | "
-        f"{f(m['NE_psi_raw'])} | {f(m['NE_psi_hdr'], 3)} | {f(mt['NE_psi_hdr'], 3)} | "
-        f"{f(m['improvement'], 1)}× | {f(mt['improvement'], 1)}× | |"
+        f"| **mean** | | {fmt(m['E_psi_raw'], 1)}° | {fmt(m['E_psi_hdr'], 1)}° | {fmt(mt['E_psi_hdr'], 1)}° | "
+        f"{fmt(m['NE_psi_raw'], 2)} | {fmt(m['NE_psi_hdr'], 3)} | {fmt(mt['NE_psi_hdr'], 3)} | "
+        f"{fmt(m['improvement'], 1)}× | {fmt(mt['improvement'], 1)}× | |"
     )
     L.append("")
     tr, te = tj["train"], tj["test"]
@@ -375,8 +357,8 @@ def render(
         pp = tj["params"][key]
         L.append(
             f"| {label} | {pp['i_c']:g} | {pp['tau']:g} | {pp['theta_w']:g} | {pp['c1']:g} | {pp['c2']:g} | "
-            f"{tr[key]['mean_NE_psi']:.3f} | {tr[key]['improvement']:.2f}× (σ {f(tr[key]['improvement_std'])}) | "
-            f"{te[key]['mean_NE_psi']:.3f} | {te[key]['improvement']:.2f}× (σ {f(te[key]['improvement_std'])}) |"
+            f"{tr[key]['mean_NE_psi']:.3f} | {tr[key]['improvement']:.2f}× (σ {fmt(tr[key]['improvement_std'], 2)}) | "
+            f"{te[key]['mean_NE_psi']:.3f} | {te[key]['improvement']:.2f}× (σ {fmt(te[key]['improvement_std'], 2)}) |"
         )
     L.append("")
 
@@ -396,9 +378,9 @@ def render(
             if doc:
                 d = doc["drives"][0]
                 L.append(
-                    f"| {label} | {bias} | {d['duration_min']:.1f} | {f(d['E_psi_raw'])}° | "
-                    f"{f(d['E_psi_hdr'])}° | {f(d['NE_psi_raw'])} | {f(d['NE_psi_hdr'])} | "
-                    f"{f(d['improvement'], 1)}× |"
+                    f"| {label} | {bias} | {d['duration_min']:.1f} | {fmt(d['E_psi_raw'], 2)}° | "
+                    f"{fmt(d['E_psi_hdr'], 2)}° | {fmt(d['NE_psi_raw'], 2)} | {fmt(d['NE_psi_hdr'], 2)} | "
+                    f"{fmt(d['improvement'], 1)}× |"
                 )
             else:
                 row = [ln for ln in text.splitlines() if ln.startswith("comma2k19")]
@@ -482,13 +464,6 @@ the same tables unless the code changes; if it did, re-read the numbers before t
 - Both real recordings are short (1 and 4.7 minutes) — too short for the slow drift HDR is
   for; they check conventions and the pipeline on real signals more than HDR's benefit.
 """
-
-
-def write_section(section: str) -> None:
-    """Replace this script's section of RESULTS.md (or append it), leaving the rest alone."""
-    from _common import replace_section  # bench/ is on sys.path when run as a script
-
-    replace_section(SECTION, section)
 
 
 if __name__ == "__main__":

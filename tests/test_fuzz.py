@@ -1,9 +1,10 @@
-"""A short, seeded fuzz of every input surface (the long runs: bench/fuzz.py, bench/RESULTS.md).
+"""A short, seeded fuzz of every input surface (the long runs: ``python -m tools.fuzz``,
+bench/RESULTS.md).
 
 Two kinds: hypothesis draws structured hostile inputs (documents of any shape whose leaves
 may be 5,000-digit numbers, NaN, nesting thousands deep, control characters) for each
 surface's public entry point, derandomized so that every run tries the same examples; and
-the bench harness itself runs a few hundred inputs per surface through the daemon's code
+the fuzz harness itself runs a few hundred inputs per surface through the daemon's code
 paths, with a check that it does report a traceback and a hang when there is one.
 """
 
@@ -20,13 +21,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "bench"))
+from tools.fuzz import harness as fuzz
+from tools.fuzz.inputs import SURFACES, generate
+from tools.fuzz.mutate import Tok, emit_json, emit_yaml
+from tools.fuzz.targets import check_messages, one_line
 
-import fuzz  # noqa: E402 - bench/ on the path first
-from fuzz_inputs import SURFACES, generate  # noqa: E402
-from fuzz_mutate import Tok, emit_json, emit_yaml  # noqa: E402
-from fuzz_targets import check_messages, one_line  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 FUZZ = settings(
     max_examples=100,
@@ -209,7 +209,7 @@ def test_a_bias_file_is_valid_or_one_bias_file_error(
 
 
 def _capture() -> bytes:
-    from fuzz_targets import stress_capture
+    from tools.fuzz.targets import stress_capture
 
     return stress_capture(0)
 
@@ -316,15 +316,15 @@ def test_the_drive_logs_that_once_found_a_defect_keep_every_promise(
     path: Path, tmp_path: Path
 ) -> None:
     """Inputs of the drive-log surfaces that found a defect (bench/RESULTS.md, "Fuzz: drive
-    logs"), kept as bytes: evaluate, tune and gap on each, as bench/fuzz.py runs them."""
-    from fuzz_drivelog import DriveLogTarget
+    logs"), kept as bytes: evaluate, tune and gap on each, as tools/fuzz runs them."""
+    from tools.fuzz.drivelog import DriveLogTarget
 
     target = DriveLogTarget(path.name.split("-")[0], 0, tmp_path)
     target.every_command = True
     assert target.run(path.read_bytes()) in ("scored", "refused")
 
 
-# -- the bench harness ----------------------------------------------------------------------------
+# -- the fuzz harness -----------------------------------------------------------------------------
 
 
 def test_inputs_are_reproducible_from_seed_surface_and_index() -> None:
@@ -332,7 +332,8 @@ def test_inputs_are_reproducible_from_seed_surface_and_index() -> None:
         assert generate(s, 3, 17) == generate(s, 3, 17)
         assert generate(s, 3, 17) != generate(s, 4, 17)
     shown = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "fuzz.py"), "--show", "config:17", "--seed", "3"],
+        [sys.executable, "-m", "tools.fuzz", "--show", "config:17", "--seed", "3"],
+        cwd=ROOT,
         capture_output=True,
         check=True,
         timeout=60,

@@ -1,4 +1,4 @@
-"""Regression tests for defects that fuzzing (bench/fuzz.py) and review found in the input
+"""Regression tests for defects that fuzzing (tools/fuzz) and review found in the input
 handling: each input here gave a traceback or a wrong answer before its fix."""
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_pat
     )
     p.write_bytes(b"hdr:\n  method: hdr+\n  c1: \x00\n")
     before = d.cfg
-    d._reload()  # the SIGHUP handler's body: used to raise ReaderError
+    d.reload_config()  # the SIGHUP handler's body: used to raise ReaderError
     assert d.cfg is before
 
 
@@ -292,7 +292,7 @@ def test_nmea_talker_docs_recommend_what_protocol_md_recommends() -> None:
 
 def test_a_yaml_problem_quoting_a_huge_tag_is_still_a_short_line(tmp_path: Path) -> None:
     # PyYAML quotes the unknown tag whole: a bias file (or config) with a 900-character tag
-    # gave a 952-character error line (found by bench/fuzz.py, bias surface).
+    # gave a 952-character error line (found by tools/fuzz, bias surface).
     tag = "!!python/object:" + "hd" + "r" * 900
     p = tmp_path / "bias.yaml"
     p.write_text(f"bias_dps: 0.1\nstd_dps: {tag} 1\n# end\n")
@@ -342,7 +342,7 @@ def test_thousands_of_udp_destinations_are_summed_up_at_stop() -> None:
             few.on_message(msg)
             time.sleep(0.05)  # lets the ICMP errors come back
         with capture_logs() as logs:
-            daemon_mod._stop_all([many, few])
+            daemon_mod.stop_publishers([many, few])
     finally:
         rx.close()
     assert len(logs) < 20, len(logs)  # a screenful, not 5,002 lines

@@ -162,10 +162,10 @@ def test_the_layer_rules_are_not_empty_words() -> None:
 # These drive the daemon's run loop itself in-process (a reload with a hostile configuration, a
 # bias choice, a whole run on the simulated gyro); nothing offline (replay, evaluate, tune, gap) may reach it.
 DAEMON_TESTERS = [
-    "bench/fuzz_targets.py",
     "hdrd/commands/run.py",
     "tests/test_hardening.py",
     "tests/test_run.py",  # the run loop's own tests
+    "tools/fuzz/targets.py",
 ]
 
 

@@ -17,7 +17,7 @@ wraps. This module adds:
 - ADC counts at the rails and beyond the gyro's range: every such sample is flagged in the
   ``saturated`` count of its step's message, and nothing else is.
 
-The long random run is ``bench/fuzz.py`` (results in bench/RESULTS.md, "Fuzz").
+The long random run is ``python -m tools.fuzz`` (results in bench/RESULTS.md, "Fuzz").
 """
 
 from __future__ import annotations

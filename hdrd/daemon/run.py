@@ -119,7 +119,7 @@ summed up in one line (``output_udp_summary``) plus a line for each of the
 ``UDP_STATS_LINES`` that failed most."""
 
 
-def _stop_all(pubs: list[Publisher]) -> None:
+def stop_publishers(pubs: list[Publisher]) -> None:
     """Stop every publisher (each flushes), then log the UDP destinations' counters: what
     was sent, and what failed and why (a peer that refused, a name that never resolved). One
     line per destination, or, for an output with more than :data:`UDP_STATS_LINES`, one
@@ -288,7 +288,7 @@ class Daemon:
         src.close()
         if self.gps is not None:
             self.gps.close()
-        _stop_all(self.publishers)
+        stop_publishers(self.publishers)
         log.info(
             "stop",
             steps=self.steps,
@@ -321,7 +321,7 @@ class Daemon:
         periodic duties. False when the input has ended (a capture or a simulated drive)."""
         if self.signals.reload:
             self.signals.reload = False
-            self._reload()
+            self.reload_config()
         item = src.recv(self.RECV_TIMEOUT_S)
         if item is None:
             self.watchdog.progress()  # all input handled: idle, not stuck
@@ -517,7 +517,10 @@ class Daemon:
 
     # -- SIGHUP --------------------------------------------------------------------------
 
-    def _reload(self) -> None:
+    def reload_config(self) -> None:
+        """What SIGHUP does: read the configuration again and apply it (the device and
+        ``hdr.T`` only at a restart), or log ``config_reload_failed`` and keep the running one.
+        Public so that a test or a tool can reload without sending a signal."""
         try:
             cfg, where = self.reload()
         except ConfigError as e:
@@ -540,7 +543,7 @@ class Daemon:
             )
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
         if cfg.output != old.output:
-            _stop_all(self.publishers)
+            stop_publishers(self.publishers)
             self.publishers = build_publishers(cfg)
         if cfg.gpsd != old.gpsd:  # a new gpsd connection and aiding state, or none
             if self.gps is not None:

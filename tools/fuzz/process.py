@@ -1,7 +1,7 @@
-"""Process-level fuzz runs of bench/fuzz.py: hdrd as it runs, fed the fuzzed inputs.
+"""Process-level fuzz runs of tools/fuzz: hdrd as it runs, fed the fuzzed inputs.
 
 Where a surface is reached through a process, these runs hand it the inputs of
-bench/fuzz_inputs.py the way the world does, and check what the process does:
+tools/fuzz/inputs.py the way the world does, and check what the process does:
 
 - ``serial``: ``hdrd run --port PTY`` with the inputs written to the pty as fast as it
   reads them (hdr-bin, then hdr-text);
@@ -41,9 +41,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fuzz_inputs import generate
+from .inputs import generate
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 __all__ = ["ProcResult", "run"]
 

@@ -1,4 +1,4 @@
-"""Structured mutation for bench/fuzz.py: valid documents made hostile, and bytes made worse.
+"""Structured mutation for tools/fuzz: valid documents made hostile, and bytes made worse.
 
 A document is a tree of dicts, lists and scalars in which any node may be a :class:`Tok`,
 text emitted verbatim: so a mutated document can hold what no serialiser would write (an

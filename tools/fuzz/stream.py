@@ -1,8 +1,7 @@
-#!/usr/bin/env python3
 """A long random byte stream through both parsers: every intact frame back, every bad one counted.
 
-    python bench/fuzz.py --surface stream [--bytes 10000000] [--seed 0] [--protocol hdr-bin|hdr-text|both]
-    python bench/fuzz_stream.py [--bytes 10000000] [--seed 0] [--protocol ...] [--json FILE]
+    python -m tools.fuzz --surface stream [--bytes 10000000] [--seed 0] [--protocol hdr-bin|hdr-text|both]
+    python -m tools.fuzz.stream [--bytes 10000000] [--seed 0] [--protocol ...] [--json FILE]
 
 A seeded generator writes a stream of ``--bytes`` bytes made of
 
@@ -46,8 +45,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig

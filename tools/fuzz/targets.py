@@ -1,8 +1,8 @@
-"""In-process fuzz targets of bench/fuzz.py: each input through the code the daemon runs.
+"""In-process fuzz targets of tools/fuzz: each input through the code the daemon runs.
 
 A target is made once per worker (``make_target(surface, workdir)``) and keeps its state
 across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes one input
-(bench/fuzz_inputs.py) and returns a short label of what happened ("accepted",
+(tools/fuzz/inputs.py) and returns a short label of what happened ("accepted",
 "rejected", ...). Anything it raises is a defect; so is a broken promise, raised as
 :class:`Broken`:
 
@@ -44,7 +44,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fuzz_inputs import stress_frames
+
+from .inputs import stress_frames
 
 __all__ = ["Broken", "Target", "make_target"]
 
@@ -409,7 +410,7 @@ class ConfigTarget(Target):
         d = self.daemon
         old = d.cfg
         self.events.events.clear()
-        d._reload()  # what SIGHUP does (the process-level run sends real ones)
+        d.reload_config()  # what SIGHUP does (the process-level run sends real ones)
         names = [e.get("event") for e in self.events.events]
         if "config_reload_failed" in names:
             _check(d.cfg is old, "a refused reload changed the running configuration")
@@ -430,9 +431,9 @@ class ConfigTarget(Target):
         check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
 
     def close(self) -> None:
-        from hdrd.daemon.run import _stop_all
+        from hdrd.daemon.run import stop_publishers
 
-        _stop_all(self.daemon.publishers)
+        stop_publishers(self.daemon.publishers)
         if self.daemon.gps is not None:
             self.daemon.gps.close()
 
@@ -598,7 +599,7 @@ def make_target(surface: str, seed: int, workdir: Path) -> Target:
     if surface == "capture":
         return CaptureTarget(seed, workdir)
     if surface in ("drivecsv", "driveparquet"):
-        from fuzz_drivelog import DriveLogTarget
+        from .drivelog import DriveLogTarget
 
         return DriveLogTarget(surface, seed, workdir)
     raise ValueError(f"unknown surface {surface!r}")

@@ -1,4 +1,4 @@
-"""Drive-log surfaces of bench/fuzz.py: the files ``hdrd evaluate``, ``hdrd tune`` and
+"""Drive-log surfaces of tools/fuzz: the files ``hdrd evaluate``, ``hdrd tune`` and
 ``hdrd gap`` are handed, and the names in them that become paths.
 
 Two surfaces:
@@ -17,11 +17,11 @@ Two surfaces:
 
 An input is an envelope (:func:`pack`): the layout, a name, the files' bytes. The target
 (:class:`DriveLogTarget`) lays it out in a fresh folder and runs the commands through their
-own entry points (``hdrd.cli.parse_args`` then the command's function, stdout and stderr
+own entry point (``hdrd.cli.main``, stdout and stderr
 captured): ``hdrd evaluate`` every input, ``hdrd tune`` every 8th, ``hdrd gap --out DIR
 --report`` every 16th; every input, the fitted-model paths ``hdrd gap --out`` would take.
 
-Promises checked (else :class:`fuzz_targets.Broken`): exit status 0 or 1; every line on
+Promises checked (else :class:`tools.fuzz.targets.Broken`): exit status 0 or 1; every line on
 stderr is one printable line of the command (``hdrd evaluate: ...``), never an internal error
 or "too large to analyse" (memory is bounded by the limits, not by luck); a table without a
 NaN; a ``--json`` whose numbers are finite or null; nothing written outside the command's
@@ -43,8 +43,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fuzz_mutate import giant_string, mutate_bytes
-from fuzz_targets import Broken, Target, one_line
+
+from .mutate import giant_string, mutate_bytes
+from .targets import Broken, Target, one_line
 
 __all__ = ["DriveLogTarget", "drivecsv_input", "driveparquet_input", "pack", "unpack"]
 
@@ -210,7 +211,7 @@ def drivecsv_input(rng: random.Random) -> bytes:
     if r < 0.04:
         body = rng.randbytes(rng.randint(0, 5000))
     elif r < 0.07:
-        from fuzz_inputs import serial_input
+        from .inputs import serial_input
 
         body = serial_input(rng, 300)[1:]
     elif r < 0.08:
@@ -414,20 +415,17 @@ class DriveLogTarget(Target):
         return path.parent if layout == "S" else path
 
     def _run(self, argv: list[str]) -> tuple[int, str, str]:
-        import importlib
-
-        from hdrd.cli import parse_args
+        """``hdrd ARGV`` through the entry point's :func:`hdrd.cli.main`, in process."""
+        from hdrd.cli import main
 
         out, err = io.StringIO(), io.StringIO()
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
-                args = parse_args(argv)
+                rc = main(argv)
             except SystemExit as e:  # a usage error: not what the inputs test
                 raise Broken(
                     f"usage error {e.code} for {argv[:3]}: {err.getvalue()[:200]}"
                 ) from None
-            module, _, func = args._target.partition(":")
-            rc = int(getattr(importlib.import_module(module), func)(args) or 0)
         return rc, out.getvalue(), err.getvalue()
 
     def _check(self, cmd: str, rc: int, out: str, err: str) -> None:

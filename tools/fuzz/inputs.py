@@ -1,15 +1,15 @@
-"""The fuzzed inputs of bench/fuzz.py, one generator per input surface.
+"""The fuzzed inputs of tools/fuzz, one generator per input surface.
 
 ``generate(surface, seed, i) -> bytes`` is input *i* of a surface's sequence: a valid input
-(what hdrd or gpsd would really send or write) mutated by :mod:`fuzz_mutate`, or random
+(what hdrd or gpsd would really send or write) mutated by :mod:`tools.fuzz.mutate`, or random
 bytes. Each input comes from its own :class:`random.Random` seeded with (seed, surface, i),
-so any input can be made again on its own (``python bench/fuzz.py --show SURFACE:I``).
+so any input can be made again on its own (``python -m tools.fuzz --show SURFACE:I``).
 
 Surfaces: ``serial`` (bytes from the gyro's ADC, hdr-bin or hdr-text, as the daemon reads
 them), ``gpsd`` (what a gpsd peer sends, one or more lines), ``tail`` (one UDP datagram for
 ``hdrd tail``), ``config`` (a configuration file), ``bias`` (a bias file), ``capture`` (a
 capture file for ``hdrd replay``/``convert``), ``drivecsv`` and ``driveparquet`` (drive logs
-for ``hdrd evaluate``/``tune``/``gap``: bench/fuzz_drivelog.py). A serial or capture input
+for ``hdrd evaluate``/``tune``/``gap``: tools/fuzz/drivelog.py). A serial or capture input
 starts with one byte naming its protocol (``B`` hdr-bin, ``T`` hdr-text); the rest is the
 stream.
 """
@@ -25,9 +25,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from fuzz_mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 
 from hdrd.io.frames import FRAME_DTYPE, SYNC, encode_array
+
+from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 
 __all__ = ["SURFACES", "generate", "rng_for"]
 
@@ -470,13 +471,13 @@ def bias_input(rng: random.Random) -> bytes:
 
 
 def drivecsv_input(rng: random.Random) -> bytes:
-    from fuzz_drivelog import drivecsv_input as make  # not at the top: it imports fuzz_targets
+    from .drivelog import drivecsv_input as make  # not at the top: it imports .targets
 
     return make(rng)
 
 
 def driveparquet_input(rng: random.Random) -> bytes:
-    from fuzz_drivelog import driveparquet_input as make
+    from .drivelog import driveparquet_input as make
 
     return make(rng)
 

@@ -1,7 +1,6 @@
-#!/usr/bin/env python3
 """Fuzz every input surface of hdrd: no traceback, no hang, bounded memory, clear refusals.
 
-    python bench/fuzz.py [--surface all|stream|serial|gpsd|tail|config|bias|capture
+    python -m tools.fuzz [--surface all|stream|serial|gpsd|tail|config|bias|capture
                           |drivecsv|driveparquet ...]
                          [--inputs N] [--seconds S] [--seed K] [--hang-s S]
                          [--process | --process-only] [--process-inputs N] [--process-seconds S]
@@ -12,16 +11,16 @@ Surfaces (what an attacker, a broken cable or a careless edit can hand hdrd): ``
 (UDP datagrams to ``hdrd tail``), ``config`` (the configuration file, at start and on
 SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``),
 ``drivecsv`` and ``driveparquet`` (drive logs, and the names in them that become paths, for
-``hdrd evaluate``/``tune``/``gap``: bench/fuzz_drivelog.py).
+``hdrd evaluate``/``tune``/``gap``: tools/fuzz/drivelog.py).
 ``stream`` is the exact-count check of the two frame parsers on a long byte stream
-(bench/fuzz_stream.py; ``--bytes``, ``--protocol``).
+(tools/fuzz/stream.py; ``--bytes``, ``--protocol``).
 
 Each input is a valid one mutated (huge numbers, NaN/inf, deep nesting, wrong types, control
 bytes, unicode, giant strings, truncation, YAML anchors and tags, frames whose clock jumps
 or whose counts sit at the rails) or random bytes; input *i* of a surface is made from
-(seed, surface, i) alone (bench/fuzz_inputs.py), so ``--show SURFACE:I`` writes it to
+(seed, surface, i) alone (tools/fuzz/inputs.py), so ``--show SURFACE:I`` writes it to
 stdout again. In process, each surface's inputs go through the code the daemon runs
-(bench/fuzz_targets.py) in a worker process of its own, which the parent watches:
+(tools/fuzz/targets.py) in a worker process of its own, which the parent watches:
 
 - a **traceback** is any exception the code raises, or a broken promise (a non-finite number
   or a heading outside [0, 360) published, a refusal that is not one printable line, tail
@@ -35,7 +34,7 @@ stdout again. In process, each surface's inputs go through the code the daemon r
   space is limited to ``--max-vm-mb`` so that a runaway allocation is a MemoryError (a
   traceback), not the machine's OOM killer.
 
-``--process`` adds the process-level runs (bench/fuzz_process.py): ``hdrd run`` on a pty
+``--process`` adds the process-level runs (tools/fuzz/process.py): ``hdrd run`` on a pty
 written with fuzzed serial bytes, ``hdrd run --gpsd`` against a fuzzing gpsd peer,
 ``hdrd tail`` receiving fuzzed datagrams, ``hdrd run`` started on fuzzed configuration
 and bias files and reloaded (SIGHUP) with fuzzed configurations, ``hdrd replay`` and
@@ -65,12 +64,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: one core's worth
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from fuzz_inputs import SURFACES, generate
-from fuzz_targets import Broken, make_target
+from .inputs import SURFACES, generate
+from .targets import Broken, make_target
 
 ALL = (*SURFACES, "stream")
 """In the order run: the stream check last, so that the memory it takes (its 10^7-byte
@@ -489,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.process_only:
         for s in surfaces:
             if s == "stream":
-                import fuzz_stream
+                from . import stream as fuzz_stream
 
                 argv_s = [
                     "--bytes",
@@ -509,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
         if results:
             print("\n" + markdown(results))
     if args.process or args.process_only:
-        import fuzz_process
+        from . import process as fuzz_process
 
         for s in surfaces:
             if s == "stream":

@@ -1,0 +1,16 @@
+"""The fuzzer of hdrd's input surfaces, a test-side tool (run from the repository root).
+
+    python -m tools.fuzz --help          # the harness: tools/fuzz/harness.py
+    python -m tools.fuzz.stream --help   # the long-stream check of the frame parsers alone
+
+Modules: ``harness`` (the watched worker processes, reports, the command line), ``inputs``
+and ``mutate`` (input *i* of a surface from (seed, surface, i) alone), ``targets`` (each
+surface's input through the code the daemon runs, by its public interfaces), ``drivelog``
+(drive-log files for ``hdrd evaluate``/``tune``/``gap``), ``process`` (hdrd as processes),
+``stream`` (10^7 random bytes per protocol through both parsers against a reference scan).
+Results: bench/RESULTS.md, "Fuzz".
+"""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: one core's worth
