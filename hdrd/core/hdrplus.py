@@ -250,36 +250,55 @@ class HdrPlusParams:
         offset's variance is q^2/12 (+ the above). Unknown pieces keep their current values.
         """
         p = self
-        q = math.nan
-        for cand in (
-            quant_step_dps,
-            calibration.quant_step_dps if calibration is not None else None,
-            noise.quant_step_dps if noise is not None else None,
-        ):
-            if cand is not None and math.isfinite(cand) and cand > 0:
-                q = float(cand)
-                break
+        q = _output_step(quant_step_dps, calibration, noise)
         if math.isfinite(q):
             p = p.with_(quant_step_dps=q, stop_offset_var=q * q / 12.0)
         known = noise is not None and noise.known()
         if calibration is not None:
-            ss = replace(p.standstill, samples_per_step=max(1.0, calibration.samples_per_step))
-            p = p.with_(standstill=ss, model="calibration")
-            if math.isfinite(calibration.block_var) and calibration.block_var >= 0:
-                p = p.with_(block_var=calibration.block_var)
-                if not known:
-                    white2 = calibration.block_var * p.hdr.T  # N^2: a step's variance x T
-                    off = p.stop_offset_var + p.offset_white_ratio**2 * white2
-                    p = p.with_(stop_offset_var=off)
-            if math.isfinite(calibration.bias_var) and calibration.bias_var >= 0:
-                p = p.with_(bias_p0=calibration.bias_var)
+            p = p._with_calibration(calibration, known)
         if noise is not None and known:
-            qt, qnt = noise.bias_q(), noise.bias_q_no_temp()
-            p = p.with_(bias_q_no_temp=qnt, bank=False, ic_drift_ratio=0.01)
-            p = p.with_(bias_q=qt if math.isfinite(qt) else qnt, model=noise.source)
-            if math.isfinite(noise.temp_coeff_dps_per_c):
-                p = p.with_(temp_coeff_sd=max(noise.temp_coeff_dps_per_c, 1e-5))
+            p = p._with_model(noise)
         return p
+
+    def _with_calibration(self, calibration: CalibrationNoise, known: bool) -> HdrPlusParams:
+        """:meth:`fitted`'s calibration part: samples per step, block_var, bias_p0, and
+        without a known error model the standstill offset's white-noise part."""
+        ss = replace(self.standstill, samples_per_step=max(1.0, calibration.samples_per_step))
+        p = self.with_(standstill=ss, model="calibration")
+        if math.isfinite(calibration.block_var) and calibration.block_var >= 0:
+            p = p.with_(block_var=calibration.block_var)
+            if not known:
+                white2 = calibration.block_var * p.hdr.T  # N^2: a step's variance x T
+                off = p.stop_offset_var + p.offset_white_ratio**2 * white2
+                p = p.with_(stop_offset_var=off)
+        if math.isfinite(calibration.bias_var) and calibration.bias_var >= 0:
+            p = p.with_(bias_p0=calibration.bias_var)
+        return p
+
+    def _with_model(self, noise: GyroNoise) -> HdrPlusParams:
+        """:meth:`fitted`'s known error model part: one filter of the model's random walk,
+        the prior on k, the increment off where it would only straighten gentle curves."""
+        qt, qnt = noise.bias_q(), noise.bias_q_no_temp()
+        p = self.with_(bias_q_no_temp=qnt, bank=False, ic_drift_ratio=0.01)
+        p = p.with_(bias_q=qt if math.isfinite(qt) else qnt, model=noise.source)
+        if math.isfinite(noise.temp_coeff_dps_per_c):
+            p = p.with_(temp_coeff_sd=max(noise.temp_coeff_dps_per_c, 1e-5))
+        return p
+
+
+def _output_step(
+    given: float | None, calibration: CalibrationNoise | None, noise: GyroNoise | None
+) -> float:
+    """The output step q, deg/s: the one given, else the calibration's, else the noise
+    model's; NaN when none is known."""
+    for cand in (
+        given,
+        calibration.quant_step_dps if calibration is not None else None,
+        noise.quant_step_dps if noise is not None else None,
+    ):
+        if cand is not None and math.isfinite(cand) and cand > 0:
+            return float(cand)
+    return math.nan
 
 
 class PlusState(NamedTuple):

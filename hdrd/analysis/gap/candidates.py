@@ -119,12 +119,9 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
     out: dict[str, str] = {}
     truth = data.truth[data.valid]
     moving = float(np.percentile(np.abs(truth), 99)) if truth.shape[0] else 0.0
-    if data.temp_c is None:
-        out["temperature_bias"] = "no temp_c column"
-    else:
-        tb = data.block_mean(data.temp_c)
-        if float(np.std(tb)) < MIN_TEMP_STD_C:
-            out["temperature_bias"] = f"temp_c varies by only {float(np.std(tb)):.2f} degC (std)"
+    why_temp = _temperature_unidentifiable(data)
+    if why_temp:
+        out["temperature_bias"] = why_temp
     if moving < 1.0:
         why = "the true rate is (near) zero throughout: gain, lag and clipping need turns"
         for c in ("scale_factor", "scale_asymmetry", "time_offset", "saturation"):
@@ -159,6 +156,16 @@ def not_identifiable(data: GapData, model: GyroModel) -> dict[str, str]:
         for c in ("warmup_transient", "bias_instability", "rate_random_walk"):
             out[c] = "the log is shorter than 60 s"
     return out
+
+
+def _temperature_unidentifiable(data: GapData) -> str:
+    """Why the log cannot inform temperature_bias ("": it can)."""
+    if data.temp_c is None:
+        return "no temp_c column"
+    tb = data.block_mean(data.temp_c)
+    if float(np.std(tb)) < MIN_TEMP_STD_C:
+        return f"temp_c varies by only {float(np.std(tb)):.2f} degC (std)"
+    return ""
 
 
 def _motion_unidentifiable(data: GapData) -> str:
