@@ -159,6 +159,12 @@ def wait_bound(proc: subprocess.Popen[bytes], port: int) -> None:
     pytest.fail("hdrd tail did not bind its port")
 
 
+def _interruptible() -> None:
+    """In the child before exec: SIGINT as a terminal gives it. A test run started in the
+    background by a shell inherits SIGINT ignored, and so would ``hdrd tail``."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_tail(*extra: str, stdout: int = subprocess.PIPE) -> tuple[subprocess.Popen[bytes], int]:
     port = free_port()
     env = dict(os.environ, TZ="UTC")
@@ -167,6 +173,7 @@ def start_tail(*extra: str, stdout: int = subprocess.PIPE) -> tuple[subprocess.P
         stdout=stdout,
         stderr=subprocess.PIPE,
         env=env,
+        preexec_fn=_interruptible,
     )
     wait_bound(proc, port)
     return proc, port
