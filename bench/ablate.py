@@ -141,6 +141,15 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
         ),
     ),
     "road var /6": ("a straighter road model (road_var 0.0004)", lambda: with_plus(road_var=0.0004)),
+    "road by speed": (
+        "the road's rate spread follows the speed: 0.013 deg/s and a lateral acceleration of "
+        "0.02 m/s^2 (Ablation.road_lat_acc)",
+        lambda: ablated(road_lat_acc=0.02),
+    ),
+    "road by speed + offset": (
+        "that and the motion offset 0.1",
+        lambda: ablated(road_lat_acc=0.02, motion_offset_var=0.01),
+    ),
 }
 
 

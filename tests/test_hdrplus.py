@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 
 from hdrd.analysis.evaluate import evaluate_drive
 from hdrd.cli import main as cli_main
-from hdrd.core import hdr
+from hdrd.core import biasbank as bb
+from hdrd.core import hdr, hdrplus
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import (
     INITIAL_PLUS_STATE,
@@ -189,6 +190,33 @@ def test_params_are_checked() -> None:
     assert HdrPlusParams().hdr == PLUS_CORE
     assert HdrPlusParams().ablated(drift_prior=0.5).ablation.drift_prior == 0.5
     assert HdrPlusParams().ablation == Ablation()  # the daemon's: every idea on
+    for name in ("motion_offset_var", "road_lat_acc", "road_floor_dps"):
+        with pytest.raises(ValueError, match=name):
+            Ablation(**{name: -0.1})
+
+
+def test_a_motion_offset_widens_only_the_drifting_filter() -> None:
+    """Ablation.motion_offset_var: the drifting filter's driving bias may sit that far off the
+    stops' (var(c) = F + it, cov(b, c) = -var(c)); the stable filter keeps F."""
+    base = HdrPlusParams(block_var=0.0004)
+    inp = StepInput(u=0.0, spread_dps=0.02, speed_mps=15.0, temp_c=math.nan, T=1.0)
+    s_off, _ = step(INITIAL_PLUS_STATE, inp, base)
+    s_on, _ = step(INITIAL_PLUS_STATE, inp, base.ablated(motion_offset_var=0.01))
+    cc = bb.CC
+    assert s_on.bank.drifting is not None and s_off.bank.drifting is not None
+    # after one straight step's update, most of the added variance is still there
+    assert s_on.bank.drifting.P[cc] > s_off.bank.drifting.P[cc] + 0.005
+    assert s_on.bank.stable == s_off.bank.stable
+
+
+def test_the_road_spread_follows_the_speed_only_when_asked() -> None:
+    p = HdrPlusParams()
+    assert hdrplus._road_var(p, 30.0) == p.road_var == hdrplus._road_var(p, math.nan)
+    q = p.ablated(road_lat_acc=0.02)
+    fast, slow = hdrplus._road_var(q, 30.0), hdrplus._road_var(q, 3.0)
+    assert q.ablation.road_floor_dps**2 < fast < slow
+    assert slow == pytest.approx(0.013**2 + math.degrees(0.02 / 3.0) ** 2)
+    assert hdrplus._road_var(q, 0.5) == q.road_var  # below ROAD_MIN_SPEED: the default
 
 
 # -- paper HDR is HDR+ with every extra off -------------------------------------------------------

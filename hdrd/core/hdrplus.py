@@ -88,6 +88,13 @@ class Ablation:
     ``i_c_max``); 0 = the fixed hdr.i_c."""
     drift_prior: float = 0.3
     """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+    road_lat_acc: float = 0.0
+    """The road's gentle curves as a lateral acceleration, m/s^2: with the speed v known
+    (above ``ROAD_MIN_SPEED``), the road rate's variance is road_floor_dps^2 + (a / v)^2 (in
+    deg/s): at speed a residual rate is more likely bias, in town a curve. 0: road_var
+    whatever the speed."""
+    road_floor_dps: float = 0.013
+    """The road rate's spread at any speed with ``road_lat_acc``, deg/s."""
     motion_offset_var: float = 0.0
     """Prior variance of a *motion offset*, (deg/s)^2: how far the bias while driving may sit
     from what the stops read (vibration rectification, g-sensitivity), added to the
@@ -95,7 +102,7 @@ class Ablation:
     (bench/RESULTS.md, "HDR+ round two: ideas tried", has why it is not on)."""
 
     def __post_init__(self) -> None:
-        for name in ("straight_r", "ic_alpha", "motion_offset_var"):
+        for name in ("straight_r", "ic_alpha", "motion_offset_var", "road_lat_acc", "road_floor_dps"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
@@ -382,6 +389,19 @@ def _increment(var_t: float, q_i: float, params: HdrPlusParams) -> float:
     return inc
 
 
+ROAD_MIN_SPEED = 1.0
+"""Below this speed, m/s, the road's rate variance is road_var (a/v grows without bound)."""
+
+
+def _road_var(params: HdrPlusParams, v: float) -> float:
+    """The road rate's variance at speed v m/s, (deg/s)^2 (``Ablation.road_lat_acc``)."""
+    acc = params.ablation.road_lat_acc
+    if acc <= 0.0 or not v >= ROAD_MIN_SPEED:
+        return params.road_var
+    rate = math.degrees(acc / v)
+    return params.ablation.road_floor_dps**2 + rate * rate
+
+
 class _Run:
     """The filter on mutable locals: :func:`step` runs one step of it from a state,
     :func:`run_batch` many. :meth:`advance` calls the phases in order (predict, mixture,
@@ -428,7 +448,7 @@ class _Run:
         """One step of T seconds: u deg/s CCW, the samples' spread sp deg/s, speed v m/s,
         temperature te degC (NaN = unknown)."""
         dT, have_temp = self.temperature(te)
-        mix = self.predict(T, dT, have_temp)
+        mix = self.predict(T, dT, have_temp, v)
         zero = self.standstill_test(u - mix.corr, sp, v, mix)
         if zero:
             out = self.standstill_update(u, sp, dT, mix)
@@ -448,13 +468,13 @@ class _Run:
             self.t_ref = te
         return (te - self.t_ref if have_temp else 0.0), have_temp
 
-    def predict(self, T: float, dT: float, have_temp: bool) -> _Mix:
+    def predict(self, T: float, dT: float, have_temp: bool, v: float = math.nan) -> _Mix:
         """Let T pass (the random walks, the road's decay) and weigh the bank: the correction
         and the core's increment in force for this step."""
         p, x1, P1 = self.p, self.x1, self.P1
         q1 = p.bias_q if have_temp else (p.q_drifting if p.bank else p.bias_q_no_temp)
         a = math.exp(-T / p.road_tau_s) if p.road_var > 0.0 else 1.0
-        road_q = p.road_var * (1.0 - a * a)
+        road_q = _road_var(p, v) * (1.0 - a * a)
         bb.predict(x1, P1, q1, T, a, road_q)
         if p.bank:
             bb.predict(self.x0, self.P0, p.q_stable, T, a, road_q)
