@@ -236,7 +236,7 @@ def test_a_reload_takes_the_new_method_and_keeps_what_needs_a_restart() -> None:
         {"hdr.method": "hdr+", "hdr.T": 2.0, "device.port": "/dev/ttyUSB7"},
     )
     d = Daemon(old, "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
-    d._reload()
+    d.reload_config()
     assert d.where == "new.yaml" and d.cfg.hdr.method == "hdr+"
     assert d.cfg.hdr.params.T == old.hdr.params.T  # a step period needs a restart
     assert d.cfg.device == old.device  # so does the device
@@ -251,7 +251,7 @@ def test_a_reload_that_fails_keeps_the_running_configuration() -> None:
 
     d = Daemon(cfg, "old.yaml", broken, BiasChoice(BiasRecord(0.1, 0.0, 0, 0.0), "--bias"))
     pipeline_config = d.pipeline.config
-    d._reload()
+    d.reload_config()
     assert d.cfg is cfg and d.where == "old.yaml" and d.pipeline.config == pipeline_config
 
 
@@ -261,7 +261,7 @@ def test_a_reload_with_other_outputs_makes_new_publishers(udp: Receiver) -> None
     d = Daemon(Config(), "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
     d.publishers = build_publishers(d.cfg)
     assert [type(p) for p in d.publishers] == [StdoutPublisher]
-    d._reload()
+    d.reload_config()
     try:
         assert [type(p) for p in d.publishers] == [UdpJsonPublisher]
     finally:
