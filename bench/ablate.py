@@ -133,18 +133,30 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
     "motion offset 0.05": ("the same, sd 0.05 deg/s", lambda: ablated(motion_offset_var=0.0025)),
     "drift prior 0.1": ("a lower prior weight of 'drifting'", lambda: ablated(drift_prior=0.1)),
     "no straight": ("no straight-driving measurements", lambda: ablated(straight_r=0.0)),
-    "straight r 0.01": ("straight-driving measurements trusted more", lambda: ablated(straight_r=0.01)),
+    "straight r 0.01": (
+        "straight-driving measurements trusted more",
+        lambda: ablated(straight_r=0.01),
+    ),
     "no increment": (
         "the HDR core's increment off (ic_alpha 0, i_c 0)",
         lambda: replace(
-            DEFAULTS, plus=DEFAULTS.plus.with_(hdr=replace(PLUS_CORE, i_c=0.0)).ablated(ic_alpha=0.0)
+            DEFAULTS,
+            plus=DEFAULTS.plus.with_(hdr=replace(PLUS_CORE, i_c=0.0)).ablated(ic_alpha=0.0),
         ),
     ),
-    "road var /6": ("a straighter road model (road_var 0.0004)", lambda: with_plus(road_var=0.0004)),
+    "road var /6": (
+        "a straighter road model (road_var 0.0004)",
+        lambda: with_plus(road_var=0.0004),
+    ),
     "road by speed": (
         "the road's rate spread follows the speed: 0.013 deg/s and a lateral acceleration of "
         "0.02 m/s^2 (Ablation.road_lat_acc)",
         lambda: ablated(road_lat_acc=0.02),
+    ),
+    "moved, not drifting": (
+        "the bank's second filter a 'moved' one: the motion offset 0.1 and the stable filter's "
+        "random walk (Ablation.moved_q 1e-7) instead of a drifting bias",
+        lambda: ablated(motion_offset_var=0.01, moved_q=1e-7),
     ),
     "road by speed + offset": (
         "that and the motion offset 0.1",
@@ -155,7 +167,10 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
 
 def ne(drives: Drives, method: str, ctx: SettingsContext) -> np.ndarray:
     return np.array(
-        [e_psi(method_yaw(p, method, context=ctx), p.truth, p.k) / p.duration_min for _, p in drives]
+        [
+            e_psi(method_yaw(p, method, context=ctx), p.truth, p.k) / p.duration_min
+            for _, p in drives
+        ]
     )
 
 
@@ -181,7 +196,11 @@ def run(routes: int, names: Sequence[str]) -> str:
         for n in names:
             v = ne(drives, "hdr+", ctxs[n])
             cells.append(f"{v.mean():.3f} ({harmed(v, none, drives)})")
-        row = f"| {sname} | {len(drives)} | {none.mean():.3f} | {hdr.mean():.3f} | " + " | ".join(cells) + " |"
+        row = (
+            f"| {sname} | {len(drives)} | {none.mean():.3f} | {hdr.mean():.3f} | "
+            + " | ".join(cells)
+            + " |"
+        )
         print(row, flush=True)
         rows.append(row)
     return "\n".join(rows)

@@ -190,7 +190,7 @@ def test_params_are_checked() -> None:
     assert HdrPlusParams().hdr == PLUS_CORE
     assert HdrPlusParams().ablated(drift_prior=0.5).ablation.drift_prior == 0.5
     assert HdrPlusParams().ablation == Ablation()  # the daemon's: every idea on
-    for name in ("motion_offset_var", "road_lat_acc", "road_floor_dps"):
+    for name in ("motion_offset_var", "moved_q", "road_lat_acc", "road_floor_dps"):
         with pytest.raises(ValueError, match=name):
             Ablation(**{name: -0.1})
 
@@ -207,6 +207,26 @@ def test_a_motion_offset_widens_only_the_drifting_filter() -> None:
     # after one straight step's update, most of the added variance is still there
     assert s_on.bank.drifting.P[cc] > s_off.bank.drifting.P[cc] + 0.005
     assert s_on.bank.stable == s_off.bank.stable
+
+
+def test_a_moved_hypothesis_learns_a_driving_offset_the_stops_do_not_show() -> None:
+    """1 Hz: 60 s stops every 600 s reading the calibrated bias, straight driving between
+    with the bias 0.08 deg/s off the stops' (vibration rectification). The drifting
+    hypothesis loses every stop's evidence and HDR+ keeps most of the error; a moved one (the
+    driving bias free, the bias at rest stable) earns the correction."""
+    n = 1800
+    i = np.arange(n)
+    stop = (i % 600) < 60
+    u = np.where(stop, 0.0, 0.08) + np.random.default_rng(3).normal(0.0, 0.02, n)
+    speed = np.where(stop, 0.0, 15.0)
+    base = HdrPlusParams(block_var=0.0004)
+    none = float(np.sum(np.where(stop, 0.0, u)))  # the yaw error of bias removal, deg
+    drifting = run_batch(u, np.full(n, 0.02), speed, None, 1.0, base)
+    moved = base.ablated(motion_offset_var=0.01, moved_q=1e-7)
+    got = run_batch(u, np.full(n, 0.02), speed, None, 1.0, moved)
+    assert abs(drifting.yaw[-1]) > 0.8 * abs(none)  # the harm pattern today
+    assert abs(got.yaw[-1]) < 0.25 * abs(none)
+    assert got.drift_weight[-1] > 0.9
 
 
 def test_the_road_spread_follows_the_speed_only_when_asked() -> None:

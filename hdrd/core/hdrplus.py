@@ -88,6 +88,10 @@ class Ablation:
     ``i_c_max``); 0 = the fixed hdr.i_c."""
     drift_prior: float = 0.3
     """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+    moved_q: float = 0.0
+    """With the bank, the second filter's bias random walk instead of ``q_drifting``,
+    (deg/s)^2/s: with ``motion_offset_var`` it is a *moved* hypothesis (the bias at rest as
+    stable as the first's, the driving bias free) rather than a drifting one. 0: off."""
     road_lat_acc: float = 0.0
     """The road's gentle curves as a lateral acceleration, m/s^2: with the speed v known
     (above ``ROAD_MIN_SPEED``), the road rate's variance is road_floor_dps^2 + (a / v)^2 (in
@@ -102,7 +106,10 @@ class Ablation:
     (bench/RESULTS.md, "HDR+ round two: ideas tried", has why it is not on)."""
 
     def __post_init__(self) -> None:
-        for name in ("straight_r", "ic_alpha", "motion_offset_var", "road_lat_acc", "road_floor_dps"):
+        for name in (
+            "straight_r", "ic_alpha", "motion_offset_var", "moved_q", "road_lat_acc",
+            "road_floor_dps",
+        ):  # fmt: skip
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
@@ -473,6 +480,8 @@ class _Run:
         and the core's increment in force for this step."""
         p, x1, P1 = self.p, self.x1, self.P1
         q1 = p.bias_q if have_temp else (p.q_drifting if p.bank else p.bias_q_no_temp)
+        if p.bank and not have_temp and p.ablation.moved_q > 0.0:
+            q1 = p.ablation.moved_q  # the second filter is "moved", not "drifting"
         a = math.exp(-T / p.road_tau_s) if p.road_var > 0.0 else 1.0
         road_q = _road_var(p, v) * (1.0 - a * a)
         bb.predict(x1, P1, q1, T, a, road_q)
