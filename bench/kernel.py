@@ -1,0 +1,111 @@
+#!/usr/bin/env python3
+"""The HDR kernel's cost: CPU microseconds per step of paper HDR (:func:`hdr.step` looped, as
+the daemon runs it, and :func:`hdr.run_batch`, as replay and evaluate run it) and of HDR+
+(:func:`hdrplus.run_batch`), on two hours of 1 Hz steps (seeded), best of 7.
+
+    python bench/kernel.py [--vs CHECKOUT] [--no-write]
+
+``--vs`` times an older checkout too (``git worktree add /tmp/old COMMIT``; the same script
+run as a process with that checkout first on its path): the timing pair of one definition of
+the kernel against the copies it replaced. Appends a dated ``## Performance: HDR kernel``
+section to bench/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+
+try:  # the layered layout
+    from hdrd.core import hdr, hdrplus
+except ImportError:  # an older, flat checkout
+    from hdrd import hdr, hdrplus  # type: ignore[no-redef]
+
+STEPS = 7200
+REPEATS = 7
+
+
+def inputs() -> np.ndarray:
+    """Two hours of 1 Hz block means, deg/s: straight driving with noise and turns."""
+    rng = np.random.default_rng(7)
+    u = rng.normal(0.0, 0.05, STEPS) + 0.02
+    for start in rng.integers(0, STEPS - 20, 120):
+        u[start : start + 10] += rng.choice([-9.0, 9.0])
+    return u
+
+
+def best(fn) -> float:  # type: ignore[no-untyped-def]
+    times = []
+    for _ in range(REPEATS):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return 1e6 * min(times) / STEPS
+
+
+def measure() -> dict[str, float]:
+    u = inputs()
+    p = hdr.HdrParams()
+
+    def loop() -> None:
+        s = hdr.INITIAL_STATE
+        for x in u.tolist():
+            s, _ = hdr.step(s, x, p)
+
+    return {
+        "hdr.step, looped": best(loop),
+        "hdr.run_batch": best(lambda: hdr.run_batch(u, p)),
+        "hdrplus.run_batch (speed, spread given)": best(
+            lambda: hdrplus.run_batch(u, np.full(STEPS, 0.05), np.full(STEPS, 15.0), None, 1.0)
+        ),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--vs", metavar="CHECKOUT", help="an older checkout to time beside this one")
+    ap.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--no-write", action="store_true")
+    a = ap.parse_args(argv)
+    now = measure()
+    if a.json:
+        print(json.dumps(now))
+        return 0
+    old: dict[str, float] = {}
+    if a.vs:
+        env = dict(os.environ, PYTHONPATH=str(Path(a.vs).resolve()))
+        out = subprocess.run(
+            [sys.executable, __file__, "--json"], env=env, capture_output=True, text=True,
+            check=True,
+        )  # fmt: skip
+        old = json.loads(out.stdout)
+    from _common import append_section, machine_line
+
+    head = "| form | µs/step |" + (f" µs/step at `{a.vs}` | ratio |" if old else "")
+    sep = "|---|---|" + ("---|---|" if old else "")
+    lines = []
+    for k, v in now.items():
+        extra = f" {old[k]:.2f} | {v / old[k]:.2f} |" if k in old else (" – | – |" if old else "")
+        lines.append(f"| {k} | {v:.2f} |{extra}")
+    body = (
+        f"{machine_line()}.\n\nCommand: `python bench/kernel.py"
+        + (f" --vs {a.vs}" if old else "")
+        + f"`. CPU microseconds per step, best of {REPEATS} runs over {STEPS} steps.\n\n"
+        + "\n".join([head, sep, *lines])
+    )
+    print(append_section("HDR kernel", body, write=not a.no_write))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
