@@ -158,6 +158,11 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
         "random walk (Ablation.moved_q 1e-7) instead of a drifting bias",
         lambda: ablated(motion_offset_var=0.01, moved_q=1e-7),
     ),
+    "bank of three": (
+        "a third filter beside stable and drifting, moved (the motion offset 0.1, the stable "
+        "random walk), prior weight 0.2 (Ablation.moved_prior)",
+        lambda: ablated(moved_prior=0.2),
+    ),
     "road by speed + offset": (
         "that and the motion offset 0.1",
         lambda: ablated(road_lat_acc=0.02, motion_offset_var=0.01),

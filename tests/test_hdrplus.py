@@ -104,7 +104,11 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
             heading_fix=draw(st.booleans()),
             straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
             ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
-            drift_prior=draw(st.floats(0.01, 0.99)),
+            drift_prior=draw(st.floats(0.01, 0.98)),
+            motion_offset_var=draw(st.sampled_from([0.0, 0.01])),
+            moved_q=draw(st.sampled_from([0.0, 1e-7])),
+            road_lat_acc=draw(st.sampled_from([0.0, 0.02])),
+            moved_prior=draw(st.sampled_from([0.0, 0.01])),
         ),
     )
 
@@ -227,6 +231,10 @@ def test_a_moved_hypothesis_learns_a_driving_offset_the_stops_do_not_show() -> N
     assert abs(drifting.yaw[-1]) > 0.8 * abs(none)  # the harm pattern today
     assert abs(got.yaw[-1]) < 0.25 * abs(none)
     assert got.drift_weight[-1] > 0.9
+    # the bank of three (stable, drifting, moved) earns it too, beside a drifting hypothesis
+    three = run_batch(u, np.full(n, 0.02), speed, None, 1.0, base.ablated(moved_prior=0.2))
+    assert abs(three.yaw[-1]) < 0.5 * abs(none)
+    assert three.final.bank.moved is not None and three.final.bank.moved_log_odds > 2.0
 
 
 def test_the_road_spread_follows_the_speed_only_when_asked() -> None:
@@ -613,11 +621,11 @@ def test_stops_say_whether_the_bias_moves() -> None:
     assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == p.bias_q_no_temp)
 
 
-@given(seed=st.integers(0, 2**16), gated=st.booleans())
-def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool) -> None:
+@given(seed=st.integers(0, 2**16), gated=st.booleans(), moved=st.booleans())
+def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool, moved: bool) -> None:
     # Longer than the hypothesis rows: stops close, the evidence and the heading fix run.
     u, sp, v = _stop_go(4, 0.03, seed)
-    p = HdrPlusParams(block_var=1e-4, bank=not gated)
+    p = HdrPlusParams(block_var=1e-4, bank=not gated).ablated(moved_prior=0.2 if moved else 0.0)
     tr = run_batch(u, sp, v, None, 1.0, p)
     outs, final = _loop(list(zip(u, sp, v, [NAN] * len(u), strict=True)), p, 1.0)
     assert _same(tr.final, final)

@@ -183,13 +183,17 @@ class BankState(NamedTuple):
     then the model's), and the bank's "drifting" one (None until the first step sets the
     prior). stable: the bank's "stable" filter (None when the bank is off). log_odds: log of
     the odds that the gyro drifts (NaN until the first step). t_ref: the reference
-    temperature, degC (NaN until one is seen).
+    temperature, degC (NaN until one is seen). moved: the bank's third filter, *moved* (None
+    when off: ``Ablation.moved_prior``); moved_log_odds: log of its weight over the stable
+    filter's (NaN until the first step).
     """
 
     drifting: Filter | None = None
     stable: Filter | None = None
     log_odds: float = math.nan
     t_ref: float = math.nan
+    moved: Filter | None = None
+    moved_log_odds: float = math.nan
 
 
 INITIAL_BANK = BankState()

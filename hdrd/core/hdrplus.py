@@ -88,6 +88,13 @@ class Ablation:
     ``i_c_max``); 0 = the fixed hdr.i_c."""
     drift_prior: float = 0.3
     """Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+    moved_prior: float = 0.0
+    """With the bank (no temperature), a third filter, *moved*: the bias at rest as stable as
+    the stable filter's (q_stable) and the driving bias free to sit ``moved_offset_var`` off
+    it (a motion-dependent bias the stops cannot show); its weight at start (the stable
+    filter's is 1 - drift_prior - it). 0: off (two filters)."""
+    moved_offset_var: float = 0.01
+    """The moved filter's motion offset prior variance, (deg/s)^2."""
     moved_q: float = 0.0
     """With the bank, the second filter's bias random walk instead of ``q_drifting``,
     (deg/s)^2/s: with ``motion_offset_var`` it is a *moved* hypothesis (the bias at rest as
@@ -108,7 +115,7 @@ class Ablation:
     def __post_init__(self) -> None:
         for name in (
             "straight_r", "ic_alpha", "motion_offset_var", "moved_q", "road_lat_acc",
-            "road_floor_dps",
+            "road_floor_dps", "moved_prior", "moved_offset_var",
         ):  # fmt: skip
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0.0):
@@ -119,6 +126,10 @@ class Ablation:
         prior = float(self.drift_prior)
         if not 0.0 < prior < 1.0:
             raise ValueError(f"drift_prior must be in (0, 1), got {self.drift_prior!r}")
+        if not prior + self.moved_prior < 1.0:
+            raise ValueError(
+                f"drift_prior + moved_prior must be below 1, got {prior + self.moved_prior!r}"
+            )
         object.__setattr__(self, "drift_prior", prior)
 
 
@@ -370,7 +381,8 @@ class _Mix(NamedTuple):
     w1: weight of the drifting filter (1 without the bank's mixture). corr0, corr1: each
     filter's correction b + k dT, deg/s; corr: their weighted mean, subtracted from u. inc:
     the core's increment, deg/s. q1: the drifting (or only) filter's random walk,
-    (deg/s)^2/s. mixing: the bank weighs the two filters in this step.
+    (deg/s)^2/s. mixing: the bank weighs its filters in this step. wm, corrm: the moved
+    filter's weight and correction (0 without it; the stable filter's weight is 1 - w1 - wm).
     """
 
     w1: float
@@ -380,6 +392,8 @@ class _Mix(NamedTuple):
     inc: float
     q1: float
     mixing: bool
+    wm: float = 0.0
+    corrm: float = 0.0
 
 
 def _increment(var_t: float, q_i: float, params: HdrPlusParams) -> float:
@@ -434,19 +448,41 @@ class _Run:
         self.x0 = list(f0.x) if f0 is not None else []
         self.P0 = list(f0.P) if f0 is not None else []
         lo = k.log_odds
-        prior = p.ablation.drift_prior
+        ab = p.ablation
+        prior, mp = ab.drift_prior, ab.moved_prior
+        self.moved_on = p.bank and mp > 0.0
+        self.xm: list[float] = []
+        self.Pm: list[float] = []
+        self.lo_m = k.moved_log_odds
+        if self.moved_on:
+            fm = k.moved
+            if fm is None:
+                f = p.stop_offset_var + ab.moved_offset_var
+                fm = bb.prior(p.bias_p0 + q2, f, p.temp_coeff_sd**2, p.road_var)
+            self.xm, self.Pm = list(fm.x), list(fm.P)
+            rest = 1.0 - prior - mp
+            if math.isnan(lo):
+                lo = math.log(prior / rest)
+            if math.isnan(self.lo_m):
+                self.lo_m = math.log(mp / rest)
         self.log_odds = math.log(prior / (1.0 - prior)) if math.isnan(lo) else lo
         self.t_ref = k.t_ref
 
     def state(self) -> PlusState:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
         stable = Filter(tuple(self.x0), tuple(self.P0)) if self.p.bank else None
-        bank = BankState(Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref)
+        moved = Filter(tuple(self.xm), tuple(self.Pm)) if self.moved_on else None
+        bank = BankState(
+            Filter(tuple(self.x1), tuple(self.P1)), stable, self.log_odds, self.t_ref, moved,
+            self.lo_m,
+        )  # fmt: skip
         return PlusState(core, bank, self.still)
 
     def filters(self) -> list[tuple[list[float], list[float]]]:
         """The filters that take every measurement: the drifting one, and the stable one
         when the bank is on."""
+        if self.moved_on:
+            return [(self.x1, self.P1), (self.x0, self.P0), (self.xm, self.Pm)]
         if self.p.bank:
             return [(self.x1, self.P1), (self.x0, self.P0)]
         return [(self.x1, self.P1)]
@@ -461,9 +497,11 @@ class _Run:
             out = self.standstill_update(u, sp, dT, mix)
         else:
             out = self.driving_update(u, T, dT, mix)
-        heading = self.heading_fix(mix.w1) if mix.mixing and self.p.ablation.heading_fix else 0.0
+        heading = self.heading_fix(mix) if mix.mixing and self.p.ablation.heading_fix else 0.0
         m = self.p.drift_odds_max
         self.log_odds = min(max(self.log_odds, -m), m)
+        if self.moved_on:
+            self.lo_m = min(max(self.lo_m, -m), m)
         return self.output(out, zero, dT, mix, heading)
 
     # -- the phases ------------------------------------------------------------------------
@@ -487,8 +525,12 @@ class _Run:
         bb.predict(x1, P1, q1, T, a, road_q)
         if p.bank:
             bb.predict(self.x0, self.P0, p.q_stable, T, a, road_q)
+        if self.moved_on:
+            bb.predict(self.xm, self.Pm, p.q_stable, T, a, road_q)
         corr1 = bb.bias_at(x1, dT)
         if p.bank and not have_temp:
+            if self.moved_on:
+                return self._mix3(dT, corr1, q1)
             w1 = 1.0 / (1.0 + math.exp(-self.log_odds))
             corr0 = bb.bias_at(self.x0, dT)
             corr = (1.0 - w1) * corr0 + w1 * corr1
@@ -497,6 +539,20 @@ class _Run:
             return _Mix(w1, corr0, corr1, corr, inc, q1, True)
         inc = _increment(bb.bias_var_at(P1, dT), q1, p)
         return _Mix(1.0, corr1, corr1, corr1, inc, q1, False)
+
+    def _mix3(self, dT: float, corr1: float, q1: float) -> _Mix:
+        """The bank's mixture with the moved filter (:meth:`predict`): weights from the
+        log-odds of drifting and of moved, each against stable."""
+        p = self.p
+        e1, em = math.exp(self.log_odds), math.exp(self.lo_m)
+        w0 = 1.0 / (1.0 + e1 + em)
+        w1, wm = e1 * w0, em * w0
+        corr0 = bb.bias_at(self.x0, dT)
+        corrm = bb.bias_at(self.xm, dT)
+        corr = w0 * corr0 + w1 * corr1 + wm * corrm
+        sd1 = math.sqrt(self.P1[bb.BB] if self.P1[bb.BB] > 0.0 else 0.0)
+        inc = min(p.i_c_max, p.ablation.ic_alpha * sd1) if w1 >= 0.5 else 0.0
+        return _Mix(w1, corr0, corr1, corr, inc, q1, True, wm, corrm)
 
     def standstill_test(self, uc: float, sp: float, v: float, mix: _Mix) -> bool:
         """Is this step a zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
@@ -509,6 +565,9 @@ class _Run:
             hv = bb.stop_var(self.P1)
             if mix.mixing:
                 hv = max(hv, bb.stop_var(self.P0)) + (mix.corr1 - mix.corr0) ** 2
+                if self.moved_on:
+                    spread = max(abs(mix.corrm - mix.corr0), abs(mix.corrm - mix.corr1))
+                    hv = max(hv, bb.stop_var(self.Pm) + spread * spread)
             bv = p.block_var
             if math.isnan(bv):  # no calibration (a given bias): this step's own spread
                 bv = block_mean_variance(sp, p.standstill)
@@ -539,9 +598,12 @@ class _Run:
         if mix.mixing:
             # Which filter predicted the stop's reading better (both allow a calibration
             # error: stop_floor_dps).
-            (nu1, s1), (nu0, s0) = evidence
+            (nu1, s1), (nu0, s0) = evidence[:2]
             f2 = p.stop_floor_dps**2
             self.log_odds += bb.log_evidence(nu1, s1 + f2, nu0, s0 + f2)
+            if self.moved_on:
+                num, sm = evidence[2]
+                self.lo_m += bb.log_evidence(num, sm + f2, nu0, s0 + f2)
         self.x, self.I, self.r, self.s, self.n = 0.0, 0.0, 1, 0, self.n + 1
         return 0.0, 0.0, 0, 1.0, 1, 0.0
 
@@ -554,6 +616,8 @@ class _Run:
         if mix.mixing and p.ablation.heading_fix:
             bb.heading_predict(self.P1, T, dT)
             bb.heading_predict(self.P0, T, dT)
+            if self.moved_on:
+                bb.heading_predict(self.Pm, T, dT)
         I_out = self.I
         x, self.I, self.yaw, r, s, W, R, y, omega = kernel(
             u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, p.hdr
@@ -563,14 +627,21 @@ class _Run:
         if straight_r > 0.0 and W and abs(omega) <= p.straight_gate_dps:
             evidence = [bb.update(x_, P_, 0.0, dT, 1.0, u, straight_r) for x_, P_ in self.filters()]
             if mix.mixing:  # which filter predicted this step (and its road) better
-                (nu1, s1), (nu0, s0) = evidence
+                (nu1, s1), (nu0, s0) = evidence[:2]
                 self.log_odds += bb.log_evidence(nu1, s1, nu0, s0)
+                if self.moved_on:
+                    num, sm = evidence[2]
+                    self.lo_m += bb.log_evidence(num, sm, nu0, s0)
         return omega, I_out, W, R, r, y
 
-    def heading_fix(self, w1: float) -> float:
+    def heading_fix(self, mix: _Mix) -> float:
         """Correct the yaw by the heading error the measurements revealed (the bank's
         weighted psi), deg CCW; psi restarts at 0."""
-        heading = (1.0 - w1) * self.x0[bb.PSI] + w1 * self.x1[bb.PSI]
+        w1 = mix.w1
+        heading = (1.0 - w1 - mix.wm) * self.x0[bb.PSI] + w1 * self.x1[bb.PSI]
+        if self.moved_on:
+            heading += mix.wm * self.xm[bb.PSI]
+            self.xm[bb.PSI] = 0.0
         self.yaw += heading
         self.x0[bb.PSI] = 0.0
         self.x1[bb.PSI] = 0.0
@@ -588,7 +659,9 @@ class _Run:
         p, x1, w1 = self.p, self.x1, mix.w1
         b1 = bb.bias_at(x1, dT)
         v1 = bb.bias_var_at(self.P1, dT)
-        if mix.mixing:
+        if mix.mixing and self.moved_on:
+            bc, var_b, kc, q_in = self._output3(dT, mix, b1, v1)
+        elif mix.mixing:
             x0 = self.x0
             b0 = bb.bias_at(x0, dT)
             v0 = bb.bias_var_at(self.P0, dT)
@@ -602,6 +675,21 @@ class _Run:
         omega, I_out, W, R, r, y = core
         return PlusOutput(omega, self.yaw, I_out, W, R, r, y, bc, zero, sd, kc, mix.inc, q_in,
                           w1, heading)  # fmt: skip
+
+    def _output3(
+        self, dT: float, mix: _Mix, b1: float, v1: float
+    ) -> tuple[float, float, float, float]:
+        """:meth:`output`'s mixture with the moved filter: the bias correction, its variance,
+        k and the random walk in force."""
+        p, w1, wm = self.p, mix.w1, mix.wm
+        w0 = 1.0 - w1 - wm
+        b0, v0 = bb.bias_at(self.x0, dT), bb.bias_var_at(self.P0, dT)
+        bm, vm = bb.bias_at(self.xm, dT), bb.bias_var_at(self.Pm, dT)
+        bc = w0 * b0 + w1 * b1 + wm * bm
+        var_b = w0 * (v0 + (b0 - bc) ** 2) + w1 * (v1 + (b1 - bc) ** 2) + wm * (vm + (bm - bc) ** 2)
+        kc = w0 * self.x0[bb.K] + w1 * self.x1[bb.K] + wm * self.xm[bb.K]
+        q_in = (w0 + wm) * p.q_stable + w1 * mix.q1
+        return bc, var_b, kc, q_in
 
 
 def step(
