@@ -10,7 +10,8 @@ Sets (all *tuning*, fixed before any idea was tried):
   ``tools/convert_real.py`` into ``/tmp/hdrd-real/real`` (run ``python bench/real.py
   --tuning-only`` once first); judging drives are skipped before they are read;
 - simulated training routes (the nine training types, seeds ``spec.seed + 1000 j``, j =
-  1..routes) of bench/grades.py's cases: ``crs03 T`` (CRS03-04, temperature given), ``crs03 T
+  1..routes) of bench/grades.py's cases: ``crs03 T`` (CRS03-04, temperature given; ``crs03 no
+  T`` withheld, the simulator's own roads), ``crs03 T
   curving`` (and a real-road-like curving road), ``crs03`` / ``phone`` / ``automotive`` /
   ``tactical`` / ``coarse`` (temperature withheld, curving road), ``cal. error`` (CRS03-04,
   curving road, a start-up calibration error and a driving offset);
@@ -100,6 +101,7 @@ def sets(routes: int) -> dict[str, Callable[[], Drives]]:
     return {
         "real": real_tuning,
         "crs03 T": lambda: sim_case("crs03", "given", routes),
+        "crs03 no T": lambda: sim_case("crs03", "withheld", routes),
         "crs03 T curving": lambda: sim_case("crs03", "given", routes, curving=True),
         "crs03": lambda: sim_case("crs03", curving, routes),
         "phone": lambda: sim_case("phone", curving, routes),
@@ -136,6 +138,12 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
     "straight r 0.01": (
         "straight-driving measurements trusted more",
         lambda: ablated(straight_r=0.01),
+    ),
+    "straight r 0.01, q_drifting 3e-5": (
+        "straight driving trusted more and a faster drifting bias",
+        lambda: replace(
+            DEFAULTS, plus=DEFAULTS.plus.with_(q_drifting=3e-5).ablated(straight_r=0.01)
+        ),
     ),
     "no increment": (
         "the HDR core's increment off (ic_alpha 0, i_c 0)",
