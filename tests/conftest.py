@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,6 +21,16 @@ settings.register_profile(
     "mutation", parent=settings.get_profile("hdrd"), derandomize=True, database=None
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "hdrd"))
+
+# The processes the tests start (hdrd commands, daemons, a fleet's workers: hundreds of them)
+# each import hdrd afresh. Where the environment forbids writing bytecode
+# (PYTHONDONTWRITEBYTECODE, set on some build machines) each of them compiled hdrd from source
+# again, a large share of the suite's CPU; they keep it in a cache outside the tree instead.
+if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
+    os.environ.setdefault(
+        "PYTHONPYCACHEPREFIX",
+        os.path.join(tempfile.gettempdir(), f"hdrd-tests-pycache-{os.getuid()}"),
+    )
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
