@@ -36,6 +36,7 @@ def result() -> GapResult:
     return res
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_titles_are_whole_and_inside_the_figure(result: GapResult) -> None:
     plt = pyplot()
     fig = gap_figure(result)
