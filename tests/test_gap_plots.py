@@ -67,6 +67,7 @@ def reddish_pixels(fig: object, ax: object) -> int:
     return int(np.sum((r - g > 0.2) & (r - bl > 0.2)))
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_before_series_stays_visible_under_after(result: GapResult) -> None:
     """A step whose model did not change the Allan deviation: "after" lies exactly on "before";
     the "before" curves must still show (red pixels in the Allan panel, outside the legend)."""
