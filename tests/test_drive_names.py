@@ -138,6 +138,7 @@ def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None
     ]  # fmt: skip
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None:
     """Drive names go into the comments of the YAML that tune --out and gap --plus-out write:
     a name with a line break would start a key of its own there."""

@@ -173,6 +173,7 @@ def test_two_hidden_effects_are_both_found(drive: DriveLog) -> None:
     assert res.final_sim.gap < 0.2 * res.initial_sim.gap
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_temperature_that_only_rises_with_time_is_reported_ambiguous(drive: DriveLog) -> None:
     """A warm-up-shaped temperature makes temperature_bias and warmup_transient the same curve:
     the report must say so instead of guessing silently."""
@@ -487,6 +488,7 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 # -- honest fits -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_parameter_at_a_bound_is_reported() -> None:
     """A Gauss-Markov bias faster than the blocks resolve: its fitted tau sits at the lower
     bound (two blocks), and the report and the summary say it is a limit, not an estimate."""
