@@ -561,7 +561,7 @@ def test_stops_say_whether_the_bias_moves() -> None:
     assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == p.bias_q_no_temp)
 
 
-@settings(max_examples=25)  # each a long drive; the short rows' equality draws 100
+@settings(max_examples=25)  # each a long drive; the short rows' equality draws 50
 @given(seed=st.integers(0, 2**16), gated=st.booleans())
 def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool) -> None:
     # Longer than the hypothesis rows: stops close, the evidence and the heading fix run.
