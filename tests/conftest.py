@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -12,7 +14,11 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 # No per-example deadline: the suite runs on small, busy CI machines, and we never assert timings.
-settings.register_profile("hdrd", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# 50 examples a property (hypothesis's default is 100): the codecs, parsers and fast paths are
+# fuzzed at length by bench/fuzz.py, and HYPOTHESIS_PROFILE=thorough draws 2,000.
+settings.register_profile(
+    "hdrd", deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=50
+)
 settings.register_profile("thorough", parent=settings.get_profile("hdrd"), max_examples=2000)
 # tools/mutation.py: the same examples on every run (a mutant's verdict must not depend on
 # the draw) and no example database shared between mutants.
@@ -20,6 +26,19 @@ settings.register_profile(
     "mutation", parent=settings.get_profile("hdrd"), derandomize=True, database=None
 )
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "hdrd"))
+
+# The processes the tests start (hdrd commands, daemons, a fleet's workers: hundreds of them)
+# each import hdrd afresh. Where the environment forbids writing bytecode
+# (PYTHONDONTWRITEBYTECODE, set on some build machines) each of them compiled hdrd from source
+# again, a large share of the suite's CPU, and each pytest process (one per xdist worker)
+# rewrote and compiled every test module again. They keep it in a cache outside the tree.
+if os.environ.pop("PYTHONDONTWRITEBYTECODE", None) is not None:
+    _cache = os.environ.setdefault(
+        "PYTHONPYCACHEPREFIX",
+        os.path.join(tempfile.gettempdir(), f"hdrd-tests-pycache-{os.getuid()}"),
+    )
+    sys.pycache_prefix = sys.pycache_prefix or _cache  # this process: the test modules, hdrd
+    sys.dont_write_bytecode = False
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 from unittest import mock
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.io import capture as capture_mod
@@ -29,7 +29,6 @@ from hdrd.io.protocol import PROTOCOLS, SYNC
 from tests.test_frames import _NEAR, frames_st, run
 
 
-@settings(max_examples=300)
 @given(
     st.lists(
         st.one_of(frames_st.map(encode_bin), _NEAR, st.just(SYNC), st.binary(max_size=24)),
@@ -111,7 +110,6 @@ def test_vectorised_on_a_large_dirty_capture() -> None:
     assert p.stats.bad_frames >= int(0.04 * n) and p.stats.frames >= int(0.9 * n)
 
 
-@settings(max_examples=150)
 @given(
     st.lists(
         st.one_of(frames_st.map(encode_bin), _NEAR, st.just(SYNC), st.binary(max_size=24)),

@@ -117,7 +117,7 @@ def raw_clock(draw: st.DrawFn) -> list[int]:
     return out
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(raw=raw_clock(), cuts=st.lists(st.integers(0, 61), max_size=3))
 def test_unwrap_many_is_unwrap_in_everything(raw: list[int], cuts: list[int]) -> None:
     ref, sub = DeviceClock(), DeviceClock()

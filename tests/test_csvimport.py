@@ -139,3 +139,40 @@ def test_only_the_mapped_columns_are_read(tmp_path: Path) -> None:
 def test_a_missing_file_is_an_os_error(tmp_path: Path) -> None:
     with pytest.raises(OSError):
         import_csv(tmp_path / "missing.csv", Mapping(t="t", omega="w"))
+
+
+@pytest.mark.parametrize(
+    ("row", "extra", "error"),
+    [
+        ("1000,abc,", {}, "src.csv:4: column 'gz' (--omega): 'abc' is not a number"),
+        ("1000,1_000,", {}, "src.csv:4: column 'gz' (--omega): '1_000' is not a number"),
+        ("1000,,", {}, "src.csv:4: column 'gz' (--omega) is empty; it is required in every row"),
+        (",1,", {}, "src.csv:4: column 'time' (--t) is empty; it is required in every row"),
+        ("100,1,", {}, "src.csv:4: column 'time' (--t) is not strictly increasing"),
+        ("1000,1,", {}, ""),
+        ("1000,30,", {"omega_unit": "rad/s"},
+         "src.csv:4: column 'gz' (--omega): 1718.87 deg/s is beyond the +/-1000 deg/s"),
+        ("1000,1,725", {"heading_unit": "rad"}, ""),  # radians wrapped: any angle is taken
+        ("1000,1,x", {}, "src.csv:4: column 'hdg' (--heading): 'x' is not a number"),
+        ("1000.00001,1,", {"time_unit": "s"}, "src.csv:4: column 'time' (--t): 1000 s, 1e-05 s "
+         "after the row before"),
+        ("1000,1", {}, "src.csv:4: 2 fields, the header has 3"),
+    ],
+)  # fmt: skip
+def test_each_row_error_names_its_line_and_column(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, row: str, extra: dict[str, str], error: str
+) -> None:
+    """The rows ``hdrd import`` refuses (its command line, test_import.py, takes a few of
+    them through the process): a file named as a user names it, relative to the folder."""
+    monkeypatch.chdir(tmp_path)
+    unit = extra.get("time_unit", "ms")
+    before = "500" if unit == "ms" else "1000"  # ms: 0.5 s before the row; s: 1000 s
+    Path("src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,10\n{row}\n")
+    m = Mapping(t="time", omega="gz", heading="hdg", **{"time_unit": unit, **extra})
+    if not error:
+        assert len(import_csv("src.csv", m).t) == 3
+        return
+    with pytest.raises(DriveLogError) as e:
+        import_csv("src.csv", m)
+    assert str(e.value).startswith(error), str(e.value)
+    assert "\n" not in str(e.value)

@@ -102,7 +102,10 @@ RUNS = {
 }
 
 
-@pytest.mark.parametrize("command", list(RUNS))
+@pytest.mark.parametrize(
+    "command",  # gap: a whole model-gap search
+    [pytest.param(c, marks=pytest.mark.slow) if c == "gap" else c for c in RUNS],
+)
 def test_a_bad_drive_is_skipped_and_the_good_one_scored(
     command: str, fleet: tuple[Path, dict[str, str]]
 ) -> None:
@@ -121,7 +124,10 @@ def test_a_bad_drive_is_skipped_and_the_good_one_scored(
         assert "fleet: 1 drives analysed, 5 skipped" in p.stdout
 
 
-@pytest.mark.parametrize("command", list(RUNS))
+@pytest.mark.parametrize(
+    "command",  # gap: a whole model-gap search
+    [pytest.param(c, marks=pytest.mark.slow) if c == "gap" else c for c in RUNS],
+)
 def test_strict_stops_at_the_first_bad_drive_with_one_line(
     command: str, fleet: tuple[Path, dict[str, str]]
 ) -> None:

@@ -50,6 +50,7 @@ def _fleet_file(path: Path, names: list[str]) -> None:
     pq.write_table(pa.table(cols), path)
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_gap_out_writes_every_model_inside_its_folder(tmp_path: Path) -> None:
     """Drives named ``../../x``, ``/abs/x`` and ``../../y`` (a hive folder
     ``drive=..%2F..%2Fy``) once wrote ``x.yaml`` and ``y.yaml`` outside ``--out``."""
@@ -83,6 +84,7 @@ def test_gap_out_writes_every_model_inside_its_folder(tmp_path: Path) -> None:
     assert "../../x" in strict.stderr and not (work / "m2").exists()
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_gap_out_leaves_out_a_second_drive_with_the_same_file(tmp_path: Path) -> None:
     """city.csv and city.parquet are both the drive ``city``: one model file, not one written
     over the other."""
@@ -136,6 +138,7 @@ def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None
     ]  # fmt: skip
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None:
     """Drive names go into the comments of the YAML that tune --out and gap --plus-out write:
     a name with a line break would start a key of its own there."""

@@ -67,7 +67,7 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
     return DriveLog(meta=meta, **cols)  # type: ignore[arg-type]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(deadline=None)
 @given(log=drive_logs())
 def test_write_read_round_trip(log: DriveLog) -> None:
     buf = io.StringIO()

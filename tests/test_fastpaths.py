@@ -211,7 +211,6 @@ _json_values = st.one_of(
 )
 
 
-@settings(max_examples=300)
 @given(st.dictionaries(st.one_of(st.text(max_size=6), st.integers(0, 3)), _json_values, max_size=8))
 def test_json_fast_path_writes_what_the_cleaning_path_writes(msg: dict[Any, Any]) -> None:
     assert format_json(msg) == _format_clean(msg)

@@ -208,7 +208,7 @@ def test_shown_path_keeps_the_end_of_a_long_path() -> None:
     shown = shown_path(long)
     assert len(shown) == MAX_SHOWN_PATH and shown.startswith("...")
     assert shown.endswith("/drive05.csv") and long.endswith(shown[3:])
-    assert shown_path(Path("/x/y")) == "/x/y" and shown_path(b"/x/\xff") == "/x/\\udcff"
+    assert shown_path(Path("/x/y")) == "/x/y"
 
 
 @pytest.mark.parametrize(

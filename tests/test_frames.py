@@ -8,7 +8,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from hdrd.io.capture import decode_capture, decode_frames
@@ -237,7 +237,6 @@ def test_array_helpers_round_trip(frames: list[Frame]) -> None:
 # --------------------------------------------------------------------------- push parser
 
 
-@settings(max_examples=300)
 @given(
     st.binary(max_size=400), st.sampled_from(PROTOCOLS), st.lists(st.integers(0, 400), max_size=6)
 )
@@ -298,7 +297,6 @@ def _forged_frame(data: bytes, good: list[Frame]) -> bool:
     return scan_bin_reference(data)[0] != good
 
 
-@settings(max_examples=300)
 @given(dirty_bin_stream(), st.lists(st.integers(0, 10_000), max_size=8))
 def test_bin_recovers_every_good_frame_and_counts_bad_ones(
     stream: tuple[bytes, list[Frame], int], cuts: list[int]
@@ -351,7 +349,6 @@ def dirty_text_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
     return b"".join(parts), good, bad
 
 
-@settings(max_examples=200)
 @given(dirty_text_stream(), st.lists(st.integers(0, 5_000), max_size=8))
 def test_text_recovers_every_good_line_and_counts_bad_ones(
     stream: tuple[bytes, list[Frame], int], cuts: list[int]
@@ -363,7 +360,6 @@ def test_text_recovers_every_good_line_and_counts_bad_ones(
     assert stats.garbage_bytes == len(data) - sum(len(encode_text(f)) for f in good)
 
 
-@settings(max_examples=200)
 @given(
     st.lists(st.one_of(frames_st.map(encode_bin), st.binary(max_size=24)), max_size=30),
     st.lists(st.integers(0, 2000), max_size=10),
@@ -395,7 +391,6 @@ _NEAR = st.builds(
 )
 
 
-@settings(max_examples=200)
 @given(
     st.lists(st.one_of(frames_st.map(encode_text), st.binary(max_size=30)), max_size=20),
     st.lists(st.integers(0, 2000), max_size=10),

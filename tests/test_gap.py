@@ -118,7 +118,11 @@ HIDDEN = {
 }
 
 
-@pytest.mark.parametrize("name", list(HIDDEN))
+@pytest.mark.parametrize(
+    "name",
+    # each a whole model-gap search; quantization's is short and stays in the quick set
+    [n if n == "quantization" else pytest.param(n, marks=pytest.mark.slow) for n in HIDDEN],
+)
 def test_hidden_effect_is_named_fitted_and_closes_the_gap(drive: DriveLog, name: str) -> None:
     effect, param, tol = HIDDEN[name]
     if effect is None:
@@ -134,6 +138,7 @@ def test_hidden_effect_is_named_fitted_and_closes_the_gap(drive: DriveLog, name:
     assert step.gap_before == res.initial_sim.gap and step.gap_after == res.final_sim.gap
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_secondary_parameters(drive: DriveLog) -> None:
     """The other parameter of the two-parameter effects, with its own tolerance."""
     r = run_gap(measured(drive, [WarmupTransient(amplitude_dps=0.3, tau_s=60.0)]))
@@ -153,6 +158,7 @@ def test_null_data_from_the_starting_model_names_nothing(drive: DriveLog, seed: 
     assert res.final_sim.gap == res.initial_sim.gap < 0.3
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_two_hidden_effects_are_both_found(drive: DriveLog) -> None:
     hidden = [TemperatureBias(coeff_dps_per_c=0.03, ref_temp_c=25.0), ScaleFactor(error=0.03)]
     res = run_gap(measured(drive, hidden))
@@ -167,6 +173,7 @@ def test_two_hidden_effects_are_both_found(drive: DriveLog) -> None:
     assert res.final_sim.gap < 0.2 * res.initial_sim.gap
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_temperature_that_only_rises_with_time_is_reported_ambiguous(drive: DriveLog) -> None:
     """A warm-up-shaped temperature makes temperature_bias and warmup_transient the same curve:
     the report must say so instead of guessing silently."""
@@ -185,6 +192,7 @@ def test_temperature_that_only_rises_with_time_is_reported_ambiguous(drive: Driv
     # The same effect under the separable profile is not ambiguous (the parametrised test).
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_heading_truth_alone(drive: DriveLog) -> None:
     """Truth from the 1 Hz GPS course only: the derived rate is noisy and coarse, yet a 3 %
     scale factor is found (within 15 %: the GPS noise attenuates it) and null data stay null."""
@@ -196,6 +204,7 @@ def test_heading_truth_alone(drive: DriveLog) -> None:
     assert res.final_sim.gap < 0.4 * res.initial_sim.gap
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_standstill_log(drive: DriveLog) -> None:
     t = np.arange(0.0, 600.0, 0.2)
     model = DEFAULT_START_MODEL.with_effect(WarmupTransient(amplitude_dps=0.3, tau_s=60.0))
@@ -387,6 +396,7 @@ def test_simulated_log_keeps_its_adc_step(tmp_path: Path) -> None:
 REQUIRED_KEYS = ["initial_model", "steps", "final_model", "gap_initial", "gap_final", "gap_metric"]
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_cli_report_fitted_model_and_plot(
     drive: DriveLog, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -478,6 +488,7 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 # -- honest fits -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_parameter_at_a_bound_is_reported() -> None:
     """A Gauss-Markov bias faster than the blocks resolve: its fitted tau sits at the lower
     bound (two blocks), and the report and the summary say it is a limit, not an estimate."""
@@ -494,6 +505,7 @@ def test_parameter_at_a_bound_is_reported() -> None:
     assert "AT BOUND: bias_instability.tau_s" in summary(res)
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_a_step_that_raises_the_gap_is_not_added(
     drive: DriveLog, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -63,6 +63,7 @@ def scaled() -> DriveLog:
     return replace(drive, omega=omega, heading_truth=None, temp_c=None)
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_a_gap_rise_on_one_seed_alone_does_not_reject_an_effect(
     scaled: DriveLog, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -36,6 +36,7 @@ def result() -> GapResult:
     return res
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_titles_are_whole_and_inside_the_figure(result: GapResult) -> None:
     plt = pyplot()
     fig = gap_figure(result)
@@ -66,6 +67,7 @@ def reddish_pixels(fig: object, ax: object) -> int:
     return int(np.sum((r - g > 0.2) & (r - bl > 0.2)))
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_before_series_stays_visible_under_after(result: GapResult) -> None:
     """A step whose model did not change the Allan deviation: "after" lies exactly on "before";
     the "before" curves must still show (red pixels in the Allan panel, outside the legend)."""

@@ -181,6 +181,7 @@ def test_handling_unmarked_is_misread(rest_log: DriveLog, rest_clean: GapResult)
     ), summary(res)
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_cli_exclude_and_valid_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     t = np.arange(0.0, 600.0, 0.2)
     omega = DEFAULT_START_MODEL.apply(t, np.zeros_like(t), None, np.random.default_rng(5))
@@ -210,6 +211,7 @@ def test_cli_exclude_and_valid_column(tmp_path: Path, capsys: pytest.CaptureFixt
 # -- null logs at rest stay null (the low-pass candidate included) ----------------------------
 
 
+@pytest.mark.slow  # a whole model-gap search
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_null_log_at_rest_names_nothing(seed: int) -> None:
     t = np.arange(0.0, 1800.0, 0.1)

@@ -219,7 +219,7 @@ def state_st(draw: st.DrawFn) -> HdrState:
     )  # fmt: skip
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     u=st.lists(st.one_of(small_rates, rates, st.just(0.0)), max_size=60),
     params=st.one_of(st.just(HdrParams()), params_st()),

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.analysis.evaluate import evaluate_drive
@@ -621,6 +621,7 @@ def test_stops_say_whether_the_bias_moves() -> None:
     assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == p.bias_q_no_temp)
 
 
+@settings(max_examples=25)  # each a long drive; the short rows' equality draws 50
 @given(seed=st.integers(0, 2**16), gated=st.booleans(), moved=st.booleans())
 def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool, moved: bool) -> None:
     # Longer than the hypothesis rows: stops close, the evidence and the heading fix run.

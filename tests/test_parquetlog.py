@@ -79,7 +79,6 @@ VALUES = st.floats(allow_nan=True, allow_infinity=False, width=64) | st.floats(-
 )
 
 
-@settings(max_examples=300)
 @given(
     st.sampled_from(["temp_c", "heading_truth", "omega_truth", "speed", "omega"]),
     st.lists(VALUES, min_size=1, max_size=30),

@@ -27,7 +27,7 @@ import math
 from typing import Any
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.core.sensor import SensorModel
@@ -111,7 +111,6 @@ sync_heavy_bytes = st.lists(
 ).map(bytes)
 
 
-@settings(max_examples=300)
 @given(
     st.lists(
         st.one_of(
@@ -172,7 +171,6 @@ text_junk = st.lists(
 ).map(b"".join)
 
 
-@settings(max_examples=300)
 @given(
     st.lists(
         st.one_of(frames_st.map(lambda f: ("good", f)), text_junk.map(lambda b: ("junk", b))),
@@ -280,7 +278,6 @@ def build_history(
     return arr, want
 
 
-@settings(max_examples=200)
 @given(
     st.integers(0, 0xFFFF),
     st.integers(0, 2**32 - 1),
@@ -333,7 +330,6 @@ def omega_of_counts(c: int) -> float:
     return (c * 5.0 / 65536 - 2.5) / 0.010
 
 
-@settings(max_examples=150)
 @given(
     st.lists(
         st.one_of(

@@ -206,7 +206,7 @@ def capture(draw: st.DrawFn) -> tuple[list[int], list[float]]:
     return raw, values
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(cap=capture(), T_s=st.sampled_from([1.0, 0.5, 2.0, 0.1]))
 def test_vectorised_equals_streaming(cap: tuple[list[int], list[float]], T_s: float) -> None:
     raw, values = cap
@@ -347,7 +347,7 @@ def sample_chunks(draw: st.DrawFn) -> tuple[float, list[tuple[str, bool, list[tu
     return T_s, chunks
 
 
-@settings(max_examples=200, deadline=None)
+@settings(deadline=None)
 @given(case=sample_chunks())
 def test_feed_many_is_feed_in_everything(
     case: tuple[float, list[tuple[str, bool, list[tuple]]]],

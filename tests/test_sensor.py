@@ -64,7 +64,7 @@ def test_lsb_resolution(bits: int, lsb: float) -> None:
 # -- round trips ------------------------------------------------------------------------------
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     counts=st.integers(0, 65535),
     polarity=st.sampled_from([1, -1]),
@@ -81,7 +81,7 @@ def test_counts_to_dps_and_back_is_exact(counts: int, polarity: int, supply: flo
     assert int(back) == counts
 
 
-@settings(max_examples=300, deadline=None)
+@settings(deadline=None)
 @given(
     omega=st.floats(-199.0, 199.0),
     polarity=st.sampled_from([1, -1]),

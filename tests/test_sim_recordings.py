@@ -96,6 +96,7 @@ def test_the_profile_is_the_grade_with_what_the_tuning_drives_measured() -> None
         Recording.from_table("nope")
 
 
+@pytest.mark.slow  # a whole model-gap search
 def test_hdrd_gap_reads_the_profile_back_from_a_simulated_drive() -> None:
     """A city drive logged as DrivePlotR logs it, with its GPS course as the only truth:
     ``hdrd gap`` names the course's latency as a time offset of about -latency, the 1/16 deg/s

@@ -100,7 +100,8 @@ def mutmut_config(module: str) -> str:
         'source_paths = ["hdrd"]',
         f'only_mutate = ["{MODULES[module]}"]',
         f"pytest_add_cli_args_test_selection = {tests!r}",
-        'pytest_add_cli_args = ["-p", "no:cacheprovider", "-m", "not slow"]',
+        # -n0: in mutmut's own process, not on pytest-xdist workers (pyproject's addopts)
+        'pytest_add_cli_args = ["-p", "no:cacheprovider", "-m", "not slow", "-n0"]',
         f"timeout_multiplier = {TIMEOUT_MULTIPLIER}",
         f"timeout_constant = {TIMEOUT_CONSTANT_S}",
         "use_git_change_detection = false",
