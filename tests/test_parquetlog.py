@@ -91,6 +91,8 @@ def test_csv_values_are_what_the_csv_reads_back(column: str, values: list[float]
         v = np.nan_to_num(v)  # required in every row
     if column == "heading_truth":  # the format takes headings within +/-360 deg only
         v = np.where(np.abs(v) <= 360.0, v, np.fmod(v, 360.0))
+    if column == "temp_c":  # and temperatures within [-100, 200] deg C
+        v = np.where(np.abs(v) <= 100.0, v, np.fmod(v, 100.0))
     t = np.arange(v.shape[0], dtype=np.float64)
     cols = {"omega": np.zeros_like(t), column: v}
     log = DriveLog(t=t, **cols)  # type: ignore[arg-type]
@@ -126,6 +128,7 @@ def _table(cols: dict[str, object], meta: dict[str, str] | None = None) -> pa.Ta
         ({"t": [0.0, 0.0], "omega": [0.1, 0.2]}, r"row 2: column t is not strictly increasing"),
         ({"t": [0.0, 1.0], "omega": [0.1, None]}, r"row 2: column omega is empty"),
         ({"t": [0.0, 1.0], "omega": [0.1, 0.2], "valid": [1, 2]}, r"row 2: column valid: 2.0"),
+        ({"t": [0.0, 1.0], "omega": [0.1, 0.2], "temp_c": [20.0, 1e200]}, r"row 2: column temp_c"),
         ({"t": pa.array([], pa.float64()), "omega": pa.array([], pa.float64())}, "no data rows"),
     ],
 )
