@@ -140,6 +140,20 @@ def test_errors_name_the_file_and_row(tmp_path: Path, cols: dict, match: str) ->
     assert str(path) in str(e.value)
 
 
+def test_a_column_name_that_is_not_utf8_is_an_unreadable_file(tmp_path: Path) -> None:
+    """A damaged footer whose column name is not UTF-8: pyarrow raises UnicodeDecodeError
+    (once a traceback from evaluate, tune and gap); one line naming the file instead."""
+    buf = io.BytesIO()
+    pq.write_table(_table({"t": [0.0, 1.0], "omega": [0.1, 0.2], "zzzz": [1.0, 2.0]}), buf,
+                   store_schema=False)  # fmt: skip
+    path = tmp_path / "damaged.parquet"
+    path.write_bytes(buf.getvalue().replace(b"zzzz", b"\xff\xfezz"))
+    for read in (read_parquet_drive, drives_in_file):
+        with pytest.raises(DriveLogError, match="not a readable Parquet drive log") as e:
+            read(path)
+        assert str(e.value).startswith(str(path)) and str(e.value).isprintable()
+
+
 def test_not_parquet_and_bad_metadata(tmp_path: Path) -> None:
     junk = tmp_path / "junk.parquet"
     junk.write_text("t,omega\n0,1\n")
