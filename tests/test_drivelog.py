@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,8 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
             cols[c] = np.array(draw(st.lists(st.sampled_from([0.0, 1.0]), min_size=n, max_size=n)))
             continue
         bound = 360 * 10**d if c in ("heading_truth", "gps_course") else 10**9  # within +/-360
+        if c == "temp_c":  # within the format's [-100, 200] deg C
+            bound = 100 * 10**d
         ks = draw(st.lists(st.integers(-bound, bound), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
@@ -242,6 +245,24 @@ def test_a_heading_beyond_a_turn_is_refused_naming_row_and_column(h: str) -> Non
     assert str(ei.value).startswith(
         f"<stream>:5: column heading_truth: {float(h)!r} deg is outside [-360, 360]"
     )
+
+
+@pytest.mark.parametrize("tc", [-100.0, -40.0, 0.0, 25.5, 85.0, 200.0])
+def test_a_temperature_within_the_limits_is_taken(tc: float) -> None:
+    log = read_drive(io.StringIO(f"t,omega,temp_c\n0,1,20\n0.1,1,{tc}\n0.2,1,\n"))
+    assert log.temp_c is not None and log.temp_c[1] == tc and math.isnan(log.temp_c[2])
+
+
+@pytest.mark.parametrize("tc", ["1e200", "-1e200", "999", "-999", "298.15", "250", "-100.5"])
+def test_a_temperature_outside_the_limits_is_refused_naming_row_and_column(tc: str) -> None:
+    """A temperature of 1e200 once reached hdrd gap's temperature statistics (an overflow
+    warning on stderr, then an internal error for the drive)."""
+    text = f"t,omega,temp_c\n0,1,20\n0.1,1,21\n0.2,1,{tc}\n"
+    with pytest.raises(DriveLogError) as ei:
+        read_drive(io.StringIO(text))
+    msg = str(ei.value)
+    assert msg.startswith(f"<stream>:4: column temp_c: {float(tc):.6g} deg C is outside"), msg
+    assert msg.isprintable() and "\n" not in msg
 
 
 def test_a_byte_order_mark_before_the_header_is_taken(tmp_path: Path) -> None:

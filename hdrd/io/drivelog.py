@@ -48,6 +48,7 @@ __all__ = [
     "DriveLog",
     "DriveLogError",
     "HEADING_LIMIT_DEG",
+    "TEMP_LIMITS_C",
     "ReadLimits",
     "check_columns",
     "csv_values",
@@ -84,6 +85,9 @@ HEADING_LIMIT_DEG = 360.0
 """``heading_truth`` is a direction: compass [0, 360), a signed course in [-180, 180] read as
 the same direction; anything beyond +/- this (an unwrapped heading, radians times 1000, a
 sentinel such as 999) is refused."""
+TEMP_LIMITS_C = (-100.0, 200.0)
+"""``temp_c`` is a board or cabin temperature, deg C, within these; anything outside (a
+sentinel such as 999 or -999, a temperature in kelvin or in tenths of a degree) is refused."""
 MAX_ROWS = 10_000_000
 """Most rows a drive log may have (``--max-rows``): 28 hours at 100 Hz, 11 days at 10 Hz; a
 drive of that many takes ~0.6 GB to read and a few times that to analyse."""
@@ -396,7 +400,8 @@ def check_columns(
     names: dict[str, str] | None = None,
 ) -> None:
     """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
-    every row, ``t`` and ``omega`` are present in every row, no value is infinite, ``t``
+    every row, ``t`` and ``omega`` are present in every row, no value is infinite, directions
+    within +/- :data:`HEADING_LIMIT_DEG`, ``temp_c`` within :data:`TEMP_LIMITS_C`, ``t``
     strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
     names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet);
     ``names`` what to call a column in it (``hdrd import``: the source's own column).
@@ -438,6 +443,17 @@ def check_columns(
                 f"{where(i)}: column {col(c)}: {float(h[i])!r} deg is outside "
                 f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
                 "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
+            )
+    if "temp_c" in arrays:
+        lo, hi = TEMP_LIMITS_C
+        tc = arrays["temp_c"]
+        with np.errstate(invalid="ignore"):
+            out = (tc < lo) | (tc > hi)  # NaN (empty) is neither
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            raise DriveLogError(
+                f"{where(i)}: column {col('temp_c')}: {float(tc[i]):.6g} deg C is outside "
+                f"[{lo:g}, {hi:g}]; a board or cabin temperature in deg C is expected"
             )
     t = arrays["t"]
     if np.any(np.diff(t) <= 0):

@@ -335,14 +335,19 @@ def read_parquet_drive(
             table, names, meta = _read_file(p, drive, limits)
             default = p.stem if drive is None else str(drive)
         arrays = _arrays(table, names, label)
-    except (pa.ArrowException, OSError) as e:
-        raise DriveLogError(_unreadable(label, e)) from None
-    return _log(arrays, label, name or default, meta, limits)
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as e:
+        unreadable = _unreadable(label, e)
+    else:
+        return _log(arrays, label, name or default, meta, limits)
+    # raised here, not in the except clause: as its context, pyarrow's exception would keep
+    # the half-made reader, and with it the file's descriptor, as long as ours lives
+    raise DriveLogError(unreadable)
 
 
 def _unreadable(label: str, e: Exception) -> str:
     """One line for a file pyarrow cannot read: the system's reason for an I/O error, else
-    pyarrow's (a corrupt file: pyarrow raises OSError for those too)."""
+    pyarrow's (a corrupt file: pyarrow raises OSError for those too, and UnicodeDecodeError
+    for a column name that is not UTF-8)."""
     if isinstance(e, OSError) and e.errno is not None:
         return f"{label}: cannot be read: {e.strerror or e}"
     return f"{label}: not a readable Parquet drive log: {_why(e)}"
@@ -401,9 +406,11 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
                     )
         finally:
             pf.close()
-    except (pa.ArrowException, OSError) as e:
-        raise DriveLogError(_unreadable(label, e)) from None
-    return list(seen)
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as e:
+        unreadable = _unreadable(label, e)
+    else:
+        return list(seen)
+    raise DriveLogError(unreadable)  # outside the except clause: as in read_parquet_drive
 
 
 # -- writing ------------------------------------------------------------------------------------

@@ -269,14 +269,16 @@ def run_surface(
     hang_s: float = 20.0,
     max_vm_mb: int = 4096,
     quiet: bool = False,
+    first: int = 0,
 ) -> SurfaceResult:
-    """*inputs* inputs of *surface* (or as many as *seconds* allow) through its in-process
-    target, in watched worker processes (module doc)."""
+    """Inputs ``first`` .. ``inputs - 1`` of *surface* (or as many as *seconds* allow) through
+    its in-process target, in watched worker processes (module doc); ``first`` resumes a
+    campaign where an earlier run stopped."""
     ctx = mp.get_context("fork")
     total = SurfaceResult(surface, seed)
     t_start = time.monotonic()
     deadline = t_start + seconds
-    start = 0
+    start = first
     workdir = tempfile.mkdtemp(prefix=f"hdrd-fuzz-{surface}-")
     try:
         while start < inputs and time.monotonic() < deadline:
@@ -413,6 +415,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--inputs", type=int, default=2000, help="inputs per surface (default 2000)")
     ap.add_argument(
+        "--first",
+        type=int,
+        default=0,
+        help="start at this input (default 0): resumes a campaign, up to --inputs",
+    )
+    ap.add_argument(
         "--seconds",
         type=float,
         default=600.0,
@@ -496,7 +504,15 @@ def main(argv: list[str] | None = None) -> int:
                 ]
                 ok &= fuzz_stream.main(argv_s) == 0
                 continue
-            r = run_surface(s, args.inputs, args.seconds, args.seed, args.hang_s, args.max_vm_mb)
+            r = run_surface(
+                s,
+                args.inputs,
+                args.seconds,
+                args.seed,
+                args.hang_s,
+                args.max_vm_mb,
+                first=args.first,
+            )
             results.append(r)
             ok &= r.ok
             print(describe(r), flush=True)
