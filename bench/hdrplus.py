@@ -657,12 +657,6 @@ def main() -> int:
                 cm,
                 "cm0",
             ),
-            (
-                "comma2k19, bias from its first second (moving!)",
-                ["--calibrate-seconds", "1"],
-                cm,
-                "cm1",
-            ),
         ):
             run_recorded(
                 hdrd(

@@ -673,3 +673,65 @@ def test_a_standstill_step_publishes_no_correction_and_counts_as_a_step() -> Non
     assert still[-1] and still.sum() >= 5
     assert (tr.I[still] == 0.0).all() and (tr.omega[still] == 0.0).all()
     assert tr.final.core.n == n
+
+
+# -- the pieces the filter is built from ----------------------------------------------------------
+
+
+def test_the_output_step_comes_from_the_first_that_knows_it() -> None:
+    from hdrd.core.gyronoise import GyroNoise
+
+    noise = GyroNoise(quant_step_dps=0.1)
+    assert HdrPlusParams().fitted(noise=noise).quant_step_dps == 0.1
+    assert HdrPlusParams().fitted(noise=noise, quant_step_dps=0.05).quant_step_dps == 0.05
+    # its variance q^2/12 is the stop offset's
+    assert HdrPlusParams().fitted(noise=noise).stop_offset_var == pytest.approx(0.01 / 12)
+    assert hdrplus._output_step(None, None, None) != hdrplus._output_step(None, None, None)  # NaN
+
+
+def test_the_increment_is_off_where_the_bias_walks_less_than_roads_curve() -> None:
+    # q x tau against ratio x road_var: 1e-6 x 120 = 1.2e-4 < 0.1 x 0.0025 = 2.5e-4: off;
+    # 3e-6 x 120 = 3.6e-4 > 2.5e-4: on (a division by tau would call both off).
+    p = HdrPlusParams(ic_drift_ratio=0.1, road_tau_s=120.0, road_var=0.0025)
+    assert hdrplus._increment(1e-4, 1e-6, p) == 0.0
+    assert hdrplus._increment(1e-4, 3e-6, p) == pytest.approx(p.ablation.ic_alpha * 0.01)
+
+
+def test_the_road_by_speed_starts_at_its_least_speed() -> None:
+    q = HdrPlusParams().ablated(road_lat_acc=0.02)
+    at = hdrplus._road_var(q, hdrplus.ROAD_MIN_SPEED)
+    assert at == pytest.approx(0.013**2 + math.degrees(0.02 / hdrplus.ROAD_MIN_SPEED) ** 2)
+
+
+def test_the_prior_on_k_is_its_sd_squared() -> None:
+    p = HdrPlusParams(temp_coeff_sd=0.03)
+    s, _ = step(INITIAL_PLUS_STATE, StepInput(0.0, 0.02, 15.0, NAN, 1.0), p)
+    assert s.bank.drifting is not None
+    assert s.bank.drifting.P[bb.KK] == pytest.approx(0.03**2)  # no temperature: k untouched
+
+
+@pytest.mark.parametrize("moved", [0.0, 0.2])
+def test_the_published_bias_sd_is_the_mixture_s(moved: float) -> None:
+    """bias_sd_dps: sqrt of sum w_i (var_i + (b_i - b)^2) over the bank's filters, the weights
+    from the log-odds the state carries (the step's own evidence moves them a little after
+    the output is made: hence the tolerance)."""
+    u, sp, v = _stop_go(3, 0.05, 2)
+    p = HdrPlusParams(block_var=1e-4).ablated(moved_prior=moved, heading_fix=False)
+    tr = run_batch(u, sp, v, None, 1.0, p)
+    k = tr.final.bank
+    assert k.drifting is not None and k.stable is not None
+    filters = [k.stable, k.drifting] + ([k.moved] if k.moved is not None else [])
+    odds = [0.0, k.log_odds] + ([k.moved_log_odds] if k.moved is not None else [])
+    w = np.exp(odds) / np.sum(np.exp(odds))
+    b = np.array([f.x[bb.B] for f in filters])
+    var = np.array([f.P[bb.BB] for f in filters])
+    mean = float(np.sum(w * b))
+    want = math.sqrt(float(np.sum(w * (var + (b - mean) ** 2))))
+    assert tr.bias_corr_dps[-1] == pytest.approx(mean, rel=1e-4)
+    assert tr.bias_sd_dps[-1] == pytest.approx(want, rel=1e-3)
+    assert tr.drift_weight[-1] == pytest.approx(w[1], rel=1e-3)
+
+
+def test_a_column_of_the_wrong_length_is_named() -> None:
+    with pytest.raises(ValueError, match="spread"):
+        run_batch(np.zeros(5), spread=np.zeros(4))
