@@ -131,3 +131,19 @@ def test_update_returns_the_innovation_and_its_variance() -> None:
     y, Q = list(g.x), list(g.P)
     nu, s = bb.update(y, Q, 0.0, 0.0, 1.0, -0.05, 0.05)
     assert nu == pytest.approx(-0.05) and s == pytest.approx(0.012 + 0.0025 + 0.05)
+
+
+def test_the_bias_at_a_temperature_and_its_variance() -> None:
+    x = [0.1, -0.02, 0.003, 0.05, 0.0]  # b, c, k, r, psi
+    P = [0.0] * (bb.N_STATES * bb.N_STATES)
+    P[bb.BB], P[bb.KK], P[bb.BK] = 4e-4, 1e-6, -5e-6
+    P[bb.at(bb.K, bb.B)] = -5e-6
+    P[bb.BC] = P[bb.at(bb.C, bb.B)] = -1e-4
+    P[bb.CC] = 3e-4
+    assert bb.bias_at(x, 0.0) == 0.1
+    assert bb.bias_at(x, 10.0) == pytest.approx(0.1 + 0.03)  # b + k dT
+    assert bb.bias_var_at(P, 0.0) == 4e-4
+    # var(b + k dT) = P_bb + 2 dT P_bk + dT^2 P_kk
+    assert bb.bias_var_at(P, 10.0) == pytest.approx(4e-4 - 2 * 10 * 5e-6 + 100 * 1e-6)
+    # what a stop reads, b + c: P_bb + 2 P_bc + P_cc
+    assert bb.stop_var(P) == pytest.approx(4e-4 - 2e-4 + 3e-4)

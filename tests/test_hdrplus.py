@@ -732,6 +732,6 @@ def test_the_published_bias_sd_is_the_mixture_s(moved: float) -> None:
     assert tr.drift_weight[-1] == pytest.approx(w[1], rel=1e-3)
 
 
-def test_a_column_of_the_wrong_length_is_named() -> None:
+def test_a_spread_of_the_wrong_length_is_named() -> None:
     with pytest.raises(ValueError, match="spread"):
         run_batch(np.zeros(5), spread=np.zeros(4))
