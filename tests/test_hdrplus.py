@@ -196,7 +196,7 @@ def test_params_are_checked() -> None:
     assert HdrPlusParams().ablation == Ablation()  # the daemon's: every idea on
     for name in ("motion_offset_var", "moved_q", "road_lat_acc", "road_floor_dps"):
         with pytest.raises(ValueError, match=name):
-            Ablation(**{name: -0.1})
+            Ablation(**{name: -0.1})  # type: ignore[arg-type]
 
 
 def test_a_motion_offset_widens_only_the_drifting_filter() -> None:
