@@ -25,6 +25,7 @@ Appends the tables to bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import subprocess
 import sys
@@ -433,6 +434,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-write", action="store_true", help="print only")
     a = ap.parse_args(argv)
+    missing = [m for m in ("scipy", "allantools") if importlib.util.find_spec(m) is None]
+    if missing:
+        print(
+            f"bench/gap_libraries.py compares against {' and '.join(missing)}, not installed: "
+            "pip install scipy allantools",
+            file=sys.stderr,
+        )
+        return 1
     print(machine_line(), flush=True)
     noise = bench_noise()
     det = bench_det()
