@@ -411,6 +411,24 @@ def check_columns(
     def col(c: str) -> str:
         return shown.get(c, c)
 
+    _check_valid(arrays, where, col)
+    _check_present_and_finite(arrays, where, col)
+    _check_ranges(arrays, where, col)
+    t = arrays["t"]
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise DriveLogError(
+            f"{where(bad)}: column {col('t')} is not strictly increasing "
+            f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
+        )
+    if limits is not None:
+        _check_limits(arrays, where, limits, col)
+
+
+def _check_valid(
+    arrays: dict[str, FloatArray], where: Callable[[int], str], col: Callable[[str], str]
+) -> None:
+    """:func:`check_columns`: ``valid`` is 0 or 1 in every row."""
     if "valid" in arrays:
         vcol = arrays["valid"]
         bad_v = np.flatnonzero((vcol != 0.0) & (vcol != 1.0))  # NaN (empty) included
@@ -421,6 +439,12 @@ def check_columns(
                 f"{where(i)}: column {col('valid')}: {what}; every row needs 1 (the sample "
                 "counts) or 0 (excluded)"
             )
+
+
+def _check_present_and_finite(
+    arrays: dict[str, FloatArray], where: Callable[[int], str], col: Callable[[str], str]
+) -> None:
+    """:func:`check_columns`: the required columns in every row, no value infinite."""
     for c in REQUIRED:
         if np.isnan(arrays[c]).any():
             bad = int(np.flatnonzero(np.isnan(arrays[c]))[0])
@@ -431,6 +455,12 @@ def check_columns(
         if np.isinf(a).any():
             bad = int(np.flatnonzero(np.isinf(a))[0])
             raise DriveLogError(f"{where(bad)}: column {col(c)}: {float(a[bad])!r} is not finite")
+
+
+def _check_ranges(
+    arrays: dict[str, FloatArray], where: Callable[[int], str], col: Callable[[str], str]
+) -> None:
+    """:func:`check_columns`: directions and temperatures within their limits."""
     for c in DIRECTION_COLUMNS:
         if c not in arrays:
             continue
@@ -455,15 +485,6 @@ def check_columns(
                 f"{where(i)}: column {col('temp_c')}: {float(tc[i]):.6g} deg C is outside "
                 f"[{lo:g}, {hi:g}]; a board or cabin temperature in deg C is expected"
             )
-    t = arrays["t"]
-    if np.any(np.diff(t) <= 0):
-        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise DriveLogError(
-            f"{where(bad)}: column {col('t')} is not strictly increasing "
-            f"({float(t[bad])!r} after {float(t[bad - 1])!r})"
-        )
-    if limits is not None:
-        _check_limits(arrays, where, limits, col)
 
 
 def _check_limits(
