@@ -126,18 +126,14 @@ def kalman_peer(
 
 
 def real_drives(workdir: Path, which: str) -> list[Path]:
-    """The real drives of one set (bench/real.py's split), converted into ``workdir`` by
-    tools/convert_real.py (the public clones' drives where they are present)."""
-    from real import JUDGING, TUNING
+    """The real drives of one set (bench/real.py's split), converted into ``workdir`` as
+    bench/real.py converts them (the public sources' where their snapshots are)."""
+    from real import JUDGING, TUNING, convert_all
 
     names = TUNING if which == "tune" else JUDGING
     out = workdir / "real"
     out.mkdir(parents=True, exist_ok=True)
-    tool = [sys.executable, str(REPO / "tools" / "convert_real.py")]
-    for cmd in (["all", "--out-dir", str(out)], ["oan", "--out-dir", str(out)]):
-        p = subprocess.run(tool + cmd, capture_output=True, text=True)
-        if p.returncode != 0:
-            print(f"({' '.join(cmd[:1])}: {p.stderr.strip().splitlines()[-1:]})", file=sys.stderr)
+    convert_all(out, [])
     return sorted(p for p in out.glob("*.csv") if p.stem in names)
 
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
+import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -63,9 +63,6 @@ from hdrd.io.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
 DATA = REPO.parent / "shared" / "data"
-MIRRORS = Path(os.environ.get("HDRD_MIRRORS", "/work/.mirror"))
-"""Where tools/convert_real.py looks for the public sources' snapshots (docs/real-data.md)."""
-REPOS = {"oan": "fedorbaklanov+open-aided-navigation", "psins": "WangShanpeng+PSINS"}
 
 TUNING: frozenset[str] = frozenset(
     {"comma2k19", "oan_20201104_091730", "oan_20201104_093418", "psins_fog_mems"}
@@ -82,6 +79,23 @@ drive)."""
 
 MIN_SCORED_MIN = 5.0
 """Drives whose scored part is shorter than this, min, are listed but not scored."""
+
+
+def convert_all(folder: Path, shown: list[str]) -> None:
+    """Every real recording into ``folder`` as drive logs, by tools/convert_real.py as a user
+    runs it: ../shared/data's (a failure stops the benchmark), then the public sources' (oan,
+    psins) where their snapshots are (docs/real-data.md); one that cannot be converted is left
+    out with the converter's own reason."""
+    tool = [sys.executable, "tools/convert_real.py"]
+    run_recorded([*tool, "all", "--out-dir", str(folder)], shown)
+    for which, out in (("oan", ["--out-dir", str(folder)]),
+                       ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
+        p = subprocess.run([*tool, which, *out], cwd=REPO, capture_output=True, text=True)
+        if p.returncode == 0:
+            shown.append(" ".join(["python", "tools/convert_real.py", which, *out]))
+        else:
+            why = (p.stderr.strip().splitlines() or ["no message"])[-1]
+            print(f"bench/real.py: {which} left out: {why}", file=sys.stderr)
 
 
 def drive_set(name: str) -> str:
@@ -401,13 +415,7 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(a.workdir)
     folder = work / "real"
     shown: list[str] = []
-    run_recorded([sys.executable, "tools/convert_real.py", "all", "--out-dir", str(folder)], shown)
-    for which, out in (("oan", ["--out-dir", str(folder)]),
-                       ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
-        if (MIRRORS / REPOS[which] / "repo").exists():
-            run_recorded([sys.executable, "tools/convert_real.py", which, *out], shown)
-        else:
-            print(f"bench/real.py: no snapshot of {REPOS[which]} in {MIRRORS}: {which} left out")
+    convert_all(folder, shown)
     json_path = work / "evaluate.json"
     run_recorded(
         [sys.executable, "-m", "hdrd", "evaluate", str(folder), "--method", "hdr+"]
