@@ -438,11 +438,11 @@ class _Run:
         k = state.bank
         q2 = p.quant_step_dps * p.quant_step_dps / 12.0
         self.q2 = q2
-        init = bb.prior(p.bias_p0 + q2, p.stop_offset_var, p.temp_coeff_sd**2, p.road_var)
-        f1 = init if k.drifting is None else k.drifting
-        if k.drifting is None and p.ablation.motion_offset_var > 0.0:
-            f = p.stop_offset_var + p.ablation.motion_offset_var
-            f1 = bb.prior(p.bias_p0 + q2, f, p.temp_coeff_sd**2, p.road_var)
+        init = self.prior(0.0)
+        f1 = k.drifting
+        if f1 is None:
+            mo = p.ablation.motion_offset_var
+            f1 = self.prior(mo) if mo > 0.0 else init
         self.x1, self.P1 = list(f1.x), list(f1.P)
         f0 = (init if k.stable is None else k.stable) if p.bank else None
         self.x0 = list(f0.x) if f0 is not None else []
@@ -455,10 +455,7 @@ class _Run:
         self.Pm: list[float] = []
         self.lo_m = k.moved_log_odds
         if self.moved_on:
-            fm = k.moved
-            if fm is None:
-                f = p.stop_offset_var + ab.moved_offset_var
-                fm = bb.prior(p.bias_p0 + q2, f, p.temp_coeff_sd**2, p.road_var)
+            fm = self.prior(ab.moved_offset_var) if k.moved is None else k.moved
             self.xm, self.Pm = list(fm.x), list(fm.P)
             rest = 1.0 - prior - mp
             if math.isnan(lo):
@@ -467,6 +464,13 @@ class _Run:
                 self.lo_m = math.log(mp / rest)
         self.log_odds = math.log(prior / (1.0 - prior)) if math.isnan(lo) else lo
         self.t_ref = k.t_ref
+
+    def prior(self, motion_offset_var: float) -> Filter:
+        """A filter's prior after the start-up calibration (:func:`hdrd.core.biasbank.prior`),
+        the driving bias free to sit ``motion_offset_var`` further off the stops'."""
+        p = self.p
+        f = p.stop_offset_var + motion_offset_var
+        return bb.prior(p.bias_p0 + self.q2, f, p.temp_coeff_sd**2, p.road_var)
 
     def state(self) -> PlusState:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
@@ -534,25 +538,27 @@ class _Run:
             w1 = 1.0 / (1.0 + math.exp(-self.log_odds))
             corr0 = bb.bias_at(self.x0, dT)
             corr = (1.0 - w1) * corr0 + w1 * corr1
-            sd1 = math.sqrt(P1[bb.BB] if P1[bb.BB] > 0.0 else 0.0)
-            inc = min(p.i_c_max, p.ablation.ic_alpha * sd1) if w1 >= 0.5 else 0.0
-            return _Mix(w1, corr0, corr1, corr, inc, q1, True)
+            return _Mix(w1, corr0, corr1, corr, self.bank_increment(w1), q1, True)
         inc = _increment(bb.bias_var_at(P1, dT), q1, p)
         return _Mix(1.0, corr1, corr1, corr1, inc, q1, False)
 
     def _mix3(self, dT: float, corr1: float, q1: float) -> _Mix:
         """The bank's mixture with the moved filter (:meth:`predict`): weights from the
         log-odds of drifting and of moved, each against stable."""
-        p = self.p
         e1, em = math.exp(self.log_odds), math.exp(self.lo_m)
         w0 = 1.0 / (1.0 + e1 + em)
         w1, wm = e1 * w0, em * w0
         corr0 = bb.bias_at(self.x0, dT)
         corrm = bb.bias_at(self.xm, dT)
         corr = w0 * corr0 + w1 * corr1 + wm * corrm
-        sd1 = math.sqrt(self.P1[bb.BB] if self.P1[bb.BB] > 0.0 else 0.0)
-        inc = min(p.i_c_max, p.ablation.ic_alpha * sd1) if w1 >= 0.5 else 0.0
-        return _Mix(w1, corr0, corr1, corr, inc, q1, True, wm, corrm)
+        return _Mix(w1, corr0, corr1, corr, self.bank_increment(w1), q1, True, wm, corrm)
+
+    def bank_increment(self, w1: float) -> float:
+        """The core's increment with the bank, deg/s: ``ic_alpha`` x the drifting filter's
+        bias sd (capped at ``i_c_max``) while "drifting" weighs at least 0.5, else 0."""
+        p, v1 = self.p, self.P1[bb.BB]
+        sd1 = math.sqrt(v1 if v1 > 0.0 else 0.0)
+        return min(p.i_c_max, p.ablation.ic_alpha * sd1) if w1 >= 0.5 else 0.0
 
     def standstill_test(self, uc: float, sp: float, v: float, mix: _Mix) -> bool:
         """Is this step a zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
@@ -656,19 +662,11 @@ class _Run:
         heading: float,
     ) -> PlusOutput:
         """What is published: the core's output and the bias model after this step."""
-        p, x1, w1 = self.p, self.x1, mix.w1
+        x1, w1 = self.x1, mix.w1
         b1 = bb.bias_at(x1, dT)
         v1 = bb.bias_var_at(self.P1, dT)
-        if mix.mixing and self.moved_on:
-            bc, var_b, kc, q_in = self._output3(dT, mix, b1, v1)
-        elif mix.mixing:
-            x0 = self.x0
-            b0 = bb.bias_at(x0, dT)
-            v0 = bb.bias_var_at(self.P0, dT)
-            bc = (1.0 - w1) * b0 + w1 * b1
-            var_b = (1.0 - w1) * (v0 + (b0 - bc) ** 2) + w1 * (v1 + (b1 - bc) ** 2)
-            kc = (1.0 - w1) * x0[bb.K] + w1 * x1[bb.K]
-            q_in = (1.0 - w1) * p.q_stable + w1 * mix.q1
+        if mix.mixing:
+            bc, var_b, kc, q_in = self.mixture(dT, mix, b1, v1)
         else:
             bc, var_b, kc, q_in = b1, v1, x1[bb.K], mix.q1
         sd = math.sqrt(var_b if var_b > 0.0 else 0.0)
@@ -676,19 +674,27 @@ class _Run:
         return PlusOutput(omega, self.yaw, I_out, W, R, r, y, bc, zero, sd, kc, mix.inc, q_in,
                           w1, heading)  # fmt: skip
 
-    def _output3(
+    def mixture(
         self, dT: float, mix: _Mix, b1: float, v1: float
     ) -> tuple[float, float, float, float]:
-        """:meth:`output`'s mixture with the moved filter: the bias correction, its variance,
-        k and the random walk in force."""
+        """:meth:`output`'s bank mixture over its filters (stable, drifting, and moved when
+        on): the bias correction, its variance (within and between the filters), k and the
+        random walk in force."""
         p, w1, wm = self.p, mix.w1, mix.wm
         w0 = 1.0 - w1 - wm
-        b0, v0 = bb.bias_at(self.x0, dT), bb.bias_var_at(self.P0, dT)
-        bm, vm = bb.bias_at(self.xm, dT), bb.bias_var_at(self.Pm, dT)
-        bc = w0 * b0 + w1 * b1 + wm * bm
-        var_b = w0 * (v0 + (b0 - bc) ** 2) + w1 * (v1 + (b1 - bc) ** 2) + wm * (vm + (bm - bc) ** 2)
-        kc = w0 * self.x0[bb.K] + w1 * self.x1[bb.K] + wm * self.xm[bb.K]
-        q_in = (w0 + wm) * p.q_stable + w1 * mix.q1
+        x0, x1 = self.x0, self.x1
+        b0, v0 = bb.bias_at(x0, dT), bb.bias_var_at(self.P0, dT)
+        bc = w0 * b0 + w1 * b1
+        if self.moved_on:
+            bm, vm = bb.bias_at(self.xm, dT), bb.bias_var_at(self.Pm, dT)
+            bc += wm * bm
+        var_b = w0 * (v0 + (b0 - bc) ** 2) + w1 * (v1 + (b1 - bc) ** 2)
+        kc = w0 * x0[bb.K] + w1 * x1[bb.K]
+        q_in = w0 * p.q_stable + w1 * mix.q1
+        if self.moved_on:
+            var_b += wm * (vm + (bm - bc) ** 2)
+            kc += wm * self.xm[bb.K]
+            q_in += wm * p.q_stable
         return bc, var_b, kc, q_in
 
 
