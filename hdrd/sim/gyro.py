@@ -19,7 +19,8 @@ motion_offset        offset_dps (deg/s), coeff_dps_per_mps (deg/s per m/s, opt.)
 bias_instability     sigma_dps (deg/s), tau_s (s): first-order Gauss-Markov           bias
 rate_random_walk     k_dps_per_sqrt_s (deg/s/sqrt(s)): random walk of the bias        bias
 white_noise          density_dps_per_rthz (deg/s/sqrt(Hz)): angle random walk         noise
-bandwidth            cutoff_hz (Hz): first-order low-pass                             filter
+bandwidth            cutoff_hz (Hz): first-order low-pass; output_noise_dps_per_rthz  filter
+                     (deg/s/sqrt(Hz), opt.): white noise after it
 saturation           limit_dps (deg/s): output clipped to +/- limit                   clip
 quantization         step_dps (deg/s): output rounded to a multiple of step           ADC
 ==================== ================================================================ ==========
@@ -371,19 +372,36 @@ class WhiteNoise(Effect):
 class Bandwidth(Effect):
     """First-order low-pass of the sensor's output, cutoff_hz (Hz, -3 dB; CRS03-04: 10 Hz).
     Exact for a rate held over each sample step: y[k] = a y[k-1] + (1 - a) x[k],
-    a = exp(-2 pi cutoff dt); starts settled (y[0] = x[0])."""
+    a = exp(-2 pi cutoff dt); starts settled (y[0] = x[0]). Optional
+    output_noise_dps_per_rthz (deg/s/sqrt(Hz), default 0): white noise added after the
+    low-pass (the output stage's and the ADC's own), sample sd N_out / sqrt(dt): what the
+    low-pass leaves of the sensor's noise at high frequency is not all there is."""
 
     name: ClassVar[str] = "bandwidth"
     order: ClassVar[int] = 10
     cutoff_hz: float = 10.0
+    output_noise_dps_per_rthz: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self.name, "cutoff_hz", self.cutoff_hz)
+        _nonneg(self.name, "output_noise_dps_per_rthz", self.output_noise_dps_per_rthz)
+
+    def params(self) -> dict[str, float]:
+        """The parameters; the output noise only when there is one (a model written before it
+        existed reads and writes back the same)."""
+        out = super().params()
+        if self.output_noise_dps_per_rthz == 0.0:
+            del out["output_noise_dps_per_rthz"]
+        return out
 
     def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
         decay = 2.0 * math.pi * self.cutoff_hz * ctx.dt
         a = np.exp(-np.minimum(decay, _STEP_CAP))
-        return ar1(decay, (1.0 - a) * x, float(x[0]))
+        y = ar1(decay, (1.0 - a) * x, float(x[0]))
+        if self.output_noise_dps_per_rthz > 0.0:
+            sd = self.output_noise_dps_per_rthz / np.sqrt(ctx.dt)
+            y = y + sd * ctx.rng.standard_normal((x.shape[0],))
+        return y
 
 
 @dataclass(frozen=True)
@@ -405,7 +423,10 @@ class Saturation(Effect):
 class Quantization(Effect):
     """ADC resolution: output rounded to the nearest multiple of step_dps (deg/s; the CRS03-04
     on a 16-bit 5 V ADC: 5 V / 2**16 / (10 mV/(deg/s)) = 0.00763 deg/s, hdrd.core.sensor lsb_dps).
-    Zero rate sits on a code (null at exactly half scale)."""
+    Zero rate sits on a code (null at exactly half scale). Applied last, after every noise, as
+    a real ADC rounds what reaches it: noise of less than about half a step at its input
+    leaves a gyro at rest on one code (undithered), more dithers it and the output's mean is
+    the input's."""
 
     name: ClassVar[str] = "quantization"
     order: ClassVar[int] = 12
@@ -469,7 +490,7 @@ def _param_names(cls: type[Effect]) -> list[str]:
 
 def _required(cls: type[Effect]) -> list[str]:
     # Every parameter is required in a file except the documented optional ones.
-    optional = {"quad_dps_per_c2", "moving_mps", "coeff_dps_per_mps"}
+    optional = {"quad_dps_per_c2", "moving_mps", "coeff_dps_per_mps", "output_noise_dps_per_rthz"}
     return [p for p in _param_names(cls) if p not in optional]
 
 

@@ -92,7 +92,8 @@ def rank(f: Fitter, cur: Fit, sig: list[Candidate]) -> tuple[list[Candidate], di
 
     Deterministic before stochastic: a candidate read against a measured regressor comes
     first if it still lowers BIC significantly once every significant slow random process
-    (bias instability, random walk) is in the model, all jointly refitted: a random process
+    (bias instability, random walk; with them the ADC's quantization when significant) is in
+    the model, all jointly refitted: a random process
     can imitate any slow drift, a temperature slope cannot imitate a random walk. One that
     does not hold is not tried at this step (the random process goes first; it is tried again
     at the next). Then the others (noise, quantization, low-pass) by BIC."""
@@ -101,6 +102,10 @@ def rank(f: Fitter, cur: Fit, sig: list[Candidate]) -> tuple[list[Candidate], di
     beyond: dict[str, Beyond] = {}
     det_ok = det
     if det and slow:
+        # The ADC's step, when the log shows one, is in the background too: a quantizer that
+        # its noise does not dither leaves a staircase that only a random process could
+        # otherwise imitate.
+        slow += [c for c in sig if c.name == "quantization"]
         det_ok = _beyond_slow_noise(f, cur, det, slow, beyond)
     others = [c for c in sig if c.name not in DETERMINISTIC]
     return _prefer_special(det_ok) + _prefer_special(others), beyond

@@ -15,7 +15,16 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.lattice import Lattice, decimal_resolution, detect_lattice
-from hdrd.errors import HdrdError
+from hdrd.analysis.gap.truth import (
+    STOP_MARGIN_S,
+    STOP_SPEED_MPS,
+    GapError,
+    Truth,
+    lead_in_s,
+    read_truth,
+    standing_rows,
+    truth_rate_from_heading,
+)
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.gyro import GyroModel, MotionOffset
 
@@ -41,61 +50,6 @@ TIME_GAP_FACTOR = 2.5
 """A step between two rows longer than this many median sample periods is a time gap (rows
 dropped; a jittery clock's steps stay below it): statistics over consecutive samples (Allan deviation, neighbouring differences)
 do not reach across it."""
-
-
-STOP_SPEED_MPS = 0.3
-"""At or below this speed (m/s) the vehicle stands still: its true yaw rate is zero."""
-STOP_MARGIN_S = 3.0
-"""Samples closer than this (s) to a stop's first or last row are not taken as standing: a
-speed that lags (a GPS speed filtered over seconds) still reads zero while the car turns out
-of its parking space."""
-
-
-class GapError(HdrdError, ValueError):
-    """The log cannot be analysed (no truth, too short, ...); the message says why."""
-
-
-# -- the truth and the blocks -----------------------------------------------------------------
-
-
-def _fixes(t: FloatArray, h: FloatArray) -> IntArray:
-    """Row indices of the fixes in a heading column: finite values, a value held over several
-    rows counted once (its first row)."""
-    ok = np.flatnonzero(np.isfinite(h))
-    if ok.shape[0] > 1:
-        keep = np.concatenate(([True], h[ok[1:]] != h[ok[:-1]]))
-        ok = ok[keep]
-    return ok
-
-
-def truth_rate_from_heading(
-    t_s: npt.ArrayLike, heading_deg: npt.ArrayLike, max_gap_s: float = 2.5
-) -> FloatArray:
-    """True yaw rate (deg/s, + = CCW) per sample from a compass heading (deg, clockwise from
-    north; NaN = unknown), e.g. a 1 Hz GPS course.
-
-    Between two consecutive fixes at most ``max_gap_s`` apart the rate is -(heading change the
-    short way round) / (time between them): CW -> CCW. It is given to the samples between the
-    two fixes' rows; a fix's own row, shared by two intervals, gets the mean of both rates (the
-    trapezoid rule: samples are instantaneous values, so a row between two intervals belongs
-    half to each). NaN elsewhere (stops, outages, before the first fix).
-    """
-    t = np.asarray(t_s, dtype=np.float64)
-    h = np.asarray(heading_deg, dtype=np.float64)
-    out = np.full(t.shape[0], np.nan)
-    ok = _fixes(t, h)
-    if ok.shape[0] < 2:
-        return out
-    tf, hf = t[ok], h[ok]
-    dt = np.diff(tf)
-    dh = (np.diff(hf) + 180.0) % 360.0 - 180.0  # shortest way round: 359 -> 1 is +2 deg
-    rate = -dh / dt
-    good = dt <= max_gap_s
-    for j in np.flatnonzero(good):
-        out[ok[j] : ok[j + 1]] = rate[j]
-    both = np.flatnonzero(good[1:] & good[:-1]) + 1  # fixes with a good interval on each side
-    out[ok[both]] = 0.5 * (rate[both - 1] + rate[both])
-    return out
 
 
 @dataclass(frozen=True)
@@ -146,6 +100,13 @@ class GapData:
     speed: FloatArray | None = None
     """The vehicle's speed, m/s (NaN = unknown), when the log has it: at a stop the true rate
     is zero at every sample (:func:`stop_interior`)."""
+    standing: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    """Samples at which the vehicle stands (a stop, the start-up standstill): their true rate
+    is zero (:func:`stop_interior`)."""
+    brest: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    """With a heading truth, the blocks (of all ``nblocks``) that lie wholly where the vehicle
+    stands: their true rate is exactly zero at every sample, with none of the heading's
+    error; all False otherwise."""
 
     @property
     def duration_s(self) -> float:
@@ -159,6 +120,13 @@ class GapData:
     @property
     def heading_mode(self) -> bool:
         return self.truth_source.startswith("heading_truth")
+
+    @property
+    def sample_truth(self) -> BoolArray:
+        """Samples whose true rate is known at the sample itself: every valid one, but with a
+        heading truth only where the vehicle stands (between fixes only the mean over the
+        interval is known)."""
+        return self.standing & self.valid if self.heading_mode else self.valid
 
     def block_mean(self, x: FloatArray) -> FloatArray:
         """Weighted mean of the sample values x over each used block."""
@@ -175,28 +143,12 @@ class GapData:
 
 
 def stop_interior(data: GapData) -> BoolArray:
-    """Samples inside a stop: the speed at most :data:`STOP_SPEED_MPS` on a run of rows without
-    a time gap, at least :data:`STOP_MARGIN_S` from the run's first and last row, and not
-    excluded. There the true yaw rate is zero at every sample, whatever the heading truth
-    says (a GPS course is unknown at a stop). All False without a speed column."""
-    n = data.t.shape[0]
-    if data.speed is None:
-        return np.zeros(n, dtype=bool)
-    sp = data.speed
-    st = np.isfinite(sp) & (sp <= STOP_SPEED_MPS) & ~data.excluded
-    if not st.any():
-        return st
-    new_run = st & ~np.concatenate(([False], st[:-1] & ~data.time_gap[1:]))
-    run = np.cumsum(new_run) - 1  # run index of every standing sample
-    idx = run[st]
-    t_first = np.full(int(idx.max()) + 1, np.inf)
-    t_last = np.full(int(idx.max()) + 1, -np.inf)
-    np.minimum.at(t_first, idx, data.t[st])
-    np.maximum.at(t_last, idx, data.t[st])
-    out = np.zeros(n, dtype=bool)
-    ts = data.t[st]
-    out[st] = (ts - t_first[idx] >= STOP_MARGIN_S) & (t_last[idx] - ts >= STOP_MARGIN_S)
-    return out
+    """Samples at which the vehicle stands (:func:`hdrd.analysis.gap.truth.standing_rows`):
+    inside a stop (the speed at most :data:`STOP_SPEED_MPS`, at least :data:`STOP_MARGIN_S`
+    from the stop's edges) or within the log's start-up standstill (``lead_in_s``); never
+    excluded. There the true yaw rate is zero at every sample, whatever the heading truth says
+    (a GPS course is unknown at a stop)."""
+    return data.standing
 
 
 def moving_indicator(data: GapData) -> FloatArray | None:
@@ -228,49 +180,6 @@ def excluded_samples(log: DriveLog, exclude: Sequence[tuple[float, float]] = ())
     return out
 
 
-@dataclass(frozen=True)
-class _Truth:
-    """The true rate of every sample (deg/s, + = CCW; NaN unknown), where it comes from and,
-    with a heading truth, the heading (compass deg), its fixes' rows, the first fix's time and
-    the median time between fixes (s)."""
-
-    rate: FloatArray
-    source: str
-    heading: FloatArray | None = None
-    fixes: IntArray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
-    origin: float = 0.0
-    fix_dt: float = 1.0
-
-
-def _truth(log: DriveLog, t: FloatArray, standstill: bool) -> _Truth:
-    """The log's truth: ``omega_truth`` where it has values, else the derivative of
-    ``heading_truth``, else zero when ``standstill``; GapError when there is none."""
-    n = len(log)
-    if log.omega_truth is not None and np.isfinite(log.omega_truth).any():
-        truth = _Truth(np.asarray(log.omega_truth, dtype=np.float64), "omega_truth")
-    elif log.heading_truth is not None and np.isfinite(log.heading_truth).sum() > 2:
-        heading = np.asarray(log.heading_truth, dtype=np.float64)
-        fixes = _fixes(t, heading)
-        truth = _Truth(
-            truth_rate_from_heading(t, heading),
-            "heading_truth",
-            heading,
-            fixes,
-            float(t[fixes[0]]),
-            float(np.median(np.diff(t[fixes]))) if fixes.shape[0] > 1 else 1.0,
-        )
-    elif standstill:
-        truth = _Truth(np.zeros(n), "standstill")
-    else:
-        raise GapError(
-            "the log has no truth: it needs an omega_truth or heading_truth column, "
-            "or --standstill for a log taken at rest"
-        )
-    if standstill and truth.source != "standstill":
-        truth = replace(truth, source=truth.source + " (--standstill ignored: the log has truth)")
-    return truth
-
-
 def _filled_temp(log: DriveLog, idx: IntArray) -> FloatArray | None:
     """The temperature column with its gaps interpolated; None without one."""
     if log.temp_c is None or not np.isfinite(log.temp_c).any():
@@ -280,7 +189,7 @@ def _filled_temp(log: DriveLog, idx: IntArray) -> FloatArray | None:
     return tc if ok.all() else np.interp(idx, idx[ok], tc[ok])
 
 
-def _block_size(block_s: float | None, t: FloatArray, dt: float, truth: _Truth) -> float:
+def _block_size(block_s: float | None, t: FloatArray, dt: float, truth: Truth) -> float:
     """The block length, s: as asked, else by the log's length and truth (whole fix intervals
     with a heading truth); GapError when shorter than a sample period."""
     if block_s is not None:
@@ -298,7 +207,8 @@ def _block_size(block_s: float | None, t: FloatArray, dt: float, truth: _Truth) 
 class _Blocks:
     """The block grid of :class:`GapData` (its fields of the same names) while it is made;
     ``wsum`` and ``w2``: each block's sum of weights and of squared weights, ``btruth_full``
-    each block's true rate from the heading (NaN without)."""
+    each block's true rate from the heading (NaN without), ``brest`` the blocks wholly at
+    rest (with a heading truth)."""
 
     nblocks: int
     blk: IntArray
@@ -307,17 +217,29 @@ class _Blocks:
     wprim: FloatArray
     block_prev: IntArray
     btruth_full: FloatArray
+    brest: BoolArray
     block_of: IntArray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     wsum: npt.NDArray[Any] = field(default_factory=lambda: np.empty(0))
     w2: npt.NDArray[Any] = field(default_factory=lambda: np.empty(0))
 
 
-def _blocks(t: FloatArray, dt: float, bs: float, truth: _Truth, valid: BoolArray) -> _Blocks:
-    """The blocks of ``bs`` seconds from the truth's origin: which are used (complete, with
-    truth; GapError when fewer than 20 are, or the log covers fewer than 20), each sample's
-    block and weight."""
+def _grid_origin(truth: Truth, bs: float) -> float:
+    """Where the block grid starts, s: at t = 0, or with a heading truth on the first fix and
+    as many whole blocks before it as the log has (so that a standstill before the first fix
+    is in blocks too)."""
+    if truth.heading is None:
+        return truth.origin
+    return truth.origin - bs * math.floor(truth.origin / bs + 1e-9)
+
+
+def _blocks(
+    t: FloatArray, dt: float, bs: float, truth: Truth, valid: BoolArray, standing: BoolArray
+) -> _Blocks:
+    """The blocks of ``bs`` seconds on the grid of :func:`_grid_origin`: which are used
+    (complete, with truth; GapError when fewer than 20 are, or the log covers fewer than 20),
+    each sample's block and weight."""
     n = t.shape[0]
-    origin = truth.origin
+    origin = _grid_origin(truth, bs)
     nblocks = math.floor((t[-1] - origin + dt) / bs + 1e-9)
     if nblocks < 20:
         raise GapError(
@@ -330,14 +252,17 @@ def _blocks(t: FloatArray, dt: float, bs: float, truth: _Truth, valid: BoolArray
     bi = np.where(inside, blk, nblocks)  # nblocks: a bin for "outside"
     total = np.bincount(bi, minlength=nblocks + 1)[:nblocks].astype(np.float64)
     good = np.bincount(bi[valid], minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    still = np.bincount(bi[standing], minlength=nblocks + 1)[:nblocks].astype(np.float64)
+    bvalid = (good >= 0.8 * bs * (1.0 / dt)) & (good == total)
     b = _Blocks(
         nblocks=nblocks,
         blk=blk,
         inside=inside,
-        bvalid=(good >= 0.8 * bs * (1.0 / dt)) & (good == total),
+        bvalid=bvalid,
         wprim=np.ones(n),
         block_prev=np.full(n, -1, dtype=np.int64),
         btruth_full=np.full(nblocks, np.nan),
+        brest=bvalid & (still == total) & (truth.heading is not None),
     )
     if truth.heading is not None:
         _heading_blocks(b, t, truth.heading, truth.fixes, valid)
@@ -357,11 +282,13 @@ def _blocks(t: FloatArray, dt: float, bs: float, truth: _Truth, valid: BoolArray
 def _heading_blocks(
     b: _Blocks, t: FloatArray, heading: FloatArray, fixes: IntArray, valid: BoolArray
 ) -> None:
-    """With a heading truth: each block must start on a fix and end on the next block's first
-    row, also a fix; its true rate is the heading change between them. Sets ``btruth_full``,
-    the fix rows' weights (half in each of the two blocks they close and open) and drops the
-    blocks whose edges are not fixes."""
-    n, nblocks, blk, bvalid = t.shape[0], b.nblocks, b.blk, b.bvalid
+    """With a heading truth: a block wholly at rest (``brest``) has a true rate of zero at
+    every sample; any other must start on a fix and end on the next block's first row, also a
+    fix, and its true rate is the heading change between them. Sets ``btruth_full``, the fix
+    rows' weights (half in each of the two blocks they close and open) and drops the blocks
+    whose edges are not fixes. A block at rest shares no row with a heading block (the one
+    before it is dropped if its closing fix would be the rest block's first row)."""
+    n, nblocks, blk, bvalid, rest = t.shape[0], b.nblocks, b.blk, b.bvalid, b.brest
     is_fix = np.zeros(n, dtype=bool)
     is_fix[fixes] = True
     first = np.full(nblocks + 1, -1, dtype=np.int64)
@@ -375,6 +302,9 @@ def _heading_blocks(
     dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
     hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
     for k in range(nblocks):
+        if rest[k]:
+            b.btruth_full[k] = 0.0
+            continue
         a, e = first[k], first[k + 1]
         edge_ok = (
             a >= 0
@@ -383,17 +313,18 @@ def _heading_blocks(
             and is_fix[e]
             and bool(valid[a:e].all())
             and bool(valid[e])
+            and not (k + 1 < nblocks and rest[k + 1])
         )
         if edge_ok and bvalid[k]:
             b.btruth_full[k] = -(hu[e] - hu[a]) / (t[e] - t[a])  # CW heading -> CCW rate
             b.wprim[a] = 0.5
-            if k > 0:
+            if k > 0 and not rest[k - 1]:
                 b.block_prev[a] = k - 1
         else:
             bvalid[k] = False
     # The half-row that closes block k is the first row of block k + 1: give it to k even
     # when block k + 1 itself is not used.
-    for kk in np.flatnonzero(bvalid).tolist():
+    for kk in np.flatnonzero(bvalid & ~rest).tolist():
         e = first[kk + 1]
         if e >= 0 and b.block_prev[e] < 0:
             b.block_prev[e] = kk
@@ -426,7 +357,8 @@ def prepare(
     exclude: Sequence[tuple[float, float]] = (),
 ) -> GapData:
     """Turn a drive log into :class:`GapData`. The truth rate is ``omega_truth`` where it has
-    values, else the derivative of ``heading_truth``, else zero when ``standstill``. Samples
+    values, else the derivative of ``heading_truth``, else zero when ``standstill``; and zero
+    wherever the vehicle stands (:func:`stop_interior`), with or without a truth there. Samples
     marked ``valid`` = 0 or inside an ``exclude`` period (s, the log's own t) count as having
     no truth. Raises GapError if there is no truth or too little of it."""
     n = len(log)
@@ -434,15 +366,21 @@ def prepare(
         raise GapError(f"the log has {n} samples; the workflow needs at least 100")
     t = np.asarray(log.t - log.t[0], dtype=np.float64)
     omega = np.asarray(log.omega, dtype=np.float64)
-    tr = _truth(log, t, standstill)
+    tr = read_truth(log, t, standstill)
     excluded = excluded_samples(log, exclude)
+    dt = float(np.median(np.diff(t)))
+    time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
+    speed = None if log.speed is None else np.asarray(log.speed, dtype=np.float64)
+    standing = standing_rows(t, speed, excluded, time_gap, lead_in_s(log))
+    if tr.source != "standstill":
+        tr = replace(tr, rate=np.where(standing, 0.0, tr.rate))  # a car at rest does not turn
     truth = _counted_truth(tr.rate, excluded)
     valid = np.isfinite(truth)
     idx = np.arange(n)
     truth_filled = np.interp(idx, idx[valid], truth[valid])
-    dt = float(np.median(np.diff(t)))
     bs = _block_size(block_s, t, dt, tr)
-    b = _blocks(t, dt, bs, tr, valid)
+    b = _blocks(t, dt, bs, tr, valid, standing)
+    origin = _grid_origin(tr, bs)
     res = _resolution(log, omega)
     data = GapData(
         t=t,
@@ -452,11 +390,11 @@ def prepare(
         temp_c=_filled_temp(log, idx),
         valid=valid,
         excluded=excluded,
-        time_gap=np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt)),
+        time_gap=time_gap,
         truth_source=tr.source,
         fs_hz=1.0 / dt,
         block_s=bs,
-        block_t0=tr.origin,
+        block_t0=origin,
         nblocks=b.nblocks,
         block_of=b.block_of,
         wprim=b.wprim,
@@ -464,12 +402,14 @@ def prepare(
         bvalid=b.bvalid,
         bweight=np.where(b.wsum > 0, b.wsum, 1.0),
         bneff=np.where(b.w2 > 0, b.wsum**2 / np.where(b.w2 > 0, b.w2, 1.0), 1.0),
-        bt=np.asarray(tr.origin + (np.arange(b.nblocks) + 0.5) * bs),
+        bt=np.asarray(origin + (np.arange(b.nblocks) + 0.5) * bs),
         btruth=np.empty(0),
         resolution_dps=res,
         lattice=detect_lattice(omega[~excluded], res),  # the sensor's values while they count
         name=log.name,
-        speed=None if log.speed is None else np.asarray(log.speed, dtype=np.float64),
+        speed=speed,
+        standing=standing,
+        brest=b.brest,
     )
     heading_mode = tr.heading is not None
     bt_used = b.btruth_full[b.bvalid] if heading_mode else data.block_mean(truth_filled)

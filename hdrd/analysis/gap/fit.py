@@ -16,17 +16,13 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
-from hdrd.analysis.gap.data import GapData, stop_interior
+from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lattice import on_lattice
-from hdrd.analysis.gap.lowpass import (
-    cutoff_hz,
-    differences,
-    fit_lowpass,
-    pole,
-    white_factor,
-)
+from hdrd.analysis.gap.lowpass import cutoff_hz, differences, fit_lowpass, pole
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
+from hdrd.analysis.gap.predict import NOISE_EFFECTS, deterministic_part
+from hdrd.analysis.gap.white import white_levels
 from hdrd.sim.gyro import (
     Bandwidth,
     BiasInstability,
@@ -51,29 +47,7 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 
-NOISE_EFFECTS = ("bias_instability", "rate_random_walk", "white_noise", "quantization")
-"""Effects with a random (or, for quantization, sub-sample) output: they shape the residual's
-covariance and histogram, not its deterministic prediction D."""
-
 GLITCH_P = 1e-3  # per-sample probability of an off-lattice value under a quantised model
-
-
-def _det_model(model: GyroModel) -> GyroModel:
-    return GyroModel(tuple(e for e in model.effects if e.name not in NOISE_EFFECTS))
-
-
-_RNG0 = np.random.default_rng(0)
-
-
-def deterministic_part(data: GapData, model: GyroModel) -> FloatArray:
-    """D: what the model adds to the true rate with every random effect off (deg/s per sample):
-    its bias, gain, lag, bandwidth and clipping effects applied to the truth, minus the truth.
-    Quantization is left out: on a noisy signal it adds a small white error, not a bias."""
-    det = _det_model(model)
-    if not det.effects:
-        return np.zeros_like(data.t)
-    y = det.apply(data.t, data.truth_filled, data.temp_c, _RNG0, data.speed)
-    return np.asarray(y - data.truth_filled)
 
 
 # -- fitting a model -------------------------------------------------------------------------------
@@ -153,97 +127,16 @@ def _theta(model: GyroModel, free: list[tuple[str, str, str, float]]) -> FloatAr
     return np.asarray(vals, dtype=np.float64)
 
 
-def _white_var(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
-    """Per-sample white-noise variance (deg/s)**2 at the sensor's input from sample-to-sample
-    differences of the unexplained residual, less the quantization's q**2/12.
-
-    Robust (MAD) unless the values sit on an ADC lattice coarse against the noise, where the
-    differences take a few discrete values and their variance is used. With a ``bandwidth``
-    in the model the differences understate the input noise by (1 - a)**2 / (1 + a): at rest
-    the white level comes from the Whittle fit of their spectrum (:mod:`.lowpass`), otherwise
-    from that factor."""
-    e = data.omega - data.truth_filled - d
-    ok = data.valid[1:] & data.valid[:-1] & ~data.time_gap[1:]
-    de = np.diff(e)[ok]
-    if data.truth_source.startswith("heading_truth"):
-        return _white_var_heading(data, d, q_step, model)
-    if de.shape[0] < 10:
-        return float(np.var(e[data.valid]))
-    bw = model.get("bandwidth")
-    if isinstance(bw, Bandwidth) and at_rest(data):
-        a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
-        fit = fit_lowpass(de, data.block_s * data.fs_hz, q_step**2 / 12.0, 0.0, a)
-        return float(max(fit.white_var, 1e-12))
-    mad = float(np.median(np.abs(de - np.median(de))))
-    v = (1.4826 * mad) ** 2 / 2.0
-    lat = data.lattice
-    if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
-        v = float(np.var(de)) / 2.0
-    v = max(v - q_step**2 / 12.0, 1e-12)
-    if isinstance(bw, Bandwidth):
-        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
-    return float(v)
-
-
-STRAIGHT_DPS = 1.0
-"""With a GPS-course truth the white noise is read where the car drives straight (true rate
-below this, deg/s): between fixes the true rate is unknown, and in turns its own changes
-from one sample to the next would pass for noise."""
-
-
-MIN_STOP_PAIRS = 30
-"""Neighbouring sample pairs inside stops needed to read the white noise there."""
-
-
-def _white_var_heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel) -> float:
-    """White-noise variance with a heading truth. Where the log has a speed and stops, from
-    neighbouring differences of omega - D inside the stops (:func:`stop_interior`: the true
-    rate is zero there at every sample); else from second differences of omega - D on
-    straight stretches (robust: MAD; a second difference of white noise has variance
-    6 sigma**2, and a yaw rate changing steadily has none). Between a GPS course's fixes the
-    true rate is unknown: sampled at 1 Hz, a car's swaying and steering corrections change it
-    from one sample to the next on a straight road as much as a phone gyro's noise, so the
-    straights read the road as noise (a simulated 1 Hz phone drive: 10x its white noise)."""
-    y = data.omega - d
-    stop = stop_interior(data)
-    pairs = stop[1:] & stop[:-1] & ~data.time_gap[1:]
-    if int(pairs.sum()) >= MIN_STOP_PAIRS:
-        de = np.diff(y)[pairs]
-        mad = float(np.median(np.abs(de - np.median(de))))
-        v = (1.4826 * mad) ** 2 / 2.0
-        lat = data.lattice
-        if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
-            v = float(np.var(de)) / 2.0
-        v = max(v - q_step**2 / 12.0, 1e-12)
-        bw = model.get("bandwidth")
-        if isinstance(bw, Bandwidth):
-            v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
-        return float(v)
-    ok = data.valid & (np.abs(data.truth_filled) < STRAIGHT_DPS)
-    run = ok[2:] & ok[1:-1] & ok[:-2] & ~data.time_gap[2:] & ~data.time_gap[1:-1]
-    if int(run.sum()) < 30:  # hardly any straight driving: all samples
-        run = data.valid[2:] & data.valid[1:-1] & data.valid[:-2]
-    d2 = np.diff(y, 2)[run]
-    if d2.shape[0] < 10:
-        return float(np.var(y[data.valid]))
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
-    v = (1.4826 * mad) ** 2 / 6.0 if mad > 0 else float(np.var(d2)) / 6.0
-    v = max(v - q_step**2 / 12.0, 1e-12)
-    bw = model.get("bandwidth")
-    if isinstance(bw, Bandwidth):
-        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
-    return float(v)
-
-
 def _noise_of(data: GapData, model: GyroModel, d: FloatArray, extra_var: float) -> Noise:
     q = model.get("quantization")
     bi = model.get("bias_instability")
     rw = model.get("rate_random_walk")
     q_step = float(q.step_dps) if isinstance(q, Quantization) else 0.0
-    wv = _white_var(data, d, q_step, model) if "white_noise" in model else 1e-10
+    wv, after = white_levels(data, d, q_step, model) if "white_noise" in model else (1e-10, 0.0)
     return Noise(
         white_var=wv,
         q_step=q_step,
+        after_var=after,
         bi_sigma=float(bi.sigma_dps) if isinstance(bi, BiasInstability) else 0.0,
         bi_tau=float(bi.tau_s) if isinstance(bi, BiasInstability) else 300.0,
         rrw_k=float(rw.k_dps_per_sqrt_s) if isinstance(rw, RateRandomWalk) else 0.0,
@@ -256,6 +149,11 @@ def _model_noise(model: GyroModel, noise: Noise, fs_hz: float) -> GyroModel:
     out = model
     if "white_noise" in model:
         out = out.with_effect(WhiteNoise(density_dps_per_rthz=math.sqrt(noise.white_var / fs_hz)))
+    bw = model.get("bandwidth")
+    if isinstance(bw, Bandwidth):
+        out = out.with_effect(
+            replace(bw, output_noise_dps_per_rthz=math.sqrt(noise.after_var / fs_hz))
+        )
     if "bias_instability" in model:
         out = out.with_effect(BiasInstability(sigma_dps=noise.bi_sigma, tau_s=noise.bi_tau))
     if "rate_random_walk" in model:
@@ -376,11 +274,15 @@ class Fitter:
         return de, noise.q_step**2 / 12.0
 
     def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
-        """At rest: the low-pass cutoff by the Whittle likelihood of the differences."""
+        """At rest: the low-pass cutoff, and the white level after it, by the Whittle
+        likelihood of the differences."""
         d, _ = self.dbar(model)
         de, qv = self._lowpass_input(d, noise)
         lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
-        return model.with_effect(Bandwidth(cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz)))
+        out = math.sqrt(lp.after_var / self.data.fs_hz)
+        return model.with_effect(
+            Bandwidth(cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz), output_noise_dps_per_rthz=out)
+        )
 
     def hf_gain(self, model: GyroModel, d: FloatArray, noise: Noise) -> float:
         """At rest, with a low-pass in the model: the log-likelihood its spectrum gains over
@@ -441,7 +343,8 @@ class Fitter:
     def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
         if "white_noise" not in model:
             return noise
-        return replace(noise, white_var=_white_var(self.data, d, noise.q_step, model))
+        wv, after = white_levels(self.data, d, noise.q_step, model)
+        return replace(noise, white_var=wv, after_var=after)
 
     def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
         d, db = self.dbar(model)

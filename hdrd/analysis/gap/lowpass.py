@@ -67,12 +67,15 @@ def differences(e: FloatArray, valid: BoolArray, time_gap: BoolArray) -> FloatAr
 @dataclass(frozen=True)
 class LowpassFit:
     """Whittle fit of the differences: pole a (0 = no low-pass), input white variance W
-    (deg/s)**2 per sample, its log-likelihood, and that of the best white model (a = 0)."""
+    (deg/s)**2 per sample, its log-likelihood, and that of the best white model (a = 0);
+    ``after_var``: the white variance per sample after the low-pass beyond the ADC's
+    q**2/12, (deg/s)**2 (the output stage's own noise: ``bandwidth``'s output noise)."""
 
     a: float
     white_var: float
     loglik: float
     loglik_white: float
+    after_var: float = 0.0
 
     @property
     def gain(self) -> float:
@@ -162,9 +165,9 @@ def fit_lowpass(
     g0 = sp.d2 * q_var + floor
     _, ll_white = sp.best_linear([sp.d2], g0)
 
-    def at(av: float) -> tuple[float, float]:
+    def at(av: float) -> tuple[float, float, float]:
         c, ll = sp.best_linear([sp.shape(av), sp.d2], g0)
-        return float(c[0]), ll
+        return float(c[0]), ll, float(c[1])
 
     if a is None:
         # Grid over ln(1 - a), then golden-section refinement around the best point.
@@ -189,8 +192,8 @@ def fit_lowpass(
         if vals[j] > at(a)[1]:
             a = float(grid[j])
     a = min(max(a, A_MIN), A_MAX)
-    w, ll = at(a)
-    return LowpassFit(a=a, white_var=w, loglik=ll, loglik_white=ll_white)
+    w, ll, after = at(a)
+    return LowpassFit(a=a, white_var=w, loglik=ll, loglik_white=ll_white, after_var=after)
 
 
 _CACHE: dict[tuple[int, float, bytes], _Spectrum] = {}

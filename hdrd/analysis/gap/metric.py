@@ -26,8 +26,8 @@ GAP_METRIC = (
     "sqrt(A**2 + H**2), dimensionless. A: root mean square over log-spaced averaging times tau "
     "(one sample to a tenth of the log, 5 per decade) of ln(ADEV_meas(tau) / ADEV_sim(tau)), "
     "the Allan deviations of the unexplained residual e = omega - truth - D (D: the model's "
-    "deterministic prediction) in the measured log and in the model simulated under the same "
-    "t, truth and temp_c (Allan variance averaged over 4 seeds); A = 0.69 means the two differ "
+    "deterministic prediction; each at least what the log's rounding alone gives) in the "
+    "measured log and in the model simulated under the same t, truth and temp_c (Allan variance averaged over 4 seeds); A = 0.69 means the two differ "
     "by a factor of 2 on average, sampling noise alone gives ~0.1-0.3. H: |fraction of "
     "measured omega on the finest ADC lattice found in either - fraction of simulated omega on "
     "it| (histogram term: quantization). Effects already in the model are refitted to the log "
@@ -111,7 +111,7 @@ def gap_metric(
         if noise and truth_var > 0:
             # The truth's error: white heading noise at the fixes, differenced over a block.
             eta = math.sqrt(truth_var / 2.0) * rng_truth.standard_normal(data.nblocks + 1)
-            full -= np.diff(eta)
+            full -= np.where(data.brest, 0.0, np.diff(eta)) if data.brest.any() else np.diff(eta)
         return allan_deviation_masked(full, data.bvalid, 1.0 / data.block_s, ms)
 
     adev_m = adev(data.omega, False)
@@ -122,9 +122,14 @@ def gap_metric(
         sims.append(y)
         avar_s += adev(y, True) ** 2
     adev_s = np.sqrt(avar_s / N_SIM)
-    ok = np.isfinite(adev_m) & np.isfinite(adev_s) & (adev_m > 0) & (adev_s > 0)
-    a = float(np.sqrt(np.mean(np.log(adev_m[ok] / adev_s[ok]) ** 2))) if ok.any() else 0.0
     taus = np.asarray(ms * data.block_s if per_block else ms / data.fs_hz, dtype=np.float64)
+    # A deviation of zero (a residual that never leaves its ADC code) is a disagreement
+    # with one that moves, not a tau without information: both are held at least at what
+    # the log's own rounding gives, the deviation of white noise of resolution**2 / 12.
+    floor = data.resolution_dps / np.sqrt(12.0 * np.maximum(taus * data.fs_hz, 1.0))
+    am, asim = np.maximum(adev_m, floor), np.maximum(adev_s, floor)
+    ok = np.isfinite(am) & np.isfinite(asim)
+    a = float(np.sqrt(np.mean(np.log(am[ok] / asim[ok]) ** 2))) if ok.any() else 0.0
     h = _histogram_term(data, sims)
     return GapMeasure(taus=taus, adev_meas=adev_m, adev_sim=adev_s, a_term=a, h_term=h)
 

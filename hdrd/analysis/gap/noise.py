@@ -87,8 +87,10 @@ def adev_cluster_sizes(data: GapData, samples: bool = False) -> IntArray:
 
 @dataclass(frozen=True)
 class Noise:
-    """The random part of the block-mean residual: per-sample white variance (deg/s)**2,
-    quantization step, Gauss-Markov sigma/tau, random-walk K, extra block variance."""
+    """The random part of the block-mean residual: per-sample white variance (deg/s)**2 at
+    the sensor's input, quantization step, Gauss-Markov sigma/tau, random-walk K, extra block
+    variance, and the per-sample white variance after the low-pass (``bandwidth``'s output
+    noise, (deg/s)**2)."""
 
     white_var: float
     q_step: float = 0.0
@@ -96,6 +98,13 @@ class Noise:
     bi_tau: float = 300.0
     rrw_k: float = 0.0
     extra_var: float = 0.0
+    after_var: float = 0.0
+
+    @property
+    def sample_var(self) -> float:
+        """The white variance per sample that block means average down, (deg/s)**2: the
+        sensor's, the output stage's and the ADC's."""
+        return self.white_var + self.after_var + self.q_step**2 / 12.0
 
 
 def _gauss_markov_block(b: float, tau: float) -> tuple[float, float, float]:
@@ -201,7 +210,7 @@ class Whitener:
             self.s = self._heading.s
             self.sd = np.sqrt(self.s)
             return
-        r = (noise.white_var + noise.q_step**2 / 12.0) / cnt + noise.extra_var
+        r = noise.sample_var / cnt + noise.extra_var
         self.diag = noise.bi_sigma <= 0 and noise.rrw_k <= 0
         if self.diag:
             r = np.maximum(r, 1e-18)
@@ -316,7 +325,9 @@ class _HeadingKalman:
     heading deg / block s) and the gyro's white noise at the two fix rows, which count half in
     each of the blocks they close and open (trapezoid rule). Consecutive blocks share their
     fix (the end states become the next block's start states); after a block without truth
-    the next block's start fix is a fresh one, as in the simulated truth."""
+    the next block's start fix is a fresh one, as in the simulated truth. A block at rest
+    (``GapData.brest``: the vehicle stands, the true rate is zero at every sample) has neither
+    the heading's error nor fix rows, so after it too the next fix is a fresh one."""
 
     def __init__(self, data: GapData, noise: Noise) -> None:
         b = data.block_s
@@ -326,19 +337,24 @@ class _HeadingKalman:
         qg = sig2 * (1.0 - a * a)
         qw = noise.rrw_k**2 * b
         se2 = noise.extra_var / 2.0
-        sw2 = noise.white_var + noise.q_step**2 / 12.0  # per sample
+        sw2 = noise.sample_var  # per sample
         wsum = data.bweight[data.bvalid]
+        # A block at rest has no heading error and no fix rows: its true rate is zero at
+        # every sample, and its samples all weigh 1.
+        fix = ~data.brest[data.bvalid] if data.brest.shape[0] else np.ones(wsum.shape[0], bool)
         # The two fix rows weigh 1/2 each: their noise is in the eps states, the rest in r.
-        inner = np.maximum(1.0 / data.bneff[data.bvalid] - 0.5 / wsum**2, 0.0)
+        inner = np.maximum(1.0 / data.bneff[data.bvalid] - np.where(fix, 0.5 / wsum**2, 0.0), 0.0)
         r = np.maximum(sw2 * inner + sig2 * zeta_g + qw / 12.0, 1e-18)
-        cfix = 0.5 / wsum
+        cfix = np.where(fix, 0.5 / wsum, 0.0)
         f_mat = _heading_transition(a)
         q_mat = np.diag([0.0, qg, 0.0, qw, 0.0, se2, 0.0, sw2])
         w0 = noise.rrw_k**2 * data.block_t0  # the walk started at power-on, t = 0
         p = _heading_start(a, sig2, qw, w0, se2, sw2)
         n = int(r.shape[0])
         hrows = np.empty((n, 8))
-        hrows[:, :6] = [h, h, 0.5, 0.5, 1.0, -1.0]
+        hrows[:, :4] = [h, h, 0.5, 0.5]
+        hrows[:, 4] = np.where(fix, 1.0, 0.0)
+        hrows[:, 5] = -hrows[:, 4]
         hrows[:, 6] = hrows[:, 7] = cfix
         s = np.empty(n)
         gains = np.empty((n, 8))

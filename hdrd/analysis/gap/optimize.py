@@ -37,11 +37,15 @@ def least_squares_bounded(
     upper: FloatArray,
 ) -> FloatArray:
     """Minimise |fun(x)|**2 within [lower, upper] (scipy's trust-region reflective least
-    squares, forward-difference Jacobian with absolute steps ``steps`` near 0)."""
+    squares, forward-difference Jacobian with absolute steps ``steps`` near 0; a start within
+    1e-6 steps of zero starts at zero)."""
     lo = np.asarray(lower, dtype=np.float64)
     hi = np.asarray(upper, dtype=np.float64)
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     x = np.clip(np.asarray(x0, dtype=np.float64), lo + 1e-9 * span, hi - 1e-9 * span)
+    # The first trust region scales with the start: one nearly but not exactly zero (a bias
+    # pinned at a stop) would give it no room to move; exactly zero gives it a unit one.
+    x = np.where(np.abs(x) < 1e-6 * np.asarray(steps), 0.0, x)
     res = _scipy_optimize().least_squares(
         fun, x, bounds=(lo, hi), x_scale="jac", diff_step=np.asarray(steps), method="trf"
     )
