@@ -520,6 +520,12 @@ def _simulate(p: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="gyro grade preset: crs03 (default), phone, automotive, tactical (docs/gyro-model.md)",
     )
+    g.add_argument(
+        "--errors-from",
+        metavar="GAP.json",
+        help="draw each drive's gyro from the errors `hdrd gap --report` fitted to real drives "
+        "(one drive per simulated drive, by its seed; docs/model-gap.md)",
+    )
     p.add_argument(
         "--out",
         metavar="FILE",

@@ -9,6 +9,7 @@ The command-line edge of :mod:`hdrd.sim` (flags in hdrd/cli.py ``_simulate``)::
     hdrd simulate --drive highway --grade tactical --out drive.csv     # a gyro grade preset
     hdrd simulate --drive city --seed 3 --out drive.parquet            # Parquet, one file
     hdrd simulate --drive city --seed 3 --out fleet --format dataset   # fleet/drive=city-3/
+    hdrd simulate --benchmark train --errors-from gap.json --out train # real gyros' errors
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import GyroModel, load_model
+from hdrd.sim.recordings import FittedErrors, errors_from
 from hdrd.sim.vehicle import DRIVE_TYPES
 
 __all__ = ["simulate_main"]
@@ -65,12 +67,36 @@ def simulate_main(args: argparse.Namespace) -> int:
     if too_big:
         _err(too_big)
         return EX_USAGE
+    ok, errors = _errors(args)
+    if not ok:
+        return EX_CONFIG
     if args.benchmark:
-        return _benchmark(args, model, grade)
-    return _one_drive(args, model, grade)
+        return _benchmark(args, model, grade, errors)
+    return _one_drive(args, model, grade, errors)
 
 
-def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
+def _errors(args: argparse.Namespace) -> tuple[bool, FittedErrors | None]:
+    """(True, the gyro errors of ``--errors-from``, None without it); (False, None) when
+    they cannot be read (why said on stderr)."""
+    if not getattr(args, "errors_from", None):
+        return True, None
+    from hdrd.io.files import shown_path
+
+    try:
+        return True, errors_from(args.errors_from)
+    except OSError as e:
+        _err(f"cannot read {shown_path(args.errors_from)}: {_why(e)}")
+    except ValueError as e:
+        _err(str(e))
+    return False, None
+
+
+def _one_drive(
+    args: argparse.Namespace,
+    model: GyroModel | None,
+    grade: str | None,
+    errors: FittedErrors | None = None,
+) -> int:
     """``hdrd simulate --drive``: one drive, to a file or stdout."""
     if args.drive not in DRIVE_TYPES:
         _err(f"unknown --drive {args.drive!r} (known: {', '.join(DRIVE_TYPES)})")
@@ -80,9 +106,14 @@ def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | N
         return EX_USAGE
     if grade is not None:
         model = grade_model(grade, args.seed)
+    drawn = None
+    if errors is not None:  # the drive's gyro, drawn by its seed from the real drives' errors
+        drawn, model = errors.draw(args.seed)
     log = simulate_drive(args.drive, args.minutes, args.seed, hz=args.hz, model=model)
     if grade is not None:
         log.meta["grade"] = grade
+    if errors is not None:
+        log.meta["gyro_errors_from"] = f"{drawn} ({errors.source})"
     out = args.out or "-"
     fmt = log_format(out, getattr(args, "format", None))
     if out == "-" and fmt != "csv":
@@ -104,7 +135,12 @@ def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | N
     return 0
 
 
-def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
+def _benchmark(
+    args: argparse.Namespace,
+    model: GyroModel | None,
+    grade: str | None,
+    errors: FittedErrors | None = None,
+) -> int:
     if not args.out or args.out == "-":
         _err("--benchmark needs --out DIR (a directory for <name>.csv files, or the dataset)")
         return EX_USAGE
@@ -117,7 +153,7 @@ def _benchmark(args: argparse.Namespace, model: GyroModel | None, grade: str | N
         for spec in specs:
             if grade is not None:
                 model = grade_model(grade, spec.seed)
-            log = generate(spec, hz=args.hz, model=model)
+            log = generate(spec, hz=args.hz, model=model, errors=errors)
             if grade is not None:
                 log.meta["grade"] = grade
             target = str(out) if fmt == "dataset" else str(out / f"{spec.name}{suffix}")

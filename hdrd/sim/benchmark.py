@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import GyroModel
+from hdrd.sim.recordings import FittedErrors
 from hdrd.sim.vehicle import PROFILES, CabinTemperature, RoadProfile
 
 __all__ = [
@@ -264,9 +265,20 @@ def spec_by_name(name: str) -> DriveSpec:
     raise ValueError(f"no benchmark drive named {name!r} (known: {names})")
 
 
-def generate(spec: DriveSpec, hz: float = 10.0, model: GyroModel | None = None) -> DriveLog:
-    """The drive log of a spec (model overrides the spec's gyro model if given)."""
+def generate(
+    spec: DriveSpec,
+    hz: float = 10.0,
+    model: GyroModel | None = None,
+    errors: FittedErrors | None = None,
+) -> DriveLog:
+    """The drive log of a spec (model overrides the spec's gyro model if given; ``errors``:
+    the gyro is the one this route draws from the errors real drives showed,
+    :meth:`hdrd.sim.recordings.FittedErrors.draw` with the spec's seed)."""
     legs = [(VARIANTS[p], f) for p, f in spec.legs]
+    extra: dict[str, str] = {}
+    if errors is not None:
+        drawn, model = errors.draw(spec.seed)
+        extra["gyro_errors_from"] = f"{drawn} ({errors.source})"
     meta = {
         "drive": spec.name,
         "description": spec.description,
@@ -277,6 +289,7 @@ def generate(spec: DriveSpec, hz: float = 10.0, model: GyroModel | None = None) 
     if spec.paper_e_psi_raw is not None and spec.paper_e_psi_hdr is not None:
         meta["paper_e_psi_raw_deg"] = f"{spec.paper_e_psi_raw:g}"
         meta["paper_e_psi_hdr_deg"] = f"{spec.paper_e_psi_hdr:g}"
+    meta.update(extra)
     return simulate_legs(
         legs,
         spec.minutes,
@@ -289,12 +302,16 @@ def generate(spec: DriveSpec, hz: float = 10.0, model: GyroModel | None = None) 
     )
 
 
-def generate_all(which: str = "train", hz: float = 10.0) -> list[DriveLog]:
-    """All drives of the training ("train", Table II's nine) or test ("test", five) set."""
+def generate_all(
+    which: str = "train", hz: float = 10.0, errors: FittedErrors | None = None
+) -> list[DriveLog]:
+    """All drives of the training ("train", Table II's nine) or test ("test", five) set; with
+    ``errors`` (:func:`hdrd.sim.recordings.errors_from`, an ``hdrd gap`` report of real
+    drives) each route's gyro is drawn from the errors those drives showed."""
     if which == "train":
         specs = TRAIN_DRIVES
     elif which == "test":
         specs = TEST_DRIVES
     else:
         raise ValueError(f"which must be 'train' or 'test', got {which!r}")
-    return [generate(s, hz=hz) for s in specs]
+    return [generate(s, hz=hz, errors=errors) for s in specs]

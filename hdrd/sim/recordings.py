@@ -1,6 +1,9 @@
 """Models of the real recordings' sensors: a grade preset plus what ``hdrd gap`` measured on the
 recording's *tuning* drives where the preset missed it (docs/model-gap.md, "The
-simulated-versus-real gap on the shared drives"; bench/gap_real.py measures every value).
+simulated-versus-real gap on the shared drives"; bench/gap_real.py measures every value);
+and the gyro errors ``hdrd gap`` fitted to a set of real drives as the distribution simulated
+routes draw their gyro from (:func:`errors_from`, :class:`FittedErrors`; docs/model-gap.md,
+"From real drives to training routes").
 
 A recording profile says how a log of that recording is made: the gyro (a grade of
 :mod:`hdrd.core.grades` with some values replaced and effects added), how the log samples it
@@ -26,9 +29,13 @@ gps_course_sd_deg    deg            the GPS course's noise at speed (its ``floor
 
 from __future__ import annotations
 
+import json
 import math
+import os
 from dataclasses import dataclass, replace
 from typing import Any
+
+import numpy as np
 
 from hdrd.core.grades import Grade
 from hdrd.io.drivelog import DriveLog
@@ -45,9 +52,14 @@ from hdrd.sim.gyro import (
 )
 
 __all__ = [
+    "MAX_GAP_REPORT_BYTES",
+    "NOT_THE_GYRO",
     "RECORDINGS",
     "RECORDING_TABLE",
+    "FittedErrors",
     "Recording",
+    "errors_from",
+    "gyro_error_draws",
     "log_rate_model",
     "point_sampled_sd",
     "recording_gps",
@@ -174,3 +186,84 @@ def simulate_recording(name: str, drive: str, minutes: float, seed: int) -> Driv
         gps=recording_gps(name),
         sensor_hz=r.sensor_hz,
     )
+
+
+# -- the errors real gyros showed, as the distribution simulated routes draw from ----------------
+
+MAX_GAP_REPORT_BYTES = 256 << 20
+"""Largest ``hdrd gap --report`` file read (a fleet's reports run to some 50 KB a drive)."""
+
+NOT_THE_GYRO = ("time_offset",)
+"""Effects left out of a drive's draw when its truth was a heading (a GPS course): there a
+``time_offset`` is the course's latency, not the gyro's."""
+
+
+@dataclass(frozen=True)
+class FittedErrors:
+    """The gyro errors ``hdrd gap`` fitted to real drives: one model per drive (its report's
+    ``final_params``), each drive equally likely. A simulated route draws the whole model of
+    one drive (:meth:`draw`), so that the effects a real gyro showed together stay together
+    (a random walk with the white noise it came with, a temperature slope with its bias).
+    ``drives``: (name, model) in the report's order; ``source``: where they came from."""
+
+    drives: tuple[tuple[str, GyroModel], ...]
+    source: str = ""
+
+    def draw(self, seed: int) -> tuple[str, GyroModel]:
+        """The drive (name, model) route ``seed`` draws: uniform over the drives, from a
+        stream of its own (the route, its temperature and its GPS keep theirs)."""
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x676170])  # "gap"
+        return self.drives[int(rng.integers(len(self.drives)))]
+
+
+def _report_model(rep: Any, where: str) -> tuple[str, GyroModel]:
+    """One drive's (name, fitted model) from its report; ValueError naming what is wrong."""
+    if not isinstance(rep, dict) or not isinstance(rep.get("final_params"), list):
+        raise ValueError(f"{where}: not an hdrd gap report (no final_params list)")
+    log = rep.get("log") if isinstance(rep.get("log"), dict) else {}
+    name = str(log.get("name") or where)
+    try:
+        model = GyroModel.from_dict({"effects": rep["final_params"]})
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{where} ({name}): {e}") from None
+    if str(log.get("truth", "")).startswith("heading_truth"):
+        for e in NOT_THE_GYRO:
+            model = model.without(e)
+    return name, model
+
+
+def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors:
+    """The gyro errors of an ``hdrd gap --report`` file (one drive's report, or a fleet's
+    ``{"drives": [...], "skipped": [...]}``), or of that JSON already read. Raises ValueError
+    naming the file and what is wrong (one line), OSError if it cannot be read."""
+    from hdrd.io.files import InputFileError, printable, read_limited, shown_path
+
+    if isinstance(source, dict):
+        doc: Any = source
+        where = "the report"
+    else:
+        where = shown_path(source)
+        try:
+            doc = json.loads(read_limited(source, MAX_GAP_REPORT_BYTES).decode("utf-8"))
+        except InputFileError as e:
+            raise ValueError(f"{where}: cannot be read: {e}") from None
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+            raise ValueError(f"{where}: not JSON ({type(e).__name__})") from None
+    reports = doc.get("drives") if isinstance(doc, dict) and "drives" in doc else [doc]
+    if not isinstance(reports, list) or not reports:
+        raise ValueError(f"{where}: no drive's report in it")
+    drives = tuple(
+        _report_model(rep, f"{where}, drive {i + 1}" if len(reports) > 1 else where)
+        for i, rep in enumerate(reports)
+    )
+    return FittedErrors(tuple((printable(n)[:100], m) for n, m in drives), where)
+
+
+def gyro_error_draws(
+    source: str | os.PathLike[str] | dict[str, Any] | FittedErrors, seeds: Any
+) -> list[GyroModel]:
+    """The gyro model each route of ``seeds`` (an iterable of ints) draws from the errors of
+    an ``hdrd gap`` report (:func:`errors_from`): for a drift reducer tuned on simulated routes
+    whose gyros err as the real ones did."""
+    errors = source if isinstance(source, FittedErrors) else errors_from(source)
+    return [errors.draw(int(s))[1] for s in seeds]

@@ -177,7 +177,11 @@ def _motion_unidentifiable(data: GapData) -> str:
     stand, move = int((frac < 0.1).sum()), int((frac > 0.9).sum())
     if min(stand, move) >= MIN_PHASE_BLOCKS:
         return ""
-    gps = " (a GPS course is unknown at a stop)" if data.heading_mode else ""
+    gps = (
+        " (a GPS course is unknown at a stop: only blocks wholly inside stops count there)"
+        if data.heading_mode
+        else ""
+    )
     return (
         f"{stand} block(s) standing and {move} moving have a known true rate{gps}: the bias "
         f"while moving is read against the bias at rest, {MIN_PHASE_BLOCKS} blocks of each needed"

@@ -8,12 +8,14 @@ Rates deg/s, + = CCW; times s; temperatures deg C.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.dither import DITHERED, expected_output, fast_noise_sd
-from hdrd.sim.gyro import GyroModel, Quantization
+from hdrd.sim.gyro import Bandwidth, GyroModel, Quantization
 
 __all__ = ["NOISE_EFFECTS", "deterministic_part", "signal"]
 
@@ -30,8 +32,14 @@ _RNG0 = np.random.default_rng(0)
 def signal(data: GapData, model: GyroModel) -> FloatArray:
     """What reaches the ADC without noise (deg/s per sample): the true rate through the
     model's deterministic effects (bias, gain, lag, low-pass, clipping), every random effect
-    and the quantization off."""
-    det = GyroModel(tuple(e for e in model.effects if e.name not in NOISE_EFFECTS))
+    (the low-pass's output noise too) and the quantization off."""
+    det = GyroModel(
+        tuple(
+            replace(e, output_noise_dps_per_rthz=0.0) if isinstance(e, Bandwidth) else e
+            for e in model.effects
+            if e.name not in NOISE_EFFECTS
+        )
+    )
     if not det.effects:
         return data.truth_filled.copy()
     return np.asarray(det.apply(data.t, data.truth_filled, data.temp_c, _RNG0, data.speed))
