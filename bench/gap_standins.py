@@ -11,10 +11,12 @@ tests/gap_standins.py to the properties measured on real devices (docs/model-gap
 - IMU at rest 23 h, 5 -> 24 -> 21 degC, 0.026 deg/s/degC, 0.0305 deg/s ADC step, 6 decimals,
   random walk: targets temperature_bias named first, its final coefficient within 10 % of the
   least-squares slope, quantization within 5 % of the step, the gap at least halved.
-  Variants: 10 Hz; more white noise and a faster random walk; no thermal lag.
+  Variants: 10 Hz; more white noise and a faster random walk; no thermal lag; a white noise
+  of 0.003 deg/s/sqrt(Hz), a tenth of the step: an ADC its noise does not dither.
 - Phone at rest 6 h, 0.2 Hz first-order low-pass, Gauss-Markov bias + random walk: targets no
-  temperature, scale, time-offset or warm-up effect, final gap <= 0.3. Variant: two cascaded
-  low-pass sections (not the model's shape).
+  temperature, scale, time-offset or warm-up effect, final gap <= 0.3. Variants: two cascaded
+  low-pass sections (not the model's shape); white noise of 0.02 deg/s per sample after the
+  low-pass (the output stage's).
 - Null logs: the starting model itself, 30 seeds of a 10-minute city drive at 5 Hz, 10 of a
   20-minute drive at 10 Hz, and 10 standstill logs of 30 minutes at 10 Hz: nothing named.
 
@@ -24,6 +26,7 @@ Appends the table to bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import replace
@@ -83,12 +86,14 @@ def phone_case(label: str, seed: int, **kw: Any) -> Row:
     bw = res.final_model.get("bandwidth")
     ok = not (bad & set(res.final_model.names())) and res.final_sim.gap <= 0.3
     fc = float(getattr(bw, "cutoff_hz", float("nan")))
+    out = float(getattr(bw, "output_noise_dps_per_rthz", 0.0)) * math.sqrt(res.data.fs_hz)
     return {
         "case": label,
         "seed": seed,
         "steps": " -> ".join(names)
         + "".join(f"; {r['effect']} {r['action']}" for r in res.revisions),
-        "detail": f"cutoff {fc:.3f} Hz (first-order equivalent of {h.cutoff_hz:.3f} Hz x {h.filter_order})",
+        "detail": f"cutoff {fc:.3f} Hz (first-order equivalent of {h.cutoff_hz:.3f} Hz x {h.filter_order})"
+        + (f"; output noise {out:.4f} deg/s per sample (hidden {h.output_sd_dps:.4f})" if out else ""),
         "gap": f"{res.initial_sim.gap:.3g} -> {res.final_sim.gap:.3g} (sd {res.gap_noise['gap_final_sd']:.2g})",
         "ok": ok,
         "s": s,
@@ -137,8 +142,9 @@ def main(argv: list[str] | None = None) -> int:
             {"white_dps_per_rthz": 0.03, "rrw_dps_per_sqrt_s": 1.5e-4},
         ),
         ("IMU, no thermal lag", {"thermal_lag_s": 0.0}),
+        ("IMU, white 0.003: undithered", {"white_dps_per_rthz": 0.003}),
     ]
-    for label, kw in variants[: 1 if a.quick else 3]:
+    for label, kw in variants[: 1 if a.quick else 4]:
         rows.append(imu_case(label, 15, **kw))
         print(rows[-1], flush=True)
     for s in seeds:
@@ -147,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     if not a.quick:
         rows.append(phone_case("phone 6 h, two sections", 15, filter_order=2))
         print(rows[-1], flush=True)
+        for s in seeds[:2]:
+            rows.append(phone_case("phone 6 h, output noise 0.02", s, output_sd_dps=0.02))
+            print(rows[-1], flush=True)
     null_ok, null_n, named = null_cases(a.quick)
     lines = [
         "Command: `python bench/gap_standins.py`. " + machine_line(),

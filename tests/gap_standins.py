@@ -12,7 +12,8 @@ rounded to the CSV's decimals) and the hidden truth. Rates deg/s, + = CCW; t s; 
 - :func:`phone_log`: a phone at rest for hours: white noise seen through a ~0.2 Hz low-pass
   (neighbouring samples at 10 Hz correlate at ~0.88), a Gauss-Markov bias (Allan floor ~0.004
   deg/s) and a rate random walk ~1.5e-4 deg/s/sqrt(s); a battery temperature that drifts by a
-  degree or two and has nothing to do with the gyro; float output (no ADC lattice).
+  degree or two and has nothing to do with the gyro; float output (no ADC lattice); optionally
+  white noise after the low-pass (the output stage's).
 - :func:`with_handling`: the same log with periods where someone picked the device up (large
   rates), marked ``valid`` = 0, or with those rows dropped.
 """
@@ -46,6 +47,7 @@ class Hidden:
     gm_tau_s: float = 0.0
     cutoff_hz: float = 0.0
     filter_order: int = 0
+    output_sd_dps: float = 0.0
 
 
 def _lowpass(x: FloatArray, a: float, order: int) -> FloatArray:
@@ -117,9 +119,12 @@ def phone_log(
     gm_tau_s: float = 300.0,
     rrw_dps_per_sqrt_s: float = 1.5e-4,
     bias_dps: float = 0.21,
+    output_sd_dps: float = 0.0,
 ) -> tuple[DriveLog, Hidden]:
     """The phone at rest (see the module docstring). The low-pass is ``filter_order`` cascaded
-    first-order sections, tuned so that neighbouring samples correlate at ``neighbour_r``."""
+    first-order sections, tuned so that neighbouring samples correlate at ``neighbour_r``
+    (without the output noise); ``output_sd_dps``: white noise after it, sd per sample (the
+    output stage's own: the shortest tau reads more than the low-passed noise alone)."""
     rng = np.random.default_rng([seed, 6])
     n = int(hours * 3600.0 * hz)
     t = np.arange(n) / hz
@@ -141,6 +146,8 @@ def phone_log(
     rw = np.cumsum(rrw_dps_per_sqrt_s * math.sqrt(1.0 / hz) * rng.standard_normal(n))
     rw -= rw[0]
     omega = _lowpass(bias_dps + gm + rw + white, a, filter_order)
+    if output_sd_dps > 0:
+        omega = omega + output_sd_dps * np.random.default_rng([seed, 7]).standard_normal(n)
     u = t / t[-1]
     temp = 27.0 + 1.6 * (1.0 - np.exp(-u / 0.15)) - 0.6 * u + 0.1 * rng.standard_normal(n)
     log = DriveLog(t=np.round(t, 4), omega=omega, temp_c=np.round(temp, 1), name=f"phone{seed}")
@@ -151,6 +158,7 @@ def phone_log(
         gm_tau_s=gm_tau_s,
         cutoff_hz=cutoff,
         filter_order=filter_order,
+        output_sd_dps=output_sd_dps,
     )
 
 

@@ -8,6 +8,7 @@ analysed once per module (they take a while: marked slow).
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -132,6 +133,22 @@ def test_phone_low_pass_white_noise_and_gap(phone: tuple[DriveLog, GapResult]) -
         assert not any(b["effect"] == "bias_instability" for b in res.final_at_bound), summary(res)
     gaps_never_rise(res)
     no_contradiction(res)
+
+
+@pytest.mark.slow  # a whole model-gap search on 2 hours at 10 Hz
+def test_phone_noise_after_its_low_pass_is_in_the_model() -> None:
+    """White noise after the low-pass (the output stage's): fitted at rest, the model simulates
+    it, so the shortest tau agrees and the gap closes (left out of the simulation, a 6-hour
+    log scored 0.5, its shortest tau 5x the model's)."""
+    log, h = phone_log(seed=5, hours=2.0, output_sd_dps=0.02)
+    res = run_gap(log, standstill=True)
+    bw = res.final_model.get("bandwidth")
+    assert isinstance(bw, Bandwidth), summary(res)
+    got = bw.output_noise_dps_per_rthz * math.sqrt(res.data.fs_hz)  # sd per sample
+    assert got == pytest.approx(h.output_sd_dps, rel=0.15), summary(res)
+    assert res.final_sim.gap <= 0.3, summary(res)
+    ratio = res.final_sim.adev_meas[0] / res.final_sim.adev_sim[0]
+    assert 0.8 < ratio < 1.25, summary(res)
 
 
 # -- handling periods ---------------------------------------------------------------------------

@@ -60,6 +60,24 @@ def test_a_stop_is_truth_with_a_gps_course() -> None:
     assert not bare.standing.any() and not bare.brest.any()
 
 
+def test_a_lattice_written_coarser_than_its_truth_is_found() -> None:
+    """0.01 rad/s codes written with 7 decimals beside an INS rate written with 9: the lattice
+    holds at omega's own resolution (at the truth's, the codes' rounding puts them off it)."""
+    log = gps_drive(7, (Quantization(step_dps=0.5729577951308232),), minutes=3.0)
+    assert log.speed is not None and log.omega_truth is None
+    ins = simulate_drive("city", 3.0, 7, hz=10.0).omega_truth
+    assert ins is not None
+    log = replace(
+        log,
+        omega=np.round(log.omega, 7),
+        omega_truth=np.where(log.speed > 0.5, ins + 1e-9 * np.pi, np.nan),
+    )
+    data = prepare(log)
+    assert data.resolution_dps == pytest.approx(1e-7)
+    assert data.lattice is not None
+    assert data.lattice.step_dps == pytest.approx(0.5729578, abs=1e-6)
+
+
 def test_the_quantizer_s_mean_follows_its_dither() -> None:
     """Undithered, the output's mean is the code the input sits on; dithered, the input; in
     between a smoothed staircase. The noise below a step is read from how often the output

@@ -381,7 +381,7 @@ def prepare(
     bs = _block_size(block_s, t, dt, tr)
     b = _blocks(t, dt, bs, tr, valid, standing)
     origin = _grid_origin(tr, bs)
-    res = _resolution(log, omega)
+    res, lattice = _lattice(log, omega, omega[~excluded])  # the values while they count
     data = GapData(
         t=t,
         omega=omega,
@@ -405,7 +405,7 @@ def prepare(
         bt=np.asarray(origin + (np.arange(b.nblocks) + 0.5) * bs),
         btruth=np.empty(0),
         resolution_dps=res,
-        lattice=detect_lattice(omega[~excluded], res),  # the sensor's values while they count
+        lattice=lattice,
         name=log.name,
         speed=speed,
         standing=standing,
@@ -427,6 +427,21 @@ def _counted_truth(truth: FloatArray, excluded: BoolArray) -> FloatArray:
     if valid.sum() < 100:
         raise GapError(f"only {int(valid.sum())} samples have a known true rate; need >= 100")
     return truth
+
+
+def _lattice(log: DriveLog, omega: FloatArray, kept: FloatArray) -> tuple[float, Lattice | None]:
+    """The recording's resolution for rates (deg/s) and the ADC lattice of the rates that
+    count (``kept``), if any. When the true rate column is written with more digits than
+    omega, omega's own digits are tried too: a step that is no round decimal (0.01 rad/s)
+    written with 7 decimals beside a truth with 9 is a lattice at omega's resolution only."""
+    res = _resolution(log, omega)
+    lattice = detect_lattice(kept, res)
+    own = decimal_resolution(omega)
+    if lattice is None and own > res:
+        found = detect_lattice(kept, own)
+        if found is not None:
+            return own, found
+    return res, lattice
 
 
 def _resolution(log: DriveLog, omega: FloatArray) -> float:

@@ -82,6 +82,8 @@ def _log_json(d: GapData) -> dict[str, Any]:
         "temp_c": d.temp_c is not None,
         "excluded_samples": int(d.excluded.sum()),
         "time_gaps": int(d.time_gap.sum()),
+        "standing_samples": int(d.standing.sum()),
+        "blocks_at_rest": int(d.brest[d.bvalid].sum()) if d.brest.shape[0] else 0,
     }
 
 
