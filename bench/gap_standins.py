@@ -93,7 +93,11 @@ def phone_case(label: str, seed: int, **kw: Any) -> Row:
         "steps": " -> ".join(names)
         + "".join(f"; {r['effect']} {r['action']}" for r in res.revisions),
         "detail": f"cutoff {fc:.3f} Hz (first-order equivalent of {h.cutoff_hz:.3f} Hz x {h.filter_order})"
-        + (f"; output noise {out:.4f} deg/s per sample (hidden {h.output_sd_dps:.4f})" if out else ""),
+        + (
+            f"; output noise {out:.4f} deg/s per sample (hidden {h.output_sd_dps:.4f})"
+            if out
+            else ""
+        ),
         "gap": f"{res.initial_sim.gap:.3g} -> {res.final_sim.gap:.3g} (sd {res.gap_noise['gap_final_sd']:.2g})",
         "ok": ok,
         "s": s,

@@ -83,7 +83,9 @@ def row(rep: dict[str, Any]) -> str:
     elif "motion_offset" in rep["not_identifiable"]:
         motion = "not identifiable"
     elif cand is not None:
-        motion = f"{cand['params'].get('offset_dps', float('nan')):+.3f}, dBIC {cand['delta_bic']:+.1f}"
+        motion = (
+            f"{cand['params'].get('offset_dps', float('nan')):+.3f}, dBIC {cand['delta_bic']:+.1f}"
+        )
     else:
         motion = "-"
     return (

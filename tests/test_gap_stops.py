@@ -49,6 +49,7 @@ def test_a_stop_is_truth_with_a_gps_course() -> None:
     data = prepare(log)
     assert data.heading_mode
     assert data.standing.any() and (data.truth[data.standing] == 0.0).all()
+    assert log.heading_truth is not None
     assert np.isnan(log.heading_truth[data.standing]).all()  # no course there
     lead = float(log.meta["lead_in_s"])
     assert data.standing[data.t < lead].all()
@@ -105,6 +106,7 @@ def test_an_undithered_rest_is_predicted_on_its_code() -> None:
     data = prepare(log)
     rest = data.standing
     assert np.unique(log.omega[rest]).tolist() == [pytest.approx(2 * STEP_DPS)]
+    assert log.speed is not None
     moving = (log.speed > 2.0) & np.isfinite(log.omega)
     assert np.unique(log.omega[moving]).shape[0] > 3  # the car's sway dithers it
     model = DEFAULT_START_MODEL.with_effect(UNDITHERED[0]).with_effect(UNDITHERED[1])

@@ -220,15 +220,15 @@ def _report_model(rep: Any, where: str) -> tuple[str, GyroModel]:
     """One drive's (name, fitted model) from its report; ValueError naming what is wrong."""
     if not isinstance(rep, dict) or not isinstance(rep.get("final_params"), list):
         raise ValueError(f"{where}: not an hdrd gap report (no final_params list)")
-    log = rep.get("log") if isinstance(rep.get("log"), dict) else {}
+    log: dict[str, Any] = rep["log"] if isinstance(rep.get("log"), dict) else {}
     name = str(log.get("name") or where)
     try:
         model = GyroModel.from_dict({"effects": rep["final_params"]})
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"{where} ({name}): {e}") from None
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{where} ({name}): {exc}") from None
     if str(log.get("truth", "")).startswith("heading_truth"):
-        for e in NOT_THE_GYRO:
-            model = model.without(e)
+        for effect in NOT_THE_GYRO:
+            model = model.without(effect)
     return name, model
 
 

@@ -279,6 +279,37 @@ def _blocks(
     return b
 
 
+def _first_rows(b: _Blocks) -> IntArray:
+    """The first row of each block, and of the rows after the last (nblocks + 1 entries; -1:
+    a block without rows)."""
+    nblocks, blk = b.nblocks, b.blk
+    first = np.full(nblocks + 1, -1, dtype=np.int64)
+    rows = np.flatnonzero(b.inside)
+    first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
+    first[blk[first_rows]] = first_rows
+    after = np.flatnonzero(blk == nblocks)
+    if after.shape[0]:
+        first[nblocks] = after[0]
+    return first
+
+
+def _closed_by_fixes(
+    k: int, first: IntArray, is_fix: BoolArray, valid: BoolArray, rest: BoolArray
+) -> bool:
+    """Whether block k starts on a fix and ends on the next block's first row, also a fix,
+    with a truth at every row, and shares no row with a block at rest."""
+    a, e = int(first[k]), int(first[k + 1])
+    return (
+        a >= 0
+        and e >= 0
+        and bool(is_fix[a])
+        and bool(is_fix[e])
+        and bool(valid[a:e].all())
+        and bool(valid[e])
+        and not (k + 1 < rest.shape[0] and rest[k + 1])
+    )
+
+
 def _heading_blocks(
     b: _Blocks, t: FloatArray, heading: FloatArray, fixes: IntArray, valid: BoolArray
 ) -> None:
@@ -288,34 +319,18 @@ def _heading_blocks(
     rows' weights (half in each of the two blocks they close and open) and drops the blocks
     whose edges are not fixes. A block at rest shares no row with a heading block (the one
     before it is dropped if its closing fix would be the rest block's first row)."""
-    n, nblocks, blk, bvalid, rest = t.shape[0], b.nblocks, b.blk, b.bvalid, b.brest
+    n, bvalid, rest = t.shape[0], b.bvalid, b.brest
     is_fix = np.zeros(n, dtype=bool)
     is_fix[fixes] = True
-    first = np.full(nblocks + 1, -1, dtype=np.int64)
-    rows = np.flatnonzero(b.inside)
-    first_rows = rows[np.concatenate(([True], blk[rows][1:] != blk[rows][:-1]))]
-    first[blk[first_rows]] = first_rows
-    after = np.flatnonzero(blk == nblocks)
-    if after.shape[0]:
-        first[nblocks] = after[0]
+    first = _first_rows(b)
     hu = np.full(n, np.nan)  # heading unwrapped along the fixes, deg
     dh = (np.diff(heading[fixes]) + 180.0) % 360.0 - 180.0
     hu[fixes] = heading[fixes[0]] + np.concatenate(([0.0], np.cumsum(dh)))
-    for k in range(nblocks):
+    for k in range(b.nblocks):
         if rest[k]:
             b.btruth_full[k] = 0.0
-            continue
-        a, e = first[k], first[k + 1]
-        edge_ok = (
-            a >= 0
-            and e >= 0
-            and is_fix[a]
-            and is_fix[e]
-            and bool(valid[a:e].all())
-            and bool(valid[e])
-            and not (k + 1 < nblocks and rest[k + 1])
-        )
-        if edge_ok and bvalid[k]:
+        elif bvalid[k] and _closed_by_fixes(k, first, is_fix, valid, rest):
+            a, e = first[k], first[k + 1]
             b.btruth_full[k] = -(hu[e] - hu[a]) / (t[e] - t[a])  # CW heading -> CCW rate
             b.wprim[a] = 0.5
             if k > 0 and not rest[k - 1]:
@@ -366,15 +381,12 @@ def prepare(
         raise GapError(f"the log has {n} samples; the workflow needs at least 100")
     t = np.asarray(log.t - log.t[0], dtype=np.float64)
     omega = np.asarray(log.omega, dtype=np.float64)
-    tr = read_truth(log, t, standstill)
     excluded = excluded_samples(log, exclude)
     dt = float(np.median(np.diff(t)))
     time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
     speed = None if log.speed is None else np.asarray(log.speed, dtype=np.float64)
     standing = standing_rows(t, speed, excluded, time_gap, lead_in_s(log))
-    if tr.source != "standstill":
-        tr = replace(tr, rate=np.where(standing, 0.0, tr.rate))  # a car at rest does not turn
-    truth = _counted_truth(tr.rate, excluded)
+    tr, truth = _at_rest_zero(read_truth(log, t, standstill), standing, excluded)
     valid = np.isfinite(truth)
     idx = np.arange(n)
     truth_filled = np.interp(idx, idx[valid], truth[valid])
@@ -395,15 +407,7 @@ def prepare(
         fs_hz=1.0 / dt,
         block_s=bs,
         block_t0=origin,
-        nblocks=b.nblocks,
-        block_of=b.block_of,
-        wprim=b.wprim,
-        block_prev=b.block_prev,
-        bvalid=b.bvalid,
-        bweight=np.where(b.wsum > 0, b.wsum, 1.0),
-        bneff=np.where(b.w2 > 0, b.wsum**2 / np.where(b.w2 > 0, b.w2, 1.0), 1.0),
-        bt=np.asarray(origin + (np.arange(b.nblocks) + 0.5) * bs),
-        btruth=np.empty(0),
+        **_grid_fields(b, origin, bs),
         resolution_dps=res,
         lattice=lattice,
         name=log.name,
@@ -411,9 +415,33 @@ def prepare(
         standing=standing,
         brest=b.brest,
     )
-    heading_mode = tr.heading is not None
-    bt_used = b.btruth_full[b.bvalid] if heading_mode else data.block_mean(truth_filled)
-    return replace(data, btruth=bt_used)
+    heading = tr.heading is not None
+    return replace(
+        data, btruth=b.btruth_full[b.bvalid] if heading else data.block_mean(truth_filled)
+    )
+
+
+def _grid_fields(b: _Blocks, origin: float, bs: float) -> dict[str, Any]:
+    """:class:`GapData`'s fields of the block grid (its true rates, ``btruth``, set after)."""
+    return {
+        "nblocks": b.nblocks,
+        "block_of": b.block_of,
+        "wprim": b.wprim,
+        "block_prev": b.block_prev,
+        "bvalid": b.bvalid,
+        "bweight": np.where(b.wsum > 0, b.wsum, 1.0),
+        "bneff": np.where(b.w2 > 0, b.wsum**2 / np.where(b.w2 > 0, b.w2, 1.0), 1.0),
+        "bt": np.asarray(origin + (np.arange(b.nblocks) + 0.5) * bs),
+        "btruth": np.empty(0),
+    }
+
+
+def _at_rest_zero(tr: Truth, standing: BoolArray, excluded: BoolArray) -> tuple[Truth, FloatArray]:
+    """The truth with a rate of zero where the vehicle stands (a car at rest does not turn),
+    and the rate as counted (:func:`_counted_truth`)."""
+    if tr.source != "standstill":
+        tr = replace(tr, rate=np.where(standing, 0.0, tr.rate))
+    return tr, _counted_truth(tr.rate, excluded)
 
 
 def _counted_truth(truth: FloatArray, excluded: BoolArray) -> FloatArray:

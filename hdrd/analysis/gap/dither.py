@@ -55,9 +55,7 @@ def fast_noise_sd(model: GyroModel, fs_hz: float) -> float:
     return math.sqrt(var)
 
 
-def expected_output(
-    x: npt.ArrayLike, sd: float, step: float
-) -> tuple[FloatArray, FloatArray]:
+def expected_output(x: npt.ArrayLike, sd: float, step: float) -> tuple[FloatArray, FloatArray]:
     """Mean and variance (deg/s, (deg/s)**2) of round((x + n) / step) * step for Gaussian n of
     sd ``sd`` (deg/s) at each input x (deg/s): the quantized output's mean is x once the
     noise dithers the quantizer (sd >= :data:`DITHERED` steps), the code x sits on without

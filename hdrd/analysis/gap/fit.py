@@ -281,7 +281,9 @@ class Fitter:
         lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
         out = math.sqrt(lp.after_var / self.data.fs_hz)
         return model.with_effect(
-            Bandwidth(cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz), output_noise_dps_per_rthz=out)
+            Bandwidth(
+                cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz), output_noise_dps_per_rthz=out
+            )
         )
 
     def hf_gain(self, model: GyroModel, d: FloatArray, noise: Noise) -> float:

@@ -114,4 +114,3 @@ def _heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel, afte
     if isinstance(bw, Bandwidth):
         v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
     return float(v)
-
