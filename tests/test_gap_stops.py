@@ -18,10 +18,18 @@ import pytest
 
 from hdrd.analysis.gap import GapData, prepare, run_gap, summary
 from hdrd.analysis.gap.dither import dither_sd, expected_output
+from hdrd.analysis.gap.metric import gap_metric
 from hdrd.analysis.gap.predict import deterministic_part
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import Effect, GyroModel, MotionOffset, Quantization, WhiteNoise
+from hdrd.sim.gyro import (
+    Effect,
+    GyroModel,
+    MotionOffset,
+    Quantization,
+    StaticBias,
+    WhiteNoise,
+)
 
 STEP_DPS = 0.573
 """A rate logged in 0.01 rad/s codes (0.573 deg/s), as the real drive that motivated this."""
@@ -113,6 +121,23 @@ def test_an_undithered_rest_is_predicted_on_its_code() -> None:
     d = deterministic_part(data, model)
     np.testing.assert_allclose(d[rest], 2 * STEP_DPS, rtol=1e-4)  # the code; the bias is 1.0
     assert np.allclose(d[data.valid & ~rest], 1.0)  # while driving: the bias
+
+
+def test_a_model_that_sits_on_one_code_where_the_log_moves_is_far_from_it() -> None:
+    """An IMU at rest whose output steps through its codes as its temperature drifts, against
+    a model whose simulated output never leaves one code (its noise a hundredth of a step, no
+    temperature): the Allan deviation of zero is a disagreement, not a tau without
+    information (it scored a gap of 0, and so closed 'most of the gap')."""
+    t = np.arange(0.0, 3600.0, 1.0)
+    step = 1.0 / 32.8
+    omega = step * np.round((0.3 + 0.1 * np.sin(t / 600.0)) / step)
+    data = prepare(DriveLog(t=t, omega=np.round(omega, 6), name="imu"), standstill=True)
+    model = GyroModel(
+        (StaticBias(0.3), WhiteNoise(density_dps_per_rthz=3e-4), Quantization(step_dps=step))
+    )
+    m = gap_metric(data, model)
+    assert (m.adev_sim[np.isfinite(m.adev_sim)] == 0.0).all()
+    assert m.gap > 3.0
 
 
 def named(data: GapData | DriveLog) -> tuple[list[str], str]:

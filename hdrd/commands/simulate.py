@@ -158,7 +158,11 @@ def _benchmark(
                 log.meta["grade"] = grade
             target = str(out) if fmt == "dataset" else str(out / f"{spec.name}{suffix}")
             path = write_log(target, log, fmt, spec.name)
-            print(f"{path}: {spec.minutes:g} min, {spec.description}")
+            drawn = log.meta.get("gyro_errors_from")
+            print(
+                f"{path}: {spec.minutes:g} min, {spec.description}"
+                + (f"; gyro: {drawn}" if drawn else "")
+            )
     except (OSError, DriveLogError) as e:
         _err(f"cannot write to {out}: {_why(e)}")
         return 1
