@@ -484,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print, do not touch RESULTS.md")
     ap.add_argument("--tuning-only", action="store_true", help="measure on the tuning drives only")
     args = ap.parse_args(argv)
-    data_dir = REPO.parent / "shared" / "data"
+    data_dir = Path(os.environ.get("HDRD_REAL_DATA") or REPO.parent / "shared" / "data")
     if not data_dir.is_dir():
         print(f"bench/gap_real.py: {data_dir} is absent: nothing to do", file=sys.stderr)
         return 1

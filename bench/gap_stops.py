@@ -12,7 +12,9 @@ standstill as the simulator writes them); the seeds are 11..10+N (the tests use 
 - a motion offset of 0.05-0.1 deg/s (both signs): named, within 25 %;
 - the undithered quantizer of ``UNDITHERED`` (0.573 deg/s codes, a noise of 0.06 step): the
   step named within 10 %, no motion offset named;
-- neither: nothing named.
+- neither: nothing named;
+- ``span_drive``'s unit and twin: an INS rate only while moving beside 0.01 rad/s codes, with
+  and without -0.085 deg/s while driving.
 
 Appends the table to bench/RESULTS.md.
 """
@@ -30,14 +32,32 @@ from _common import append_section, machine_line
 
 from hdrd.analysis.gap import run_gap
 from hdrd.sim.gyro import Effect, MotionOffset
-from tests.test_gap_stops import STEP_DPS, UNDITHERED, gps_drive
+from tests.test_gap_stops import STEP_DPS, UNDITHERED, gps_drive, span_drive
 
 OFFSETS = (0.05, -0.06, 0.07, -0.08, 0.09, -0.1, 0.06, -0.05)
 """The hidden motion offsets, deg/s, one per seed (cycled)."""
 
 
+def twin_case(kind: str, seed: int) -> tuple[bool, str, float, float]:
+    """:func:`case` for tests/test_gap_stops.py's ``span_drive``: the unit (-0.085 deg/s while
+    driving: the step, the offset within 25 %, the gap down >= 30 %) or its twin (no offset
+    named)."""
+    res = run_gap(span_drive(seed, -0.085 if kind == "unit" else 0.0))
+    names = [s.effect for s in res.steps]
+    got = next((s.params["offset_dps"] for s in res.steps if s.effect == "motion_offset"), None)
+    if kind == "unit":
+        ok = got is not None and abs(got / -0.085 - 1.0) <= 0.25 and "quantization" in names
+        ok = ok and res.final_sim.gap <= 0.7 * res.initial_sim.gap
+    else:
+        ok = got is None and "quantization" in names
+    shown = (" -> ".join(names) or "nothing") + (f" ({got:+.4f})" if got is not None else "")
+    return ok, shown, res.initial_sim.gap, res.final_sim.gap
+
+
 def case(kind: str, seed: int, j: int) -> tuple[bool, str, float, float]:
     """(target met, what was named with its figure, gap initial, gap final)."""
+    if kind in ("unit", "twin"):
+        return twin_case(kind, seed)
     hidden: tuple[Effect, ...] = ()
     if kind == "motion_offset":
         hidden = (MotionOffset(offset_dps=OFFSETS[j % len(OFFSETS)]),)
@@ -74,13 +94,16 @@ def main(argv: list[str] | None = None) -> int:
         "course, empty below 2 m/s, the only truth; the stops and the start-up standstill "
         f"truth by the speed), seeds 11-{10 + a.seeds}. Targets: a motion offset named within "
         "25 %; the undithered 0.573 deg/s quantizer named within 10 % and no motion offset; "
-        "neither: nothing named.",
+        "neither: nothing named. `unit` / `twin`: `span_drive`, an INS rate given only while "
+        "moving (9 decimals) beside 0.01 rad/s codes (7 decimals), 78 % of the rows at rest "
+        "exactly 0, with -0.085 deg/s while driving (target: the step, the offset within 25 %, "
+        "the gap down >= 30 %) or without (target: the step, no motion offset).",
         "",
         "| hidden | seed | named | gap initial -> final | target met | s |",
         "|---|---|---|---|---|---|",
     ]
     met: dict[str, int] = {}
-    for kind in ("motion_offset", "quantization", "nothing"):
+    for kind in ("motion_offset", "quantization", "nothing", "unit", "twin"):
         for j in range(a.seeds):
             seed = 11 + j
             t0 = time.perf_counter()

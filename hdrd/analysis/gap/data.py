@@ -385,7 +385,9 @@ def prepare(
     dt = float(np.median(np.diff(t)))
     time_gap = np.concatenate(([False], np.diff(t) > TIME_GAP_FACTOR * dt))
     speed = None if log.speed is None else np.asarray(log.speed, dtype=np.float64)
-    standing = standing_rows(t, speed, excluded, time_gap, lead_in_s(log))
+    res, lattice = _lattice(log, omega, omega[~excluded])  # the values while they count
+    step = lattice.step_dps if lattice is not None else 0.0
+    standing = standing_rows(t, speed, excluded, time_gap, lead_in_s(log), omega, step)
     tr, truth = _at_rest_zero(read_truth(log, t, standstill), standing, excluded)
     valid = np.isfinite(truth)
     idx = np.arange(n)
@@ -393,7 +395,6 @@ def prepare(
     bs = _block_size(block_s, t, dt, tr)
     b = _blocks(t, dt, bs, tr, valid, standing)
     origin = _grid_origin(tr, bs)
-    res, lattice = _lattice(log, omega, omega[~excluded])  # the values while they count
     data = GapData(
         t=t,
         omega=omega,

@@ -20,6 +20,7 @@ from hdrd.io.drivelog import DriveLog
 
 __all__ = [
     "STOP_MARGIN_S",
+    "STOP_RATE_DEV_DPS",
     "STOP_SPEED_MPS",
     "GapError",
     "Truth",
@@ -141,26 +142,65 @@ def lead_in_s(log: DriveLog) -> float:
     return v if math.isfinite(v) and v > 0 else 0.0
 
 
+STOP_RATE_DEV_DPS = 0.5
+"""Within a stop, rows whose rate averaged over 1 s is further than this (deg/s; or 1.5 ADC
+steps, if more) from the stop's median are not standing: a rotating car is not standing,
+whatever a lagging speed says (the converter's guard; a GPS speed read once a second still
+says 0.01 m/s while the car turns out of its parking space at 16 deg/s)."""
+
+
+def _runs(st: BoolArray, time_gap: BoolArray) -> IntArray:
+    """The run index of every row of ``st`` (consecutive rows without a time gap), -1 off it."""
+    new_run = st & ~np.concatenate(([False], st[:-1] & ~time_gap[1:]))
+    return np.where(st, np.cumsum(new_run) - 1, -1)
+
+
+def _moving_mean(t: FloatArray, x: FloatArray, window_s: float) -> FloatArray:
+    """Mean of x over the rows within +-window_s/2 of each row (x itself at 1 row a window)."""
+    c = np.concatenate(([0.0], np.cumsum(x)))
+    lo = np.searchsorted(t, t - window_s / 2, side="left")
+    hi = np.searchsorted(t, t + window_s / 2, side="right")
+    return np.asarray((c[hi] - c[lo]) / np.maximum(hi - lo, 1))
+
+
+def _not_turning(
+    st: BoolArray, run: IntArray, t: FloatArray, omega: FloatArray, dev: float
+) -> BoolArray:
+    """``st`` without the rows whose 1-s mean rate is further than ``dev`` (deg/s) from their
+    run's median."""
+    w = _moving_mean(t, np.nan_to_num(omega), 1.0)
+    med = np.zeros(int(run.max()) + 1)
+    for r in np.unique(run[st]).tolist():
+        med[r] = float(np.median(w[run == r]))
+    return st & (np.abs(w - med[np.maximum(run, 0)]) <= dev)
+
+
 def standing_rows(
     t: FloatArray,
     speed: FloatArray | None,
     excluded: BoolArray,
     time_gap: BoolArray,
     lead_in: float = 0.0,
+    omega: FloatArray | None = None,
+    step_dps: float = 0.0,
 ) -> BoolArray:
     """Rows at which the vehicle stands: inside a stop (the speed at most
-    :data:`STOP_SPEED_MPS` on a run of rows without a time gap, at least
-    :data:`STOP_MARGIN_S` from the run's first and last row) or within the start-up standstill
-    (t - t[0] < ``lead_in``, s); never an excluded row. There the true yaw rate is zero at
-    every sample. ``t``: s; ``speed``: m/s (NaN unknown) or None."""
+    :data:`STOP_SPEED_MPS` and, given the rate ``omega`` (deg/s), its 1-s mean within
+    :data:`STOP_RATE_DEV_DPS` (or 1.5 ADC steps ``step_dps``) of the stop's median, on a run
+    of rows without a time gap, at least :data:`STOP_MARGIN_S` from the run's first and last
+    row) or within the start-up standstill (t - t[0] < ``lead_in``, s); never an excluded row.
+    There the true yaw rate is zero at every sample. ``t``: s; ``speed``: m/s (NaN unknown)
+    or None."""
     out = np.zeros(t.shape[0], dtype=bool)
     if lead_in > 0:
         out |= (t - t[0]) < lead_in
     if speed is not None:
         st = np.isfinite(speed) & (speed <= STOP_SPEED_MPS) & ~excluded
+        if st.any() and omega is not None:
+            dev = max(STOP_RATE_DEV_DPS, 1.5 * step_dps)
+            st = _not_turning(st, _runs(st, time_gap), t, omega, dev)
         if st.any():
-            new_run = st & ~np.concatenate(([False], st[:-1] & ~time_gap[1:]))
-            run = np.cumsum(new_run) - 1  # run index of every standing sample
+            run = _runs(st, time_gap)
             idx = run[st]
             t_first = np.full(int(idx.max()) + 1, np.inf)
             t_last = np.full(int(idx.max()) + 1, -np.inf)
