@@ -15,7 +15,7 @@ from hdrd.core.grades import Grade
 from hdrd.sim import simulate_drive
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import TimeOffset, WhiteNoise
+from hdrd.sim.gyro import RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.recordings import (
     RECORDINGS,
     Recording,
@@ -100,13 +100,17 @@ def test_the_profile_is_the_grade_with_what_the_tuning_drives_measured() -> None
 def test_hdrd_gap_reads_the_profile_back_from_a_simulated_drive() -> None:
     """A city drive logged as DrivePlotR logs it, with its GPS course as the only truth:
     ``hdrd gap`` names the course's latency as a time offset of about -latency, the 1/16 deg/s
-    step, and a white noise of the point-sampled sensor's sd; from the profile's own model it
-    names nothing."""
+    step, and a white noise of the point-sampled sensor's sd (and, the stops pinning the bias,
+    the profile's random walk); from the profile's own model it names nothing."""
     r = Recording.from_table("driveplotr")
     log = replace(simulate_recording("driveplotr", "city", 15.0, 3), omega_truth=None, temp_c=None)
     res = run_gap(log)
     names = [s.effect for s in res.steps]
-    assert set(names) == {"time_offset", "quantization"}, summary(res)
+    assert {"time_offset", "quantization"} <= set(names), summary(res)
+    assert set(names) <= {"time_offset", "quantization", "rate_random_walk"}, summary(res)
+    rw = res.final_model.get("rate_random_walk")
+    if isinstance(rw, RateRandomWalk):
+        assert rw.k_dps_per_sqrt_s == pytest.approx(r.rrw_dps_per_sqrt_s, rel=0.5), summary(res)
     lag = res.final_model.get("time_offset")
     assert isinstance(lag, TimeOffset) and lag.delay_s == pytest.approx(-r.gps_latency_s, abs=0.25)
     white = res.final_model.get("white_noise")

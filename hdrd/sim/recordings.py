@@ -77,8 +77,8 @@ RECORDING_TABLE: dict[str, dict[str, Any]] = {
         "white_dps_per_rthz": 0.0142,
         "quant_step_dps": 0.0625,
         "rrw_dps_per_sqrt_s": 0.0108,
-        "gps_latency_s": 1.04,
-        "gps_course_sd_deg": 4.43,
+        "gps_latency_s": 0.98,
+        "gps_course_sd_deg": 4.77,
         "sources": {
             "log_hz, sensor_hz": "../shared/data/driveplotr_nds/README.txt: 1 Hz point "
             "samples of a faster sensor; 100 Hz is the phone grade's rate (assumed)",
@@ -89,10 +89,10 @@ RECORDING_TABLE: dict[str, dict[str, Any]] = {
             "quant_step_dps": "hdrd gap's lattice on every tuning drive: 0.0625 deg/s",
             "rrw_dps_per_sqrt_s": "the rate random walk hdrd gap names on the tuning drives "
             "long enough to show it (median of the significant ones; bench/gap_real.py)",
-            "gps_latency_s": "hdrd gap's time_offset on the tuning drives (median, sign "
-            "turned: the course lags the gyro; bench/gap_real.py)",
+            "gps_latency_s": "hdrd gap's time_offset on the tuning drives, their stops "
+            "truth too (median, sign turned: the course lags the gyro; bench/gap_real.py)",
             "gps_course_sd_deg": "the heading noise at the fixes hdrd gap fits on the tuning "
-            "drives with this profile (median; bench/gap_real.py)",
+            "drives with this profile, their stops truth too (median; bench/gap_real.py)",
         },
     },
 }
