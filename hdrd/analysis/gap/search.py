@@ -302,7 +302,8 @@ class _Search:
     ) -> list[Candidate]:
         """Quantization's BIC is the lattice's, on another scale than the other candidates':
         it goes first when its refit closes more of the gap than that of the candidate the
-        rules put first, else where its BIC puts it."""
+        rules put first (the effect named first is the one that closes most of the gap),
+        else where its BIC puts it."""
         q = next((c for c in order if c.name == "quantization"), None)
         if q is None or order[0] is q:
             return order

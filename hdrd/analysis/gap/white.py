@@ -68,16 +68,19 @@ def _from_differences(
     data: GapData, de: FloatArray, q_step: float, model: GyroModel, rows: BoolArray, after: float
 ) -> float:
     """W from neighbouring differences ``de`` of the residual: robust (1.4826 MAD)**2 / 2
-    less q**2/12; on a lattice coarse against them from how often the output leaves its code
-    at the samples ``rows`` (their true rate known at the sample) when the model quantizes,
-    else the differences' variance. With a low-pass the level is carried to its input."""
+    less q**2/12; on a lattice coarse against them their variance, or, where most of them are
+    zero (the output mostly sits on its code) and the model quantizes, how often the output
+    leaves its code at the samples ``rows`` (their true rate known at the sample). With a
+    low-pass the level is carried to its input."""
     mad = float(np.median(np.abs(de - np.median(de))))
     lat = data.lattice
     bw = model.get("bandwidth")
     a = pole(bw.cutoff_hz, 1.0 / data.fs_hz) if isinstance(bw, Bandwidth) else 0.0
     if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
-        sd = dither_sd(data.omega[rows], signal(data, model)[rows], q_step) if q_step else None
-        if sd is not None:  # the variance at the ADC: carried back through the low-pass
+        sd = None
+        if mad == 0.0 and q_step:  # most neighbours on one code: it mostly sits on its code
+            sd = dither_sd(data.omega[rows], signal(data, model)[rows], q_step)
+        if sd is not None:  # the variance at the ADC, carried back through the low-pass
             return max(sd * sd - after, _TINY) * (1.0 + a) / (1.0 - a)
         v = float(np.var(de)) / 2.0
     else:
