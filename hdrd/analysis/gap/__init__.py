@@ -7,11 +7,15 @@ stage:
 
 =============== =================================================================================
 lattice         the log's recording resolution and the ADC lattice its values sit on
+truth           the true rate: omega_truth, a heading's fixes, zero wherever the vehicle stands
 data            truth rate, blocks: a drive log made ready (:func:`prepare`, :class:`GapData`)
 noise           Allan deviation with gaps; the block noise model and its whitening Kalman filter
 lowpass         the sensor low-pass seen in neighbouring differences (Whittle likelihood)
+dither          a quantizer's mean over the noise that dithers it; that noise read at rest
+predict         the deterministic prediction D (with the quantizer's mean where it applies)
+white           the white noise's level at the sensor's input and after its low-pass
 optimize        Levenberg-Marquardt, Nelder-Mead, chi-squared tail
-fit             the deterministic prediction D, likelihood, BIC, fitting a model (:class:`Fit`)
+fit             likelihood, BIC, fitting a model (:class:`Fit`)
 candidates      which effects the log can inform, fitting and scoring each candidate
 choose          deterministic before stochastic, nested forms, rivals, backward revisions
 metric          the gap number: the model simulated under the log's conditions
@@ -27,7 +31,8 @@ deg C. The effect names and parameters are those of :mod:`hdrd.sim.gyro`.
 The loop, each step visible in the report:
 
 1. The residual r = omega - truth (truth: ``omega_truth``, else the derivative of the GPS
-   course ``heading_truth``, else zero with ``standstill``) is split into the current model's
+   course ``heading_truth``, else zero with ``standstill``; zero wherever the vehicle stands)
+   is split into the current model's
    *deterministic* prediction D (its bias, gain, lag, clipping effects applied to the true
    rate, noise off) and an unexplained part e = r - D.
 2. The model is simulated under the log's conditions (same t, truth, temp_c, speed; several
