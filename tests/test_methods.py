@@ -151,11 +151,11 @@ def test_hdr_takes_its_increment_from_a_known_error_model() -> None:
     assert REGISTRY["hdr"].settings(SettingsContext(paper, grade="tactical")) == tactical
     # A phone's bias drifts more in 30 s than Table III's increment, which stays.
     assert methods.hdr_settings(SettingsContext(paper, grade="phone")) == paper
-    # hdr.i_c_from: config keeps what is configured whatever the gyro.
-    asked = SettingsContext(paper, grade="tactical", hdr_i_c_from_gyro=False)
+    # hdr.i_c: NUMBER keeps what is configured whatever the gyro.
+    asked = SettingsContext(paper, grade="tactical", i_c_auto=False)
     assert methods.hdr_settings(asked) == paper
     # The configuration reaches it.
-    cfg = parse_config({"hdr": {"i_c_from": "config"}, "plus": {"grade": "tactical"}})
+    cfg = parse_config({"hdr": {"i_c": 0.0422}, "gyro": {"grade": "tactical"}})
     assert REGISTRY["hdr"].settings(config_mod.settings_context(cfg)) == paper
 
 
