@@ -57,6 +57,8 @@ __all__ = [
     "bias_at",
     "bias_var_at",
     "heading_predict",
+    "reset_heading",
+    "update_heading",
     "log_evidence",
     "predict",
     "prior",
@@ -142,9 +144,10 @@ def predict(x: list[float], P: list[float], q: float, T: float, a: float, road_q
         P[RR] += road_q
 
 
-def heading_predict(P: list[float], T: float, dT: float) -> None:
+def heading_predict(P: list[float], T: float, dT: float, q_psi: float = 0.0) -> None:
     """The yaw integrated T seconds with the bias estimate at dT degC above T_ref: psi' = psi -
-    T (b + k dT). Only the covariance changes (the estimate's own error has mean 0)."""
+    T (b + k dT), plus the rate noise integrated over the step, of variance q_psi, deg^2. Only
+    the covariance changes (the estimate's own error has mean 0)."""
     g = [P[row + B] + dT * P[row + K] for row in _ROWS]  # P h, h = (1, 0, dT, 0, 0)
     hph = g[B] + dT * g[K]
     p44 = P[PP] - 2.0 * T * g[PSI] + T * T * hph
@@ -153,7 +156,33 @@ def heading_predict(P: list[float], T: float, dT: float) -> None:
         v = P[psi_row + j] - T * g[j]
         P[psi_row + j] = v
         P[row + PSI] = v
-    P[PP] = p44
+    P[PP] = p44 + q_psi
+
+
+def reset_heading(x: list[float], P: list[float], var: float) -> None:
+    """The heading was aligned anew: psi = 0, of variance var (deg^2), and uncorrelated with
+    the rest."""
+    x[PSI] = 0.0
+    psi_row = _ROWS[PSI]
+    for j, row in enumerate(_ROWS):
+        P[psi_row + j] = 0.0
+        P[row + PSI] = 0.0
+    P[PP] = var
+
+
+def update_heading(x: list[float], P: list[float], z: float, r: float) -> tuple[float, float]:
+    """Kalman update in place with a measurement z (deg) of variance r (deg^2) of psi, the
+    heading correction (a GPS course: the published heading minus the course). Returns the
+    innovation (deg) and its variance (deg^2), from before the update."""
+    ph = [P[row + PSI] for row in _ROWS]
+    s = ph[PSI] + r
+    innov = z - x[PSI]
+    for i, row in enumerate(_ROWS):
+        g = ph[i] / s
+        x[i] += g * innov
+        for j in range(N_STATES):
+            P[row + j] -= g * ph[j]
+    return innov, s
 
 
 def update(

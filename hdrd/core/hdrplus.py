@@ -85,11 +85,14 @@ class PlusState(NamedTuple):
 
     core: the paper HDR state (x, I, yaw, r, s, n). bank: the bias model
     (:class:`hdrd.core.biasbank.BankState`). still: consecutive standstill-candidate steps.
+    aided: the heading has been aligned to a GPS course (its error is then tracked and
+    corrected every step, whatever the bank).
     """
 
     core: HdrState = INITIAL_STATE
     bank: BankState = INITIAL_BANK
     still: int = 0
+    aided: bool = False
 
 
 INITIAL_PLUS_STATE = PlusState()
@@ -157,6 +160,7 @@ class _Run:
         c = state.core
         self.x, self.I, self.yaw, self.r, self.s, self.n = c.x, c.I, c.yaw, c.r, c.s, c.n
         self.still = state.still
+        self.aided = state.aided
         self.need = 0  # consecutive candidates the current standstill test asks for
         q = self.f.quant_step_dps
         self.q2 = q * q / 12.0
@@ -184,19 +188,34 @@ class _Run:
     def state(self) -> PlusState:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
         filters = tuple(Filter(tuple(x), tuple(P)) for x, P in zip(self.xs, self.Ps))
-        return PlusState(core, BankState(filters, tuple(self.lo), self.t_ref), self.still)
+        bank = BankState(filters, tuple(self.lo), self.t_ref)
+        return PlusState(core, bank, self.still, self.aided)
 
-    def advance(self, u: float, sp: float, v: float, te: float, T: float) -> PlusOutput:
+    def advance(
+        self,
+        u: float,
+        sp: float,
+        v: float,
+        te: float,
+        T: float,
+        herr: float = math.nan,
+        hvar: float = math.nan,
+        reset: bool = False,
+    ) -> PlusOutput:
         """One step of T seconds: u deg/s CCW, the samples' spread sp deg/s, speed v m/s,
-        temperature te degC (NaN = unknown)."""
+        temperature te degC (NaN = unknown); a GPS course's measurement of the heading error
+        at the step before (herr deg, of variance hvar deg^2; NaN: none), the heading aligned
+        anew before it (reset)."""
         dT, have_temp = self.temperature(te)
+        if reset or herr == herr:
+            self.aid(herr, hvar, reset, dT, have_temp)
         mix = self.predict(T, dT, have_temp)
         zero = self.standstill_test(u - mix.corr, sp, v, mix)
         if zero:
             out = self.standstill_update(u, sp, dT, mix)
         else:
-            out = self.driving_update(u, T, dT, mix)
-        heading = self.heading_fix(mix) if mix.mixing else 0.0
+            out = self.driving_update(u, sp, T, dT, mix)
+        heading = self.heading_fix(mix) if mix.mixing or self.aided else 0.0
         m = self.t.drift_odds_max
         lo = self.lo
         for i in range(1, len(lo)):
@@ -204,6 +223,21 @@ class _Run:
         return self.output(out, zero, dT, mix, heading)
 
     # -- the phases ------------------------------------------------------------------------
+
+    def aid(self, herr: float, hvar: float, reset: bool, dT: float, have_temp: bool) -> None:
+        """A GPS course: the heading aligned anew (its correction restarts at 0, of variance
+        hvar), and/or a measurement of the heading correction psi, herr deg of variance hvar,
+        which moves the bias by their covariance and weighs the members as every
+        measurement does."""
+        var = hvar if hvar > 0.0 else 0.0
+        if reset:
+            for x, P in zip(self.xs, self.Ps):
+                bb.reset_heading(x, P, var)
+            self.aided = True
+        if herr == herr and self.aided:
+            evidence = [bb.update_heading(x, P, herr, var) for x, P in zip(self.xs, self.Ps)]
+            if len(self.xs) > 1 and not have_temp:
+                self.weigh(evidence, 0.0)
 
     def temperature(self, te: float) -> tuple[float, bool]:
         """(dT, a temperature is used): degC above the first one seen, 0 without."""
@@ -306,14 +340,20 @@ class _Run:
         return 0.0, 0.0, 0, 1.0, 1, 0.0
 
     def driving_update(
-        self, u: float, T: float, dT: float, mix: _Mix
+        self, u: float, sp: float, T: float, dT: float, mix: _Mix
     ) -> tuple[float, float, int, float, int, float]:
         """The paper's step (:func:`hdrd.core.hdr.kernel`) on u_c = u - the correction, with the
-        increment in force; then, on a straight step, a measurement of b + r."""
+        increment in force; then, on a straight step, a measurement of b + r. The heading's
+        correction grows by the bias's uncertainty and, once aided, by the step's rate noise
+        integrated (its block mean's variance x T^2)."""
         t = self.t
-        if mix.mixing:
+        if mix.mixing or self.aided:
+            q_psi = 0.0
+            if self.aided:
+                bv = block_mean_variance(sp, self.p.standstill) if sp == sp else self.f.block_var
+                q_psi = bv * T * T if bv == bv else 0.0
             for P in self.Ps:
-                bb.heading_predict(P, T, dT)
+                bb.heading_predict(P, T, dT, q_psi)
         I_out = self.I
         x, self.I, self.yaw, r, s, W, R, y, omega = kernel(
             u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, self.p.hdr
@@ -371,7 +411,14 @@ def step(
     """Advance HDR+ by one step of inp.T seconds. Pure (the same code as :func:`run_batch`)."""
     run = _Run(state, params)
     out = run.advance(
-        float(inp.u), float(inp.spread_dps), float(inp.speed_mps), float(inp.temp_c), float(inp.T)
+        float(inp.u),
+        float(inp.spread_dps),
+        float(inp.speed_mps),
+        float(inp.temp_c),
+        float(inp.T),
+        float(inp.heading_err_deg),
+        float(inp.heading_err_var),
+        bool(inp.heading_reset),
     )
     return run.state(), out
 
@@ -433,19 +480,30 @@ def run_batch(
     T: npt.ArrayLike | None = None,
     params: HdrPlusParams = DEFAULTS,
     state: PlusState = INITIAL_PLUS_STATE,
+    heading_err: npt.ArrayLike | None = None,
+    heading_err_var: npt.ArrayLike | None = None,
+    heading_reset: npt.ArrayLike | None = None,
 ) -> PlusTrace:
     """Run HDR+ over arrays of steps: u (deg/s), spread (deg/s), speed (m/s), temp (degC),
-    each per step or None (unknown throughout), T a scalar or per step (None: params.hdr.T).
-    :func:`step` looped, without building a state between steps (the same code)."""
+    each per step or None (unknown throughout), T a scalar or per step (None: params.hdr.T);
+    GPS courses' measurements of the heading error (deg, NaN where none), their variances
+    (deg^2) and where the heading was aligned anew (:class:`hdrd.core.steps.StepInput`), or
+    None (no GPS). :func:`step` looped, without building a state between steps (the same
+    code)."""
     uu = np.asarray(u, dtype=np.float64)
     n = uu.shape[0]
-    cols = (
+    cols = [
         uu.tolist(),
         _column(spread, n, "spread"),
         _column(speed, n, "speed"),
         _column(temp, n, "temp"),
         _column(params.hdr.T if T is None else T, n, "T"),
-    )
+    ]
+    if heading_err is not None or heading_reset is not None:
+        cols.append(_column(heading_err, n, "heading_err"))
+        cols.append(_column(heading_err_var, n, "heading_err_var"))
+        resets = [False] * n if heading_reset is None else _column(heading_reset, n, "reset")
+        cols.append([bool(r) for r in resets])
     if n == 0:  # nothing ran: not even the prior is set
         return PlusTrace(*(np.empty(0, dt) for dt in _DTYPES), final=state)  # type: ignore[misc, arg-type]
     run = _Run(state, params)
