@@ -151,7 +151,7 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
 def ne(drives: Drives, method: str, ctx: SettingsContext) -> np.ndarray:
     return np.array(
         [
-            e_psi(method_yaw(p, method, context=ctx), p.truth, p.k) / p.duration_min
+            e_psi(method_yaw(p, method, context=ctx), p.truth, p.k, p.align_n) / p.duration_min
             for _, p in drives
         ]
     )

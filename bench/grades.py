@@ -214,7 +214,7 @@ def method_scores(
     log: DriveLog, p: PreparedDrive, extra: np.ndarray, noise: GyroNoise
 ) -> dict[str, float]:
     def ep(yaw: np.ndarray) -> float:
-        return float(e_psi(yaw, p.truth, p.k))
+        return float(e_psi(yaw, p.truth, p.k, p.align_n))
 
     return {
         "none": ep(method_yaw(p, "none")),

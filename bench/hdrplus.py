@@ -389,7 +389,7 @@ def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
             ("HDR+, bias_p0 2.6e-3", Variant("", "plus", plus_with(P, bias_p0=2.6e-3))),
         ):
             yaw = yaw_of(v, prep)
-            cols[name] = float(e_psi(yaw, prep.truth, prep.k))
+            cols[name] = float(e_psi(yaw, prep.truth, prep.k, prep.align_n))
         out.append((label, f"--bias {bias:g}", cols))
     return out
 

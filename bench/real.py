@@ -148,7 +148,7 @@ def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
     base = np.cumsum(s.u * s.T)
 
     def f(d: float) -> float:
-        return float(e_psi(base - d * t, prep.truth, prep.k))
+        return float(e_psi(base - d * t, prep.truth, prep.k, prep.align_n))
 
     grid = np.arange(-1.0, 1.0 + 1e-9, 0.002)
     vals = [f(float(d)) for d in grid]
