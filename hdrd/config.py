@@ -479,34 +479,54 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(prefix, data, "must be a mapping of keys")
     defaults = cls()
-    names = [f.name for f in fields(cls) if f.name not in _DERIVED]
     # hdr's parameters live flat in the YAML section beside `method`.
     flat = {f.name: f for f in fields(HdrParams)} if cls is HdrConfig else {}
-    allowed = [n for n in names if n != "params"] + list(flat)
     values: dict[str, Any] = {}
     params: dict[str, Any] = {}
     for k, v in data.items():
-        key = f"{prefix}.{k}" if prefix else str(k)
-        if key in RENAMED:
-            raise ConfigError(key, v, RENAMED[key])
-        if cls is HdrConfig and k == "i_c":
-            values["i_c_auto"] = v == "auto"
-            if v == "auto":
-                continue
-            if isinstance(v, str) and not _YAML11_TEXT_NUMBER.fullmatch(v):
-                raise ConfigError(key, v, f"must be auto or {RULES[key][1]}")
-        if k in flat:
-            v = _coerce(key, v, getattr(defaults.params, k))
-            _check(key, v)
-            params[k] = v
-        elif k in names and k != "params":
-            values[k] = _value(key, v, getattr(defaults, k))
-        else:
-            what = "unknown key" if prefix else "unknown section"
-            raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(allowed) + ")")
+        _one_key(cls, defaults, prefix, k, v, values, params)
     if flat:
         values["params"] = replace(defaults.params, **params)
     return replace(defaults, **values)
+
+
+def _one_key(
+    cls: type,
+    defaults: Any,
+    prefix: str,
+    k: Any,
+    v: Any,
+    values: dict[str, Any],
+    params: dict[str, Any],
+) -> None:
+    """One key of a section, checked, into ``values`` (or hdr's ``params``)."""
+    names = [f.name for f in fields(cls) if f.name not in _DERIVED and f.name != "params"]
+    flat = [f.name for f in fields(HdrParams)] if cls is HdrConfig else []
+    key = f"{prefix}.{k}" if prefix else str(k)
+    if key in RENAMED:
+        raise ConfigError(key, v, RENAMED[key])
+    if cls is HdrConfig and k == "i_c" and _increment_is_auto(key, v, values):
+        return
+    if k in flat:
+        v = _coerce(key, v, getattr(defaults.params, k))
+        _check(key, v)
+        params[k] = v
+    elif k in names:
+        values[k] = _value(key, v, getattr(defaults, k))
+    else:
+        what = "unknown key" if prefix else "unknown section"
+        raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(names + flat) + ")")
+
+
+def _increment_is_auto(key: str, value: Any, values: dict[str, Any]) -> bool:
+    """``hdr.i_c``: True for ``auto`` (recorded in ``values``); False for a number, left to
+    be read as one; a ConfigError for other text."""
+    values["i_c_auto"] = value == "auto"
+    if value == "auto":
+        return True
+    if isinstance(value, str) and not _YAML11_TEXT_NUMBER.fullmatch(value):
+        raise ConfigError(key, value, f"must be auto or {RULES[key][1]}")
+    return False
 
 
 _DERIVED = ("i_c_auto",)

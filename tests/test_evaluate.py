@@ -552,3 +552,16 @@ def test_a_misaligned_first_course_no_longer_decides_the_score() -> None:
     truth_first = dataclasses.replace(bad, omega_truth=np.zeros(len(bad)))  # "exact" truth
     assert ev.prepare_drive(truth_first).align_n == 1
     assert abs(evaluate_drive(truth_first).e_psi["none"] - r_clean.e_psi["none"]) > 5.0
+
+
+def test_calibrate_seconds_never_takes_a_sample_past_it() -> None:
+    """29.4 s with T = 1 s is 29 whole steps: the car starting to move at 29.5 s is not in the
+    bias; a window shorter than a step is refused, not stretched to one."""
+    log = make_drive(
+        minutes=3.0, calib_s=29.5, drift_dps=0.0, noise_dps=0.0, turns=[(29.5, 5, 20.0)]
+    )
+    prep = prepare_drive(log, calibrate_seconds=29.4)
+    assert prep.bias_source == "first 29 s" and prep.start_s == 29.0
+    assert prep.steps.bias_dps == pytest.approx(0.8, abs=1e-12)  # no turn sample in it
+    with pytest.raises(EvaluationError, match="at least one step"):
+        prepare_drive(log, calibrate_seconds=0.5)

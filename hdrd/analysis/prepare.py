@@ -250,11 +250,13 @@ def plan_calibration(
             raise EvaluationError(f"{name}: bias {bias!r} is not a finite number")
         return CalibrationPlan(float(bias), 0, None, "given")
     if calibrate_seconds is not None:
-        if not calibrate_seconds > 0:
+        window = _whole_steps(calibrate_seconds, T) if calibrate_seconds > 0 else 0.0
+        if not window > 0:
             raise EvaluationError(
-                f"{name}: calibration window must be > 0 s, got {calibrate_seconds!r}"
+                f"{name}: calibration window must hold at least one step of {T:g} s, got "
+                f"{calibrate_seconds!r}"
             )
-        return CalibrationPlan(None, 0, calibrate_seconds, f"first {calibrate_seconds:g} s")
+        return CalibrationPlan(None, 0, window, f"first {window:g} s")
     lead = _lead_in_s(log)
     if lead is not None and _whole_steps(lead, T) > 0:
         window = _whole_steps(lead, T)

@@ -255,8 +255,10 @@ class StartupWindow:
     def for_seconds(
         cls, seconds: float, T: float, limits: StandstillLimits = StandstillLimits()
     ) -> StartupWindow:
-        """A window of ``seconds`` rounded up to whole steps of T s (at least one)."""
-        return cls(max(1, math.ceil(seconds / T - 1e-9)), limits, T)
+        """A window of the whole steps of T s within ``seconds`` (rounded down: no sample past
+        ``seconds`` is taken in), and at least one (a window shorter than a step is one
+        step: the configured ``calibration.startup_s`` of 1 s with hdr.T = 2 s)."""
+        return cls(max(1, math.floor(seconds / T + 1e-9)), limits, T)
 
     @property
     def n(self) -> int:

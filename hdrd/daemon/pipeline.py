@@ -85,7 +85,7 @@ class PipelineConfig:
     """The calibration record behind bias_dps (a bias file), when there is one: its spread
     and sample count set HDR+'s prior on the bias. Ignored unless its bias is bias_dps."""
     startup_s: float = 1.0
-    """Start-up calibration window, s, rounded up to whole steps (paper Sec. 6: 1 s)."""
+    """Start-up calibration window, s, rounded down to whole steps (at least one) (paper Sec. 6: 1 s)."""
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
