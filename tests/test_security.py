@@ -181,7 +181,7 @@ def test_the_daemon_listens_on_nothing(
 
 def test_hdrd_tail_binds_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.commands.tail import DEFAULT_TAIL_LISTEN
+    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
