@@ -354,6 +354,32 @@ def _tail(p: argparse.ArgumentParser) -> None:
     )
 
 
+@command("web", "hdrd.commands.web:main", "a live page of heading, mode and health (read only)")
+def _web(p: argparse.ArgumentParser) -> None:
+    # the defaults are hdrd.io.webserver's and hdrd.io.datagrams' (a test keeps them equal)
+    p.add_argument(
+        "--listen",
+        metavar="HOST:PORT",
+        default="127.0.0.1:8080",
+        help="address of the page (default 127.0.0.1:8080: this computer only; any other "
+        "warns at start)",
+    )
+    p.add_argument(
+        "--udp",
+        metavar="HOST:PORT",
+        default="127.0.0.1:10110",
+        help="UDP address to receive the daemon's JSON on, as hdrd tail (hdrd run --udp "
+        "sends there; default 127.0.0.1:10110)",
+    )
+    p.add_argument(
+        "--max-clients",
+        type=int,
+        default=16,
+        metavar="N",
+        help="viewers served at once; more are refused (default 16)",
+    )
+
+
 @command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
 def _fakegyro(p: argparse.ArgumentParser) -> None:
     """Long because it is a flat list of the fake gyro's options, read best in one place."""
