@@ -56,9 +56,9 @@ def free_port(kind: int) -> int:
 class Web:
     """``hdrd web`` as a process, and a UDP sender playing the daemon."""
 
-    def __init__(self) -> None:
-        self.port = free_port(socket.SOCK_STREAM)
-        self.udp = ("127.0.0.1", free_port(socket.SOCK_DGRAM))
+    def __init__(self, port: int | None = None, udp_port: int | None = None) -> None:
+        self.port = port or free_port(socket.SOCK_STREAM)
+        self.udp = ("127.0.0.1", udp_port or free_port(socket.SOCK_DGRAM))
         self.proc = subprocess.Popen(
             [
                 sys.executable,
@@ -108,6 +108,8 @@ class Web:
         self.sender.close()
         self.proc.send_signal(signal.SIGTERM)
         assert self.proc.wait(30) == 0
+        assert self.proc.stderr is not None
+        self.proc.stderr.close()
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +137,7 @@ class Page:
     def __init__(self, browser: Any, url: str) -> None:
         self.page = browser.new_page()
         self.errors: list[str] = []
-        self.page.on("console", lambda m: m.type == "error" and self.errors.append(m.text))
+        self.page.on("console", self._console)
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
         self.page.goto(url)
         # connected: the server's hello has set the footer
@@ -143,6 +145,10 @@ class Page:
             "() => document.getElementById('source').textContent.includes('data from UDP')",
             timeout=GUARD_MS,
         )
+
+    def _console(self, m: Any) -> None:
+        if m.type == "error":
+            self.errors.append(m.text)
 
     def text(self, element_id: str) -> str:
         return str(self.page.text_content(f"#{element_id}"))
@@ -246,3 +252,26 @@ def test_a_hostile_string_is_shown_as_text_and_runs_nothing(page: Page, web: Web
     assert page.page.evaluate("typeof window.__pwned") == "undefined"
     assert page.page.title() == "hdrd: heading"
     assert page.errors == []
+
+
+def test_the_page_reconnects_by_itself_when_hdrd_web_restarts(browser: Any) -> None:
+    first = Web()
+    p = Page(browser, first.url)
+    try:
+        first.send(heading=20.0)
+        p.wait_text("heading", "20.0")
+        first.close()
+        p.page.locator("#banner").wait_for(state="visible", timeout=GUARD_MS)
+        again = Web(first.port, first.udp[1])  # the same addresses, a new process
+        try:
+            again.send(heading=21.0)
+            p.wait_text("heading", "21.0")
+            again.send(heading=22.0)  # live again, not only the snapshot of a new connection
+            p.wait_text("heading", "22.0")
+            p.page.locator("#banner").wait_for(state="hidden", timeout=GUARD_MS)
+        finally:
+            again.close()
+        # the browser logs its failed reconnection attempts while the server was down; nothing else
+        assert [e for e in p.errors if "ERR_CONNECTION_REFUSED" not in e] == []
+    finally:
+        p.page.close()

@@ -369,7 +369,7 @@ def test_hdrd_web_says_why_it_cannot_start() -> None:
 
     r = run("--listen", "localhost")
     assert r.returncode == 2 and "hdrd web: bad --listen 'localhost'" in r.stderr
-    r = run("--udp", "[::1")
+    r = run("--listen", f"127.0.0.1:{free_port()}", "--udp", "[::1")
     assert r.returncode == 2 and "bad --udp" in r.stderr
     r = run("--max-clients", "0")
     assert r.returncode == 2 and "--max-clients" in r.stderr

@@ -97,7 +97,10 @@ function setNeedle(heading) {
     return;
   }
   state.angle = state.angle === null ? heading : state.angle + wrap180(heading - state.angle);
-  $("needle").style.transform = `rotate(${state.angle.toFixed(2)}deg)`;
+  const needle = $("needle");
+  // eased over at most the time to the next message, so a fast stream never leaves it behind
+  needle.style.transitionDuration = `${Math.min(0.4, 0.8 * state.interval).toFixed(3)}s`;
+  needle.style.transform = `rotate(${state.angle.toFixed(2)}deg)`;
   dial.setAttribute("data-heading", heading.toFixed(2));
 }
 
