@@ -123,3 +123,12 @@ def test_an_event_is_ascii_json_without_nan() -> None:
     assert sse_event("msg", {"a": "é"}) == b'event: msg\ndata: {"a":"\\u00e9"}\n\n'
     with pytest.raises(ValueError):
         sse_event("msg", {"a": float("nan")})
+
+
+@given(st.binary(max_size=300))
+def test_any_datagram_is_taken_or_ignored_never_a_crash(data: bytes) -> None:
+    s = LiveState()
+    for event in s.take(data, "127.0.0.1:9", 1.0):
+        ((name, body),) = events(event)
+        assert name == "msg" and isinstance(body["msg"], dict)
+    assert s.received + s.ignored >= len([x for x in data.split(b"\n") if x.strip()])

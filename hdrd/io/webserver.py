@@ -278,7 +278,9 @@ class WebServer:
         self.state = LiveState(udp_shown, version)
         self.assets = load_assets()
         self.clients: set[_Connection] = set()
-        self.connections = 0
+        """The open streams."""
+        self.open: set[_Connection] = set()
+        """Every open connection (streams, page loads, requests still coming)."""
         self.refused = 0
         self.dropped = 0
         self._ignored_logged = 0
@@ -301,9 +303,14 @@ class WebServer:
             keepalive.cancel()
             server.close()
             udp.close()
-            for c in list(self.clients):
+            for c in list(self.open):
                 c.transport.abort()
             await server.wait_closed()
+
+    @property
+    def connections(self) -> int:
+        """Open connections."""
+        return len(self.open)
 
     def stop(self) -> None:
         """End :meth:`serve` (from any thread)."""
@@ -393,7 +400,7 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
         s = self.server
-        s.connections += 1
+        s.open.add(self)
         peer = transport.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
         if s.connections > s.settings.max_clients + EXTRA_CONNECTIONS:
@@ -461,7 +468,7 @@ class _Connection(asyncio.Protocol):
         if self.timer is not None:
             self.timer.cancel()
         self.server.clients.discard(self)
-        self.server.connections -= 1
+        self.server.open.discard(self)
 
     def eof_received(self) -> bool | None:
         return None  # the client closed its side: close the connection
