@@ -336,14 +336,14 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     _log_level(p)
 
 
+def _address(p: argparse.ArgumentParser, flag: str, default: str, help: str) -> None:
+    """A HOST:PORT to listen on; its default is hdrd.io's (test_layout keeps them equal)."""
+    p.add_argument(flag, metavar="HOST:PORT", default=default, help=help)
+
+
 @command("tail", "hdrd.commands.tail:main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--listen",
-        metavar="HOST:PORT",
-        default="127.0.0.1:10110",
-        help="UDP address to listen on (default 127.0.0.1:10110)",
-    )
+    _address(p, "--listen", "127.0.0.1:10110", "UDP address to listen on")
     p.add_argument(
         "--raw",
         action="store_true",
@@ -352,6 +352,13 @@ def _tail(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--count", type=int, metavar="N", help="exit after N messages (default: until stopped)"
     )
+
+
+@command("web", "hdrd.commands.web:main", "a live page of heading, mode and health (read only)")
+def _web(p: argparse.ArgumentParser) -> None:
+    _address(p, "--listen", "127.0.0.1:8080", "the page's address (not loopback: a warning)")
+    _address(p, "--udp", "127.0.0.1:10110", "UDP address to receive the daemon's JSON on")
+    p.add_argument("--max-clients", type=int, default=16, metavar="N", help="viewers at once")
 
 
 @command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")

@@ -557,3 +557,13 @@ def test_a_tpv_without_course_does_not_hide_a_fresh_course():
     a.on_fix(Fix(mode=1), 3.5)
     out, _ = a.on_message(step_msg(0.0, t=4.0), 3.6)
     assert out["mode"] == DEAD_RECKONING and "gps_speed" not in out and a.speed(3.6) is None
+
+
+def test_the_age_of_the_last_course_is_published_once_there_is_one() -> None:
+    a = GpsAiding()
+    assert "gps_age_s" not in a.on_message(step_msg(10.0), 1.0)[0]  # no course yet
+    a.on_fix(good(90.0), 1.25)
+    assert a.on_message(step_msg(10.0), 2.0)[0]["gps_age_s"] == 0.75
+    a.on_fix(Fix(mode=1), 2.5)  # no fix: the course keeps its age
+    out = a.on_message(step_msg(10.0), 31.0)[0]
+    assert out["mode"] == DEAD_RECKONING and out["gps_age_s"] == 29.75

@@ -128,7 +128,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     raw=st.booleans(),
 )
 def test_tail_prints_only_printable_lines(parts: list[bytes], raw: bool) -> None:
-    from hdrd.commands.tail import TailFormatter
+    from hdrd.io.datagrams import TailFormatter
 
     out, notes, n = TailFormatter(raw=raw).lines(b"\n".join(parts), "127.0.0.1:9")
     assert n >= 0

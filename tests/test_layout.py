@@ -251,12 +251,14 @@ def test_the_command_lines_light_copies_equal_their_homes() -> None:
     """hdrd/cli.py imports nothing heavy (``hdrd --help`` loads no numpy), so it repeats a
     few defaults instead of importing their modules; they must stay equal."""
     from hdrd.cli import build_parser
-    from hdrd.commands import tail
-    from hdrd.io import gpsd
+    from hdrd.io import datagrams, gpsd, webserver
 
     parser = build_parser()
     assert parser.parse_args(["run", "--gpsd"]).gpsd == f"{gpsd.DEFAULT_HOST}:{gpsd.DEFAULT_PORT}"
-    assert parser.parse_args(["tail"]).listen == tail.DEFAULT_TAIL_LISTEN
+    assert parser.parse_args(["tail"]).listen == datagrams.DEFAULT_TAIL_LISTEN
+    web = parser.parse_args(["web"])
+    assert web.listen == webserver.DEFAULT_WEB_LISTEN and web.udp == datagrams.DEFAULT_TAIL_LISTEN
+    assert web.max_clients == webserver.DEFAULT_MAX_CLIENTS
 
 
 # Function size: at most 60 lines (def to last line) and a cyclomatic complexity of at most 15,

@@ -424,3 +424,67 @@ def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> N
     run_live(hp, make_frames(np.full(30, 0.42)))
     assert hp.stepper.settings.model == noise.source
     assert pipeline_config(Config()).bias_dps is None
+
+
+# -- the health of the heading and the link (bias_source, calib_age_s, frames, reconnects) ----
+
+
+def test_bias_source_says_what_last_changed_the_bias() -> None:
+    omega = np.full(100, 0.2)
+    p = Pipeline(PipelineConfig(startup_s=1.0))  # measured at start-up
+    first = p.feed_array(to_array(make_frames(omega)))
+    steps = [m for m in first if "yaw" in m]
+    assert steps and "bias_source" not in first[0]  # calibrating: no bias yet
+    assert {m["bias_source"] for m in steps} == {"calibration"}
+    p.adjust_bias(0.01, "gps")
+    later = p.feed_array(to_array(make_frames(omega, t0_us=10_000_000)))
+    assert later and {m["bias_source"] for m in later} == {"gps"}
+    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "gps"
+    p.reconfigure(PipelineConfig(startup_s=1.0, bias_dps=0.3))  # a new bias from the config
+    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "calibration"
+    # HDR+ standing still: its zero-rate updates move the bias
+    plus = Pipeline(PipelineConfig(bias_dps=0.5, method="hdr+"))
+    plus.set_speed(0.0)
+    msgs = run_live(plus, make_frames(0.6 + np.random.default_rng(3).normal(0, 0.05, 400)))
+    assert msgs[-1]["zupt"] == 1 and msgs[-1]["bias_source"] == "stops"
+
+
+def test_calibration_age_by_the_host_clock_and_absent_when_unknown() -> None:
+    from hdrd.core.calibrate import BiasRecord
+
+    frames = make_frames(np.full(60, 0.2))
+    p = Pipeline(PipelineConfig(startup_s=1.0))
+    msgs = []
+    for i, f in enumerate(frames):  # the host clock: 1000 s + 0.1 s per frame
+        msgs.extend(p.feed(f, 0, 1000.0 + 0.1 * i))
+    ages = [m.get("calib_age_s") for m in msgs]
+    assert ages[0] is None  # calibrating
+    assert ages[1] == 1.0 and ages[-1] == pytest.approx(len(ages) - 1, abs=1e-6)
+    replayed = Pipeline(PipelineConfig(startup_s=1.0)).feed_array(to_array(frames))
+    assert not [m for m in replayed if "calib_age_s" in m]  # no host clock
+    rec = BiasRecord(0.2, 0.01, 600, 60.0, None, 500.0)  # a bias file measured at 500 s
+    filed = Pipeline(PipelineConfig(bias_dps=0.2, bias_record=rec))
+    assert [m["calib_age_s"] for m in filed.feed(frames[0], 0, 800.0) + filed.finish(0, 801.5)] == [
+        301.5
+    ]
+    assert filed.stale_message(802.0, 3.0)["calib_age_s"] == 302.0
+    given = Pipeline(PipelineConfig(bias_dps=0.2))  # --bias: when is not known
+    assert [m for m in run_live(given, frames) if "calib_age_s" in m] == []
+
+
+def test_frames_and_reconnects_count_the_link_alike_live_and_replayed() -> None:
+    frames = make_frames(np.full(95, 0.1))
+    live = Pipeline(PipelineConfig(bias_dps=0.1))
+    msgs = run_live(live, frames)
+    assert [m["frames"] for m in msgs] == [11, 21, 31, 41, 51, 61, 71, 81, 91, 95]
+    assert {m["reconnects"] for m in msgs} == {0}
+    fast = Pipeline(PipelineConfig(bias_dps=0.1))
+    assert [m["frames"] for m in fast.feed_array(to_array(frames)) + fast.finish()] == [
+        m["frames"] for m in msgs
+    ]
+    back = live.resync(2.0)
+    assert live.reconnects == 1 and back == []
+    more = run_live(live, make_frames(np.full(20, 0.1)))
+    assert {m["reconnects"] for m in more} == {1} and more[-1]["frames"] == 115
+    stale = live.stale_message(1.0e9, 3.0)
+    assert stale["frames"] == 115 and stale["reconnects"] == 1

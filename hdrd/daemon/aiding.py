@@ -54,7 +54,8 @@ caller to log and clear (:class:`hdrd.daemon.gpslink.GpsdLink` does).
 
 Messages are the pipeline's dicts (docs/protocol.md); keys are only added or, for
 ``heading``, replaced by the aligned value: ``mode``; ``heading_offset`` (deg, once
-aligned); ``gps_course`` (deg, while aided) and ``gps_speed`` (m/s, with a fresh fix).
+aligned); ``gps_course`` (deg, while aided), ``gps_age_s`` (s since the last course was
+received, once one was) and ``gps_speed`` (m/s, with a fresh fix).
 A message without a heading (calibrating) passes unchanged. Time ``now`` is any monotonic
 clock in seconds, passed in by the caller; fixes are stamped with it when received.
 """
@@ -390,6 +391,8 @@ class GpsAiding:
         out["mode"] = self.mode
         if fix is not None:
             out["gps_course"] = fix.track_deg
+        if math.isfinite(self._course_at):  # s since the last course received
+            out["gps_age_s"] = round(max(0.0, now - self._course_at), 3)
         spd = self.speed(now)
         if spd is not None:
             out["gps_speed"] = spd

@@ -107,6 +107,11 @@ def _given_bias(config: PipelineConfig) -> BiasRecord | None:
     return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
 
 
+def _calibrated_at(rec: BiasRecord | None) -> float | None:
+    """When a record was measured, UNIX s (a bias file's); None: unknown (``--bias``)."""
+    return rec.time if rec is not None and rec.time > 0 else None
+
+
 # -- from a configuration ---------------------------------------------------------------------
 
 
@@ -154,6 +159,12 @@ class Stepper:
         self.method = methods.get(config.method)
         self.state: Any = self.method.initial_state()
         self.bias: BiasRecord | None = _given_bias(config)
+        self.bias_source = "calibration"
+        """What last changed the published bias (``bias_source``, docs/protocol.md)."""
+        self.calibrated_at = _calibrated_at(self.bias)
+        """When the static bias was measured, UNIX s (None: unknown)."""
+        self._bias_corr = 0.0  # the method's last correction to eps0, deg/s
+        self._just_calibrated = False  # the start-up window closed in this step
         self.window = StartupWindow.for_seconds(config.startup_s, config.params.T, config.limits)
         self.events: list[tuple[str, dict[str, Any]]] = []
         self.speed_mps: float | None = None
@@ -178,6 +189,7 @@ class Stepper:
             self.bias is None or config.bias_dps != self.bias.bias_dps
         ):
             self.bias = _given_bias(config)
+            self.bias_source, self.calibrated_at = "calibration", _calibrated_at(self.bias)
         self.config = config
         method = methods.get(config.method)
         if method is not self.method:  # a new method continues the heading
@@ -192,6 +204,7 @@ class Stepper:
         if self.bias is None or delta_dps == 0.0:
             return
         self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
+        self.bias_source = source
         self.events.append(
             (
                 "bias_adjusted",
@@ -278,6 +291,9 @@ class Stepper:
             for key in ("I", "W", "R", "r"):
                 msg[key] = core[key]
             msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
+            if pub.bias_corr_dps != self._bias_corr:  # the method moved it (HDR+)
+                self._bias_corr = pub.bias_corr_dps
+                self.bias_source = "stops" if pub.standstill else "driving"
             status = "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
             msg.update(pub.extra)
         msg["samples"] = block.n
@@ -289,7 +305,20 @@ class Stepper:
             msg["gap_s"] = gap_s
         if block.saturated:
             msg["saturated"] = block.saturated
+        self.add_bias_origin(msg, now)
         return msg
+
+    def add_bias_origin(self, msg: Message, now: float | None) -> None:
+        """``bias_source`` and ``calib_age_s`` (s since the static bias was measured, by the
+        host clock ``now``; absent when unknown) added to a message that has a ``bias``."""
+        if self._just_calibrated:  # the start-up window closed in this message's step
+            self._just_calibrated = False
+            self.calibrated_at = now
+        if "bias" not in msg:
+            return
+        msg["bias_source"] = self.bias_source
+        if now is not None and self.calibrated_at is not None and now >= self.calibrated_at:
+            msg["calib_age_s"] = round(now - self.calibrated_at, 3)
 
     def _calibration_step(self) -> None:
         """A calibration block closed (its samples are in the window): measure once the
@@ -304,6 +333,7 @@ class Stepper:
         if rec is None:
             return
         self.bias = rec
+        self.bias_source, self._just_calibrated = "calibration", True
         self.events.append(
             (
                 "calibrated",
@@ -334,6 +364,10 @@ class Pipeline:
         self._last_step: int | None = None
         self._t_last = 0.0
         self._pending_gap_s = 0.0
+        self.frames = 0
+        """Frames fed since start (the link's good frames), published as ``frames``."""
+        self.reconnects = 0
+        """Times the device came back (:meth:`resync`), published as ``reconnects``."""
 
     # -- state ---------------------------------------------------------------------------
 
@@ -400,6 +434,7 @@ class Pipeline:
 
         bad_frames: corrupt frames counted so far, published as is. now: UNIX time to stamp.
         """
+        self.frames += 1
         t = self._clock.unwrap(frame.t_us)
         if t is None:
             return []
@@ -425,6 +460,7 @@ class Pipeline:
         before frame i in the byte stream.
         """
         n = frames.shape[0]
+        start = self.frames  # frames fed before these
         bad = np.zeros(n, np.int64) if bad_before is None else np.asarray(bad_before, np.int64)
         out: list[Message] = []
         i = 0
@@ -455,7 +491,9 @@ class Pipeline:
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
         for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
+            self.frames = start + int(keep[pos]) + 1  # as feed() counts at the closing frame
             out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
+        self.frames = start + n
         return out
 
     def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:
@@ -473,6 +511,7 @@ class Pipeline:
         a gap within a connection: the steps missed are skipped, not invented.
         """
         out = self.finish(bad_frames, now)
+        self.reconnects += 1
         if self._last_step is not None:
             missed = int(gap_s // self.config.params.T) if gap_s and gap_s > 0 else 0
             self._step_offset = self._last_step + 1 + missed
@@ -507,7 +546,10 @@ class Pipeline:
         self._t_last = self._t_offset + block.t_end
         gap = self._pending_gap_s
         self._pending_gap_s = 0.0
-        return self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        msg["frames"] = self.frames
+        msg["reconnects"] = self.reconnects
+        return msg
 
     def sample_interval_s(self) -> float | None:
         """Sample interval of the open block, device s: (last - block start) / (n - 1), never
@@ -553,6 +595,9 @@ class Pipeline:
         msg["bad_frames"] = bad_frames
         msg["status"] = status
         msg["stale_s"] = silent_s
+        self.stepper.add_bias_origin(msg, now)
+        msg["frames"] = self.frames
+        msg["reconnects"] = self.reconnects
         return msg
 
 

@@ -19,7 +19,7 @@ Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in 
 and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
 ``stale_message``, ``finish``); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
 a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
-:meth:`hdrd.io.publish.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
+:meth:`hdrd.io.datagrams.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
 SIGHUP read), a :class:`hdrd.daemon.run.Daemon` built from the result and a running one
 reloaded with it (the SIGHUP handler's body), then the daemon's pipeline stepped;
 bias, :func:`hdrd.io.biasfile.load_bias` and the daemon's :func:`hdrd.daemon.run.choose_bias`
@@ -293,7 +293,7 @@ class TailTarget(Target):
     surface = "tail"
 
     def __init__(self, seed: int) -> None:
-        from hdrd.commands.tail import TailFormatter
+        from hdrd.io.datagrams import TailFormatter
 
         self.formatters = [TailFormatter(raw=False), TailFormatter(raw=True)]
         self.count = 0
