@@ -4,6 +4,7 @@ from. Run as a user runs it: ``python -m hdrd import ...`` in a subprocess."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -78,7 +79,9 @@ def test_their_csv_imported_scores_as_the_drive_it_came_from(
     drive: DriveLog, tmp_path: Path
 ) -> None:
     _their_csv(tmp_path / "their.csv", drive)
-    write_drive(tmp_path / "orig.csv", drive)
+    # their CSV has no true rate, so the truth is scored as a course (prepare.alignment): the
+    # drive it came from without its true rate scores the same way
+    write_drive(tmp_path / "orig.csv", dataclasses.replace(drive, omega_truth=None))
     p = hdrd("import", "their.csv", "--out", "mine.csv", *IMPORT, cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert p.stderr == f"{len(drive)} rows, {drive.duration_s:.1f} s (t, omega, temp_c, " \
