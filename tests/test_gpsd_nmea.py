@@ -43,6 +43,7 @@ from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.gpsd import Attitude, Fix, GpsdClient
 from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
+from tests.test_aiding import on_message
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
 KNOT_MPS = 1852.0 / 3600.0
@@ -321,7 +322,7 @@ def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
         if kind == 0:
             aiding.on_fix(item, now)
         else:
-            out, _ = aiding.on_message(item, now)
+            out, _ = on_message(aiding, item, now)
             pub.append(out)
             hdr.append(item["heading"])
     modes = [m["mode"] for m in pub]
@@ -410,7 +411,7 @@ def test_gpsfake_a_receiver_without_a_fix_another_course_and_a_glitch(
         if kind == 0:
             aiding.on_fix(item, now)
         else:
-            pub.append(aiding.on_message(item, now)[0])
+            pub.append(on_message(aiding, item, now)[0])
     first = next(i for i, m in enumerate(pub) if m["mode"] == AIDED)
     after = pub[first:]
     assert all(abs(wrap180(m["heading"] - 90.0)) < 1.0 for m in after), [

@@ -15,6 +15,7 @@ from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io import protocol
 from hdrd.io.frames import FRAME_DTYPE
 from hdrd.io.gpsd import Fix
+from tests.test_aiding import on_message
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
@@ -49,7 +50,7 @@ def published() -> list[dict[str, Any]]:
     p = Pipeline(PipelineConfig(bias_dps=0.0))
     for k, m in enumerate(p.feed_array(frames(300))):
         a.on_fix(Fix(mode=3, track_deg=90.0, speed_mps=15.0, epd=2.0), float(k))
-        out.append(a.on_message(m, k + 0.5)[0])
+        out.append(on_message(a, m, k + 0.5)[0])
     return out
 
 

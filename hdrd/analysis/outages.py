@@ -11,10 +11,11 @@ heading when the fix comes back. :func:`run_outages` replays a prepared drive
    separate GPS, its ``heading_truth`` and ``speed`` (one fix per truth sample), each handed
    to :meth:`~hdrd.daemon.aiding.GpsAiding.on_fix` at its time, except inside an outage;
 2. each step: the speed the pipeline would have from gpsd (:meth:`~hdrd.daemon.aiding.
-   GpsAiding.speed`: none in an outage), the method's step (:class:`hdrd.core.methods.Method`)
-   on u = block mean - the static bias in force, the message the pipeline publishes (heading,
-   omega, raw rate, bias), through :meth:`~hdrd.daemon.aiding.GpsAiding.on_message`, whose
-   bias correction moves the static bias as ``Pipeline.adjust_bias`` does;
+   GpsAiding.speed`: none in an outage), then the daemon's own stepper
+   (:class:`hdrd.daemon.pipeline.Stepper`) with its GPS aiding stage: the method's step on u =
+   block mean - the static bias in force, the aiding's view of it (a course for a method that
+   estimates the bias itself, HDR+, as its next step's measurement; a learned correction of
+   the static bias for the others), the message the daemon publishes;
 3. at the end of each outage, the published (aligned) heading against the truth.
 
 ``none`` through this path is *aiding with the bias frozen at the outage's start*: the static
@@ -36,19 +37,12 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.analysis.prepare import (
-    DEFAULTS,
-    PAPER_PARAMS,
-    EvaluationError,
-    PreparedDrive,
-    method_settings,
-)
-from hdrd.core import methods as registry
+from hdrd.analysis.prepare import DEFAULTS, PAPER_PARAMS, EvaluationError, PreparedDrive
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import SettingsContext
-from hdrd.core.steps import StepInput
+from hdrd.core.resample import Block
 from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
-from hdrd.daemon.pipeline import heading_from_yaw
+from hdrd.daemon.pipeline import PipelineConfig, Stepper
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [
@@ -184,22 +178,32 @@ def _in_outage(t: float, windows: Sequence[tuple[float, float]]) -> bool:
     return any(a <= t < b for a, b in windows)
 
 
+def _block(prep: PreparedDrive, i: int) -> Block:
+    """Step i of a prepared drive as the closed block the daemon's stepper takes: its raw mean
+    (u + the static bias), samples, spread and temperature."""
+    s = prep.steps
+    raw = float(s.u[i]) + s.bias_dps
+    n = int(s.n_samples[i])
+    sd = 0.0 if s.omega_std is None else float(s.omega_std[i])
+    temp = None if s.temp_c is None or math.isnan(s.temp_c[i]) else float(s.temp_c[i])
+    t = float(s.t_end[i])
+    return Block(i, t - s.T, t, raw, n, temp, 0, n * (sd * sd + raw * raw))
+
+
 def _aided_run(
     prep: PreparedDrive,
-    method: str,
-    settings: Any,
+    config: PipelineConfig,
     fix_t: FloatArray,
     fixes: Sequence[LogFix],
     windows: Sequence[tuple[float, float]],
     aiding_config: AidingConfig,
 ) -> tuple[FloatArray, int]:
     """The published heading (compass deg, NaN before the first alignment) at each step end
-    of one method through the aiding path, and the steps aided."""
+    of one method through the daemon's stepper and its GPS aiding stage, and the steps
+    aided. The aiding's clock is the log's (s since its first sample)."""
     s = prep.steps
-    m = registry.get(method)
     aiding = GpsAiding(aiding_config)
-    state = m.initial_state()
-    eps0 = s.bias_dps  # the static bias in force, deg/s; the aiding moves it
+    stepper = Stepper(config, aiding)
     n = s.u.shape[0]
     heading = np.full(n, math.nan)
     j, aided, t_prev = 0, 0, -math.inf
@@ -209,31 +213,13 @@ def _aided_run(
             if not _in_outage(float(fix_t[j]), windows):
                 aiding.on_fix(fixes[j], float(fix_t[j]))
             j += 1
-        v = aiding.speed(t)
-        inp = StepInput(
-            float(s.u[i]) + s.bias_dps - eps0,
-            math.nan if s.omega_std is None else float(s.omega_std[i]),
-            math.nan if v is None else v,
-            math.nan if s.temp_c is None else float(s.temp_c[i]),
-            s.T,
-        )
-        state, out = m.step(state, inp, settings)
-        pub = m.publish(out, settings)
-        msg: dict[str, Any] = {
-            "t": t,
-            "omega": out.omega,
-            "heading": heading_from_yaw(0.0, out.yaw),
-            "omega_raw": float(s.u[i]) + s.bias_dps,
-            "bias": eps0 + pub.bias_corr_dps,
-        }
-        if t - t_prev > 1.5 * s.T and t_prev > -math.inf:
-            msg["gap_s"] = t - t_prev - s.T  # a step without samples before this one
+        stepper.speed_mps = aiding.speed(t)
+        gap = t - t_prev - s.T if t - t_prev > 1.5 * s.T and t_prev > -math.inf else 0.0
         t_prev = t
-        published, delta = aiding.on_message(msg, t)
-        eps0 += delta
-        if "heading_offset" in published:
-            heading[i] = float(published["heading"])
-        aided += published.get("mode") == "aided"
+        msg = stepper.message(_block(prep, i), i, t, 0, None, gap)
+        if "heading_offset" in msg:
+            heading[i] = float(msg["heading"])
+        aided += msg.get("mode") == "aided"
     return heading, aided
 
 
@@ -270,9 +256,13 @@ def run_outages(
     ends = [int(np.searchsorted(s.t_end, b, side="right")) - 1 for _, b in windows]
     errors: dict[str, FloatArray] = {}
     aided: dict[str, int] = {}
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     for m in methods:
-        settings = method_settings(prep, m, params, context)
-        heading, aided[m] = _aided_run(prep, m, settings, fix_t, fixes, windows, cfg)
+        config = PipelineConfig(
+            params=params, method=m, bias_dps=s.bias_dps, bias_record=prep.bias,
+            context=context, quant_step_dps=q,
+        )  # fmt: skip
+        heading, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
         e = np.full(len(windows), math.nan)
         for k, i in enumerate(ends):
             if i >= 0 and math.isfinite(prep.truth[i]) and math.isfinite(heading[i]):

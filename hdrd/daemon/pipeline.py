@@ -24,6 +24,7 @@ is left out, never sent as null or 0.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -36,6 +37,7 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
+from hdrd.daemon.aiding import Aid, GpsAiding, HeadingFix, StepView
 from hdrd.io.clocks import DeviceClock
 from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 
@@ -89,6 +91,9 @@ class PipelineConfig:
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
+    quant_step_dps: float | None = None
+    """The gyro's output step, deg/s, where the sensor's LSB is not it (a recorded log's
+    lattice of values); None: the sensor's."""
     context: methods.SettingsContext = methods.SettingsContext()
     """What the configuration says about the method's settings (:func:`hdrd.config.
     settings_context`: HDR+'s error model, ``standstill.*``); the stepper adds the gyro's
@@ -110,6 +115,21 @@ def _given_bias(config: PipelineConfig) -> BiasRecord | None:
 def _calibrated_at(rec: BiasRecord | None) -> float | None:
     """When a record was measured, UNIX s (a bias file's); None: unknown (``--bias``)."""
     return rec.time if rec is not None and rec.time > 0 else None
+
+
+def add_aid(msg: Message, aid: Aid) -> None:
+    """The aiding's keys of a message (docs/protocol.md): the aligned ``heading``,
+    ``heading_offset``, ``mode``, ``gps_course``, ``gps_age_s``, ``gps_speed``."""
+    if aid.heading_deg is not None:
+        msg["heading"] = aid.heading_deg
+        msg["heading_offset"] = aid.offset_deg
+    msg["mode"] = aid.mode
+    if aid.course_deg is not None:
+        msg["gps_course"] = aid.course_deg
+    if aid.course_age_s is not None:
+        msg["gps_age_s"] = aid.course_age_s
+    if aid.speed_mps is not None:
+        msg["gps_speed"] = aid.speed_mps
 
 
 # -- from a configuration ---------------------------------------------------------------------
@@ -154,8 +174,19 @@ class Stepper:
     log ("calibrated", "calibration_rejected", "bias_adjusted").
     """
 
-    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig = PipelineConfig(),
+        aiding: GpsAiding | None = None,
+        aid_clock: Callable[[], float] | None = None,
+    ) -> None:
         self.config = config
+        self.aiding = aiding
+        """The GPS aiding stage (None: none), :mod:`hdrd.daemon.aiding`."""
+        self.aid_clock = aid_clock
+        """The aiding's clock (the daemon's monotonic one); None: the step's device time."""
+        self._fix: HeadingFix | None = None  # the aiding's measurement for the next step
+        self._t_view = 0.0  # device time of the last step, s
         self.method = methods.get(config.method)
         self.state: Any = self.method.initial_state()
         self.bias: BiasRecord | None = _given_bias(config)
@@ -219,13 +250,18 @@ class Stepper:
 
     def input_for(self, block: Block) -> StepInput:
         """The method's input for a block: u = block mean - eps0 (Eqs. 2, 11), the samples'
-        spread, the speed set last (NaN = unknown), the block's temperature, T."""
+        spread, the speed set last (NaN = unknown), the block's temperature, T; and the GPS
+        course's measurement of the heading error the aiding stage made at the step before,
+        if any (a method that estimates the bias itself: HDR+)."""
         assert self.bias is not None
         temp = math.nan if block.temp_c is None else block.temp_c
         speed = math.nan if self.speed_mps is None else self.speed_mps
-        return StepInput(
-            block.mean - self.bias.bias_dps, block.std, speed, temp, self.config.params.T
-        )
+        fix, self._fix = self._fix, None
+        T = self.config.params.T
+        u = block.mean - self.bias.bias_dps
+        if fix is None:
+            return StepInput(u, block.std, speed, temp, T)
+        return StepInput(u, block.std, speed, temp, T, fix.err_deg, fix.var_deg2, fix.reset)
 
     def prepare(self, block: Block) -> StepInput | None:
         """A block closed: None while calibrating (it was a step of the start-up window),
@@ -248,10 +284,15 @@ class Stepper:
                 hdr=self.config.params,
                 samples_per_step=self.samples_per_step,
                 bias=self.bias,
-                quant_step_dps=self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
+                quant_step_dps=self._quant_step_dps(),
             )
             self._settings = self.method.settings(ctx)
         return self._settings
+
+    def _quant_step_dps(self) -> float:
+        """The gyro's output step, deg/s: the configured one, else the ADC's LSB."""
+        q = self.config.quant_step_dps
+        return self.config.sensor.lsb_dps if q is None else q
 
     def step(self, block: Block) -> methods.Published | None:
         """One block: None while calibrating (the window closes a step), else the method's
@@ -280,22 +321,16 @@ class Stepper:
         msg["t"] = t
         msg["step"] = step
         msg["omega_raw"] = block.mean
+        self._t_view = t
+        aided = self._fix is not None  # a GPS measurement goes into this step
         pub = self.step(block)
         if pub is None or self.bias is None:
             status = "calibrating"
+            aid = None
         else:
-            core = pub.core
-            msg["omega"] = core["omega"]
-            msg["yaw"] = core["yaw"]
-            msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
-            for key in ("I", "W", "R", "r"):
-                msg[key] = core[key]
-            msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
-            if pub.bias_corr_dps != self._bias_corr:  # the method moved it (HDR+)
-                self._bias_corr = pub.bias_corr_dps
-                self.bias_source = "stops" if pub.standstill else "driving"
-            status = "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
-            msg.update(pub.extra)
+            status = self._step_fields(msg, pub, aided)
+            aid = self._aid(StepView(t, pub.core["omega"], block.mean, msg["bias"],
+                                     msg["heading"], gap_s > 0))  # fmt: skip
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status
@@ -306,7 +341,49 @@ class Stepper:
         if block.saturated:
             msg["saturated"] = block.saturated
         self.add_bias_origin(msg, now)
+        if aid is not None:
+            add_aid(msg, aid)
         return msg
+
+    def _step_fields(self, msg: Message, pub: methods.Published, aided: bool) -> str:
+        """A step's fields from the method's output (rate, yaw, heading, the controller, the
+        bias in force and the method's own); its status."""
+        assert self.bias is not None
+        core = pub.core
+        msg["omega"] = core["omega"]
+        msg["yaw"] = core["yaw"]
+        msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
+        for key in ("I", "W", "R", "r"):
+            msg[key] = core[key]
+        msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
+        if pub.bias_corr_dps != self._bias_corr:  # the method moved it (HDR+)
+            self._bias_corr = pub.bias_corr_dps
+            self.bias_source = "gps" if aided else "stops" if pub.standstill else "driving"
+        msg.update(pub.extra)
+        return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
+
+    def _aid(self, view: StepView) -> Aid | None:
+        """The GPS aiding stage on a step (None without one): a method that estimates the bias
+        itself takes the course as its next step's measurement; for the others a learned
+        correction moves the static bias."""
+        if self.aiding is None:
+            return None
+        now = self.aid_clock() if self.aid_clock is not None else view.t
+        aid = self.aiding.on_step(view, now, owner=self.method.bias_model)
+        if aid.fix is not None:
+            self._fix = aid.fix
+        if aid.bias_delta_dps:
+            self.adjust_bias(aid.bias_delta_dps, "gps")
+        return aid
+
+    def held_aid(self, msg: Message) -> None:
+        """The aiding's view of a report of the held heading (no new step: nothing is learned
+        or measured), added to ``msg``."""
+        if self.aiding is None or "heading" not in msg or self.bias is None:
+            return
+        view = StepView(self._t_view, 0.0, math.nan, msg["bias"], msg["heading"], step=False)
+        now = self.aid_clock() if self.aid_clock is not None else view.t
+        add_aid(msg, self.aiding.on_step(view, now, owner=self.method.bias_model))
 
     def add_bias_origin(self, msg: Message, now: float | None) -> None:
         """``bias_source`` and ``calib_age_s`` (s since the static bias was measured, by the
@@ -354,11 +431,16 @@ class Pipeline:
     "calibration_rejected"); the edge drains it.
     """
 
-    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig = PipelineConfig(),
+        aiding: GpsAiding | None = None,
+        aid_clock: Callable[[], float] | None = None,
+    ) -> None:
         self.config = config
         self._clock = DeviceClock()
         self._avg = BlockAverager(config.params.T)
-        self.stepper = Stepper(config)
+        self.stepper = Stepper(config, aiding, aid_clock)
         self._step_offset = 0  # step numbers continue across a device resync
         self._t_offset = 0.0  # device seconds continue across a device resync
         self._last_step: int | None = None
@@ -414,6 +496,18 @@ class Pipeline:
             raise ValueError("hdr.T cannot change while running; restart the daemon")
         self.config = config
         self.stepper.reconfigure(config)
+
+    def set_aiding(
+        self, aiding: GpsAiding | None, aid_clock: Callable[[], float] | None = None
+    ) -> None:
+        """A GPS aiding stage (None: none) and its clock, from the next step on (a new gpsd
+        connection after SIGHUP)."""
+        self.stepper.aiding, self.stepper.aid_clock = aiding, aid_clock
+
+    @property
+    def aiding(self) -> GpsAiding | None:
+        """The GPS aiding stage, if any."""
+        return self.stepper.aiding
 
     def set_speed(self, speed_mps: float | None) -> None:
         """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
@@ -596,6 +690,7 @@ class Pipeline:
         msg["status"] = status
         msg["stale_s"] = silent_s
         self.stepper.add_bias_origin(msg, now)
+        self.stepper.held_aid(msg)
         msg["frames"] = self.frames
         msg["reconnects"] = self.reconnects
         return msg
