@@ -609,7 +609,9 @@ def test_a_method_that_owns_the_bias_gets_the_course_as_a_measurement() -> None:
     a = GpsAiding()
     a.on_fix(good(100.0, epd=3.92), 0.0)
     first = a.on_step(StepView(1.0, 0.0, 0.2, 0.0, 90.0), 0.5, owner=True)
-    assert first.fix == HeadingFix(0.0, pytest.approx(4.0), True)  # (3.92 / 1.96)^2
+    assert first.fix is not None and first.fix.reset and first.fix.err_deg == 0.0
+    assert first.fix == HeadingFix(0.0, first.fix.var_deg2, True)
+    assert first.fix.var_deg2 == pytest.approx(4.0)  # (3.92 / 1.96)^2
     assert first.offset_deg == pytest.approx(10.0) and first.heading_deg == pytest.approx(100.0)
     for k in range(2, 60):  # a gyro drifting 0.05 deg/s clockwise of a straight course
         a.on_fix(good(100.0, epd=3.92), k - 0.7)

@@ -21,6 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.test_aiding import on_message
 from tools.fuzz import harness as fuzz
 from tools.fuzz.inputs import SURFACES, generate
 from tools.fuzz.mutate import Tok, emit_json, emit_yaml
@@ -107,7 +108,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
             "bias": 0.1,
             "t": 1.0,
         }
-        out, delta = aiding.on_message(msg, 10.5)
+        out, delta = on_message(aiding, msg, 10.5)
         assert math.isfinite(delta)
         check_messages([{**out, "status": "ok"}])
 

@@ -213,7 +213,9 @@ class GpsdTarget(Target):
         self.clock = 1000.0
         client = GpsdClient("127.0.0.1", port, clock=lambda: self.clock)
         self.link = GpsdLink(client, GpsAiding(AidingConfig()), clock=lambda: self.clock)
-        self.pipeline = Pipeline(PipelineConfig(method="hdr+", bias_dps=0.2))
+        self.pipeline = Pipeline(
+            PipelineConfig(method="hdr+", bias_dps=0.2), self.link.aiding, lambda: self.clock
+        )
         self.peer: socket.socket | None = None
         self.count = 0
         self.t_us = 0
@@ -267,8 +269,8 @@ class GpsdTarget(Target):
             msgs: list[dict[str, Any]] = []
             for f in self._step_frames():
                 msgs += self.pipeline.feed(f, 0, 1.7e9 + self.clock)
-            aided = self.link.aid(msgs, self.pipeline, self.clock)
-            check_messages(aided)
+            self.link.log_mode(msgs, self.clock)
+            check_messages(msgs)
             v = self.link.client.version
             if sent == len(out) and isinstance(v, Version) and v.release == f"fuzz-{self.count}":
                 break
@@ -427,7 +429,7 @@ class ConfigTarget(Target):
 
             msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
         if d.gps is not None:
-            msgs = d.gps.aid(msgs, d.pipeline)
+            d.gps.log_mode(msgs)
         check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
 
     def close(self) -> None:
