@@ -675,7 +675,7 @@ def _hard_capture() -> bytes:
 
 @pytest.mark.parametrize("key, value", EDGES, ids=[f"{k}={v!r}" for k, v in EDGES])
 def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) -> None:
-    from hdrd.commands.replay import replay_capture
+    from hdrd.daemon.replay import replay_capture
 
     data = nested(key, value)
     if key.startswith("device.reconnect_"):  # the cross-check wants min <= max

@@ -64,18 +64,12 @@ def test_bias_file_with_a_control_character_is_refused_in_one_line(
 
 
 def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_path: Path) -> None:
-    import argparse
-
-    from hdrd.commands.options import config_from_args
-    from hdrd.config import Config
+    from hdrd.config import Config, load_config
     from hdrd.daemon.run import BiasChoice, Daemon
 
     p = tmp_path / "hdrd.yaml"
     p.write_text("hdr:\n  method: none\n")
-    args = argparse.Namespace(config=str(p))
-    d = Daemon(
-        Config(), "built-in defaults", lambda: config_from_args(args), BiasChoice(None, "startup")
-    )
+    d = Daemon(Config(), "built-in defaults", lambda: load_config(p), BiasChoice(None, "startup"))
     p.write_bytes(b"hdr:\n  method: hdr+\n  c1: \x00\n")
     before = d.cfg
     d.reload_config()  # the SIGHUP handler's body: used to raise ReaderError

@@ -19,7 +19,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.io.drivefiles import find_drives
 from hdrd.io.drivelog import (
     NO_LIMITS,
@@ -39,6 +38,7 @@ from hdrd.io.parquetlog import (
     write_parquet_drive,
 )
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.fakegyro import FakeGyro
 from tests.test_daemon import drive_profile
 from tests.test_drivelog import assert_same_log, drive_logs
 

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from hdrd.cli import main as cli
-from hdrd.commands.fakegyro import FakeGyro
-from hdrd.commands.replay import replay_capture
 from hdrd.config import Config
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
+from hdrd.daemon.replay import replay_capture
 from hdrd.io.biasfile import save_bias
 from hdrd.io.drivelog import read_drive
+from hdrd.sim.fakegyro import FakeGyro
 from tests.test_daemon import drive_profile, strip_time
 
 WAIT = 30.0
@@ -203,7 +203,7 @@ def test_replay_capture_is_pure_and_repeatable(tmp_path):
 def test_replay_in_chunks_is_replay_whole(tmp_path):
     # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
     # steps before the next (memory follows the chunk, not the capture): the same messages.
-    from hdrd.commands.replay import replay_steps
+    from hdrd.daemon.replay import replay_steps
     from hdrd.io.capture import decode_capture
 
     cap = tmp_path / "c.bin"

@@ -382,7 +382,7 @@ class ConfigTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.commands.options import config_from_args
-        from hdrd.commands.replay import replay_capture
+        from hdrd.daemon.replay import replay_capture
         from hdrd.config import ConfigError
         from hdrd.daemon.run import Daemon
 
@@ -469,7 +469,7 @@ class BiasTarget(Target):
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.commands.replay import replay_capture
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import choose_bias
         from hdrd.io.biasfile import BiasFileError, load_bias
 
