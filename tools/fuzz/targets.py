@@ -382,8 +382,8 @@ class ConfigTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.commands.options import config_from_args
-        from hdrd.daemon.replay import replay_capture
         from hdrd.config import ConfigError
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import Daemon
 
         self.count += 1
