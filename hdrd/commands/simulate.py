@@ -23,6 +23,7 @@ from hdrd.core.grades import DEFAULT_GRADE, GRADES, Grade
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.drivefiles import log_format, write_log
 from hdrd.io.drivelog import DriveLogError, write_drive
+from hdrd.io.files import missing_folder, shown_path
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model
@@ -65,6 +66,9 @@ def simulate_main(args: argparse.Namespace) -> int:
     if too_big:
         _err(too_big)
         return EX_USAGE
+    if args.out and args.out != "-" and (missing := missing_folder(args.out)) is not None:
+        _err(f"cannot write {shown_path(args.out)}: {missing}")  # said before the work
+        return 1
     if args.benchmark:
         return _benchmark(args, model, grade)
     return _one_drive(args, model, grade)

@@ -570,10 +570,17 @@ def csv_values(column: str, values: FloatArray) -> FloatArray:
 
 
 def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
-    """Write a drive log CSV (metadata as leading '# key: value' lines)."""
+    """Write a drive log CSV (metadata as leading '# key: value' lines). A path is written
+    whole or not at all (:func:`hdrd.io.files.atomic_output`: its folder must exist; a
+    character device or a FIFO is written through); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
-        with open(path, "w", newline="", encoding="utf-8") as f:
+        from hdrd.io.files import atomic_output
+
+        with atomic_output(path) as raw:
+            f = io.TextIOWrapper(raw, "utf-8", newline="")
             _write(f, log)
+            f.flush()
+            f.detach()  # the file stays open: atomic_output syncs and closes it
     else:
         _write(path, log)
 

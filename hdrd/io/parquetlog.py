@@ -425,26 +425,24 @@ def _table(log: DriveLog) -> Any:
 
 
 def write_parquet_drive(path: str | os.PathLike[str], log: DriveLog) -> None:
-    """Write one drive as a Parquet file (zstd), atomically (a temporary file renamed); its
-    directory is made if need be."""
+    """Write one drive as a Parquet file (zstd), whole or not at all
+    (:func:`hdrd.io.files.atomic_output`: its folder must exist; a character device or a FIFO
+    is written through); OSError if it cannot be."""
+    from hdrd.io.files import atomic_output
+
     _, _, pq = _pyarrow()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
-        pq.write_table(_table(log), tmp, compression="zstd")
-        os.replace(tmp, p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_output(path) as f:
+        pq.write_table(_table(log), f, compression="zstd")
 
 
 def write_dataset_drive(root: str | os.PathLike[str], log: DriveLog, name: str) -> Path:
     """Add drive ``name`` to the dataset partitioned by drive at ``root``:
     ``ROOT/drive=NAME/part-0.parquet`` (NAME URI-encoded, as pyarrow's hive partitioning
-    reads it), replacing the drive if it is there. Returns the file written."""
+    reads it), replacing the drive if it is there; ROOT is made if need be, in a folder that
+    exists (OSError otherwise). Returns the file written."""
     part = partition_dir(root, name)
-    part.mkdir(parents=True, exist_ok=True)
+    Path(root).mkdir(exist_ok=True)  # the dataset's folder, in one that exists
+    part.mkdir(exist_ok=True)
     for old in part.glob("*" + SUFFIX):
         if old.name != "part-0" + SUFFIX:
             old.unlink()
