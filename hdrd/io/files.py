@@ -338,7 +338,7 @@ def missing_folder(path: str | os.PathLike[str]) -> str | None:
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
     """:func:`atomic_output` of ``text`` (UTF-8), its folder made if need be (the bias file's
-    state directory)."""
+    state directory, a ``--json`` report's folder)."""
     with atomic_output(path, mode, make_parents=True) as f:
         f.write(text.encode("utf-8"))
 
