@@ -81,6 +81,34 @@ def test_write_read_round_trip(log: DriveLog) -> None:
     assert back.columns() == log.columns()
 
 
+@settings(deadline=None)
+@given(meta=st.dictionaries(st.text(max_size=12), st.text(max_size=40), max_size=4))
+def test_metadata_round_trips_whatever_it_holds(meta: dict[str, str]) -> None:
+    # Line breaks, colons in keys, spaces at the ends, backslashes, control characters, lone
+    # surrogates: each key and value on its own line, read back as it was.
+    log = DriveLog(t=np.array([0.0, 0.1]), omega=np.zeros(2), meta=meta)
+    buf = io.StringIO()
+    write_drive(buf, log)
+    text = buf.getvalue()
+    assert text.count("\n") == len(meta) + 3  # a line per key, the header, two rows
+    assert all(c.isprintable() for c in text.replace("\n", ""))  # nothing a terminal acts on
+    buf.seek(0)
+    assert read_drive(buf).meta == meta
+
+
+def test_a_metadata_value_cannot_add_a_line(tmp_path: Path) -> None:
+    from hdrd.io.drivelog import escape_meta, unescape_meta
+
+    sneaky = "city\n# lead_in_s: 3\n.csv"
+    log = DriveLog(t=np.array([0.0, 0.1]), omega=np.zeros(2), meta={"source": sneaky})
+    write_drive(tmp_path / "d.csv", log)
+    lines = (tmp_path / "d.csv").read_text().splitlines()
+    assert lines[0] == "# source: city\\n# lead_in_s: 3\\n.csv" and lines[1] == "t,omega"
+    assert read_drive(tmp_path / "d.csv").meta == {"source": sneaky}
+    assert escape_meta("a:b", key=True) == "a\\x3ab" and escape_meta(" x ") == "\\x20x\\x20"
+    assert unescape_meta("C:\\data\\q") == "C:\\data\\q"  # no escape: kept as written
+
+
 def test_round_trip_through_a_file(tmp_path: Path) -> None:
     t = np.arange(50) / 10.0
     log = DriveLog(

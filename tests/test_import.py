@@ -189,6 +189,19 @@ def test_a_missing_column_lists_the_header(tmp_path: Path) -> None:
         "save the CSV as UTF-8\n"  # fmt: skip
 
 
+def test_a_file_name_cannot_put_a_metadata_line_in_the_log(tmp_path: Path) -> None:
+    # A source named `city\n# lead_in_s: 3\n.csv`: its name is the `source` value, escaped on
+    # its one line; evaluate would otherwise take the lead-in it names.
+    name = "city\n# lead_in_s: 3\n.csv"
+    (tmp_path / name).write_text("t,w\n0,0.1\n0.1,0.1\n0.2,0.2\n")
+    p = hdrd("import", name, "--out", "d.csv", "--t", "t", "--omega", "w", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    log = read_drive(tmp_path / "d.csv")
+    assert "lead_in_s" not in log.meta and log.meta["source"] == f"hdrd import {name}"
+    meta_lines = [ln for ln in (tmp_path / "d.csv").read_text().splitlines() if ln[:1] == "#"]
+    assert len(meta_lines) == 2  # source, imported
+
+
 def test_the_command_lines_units_are_the_modules() -> None:
     from hdrd import cli
     from hdrd.io import csvimport as importcsv

@@ -23,6 +23,7 @@ import csv
 import io
 import math
 import os
+import re
 import shlex
 import stat
 from array import array
@@ -52,10 +53,12 @@ __all__ = [
     "ReadLimits",
     "check_columns",
     "csv_values",
+    "escape_meta",
     "open_regular",
     "parse_cell",
     "read_drive",
     "text_lines",
+    "unescape_meta",
     "write_drive",
 ]
 
@@ -314,12 +317,58 @@ def _meta_and_header(lines: Iterator[str], label: str) -> tuple[dict[str, str], 
         if not s:
             continue
         if s.startswith("#"):
-            k, _, v = s[1:].partition(":")
-            if v:
-                meta[k.strip()] = v.strip()
+            k, colon, v = s[1:].partition(":")
+            if colon:
+                meta[unescape_meta(k.strip())] = unescape_meta(v.strip())
             continue
         return meta, s, lineno
     raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+
+
+_UNESCAPE = re.compile(r"\\(\\|n|r|t|x[0-9a-fA-F]{2}|u[0-9a-fA-F]{4}|U[0-9a-fA-F]{8})")
+
+
+def escape_meta(text: str, key: bool = False) -> str:
+    """A metadata key or value as its ``# key: value`` line holds it, on that one line: a
+    backslash as ``\\\\``, a line break, tab or any other character a terminal could act on as
+    its Python escape (``\\n``, ``\\t``, ``\\x1b``, ``\\u2028``), a space at either end as
+    ``\\x20`` (the reader strips the line), and in a ``key`` a ``:`` as ``\\x3a`` (the line
+    splits at its first colon). A value from data (a file's name in ``source``) can then never
+    add a line of its own. :func:`unescape_meta` undoes it."""
+    plain = text.isprintable() and "\\" not in text and not (key and ":" in text)
+    if plain and text.strip(" ") == text:
+        return text
+    out = []
+    for c in text:
+        if c == "\\":
+            out.append("\\\\")
+        elif key and c == ":":
+            out.append("\\x3a")
+        else:
+            out.append(c if c.isprintable() else repr(c)[1:-1])
+    line = "".join(out)
+    if line.startswith(" "):
+        line = "\\x20" + line[1:]
+    if line.endswith(" "):
+        line = line[:-1] + "\\x20"
+    return line
+
+
+def unescape_meta(text: str) -> str:
+    """A metadata key or value as :func:`escape_meta` wrote it, back to its text; a backslash
+    that starts no escape is kept as it is (a value written before escaping reads the same
+    unless it held one)."""
+    if "\\" not in text:
+        return text
+
+    def one(m: re.Match[str]) -> str:
+        code = m.group(1)
+        if len(code) == 1:
+            return {"\\": "\\", "n": "\n", "r": "\r", "t": "\t"}[code]
+        n = int(code[1:], 16)
+        return chr(n) if n <= 0x10FFFF else m.group(0)
+
+    return _UNESCAPE.sub(one, text)
 
 
 def _header(header_line: str, label: str, lineno: int) -> list[str]:
@@ -587,7 +636,7 @@ def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> 
 
 def _write(f: io.TextIOBase, log: DriveLog) -> None:
     for k, v in log.meta.items():
-        f.write(f"# {k}: {v}\n")
+        f.write(f"# {escape_meta(k, key=True)}: {escape_meta(v)}\n")
     cols = log.columns()
     f.write(",".join(cols) + "\n")
     data = [getattr(log, c).tolist() for c in cols]

@@ -52,6 +52,7 @@ __all__ = [
     "printable",
     "read_limited",
     "shown_path",
+    "size_text",
 ]
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -100,7 +101,7 @@ def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
             raise InputFileError(f"is {_kind(st.st_mode)}, not a regular file")
         if st.st_size > max_bytes:
             raise InputFileError(
-                f"is {_size(st.st_size)}, larger than the {_size(max_bytes)} allowed"
+                f"is {size_text(st.st_size)}, larger than the {size_text(max_bytes)} allowed"
             )
         chunks: list[bytes] = []
         got = 0
@@ -111,13 +112,14 @@ def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
             chunks.append(chunk)
             got += len(chunk)
             if got > max_bytes:
-                raise InputFileError(f"grew beyond the {_size(max_bytes)} allowed while read")
+                raise InputFileError(f"grew beyond the {size_text(max_bytes)} allowed while read")
         return b"".join(chunks)
     finally:
         os.close(fd)
 
 
-def _size(n: int) -> str:
+def size_text(n: int) -> str:
+    """A size in bytes for a message: ``1.5 GiB``, ``64 KiB``, ``300 bytes``."""
     for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
         if n >= 1 << shift:
             return f"{n / (1 << shift):.3g} {unit}"
