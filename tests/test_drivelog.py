@@ -54,7 +54,8 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
         bound = 360 * 10**d if c in ("heading_truth", "gps_course") else 10**9  # within +/-360
         if c == "temp_c":  # within the format's [-100, 200] deg C
             bound = 100 * 10**d
-        ks = draw(st.lists(st.integers(-bound, bound), min_size=n, max_size=n))
+        low = 0 if c in ("speed", "gps_speed") else -bound  # a speed is a magnitude
+        ks = draw(st.lists(st.integers(low, bound), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
             holes = draw(st.lists(st.booleans(), min_size=n, max_size=n))
@@ -172,6 +173,8 @@ def test_metadata_blank_lines_and_properties() -> None:
         ),
         ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
         ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
+        ("t,omega,speed\n0,1,2\n0.1,1,-0.5\n", r"<stream>:3: column speed: -0.5 m/s is negative"),
+        ("t,omega,gps_speed\n0,1,-1e-3\n", r"<stream>:2: column gps_speed: -0.001 m/s is negat"),
         ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: inf is not finite"),
         ("t,omega\n0,1\n0.1,1,2\n", r"<stream>:3: 3 fields, header has 2"),
         ("t,omega\n0,1\n0.1\n", r"<stream>:3: 1 fields, header has 2"),

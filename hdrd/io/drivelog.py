@@ -76,6 +76,7 @@ COLUMNS = (
 REQUIRED = ("t", "omega")
 OPTIONAL = COLUMNS[2:]
 DIRECTION_COLUMNS = ("heading_truth", "gps_course")
+SPEED_COLUMNS = ("speed", "gps_speed")
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -450,8 +451,8 @@ def check_columns(
 ) -> None:
     """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
     every row, ``t`` and ``omega`` are present in every row, no value is infinite, directions
-    within +/- :data:`HEADING_LIMIT_DEG`, ``temp_c`` within :data:`TEMP_LIMITS_C`, ``t``
-    strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
+    within +/- :data:`HEADING_LIMIT_DEG`, speeds not negative, ``temp_c`` within
+    :data:`TEMP_LIMITS_C`, ``t`` strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
     names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet);
     ``names`` what to call a column in it (``hdrd import``: the source's own column).
     DriveLogError on the first problem."""
@@ -509,7 +510,7 @@ def _check_present_and_finite(
 def _check_ranges(
     arrays: dict[str, FloatArray], where: Callable[[int], str], col: Callable[[str], str]
 ) -> None:
-    """:func:`check_columns`: directions and temperatures within their limits."""
+    """:func:`check_columns`: directions, speeds and temperatures within their limits."""
     for c in DIRECTION_COLUMNS:
         if c not in arrays:
             continue
@@ -523,6 +524,16 @@ def _check_ranges(
                 f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
                 "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
             )
+    for c in SPEED_COLUMNS:
+        if c in arrays:
+            with np.errstate(invalid="ignore"):
+                neg = arrays[c] < 0.0  # NaN (empty) is not
+            if neg.any():
+                i = int(np.flatnonzero(neg)[0])
+                raise DriveLogError(
+                    f"{where(i)}: column {col(c)}: {float(arrays[c][i]):.6g} m/s is negative; a "
+                    "speed is a magnitude, >= 0 (reversing too)"
+                )
     if "temp_c" in arrays:
         lo, hi = TEMP_LIMITS_C
         tc = arrays["temp_c"]
