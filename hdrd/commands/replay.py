@@ -14,6 +14,8 @@ one chunk of frames at a time; never the device time the capture spans
 from __future__ import annotations
 
 import argparse
+import os
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,7 +23,7 @@ from typing import Any
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.replay import replay_steps
-from hdrd.errors import EX_CONFIG
+from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.biasfile import BiasFileError, load_bias
 
 __all__ = ["convert_main", "main"]
@@ -110,6 +112,15 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_the_capture(out: str, capture: str) -> bool:
+    """Whether writing ``out`` would write over ``capture`` (the same file, under its name, a
+    link or another hard link)."""
+    try:
+        return os.path.samefile(out, capture)
+    except OSError:  # one of them does not exist (or cannot be looked at): not the same
+        return False
+
+
 def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv|DRIVE.parquet|DIR [--format F]``: every frame as a
     drive-log row (raw deg/s)."""
@@ -118,9 +129,17 @@ def convert_main(args: argparse.Namespace) -> int:
     from hdrd.io.capture import decode_capture
     from hdrd.io.clocks import DeviceClock
     from hdrd.io.drivefiles import log_format, write_log
-    from hdrd.io.drivelog import DriveLog, DriveLogError
+    from hdrd.io.drivelog import DriveLog, DriveLogError, converted_name
+    from hdrd.io.files import shown_path
     from hdrd.io.protocol import TEMP_NOT_FITTED
 
+    if _is_the_capture(args.out, args.capture):
+        print(
+            f"hdrd convert: --out {shown_path(args.out)} is the capture itself; name another "
+            f"file, e.g. --out {shlex.quote(converted_name(args.capture))}",
+            file=sys.stderr,
+        )
+        return EX_USAGE
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):
         return loaded

@@ -52,6 +52,7 @@ __all__ = [
     "TEMP_LIMITS_C",
     "ReadLimits",
     "check_columns",
+    "converted_name",
     "csv_values",
     "escape_meta",
     "open_regular",
@@ -264,9 +265,9 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
     for protocol in ("hdr-bin", "hdr-text"):
         frames, _ = decode_capture(head, protocol)
         if frames.shape[0] >= 3:
-            stem = Path(path).stem or "drive"
             given = str(path) if len(str(path)) <= 80 else Path(path).name
-            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(stem + '.csv')}"
+            out = converted_name(path)
+            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(out)}"
             return (
                 f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
                 f"make one with `{clipped(printable(cmd), 200)}`"
@@ -279,6 +280,15 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
             "docs/drive-format.md)"
         )
     return None
+
+
+def converted_name(capture: str | os.PathLike[str]) -> str:
+    """The drive log's file name to suggest for ``hdrd convert CAPTURE``: the capture's stem
+    with ``.csv``, or with ``-drive.csv`` when that is the capture's own name (a capture
+    renamed ``x.csv``: converting it onto itself would lose it)."""
+    p = Path(capture)
+    stem = p.stem or "drive"
+    return stem + ("-drive.csv" if p.name == stem + ".csv" else ".csv")
 
 
 def text_lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
