@@ -164,6 +164,27 @@ def test_simulate_refuses_a_drive_it_cannot_make(
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--minutes", "0.1", "--out", "{d}/no/x.csv"],
+        ["--minutes", "0.1", "--out", "{d}/no/x.parquet"],
+        ["--minutes", "0.1", "--out", "{d}/no/fleet", "--format", "dataset"],
+        ["--benchmark", "test", "--out", "{d}/no/bench"],
+    ],
+)
+def test_simulate_makes_no_missing_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    # `--out /nonexistent/x.csv` created /nonexistent: a typo made folders. Refused before the
+    # work, with one line naming the folder; nothing made.
+    rc = main(["simulate", *(a.format(d=tmp_path) for a in args)])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1
+    assert err.endswith(f"the folder {tmp_path}/no does not exist\n"), err
+    assert not (tmp_path / "no").exists()
+
+
 def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None:
     import argparse
 
