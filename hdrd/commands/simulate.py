@@ -66,12 +66,20 @@ def simulate_main(args: argparse.Namespace) -> int:
     if too_big:
         _err(too_big)
         return EX_USAGE
-    if args.out and args.out != "-" and (missing := missing_folder(args.out)) is not None:
-        _err(f"cannot write {shown_path(args.out)}: {missing}")  # said before the work
+    missing = _missing_folder(args.out)
+    if missing:
+        _err(missing)  # said before the work
         return 1
     if args.benchmark:
         return _benchmark(args, model, grade)
     return _one_drive(args, model, grade)
+
+
+def _missing_folder(out: str | None) -> str | None:
+    """Why ``--out`` cannot be made for want of its folder (a typo must not create folders),
+    or None."""
+    missing = missing_folder(out) if out and out != "-" else None
+    return None if missing is None else f"cannot write {shown_path(out or '')}: {missing}"
 
 
 def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:
