@@ -93,6 +93,8 @@ def test_csv_values_are_what_the_csv_reads_back(column: str, values: list[float]
         v = np.where(np.abs(v) <= 360.0, v, np.fmod(v, 360.0))
     if column == "temp_c":  # and temperatures within [-100, 200] deg C
         v = np.where(np.abs(v) <= 100.0, v, np.fmod(v, 100.0))
+    if column == "speed":  # and speeds not negative
+        v = np.abs(v)
     t = np.arange(v.shape[0], dtype=np.float64)
     cols = {"omega": np.zeros_like(t), column: v}
     log = DriveLog(t=t, **cols)  # type: ignore[arg-type]
