@@ -117,7 +117,7 @@ METHOD_NAMES = ("none", "hdr", "hdr+")
 
 
 GRADE_OF = {"rtklib_drive0708": "tactical", "smartloc_berlin": "automotive"}
-"""The grade preset a daemon on each recording's gyro would be configured with (``plus.grade``),
+"""The grade preset a daemon on each recording's gyro would be configured with (``gyro.grade``),
 from its hardware alone: rtklib's ADIS16465 is the tactical preset's model, smartLoc's is the
 car's own yaw-rate sensor; DrivePlotR's and comma2k19's are phones (:func:`grade_of`)."""
 
@@ -128,7 +128,7 @@ def grade_of(name: str) -> str:
 
 def scores(prep: PreparedDrive, plus: SettingsContext = PLUS) -> dict[str, float]:
     """Eψ (deg) of each method on one prepared drive, as ``hdrd evaluate`` computes it, and
-    ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``plus.grade`` set to the
+    ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``gyro.grade`` set to the
     recording's gyro (:func:`grade_of`)."""
     e = dict(evaluate_prepared(prep, PAPER_PARAMS, METHOD_NAMES, plus).e_psi)
     g = evaluate_prepared(
@@ -149,7 +149,7 @@ def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
     base = np.cumsum(s.u * s.T)
 
     def f(d: float) -> float:
-        return float(e_psi(base - d * t, prep.truth, prep.k))
+        return float(e_psi(base - d * t, prep.truth, prep.k, prep.align_n))
 
     grid = np.arange(-1.0, 1.0 + 1e-9, 0.002)
     vals = [f(float(d)) for d in grid]
@@ -447,7 +447,7 @@ and the same evaluation in-process (the same calls: `prepare_drive`, `evaluate_p
 with the default configuration), checked to give the command's Eψ for every drive and method,
 to add the best constant bias in hindsight and the given-bias table. Paper HDR with Table III;
 HDR+ with its settings derived per drive by `hdrd.core.methods.plus_settings`; *hdr+ (grade)*: HDR+
-as a daemon configured for the recording's gyro would run it (`plus.grade`: tactical for
+as a daemon configured for the recording's gyro would run it (`gyro.grade`: tactical for
 rtklib's ADIS16465, automotive for smartLoc's car sensor, phone for DrivePlotR and comma2k19;
 chosen from the hardware, not from any result).
 

@@ -712,9 +712,9 @@ def _gap(p: argparse.ArgumentParser) -> None:
         help='write the report (several drives: {"drives": [report, ...], "skipped": [...]})',
     )
     p.add_argument(
-        "--plus-out",
+        "--gyro-out",
         metavar="PLUS.yaml",
-        help="write the fitted model as HDR+'s error model, a `plus:` configuration section "
+        help="write the fitted model as HDR+'s error model, a `gyro:` configuration section "
         "to paste into hdrd.yaml (one drive)",
     )
     p.add_argument(

@@ -104,10 +104,11 @@ class HdrConfig:
 
     method: str = "hdr"
     """none: static bias only; hdr: the paper's HDR; hdr+: hdrd's improved reducer."""
-    i_c_from: str = "gyro"
-    """gyro: with the gyro's error model known (plus.grade, plus.*, a recorded bias file),
-    HDR's increment is at most what its bias drifts in I_C_WINDOW_S (a good gyro's I moves
-    less); config: hdr.i_c as given."""
+    i_c_auto: bool = True
+    """``hdr.i_c: auto`` (the default): Table III's increment, or with the gyro's error model
+    known (``gyro.*``, a recorded bias file) what its bias drifts in I_C_WINDOW_S if that is
+    less (a good gyro's I moves less); ``hdr.i_c: NUMBER``: that increment whatever the gyro
+    (then ``params.i_c``)."""
     params: HdrParams = HdrParams()
 
 
@@ -213,9 +214,10 @@ class StandstillConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class PlusConfig:
-    """The gyro's error model HDR+ is fitted to (docs/hdrplus.md), when it is known: a grade
-    preset, and/or measured parameters (0 = not given). Noise parameters that ``hdrd
+class GyroConfig:
+    """The gyro's error model, when it is known (docs/gyro-model.md): a grade preset, and/or
+    measured parameters (0 = not given). HDR+ is fitted to it (docs/hdrplus.md) and paper
+    HDR's ``hdr.i_c: auto`` follows its drift (docs/hdr.md). Noise parameters that ``hdrd
     calibrate`` recorded in the bias file take precedence when they say how the bias moves."""
 
     grade: str = "none"
@@ -245,7 +247,7 @@ class Config:
     simulate: SimulateConfig = SimulateConfig()
     gpsd: GpsdConfig = GpsdConfig()
     standstill: StandstillConfig = StandstillConfig()
-    plus: PlusConfig = PlusConfig()
+    gyro: GyroConfig = GyroConfig()
 
 
 # -- rules ------------------------------------------------------------------------------
@@ -348,7 +350,6 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "sensor.ref_divider": _num(0.01, 100),
     "sensor.supply_nominal_v": _num(0.01, 100),
     "hdr.method": _method(),
-    "hdr.i_c_from": _choice("gyro", "config"),
     "hdr.i_c": _num(0, 10),
     "hdr.tau": _num(0, 3600),
     "hdr.theta_w": _num(0, 100_000, lo_open=True),
@@ -380,13 +381,13 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "simulate.rate_hz": _num(1, 10_000),
     "simulate.speedup": _num(0.001, 1_000_000),
     "simulate.grade": _choice(*GRADES),
-    "plus.grade": _choice("none", *GRADES),
-    "plus.white_dps_per_rthz": _num(0, 100),
-    "plus.bias_instability_dps": _num(0, 100),
-    "plus.bias_tau_s": _num(1, 1_000_000),
-    "plus.rrw_dps_per_sqrt_s": _num(0, 100),
-    "plus.temp_coeff_dps_per_c": _num(0, 100),
-    "plus.quant_step_dps": _num(0, 100),
+    "gyro.grade": _choice("none", *GRADES),
+    "gyro.white_dps_per_rthz": _num(0, 100),
+    "gyro.bias_instability_dps": _num(0, 100),
+    "gyro.bias_tau_s": _num(1, 1_000_000),
+    "gyro.rrw_dps_per_sqrt_s": _num(0, 100),
+    "gyro.temp_coeff_dps_per_c": _num(0, 100),
+    "gyro.quant_step_dps": _num(0, 100),
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
@@ -484,7 +485,7 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(prefix, data, "must be a mapping of keys")
     defaults = cls()
-    names = [f.name for f in fields(cls)]
+    names = [f.name for f in fields(cls) if f.name not in _DERIVED]
     # hdr's parameters live flat in the YAML section beside `method`.
     flat = {f.name: f for f in fields(HdrParams)} if cls is HdrConfig else {}
     allowed = [n for n in names if n != "params"] + list(flat)
@@ -492,6 +493,14 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     params: dict[str, Any] = {}
     for k, v in data.items():
         key = f"{prefix}.{k}" if prefix else str(k)
+        if key in RENAMED:
+            raise ConfigError(key, v, RENAMED[key])
+        if cls is HdrConfig and k == "i_c":
+            values["i_c_auto"] = v == "auto"
+            if v == "auto":
+                continue
+            if isinstance(v, str) and not _YAML11_TEXT_NUMBER.fullmatch(v):
+                raise ConfigError(key, v, f"must be auto or {RULES[key][1]}")
         if k in flat:
             v = _coerce(key, v, getattr(defaults.params, k))
             _check(key, v)
@@ -504,6 +513,18 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     if flat:
         values["params"] = replace(defaults.params, **params)
     return replace(defaults, **values)
+
+
+_DERIVED = ("i_c_auto",)
+"""Fields no key names directly (``hdr.i_c: auto`` sets ``i_c_auto``)."""
+
+RENAMED: dict[str, str] = {
+    "plus": "is now the `gyro:` section (the same keys: gyro.grade, gyro.white_dps_per_rthz, "
+    "...): rename it",
+    "hdr.i_c_from": "was removed: write hdr.i_c: auto (the increment from the gyro's error "
+    "model, the default) or hdr.i_c: NUMBER (that increment whatever the gyro)",
+}
+"""Keys of older configurations, refused with what to write instead."""
 
 
 def _value(key: str, value: Any, default: Any) -> Any:
@@ -607,6 +628,8 @@ def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
         data = {key: list(value) if isinstance(value, tuple) else value}
         if section == "hdr":
             merged = {"method": sec.method, **sec.params.as_dict(), **data}
+            if sec.i_c_auto and "i_c" not in data:
+                merged["i_c"] = "auto"
             new = _build(HdrConfig, merged, section)
         else:
             merged = {f.name: getattr(sec, f.name) for f in fields(sec)}
@@ -624,6 +647,8 @@ def config_field_keys() -> list[str]:
     for sec in fields(Config):
         default = getattr(Config(), sec.name)
         for f in fields(default):
+            if f.name in _DERIVED:
+                continue
             if f.name == "params":
                 keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
             else:
@@ -633,16 +658,16 @@ def config_field_keys() -> list[str]:
 
 def settings_context(cfg: Config) -> methods.SettingsContext:
     """What the configuration says about the drift reducers' settings (``hdr.*``,
-    ``plus.grade`` and the ``plus.*`` noise parameters, ``standstill.*``), for
+    ``gyro.grade`` and the ``gyro.*`` noise parameters, ``standstill.*``), for
     :func:`hdrd.core.methods.plus_settings` and its kind to derive them from, with what the
     gyro and the drive show (the daemon, replay and evaluate fill that in)."""
     from dataclasses import asdict
 
-    given = tuple((k, float(v)) for k, v in asdict(cfg.plus).items() if k != "grade")
+    given = tuple((k, float(v)) for k, v in asdict(cfg.gyro).items() if k != "grade")
     return methods.SettingsContext(
         hdr=cfg.hdr.params,
-        hdr_i_c_from_gyro=cfg.hdr.i_c_from == "gyro",
-        grade=cfg.plus.grade,
+        i_c_auto=cfg.hdr.i_c_auto,
+        grade=cfg.gyro.grade,
         given_noise=given,
         standstill=cfg.standstill.enabled,
         standstill_from_gyro=cfg.standstill.from_gyro,

@@ -46,7 +46,8 @@ def make_drive(
     The gyro reads true rate + bias0 + noise, and bias0 + drift_dps once the calibration
     window is over (a warmed-up gyro: the residual drift HDR must remove). turns: (start s,
     duration s, rate deg/s CCW). sway_dps: amplitude of a slow weave (period ~40 s). Truth
-    heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere.
+    heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere; omega_truth the
+    true rate.
     """
     rng = np.random.default_rng(seed)
     n = round(minutes * 60 * hz)
@@ -60,7 +61,8 @@ def make_drive(
     truth = np.mod(heading0 - yaw_true, 360.0)
     whole = np.abs(t - np.round(t)) < 1e-6
     truth = np.where((t >= calib_s) & whole, truth, np.nan)
-    return DriveLog(t=t + 1000.0, omega=omega, heading_truth=truth, name=name)
+    # the exact truth of a simulation: with its true rate, aligned at its first value
+    return DriveLog(t=t + 1000.0, omega=omega, heading_truth=truth, omega_truth=w, name=name)
 
 
 CITY_TURNS = [(60, 9, 10.0), (120, 9, -10.0), (200, 18, 10.0), (260, 9, -10.0)]
@@ -520,3 +522,33 @@ def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixtu
     # A file and a directory together, with the bias given for all.
     assert cli_main(["evaluate", str(sub / "p1.csv"), str(sub), "--bias", "0.01"]) == 0
     assert capsys.readouterr().out.count(" given") == 3
+
+
+def _course_truth_drive(first_fix_error_deg: float) -> DriveLog:
+    """A simulated drive whose truth is made a course over ground (no omega_truth), its first
+    fixes at walking pace in a turn first_fix_error_deg off (as a real course there can be)."""
+    from hdrd.sim import simulate_legs
+    from hdrd.sim.benchmark import VARIANTS
+
+    log = simulate_legs([(VARIANTS["city"], 0.5), (VARIANTS["suburbs"], 0.5)], 12.0, 3)
+    assert log.heading_truth is not None and log.speed is not None
+    truth = log.heading_truth.copy()
+    first = np.flatnonzero(np.isfinite(truth) & (log.t > 31.0))[:3]  # after the lead-in
+    truth[first] = (truth[first] + first_fix_error_deg) % 360.0
+    speed = log.speed.copy()
+    speed[: first[-1] + 1] = np.minimum(speed[: first[-1] + 1], 2.0)
+    return dataclasses.replace(log, heading_truth=truth, speed=speed, omega_truth=None)
+
+
+def test_a_misaligned_first_course_no_longer_decides_the_score() -> None:
+    """A course over ground is aligned over the first straight stretch at speed
+    (prepare.alignment), so a first fix 25 deg off changes Eψ by little; an exact truth (a
+    simulation's) keeps the first-sample alignment, where the 25 deg move Eψ by several deg."""
+    clean, bad = _course_truth_drive(0.0), _course_truth_drive(25.0)
+    r_clean, r_bad = evaluate_drive(clean), evaluate_drive(bad)
+    assert abs(r_bad.e_psi["none"] - r_clean.e_psi["none"]) < 1.0
+    prep = ev.prepare_drive(bad)
+    assert prep.align_n == 10 and prep.k > 0
+    truth_first = dataclasses.replace(bad, omega_truth=np.zeros(len(bad)))  # "exact" truth
+    assert ev.prepare_drive(truth_first).align_n == 1
+    assert abs(evaluate_drive(truth_first).e_psi["none"] - r_clean.e_psi["none"]) > 5.0

@@ -3,7 +3,7 @@
 A gyro whose bias is a constant, measured by the drive's own start-up calibration, needs no
 drift reduction: bias removal is as good as it gets. HDR and HDR+ must leave such a heading
 within 10 % of bias removal's when the gyro's error model is known (the configuration's
-``plus.*``, a grade, or a bias file's recorded model): the paper's Table III increment is
+``gyro.*``, a grade, or a bias file's recorded model): the paper's Table III increment is
 meant for a CRS03-04's drift and only straightens real curves on a gyro whose bias stays put.
 """
 
@@ -42,7 +42,7 @@ def constant_bias_drives() -> list[PreparedDrive]:
 
 
 def known(noise: GyroNoise) -> SettingsContext:
-    """The default configuration with the gyro's error model given (``plus.*``)."""
+    """The default configuration with the gyro's error model given (``gyro.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
 
 
@@ -73,10 +73,10 @@ def test_a_known_constant_bias_is_left_alone(
 def test_the_paper_increment_harms_a_steady_gyro(
     constant_bias_drives: list[PreparedDrive],
 ) -> None:
-    """The harm the rule above prevents: with Table III's increment (``hdr.i_c_from:
-    config``, or no error model known) paper HDR makes the same drives clearly worse."""
+    """The harm the rule above prevents: with Table III's increment (``hdr.i_c:
+    0.0422``, or no error model known) paper HDR makes the same drives clearly worse."""
     none = errors(constant_bias_drives, "none", DEFAULTS)
-    table3 = errors(constant_bias_drives, "hdr", replace(known(STEADY), hdr_i_c_from_gyro=False))
+    table3 = errors(constant_bias_drives, "hdr", replace(known(STEADY), i_c_auto=False))
     assert table3.mean() > 1.3 * none.mean()
 
 

@@ -124,11 +124,11 @@ def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
     ctx = SettingsContext(HdrParams(T=1.0), base, samples_per_step=1.0, bias=rec)
     p = plus_settings(ctx)
     assert p.standstill.samples_per_step == 1.0
-    assert p.bias_p0 == 0.2 * 0.2 / 30
+    assert p.fit.bias_p0 == 0.2 * 0.2 / 30
     assert p.hdr.T == 1.0 and p.hdr.i_c == base.hdr.i_c
     # A given bias (no record of its spread) keeps the configured prior.
     given = SettingsContext(HdrParams(T=2.0), base, bias=BiasRecord(0.5, 0.0, 0, 0.0))
-    assert plus_settings(given).bias_p0 == base.bias_p0
+    assert plus_settings(given).fit.bias_p0 == base.fit.bias_p0
     assert plus_settings(SettingsContext(HdrParams(T=2.0))).hdr.T == 2.0
     # The configuration's standstill keys and grade reach it there, and only there.
     off = plus_settings(replace(ctx, standstill=False, standstill_from_gyro=True))
@@ -151,11 +151,11 @@ def test_hdr_takes_its_increment_from_a_known_error_model() -> None:
     assert REGISTRY["hdr"].settings(SettingsContext(paper, grade="tactical")) == tactical
     # A phone's bias drifts more in 30 s than Table III's increment, which stays.
     assert methods.hdr_settings(SettingsContext(paper, grade="phone")) == paper
-    # hdr.i_c_from: config keeps what is configured whatever the gyro.
-    asked = SettingsContext(paper, grade="tactical", hdr_i_c_from_gyro=False)
+    # hdr.i_c: NUMBER keeps what is configured whatever the gyro.
+    asked = SettingsContext(paper, grade="tactical", i_c_auto=False)
     assert methods.hdr_settings(asked) == paper
     # The configuration reaches it.
-    cfg = parse_config({"hdr": {"i_c_from": "config"}, "plus": {"grade": "tactical"}})
+    cfg = parse_config({"hdr": {"i_c": 0.0422}, "gyro": {"grade": "tactical"}})
     assert REGISTRY["hdr"].settings(config_mod.settings_context(cfg)) == paper
 
 

@@ -135,7 +135,7 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
         # And so the same heading error: Eψ from replay's yaw is evaluate's.
         r = evaluate_prepared(prep, cfg.hdr.params, (method,), settings_context(cfg))
         assert (
-            float(e_psi(np.array([m["yaw"] for m in steps]), prep.truth, prep.k))
+            float(e_psi(np.array([m["yaw"] for m in steps]), prep.truth, prep.k, prep.align_n))
             == (r.e_psi[method])
         )
     if "gaps" in kw:
@@ -164,7 +164,7 @@ def test_a_bias_file_sets_hdr_plus_prior_in_the_daemon_as_in_evaluate() -> None:
     from hdrd.io.capture import decode_capture
 
     p.feed_array(decode_capture(data)[0])
-    assert p.stepper.settings.bias_p0 == 0.05 * 0.05 / 300
+    assert p.stepper.settings.fit.bias_p0 == 0.05 * 0.05 / 300
     without = replay_capture(data, _config("hdr+"), rec.bias_dps)
     assert [m["yaw"] for m in msgs] != [m["yaw"] for m in without]
     # evaluate measures its own record; with the one replay measured, the same prior.

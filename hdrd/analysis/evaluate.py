@@ -194,14 +194,14 @@ def evaluate_prepared(
     heading: dict[str, FloatArray] = {}
     for m in ms:
         yaw = method_yaw(prep, m, params, context)
-        e[m] = float(e_psi(yaw, prep.truth, prep.k))
+        e[m] = float(e_psi(yaw, prep.truth, prep.k, prep.align_n))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
             raise EvaluationError(
                 f"{prep.name}: {m} gives a heading error of {e[m]!r} deg over "
                 f"{prep.duration_min!r} min, not a number to report"
             )
-        heading[m] = gyro_heading(yaw, prep.truth, prep.k)
+        heading[m] = gyro_heading(yaw, prep.truth, prep.k, prep.align_n)
     return DriveResult(
         name=prep.name,
         duration_min=prep.duration_min,

@@ -76,6 +76,13 @@ STANDSTILL_MIN_S = 6.0
 the standstill test's noise-scaled checks need)."""
 STANDSTILL_MAX_S = 30.0
 """Longest window taken from a found standstill, s (the paper's Tbias)."""
+ALIGN_S = 10.0
+"""Where the truth is a course over ground, the gyro is aligned over the first this many
+seconds of straight driving at speed, s (:func:`alignment`)."""
+ALIGN_MIN_SPEED_MPS = 5.0
+"""... at or above this speed, m/s (the GPS aiding's: a course below it is noise) ..."""
+ALIGN_MAX_TURN_DPS = 1.0
+"""... with the truth turning by at most this from step to step, deg/s."""
 DEFAULT_LIMITS = StandstillLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
 PAPER_PARAMS = HdrParams()
@@ -111,8 +118,8 @@ class PreparedDrive:
     """A drive reduced to what the metrics need: per-step inputs and truth at step ends.
 
     steps: the steps after the calibration (t_end in s since the log's first sample). truth:
-    compass heading, deg CW, at each step end (NaN where unknown). k: the step where the gyro
-    is aligned to the truth. duration_min: Td of Eq. 13. bias_source: where the bias came from
+    compass heading, deg CW, at each step end (NaN where unknown). k, align_n: the step where
+    the gyro is aligned to the truth, and over how many steps (:func:`alignment`). duration_min: Td of Eq. 13. bias_source: where the bias came from
     (:class:`CalibrationPlan`). bias_std_dps: spread of the calibration samples, deg/s (NaN if
     given). missing_steps: steps without samples after the start (not evaluated). start_s:
     where the evaluated drive starts, s after the log's first sample (the end of the
@@ -141,6 +148,8 @@ class PreparedDrive:
     sign: SignCheck = NO_CHECK
     """How the log's rate follows its truth heading over the turns (a flipped sign, a wrong
     unit: :mod:`hdrd.analysis.signcheck`)."""
+    align_n: int = 1
+    """Steps the gyro is aligned over from k (:func:`alignment`; 1: at k itself)."""
 
 
 # -- where the bias comes from -------------------------------------------------------------
@@ -446,13 +455,14 @@ def prepare_drive(
     t_end = np.array([b.t_end for b in stepped.blocks]) + offset
     start_s = stepped.start_s + offset
     truth = truth_at(log.t - log.t[0], heading_truth, t_end, truth_max_gap_s)
-    k = align_index(np.zeros(t_end.shape[0]), truth)
-    if k is None:
+    if align_index(np.zeros(t_end.shape[0]), truth) is None:
         raise EvaluationError(
             f"{name}: no truth heading at any step end after the start (fixes further than "
             f"{truth_max_gap_s:g} s apart, or only during calibration)"
         )
     steps = _step_inputs(log, stepped, t_end, T, rec, measured)
+    exact = log.omega_truth is not None and bool(np.isfinite(log.omega_truth).any())
+    k, align_n = alignment(truth, steps.speed, T, exact)
     source = plan.source
     if measured and stepper.window.attempts > 1:
         source = (
@@ -464,6 +474,7 @@ def prepare_drive(
         steps=steps,
         truth=truth,
         k=k,
+        align_n=align_n,
         duration_min=(float(t_end[-1]) - start_s) / 60.0,
         bias_source=source,
         bias_std_dps=rec.std_dps if measured else math.nan,
@@ -475,6 +486,37 @@ def prepare_drive(
         quant_step_dps=quantization_step(log.omega),
         sign=check_sign(log.t, log.omega, heading_truth),
     )
+
+
+def alignment(
+    truth: FloatArray, speed: FloatArray | None, T: float, exact: bool
+) -> tuple[int, int]:
+    """(k, n): the step the gyro is aligned to the truth at, and over how many steps
+    (:func:`hdrd.analysis.metrics.reference`).
+
+    An exact truth (a simulated drive, an INS: the log has ``omega_truth``) aligns at its first
+    value, n = 1. A course over ground is noisy and meaningless at walking pace, and a first
+    fix often falls at 2 m/s in a turn: it aligns over the first :data:`ALIGN_S` of straight
+    driving at speed (every step with a truth, a speed of at least
+    :data:`ALIGN_MIN_SPEED_MPS` where the log has one, and the truth turning by at most
+    :data:`ALIGN_MAX_TURN_DPS`); where no such stretch exists, at the first value too.
+    """
+    first = align_index(np.zeros(truth.shape[0]), truth)
+    assert first is not None
+    n = max(2, int(round(ALIGN_S / T)))
+    if exact or truth.shape[0] < n:
+        return first, 1
+    ok = np.isfinite(truth)
+    if speed is not None:
+        ok &= np.nan_to_num(speed, nan=-1.0) >= ALIGN_MIN_SPEED_MPS
+    turn = np.abs((np.diff(truth) + 180.0) % 360.0 - 180.0) <= ALIGN_MAX_TURN_DPS * T
+    good = ok[1:] & ok[:-1] & turn  # step j+1 straight after step j
+    run = 0
+    for j in range(first, good.shape[0]):
+        run = run + 1 if good[j] else 0
+        if run >= n - 1:
+            return j + 2 - n, n
+    return first, 1
 
 
 def method_settings(

@@ -151,7 +151,7 @@ def score_candidates(
         ic, ta, th, k1, k2 = (cand[k][a:b] for k in PARAM_NAMES)
         for j, d in enumerate(drives):
             yaw = run_many(d.steps.u, ic, ta, th, k1, k2, T=T)
-            out[j, a:b] = e_psi(yaw, d.truth, d.k)
+            out[j, a:b] = e_psi(yaw, d.truth, d.k, d.align_n)
             done += d.steps.u.shape[0] * (b - a)
             if progress is not None:
                 progress(done, total)

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from hdrd.analysis.fleet_jobs import GapOutcome
     from hdrd.io.drivefiles import DriveRef
 
-__all__ = ["main", "parse_period", "plus_section"]
+__all__ = ["main", "parse_period", "gyro_section"]
 
 
 def _err(msg: str) -> None:
@@ -38,8 +38,8 @@ def parse_period(text: str) -> tuple[float, float]:
     return t0, t1
 
 
-def plus_section(model: GyroModel, drive: str) -> str:
-    """A fitted model as HDR+'s error model: the ``plus:`` section of hdrd.yaml (the keys of
+def gyro_section(model: GyroModel, drive: str) -> str:
+    """A fitted model as HDR+'s error model: the ``gyro:`` section of hdrd.yaml (the keys of
     docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
     from hdrd.sim.grades import model_noise
 
@@ -50,8 +50,8 @@ def plus_section(model: GyroModel, drive: str) -> str:
         known.pop("bias_tau_s", None)
     lines = [
         f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
-        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its plus: section.',
-        "plus:",
+        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its gyro: section.',
+        "gyro:",
     ]
     lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
     if not known:
@@ -61,7 +61,7 @@ def plus_section(model: GyroModel, drive: str) -> str:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd gap MEASURED... [--model MODEL.yaml] [--out FITTED.yaml|DIR] [--report REPORT.json]
-    [--plus-out PLUS.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
+    [--gyro-out GYRO.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
     --scheduler ADDRESS] [--no-progress]``. Exit 0 ok, 1 bad input or I/O error, 78 bad
     model file. Several drives (files, directories, globs): each analysed on its own, one line
     each (:mod:`hdrd.analysis.gap.fleet`)."""
@@ -139,7 +139,7 @@ def _start_model(args: argparse.Namespace) -> GyroModel | None:
 
 def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
     """The drives named; None when they cannot be found or are too many for --plot or
-    --plus-out, which describe one drive (why said on stderr)."""
+    --gyro-out, which describe one drive (why said on stderr)."""
     from hdrd.io.drivefiles import find_drives
     from hdrd.io.drivelog import DriveLogError
 
@@ -151,17 +151,17 @@ def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | N
     if len(refs) > 1 and args.plot:
         _err(f"--plot draws one drive; {len(refs)} were given")
         return None
-    if len(refs) > 1 and getattr(args, "plus_out", None):
-        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+    if len(refs) > 1 and getattr(args, "gyro_out", None):
+        _err(f"--gyro-out describes one gyro from one drive; {len(refs)} were given")
         return None
     return refs
 
 
 def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str]) -> int:
-    """One drive's --report, --out, --plus-out and --plot; the exit status."""
+    """One drive's --report, --out, --gyro-out and --plot; the exit status."""
     from hdrd.sim.gyro import save_model
 
-    plus_out = getattr(args, "plus_out", None)
+    gyro_out = getattr(args, "gyro_out", None)
     try:
         if args.report:
             from hdrd.io.files import atomic_write_json
@@ -169,11 +169,11 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
             atomic_write_json(args.report, res.report)
         if args.out:
             save_model(res.model, args.out)
-        if plus_out:
+        if gyro_out:
             from hdrd.io.files import atomic_write_text, shown_path
 
             # the name goes into a YAML comment: one printable line, whatever the file is called
-            atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
+            atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1

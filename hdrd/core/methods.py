@@ -82,9 +82,9 @@ class SettingsContext:
     gyro and this drive's calibration show.
 
     From the configuration (:func:`hdrd.config.settings_context`): hdr, the HDR parameters
-    (``hdr.*``; T is the step period, s); hdr_i_c_from_gyro, ``hdr.i_c_from: gyro`` (HDR's
-    increment follows a known error model's drift, :func:`hdr_settings`); grade, ``plus.grade`` (``none``: no preset);
-    given_noise, the ``plus.*`` noise parameters given (name, value; 0 = not given);
+    (``hdr.*``; T is the step period, s); i_c_auto, ``hdr.i_c_from: gyro`` (HDR's
+    increment follows a known error model's drift, :func:`hdr_settings`); grade, ``gyro.grade`` (``none``: no preset);
+    given_noise, the ``gyro.*`` noise parameters given (name, value; 0 = not given);
     standstill and standstill_from_gyro, ``standstill.enabled`` and ``standstill.from_gyro``.
     plus: HDR+'s base settings (its defaults; benchmarks ablate them).
 
@@ -99,7 +99,7 @@ class SettingsContext:
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
     quant_step_dps: float | None = None
-    hdr_i_c_from_gyro: bool = True
+    i_c_auto: bool = True
     grade: str = "none"
     given_noise: tuple[tuple[str, float], ...] = ()
     standstill: bool = True
@@ -122,7 +122,7 @@ def calibration_of(
 
 def error_model(ctx: SettingsContext) -> GyroNoise | None:
     """The gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded
-    by ``hdrd calibrate`` in the bias file, else the ``plus.*`` parameters given, else the
+    by ``hdrd calibrate`` in the bias file, else the ``gyro.*`` parameters given, else the
     grade's); None when nothing is known."""
     recorded = ctx.bias.noise if ctx.bias is not None else None
     return noise_in_force(ctx.grade, dict(ctx.given_noise), recorded)
@@ -145,7 +145,7 @@ def hdr_settings(ctx: SettingsContext) -> HdrParams:
     Without a known model Table III stays (the start-up calibration shows the white noise, not
     how the bias drifts)."""
     p = ctx.hdr
-    if not ctx.hdr_i_c_from_gyro:
+    if not ctx.i_c_auto:
         return p
     noise = error_model(ctx)
     if noise is None or not noise.known():
@@ -164,7 +164,7 @@ def plus_settings(ctx: SettingsContext) -> HdrPlusParams:
     step's spread into the variance of its mean at a standstill; the calibration record's
     noise (:func:`calibration_of`; a given bias has none, and the base's bias_p0 stays); the
     gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded by
-    ``hdrd calibrate``, else the ``plus.*`` parameters given, else the grade's); the output
+    ``hdrd calibrate``, else the ``gyro.*`` parameters given, else the grade's); the output
     step (the ADC's LSB; for a recorded log, the lattice of its values).
     :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` fits the bias model to them.
     """

@@ -34,6 +34,16 @@ class StepInput(NamedTuple):
     """Board temperature, degC."""
     T: float
     """Step length, s."""
+    heading_err_deg: float = math.nan
+    """A GPS course's measurement of the heading error at the end of the step before: the
+    heading published then minus the course carried to that time, compass deg wrapped to
+    [-180, 180) (+: the heading reads clockwise of the truth); NaN: no measurement. Only a
+    method that owns the heading reads it (HDR+; the aiding stage makes it)."""
+    heading_err_var: float = math.nan
+    """Its variance, deg^2."""
+    heading_reset: bool = False
+    """The heading was (re)aligned to a course before this step: what the method knew of
+    its heading error starts again (with ``heading_err_var`` as its variance)."""
 
 
 @dataclass(frozen=True)
