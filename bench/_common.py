@@ -228,8 +228,8 @@ def make_capture(
         m = json.loads(meta.read_text())
         if m.get("key") == key:
             return m
-    from hdrd.commands.fakegyro import FakeGyro
     from hdrd.sim import simulate_drive
+    from hdrd.sim.fakegyro import FakeGyro
 
     profile = simulate_drive("mixed", minutes, seed, hz=hz)
     g = FakeGyro(profile, garbage=CAPTURE_GARBAGE, crc_errors=CAPTURE_CRC_ERRORS, seed=seed)

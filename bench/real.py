@@ -84,15 +84,16 @@ MIN_SCORED_MIN = 5.0
 def convert_all(folder: Path, shown: list[str]) -> None:
     """Every real recording into ``folder`` as drive logs, by tools/convert_real.py as a user
     runs it: ../shared/data's (a failure stops the benchmark), then the public sources' (oan,
-    psins) where their snapshots are (docs/real-data.md); one that cannot be converted is left
-    out with the converter's own reason."""
+    psins) where $HDRD_MIRRORS holds their clones (docs/real-data.md); one that cannot be
+    converted is left out with the converter's own reason."""
     tool = [sys.executable, "tools/convert_real.py"]
     run_recorded([*tool, "all", "--out-dir", str(folder)], shown)
     for which, out in (("oan", ["--out-dir", str(folder)]),
                        ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
         p = subprocess.run([*tool, which, *out], cwd=REPO, capture_output=True, text=True)
         if p.returncode == 0:
-            shown.append(" ".join(["python", "tools/convert_real.py", which, *out]))
+            env = "HDRD_MIRRORS=DIR "  # the folder of clones (docs/real-data.md)
+            shown.append(env + " ".join(["python", "tools/convert_real.py", which, *out]))
         else:
             why = (p.stderr.strip().splitlines() or ["no message"])[-1]
             print(f"bench/real.py: {which} left out: {why}", file=sys.stderr)

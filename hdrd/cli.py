@@ -56,7 +56,9 @@ def command(name: str, target: str, help: str) -> Callable[[Adder], Adder]:
     return register
 
 
-def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> None:
+def _bias_group(
+    p: argparse.ArgumentParser, calibrate_seconds: bool = True, state_fallback: bool = True
+) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--bias",
@@ -69,7 +71,11 @@ def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> N
         "--bias-file",
         metavar="PATH",
         help="bias file written by `hdrd calibrate` (default calibration.bias_file, else "
-        "$STATE_DIRECTORY or /var/lib/hdrd/bias.yaml when it exists)",
+        + (
+            "$STATE_DIRECTORY or /var/lib/hdrd/bias.yaml when it exists)"
+            if state_fallback
+            else "none: never this machine's $STATE_DIRECTORY or /var/lib/hdrd bias file)"
+        ),
     )
     if calibrate_seconds:
         g.add_argument(
@@ -468,10 +474,15 @@ def _replay(p: argparse.ArgumentParser) -> None:
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
     p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
-    _bias_group(p)
+    _bias_group(p, state_fallback=False)  # a replay gives the same lines on any machine
     _config(p)
     _method(p)
-    p.add_argument("--heading0", type=float, metavar="DEG", help="compass heading at start, deg")
+    p.add_argument(
+        "--heading0",
+        type=float,
+        metavar="DEG",
+        help="compass heading at start, deg (default output.heading0_deg, 0)",
+    )
 
 
 @command(

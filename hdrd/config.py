@@ -305,11 +305,17 @@ def _drive() -> tuple[Check, Callable[[], str]]:
     return (lambda v: v in drives()), lambda: "one of " + ", ".join(drives())
 
 
-_HOSTPORTS = "a list of HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
+MAX_DESTINATIONS = 16
+"""Most destinations of ``output.udp`` (and ``output.nmea_udp``): each is sent every step, and
+its name resolved on every reload."""
+_HOSTPORTS = f"a list of at most {MAX_DESTINATIONS} HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
 
 
 def _hostports(v: tuple[str, ...]) -> bool:
-    """True if every item is a HOST:PORT; ValueError naming the first that is not, and why."""
+    """True if every item is a HOST:PORT, and there are at most :data:`MAX_DESTINATIONS`;
+    ValueError naming the first that is not, and why."""
+    if len(v) > MAX_DESTINATIONS:
+        raise ValueError(f"{len(v)} destinations are more than {MAX_DESTINATIONS}")
     for item in v:
         try:
             parse_hostport(item)

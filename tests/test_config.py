@@ -91,9 +91,22 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "output.stdout": (True, ["no", 1, None]),
     "output.udp": (
         ["127.0.0.1:10110", "[::1]:10111"],
-        ["localhost", ["host:0"], ["host:65536"], [":abc"], [1], {"a": 1}, ["a b:10"], 5],
+        [
+            "localhost",
+            ["host:0"],
+            ["host:65536"],
+            [":abc"],
+            [1],
+            {"a": 1},
+            ["a b:10"],
+            5,
+            [f"h:{p}" for p in range(1000, 1017)],
+        ],
     ),
-    "output.nmea_udp": (["192.168.1.5:10110"], ["x", ["h:0"], [None], ["h:"]]),
+    "output.nmea_udp": (
+        ["192.168.1.5:10110"] * 16,
+        ["x", ["h:0"], [None], ["h:"], ["192.168.1.5:10110"] * 17],
+    ),
     "output.nmea_ths": (True, [1, "true"]),
     "output.nmea_talker": ("HC", ["hc", "H", "HCX", "H1", "ÄB", "", 5, None]),
     "log.level": ("debug", ["verbose", "INFO", 3, None]),
@@ -702,7 +715,7 @@ def _hard_capture() -> bytes:
 
 @pytest.mark.parametrize("key, value", EDGES, ids=[f"{k}={v!r}" for k, v in EDGES])
 def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) -> None:
-    from hdrd.commands.replay import replay_capture
+    from hdrd.daemon.replay import replay_capture
 
     data = nested(key, value)
     if key.startswith("device.reconnect_"):  # the cross-check wants min <= max

@@ -1,6 +1,7 @@
 """tools/convert_real.py: geodesy and the start-up standstill on hand cases, and the real
-recordings (each skipped when its folder under ../shared/data is absent) with their sign
-conventions checked against the reference."""
+recordings (each skipped when its folder under ../shared/data, or $HDRD_REAL_DATA, is absent;
+the public sources' when no clone is named by $HDRD_MIRRORS) with their sign conventions
+checked against the reference."""
 
 from __future__ import annotations
 
@@ -32,6 +33,11 @@ SMARTLOC = cr.DATA / "smartloc_berlin"
 COMMA = cr.DATA / "comma2k19_example"
 RTKLIB = cr.DATA / "rtklib_drive0708"
 NDS = cr.DATA / "driveplotr_nds"
+
+
+def absent(folder: Path) -> str:
+    """The skip reason of a recording of ../shared/data that is not there."""
+    return f"{folder} is absent (set HDRD_REAL_DATA to the folder holding the recordings)"
 
 
 def mean_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> tuple[float, float]:
@@ -76,7 +82,7 @@ def test_course_from_positions_is_compass() -> None:
     assert np.all(np.isnan(slow))  # 1 m/s < 2 m/s
 
 
-@pytest.mark.skipif(not SMARTLOC.is_dir(), reason="../shared/data/smartloc_berlin is absent")
+@pytest.mark.skipif(not SMARTLOC.is_dir(), reason=absent(SMARTLOC))
 def test_smartloc(tmp_path: Path) -> None:
     out = tmp_path / "s.csv"
     assert cr.main(["smartloc", "--out", str(out)]) == 0
@@ -92,7 +98,7 @@ def test_smartloc(tmp_path: Path) -> None:
     assert mean_heading_error(log, 0.0)[1] == pytest.approx(17.8, abs=3.0)  # README: +17.8 deg
 
 
-@pytest.mark.skipif(not COMMA.is_dir(), reason="../shared/data/comma2k19_example is absent")
+@pytest.mark.skipif(not COMMA.is_dir(), reason=absent(COMMA))
 def test_comma2k19(tmp_path: Path) -> None:
     out = tmp_path / "c.csv"
     assert cr.main(["comma2k19", "--out", str(out)]) == 0
@@ -153,7 +159,7 @@ def test_lead_in_seconds_hand_cases() -> None:
     assert cr.lead_in_seconds(t100, sp100, w100, margin_s=1.0) == 5.0
 
 
-@pytest.mark.skipif(not RTKLIB.is_dir(), reason="../shared/data/rtklib_drive0708 is absent")
+@pytest.mark.skipif(not RTKLIB.is_dir(), reason=absent(RTKLIB))
 def test_rtklib(tmp_path: Path) -> None:
     out = tmp_path / "r.csv"
     assert cr.main(["rtklib", "--out", str(out)]) == 0
@@ -176,7 +182,7 @@ def test_rtklib(tmp_path: Path) -> None:
     assert mean_ok < 3.0 and mean_flipped > 100.0
 
 
-@pytest.mark.skipif(not NDS.is_dir(), reason="../shared/data/driveplotr_nds is absent")
+@pytest.mark.skipif(not NDS.is_dir(), reason=absent(NDS))
 def test_driveplotr(tmp_path: Path) -> None:
     assert cr.main(["driveplotr", "--out-dir", str(tmp_path)]) == 0
     files = sorted(tmp_path.glob("nds_drive*.csv"))
@@ -243,12 +249,32 @@ def test_cli_absent_default_folder_hints(
     monkeypatch.setattr(cr, "MIRRORS", tmp_path / "no-mirrors")
     assert cr.main(["psins", "--out", str(tmp_path / "p.csv")]) == 1
     err = capsys.readouterr().err
-    assert "clone github.com/WangShanpeng/PSINS" in err
-    assert "c1706f136d1a8dc64245e851cc77c8cac00a94b6" in err
+    assert "no-mirrors/WangShanpeng+PSINS/repo is absent" in err
+    clone = "git clone https://github.com/WangShanpeng/PSINS PSINS && git -C PSINS checkout "
+    assert clone + "c1706f136d1a8dc64245e851cc77c8cac00a94b6" in err
     assert not (tmp_path / "p.csv").exists()
 
 
-@pytest.mark.skipif(not cr.DATA.is_dir(), reason="../shared/data is absent")
+def test_no_folder_of_snapshots_is_assumed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Without $HDRD_MIRRORS (a folder of clones the user keeps) or --data, a public source is
+    # named with the command that clones it: no machine's folder is a default.
+    monkeypatch.setitem(sys.modules, "convert_real", cr)  # back to this module's after
+    monkeypatch.delenv("HDRD_MIRRORS", raising=False)
+    fresh = _load()
+    assert fresh.MIRRORS is None and fresh.default_clone("oan") is None
+    assert fresh.main(["oan", "--out-dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "HDRD_MIRRORS" in err and "--data" in err
+    assert "git clone https://github.com/fedorbaklanov/open-aided-navigation " in err
+    with pytest.raises(ValueError, match="git -C PSINS checkout c1706f136d1a"):
+        fresh.psins_to_drive()
+    monkeypatch.setenv("HDRD_MIRRORS", str(tmp_path))
+    assert _load().default_clone("psins") == tmp_path / "WangShanpeng+PSINS" / "repo"
+
+
+@pytest.mark.skipif(not cr.DATA.is_dir(), reason=absent(cr.DATA))
 def test_cli_all_with_explicit_root(tmp_path: Path) -> None:
     assert cr.main(["all", "--data", str(cr.DATA), "--out-dir", str(tmp_path)]) == 0
     names = {f.stem for f in tmp_path.glob("*.csv")}
@@ -260,6 +286,13 @@ def test_cli_all_with_explicit_root(tmp_path: Path) -> None:
 
 OAN = cr.default_clone("oan")
 PSINS = cr.default_clone("psins")
+
+
+def no_clone(key: str, clone: Path | None) -> str:
+    """The skip reason of a public source without a clone: where it was looked for and how
+    to make one."""
+    where = "no $HDRD_MIRRORS" if clone is None else f"{clone} is absent"
+    return f"{where}: {cr.clone_hint(key)}"
 
 
 def wrapped_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> float:
@@ -302,7 +335,7 @@ def test_semicolon_table_hand_case() -> None:
         cr._semicolon_table(b"1;2;3\n", "g.csv", ("TimestampGyro",))
 
 
-@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+@pytest.mark.skipif(OAN is None or not OAN.exists(), reason=no_clone("oan", OAN))
 def test_oan(tmp_path: Path) -> None:
     assert cr.main(["oan", "--data", str(OAN), "--out-dir", str(tmp_path)]) == 0
     logs = {f.stem: read_drive(f) for f in sorted(tmp_path.glob("oan_*.csv"))}
@@ -333,7 +366,7 @@ def test_oan(tmp_path: Path) -> None:
         assert ok < 20.0 and flipped > 50.0 and flipped > 3 * ok, name
 
 
-@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+@pytest.mark.skipif(OAN is None or not OAN.exists(), reason=no_clone("oan", OAN))
 def test_source_file_from_a_work_tree(tmp_path: Path) -> None:
     # The same bytes from a bare git directory (the fetched snapshot) and from a work tree.
     from_git = cr.read_source_file(OAN, "oan", "LICENSE.md")
@@ -342,7 +375,7 @@ def test_source_file_from_a_work_tree(tmp_path: Path) -> None:
     assert cr.read_source_file(tmp_path, "oan", "LICENSE.md") == from_git
 
 
-@pytest.mark.skipif(not PSINS.exists(), reason=f"{PSINS} (a clone of PSINS) is absent")
+@pytest.mark.skipif(PSINS is None or not PSINS.exists(), reason=no_clone("psins", PSINS))
 def test_psins(tmp_path: Path) -> None:
     out = tmp_path / "p.csv"
     assert cr.main(["psins", "--src", str(PSINS), "--out", str(out)]) == 0

@@ -28,7 +28,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.core.hdr import HdrParams
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
@@ -36,6 +35,7 @@ from hdrd.io.frames import Frame, Parser, array_to_frames
 from hdrd.io.publish import _format_clean, format_json
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
 from hdrd.sim import simulate_drive
+from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import profile_frames
 
 FAULTS: dict[str, Any] = {"garbage": 0.01, "crc_errors": 0.005, "drop": 0.002, "seed": 5}
@@ -60,7 +60,7 @@ def capture(
 
 
 def replay_messages(data: bytes, config: PipelineConfig) -> list[dict[str, Any]]:
-    """What ``hdrd replay`` publishes (hdrd.commands.replay.replay_capture, with a PipelineConfig)."""
+    """What ``hdrd replay`` publishes (hdrd.daemon.replay.replay_capture, with a PipelineConfig)."""
     arr, st_ = decode_capture(data)
     p = Pipeline(config)
     msgs = p.feed_array(arr, st_.bad_before)

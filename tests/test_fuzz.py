@@ -161,8 +161,8 @@ def test_a_config_is_valid_or_one_config_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.commands.replay import replay_capture
     from hdrd.config import ConfigError, load_config
+    from hdrd.daemon.replay import replay_capture
 
     p = tmp_path_factory.mktemp("cfg") / "hdrd.yaml"
     text = emit_yaml(doc, block_depth=block).encode("utf-8", "surrogatepass")
@@ -241,8 +241,8 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
 @FUZZ
 @given(data=st.binary(max_size=2000), protocol=st.sampled_from(["hdr-bin", "hdr-text"]))
 def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
-    from hdrd.commands.replay import replay_capture
     from hdrd.config import Config, apply_overrides
+    from hdrd.daemon.replay import replay_capture
 
     cfg = apply_overrides(Config(), {"device.protocol": protocol, "hdr.method": "hdr+"})
     check_messages(replay_capture(_CAPTURE[:3000] + data, cfg, None, startup_s=1.0))

@@ -111,9 +111,9 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
 def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> None:
     # `hdrd replay --bias-file F` (and `hdrd run`) fits HDR+ to the noise recorded in F,
     # else to gyro.grade, and says which in every step.
-    from hdrd.commands.replay import replay_capture
     from hdrd.config import parse_config
     from hdrd.core.calibrate import BiasRecord
+    from hdrd.daemon.replay import replay_capture
     from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     n = 600

@@ -1,8 +1,9 @@
 """The package's layout, read from the source with ast (so lazy and TYPE_CHECKING imports
 count): small modules, no import cycle, each layer importing only the layers below it, no
 private name crossing a module, only the run command importing the daemon's loop, every
-command a module of its own, every exception under HdrdError, one home for each shared
-constant, and the command line's few light copies equal to their homes."""
+command a module of its own and reached only through the command line, every exception under
+HdrdError, one home for each shared constant, and the command line's few light copies equal
+to their homes."""
 
 from __future__ import annotations
 
@@ -191,6 +192,63 @@ def test_only_the_run_command_imports_the_run_loop() -> None:
     from hdrd.cli import COMMANDS
 
     assert COMMANDS["run"][0] == "hdrd.commands.run:main"
+
+
+# commands/ only parses and calls: the package, bench/ and tests/ reach a command through the
+# command line (hdrd.cli.main, or a subprocess), never by importing it. Known exemptions, each
+# file with the command modules it still imports; the list may only shrink.
+COMMAND_IMPORTERS: dict[str, set[str]] = {
+    # the tail formatter, until it moves to io/
+    "tests/test_fuzz.py": {"hdrd.commands.tail"},
+    "tests/test_layout.py": {"hdrd.commands.tail"},
+    "tests/test_security.py": {"hdrd.commands.tail"},
+    "tests/test_tail.py": {"hdrd.commands.tail"},
+    # the command line's options -> configuration, until one function reads it for every command
+    "tests/test_cli.py": {"hdrd.commands.options"},
+    "tests/test_gpsd.py": {"hdrd.commands.options"},
+    # the fitted model as configuration text, and simulate's size check
+    "tests/test_gap.py": {"hdrd.commands.gap"},
+    "tests/test_hardening.py": {"hdrd.commands.simulate"},
+}
+
+
+def command_importers() -> dict[str, set[str]]:
+    """File (relative to the repository) -> the hdrd.commands modules it imports, for every
+    file of hdrd/ outside commands/, bench/ and tests/."""
+    found: dict[str, set[str]] = {}
+    for top in ("hdrd", "bench", "tests"):
+        for p in sorted((ROOT / top).rglob("*.py")):
+            rel = p.relative_to(ROOT).as_posix()
+            if rel.startswith("hdrd/commands/"):
+                continue
+            names: set[str] = set()
+            for node in ast.walk(parsed(p)):
+                if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                    if node.module == "hdrd.commands":
+                        names.update(f"hdrd.commands.{a.name}" for a in node.names)
+                    elif node.module.startswith("hdrd.commands."):
+                        names.add(node.module)
+                elif isinstance(node, ast.Import):
+                    names.update(a.name for a in node.names if a.name.startswith("hdrd.commands"))
+            if names:
+                found[rel] = names
+    return found
+
+
+def test_commands_are_reached_only_through_the_command_line() -> None:
+    found = command_importers()
+    assert found.pop("hdrd/cli.py", None) is None  # the command line names them, lazily
+    wrong = {f: n - COMMAND_IMPORTERS.get(f, set()) for f, n in found.items()}
+    assert {f: n for f, n in wrong.items() if n} == {}
+    # the rule sees each kind of import
+    tree = ast.parse("def f():\n    from hdrd.commands import replay\n")
+    assert "hdrd.commands.replay" in imports(tree, set(modules()))
+
+
+def test_each_command_importer_exemption_is_still_needed() -> None:
+    found = command_importers()
+    stale = {f: n - found.get(f, set()) for f, n in COMMAND_IMPORTERS.items()}
+    assert {f: n for f, n in stale.items() if n} == {}, "remove it from COMMAND_IMPORTERS"
 
 
 def test_every_command_is_a_module_of_its_own() -> None:

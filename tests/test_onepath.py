@@ -16,12 +16,12 @@ import pytest
 
 from hdrd.analysis.evaluate import evaluate_prepared, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
-from hdrd.commands.replay import replay_capture
 from hdrd.config import Config, parse_config, settings_context
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.methods import names
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.replay import replay_capture
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import FRAME_DTYPE, encode_array
 

@@ -77,6 +77,18 @@ def test_a_spec_is_a_duration_every_period() -> None:
             OutageSpec.parse(bad)
 
 
+def test_an_outage_shorter_than_a_step_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    # 0.000001s/0.000002s made billions of outages: 2.8 GB, then a MemoryError.
+    with pytest.raises(ValueError, match=r"0\.5 s is shorter than a step \(1 s, hdr\.T\)"):
+        OutageSpec.parse("0.5s/10s")
+    assert OutageSpec.parse("0.5s/10s", step_s=0.5) == OutageSpec(0.5, 10.0)
+    from hdrd.cli import main
+
+    assert main(["evaluate", "any.csv", "--outages", "0.000001s/0.000002s"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "shorter than a step" in err and "--outages" in err
+
+
 def test_outages_end_each_period_and_only_whole_ones_count() -> None:
     spec = OutageSpec(120.0, 600.0)
     assert outage_windows(spec, 30.0, 30.0 + 1800.0) == [

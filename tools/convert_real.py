@@ -13,8 +13,9 @@ and those of public repositories listed in tools/real_sources.yaml (docs/real-da
 ``--data`` (alias ``--src``) is the recording's folder, for oan and psins a clone of the public
 repository (its work tree, or a bare git directory read at the recorded commit); with ``all``
 the folder holding the recordings' folders. Defaults: ../shared/data beside the repository (or
-$HDRD_REAL_DATA), and for oan and psins the snapshot the search tool's fetch leaves under
-$HDRD_MIRRORS (default /work/.mirror). ``all`` converts the ../shared/data recordings only.
+$HDRD_REAL_DATA); for oan and psins, ``$HDRD_MIRRORS/<owner>+<name>/repo`` when
+$HDRD_MIRRORS names a folder of repository snapshots, else none (a missing clone is named with
+its ``git clone`` command). ``all`` converts the ../shared/data recordings only.
 
 The recordings are third-party (see each folder's README.txt and licence, and
 tools/real_sources.yaml) and are read in place, never copied into this repository; write the
@@ -510,9 +511,10 @@ def driveplotr_to_drives(folder: Path = DATA / "driveplotr_nds") -> list[DriveLo
 # -- public repositories (tools/real_sources.yaml) -------------------------------------------
 
 SOURCES_YAML = Path(__file__).resolve().parent / "real_sources.yaml"
-MIRRORS = Path(os.environ.get("HDRD_MIRRORS", "/work/.mirror"))
-"""Where the search tool's ``fetch`` puts repository snapshots (``<owner>+<name>/repo``, bare git
-directories): the default source of the recordings of tools/real_sources.yaml."""
+MIRRORS: Path | None = Path(os.environ["HDRD_MIRRORS"]) if os.environ.get("HDRD_MIRRORS") else None
+"""$HDRD_MIRRORS: a folder of repository snapshots (``<owner>+<name>/repo``, a clone or a bare
+git directory), where the recordings of tools/real_sources.yaml are read without --data. No
+default: a clone is wherever its user put it."""
 
 
 def public_source(key: str) -> dict[str, Any]:
@@ -524,9 +526,45 @@ def public_source(key: str) -> dict[str, Any]:
     return dict(doc["sources"][key])
 
 
-def default_clone(key: str) -> Path:
-    """Default location of a public source: the fetched snapshot of its repository."""
+def default_clone(key: str) -> Path | None:
+    """Default location of a public source: its repository's snapshot under $HDRD_MIRRORS
+    (None without it)."""
+    if MIRRORS is None:
+        return None
     return MIRRORS / public_source(key)["repo"].replace("/", "+") / "repo"
+
+
+def clone_command(key: str) -> str:
+    """The commands that make a clone of public source ``key`` at its recorded commit."""
+    meta = public_source(key)
+    folder = meta["repo"].rsplit("/", 1)[-1]
+    return (
+        f"git clone https://github.com/{meta['repo']} {folder} && "
+        f"git -C {folder} checkout {meta['commit']}"
+    )
+
+
+def no_clone(key: str) -> str:
+    """Why public source ``key`` cannot be read without --data, and how to get it."""
+    return f"no clone of github.com/{public_source(key)['repo']} given; {clone_hint(key)}"
+
+
+def clone_hint(key: str) -> str:
+    """How to make public source ``key`` readable: its clone command, and where to name it."""
+    repo = public_source(key)["repo"]
+    return (
+        f"clone it (`{clone_command(key)}`) and pass the clone with --data, or set "
+        f"HDRD_MIRRORS to a folder holding it as {repo.replace('/', '+')}/repo "
+        "(docs/real-data.md)"
+    )
+
+
+def _clone(key: str, src: Path | None) -> Path:
+    """``src``, else the snapshot under $HDRD_MIRRORS; ValueError naming the clone command."""
+    src = default_clone(key) if src is None else src
+    if src is None:
+        raise ValueError(no_clone(key))
+    return src
 
 
 def read_source_file(src: Path, key: str, path: str) -> bytes:
@@ -620,7 +658,7 @@ def _after_handling(gyro: FloatArray, fix: FloatArray, margin_s: float = 2.0) ->
 
 def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
     """The Open Aided Navigation car drives as drive logs (see the module docstring)."""
-    src = default_clone("oan") if src is None else src
+    src = _clone("oan", src)
     meta = public_source("oan")
     logs = []
     for name, folder in meta["drives"].items():
@@ -677,7 +715,7 @@ def psins_to_drive(src: Path | None = None) -> DriveLog:
 
     from scipy.io import loadmat
 
-    src = default_clone("psins") if src is None else src
+    src = _clone("psins", src)
     meta = public_source("psins")
     path = meta["drives"]["psins_fog_mems"]
     mat = loadmat(io.BytesIO(read_source_file(src, "psins", path)))
@@ -743,11 +781,7 @@ MULTI = {"driveplotr", "oan"}
 def _absent_hint(name: str) -> str:
     """What to do when a recording's default location is absent."""
     if name in PUBLIC:
-        meta = public_source(PUBLIC[name][1])
-        return (
-            f"; clone github.com/{meta['repo']}, check out {meta['commit']} and pass the "
-            "clone with --data (docs/real-data.md)"
-        )
+        return "; " + clone_hint(PUBLIC[name][1])
     return (
         "; the default is ../shared/data beside the repository (or $HDRD_REAL_DATA): pass the "
         "recording's folder with --data ('all': the folder holding every recording's folder)"
@@ -763,7 +797,8 @@ def main(argv: list[str] | None = None) -> int:
         dest="data",
         type=Path,
         help="the recording's folder, or for oan/psins a clone of its repository (default: "
-        "../shared/data/<folder>, or the fetched snapshot); with 'all', the folder holding the "
+        "../shared/data/<folder>; for oan/psins $HDRD_MIRRORS/<owner>+<name>/repo, no default "
+        "without it); with 'all', the folder holding the "
         "recordings' folders (default ../shared/data)",
     )
     p.add_argument("--out", type=Path, help="drive log CSV to write (one single-log recording)")
@@ -782,7 +817,11 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [(name, fn, root / folder) for name, (fn, folder) in CONVERTERS.items()]
     elif args.which in PUBLIC:
         fn, key = PUBLIC[args.which]
-        jobs = [(args.which, fn, args.data if args.data is not None else default_clone(key))]
+        clone = args.data if args.data is not None else default_clone(key)
+        if clone is None:
+            print(f"convert_real: {args.which}: {no_clone(key)}", file=sys.stderr)
+            return 1
+        jobs = [(args.which, fn, clone)]
     else:
         fn, folder = CONVERTERS[args.which]
         jobs = [(args.which, fn, args.data if args.data is not None else DATA / folder)]

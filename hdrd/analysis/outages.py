@@ -78,9 +78,11 @@ class OutageSpec:
     period_s: float
 
     @classmethod
-    def parse(cls, text: str) -> OutageSpec:
-        """``D/P`` with units s (the default), min or h: ``120s/10min``, ``90/600``.
-        ValueError saying what is allowed."""
+    def parse(cls, text: str, step_s: float = PAPER_PARAMS.T) -> OutageSpec:
+        """``D/P`` with units s (the default), min or h: ``120s/10min``, ``90/600``; the
+        duration at least one step of ``step_s`` (the drift reducer's T, s: a shorter outage
+        cuts no fix, and a period as short makes millions of outages). ValueError saying what
+        is allowed."""
         m = _SPEC_RE.match(text)
         if m is None:
             raise ValueError(
@@ -93,6 +95,11 @@ class OutageSpec:
             raise ValueError(
                 f"outages {text!r}: the duration must be > 0 and shorter than the period "
                 f"({d:g} s every {p:g} s)"
+            )
+        if d < step_s:
+            raise ValueError(
+                f"outages {text!r}: an outage of {d:g} s is shorter than a step ({step_s:g} s, "
+                "hdr.T); give at least one step"
             )
         return cls(d, p)
 

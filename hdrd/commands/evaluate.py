@@ -49,7 +49,7 @@ def main(args: argparse.Namespace) -> int:
         from hdrd.analysis.outages import OutageSpec
 
         try:
-            outages = OutageSpec.parse(args.outages)
+            outages = OutageSpec.parse(args.outages, cfg.hdr.params.T)
         except ValueError as e:
             _err(f"--outages: {e}")
             return EX_USAGE

@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hdrd.io.csvimport import Mapping, import_csv
+from hdrd.errors import clipped
+from hdrd.io.csvimport import Mapping, import_csv, unit_warnings
 from hdrd.io.drivelog import DriveLogError
 from hdrd.io.files import printable, shown_path
 
@@ -45,6 +46,8 @@ def main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
+    for unit in unit_warnings(log, mapping):
+        print(f"hdrd import: warning: {clipped(printable(unit), 300)}", file=sys.stderr)
     if log.heading_truth is not None:
         check = check_sign(log.t, log.omega, log.heading_truth)
         warning = sign_warning(log.name, check)

@@ -23,6 +23,7 @@ from hdrd.core.grades import DEFAULT_GRADE, GRADES, Grade
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.drivefiles import log_format, write_log
 from hdrd.io.drivelog import DriveLogError, write_drive
+from hdrd.io.files import missing_folder, shown_path
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model
@@ -65,9 +66,20 @@ def simulate_main(args: argparse.Namespace) -> int:
     if too_big:
         _err(too_big)
         return EX_USAGE
+    missing = _missing_folder(args.out)
+    if missing:
+        _err(missing)  # said before the work
+        return 1
     if args.benchmark:
         return _benchmark(args, model, grade)
     return _one_drive(args, model, grade)
+
+
+def _missing_folder(out: str | None) -> str | None:
+    """Why ``--out`` cannot be made for want of its folder (a typo must not create folders),
+    or None."""
+    missing = missing_folder(out) if out and out != "-" else None
+    return None if missing is None else f"cannot write {shown_path(out or '')}: {missing}"
 
 
 def _one_drive(args: argparse.Namespace, model: GyroModel | None, grade: str | None) -> int:

@@ -384,8 +384,8 @@ class ConfigTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.commands.options import config_from_args
-        from hdrd.commands.replay import replay_capture
         from hdrd.config import ConfigError
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import Daemon
 
         self.count += 1
@@ -471,7 +471,7 @@ class BiasTarget(Target):
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.commands.replay import replay_capture
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import choose_bias
         from hdrd.io.biasfile import BiasFileError, load_bias
 
