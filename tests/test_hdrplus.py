@@ -747,3 +747,27 @@ def test_a_reconfigured_bank_keeps_its_last_member() -> None:
 def test_a_spread_of_the_wrong_length_is_named() -> None:
     with pytest.raises(ValueError, match="spread"):
         run_batch(np.zeros(5), spread=np.zeros(4))
+
+
+def test_gps_courses_teach_the_bias_and_the_heading() -> None:
+    """The course as a measurement of the heading correction (StepInput.heading_err_deg): a
+    0.03 deg/s bias error on a straight road is learned from 1 Hz courses of 0.25 deg noise
+    alone (no stops; straight-driving measurements are not taken on a step the course
+    measures), the core's integrator stays at 0, and the heading keeps within the courses'
+    noise; without courses the same gyro drifts 18 deg in 10 minutes."""
+    rng = np.random.default_rng(1)
+    n = 600
+    u = 0.03 + rng.normal(0.0, 0.03, n)
+    course = rng.normal(0.0, 0.25, n) % 360.0  # the truth is 0 (north), a straight road
+    p = plus(block_var=0.0011)
+    s, herr = INITIAL_PLUS_STATE, math.nan
+    heading = np.zeros(n)
+    for i in range(n):
+        s, o = step(s, StepInput(float(u[i]), 0.2, 30.0, NAN, 1.0, herr, 0.065, i == 0), p)
+        heading[i] = (-o.yaw) % 360.0
+        herr = ((heading[i] - course[i]) + 180.0) % 360.0 - 180.0
+        assert o.I == 0.0 or i == 0
+    assert s.aided and o.bias_corr_dps == pytest.approx(0.03, abs=0.01)
+    assert np.max(np.abs(((heading[100:] + 180.0) % 360.0) - 180.0)) < 1.0
+    alone = run_batch(u, np.full(n, 0.2), np.full(n, 30.0), None, 1.0, p)
+    assert abs(alone.yaw[-1]) > 10.0

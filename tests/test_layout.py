@@ -198,11 +198,6 @@ def test_only_the_run_command_imports_the_run_loop() -> None:
 # command line (hdrd.cli.main, or a subprocess), never by importing it. Known exemptions, each
 # file with the command modules it still imports; the list may only shrink.
 COMMAND_IMPORTERS: dict[str, set[str]] = {
-    # the tail formatter, until it moves to io/
-    "tests/test_fuzz.py": {"hdrd.commands.tail"},
-    "tests/test_layout.py": {"hdrd.commands.tail"},
-    "tests/test_security.py": {"hdrd.commands.tail"},
-    "tests/test_tail.py": {"hdrd.commands.tail"},
     # the command line's options -> configuration, until one function reads it for every command
     "tests/test_cli.py": {"hdrd.commands.options"},
     "tests/test_gpsd.py": {"hdrd.commands.options"},

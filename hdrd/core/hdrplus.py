@@ -86,13 +86,15 @@ class PlusState(NamedTuple):
     core: the paper HDR state (x, I, yaw, r, s, n). bank: the bias model
     (:class:`hdrd.core.biasbank.BankState`). still: consecutive standstill-candidate steps.
     aided: the heading has been aligned to a GPS course (its error is then tracked and
-    corrected every step, whatever the bank).
+    corrected every step, whatever the bank). u_prev: the last step's input, deg/s (NaN
+    before one), for what a turn's onset adds to the heading's error.
     """
 
     core: HdrState = INITIAL_STATE
     bank: BankState = INITIAL_BANK
     still: int = 0
     aided: bool = False
+    u_prev: float = math.nan
 
 
 INITIAL_PLUS_STATE = PlusState()
@@ -161,6 +163,8 @@ class _Run:
         self.x, self.I, self.yaw, self.r, self.s, self.n = c.x, c.I, c.yaw, c.r, c.s, c.n
         self.still = state.still
         self.aided = state.aided
+        self.u_prev = state.u_prev
+        self.measured = False  # a GPS course measured the heading error in this step
         self.need = 0  # consecutive candidates the current standstill test asks for
         q = self.f.quant_step_dps
         self.q2 = q * q / 12.0
@@ -189,7 +193,7 @@ class _Run:
         core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
         filters = tuple(Filter(tuple(x), tuple(P)) for x, P in zip(self.xs, self.Ps))
         bank = BankState(filters, tuple(self.lo), self.t_ref)
-        return PlusState(core, bank, self.still, self.aided)
+        return PlusState(core, bank, self.still, self.aided, self.u_prev)
 
     def advance(
         self,
@@ -207,7 +211,8 @@ class _Run:
         at the step before (herr deg, of variance hvar deg^2; NaN: none), the heading aligned
         anew before it (reset)."""
         dT, have_temp = self.temperature(te)
-        if reset or herr == herr:
+        self.measured = herr == herr  # a GPS course measures the heading error this step
+        if reset or self.measured:
             self.aid(herr, hvar, reset, dT, have_temp)
         mix = self.predict(T, dT, have_temp)
         zero = self.standstill_test(u - mix.corr, sp, v, mix)
@@ -215,6 +220,7 @@ class _Run:
             out = self.standstill_update(u, sp, dT, mix)
         else:
             out = self.driving_update(u, sp, T, dT, mix)
+        self.u_prev = u
         heading = self.heading_fix(mix) if mix.mixing or self.aided else 0.0
         m = self.t.drift_odds_max
         lo = self.lo
@@ -235,6 +241,11 @@ class _Run:
                 bb.reset_heading(x, P, var)
             self.aided = True
         if herr == herr and self.aided:
+            # The course does the integrator's work: I is folded into the bias (the correction
+            # in force, b - I, unchanged) and the core's increment is off this step.
+            for x in self.xs:
+                x[bb.B] -= self.I
+            self.I = 0.0
             evidence = [bb.update_heading(x, P, herr, var) for x, P in zip(self.xs, self.Ps)]
             if len(self.xs) > 1 and not have_temp:
                 self.weigh(evidence, 0.0)
@@ -262,8 +273,9 @@ class _Run:
         corrs = [bb.bias_at(x, dT) for x in self.xs]
         if len(qs) > 1 and not have_temp:
             ws = bb.weights(self.lo)
-            return _Mix(ws, corrs, bb.weighted(ws, corrs), self.bank_increment(ws[-1]), qs, True)
-        inc = self.increment(bb.bias_var_at(self.Ps[-1], dT), qs[-1])
+            inc = 0.0 if self.measured else self.bank_increment(ws[-1])
+            return _Mix(ws, corrs, bb.weighted(ws, corrs), inc, qs, True)
+        inc = 0.0 if self.measured else self.increment(bb.bias_var_at(self.Ps[-1], dT), qs[-1])
         return _Mix([1.0], corrs, corrs[-1], inc, qs, False)
 
     def increment(self, var_t: float, q_i: float) -> float:
@@ -345,13 +357,13 @@ class _Run:
         """The paper's step (:func:`hdrd.core.hdr.kernel`) on u_c = u - the correction, with the
         increment in force; then, on a straight step, a measurement of b + r. The heading's
         correction grows by the bias's uncertainty and, once aided, by the step's rate noise
-        integrated (its block mean's variance x T^2)."""
+        integrated (its block mean's variance x T^2) and by what a turn adds: ``turn_err``
+        of the angle turned in the step (scale factor, a point-sampled gyro's aliasing)."""
         t = self.t
         if mix.mixing or self.aided:
             q_psi = 0.0
             if self.aided:
-                bv = block_mean_variance(sp, self.p.standstill) if sp == sp else self.f.block_var
-                q_psi = bv * T * T if bv == bv else 0.0
+                q_psi = self.heading_noise(u - mix.corr, u, sp, T)
             for P in self.Ps:
                 bb.heading_predict(P, T, dT, q_psi)
         I_out = self.I
@@ -359,13 +371,30 @@ class _Run:
             u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, self.p.hdr
         )
         self.x, self.r, self.s, self.n = x, r, s, self.n + 1
-        if t.straight_r > 0.0 and W and abs(omega) <= t.straight_gate_dps:
+        if t.straight_r > 0.0 and W and abs(omega) <= t.straight_gate_dps and not self.measured:
             evidence = [
                 bb.update(x_, P_, 0.0, dT, 1.0, u, t.straight_r) for x_, P_ in zip(self.xs, self.Ps)
             ]
             if mix.mixing:  # which member predicted this step (and its road) better
                 self.weigh(evidence, 0.0)
         return omega, I_out, W, R, r, y
+
+    def heading_noise(self, uc: float, u: float, sp: float, T: float) -> float:
+        """What one step adds to the heading's error beside the bias, deg^2: the rate noise
+        integrated (the block mean's variance at rest x T^2: the calibration's, else this
+        step's spread's), ``turn_err`` of the angle turned (a
+        scale factor's error), and a turn's onset between samples that the block mean
+        misses (the rate's change from the last step x T / (2 x samples per step): a 1 Hz
+        point-sampled gyro's aliasing)."""
+        bv = self.f.block_var  # the noise at rest (while driving, a step's spread is the road's)
+        if bv != bv and sp == sp:
+            bv = block_mean_variance(sp, self.p.standstill)
+        turned = self.t.turn_err * uc * T
+        q = (bv * T * T if bv == bv else 0.0) + turned * turned
+        if self.u_prev == self.u_prev:
+            onset = (u - self.u_prev) * T / (2.0 * self.p.standstill.samples_per_step)
+            q += onset * onset
+        return q
 
     def heading_fix(self, mix: _Mix) -> float:
         """Correct the yaw by the heading error the measurements revealed (the bank's

@@ -102,6 +102,10 @@ class Tuning:
     gate_floor_dps: float = 0.03
     """The stop gate allows at least this much bias error, deg/s (a start-up calibration that
     missed the bias by 0.02 deg/s must not shut its own correction out)."""
+    turn_err: float = 0.01
+    """Once the heading is aligned to GPS: the heading error a turn adds, as a share of the
+    angle turned (1 sigma; a scale factor's error): how far a course after a turn may
+    correct it."""
 
     def __post_init__(self) -> None:
         _check_numbers(self)

@@ -149,6 +149,9 @@ class AidingConfig:
     """Largest correction applied at once, deg/s."""
     default_course_err_deg: float = 5.0
     """A fix's course error (95 %, deg) when it gives neither ``epd`` nor ``eps``."""
+    default_speed_err_mps: float = 0.5
+    """A fix's ground-speed error (95 %, m/s) when it gives neither ``epd`` nor ``eps``, for
+    the variance of its course as a measurement (:meth:`GpsAiding.course_var`)."""
     gate_min_deg: float = 5.0
     """The gate is never narrower than this, deg."""
     max_drift_dps: float = 0.1
@@ -180,6 +183,7 @@ class AidingConfig:
             "align_max_rate_dps",
             "max_course_step_deg",
             "default_course_err_deg",
+            "default_speed_err_mps",
             "gate_min_deg",
             "max_drift_dps",
             "latency_s",
@@ -483,10 +487,17 @@ class GpsAiding:
         )
 
     def course_var(self, fix: FixLike, omega_dps: float) -> float:
-        """A course's variance as a measurement of the heading, deg^2: its error (95 %:
-        :meth:`course_err_deg`, / 1.96) and, in a turn, the latency the carrying-forward may
-        miss (``|omega| x latency_s``)."""
-        sd = self.course_err_deg(fix) / 1.96
+        """A course's variance as a measurement of the heading, deg^2: its error (95 %, / 1.96:
+        ``epd``; else from the speed error, ``atan(eps / speed)``, with ``eps`` at most
+        ``default_speed_err_mps`` when the fix gives none: a course is better the faster the
+        vehicle; at most ``default_course_err_deg``) and, in a turn, the latency the
+        carrying-forward may miss (``|omega| x latency_s``)."""
+        c = self.config
+        err = self.course_err_deg(fix)
+        spd = fix.speed_mps
+        if fix.epd is None and fix.eps is None and spd is not None and spd > 0.0:
+            err = min(err, math.degrees(math.atan2(c.default_speed_err_mps, spd)))
+        sd = err / 1.96
         lag = abs(omega_dps) * self.config.latency_s
         return sd * sd + lag * lag
 
