@@ -14,8 +14,9 @@ The drives of a set (docs/real-data.md, "The split"):
   judges; ``tools/convert_real.py boreas``, ``$HDRD_MIRRORS``) carrying a simulated gyro of
   every grade (crs03, phone, automotive, tactical; :func:`hdrd.sim.roads.grade_on_road`: the
   grade's gyro of the seed at its own rate, a cabin temperature, 30 s of start-up standstill,
-  a 1 Hz GPS course), ``--seeds`` seeds each (tune 101.., judge 201..), each without and with
-  a motion offset (:data:`MOTION_OFFSET_BI` x the grade's bias instability, its sign
+  a 1 Hz GPS course), ``--seeds`` seeds each (tune 101.., judge 201..), the k-th seed's drive
+  starting at the k-th stop of the route (cycling through those with 11 minutes of road after
+  them: each puts the outage elsewhere), each without and with a motion offset (:data:`MOTION_OFFSET_BI` x the grade's bias instability, its sign
   alternating with the seed: a bias a stop cannot see).
 
 What is scored, per drive, exactly as ``hdrd evaluate`` scores it (the same calls, the default
@@ -72,7 +73,7 @@ from hdrd.analysis.outages import FROZEN, OutageSpec, run_outages
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.core.grades import Grade
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
-from hdrd.sim.roads import grade_on_road
+from hdrd.sim.roads import grade_on_road, route_stops
 
 SECTION = "## Heading that holds: gyro-only and GNSS outages, real drives and real roads"
 METHODS = ("none", "hdr", "hdr+")
@@ -87,6 +88,9 @@ MOTION_OFFSET_BI = 2.0
 """The motion offset of a road drive, in units of its grade's bias instability (deg/s):
 crs03 0.012, phone 0.0056, automotive 0.011, tactical 0.0011 deg/s; + for odd seeds, - for
 even ones."""
+ROUTE_AFTER_START_S = 660.0
+"""A road drive starts where the route has at least this left, s: a 120 s outage ends 600 s
+after the calibration."""
 HARM_FACTOR, HARM_DEG = 1.1, 0.5
 """A drive is harmed when its figure exceeds max(HARM_FACTOR x the reference's, the
 reference's + HARM_DEG), deg."""
@@ -172,15 +176,25 @@ def motion_offset(grade: str, seed: int) -> float:
     return sign * MOTION_OFFSET_BI * Grade.from_table(grade).bias_instability_dps
 
 
+def road_starts(route: DriveLog) -> list[float]:
+    """Where the road drives start on the route, s: 1 s into each of its stops (the standing
+    start first) that leaves at least :data:`ROUTE_AFTER_START_S` of route, so that each
+    start puts the outage elsewhere on the road."""
+    return [a + 1.0 for a, _ in route_stops(route) if route.duration_s - a >= ROUTE_AFTER_START_S]
+
+
 def road_logs(route: DriveLog, which: str, seeds: int) -> list[tuple[str, DriveLog]]:
-    """(group, log) of every simulated gyro on the route: each grade, each seed, without and
-    with a motion offset."""
+    """(group, log) of every simulated gyro on the route: each grade, each seed (the k-th
+    seed from the k-th start of :func:`road_starts`, cycling), without and with a motion
+    offset."""
+    starts = road_starts(route)
     out = []
     for grade in GRADES:
-        for seed in range(FIRST_SEED[which], FIRST_SEED[which] + seeds):
-            out.append((grade, grade_on_road(route, grade, seed)))
+        for k in range(seeds):
+            seed, at = FIRST_SEED[which] + k, starts[k % len(starts)]
+            out.append((grade, grade_on_road(route, grade, seed, start_s=at)))
             mo = motion_offset(grade, seed)
-            out.append((f"{grade} + offset", grade_on_road(route, grade, seed, mo)))
+            out.append((f"{grade} + offset", grade_on_road(route, grade, seed, mo, start_s=at)))
     return out
 
 
@@ -336,19 +350,23 @@ def to_json(rows: Sequence[Scored]) -> dict[str, Any]:
 # -- the run -------------------------------------------------------------------------------------
 
 
-def drives(work: Path, which: str, seeds: int, write_logs: bool) -> list[tuple[str, DriveLog]]:
-    """(group, log) of every drive of the set: the real ones, then the roads."""
+def drives(
+    work: Path, which: str, seeds: int, write_logs: bool
+) -> tuple[list[tuple[str, DriveLog]], list[float]]:
+    """(group, log) of every drive of the set, the real ones, then the roads; the roads'
+    starts on the route, s."""
     out = [("real", log) for log in real_logs(work, which)]
-    roads = road_logs(route_log(work, which), which, seeds)
+    route = route_log(work, which)
+    roads = road_logs(route, which, seeds)
     if write_logs:
         folder = work / f"roads-{which}"
         folder.mkdir(parents=True, exist_ok=True)
         for _, log in roads:
             write_drive(folder / f"{log.name}.csv", log)
-    return out + roads
+    return out + roads, road_starts(route)[:seeds]
 
 
-def report(rows: Sequence[Scored], which: str, seeds: int) -> str:
+def report(rows: Sequence[Scored], which: str, seeds: int, starts: Sequence[float]) -> str:
     return f"""Gyro-only (a): mean NEψ (deg/min) per group; *harmed*: Eψ above max(1.1 x none's,
 none's + 0.5°).
 
@@ -365,8 +383,9 @@ The real drives ({which} set; * harmed):
 
 {real_table(rows)}
 
-Roads: {ROUTES[which]} with each grade's gyro, seeds {FIRST_SEED[which]}-{FIRST_SEED[which] + seeds - 1},
-each also with a motion offset of ±{MOTION_OFFSET_BI:g} x the grade's bias instability."""
+Roads: {ROUTES[which]} with each grade's gyro, seeds {FIRST_SEED[which]}-{FIRST_SEED[which] + seeds - 1}
+from its stops at {", ".join(f"{a:.0f}" for a in starts)} s (cycling), each also with a motion offset of
+±{MOTION_OFFSET_BI:g} x the grade's bias instability."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -382,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
     spec = OutageSpec.parse(SPEC)
-    todo = drives(a.workdir, a.which, a.seeds, a.write_logs)
+    todo, starts = drives(a.workdir, a.which, a.seeds, a.write_logs)
     if a.dry_run:
         for group, log in todo:
             print(
@@ -391,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(todo)} drives of the {a.which} set; --dry-run: nothing scored")
         return 0
     rows = [score(log, g, spec, MIN_SCORED_MIN if g == "real" else 0.0) for g, log in todo]
-    text = report(rows, a.which, a.seeds)
+    text = report(rows, a.which, a.seeds, starts)
     print(text)
     if a.json is not None:
         a.json.write_text(json.dumps(to_json(rows), indent=1))

@@ -14,7 +14,7 @@ from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.gps import GpsModel, heading_from_rate
 from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import GyroModel, MotionOffset, StaticBias, WhiteNoise
-from hdrd.sim.roads import RouteError, grade_on_road, road_drive, route_truth
+from hdrd.sim.roads import RouteError, grade_on_road, road_drive, route_stops, route_truth
 from hdrd.sim.vehicle import CabinTemperature
 
 
@@ -156,3 +156,27 @@ def test_white_noise_is_the_grade_rate_s() -> None:
     log = road_drive(route, GyroModel((WhiteNoise(density_dps_per_rthz=0.05),)), 1, hz=100.0)
     assert log.omega_truth is not None
     assert float(np.std(log.omega - log.omega_truth)) == pytest.approx(0.5, rel=0.05)
+
+
+def test_route_stops_and_a_drive_from_one() -> None:
+    route = a_route()
+    stops = route_stops(route)
+    assert len(stops) == 2 and stops[0][0] == 0.0 and stops[0][1] == pytest.approx(5.0, abs=0.11)
+    assert stops[1][0] == pytest.approx(150.0, abs=0.11) and stops[1][1] == pytest.approx(
+        170.0, abs=0.11
+    )
+    start = stops[1][0] + 1.0
+    log = grade_on_road(route, "crs03", 5, start_s=start, lead_in_s=20.0)
+    assert log.name == f"r-crs03-5-at{start:g}" and log.meta["route_start_s"] == f"{start:g}"
+    assert log.duration_s == pytest.approx(20.0 + route.duration_s - start, abs=0.1)
+    assert log.speed is not None and log.heading_truth is not None and log.omega_truth is not None
+    assert np.all(log.speed[log.t < 20.0 + 15.0] == 0.0)  # the lead-in, then the rest of the stop
+    # The heading where the route stood at start_s, and the route's rate from there on.
+    assert route.heading_truth is not None and route.omega_truth is not None
+    at = np.interp(start, route.t, np.unwrap(route.heading_truth, period=360.0)) % 360.0
+    assert log.heading_truth[0] == pytest.approx(at, abs=0.05)
+    later = log.t >= 20.0
+    expect = np.interp(log.t[later] - 20.0 + start, route.t, route.omega_truth)
+    np.testing.assert_allclose(log.omega_truth[later], expect)
+    with pytest.raises(ValueError, match="start_s must be in"):
+        road_drive(route, GyroModel(()), 1, start_s=route.duration_s + 1.0)

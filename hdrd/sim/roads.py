@@ -37,7 +37,7 @@ from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import GyroModel, MotionOffset
 from hdrd.sim.vehicle import CabinTemperature
 
-__all__ = ["RouteError", "grade_on_road", "road_drive", "route_truth"]
+__all__ = ["RouteError", "grade_on_road", "road_drive", "route_stops", "route_truth"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -78,21 +78,39 @@ def route_truth(route: DriveLog) -> tuple[FloatArray, FloatArray, FloatArray, fl
 
 
 def _on_grid(
-    route: DriveLog, hz: float, lead_in_s: float
+    route: DriveLog, hz: float, lead_in_s: float, start_s: float
 ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
-    """(t, true rate, speed, heading0) on a uniform grid of ``hz`` from power-on: standing
-    still for ``lead_in_s``, then the route resampled (linear)."""
+    """(t, true rate, speed, heading at power-on) on a uniform grid of ``hz`` from power-on:
+    standing still for ``lead_in_s``, then the route from ``start_s`` (s after its first row)
+    resampled (linear)."""
     if not (math.isfinite(hz) and hz > 0):
         raise ValueError(f"hz must be > 0, got {hz!r}")
     if not (math.isfinite(lead_in_s) and lead_in_s >= 0):
         raise ValueError(f"lead_in_s must be >= 0, got {lead_in_s!r}")
     rt, rate, speed, heading0 = route_truth(route)
-    n = int(math.floor((lead_in_s + float(rt[-1])) * hz + 1e-9)) + 1
+    if not (math.isfinite(start_s) and 0.0 <= start_s < float(rt[-1])):
+        raise ValueError(f"start_s must be in [0, {float(rt[-1]):g}) s, got {start_s!r}")
+    turned = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(rt))))
+    heading = (heading0 - float(np.interp(start_s, rt, turned))) % 360.0
+    n = int(math.floor((lead_in_s + float(rt[-1]) - start_s) * hz + 1e-9)) + 1
     t = np.arange(n) / hz
     moving = t >= lead_in_s
-    w = np.where(moving, np.interp(t - lead_in_s, rt, rate), 0.0)
-    v = np.where(moving, np.interp(t - lead_in_s, rt, speed), 0.0)
-    return t, w, np.maximum(v, 0.0), heading0
+    w = np.where(moving, np.interp(t - lead_in_s + start_s, rt, rate), 0.0)
+    v = np.where(moving, np.interp(t - lead_in_s + start_s, rt, speed), 0.0)
+    return t, w, np.maximum(v, 0.0), heading
+
+
+def route_stops(
+    route: DriveLog, min_s: float = 5.0, max_speed_mps: float = 0.3
+) -> list[tuple[float, float]]:
+    """(start, end) of each stop of a route, s after its first row: the runs of rows at or
+    below ``max_speed_mps`` lasting at least ``min_s``, the standing start and end included.
+    Where a drive may start (``start_s``) with the car standing."""
+    rt, _, speed, _ = route_truth(route)
+    still = np.concatenate(([False], speed <= max_speed_mps, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(still))
+    runs = zip(edges[0::2], edges[1::2] - 1, strict=True)
+    return [(float(rt[a]), float(rt[b])) for a, b in runs if rt[b] - rt[a] >= min_s]
 
 
 def road_drive(
@@ -105,11 +123,14 @@ def road_drive(
     gps: GpsModel = DEFAULT_GPS,
     name: str = "",
     meta: dict[str, str] | None = None,
+    start_s: float = 0.0,
 ) -> DriveLog:
     """The route driven with the gyro ``model`` (module docstring): one row per sample at
-    ``hz`` from power-on, ``lead_in_s`` of standstill first. temperature: the cabin (None:
-    drawn from the seed, as a simulated drive's); meta: extra metadata lines."""
-    t, omega_true, speed, heading0 = _on_grid(route, hz, lead_in_s)
+    ``hz`` from power-on, ``lead_in_s`` of standstill first, then the route from ``start_s``
+    (s after its first row; a stop of it, :func:`route_stops`, starts the drive standing).
+    temperature: the cabin (None: drawn from the seed, as a simulated drive's); meta: extra
+    metadata lines."""
+    t, omega_true, speed, heading0 = _on_grid(route, hz, lead_in_s, start_s)
     streams = np.random.SeedSequence(seed).spawn(4)  # route, temperature, GPS, gyro
     temp_rng, gps_rng, gyro_rng = (np.random.default_rng(s) for s in streams[1:])
     if temperature is None:
@@ -125,6 +146,7 @@ def road_drive(
         "seed": str(seed),
         "hz": f"{hz:g}",
         "lead_in_s": f"{lead_in_s:g}",
+        "route_start_s": f"{start_s:g}",
         "heading0_deg": f"{heading0:.3f}",
         "temperature": json.dumps(asdict(temperature)),
         "gyro_model": json.dumps(model.to_dict()["effects"]),
@@ -156,11 +178,13 @@ def grade_on_road(
     hz: float | None = None,
     lead_in_s: float = 30.0,
     gps: GpsModel = DEFAULT_GPS,
+    start_s: float = 0.0,
 ) -> DriveLog:
     """The route driven with a gyro of ``grade`` (:func:`hdrd.sim.grades.grade_model` of the
     seed: its turn-on bias drawn from it), plus a ``motion_offset`` of ``motion_offset_dps``
     (deg/s, read while the vehicle moves; 0: none), sampled at ``hz`` (None: the grade's own
-    rate). Named ``<route>-<grade>[-mo]-<seed>``."""
+    rate), from ``start_s`` of the route. Named ``<route>-<grade>[-mo]-<seed>`` (and
+    ``-at<start_s>`` when it is not 0)."""
     from hdrd.core.grades import Grade
 
     model = grade_model(grade, seed)
@@ -168,6 +192,7 @@ def grade_on_road(
         model = model.with_effect(MotionOffset(offset_dps=motion_offset_dps))
     rate = Grade.from_table(grade).rate_hz if hz is None else hz
     tag = f"{grade}-mo" if motion_offset_dps != 0.0 else grade
+    at = f"-at{start_s:g}" if start_s else ""
     return road_drive(
         route,
         model,
@@ -175,6 +200,7 @@ def grade_on_road(
         hz=rate,
         lead_in_s=lead_in_s,
         gps=gps,
-        name=f"{route.name or 'route'}-{tag}-{seed}",
+        name=f"{route.name or 'route'}-{tag}-{seed}{at}",
         meta={"grade": grade, "motion_offset_dps": f"{motion_offset_dps:g}"},
+        start_s=start_s,
     )
