@@ -412,7 +412,7 @@ def tune_peer(work: Path, no_write: bool) -> int:
         "changes one setting. Before its repair (commit fc68d32) the peer scored 34.29 deg on "
         "these real outages and 1.84 on these roads, harming 4 of 4 and 5 of 40 drives (frozen 13.58 and 5.30).\n\n"
         "**Which data tuned which parameter** "
-        + " ".join(tuned.split()).replace("``", "`").split(" The figures:")[0]
+        + " ".join(tuned.split()).replace("``", "`").replace(":mod:", "").split(" The figures:")[0]
         + "\n\n"
         + text
         + "\n"
