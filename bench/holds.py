@@ -177,10 +177,11 @@ def motion_offset(grade: str, seed: int) -> float:
 
 
 def road_starts(route: DriveLog) -> list[float]:
-    """Where the road drives start on the route, s: 1 s into each of its stops (the standing
-    start first) that leaves at least :data:`ROUTE_AFTER_START_S` of route, so that each
-    start puts the outage elsewhere on the road."""
-    return [a + 1.0 for a, _ in route_stops(route) if route.duration_s - a >= ROUTE_AFTER_START_S]
+    """Where the road drives start on the route, s: the whole second after the start of each
+    of its stops (the standing start first) that leaves at least :data:`ROUTE_AFTER_START_S`
+    of route, so that each start puts the outage elsewhere on the road."""
+    stops = route_stops(route)
+    return [math.floor(a) + 1.0 for a, _ in stops if route.duration_s - a >= ROUTE_AFTER_START_S]
 
 
 def road_logs(route: DriveLog, which: str, seeds: int) -> list[tuple[str, DriveLog]]:
