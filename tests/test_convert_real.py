@@ -405,3 +405,50 @@ def test_psins(tmp_path: Path) -> None:
     mean_ok, _ = mean_heading_error(log, bias)
     mean_flipped, _ = mean_heading_error(log, bias, sign=-1.0)
     assert mean_ok < 0.6 and mean_flipped > mean_ok
+
+
+BOREAS = cr.default_clone("boreas")
+
+
+def test_boreas_table_refuses_what_is_not_a_pose_file() -> None:
+    head = ",".join(cr.BOREAS_COLUMNS) + "\n"
+    row = ",".join(["1"] * 13) + "\n"
+    with pytest.raises(ValueError, match="header"):
+        cr._boreas_table(b"t,x\n1,2\n", "p.csv")
+    with pytest.raises(ValueError, match="fewer than 2 rows"):
+        cr._boreas_table((head + row).encode(), "p.csv")
+    with pytest.raises(ValueError, match="does not increase"):
+        cr._boreas_table((head + row + row).encode(), "p.csv")
+    two = head + row + row.replace("1", "2", 1)
+    assert cr._boreas_table(two.encode(), "p.csv").shape == (2, 13)
+
+
+@pytest.mark.skipif(BOREAS is None or not BOREAS.exists(), reason=no_clone("boreas", BOREAS))
+def test_boreas(tmp_path: Path) -> None:
+    assert cr.main(["boreas", "--data", str(BOREAS), "--out-dir", str(tmp_path)]) == 0
+    logs = {f.stem: read_drive(f) for f in sorted(tmp_path.glob("boreas_*.csv"))}
+    assert sorted(logs) == ["boreas_20210805_1334", "boreas_20210902_1142"]
+    assert [lg.duration_s for lg in logs.values()] == pytest.approx([1118.9, 1033.5], abs=0.2)
+    assert [lg.meta["lead_in_s"] for lg in logs.values()] == ["8", "3"]
+    for name, lg in logs.items():
+        assert lg.columns() == ["t", "omega", "heading_truth", "omega_truth", "speed"]
+        assert "route" in lg.meta and lg.rate_hz == pytest.approx(9.64, abs=0.05)
+        assert lg.omega_truth is not None and lg.heading_truth is not None
+        np.testing.assert_array_equal(lg.omega, lg.omega_truth)  # a route: a perfect gyro
+        assert np.isfinite(lg.heading_truth).all()  # an INS heading, standing too
+        # CCW positive about up: the rate turns against the compass heading, at zero lag, and
+        # integrated follows it within a few degrees over ~3,000 deg of turning; flipped, not.
+        h = np.degrees(np.unwrap(np.radians(lg.heading_truth)))
+        assert np.corrcoef(lg.omega, -np.gradient(h, lg.t))[0, 1] > 0.999
+        assert course_rate_correlation(lg)[0] > 0.95
+        ok, flipped = mean_heading_error(lg, 0.0), mean_heading_error(lg, 0.0, -1.0)
+        assert ok[1] < 3.0 and flipped[0] > 100.0, name
+    # The heading offset: the compass course of the Applanix velocities on straight road.
+    path = "pyboreas/test/demo/gt/boreas-2021-08-05-13-34/applanix/lidar_poses.csv"
+    a = cr._boreas_table(cr.read_source_file(BOREAS, "boreas", path), path)
+    course = np.degrees(np.arctan2(a[:, 4], a[:, 5]))
+    straight = (np.hypot(a[:, 4], a[:, 5]) > 5.0) & (np.abs(np.degrees(a[:, 10])) < 1.0)
+    log = logs["boreas_20210805_1334"]
+    assert log.heading_truth is not None
+    d = np.radians(course - log.heading_truth)[straight]
+    assert math.degrees(math.atan2(np.sin(d).mean(), np.cos(d).mean())) == pytest.approx(0, abs=0.1)
