@@ -54,7 +54,7 @@ import math
 import subprocess
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +64,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from _common import fmt, machine_line, replace_section
+from _common import fmt, machine_line, plus_with, replace_section
 from outages import kalman_peer
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
 
@@ -398,7 +398,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write-logs", action="store_true", help="write the road drives' logs too")
     ap.add_argument("--no-write", action="store_true", help="print, leave RESULTS.md alone")
     ap.add_argument("--dry-run", action="store_true", help="list the drives, score nothing")
+    ap.add_argument(
+        "--plus",
+        type=json.loads,
+        default={},
+        help="HDR+ settings overridden by name, as JSON (tune set only: an experiment)",
+    )
     a = ap.parse_args(argv)
+    if a.plus:
+        if a.which == "judge":
+            ap.error("--plus is an experiment: the tune set only")
+        global PLUS
+        PLUS = replace(PLUS, plus=plus_with(PLUS.plus, **a.plus))
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
     spec = OutageSpec.parse(SPEC)

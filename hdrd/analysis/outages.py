@@ -182,7 +182,9 @@ class OutageResult:
 
 
 def _in_outage(t: float, windows: Sequence[tuple[float, float]]) -> bool:
-    return any(a <= t < b for a, b in windows)
+    """A fix at t (s) falls in an outage: from its start to its end, both included (a fix
+    at the very end would reach the aiding before the end's heading is scored)."""
+    return any(a <= t <= b for a, b in windows)
 
 
 def _block(prep: PreparedDrive, i: int) -> Block:

@@ -213,7 +213,7 @@ class _Run:
         dT, have_temp = self.temperature(te)
         self.measured = herr == herr  # a GPS course measures the heading error this step
         if reset or self.measured:
-            self.aid(herr, hvar, reset, dT, have_temp)
+            self.aid(herr, hvar, reset)
         mix = self.predict(T, dT, have_temp)
         zero = self.standstill_test(u - mix.corr, sp, v, mix)
         if zero:
@@ -230,11 +230,11 @@ class _Run:
 
     # -- the phases ------------------------------------------------------------------------
 
-    def aid(self, herr: float, hvar: float, reset: bool, dT: float, have_temp: bool) -> None:
+    def aid(self, herr: float, hvar: float, reset: bool) -> None:
         """A GPS course: the heading aligned anew (its correction restarts at 0, of variance
         hvar), and/or a measurement of the heading correction psi, herr deg of variance hvar,
-        which moves the bias by their covariance and weighs the members as every
-        measurement does."""
+        which moves each member's bias by their covariance (the members are weighed by stops
+        and straight road only)."""
         var = hvar if hvar > 0.0 else 0.0
         if reset:
             for x, P in zip(self.xs, self.Ps):
@@ -246,9 +246,11 @@ class _Run:
             for x in self.xs:
                 x[bb.B] -= self.I
             self.I = 0.0
-            evidence = [bb.update_heading(x, P, herr, var) for x, P in zip(self.xs, self.Ps)]
-            if len(self.xs) > 1 and not have_temp:
-                self.weigh(evidence, 0.0)
+            # Not weighed as evidence: each course corrects the heading it is compared with,
+            # so its innovations are small in every member and would count only their
+            # spreads, for the narrowest (a drifting bias then read as a stable one).
+            for x, P in zip(self.xs, self.Ps):
+                bb.update_heading(x, P, herr, var)
 
     def temperature(self, te: float) -> tuple[float, bool]:
         """(dT, a temperature is used): degC above the first one seen, 0 without."""
@@ -371,6 +373,12 @@ class _Run:
             u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, self.p.hdr
         )
         self.x, self.r, self.s, self.n = x, r, s, self.n + 1
+        if len(self.xs) > 1 and self.aided:
+            # The yaw integrated the bank's correction, not each member's: each member's
+            # heading correction moves by what its own bias says the yaw missed (once a course
+            # measures the heading: each member is then compared with the same heading).
+            for x_ in self.xs:
+                x_[bb.PSI] += T * ((u - bb.bias_at(x_, dT)) - omega)
         if t.straight_r > 0.0 and W and abs(omega) <= t.straight_gate_dps and not self.measured:
             evidence = [
                 bb.update(x_, P_, 0.0, dT, 1.0, u, t.straight_r) for x_, P_ in zip(self.xs, self.Ps)
@@ -398,11 +406,12 @@ class _Run:
 
     def heading_fix(self, mix: _Mix) -> float:
         """Correct the yaw by the heading error the measurements revealed (the bank's
-        weighted psi), deg CCW; psi restarts at 0."""
+        weighted psi), deg CCW; once aided each member's correction keeps what the bank's did
+        not take (else, and with one member, psi restarts at 0)."""
         heading = bb.weighted(mix.ws, [x[bb.PSI] for x in self.xs])
         self.yaw += heading
         for x in self.xs:
-            x[bb.PSI] = 0.0
+            x[bb.PSI] = x[bb.PSI] - heading if self.aided and len(self.xs) > 1 else 0.0
         return heading
 
     def output(
