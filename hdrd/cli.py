@@ -179,9 +179,20 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
     g.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:8786); "
+        help="run on the Dask cluster whose scheduler is at ADDRESS (tls://HOST:8786, or "
+        "tcp://: unencrypted); it runs code here: only one you control (docs/fleet.md); "
         "default: in this process",
     )
+    for flag, what, key in (
+        ("ca-file", "the CA certificate that signed the cluster's", "ca-file"),
+        ("cert", "this client's certificate", "client.cert"),
+        ("key", "this client's private key", "client.key"),
+    ):
+        p.add_argument(
+            f"--tls-{flag}",
+            metavar="FILE",
+            help=f"tls:// scheduler: {what} (PEM; default distributed.comm.tls.{key})",
+        )
     if progress:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 

@@ -24,11 +24,13 @@ run are pure, so a task run twice gives the same result.
 
 from __future__ import annotations
 
-import argparse
+import asyncio
+import contextlib
 import functools
 import logging
 import weakref
 from collections.abc import Callable, Generator, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from hdrd.errors import HdrdError
@@ -39,10 +41,12 @@ __all__ = [
     "FleetError",
     "LocalRunner",
     "Runner",
+    "TlsFiles",
+    "Where",
     "batches",
-    "fleet_requested",
     "open_runner",
     "run_batch",
+    "scheduler_warning",
 ]
 
 INSTALL = "pip install 'hdrd[fleet]'"
@@ -66,9 +70,24 @@ class FleetError(HdrdError, RuntimeError):
     worker died too often); the message says what, in one line."""
 
 
-def fleet_requested(args: argparse.Namespace) -> bool:
-    """True if the command line asks for a cluster (``--workers`` or ``--scheduler``)."""
-    return bool(getattr(args, "workers", None) or getattr(args, "scheduler", None))
+@dataclass(frozen=True)
+class Where:
+    """Where a command's work runs (``--workers``, ``--scheduler``, ``--tls-*``): in this
+    process (neither), on a local cluster of ``workers`` processes, or on the cluster whose
+    scheduler is at ``scheduler``."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    tls: TlsFiles = field(default_factory=lambda: TlsFiles())
+
+    def __post_init__(self) -> None:
+        if self.tls.given() and not self.scheduler:
+            raise FleetError("the --tls-* options are for a tls:// --scheduler")
+
+    @property
+    def cluster(self) -> bool:
+        """True if the work runs on a Dask cluster."""
+        return bool(self.workers or self.scheduler)
 
 
 def run_batch(fn: Callable[..., Any], items: Sequence[Any], *args: Any) -> list[Any]:
@@ -156,6 +175,164 @@ class LocalRunner(Runner):
         return value
 
 
+@dataclass(frozen=True)
+class TlsFiles:
+    """The client's TLS files for a ``tls://`` scheduler (PEM paths): the cluster's CA
+    certificate, this client's certificate and its key (None: the key is in the certificate's
+    file). Any left None comes from the Dask configuration (``distributed.comm.tls.ca-file``,
+    ``distributed.comm.tls.client.cert``, ``distributed.comm.tls.client.key``)."""
+
+    ca_file: str | None = None
+    cert: str | None = None
+    key: str | None = None
+
+    def given(self) -> dict[str, str]:
+        """The files given, as ``distributed.security.Security`` takes them."""
+        fields = {"tls_ca_file": self.ca_file, "tls_client_cert": self.cert}
+        fields["tls_client_key"] = self.key
+        return {k: v for k, v in fields.items() if v is not None}
+
+
+SCHEMES = ("tcp", "tls")
+"""The scheduler addresses hdrd connects to: plain TCP, or TLS (docs/fleet.md, "Trust")."""
+TLS_HELP = (
+    "--tls-ca-file CA.pem --tls-cert CLIENT.pem [--tls-key CLIENT.key], or "
+    "distributed.comm.tls.ca-file and distributed.comm.tls.client.cert/key in the Dask "
+    "configuration"
+)
+
+
+def _one_line(e: BaseException) -> str:
+    from hdrd.errors import clipped
+    from hdrd.io.files import printable
+
+    text = " ".join(str(e).split())
+    return clipped(printable(text), 200) or type(e).__name__
+
+
+def _scheme(address: str) -> tuple[str, str]:
+    """(scheme, host) of a scheduler's address (no scheme: tcp); FleetError for an address
+    that is not one, or a scheme hdrd does not connect to."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address, strict=False)
+    except (ValueError, TypeError) as e:
+        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
+    if scheme not in SCHEMES:
+        raise FleetError(
+            f"--scheduler {address}: the {scheme}:// scheme is not supported; give "
+            "tcp://HOST:PORT or tls://HOST:PORT"
+        )
+    try:
+        host, _ = parse_host_port(loc, 8786)
+    except (ValueError, TypeError) as e:
+        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
+    return scheme, host
+
+
+def scheduler_warning(address: str | None) -> str | None:
+    """The warning a scheduler's address deserves: plain TCP to another machine than this one
+    (no encryption, no proof of whom it reaches; docs/fleet.md, "Trust"), else None."""
+    if not address:
+        return None
+    try:
+        scheme, host = _scheme(address)
+    except FleetError:
+        return None  # said as an error when it is used
+    if scheme != "tcp" or host == "localhost" or _loopback(host):
+        return None
+    return (
+        f"{address} is plain TCP to another machine: no encryption, and no proof that the "
+        "scheduler there is yours (a scheduler runs code in this process); use tls:// "
+        '(docs/fleet.md, "Trust")'
+    )
+
+
+def _loopback(host: str) -> bool:
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _security(distributed: Any, address: str, scheme: str, tls: TlsFiles) -> Any:
+    """The client's ``Security`` for ``scheme``: TLS from ``tls`` and the Dask configuration;
+    FleetError when TLS files are given for a tcp:// address, are missing for a tls:// one, or
+    cannot be loaded."""
+    given = tls.given()
+    if scheme != "tls":
+        if given:
+            raise FleetError(f"--tls-* options need a tls:// scheduler address, not {address}")
+        return None
+    sec = distributed.Security(**given)
+    if not (sec.tls_ca_file and sec.tls_client_cert):
+        raise FleetError(
+            f"{address}: TLS needs the cluster's CA certificate and a client certificate: "
+            + TLS_HELP
+        )
+    try:
+        sec.get_connection_args("client")  # loads the files now: an error says which
+    except (OSError, ValueError) as e:  # ssl.SSLError is an OSError
+        used = f"CA {sec.tls_ca_file}, certificate {sec.tls_client_cert}, key "
+        used += sec.tls_client_key or "(in the certificate's file)"
+        raise FleetError(f"{address}: cannot load the TLS files ({used}): {_one_line(e)}") from None
+    return sec
+
+
+def connect_timeout() -> float:
+    """Seconds to reach a scheduler and finish the handshake with it: Dask's
+    ``distributed.comm.timeouts.connect`` (30 s by default)."""
+    import dask
+    from dask.utils import parse_timedelta
+
+    return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s"))
+
+
+def _connect(distributed: Any, address: str, tls: TlsFiles) -> Any:
+    """A client of the scheduler at ``address``, connected and past the handshake within
+    :func:`connect_timeout` (a listener that accepts and says nothing included); FleetError
+    in one line for anything else."""
+    scheme, _ = _scheme(address)
+    security = _security(distributed, address, scheme, tls)
+    deadline = connect_timeout()
+
+    class Bounded(distributed.Client):
+        failed = False
+
+        def start(self, **kwargs: Any) -> None:
+            # Dask bounds the connection, not the handshake after it: the whole start is.
+            kwargs.setdefault("callback_timeout", deadline)
+            try:
+                super().start(**kwargs)
+            except BaseException:
+                self.failed = True  # closed here, not again (with a traceback) at exit
+                with contextlib.suppress(Exception):
+                    self.close(timeout=1)
+                raise
+
+        def __del__(self) -> None:
+            if not self.failed:
+                super().__del__()
+
+    try:
+        return Bounded(address, security=security, timeout=deadline)
+    except (TimeoutError, asyncio.TimeoutError):
+        raise FleetError(
+            f"cannot reach the Dask scheduler at {address}: no answer within {deadline:g} s "
+            "(distributed.comm.timeouts.connect)"
+        ) from None
+    except OSError as e:  # refused, closed, TLS refused (ssl.SSLError)
+        raise FleetError(f"cannot reach the Dask scheduler at {address}: {_one_line(e)}") from None
+    except Exception as e:  # noqa: BLE001 - whatever answered, one line, never a traceback
+        raise FleetError(
+            f"what answered at {address} is not a Dask scheduler this client can use "
+            f"({type(e).__name__}: {_one_line(e)})"
+        ) from None
+
+
 def _dask() -> Any:
     try:
         import distributed
@@ -176,16 +353,15 @@ class DaskRunner(Runner):
         self._open: weakref.WeakSet[Generator[Any, None, None]] = weakref.WeakSet()
 
     @classmethod
-    def open(cls, workers: int | None = None, scheduler: str | None = None) -> DaskRunner:
+    def open(
+        cls, workers: int | None = None, scheduler: str | None = None, tls: TlsFiles | None = None
+    ) -> DaskRunner:
         """A local cluster of ``workers`` processes (one thread each), or the cluster whose
-        scheduler is at ``scheduler`` (``tcp://host:8786``). FleetError if it cannot be had."""
+        scheduler is at ``scheduler`` (``tcp://host:8786``, ``tls://host:8786`` with ``tls``
+        or the Dask configuration's TLS files). FleetError if it cannot be had."""
         distributed = _dask()
         if scheduler:
-            try:  # waits distributed.comm.timeouts.connect (30 s) for the scheduler
-                client = distributed.Client(scheduler)
-            except (OSError, TimeoutError, ValueError) as e:
-                raise FleetError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
-            return cls(client)
+            return cls(_connect(distributed, scheduler, tls or TlsFiles()))
         if workers is None or workers < 1:
             raise FleetError(f"--workers must be >= 1, got {workers}")
         try:
@@ -321,12 +497,12 @@ def _describe(items: Sequence[Any], idx: range) -> str:
     return names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]} ({len(names)} drives)"
 
 
-def open_runner(args: argparse.Namespace) -> Runner:
-    """The runner a command line asks for: a :class:`DaskRunner` with ``--workers N`` or
-    ``--scheduler ADDRESS``, else a :class:`LocalRunner` (and Dask is never imported)."""
-    if not fleet_requested(args):
+def open_runner(where: Where) -> Runner:
+    """The runner ``where`` asks for: a :class:`DaskRunner` with ``workers`` or ``scheduler``,
+    else a :class:`LocalRunner` (and Dask is never imported)."""
+    if not where.cluster:
         return LocalRunner()
-    workers = getattr(args, "workers", None)
+    workers = where.workers
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise FleetError(f"--workers must be >= 1, got {workers}")
-    return DaskRunner.open(workers, getattr(args, "scheduler", None))
+    return DaskRunner.open(workers, where.scheduler, where.tls)

@@ -20,7 +20,6 @@ drives than workers to keep busy.
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -39,7 +38,7 @@ from hdrd.analysis.evaluate import (
     prepare_drive,
     read_ref,
 )
-from hdrd.analysis.fleet import Progress, Runner, batches, open_runner
+from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
 from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
@@ -184,17 +183,14 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
 
 
 def run_evaluate(
-    args: argparse.Namespace, refs: Sequence[DriveRef], job: EvaluateJob
+    where: Where, refs: Sequence[DriveRef], job: EvaluateJob, progress: bool = True
 ) -> tuple[list[DriveResult], list[str]]:
-    """:func:`evaluate_refs` on the runner the command line asks for, with a progress bar on
-    stderr for a fleet (more than :data:`PLOT_PANELS_MAX` drives) or a cluster, unless
-    ``--no-progress``."""
+    """:func:`evaluate_refs` on the runner ``where`` asks for, with a progress bar on stderr
+    (``progress``) for a fleet (more than :data:`PLOT_PANELS_MAX` drives) or a cluster."""
     from hdrd.analysis.progress import ProgressBar
 
-    with open_runner(args) as runner:
-        show = not getattr(args, "no_progress", False) and (
-            runner.distributed or len(refs) > PLOT_PANELS_MAX
-        )
+    with open_runner(where) as runner:
+        show = progress and (runner.distributed or len(refs) > PLOT_PANELS_MAX)
         bar = ProgressBar(f"evaluate {len(refs)} drives") if show else None
         try:
             return evaluate_refs(refs, job, runner, bar)

@@ -79,6 +79,7 @@ def _evaluate(
     """The drives' results, why each drive left out was skipped (both said on stderr, with
     each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+    from hdrd.commands.options import where_from_args
 
     method = args.method or cfg.hdr.method
     params = cfg.hdr.params
@@ -98,7 +99,8 @@ def _evaluate(
         outages=outages,
     )
     # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
-    results, skipped = run_evaluate(args, refs, job)
+    where = where_from_args(args, "hdrd evaluate")
+    results, skipped = run_evaluate(where, refs, job, not getattr(args, "no_progress", False))
     for why in skipped:
         print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
     for r in results:

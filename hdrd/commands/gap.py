@@ -93,8 +93,10 @@ def main(args: argparse.Namespace) -> int:
         bool(args.plot),
         read_limits(args),
     )
+    from hdrd.commands.options import where_from_args
+
     try:
-        with open_runner(args) as runner:
+        with open_runner(where_from_args(args, "hdrd gap")) as runner:
             if len(refs) > 1:
                 from hdrd.analysis.gap.fleet import gap_fleet
 

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Any
+import sys
+from typing import TYPE_CHECKING, Any
 
 from hdrd.config import Config, ConfigError, apply_overrides, load_config
 
-__all__ = ["check_bias_arg", "config_from_args"]
+if TYPE_CHECKING:
+    from hdrd.analysis.fleet import Where
+
+__all__ = ["check_bias_arg", "config_from_args", "where_from_args"]
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
@@ -74,3 +78,16 @@ def check_bias_arg(value: float | None, cfg: Config) -> None:
             f"must be a finite number within +/-{limit:g} deg/s (calibration.max_bias_dps)",
             "command line",
         )
+
+
+def where_from_args(args: argparse.Namespace, prog: str) -> Where:
+    """Where the work runs (``--workers``, ``--scheduler``, ``--tls-*``; docs/fleet.md); a
+    scheduler reached by plain TCP from another machine is warned about on stderr."""
+    from hdrd.analysis.fleet import TlsFiles, Where, scheduler_warning
+
+    g = lambda name: getattr(args, name, None)  # noqa: E731
+    tls = TlsFiles(g("tls_ca_file"), g("tls_cert"), g("tls_key"))
+    warning = scheduler_warning(g("scheduler"))
+    if warning:
+        print(f"{prog}: warning: {warning}", file=sys.stderr)
+    return Where(g("workers"), g("scheduler"), tls)

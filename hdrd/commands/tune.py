@@ -10,10 +10,11 @@ import time
 from collections.abc import Sequence
 
 from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
-from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
+from hdrd.analysis.fleet import FleetError, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
 from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+from hdrd.commands.options import where_from_args
 from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
@@ -49,7 +50,8 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
     strict = bool(getattr(args, "strict", False))
     train_refs = drive_refs(args.train)
     test_refs = drive_refs(args.test or [])
-    if not fleet_requested(args):
+    where = where_from_args(args, "hdrd tune")
+    if not where.cluster:
         job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
@@ -67,7 +69,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
             calibrate_seconds=args.calibrate_seconds,
             progress=bar,
         )
-    with open_runner(args) as runner:
+    with open_runner(where) as runner:
         return tune_fleet(
             runner,
             train_refs,
