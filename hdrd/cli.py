@@ -776,6 +776,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(impl(args) or 0)
     except KeyboardInterrupt:
+        print(f"hdrd {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader went away (`hdrd replay ... | head`): not an error worth a traceback.

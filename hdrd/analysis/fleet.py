@@ -28,6 +28,8 @@ import asyncio
 import contextlib
 import functools
 import logging
+import signal
+import threading
 import weakref
 from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -341,6 +343,31 @@ def _dask() -> Any:
     return distributed
 
 
+def dask_setup(worker: Any) -> None:
+    """Dask's preload hook, run in each worker process of a local cluster (``--workers``) as
+    it starts, a restarted one included. Ctrl-C at a terminal sends SIGINT to every process of
+    the command; the command says "interrupted" in one line and closes its cluster, so its
+    workers ignore SIGINT (else each prints a traceback)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the worker
+    processes a local cluster starts meanwhile inherit it, and Python leaves a SIGINT ignored
+    at its start ignored. A Ctrl-C while the cluster starts (a second or two) is lost: a
+    signal cannot be both ignored by the workers and caught here."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 class DaskRunner(Runner):
     """A ``dask.distributed`` client (and the local cluster it started, if any)."""
 
@@ -364,22 +391,25 @@ class DaskRunner(Runner):
             return cls(_connect(distributed, scheduler, tls or TlsFiles()))
         if workers is None or workers < 1:
             raise FleetError(f"--workers must be >= 1, got {workers}")
+        cluster = None
         try:
-            cluster = distributed.LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's concern
-            )
-        except (OSError, TimeoutError, RuntimeError) as e:
-            raise FleetError(
-                f"cannot start a local Dask cluster of {workers} workers: {e}"
-            ) from None
-        try:
+            with _sigint_ignored():  # the worker processes inherit it (and see dask_setup)
+                cluster = distributed.LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
+                    preload=[__name__],  # dask_setup, in every worker process
+                )
             client = distributed.Client(cluster)
-        except BaseException:
-            cluster.close()
+        except BaseException as e:
+            if cluster is not None:
+                cluster.close()
+            if isinstance(e, (OSError, TimeoutError, RuntimeError)):
+                raise FleetError(
+                    f"cannot start a local Dask cluster of {workers} workers: {_one_line(e)}"
+                ) from None
             raise
         return cls(client, cluster)
 

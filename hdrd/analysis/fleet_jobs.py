@@ -45,11 +45,11 @@ from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
     PARAM_NAMES,
     Candidates,
+    Interrupted,
     TuneResult,
     check_budget,
-    outcome,
     score_candidates,
-    search,
+    search_outcome,
 )
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
@@ -337,16 +337,28 @@ class _FleetScore:
 
         sums: list[FloatArray | None] = [None] * len(blocks)
         rows = runner.map(score_block, items, self.T, progress=report, weights=weights, batch=1)
-        for i, part in enumerate(rows):
-            q = i // len(train)
-            for row in part:  # the drives in order, one after the other
-                acc = sums[q]
-                if acc is None:
-                    sums[q] = row.copy()
-                else:
-                    acc += row
+        got = 0
+        try:
+            for i, part in enumerate(rows):
+                q = i // len(train)
+                for row in part:  # the drives in order, one after the other
+                    acc = sums[q]
+                    if acc is None:
+                        sums[q] = row.copy()
+                    else:
+                        acc += row
+                got = i + 1
+        except KeyboardInterrupt:
+            full = got // len(train)  # the blocks summed over every drive
+            raise Interrupted(self._objective(blocks[:full], sums)) from None
         self.done = start + sum(weights)
-        out = np.empty(n_sets)
+        return self._objective(blocks, sums)
+
+    def _objective(
+        self, blocks: list[tuple[int, int]], sums: list[FloatArray | None]
+    ) -> FloatArray:
+        """Each set's objective, for the sets of ``blocks`` (the first blocks)."""
+        out = np.empty(blocks[-1][1] if blocks else 0)
         for (a, b), acc in zip(blocks, sums):
             assert acc is not None
             out[a:b] = acc / self.n_drives
@@ -402,8 +414,7 @@ def tune_fleet(
         te = _per_set(runner.map(evaluate_sets, test, sets, batch=1), len(sets))
         return tr, te
 
-    cand, obj = search(score, n_candidates, seed, base)
-    return outcome(base, cand, obj, seed, runs)
+    return search_outcome(score, n_candidates, seed, base, runs)
 
 
 def _per_set(batches: Iterator[list[list[DriveResult]]], n_sets: int) -> list[list[DriveResult]]:

@@ -9,11 +9,25 @@ import sys
 import time
 from collections.abc import Sequence
 
-from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
+from hdrd.analysis.evaluate import (
+    PAPER_PARAMS,
+    EvaluationError,
+    PreparedDrive,
+    drive_refs,
+    read_limits,
+)
 from hdrd.analysis.fleet import FleetError, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
 from hdrd.analysis.progress import ProgressBar
-from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+from hdrd.analysis.tune import (
+    Interrupted,
+    TuneResult,
+    format_report,
+    interrupted_json,
+    params_yaml,
+    to_json,
+    tune,
+)
 from hdrd.commands.options import where_from_args
 from hdrd.io.drivefiles import DriveRef
 
@@ -109,6 +123,39 @@ def _comment(result: TuneResult, seed: int) -> list[str]:
     return [c for c in comment if c]
 
 
+def _interrupted(args: argparse.Namespace, e: Interrupted) -> int:
+    """Ctrl-C: the best set so far on stdout (and in --out, --json), said in one line on
+    stderr; exit 130. The set is not checked on the test drives."""
+    from hdrd.io.files import atomic_write_json, atomic_write_text
+
+    best = e.best(PAPER_PARAMS)
+    if best is None:
+        print("hdrd tune: interrupted before any parameter set was scored", file=sys.stderr)
+        return 130
+    n = e.scored.shape[0]
+    what = (
+        f"the best of the first {n} of {args.candidates} parameter sets (seed {args.seed}): "
+        f"mean training NEpsi {best[1]:.3f} deg/min, not checked on the test drives"
+    )
+    snippet = params_yaml(best[0], [f"HDR parameters from an interrupted `hdrd tune`: {what}"])
+    print(snippet, end="")
+    written = []
+    try:
+        if args.out:
+            atomic_write_text(args.out, snippet)
+            written.append(args.out)
+        if args.json:
+            atomic_write_json(
+                args.json, interrupted_json(e, PAPER_PARAMS, args.seed, args.candidates)
+            )
+            written.append(args.json)
+    except OSError as err:
+        _err(f"cannot write {err.filename or ''}: {err.strerror or err}")
+    where = f"; written to {' and '.join(written)}" if written else ""
+    print(f"hdrd tune: interrupted: {what}{where}", file=sys.stderr)
+    return 130
+
+
 def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
     [--calibrate-seconds S] [--out YAML] [--json FILE] [--strict] [--no-progress]
@@ -123,11 +170,13 @@ def main(args: argparse.Namespace) -> int:
     skipped: list[str] = []
     try:
         result = _run(args, bar, skipped)
-    except (EvaluationError, FleetError) as e:
+    except (EvaluationError, FleetError, Interrupted) as e:
         if bar is not None:
             bar.close()
         for why in skipped:
             print(f"hdrd tune: skipped {why}", file=sys.stderr)
+        if isinstance(e, Interrupted):
+            return _interrupted(args, e)
         _err(str(e))
         return 1
     if bar is not None:

@@ -1,0 +1,125 @@
+"""Evaluate, tune and gap at the edges of their command lines (docs/evaluation.md, docs/fleet.md):
+Ctrl-C in one process and on a cluster (one line, no worker's traceback; tune writes its best
+so far).
+
+Each command runs as a child process, as from a shell; Ctrl-C is SIGINT to its whole process
+group, as a terminal sends it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hdrd.io.drivelog import write_drive
+from hdrd.sim.drive import simulate_drive
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+KINDS = ("city", "suburbs", "rural", "highway", "mixed")
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """40 drives of 6 minutes (CSV)."""
+    root = tmp_path_factory.mktemp("fleet")
+    for i in range(40):
+        kind = KINDS[i % len(KINDS)]
+        write_drive(root / f"{kind}-{i:02d}.csv", simulate_drive(kind, 6.0, 100 + i))
+    return root
+
+
+def hdrd(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hdrd", *args],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT as a terminal gives it (a test run started in the
+    background by a shell inherits it ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def past(percent: float) -> Callable[[str], bool]:
+    """Whether a progress line on stderr says more than ``percent`` of the work is done."""
+    return lambda line: "%" in line and float(line.split("%")[0].split()[-1]) > percent
+
+
+def interrupted(*args: str, after: Callable[[str], bool]) -> tuple[int, str, str]:
+    """Run ``hdrd ARGS`` in a process group of its own; once a line of its stderr is
+    ``after``, Ctrl-C (SIGINT to the group). Its exit status, stdout and stderr."""
+    p = subprocess.Popen(
+        [sys.executable, "-m", "hdrd", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        start_new_session=True,
+        preexec_fn=_default_sigint,
+    )
+    assert p.stderr is not None
+    seen = []
+    try:
+        for line in p.stderr:
+            seen.append(line)
+            if after(line):
+                os.killpg(p.pid, signal.SIGINT)
+                break
+        out, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    return p.returncode, out, "".join(seen) + err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [[], ["--workers", "2"]], ids=["one process", "cluster"])
+def test_ctrl_c_during_evaluate_is_one_line(fleet: Path, workers: list[str]) -> None:
+    rc, out, err = interrupted("evaluate", str(fleet), *workers, after=past(0))
+    assert rc == 130, err
+    assert "Traceback" not in err and "Error" not in err, err
+    assert err.splitlines()[-1] == "hdrd evaluate: interrupted"
+    assert out == ""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [[], ["--workers", "2"]], ids=["one process", "cluster"])
+def test_ctrl_c_during_tune_writes_the_best_so_far(
+    fleet: Path, tmp_path: Path, workers: list[str]
+) -> None:
+    train = [str(p) for p in sorted(fleet.glob("*.csv"))[:6]]
+    out_yaml, out_json = tmp_path / "best.yaml", tmp_path / "best.json"
+    args = ["tune", *train, "--candidates", "40000", "--out", str(out_yaml), "--json"]
+    rc, out, err = interrupted(*args, str(out_json), *workers, after=past(40))
+    assert rc == 130, err
+    assert "Traceback" not in err, err
+    last = err.splitlines()[-1]
+    assert last.startswith("hdrd tune: interrupted: the best of the first "), last
+    assert " of 40000 parameter sets (seed 0): mean training NEpsi " in last
+    assert last.endswith(f"written to {out_yaml} and {out_json}")
+    snippet = yaml.safe_load(out_yaml.read_text())
+    assert out == out_yaml.read_text()  # the best set on stdout as well
+    doc = json.loads(out_json.read_text())
+    assert doc["interrupted"] is True and doc["train"] is None
+    assert 0 < doc["candidates"] < 40000 and doc["candidates_asked"] == 40000
+    assert snippet["hdr"] == {"method": "hdr", **doc["params"]["tuned"]}
+    # the best so far is the best of the sets scored: never worse than the paper's, the first
+    assert doc["objective"]["tuned"] <= doc["objective"]["baseline"]
