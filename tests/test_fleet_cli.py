@@ -25,6 +25,7 @@ from hdrd.sim.drive import simulate_drive
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 KINDS = ("city", "suburbs", "rural", "highway", "mixed")
+SLOW = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +124,36 @@ def test_ctrl_c_during_tune_writes_the_best_so_far(
     assert snippet["hdr"] == {"method": "hdr", **doc["params"]["tuned"]}
     # the best so far is the best of the sets scored: never worse than the paper's, the first
     assert doc["objective"]["tuned"] <= doc["objective"]["baseline"]
+
+
+@pytest.mark.parametrize(
+    "workers",
+    [
+        pytest.param([], id="one process"),
+        pytest.param(["--workers", "2"], id="cluster", marks=SLOW),
+    ],
+)
+def test_tune_refuses_test_drives_that_are_training_drives(
+    fleet: Path, tmp_path: Path, workers: list[str]
+) -> None:
+    from hdrd.io.drivelog import read_drive
+    from hdrd.io.parquetlog import write_parquet_drive
+
+    train = sorted(fleet.glob("*.csv"))[:3]
+    held = tmp_path / "held"
+    held.mkdir()
+    (held / "renamed.csv").write_bytes(train[1].read_bytes())  # the same file, another name
+    write_parquet_drive(held / "as-parquet.parquet", read_drive(train[2]))  # another format
+    write_drive(held / "new.csv", simulate_drive("rural", 3.0, 999))  # truly held out
+    args = ["tune", *map(str, train), "--candidates", "20", "--no-progress", *workers]
+    p = hdrd(*args, "--test", str(held))
+    assert p.returncode == 1, p.stderr
+    assert p.stderr.splitlines() == [
+        "hdrd tune: error: 2 of the 3 test drives are training drives too (the same data): "
+        f"as-parquet (training drive {train[2].stem}), renamed (training drive "
+        f"{train[1].stem}); a test drive must be held out of the training"
+    ]
+    p = hdrd(*args, "--test", *map(str, train))  # the same set
+    assert p.returncode == 1 and "3 of the 3 test drives are training drives too" in p.stderr
+    p = hdrd(*args, "--test", str(held / "new.csv"))
+    assert p.returncode == 0, p.stderr

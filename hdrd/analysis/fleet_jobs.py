@@ -48,6 +48,8 @@ from hdrd.analysis.tune import (
     Interrupted,
     TuneResult,
     check_budget,
+    check_held_out,
+    content_key,
     score_candidates,
     search_outcome,
 )
@@ -245,6 +247,11 @@ def steps_of(drives: Sequence[PreparedDrive | str]) -> list[int | str]:
     return [d if isinstance(d, str) else int(d.steps.u.shape[0]) for d in drives]
 
 
+def keys_of(drives: Sequence[PreparedDrive | str]) -> list[tuple[str, str]]:
+    """(name, :func:`~hdrd.analysis.tune.content_key`) of each prepared drive of a batch."""
+    return [(d.name, content_key(d)) for d in _good(drives)]
+
+
 def score_block(item: tuple[Sequence[PreparedDrive | str], Candidates], T: float) -> FloatArray:
     """Eψ / Td of every parameter set of a block on every prepared drive of a batch: shape
     (drives, sets), each row a drive's share of the objective's sum."""
@@ -394,6 +401,9 @@ def tune_fleet(
     all_steps = list(runner.map(steps_of, train, batch=1))
     test_steps = list(runner.map(steps_of, test, batch=1))
     steps, n_drives = _usable_steps(all_steps, test_steps, len(train_refs), strict, skipped)
+    if test_refs:
+        keys = [list(runner.map(keys_of, part, batch=1)) for part in (train, test)]
+        check_held_out(*([k for batch in part for k in batch] for part in keys))
     longest = max(max(s, default=0) for s in steps)
     batch_steps = [sum(s) for s in steps]
     score = _FleetScore(

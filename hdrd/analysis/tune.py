@@ -57,6 +57,8 @@ __all__ = [
     "Score",
     "TuneResult",
     "check_budget",
+    "check_held_out",
+    "content_key",
     "format_report",
     "interrupted_json",
     "objective",
@@ -514,3 +516,41 @@ def interrupted_json(e: Interrupted, base: HdrParams, seed: int, asked: int) -> 
         "train": None,
         "test": None,
     }
+
+
+def content_key(d: PreparedDrive) -> str:
+    """A digest of what tuning sees of a drive (its steps' inputs and times, its truth and
+    alignment): the same drive under two names, or in two formats, has the same key."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    st = d.steps
+    for a in (st.u, st.t_end, st.n_samples, st.speed, st.temp_c, st.omega_std, d.truth):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes() + b"|")
+    h.update(repr((st.T, st.bias_dps, d.k, d.duration_min, d.start_s)).encode())
+    return h.hexdigest()
+
+
+SHOWN_OVERLAPS = 3
+"""Test drives named in the error of an overlap (the others counted)."""
+
+
+def check_held_out(train: Sequence[tuple[str, str]], test: Sequence[tuple[str, str]]) -> None:
+    """EvaluationError if a test drive is also a training drive, by content
+    (:func:`content_key`; each drive given as (name, key)): the test column would claim a
+    held-out score it is not."""
+    from hdrd.analysis.evaluate import EvaluationError
+
+    seen = {key: name for name, key in train}
+    both = [(name, seen[key]) for name, key in test if key in seen]
+    if not both:
+        return
+    shown = ", ".join(
+        name if name == other else f"{name} (training drive {other})"
+        for name, other in both[:SHOWN_OVERLAPS]
+    )
+    more = f" and {len(both) - SHOWN_OVERLAPS} more" if len(both) > SHOWN_OVERLAPS else ""
+    raise EvaluationError(
+        f"{len(both)} of the {len(test)} test drives are training drives too (the same data): "
+        f"{shown}{more}; a test drive must be held out of the training"
+    )

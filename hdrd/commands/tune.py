@@ -22,6 +22,8 @@ from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import (
     Interrupted,
     TuneResult,
+    check_held_out,
+    content_key,
     format_report,
     interrupted_json,
     params_yaml,
@@ -69,6 +71,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
         job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
+        check_held_out(*([(d.name, content_key(d)) for d in part] for part in (train, test)))
         if not train:
             raise EvaluationError(
                 skipped.pop(0)
