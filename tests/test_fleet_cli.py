@@ -157,3 +157,67 @@ def test_tune_refuses_test_drives_that_are_training_drives(
     assert p.returncode == 1 and "3 of the 3 test drives are training drives too" in p.stderr
     p = hdrd(*args, "--test", str(held / "new.csv"))
     assert p.returncode == 0, p.stderr
+
+
+def _stand(path: Path, seed: int = 1) -> None:
+    write_drive(path, simulate_drive("standstill", 1.0, seed))
+
+
+def test_output_files_are_checked_before_the_work(fleet: Path, tmp_path: Path) -> None:
+    drive = str(sorted(fleet.glob("*.csv"))[0])
+    long = "y" * 240
+    cases = [
+        (["evaluate", drive, "--plot", str(tmp_path / "out.txt")], "matplotlib cannot write .txt"),
+        (["evaluate", drive, "--plot", str(tmp_path / f"{long}{long}.png")], "bytes"),
+        (["evaluate", drive, "--json", str(tmp_path / f"{long}.json")], "at most 231 can be"),
+        (["evaluate", drive, "--json", f"{drive}/x.json"], "is not a directory"),
+        (["evaluate", drive, "--json", str(tmp_path)], "is a directory"),
+        (["tune", drive, "--out", str(tmp_path / f"{long}.yaml")], "at most 231 can be"),
+    ]
+    for args, why in cases:
+        p = hdrd(*args)
+        assert p.returncode == 1 and p.stdout == "", p.stderr
+        (line,) = p.stderr.splitlines()
+        assert line.startswith(f"hdrd {args[0]}: error: {args[2]} ") and why in line, line
+    stand = tmp_path / "stand.csv"
+    _stand(stand)
+    p = hdrd("gap", str(stand), "--standstill", "--report", str(tmp_path / f"{long}.json"))
+    assert p.returncode == 1 and p.stdout == "", p.stderr
+    assert p.stderr.startswith("hdrd gap: --report ") and "at most 231" in p.stderr
+
+
+def test_a_drive_named_like_tex_is_plotted_as_text(fleet: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    src = sorted(fleet.glob("*.csv"))[0]
+    named = tmp_path / "$x^$ and $\\frac{a}{0}$.csv"
+    named.write_bytes(src.read_bytes())
+    out = tmp_path / "plot.png"
+    p = hdrd("evaluate", str(named), "--plot", str(out))
+    assert p.returncode == 0, p.stderr
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("first", ["a", "a.yaml/b"])
+def test_gap_models_whose_names_are_each_others_folders(tmp_path: Path, first: str) -> None:
+    pytest.importorskip("scipy")
+    (tmp_path / "sub" / "a.yaml").mkdir(parents=True)
+    _stand(tmp_path / "sub" / "a.yaml" / "b.csv", 1)
+    _stand(tmp_path / "a.csv", 2)
+    _stand(tmp_path / "y.csv", 3)
+    given = {"a": str(tmp_path / "a.csv"), "a.yaml/b": str(tmp_path / "sub")}
+    out = tmp_path / "models"
+    order = [given[first], given[next(k for k in given if k != first)]]
+    p = hdrd("gap", *order, str(tmp_path / "y.csv"), "--standstill", "--out", str(out),
+             "--no-progress")  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    if first == "a":
+        assert (out / "a.yaml").is_file() and not (out / "a.yaml" / "b.yaml").exists()
+        assert "skipped a.yaml/b: its model would be " in p.stderr
+        assert "inside drive a's model file" in p.stderr
+    else:
+        assert (out / "a.yaml" / "b.yaml").is_file()
+        assert "skipped a: its model would be " in p.stderr
+        assert "a folder of drive a.yaml/b's model" in p.stderr
+    assert (out / "y.yaml").is_file()
+    assert "fleet: 2 drives analysed, 1 skipped" in p.stdout

@@ -16,6 +16,7 @@ from hdrd.analysis.evaluate import (
     read_limits,
     to_json,
 )
+from hdrd.commands.options import outputs_ok
 from hdrd.config import Config, ConfigError, load_config, settings_context
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
@@ -42,7 +43,7 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
+    if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
         return 1
     outages = None
     if getattr(args, "outages", None):
@@ -60,17 +61,6 @@ def main(args: argparse.Namespace) -> int:
         return 1
     _print_results(results, len(skipped), outages is not None)
     return _write_files(args, results, job.traces)
-
-
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
 
 
 def _evaluate(
@@ -132,11 +122,11 @@ def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: b
     the exit status."""
     if args.json:
         try:
-            from hdrd.io.files import atomic_write_json
+            from hdrd.io.files import atomic_write_json, shown_path
 
             atomic_write_json(args.json, to_json(results))
         except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
+            _err(f"cannot write {shown_path(args.json)}: {e.strerror or e}")
             return 1
     if args.plot:
         from hdrd.analysis.fleet_report import plot_fleet

@@ -74,14 +74,17 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
     from hdrd.io.drivelog import DriveLogError
 
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
-        return 1
     start = _start_model(args)
     if start is None:
         return 78
     measured = [args.measured] if isinstance(args.measured, str) else list(args.measured)
     refs = _drives(args, measured)
     if refs is None:
+        return 1
+    from hdrd.commands.options import outputs_ok
+
+    flags = ("--report", "--plus-out", "--plot") + (("--out",) if len(refs) == 1 else ())
+    if not outputs_ok(args, _err, flags):  # said before the work, not after it
         return 1
     from hdrd.analysis.evaluate import read_limits
 
@@ -110,17 +113,6 @@ def main(args: argparse.Namespace) -> int:
         return 1
     print(one.result.summary)
     return _write_files(args, one.result, measured)
-
-
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
 
 
 def _start_model(args: argparse.Namespace) -> GyroModel | None:

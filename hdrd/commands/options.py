@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from hdrd.config import Config, ConfigError, apply_overrides, load_config
@@ -17,7 +18,13 @@ from hdrd.config import Config, ConfigError, apply_overrides, load_config
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
 
-__all__ = ["check_bias_arg", "config_from_args", "where_from_args"]
+__all__ = [
+    "check_bias_arg",
+    "config_from_args",
+    "output_problem",
+    "outputs_ok",
+    "where_from_args",
+]
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
@@ -91,3 +98,72 @@ def where_from_args(args: argparse.Namespace, prog: str) -> Where:
     if warning:
         print(f"{prog}: warning: {warning}", file=sys.stderr)
     return Where(g("workers"), g("scheduler"), tls)
+
+
+TEMP_DECORATION = 24
+"""Bytes an atomic writer adds to a file's name for its temporary file
+(``.NAME.PID.RANDOM.tmp``, :func:`hdrd.io.files.atomic_write_text`)."""
+
+
+def output_problem(flag: str, path: str) -> str | None:
+    """Why ``FLAG PATH`` could not be written, found before any work: its name too long for
+    the file system (with the temporary file's decoration), a folder on its way that is a
+    file, a folder where the file should be; None if it looks writable (what only the write
+    can tell, it tells)."""
+    import os
+    from pathlib import Path
+
+    from hdrd.io.files import shown_path
+
+    def exists(p: Path) -> bool:
+        try:
+            os.stat(p)
+        except OSError:  # missing, or a name too long to look up
+            return False
+        return True
+
+    target = Path(path)
+    ancestor = target.parent
+    while not exists(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not os.path.isdir(ancestor):
+        return f"{flag} {shown_path(path)}: {shown_path(ancestor)} is not a directory"
+    try:
+        most = os.pathconf(ancestor, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        most = 255
+    for part in target.relative_to(ancestor).parts[:-1]:
+        if len(os.fsencode(part)) > most:
+            return f"{flag} {shown_path(path)}: a folder's name is over {most} bytes"
+    size = len(os.fsencode(target.name))
+    extra = 0 if flag == "--plot" else TEMP_DECORATION  # a plot is written in place
+    if size + extra > most:
+        return (
+            f"{flag} {shown_path(path)}: the file's name is {size} bytes; at most "
+            f"{most - extra} can be written here"
+            + (f" (a temporary file's name takes {extra} more)" if extra else "")
+        )
+    if os.path.isdir(target):
+        return f"{flag} {shown_path(path)}: is a directory"
+    return None
+
+
+def outputs_ok(
+    args: argparse.Namespace, err: Callable[[str], None], flags: tuple[str, ...]
+) -> bool:
+    """Whether every output file the command line names (``flags``, e.g. ``--json``) can be
+    written, asked before any work; what is wrong with the first that cannot is said through
+    ``err``. ``--plot`` also needs matplotlib and a format it writes."""
+    for flag in flags:
+        path = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+        if not path:
+            continue
+        problem = output_problem(flag, path)
+        if problem is None and flag == "--plot":
+            from hdrd.analysis.plots import plotting_unavailable
+
+            problem = plotting_unavailable(path)
+        if problem is not None:
+            err(problem)
+            return False
+    return True

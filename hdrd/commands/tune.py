@@ -30,7 +30,7 @@ from hdrd.analysis.tune import (
     to_json,
     tune,
 )
-from hdrd.commands.options import where_from_args
+from hdrd.commands.options import outputs_ok, where_from_args
 from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
@@ -168,6 +168,8 @@ def main(args: argparse.Namespace) -> int:
     if args.candidates < 1:
         _err(f"--candidates must be >= 1, got {args.candidates}")
         return 2
+    if not outputs_ok(args, _err, ("--out", "--json")):  # before the work
+        return 1
     bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
     t0 = time.monotonic()
     skipped: list[str] = []

@@ -197,13 +197,15 @@ def model_paths(
 ) -> tuple[list[DriveRef], dict[str, Path], list[str]]:
     """Where each drive's fitted model goes, ``OUT/NAME.yaml``: the drives whose name can be
     such a file (:func:`hdrd.io.files.path_inside`: never outside OUT), their paths, and why each
-    other drive is left out (a name that would lead out of OUT, or a file another drive
-    already takes)."""
-    from hdrd.io.files import UnsafeNameError, path_inside, shown_path
+    other drive is left out (a name that would lead out of OUT; a file another drive already
+    takes, or that would be a folder of another drive's file or hold it, ``a.yaml/b`` and
+    ``a``; a folder already where the file goes, or a file where a folder must be)."""
+    from hdrd.io.files import UnsafeNameError, path_inside
 
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}
     taken: dict[Path, str] = {}
+    folders: dict[Path, str] = {}  # folders the files taken need, and whose file needs each
     why: list[str] = []
     for r in refs:
         try:
@@ -211,15 +213,39 @@ def model_paths(
         except UnsafeNameError as e:
             why.append(f"{r.name}: {e}")
             continue
-        if path in taken or r.name in paths:
-            why.append(
-                f"{r.name}: its model would be {shown_path(path)}, as that of an earlier drive"
-            )
+        clash = _clash(path, Path(out), taken, folders, r.name in paths)
+        if clash:
+            why.append(f"{r.name}: {clash}")
             continue
         taken[path] = r.name
         paths[r.name] = path
+        for folder in path.relative_to(out).parents:
+            folders.setdefault(Path(out) / folder, r.name)
         kept.append(r)
     return kept, paths, why
+
+
+def _clash(
+    path: Path, out: Path, taken: dict[Path, str], folders: dict[Path, str], named: bool
+) -> str | None:
+    """Why a drive's model cannot be ``path`` (None if it can), given the files and folders
+    the drives before it take."""
+    from hdrd.io.files import shown_path
+
+    shown = shown_path(path)
+    if path in taken or named:
+        return f"its model would be {shown}, as that of an earlier drive"
+    if path in folders:
+        return f"its model would be {shown}, a folder of drive {folders[path]}'s model"
+    for folder in path.relative_to(out).parents:
+        above = out / folder
+        if above in taken:
+            return f"its model would be {shown}, inside drive {taken[above]}'s model file"
+        if above.exists() and not above.is_dir():
+            return f"its model would be {shown}, but {shown_path(above)} is a file"
+    if path.is_dir():
+        return f"its model would be {shown}, a folder that exists"
+    return None
 
 
 def _save(save: Any, model: Any, path: Path) -> None:
