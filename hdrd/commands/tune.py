@@ -163,8 +163,6 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
     [--calibrate-seconds S] [--out YAML] [--json FILE] [--strict] [--no-progress]
     [--workers N | --scheduler ADDRESS]``."""
-    from hdrd.io.files import atomic_write_json, atomic_write_text
-
     if args.candidates < 1:
         _err(f"--candidates must be >= 1, got {args.candidates}")
         return 2
@@ -190,16 +188,21 @@ def main(args: argparse.Namespace) -> int:
         print(f"hdrd tune: skipped {why}", file=sys.stderr)
     seconds = time.monotonic() - t0
     print(format_report(result, seconds))
-    if args.out:
-        try:
+    return _write(args, result, seconds)
+
+
+def _write(args: argparse.Namespace, result: TuneResult, seconds: float) -> int:
+    """--out and --json; the exit status."""
+    from hdrd.io.files import atomic_write_json, atomic_write_text, shown_path
+
+    path = args.out
+    try:
+        if args.out:
             atomic_write_text(args.out, params_yaml(result.best, _comment(result, args.seed)))
-        except OSError as e:
-            _err(f"cannot write {args.out}: {e.strerror or e}")
-            return 1
-    if args.json:
-        try:
+        path = args.json
+        if args.json:
             atomic_write_json(args.json, to_json(result, seconds))
-        except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
-            return 1
+    except OSError as e:
+        _err(f"cannot write {shown_path(path)}: {e.strerror or e}")
+        return 1
     return 0
