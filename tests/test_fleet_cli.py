@@ -221,3 +221,84 @@ def test_gap_models_whose_names_are_each_others_folders(tmp_path: Path, first: s
         assert "a folder of drive a.yaml/b's model" in p.stderr
     assert (out / "y.yaml").is_file()
     assert "fleet: 2 drives analysed, 1 skipped" in p.stdout
+
+
+def test_a_config_file_given_as_a_drive_is_refused(fleet: Path, tmp_path: Path) -> None:
+    cfg = tmp_path / "tuned.yaml"
+    cfg.write_text("hdr:\n  method: hdr\n")
+    p = hdrd("evaluate", str(fleet), str(cfg))
+    assert p.returncode == 1 and p.stdout == ""
+    assert p.stderr.splitlines() == [
+        f"hdrd evaluate: error: {cfg}: a YAML file, not a drive log (.csv, .parquet); did you "
+        f"mean --config {cfg}?"
+    ]
+    p = hdrd("gap", str(cfg))
+    assert p.returncode == 1 and f"did you mean --model {cfg}?" in p.stderr
+    p = hdrd("tune", str(fleet), "--test", str(cfg))
+    assert p.returncode == 1 and "a YAML file, not a drive log (.csv, .parquet)" in p.stderr
+
+
+def test_a_drive_named_twice_is_scored_once(fleet: Path, tmp_path: Path) -> None:
+    one = sorted(fleet.glob("*.csv"))[0]
+    p = hdrd("evaluate", str(one), str(one), "--json", str(tmp_path / "twice.json"))
+    assert p.returncode == 0, p.stderr
+    assert p.stderr.splitlines() == [
+        f"hdrd evaluate: warning: {one.stem}: named more than once; taken once"
+    ]
+    assert [d["name"] for d in json.loads((tmp_path / "twice.json").read_text())["drives"]] == [
+        one.stem
+    ]
+    p = hdrd("evaluate", str(fleet), str(one), "--no-progress")  # in the folder, and by name
+    assert p.returncode == 0 and "fleet: 40 drives evaluated" in p.stdout
+    assert "named more than once" in p.stderr
+
+
+def _lower_privileges() -> list[str]:
+    """A command prefix under which a folder without permissions cannot be read, as root too
+    (root without the capabilities that pass over file permissions)."""
+    if os.geteuid() != 0:
+        return []
+    import shutil
+
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("root, and no setpriv to give up reading every folder")
+    return [setpriv, "--inh-caps=-all", "--bounding-set=-dac_override,-dac_read_search"]
+
+
+def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> None:
+    src = sorted(fleet.glob("*.csv"))
+    scan = tmp_path / "scan"
+    (scan / "locked").mkdir(parents=True)
+    for f in src[:2]:
+        (scan / f.name).write_bytes(f.read_bytes())
+    (scan / "locked" / "hidden.csv").write_bytes(src[2].read_bytes())
+    os.mkfifo(scan / "fifo.csv")
+    (scan / "gone.csv").symlink_to(tmp_path / "nowhere.csv")
+    (scan / "locked").chmod(0)
+    try:
+        cmd = [*_lower_privileges(), sys.executable, "-m", "hdrd", "evaluate", str(scan)]
+        run = lambda *extra: subprocess.run(  # noqa: E731
+            [*cmd, *extra], capture_output=True, text=True, env=ENV, timeout=300,
+            stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        p = run()
+        assert p.returncode == 0, p.stderr
+        assert sorted(p.stderr.splitlines()) == [
+            f"hdrd evaluate: warning: {scan}/fifo.csv: a FIFO, not a file of drive logs",
+            f"hdrd evaluate: warning: {scan}/gone.csv: a symbolic link to nothing",
+            f"hdrd evaluate: warning: {scan}/locked: a folder that cannot be read "
+            "(Permission denied)",
+        ]
+        assert "mean (2)" in p.stdout
+        p = run("--strict")
+        assert p.returncode == 1 and p.stdout == ""
+        (line,) = p.stderr.splitlines()
+        assert line.startswith(f"hdrd evaluate: error: {scan}/")
+    finally:
+        (scan / "locked").chmod(0o755)
+    p = hdrd("evaluate", str(scan / "fifo.csv"))  # named: an error, never a wait for a writer
+    assert p.returncode == 1
+    assert p.stderr.splitlines() == [
+        f"hdrd evaluate: error: {scan}/fifo.csv: a FIFO, not a file of drive logs"
+    ]

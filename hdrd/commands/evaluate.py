@@ -75,7 +75,11 @@ def _evaluate(
     params = cfg.hdr.params
     # HDR+ is shown beside the paper's HDR it improves on.
     ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
-    refs = drive_refs(args.drives)
+    notes: list[str] = []
+    strict = bool(getattr(args, "strict", False))
+    refs = drive_refs(args.drives, notes, strict=strict, yaml_option="--config")
+    for note in notes:
+        print(f"hdrd evaluate: warning: {note}", file=sys.stderr)
     job = EvaluateJob(
         params,
         ms,
@@ -84,7 +88,7 @@ def _evaluate(
         args.calibrate_seconds,
         standstill_limits(cfg),
         traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
-        strict=bool(getattr(args, "strict", False)),
+        strict=strict,
         read_limits=read_limits(args),
         outages=outages,
     )

@@ -134,14 +134,17 @@ def _start_model(args: argparse.Namespace) -> GyroModel | None:
 def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
     """The drives named; None when they cannot be found or are too many for --plot or
     --plus-out, which describe one drive (why said on stderr)."""
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import DriveLogError
+    from hdrd.analysis.evaluate import EvaluationError, drive_refs
 
+    notes: list[str] = []
     try:
-        refs = find_drives(measured)
-    except DriveLogError as e:
+        strict = bool(getattr(args, "strict", False))
+        refs = drive_refs(measured, notes, strict=strict, yaml_option="--model")
+    except EvaluationError as e:
         _err(f"cannot read {e}")
         return None
+    for note in notes:
+        _err(f"warning: {note}")
     if len(refs) > 1 and args.plot:
         _err(f"--plot draws one drive; {len(refs)} were given")
         return None

@@ -64,8 +64,11 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
     from hdrd.analysis.fleet_jobs import tune_fleet
 
     strict = bool(getattr(args, "strict", False))
-    train_refs = drive_refs(args.train)
-    test_refs = drive_refs(args.test or [])
+    notes: list[str] = []
+    train_refs = drive_refs(args.train, notes, strict=strict)
+    test_refs = drive_refs(args.test or [], notes, strict=strict)
+    for note in notes:
+        print(f"hdrd tune: warning: {note}", file=sys.stderr)
     where = where_from_args(args, "hdrd tune")
     if not where.cluster:
         job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
