@@ -1,6 +1,9 @@
 """Evaluate, tune and gap at the edges of their command lines (docs/evaluation.md, docs/fleet.md):
 Ctrl-C in one process and on a cluster (one line, no worker's traceback; tune writes its best
-so far).
+so far); test drives that are training drives; output files checked before the work; drive
+names that look like TeX; gap models whose names are each other's folders; a YAML file, a
+FIFO or the same drive twice given as drives; what a folder's scan cannot read; --bias checked
+as run checks it; --help's defaults.
 
 Each command runs as a child process, as from a shell; Ctrl-C is SIGINT to its whole process
 group, as a terminal sends it.
@@ -302,3 +305,25 @@ def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> N
     assert p.stderr.splitlines() == [
         f"hdrd evaluate: error: {scan}/fifo.csv: a FIFO, not a file of drive logs"
     ]
+
+
+def test_evaluate_refuses_a_bias_run_and_replay_refuse(fleet: Path) -> None:
+    drive = str(sorted(fleet.glob("*.csv"))[0])
+    for value in ("5", "nan", "-inf"):
+        p = hdrd("evaluate", drive, f"--bias={value}")
+        assert p.returncode == 78 and p.stdout == ""
+        assert p.stderr.splitlines()[-1].startswith(
+            "hdrd evaluate: config error in command line: --bias = "
+        )
+        assert "must be a finite number within +/-3 deg/s (calibration.max_bias_dps)" in p.stderr
+    assert hdrd("evaluate", drive, "--bias", "0.01").returncode == 0
+
+
+def test_evaluate_help_gives_every_default() -> None:
+    p = hdrd("evaluate", "--help")
+    text = " ".join(p.stdout.split())
+    assert "--bias DPS static bias, deg/s (default: each drive's own)" in text
+    assert "--json FILE write the table as JSON (default: none)" in text
+    for flag in ("--plot", "--outages"):
+        option = text.split(f" {flag} ")[1].split(" --")[0]
+        assert option.endswith("(default: none)") or "default: none)" in option, option

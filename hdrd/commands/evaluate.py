@@ -16,7 +16,7 @@ from hdrd.analysis.evaluate import (
     read_limits,
     to_json,
 )
-from hdrd.commands.options import outputs_ok
+from hdrd.commands.options import check_bias_arg, outputs_ok
 from hdrd.config import Config, ConfigError, load_config, settings_context
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
@@ -40,6 +40,7 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         cfg, _ = load_config(args.config)
+        check_bias_arg(args.bias, cfg)  # as run and replay check it
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
