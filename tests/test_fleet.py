@@ -31,7 +31,9 @@ from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+# HDRD_FLEET_MIN_WORK_S=0: --workers starts its cluster however small the fleet (the rule that
+# keeps small work in this process has its own test)
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "HDRD_FLEET_MIN_WORK_S": "0"}
 
 
 @pytest.fixture(scope="module")

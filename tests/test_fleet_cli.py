@@ -26,7 +26,9 @@ from hdrd.io.drivelog import write_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+# HDRD_FLEET_MIN_WORK_S=0: --workers starts its cluster however small the fleet (the rule that
+# keeps small work in this process has its own test)
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "HDRD_FLEET_MIN_WORK_S": "0"}
 KINDS = ("city", "suburbs", "rural", "highway", "mixed")
 SLOW = pytest.mark.slow
 
@@ -327,3 +329,30 @@ def test_evaluate_help_gives_every_default() -> None:
     for flag in ("--plot", "--outages"):
         option = text.split(f" {flag} ")[1].split(" --")[0]
         assert option.endswith("(default: none)") or "default: none)" in option, option
+
+
+def test_little_work_stays_in_this_process(fleet: Path) -> None:
+    from hdrd.analysis.fleet_jobs import WORK_S_PER_BYTE, estimated_work_s
+    from hdrd.io.drivefiles import find_drives
+
+    refs = find_drives([str(fleet)])
+    size = sum(Path(r.path).stat().st_size for r in refs)
+    assert estimated_work_s(refs) == pytest.approx(WORK_S_PER_BYTE * size)
+    env = {k: v for k, v in ENV.items() if k != "HDRD_FLEET_MIN_WORK_S"}
+    code = (
+        "import sys; from hdrd.cli import main; rc = main(sys.argv[1:]); "
+        "print('dask imported' if 'distributed' in sys.modules else 'no dask', file=sys.stderr); "
+        "sys.exit(rc)"
+    )
+    args = ["evaluate", str(fleet), "--workers", "2", "--no-progress"]
+    p = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                       env=env, timeout=300)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    note, last = p.stderr.splitlines()
+    assert note.startswith("hdrd evaluate: note: about ") and "run in this process" in note
+    assert last == "no dask"
+    assert p.stdout == hdrd("evaluate", str(fleet), "--no-progress").stdout
+    env["HDRD_FLEET_MIN_WORK_S"] = "-1"
+    p = subprocess.run([sys.executable, "-m", "hdrd", *args], capture_output=True, text=True,
+                       env=env, timeout=300)  # fmt: skip
+    assert p.returncode == 1 and "HDRD_FLEET_MIN_WORK_S='-1': give seconds" in p.stderr

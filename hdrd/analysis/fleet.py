@@ -39,6 +39,8 @@ from hdrd.errors import HdrdError
 
 __all__ = [
     "INSTALL",
+    "MIN_CLUSTER_WORK_S",
+    "MIN_WORK_ENV",
     "DaskRunner",
     "FleetError",
     "LocalRunner",
@@ -72,6 +74,17 @@ class FleetError(HdrdError, RuntimeError):
     worker died too often); the message says what, in one line."""
 
 
+MIN_CLUSTER_WORK_S = 4.0
+"""``--workers N`` runs in this process when the work is estimated below this many seconds of
+one process: a local cluster's start, stop and upkeep (about 1.5 s of CPU, and the start's
+second or so of waiting) would not pay for themselves (bench/fleet.py: 60 drives of 12
+minutes, about 1.3 s, were slower on two workers than in one process)."""
+
+
+MIN_WORK_ENV = "HDRD_FLEET_MIN_WORK_S"
+"""The environment variable that sets :data:`MIN_CLUSTER_WORK_S` (0: always the cluster)."""
+
+
 @dataclass(frozen=True)
 class Where:
     """Where a command's work runs (``--workers``, ``--scheduler``, ``--tls-*``): in this
@@ -81,6 +94,8 @@ class Where:
     workers: int | None = None
     scheduler: str | None = None
     tls: TlsFiles = field(default_factory=lambda: TlsFiles())
+    min_work_s: float = MIN_CLUSTER_WORK_S
+    """Work (estimated seconds in one process) below which ``workers`` runs in this process."""
 
     def __post_init__(self) -> None:
         if self.tls.given() and not self.scheduler:
@@ -352,6 +367,45 @@ def dask_setup(worker: Any) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
+    # What a local cluster of one-thread workers running coarse tasks does not need; each
+    # costs CPU that the work would otherwise have (bench/fleet.py, bench/RESULTS.md).
+    "distributed.worker.profile.enabled": False,  # a stack sample of the task every 10 ms
+    "distributed.scheduler.work-stealing": False,  # the client sizes and spreads the tasks
+    "distributed.admin.tick.interval": "1s",  # every server's event-loop check, 20 ms
+    "distributed.admin.system-monitor.interval": "5s",  # psutil in every server, 500 ms
+    "distributed.admin.system-monitor.disk": False,
+    "distributed.worker.memory.monitor-interval": "1s",  # the nannies' psutil, 100 ms
+}
+FORKSERVER_PRELOAD = ("distributed", "numpy", "hdrd.analysis.fleet_jobs")
+"""What a local cluster's workers import once, in the fork server they are forked from
+(where there is one, as on Linux), instead of each importing it: a worker starts in a tenth
+of the time and CPU."""
+
+
+@contextlib.contextmanager
+def _local_cluster_config(distributed: Any) -> Iterator[None]:
+    """:data:`LOCAL_CLUSTER_CONFIG` meanwhile; workers forked from a fork server that has
+    imported :data:`FORKSERVER_PRELOAD`; the workers' environment without Dask's
+    ``MALLOC_TRIM_THRESHOLD_`` (which hands freed memory back to the system at once, and
+    makes every large numpy array a fresh mapping)."""
+    import multiprocessing
+
+    import dask
+
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    conf = {**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}
+    forkserver = "forkserver" in multiprocessing.get_all_start_methods()
+    if forkserver:
+        conf["distributed.worker.multiprocessing-method"] = "forkserver"
+    with dask.config.set(conf):
+        if forkserver:
+            ctx = distributed.utils.get_mp_context()  # Dask's preload set first, then ours
+            ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+        yield
+
+
 @contextlib.contextmanager
 def _sigint_ignored() -> Iterator[None]:
     """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the worker
@@ -393,7 +447,8 @@ class DaskRunner(Runner):
             raise FleetError(f"--workers must be >= 1, got {workers}")
         cluster = None
         try:
-            with _sigint_ignored():  # the worker processes inherit it (and see dask_setup)
+            # the worker processes inherit SIGINT ignored (and see dask_setup)
+            with _sigint_ignored(), _local_cluster_config(distributed):
                 cluster = distributed.LocalCluster(
                     n_workers=workers,
                     threads_per_worker=1,
@@ -527,9 +582,20 @@ def _describe(items: Sequence[Any], idx: range) -> str:
     return names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]} ({len(names)} drives)"
 
 
-def open_runner(where: Where) -> Runner:
+def open_runner(
+    where: Where, work_s: float | None = None, say: Callable[[str], None] | None = None
+) -> Runner:
     """The runner ``where`` asks for: a :class:`DaskRunner` with ``workers`` or ``scheduler``,
-    else a :class:`LocalRunner` (and Dask is never imported)."""
+    else a :class:`LocalRunner` (and Dask is never imported). ``work_s``: the work's
+    estimated seconds in one process; below ``where.min_work_s``, ``workers`` runs in this
+    process all the same (``say`` is told so)."""
+    if where.workers and work_s is not None and work_s < where.min_work_s:
+        if say is not None:
+            say(
+                f"about {work_s:.1f} s of work: run in this process (a local cluster pays "
+                f"for its start from about {where.min_work_s:g} s: {MIN_WORK_ENV})"
+            )
+        return LocalRunner()
     if not where.cluster:
         return LocalRunner()
     workers = where.workers

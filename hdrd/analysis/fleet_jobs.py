@@ -21,7 +21,9 @@ drives than workers to keep busy.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+import os
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -67,6 +69,7 @@ __all__ = [
     "GapOutcome",
     "PrepareJob",
     "evaluate_one",
+    "estimated_work_s",
     "evaluate_refs",
     "gap_one",
     "gap_refs",
@@ -184,14 +187,44 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     return DriveOutcome(ref.name, r if job.traces else slim(r))
 
 
+WORK_S_PER_BYTE = 60e-9
+"""One process's time to read and evaluate a drive, per byte of its file (CSV and Parquet
+alike, about 60 ns on the machine of bench/RESULTS.md): what :func:`estimated_work_s`
+counts."""
+
+
+def _size(ref: DriveRef, sharing: int) -> int:
+    """Bytes of a drive's file (its share of a file holding ``sharing`` drives), or of a
+    partition's files; 0 if they cannot be seen."""
+    try:
+        if os.path.isdir(ref.path):
+            return sum(e.stat().st_size for e in os.scandir(ref.path) if e.is_file())
+        return os.path.getsize(ref.path) // max(1, sharing)
+    except OSError:
+        return 0
+
+
+def estimated_work_s(refs: Sequence[DriveRef]) -> float:
+    """Seconds ``hdrd evaluate`` would take on the drives in one process, estimated from their
+    files' sizes (:data:`WORK_S_PER_BYTE`; no file is read)."""
+    sharing = Counter(r.path for r in refs)
+    return WORK_S_PER_BYTE * sum(_size(r, sharing[r.path]) for r in refs)
+
+
 def run_evaluate(
-    where: Where, refs: Sequence[DriveRef], job: EvaluateJob, progress: bool = True
+    where: Where,
+    refs: Sequence[DriveRef],
+    job: EvaluateJob,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
-    """:func:`evaluate_refs` on the runner ``where`` asks for, with a progress bar on stderr
-    (``progress``) for a fleet (more than :data:`PLOT_PANELS_MAX` drives) or a cluster."""
+    """:func:`evaluate_refs` on the runner ``where`` asks for (in this process when a local
+    cluster would not pay for itself: :func:`hdrd.analysis.fleet.open_runner`, ``say`` told),
+    with a progress bar on stderr (``progress``) for a fleet (more than
+    :data:`PLOT_PANELS_MAX` drives) or a cluster."""
     from hdrd.analysis.progress import ProgressBar
 
-    with open_runner(where) as runner:
+    with open_runner(where, estimated_work_s(refs), say) as runner:
         show = progress and (runner.distributed or len(refs) > PLOT_PANELS_MAX)
         bar = ProgressBar(f"evaluate {len(refs)} drives") if show else None
         try:

@@ -95,7 +95,8 @@ def _evaluate(
     )
     # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
     where = where_from_args(args, "hdrd evaluate")
-    results, skipped = run_evaluate(where, refs, job, not getattr(args, "no_progress", False))
+    say = lambda msg: print(f"hdrd evaluate: note: {msg}", file=sys.stderr)  # noqa: E731
+    results, skipped = run_evaluate(where, refs, job, not getattr(args, "no_progress", False), say)
     for why in skipped:
         print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
     for r in results:

@@ -90,14 +90,30 @@ def check_bias_arg(value: float | None, cfg: Config) -> None:
 def where_from_args(args: argparse.Namespace, prog: str) -> Where:
     """Where the work runs (``--workers``, ``--scheduler``, ``--tls-*``; docs/fleet.md); a
     scheduler reached by plain TCP from another machine is warned about on stderr."""
-    from hdrd.analysis.fleet import TlsFiles, Where, scheduler_warning
+    import os
+
+    from hdrd.analysis.fleet import (
+        MIN_CLUSTER_WORK_S,
+        MIN_WORK_ENV,
+        FleetError,
+        TlsFiles,
+        Where,
+        scheduler_warning,
+    )
 
     g = lambda name: getattr(args, name, None)  # noqa: E731
     tls = TlsFiles(g("tls_ca_file"), g("tls_cert"), g("tls_key"))
     warning = scheduler_warning(g("scheduler"))
     if warning:
         print(f"{prog}: warning: {warning}", file=sys.stderr)
-    return Where(g("workers"), g("scheduler"), tls)
+    text = os.environ.get(MIN_WORK_ENV, "")
+    try:
+        min_work = float(text) if text else MIN_CLUSTER_WORK_S
+    except ValueError:
+        min_work = math.nan
+    if not (min_work >= 0 and math.isfinite(min_work)):
+        raise FleetError(f"{MIN_WORK_ENV}={text!r}: give seconds, a finite number >= 0")
+    return Where(g("workers"), g("scheduler"), tls, min_work)
 
 
 TEMP_DECORATION = 24
