@@ -10,6 +10,8 @@ never holds Dask's threads and sockets): ``python tests/fleet_cluster.py COMMAND
 - ``always DIR OUT.json``: a drive whose task kills its worker every time: after Dask's
   allowed failures (set to 1 here), a one-line FleetError naming the drive, not a missing row.
 - ``order OUT.json``: items that finish in the reverse of their order come back in order.
+- ``hybrid OUT.json``: a cluster started in the background (as ``--workers`` starts it): the
+  items this process takes while it starts and those the workers take, in order.
 - ``foreign ADDRESS``: a task the cluster cannot load (its module exists only here) is a
   one-line FleetError; prints it.
 - ``certs DIR``: a certificate authority for a cluster (``ca.pem``), a certificate and key
@@ -244,6 +246,18 @@ def fake(mode: str, marker: str) -> None:
     sys.stdin.read()
 
 
+def pid_of(i: int) -> tuple[int, int]:
+    time.sleep(0.02)
+    return i, os.getpid()
+
+
+def hybrid(out: str) -> None:
+    with DaskRunner.start(2) as runner:
+        got = list(runner.map(pid_of, list(range(120))))
+        workers = sorted(runner.client.run(os.getpid).values())
+    Path(out).write_text(json.dumps({"got": got, "client": os.getpid(), "workers": workers}))
+
+
 def order(out: str) -> None:
     n = 12
     with DaskRunner.open(workers=2) as runner:
@@ -268,6 +282,8 @@ if __name__ == "__main__":
         certs(sys.argv[2])
     elif cmd == "serve-tls":
         serve_tls(int(sys.argv[2]), sys.argv[3])
+    elif cmd == "hybrid":
+        hybrid(sys.argv[2])
     elif cmd == "fake":
         fake(sys.argv[2], sys.argv[3])
     else:

@@ -54,7 +54,7 @@ __all__ = [
 ]
 
 INSTALL = "pip install 'hdrd[fleet]'"
-GUIDE = 8
+GUIDE = 4
 """A task takes 1/(GUIDE x threads) of the items not yet sent (guided self-scheduling): large
 tasks first, where the per-task cost matters, then ever smaller ones, so that the workers
 finish together (the last tasks are single drives)."""
@@ -383,12 +383,27 @@ FORKSERVER_PRELOAD = ("distributed", "numpy", "hdrd.analysis.fleet_jobs")
 of the time and CPU."""
 
 
-@contextlib.contextmanager
-def _local_cluster_config(distributed: Any) -> Iterator[None]:
-    """:data:`LOCAL_CLUSTER_CONFIG` meanwhile; workers forked from a fork server that has
-    imported :data:`FORKSERVER_PRELOAD`; the workers' environment without Dask's
-    ``MALLOC_TRIM_THRESHOLD_`` (which hands freed memory back to the system at once, and
-    makes every large numpy array a fresh mapping)."""
+def _start_forkserver() -> None:
+    """The fork server a local cluster's workers are forked from (where there is one, as on
+    Linux), started now, having imported :data:`FORKSERVER_PRELOAD` (its start returns at
+    once; it imports while this process goes on)."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    from multiprocessing import forkserver
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    forkserver.ensure_running()
+
+
+def _local_cluster(distributed: Any, workers: int) -> tuple[Any, Any]:
+    """(client, cluster): a local cluster of ``workers`` one-thread worker processes with
+    :data:`LOCAL_CLUSTER_CONFIG`, forked from the fork server (:func:`_start_forkserver`),
+    their environment without Dask's ``MALLOC_TRIM_THRESHOLD_`` (which hands freed memory
+    back to the system at once, and makes every large numpy array a fresh mapping).
+    FleetError if it cannot be started."""
     import multiprocessing
 
     import dask
@@ -396,14 +411,29 @@ def _local_cluster_config(distributed: Any) -> Iterator[None]:
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     conf = {**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}
-    forkserver = "forkserver" in multiprocessing.get_all_start_methods()
-    if forkserver:
+    if "forkserver" in multiprocessing.get_all_start_methods():
         conf["distributed.worker.multiprocessing-method"] = "forkserver"
-    with dask.config.set(conf):
-        if forkserver:
-            ctx = distributed.utils.get_mp_context()  # Dask's preload set first, then ours
-            ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
-        yield
+        _start_forkserver()  # (Dask's preload list does not name hdrd's module)
+    cluster = None
+    try:
+        with dask.config.set(conf):
+            cluster = distributed.LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
+                preload=[__name__],  # dask_setup, in every worker process
+            )
+        return distributed.Client(cluster), cluster
+    except BaseException as e:
+        if cluster is not None:
+            cluster.close()
+        if isinstance(e, (OSError, TimeoutError, RuntimeError)):
+            raise FleetError(
+                f"cannot start a local Dask cluster of {workers} workers: {_one_line(e)}"
+            ) from None
+        raise
 
 
 @contextlib.contextmanager
@@ -423,15 +453,25 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 class DaskRunner(Runner):
-    """A ``dask.distributed`` client (and the local cluster it started, if any)."""
+    """A ``dask.distributed`` client (and the local cluster it started, if any).
+
+    A local cluster may still be starting (:meth:`start`): until it is up, :meth:`map` runs
+    the first items in this process, in order (the same functions: the same results), and
+    hands the rest to the cluster once it is; :meth:`persist` and :meth:`share` wait for it.
+    """
 
     distributed = True
 
-    def __init__(self, client: Any, cluster: Any = None) -> None:
+    def __init__(self, client: Any = None, cluster: Any = None, threads: int = 0) -> None:
         self.client = client
         self.cluster = cluster
-        self.threads = max(1, sum(client.nthreads().values()))
+        self.threads = threads or max(1, sum(client.nthreads().values()))
         self._open: weakref.WeakSet[Generator[Any, None, None]] = weakref.WeakSet()
+        self._up = threading.Event()  # the client is there (or its start failed)
+        self._start_error: BaseException | None = None
+        self._starting: threading.Thread | None = None
+        if client is not None:
+            self._up.set()
 
     @classmethod
     def open(
@@ -439,42 +479,61 @@ class DaskRunner(Runner):
     ) -> DaskRunner:
         """A local cluster of ``workers`` processes (one thread each), or the cluster whose
         scheduler is at ``scheduler`` (``tcp://host:8786``, ``tls://host:8786`` with ``tls``
-        or the Dask configuration's TLS files). FleetError if it cannot be had."""
+        or the Dask configuration's TLS files), up when this returns. FleetError if it cannot
+        be had."""
         distributed = _dask()
         if scheduler:
             return cls(_connect(distributed, scheduler, tls or TlsFiles()))
         if workers is None or workers < 1:
             raise FleetError(f"--workers must be >= 1, got {workers}")
-        cluster = None
-        try:
-            # the worker processes inherit SIGINT ignored (and see dask_setup)
-            with _sigint_ignored(), _local_cluster_config(distributed):
-                cluster = distributed.LocalCluster(
-                    n_workers=workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
-                    preload=[__name__],  # dask_setup, in every worker process
-                )
-            client = distributed.Client(cluster)
-        except BaseException as e:
-            if cluster is not None:
-                cluster.close()
-            if isinstance(e, (OSError, TimeoutError, RuntimeError)):
-                raise FleetError(
-                    f"cannot start a local Dask cluster of {workers} workers: {_one_line(e)}"
-                ) from None
-            raise
+        with _sigint_ignored():  # the worker processes inherit it (and see dask_setup)
+            client, cluster = _local_cluster(distributed, workers)
         return cls(client, cluster)
+
+    @classmethod
+    def start(cls, workers: int) -> DaskRunner:
+        """A local cluster of ``workers`` processes (one thread each), started in the
+        background: this process works meanwhile (the class docstring). FleetError (when the
+        cluster is first needed) if it cannot be had."""
+        if workers < 1:
+            raise FleetError(f"--workers must be >= 1, got {workers}")
+        import importlib.util
+
+        if importlib.util.find_spec("distributed") is None:
+            _dask()  # the one-line error, now
+        with _sigint_ignored():  # the fork server, and so every worker, inherits it
+            _start_forkserver()
+        runner = cls(threads=workers)
+        runner._starting = threading.Thread(
+            target=runner._start, args=(workers,), name="hdrd-cluster-start", daemon=True
+        )
+        runner._starting.start()
+        return runner
+
+    def _start(self, workers: int) -> None:
+        try:
+            self.client, self.cluster = _local_cluster(_dask(), workers)
+        except BaseException as e:  # noqa: BLE001 - raised where the cluster is needed
+            self._start_error = e
+        finally:
+            self._up.set()
+
+    def _ready(self) -> None:
+        """Wait for the cluster; its start's error (FleetError) if it failed."""
+        self._up.wait()
+        if self._start_error is not None:
+            raise self._start_error
 
     def close(self) -> None:
         # A map left half-read (its consumer raised) cancels its tasks now, while the client
         # is open, not when it is collected after the client closed (which would wait forever).
         for gen in list(self._open):
             gen.close()
+        if self._starting is not None:
+            self._starting.join()  # a cluster still starting is closed once up
         try:
-            self.client.close()
+            if self.client is not None:
+                self.client.close()
         finally:
             if self.cluster is not None:
                 self.cluster.close()
@@ -520,14 +579,16 @@ class DaskRunner(Runner):
         weights: Sequence[int] | None,
         batch: int | None,
     ) -> Generator[Any, None, None]:
+        w = list(weights) if weights is not None else [1] * len(items)
+        total = sum(w)
+        first = yield from self._while_starting(fn, items, args, progress, w)
+        if first == len(items):
+            return
+        self._ready()
+        done, items, w, n = sum(w[:first]), items[first:], w[first:], len(items) - first
         distributed = _dask()
-        n = len(items)
-        if batch:
-            chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)]
-        else:
-            chunks = batches(n, self.threads)
-        w = list(weights) if weights is not None else [1] * n
-        total, done = sum(w), 0
+        chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)] if batch else []
+        chunks = chunks or batches(n, self.threads)
         window = max(MIN_WINDOW, WINDOW_PER_THREAD * self.threads)
         pending = distributed.as_completed()
         chunk_of: dict[str, int] = {}
@@ -568,10 +629,32 @@ class DaskRunner(Runner):
                 f.cancel()
             pending.clear()
 
+    def _while_starting(
+        self,
+        fn: Callable[..., Any],
+        items: Sequence[Any],
+        args: tuple[Any, ...],
+        progress: Progress | None,
+        w: list[int],
+    ) -> Generator[Any, None, int]:
+        """``fn`` on the first items in this process, in order, while the cluster starts;
+        returns how many."""
+        total, done, first = sum(w), 0, 0
+        while first < len(items) and not self._up.is_set():
+            out = fn(items[first], *args)
+            done += w[first]
+            first += 1
+            if progress is not None:
+                progress(done, total)
+            yield out
+        return first
+
     def persist(self, fn: Callable[..., Any], items: Sequence[Any], *args: Any) -> list[Any]:
+        self._ready()
         return [self.client.submit(fn, item, *args, pure=False) for item in items]
 
     def share(self, value: Any) -> Any:
+        self._ready()
         # In a list: a dict given alone would be scattered as named values, one per key.
         return self.client.scatter([value], broadcast=True, hash=False)[0]
 
@@ -601,4 +684,6 @@ def open_runner(
     workers = where.workers
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise FleetError(f"--workers must be >= 1, got {workers}")
-    return DaskRunner.open(workers, where.scheduler, where.tls)
+    if workers:
+        return DaskRunner.start(workers)
+    return DaskRunner.open(None, where.scheduler, where.tls)
