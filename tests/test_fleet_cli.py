@@ -290,7 +290,7 @@ def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> N
         p = run()
         assert p.returncode == 0, p.stderr
         assert sorted(p.stderr.splitlines()) == [
-            f"hdrd evaluate: warning: {scan}/fifo.csv: a FIFO, not a file of drive logs",
+            f"hdrd evaluate: warning: {scan}/fifo.csv: is a FIFO, not a drive log file",
             f"hdrd evaluate: warning: {scan}/gone.csv: a symbolic link to nothing",
             f"hdrd evaluate: warning: {scan}/locked: a folder that cannot be read "
             "(Permission denied)",
@@ -305,7 +305,7 @@ def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> N
     p = hdrd("evaluate", str(scan / "fifo.csv"))  # named: an error, never a wait for a writer
     assert p.returncode == 1
     assert p.stderr.splitlines() == [
-        f"hdrd evaluate: error: {scan}/fifo.csv: a FIFO, not a file of drive logs"
+        f"hdrd evaluate: error: {scan}/fifo.csv: is a FIFO, not a drive log file"
     ]
 
 

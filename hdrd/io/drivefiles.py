@@ -104,7 +104,7 @@ def _not_a_file(path: Path) -> str | None:
     if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
         return None
     kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
-    return f"{shown_path(path)}: {kind}, not a file of drive logs"
+    return f"{shown_path(path)}: is {kind}, not a drive log file"
 
 
 def _scan(root: Path, problems: list[str]) -> list[Path]:
@@ -160,10 +160,7 @@ def _one(path: Path, given: str, problems: list[str]) -> list[DriveRef]:
             return [_partition(path)]
         return _in_dir(path, given, problems)
     if path.exists():
-        why = _not_a_file(path)
-        if why is not None:
-            raise DriveLogError(why)
-        return _in_file(path, "")
+        return _in_file(path, "")  # (reading it refuses a FIFO or a device)
     raise DriveLogError(f"{given}: no such file")
 
 
@@ -173,8 +170,8 @@ def find_drives(paths: Sequence[str], problems: list[str] | None = None) -> list
     directory searched at any depth (sorted; named by the path inside it without the suffix),
     a partition directory ``drive=NAME``, or a glob (``'fleet/**/*.parquet'``, quoted so that
     the shell leaves it: a fleet may be more files than a command line holds), expanded
-    sorted. DriveLogError for a path that does not exist or is not a file (a FIFO...), a glob
-    that matches nothing or a directory without logs. What a directory's scan leaves out (a
+    sorted. DriveLogError for a path that does not exist, a glob that matches nothing or a
+    directory without logs. What a directory's scan leaves out (a
     folder that cannot be read, a FIFO, socket, device or link to nothing named as a drive
     log) is added to ``problems``, one line each."""
     problems = [] if problems is None else problems
