@@ -77,7 +77,6 @@ __all__ = [
     "method_yaw",
     "plus_model",
     "prepare_drive",
-    "read_limits",
     "read_ref",
     "summarize",
     "to_json",
@@ -439,19 +438,6 @@ def drive_refs(
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
     """Each drive named (:func:`drive_refs`) as (its file or partition directory, its name)."""
     return [(Path(r.path), r.name) for r in drive_refs(paths)]
-
-
-def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
-    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.drivelog import ReadLimits
-
-    given = {
-        "max_rows": getattr(args, "max_rows", None),
-        "max_rate_dps": getattr(args, "max_rate", None),
-        "max_gap_s": getattr(args, "max_gap", None),
-    }
-    return ReadLimits(**{k: v for k, v in given.items() if v is not None})
 
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:

@@ -13,11 +13,15 @@ from hdrd.analysis.evaluate import (
     drive_refs,
     evaluated_methods,
     format_table,
-    read_limits,
     to_json,
 )
-from hdrd.commands.options import check_bias_arg, outputs_ok
-from hdrd.config import Config, ConfigError, load_config, settings_context
+from hdrd.commands.options import (
+    check_bias_arg,
+    config_from_args,
+    outputs_ok,
+    read_limits_from_args,
+)
+from hdrd.config import Config, ConfigError, settings_context
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
 
@@ -39,7 +43,7 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet import FleetError
 
     try:
-        cfg, _ = load_config(args.config)
+        cfg, _ = config_from_args(args)  # --config, and --method over hdr.method
         check_bias_arg(args.bias, cfg)  # as run and replay check it
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
@@ -72,7 +76,7 @@ def _evaluate(
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
     from hdrd.commands.options import where_from_args
 
-    method = args.method or cfg.hdr.method
+    method = cfg.hdr.method
     params = cfg.hdr.params
     # HDR+ is shown beside the paper's HDR it improves on.
     ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
@@ -90,7 +94,7 @@ def _evaluate(
         standstill_limits(cfg),
         traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
         strict=strict,
-        read_limits=read_limits(args),
+        read_limits=read_limits_from_args(args),
         outages=outages,
     )
     # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.

@@ -86,7 +86,7 @@ def main(args: argparse.Namespace) -> int:
     flags = ("--report", "--plus-out", "--plot") + (("--out",) if len(refs) == 1 else ())
     if not outputs_ok(args, _err, flags):  # said before the work, not after it
         return 1
-    from hdrd.analysis.evaluate import read_limits
+    from hdrd.commands.options import read_limits_from_args
 
     job = GapJob(
         start,
@@ -94,16 +94,19 @@ def main(args: argparse.Namespace) -> int:
         tuple(exclude),
         int(args.seed),
         bool(args.plot),
-        read_limits(args),
+        read_limits_from_args(args),
     )
     from hdrd.commands.options import where_from_args
 
     try:
         with open_runner(where_from_args(args, "hdrd gap")) as runner:
             if len(refs) > 1:
-                from hdrd.analysis.gap.fleet import gap_fleet
+                from hdrd.analysis.gap.fleet import GapOutputs, gap_fleet
 
-                return gap_fleet(args, refs, job, runner)
+                strict = bool(getattr(args, "strict", False))
+                progress = not getattr(args, "no_progress", False)
+                outputs = GapOutputs(args.out, args.report, strict, progress)
+                return gap_fleet(outputs, refs, job, runner)
             one = next(gap_refs(refs, job, runner))
     except (DriveLogError, FleetError) as e:
         _err(str(e))

@@ -1,8 +1,11 @@
-"""The command line's flags applied to the configuration, for the commands that read one
-(``hdrd run``, ``calibrate``, ``replay``, ``convert``). :mod:`hdrd.cli` parses the flags (and
-stays light for ``hdrd --help``); this module, imported by the commands, turns them into a
-validated :class:`hdrd.config.Config`: a bad value is a :class:`hdrd.config.ConfigError`
-naming the flag (exit 78).
+"""The command line's flags turned into what the commands hand on: the configuration, for
+every command that reads one (``hdrd run``, ``calibrate``, ``replay``, ``convert``,
+``evaluate``: :func:`config_from_args`, the one path), where the work runs
+(:func:`where_from_args`), what a drive log may hold (:func:`read_limits_from_args`), and the
+output files checked before the work (:func:`outputs_ok`). :mod:`hdrd.cli` parses the flags
+(and stays light for ``hdrd --help``); this module, imported by the commands, turns them into
+typed values: a bad configuration value is a :class:`hdrd.config.ConfigError` naming the flag
+(exit 78). Nothing below commands/ sees an ``argparse.Namespace``.
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ from hdrd.config import Config, ConfigError, apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
+    from hdrd.io.drivelog import ReadLimits
 
 __all__ = [
     "check_bias_arg",
     "config_from_args",
     "output_problem",
     "outputs_ok",
+    "read_limits_from_args",
     "where_from_args",
 ]
 
@@ -183,3 +188,16 @@ def outputs_ok(
             err(problem)
             return False
     return True
+
+
+def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
+    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
+    from hdrd.io.drivelog import ReadLimits
+
+    given = {
+        "max_rows": getattr(args, "max_rows", None),
+        "max_rate_dps": getattr(args, "max_rate", None),
+        "max_gap_s": getattr(args, "max_gap", None),
+    }
+    return ReadLimits(**{k: v for k, v in given.items() if v is not None})

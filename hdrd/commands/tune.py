@@ -14,7 +14,6 @@ from hdrd.analysis.evaluate import (
     EvaluationError,
     PreparedDrive,
     drive_refs,
-    read_limits,
 )
 from hdrd.analysis.fleet import FleetError, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
@@ -30,7 +29,7 @@ from hdrd.analysis.tune import (
     to_json,
     tune,
 )
-from hdrd.commands.options import outputs_ok, where_from_args
+from hdrd.commands.options import outputs_ok, read_limits_from_args, where_from_args
 from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
@@ -71,7 +70,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
         print(f"hdrd tune: warning: {note}", file=sys.stderr)
     where = where_from_args(args, "hdrd tune")
     if not where.cluster:
-        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
+        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits_from_args(args))
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
         check_held_out(*([(d.name, content_key(d)) for d in part] for part in (train, test)))
@@ -100,7 +99,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
             progress=bar,
             strict=strict,
             skipped=skipped,
-            read_limits=read_limits(args),
+            read_limits=read_limits_from_args(args),
         )
 
 
