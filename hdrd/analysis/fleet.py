@@ -438,10 +438,11 @@ def _local_cluster(distributed: Any, workers: int) -> tuple[Any, Any]:
 
 @contextlib.contextmanager
 def _sigint_ignored() -> Iterator[None]:
-    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the worker
-    processes a local cluster starts meanwhile inherit it, and Python leaves a SIGINT ignored
-    at its start ignored. A Ctrl-C while the cluster starts (a second or two) is lost: a
-    signal cannot be both ignored by the workers and caught here."""
+    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the processes
+    started meanwhile (the fork server, and so every worker forked from it) inherit it, and
+    Python leaves a SIGINT ignored at its start ignored. A Ctrl-C meanwhile is lost (a signal
+    cannot be both ignored by them and caught here): the fork server's start, milliseconds,
+    with :meth:`DaskRunner.start`; the whole cluster's with :meth:`DaskRunner.open`."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
