@@ -172,6 +172,13 @@ def _positive_int(text: str) -> int:
     return v
 
 
+TLS_FILES = {
+    "ca-file": "tls:// scheduler: the CA certificate that signed the cluster's",
+    "cert": "tls:// scheduler: this client's certificate",
+    "key": "tls:// scheduler: this client's private key",
+}
+
+
 def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
     """Where the work runs (docs/fleet.md): this process by default; a Dask cluster."""
     g = p.add_mutually_exclusive_group()
@@ -185,9 +192,12 @@ def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
     g.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:8786); "
-        "default: in this process",
+        help="run on the Dask cluster at ADDRESS (tls://HOST:8786; tcp:// is unencrypted): it "
+        "runs code here, so only one you control (docs/fleet.md); default: in this process",
     )
+    for flag, what in TLS_FILES.items():
+        key = f"distributed.comm.tls.{flag if flag == 'ca-file' else 'client.' + flag}"
+        p.add_argument(f"--tls-{flag}", metavar="FILE", help=f"{what} (PEM; default {key})")
     if progress:
         p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
@@ -631,20 +641,21 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
         help="bias from the first S seconds, as the daemon's start-up window (default: each "
         "log's lead-in, else its first standstill found from the speed or the gyro)",
     )
-    g.add_argument("--bias", type=float, metavar="DPS", help="static bias, deg/s")
-    p.add_argument("--json", metavar="FILE", help="write the table as JSON")
+    g.add_argument(
+        "--bias", type=float, metavar="DPS", help="static bias, deg/s (default: each drive's own)"
+    )
+    p.add_argument("--json", metavar="FILE", help="write the table as JSON (default: none)")
     p.add_argument(
         "--plot",
         metavar="FILE.png",
-        help="heading vs time and error bars; beyond 12 drives, the distribution of NEpsi per "
-        "method (needs matplotlib)",
+        help="heading vs time and error bars; beyond 12 drives, NEpsi's distribution (default: none)",
     )
     p.add_argument(
         "--outages",
         metavar="SPEC",
         help="also drive each log through the daemon's GPS aiding with GNSS outages of "
         "DURATION every PERIOD of driving (e.g. 120s/10min) and report each method's "
-        "heading error at their ends (docs/evaluation.md)",
+        "heading error at their ends (docs/evaluation.md; default: none)",
     )
     _config(p)
     _method(p)
@@ -783,6 +794,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(impl(args) or 0)
     except KeyboardInterrupt:
+        print(f"hdrd {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader went away (`hdrd replay ... | head`): not an error worth a traceback.

@@ -160,6 +160,32 @@ def test_the_layer_rules_are_not_empty_words() -> None:
     assert layer_of("hdrd.daemon.pipeline") not in LAYERS["core"]
 
 
+NO_COMMAND_LINE = ("core", "io", "sim", "daemon", "analysis")
+"""Layers that never see the command line: they take typed values (commands/ turns the flags
+into them), so none imports argparse, even lazily."""
+
+
+def test_argparse_stays_in_the_command_line_layers() -> None:
+    found = []
+    for layer in NO_COMMAND_LINE:
+        for p in sorted((PKG / layer).rglob("*.py")):
+            for node in ast.walk(parsed(p)):
+                names = (
+                    [a.name for a in node.names]
+                    if isinstance(node, ast.Import)
+                    else [node.module or ""]
+                    if isinstance(node, ast.ImportFrom)
+                    else []
+                )
+                if any(n == "argparse" or n.startswith("argparse.") for n in names):
+                    found.append(str(p.relative_to(ROOT)))
+    assert found == []
+    assert any((PKG / layer).is_dir() for layer in NO_COMMAND_LINE)
+    # the rule sees a lazy import too
+    lazy = ast.parse("def f():\n    from argparse import Namespace\n")
+    assert any(isinstance(n, ast.ImportFrom) and n.module == "argparse" for n in ast.walk(lazy))
+
+
 # These drive the daemon's run loop itself in-process (a reload with a hostile configuration, a
 # bias choice, a whole run on the simulated gyro); nothing offline (replay, evaluate, tune, gap) may reach it.
 DAEMON_TESTERS = [
@@ -265,7 +291,8 @@ def test_every_exception_derives_from_hdrd_error(name: str) -> None:
 
     mod = importlib.import_module(name)
     for _, cls in inspect.getmembers(mod, inspect.isclass):
-        if cls.__module__ == name and issubclass(cls, BaseException):
+        # (a KeyboardInterrupt carrying what was done is not an error: not an Exception)
+        if cls.__module__ == name and issubclass(cls, Exception):
             assert issubclass(cls, HdrdError), f"{name}.{cls.__name__}"
 
 

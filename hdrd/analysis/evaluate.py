@@ -29,6 +29,7 @@ How a drive log becomes Table II numbers:
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -76,7 +77,6 @@ __all__ = [
     "method_yaw",
     "plus_model",
     "prepare_drive",
-    "read_limits",
     "read_ref",
     "summarize",
     "to_json",
@@ -390,34 +390,54 @@ def format_table(results: Sequence[DriveResult]) -> str:
 # -- reading drive logs ------------------------------------------------------------------
 
 
-def drive_refs(paths: Sequence[str]) -> list[DriveRef]:
+YAML_SUFFIXES = (".yaml", ".yml")
+
+
+def drive_refs(
+    paths: Sequence[str],
+    notes: list[str] | None = None,
+    *,
+    strict: bool = False,
+    yaml_option: str | None = None,
+) -> list[DriveRef]:
     """The drives named (:func:`hdrd.io.drivefiles.find_drives`: files, directories, globs; CSV
-    or Parquet), in order; EvaluationError for a missing path or a directory without logs."""
+    or Parquet), in order, each once. EvaluationError for a missing path, a directory without
+    logs, or a YAML file (a configuration or a model given where a drive goes: the message
+    asks whether ``yaml_option`` was meant). What was left out is added to ``notes``: what a
+    directory's scan could not read (with ``strict``: EvaluationError), and a drive named
+    more than once (scored once)."""
     from hdrd.io.drivefiles import find_drives
     from hdrd.io.drivelog import DriveLogError
+    from hdrd.io.files import shown_path
 
+    for p in paths:
+        if p.lower().endswith(YAML_SUFFIXES) and Path(p).is_file():
+            hint = f"; did you mean {yaml_option} {p}?" if yaml_option else ""
+            raise EvaluationError(
+                f"{shown_path(p)}: a YAML file, not a drive log (.csv, .parquet){hint}"
+            )
+    problems: list[str] = []
     try:
-        return find_drives(paths)
+        refs = find_drives(paths, problems)
     except DriveLogError as e:
         raise EvaluationError(str(e)) from None
+    if problems and strict:
+        raise EvaluationError(problems[0])
+    once: dict[tuple[str, Any], DriveRef] = {}
+    for r in refs:
+        key = (os.path.realpath(r.path), r.key)
+        if key in once:
+            problems.append(f"{r.name}: named more than once; taken once")
+        else:
+            once[key] = r
+    if notes is not None:
+        notes.extend(problems)
+    return list(once.values())
 
 
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
     """Each drive named (:func:`drive_refs`) as (its file or partition directory, its name)."""
     return [(Path(r.path), r.name) for r in drive_refs(paths)]
-
-
-def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
-    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.drivelog import ReadLimits
-
-    given = {
-        "max_rows": getattr(args, "max_rows", None),
-        "max_rate_dps": getattr(args, "max_rate", None),
-        "max_gap_s": getattr(args, "max_gap", None),
-    }
-    return ReadLimits(**{k: v for k, v in given.items() if v is not None})
 
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:

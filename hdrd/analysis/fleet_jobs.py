@@ -20,9 +20,10 @@ drives than workers to keep busy.
 
 from __future__ import annotations
 
-import argparse
 import math
-from collections.abc import Iterator, Sequence
+import os
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -39,18 +40,20 @@ from hdrd.analysis.evaluate import (
     prepare_drive,
     read_ref,
 )
-from hdrd.analysis.fleet import Progress, Runner, batches, open_runner
+from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
 from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
     PARAM_NAMES,
     Candidates,
+    Interrupted,
     TuneResult,
     check_budget,
-    outcome,
+    check_held_out,
+    content_key,
     score_candidates,
-    search,
+    search_outcome,
 )
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
@@ -66,6 +69,7 @@ __all__ = [
     "GapOutcome",
     "PrepareJob",
     "evaluate_one",
+    "estimated_work_s",
     "evaluate_refs",
     "gap_one",
     "gap_refs",
@@ -183,18 +187,45 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     return DriveOutcome(ref.name, r if job.traces else slim(r))
 
 
+WORK_S_PER_BYTE = 60e-9
+"""One process's time to read and evaluate a drive, per byte of its file (CSV and Parquet
+alike, about 60 ns on the machine of bench/RESULTS.md): what :func:`estimated_work_s`
+counts."""
+
+
+def _size(ref: DriveRef, sharing: int) -> int:
+    """Bytes of a drive's file (its share of a file holding ``sharing`` drives), or of a
+    partition's files; 0 if they cannot be seen."""
+    try:
+        if os.path.isdir(ref.path):
+            return sum(e.stat().st_size for e in os.scandir(ref.path) if e.is_file())
+        return os.path.getsize(ref.path) // max(1, sharing)
+    except OSError:
+        return 0
+
+
+def estimated_work_s(refs: Sequence[DriveRef]) -> float:
+    """Seconds ``hdrd evaluate`` would take on the drives in one process, estimated from their
+    files' sizes (:data:`WORK_S_PER_BYTE`; no file is read)."""
+    sharing = Counter(r.path for r in refs)
+    return WORK_S_PER_BYTE * sum(_size(r, sharing[r.path]) for r in refs)
+
+
 def run_evaluate(
-    args: argparse.Namespace, refs: Sequence[DriveRef], job: EvaluateJob
+    where: Where,
+    refs: Sequence[DriveRef],
+    job: EvaluateJob,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
-    """:func:`evaluate_refs` on the runner the command line asks for, with a progress bar on
-    stderr for a fleet (more than :data:`PLOT_PANELS_MAX` drives) or a cluster, unless
-    ``--no-progress``."""
+    """:func:`evaluate_refs` on the runner ``where`` asks for (in this process when a local
+    cluster would not pay for itself: :func:`hdrd.analysis.fleet.open_runner`, ``say`` told),
+    with a progress bar on stderr (``progress``) for a fleet (more than
+    :data:`PLOT_PANELS_MAX` drives) or a cluster."""
     from hdrd.analysis.progress import ProgressBar
 
-    with open_runner(args) as runner:
-        show = not getattr(args, "no_progress", False) and (
-            runner.distributed or len(refs) > PLOT_PANELS_MAX
-        )
+    with open_runner(where, estimated_work_s(refs), say) as runner:
+        show = progress and (runner.distributed or len(refs) > PLOT_PANELS_MAX)
         bar = ProgressBar(f"evaluate {len(refs)} drives") if show else None
         try:
             return evaluate_refs(refs, job, runner, bar)
@@ -247,6 +278,11 @@ def _good(drives: Sequence[PreparedDrive | str]) -> list[PreparedDrive]:
 def steps_of(drives: Sequence[PreparedDrive | str]) -> list[int | str]:
     """Steps of each prepared drive (the search's units of work), or why it was left out."""
     return [d if isinstance(d, str) else int(d.steps.u.shape[0]) for d in drives]
+
+
+def keys_of(drives: Sequence[PreparedDrive | str]) -> list[tuple[str, str]]:
+    """(name, :func:`~hdrd.analysis.tune.content_key`) of each prepared drive of a batch."""
+    return [(d.name, content_key(d)) for d in _good(drives)]
 
 
 def score_block(item: tuple[Sequence[PreparedDrive | str], Candidates], T: float) -> FloatArray:
@@ -341,16 +377,28 @@ class _FleetScore:
 
         sums: list[FloatArray | None] = [None] * len(blocks)
         rows = runner.map(score_block, items, self.T, progress=report, weights=weights, batch=1)
-        for i, part in enumerate(rows):
-            q = i // len(train)
-            for row in part:  # the drives in order, one after the other
-                acc = sums[q]
-                if acc is None:
-                    sums[q] = row.copy()
-                else:
-                    acc += row
+        got = 0
+        try:
+            for i, part in enumerate(rows):
+                q = i // len(train)
+                for row in part:  # the drives in order, one after the other
+                    acc = sums[q]
+                    if acc is None:
+                        sums[q] = row.copy()
+                    else:
+                        acc += row
+                got = i + 1
+        except KeyboardInterrupt:
+            full = got // len(train)  # the blocks summed over every drive
+            raise Interrupted(self._objective(blocks[:full], sums)) from None
         self.done = start + sum(weights)
-        out = np.empty(n_sets)
+        return self._objective(blocks, sums)
+
+    def _objective(
+        self, blocks: list[tuple[int, int]], sums: list[FloatArray | None]
+    ) -> FloatArray:
+        """Each set's objective, for the sets of ``blocks`` (the first blocks)."""
+        out = np.empty(blocks[-1][1] if blocks else 0)
         for (a, b), acc in zip(blocks, sums):
             assert acc is not None
             out[a:b] = acc / self.n_drives
@@ -386,6 +434,9 @@ def tune_fleet(
     all_steps = list(runner.map(steps_of, train, batch=1))
     test_steps = list(runner.map(steps_of, test, batch=1))
     steps, n_drives = _usable_steps(all_steps, test_steps, len(train_refs), strict, skipped)
+    if test_refs:
+        keys = [list(runner.map(keys_of, part, batch=1)) for part in (train, test)]
+        check_held_out(*([k for batch in part for k in batch] for part in keys))
     longest = max(max(s, default=0) for s in steps)
     batch_steps = [sum(s) for s in steps]
     score = _FleetScore(
@@ -406,8 +457,7 @@ def tune_fleet(
         te = _per_set(runner.map(evaluate_sets, test, sets, batch=1), len(sets))
         return tr, te
 
-    cand, obj = search(score, n_candidates, seed, base)
-    return outcome(base, cand, obj, seed, runs)
+    return search_outcome(score, n_candidates, seed, base, runs)
 
 
 def _per_set(batches: Iterator[list[list[DriveResult]]], n_sets: int) -> list[list[DriveResult]]:

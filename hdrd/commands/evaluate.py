@@ -13,10 +13,15 @@ from hdrd.analysis.evaluate import (
     drive_refs,
     evaluated_methods,
     format_table,
-    read_limits,
     to_json,
 )
-from hdrd.config import Config, ConfigError, load_config, settings_context
+from hdrd.commands.options import (
+    check_bias_arg,
+    config_from_args,
+    outputs_ok,
+    read_limits_from_args,
+)
+from hdrd.config import Config, ConfigError, settings_context
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
 
@@ -38,11 +43,12 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet import FleetError
 
     try:
-        cfg, _ = load_config(args.config)
+        cfg, _ = config_from_args(args)  # --config, and --method over hdr.method
+        check_bias_arg(args.bias, cfg)  # as run and replay check it
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
+    if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
         return 1
     outages = None
     if getattr(args, "outages", None):
@@ -62,29 +68,23 @@ def main(args: argparse.Namespace) -> int:
     return _write_files(args, results, job.traces)
 
 
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
-
-
 def _evaluate(
     args: argparse.Namespace, cfg: Config, outages: OutageSpec | None
 ) -> tuple[list[DriveResult], list[str], EvaluateJob]:
     """The drives' results, why each drive left out was skipped (both said on stderr, with
     each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+    from hdrd.commands.options import where_from_args
 
-    method = args.method or cfg.hdr.method
+    method = cfg.hdr.method
     params = cfg.hdr.params
     # HDR+ is shown beside the paper's HDR it improves on.
     ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
-    refs = drive_refs(args.drives)
+    notes: list[str] = []
+    strict = bool(getattr(args, "strict", False))
+    refs = drive_refs(args.drives, notes, strict=strict, yaml_option="--config")
+    for note in notes:
+        print(f"hdrd evaluate: warning: {note}", file=sys.stderr)
     job = EvaluateJob(
         params,
         ms,
@@ -93,12 +93,14 @@ def _evaluate(
         args.calibrate_seconds,
         standstill_limits(cfg),
         traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
-        strict=bool(getattr(args, "strict", False)),
-        read_limits=read_limits(args),
+        strict=strict,
+        read_limits=read_limits_from_args(args),
         outages=outages,
     )
     # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
-    results, skipped = run_evaluate(args, refs, job)
+    where = where_from_args(args, "hdrd evaluate")
+    say = lambda msg: print(f"hdrd evaluate: note: {msg}", file=sys.stderr)  # noqa: E731
+    results, skipped = run_evaluate(where, refs, job, not getattr(args, "no_progress", False), say)
     for why in skipped:
         print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
     for r in results:
@@ -130,11 +132,11 @@ def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: b
     the exit status."""
     if args.json:
         try:
-            from hdrd.io.files import atomic_write_json
+            from hdrd.io.files import atomic_write_json, shown_path
 
             atomic_write_json(args.json, to_json(results))
         except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
+            _err(f"cannot write {shown_path(args.json)}: {e.strerror or e}")
             return 1
     if args.plot:
         from hdrd.analysis.fleet_report import plot_fleet

@@ -74,8 +74,6 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
     from hdrd.io.drivelog import DriveLogError
 
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
-        return 1
     start = _start_model(args)
     if start is None:
         return 78
@@ -83,7 +81,12 @@ def main(args: argparse.Namespace) -> int:
     refs = _drives(args, measured)
     if refs is None:
         return 1
-    from hdrd.analysis.evaluate import read_limits
+    from hdrd.commands.options import outputs_ok
+
+    flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
+    if not outputs_ok(args, _err, flags):  # said before the work, not after it
+        return 1
+    from hdrd.commands.options import read_limits_from_args
 
     job = GapJob(
         start,
@@ -91,14 +94,19 @@ def main(args: argparse.Namespace) -> int:
         tuple(exclude),
         int(args.seed),
         bool(args.plot),
-        read_limits(args),
+        read_limits_from_args(args),
     )
-    try:
-        with open_runner(args) as runner:
-            if len(refs) > 1:
-                from hdrd.analysis.gap.fleet import gap_fleet
+    from hdrd.commands.options import where_from_args
 
-                return gap_fleet(args, refs, job, runner)
+    try:
+        with open_runner(where_from_args(args, "hdrd gap")) as runner:
+            if len(refs) > 1:
+                from hdrd.analysis.gap.fleet import GapOutputs, gap_fleet
+
+                strict = bool(getattr(args, "strict", False))
+                progress = not getattr(args, "no_progress", False)
+                outputs = GapOutputs(args.out, args.report, strict, progress)
+                return gap_fleet(outputs, refs, job, runner)
             one = next(gap_refs(refs, job, runner))
     except (DriveLogError, FleetError) as e:
         _err(str(e))
@@ -108,17 +116,6 @@ def main(args: argparse.Namespace) -> int:
         return 1
     print(one.result.summary)
     return _write_files(args, one.result, measured)
-
-
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
 
 
 def _start_model(args: argparse.Namespace) -> GyroModel | None:
@@ -140,14 +137,17 @@ def _start_model(args: argparse.Namespace) -> GyroModel | None:
 def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
     """The drives named; None when they cannot be found or are too many for --plot or
     --gyro-out, which describe one drive (why said on stderr)."""
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import DriveLogError
+    from hdrd.analysis.evaluate import EvaluationError, drive_refs
 
+    notes: list[str] = []
     try:
-        refs = find_drives(measured)
-    except DriveLogError as e:
+        strict = bool(getattr(args, "strict", False))
+        refs = drive_refs(measured, notes, strict=strict, yaml_option="--model")
+    except EvaluationError as e:
         _err(f"cannot read {e}")
         return None
+    for note in notes:
+        _err(f"warning: {note}")
     if len(refs) > 1 and args.plot:
         _err(f"--plot draws one drive; {len(refs)} were given")
         return None
