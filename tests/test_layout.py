@@ -127,7 +127,9 @@ LAYERS: dict[str, set[str]] = {
     "commands": {"core", "io", "sim", "config", "daemon", "analysis", "cli"},
     # The command line: signals held from the start, the wire formats, and lazily the method
     # registry and the simulator's drives (for choices); a command only by name, when it runs.
-    "cli": {"core", "sim", "daemon", "io", "commands"},
+    "cli": {"core", "sim", "daemon", "io", "commands", "cliargs"},
+    # ... and its shared option groups (light: choices read lazily)
+    "cliargs": {"core", "sim", "io"},
     "__main__": {"cli", "daemon"},
 }
 
