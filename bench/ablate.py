@@ -20,7 +20,7 @@ Sets (all *tuning*, fixed before any idea was tried):
 
 Each variant is HDR+ as ``hdrd evaluate --method hdr+`` runs it, with one of its settings
 (:func:`_common.plus_with`) changed in the context's base settings
-(``SettingsContext.plus``; what :func:`hdrd.core.methods.plus_settings` then fits to each drive).
+(``MethodSetup.plus``; what :func:`hdrd.core.methods.plus_settings` then fits to each drive).
 Printed: mean NEψ (deg/min) per set and how many drives are harmed (NEψ above 1.1 x bias
 removal's and Eψ 0.5 deg above it). Rewrites its own section of bench/RESULTS.md.
 """
@@ -47,7 +47,7 @@ from hdrd.analysis.evaluate import DEFAULTS, method_yaw  # noqa: E402
 from hdrd.analysis.metrics import e_psi  # noqa: E402
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive, prepare_drive  # noqa: E402
 from hdrd.core.hdrplus import PLUS_CORE  # noqa: E402
-from hdrd.core.methods import SettingsContext  # noqa: E402
+from hdrd.core.methods import MethodSetup  # noqa: E402
 from hdrd.io.drivefiles import read_drive  # noqa: E402
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate  # noqa: E402
 from hdrd.sim.gyro import GyroModel, StaticBias, WhiteNoise  # noqa: E402
@@ -113,11 +113,11 @@ def sets(routes: int) -> dict[str, Callable[[], Drives]]:
     }
 
 
-def base() -> SettingsContext:
+def base() -> MethodSetup:
     return DEFAULTS
 
 
-def with_plus(**kw: object) -> SettingsContext:
+def with_plus(**kw: object) -> MethodSetup:
     """HDR+ as it ships with some settings overridden (:func:`_common.plus_with`)."""
     return replace(DEFAULTS, plus=plus_with(DEFAULTS.plus, **kw))
 
@@ -125,7 +125,7 @@ def with_plus(**kw: object) -> SettingsContext:
 # Ideas measured and rejected here were deleted from hdrd/ (bench/RESULTS.md, "HDR+ ideas one
 # at a time", names the commit that held them): a motion offset of the drifting filter, a
 # "moved" second or third filter, the road's spread by speed.
-VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
+VARIANTS: dict[str, tuple[str, Callable[[], MethodSetup]]] = {
     "today": ("HDR+ as it ships", base),
     "drift prior 0.1": ("a lower prior weight of 'drifting'", lambda: with_plus(drift_prior=0.1)),
     "no straight": ("no straight-driving measurements", lambda: with_plus(straight_r=0.0)),
@@ -148,10 +148,10 @@ VARIANTS: dict[str, tuple[str, Callable[[], SettingsContext]]] = {
 }
 
 
-def ne(drives: Drives, method: str, ctx: SettingsContext) -> np.ndarray:
+def ne(drives: Drives, method: str, ctx: MethodSetup) -> np.ndarray:
     return np.array(
         [
-            e_psi(method_yaw(p, method, context=ctx), p.truth, p.k, p.align_n) / p.duration_min
+            e_psi(method_yaw(p, method, setup=ctx), p.truth, p.k, p.align_n) / p.duration_min
             for _, p in drives
         ]
     )

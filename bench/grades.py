@@ -53,7 +53,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.analysis.metrics import e_psi
 from hdrd.core.grades import GRADES, Grade
 from hdrd.core.gyronoise import GyroNoise, grade_noise
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.grades import grade_model
@@ -205,7 +205,7 @@ class Scores:
     e: dict[str, dict[str, float]]  # case -> method -> Eψ
 
 
-def with_noise(noise: GyroNoise) -> SettingsContext:
+def with_noise(noise: GyroNoise) -> MethodSetup:
     """The default configuration with ``noise`` given as HDR+'s error model (as ``gyro.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
 
@@ -220,8 +220,8 @@ def method_scores(
         "none": ep(method_yaw(p, "none")),
         "hdr": ep(method_yaw(p, "hdr")),
         "hdr+": ep(method_yaw(p, "hdr+")),
-        "hdr (grade)": ep(method_yaw(p, "hdr", context=with_noise(noise))),
-        "hdr+ (grade)": ep(method_yaw(p, "hdr+", context=with_noise(noise))),
+        "hdr (grade)": ep(method_yaw(p, "hdr", setup=with_noise(noise))),
+        "hdr+ (grade)": ep(method_yaw(p, "hdr+", setup=with_noise(noise))),
         "oracle": ep(oracle_yaw(log, p, extra)),
     }
 

@@ -66,7 +66,7 @@ from hdrd.core.hdrplus import (
     run_batch,
     step,
 )
-from hdrd.core.methods import SettingsContext, plus_settings
+from hdrd.core.methods import MethodSetup, plus_settings
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import DriveLog
@@ -111,7 +111,7 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     assert v.params is not None
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     # as hdrd evaluate fits HDR+ to the drive (hdrd.core.methods.plus_settings)
-    ctx = SettingsContext(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
+    ctx = MethodSetup(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
     p = plus_settings(ctx)
     return run_batch(
         s.u,

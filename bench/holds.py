@@ -68,7 +68,7 @@ from _common import fmt, machine_line, plus_with, replace_section
 from outages import kalman_peer
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
 
-from hdrd.analysis.evaluate import PAPER_PARAMS, EvaluationError, evaluate_prepared
+from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
 from hdrd.analysis.outages import FROZEN, OutageSpec, run_outages
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.core.grades import Grade
@@ -211,12 +211,12 @@ def score(log: DriveLog, group: str, spec: OutageSpec, min_td: float = 0.0) -> S
         s.notes.append(str(e).replace(f"{log.name}: ", "").split(";")[0])
         return s
     if prep.duration_min >= min_td:
-        r = evaluate_prepared(prep, PAPER_PARAMS, METHODS, PLUS)
+        r = evaluate_prepared(prep, methods=METHODS, setup=PLUS)
         s.td_min, s.e = prep.duration_min, dict(r.e_psi)
     else:
         s.notes.append(f"gyro-only: {prep.duration_min:.1f} min < {min_td:g} after calibration")
     try:
-        o = run_outages(prep, log, spec, METHODS, PAPER_PARAMS, PLUS)
+        o = run_outages(prep, log, spec, METHODS, setup=PLUS)
     except EvaluationError as e:
         why = str(e).replace(f"{log.name}: ", "")
         s.notes.append(f"no outage in {prep.duration_min:.1f} min" if "no outage" in why else why)

@@ -88,7 +88,7 @@ from hdrd.analysis.outages import (
     outage_windows,
     run_outages,
 )
-from hdrd.analysis.prepare import PAPER_PARAMS, EvaluationError, PreparedDrive, prepare_drive
+from hdrd.analysis.prepare import EvaluationError, PreparedDrive, prepare_drive
 from hdrd.daemon.aiding import wrap180
 from hdrd.io.drivelog import DriveLog, read_drive
 
@@ -297,7 +297,7 @@ def peer_cases(work: Path, seeds: int = 5) -> list[PeerCase]:
     for group, log in todo:
         try:
             prep = prepare_drive(log)
-            r = run_outages(prep, log, spec, (FROZEN,), PAPER_PARAMS, holds.PLUS)
+            r = run_outages(prep, log, spec, (FROZEN,), setup=holds.PLUS)
         except EvaluationError:
             continue
         cases.append(("real" if group == "real" else "roads", prep, log, r.errors[FROZEN]))

@@ -50,15 +50,14 @@ import json
 from _common import fmt, machine_line, replace_section, run_recorded
 
 from hdrd.analysis.evaluate import (
-    PAPER_PARAMS,
     EvaluationError,
     PreparedDrive,
     evaluate_prepared,
     prepare_drive,
 )
 from hdrd.analysis.metrics import e_psi
-from hdrd.config import Config, settings_context
-from hdrd.core.methods import SettingsContext
+from hdrd.config import Config, method_setup
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
@@ -110,7 +109,7 @@ def drive_set(name: str) -> str:
 
 # -- scoring --------------------------------------------------------------------------------
 
-PLUS = settings_context(Config())
+PLUS = method_setup(Config())
 """What ``hdrd evaluate`` takes from the default configuration for the methods' settings."""
 METHOD_NAMES = ("none", "hdr", "hdr+")
 """What ``hdrd evaluate --method hdr+`` evaluates: none, paper HDR (Table III), HDR+."""
@@ -126,13 +125,13 @@ def grade_of(name: str) -> str:
     return GRADE_OF.get(name, "phone")
 
 
-def scores(prep: PreparedDrive, plus: SettingsContext = PLUS) -> dict[str, float]:
+def scores(prep: PreparedDrive, plus: MethodSetup = PLUS) -> dict[str, float]:
     """Eψ (deg) of each method on one prepared drive, as ``hdrd evaluate`` computes it, and
     ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``gyro.grade`` set to the
     recording's gyro (:func:`grade_of`)."""
-    e = dict(evaluate_prepared(prep, PAPER_PARAMS, METHOD_NAMES, plus).e_psi)
+    e = dict(evaluate_prepared(prep, methods=METHOD_NAMES, setup=plus).e_psi)
     g = evaluate_prepared(
-        prep, PAPER_PARAMS, ("hdr", "hdr+"), replace(plus, grade=grade_of(prep.name))
+        prep, methods=("hdr", "hdr+"), setup=replace(plus, grade=grade_of(prep.name))
     )
     e["hdr (grade)"] = g.e_psi["hdr"]
     e["hdr+ (grade)"] = g.e_psi["hdr+"]

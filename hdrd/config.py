@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.core import methods
-from hdrd.core.calibrate import T_BIAS_S
+from hdrd.core.calibrate import T_BIAS_S, BiasRecord
 from hdrd.core.grades import GRADES
 from hdrd.core.hdr import HdrParams
 from hdrd.core.sensor import SensorModel
@@ -42,7 +42,7 @@ __all__ = [
     "apply_overrides",
     "load_config",
     "parse_config",
-    "settings_context",
+    "method_setup",
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
@@ -676,19 +676,23 @@ def config_field_keys() -> list[str]:
     return keys
 
 
-def settings_context(cfg: Config) -> methods.SettingsContext:
-    """What the configuration says about the drift reducers' settings (``hdr.*``,
-    ``gyro.grade`` and the ``gyro.*`` noise parameters, ``standstill.*``), for
-    :func:`hdrd.core.methods.plus_settings` and its kind to derive them from, with what the
-    gyro and the drive show (the daemon, replay and evaluate fill that in)."""
+def method_setup(cfg: Config, bias: BiasRecord | None = None) -> methods.MethodSetup:
+    """The drift reducer's setup a configuration asks for (:class:`hdrd.core.methods.
+    MethodSetup`): ``hdr.method`` and ``hdr.*``, the gyro's error model (``gyro.grade`` and
+    the ``gyro.*`` noise parameters), ``standstill.*``, and the static bias of ``bias`` (a
+    bias file's record, a given one's: :meth:`hdrd.core.calibrate.BiasRecord.given`; None:
+    measured at start-up). The daemon, replay and evaluate add what the gyro and the drive
+    show (:meth:`hdrd.core.methods.MethodSetup.for_drive`)."""
     from dataclasses import asdict
 
     given = tuple((k, float(v)) for k, v in asdict(cfg.gyro).items() if k != "grade")
-    return methods.SettingsContext(
+    return methods.MethodSetup(
         hdr=cfg.hdr.params,
+        bias=bias,
         i_c_auto=cfg.hdr.i_c_auto,
         grade=cfg.gyro.grade,
         given_noise=given,
         standstill=cfg.standstill.enabled,
         standstill_from_gyro=cfg.standstill.from_gyro,
+        method=cfg.hdr.method,
     )

@@ -14,6 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import (
     AIDED,
@@ -401,7 +403,11 @@ def drive(
     # true course at t: course0 - integral of the CCW rate (trapezoid on the 10 Hz grid,
     # evaluated at the samples; block ends fall on samples)
     yaw_true = np.concatenate([[0.0], np.cumsum(w_true[:-1]) / hz])
-    p = Pipeline(PipelineConfig(bias_dps=bias_given, heading0_deg=heading0, method=method))
+    p = Pipeline(
+        PipelineConfig(
+            heading0_deg=heading0, setup=MethodSetup(method=method, bias=given_bias(bias_given))
+        )
+    )
     a = GpsAiding(config or AidingConfig())
     run = Run([], [], [], [], p, a)
     for i in range(n):

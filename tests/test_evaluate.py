@@ -7,6 +7,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.cli import main as cli_main
 from hdrd.core import methods
 from hdrd.core.hdr import HdrParams, run_batch
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 
 
@@ -120,7 +122,7 @@ def test_hdr_column_is_run_batch() -> None:
     log = make_drive(drift_dps=0.1, turns=CITY_TURNS)
     p = HdrParams(i_c=0.03)
     prep = prepare_drive(log)
-    r = ev.evaluate_prepared(prep, p)
+    r = ev.evaluate_prepared(prep, setup=MethodSetup(hdr=p))
     yaw = run_batch(prep.steps.u, p).yaw
     assert r.heading["hdr"][prep.k] == prep.truth[prep.k]
     assert r.heading["hdr"] == pytest.approx(prep.truth[prep.k] - (yaw - yaw[prep.k]))
@@ -420,17 +422,19 @@ def test_nonfinite_improvement_is_null_in_json() -> None:
 def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path) -> None:
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
-    from hdrd.config import parse_config, settings_context
+    from hdrd.config import method_setup, parse_config
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"
     write_drive(path, generate(next(s for s in TRAIN_DRIVES if s.name == "city1")))
     prep = ev.prepare_drive(read_drive(path))
-    off = settings_context(parse_config({"standstill": {"enabled": False}}))
-    assert not ev.method_settings(prep, "hdr+", HdrParams(), off).standstill.enabled
-    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), context=off).e_psi["hdr+"]
+    off = method_setup(parse_config({"standstill": {"enabled": False}}))
+    assert not ev.method_settings(
+        prep, "hdr+", setup=replace(off, hdr=HdrParams())
+    ).standstill.enabled
+    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), setup=off).e_psi["hdr+"]
     got_on = ev.evaluate_prepared(prep, methods=("hdr+",)).e_psi["hdr+"]
-    yaw = ev.method_yaw(prep, "hdr+", HdrParams(), off)
+    yaw = ev.method_yaw(prep, "hdr+", setup=replace(off, hdr=HdrParams()))
     assert got_off == pytest.approx(float(ev.e_psi(yaw, prep.truth, prep.k)), abs=0)
     assert got_off != got_on
     cfg = tmp_path / "hdrd.yaml"

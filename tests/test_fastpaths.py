@@ -28,7 +28,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
 from hdrd.core.hdr import HdrParams
+from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
 from hdrd.io.frames import Frame, Parser, array_to_frames
@@ -69,7 +71,7 @@ def replay_messages(data: bytes, config: PipelineConfig) -> list[dict[str, Any]]
 
 
 CONFIGS = {
-    "bias given": PipelineConfig(bias_dps=0.1),
+    "bias given": PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))),
     "start-up calibration": PipelineConfig(startup_s=1.0),
 }
 
@@ -141,7 +143,7 @@ def test_live_daemon_path_equals_replay_on_the_same_bytes(
 
 
 def fed(frames_us: list[int], T: float = 1.0) -> Pipeline:
-    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams(T=T)))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=T), bias=given_bias(0.0))))
     for i, t in enumerate(frames_us):
         p.feed(Frame(i & 0xFFFF, t % 2**32, 32768, 0, None))
     return p
@@ -183,7 +185,7 @@ def test_until_step_s_never_sleeps_past_the_closing_sample(
     period = 1e6 / hz
     t = np.rint(np.arange(n) * period + rng.uniform(-jitter, jitter, n) * period).astype(np.int64)
     t = np.maximum.accumulate(t - t[0]) + np.arange(n)  # strictly increasing from 0
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     block = t // 1_000_000
     for i, tu in enumerate(t.tolist()):
         p.feed(Frame(i & 0xFFFF, tu, 32768, 0, None))

@@ -21,6 +21,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from tests.test_aiding import on_message
 from tools.fuzz import harness as fuzz
 from tools.fuzz.inputs import SURFACES, generate
@@ -229,7 +231,7 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
     from hdrd.io.frames import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]
-    parser, p = Parser(protocol), Pipeline(PipelineConfig(bias_dps=0.1))
+    parser, p = Parser(protocol), Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
     msgs = []
     for i in range(0, len(stream), 97):
         for f in parser.feed(stream[i : i + 97]):

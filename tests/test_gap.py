@@ -540,7 +540,7 @@ def test_a_step_that_raises_the_gap_is_not_added(
 
 def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
     from hdrd.commands.gap import gyro_section
-    from hdrd.config import load_config, settings_context
+    from hdrd.config import load_config, method_setup
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise
 
@@ -555,7 +555,7 @@ def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None
     path = tmp_path / "hdrd.yaml"
     path.write_text(gyro_section(model, "drive.csv"))
     cfg, _ = load_config(path)  # every key valid as written (a tau below 1 s is taken as 1 s)
-    ctx = settings_context(cfg)
+    ctx = method_setup(cfg)
     noise = noise_in_force(ctx.grade, dict(ctx.given_noise))
     assert noise is not None and noise.source == "config" and noise.known()
     assert noise.white_dps_per_rthz == 0.05 and noise.temp_coeff_dps_per_c == 0.02
@@ -563,7 +563,7 @@ def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None
     assert "gyro:\n  white_dps_per_rthz: 0.05\n" in path.read_text()
     bare = tmp_path / "bare.yaml"
     bare.write_text(gyro_section(GyroModel((StaticBias(0.1),)), "d.csv"))
-    bare_ctx = settings_context(load_config(bare)[0])
+    bare_ctx = method_setup(load_config(bare)[0])
     assert noise_in_force(bare_ctx.grade, dict(bare_ctx.given_noise)) is None  # nothing claimed
 
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import pytest
 from structlog.testing import capture_logs
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, GpsAiding
 from hdrd.daemon.gpslink import GpsdLink
@@ -70,7 +72,11 @@ def test_link_feeds_speed_and_the_pipeline_aids_its_steps(peer):
     c = GpsdClient("127.0.0.1", peer.port)
     clock = _Clock()
     link = GpsdLink(c, GpsAiding(), clock)
-    p = Pipeline(PipelineConfig(bias_dps=SensorModel().to_dps_scalar(32768, 0)), link.aiding, clock)
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(bias=given_bias(SensorModel().to_dps_scalar(32768, 0)))),
+        link.aiding,
+        clock,
+    )
     try:
         link.poll(p)
         peer.accept()
@@ -129,7 +135,7 @@ def test_link_from_config_takes_the_aiding_keys():
 
 
 def test_bad_lines_are_logged_at_most_every_10_s_with_their_count(peer) -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     link, c = connected_link(peer, p)
     try:
         with capture_logs() as logs:
@@ -152,7 +158,9 @@ def test_bad_lines_are_logged_at_most_every_10_s_with_their_count(peer) -> None:
 
 def test_each_change_of_mode_is_logged_once(peer) -> None:
     clock = _Clock()
-    p = Pipeline(PipelineConfig(bias_dps=SensorModel().to_dps_scalar(32768, 0)))
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(bias=given_bias(SensorModel().to_dps_scalar(32768, 0))))
+    )
     link, _ = connected_link(peer, p)
     link._clock = clock
     p.set_aiding(link.aiding, clock)

@@ -18,7 +18,7 @@ from hdrd.analysis.evaluate import DEFAULTS, method_yaw
 from hdrd.analysis.metrics import e_psi
 from hdrd.analysis.prepare import PreparedDrive, prepare_drive
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 from hdrd.sim.gyro import GyroModel, StaticBias, WhiteNoise
 
@@ -41,7 +41,7 @@ def constant_bias_drives() -> list[PreparedDrive]:
     return out
 
 
-def known(noise: GyroNoise) -> SettingsContext:
+def known(noise: GyroNoise) -> MethodSetup:
     """The default configuration with the gyro's error model given (``gyro.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
 
@@ -55,8 +55,8 @@ STEADY = GyroNoise(
 """What such a gyro's error model says: white noise, a bias that barely moves."""
 
 
-def errors(drives: list[PreparedDrive], method: str, ctx: SettingsContext) -> np.ndarray:
-    return np.array([e_psi(method_yaw(p, method, context=ctx), p.truth, p.k) for p in drives])
+def errors(drives: list[PreparedDrive], method: str, ctx: MethodSetup) -> np.ndarray:
+    return np.array([e_psi(method_yaw(p, method, setup=ctx), p.truth, p.k) for p in drives])
 
 
 @pytest.mark.parametrize("method", ["hdr", "hdr+"])

@@ -83,7 +83,7 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 
 
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
-    from hdrd.config import parse_config, settings_context
+    from hdrd.config import method_setup, parse_config
     from hdrd.core.calibrate import BiasRecord
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.core.methods import plus_settings
@@ -99,11 +99,11 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
     assert noise_in_force("phone", {}, short).source == "grade phone"  # type: ignore[union-attr]
     # the daemon's choice from its config and bias file, in the one place HDR+'s settings
     # are derived
-    cfg = settings_context(parse_config({"gyro": {"grade": "tactical"}}))
+    cfg = method_setup(parse_config({"gyro": {"grade": "tactical"}}))
     assert plus_settings(cfg).model == "grade tactical"
     rec = BiasRecord(0.1, 0.01, 100, 10.0, noise=recorded)
     assert plus_settings(replace(cfg, bias=rec)).model == "recorded"
-    assert plus_settings(settings_context(parse_config({}))).model == "defaults"
+    assert plus_settings(method_setup(parse_config({}))).model == "defaults"
     with pytest.raises(ValueError, match="unknown gyro grade"):
         noise_in_force("nav")
 

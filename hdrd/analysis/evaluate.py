@@ -44,7 +44,6 @@ from hdrd.analysis.outages import OutageResult, outages_json
 from hdrd.analysis.prepare import (
     DEFAULT_LIMITS,
     DEFAULTS,
-    PAPER_PARAMS,
     TRUTH_MAX_GAP_S,
     EvaluationError,
     PreparedDrive,
@@ -54,8 +53,7 @@ from hdrd.analysis.prepare import (
 from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import StandstillLimits
-from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext, StepInputs
+from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
@@ -147,53 +145,44 @@ def evaluated_methods(methods: Sequence[str]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def method_yaw(
-    prep: PreparedDrive,
-    method: str,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> FloatArray:
+def method_yaw(prep: PreparedDrive, method: str, setup: MethodSetup = DEFAULTS) -> FloatArray:
     """Yaw (deg CCW since the drive's start) at each step end of one method on a prepared
-    drive: its batch form with its settings derived as the daemon derives them. params: the
-    HDR parameters (``hdr.*``); context: what the configuration says about the settings
-    (:func:`hdrd.config.settings_context`: the grade, ``standstill.*``; HDR+'s base). The
-    output step is the log's own (its lattice), as the daemon knows its ADC's."""
+    drive: its batch form with its settings derived as the daemon derives them from the setup
+    (:func:`hdrd.config.method_setup`: ``hdr.*``, the gyro's error model, ``standstill.*``;
+    HDR+'s base) and the drive (:func:`hdrd.analysis.prepare.method_settings`). The output
+    step is the log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
-    return m.batch(prep.steps, method_settings(prep, method, params, context))
+    return m.batch(prep.steps, method_settings(prep, method, setup))
 
 
 PLUS = "hdr+"
 
 
-def plus_model(
-    prep: PreparedDrive,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> str:
+def plus_model(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> str:
     """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
     ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
-    return str(getattr(method_settings(prep, PLUS, params, context), "model", ""))
+    return str(getattr(method_settings(prep, PLUS, setup), "model", ""))
 
 
 def evaluate_prepared(
     prep: PreparedDrive,
-    params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
-    ``context``: what the configuration says about the methods' settings (default: the
-    built-in configuration's; :func:`hdrd.config.settings_context`)."""
+    ``setup``: the methods' setup (default: the built-in configuration's;
+    :func:`hdrd.config.method_setup`), each method's settings derived from it."""
     ms = evaluated_methods(methods)
-    if params.T != prep.steps.T:
+    T = setup.hdr.T
+    if T != prep.steps.T:
         raise EvaluationError(
-            f"{prep.name}: params.T = {params.T} s but the drive was stepped at {prep.steps.T} s"
+            f"{prep.name}: hdr.T = {T} s but the drive was stepped at {prep.steps.T} s"
         )
     e: dict[str, float] = {}
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = method_yaw(prep, m, params, context)
+        yaw = method_yaw(prep, m, setup)
         e[m] = float(e_psi(yaw, prep.truth, prep.k, prep.align_n))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
@@ -217,25 +206,24 @@ def evaluate_prepared(
         truth=prep.truth,
         heading=heading,
         warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
-        plus_model=plus_model(prep, params, context) if PLUS in ms else None,
+        plus_model=plus_model(prep, setup) if PLUS in ms else None,
     )
 
 
 def evaluate_drive(
     log: DriveLog,
-    params: HdrParams = PAPER_PARAMS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
 ) -> DriveResult:
     """Table II's row for one drive log: Eψ (Eq. 12) and NEψ (Eq. 13) per method.
 
     bias: static bias eps0, deg/s; None = measured per drive (``calibrate_seconds``, else
     the log's lead-in, else a standstill found in it; EvaluationError if there is none).
     """
-    prep = prepare_drive(log, bias, calibrate_seconds, params.T)
-    return evaluate_prepared(prep, params, methods, context)
+    prep = prepare_drive(log, bias, calibrate_seconds, setup.hdr.T)
+    return evaluate_prepared(prep, methods, setup)
 
 
 def _mean_std(values: Sequence[float]) -> tuple[float, float]:
@@ -468,9 +456,8 @@ def load_drives(paths: Sequence[str]) -> list[DriveLog]:
 
 def evaluate_logs(
     logs: Sequence[DriveLog],
-    params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     limits: StandstillLimits = DEFAULT_LIMITS,
@@ -482,8 +469,8 @@ def evaluate_logs(
     skipped: list[str] = []
     for log in logs:
         try:
-            prep = prepare_drive(log, bias, calibrate_seconds, params.T, truth_max_gap_s, limits)
-            results.append(evaluate_prepared(prep, params, methods, context))
+            prep = prepare_drive(log, bias, calibrate_seconds, setup.hdr.T, truth_max_gap_s, limits)
+            results.append(evaluate_prepared(prep, methods, setup))
         except EvaluationError as e:
             if len(logs) == 1:
                 raise

@@ -32,7 +32,6 @@ import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
     DEFAULTS,
-    PAPER_PARAMS,
     DriveResult,
     EvaluationError,
     PreparedDrive,
@@ -42,7 +41,7 @@ from hdrd.analysis.evaluate import (
 )
 from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
-from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
+from hdrd.analysis.prepare import DEFAULT_LIMITS, PAPER_PARAMS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
     PARAM_NAMES,
@@ -57,7 +56,7 @@ from hdrd.analysis.tune import (
 )
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
@@ -141,9 +140,8 @@ class EvaluateJob:
     :func:`hdrd.analysis.evaluate.evaluate_logs` takes them); traces: keep each drive's
     headings (for the per-drive plot)."""
 
-    params: HdrParams = PAPER_PARAMS
     methods: tuple[str, ...] = ("none", "hdr")
-    context: SettingsContext = DEFAULTS
+    setup: MethodSetup = DEFAULTS
     bias: float | None = None
     calibrate_seconds: float | None = None
     limits: StandstillLimits = DEFAULT_LIMITS
@@ -162,7 +160,7 @@ def with_outages(
     too short for one, or without a course to aid from, says so among its warnings."""
     assert job.outages is not None
     try:
-        o = run_outages(prep, log, job.outages, job.methods, job.params, job.context)
+        o = run_outages(prep, log, job.outages, job.methods, job.setup)
     except EvaluationError as e:
         why = str(e).removeprefix(f"{r.name}: ")
         return replace(r, warnings=(*r.warnings, f"{r.name}: no outages scored: {why}"))
@@ -175,9 +173,9 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     try:
         log = read_ref(ref, job.read_limits)
         prep = prepare_drive(
-            log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
+            log, job.bias, job.calibrate_seconds, job.setup.hdr.T, job.truth_max_gap_s, job.limits
         )
-        r = evaluate_prepared(prep, job.params, job.methods, job.context)
+        r = evaluate_prepared(prep, job.methods, job.setup)
         if job.outages is not None:
             r = with_outages(r, prep, log, job)
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
@@ -299,7 +297,13 @@ def evaluate_sets(
     drives: Sequence[PreparedDrive | str], sets: Sequence[HdrParams]
 ) -> list[list[DriveResult]]:
     """Per prepared drive of a batch, its result with each parameter set (``none``, ``hdr``)."""
-    return [[slim(evaluate_prepared(d, p, ("none", "hdr"))) for p in sets] for d in _good(drives)]
+    return [
+        [
+            slim(evaluate_prepared(d, methods=("none", "hdr"), setup=MethodSetup(hdr=p)))
+            for p in sets
+        ]
+        for d in _good(drives)
+    ]
 
 
 def parameter_blocks(

@@ -31,15 +31,15 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.prepare import DEFAULTS, PAPER_PARAMS, EvaluationError, PreparedDrive
-from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.methods import MethodSetup
 from hdrd.core.resample import Block
 from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
 from hdrd.daemon.pipeline import PipelineConfig, Stepper
@@ -237,14 +237,14 @@ def run_outages(
     log: DriveLog,
     spec: OutageSpec,
     methods: Sequence[str] = (FROZEN, "hdr", "hdr+"),
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
     aiding_config: AidingConfig | None = None,
 ) -> OutageResult:
     """Each method's heading error at the end of each outage of a drive (module docstring).
 
-    prep: the drive prepared from ``log`` (its steps and truth at step ends). params, context:
-    the methods' settings as ``hdrd evaluate`` derives them. aiding_config: the aiding's
+    prep: the drive prepared from ``log`` (its steps and truth at step ends). setup: the
+    methods' setup, as ``hdrd evaluate`` has it (the drive's calibration, or the bias given,
+    and its output step are added here). aiding_config: the aiding's
     thresholds (default: the daemon's, with the drive's step period). EvaluationError when the
     drive has no outage, or no fix to aid from."""
     s = prep.steps
@@ -266,11 +266,9 @@ def run_outages(
     errors: dict[str, FloatArray] = {}
     aided: dict[str, int] = {}
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    bias = prep.bias if prep.bias is not None else BiasRecord.given(s.bias_dps)
     for m in methods:
-        config = PipelineConfig(
-            params=params, method=m, bias_dps=s.bias_dps, bias_record=prep.bias,
-            context=context, quant_step_dps=q,
-        )  # fmt: skip
+        config = PipelineConfig(setup=replace(setup, method=m, bias=bias, quant_step_dps=q))
         heading, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
         e = np.full(len(windows), math.nan)
         for k, i in enumerate(ends):

@@ -36,10 +36,15 @@ import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
-from hdrd.core import methods as registry
-from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd.core.calibrate import (
+    BiasRecord,
+    MotionDetected,
+    StandstillLimits,
+    estimate_bias,
+    given_bias,
+)
 from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext, StepInputs
+from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
 from hdrd.daemon.pipeline import PipelineConfig, Stepper
@@ -87,9 +92,9 @@ DEFAULT_LIMITS = StandstillLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
 PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
-DEFAULTS = SettingsContext()
-"""What the built-in configuration says about the methods' settings (HDR+'s defaults, no
-grade, standstill on; :func:`hdrd.config.settings_context` of a configuration)."""
+DEFAULTS = MethodSetup()
+"""The built-in configuration's setup of the methods (Table III, HDR+'s defaults, no grade,
+standstill on; :func:`hdrd.config.method_setup` of a configuration)."""
 
 
 class EvaluationError(HdrdError, ValueError):
@@ -390,11 +395,9 @@ def _stepped_after_calibration(
     drive = log.slice(plan.start) if plan.start else log
     offset = float(drive.t[0] - log.t[0])
     config = PipelineConfig(
-        params=HdrParams(T=T),
-        method="none",
-        bias_dps=plan.bias_dps,
         startup_s=plan.window_s if plan.window_s is not None else 1.0,
         limits=limits,
+        setup=MethodSetup(method="none", hdr=HdrParams(T=T), bias=given_bias(plan.bias_dps)),
     )
     t_us = _t_us(log.t)[plan.start :]
     stepped = step_log(drive, config, t_us - t_us[0])
@@ -521,17 +524,9 @@ def alignment(
     return first, 1
 
 
-def method_settings(
-    prep: PreparedDrive,
-    method: str,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> Any:
+def method_settings(prep: PreparedDrive, method: str, setup: MethodSetup = DEFAULTS) -> Any:
     """A method's settings for a prepared drive, derived as the daemon derives them: the
-    context with this drive's samples per step, calibration record and output step."""
+    setup with this drive's samples per step, calibration record and output step."""
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    ctx = replace(
-        context, hdr=params, samples_per_step=prep.samples_per_step, bias=prep.bias,
-        quant_step_dps=q,
-    )  # fmt: skip
-    return registry.get(method).settings(ctx)
+    drive = replace(setup, method=method).for_drive(prep.samples_per_step, prep.bias, q)
+    return drive.settings()

@@ -35,7 +35,6 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
-    PAPER_PARAMS,
     DriveResult,
     PreparedDrive,
     Summary,
@@ -44,7 +43,9 @@ from hdrd.analysis.evaluate import (
     summarize,
 )
 from hdrd.analysis.metrics import e_psi
+from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.core.hdr import HdrParams, run_many
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [
@@ -380,7 +381,7 @@ def tune(
         sets: Sequence[HdrParams],
     ) -> tuple[list[list[DriveResult]], list[list[DriveResult]]]:
         def run(drives: list[PreparedDrive], p: HdrParams) -> list[DriveResult]:
-            return [evaluate_prepared(d, p, ("none", "hdr")) for d in drives]
+            return [evaluate_prepared(d, ("none", "hdr"), MethodSetup(hdr=p)) for d in drives]
 
         return [run(train, p) for p in sets], [run(test, p) for p in sets]
 

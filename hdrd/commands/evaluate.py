@@ -21,7 +21,7 @@ from hdrd.commands.options import (
     outputs_ok,
     read_limits_from_args,
 )
-from hdrd.config import Config, ConfigError, settings_context
+from hdrd.config import Config, ConfigError, method_setup
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
 
@@ -77,7 +77,6 @@ def _evaluate(
     from hdrd.commands.options import where_from_args
 
     method = cfg.hdr.method
-    params = cfg.hdr.params
     # HDR+ is shown beside the paper's HDR it improves on.
     ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
     notes: list[str] = []
@@ -86,9 +85,8 @@ def _evaluate(
     for note in notes:
         print(f"hdrd evaluate: warning: {note}", file=sys.stderr)
     job = EvaluateJob(
-        params,
         ms,
-        settings_context(cfg),  # the configured grade, plus.*, standstill.*
+        method_setup(cfg),  # hdr.*, the configured gyro's error model, standstill.*
         args.bias,
         args.calibrate_seconds,
         standstill_limits(cfg),

@@ -10,13 +10,13 @@ import time
 from collections.abc import Sequence
 
 from hdrd.analysis.evaluate import (
-    PAPER_PARAMS,
     EvaluationError,
     PreparedDrive,
     drive_refs,
 )
 from hdrd.analysis.fleet import FleetError, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
+from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import (
     Interrupted,

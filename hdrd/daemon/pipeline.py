@@ -79,37 +79,29 @@ class PipelineConfig:
     :class:`hdrd.config.Config`."""
 
     sensor: SensorModel = SensorModel()
-    params: HdrParams = HdrParams()
-    method: str = "hdr"
-    bias_dps: float | None = None
-    """Static bias eps0, deg/s; None = measure it over the first startup_s at standstill."""
-    bias_record: BiasRecord | None = None
-    """The calibration record behind bias_dps (a bias file), when there is one: its spread
-    and sample count set HDR+'s prior on the bias. Ignored unless its bias is bias_dps."""
+    setup: methods.MethodSetup = methods.MethodSetup()
+    """The drift reducer's setup (:class:`hdrd.core.methods.MethodSetup`): the method, its
+    HDR parameters, the static bias and its record (None: measured over the first
+    ``startup_s`` at standstill), the gyro's error model; the stepper adds the gyro's samples
+    per step, the bias measured at start-up and the ADC's step (unless the setup knows the
+    gyro's output step otherwise, as a recorded log's lattice), and the method derives its
+    settings from it (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
     startup_s: float = 1.0
-    """Start-up calibration window, s, rounded down to whole steps (at least one) (paper Sec. 6: 1 s)."""
+    """Start-up calibration window, s, rounded down to whole steps (at least one; paper
+    Sec. 6: 1 s)."""
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
-    quant_step_dps: float | None = None
-    """The gyro's output step, deg/s, where the sensor's LSB is not it (a recorded log's
-    lattice of values); None: the sensor's."""
-    context: methods.SettingsContext = methods.SettingsContext()
-    """What the configuration says about the method's settings (:func:`hdrd.config.
-    settings_context`: HDR+'s error model, ``standstill.*``); the stepper adds the gyro's
-    samples per step, the bias record (a bias file's carries the error model ``hdrd
-    calibrate`` measured) and the ADC's step, and the method derives its settings from it
-    (HDR+: :func:`hdrd.core.methods.plus_settings`). Its ``hdr`` is ``params``."""
 
+    @property
+    def params(self) -> HdrParams:
+        """The HDR parameters (the setup's; T is the step period, s)."""
+        return self.setup.hdr
 
-def _given_bias(config: PipelineConfig) -> BiasRecord | None:
-    """The bias record of a configured bias (None: measure it at start-up)."""
-    if config.bias_dps is None:
-        return None
-    rec = config.bias_record
-    if rec is not None and rec.bias_dps == config.bias_dps:
-        return rec
-    return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+    @property
+    def method(self) -> str:
+        """The drift reducer's name (the setup's)."""
+        return self.setup.method
 
 
 def _calibrated_at(rec: BiasRecord | None) -> float | None:
@@ -142,22 +134,17 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
 
 
 def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
-    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
-    HDR parameters, start-up window and standstill test, heading0, what the method's settings
-    are derived from (:func:`hdrd.config.settings_context`); the static bias of ``bias``
-    (None: measured at start-up)."""
-    from hdrd.config import settings_context
+    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, the
+    method's setup (:func:`hdrd.config.method_setup`) with the static bias of ``bias`` (None:
+    measured at start-up), start-up window and standstill test, heading0."""
+    from hdrd.config import method_setup
 
     return PipelineConfig(
         sensor=cfg.sensor,
-        params=cfg.hdr.params,
-        method=cfg.hdr.method,
-        bias_dps=None if bias is None else bias.bias_dps,
-        bias_record=bias,
+        setup=method_setup(cfg, bias),
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
-        context=settings_context(cfg),
     )
 
 
@@ -189,7 +176,7 @@ class Stepper:
         self._t_view = 0.0  # device time of the last step, s
         self.method = methods.get(config.method)
         self.state: Any = self.method.initial_state()
-        self.bias: BiasRecord | None = _given_bias(config)
+        self.bias: BiasRecord | None = config.setup.bias
         self.bias_source = "calibration"
         """What last changed the published bias (``bias_source``, docs/protocol.md)."""
         self.calibrated_at = _calibrated_at(self.bias)
@@ -216,10 +203,9 @@ class Stepper:
 
     def reconfigure(self, config: PipelineConfig) -> None:
         """New parameters, method or bias; the state (heading, controller) is kept."""
-        if config.bias_dps is not None and (
-            self.bias is None or config.bias_dps != self.bias.bias_dps
-        ):
-            self.bias = _given_bias(config)
+        given = config.setup.bias
+        if given is not None and (self.bias is None or given.bias_dps != self.bias.bias_dps):
+            self.bias = given
             self.bias_source, self.calibrated_at = "calibration", _calibrated_at(self.bias)
         self.config = config
         method = methods.get(config.method)
@@ -279,20 +265,15 @@ class Stepper:
         """The method's settings for this gyro and drive (:mod:`hdrd.core.methods`): the config,
         the samples per step, the bias record (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
         if self._settings is None:
-            ctx = replace(
-                self.config.context,
-                hdr=self.config.params,
-                samples_per_step=self.samples_per_step,
-                bias=self.bias,
-                quant_step_dps=self._quant_step_dps(),
+            setup = self.config.setup
+            q = setup.quant_step_dps
+            setup = setup.for_drive(
+                self.samples_per_step,
+                self.bias,
+                self.config.sensor.lsb_dps if q is None else q,  # else the ADC's output step
             )
-            self._settings = self.method.settings(ctx)
+            self._settings = self.method.settings(setup)
         return self._settings
-
-    def _quant_step_dps(self) -> float:
-        """The gyro's output step, deg/s: the configured one, else the ADC's LSB."""
-        q = self.config.quant_step_dps
-        return self.config.sensor.lsb_dps if q is None else q
 
     def step(self, block: Block) -> methods.Published | None:
         """One block: None while calibrating (the window closes a step), else the method's

@@ -38,10 +38,14 @@ def replay_steps(
     file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
     from dataclasses import replace
 
+    from hdrd.core.calibrate import given_bias
     from hdrd.daemon.pipeline import Pipeline, pipeline_config
 
-    # the record also brings the noise parameters it holds (HDR+'s error model)
-    pc = replace(pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
+    # the record also brings the noise parameters it holds (HDR+'s error model); a bias
+    # given without one is a bare given bias, None is measured at start-up
+    rec = bias_record if bias_record is not None and bias_record.bias_dps == bias_dps else None
+    bias = rec if rec is not None else given_bias(bias_dps)
+    pc = pipeline_config(cfg, bias)
     if startup_s is not None:
         pc = replace(pc, startup_s=startup_s)
     p = Pipeline(pc)

@@ -45,6 +45,9 @@ from typing import Any
 
 import numpy as np
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
+
 from .inputs import stress_frames
 
 __all__ = ["Broken", "Target", "make_target"]
@@ -114,13 +117,17 @@ def _pipeline_variants() -> list[Any]:
 
     rec = BiasRecord(0.3, 0.05, 300, 30.0)
     return [
-        PipelineConfig(bias_dps=0.1),
-        PipelineConfig(method="hdr+", bias_dps=rec.bias_dps, bias_record=rec),
-        PipelineConfig(method="none", bias_dps=-2.9),
+        PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))),
+        PipelineConfig(setup=MethodSetup(method="hdr+", bias=rec)),
+        PipelineConfig(setup=MethodSetup(method="none", bias=given_bias(-2.9))),
         PipelineConfig(startup_s=1.0),  # a start-up calibration
-        PipelineConfig(method="hdr+", startup_s=0.5),
-        PipelineConfig(params=HdrParams(T=0.01, c1=1000.0, c2=10.0, i_c=10.0), bias_dps=0.0),
-        PipelineConfig(params=HdrParams(T=60.0, tau=3600.0), bias_dps=0.0),
+        PipelineConfig(startup_s=0.5, setup=MethodSetup(method="hdr+")),
+        PipelineConfig(
+            setup=MethodSetup(
+                hdr=HdrParams(T=0.01, c1=1000.0, c2=10.0, i_c=10.0), bias=given_bias(0.0)
+            )
+        ),
+        PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=60.0, tau=3600.0), bias=given_bias(0.0))),
     ]
 
 
@@ -214,7 +221,9 @@ class GpsdTarget(Target):
         client = GpsdClient("127.0.0.1", port, clock=lambda: self.clock)
         self.link = GpsdLink(client, GpsAiding(AidingConfig()), clock=lambda: self.clock)
         self.pipeline = Pipeline(
-            PipelineConfig(method="hdr+", bias_dps=0.2), self.link.aiding, lambda: self.clock
+            PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(0.2))),
+            self.link.aiding,
+            lambda: self.clock,
         )
         self.peer: socket.socket | None = None
         self.count = 0
