@@ -427,6 +427,12 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
         "DURATION every PERIOD of driving (e.g. 120s/10min) and report each method's "
         "heading error at their ends (docs/evaluation.md; default: none)",
     )
+    p.add_argument(
+        "--trace",
+        metavar="DIR",
+        help="write DIR/<drive>.csv: per step t, heading_truth, speed and the compass heading "
+        "of none, hdr and hdr+ (docs/evaluation.md; default: none)",
+    )
     config(p)
     method(p)
     input_limits(p)

@@ -571,3 +571,35 @@ def test_calibrate_seconds_never_takes_a_sample_past_it() -> None:
     assert prep.steps.bias_dps == pytest.approx(0.8, abs=1e-12)  # no turn sample in it
     with pytest.raises(EvaluationError, match="at least one step"):
         prepare_drive(log, calibrate_seconds=0.5)
+
+
+def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path) -> None:
+    """--trace DIR: DIR/<drive>.csv, one row per step: t, heading_truth, speed and the compass
+    heading of none, hdr and hdr+ (whatever --method), from which Eψ is computed again."""
+    from hdrd.sim import simulate_legs
+    from hdrd.sim.benchmark import VARIANTS
+
+    log = simulate_legs([(VARIANTS["city"], 1.0)], 8.0, 4, name="city")
+    write_drive(tmp_path / "city.csv", log)
+    out = tmp_path / "doc.json"
+    rc = cli_main(["evaluate", str(tmp_path / "city.csv"), "--trace", str(tmp_path / "tr"),
+                   "--json", str(out)])  # fmt: skip
+    assert rc == 0
+    lines = (tmp_path / "tr" / "city.csv").read_text().splitlines()
+    cols = lines[0].split(",")
+    assert cols == ["t", "heading_truth", "speed", "heading_none", "heading_hdr", "heading_hdr+"]
+    rows = np.array([[float(v) if v else np.nan for v in ln.split(",")] for ln in lines[1:]])
+    prep = prepare_drive(log)
+    assert rows.shape == (prep.steps.u.shape[0], 6)
+    assert np.array_equal(rows[:, 0], np.round(prep.steps.t_end, 3))
+    assert np.all((rows[:, 3:] >= 0.0) & (rows[:, 3:] < 360.0))
+    d = json.loads(out.read_text())["drives"][0]
+    for k, m in ((3, "raw"), (4, "hdr")):  # Eψ again from the published headings
+        ok = np.isfinite(rows[:, 1])
+        err = np.abs((rows[ok, k] - rows[ok, 1] + 180.0) % 360.0 - 180.0)
+        assert float(np.mean(err)) == pytest.approx(d[f"E_psi_{m}"], abs=1e-3)
+    # a folder that is a file is refused before the work
+    (tmp_path / "file").write_text("")
+    assert (
+        cli_main(["evaluate", str(tmp_path / "city.csv"), "--trace", str(tmp_path / "file")]) == 1
+    )

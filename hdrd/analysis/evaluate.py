@@ -78,6 +78,9 @@ __all__ = [
     "read_ref",
     "summarize",
     "to_json",
+    "trace_columns",
+    "trace_csv",
+    "TRACE_METHODS",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -120,6 +123,8 @@ class DriveResult:
     outages: OutageResult | None = None
     """With ``--outages``: each method's heading error at the end of each GNSS outage
     (:mod:`hdrd.analysis.outages`)."""
+    trace: dict[str, FloatArray] | None = field(default=None, repr=False)
+    """With ``--trace``: one value per step, :func:`trace_columns`."""
 
     @property
     def primary(self) -> str:
@@ -208,6 +213,44 @@ def evaluate_prepared(
         warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
         plus_model=plus_model(prep, setup) if PLUS in ms else None,
     )
+
+
+TRACE_METHODS = ("none", "hdr", "hdr+")
+"""The methods whose heading ``--trace`` writes, whatever ``--method`` asks."""
+
+
+def trace_columns(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> dict[str, FloatArray]:
+    """A drive's trace, one value per step (``hdrd evaluate --trace``): ``t`` (s, the step's
+    end, since the log's first sample), ``heading_truth`` (compass deg; NaN where unknown),
+    ``speed`` (m/s, the step's mean; NaN where unknown) and ``heading_<m>`` for each of
+    :data:`TRACE_METHODS`: its compass heading in [0, 360), aligned as Eψ aligns it
+    (:func:`hdrd.analysis.prepare.alignment`), as the daemon would have published it had it
+    been given that heading at the start."""
+    s = prep.steps
+    n = s.u.shape[0]
+    cols: dict[str, FloatArray] = {
+        "t": s.t_end,
+        "heading_truth": prep.truth,
+        "speed": s.speed if s.speed is not None else np.full(n, math.nan),
+    }
+    for m in TRACE_METHODS:
+        yaw = method_yaw(prep, m, setup)
+        cols[f"heading_{m}"] = np.mod(gyro_heading(yaw, prep.truth, prep.k, prep.align_n), 360.0)
+    return cols
+
+
+def trace_csv(cols: dict[str, FloatArray]) -> str:
+    """A trace as CSV text: a header of the column names, a row per step, an empty cell
+    where a value is unknown."""
+
+    def cell(v: float, digits: int) -> str:
+        return f"{v:.{digits}f}" if math.isfinite(v) else ""
+
+    names = list(cols)
+    lines = [",".join(names)]
+    for i in range(cols["t"].shape[0]):
+        lines.append(",".join(cell(float(cols[k][i]), 3 if k == "t" else 4) for k in names))
+    return "\n".join(lines) + "\n"
 
 
 def evaluate_drive(

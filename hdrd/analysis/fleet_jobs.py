@@ -38,6 +38,7 @@ from hdrd.analysis.evaluate import (
     evaluate_prepared,
     prepare_drive,
     read_ref,
+    trace_columns,
 )
 from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
@@ -151,6 +152,9 @@ class EvaluateJob:
     read_limits: ReadLimits = DEFAULT_READ_LIMITS
     outages: OutageSpec | None = None
     """``--outages``: each drive's GNSS outages through the aiding path too."""
+    trace: bool = False
+    """``--trace``: each drive's headings per step (:func:`hdrd.analysis.evaluate.
+    trace_columns`)."""
 
 
 def with_outages(
@@ -178,6 +182,8 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
         r = evaluate_prepared(prep, job.methods, job.setup)
         if job.outages is not None:
             r = with_outages(r, prep, log, job)
+        if job.trace:
+            r = replace(r, trace=trace_columns(prep, job.setup))
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
     if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored

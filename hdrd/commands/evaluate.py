@@ -50,6 +50,9 @@ def main(args: argparse.Namespace) -> int:
         return EX_CONFIG
     if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
         return 1
+    trace = getattr(args, "trace", None)
+    if trace is not None and not _trace_dir_ok(trace):
+        return 1
     outages = None
     if getattr(args, "outages", None):
         from hdrd.analysis.outages import OutageSpec
@@ -65,7 +68,8 @@ def main(args: argparse.Namespace) -> int:
         _err(str(e))
         return 1
     _print_results(results, len(skipped), outages is not None)
-    return _write_files(args, results, job.traces)
+    rc = _write_files(args, results, job.traces)
+    return _write_traces(trace, results) if trace is not None and rc == 0 else rc
 
 
 def _evaluate(
@@ -91,6 +95,7 @@ def _evaluate(
         args.calibrate_seconds,
         standstill_limits(cfg),
         traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
+        trace=getattr(args, "trace", None) is not None,
         strict=strict,
         read_limits=read_limits_from_args(args),
         outages=outages,
@@ -123,6 +128,44 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
         print(format_outages(runs) if runs else "GNSS outages: none could be scored")
     if len(results) > PLOT_PANELS_MAX:
         print(fleet_summary(results, n_skipped))
+
+
+def _trace_dir_ok(folder: str) -> bool:
+    """--trace DIR: a folder that exists (or can be made) and is not a file."""
+    import os
+
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        _err(f"--trace {folder!r}: not a folder")
+        return False
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        _err(f"--trace {folder!r}: cannot make it: {e.strerror or e}")
+        return False
+    return True
+
+
+def _write_traces(folder: str, results: list[DriveResult]) -> int:
+    """--trace DIR: DIR/<drive>.csv for each drive (its name from the data, kept inside DIR:
+    :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out); the exit
+    status."""
+    from hdrd.analysis.evaluate import trace_csv
+    from hdrd.io.files import UnsafeNameError, atomic_write_text, path_inside, shown_path
+
+    for r in results:
+        if r.trace is None:
+            continue
+        try:
+            path = path_inside(folder, r.name, ".csv")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, trace_csv(r.trace))
+        except UnsafeNameError as e:
+            print(f"hdrd evaluate: warning: --trace: {e}", file=sys.stderr)
+        except OSError as e:
+            _err(f"cannot write the trace of {r.name}: {e.strerror or e}")
+            return 1
+    print(f"hdrd evaluate: traces in {shown_path(folder)}", file=sys.stderr)
+    return 0
 
 
 def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: bool) -> int:
