@@ -65,7 +65,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 from _common import fmt, machine_line, plus_with, replace_section
-from outages import kalman_peer
+from peer import kalman_peer
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
 
 from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
