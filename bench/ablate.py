@@ -46,8 +46,8 @@ from _common import machine_line, plus_with, replace_section  # noqa: E402
 from hdrd.analysis.evaluate import DEFAULTS, method_yaw  # noqa: E402
 from hdrd.analysis.metrics import e_psi  # noqa: E402
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive, prepare_drive  # noqa: E402
-from hdrd.core.hdrplus import PLUS_CORE  # noqa: E402
 from hdrd.core.methods import MethodSetup  # noqa: E402
+from hdrd.core.plusparams import PLUS_CORE  # noqa: E402
 from hdrd.io.drivefiles import read_drive  # noqa: E402
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate  # noqa: E402
 from hdrd.sim.gyro import GyroModel, StaticBias, WhiteNoise  # noqa: E402

@@ -59,14 +59,9 @@ from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdr import run_batch as hdr_batch
-from hdrd.core.hdrplus import (
-    INITIAL_PLUS_STATE,
-    PLUS_CORE,
-    HdrPlusParams,
-    run_batch,
-    step,
-)
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
 from hdrd.core.methods import MethodSetup, plus_settings
+from hdrd.core.plusparams import PLUS_CORE
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import DriveLog

@@ -21,23 +21,25 @@ from hdrd.analysis.evaluate import evaluate_drive
 from hdrd.cli import main as cli_main
 from hdrd.core import biasbank as bb
 from hdrd.core import hdr, hdrplus
+from hdrd.core.biasbank import Hypothesis
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import (
-    DEFAULT_BANK,
     INITIAL_PLUS_STATE,
-    PLUS_CORE,
-    TUNING,
-    GyroFit,
     HdrPlusParams,
-    Hypothesis,
     PlusOutput,
     PlusState,
-    Tuning,
-    one_model,
     run_batch,
     step,
 )
-from hdrd.core.plusparams import DRIFT_PRIOR
+from hdrd.core.plusparams import (
+    DEFAULT_BANK,
+    DRIFT_PRIOR,
+    PLUS_CORE,
+    TUNING,
+    GyroFit,
+    Tuning,
+    one_model,
+)
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import read_drive, write_drive

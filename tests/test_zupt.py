@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from hdrd.core import biasbank as bb
-from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, one_model, run_batch, step
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
+from hdrd.core.plusparams import one_model
 from hdrd.core.standstill import StandstillParams, block_mean_variance
 from hdrd.core.steps import StepInput
 from tests.test_hdrplus import plus

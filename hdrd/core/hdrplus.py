@@ -1,39 +1,27 @@
 """HDR+: the paper's HDR kept as a core, under a Kalman model of the bias that adapts to the gyro.
 
-Pure: no I/O, no clock. One step per period T on the same input as HDR, u_i = block mean of
-the raw rate minus the start-up static bias eps0 (paper Eqs. 2, 11), deg/s, + = CCW, plus
-what HDR does not use: the spread of the raw samples within the block, the vehicle speed and
-the board temperature (each NaN when unknown). docs/hdrplus.md has the reasoning and the
-measurements behind every default.
+Pure. One step per period T on HDR's input, u_i = block mean - eps0 (paper Eqs. 2, 11),
+deg/s, + = CCW, plus what HDR does not use: the samples' spread, the speed, the temperature
+(each NaN when unknown) and, with GPS aiding, a course's measurement of the heading error.
+docs/hdrplus.md has the reasoning and the measurements behind every default.
 
-1. **Bias model** (:mod:`hdrd.core.biasbank`): Kalman filters of the bias b, the standstill offset
-   c, the temperature coefficient k, the road's gentle curvature r and the heading error the
-   bias estimate has caused. The HDR core runs on u_c = u - (b + k (temp - t_ref)).
-   The filters form a *bank* of hypotheses that is data (:attr:`HdrPlusParams.bank`):
-   - without the gyro's error model (the default for an unknown recording), two, a *stable*
-     gyro and a *drifting* one, weighed by evidence: how well each predicted every stop's
-     reading and every straight step. The correction is their weighted mean; the heading is
-     corrected when a stop (or the road) moves the estimate;
-   - with the error model known (a grade, parameters recorded by ``hdrd calibrate``), one,
-     whose random walk is the model's;
-   - with a temperature, the last member alone, at the walk the temperature model leaves
-     (:attr:`GyroFit.bias_q`).
-2. **The core's increment follows the bias uncertainty**: i_c = ``ic_alpha`` x the bias sd
-   (capped at ``i_c_max``). With a bank of several, only while the drifting member weighs at
-   least half (on a stable gyro the binary increment only straightens real gentle curves);
-   with one, only when its bias wanders more within a road's curve than real roads curve.
-3. **Standstill (zero-rate) updates**: a step detected as standstill (from the speed, or the
-   gyro alone when enabled; its level within ``stop_gate_sigma`` of what the model allows at
-   rest) publishes omega = 0, folds I into b and measures b + c.
-4. **Straight-driving measurements**: a step on which the turn switch lets I move (W = 1)
-   and whose corrected rate is within ``straight_gate_dps`` measures b + r.
+1. **Bias model** (:mod:`hdrd.core.biasbank`): Kalman filters of the bias b, the standstill
+   offset c, the temperature coefficient k, the road's gentle curvature r and the heading
+   error psi; the HDR core runs on u_c = u - (b + k dT). The filters form a bank of
+   hypotheses that is data (:attr:`HdrPlusParams.bank`): a stable and a drifting gyro
+   weighed by evidence (stops, straight steps) without an error model; one, of the model's
+   random walk, with it; with a temperature the last member alone.
+2. **The core's increment follows the bias uncertainty**: ``ic_alpha`` x the bias sd (capped
+   at ``i_c_max``), with a bank only while "drifting" weighs at least half.
+3. **Standstill (zero-rate) updates** publish omega = 0, fold I into b and measure b + c.
+4. **Straight-driving measurements**: a step the turn switch lets I move (W = 1), its rate
+   within ``straight_gate_dps``, measures b + r.
+5. **GPS**: once aligned, each course measures psi (the one owner of bias and heading error;
+   docs/hdrplus.md, "GPS: one estimator").
 
-Settings (:mod:`hdrd.core.plusparams`, imported here) come in three parts: what one gyro's
-error model and calibration set (:class:`GyroFit`, :meth:`HdrPlusParams.fitted`), the bank of
-hypotheses, and the filter's constants (:data:`TUNING`, chosen on tuning data:
-bench/RESULTS.md; production never changes them, benchmarks override them). :func:`step` (immutable :class:`PlusState`,
-the daemon's) and :func:`run_batch` (arrays, evaluate's) run the same code (:class:`_Run`),
-so they agree to the bit.
+Settings: :mod:`hdrd.core.plusparams` (what a gyro's fit sets, the bank, the constants).
+:func:`step` (immutable :class:`PlusState`, the daemon's) and :func:`run_batch` (arrays,
+evaluate's) run the same code (:class:`_Run`), so they agree to the bit.
 """
 
 from __future__ import annotations
@@ -46,35 +34,18 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.core import biasbank as bb
-from hdrd.core.biasbank import INITIAL_BANK, BankState, Filter, Hypothesis
+from hdrd.core.biasbank import INITIAL_BANK, BankState, Filter
 from hdrd.core.hdr import INITIAL_STATE, HdrState, kernel
-from hdrd.core.plusparams import (
-    DEFAULT_BANK,
-    DEFAULTS,
-    PLUS_CORE,
-    TUNING,
-    GyroFit,
-    HdrPlusParams,
-    Tuning,
-    one_model,
-)
+from hdrd.core.plusparams import DEFAULTS, HdrPlusParams
 from hdrd.core.standstill import block_mean_variance, standstill_candidate
-from hdrd.core.steps import StepInput
+from hdrd.core.steps import StepInput, per_step
 
 __all__ = [
-    "DEFAULTS",
-    "DEFAULT_BANK",
     "INITIAL_PLUS_STATE",
-    "PLUS_CORE",
-    "TUNING",
-    "GyroFit",
     "HdrPlusParams",
-    "Hypothesis",
     "PlusOutput",
     "PlusState",
     "PlusTrace",
-    "Tuning",
-    "one_model",
     "run_batch",
     "step",
 ]
@@ -135,13 +106,10 @@ class PlusOutput(NamedTuple):
 
 
 class _Mix(NamedTuple):
-    """The bias correction in force for a step (after predict, before the measurements).
-
-    ws: the members' weights (the last alone, 1, when not mixing). corrs: each member's
-    correction b + k dT, deg/s; corr: their weighted mean, subtracted from u. inc: the
-    core's increment, deg/s. qs: each member's random walk in force, (deg/s)^2/s. mixing:
-    the bank weighs its members in this step (several, and no temperature).
-    """
+    """A step's correction in force (after predict): ws the members' weights ([1] when not
+    mixing); corrs each member's b + k dT, deg/s, and corr their weighted mean; inc the core's
+    increment, deg/s; qs the random walks in force, (deg/s)^2/s; mixing: the bank weighs its
+    members this step (several, and no temperature)."""
 
     ws: list[float]
     corrs: list[float]
@@ -231,26 +199,21 @@ class _Run:
     # -- the phases ------------------------------------------------------------------------
 
     def aid(self, herr: float, hvar: float, reset: bool) -> None:
-        """A GPS course: the heading aligned anew (its correction restarts at 0, of variance
-        hvar), and/or a measurement of the heading correction psi, herr deg of variance hvar,
-        which moves each member's bias by their covariance (the members are weighed by stops
-        and straight road only)."""
+        """A GPS course: the heading aligned anew (psi restarts at 0, of variance hvar), and/or
+        a measurement of psi, herr deg of variance hvar, moving each member's bias by their
+        covariance; it does the integrator's work (I folded into b, b - I unchanged). Not
+        weighed as evidence: each course corrects the heading the next is compared with, so
+        the innovations would count only the members' spreads (docs/hdrplus.md)."""
         var = hvar if hvar > 0.0 else 0.0
         if reset:
             for x, P in zip(self.xs, self.Ps):
                 bb.reset_heading(x, P, var)
             self.aided = True
         if herr == herr and self.aided:
-            # The course does the integrator's work: I is folded into the bias (the correction
-            # in force, b - I, unchanged) and the core's increment is off this step.
-            for x in self.xs:
-                x[bb.B] -= self.I
-            self.I = 0.0
-            # Not weighed as evidence: each course corrects the heading it is compared with,
-            # so its innovations are small in every member and would count only their
-            # spreads, for the narrowest (a drifting bias then read as a stable one).
             for x, P in zip(self.xs, self.Ps):
+                x[bb.B] -= self.I
                 bb.update_heading(x, P, herr, var)
+            self.I = 0.0
 
     def temperature(self, te: float) -> tuple[float, bool]:
         """(dT, a temperature is used): degC above the first one seen, 0 without."""
@@ -448,16 +411,8 @@ def step(
 ) -> tuple[PlusState, PlusOutput]:
     """Advance HDR+ by one step of inp.T seconds. Pure (the same code as :func:`run_batch`)."""
     run = _Run(state, params)
-    out = run.advance(
-        float(inp.u),
-        float(inp.spread_dps),
-        float(inp.speed_mps),
-        float(inp.temp_c),
-        float(inp.T),
-        float(inp.heading_err_deg),
-        float(inp.heading_err_var),
-        bool(inp.heading_reset),
-    )
+    u, sp, v, te, T, herr, hvar, reset = (float(x) for x in inp)
+    out = run.advance(u, sp, v, te, T, herr, hvar, bool(reset))
     return run.state(), out
 
 
@@ -499,17 +454,6 @@ _DTYPES: tuple[type[np.generic], ...] = (
 """The dtypes of :class:`PlusTrace`'s arrays, in the order of :class:`PlusOutput`."""
 
 
-def _column(v: npt.ArrayLike | None, n: int, name: str) -> list[float]:
-    if v is None:
-        return [math.nan] * n
-    a = np.asarray(v, dtype=np.float64)
-    if a.ndim == 0:
-        return [float(a)] * n
-    if a.shape != (n,):
-        raise ValueError(f"{name} must have one value per step ({a.shape} vs {n})")
-    return a.tolist()
-
-
 def run_batch(
     u: npt.ArrayLike,
     spread: npt.ArrayLike | None = None,
@@ -532,15 +476,15 @@ def run_batch(
     n = uu.shape[0]
     cols = [
         uu.tolist(),
-        _column(spread, n, "spread"),
-        _column(speed, n, "speed"),
-        _column(temp, n, "temp"),
-        _column(params.hdr.T if T is None else T, n, "T"),
+        per_step(spread, n, "spread"),
+        per_step(speed, n, "speed"),
+        per_step(temp, n, "temp"),
+        per_step(params.hdr.T if T is None else T, n, "T"),
     ]
     if heading_err is not None or heading_reset is not None:
-        cols.append(_column(heading_err, n, "heading_err"))
-        cols.append(_column(heading_err_var, n, "heading_err_var"))
-        resets = [False] * n if heading_reset is None else _column(heading_reset, n, "reset")
+        cols.append(per_step(heading_err, n, "heading_err"))
+        cols.append(per_step(heading_err_var, n, "heading_err_var"))
+        resets = [False] * n if heading_reset is None else per_step(heading_reset, n, "reset")
         cols.append([bool(r) for r in resets])
     if n == 0:  # nothing ran: not even the prior is set
         return PlusTrace(*(np.empty(0, dt) for dt in _DTYPES), final=state)  # type: ignore[misc, arg-type]
