@@ -33,6 +33,8 @@ if TYPE_CHECKING:
     import numpy as np
 
     from hdrd.analysis.evaluate import PreparedDrive
+    from hdrd.core.hdr import HdrParams
+    from hdrd.core.plusparams import HdrPlusParams
     from hdrd.io.drivelog import DriveLog
 
 REPO = Path(__file__).resolve().parents[1]
@@ -226,8 +228,8 @@ def make_capture(
         m = json.loads(meta.read_text())
         if m.get("key") == key:
             return m
-    from hdrd.commands.fakegyro import FakeGyro
     from hdrd.sim import simulate_drive
+    from hdrd.sim.fakegyro import FakeGyro
 
     profile = simulate_drive("mixed", minutes, seed, hz=hz)
     g = FakeGyro(profile, garbage=CAPTURE_GARBAGE, crc_errors=CAPTURE_CRC_ERRORS, seed=seed)
@@ -421,3 +423,49 @@ def oracle_yaw(
         corr = corr + extra
     # u = raw - eps0 = true + err - eps0: removing (err - eps0) leaves the true rate.
     return np.cumsum((prep.steps.u - corr) * T)
+
+
+# --------------------------------------------------------------------------- HDR+ experiments
+
+
+def plus_with(base: HdrPlusParams | None = None, **kw: Any) -> HdrPlusParams:
+    """HDR+'s settings with some values overridden by flat name, for experiments: a field of
+    :class:`hdrd.core.plusparams.GyroFit` or :class:`~hdrd.core.plusparams.Tuning` goes to its
+    record; ``q_stable``, ``q_drifting`` and ``drift_prior`` rebuild the two-member bank; the
+    rest (``hdr``, ``standstill``, ``bank``) replace the settings' own fields."""
+    from dataclasses import fields, replace
+
+    from hdrd.core.biasbank import Hypothesis
+    from hdrd.core.plusparams import DEFAULT_BANK, DEFAULTS, GyroFit, Tuning
+
+    p = DEFAULTS if base is None else base
+    fit = {k: kw.pop(k) for k in list(kw) if k in {f.name for f in fields(GyroFit)}}
+    tun = {k: kw.pop(k) for k in list(kw) if k in {f.name for f in fields(Tuning)}}
+    if {"q_stable", "q_drifting", "drift_prior"} & set(kw):
+        stable, drifting = DEFAULT_BANK
+        prior = float(kw.pop("drift_prior", drifting.prior))
+        kw["bank"] = (
+            Hypothesis("stable", float(kw.pop("q_stable", stable.q)), 1.0 - prior),
+            Hypothesis("drifting", float(kw.pop("q_drifting", drifting.q)), prior),
+        )
+    return replace(p, fit=replace(p.fit, **fit), tuning=replace(p.tuning, **tun), **kw)
+
+
+def paper_plus(core: HdrParams | None = None) -> HdrPlusParams:
+    """HDR+ with every extra off (no stops, no straight-driving measurements, the core's fixed
+    increment, one filter): paper HDR with ``core`` (Table III by default), bit for bit; run
+    it with the temperature withheld for no temperature model."""
+    from hdrd.core.hdr import HdrParams
+    from hdrd.core.plusparams import GyroFit, HdrPlusParams, one_model
+    from hdrd.core.standstill import StandstillParams
+
+    return plus_with(
+        HdrPlusParams(
+            hdr=HdrParams() if core is None else core,
+            standstill=StandstillParams(enabled=False),
+            fit=GyroFit(stop_offset_var=0.0, model="paper"),
+            bank=one_model(3e-7),
+        ),
+        straight_r=0.0,
+        ic_alpha=0.0,
+    )

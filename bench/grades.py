@@ -13,7 +13,7 @@ real-road-like curving road (:func:`curvy`):
 - ``none`` (static bias removal), ``hdr`` (paper HDR, Table III), ``hdr+`` as ``hdrd evaluate
   --method hdr+`` runs it (fitted to the drive by :func:`hdrd.core.methods.plus_settings` from its
   calibration and the log's output step; the grade is *not* known), ``hdr+ (grade)`` with the
-  grade's error model given (``plus.grade``, as a daemon configured with it), and
+  grade's error model given (``gyro.grade``, as a daemon configured with it), and
   *oracle*: the gyro's true error smoothed over 121 s (centred) removed, known only in
   simulation, a bound on what knowing the bias buys.
 - Sets, fixed before any result (seeds ``spec.seed + 1000 j``): *tuning* = the nine training
@@ -53,7 +53,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.analysis.metrics import e_psi
 from hdrd.core.grades import GRADES, Grade
 from hdrd.core.gyronoise import GyroNoise, grade_noise
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.grades import grade_model
@@ -154,7 +154,7 @@ GRADE_ROWS: tuple[str, ...] = (*GRADES, "coarse")
 
 
 def noise_of(grade: str) -> GyroNoise:
-    """The error model a daemon configured for this gyro would be given (``plus.grade``)."""
+    """The error model a daemon configured for this gyro would be given (``gyro.grade``)."""
     if grade == "coarse":
         g = grade_noise("automotive")
         return replace(
@@ -205,8 +205,8 @@ class Scores:
     e: dict[str, dict[str, float]]  # case -> method -> Eψ
 
 
-def with_noise(noise: GyroNoise) -> SettingsContext:
-    """The default configuration with ``noise`` given as HDR+'s error model (as ``plus.*``)."""
+def with_noise(noise: GyroNoise) -> MethodSetup:
+    """The default configuration with ``noise`` given as HDR+'s error model (as ``gyro.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
 
 
@@ -214,14 +214,14 @@ def method_scores(
     log: DriveLog, p: PreparedDrive, extra: np.ndarray, noise: GyroNoise
 ) -> dict[str, float]:
     def ep(yaw: np.ndarray) -> float:
-        return float(e_psi(yaw, p.truth, p.k))
+        return float(e_psi(yaw, p.truth, p.k, p.align_n))
 
     return {
         "none": ep(method_yaw(p, "none")),
         "hdr": ep(method_yaw(p, "hdr")),
         "hdr+": ep(method_yaw(p, "hdr+")),
-        "hdr (grade)": ep(method_yaw(p, "hdr", context=with_noise(noise))),
-        "hdr+ (grade)": ep(method_yaw(p, "hdr+", context=with_noise(noise))),
+        "hdr (grade)": ep(method_yaw(p, "hdr", setup=with_noise(noise))),
+        "hdr+ (grade)": ep(method_yaw(p, "hdr+", setup=with_noise(noise))),
         "oracle": ep(oracle_yaw(log, p, extra)),
     }
 
@@ -432,7 +432,7 @@ gyro (`hdrd simulate --grade NAME`, docs/gyro-model.md) at the grade's rate, cal
 their 30 s start-up standstill; mean NEψ in deg/min. Each method exactly as `hdrd evaluate
 --calibrate-seconds 30 --method hdr+` runs it (`method_yaw`): *hdr+* fitted to the drive by
 `hdrd.core.methods.plus_settings` from its calibration and the log's output step (the grade is not
-known); *hdr+ (grade)* with the grade's error model given (`plus.grade` in the config, as a
+known); *hdr+ (grade)* with the grade's error model given (`gyro.grade` in the config, as a
 configured daemon); *oracle*: the true gyro error (smoothed over 121 s) removed, simulation
 only. Temperature *given* as the simulator writes it, *withheld* as on a real recording, or
 withheld on a *curving road*: the same drive with a gentle road curvature added to truth and

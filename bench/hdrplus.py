@@ -46,6 +46,8 @@ from _common import (
     machine_line,
     ne_psi,
     oracle_yaw,
+    paper_plus,
+    plus_with,
     replace_section,
     run_recorded,
     share_worse,
@@ -57,14 +59,9 @@ from hdrd.analysis.evaluate import PreparedDrive, prepare_drive
 from hdrd.analysis.metrics import e_psi
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdr import run_batch as hdr_batch
-from hdrd.core.hdrplus import (
-    INITIAL_PLUS_STATE,
-    PLUS_CORE,
-    HdrPlusParams,
-    run_batch,
-    step,
-)
-from hdrd.core.methods import SettingsContext, plus_settings
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
+from hdrd.core.methods import MethodSetup, plus_settings
+from hdrd.core.plusparams import PLUS_CORE
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
 from hdrd.io.drivelog import DriveLog
@@ -109,7 +106,7 @@ def yaw_of(v: Variant, prep: PreparedDrive) -> np.ndarray:
     assert v.params is not None
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     # as hdrd evaluate fits HDR+ to the drive (hdrd.core.methods.plus_settings)
-    ctx = SettingsContext(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
+    ctx = MethodSetup(HdrParams(T=s.T), v.params, prep.samples_per_step, prep.bias, q)
     p = plus_settings(ctx)
     return run_batch(
         s.u,
@@ -189,7 +186,7 @@ def truth_bias_30s(log: DriveLog) -> float:
 
 def variants() -> list[tuple[str, list[Variant]]]:
     P = HdrPlusParams()
-    paper = HdrPlusParams.paper()
+    paper = paper_plus()
     ss_off = StandstillParams(enabled=False)
     return [
         (
@@ -205,27 +202,30 @@ def variants() -> list[tuple[str, list[Variant]]]:
                 Variant(
                     "HDR+'s retuned core alone (i_c, τ, Θw, c1, c2; no extras)",
                     "plus",
-                    HdrPlusParams.paper(PLUS_CORE),
+                    paper_plus(PLUS_CORE),
+                    temp=False,
                 ),
                 Variant(
                     "+ standstill zero-rate updates (speed)",
                     "plus",
                     paper.with_(standstill=P.standstill),
+                    temp=False,
                 ),
                 Variant(
                     "+ standstill + temperature model",
                     "plus",
-                    paper.with_(standstill=P.standstill).ablated(temp_model=True),
+                    paper.with_(standstill=P.standstill),
                 ),
                 Variant(
                     "+ straight-driving bias measurements",
                     "plus",
-                    paper.ablated(straight_r=P.ablation.straight_r),
+                    plus_with(paper, straight_r=P.tuning.straight_r),
+                    temp=False,
                 ),
                 Variant(
                     "+ straight measurements + temperature model",
                     "plus",
-                    paper.ablated(straight_r=P.ablation.straight_r, temp_model=True),
+                    plus_with(paper, straight_r=P.tuning.straight_r),
                 ),
             ],
         ),
@@ -240,14 +240,16 @@ def variants() -> list[tuple[str, list[Variant]]]:
                     P.with_(standstill=StandstillParams(steps_speed=1)),
                 ),
                 Variant(
-                    "HDR+ without straight-driving measurements", "plus", P.ablated(straight_r=0.0)
+                    "HDR+ without straight-driving measurements",
+                    "plus",
+                    plus_with(P, straight_r=0.0),
                 ),
-                Variant("HDR+ without the temperature model", "plus", P.ablated(temp_model=False)),
+                Variant("HDR+ without the temperature model", "plus", P, temp=False),
                 Variant("HDR+ with the paper's core (Table III)", "plus", P.with_(hdr=PAPER)),
                 Variant(
                     "HDR+ with the fixed increment (i_c 0.0048, not 0.1 x the bias sd)",
                     "plus",
-                    P.ablated(ic_alpha=0.0),
+                    plus_with(P, ic_alpha=0.0),
                 ),
             ],
         ),
@@ -345,7 +347,7 @@ def drive_off_rows(specs: Sequence[DriveSpec]) -> tuple[dict[str, list[float]], 
         )
         add(
             "HDR+, bias of a 30 s standstill (known in simulation only)",
-            ne_psi(pb, yaw_of(Variant("", "plus", P.with_(bias_p0=0.155**2 / 300)), pb), drop),
+            ne_psi(pb, yaw_of(Variant("", "plus", plus_with(P, bias_p0=0.155**2 / 300)), pb), drop),
         )
         add("HDR, 1 s calibration", ne_psi(p1, hdr_batch(p1.steps.u).yaw, drop))
         add(
@@ -379,10 +381,10 @@ def real_diagnostics(folder: Path) -> list[tuple[str, str, dict[str, float]]]:
                 Variant("", "plus", P.with_(standstill=StandstillParams(steps_speed=1))),
             ),
             ("HDR+, speed withheld", Variant("", "plus", P, speed=False)),
-            ("HDR+, bias_p0 2.6e-3", Variant("", "plus", P.with_(bias_p0=2.6e-3))),
+            ("HDR+, bias_p0 2.6e-3", Variant("", "plus", plus_with(P, bias_p0=2.6e-3))),
         ):
             yaw = yaw_of(v, prep)
-            cols[name] = float(e_psi(yaw, prep.truth, prep.k))
+            cols[name] = float(e_psi(yaw, prep.truth, prep.k, prep.align_n))
         out.append((label, f"--bias {bias:g}", cols))
     return out
 
@@ -453,13 +455,12 @@ def tune(n: int, seed: int, routes_n: int) -> None:
         }
         extra = {
             "bias_q": lu(1e-8, 1e-4),
-            "bias_q_no_temp": lu(1e-6, 1e-4),
             "straight_r": lu(0.003, 0.3),
             "straight_gate_dps": lu(0.05, 2.0),
             "bias_p0": lu(1e-5, 1e-2),
             "temp_coeff_sd": lu(0.002, 0.03),
         }
-        P = HdrPlusParams(hdr=HdrParams(**core), **extra)  # type: ignore[arg-type]
+        P = plus_with(None, hdr=HdrParams(**core), **extra)  # type: ignore[arg-type]
         sc = score(Variant("", "plus", P), preps, hdr, len(TRAIN_DRIVES))
         found.append((sc.mean, sc.worst_type[0], {**core, **extra}))
         print(

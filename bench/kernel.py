@@ -14,11 +14,13 @@ section to bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +29,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
 
 try:  # the layered layout
-    from hdrd.core import hdr, hdrplus
-except ImportError:  # an older, flat checkout
-    from hdrd import hdr, hdrplus  # type: ignore[no-redef]
+    hdr = importlib.import_module("hdrd.core.hdr")
+    hdrplus = importlib.import_module("hdrd.core.hdrplus")
+except ImportError:  # an older, flat checkout (--vs)
+    hdr = importlib.import_module("hdrd.hdr")
+    hdrplus = importlib.import_module("hdrd.hdrplus")
 
 STEPS = 7200
 REPEATS = 7
@@ -44,7 +48,7 @@ def inputs() -> np.ndarray:
     return u
 
 
-def best(fn) -> float:  # type: ignore[no-untyped-def]
+def best(fn: Callable[[], object]) -> float:
     times = []
     for _ in range(REPEATS):
         t0 = time.process_time()

@@ -5,7 +5,7 @@
 
 Takes about 3 * (seconds + 10) s. For each frame rate the daemon runs as a process
 (``hdrd run --port PTY --bias 0.1 --udp 127.0.0.1:PORT``, the console script) on a pty written
-in real time by :class:`hdrd.commands.fakegyro.FakeGyro` (a simulated "mixed" drive, no faults), and we
+in real time by :class:`hdrd.sim.fakegyro.FakeGyro` (a simulated "mixed" drive, no faults), and we
 measure, over the ``--seconds`` after its first step message (imports and start-up excluded):
 
 - **CPU share of one core**: utime + stime of the daemon (``/proc/<pid>/stat``, clock ticks)
@@ -50,8 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import append_section, hdrd_command, machine, machine_line, ratio
 
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.io.clocks import unwrap_us
+from hdrd.sim.fakegyro import FakeGyro
 
 SO_TIMESTAMPNS = getattr(
     socket, "SO_TIMESTAMPNS", 35

@@ -50,15 +50,14 @@ import json
 from _common import fmt, machine_line, replace_section, run_recorded
 
 from hdrd.analysis.evaluate import (
-    PAPER_PARAMS,
     EvaluationError,
     PreparedDrive,
     evaluate_prepared,
     prepare_drive,
 )
 from hdrd.analysis.metrics import e_psi
-from hdrd.config import Config, settings_context
-from hdrd.core.methods import SettingsContext
+from hdrd.config import Config, method_setup
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
@@ -84,15 +83,16 @@ MIN_SCORED_MIN = 5.0
 def convert_all(folder: Path, shown: list[str]) -> None:
     """Every real recording into ``folder`` as drive logs, by tools/convert_real.py as a user
     runs it: ../shared/data's (a failure stops the benchmark), then the public sources' (oan,
-    psins) where their snapshots are (docs/real-data.md); one that cannot be converted is left
-    out with the converter's own reason."""
+    psins) where $HDRD_MIRRORS holds their clones (docs/real-data.md); one that cannot be
+    converted is left out with the converter's own reason."""
     tool = [sys.executable, "tools/convert_real.py"]
     run_recorded([*tool, "all", "--out-dir", str(folder)], shown)
     for which, out in (("oan", ["--out-dir", str(folder)]),
                        ("psins", ["--out", str(folder / "psins_fog_mems.csv")])):  # fmt: skip
         p = subprocess.run([*tool, which, *out], cwd=REPO, capture_output=True, text=True)
         if p.returncode == 0:
-            shown.append(" ".join(["python", "tools/convert_real.py", which, *out]))
+            env = "HDRD_MIRRORS=DIR "  # the folder of clones (docs/real-data.md)
+            shown.append(env + " ".join(["python", "tools/convert_real.py", which, *out]))
         else:
             why = (p.stderr.strip().splitlines() or ["no message"])[-1]
             print(f"bench/real.py: {which} left out: {why}", file=sys.stderr)
@@ -109,14 +109,14 @@ def drive_set(name: str) -> str:
 
 # -- scoring --------------------------------------------------------------------------------
 
-PLUS = settings_context(Config())
+PLUS = method_setup(Config())
 """What ``hdrd evaluate`` takes from the default configuration for the methods' settings."""
 METHOD_NAMES = ("none", "hdr", "hdr+")
 """What ``hdrd evaluate --method hdr+`` evaluates: none, paper HDR (Table III), HDR+."""
 
 
 GRADE_OF = {"rtklib_drive0708": "tactical", "smartloc_berlin": "automotive"}
-"""The grade preset a daemon on each recording's gyro would be configured with (``plus.grade``),
+"""The grade preset a daemon on each recording's gyro would be configured with (``gyro.grade``),
 from its hardware alone: rtklib's ADIS16465 is the tactical preset's model, smartLoc's is the
 car's own yaw-rate sensor; DrivePlotR's and comma2k19's are phones (:func:`grade_of`)."""
 
@@ -125,13 +125,13 @@ def grade_of(name: str) -> str:
     return GRADE_OF.get(name, "phone")
 
 
-def scores(prep: PreparedDrive, plus: SettingsContext = PLUS) -> dict[str, float]:
+def scores(prep: PreparedDrive, plus: MethodSetup = PLUS) -> dict[str, float]:
     """Eψ (deg) of each method on one prepared drive, as ``hdrd evaluate`` computes it, and
-    ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``plus.grade`` set to the
+    ``hdr+ (grade)``: HDR+ as ``hdrd evaluate --config`` with ``gyro.grade`` set to the
     recording's gyro (:func:`grade_of`)."""
-    e = dict(evaluate_prepared(prep, PAPER_PARAMS, METHOD_NAMES, plus).e_psi)
+    e = dict(evaluate_prepared(prep, methods=METHOD_NAMES, setup=plus).e_psi)
     g = evaluate_prepared(
-        prep, PAPER_PARAMS, ("hdr", "hdr+"), replace(plus, grade=grade_of(prep.name))
+        prep, methods=("hdr", "hdr+"), setup=replace(plus, grade=grade_of(prep.name))
     )
     e["hdr (grade)"] = g.e_psi["hdr"]
     e["hdr+ (grade)"] = g.e_psi["hdr+"]
@@ -148,7 +148,7 @@ def best_constant_bias(prep: PreparedDrive) -> tuple[float, float]:
     base = np.cumsum(s.u * s.T)
 
     def f(d: float) -> float:
-        return float(e_psi(base - d * t, prep.truth, prep.k))
+        return float(e_psi(base - d * t, prep.truth, prep.k, prep.align_n))
 
     grid = np.arange(-1.0, 1.0 + 1e-9, 0.002)
     vals = [f(float(d)) for d in grid]
@@ -446,7 +446,7 @@ and the same evaluation in-process (the same calls: `prepare_drive`, `evaluate_p
 with the default configuration), checked to give the command's Eψ for every drive and method,
 to add the best constant bias in hindsight and the given-bias table. Paper HDR with Table III;
 HDR+ with its settings derived per drive by `hdrd.core.methods.plus_settings`; *hdr+ (grade)*: HDR+
-as a daemon configured for the recording's gyro would run it (`plus.grade`: tactical for
+as a daemon configured for the recording's gyro would run it (`gyro.grade`: tactical for
 rtklib's ADIS16465, automotive for smartLoc's car sensor, phone for DrivePlotR and comma2k19;
 chosen from the hardware, not from any result).
 

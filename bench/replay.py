@@ -46,12 +46,12 @@ t.append(time.perf_counter())
 from dataclasses import replace
 from hdrd.cli import build_parser
 from hdrd.io.capture import decode_capture
-from hdrd.commands.options import config_from_args
+from hdrd.config import load_config
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.io.publish import format_json
 t.append(time.perf_counter())
 args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
-cfg, _ = config_from_args(args)
+cfg, _ = load_config(args.config)  # replay's flags here override no key
 data = open(sys.argv[1], "rb").read()
 t.append(time.perf_counter())
 frames, stats = decode_capture(data)

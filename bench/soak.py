@@ -6,7 +6,7 @@
                          [--pull-every-min 30] [--pull-for 2] [--json FILE]
 
 The daemon runs as a process (`python -m hdrd run`) on a pty written by
-:class:`hdrd.commands.fakegyro.FakeGyro` with a simulated drive (``hdrd.sim``), accelerated
+:class:`hdrd.sim.fakegyro.FakeGyro` with a simulated drive (``hdrd.sim``), accelerated
 ``--speedup`` times, with garbage, CRC errors and dropped frames at the given per-frame
 probabilities throughout, and a cable pull (pty and its symlink gone, ``--pull-for`` wall
 seconds; the device clock runs on, so ``pull-for * speedup`` device seconds are never sent)
@@ -51,8 +51,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.io.clocks import unwrap_us
+from hdrd.sim.fakegyro import FakeGyro
 
 WAIT = 60.0  # upper bound for anything to happen; only a hung daemon reaches it
 

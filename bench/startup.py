@@ -70,8 +70,8 @@ def imported(cmd_args: list[str]) -> tuple[list[str], list[str], float, float]:
 
 def time_to_ready(repeats: int) -> list[float]:
     """Seconds from spawning ``hdrd run --bias`` to its READY=1 notification."""
-    from hdrd.commands.fakegyro import FakeGyro
     from hdrd.sim import simulate_drive
+    from hdrd.sim.fakegyro import FakeGyro
 
     profile = simulate_drive("standstill", 2.0, 1, hz=100.0, lead_in_s=0.0)
     out: list[float] = []

@@ -14,35 +14,30 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 
 from hdrd import __version__
+from hdrd.cliargs import (
+    DRIVES,
+    HEADING_UNITS,
+    OMEGA_UNITS,
+    SPEED_UNITS,
+    TIME_UNITS,
+    HelpFormatter,
+    address,
+    bias_group,
+    config,
+    delimiter,
+    fleet,
+    input_limits,
+    log_format,
+    log_level,
+    method,
+    port,
+    strict,
+)
 from hdrd.daemon.signals import command_of, hold_hangup
 from hdrd.io.protocol import PROTOCOLS
-
-
-class HelpFormatter(argparse.HelpFormatter):
-    """Every option's help shows its default: an option with a value and a default (not None)
-    whose help does not give it already gets `` (default: X)``, as
-    ``argparse.ArgumentDefaultsHelpFormatter`` does, but not for a switch (off unless given)
-    nor for a default of None (the option's help then says where the default comes from,
-    e.g. a configuration key). An empty list shows as ``none``."""
-
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        text = action.help or ""
-        d = action.default
-        if (
-            not action.option_strings
-            or action.nargs == 0
-            or d is None
-            or d is argparse.SUPPRESS
-            or "%(default)" in text
-            or "default" in text
-        ):
-            return action.help
-        shown = "none" if isinstance(d, (list, tuple)) and not d else "%(default)s"
-        return f"{text} (default: {shown})"
-
 
 Adder = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, str, Adder]] = {}
@@ -56,201 +51,12 @@ def command(name: str, target: str, help: str) -> Callable[[Adder], Adder]:
     return register
 
 
-def _bias_group(p: argparse.ArgumentParser, calibrate_seconds: bool = True) -> None:
-    g = p.add_mutually_exclusive_group()
-    g.add_argument(
-        "--bias",
-        type=float,
-        metavar="DPS",
-        help="static bias eps0 to remove, deg/s (default: the bias file's, else measured at "
-        "start over calibration.startup_s, 1 s)",
-    )
-    g.add_argument(
-        "--bias-file",
-        metavar="PATH",
-        help="bias file written by `hdrd calibrate` (default calibration.bias_file, else "
-        "$STATE_DIRECTORY or /var/lib/hdrd/bias.yaml when it exists)",
-    )
-    if calibrate_seconds:
-        g.add_argument(
-            "--calibrate-seconds",
-            type=float,
-            metavar="S",
-            help="measure the bias over the first S seconds (the vehicle must stand still; "
-            "default calibration.startup_s, 1 s, when there is no bias file)",
-        )
-
-
-class _LazyChoices:
-    """Choices read from their home when argparse first needs them (to check a value or print
-    a command's help): importing the method registry or the simulator up front would load
-    numpy and slow ``hdrd --help``."""
-
-    def __init__(self, load: Callable[[], Sequence[str]]) -> None:
-        self._load = load
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._load())
-
-    def __contains__(self, value: object) -> bool:
-        return value in self._load()
-
-
-def _method_names() -> Sequence[str]:
-    from hdrd.core.methods import names
-
-    return names()
-
-
-def _drive_names() -> Sequence[str]:
-    from hdrd.sim.vehicle import DRIVE_TYPES
-
-    return tuple(DRIVE_TYPES)
-
-
-DRIVES = _LazyChoices(_drive_names)
-"""The simulated drives (:data:`hdrd.sim.vehicle.DRIVE_TYPES`)."""
-
-
-def _method(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--method",
-        choices=_LazyChoices(_method_names),
-        metavar="METHOD",  # a metavar keeps argparse from listing the choices at parser set-up
-        help="drift reduction, one of %(choices)s (none: static bias removal only; hdr: the "
-        "paper's; see docs/evaluation.md); default hdr.method, hdr",
-    )
-
-
-def _config(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--config",
-        metavar="PATH",
-        help="YAML configuration (default /etc/hdrd/hdrd.yaml, else the built-in defaults)",
-    )
-
-
-def _port(p: argparse.ArgumentParser, required: bool = False) -> None:
-    p.add_argument(
-        "--port",
-        metavar="URL",
-        required=required,
-        help="serial device or pyserial URL (/dev/ttyUSB0, /dev/serial/by-id/..., loop://, "
-        "socket://host:port); default device.port, /dev/hdrd-gyro",
-    )
-    p.add_argument(
-        "--baud", type=int, metavar="N", help="serial speed, baud (default device.baud, 115200)"
-    )
-    p.add_argument(
-        "--protocol",
-        choices=PROTOCOLS,
-        help="frame format (default device.protocol, hdr-bin)",
-    )
-
-
-def _log_level(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--log-level",
-        choices=("debug", "info", "warning", "error"),
-        help="log level on stderr (default log.level, info)",
-    )
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
-
-
-def _fleet(p: argparse.ArgumentParser, progress: bool = True) -> None:
-    """Where the work runs (docs/fleet.md): this process by default; a Dask cluster."""
-    g = p.add_mutually_exclusive_group()
-    g.add_argument(
-        "--workers",
-        type=_positive_int,
-        metavar="N",
-        help="run on a local Dask cluster of N worker processes (pip install 'hdrd[fleet]'); "
-        "default: in this process",
-    )
-    g.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:8786); "
-        "default: in this process",
-    )
-    if progress:
-        p.add_argument("--no-progress", action="store_true", help="no progress on stderr")
-
-
-def _positive_float(text: str, most: float = float("inf")) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
-    if not (0 < v <= most and v != float("inf")):
-        limit = f" and at most {most:g}" if most != float("inf") else ""
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0{limit}, got {text}")
-    return v
-
-
-def _max_rate(text: str) -> float:
-    return _positive_float(text, 1e5)  # beyond, a block's sum of squares loses its meaning
-
-
-def _input_limits(p: argparse.ArgumentParser) -> None:
-    """What a drive log may hold (docs/drive-format.md, "Limits")."""
-    p.add_argument(
-        "--max-rows",
-        type=_positive_int,
-        metavar="N",
-        help="most rows a drive may have (default 10000000; a Parquet file's counted before "
-        "it is read)",
-    )
-    p.add_argument(
-        "--max-rate",
-        type=_max_rate,
-        metavar="DPS",
-        help="largest |omega| a drive may hold, deg/s (default 1000, a gyro's range); a "
-        "larger rate in a row that counts is refused",
-    )
-    p.add_argument(
-        "--max-gap",
-        type=_positive_float,
-        metavar="S",
-        help="longest time gap a drive may have, s (default 3600); a longer one is refused",
-    )
-
-
-def _strict(p: argparse.ArgumentParser) -> None:
-    """What a drive that cannot be used does to a run of many (docs/evaluation.md)."""
-    p.add_argument(
-        "--strict",
-        action="store_true",
-        help="stop at the first drive that cannot be used (default: report it on stderr, "
-        "skip it and go on with the others)",
-    )
-
-
-def _log_format(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument(
-        "--format",
-        choices=("csv", "parquet", "dataset"),
-        help=f"{what}: csv, parquet (one file) or dataset (OUT is a dataset partitioned by "
-        "drive: OUT/drive=NAME/part-0.parquet); default: parquet if OUT ends in .parquet, "
-        "else csv (docs/drive-format.md)",
-    )
-
-
 @command("run", "hdrd.commands.run:main", "run the daemon: gyro -> HDR -> publishers")
 def _run(p: argparse.ArgumentParser) -> None:
     """Long because it is a flat list of the daemon's options, read best in one place."""
-    _config(p)
-    _port(p)
-    _bias_group(p, calibrate_seconds=False)
+    config(p)
+    port(p)
+    bias_group(p, calibrate_seconds=False)
     p.add_argument(
         "--udp",
         action="append",
@@ -297,7 +103,7 @@ def _run(p: argparse.ArgumentParser) -> None:
         metavar="DEG",
         help="compass heading at start, deg (default output.heading0_deg, 0)",
     )
-    _method(p)
+    method(p)
     p.add_argument(
         "--gpsd",
         metavar="HOST[:PORT]",
@@ -311,13 +117,13 @@ def _run(p: argparse.ArgumentParser) -> None:
         choices=("auto", "json", "console"),
         help="log format on stderr (default log.format, auto: JSON when stderr is not a terminal)",
     )
-    _log_level(p)
+    log_level(p)
 
 
 @command("calibrate", "hdrd.commands.calibrate:main", "measure the static bias at standstill")
 def _calibrate(p: argparse.ArgumentParser) -> None:
-    _config(p)
-    _port(p)
+    config(p)
+    port(p)
     p.add_argument(
         "--seconds",
         type=float,
@@ -333,17 +139,12 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--simulate", action="store_true", help="calibrate on the built-in simulated gyro"
     )
-    _log_level(p)
+    log_level(p)
 
 
 @command("tail", "hdrd.commands.tail:main", "print what the daemon publishes (like gpspipe -w)")
 def _tail(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--listen",
-        metavar="HOST:PORT",
-        default="127.0.0.1:10110",
-        help="UDP address to listen on (default 127.0.0.1:10110)",
-    )
+    address(p, "--listen", "127.0.0.1:10110", "UDP address to listen on")
     p.add_argument(
         "--raw",
         action="store_true",
@@ -352,6 +153,13 @@ def _tail(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--count", type=int, metavar="N", help="exit after N messages (default: until stopped)"
     )
+
+
+@command("web", "hdrd.commands.web:main", "a live page of heading, mode and health (read only)")
+def _web(p: argparse.ArgumentParser) -> None:
+    address(p, "--listen", "127.0.0.1:8080", "the page's address (not loopback: a warning)")
+    address(p, "--udp", "127.0.0.1:10110", "UDP address to receive the daemon's JSON on")
+    p.add_argument("--max-clients", type=int, default=16, metavar="N", help="viewers at once")
 
 
 @command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")
@@ -461,10 +269,15 @@ def _replay(p: argparse.ArgumentParser) -> None:
         "capture", metavar="FILE", help="capture file (from `hdrd record` or `hdrd fakegyro --out`)"
     )
     p.add_argument("--protocol", choices=PROTOCOLS, help="frame format (default hdr-bin)")
-    _bias_group(p)
-    _config(p)
-    _method(p)
-    p.add_argument("--heading0", type=float, metavar="DEG", help="compass heading at start, deg")
+    bias_group(p, state_fallback=False)  # a replay gives the same lines on any machine
+    config(p)
+    method(p)
+    p.add_argument(
+        "--heading0",
+        type=float,
+        metavar="DEG",
+        help="compass heading at start, deg (default output.heading0_deg, 0)",
+    )
 
 
 @command(
@@ -483,8 +296,8 @@ def _convert(p: argparse.ArgumentParser) -> None:
         required=True,
         help="drive log to write (raw rates, deg/s): .csv, .parquet, or a dataset directory",
     )
-    _log_format(p, "the drive log's format")
-    _config(p)
+    log_format(p, "the drive log's format")
+    config(p)
 
 
 @command(
@@ -532,7 +345,7 @@ def _simulate(p: argparse.ArgumentParser) -> None:
         help="drive log to write, .csv or .parquet (- or none: CSV to stdout; with --benchmark "
         "or --format dataset: a directory)",
     )
-    _log_format(p, "the drive log's format (with --benchmark: each drive's)")
+    log_format(p, "the drive log's format (with --benchmark: each drive's)")
     p.add_argument(
         "--benchmark",
         choices=("train", "test"),
@@ -574,28 +387,13 @@ def _import(p: argparse.ArgumentParser) -> None:
     p.add_argument("--temp", metavar="COL", help="the column of the temperature, deg C")
     p.add_argument(
         "--delimiter",
-        type=_delimiter,
+        type=delimiter,
         default=",",
         metavar="CHAR",
         help="the character between cells: , (default), ; or tab",
     )
-    _log_format(p, "the drive log's format")
-    _input_limits(p)
-
-
-TIME_UNITS = ("s", "ms", "us", "ns")
-OMEGA_UNITS = ("deg/s", "rad/s")
-HEADING_UNITS = ("deg", "rad")
-SPEED_UNITS = ("m/s", "km/h", "mph")
-
-
-def _delimiter(text: str) -> str:
-    d = {"tab": "\t", "\\t": "\t", "comma": ",", "semicolon": ";"}.get(text, text)
-    if len(d) != 1 or d in '\r\n"' or d.isalnum():
-        raise argparse.ArgumentTypeError(
-            f"one character (or tab), not a letter, digit or quote, got {text!r}"
-        )
-    return d
+    log_format(p, "the drive log's format")
+    input_limits(p)
 
 
 @command(
@@ -619,26 +417,33 @@ def _evaluate(p: argparse.ArgumentParser) -> None:
         help="bias from the first S seconds, as the daemon's start-up window (default: each "
         "log's lead-in, else its first standstill found from the speed or the gyro)",
     )
-    g.add_argument("--bias", type=float, metavar="DPS", help="static bias, deg/s")
-    p.add_argument("--json", metavar="FILE", help="write the table as JSON")
+    g.add_argument(
+        "--bias", type=float, metavar="DPS", help="static bias, deg/s (default: each drive's own)"
+    )
+    p.add_argument("--json", metavar="FILE", help="write the table as JSON (default: none)")
     p.add_argument(
         "--plot",
         metavar="FILE.png",
-        help="heading vs time and error bars; beyond 12 drives, the distribution of NEpsi per "
-        "method (needs matplotlib)",
+        help="heading vs time and error bars; beyond 12 drives, NEpsi's distribution (default: none)",
     )
     p.add_argument(
         "--outages",
         metavar="SPEC",
         help="also drive each log through the daemon's GPS aiding with GNSS outages of "
         "DURATION every PERIOD of driving (e.g. 120s/10min) and report each method's "
-        "heading error at their ends (docs/evaluation.md)",
+        "heading error at their ends (docs/evaluation.md; default: none)",
     )
-    _config(p)
-    _method(p)
-    _input_limits(p)
-    _strict(p)
-    _fleet(p)
+    p.add_argument(
+        "--trace",
+        metavar="DIR",
+        help="write DIR/<drive>.csv: per step t, heading_truth, speed and the compass heading "
+        "of none, hdr and hdr+ (docs/evaluation.md; default: none)",
+    )
+    config(p)
+    method(p)
+    input_limits(p)
+    strict(p)
+    fleet(p)
 
 
 @command(
@@ -675,9 +480,9 @@ def _tune(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", metavar="YAML", help="write the best parameters as a config snippet")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON")
-    _input_limits(p)
-    _strict(p)
-    _fleet(p)
+    input_limits(p)
+    strict(p)
+    fleet(p)
 
 
 @command(
@@ -707,9 +512,9 @@ def _gap(p: argparse.ArgumentParser) -> None:
         help='write the report (several drives: {"drives": [report, ...], "skipped": [...]})',
     )
     p.add_argument(
-        "--plus-out",
+        "--gyro-out",
         metavar="PLUS.yaml",
-        help="write the fitted model as HDR+'s error model, a `plus:` configuration section "
+        help="write the fitted model as HDR+'s error model, a `gyro:` configuration section "
         "to paste into hdrd.yaml (one drive)",
     )
     p.add_argument(
@@ -729,9 +534,9 @@ def _gap(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="random seed of the simulation (default 0)"
     )
-    _input_limits(p)
-    _strict(p)
-    _fleet(p)
+    input_limits(p)
+    strict(p)
+    fleet(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -771,6 +576,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(impl(args) or 0)
     except KeyboardInterrupt:
+        print(f"hdrd {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader went away (`hdrd replay ... | head`): not an error worth a traceback.

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.core import methods
-from hdrd.core.calibrate import T_BIAS_S
+from hdrd.core.calibrate import T_BIAS_S, BiasRecord
 from hdrd.core.grades import GRADES
 from hdrd.core.hdr import HdrParams
 from hdrd.core.sensor import SensorModel
@@ -42,7 +42,7 @@ __all__ = [
     "apply_overrides",
     "load_config",
     "parse_config",
-    "settings_context",
+    "method_setup",
 ]
 
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
@@ -104,10 +104,11 @@ class HdrConfig:
 
     method: str = "hdr"
     """none: static bias only; hdr: the paper's HDR; hdr+: hdrd's improved reducer."""
-    i_c_from: str = "gyro"
-    """gyro: with the gyro's error model known (plus.grade, plus.*, a recorded bias file),
-    HDR's increment is at most what its bias drifts in I_C_WINDOW_S (a good gyro's I moves
-    less); config: hdr.i_c as given."""
+    i_c_auto: bool = True
+    """``hdr.i_c: auto`` (the default): Table III's increment, or with the gyro's error model
+    known (``gyro.*``, a recorded bias file) what its bias drifts in I_C_WINDOW_S if that is
+    less (a good gyro's I moves less); ``hdr.i_c: NUMBER``: that increment whatever the gyro
+    (then ``params.i_c``)."""
     params: HdrParams = HdrParams()
 
 
@@ -213,9 +214,10 @@ class StandstillConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class PlusConfig:
-    """The gyro's error model HDR+ is fitted to (docs/hdrplus.md), when it is known: a grade
-    preset, and/or measured parameters (0 = not given). Noise parameters that ``hdrd
+class GyroConfig:
+    """The gyro's error model, when it is known (docs/gyro-model.md): a grade preset, and/or
+    measured parameters (0 = not given). HDR+ is fitted to it (docs/hdrplus.md) and paper
+    HDR's ``hdr.i_c: auto`` follows its drift (docs/hdr.md). Noise parameters that ``hdrd
     calibrate`` recorded in the bias file take precedence when they say how the bias moves."""
 
     grade: str = "none"
@@ -245,7 +247,7 @@ class Config:
     simulate: SimulateConfig = SimulateConfig()
     gpsd: GpsdConfig = GpsdConfig()
     standstill: StandstillConfig = StandstillConfig()
-    plus: PlusConfig = PlusConfig()
+    gyro: GyroConfig = GyroConfig()
 
 
 # -- rules ------------------------------------------------------------------------------
@@ -303,11 +305,17 @@ def _drive() -> tuple[Check, Callable[[], str]]:
     return (lambda v: v in drives()), lambda: "one of " + ", ".join(drives())
 
 
-_HOSTPORTS = "a list of HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
+MAX_DESTINATIONS = 16
+"""Most destinations of ``output.udp`` (and ``output.nmea_udp``): each is sent every step, and
+its name resolved on every reload."""
+_HOSTPORTS = f"a list of at most {MAX_DESTINATIONS} HOST:PORT (port 1..65535; IPv6 as [::1]:PORT)"
 
 
 def _hostports(v: tuple[str, ...]) -> bool:
-    """True if every item is a HOST:PORT; ValueError naming the first that is not, and why."""
+    """True if every item is a HOST:PORT, and there are at most :data:`MAX_DESTINATIONS`;
+    ValueError naming the first that is not, and why."""
+    if len(v) > MAX_DESTINATIONS:
+        raise ValueError(f"{len(v)} destinations are more than {MAX_DESTINATIONS}")
     for item in v:
         try:
             parse_hostport(item)
@@ -342,7 +350,6 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "sensor.ref_divider": _num(0.01, 100),
     "sensor.supply_nominal_v": _num(0.01, 100),
     "hdr.method": _method(),
-    "hdr.i_c_from": _choice("gyro", "config"),
     "hdr.i_c": _num(0, 10),
     "hdr.tau": _num(0, 3600),
     "hdr.theta_w": _num(0, 100_000, lo_open=True),
@@ -374,13 +381,13 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "simulate.rate_hz": _num(1, 10_000),
     "simulate.speedup": _num(0.001, 1_000_000),
     "simulate.grade": _choice(*GRADES),
-    "plus.grade": _choice("none", *GRADES),
-    "plus.white_dps_per_rthz": _num(0, 100),
-    "plus.bias_instability_dps": _num(0, 100),
-    "plus.bias_tau_s": _num(1, 1_000_000),
-    "plus.rrw_dps_per_sqrt_s": _num(0, 100),
-    "plus.temp_coeff_dps_per_c": _num(0, 100),
-    "plus.quant_step_dps": _num(0, 100),
+    "gyro.grade": _choice("none", *GRADES),
+    "gyro.white_dps_per_rthz": _num(0, 100),
+    "gyro.bias_instability_dps": _num(0, 100),
+    "gyro.bias_tau_s": _num(1, 1_000_000),
+    "gyro.rrw_dps_per_sqrt_s": _num(0, 100),
+    "gyro.temp_coeff_dps_per_c": _num(0, 100),
+    "gyro.quant_step_dps": _num(0, 100),
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
@@ -478,26 +485,66 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(prefix, data, "must be a mapping of keys")
     defaults = cls()
-    names = [f.name for f in fields(cls)]
     # hdr's parameters live flat in the YAML section beside `method`.
     flat = {f.name: f for f in fields(HdrParams)} if cls is HdrConfig else {}
-    allowed = [n for n in names if n != "params"] + list(flat)
     values: dict[str, Any] = {}
     params: dict[str, Any] = {}
     for k, v in data.items():
-        key = f"{prefix}.{k}" if prefix else str(k)
-        if k in flat:
-            v = _coerce(key, v, getattr(defaults.params, k))
-            _check(key, v)
-            params[k] = v
-        elif k in names and k != "params":
-            values[k] = _value(key, v, getattr(defaults, k))
-        else:
-            what = "unknown key" if prefix else "unknown section"
-            raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(allowed) + ")")
+        _one_key(cls, defaults, prefix, k, v, values, params)
     if flat:
         values["params"] = replace(defaults.params, **params)
     return replace(defaults, **values)
+
+
+def _one_key(
+    cls: type,
+    defaults: Any,
+    prefix: str,
+    k: Any,
+    v: Any,
+    values: dict[str, Any],
+    params: dict[str, Any],
+) -> None:
+    """One key of a section, checked, into ``values`` (or hdr's ``params``)."""
+    names = [f.name for f in fields(cls) if f.name not in _DERIVED and f.name != "params"]
+    flat = [f.name for f in fields(HdrParams)] if cls is HdrConfig else []
+    key = f"{prefix}.{k}" if prefix else str(k)
+    if key in RENAMED:
+        raise ConfigError(key, v, RENAMED[key])
+    if cls is HdrConfig and k == "i_c" and _increment_is_auto(key, v, values):
+        return
+    if k in flat:
+        v = _coerce(key, v, getattr(defaults.params, k))
+        _check(key, v)
+        params[k] = v
+    elif k in names:
+        values[k] = _value(key, v, getattr(defaults, k))
+    else:
+        what = "unknown key" if prefix else "unknown section"
+        raise ConfigError(key, v, f"{what} (allowed: " + ", ".join(names + flat) + ")")
+
+
+def _increment_is_auto(key: str, value: Any, values: dict[str, Any]) -> bool:
+    """``hdr.i_c``: True for ``auto`` (recorded in ``values``); False for a number, left to
+    be read as one; a ConfigError for other text."""
+    values["i_c_auto"] = value == "auto"
+    if value == "auto":
+        return True
+    if isinstance(value, str) and not _YAML11_TEXT_NUMBER.fullmatch(value):
+        raise ConfigError(key, value, f"must be auto or {RULES[key][1]}")
+    return False
+
+
+_DERIVED = ("i_c_auto",)
+"""Fields no key names directly (``hdr.i_c: auto`` sets ``i_c_auto``)."""
+
+RENAMED: dict[str, str] = {
+    "plus": "is now the `gyro:` section (the same keys: gyro.grade, gyro.white_dps_per_rthz, "
+    "...): rename it",
+    "hdr.i_c_from": "was removed: write hdr.i_c: auto (the increment from the gyro's error "
+    "model, the default) or hdr.i_c: NUMBER (that increment whatever the gyro)",
+}
+"""Keys of older configurations, refused with what to write instead."""
 
 
 def _value(key: str, value: Any, default: Any) -> Any:
@@ -601,6 +648,8 @@ def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
         data = {key: list(value) if isinstance(value, tuple) else value}
         if section == "hdr":
             merged = {"method": sec.method, **sec.params.as_dict(), **data}
+            if sec.i_c_auto and "i_c" not in data:
+                merged["i_c"] = "auto"
             new = _build(HdrConfig, merged, section)
         else:
             merged = {f.name: getattr(sec, f.name) for f in fields(sec)}
@@ -618,6 +667,8 @@ def config_field_keys() -> list[str]:
     for sec in fields(Config):
         default = getattr(Config(), sec.name)
         for f in fields(default):
+            if f.name in _DERIVED:
+                continue
             if f.name == "params":
                 keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
             else:
@@ -625,19 +676,23 @@ def config_field_keys() -> list[str]:
     return keys
 
 
-def settings_context(cfg: Config) -> methods.SettingsContext:
-    """What the configuration says about the drift reducers' settings (``hdr.*``,
-    ``plus.grade`` and the ``plus.*`` noise parameters, ``standstill.*``), for
-    :func:`hdrd.core.methods.plus_settings` and its kind to derive them from, with what the
-    gyro and the drive show (the daemon, replay and evaluate fill that in)."""
+def method_setup(cfg: Config, bias: BiasRecord | None = None) -> methods.MethodSetup:
+    """The drift reducer's setup a configuration asks for (:class:`hdrd.core.methods.
+    MethodSetup`): ``hdr.method`` and ``hdr.*``, the gyro's error model (``gyro.grade`` and
+    the ``gyro.*`` noise parameters), ``standstill.*``, and the static bias of ``bias`` (a
+    bias file's record, a given one's: :meth:`hdrd.core.calibrate.BiasRecord.given`; None:
+    measured at start-up). The daemon, replay and evaluate add what the gyro and the drive
+    show (:meth:`hdrd.core.methods.MethodSetup.for_drive`)."""
     from dataclasses import asdict
 
-    given = tuple((k, float(v)) for k, v in asdict(cfg.plus).items() if k != "grade")
-    return methods.SettingsContext(
+    given = tuple((k, float(v)) for k, v in asdict(cfg.gyro).items() if k != "grade")
+    return methods.MethodSetup(
         hdr=cfg.hdr.params,
-        hdr_i_c_from_gyro=cfg.hdr.i_c_from == "gyro",
-        grade=cfg.plus.grade,
+        bias=bias,
+        i_c_auto=cfg.hdr.i_c_auto,
+        grade=cfg.gyro.grade,
         given_noise=given,
         standstill=cfg.standstill.enabled,
         standstill_from_gyro=cfg.standstill.from_gyro,
+        method=cfg.hdr.method,
     )

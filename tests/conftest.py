@@ -115,12 +115,12 @@ def no_leaked_fds_or_threads() -> Iterator[None]:
 
 @pytest.fixture
 def fake_gyro() -> Iterator[Callable[..., Any]]:
-    """Factory of opened :class:`hdrd.commands.fakegyro.FakeGyro` ptys, all closed after the test.
+    """Factory of opened :class:`hdrd.sim.fakegyro.FakeGyro` ptys, all closed after the test.
 
     ``g = fake_gyro(profile, speedup=0, ...)``; open the reader on ``g.path`` (or ``g.link``)
     before ``g.start()`` when the test needs every frame.
     """
-    from hdrd.commands.fakegyro import FakeGyro
+    from hdrd.sim.fakegyro import FakeGyro
 
     made: list[FakeGyro] = []
 

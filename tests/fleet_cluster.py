@@ -10,8 +10,19 @@ never holds Dask's threads and sockets): ``python tests/fleet_cluster.py COMMAND
 - ``always DIR OUT.json``: a drive whose task kills its worker every time: after Dask's
   allowed failures (set to 1 here), a one-line FleetError naming the drive, not a missing row.
 - ``order OUT.json``: items that finish in the reverse of their order come back in order.
+- ``hybrid OUT.json``: a cluster started in the background (as ``--workers`` starts it): the
+  items this process takes while it starts and those the workers take, in order.
 - ``foreign ADDRESS``: a task the cluster cannot load (its module exists only here) is a
   one-line FleetError; prints it.
+- ``certs DIR``: a certificate authority for a cluster (``ca.pem``), a certificate and key
+  signed by it (``node.pem``, ``node.key``) and a second, unrelated authority
+  (``stranger.pem``).
+- ``serve-tls N DIR``: as ``serve``, a cluster that speaks only TLS with DIR's certificates.
+- ``fake MODE MARKER``: not a scheduler, something listening where one might be: ``silent``
+  accepts and says nothing, ``garbage`` answers with bytes that are not Dask's protocol,
+  ``pickle`` answers the handshake with a pickled object whose unpickling creates the file
+  MARKER (what a hostile scheduler can do to a client). Prints its address, serves until its
+  stdin closes.
 """
 
 from __future__ import annotations
@@ -121,6 +132,132 @@ def foreign(address: str) -> None:
                 print(e)
 
 
+def certs(out: str) -> None:
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def name(cn: str) -> x509.Name:
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+
+    def cert(
+        cn: str, key: ec.EllipticCurvePrivateKey, issuer: str, signer: ec.EllipticCurvePrivateKey
+    ) -> bytes:
+        b = (
+            x509.CertificateBuilder()
+            .subject_name(name(cn))
+            .issuer_name(name(issuer))
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=1))
+            .add_extension(x509.BasicConstraints(ca=cn == issuer, path_length=None), True)
+        )
+        return b.sign(signer, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
+
+    d = Path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    ca_key, node_key, other_key = (ec.generate_private_key(ec.SECP256R1()) for _ in range(3))
+    (d / "ca.pem").write_bytes(cert("hdrd test CA", ca_key, "hdrd test CA", ca_key))
+    (d / "node.pem").write_bytes(cert("hdrd test node", node_key, "hdrd test CA", ca_key))
+    (d / "stranger.pem").write_bytes(cert("stranger", other_key, "stranger", other_key))
+    pem = node_key.private_bytes(
+        serialization.Encoding.PEM,
+        serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption(),
+    )
+    (d / "node.key").write_bytes(pem)
+
+
+def serve_tls(n: int, certdir: str) -> None:
+    import distributed
+
+    d = Path(certdir)
+    roles = ("client", "scheduler", "worker")
+    files = {f"tls_{r}_cert": str(d / "node.pem") for r in roles}
+    files |= {f"tls_{r}_key": str(d / "node.key") for r in roles}
+    sec = distributed.Security(tls_ca_file=str(d / "ca.pem"), require_encryption=True, **files)
+    with distributed.LocalCluster(
+        n_workers=n,
+        threads_per_worker=1,
+        processes=True,
+        protocol="tls://",
+        security=sec,
+        dashboard_address=None,
+    ) as cluster:
+        print(cluster.scheduler_address, flush=True)
+        sys.stdin.read()
+
+
+class Hostile:
+    """Unpickled, creates the file ``marker``: any code could run there instead."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return (Path.touch, (Path(self.marker),))
+
+
+def fake(mode: str, marker: str) -> None:
+    import socket
+    import threading
+
+    if mode == "pickle":
+        import asyncio
+
+        import distributed.comm.core
+        from distributed.protocol import to_serialize
+
+        async def answer(comm: Any) -> None:
+            await asyncio.sleep(3600)
+
+        plain = distributed.comm.core.Comm.handshake_info
+        distributed.comm.core.Comm.handshake_info = lambda self: {  # type: ignore[method-assign]
+            **plain(self),
+            "pickle-protocol": to_serialize(Hostile(marker)),
+        }
+
+        async def main() -> None:
+            listener = await distributed.comm.listen("tcp://127.0.0.1:0", answer)
+            print(listener.contact_address, flush=True)
+            await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+            listener.stop()
+
+        asyncio.run(main())
+        return
+    srv = socket.create_server(("127.0.0.1", 0))
+    held: list[socket.socket] = []
+
+    def accept() -> None:
+        while True:
+            conn, _ = srv.accept()
+            held.append(conn)  # held open
+            if mode == "garbage":
+                conn.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n" + os.urandom(4096))
+
+    threading.Thread(target=accept, daemon=True).start()
+    print(f"tcp://127.0.0.1:{srv.getsockname()[1]}", flush=True)
+    sys.stdin.read()
+
+
+def pid_of(i: int) -> tuple[int, int]:
+    time.sleep(0.02)
+    return i, os.getpid()
+
+
+def hybrid(out: str) -> None:
+    with DaskRunner.start(2) as runner:
+        got = list(runner.map(pid_of, list(range(120))))
+        workers = sorted(runner.client.run(os.getpid).values())
+    Path(out).write_text(json.dumps({"got": got, "client": os.getpid(), "workers": workers}))
+
+
 def order(out: str) -> None:
     n = 12
     with DaskRunner.open(workers=2) as runner:
@@ -141,5 +278,13 @@ if __name__ == "__main__":
         always(sys.argv[2], sys.argv[3])
     elif cmd == "foreign":
         foreign(sys.argv[2])
+    elif cmd == "certs":
+        certs(sys.argv[2])
+    elif cmd == "serve-tls":
+        serve_tls(int(sys.argv[2]), sys.argv[3])
+    elif cmd == "hybrid":
+        hybrid(sys.argv[2])
+    elif cmd == "fake":
+        fake(sys.argv[2], sys.argv[3])
     else:
         raise SystemExit(f"unknown command {cmd!r}")

@@ -14,9 +14,19 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.aiding import (
+    AIDED,
+    DEAD_RECKONING,
+    AidingConfig,
+    GpsAiding,
+    HeadingFix,
+    StepView,
+    wrap180,
+)
+from hdrd.daemon.pipeline import Pipeline, PipelineConfig, add_aid
 from hdrd.io.gpsd import Fix
 
 KNOT = 0.514444
@@ -47,6 +57,31 @@ def step_msg(
     return m
 
 
+def on_message(
+    a: GpsAiding, msg: dict[str, Any], now: float, owner: bool = False
+) -> tuple[dict[str, Any], float]:
+    """The aiding stage on a step shaped as the pipeline builds its message: the message with
+    what the aiding adds (:func:`hdrd.daemon.pipeline.add_aid`) and the bias correction it
+    returns for the static bias. A message without a heading (calibrating) is not shown to
+    it."""
+    if "heading" not in msg:
+        return msg, 0.0
+    is_step = "omega" in msg
+    view = StepView(
+        float(msg.get("t", 0.0)),
+        float(msg["omega"]) if is_step else 0.0,
+        float(msg.get("omega_raw", math.nan)),
+        float(msg["bias"]),
+        float(msg["heading"]),
+        "gap_s" in msg,
+        is_step,
+    )
+    aid = a.on_step(view, now, owner)
+    out = dict(msg)
+    add_aid(out, aid)
+    return out, aid.bias_delta_dps
+
+
 def good(course: float, speed: float = 15.0, **kw: Any) -> Fix:
     return Fix(mode=3, track_deg=course, speed_mps=speed, **kw)
 
@@ -58,7 +93,7 @@ def still(a: GpsAiding, fixes: Sequence[Fix | None], heading: float = 0.0) -> li
     for k, f in enumerate(fixes):
         if f is not None:
             a.on_fix(f, k + 0.3)
-        m, _ = a.on_message(step_msg(heading, t=k + 1.0), k + 1.0)
+        m, _ = on_message(a, step_msg(heading, t=k + 1.0), k + 1.0)
         out.append(m)
     return out
 
@@ -87,7 +122,7 @@ def test_config_rejects_nonsense():
 
 def test_no_fix_is_dead_reckoning_and_heading_untouched():
     a = GpsAiding()
-    out, delta = a.on_message(step_msg(123.0), now=10.0)
+    out, delta = on_message(a, step_msg(123.0), now=10.0)
     assert out["mode"] == DEAD_RECKONING and out["heading"] == 123.0
     assert "gps_course" not in out and "heading_offset" not in out and "gps_speed" not in out
     assert delta == 0.0
@@ -97,7 +132,7 @@ def test_calibrating_message_passes_unchanged():
     a = GpsAiding()
     a.on_fix(good(90.0), 0.0)
     msg = {"class": "HDR", "v": 1, "t": 1.0, "step": 0, "omega_raw": 0.8, "status": "calibrating"}
-    out, delta = a.on_message(msg, 0.5)
+    out, delta = on_message(a, msg, 0.5)
     assert out == msg and delta == 0.0
 
 
@@ -105,7 +140,7 @@ def test_good_fix_aligns_at_once_then_modes_follow_fix_quality():
     c = AidingConfig(min_speed_mps=5.0, max_fix_age_s=2.5, max_epd_deg=15.0)
     a = GpsAiding(c)
     a.on_fix(good(250.0, 12.0, epd=3.0), now=0.0)
-    out, _ = a.on_message(step_msg(10.0), now=0.1)
+    out, _ = on_message(a, step_msg(10.0), now=0.1)
     assert out["mode"] == AIDED
     assert out["heading"] == pytest.approx(250.0)
     assert out["heading_offset"] == pytest.approx(wrap180(240.0))
@@ -122,14 +157,14 @@ def test_good_fix_aligns_at_once_then_modes_follow_fix_quality():
     ]
     for what, fix, at in cases:
         a.on_fix(fix, now=at)
-        out, _ = a.on_message(step_msg(10.0, t=2.0), now=1.1)
+        out, _ = on_message(a, step_msg(10.0, t=2.0), now=1.1)
         assert out["mode"] == DEAD_RECKONING, what
         assert "gps_course" not in out, what
         # the last alignment still applies: heading continues
         assert out["heading"] == pytest.approx(250.0), what
     # a 2D fix above the speed threshold is good enough
     a.on_fix(Fix(mode=2, track_deg=251.0, speed_mps=5.0), now=2.0)
-    out, _ = a.on_message(step_msg(10.0, t=3.0), now=2.2)
+    out, _ = on_message(a, step_msg(10.0, t=3.0), now=2.2)
     assert out["mode"] == AIDED
 
 
@@ -138,7 +173,7 @@ def test_speed_for_the_standstill_detector():
     assert a.speed(0.0) is None
     a.on_fix(good(0.0, speed=0.0), now=0.0)
     assert a.speed(1.0) == 0.0  # standing still: speed known, course not used
-    out, _ = a.on_message(step_msg(5.0), now=1.0)
+    out, _ = on_message(a, step_msg(5.0), now=1.0)
     assert out["mode"] == DEAD_RECKONING and out["gps_speed"] == 0.0
     assert a.speed(10.0) is None  # stale
     a.on_fix(Fix(mode=1), now=11.0)
@@ -191,17 +226,17 @@ def test_the_gate_is_the_fixs_own_error_plus_the_gyros():
     assert a.course_err_deg(good(0.0)) == 5.0  # neither sent
     assert a.gate_deg(good(0.0, epd=1.0), 0.0, 0.0) == 2.0  # never below gate_min_deg
     a.on_fix(good(10.0), 0.0)
-    a.on_message(step_msg(10.0), 0.0)  # accepted at 0 s
+    on_message(a, step_msg(10.0), 0.0)  # accepted at 0 s
     # 60 s later, in a 4 deg/s turn: 5 + 0.1 * 60 + 4 * 0.5
     assert a.gate_deg(good(0.0), 4.0, 60.0) == pytest.approx(13.0)
     # so a course 12 deg off is taken after a minute's outage, not a second after
     a.on_fix(good(22.0), 60.0)
-    assert a.on_message(step_msg(10.0, omega=4.0, t=60.0), 60.0)[0]["mode"] == AIDED
+    assert on_message(a, step_msg(10.0, omega=4.0, t=60.0), 60.0)[0]["mode"] == AIDED
     b = GpsAiding(c)
     b.on_fix(good(10.0), 0.0)
-    b.on_message(step_msg(10.0), 0.0)
+    on_message(b, step_msg(10.0), 0.0)
     b.on_fix(good(22.0), 1.0)
-    assert b.on_message(step_msg(10.0, t=1.0), 1.0)[0]["mode"] == DEAD_RECKONING
+    assert on_message(b, step_msg(10.0, t=1.0), 1.0)[0]["mode"] == DEAD_RECKONING
 
 
 @given(
@@ -212,9 +247,9 @@ def test_the_gate_is_the_fixs_own_error_plus_the_gyros():
 def test_a_course_is_taken_if_and_only_if_it_is_inside_the_gate(course, off, epd):
     a = GpsAiding(AidingConfig(gate_min_deg=1.0))
     a.on_fix(good(course), 0.0)
-    a.on_message(step_msg(0.0), 0.0)  # aligned to course
+    on_message(a, step_msg(0.0), 0.0)  # aligned to course
     a.on_fix(good((course + off) % 360.0, epd=epd), 1.0)
-    out, _ = a.on_message(step_msg(0.0, t=2.0), 1.0)
+    out, _ = on_message(a, step_msg(0.0, t=2.0), 1.0)
     inside = abs(off) <= a.gate_deg(good(0.0, epd=epd), 0.0, 1.0) - 1e-9
     outside = abs(off) >= a.gate_deg(good(0.0, epd=epd), 0.0, 1.0) + 1e-9
     if inside:
@@ -233,7 +268,7 @@ def test_a_second_receiver_without_a_fix_is_ignored():
     for k in range(100):
         a.on_fix(good(90.0, device="/dev/ttyUSB0"), k + 0.2)
         a.on_fix(Fix(mode=1, device="/dev/ttyUSB1"), k + 0.4)
-        out, _ = a.on_message(step_msg(0.0, t=k + 1.0), k + 1.0)
+        out, _ = on_message(a, step_msg(0.0, t=k + 1.0), k + 1.0)
         assert out["mode"] == AIDED, k
     assert a.device == "/dev/ttyUSB0" and a.fixes_ignored == 100
     assert [e for e in a.events if e[0] == "gps_device"] == [
@@ -248,7 +283,7 @@ def test_two_receivers_courses_never_alternate():
     for k in range(60):
         a.on_fix(good(90.0, device="/dev/ttyACM0"), k + 0.2)
         a.on_fix(good(93.0, device="/dev/ttyACM1"), k + 0.4)
-        out, _ = a.on_message(step_msg(0.0, t=k + 1.0), k + 1.0)
+        out, _ = on_message(a, step_msg(0.0, t=k + 1.0), k + 1.0)
         assert out["mode"] == AIDED and out["gps_course"] == 90.0
         assert herr(out["heading"], 90.0) < 1e-9
     assert a.courses_rejected == 0 and a.fixes_ignored == 60
@@ -257,22 +292,22 @@ def test_two_receivers_courses_never_alternate():
 def test_a_configured_receiver_only_and_a_quiet_one_hands_over():
     a = GpsAiding(AidingConfig(device="/dev/gps1"))
     a.on_fix(good(50.0, device="/dev/gps0"), 0.0)
-    assert a.on_message(step_msg(0.0), 0.1)[0]["mode"] == DEAD_RECKONING
+    assert on_message(a, step_msg(0.0), 0.1)[0]["mode"] == DEAD_RECKONING
     a.on_fix(good(60.0, device="/dev/gps1"), 0.2)
-    out, _ = a.on_message(step_msg(0.0, t=2.0), 0.3)
+    out, _ = on_message(a, step_msg(0.0, t=2.0), 0.3)
     assert out["mode"] == AIDED and out["gps_course"] == 60.0
     # a configured receiver is never replaced, however long it is quiet
     a.on_fix(good(50.0, device="/dev/gps0"), 100.0)
-    assert a.on_message(step_msg(0.0, t=3.0), 100.1)[0]["mode"] == DEAD_RECKONING
+    assert on_message(a, step_msg(0.0, t=3.0), 100.1)[0]["mode"] == DEAD_RECKONING
 
     b = GpsAiding(AidingConfig(device_timeout_s=10.0))
     b.on_fix(good(60.0, device="A"), 0.0)
-    b.on_message(step_msg(0.0), 0.1)
+    on_message(b, step_msg(0.0), 0.1)
     b.on_fix(Fix(mode=1, device="A"), 1.0)  # A loses its fix
     b.on_fix(good(61.0, device="B"), 5.0)  # B within the timeout: ignored
-    assert b.on_message(step_msg(0.0, t=5.0), 5.1)[0]["mode"] == DEAD_RECKONING
+    assert on_message(b, step_msg(0.0, t=5.0), 5.1)[0]["mode"] == DEAD_RECKONING
     b.on_fix(good(61.0, device="B"), 10.5)  # A has had no fix for 10.5 s: B takes over
-    out, _ = b.on_message(step_msg(0.0, t=11.0), 10.6)
+    out, _ = on_message(b, step_msg(0.0, t=11.0), 10.6)
     assert out["mode"] == AIDED and out["gps_course"] == 61.0 and b.device == "B"
     assert ("gps_device", {"device": "B", "previous": "A"}) in b.events
 
@@ -284,16 +319,16 @@ def test_alignment_is_smooth_and_wraps_at_north():
     c = AidingConfig(align_gain=0.25)
     a = GpsAiding(c)
     a.on_fix(good(2.0), 0.0)
-    a.on_message(step_msg(100.0, t=1.0), 0.0)  # snap: offset -98
+    on_message(a, step_msg(100.0, t=1.0), 0.0)  # snap: offset -98
     assert a.offset_deg == pytest.approx(-98.0)
     # GPS now says 358 (4 deg to the left across north): the error is -4, not +356
     a.on_fix(good(358.0), 1.0)
-    out, _ = a.on_message(step_msg(100.0, t=2.0), 1.0)
+    out, _ = on_message(a, step_msg(100.0, t=2.0), 1.0)
     assert a.offset_deg == pytest.approx(-99.0)
     assert out["heading"] == pytest.approx(1.0)
-    out, _ = a.on_message(step_msg(100.0, t=3.0), 1.0)
+    out, _ = on_message(a, step_msg(100.0, t=3.0), 1.0)
     assert out["heading"] == pytest.approx(0.25)
-    out, _ = a.on_message(step_msg(100.0, t=4.0), 1.0)
+    out, _ = on_message(a, step_msg(100.0, t=4.0), 1.0)
     assert out["heading"] == pytest.approx(359.6875)
     assert 0.0 <= out["heading"] < 360.0
 
@@ -301,11 +336,11 @@ def test_alignment_is_smooth_and_wraps_at_north():
 def test_no_alignment_update_in_a_fast_turn():
     a = GpsAiding(AidingConfig(align_max_rate_dps=3.0))
     a.on_fix(good(90.0), 0.0)
-    a.on_message(step_msg(90.0, t=1.0), 0.0)
+    on_message(a, step_msg(90.0, t=1.0), 0.0)
     a.on_fix(good(86.0), 1.0)
-    a.on_message(step_msg(90.0, omega=10.0, t=2.0), 1.0)
+    on_message(a, step_msg(90.0, omega=10.0, t=2.0), 1.0)
     assert a.offset_deg == 0.0
-    a.on_message(step_msg(90.0, omega=2.0, t=3.0), 1.0)
+    on_message(a, step_msg(90.0, omega=2.0, t=3.0), 1.0)
     assert a.offset_deg != 0.0
 
 
@@ -314,7 +349,7 @@ def test_course_carried_forward_by_the_gyro_over_the_fix_age():
     predicts 5 deg less than it says."""
     a = GpsAiding()
     a.on_fix(good(3.0), 0.0)
-    out, _ = a.on_message(step_msg(50.0, omega=10.0), 0.5)
+    out, _ = on_message(a, step_msg(50.0, omega=10.0), 0.5)
     assert out["heading"] == pytest.approx(358.0)
 
 
@@ -368,7 +403,11 @@ def drive(
     # true course at t: course0 - integral of the CCW rate (trapezoid on the 10 Hz grid,
     # evaluated at the samples; block ends fall on samples)
     yaw_true = np.concatenate([[0.0], np.cumsum(w_true[:-1]) / hz])
-    p = Pipeline(PipelineConfig(bias_dps=bias_given, heading0_deg=heading0, method=method))
+    p = Pipeline(
+        PipelineConfig(
+            heading0_deg=heading0, setup=MethodSetup(method=method, bias=given_bias(bias_given))
+        )
+    )
     a = GpsAiding(config or AidingConfig())
     run = Run([], [], [], [], p, a)
     for i in range(n):
@@ -380,7 +419,7 @@ def drive(
                 a.on_fix(good((truth + rng.normal(0, course_noise)) % 360.0, speed(now)), now)
             else:
                 a.on_fix(Fix(mode=1), now)
-            out, delta = a.on_message(m, now)
+            out, delta = on_message(a, m, now)
             p.adjust_bias(delta, "gps")
             run.msgs.append(out)
             run.hdr_headings.append(m["heading"])
@@ -501,7 +540,7 @@ def test_outage_dead_reckons_with_hdr_and_heading_stays_continuous():
 def test_stale_messages_get_the_alignment_but_change_nothing():
     a = GpsAiding()
     a.on_fix(good(200.0), 0.0)
-    a.on_message(step_msg(20.0), 0.0)
+    on_message(a, step_msg(20.0), 0.0)
     stale = {
         "class": "HDR",
         "v": 1,
@@ -513,7 +552,7 @@ def test_stale_messages_get_the_alignment_but_change_nothing():
         "stale_s": 3.0,
     }
     a.on_fix(good(203.0), 1.0)  # within the gate: aided, but a stale report moves nothing
-    out, delta = a.on_message(stale, 1.0)
+    out, delta = on_message(a, stale, 1.0)
     assert out["heading"] == pytest.approx(200.0) and out["mode"] == AIDED and delta == 0.0
     assert a.offset_deg == pytest.approx(-180.0)  # wrapped to [-180, 180)
 
@@ -525,7 +564,7 @@ def test_a_gap_restarts_the_bias_window():
     for k in range(1, 12):
         a.on_fix(good(90.0), float(k))
         extra = {"gap_s": 2.0} if k == 4 else {}
-        _, d = a.on_message(step_msg(90.0, t=float(k), raw=0.2, bias=0.0, **extra), float(k))
+        _, d = on_message(a, step_msg(90.0, t=float(k), raw=0.2, bias=0.0, **extra), float(k))
         deltas.append(d)
     # windows: steps 5..9 (the gap at 4 restarts at 5), the next would end at 14
     assert [i + 1 for i, d in enumerate(deltas) if d] == [10]
@@ -545,15 +584,56 @@ def test_a_tpv_without_course_does_not_hide_a_fresh_course():
     a = GpsAiding(AidingConfig(max_fix_age_s=2.5))
     a.on_fix(good(45.0, 12.0), 0.0)
     a.on_fix(Fix(mode=3, speed_mps=11.5), 0.5)  # GGA-only TPV of the next epoch
-    out, _ = a.on_message(step_msg(0.0), 0.6)
+    out, _ = on_message(a, step_msg(0.0), 0.6)
     assert out["mode"] == AIDED and out["gps_course"] == 45.0 and out["gps_speed"] == 11.5
     # ... but only while that course is fresh
     a.on_fix(Fix(mode=3, speed_mps=11.5), 2.0)
-    out, _ = a.on_message(step_msg(0.0, t=2.0), 2.6)
+    out, _ = on_message(a, step_msg(0.0, t=2.0), 2.6)
     assert out["mode"] == DEAD_RECKONING and out["gps_speed"] == 11.5
     # a TPV without a fix ends aiding at once, and the speed is unknown then
     a.on_fix(good(45.0, 12.0), 3.0)
-    assert a.on_message(step_msg(0.0, t=3.0), 3.1)[0]["mode"] == AIDED
+    assert on_message(a, step_msg(0.0, t=3.0), 3.1)[0]["mode"] == AIDED
     a.on_fix(Fix(mode=1), 3.5)
-    out, _ = a.on_message(step_msg(0.0, t=4.0), 3.6)
+    out, _ = on_message(a, step_msg(0.0, t=4.0), 3.6)
     assert out["mode"] == DEAD_RECKONING and "gps_speed" not in out and a.speed(3.6) is None
+
+
+def test_the_age_of_the_last_course_is_published_once_there_is_one() -> None:
+    a = GpsAiding()
+    assert "gps_age_s" not in on_message(a, step_msg(10.0), 1.0)[0]  # no course yet
+    a.on_fix(good(90.0), 1.25)
+    assert on_message(a, step_msg(10.0), 2.0)[0]["gps_age_s"] == 0.75
+    a.on_fix(Fix(mode=1), 2.5)  # no fix: the course keeps its age
+    out = on_message(a, step_msg(10.0), 31.0)[0]
+    assert out["mode"] == DEAD_RECKONING and out["gps_age_s"] == 29.75
+
+
+def test_a_method_that_owns_the_bias_gets_the_course_as_a_measurement() -> None:
+    """HDR+ estimates bias and heading error itself: the aiding aligns its heading once (a
+    reset of known variance), then hands it each good course as the published heading minus
+    the course, and neither moves the offset nor returns a bias correction."""
+    a = GpsAiding()
+    a.on_fix(good(100.0, epd=3.92), 0.0)
+    first = a.on_step(StepView(1.0, 0.0, 0.2, 0.0, 90.0), 0.5, owner=True)
+    assert first.fix is not None and first.fix.reset and first.fix.err_deg == 0.0
+    assert first.fix == HeadingFix(0.0, first.fix.var_deg2, True)
+    assert first.fix.var_deg2 == pytest.approx(4.0)  # (3.92 / 1.96)^2
+    assert first.offset_deg == pytest.approx(10.0) and first.heading_deg == pytest.approx(100.0)
+    for k in range(2, 60):  # a gyro drifting 0.05 deg/s clockwise of a straight course
+        a.on_fix(good(100.0, epd=3.92), k - 0.7)
+        aid = a.on_step(StepView(float(k), 0.0, 0.2, 0.0, 90.0 + 0.05 * k), k - 0.5, owner=True)
+        assert aid.mode == AIDED and aid.bias_delta_dps == 0.0
+        assert aid.fix is not None and not aid.fix.reset
+        assert aid.fix.err_deg == pytest.approx(0.05 * k)  # heading - course
+        assert aid.offset_deg == pytest.approx(10.0)  # the offset stays
+    # in a fast turn the course's latency makes it no measurement
+    a.on_fix(good(100.0, epd=3.92), 59.3)
+    turning = a.on_step(StepView(60.0, 5.0, 5.2, 0.0, 96.0), 59.5, owner=True)
+    assert turning.fix is None
+    # the baselines (owner False) get the offset moved instead
+    b = GpsAiding()
+    b.on_fix(good(100.0), 0.0)
+    b.on_step(StepView(1.0, 0.0, 0.2, 0.0, 90.0), 0.5)
+    b.on_fix(good(100.0), 1.3)
+    base = b.on_step(StepView(2.0, 0.0, 0.2, 0.0, 91.0), 1.5)
+    assert base.fix is None and base.offset_deg == pytest.approx(10.0 - 0.2)

@@ -215,7 +215,7 @@ def test_few_samples_rarely_fail_the_noise_scaled_tests(n: int, at_most: float) 
 
 
 def test_startup_window_measures_after_its_steps_and_restarts_on_motion() -> None:
-    win = calibrate.StartupWindow.for_seconds(2.5, 1.0)
+    win = calibrate.StartupWindow.for_seconds(3.5, 1.0)
     assert win.blocks == 3
     w, _ = standstill(3.0)
     win.add_many(w[:10], np.full(10, 20.0))
@@ -439,8 +439,17 @@ def test_startup_window_details() -> None:
     assert win.n == 0 and win.closed == 0
     with pytest.raises(ValueError, match="at least 1 step"):
         calibrate.StartupWindow(0)
-    # for_seconds rounds up to whole steps, with no step for a rounding error
-    for seconds, T, blocks in [(3.0, 1.0, 3), (3.0000001, 1.0, 4), (0.3, 0.1, 3), (0.0, 1.0, 1)]:
+    # for_seconds takes the whole steps within the seconds (never a sample past them), no
+    # step lost to a rounding error, and at least one step
+    for seconds, T, blocks in [
+        (3.0, 1.0, 3),
+        (3.0000001, 1.0, 3),
+        (3.9999, 1.0, 3),
+        (0.3, 0.1, 3),
+        (29.4, 1.0, 29),
+        (0.0, 1.0, 1),
+        (0.5, 2.0, 1),
+    ]:
         w = calibrate.StartupWindow.for_seconds(seconds, T)
         assert (w.blocks, w.block_s) == (blocks, T)
 

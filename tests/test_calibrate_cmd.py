@@ -46,6 +46,28 @@ def test_one_glitched_timestamp_does_not_end_the_window(fake_gyro, tmp_path: Pat
     assert b"1 frame(s) with a bad timestamp skipped" in p.stdout
 
 
+def test_a_bias_file_that_is_a_fifo_is_written_through(fake_gyro, tmp_path: Path) -> None:
+    # `--bias-file FIFO`: the record goes to the FIFO's reader; the FIFO is not replaced by a
+    # regular file (as the atomic rename did).
+    import os
+    import stat
+    import threading
+
+    frames = profile_frames(builtin_profile("standstill", minutes=1, bias_dps=0.42, lead_in_s=0))
+    g = fake_gyro(frames, speedup=0)
+    g.start()
+    fifo = tmp_path / "bias.yaml"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    p = calibrate("--port", g.path, "--seconds", "2", "--bias-file", str(fifo))
+    reader.join(WAIT)
+    assert p.returncode == 0, p.stderr.decode()
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    assert got and b"bias_dps: 0.4" in got[0] and got[0].endswith(b"# end\n")
+
+
 def test_the_noise_parameters_are_recorded_beside_the_bias(fake_gyro, tmp_path: Path) -> None:
     # The window's white noise and output step go into the bias file for HDR+; a 10 s window
     # cannot show how the bias wanders (that needs 10 minutes), and the result line says so.

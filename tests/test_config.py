@@ -38,7 +38,9 @@ NAN, INF = math.nan, math.inf
 def get(cfg: Config, key: str) -> Any:
     section, name = key.split(".")
     sec = getattr(cfg, section)
-    if section == "hdr" and name not in ("method", "i_c_from"):
+    if key == "hdr.i_c" and sec.i_c_auto:
+        return "auto"
+    if section == "hdr" and name != "method":
         return getattr(sec.params, name)
     return getattr(sec, name)
 
@@ -66,8 +68,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF, 1e-300, 1e308]),
     "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF, 1e-320, 1e308]),
     "hdr.method": ("none", ["kalman", "HDR", 1, None]),
-    "hdr.i_c_from": ("config", ["paper", "", 1, None]),
-    "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", True, 1e308]),
+    "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", "Auto", True, 1e308]),
     "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75], 1e308]),
     "hdr.theta_w": (1.0, [0.0, -0.564, NAN, INF, "0.564", 1e308]),
     "hdr.c1": (0.2, [-0.16, NAN, INF, 1e308]),
@@ -90,9 +91,22 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "output.stdout": (True, ["no", 1, None]),
     "output.udp": (
         ["127.0.0.1:10110", "[::1]:10111"],
-        ["localhost", ["host:0"], ["host:65536"], [":abc"], [1], {"a": 1}, ["a b:10"], 5],
+        [
+            "localhost",
+            ["host:0"],
+            ["host:65536"],
+            [":abc"],
+            [1],
+            {"a": 1},
+            ["a b:10"],
+            5,
+            [f"h:{p}" for p in range(1000, 1017)],
+        ],
     ),
-    "output.nmea_udp": (["192.168.1.5:10110"], ["x", ["h:0"], [None], ["h:"]]),
+    "output.nmea_udp": (
+        ["192.168.1.5:10110"] * 16,
+        ["x", ["h:0"], [None], ["h:"], ["192.168.1.5:10110"] * 17],
+    ),
     "output.nmea_ths": (True, [1, "true"]),
     "output.nmea_talker": ("HC", ["hc", "H", "HCX", "H1", "ÄB", "", 5, None]),
     "log.level": ("debug", ["verbose", "INFO", 3, None]),
@@ -115,13 +129,13 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "standstill.enabled": (False, ["no", 0, None]),
     "standstill.from_gyro": (True, ["yes", 1, 1.0]),
     "simulate.grade": ("tactical", ["nav", "", 1]),
-    "plus.grade": ("phone", ["nav", None, 2]),
-    "plus.white_dps_per_rthz": (0.01, [-0.01, 101.0, NAN]),
-    "plus.bias_instability_dps": (0.001, [-1.0, INF, "small"]),
-    "plus.bias_tau_s": (300.0, [0.5, 2e6, NAN]),
-    "plus.rrw_dps_per_sqrt_s": (1e-5, [-1e-5, 1e3, True]),
-    "plus.temp_coeff_dps_per_c": (0.005, [-0.005, 200.0, NAN]),
-    "plus.quant_step_dps": (0.244, [-0.1, 1e9, INF]),
+    "gyro.grade": ("phone", ["nav", None, 2]),
+    "gyro.white_dps_per_rthz": (0.01, [-0.01, 101.0, NAN]),
+    "gyro.bias_instability_dps": (0.001, [-1.0, INF, "small"]),
+    "gyro.bias_tau_s": (300.0, [0.5, 2e6, NAN]),
+    "gyro.rrw_dps_per_sqrt_s": (1e-5, [-1e-5, 1e3, True]),
+    "gyro.temp_coeff_dps_per_c": (0.005, [-0.005, 200.0, NAN]),
+    "gyro.quant_step_dps": (0.244, [-0.1, 1e9, INF]),
 }
 
 BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]
@@ -169,7 +183,9 @@ def test_good_value_lands_on_its_key(key: str) -> None:
     good = TABLE[key][0]
     cfg = parse_config(nested(key, good))
     want = tuple(good) if isinstance(good, list) else good
-    assert get(cfg, key) == want and type(get(cfg, key)) is type(get(Config(), key))
+    default = get(Config(), key)
+    assert get(cfg, key) == want
+    assert type(get(cfg, key)) is (float if key == "hdr.i_c" else type(default))  # auto: text
     # ... and nothing else changed.
     for other in config_field_keys():
         if other != key:
@@ -217,6 +233,30 @@ def test_hdr_params_is_not_a_key() -> None:
         parse_config({"hdr": {"params": {"i_c": 0.05}}})
 
 
+def test_the_increment_is_auto_or_a_number() -> None:
+    assert Config().hdr.i_c_auto and parse_config({"hdr": {"i_c": "auto"}}) == Config()
+    given = parse_config({"hdr": {"i_c": 0.0422}})
+    assert not given.hdr.i_c_auto and given.hdr.params == Config().hdr.params
+    # an override of another hdr key keeps auto; one of i_c sets the number
+    assert apply_overrides(Config(), {"hdr.tau": 1.0}).hdr.i_c_auto
+    assert not apply_overrides(Config(), {"hdr.i_c": 0.01}).hdr.i_c_auto
+    with pytest.raises(ConfigError, match="must be auto or a finite number"):
+        parse_config({"hdr": {"i_c": "gyro"}})
+
+
+@pytest.mark.parametrize(
+    ("data", "key", "hint"),
+    [
+        ({"plus": {"grade": "tactical"}}, "plus", "is now the `gyro:` section"),
+        ({"hdr": {"i_c_from": "config"}}, "hdr.i_c_from", "write hdr.i_c: auto"),
+    ],
+)
+def test_old_keys_are_refused_with_what_to_write(data: dict[str, Any], key: str, hint: str) -> None:
+    with pytest.raises(ConfigError) as ei:
+        parse_config(data)
+    assert ei.value.key == key and hint in str(ei.value) and "\n" not in str(ei.value)
+
+
 def test_unknown_section(tmp_path: Path) -> None:
     p = tmp_path / "hdrd.yaml"
     p.write_text("devices:\n  port: /dev/ttyUSB0\n")
@@ -225,7 +265,7 @@ def test_unknown_section(tmp_path: Path) -> None:
     msg = check_error(ei.value, "devices", str(p))
     assert (
         "unknown section (allowed: device, sensor, hdr, calibration, output, log, simulate, gpsd, "
-        "standstill, plus)" in msg
+        "standstill, gyro)" in msg
     )
 
 
@@ -675,7 +715,7 @@ def _hard_capture() -> bytes:
 
 @pytest.mark.parametrize("key, value", EDGES, ids=[f"{k}={v!r}" for k, v in EDGES])
 def test_every_key_at_its_edges_keeps_every_number_finite(key: str, value: Any) -> None:
-    from hdrd.commands.replay import replay_capture
+    from hdrd.daemon.replay import replay_capture
 
     data = nested(key, value)
     if key.startswith("device.reconnect_"):  # the cross-check wants min <= max
@@ -757,7 +797,8 @@ def test_docs_state_the_ranges_the_code_checks() -> None:
             continue
         check, wording = rule[0], rule[1]() if callable(rule[1]) else rule[1]
         if hasattr(check, "bounds"):
-            assert shown == wording.removeprefix("a finite number "), key
+            words = wording.removeprefix("a finite number ")
+            assert shown == (f"auto, or {words}" if key == "hdr.i_c" else words), key
         elif wording.startswith("one of "):
             assert shown == wording, key
     # ... and every bounded key says why its bound is where it is.

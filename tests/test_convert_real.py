@@ -1,6 +1,7 @@
 """tools/convert_real.py: geodesy and the start-up standstill on hand cases, and the real
-recordings (each skipped when its folder under ../shared/data is absent) with their sign
-conventions checked against the reference."""
+recordings (each skipped when its folder under ../shared/data, or $HDRD_REAL_DATA, is absent;
+the public sources' when no clone is named by $HDRD_MIRRORS) with their sign conventions
+checked against the reference."""
 
 from __future__ import annotations
 
@@ -32,6 +33,11 @@ SMARTLOC = cr.DATA / "smartloc_berlin"
 COMMA = cr.DATA / "comma2k19_example"
 RTKLIB = cr.DATA / "rtklib_drive0708"
 NDS = cr.DATA / "driveplotr_nds"
+
+
+def absent(folder: Path) -> str:
+    """The skip reason of a recording of ../shared/data that is not there."""
+    return f"{folder} is absent (set HDRD_REAL_DATA to the folder holding the recordings)"
 
 
 def mean_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> tuple[float, float]:
@@ -76,7 +82,7 @@ def test_course_from_positions_is_compass() -> None:
     assert np.all(np.isnan(slow))  # 1 m/s < 2 m/s
 
 
-@pytest.mark.skipif(not SMARTLOC.is_dir(), reason="../shared/data/smartloc_berlin is absent")
+@pytest.mark.skipif(not SMARTLOC.is_dir(), reason=absent(SMARTLOC))
 def test_smartloc(tmp_path: Path) -> None:
     out = tmp_path / "s.csv"
     assert cr.main(["smartloc", "--out", str(out)]) == 0
@@ -92,7 +98,7 @@ def test_smartloc(tmp_path: Path) -> None:
     assert mean_heading_error(log, 0.0)[1] == pytest.approx(17.8, abs=3.0)  # README: +17.8 deg
 
 
-@pytest.mark.skipif(not COMMA.is_dir(), reason="../shared/data/comma2k19_example is absent")
+@pytest.mark.skipif(not COMMA.is_dir(), reason=absent(COMMA))
 def test_comma2k19(tmp_path: Path) -> None:
     out = tmp_path / "c.csv"
     assert cr.main(["comma2k19", "--out", str(out)]) == 0
@@ -153,7 +159,7 @@ def test_lead_in_seconds_hand_cases() -> None:
     assert cr.lead_in_seconds(t100, sp100, w100, margin_s=1.0) == 5.0
 
 
-@pytest.mark.skipif(not RTKLIB.is_dir(), reason="../shared/data/rtklib_drive0708 is absent")
+@pytest.mark.skipif(not RTKLIB.is_dir(), reason=absent(RTKLIB))
 def test_rtklib(tmp_path: Path) -> None:
     out = tmp_path / "r.csv"
     assert cr.main(["rtklib", "--out", str(out)]) == 0
@@ -176,7 +182,7 @@ def test_rtklib(tmp_path: Path) -> None:
     assert mean_ok < 3.0 and mean_flipped > 100.0
 
 
-@pytest.mark.skipif(not NDS.is_dir(), reason="../shared/data/driveplotr_nds is absent")
+@pytest.mark.skipif(not NDS.is_dir(), reason=absent(NDS))
 def test_driveplotr(tmp_path: Path) -> None:
     assert cr.main(["driveplotr", "--out-dir", str(tmp_path)]) == 0
     files = sorted(tmp_path.glob("nds_drive*.csv"))
@@ -243,12 +249,32 @@ def test_cli_absent_default_folder_hints(
     monkeypatch.setattr(cr, "MIRRORS", tmp_path / "no-mirrors")
     assert cr.main(["psins", "--out", str(tmp_path / "p.csv")]) == 1
     err = capsys.readouterr().err
-    assert "clone github.com/WangShanpeng/PSINS" in err
-    assert "c1706f136d1a8dc64245e851cc77c8cac00a94b6" in err
+    assert "no-mirrors/WangShanpeng+PSINS/repo is absent" in err
+    clone = "git clone https://github.com/WangShanpeng/PSINS PSINS && git -C PSINS checkout "
+    assert clone + "c1706f136d1a8dc64245e851cc77c8cac00a94b6" in err
     assert not (tmp_path / "p.csv").exists()
 
 
-@pytest.mark.skipif(not cr.DATA.is_dir(), reason="../shared/data is absent")
+def test_no_folder_of_snapshots_is_assumed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Without $HDRD_MIRRORS (a folder of clones the user keeps) or --data, a public source is
+    # named with the command that clones it: no machine's folder is a default.
+    monkeypatch.setitem(sys.modules, "convert_real", cr)  # back to this module's after
+    monkeypatch.delenv("HDRD_MIRRORS", raising=False)
+    fresh = _load()
+    assert fresh.MIRRORS is None and fresh.default_clone("oan") is None
+    assert fresh.main(["oan", "--out-dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "HDRD_MIRRORS" in err and "--data" in err
+    assert "git clone https://github.com/fedorbaklanov/open-aided-navigation " in err
+    with pytest.raises(ValueError, match="git -C PSINS checkout c1706f136d1a"):
+        fresh.psins_to_drive()
+    monkeypatch.setenv("HDRD_MIRRORS", str(tmp_path))
+    assert _load().default_clone("psins") == tmp_path / "WangShanpeng+PSINS" / "repo"
+
+
+@pytest.mark.skipif(not cr.DATA.is_dir(), reason=absent(cr.DATA))
 def test_cli_all_with_explicit_root(tmp_path: Path) -> None:
     assert cr.main(["all", "--data", str(cr.DATA), "--out-dir", str(tmp_path)]) == 0
     names = {f.stem for f in tmp_path.glob("*.csv")}
@@ -260,6 +286,13 @@ def test_cli_all_with_explicit_root(tmp_path: Path) -> None:
 
 OAN = cr.default_clone("oan")
 PSINS = cr.default_clone("psins")
+
+
+def no_clone(key: str, clone: Path | None) -> str:
+    """The skip reason of a public source without a clone: where it was looked for and how
+    to make one."""
+    where = "no $HDRD_MIRRORS" if clone is None else f"{clone} is absent"
+    return f"{where}: {cr.clone_hint(key)}"
 
 
 def wrapped_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> float:
@@ -302,7 +335,7 @@ def test_semicolon_table_hand_case() -> None:
         cr._semicolon_table(b"1;2;3\n", "g.csv", ("TimestampGyro",))
 
 
-@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+@pytest.mark.skipif(OAN is None or not OAN.exists(), reason=no_clone("oan", OAN))
 def test_oan(tmp_path: Path) -> None:
     assert cr.main(["oan", "--data", str(OAN), "--out-dir", str(tmp_path)]) == 0
     logs = {f.stem: read_drive(f) for f in sorted(tmp_path.glob("oan_*.csv"))}
@@ -333,7 +366,7 @@ def test_oan(tmp_path: Path) -> None:
         assert ok < 20.0 and flipped > 50.0 and flipped > 3 * ok, name
 
 
-@pytest.mark.skipif(not OAN.exists(), reason=f"{OAN} (a clone of open-aided-navigation) is absent")
+@pytest.mark.skipif(OAN is None or not OAN.exists(), reason=no_clone("oan", OAN))
 def test_source_file_from_a_work_tree(tmp_path: Path) -> None:
     # The same bytes from a bare git directory (the fetched snapshot) and from a work tree.
     from_git = cr.read_source_file(OAN, "oan", "LICENSE.md")
@@ -342,7 +375,7 @@ def test_source_file_from_a_work_tree(tmp_path: Path) -> None:
     assert cr.read_source_file(tmp_path, "oan", "LICENSE.md") == from_git
 
 
-@pytest.mark.skipif(not PSINS.exists(), reason=f"{PSINS} (a clone of PSINS) is absent")
+@pytest.mark.skipif(PSINS is None or not PSINS.exists(), reason=no_clone("psins", PSINS))
 def test_psins(tmp_path: Path) -> None:
     out = tmp_path / "p.csv"
     assert cr.main(["psins", "--src", str(PSINS), "--out", str(out)]) == 0
@@ -372,3 +405,50 @@ def test_psins(tmp_path: Path) -> None:
     mean_ok, _ = mean_heading_error(log, bias)
     mean_flipped, _ = mean_heading_error(log, bias, sign=-1.0)
     assert mean_ok < 0.6 and mean_flipped > mean_ok
+
+
+BOREAS = cr.default_clone("boreas")
+
+
+def test_boreas_table_refuses_what_is_not_a_pose_file() -> None:
+    head = ",".join(cr.BOREAS_COLUMNS) + "\n"
+    row = ",".join(["1"] * 13) + "\n"
+    with pytest.raises(ValueError, match="header"):
+        cr._boreas_table(b"t,x\n1,2\n", "p.csv")
+    with pytest.raises(ValueError, match="fewer than 2 rows"):
+        cr._boreas_table((head + row).encode(), "p.csv")
+    with pytest.raises(ValueError, match="does not increase"):
+        cr._boreas_table((head + row + row).encode(), "p.csv")
+    two = head + row + row.replace("1", "2", 1)
+    assert cr._boreas_table(two.encode(), "p.csv").shape == (2, 13)
+
+
+@pytest.mark.skipif(BOREAS is None or not BOREAS.exists(), reason=no_clone("boreas", BOREAS))
+def test_boreas(tmp_path: Path) -> None:
+    assert cr.main(["boreas", "--data", str(BOREAS), "--out-dir", str(tmp_path)]) == 0
+    logs = {f.stem: read_drive(f) for f in sorted(tmp_path.glob("boreas_*.csv"))}
+    assert sorted(logs) == ["boreas_20210805_1334", "boreas_20210902_1142"]
+    assert [lg.duration_s for lg in logs.values()] == pytest.approx([1118.9, 1033.5], abs=0.2)
+    assert [lg.meta["lead_in_s"] for lg in logs.values()] == ["8", "3"]
+    for name, lg in logs.items():
+        assert lg.columns() == ["t", "omega", "heading_truth", "omega_truth", "speed"]
+        assert "route" in lg.meta and lg.rate_hz == pytest.approx(9.64, abs=0.05)
+        assert lg.omega_truth is not None and lg.heading_truth is not None
+        np.testing.assert_array_equal(lg.omega, lg.omega_truth)  # a route: a perfect gyro
+        assert np.isfinite(lg.heading_truth).all()  # an INS heading, standing too
+        # CCW positive about up: the rate turns against the compass heading, at zero lag, and
+        # integrated follows it within a few degrees over ~3,000 deg of turning; flipped, not.
+        h = np.degrees(np.unwrap(np.radians(lg.heading_truth)))
+        assert np.corrcoef(lg.omega, -np.gradient(h, lg.t))[0, 1] > 0.999
+        assert course_rate_correlation(lg)[0] > 0.95
+        ok, flipped = mean_heading_error(lg, 0.0), mean_heading_error(lg, 0.0, -1.0)
+        assert ok[1] < 3.0 and flipped[0] > 100.0, name
+    # The heading offset: the compass course of the Applanix velocities on straight road.
+    path = "pyboreas/test/demo/gt/boreas-2021-08-05-13-34/applanix/lidar_poses.csv"
+    a = cr._boreas_table(cr.read_source_file(BOREAS, "boreas", path), path)
+    course = np.degrees(np.arctan2(a[:, 4], a[:, 5]))
+    straight = (np.hypot(a[:, 4], a[:, 5]) > 5.0) & (np.abs(np.degrees(a[:, 10])) < 1.0)
+    log = logs["boreas_20210805_1334"]
+    assert log.heading_truth is not None
+    d = np.radians(course - log.heading_truth)[straight]
+    assert math.degrees(math.atan2(np.sin(d).mean(), np.cos(d).mean())) == pytest.approx(0, abs=0.1)

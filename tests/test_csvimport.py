@@ -25,6 +25,8 @@ from hdrd.io.csvimport import (
 )
 from hdrd.io.drivelog import DriveLogError, ReadLimits
 
+NO_GAP_LIMIT = ReadLimits(max_gap_s=math.inf)
+
 
 def source(tmp_path: Path, text: str, name: str = "logger.csv") -> Path:
     p = tmp_path / name
@@ -70,11 +72,38 @@ def test_the_unit_tables() -> None:
 
 
 def test_a_heading_is_wrapped_into_0_to_360(tmp_path: Path) -> None:
-    p = source(tmp_path, "t,w,h\n0,0,-90\n1,0,725\n2,0,-1e-15\n3,0,360\n")
+    p = source(tmp_path, "t,w,h\n0,0,-90\n1,0,-355\n2,0,-1e-15\n3,0,360\n")
     log = import_csv(p, Mapping(t="t", omega="w", heading="h"))
     assert log.heading_truth is not None
     assert log.heading_truth.tolist() == pytest.approx([270.0, 5.0, 0.0, 0.0])
     assert (log.heading_truth < 360.0).all()
+
+
+@pytest.mark.parametrize(
+    ("h", "unit", "said"),
+    [
+        ("999", "deg", "999 deg is outside +/-360 deg; a heading is a direction (not unwrapped, "
+         "not a placeholder such as 999)"),  # was taken as 279
+        ("-1e300", "deg", "-1e+300 deg is outside"),  # was taken as 0
+        ("725", "rad", "725 rad is outside +/-360 deg"),
+        ("180", "rad", "180 rad is outside +/-360 deg; a heading is a direction (not unwrapped, "
+         "not a placeholder such as 999); is the column in degrees? --heading-unit deg"),
+    ],
+)  # fmt: skip
+def test_a_heading_beyond_a_turn_is_refused_not_wrapped(
+    tmp_path: Path, h: str, unit: str, said: str
+) -> None:
+    p = source(tmp_path, f"t,w,h\n0,0,1\n1,0,{h}\n", "x.csv")
+    with pytest.raises(DriveLogError) as e:
+        import_csv(p, Mapping(t="t", omega="w", heading="h", heading_unit=unit))
+    assert str(e.value).startswith(f"{p}:3: column 'h' (--heading): {said}"), str(e.value)
+
+
+def test_a_negative_speed_is_refused(tmp_path: Path) -> None:
+    p = source(tmp_path, "t,w,v\n0,0,3\n1,0,-2.5\n", "x.csv")
+    with pytest.raises(DriveLogError, match=r"x\.csv:3: column 'v' \(--speed\): -2.5 m/s is "
+                       "negative; a speed is a magnitude"):  # fmt: skip
+        import_csv(p, Mapping(t="t", omega="w", speed="v"))
 
 
 def test_integer_times_keep_every_digit(tmp_path: Path) -> None:
@@ -88,6 +117,17 @@ def test_integer_times_keep_every_digit(tmp_path: Path) -> None:
         source(tmp_path, "s,w\n100.5,0\n100.75,0\n", "d.csv"), Mapping(t="s", omega="w")
     )
     assert decimal.t.tolist() == [0.0, 0.25]
+
+
+def test_integer_times_that_wrap_are_not_laundered(tmp_path: Path) -> None:
+    # An int64 counter that wrapped: its difference wraps too (to +1, "0.001 s"); the time
+    # went back, and is refused as such.
+    p = source(tmp_path, "ms,w\n9223372036854775807,0\n-9223372036854775808,0\n", "x.csv")
+    with pytest.raises(DriveLogError, match=r"x\.csv:3: column 'ms' \(--t\) is not strictly incr"):
+        import_csv(p, Mapping(t="ms", omega="w", time_unit="ms"))
+    far = source(tmp_path, "ms,w\n-9223372036854775807,0\n9223372036854775806,0\n", "y.csv")
+    apart = import_csv(far, Mapping(t="ms", omega="w", time_unit="ms"), limits=NO_GAP_LIMIT)
+    assert apart.t[1] == pytest.approx(1.8446744073709552e16)  # beyond an int64: right sign
 
 
 def test_the_header_may_follow_comments_a_bom_and_blank_lines(tmp_path: Path) -> None:
@@ -152,7 +192,8 @@ def test_a_missing_file_is_an_os_error(tmp_path: Path) -> None:
         ("1000,1,", {}, ""),
         ("1000,30,", {"omega_unit": "rad/s"},
          "src.csv:4: column 'gz' (--omega): 1718.87 deg/s is beyond the +/-1000 deg/s"),
-        ("1000,1,725", {"heading_unit": "rad"}, ""),  # radians wrapped: any angle is taken
+        ("1000,1,725", {"heading_unit": "rad"},
+         "src.csv:4: column 'hdg' (--heading): 725 rad is outside +/-360 deg"),
         ("1000,1,x", {}, "src.csv:4: column 'hdg' (--heading): 'x' is not a number"),
         ("1000.00001,1,", {"time_unit": "s"}, "src.csv:4: column 'time' (--t): 1000 s, 1e-05 s "
          "after the row before"),
@@ -167,7 +208,7 @@ def test_each_row_error_names_its_line_and_column(
     monkeypatch.chdir(tmp_path)
     unit = extra.get("time_unit", "ms")
     before = "500" if unit == "ms" else "1000"  # ms: 0.5 s before the row; s: 1000 s
-    Path("src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,10\n{row}\n")
+    Path("src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,1\n{row}\n")
     m = Mapping(t="time", omega="gz", heading="hdg", **{"time_unit": unit, **extra})
     if not error:
         assert len(import_csv("src.csv", m).t) == 3

@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import frames_to_array
@@ -137,7 +139,7 @@ def expected_messages(
     frames: np.ndarray, bias: float, heading0: float = 0.0
 ) -> list[dict[str, Any]]:
     """What the HDR core says the daemon must publish for these frames (without time)."""
-    p = Pipeline(PipelineConfig(bias_dps=bias, heading0_deg=heading0))
+    p = Pipeline(PipelineConfig(heading0_deg=heading0, setup=MethodSetup(bias=given_bias(bias))))
     from hdrd.io.frames import array_to_frames
 
     out: list[dict[str, Any]] = []

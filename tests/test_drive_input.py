@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 
 pa = pytest.importorskip("pyarrow")
@@ -374,6 +374,32 @@ def test_a_capture_is_recognised_and_convert_named(protocol: str, tmp_path: Path
         )
     c = hdrd("convert", "drive.cap", "--protocol", protocol, "--out", "drive.csv", cwd=tmp_path)
     assert c.returncode == 0, c.stderr
+
+
+def test_the_hint_never_converts_a_capture_onto_itself(tmp_path: Path) -> None:
+    # A capture renamed x.csv: the hint once said `hdrd convert x.csv --out x.csv`, which
+    # overwrote the capture. It names another file now, and convert refuses its own input,
+    # under its name, a symbolic link or a hard link.
+    f = hdrd("fakegyro", "--drive", "city", "--minutes", "0.1", "--out", "renamed.csv",
+             cwd=tmp_path)  # fmt: skip
+    assert f.returncode == 0, f.stderr
+    capture = (tmp_path / "renamed.csv").read_bytes()
+    p = hdrd("evaluate", "renamed.csv", cwd=tmp_path)
+    hint = "`hdrd convert renamed.csv --out renamed-drive.csv`"
+    assert p.returncode == 1 and p.stderr.rstrip().endswith(hint), p.stderr
+    (tmp_path / "link.csv").symlink_to("renamed.csv")
+    os.link(tmp_path / "renamed.csv", tmp_path / "hard.csv")
+    for out in ("renamed.csv", "link.csv", "hard.csv", "./renamed.csv"):
+        c = hdrd("convert", "renamed.csv", "--out", out, cwd=tmp_path)
+        assert c.returncode == 2 and c.stderr == (
+            f"hdrd convert: --out {out} is the capture itself; name another file, e.g. "
+            "--out renamed-drive.csv\n"
+        )
+        assert (tmp_path / "renamed.csv").read_bytes() == capture
+    c = hdrd(*hint.strip("`").split()[1:], cwd=tmp_path)
+    assert c.returncode == 0, c.stderr
+    assert (tmp_path / "renamed.csv").read_bytes() == capture
+    assert len(read_drive(tmp_path / "renamed-drive.csv")) == 360  # every frame of the capture
 
 
 def test_files_that_are_no_drive_log_are_one_line(good: DriveLog, tmp_path: Path) -> None:

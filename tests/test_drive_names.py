@@ -140,7 +140,7 @@ def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None
 
 @pytest.mark.slow  # a whole model-gap search
 def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None:
-    """Drive names go into the comments of the YAML that tune --out and gap --plus-out write:
+    """Drive names go into the comments of the YAML that tune --out and gap --gyro-out write:
     a name with a line break would start a key of its own there."""
     import yaml
 
@@ -157,10 +157,10 @@ def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None
     assert "x\\nhdr:\\n  c1: 999" in text  # the name, escaped, in the comment
     doc = yaml.safe_load(text)
     assert list(doc) == ["hdr"] and doc["hdr"]["c1"] != 999
-    named = tmp_path / "a\nplus:\n  grade: phone\n.csv"
+    named = tmp_path / "a\ngyro:\n  grade: phone\n.csv"
     write_drive(named, log)
-    g = hdrd("gap", named.name, "--plus-out", "plus.yaml", "--no-progress", cwd=tmp_path)
+    g = hdrd("gap", named.name, "--gyro-out", "plus.yaml", "--no-progress", cwd=tmp_path)
     assert g.returncode == 0, g.stderr
     text = (tmp_path / "plus.yaml").read_text()
-    assert "grade" not in yaml.safe_load(text)["plus"]
-    assert text.startswith("# HDR+'s error model, fitted by `hdrd gap` to a\\nplus:")
+    assert "grade" not in yaml.safe_load(text)["gyro"]
+    assert text.startswith("# HDR+'s error model, fitted by `hdrd gap` to a\\ngyro:")

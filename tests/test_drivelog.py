@@ -54,7 +54,8 @@ def drive_logs(draw: st.DrawFn) -> DriveLog:
         bound = 360 * 10**d if c in ("heading_truth", "gps_course") else 10**9  # within +/-360
         if c == "temp_c":  # within the format's [-100, 200] deg C
             bound = 100 * 10**d
-        ks = draw(st.lists(st.integers(-bound, bound), min_size=n, max_size=n))
+        low = 0 if c in ("speed", "gps_speed") else -bound  # a speed is a magnitude
+        ks = draw(st.lists(st.integers(low, bound), min_size=n, max_size=n))
         v = np.array(ks, dtype=np.float64) / 10**d
         if c != "omega":
             holes = draw(st.lists(st.booleans(), min_size=n, max_size=n))
@@ -79,6 +80,34 @@ def test_write_read_round_trip(log: DriveLog) -> None:
     back = read_drive(buf)
     assert_same_log(back, log)
     assert back.columns() == log.columns()
+
+
+@settings(deadline=None)
+@given(meta=st.dictionaries(st.text(max_size=12), st.text(max_size=40), max_size=4))
+def test_metadata_round_trips_whatever_it_holds(meta: dict[str, str]) -> None:
+    # Line breaks, colons in keys, spaces at the ends, backslashes, control characters, lone
+    # surrogates: each key and value on its own line, read back as it was.
+    log = DriveLog(t=np.array([0.0, 0.1]), omega=np.zeros(2), meta=meta)
+    buf = io.StringIO()
+    write_drive(buf, log)
+    text = buf.getvalue()
+    assert text.count("\n") == len(meta) + 3  # a line per key, the header, two rows
+    assert all(c.isprintable() for c in text.replace("\n", ""))  # nothing a terminal acts on
+    buf.seek(0)
+    assert read_drive(buf).meta == meta
+
+
+def test_a_metadata_value_cannot_add_a_line(tmp_path: Path) -> None:
+    from hdrd.io.drivelog import escape_meta, unescape_meta
+
+    sneaky = "city\n# lead_in_s: 3\n.csv"
+    log = DriveLog(t=np.array([0.0, 0.1]), omega=np.zeros(2), meta={"source": sneaky})
+    write_drive(tmp_path / "d.csv", log)
+    lines = (tmp_path / "d.csv").read_text().splitlines()
+    assert lines[0] == "# source: city\\n# lead_in_s: 3\\n.csv" and lines[1] == "t,omega"
+    assert read_drive(tmp_path / "d.csv").meta == {"source": sneaky}
+    assert escape_meta("a:b", key=True) == "a\\x3ab" and escape_meta(" x ") == "\\x20x\\x20"
+    assert unescape_meta("C:\\data\\q") == "C:\\data\\q"  # no escape: kept as written
 
 
 def test_round_trip_through_a_file(tmp_path: Path) -> None:
@@ -144,6 +173,8 @@ def test_metadata_blank_lines_and_properties() -> None:
         ),
         ("t,omega\n0,1\n0.1,abc\n", r"<stream>:3: column omega: 'abc' is not a number"),
         ("t,omega,speed\n0,1,2\n0.1,1,fast\n", r"<stream>:3: column speed: 'fast' is not a number"),
+        ("t,omega,speed\n0,1,2\n0.1,1,-0.5\n", r"<stream>:3: column speed: -0.5 m/s is negative"),
+        ("t,omega,gps_speed\n0,1,-1e-3\n", r"<stream>:2: column gps_speed: -0.001 m/s is negat"),
         ("t,omega\n0,1\n0.1,inf\n", r"<stream>:3: column omega: inf is not finite"),
         ("t,omega\n0,1\n0.1,1,2\n", r"<stream>:3: 3 fields, header has 2"),
         ("t,omega\n0,1\n0.1\n", r"<stream>:3: 1 fields, header has 2"),

@@ -7,6 +7,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.cli import main as cli_main
 from hdrd.core import methods
 from hdrd.core.hdr import HdrParams, run_batch
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 
 
@@ -46,7 +48,8 @@ def make_drive(
     The gyro reads true rate + bias0 + noise, and bias0 + drift_dps once the calibration
     window is over (a warmed-up gyro: the residual drift HDR must remove). turns: (start s,
     duration s, rate deg/s CCW). sway_dps: amplitude of a slow weave (period ~40 s). Truth
-    heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere.
+    heading: 1 Hz fixes (rows on whole seconds) while driving, empty elsewhere; omega_truth the
+    true rate.
     """
     rng = np.random.default_rng(seed)
     n = round(minutes * 60 * hz)
@@ -60,7 +63,8 @@ def make_drive(
     truth = np.mod(heading0 - yaw_true, 360.0)
     whole = np.abs(t - np.round(t)) < 1e-6
     truth = np.where((t >= calib_s) & whole, truth, np.nan)
-    return DriveLog(t=t + 1000.0, omega=omega, heading_truth=truth, name=name)
+    # the exact truth of a simulation: with its true rate, aligned at its first value
+    return DriveLog(t=t + 1000.0, omega=omega, heading_truth=truth, omega_truth=w, name=name)
 
 
 CITY_TURNS = [(60, 9, 10.0), (120, 9, -10.0), (200, 18, 10.0), (260, 9, -10.0)]
@@ -118,7 +122,7 @@ def test_hdr_column_is_run_batch() -> None:
     log = make_drive(drift_dps=0.1, turns=CITY_TURNS)
     p = HdrParams(i_c=0.03)
     prep = prepare_drive(log)
-    r = ev.evaluate_prepared(prep, p)
+    r = ev.evaluate_prepared(prep, setup=MethodSetup(hdr=p))
     yaw = run_batch(prep.steps.u, p).yaw
     assert r.heading["hdr"][prep.k] == prep.truth[prep.k]
     assert r.heading["hdr"] == pytest.approx(prep.truth[prep.k] - (yaw - yaw[prep.k]))
@@ -418,17 +422,19 @@ def test_nonfinite_improvement_is_null_in_json() -> None:
 def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path) -> None:
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
-    from hdrd.config import parse_config, settings_context
+    from hdrd.config import method_setup, parse_config
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"
     write_drive(path, generate(next(s for s in TRAIN_DRIVES if s.name == "city1")))
     prep = ev.prepare_drive(read_drive(path))
-    off = settings_context(parse_config({"standstill": {"enabled": False}}))
-    assert not ev.method_settings(prep, "hdr+", HdrParams(), off).standstill.enabled
-    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), context=off).e_psi["hdr+"]
+    off = method_setup(parse_config({"standstill": {"enabled": False}}))
+    assert not ev.method_settings(
+        prep, "hdr+", setup=replace(off, hdr=HdrParams())
+    ).standstill.enabled
+    got_off = ev.evaluate_prepared(prep, methods=("hdr+",), setup=off).e_psi["hdr+"]
     got_on = ev.evaluate_prepared(prep, methods=("hdr+",)).e_psi["hdr+"]
-    yaw = ev.method_yaw(prep, "hdr+", HdrParams(), off)
+    yaw = ev.method_yaw(prep, "hdr+", setup=replace(off, hdr=HdrParams()))
     assert got_off == pytest.approx(float(ev.e_psi(yaw, prep.truth, prep.k)), abs=0)
     assert got_off != got_on
     cfg = tmp_path / "hdrd.yaml"
@@ -517,6 +523,83 @@ def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert rows["city"].endswith("gyro standstill 30 s at 0 s")
     assert rows["phone/p1"].endswith("gyro standstill 30 s at 13 s")
     assert cap.err.count("\n") == 1 and "skipped phone/moving: " in cap.err
-    # A file and a directory together, with the bias given for all.
+    # A file and a directory together, with the bias given for all (p1, in both, scored once).
     assert cli_main(["evaluate", str(sub / "p1.csv"), str(sub), "--bias", "0.01"]) == 0
-    assert capsys.readouterr().out.count(" given") == 3
+    cap = capsys.readouterr()
+    assert cap.out.count(" given") == 2
+    assert cap.err == "hdrd evaluate: warning: p1: named more than once; taken once\n"
+
+
+def _course_truth_drive(first_fix_error_deg: float) -> DriveLog:
+    """A simulated drive whose truth is made a course over ground (no omega_truth), its first
+    fixes at walking pace in a turn first_fix_error_deg off (as a real course there can be)."""
+    from hdrd.sim import simulate_legs
+    from hdrd.sim.benchmark import VARIANTS
+
+    log = simulate_legs([(VARIANTS["city"], 0.5), (VARIANTS["suburbs"], 0.5)], 12.0, 3)
+    assert log.heading_truth is not None and log.speed is not None
+    truth = log.heading_truth.copy()
+    first = np.flatnonzero(np.isfinite(truth) & (log.t > 31.0))[:3]  # after the lead-in
+    truth[first] = (truth[first] + first_fix_error_deg) % 360.0
+    speed = log.speed.copy()
+    speed[: first[-1] + 1] = np.minimum(speed[: first[-1] + 1], 2.0)
+    return dataclasses.replace(log, heading_truth=truth, speed=speed, omega_truth=None)
+
+
+def test_a_misaligned_first_course_no_longer_decides_the_score() -> None:
+    """A course over ground is aligned over the first straight stretch at speed
+    (prepare.alignment), so a first fix 25 deg off changes Eψ by little; an exact truth (a
+    simulation's) keeps the first-sample alignment, where the 25 deg move Eψ by several deg."""
+    clean, bad = _course_truth_drive(0.0), _course_truth_drive(25.0)
+    r_clean, r_bad = evaluate_drive(clean), evaluate_drive(bad)
+    assert abs(r_bad.e_psi["none"] - r_clean.e_psi["none"]) < 1.0
+    prep = ev.prepare_drive(bad)
+    assert prep.align_n == 10 and prep.k > 0
+    truth_first = dataclasses.replace(bad, omega_truth=np.zeros(len(bad)))  # "exact" truth
+    assert ev.prepare_drive(truth_first).align_n == 1
+    assert abs(evaluate_drive(truth_first).e_psi["none"] - r_clean.e_psi["none"]) > 5.0
+
+
+def test_calibrate_seconds_never_takes_a_sample_past_it() -> None:
+    """29.4 s with T = 1 s is 29 whole steps: the car starting to move at 29.5 s is not in the
+    bias; a window shorter than a step is refused, not stretched to one."""
+    log = make_drive(
+        minutes=3.0, calib_s=29.5, drift_dps=0.0, noise_dps=0.0, turns=[(29.5, 5, 20.0)]
+    )
+    prep = prepare_drive(log, calibrate_seconds=29.4)
+    assert prep.bias_source == "first 29 s" and prep.start_s == 29.0
+    assert prep.steps.bias_dps == pytest.approx(0.8, abs=1e-12)  # no turn sample in it
+    with pytest.raises(EvaluationError, match="at least one step"):
+        prepare_drive(log, calibrate_seconds=0.5)
+
+
+def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path) -> None:
+    """--trace DIR: DIR/<drive>.csv, one row per step: t, heading_truth, speed and the compass
+    heading of none, hdr and hdr+ (whatever --method), from which Eψ is computed again."""
+    from hdrd.sim import simulate_legs
+    from hdrd.sim.benchmark import VARIANTS
+
+    log = simulate_legs([(VARIANTS["city"], 1.0)], 8.0, 4, name="city")
+    write_drive(tmp_path / "city.csv", log)
+    out = tmp_path / "doc.json"
+    rc = cli_main(["evaluate", str(tmp_path / "city.csv"), "--trace", str(tmp_path / "tr"),
+                   "--json", str(out)])  # fmt: skip
+    assert rc == 0
+    lines = (tmp_path / "tr" / "city.csv").read_text().splitlines()
+    cols = lines[0].split(",")
+    assert cols == ["t", "heading_truth", "speed", "heading_none", "heading_hdr", "heading_hdr+"]
+    rows = np.array([[float(v) if v else np.nan for v in ln.split(",")] for ln in lines[1:]])
+    prep = prepare_drive(log)
+    assert rows.shape == (prep.steps.u.shape[0], 6)
+    assert np.array_equal(rows[:, 0], np.round(prep.steps.t_end, 3))
+    assert np.all((rows[:, 3:] >= 0.0) & (rows[:, 3:] < 360.0))
+    d = json.loads(out.read_text())["drives"][0]
+    for k, m in ((3, "raw"), (4, "hdr")):  # Eψ again from the published headings
+        ok = np.isfinite(rows[:, 1])
+        err = np.abs((rows[ok, k] - rows[ok, 1] + 180.0) % 360.0 - 180.0)
+        assert float(np.mean(err)) == pytest.approx(d[f"E_psi_{m}"], abs=1e-3)
+    # a folder that is a file is refused before the work
+    (tmp_path / "file").write_text("")
+    assert (
+        cli_main(["evaluate", str(tmp_path / "city.csv"), "--trace", str(tmp_path / "file")]) == 1
+    )

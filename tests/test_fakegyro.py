@@ -1,4 +1,4 @@
-"""hdrd.commands.fakegyro: the pty fake ADC, its fault injection, and the ``hdrd fakegyro`` command."""
+"""hdrd.sim.fakegyro: the pty fake ADC, its fault injection, and the ``hdrd fakegyro`` command."""
 
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.core.sensor import SensorModel
 from hdrd.io.capture import decode_capture
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import Frame, Parser, array_to_frames
 from hdrd.io.sources import SerialSource
+from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile
 
 WAIT_S = 20.0

@@ -28,14 +28,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.commands.fakegyro import FakeGyro
+from hdrd.core.calibrate import given_bias
 from hdrd.core.hdr import HdrParams
+from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
 from hdrd.io.frames import Frame, Parser, array_to_frames
 from hdrd.io.publish import _format_clean, format_json
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
 from hdrd.sim import simulate_drive
+from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import profile_frames
 
 FAULTS: dict[str, Any] = {"garbage": 0.01, "crc_errors": 0.005, "drop": 0.002, "seed": 5}
@@ -60,7 +62,7 @@ def capture(
 
 
 def replay_messages(data: bytes, config: PipelineConfig) -> list[dict[str, Any]]:
-    """What ``hdrd replay`` publishes (hdrd.commands.replay.replay_capture, with a PipelineConfig)."""
+    """What ``hdrd replay`` publishes (hdrd.daemon.replay.replay_capture, with a PipelineConfig)."""
     arr, st_ = decode_capture(data)
     p = Pipeline(config)
     msgs = p.feed_array(arr, st_.bad_before)
@@ -69,7 +71,7 @@ def replay_messages(data: bytes, config: PipelineConfig) -> list[dict[str, Any]]
 
 
 CONFIGS = {
-    "bias given": PipelineConfig(bias_dps=0.1),
+    "bias given": PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))),
     "start-up calibration": PipelineConfig(startup_s=1.0),
 }
 
@@ -141,7 +143,7 @@ def test_live_daemon_path_equals_replay_on_the_same_bytes(
 
 
 def fed(frames_us: list[int], T: float = 1.0) -> Pipeline:
-    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams(T=T)))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=T), bias=given_bias(0.0))))
     for i, t in enumerate(frames_us):
         p.feed(Frame(i & 0xFFFF, t % 2**32, 32768, 0, None))
     return p
@@ -183,7 +185,7 @@ def test_until_step_s_never_sleeps_past_the_closing_sample(
     period = 1e6 / hz
     t = np.rint(np.arange(n) * period + rng.uniform(-jitter, jitter, n) * period).astype(np.int64)
     t = np.maximum.accumulate(t - t[0]) + np.arange(n)  # strictly increasing from 0
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     block = t // 1_000_000
     for i, tu in enumerate(t.tolist()):
         p.feed(Frame(i & 0xFFFF, tu, 32768, 0, None))

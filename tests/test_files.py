@@ -11,6 +11,7 @@ the commands: test_hardening.py, test_config.py; names from data through ``hdrd 
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -26,11 +27,14 @@ from hdrd.io.files import (
     MAX_SHOWN_PATH,
     MAX_YAML_DEPTH,
     InputFileError,
+    OutputFileError,
     UnsafeNameError,
+    atomic_output,
     atomic_write_json,
     atomic_write_text,
     default_bias_path,
     load_yaml,
+    missing_folder,
     path_inside,
     printable,
     read_limited,
@@ -182,6 +186,108 @@ def test_only_the_temporary_files_of_dead_writers_are_removed(tmp_path: Path) ->
     atomic_write_text(target, "y")
     assert temps(tmp_path) == sorted([mine.name, other.name])
     assert target.read_text() == "y"
+
+
+def char_device(path: Path) -> Path:
+    """A character device node at *path* with /dev/null's numbers (1, 3), made with mknod; the
+    test is skipped, saying why, where mknod is not allowed."""
+    if os.geteuid() != 0:
+        pytest.skip("mknod of a character device needs root (CAP_MKNOD); run as root to test it")
+    try:
+        os.mknod(path, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    except PermissionError as e:
+        pytest.skip(f"mknod refused here (a container without CAP_MKNOD?): {e}")
+    return path
+
+
+def test_a_character_device_is_written_through_never_replaced(tmp_path: Path) -> None:
+    # Was: the rename put a regular file in the device's place (as root: /dev/null's).
+    node = char_device(tmp_path / "mynull")
+    before = node.stat()
+    atomic_write_json(node, {"a": 1})
+    atomic_write_text(node, "x" * 100_000)
+    after = node.stat()
+    assert stat.S_ISCHR(after.st_mode) and after.st_rdev == os.makedev(1, 3)
+    assert after.st_ino == before.st_ino and temps(tmp_path) == []
+
+
+def test_dev_null_stays_the_systems(tmp_path: Path) -> None:
+    if os.geteuid() == 0:
+        pytest.skip("as root a defect here would replace the system's /dev/null: the node made "
+                    "with mknod tests it instead")  # fmt: skip
+    before = os.stat("/dev/null")
+    atomic_write_json("/dev/null", {"a": 1})  # as a user, a rename into /dev would fail
+    assert os.stat("/dev/null").st_ino == before.st_ino
+
+
+def test_a_fifo_is_written_through_to_its_reader(tmp_path: Path) -> None:
+    import threading
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    atomic_write_json(fifo, {"steps": list(range(20_000))})  # more than a pipe's buffer
+    reader.join(30)
+    assert json.loads(got[0]) == {"steps": list(range(20_000))}
+    assert stat.S_ISFIFO(fifo.stat().st_mode) and temps(tmp_path) == []
+
+
+def test_evaluate_json_to_a_device_leaves_the_device(tmp_path: Path) -> None:
+    from hdrd.cli import main
+    from hdrd.io.drivelog import write_drive
+    from hdrd.sim import simulate_drive
+
+    node = char_device(tmp_path / "mynull")
+    drive = tmp_path / "d.csv"
+    write_drive(drive, simulate_drive("city", 2.0, seed=3))
+    assert main(["evaluate", str(drive), "--json", str(node), "--no-progress"]) == 0
+    assert stat.S_ISCHR(node.stat().st_mode) and temps(tmp_path) == []
+
+
+def test_a_directory_a_socket_or_a_block_device_is_refused(tmp_path: Path) -> None:
+    import socket
+
+    (tmp_path / "dir").mkdir()
+    sock_path = tmp_path / "sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.bind(str(sock_path))
+        targets = {tmp_path / "dir": "a directory", sock_path: "a socket"}
+        if os.geteuid() == 0:  # a node of the loop device: refused before anything is opened
+            with contextlib.suppress(PermissionError):
+                os.mknod(tmp_path / "disk", stat.S_IFBLK | 0o600, os.makedev(7, 0))
+                targets[tmp_path / "disk"] = "a block device"
+        for target, kind in targets.items():
+            with pytest.raises(OutputFileError, match=f"is {kind}: only a regular file"):
+                atomic_write_text(target, "x")
+            assert not stat.S_ISREG(target.lstat().st_mode)
+    assert temps(tmp_path) == []
+
+
+def test_a_link_to_a_file_keeps_the_link_and_replaces_the_file(tmp_path: Path) -> None:
+    real = tmp_path / "real.json"
+    real.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(real)
+    atomic_write_text(link, "new")
+    assert link.is_symlink() and real.read_text() == "new"
+
+
+def test_an_output_is_made_only_in_a_folder_that_exists(tmp_path: Path) -> None:
+    out = tmp_path / "no" / "x.csv"
+    assert missing_folder(out) == f"the folder {tmp_path / 'no'} does not exist"
+    assert missing_folder(tmp_path / "x.csv") is None
+    with pytest.raises(OutputFileError, match="the folder .*/no does not exist"):
+        with atomic_output(out) as f:
+            f.write(b"x")
+    assert not (tmp_path / "no").exists()
+    with atomic_output(tmp_path / "x.bin") as f:  # and a failed block leaves nothing
+        f.write(b"whole")
+    with pytest.raises(RuntimeError), atomic_output(tmp_path / "x.bin") as f:
+        f.write(b"half")
+        raise RuntimeError
+    assert (tmp_path / "x.bin").read_bytes() == b"whole" and temps(tmp_path) == []
 
 
 def test_default_bias_path_is_the_units_state_directory(monkeypatch: pytest.MonkeyPatch) -> None:

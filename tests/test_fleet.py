@@ -31,7 +31,9 @@ from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+# HDRD_FLEET_MIN_WORK_S=0: --workers starts its cluster however small the fleet (the rule that
+# keeps small work in this process has its own test)
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "HDRD_FLEET_MIN_WORK_S": "0"}
 
 
 @pytest.fixture(scope="module")
@@ -276,6 +278,20 @@ def test_results_come_back_in_order_whatever_order_they_finish_in(tmp_path: Path
     )
     assert p.returncode == 0, p.stderr
     assert json.loads(out.read_text()) == {"batch1": list(range(12)), "batch5": list(range(12))}
+
+
+@pytest.mark.slow
+def test_a_starting_cluster_and_this_process_share_the_items_in_order(tmp_path: Path) -> None:
+    out = tmp_path / "hybrid.json"
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "fleet_cluster.py"), "hybrid", str(out)],
+        capture_output=True, text=True, env=ENV, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert [i for i, _ in doc["got"]] == list(range(120))
+    assert {pid for _, pid in doc["got"]} <= {doc["client"], *doc["workers"]}
+    assert len(doc["workers"]) == 2 and doc["client"] not in doc["workers"]
 
 
 @pytest.fixture

@@ -21,6 +21,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
+from tests.test_aiding import on_message
 from tools.fuzz import harness as fuzz
 from tools.fuzz.inputs import SURFACES, generate
 from tools.fuzz.mutate import Tok, emit_json, emit_yaml
@@ -107,7 +110,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
             "bias": 0.1,
             "t": 1.0,
         }
-        out, delta = aiding.on_message(msg, 10.5)
+        out, delta = on_message(aiding, msg, 10.5)
         assert math.isfinite(delta)
         check_messages([{**out, "status": "ok"}])
 
@@ -128,7 +131,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     raw=st.booleans(),
 )
 def test_tail_prints_only_printable_lines(parts: list[bytes], raw: bool) -> None:
-    from hdrd.commands.tail import TailFormatter
+    from hdrd.io.datagrams import TailFormatter
 
     out, notes, n = TailFormatter(raw=raw).lines(b"\n".join(parts), "127.0.0.1:9")
     assert n >= 0
@@ -160,8 +163,8 @@ def test_a_config_is_valid_or_one_config_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.commands.replay import replay_capture
     from hdrd.config import ConfigError, load_config
+    from hdrd.daemon.replay import replay_capture
 
     p = tmp_path_factory.mktemp("cfg") / "hdrd.yaml"
     text = emit_yaml(doc, block_depth=block).encode("utf-8", "surrogatepass")
@@ -228,7 +231,7 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
     from hdrd.io.frames import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]
-    parser, p = Parser(protocol), Pipeline(PipelineConfig(bias_dps=0.1))
+    parser, p = Parser(protocol), Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
     msgs = []
     for i in range(0, len(stream), 97):
         for f in parser.feed(stream[i : i + 97]):
@@ -240,8 +243,8 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
 @FUZZ
 @given(data=st.binary(max_size=2000), protocol=st.sampled_from(["hdr-bin", "hdr-text"]))
 def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
-    from hdrd.commands.replay import replay_capture
     from hdrd.config import Config, apply_overrides
+    from hdrd.daemon.replay import replay_capture
 
     cfg = apply_overrides(Config(), {"device.protocol": protocol, "hdr.method": "hdr+"})
     check_messages(replay_capture(_CAPTURE[:3000] + data, cfg, None, startup_s=1.0))

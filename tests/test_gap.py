@@ -539,8 +539,8 @@ def test_a_step_that_raises_the_gap_is_not_added(
 
 
 def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
-    from hdrd.commands.gap import plus_section
-    from hdrd.config import load_config, settings_context
+    from hdrd.commands.gap import gyro_section
+    from hdrd.config import load_config, method_setup
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise
 
@@ -553,21 +553,21 @@ def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None
         )
     )
     path = tmp_path / "hdrd.yaml"
-    path.write_text(plus_section(model, "drive.csv"))
+    path.write_text(gyro_section(model, "drive.csv"))
     cfg, _ = load_config(path)  # every key valid as written (a tau below 1 s is taken as 1 s)
-    ctx = settings_context(cfg)
+    ctx = method_setup(cfg)
     noise = noise_in_force(ctx.grade, dict(ctx.given_noise))
     assert noise is not None and noise.source == "config" and noise.known()
     assert noise.white_dps_per_rthz == 0.05 and noise.temp_coeff_dps_per_c == 0.02
     assert noise.bias_tau_s == 1.0 and noise.bias_instability_dps > 0
-    assert "plus:\n  white_dps_per_rthz: 0.05\n" in path.read_text()
+    assert "gyro:\n  white_dps_per_rthz: 0.05\n" in path.read_text()
     bare = tmp_path / "bare.yaml"
-    bare.write_text(plus_section(GyroModel((StaticBias(0.1),)), "d.csv"))
-    bare_ctx = settings_context(load_config(bare)[0])
+    bare.write_text(gyro_section(GyroModel((StaticBias(0.1),)), "d.csv"))
+    bare_ctx = method_setup(load_config(bare)[0])
     assert noise_in_force(bare_ctx.grade, dict(bare_ctx.given_noise)) is None  # nothing claimed
 
 
-def test_gap_writes_the_plus_section_for_one_drive_only(tmp_path: Path) -> None:
+def test_gap_writes_the_gyro_section_for_one_drive_only(tmp_path: Path) -> None:
     from hdrd.cli import main as cli
 
     log = simulate_drive("city", 3.0, 2)
@@ -575,9 +575,9 @@ def test_gap_writes_the_plus_section_for_one_drive_only(tmp_path: Path) -> None:
     write_drive(a, log)
     write_drive(b, log)
     out = tmp_path / "plus.yaml"
-    assert cli(["gap", str(a), "--plus-out", str(out)]) == 0
-    assert out.read_text().splitlines()[2] == "plus:"
-    assert cli(["gap", str(a), str(b), "--plus-out", str(tmp_path / "x.yaml")]) == 1
+    assert cli(["gap", str(a), "--gyro-out", str(out)]) == 0
+    assert out.read_text().splitlines()[2] == "gyro:"
+    assert cli(["gap", str(a), str(b), "--gyro-out", str(tmp_path / "x.yaml")]) == 1
 
 
 def test_a_short_slow_log_has_no_frequency_above_its_blocks_and_still_fits() -> None:

@@ -37,12 +37,15 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.gpsd import Attitude, Fix, GpsdClient
 from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
+from tests.test_aiding import on_message
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
 KNOT_MPS = 1852.0 / 3600.0
@@ -267,7 +270,7 @@ def gyro_steps(
     rate = [-wrap180(b - a) for a, b in itertools.pairwise(truth)]  # CCW, deg/s per second
     raw = np.repeat(rate, 10) + bias_true + rng.normal(0, 0.05, 10 * len(rate))
     counts = SensorModel().to_counts(np.append(raw, raw[-1]))
-    p = Pipeline(PipelineConfig(bias_dps=bias_given))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(bias_given))))
     out: list[dict[str, Any]] = []
     for i, c in enumerate(counts):
         out.extend(p.feed(Frame(i * 100_000, int(c))))
@@ -321,7 +324,7 @@ def test_gpsfake_drive_through_an_outage(need_gpsfake, procs, tmp_path):
         if kind == 0:
             aiding.on_fix(item, now)
         else:
-            out, _ = aiding.on_message(item, now)
+            out, _ = on_message(aiding, item, now)
             pub.append(out)
             hdr.append(item["heading"])
     modes = [m["mode"] for m in pub]
@@ -410,7 +413,7 @@ def test_gpsfake_a_receiver_without_a_fix_another_course_and_a_glitch(
         if kind == 0:
             aiding.on_fix(item, now)
         else:
-            pub.append(aiding.on_message(item, now)[0])
+            pub.append(on_message(aiding, item, now)[0])
     first = next(i for i, m in enumerate(pub) if m["mode"] == AIDED)
     after = pub[first:]
     assert all(abs(wrap180(m["heading"] - 90.0)) < 1.0 for m in after), [
@@ -717,7 +720,7 @@ def test_gpsd_takes_no_held_heading_for_a_fresh_one(need_gpsd, procs):
     gpsd, port, uport = start_gpsd_udp(procs)
     c = watch(port, gpsd)
     pub = UdpNmeaPublisher([("127.0.0.1", uport)], ths=True, talker="II")
-    p = Pipeline(PipelineConfig(bias_dps=0.0, heading0_deg=123.0))
+    p = Pipeline(PipelineConfig(heading0_deg=123.0, setup=MethodSetup(bias=given_bias(0.0))))
     assert len(run_live(p, make_frames(np.zeros(30)))) == 3  # three real steps, then silence
     stale = [p.stale_message(None, silent_s=3.0 + k) for k in range(5)]
     assert all(m["status"] == "stale" and m["heading"] == 123.0 for m in stale)

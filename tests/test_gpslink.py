@@ -11,21 +11,30 @@ gpsd and a daemon process: test_gpsd_nmea.py.
 from __future__ import annotations
 
 import time
-from typing import Any
+from dataclasses import dataclass
 
 import pytest
 from structlog.testing import capture_logs
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
+from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, GpsAiding
 from hdrd.daemon.gpslink import GpsdLink
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.gpsd import GpsdClient
+from hdrd.io.protocol import Message
 from tests.test_gpsd import REAL_TPV, WAIT, Peer, peer  # noqa: F401 - peer: a fixture
 
-MSG: dict[str, Any] = {
-    "class": "HDR", "v": 1, "t": 1.0, "step": 0, "omega_raw": 0.0, "omega": 0.0, "yaw": 0.0,
-    "heading": 0.0, "bias": 0.0, "status": "ok",
-}  # fmt: skip
+
+@dataclass(frozen=True)
+class Row:
+    """A frame as the pipeline reads it."""
+
+    t_us: int
+    rate: int
+    ref: int
+    temp_c: float | None
 
 
 def connected_link(peer: Peer, p: Pipeline) -> tuple[GpsdLink, GpsdClient]:
@@ -40,41 +49,53 @@ def connected_link(peer: Peer, p: Pipeline) -> tuple[GpsdLink, GpsdClient]:
     return link, c
 
 
-def test_link_feeds_speed_and_aids_messages(peer):
+class _Clock:
+    """A monotonic clock the test sets (the link's and the aiding stage's)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _steps(p: Pipeline, first: int, count: int) -> list[Message]:
+    """Messages of ``count`` 1 s steps from step ``first`` of a gyro at rest (10 Hz frames,
+    heading 0 with the given bias 0)."""
+    out: list[Message] = []
+    for i in range(first * 10, (first + count) * 10 + 1):
+        out += p.feed(Row(i * 100_000, 32768, 0, None))
+    return out
+
+
+def test_link_feeds_speed_and_the_pipeline_aids_its_steps(peer):
     c = GpsdClient("127.0.0.1", peer.port)
-    link = GpsdLink(c, GpsAiding())
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    clock = _Clock()
+    link = GpsdLink(c, GpsAiding(), clock)
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(bias=given_bias(SensorModel().to_dps_scalar(32768, 0)))),
+        link.aiding,
+        clock,
+    )
     try:
-        link.poll(p, now=0.0)
+        link.poll(p)
         peer.accept()
         deadline = time.monotonic() + WAIT
         while not c.connected and time.monotonic() < deadline:
-            link.poll(p, now=0.0)
+            link.poll(p)
         peer.send(REAL_TPV + "\n")
+        clock.now = 1.0
         while p.speed_mps is None and time.monotonic() < deadline:
-            link.poll(p, now=1.0)
+            link.poll(p)
         assert p.speed_mps == pytest.approx(10.289)
-        msg = {
-            "class": "HDR",
-            "v": 1,
-            "t": 1.0,
-            "step": 0,
-            "omega_raw": 0.0,
-            "omega": 0.0,
-            "yaw": 0.0,
-            "heading": 0.0,
-            "bias": 0.0,
-            "status": "ok",
-        }
-        (out,) = link.aid([msg], p, now=1.2)
-        assert (
-            out["mode"] == AIDED
-            and out["heading"] == pytest.approx(31.0)
-            and out["gps_course"] == 31.0
-        )
-        link.poll(p, now=10.0)  # the fix is stale now
+        clock.now = 1.2
+        (out,) = _steps(p, 0, 1)
+        assert out["mode"] == AIDED and out["heading"] == pytest.approx(31.0)
+        assert out["gps_course"] == 31.0
+        clock.now = 10.0
+        link.poll(p)  # the fix is stale now
         assert p.speed_mps is None
-        (out,) = link.aid([dict(msg, t=2.0, step=1)], p, now=10.0)
+        (out,) = _steps(p, 1, 1)
         assert out["mode"] == "dead-reckoning" and out["heading"] == pytest.approx(31.0)
     finally:
         link.close()
@@ -114,7 +135,7 @@ def test_link_from_config_takes_the_aiding_keys():
 
 
 def test_bad_lines_are_logged_at_most_every_10_s_with_their_count(peer) -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     link, c = connected_link(peer, p)
     try:
         with capture_logs() as logs:
@@ -136,19 +157,28 @@ def test_bad_lines_are_logged_at_most_every_10_s_with_their_count(peer) -> None:
 
 
 def test_each_change_of_mode_is_logged_once(peer) -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    clock = _Clock()
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(bias=given_bias(SensorModel().to_dps_scalar(32768, 0))))
+    )
     link, _ = connected_link(peer, p)
+    link._clock = clock
+    p.set_aiding(link.aiding, clock)
     try:
         with capture_logs() as logs:
             peer.send(REAL_TPV + "\n")
             deadline = time.monotonic() + WAIT
+            clock.now = 1.0
             while p.speed_mps is None and time.monotonic() < deadline:
-                link.poll(p, now=1.0)
+                link.poll(p)
             for k, now in enumerate((1.2, 1.4, 1.6)):
-                link.aid([dict(MSG, t=now, step=k)], p, now=now)
-            link.poll(p, now=10.0)  # the fix is stale: dead reckoning from here
+                clock.now = now
+                link.log_mode(_steps(p, k, 1))
+            clock.now = 10.0
+            link.poll(p)  # the fix is stale: dead reckoning from here
             for k, now in enumerate((10.0, 11.0), start=3):
-                link.aid([dict(MSG, t=now, step=k)], p, now=now)
+                clock.now = now
+                link.log_mode(_steps(p, k, 1))
         modes = [e for e in logs if e["event"] == "gps_mode"]
         assert [e["mode"] for e in modes] == [AIDED, "dead-reckoning"]
         assert modes[0]["gps_course"] == 31.0 and modes[0]["heading"] == pytest.approx(31.0)

@@ -3,7 +3,7 @@
 A gyro whose bias is a constant, measured by the drive's own start-up calibration, needs no
 drift reduction: bias removal is as good as it gets. HDR and HDR+ must leave such a heading
 within 10 % of bias removal's when the gyro's error model is known (the configuration's
-``plus.*``, a grade, or a bias file's recorded model): the paper's Table III increment is
+``gyro.*``, a grade, or a bias file's recorded model): the paper's Table III increment is
 meant for a CRS03-04's drift and only straightens real curves on a gyro whose bias stays put.
 """
 
@@ -18,7 +18,7 @@ from hdrd.analysis.evaluate import DEFAULTS, method_yaw
 from hdrd.analysis.metrics import e_psi
 from hdrd.analysis.prepare import PreparedDrive, prepare_drive
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 from hdrd.sim.gyro import GyroModel, StaticBias, WhiteNoise
 
@@ -41,8 +41,8 @@ def constant_bias_drives() -> list[PreparedDrive]:
     return out
 
 
-def known(noise: GyroNoise) -> SettingsContext:
-    """The default configuration with the gyro's error model given (``plus.*``)."""
+def known(noise: GyroNoise) -> MethodSetup:
+    """The default configuration with the gyro's error model given (``gyro.*``)."""
     return replace(DEFAULTS, given_noise=tuple(noise.to_dict().items()))
 
 
@@ -55,8 +55,8 @@ STEADY = GyroNoise(
 """What such a gyro's error model says: white noise, a bias that barely moves."""
 
 
-def errors(drives: list[PreparedDrive], method: str, ctx: SettingsContext) -> np.ndarray:
-    return np.array([e_psi(method_yaw(p, method, context=ctx), p.truth, p.k) for p in drives])
+def errors(drives: list[PreparedDrive], method: str, ctx: MethodSetup) -> np.ndarray:
+    return np.array([e_psi(method_yaw(p, method, setup=ctx), p.truth, p.k) for p in drives])
 
 
 @pytest.mark.parametrize("method", ["hdr", "hdr+"])
@@ -73,10 +73,10 @@ def test_a_known_constant_bias_is_left_alone(
 def test_the_paper_increment_harms_a_steady_gyro(
     constant_bias_drives: list[PreparedDrive],
 ) -> None:
-    """The harm the rule above prevents: with Table III's increment (``hdr.i_c_from:
-    config``, or no error model known) paper HDR makes the same drives clearly worse."""
+    """The harm the rule above prevents: with Table III's increment (``hdr.i_c:
+    0.0422``, or no error model known) paper HDR makes the same drives clearly worse."""
     none = errors(constant_bias_drives, "none", DEFAULTS)
-    table3 = errors(constant_bias_drives, "hdr", replace(known(STEADY), hdr_i_c_from_gyro=False))
+    table3 = errors(constant_bias_drives, "hdr", replace(known(STEADY), i_c_auto=False))
     assert table3.mean() > 1.3 * none.mean()
 
 

@@ -83,7 +83,7 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 
 
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
-    from hdrd.config import parse_config, settings_context
+    from hdrd.config import method_setup, parse_config
     from hdrd.core.calibrate import BiasRecord
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.core.methods import plus_settings
@@ -99,21 +99,21 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
     assert noise_in_force("phone", {}, short).source == "grade phone"  # type: ignore[union-attr]
     # the daemon's choice from its config and bias file, in the one place HDR+'s settings
     # are derived
-    cfg = settings_context(parse_config({"plus": {"grade": "tactical"}}))
+    cfg = method_setup(parse_config({"gyro": {"grade": "tactical"}}))
     assert plus_settings(cfg).model == "grade tactical"
     rec = BiasRecord(0.1, 0.01, 100, 10.0, noise=recorded)
     assert plus_settings(replace(cfg, bias=rec)).model == "recorded"
-    assert plus_settings(settings_context(parse_config({}))).model == "defaults"
+    assert plus_settings(method_setup(parse_config({}))).model == "defaults"
     with pytest.raises(ValueError, match="unknown gyro grade"):
         noise_in_force("nav")
 
 
 def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> None:
     # `hdrd replay --bias-file F` (and `hdrd run`) fits HDR+ to the noise recorded in F,
-    # else to plus.grade, and says which in every step.
-    from hdrd.commands.replay import replay_capture
+    # else to gyro.grade, and says which in every step.
     from hdrd.config import parse_config
     from hdrd.core.calibrate import BiasRecord
+    from hdrd.daemon.replay import replay_capture
     from hdrd.io.frames import FRAME_DTYPE, encode_array
 
     n = 600
@@ -122,7 +122,7 @@ def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> N
     a["t_us"] = np.arange(n) * 100_000
     a["rate"] = 32768 + np.random.default_rng(0).integers(-3, 4, n)
     data = encode_array(a)
-    cfg = parse_config({"hdr": {"method": "hdr+"}, "plus": {"grade": "automotive"}})
+    cfg = parse_config({"hdr": {"method": "hdr+"}, "gyro": {"grade": "automotive"}})
     known = GyroNoise(rrw_dps_per_sqrt_s=1e-5, source="recorded")
     rec = BiasRecord(0.0, 0.02, 300, 30.0, noise=known)
     for record, model in ((None, "grade automotive"), (rec, "recorded")):

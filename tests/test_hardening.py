@@ -64,18 +64,12 @@ def test_bias_file_with_a_control_character_is_refused_in_one_line(
 
 
 def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_path: Path) -> None:
-    import argparse
-
-    from hdrd.commands.options import config_from_args
-    from hdrd.config import Config
+    from hdrd.config import Config, load_config
     from hdrd.daemon.run import BiasChoice, Daemon
 
     p = tmp_path / "hdrd.yaml"
     p.write_text("hdr:\n  method: none\n")
-    args = argparse.Namespace(config=str(p))
-    d = Daemon(
-        Config(), "built-in defaults", lambda: config_from_args(args), BiasChoice(None, "startup")
-    )
+    d = Daemon(Config(), "built-in defaults", lambda: load_config(p), BiasChoice(None, "startup"))
     p.write_bytes(b"hdr:\n  method: hdr+\n  c1: \x00\n")
     before = d.cfg
     d.reload_config()  # the SIGHUP handler's body: used to raise ReaderError
@@ -168,6 +162,27 @@ def test_simulate_refuses_a_drive_it_cannot_make(
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and why in err and err.startswith("hdrd simulate: ")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--minutes", "0.1", "--out", "{d}/no/x.csv"],
+        ["--minutes", "0.1", "--out", "{d}/no/x.parquet"],
+        ["--minutes", "0.1", "--out", "{d}/no/fleet", "--format", "dataset"],
+        ["--benchmark", "test", "--out", "{d}/no/bench"],
+    ],
+)
+def test_simulate_makes_no_missing_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    # `--out /nonexistent/x.csv` created /nonexistent: a typo made folders. Refused before the
+    # work, with one line naming the folder; nothing made.
+    rc = main(["simulate", *(a.format(d=tmp_path) for a in args)])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1
+    assert err.endswith(f"the folder {tmp_path}/no does not exist\n"), err
+    assert not (tmp_path / "no").exists()
 
 
 def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None:

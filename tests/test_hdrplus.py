@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +21,24 @@ from hdrd.analysis.evaluate import evaluate_drive
 from hdrd.cli import main as cli_main
 from hdrd.core import biasbank as bb
 from hdrd.core import hdr, hdrplus
+from hdrd.core.biasbank import Hypothesis
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import (
     INITIAL_PLUS_STATE,
-    PLUS_CORE,
-    Ablation,
     HdrPlusParams,
     PlusOutput,
     PlusState,
     run_batch,
     step,
+)
+from hdrd.core.plusparams import (
+    DEFAULT_BANK,
+    DRIFT_PRIOR,
+    PLUS_CORE,
+    TUNING,
+    GyroFit,
+    Tuning,
+    one_model,
 )
 from hdrd.core.standstill import StandstillParams
 from hdrd.core.steps import StepInput
@@ -40,6 +48,44 @@ from hdrd.sim.benchmark import VARIANTS
 from hdrd.sim.vehicle import CabinTemperature
 
 NAN = math.nan
+_FIT = {f.name for f in fields(GyroFit)}
+_TUNING = {f.name for f in fields(Tuning)}
+
+
+def plus(base: HdrPlusParams | None = None, **kw: Any) -> HdrPlusParams:
+    """HDR+'s settings from flat names: :class:`GyroFit`'s and :class:`Tuning`'s fields go to
+    their record, the rest (hdr, standstill, bank) to the settings themselves."""
+    p = HdrPlusParams() if base is None else base
+    fit = {k: kw.pop(k) for k in list(kw) if k in _FIT}
+    tun = {k: kw.pop(k) for k in list(kw) if k in _TUNING}
+    return replace(p, fit=replace(p.fit, **fit), tuning=replace(p.tuning, **tun), **kw)
+
+
+def bank_of(
+    members: int, q_drifting: float = 1e-5, prior: float = DRIFT_PRIOR
+) -> tuple[Hypothesis, ...]:
+    """A bank of one (a known model), two (stable, drifting) or three (a middle member)."""
+    if members == 1:
+        return one_model(3e-7)
+    stable = Hypothesis("stable", 1e-8, 1.0 - prior)
+    drifting = Hypothesis("drifting", q_drifting, prior)
+    if members == 2:
+        return (stable, drifting)
+    middle = Hypothesis("middle", 1e-7, 0.2)
+    return (replace(stable, prior=0.5), middle, replace(drifting, prior=0.3))
+
+
+def paper_params(core: HdrParams | None = None) -> HdrPlusParams:
+    """Every extra off: no stops, no straight-driving measurements, the core's fixed increment,
+    one filter."""
+    return HdrPlusParams(
+        hdr=HdrParams() if core is None else core,
+        standstill=StandstillParams(enabled=False),
+        fit=GyroFit(stop_offset_var=0.0, model="paper"),
+        bank=one_model(3e-7),
+        tuning=replace(TUNING, straight_r=0.0, ic_alpha=0.0),
+    )
+
 
 # -- strategies ------------------------------------------------------------------------------
 
@@ -78,12 +124,11 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         gyro_level_dps=draw(st.floats(0.0, 2.0)),
         steps_gyro=draw(st.integers(1, 6)),
     )
-    return HdrPlusParams(
+    return plus(
         hdr=draw(core_params()),
         standstill=ss,
         bias_p0=draw(st.floats(1e-6, 1.0)),
         bias_q=draw(st.floats(0.0, 1e-3)),
-        bias_q_no_temp=draw(st.floats(0.0, 1e-3)),
         temp_coeff_sd=draw(st.floats(0.0, 0.05)),
         straight_gate_dps=draw(st.floats(0.0, 2.0)),
         i_c_max=draw(st.floats(0.0, 0.05)),
@@ -92,24 +137,23 @@ def plus_params(draw: st.DrawFn) -> HdrPlusParams:
         block_var=draw(st.sampled_from([NAN, 0.0, 0.01])),
         stop_gate_sigma=draw(st.sampled_from([0.0, 4.0])),
         gate_floor_dps=draw(st.sampled_from([0.0, 0.03])),
-        bank=draw(st.booleans()),
-        q_stable=draw(st.sampled_from([0.0, 1e-8])),
-        q_drifting=draw(st.sampled_from([1e-6, 1e-5, 1e-3])),
+        bank=draw(
+            st.one_of(
+                st.builds(one_model, st.floats(0.0, 1e-3)),
+                st.builds(
+                    bank_of,
+                    st.sampled_from([2, 3]),
+                    st.sampled_from([1e-6, 1e-5, 1e-3]),
+                    st.floats(0.01, 0.98),
+                ),
+            )
+        ),
         stop_floor_dps=draw(st.sampled_from([0.0, 0.02])),
         drift_odds_max=draw(st.sampled_from([0.5, 4.6])),
         road_var=draw(st.sampled_from([0.0, 0.0025])),
         ic_drift_ratio=draw(st.sampled_from([0.0, 0.01, 1e6])),
-        ablation=Ablation(
-            temp_model=draw(st.booleans()),
-            heading_fix=draw(st.booleans()),
-            straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
-            ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
-            drift_prior=draw(st.floats(0.01, 0.98)),
-            motion_offset_var=draw(st.sampled_from([0.0, 0.01])),
-            moved_q=draw(st.sampled_from([0.0, 1e-7])),
-            road_lat_acc=draw(st.sampled_from([0.0, 0.02])),
-            moved_prior=draw(st.sampled_from([0.0, 0.01])),
-        ),
+        straight_r=draw(st.sampled_from([0.0, 0.01, 0.27])),
+        ic_alpha=draw(st.sampled_from([0.0, 0.1, 1.0])),
     )
 
 
@@ -184,67 +228,24 @@ def test_inputs_may_be_none_scalar_or_per_step() -> None:
 
 def test_params_are_checked() -> None:
     with pytest.raises(ValueError, match="straight_r"):
-        Ablation(straight_r=-1.0)
+        Tuning(straight_r=-1.0)
     with pytest.raises(ValueError, match="bias_q"):
-        HdrPlusParams(bias_q=math.inf)
+        GyroFit(bias_q=math.inf)
     with pytest.raises(ValueError, match="stop_floor_dps"):
-        HdrPlusParams(stop_floor_dps=-0.01)
-    with pytest.raises(ValueError, match="drift_prior"):
-        Ablation(drift_prior=1.0)
-    assert HdrPlusParams().hdr == PLUS_CORE
-    assert HdrPlusParams().ablated(drift_prior=0.5).ablation.drift_prior == 0.5
-    assert HdrPlusParams().ablation == Ablation()  # the daemon's: every idea on
-    for name in ("motion_offset_var", "moved_q", "road_lat_acc", "road_floor_dps"):
-        with pytest.raises(ValueError, match=name):
-            Ablation(**{name: -0.1})  # type: ignore[arg-type]
-
-
-def test_a_motion_offset_widens_only_the_drifting_filter() -> None:
-    """Ablation.motion_offset_var: the drifting filter's driving bias may sit that far off the
-    stops' (var(c) = F + it, cov(b, c) = -var(c)); the stable filter keeps F."""
-    base = HdrPlusParams(block_var=0.0004)
-    inp = StepInput(u=0.0, spread_dps=0.02, speed_mps=15.0, temp_c=math.nan, T=1.0)
-    s_off, _ = step(INITIAL_PLUS_STATE, inp, base)
-    s_on, _ = step(INITIAL_PLUS_STATE, inp, base.ablated(motion_offset_var=0.01))
-    cc = bb.CC
-    assert s_on.bank.drifting is not None and s_off.bank.drifting is not None
-    # after one straight step's update, most of the added variance is still there
-    assert s_on.bank.drifting.P[cc] > s_off.bank.drifting.P[cc] + 0.005
-    assert s_on.bank.stable == s_off.bank.stable
-
-
-def test_a_moved_hypothesis_learns_a_driving_offset_the_stops_do_not_show() -> None:
-    """1 Hz: 60 s stops every 600 s reading the calibrated bias, straight driving between
-    with the bias 0.08 deg/s off the stops' (vibration rectification). The drifting
-    hypothesis loses every stop's evidence and HDR+ keeps most of the error; a moved one (the
-    driving bias free, the bias at rest stable) earns the correction."""
-    n = 1800
-    i = np.arange(n)
-    stop = (i % 600) < 60
-    u = np.where(stop, 0.0, 0.08) + np.random.default_rng(3).normal(0.0, 0.02, n)
-    speed = np.where(stop, 0.0, 15.0)
-    base = HdrPlusParams(block_var=0.0004)
-    none = float(np.sum(np.where(stop, 0.0, u)))  # the yaw error of bias removal, deg
-    drifting = run_batch(u, np.full(n, 0.02), speed, None, 1.0, base)
-    moved = base.ablated(motion_offset_var=0.01, moved_q=1e-7)
-    got = run_batch(u, np.full(n, 0.02), speed, None, 1.0, moved)
-    assert abs(drifting.yaw[-1]) > 0.8 * abs(none)  # the harm pattern today
-    assert abs(got.yaw[-1]) < 0.25 * abs(none)
-    assert got.drift_weight[-1] > 0.9
-    # the bank of three (stable, drifting, moved) earns it too, beside a drifting hypothesis
-    three = run_batch(u, np.full(n, 0.02), speed, None, 1.0, base.ablated(moved_prior=0.2))
-    assert abs(three.yaw[-1]) < 0.5 * abs(none)
-    assert three.final.bank.moved is not None and three.final.bank.moved_log_odds > 2.0
-
-
-def test_the_road_spread_follows_the_speed_only_when_asked() -> None:
-    p = HdrPlusParams()
-    assert hdrplus._road_var(p, 30.0) == p.road_var == hdrplus._road_var(p, math.nan)
-    q = p.ablated(road_lat_acc=0.02)
-    fast, slow = hdrplus._road_var(q, 30.0), hdrplus._road_var(q, 3.0)
-    assert q.ablation.road_floor_dps**2 < fast < slow
-    assert slow == pytest.approx(0.013**2 + math.degrees(0.02 / 3.0) ** 2)
-    assert hdrplus._road_var(q, 0.5) == q.road_var  # below ROAD_MIN_SPEED: the default
+        Tuning(stop_floor_dps=-0.01)
+    with pytest.raises(ValueError, match="block_var"):
+        GyroFit(block_var=-1.0)
+    assert math.isnan(GyroFit(block_var=NAN).block_var)  # NaN: unknown
+    with pytest.raises(ValueError, match="prior"):
+        Hypothesis("drifting", 1e-5, 0.0)
+    with pytest.raises(ValueError, match="q must be"):
+        Hypothesis("drifting", -1e-5, 0.5)
+    with pytest.raises(ValueError, match="at least one hypothesis"):
+        HdrPlusParams(bank=())
+    assert HdrPlusParams().hdr == PLUS_CORE and HdrPlusParams().tuning == TUNING
+    assert HdrPlusParams().bank == DEFAULT_BANK  # the daemon's: a stable and a drifting bias
+    assert [h.name for h in DEFAULT_BANK] == ["stable", "drifting"]
+    assert sum(h.prior for h in DEFAULT_BANK) == 1.0
 
 
 # -- paper HDR is HDR+ with every extra off -------------------------------------------------------
@@ -259,7 +260,7 @@ def test_all_extras_off_is_paper_hdr_bit_identical(
     ex = (extras * (n // max(len(extras), 1) + 1))[:n] if extras else [(NAN, NAN, NAN, NAN)] * n
     sp, v, tc = ([e[k] for e in ex] for k in (1, 2, 3))
     paper = hdr.run_batch(u, core)
-    plus = run_batch(u, sp, v, tc, core.T, HdrPlusParams.paper(core))
+    plus = run_batch(u, sp, v, tc, core.T, paper_params(core))
     for name in ("omega", "yaw", "I", "W", "R", "r", "filtered"):
         assert np.array_equal(getattr(plus, name), getattr(paper, name)), name
     assert plus.final.core == paper.final
@@ -267,13 +268,13 @@ def test_all_extras_off_is_paper_hdr_bit_identical(
     # ... and the per-step form against hdr.step.
     s, hs = INITIAL_PLUS_STATE, hdr.INITIAL_STATE
     for i in range(n):
-        s, o = step(s, StepInput(u[i], sp[i], v[i], tc[i], core.T), HdrPlusParams.paper(core))
+        s, o = step(s, StepInput(u[i], sp[i], v[i], tc[i], core.T), paper_params(core))
         hs, ho = hdr.step(hs, u[i], core)
         assert tuple(o)[:7] == tuple(ho)
 
 
 def test_paper_defaults_are_table_iii() -> None:
-    assert HdrPlusParams.paper().hdr == HdrParams()
+    assert paper_params().hdr == HdrParams()
 
 
 # -- the bias model while driving -----------------------------------------------------------------
@@ -372,8 +373,8 @@ def test_a_coarse_adc_reads_the_same_code_at_every_stop() -> None:
     speed = np.full(n, 15.0)
     speed[n1 : n1 + ns] = 0.0
     q = 0.244
-    lattice = HdrPlusParams(bias_p0=1e-6, quant_step_dps=q, stop_offset_var=q * q / 12)
-    plain = HdrPlusParams(bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
+    lattice = plus(bias_p0=1e-6, quant_step_dps=q, stop_offset_var=q * q / 12)
+    plain = plus(bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
     a = run_batch(u, spread, speed, None, 1.0, lattice)
     b = run_batch(u, spread, speed, None, 1.0, plain)
     assert a.bias_corr_dps[n1 + ns - 1] > 0.04  # the stop left most of the learned bias
@@ -388,18 +389,16 @@ def test_the_increment_follows_the_bias_uncertainty() -> None:
     # the sway. (One filter: the bank is off.)
     u = _sway(2000, 5)
     args = (np.full(2000, 0.2), np.full(2000, 15.0), None, 1.0)
-    good = HdrPlusParams(
-        bias_p0=1e-8, quant_step_dps=0.0, stop_offset_var=0.0, bias_q_no_temp=1e-10, bank=False
-    )
+    good = plus(bias_p0=1e-8, quant_step_dps=0.0, stop_offset_var=0.0, bank=one_model(1e-10))
     a = run_batch(u, *args, good)
-    b = run_batch(u, *args, HdrPlusParams(bank=False).ablated(ic_alpha=0.0))
+    b = run_batch(u, *args, plus(bank=one_model(3e-7), ic_alpha=0.0))
     # i_c = 0.1 x the bias sd before this step's measurement (the last step's, plus q T)
     assert np.allclose(a.i_c_dps[1:], 0.1 * a.bias_sd_dps[:-1], rtol=0.01)
     assert np.max(np.abs(a.I)) < 0.002 < 0.02 < np.max(np.abs(b.I))
     assert np.all(b.i_c_dps == PLUS_CORE.i_c)
     # A vague start (1 deg/s calibration error possible): full increments, capped.
-    c = run_batch(u, *args, HdrPlusParams(bias_p0=1.0, bank=False))
-    assert c.i_c_dps[0] == HdrPlusParams().i_c_max
+    c = run_batch(u, *args, plus(bias_p0=1.0, bank=one_model(3e-7)))
+    assert c.i_c_dps[0] == TUNING.i_c_max
 
 
 def _road(n: int, seed: int, sd: float = 0.05, tau: float = 120.0) -> np.ndarray:
@@ -425,18 +424,18 @@ def test_without_temperature_the_bank_weighs_stable_against_drifting() -> None:
     args = (np.full(n, 0.2), np.full(n, 15.0), None, 1.0)
     p = HdrPlusParams()
     ramp = run_batch(0.3 * t / n + _sway(n, 7), *args, p)
-    assert ramp.drift_weight[0] == pytest.approx(p.ablation.drift_prior, rel=0.01)
+    assert ramp.drift_weight[0] == pytest.approx(DRIFT_PRIOR, rel=0.01)
     assert ramp.drift_weight[-1] > 0.95 and ramp.i_c_dps[-1] > 0.0
     assert ramp.bias_corr_dps[-1] - ramp.I[-1] == pytest.approx(0.3, abs=0.05)
     assert abs(ramp.yaw[-1]) < 0.1 * 0.3 * n / 2  # none: 225 deg
     road = _road(n, 1)
-    good = p.with_(bias_p0=1e-7, quant_step_dps=0.00625, stop_offset_var=0.00625**2 / 12)
+    good = p.with_fit(bias_p0=1e-7, quant_step_dps=0.00625, stop_offset_var=0.00625**2 / 12)
     curvy = run_batch(road + 0.1 * _sway(n, 8), *args, good)
     assert curvy.drift_weight[-1] < 0.05 and np.all(curvy.I == 0.0)
     assert abs(curvy.yaw[-1] - float(np.sum(road))) < 5.0
-    # With a temperature the bank is off: one filter, the temperature model's random walk.
+    # With a temperature the last member is in force alone, at the temperature model's walk.
     warm = run_batch(0.3 * t / n + _sway(n, 7), args[0], args[1], 20.0, 1.0, p)
-    assert np.all(warm.drift_weight == 1.0) and np.all(warm.bias_q == p.bias_q)
+    assert np.all(warm.drift_weight == 1.0) and np.all(warm.bias_q == p.fit.bias_q)
 
 
 def _warm_up_ne(name: str, j: int) -> dict[str, float]:
@@ -478,9 +477,9 @@ def test_one_curving_window_moves_the_evidence_a_bounded_step() -> None:
     p = HdrPlusParams()
     u = np.concatenate([0.05 * _sway(30, 9), np.full(30, 0.4), 0.05 * _sway(600, 10)])
     tr = run_batch(u, np.full(660, 0.2), np.full(660, 15.0), None, 1.0, p)
-    w_max = 1.0 / (1.0 + math.exp(-p.drift_odds_max))
+    w_max = 1.0 / (1.0 + math.exp(-p.tuning.drift_odds_max))
     assert tr.drift_weight.max() <= w_max * (1 + 1e-12)
-    assert tr.drift_weight[-1] < p.ablation.drift_prior
+    assert tr.drift_weight[-1] < DRIFT_PRIOR
 
 
 def test_a_stale_speed_turn_is_not_a_stop() -> None:
@@ -491,9 +490,9 @@ def test_a_stale_speed_turn_is_not_a_stop() -> None:
     # gate off, it is zeroed.
     u = np.concatenate([np.zeros(10), np.full(10, 0.8), np.zeros(5)])
     args = (np.zeros(25), np.zeros(25), None, 1.0)
-    kept = run_batch(u, *args, HdrPlusParams(block_var=0.01))
+    kept = run_batch(u, *args, plus(block_var=0.01))
     spread = run_batch(u, *args, HdrPlusParams())
-    lost = run_batch(u, *args, HdrPlusParams(stop_gate_sigma=0.0))
+    lost = run_batch(u, *args, plus(stop_gate_sigma=0.0))
     for tr in (kept, spread):
         assert not tr.standstill[10:20].any() and tr.yaw[-1] == pytest.approx(8.0, abs=0.1)
     assert lost.standstill[10:20].all() and abs(lost.yaw[-1]) < 1.0  # the turn is lost
@@ -509,17 +508,16 @@ def test_the_stop_gate_lets_a_calibration_error_in() -> None:
     u = 0.02 + 0.05 * np.concatenate([_sway(100, 4), np.zeros(40), _sway(60, 5)])
     speed = np.concatenate([np.full(100, 15.0), np.zeros(40), np.full(60, 15.0)])
     args = (np.full(n, 0.01), speed, None, 1.0)
-    p = HdrPlusParams(
+    p = plus(
         block_var=0.002**2,
         bias_p0=1e-5,
         quant_step_dps=0.0,
         stop_offset_var=0.0,
-        bank=False,
-        bias_q_no_temp=1e-9,
+        bank=one_model(1e-9),
         ic_drift_ratio=1e6,  # no increment: the core does not remove the error first
     )
     taken = run_batch(u, *args, p)
-    shut = run_batch(u, *args, p.with_(gate_floor_dps=0.0))
+    shut = run_batch(u, *args, plus(p, gate_floor_dps=0.0))
     assert taken.standstill[102:140].all() and not shut.standstill.any()
     assert taken.bias_corr_dps[139] == pytest.approx(0.02, abs=0.002)
 
@@ -540,12 +538,11 @@ def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
     speed[n1 : n1 + ns] = 0.0
     args = (np.full(n, 0.01), speed, None, 1.0)
     # (a calibration known to 0.003 deg/s: the stop's 28 steps know the bias far better)
-    p = HdrPlusParams(block_var=0.002**2, bias_p0=1e-5, quant_step_dps=0.0, stop_offset_var=0.0)
+    p = plus(block_var=0.002**2, bias_p0=1e-5, quant_step_dps=0.0, stop_offset_var=0.0)
     fix = run_batch(u, *args, p)
-    keep = run_batch(u, *args, p.ablated(heading_fix=False))
     truth = np.cumsum(road)
     err_fix = fix.yaw - truth
-    err_keep = keep.yaw - truth
+    err_keep = fix.yaw - np.cumsum(fix.heading_fix_deg) - truth  # the yaw without the fixes
     assert abs(err_keep[n1 - 1]) > 3.0  # the drift before the stop, 4.5 deg less what roads taught
     assert abs(err_fix[n1 + ns - 1]) < 0.3 * abs(err_keep[n1 + ns - 1])
     assert float(np.sum(fix.heading_fix_deg)) == pytest.approx(-err_keep[n1 - 1], rel=0.3)
@@ -553,23 +550,24 @@ def test_a_stop_corrects_the_heading_the_calibration_error_bent() -> None:
 
 
 def test_fitted_from_a_calibration_and_a_noise_model() -> None:
-    from hdrd.core.hdrplus import GyroNoise
+    from hdrd.core.gyronoise import GyroNoise
     from hdrd.core.standstill import CalibrationNoise
 
     cal = CalibrationNoise(
         bias_var=1e-6, block_var=4e-4, quant_step_dps=0.0625, samples_per_step=1.0
     )
     p = HdrPlusParams().fitted(cal)
-    assert p.bias_p0 == 1e-6 and p.block_var == 4e-4 and p.quant_step_dps == 0.0625
+    f = p.fit
+    assert f.bias_p0 == 1e-6 and f.block_var == 4e-4 and f.quant_step_dps == 0.0625
     # the standstill offset: a quantisation step's q^2/12 and, the error model unknown, half
     # the white noise density N (N^2 = a step's standstill variance x T) ...
-    assert p.stop_offset_var == pytest.approx(0.0625**2 / 12 + 0.25 * 4e-4)
+    assert f.stop_offset_var == pytest.approx(0.0625**2 / 12 + 0.25 * 4e-4)
     two = HdrPlusParams(hdr=replace(PLUS_CORE, T=2.0)).fitted(cal)
-    assert two.stop_offset_var == pytest.approx(0.0625**2 / 12 + 0.25 * 8e-4)
+    assert two.fit.stop_offset_var == pytest.approx(0.0625**2 / 12 + 0.25 * 8e-4)
     assert p.standstill.samples_per_step == 1.0
-    assert p.bank and p.model == "calibration"
+    assert p.bank == DEFAULT_BANK and p.model == "calibration"
     # The whole recording's step wins over the calibration's (a locked window sees none).
-    assert HdrPlusParams().fitted(cal, quant_step_dps=0.25).quant_step_dps == 0.25
+    assert HdrPlusParams().fitted(cal, quant_step_dps=0.25).fit.quant_step_dps == 0.25
     noise = GyroNoise(
         bias_instability_dps=0.62 * 0.001,
         bias_tau_s=100.0,
@@ -577,13 +575,14 @@ def test_fitted_from_a_calibration_and_a_noise_model() -> None:
         temp_coeff_dps_per_c=0.002,
     )
     g = HdrPlusParams().fitted(cal, noise)
-    assert g.bias_q == pytest.approx(1e-8 + 2e-6 / 100.0)
-    assert g.bias_q_no_temp == pytest.approx(g.bias_q + (0.002 * 16.0) ** 2 / 900.0)
-    assert g.temp_coeff_sd == 0.002
-    # ... a known error model: one filter of its random walk, the increment gated, the
+    assert g.fit.bias_q == pytest.approx(1e-8 + 2e-6 / 100.0)
+    (model,) = g.bank
+    assert model.q == pytest.approx(g.fit.bias_q + (0.002 * 16.0) ** 2 / 900.0)
+    assert g.fit.temp_coeff_sd == 0.002
+    # ... a known error model: a bank of one of its random walk, the increment gated, the
     # offset the quantisation's only, its name in force
-    assert not g.bank and g.ic_drift_ratio == 0.01 and g.model == "given"
-    assert g.stop_offset_var == pytest.approx(0.0625**2 / 12)
+    assert g.fit.ic_drift_ratio == 0.01 and g.model == "given"
+    assert g.fit.stop_offset_var == pytest.approx(0.0625**2 / 12)
     assert HdrPlusParams().fitted() == HdrPlusParams()  # nothing known: nothing changes
 
 
@@ -607,7 +606,7 @@ def test_stops_say_whether_the_bias_moves() -> None:
     # predicted it better, is the cleanest evidence (no road in it). Stops that read the same
     # bias keep the bank with "stable"; stops that show a drift of 0.05 deg/s per leg turn it
     # to "drifting".
-    p = HdrPlusParams(block_var=0.005**2, bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
+    p = plus(block_var=0.005**2, bias_p0=1e-6, quant_step_dps=0.0, stop_offset_var=0.0)
     still = run_batch(*_stop_go(8, 0.0, 1), None, 1.0, p)
     drift = run_batch(*_stop_go(8, 0.05, 1), None, 1.0, p)
     assert still.drift_weight[-1] < 0.05 < 0.95 < drift.drift_weight[-1]
@@ -617,16 +616,16 @@ def test_stops_say_whether_the_bias_moves() -> None:
     jumps = np.flatnonzero(np.diff(drift.drift_weight) > 0.05) + 1
     assert jumps.size > 0 and set(jumps.tolist()) <= at_stops
     # a known model, or a temperature: one filter, no bank
-    fixed = run_batch(*_stop_go(8, 0.05, 1), None, 1.0, p.with_(bank=False))
-    assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == p.bias_q_no_temp)
+    fixed = run_batch(*_stop_go(8, 0.05, 1), None, 1.0, p.with_(bank=one_model(3e-7)))
+    assert np.all(fixed.drift_weight == 1.0) and np.all(fixed.bias_q == 3e-7)
 
 
 @settings(max_examples=25)  # each a long drive; the short rows' equality draws 50
-@given(seed=st.integers(0, 2**16), gated=st.booleans(), moved=st.booleans())
-def test_step_is_the_batch_on_long_drives_with_stops(seed: int, gated: bool, moved: bool) -> None:
+@given(seed=st.integers(0, 2**16), members=st.sampled_from([1, 2, 3]))
+def test_step_is_the_batch_on_long_drives_with_stops(seed: int, members: int) -> None:
     # Longer than the hypothesis rows: stops close, the evidence and the heading fix run.
     u, sp, v = _stop_go(4, 0.03, seed)
-    p = HdrPlusParams(block_var=1e-4, bank=not gated).ablated(moved_prior=0.2 if moved else 0.0)
+    p = plus(block_var=1e-4, bank=bank_of(members))
     tr = run_batch(u, sp, v, None, 1.0, p)
     outs, final = _loop(list(zip(u, sp, v, [NAN] * len(u), strict=True)), p, 1.0)
     assert _same(tr.final, final)
@@ -641,8 +640,8 @@ def test_a_known_good_gyro_does_not_straighten_gentle_curves() -> None:
     # is kept; with the increment on, HDR+ takes part of it for drift.
     u = np.concatenate([_sway(300, 3) * 0.1, np.full(600, 0.2), _sway(300, 4) * 0.1])
     args = (np.full(1200, 0.2), np.full(1200, 20.0), None, 1.0)
-    base = HdrPlusParams(bias_p0=1e-6, bias_q_no_temp=1e-7, bank=False)
-    gated = run_batch(u, *args, base.with_(ic_drift_ratio=0.01))
+    base = plus(bias_p0=1e-6, bank=one_model(1e-7))
+    gated = run_batch(u, *args, plus(base, ic_drift_ratio=0.01))
     free = run_batch(u, *args, base)
     truth = float(np.sum(u))
     assert np.all(gated.i_c_dps == 0.0) and np.all(gated.I == 0.0)
@@ -658,7 +657,7 @@ def test_a_column_of_the_wrong_length_is_named() -> None:
 
 
 def test_gyro_only_standstill_needs_a_known_spread_and_no_speed() -> None:
-    params = HdrPlusParams(standstill=StandstillParams(gyro_only=True, steps_gyro=3))
+    params = plus(standstill=StandstillParams(gyro_only=True, steps_gyro=3))
     n = 8
     quiet = run_batch(np.zeros(n), np.full(n, 0.05), None, None, 1.0, params)
     assert quiet.standstill.tolist() == [False] * 2 + [True] * (n - 2)
@@ -682,56 +681,95 @@ def test_the_output_step_comes_from_the_first_that_knows_it() -> None:
     from hdrd.core.gyronoise import GyroNoise
 
     noise = GyroNoise(quant_step_dps=0.1)
-    assert HdrPlusParams().fitted(noise=noise).quant_step_dps == 0.1
-    assert HdrPlusParams().fitted(noise=noise, quant_step_dps=0.05).quant_step_dps == 0.05
+    assert HdrPlusParams().fitted(noise=noise).fit.quant_step_dps == 0.1
+    assert HdrPlusParams().fitted(noise=noise, quant_step_dps=0.05).fit.quant_step_dps == 0.05
     # its variance q^2/12 is the stop offset's
-    assert HdrPlusParams().fitted(noise=noise).stop_offset_var == pytest.approx(0.01 / 12)
-    assert hdrplus._output_step(None, None, None) != hdrplus._output_step(None, None, None)  # NaN
+    assert HdrPlusParams().fitted(noise=noise).fit.stop_offset_var == pytest.approx(0.01 / 12)
+    assert HdrPlusParams().fitted(noise=GyroNoise()) == HdrPlusParams()  # none known: kept
 
 
 def test_the_increment_is_off_where_the_bias_walks_less_than_roads_curve() -> None:
     # q x tau against ratio x road_var: 1e-6 x 120 = 1.2e-4 < 0.1 x 0.0025 = 2.5e-4: off;
     # 3e-6 x 120 = 3.6e-4 > 2.5e-4: on (a division by tau would call both off).
-    p = HdrPlusParams(ic_drift_ratio=0.1, road_tau_s=120.0, road_var=0.0025)
-    assert hdrplus._increment(1e-4, 1e-6, p) == 0.0
-    assert hdrplus._increment(1e-4, 3e-6, p) == pytest.approx(p.ablation.ic_alpha * 0.01)
-
-
-def test_the_road_by_speed_starts_at_its_least_speed() -> None:
-    q = HdrPlusParams().ablated(road_lat_acc=0.02)
-    at = hdrplus._road_var(q, hdrplus.ROAD_MIN_SPEED)
-    assert at == pytest.approx(0.013**2 + math.degrees(0.02 / hdrplus.ROAD_MIN_SPEED) ** 2)
+    p = plus(ic_drift_ratio=0.1, road_tau_s=120.0, road_var=0.0025)
+    run = hdrplus._Run(INITIAL_PLUS_STATE, p)
+    assert run.increment(1e-4, 1e-6) == 0.0
+    assert run.increment(1e-4, 3e-6) == pytest.approx(p.tuning.ic_alpha * 0.01)
 
 
 def test_the_prior_on_k_is_its_sd_squared() -> None:
-    p = HdrPlusParams(temp_coeff_sd=0.03)
+    p = plus(temp_coeff_sd=0.03)
     s, _ = step(INITIAL_PLUS_STATE, StepInput(0.0, 0.02, 15.0, NAN, 1.0), p)
-    assert s.bank.drifting is not None
-    assert s.bank.drifting.P[bb.KK] == pytest.approx(0.03**2)  # no temperature: k untouched
+    assert len(s.bank.filters) == 2
+    for f in s.bank.filters:
+        assert f.P[bb.KK] == pytest.approx(0.03**2)  # no temperature: k untouched
 
 
-@pytest.mark.parametrize("moved", [0.0, 0.2])
-def test_the_published_bias_sd_is_the_mixture_s(moved: float) -> None:
-    """bias_sd_dps: sqrt of sum w_i (var_i + (b_i - b)^2) over the bank's filters, the weights
-    from the log-odds the state carries (the step's own evidence moves them a little after
-    the output is made: hence the tolerance)."""
+@pytest.mark.parametrize("members", [2, 3])
+def test_the_published_bias_sd_is_the_mixture_s(members: int) -> None:
+    """bias_sd_dps: sqrt of sum w_i (var_i + (b_i - b)^2) over the bank's members, the weights
+    those in force at the step's start (the log-odds the state carried in), the b_i and var_i
+    the members' after the step."""
     u, sp, v = _stop_go(3, 0.05, 2)
-    p = HdrPlusParams(block_var=1e-4).ablated(moved_prior=moved, heading_fix=False)
-    tr = run_batch(u, sp, v, None, 1.0, p)
+    p = plus(block_var=1e-4, bank=bank_of(members))
+    before = run_batch(u[:-1], sp[:-1], v[:-1], None, 1.0, p)
+    tr = run_batch(u[-1:], sp[-1:], v[-1:], None, 1.0, p, before.final)
+    odds = np.array(before.final.bank.log_odds)
     k = tr.final.bank
-    assert k.drifting is not None and k.stable is not None
-    filters = [k.stable, k.drifting] + ([k.moved] if k.moved is not None else [])
-    odds = [0.0, k.log_odds] + ([k.moved_log_odds] if k.moved is not None else [])
+    assert len(k.filters) == len(odds) == members and odds[0] == 0.0
     w = np.exp(odds) / np.sum(np.exp(odds))
-    b = np.array([f.x[bb.B] for f in filters])
-    var = np.array([f.P[bb.BB] for f in filters])
+    b = np.array([f.x[bb.B] for f in k.filters])
+    var = np.array([f.P[bb.BB] for f in k.filters])
     mean = float(np.sum(w * b))
     want = math.sqrt(float(np.sum(w * (var + (b - mean) ** 2))))
-    assert tr.bias_corr_dps[-1] == pytest.approx(mean, rel=1e-4)
-    assert tr.bias_sd_dps[-1] == pytest.approx(want, rel=1e-3)
-    assert tr.drift_weight[-1] == pytest.approx(w[1], rel=1e-3)
+    assert tr.bias_corr_dps[-1] == pytest.approx(mean, rel=1e-9)
+    assert tr.bias_sd_dps[-1] == pytest.approx(want, rel=1e-9)
+    assert tr.drift_weight[-1] == pytest.approx(w[-1], rel=1e-9)
+
+
+def test_the_weights_of_a_bank_sum_to_one() -> None:
+    for lo in ([0.0], [0.0, -0.85], [0.0, 2.0, -1.0], [0.0, 4.6, 4.6]):
+        w = bb.weights(lo)
+        assert sum(w) == pytest.approx(1.0) and all(x > 0.0 for x in w)
+        assert w == pytest.approx(list(np.exp(lo) / np.sum(np.exp(lo))))
+
+
+def test_a_reconfigured_bank_keeps_its_last_member() -> None:
+    """A daemon reconfigured from an unknown gyro (a bank of two) to a known model (one): the
+    drifting member's filter carries on; and back: the stable member starts from its prior."""
+    u, sp, v = _stop_go(2, 0.05, 3)
+    two = run_batch(u, sp, v, None, 1.0, HdrPlusParams())
+    one = run_batch(u[:5], sp[:5], v[:5], None, 1.0, plus(bank=one_model(1e-7)), two.final)
+    kept, was = one.final.bank.filters[0].x[bb.B], two.final.bank.filters[-1].x[bb.B]
+    assert kept == pytest.approx(was, abs=0.02)
+    back = run_batch(u[:1], sp[:1], v[:1], None, 1.0, HdrPlusParams(), one.final)
+    assert len(back.final.bank.filters) == 2 and back.final.bank.log_odds[0] == 0.0
 
 
 def test_a_spread_of_the_wrong_length_is_named() -> None:
     with pytest.raises(ValueError, match="spread"):
         run_batch(np.zeros(5), spread=np.zeros(4))
+
+
+def test_gps_courses_teach_the_bias_and_the_heading() -> None:
+    """The course as a measurement of the heading correction (StepInput.heading_err_deg): a
+    0.03 deg/s bias error on a straight road is learned from 1 Hz courses of 0.25 deg noise
+    alone (no stops; straight-driving measurements are not taken on a step the course
+    measures), the core's integrator stays at 0, and the heading keeps within the courses'
+    noise; without courses the same gyro drifts 18 deg in 10 minutes."""
+    rng = np.random.default_rng(1)
+    n = 600
+    u = 0.03 + rng.normal(0.0, 0.03, n)
+    course = rng.normal(0.0, 0.25, n) % 360.0  # the truth is 0 (north), a straight road
+    p = plus(block_var=0.0011)
+    s, herr = INITIAL_PLUS_STATE, math.nan
+    heading = np.zeros(n)
+    for i in range(n):
+        s, o = step(s, StepInput(float(u[i]), 0.2, 30.0, NAN, 1.0, herr, 0.065, i == 0), p)
+        heading[i] = (-o.yaw) % 360.0
+        herr = ((heading[i] - course[i]) + 180.0) % 360.0 - 180.0
+        assert o.I == 0.0 or i == 0
+    assert s.aided and o.bias_corr_dps == pytest.approx(0.03, abs=0.01)
+    assert np.max(np.abs(((heading[100:] + 180.0) % 360.0) - 180.0)) < 1.0
+    alone = run_batch(u, np.full(n, 0.2), np.full(n, 30.0), None, 1.0, p)
+    assert abs(alone.yaw[-1]) > 10.0

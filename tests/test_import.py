@@ -4,6 +4,7 @@ from. Run as a user runs it: ``python -m hdrd import ...`` in a subprocess."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -78,7 +79,9 @@ def test_their_csv_imported_scores_as_the_drive_it_came_from(
     drive: DriveLog, tmp_path: Path
 ) -> None:
     _their_csv(tmp_path / "their.csv", drive)
-    write_drive(tmp_path / "orig.csv", drive)
+    # their CSV has no true rate, so the truth is scored as a course (prepare.alignment): the
+    # drive it came from without its true rate scores the same way
+    write_drive(tmp_path / "orig.csv", dataclasses.replace(drive, omega_truth=None))
     p = hdrd("import", "their.csv", "--out", "mine.csv", *IMPORT, cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert p.stderr == f"{len(drive)} rows, {drive.duration_s:.1f} s (t, omega, temp_c, " \
@@ -97,9 +100,10 @@ def test_their_csv_imported_scores_as_the_drive_it_came_from(
 
 
 def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path) -> None:
-    """A yaw angle in an east-north-up frame, radians, unwrapped past a turn; epoch ns."""
+    """A yaw angle in an east-north-up frame, radians in (-pi, pi] (an unwrapped one, past a
+    turn either way, is refused as a drive log refuses it); epoch ns."""
     assert drive.heading_truth is not None
-    yaw = np.radians(90.0 - drive.heading_truth) + 4 * math.pi
+    yaw = np.angle(np.exp(1j * np.radians(90.0 - drive.heading_truth)))
     t_ns = 1_700_000_000_123_456_789 + np.rint(drive.t * 1e9).astype(np.int64)
     rows = ["stamp,wz,yaw"] + [
         f"{t_ns[i]},{drive.omega[i]:.7f},{'' if math.isnan(yaw[i]) else f'{yaw[i]:.9f}'}"
@@ -141,6 +145,32 @@ def test_a_wrong_sign_or_unit_is_warned_with_the_option_that_fixes_it(
     assert "warning" not in ok.stderr
 
 
+def test_a_time_or_heading_in_another_unit_is_warned_naming_the_option(
+    drive: DriveLog, tmp_path: Path
+) -> None:
+    # Milliseconds read as seconds (a sample every 100 s) and a heading in radians read as
+    # degrees (it moves within 6.3 deg while the car turns): imported, each warned once with
+    # the option that fixes it; with the options, no warning.
+    assert drive.heading_truth is not None
+    ms = np.rint(drive.t * 1000).astype(np.int64)
+    rows = ["time,gz,hdg"] + [
+        f"{ms[i]},{drive.omega[i]:.6f},{'' if math.isnan(h) else f'{math.radians(h):.6f}'}"
+        for i, h in enumerate(drive.heading_truth)
+    ]
+    (tmp_path / "src.csv").write_text("\n".join(rows) + "\n")
+    base = ("import", "src.csv", "--out", "o.csv", "--t", "time", "--omega", "gz", "--heading",
+            "hdg")  # fmt: skip
+    p = hdrd(*base, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    warned = [ln for ln in p.stderr.splitlines() if "warning" in ln]
+    assert len(warned) == 2, p.stderr
+    assert warned[0].startswith("hdrd import: warning: column 'time' (--t) gives a sample every ")
+    assert warned[0].endswith("; is it in ms? --time-unit ms")
+    assert "moves within 6" in warned[1] and warned[1].endswith("--heading-unit rad")
+    q = hdrd(*base, "--time-unit", "ms", "--heading-unit", "rad", cwd=tmp_path)
+    assert q.returncode == 0 and "warning" not in q.stderr, q.stderr
+
+
 @pytest.mark.parametrize(
     ("row", "extra", "error"),
     # Every other row error, in process: tests/test_csvimport.py. Here what the command adds:
@@ -151,7 +181,9 @@ def test_a_wrong_sign_or_unit_is_warned_with_the_option_that_fixes_it(
          "src.csv:4: column 'gz' (--omega): 1718.87 deg/s is beyond the +/-1000 deg/s"),
         ("1000.00001,1,", ("--time-unit", "s"), "src.csv:4: column 'time' (--t): 1000 s, 1e-05 s "
          "after the row before"),
-        ("1000,1,725", ("--heading-unit", "rad"), ""),  # radians wrapped: any angle is taken
+        ("1000,1,180", ("--heading-unit", "rad"), "src.csv:4: column 'hdg' (--heading): 180 rad "
+         "is outside +/-360 deg; a heading is a direction (not unwrapped, not a placeholder such "
+         "as 999); is the column in degrees? --heading-unit deg"),
     ],
 )  # fmt: skip
 def test_errors_name_the_line_and_their_column(
@@ -160,7 +192,7 @@ def test_errors_name_the_line_and_their_column(
     unit = "s" if "--time-unit" in extra else "ms"
     rest = [x for x in extra if x not in ("--time-unit", "s")]
     before = "500" if unit == "ms" else "1000"  # ms: 0.5 s before the row; s: 1000 s
-    (tmp_path / "src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,10\n{row}\n")
+    (tmp_path / "src.csv").write_text(f"time,gz,hdg\n0,1,\n{before},1,1\n{row}\n")
     p = hdrd("import", "src.csv", "--out", "o.csv", "--t", "time", "--time-unit", unit,
              "--omega", "gz", "--heading", "hdg", *rest, cwd=tmp_path)  # fmt: skip
     if not error:
@@ -187,6 +219,19 @@ def test_a_missing_column_lists_the_header(tmp_path: Path) -> None:
     assert q.returncode == 1
     assert q.stderr == "hdrd import: error: b.csv:2: not UTF-8 text (byte 0xff at column 3); " \
         "save the CSV as UTF-8\n"  # fmt: skip
+
+
+def test_a_file_name_cannot_put_a_metadata_line_in_the_log(tmp_path: Path) -> None:
+    # A source named `city\n# lead_in_s: 3\n.csv`: its name is the `source` value, escaped on
+    # its one line; evaluate would otherwise take the lead-in it names.
+    name = "city\n# lead_in_s: 3\n.csv"
+    (tmp_path / name).write_text("t,w\n0,0.1\n0.1,0.1\n0.2,0.2\n")
+    p = hdrd("import", name, "--out", "d.csv", "--t", "t", "--omega", "w", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    log = read_drive(tmp_path / "d.csv")
+    assert "lead_in_s" not in log.meta and log.meta["source"] == f"hdrd import {name}"
+    meta_lines = [ln for ln in (tmp_path / "d.csv").read_text().splitlines() if ln[:1] == "#"]
+    assert len(meta_lines) == 2  # source, imported
 
 
 def test_the_command_lines_units_are_the_modules() -> None:

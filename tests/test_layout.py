@@ -1,8 +1,9 @@
 """The package's layout, read from the source with ast (so lazy and TYPE_CHECKING imports
 count): small modules, no import cycle, each layer importing only the layers below it, no
 private name crossing a module, only the run command importing the daemon's loop, every
-command a module of its own, every exception under HdrdError, one home for each shared
-constant, and the command line's few light copies equal to their homes."""
+command a module of its own and reached only through the command line, every exception under
+HdrdError, one home for each shared constant, and the command line's few light copies equal
+to their homes."""
 
 from __future__ import annotations
 
@@ -126,7 +127,9 @@ LAYERS: dict[str, set[str]] = {
     "commands": {"core", "io", "sim", "config", "daemon", "analysis", "cli"},
     # The command line: signals held from the start, the wire formats, and lazily the method
     # registry and the simulator's drives (for choices); a command only by name, when it runs.
-    "cli": {"core", "sim", "daemon", "io", "commands"},
+    "cli": {"core", "sim", "daemon", "io", "commands", "cliargs"},
+    # ... and its shared option groups (light: choices read lazily)
+    "cliargs": {"core", "sim", "io"},
     "__main__": {"cli", "daemon"},
 }
 
@@ -157,6 +160,32 @@ def test_the_layer_rules_are_not_empty_words() -> None:
     tree = ast.parse("def f():\n    from hdrd.daemon.pipeline import Pipeline\n")
     assert "hdrd.daemon.pipeline" in imports(tree, set(modules()))
     assert layer_of("hdrd.daemon.pipeline") not in LAYERS["core"]
+
+
+NO_COMMAND_LINE = ("core", "io", "sim", "daemon", "analysis")
+"""Layers that never see the command line: they take typed values (commands/ turns the flags
+into them), so none imports argparse, even lazily."""
+
+
+def test_argparse_stays_in_the_command_line_layers() -> None:
+    found = []
+    for layer in NO_COMMAND_LINE:
+        for p in sorted((PKG / layer).rglob("*.py")):
+            for node in ast.walk(parsed(p)):
+                names = (
+                    [a.name for a in node.names]
+                    if isinstance(node, ast.Import)
+                    else [node.module or ""]
+                    if isinstance(node, ast.ImportFrom)
+                    else []
+                )
+                if any(n == "argparse" or n.startswith("argparse.") for n in names):
+                    found.append(str(p.relative_to(ROOT)))
+    assert found == []
+    assert any((PKG / layer).is_dir() for layer in NO_COMMAND_LINE)
+    # the rule sees a lazy import too
+    lazy = ast.parse("def f():\n    from argparse import Namespace\n")
+    assert any(isinstance(n, ast.ImportFrom) and n.module == "argparse" for n in ast.walk(lazy))
 
 
 # These drive the daemon's run loop itself in-process (a reload with a hostile configuration, a
@@ -193,6 +222,58 @@ def test_only_the_run_command_imports_the_run_loop() -> None:
     assert COMMANDS["run"][0] == "hdrd.commands.run:main"
 
 
+# commands/ only parses and calls: the package, bench/ and tests/ reach a command through the
+# command line (hdrd.cli.main, or a subprocess), never by importing it. Known exemptions, each
+# file with the command modules it still imports; the list may only shrink.
+COMMAND_IMPORTERS: dict[str, set[str]] = {
+    # the command line's options -> configuration, until one function reads it for every command
+    "tests/test_cli.py": {"hdrd.commands.options"},
+    "tests/test_gpsd.py": {"hdrd.commands.options"},
+    # the fitted model as configuration text, and simulate's size check
+    "tests/test_gap.py": {"hdrd.commands.gap"},
+    "tests/test_hardening.py": {"hdrd.commands.simulate"},
+}
+
+
+def command_importers() -> dict[str, set[str]]:
+    """File (relative to the repository) -> the hdrd.commands modules it imports, for every
+    file of hdrd/ outside commands/, bench/ and tests/."""
+    found: dict[str, set[str]] = {}
+    for top in ("hdrd", "bench", "tests"):
+        for p in sorted((ROOT / top).rglob("*.py")):
+            rel = p.relative_to(ROOT).as_posix()
+            if rel.startswith("hdrd/commands/"):
+                continue
+            names: set[str] = set()
+            for node in ast.walk(parsed(p)):
+                if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                    if node.module == "hdrd.commands":
+                        names.update(f"hdrd.commands.{a.name}" for a in node.names)
+                    elif node.module.startswith("hdrd.commands."):
+                        names.add(node.module)
+                elif isinstance(node, ast.Import):
+                    names.update(a.name for a in node.names if a.name.startswith("hdrd.commands"))
+            if names:
+                found[rel] = names
+    return found
+
+
+def test_commands_are_reached_only_through_the_command_line() -> None:
+    found = command_importers()
+    assert found.pop("hdrd/cli.py", None) is None  # the command line names them, lazily
+    wrong = {f: n - COMMAND_IMPORTERS.get(f, set()) for f, n in found.items()}
+    assert {f: n for f, n in wrong.items() if n} == {}
+    # the rule sees each kind of import
+    tree = ast.parse("def f():\n    from hdrd.commands import replay\n")
+    assert "hdrd.commands.replay" in imports(tree, set(modules()))
+
+
+def test_each_command_importer_exemption_is_still_needed() -> None:
+    found = command_importers()
+    stale = {f: n - found.get(f, set()) for f, n in COMMAND_IMPORTERS.items()}
+    assert {f: n for f, n in stale.items() if n} == {}, "remove it from COMMAND_IMPORTERS"
+
+
 def test_every_command_is_a_module_of_its_own() -> None:
     from hdrd.cli import COMMANDS
 
@@ -212,7 +293,8 @@ def test_every_exception_derives_from_hdrd_error(name: str) -> None:
 
     mod = importlib.import_module(name)
     for _, cls in inspect.getmembers(mod, inspect.isclass):
-        if cls.__module__ == name and issubclass(cls, BaseException):
+        # (a KeyboardInterrupt carrying what was done is not an error: not an Exception)
+        if cls.__module__ == name and issubclass(cls, Exception):
             assert issubclass(cls, HdrdError), f"{name}.{cls.__name__}"
 
 
@@ -251,12 +333,14 @@ def test_the_command_lines_light_copies_equal_their_homes() -> None:
     """hdrd/cli.py imports nothing heavy (``hdrd --help`` loads no numpy), so it repeats a
     few defaults instead of importing their modules; they must stay equal."""
     from hdrd.cli import build_parser
-    from hdrd.commands import tail
-    from hdrd.io import gpsd
+    from hdrd.io import datagrams, gpsd, webserver
 
     parser = build_parser()
     assert parser.parse_args(["run", "--gpsd"]).gpsd == f"{gpsd.DEFAULT_HOST}:{gpsd.DEFAULT_PORT}"
-    assert parser.parse_args(["tail"]).listen == tail.DEFAULT_TAIL_LISTEN
+    assert parser.parse_args(["tail"]).listen == datagrams.DEFAULT_TAIL_LISTEN
+    web = parser.parse_args(["web"])
+    assert web.listen == webserver.DEFAULT_WEB_LISTEN and web.udp == datagrams.DEFAULT_TAIL_LISTEN
+    assert web.max_clients == webserver.DEFAULT_MAX_CLIENTS
 
 
 # Function size: at most 60 lines (def to last line) and a cyclomatic complexity of at most 15,

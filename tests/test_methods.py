@@ -22,7 +22,7 @@ from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import HdrPlusParams, PlusOutput
-from hdrd.core.methods import REGISTRY, SettingsContext, StepInputs, plus_settings
+from hdrd.core.methods import REGISTRY, MethodSetup, StepInputs, plus_settings
 from tests.test_hdrplus import core_params, plus_params
 
 NAN = math.nan
@@ -71,7 +71,7 @@ def test_batch_is_the_step_looped_bit_for_bit(
 ) -> None:
     m = REGISTRY[name]
     steps = _steps(data, hdr.T)
-    s = m.settings(SettingsContext(hdr, plus, n, bias))  # (fields in order: hdr, plus, ...)
+    s = m.settings(MethodSetup(hdr, plus, n, bias))  # (fields in order: hdr, plus, ...)
     state = m.initial_state()
     yaw = []
     for i in range(len(data)):
@@ -84,7 +84,7 @@ def test_a_method_switch_carries_the_yaw() -> None:
     # The daemon switches method on SIGHUP: the new method starts from its initial state with
     # the old one's yaw, and the heading carries on.
     steps = _steps([(0.3, 0.1, NAN, NAN)] * 5, 1.0)
-    ctx = SettingsContext()
+    ctx = MethodSetup()
     m = REGISTRY["hdr"]
     state = m.initial_state()
     for name in ("hdr", "hdr+", "none", "hdr", "hdr+"):
@@ -104,7 +104,7 @@ def test_publish_gives_the_message_fields_of_each_method() -> None:
     steps = _steps([(0.3, 0.1, 0.0, NAN)] * 5, 1.0)
     for name in REGISTRY:
         m = REGISTRY[name]
-        s = m.settings(SettingsContext())
+        s = m.settings(MethodSetup())
         state, out = m.step(m.initial_state(), steps.input(0), s)
         pub = m.publish(out, s)
         assert list(pub.core) == ["omega", "yaw", "I", "W", "R", "r"]
@@ -121,15 +121,15 @@ def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
     base = HdrPlusParams()
     # A 1 Hz gyro has one sample per step; a measured bias sets the prior.
     rec = BiasRecord(0.5, 0.2, 30, 30.0)
-    ctx = SettingsContext(HdrParams(T=1.0), base, samples_per_step=1.0, bias=rec)
+    ctx = MethodSetup(HdrParams(T=1.0), base, samples_per_step=1.0, bias=rec)
     p = plus_settings(ctx)
     assert p.standstill.samples_per_step == 1.0
-    assert p.bias_p0 == 0.2 * 0.2 / 30
+    assert p.fit.bias_p0 == 0.2 * 0.2 / 30
     assert p.hdr.T == 1.0 and p.hdr.i_c == base.hdr.i_c
     # A given bias (no record of its spread) keeps the configured prior.
-    given = SettingsContext(HdrParams(T=2.0), base, bias=BiasRecord(0.5, 0.0, 0, 0.0))
-    assert plus_settings(given).bias_p0 == base.bias_p0
-    assert plus_settings(SettingsContext(HdrParams(T=2.0))).hdr.T == 2.0
+    given = MethodSetup(HdrParams(T=2.0), base, bias=BiasRecord(0.5, 0.0, 0, 0.0))
+    assert plus_settings(given).fit.bias_p0 == base.fit.bias_p0
+    assert plus_settings(MethodSetup(HdrParams(T=2.0))).hdr.T == 2.0
     # The configuration's standstill keys and grade reach it there, and only there.
     off = plus_settings(replace(ctx, standstill=False, standstill_from_gyro=True))
     assert not off.standstill.enabled and off.standstill.gyro_only
@@ -143,20 +143,20 @@ def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
 def test_hdr_takes_its_increment_from_a_known_error_model() -> None:
     paper = HdrParams()
     # No error model known (a start-up calibration shows white noise only): Table III.
-    assert methods.hdr_settings(SettingsContext(paper)) == paper
+    assert methods.hdr_settings(MethodSetup(paper)) == paper
     # A tactical grade's bias barely moves: the increment is its drift over 30 s, far below.
-    tactical = methods.hdr_settings(SettingsContext(paper, grade="tactical"))
+    tactical = methods.hdr_settings(MethodSetup(paper, grade="tactical"))
     assert 0.0 < tactical.i_c < paper.i_c / 5
     assert replace(tactical, i_c=paper.i_c) == paper  # only i_c changes
-    assert REGISTRY["hdr"].settings(SettingsContext(paper, grade="tactical")) == tactical
+    assert REGISTRY["hdr"].settings(MethodSetup(paper, grade="tactical")) == tactical
     # A phone's bias drifts more in 30 s than Table III's increment, which stays.
-    assert methods.hdr_settings(SettingsContext(paper, grade="phone")) == paper
-    # hdr.i_c_from: config keeps what is configured whatever the gyro.
-    asked = SettingsContext(paper, grade="tactical", hdr_i_c_from_gyro=False)
+    assert methods.hdr_settings(MethodSetup(paper, grade="phone")) == paper
+    # hdr.i_c: NUMBER keeps what is configured whatever the gyro.
+    asked = MethodSetup(paper, grade="tactical", i_c_auto=False)
     assert methods.hdr_settings(asked) == paper
     # The configuration reaches it.
-    cfg = parse_config({"hdr": {"i_c_from": "config"}, "plus": {"grade": "tactical"}})
-    assert REGISTRY["hdr"].settings(config_mod.settings_context(cfg)) == paper
+    cfg = parse_config({"hdr": {"i_c": 0.0422}, "gyro": {"grade": "tactical"}})
+    assert REGISTRY["hdr"].settings(config_mod.method_setup(cfg)) == paper
 
 
 def test_the_config_and_the_command_line_take_the_names_from_the_registry(

@@ -18,6 +18,7 @@ from hdrd.analysis.metrics import (
     heading_error,
     improvement,
     ne_psi,
+    reference,
     truth_at,
     wrap180,
     wrap360,
@@ -187,3 +188,26 @@ def test_continuous_epsi_counts_whole_turns() -> None:
     t3[:5] = nan  # aligned at the first fix
     assert e_psi_continuous(yaw2 + 7.0, t3) == pytest.approx(0.0, abs=1e-9)
     assert math.isnan(e_psi_continuous(yaw2, np.full(n, nan)))
+
+
+def test_alignment_over_a_window_is_the_circular_mean() -> None:
+    # truth around north, gyro straight: the reference is the circular mean (359.5 .. 0.5),
+    # not the arithmetic one (180); a 2-D yaw gets one reference per column.
+    truth = np.array([359.0, 1.0, 0.0, 359.5, 0.5, 90.0])
+    yaw = np.zeros(6)
+    assert wrap180(reference(yaw, truth, 0, 5)) == pytest.approx(0.0, abs=1e-9)
+    assert reference(yaw, truth, 0, 1) == 359.0  # one step: the truth there
+    # the yaw's own turn within the window is taken out (CCW yaw lowers the heading)
+    turning = np.array([0.0, -1.0, -2.0, -3.0, -4.0, 0.0])
+    ramp = np.array([10.0, 11.0, 12.0, 13.0, 14.0, 0.0])
+    assert reference(turning, ramp, 0, 5) == pytest.approx(10.0)
+    both = np.stack([yaw, turning], axis=1)
+    assert np.allclose(reference(both, ramp, 0, 5), [12.0, 10.0])
+    # Eψ over a window: a noisy truth around a straight gyro scores its noise, not the
+    # first sample's error
+    rng = np.random.default_rng(1)
+    noisy = (100.0 + rng.normal(0.0, 2.0, 400)) % 360.0
+    noisy[0] = 120.0  # a first fix 20 deg off
+    flat = np.zeros(400)
+    assert e_psi(flat, noisy, 0, 1) > 15.0
+    assert e_psi(flat, noisy, 1, 10) < 2.5

@@ -16,12 +16,12 @@ import pytest
 
 from hdrd.analysis.evaluate import evaluate_prepared, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
-from hdrd.commands.replay import replay_capture
-from hdrd.config import Config, parse_config, settings_context
-from hdrd.core.calibrate import BiasRecord
-from hdrd.core.methods import names
+from hdrd.config import Config, method_setup, parse_config
+from hdrd.core.calibrate import BiasRecord, given_bias
+from hdrd.core.methods import MethodSetup, names
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.replay import replay_capture
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import FRAME_DTYPE, encode_array
 
@@ -120,7 +120,7 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
         # its ADC's LSB: the same step, to a rounding error (HDR+ fits its model to it)
         assert prep.quant_step_dps == pytest.approx(SENSOR.lsb_dps, rel=1e-6)
         prep = replace(prep, quant_step_dps=SENSOR.lsb_dps)
-        yaw = method_yaw(prep, method, cfg.hdr.params, settings_context(cfg))
+        yaw = method_yaw(prep, method, setup=replace(method_setup(cfg), hdr=cfg.hdr.params))
         assert len(steps) == prep.steps.u.shape[0] > 100
         assert [m["yaw"] for m in steps] == yaw.tolist()  # bit for bit
         assert [m["t"] for m in steps] == prep.steps.t_end.tolist()
@@ -133,9 +133,11 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
         missing = sum(round(m.get("gap_s", 0.0)) for m in steps)
         assert missing == prep.missing_steps
         # And so the same heading error: Eψ from replay's yaw is evaluate's.
-        r = evaluate_prepared(prep, cfg.hdr.params, (method,), settings_context(cfg))
+        r = evaluate_prepared(
+            prep, methods=(method,), setup=replace(method_setup(cfg), hdr=cfg.hdr.params)
+        )
         assert (
-            float(e_psi(np.array([m["yaw"] for m in steps]), prep.truth, prep.k))
+            float(e_psi(np.array([m["yaw"] for m in steps]), prep.truth, prep.k, prep.align_n))
             == (r.e_psi[method])
         )
     if "gaps" in kw:
@@ -144,8 +146,8 @@ def test_replay_and_evaluate_give_the_same_yaw_at_every_step(
 
 def test_a_1_hz_gyro_has_one_sample_per_step_in_the_daemon_and_in_evaluate() -> None:
     data, log = capture(drive(1.0, noise_dps=0.02))
-    ctx = settings_context(_config("hdr+"))
-    p = Pipeline(PipelineConfig(method="hdr+", bias_dps=0.4, context=ctx))
+    ctx = method_setup(_config("hdr+"))
+    p = Pipeline(PipelineConfig(setup=replace(ctx, method="hdr+", bias=given_bias(0.4))))
     from hdrd.io.capture import decode_capture
 
     frames, _ = decode_capture(data)
@@ -160,11 +162,11 @@ def test_a_bias_file_sets_hdr_plus_prior_in_the_daemon_as_in_evaluate() -> None:
     data, log = capture(drive(10.0, minutes=2.0))
     rec = BiasRecord(0.41, 0.05, 300, 30.0)
     msgs = replay_capture(data, _config("hdr+"), rec.bias_dps, None, rec)
-    p = Pipeline(PipelineConfig(method="hdr+", bias_dps=rec.bias_dps, bias_record=rec))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr+", bias=rec)))
     from hdrd.io.capture import decode_capture
 
     p.feed_array(decode_capture(data)[0])
-    assert p.stepper.settings.bias_p0 == 0.05 * 0.05 / 300
+    assert p.stepper.settings.fit.bias_p0 == 0.05 * 0.05 / 300
     without = replay_capture(data, _config("hdr+"), rec.bias_dps)
     assert [m["yaw"] for m in msgs] != [m["yaw"] for m in without]
     # evaluate measures its own record; with the one replay measured, the same prior.

@@ -77,6 +77,18 @@ def test_a_spec_is_a_duration_every_period() -> None:
             OutageSpec.parse(bad)
 
 
+def test_an_outage_shorter_than_a_step_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    # 0.000001s/0.000002s made billions of outages: 2.8 GB, then a MemoryError.
+    with pytest.raises(ValueError, match=r"0\.5 s is shorter than a step \(1 s, hdr\.T\)"):
+        OutageSpec.parse("0.5s/10s")
+    assert OutageSpec.parse("0.5s/10s", step_s=0.5) == OutageSpec(0.5, 10.0)
+    from hdrd.cli import main
+
+    assert main(["evaluate", "any.csv", "--outages", "0.000001s/0.000002s"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "shorter than a step" in err and "--outages" in err
+
+
 def test_outages_end_each_period_and_only_whole_ones_count() -> None:
     spec = OutageSpec(120.0, 600.0)
     assert outage_windows(spec, 30.0, 30.0 + 1800.0) == [
@@ -159,3 +171,16 @@ def test_evaluate_outages_as_a_user_runs_it(tmp_path: Path) -> None:
     bad = subprocess.run(cmd + ["--outages", "10min/2min"], capture_output=True, text=True)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
     assert "shorter than the period" in bad.stderr
+
+
+def test_hdr_plus_owns_the_bias_the_courses_teach_it() -> None:
+    """HDR+ through the aiding stage: the calibration misses the bias by 0.04 deg/s (the
+    lead-in is measured 0.04 low); the courses teach HDR+'s own estimate (not eps0, which
+    the baselines' windows move), so every outage ends within a degree, where paper HDR's
+    binary controller and the baseline's windows do no better."""
+    log = drive(minutes=32.0, bias=0.3, step_at_s=LEAD_S, step_dps=0.04, seed=2)
+    prep = prepare_drive(log)
+    r = run_outages(prep, log, OutageSpec(120.0, 600.0), (FROZEN, "hdr+"))
+    assert r.scored == 3
+    assert np.max(np.abs(r.errors["hdr+"])) < 1.0
+    assert r.mean_abs("hdr+") <= r.mean_abs(FROZEN) + 0.2

@@ -14,6 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.frames import Frame
@@ -26,7 +28,7 @@ def simulate_reader(hz: float, seconds: float, delays: np.ndarray, pacer: ReadPa
     n = int(hz * seconds)
     t_dev = np.arange(n) / hz
     arrive = np.maximum.accumulate(t_dev + 5.0 + delays[:n])  # a stream: delivered in order
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     late: list[float] = []
     now = arrive[0]
     k = 0

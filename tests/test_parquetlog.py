@@ -19,7 +19,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.io.drivefiles import find_drives
 from hdrd.io.drivelog import (
     NO_LIMITS,
@@ -39,6 +38,7 @@ from hdrd.io.parquetlog import (
     write_parquet_drive,
 )
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.fakegyro import FakeGyro
 from tests.test_daemon import drive_profile
 from tests.test_drivelog import assert_same_log, drive_logs
 
@@ -93,6 +93,8 @@ def test_csv_values_are_what_the_csv_reads_back(column: str, values: list[float]
         v = np.where(np.abs(v) <= 360.0, v, np.fmod(v, 360.0))
     if column == "temp_c":  # and temperatures within [-100, 200] deg C
         v = np.where(np.abs(v) <= 100.0, v, np.fmod(v, 100.0))
+    if column == "speed":  # and speeds not negative
+        v = np.abs(v)
     t = np.arange(v.shape[0], dtype=np.float64)
     cols = {"omega": np.zeros_like(t), column: v}
     log = DriveLog(t=t, **cols)  # type: ignore[arg-type]
@@ -278,3 +280,100 @@ def test_without_pyarrow_a_one_line_error(city: DriveLog, tmp_path: Path) -> Non
     assert p.stderr.strip().splitlines() == [
         "hdrd evaluate: error: Parquet drive logs need pyarrow: pip install 'hdrd[fleet]'"
     ]
+
+
+# -- a string bomb: refused from the metadata, before any value is read ------------------------
+
+
+def _bomb(path: Path, n_bytes: int, rows: int = 2, row_group_size: int | None = None) -> Path:
+    """A Parquet file of ``rows`` samples whose ``drive`` column holds ``n_bytes``-long names,
+    each its own (its number, then one letter repeated: zstd makes 40 MB of them a few KB)."""
+    names = [str(i) + "x" * (n_bytes - len(str(i))) for i in range(rows)]
+    t = pa.table({"t": np.arange(rows) * 0.01, "omega": np.zeros(rows), "drive": names})
+    pq.write_table(t, path, compression="zstd", row_group_size=row_group_size)
+    return path
+
+
+@pytest.fixture
+def no_reading(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Reading any value of a Parquet file fails the test: a refusal must come from the
+    metadata alone."""
+
+    def refused(*a: object, **k: object) -> None:
+        raise AssertionError("values were read")
+
+    for name in ("read", "read_row_group", "read_row_groups", "iter_batches"):
+        monkeypatch.setattr(pq.ParquetFile, name, refused)
+
+
+def test_a_string_bomb_is_refused_from_the_metadata(tmp_path: Path, no_reading: None) -> None:
+    bomb = _bomb(tmp_path / "bomb.parquet", 20_000_000)  # two names of 20 MB: 40 MB in ~3 KB
+    assert bomb.stat().st_size < 100_000
+    why = "column drive takes 38.1 MiB uncompressed for 2 values in row group 1"
+    with pytest.raises(DriveLogError, match=why):
+        drives_in_file(bomb)  # listing the drives of a fleet
+    with pytest.raises(DriveLogError, match=why):
+        read_parquet_drive(bomb, drive="0" + "x" * 19_999_999)  # a worker reading its drive
+
+
+def test_a_string_bomb_is_one_line_of_evaluate(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bomb = _bomb(tmp_path / "bomb.parquet", 20_000_000)
+    assert cli(["evaluate", str(bomb), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "refused before reading" in err, err
+
+
+def test_a_chunk_too_large_is_refused_whatever_its_values(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, no_reading: None
+) -> None:
+    # 20,000 names of 100 bytes (short each) in one row group: 2 MB, over a lowered cap.
+    import hdrd.io.parquetlog as parquetlog
+
+    monkeypatch.setattr(parquetlog, "MAX_CHUNK_BYTES", 1 << 20)
+    big = _bomb(tmp_path / "big.parquet", 100, rows=20_000)
+    with pytest.raises(DriveLogError, match=r"for 20000 values in row group 1.* 1 MiB a row"):
+        drives_in_file(big)
+    ok = _bomb(tmp_path / "ok.parquet", 100, rows=20_000, row_group_size=5_000)  # 0.5 MB each
+    monkeypatch.undo()
+    assert len(drives_in_file(ok) or []) == 20_000
+
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        low, n = n & 0x7F, n >> 7
+        out.append(low | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def _claiming(data: bytes, column: str, claimed: int) -> bytes:
+    """A Parquet file's bytes whose footer says the first chunk of ``column`` takes
+    ``claimed`` bytes uncompressed (Thrift compact: ColumnMetaData field 6, an i64 after field
+    5), its data as it was."""
+    import struct
+
+    pf = pq.ParquetFile(io.BytesIO(data))
+    k = pf.schema_arrow.get_field_index(column)
+    size = pf.metadata.row_group(0).column(k).total_uncompressed_size
+    n = struct.unpack("<I", data[-8:-4])[0]
+    footer = data[-8 - n : -8]
+    field = b"\x16" + _varint(size << 1)  # the zigzag of a positive number: twice it
+    assert footer.count(field) == 1
+    footer = footer.replace(field, b"\x16" + _varint(claimed << 1))
+    return data[: -8 - n] + footer + struct.pack("<I", len(footer)) + b"PAR1"
+
+
+def test_a_real_size_bomb_is_refused_from_its_metadata_alone(tmp_path: Path) -> None:
+    # The bomb as found (two 1 GB names), as its metadata states it, without making 2 GB: a
+    # file of two short names whose footer claims 2 GB. Its values read fine (pyarrow does not
+    # trust the footer's size): the refusal comes from the metadata, before reading.
+    _bomb(tmp_path / "small.parquet", 3000)
+    data = (tmp_path / "small.parquet").read_bytes()
+    fake = tmp_path / "bomb.parquet"
+    fake.write_bytes(_claiming(data, "drive", 2_000_000_100))
+    assert pq.read_table(fake).num_rows == 2 and len(data) < 20_000
+    with pytest.raises(DriveLogError, match="takes 1.86 GiB uncompressed for 2 values"):
+        drives_in_file(fake)

@@ -11,7 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.core import hdr
+from hdrd.core.calibrate import given_bias
 from hdrd.core.hdr import HdrParams
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig, heading_from_yaw
 
@@ -67,7 +69,7 @@ def test_known_profile_matches_hdr_core():
     omega = bias + rng.normal(0, 0.3, 600)  # 60 s at 10 Hz, straight with drift
     omega[300:330] += 15.0  # a 3 s turn
     frames = make_frames(omega)
-    p = Pipeline(PipelineConfig(bias_dps=bias, heading0_deg=90.0))
+    p = Pipeline(PipelineConfig(heading0_deg=90.0, setup=MethodSetup(bias=given_bias(bias))))
     msgs = run_live(p, frames)
     assert [m["step"] for m in msgs] == list(range(60))
     sensor = SensorModel()
@@ -93,7 +95,7 @@ def test_startup_calibration_then_steps():
     bias = -0.37
     omega = bias + rng.normal(0, 0.05, 200)
     frames = make_frames(omega, temp_cc=2150)
-    p = Pipeline(PipelineConfig(bias_dps=None, startup_s=2.0))
+    p = Pipeline(PipelineConfig(startup_s=2.0))
     msgs = run_live(p, frames)
     assert [m["status"] for m in msgs[:2]] == ["calibrating", "calibrating"]
     for m in msgs[:2]:
@@ -110,7 +112,7 @@ def test_startup_calibration_then_steps():
 
 def test_startup_calibration_rejects_motion_and_retries():
     omega = np.concatenate([np.linspace(0, 20, 10), np.full(10, 0.2)])  # turning, then still
-    p = Pipeline(PipelineConfig(bias_dps=None, startup_s=1.0))
+    p = Pipeline(PipelineConfig(startup_s=1.0))
     msgs = run_live(p, make_frames(omega) + make_frames(np.full(10, 0.2), t0_us=2_000_000))
     assert msgs[0]["status"] == "calibrating"
     assert p.events[0][0] == "calibration_rejected"
@@ -123,7 +125,7 @@ def test_gap_reported_and_steps_not_invented():
     omega = np.zeros(100)
     frames = make_frames(omega)
     frames = frames[:30] + frames[65:]  # 3.5 s of frames lost
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     msgs = run_live(p, frames)
     steps = [m["step"] for m in msgs]
     assert steps == [0, 1, 2, 6, 7, 8, 9]
@@ -135,7 +137,7 @@ def test_gap_reported_and_steps_not_invented():
 def test_clock_wrap_inside_capture():
     omega = np.full(50, 1.5)
     frames = make_frames(omega, t0_us=2**32 - 1_250_000)
-    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams.off()))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams.off(), bias=given_bias(0.0))))
     msgs = run_live(p, frames)
     assert [m["step"] for m in msgs] == [0, 1, 2, 3, 4]
     assert all(m["samples"] == 10 for m in msgs)
@@ -143,7 +145,7 @@ def test_clock_wrap_inside_capture():
 
 
 def test_resync_keeps_heading_and_numbers():
-    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams.off()))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams.off(), bias=given_bias(0.0))))
     first = run_live_no_finish(p, make_frames(np.full(31, 2.0)))
     resumed = p.resync(gap_s=7.5)
     # the device comes back with its clock restarted
@@ -170,7 +172,7 @@ def run_live_no_finish(p: Pipeline, frames: list[F]) -> list[dict]:
 
 
 def test_stale_message_holds_heading_without_a_step():
-    p = Pipeline(PipelineConfig(bias_dps=0.0, heading0_deg=10.0))
+    p = Pipeline(PipelineConfig(heading0_deg=10.0, setup=MethodSetup(bias=given_bias(0.0))))
     run_live(p, make_frames(np.full(30, -3.0)))
     m = p.stale_message(now=1234.5, silent_s=4.2, bad_frames=3)
     assert m["status"] == "stale" and m["stale_s"] == 4.2 and m["time"] == 1234.5
@@ -180,14 +182,14 @@ def test_stale_message_holds_heading_without_a_step():
 
 def test_saturation_is_flagged():
     omega = np.full(20, 250.0)  # beyond the CRS03-04's 200 deg/s
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     msgs = run_live(p, make_frames(omega))
     assert msgs[0]["saturated"] == 10
 
 
 def test_method_none_is_plain_integration():
     omega = np.full(100, 0.5)
-    p = Pipeline(PipelineConfig(bias_dps=0.0, method="none"))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method="none", bias=given_bias(0.0))))
     msgs = run_live(p, make_frames(omega))
     assert all(m["I"] == 0.0 for m in msgs)
     w = SensorModel().to_dps(np.array(make_frames(omega)[0].rate))
@@ -195,13 +197,13 @@ def test_method_none_is_plain_integration():
 
 
 def test_reconfigure_keeps_state_and_refuses_new_T():
-    p = Pipeline(PipelineConfig(bias_dps=0.1))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
     run_live_no_finish(p, make_frames(np.full(50, 0.4)))
     before = p.method_state
-    p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(i_c=0.1)))
+    p.reconfigure(PipelineConfig(setup=MethodSetup(hdr=HdrParams(i_c=0.1), bias=given_bias(0.1))))
     assert p.method_state == before
     with pytest.raises(ValueError, match="T"):
-        p.reconfigure(PipelineConfig(bias_dps=0.1, params=HdrParams(T=2.0)))
+        p.reconfigure(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=2.0), bias=given_bias(0.1))))
 
 
 @st.composite
@@ -235,7 +237,11 @@ def captures(draw):
 def test_array_path_is_bit_identical_to_live(cap):
     a, bad, bias, startup, method = cap
     limits_loose = PipelineConfig().limits.__class__(1e9, 1e9, 1e9)
-    cfg = PipelineConfig(bias_dps=bias, startup_s=startup, limits=limits_loose, method=method)
+    cfg = PipelineConfig(
+        startup_s=startup,
+        limits=limits_loose,
+        setup=MethodSetup(method=method, bias=given_bias(bias)),
+    )
     live = Pipeline(cfg)
     frames = [
         F(
@@ -261,7 +267,7 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     rng = np.random.default_rng(3)
     bias = 0.5
     omega = bias + 0.1 + rng.normal(0, 0.05, 400)  # 0.1 deg/s of drift beyond eps0
-    p = Pipeline(PipelineConfig(bias_dps=bias, method="hdr+"))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(bias))))
     p.set_speed(0.0)  # gpsd says the vehicle stands still
     msgs = run_live(p, make_frames(omega))
     still = [m for m in msgs if m["zupt"] == 1]
@@ -270,7 +276,7 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     # the truth (0) by the drift the first steps integrated before the stop was known.
     assert abs(msgs[-1]["yaw"]) <= abs(msgs[5]["yaw"])
     assert msgs[-1]["bias"] == pytest.approx(0.6, abs=0.02)  # eps0 refined from the stop
-    ref = Pipeline(PipelineConfig(bias_dps=bias, method="hdr"))
+    ref = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr", bias=given_bias(bias))))
     plain = run_live(ref, make_frames(omega))
     assert all(m["omega"] != 0.0 for m in plain[5:])  # paper HDR has no zero-rate update
     assert "zupt" not in plain[0] and "model" not in plain[0]
@@ -282,16 +288,16 @@ def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
     # A configured grade (a known error model): published as such; a tactical-grade gyro's
     # bias wanders too little for the binary increment, so I never moves. Measured at
     # start-up without one: fitted to the calibration window.
-    from hdrd.core.methods import SettingsContext
+    from hdrd.core.methods import MethodSetup
 
     rng = np.random.default_rng(5)
     omega = 0.3 + rng.normal(0, 0.02, 600)
-    tactical = SettingsContext(grade="tactical")
-    known = Pipeline(PipelineConfig(bias_dps=0.3, method="hdr+", context=tactical))
+    tactical = MethodSetup(grade="tactical")
+    known = Pipeline(PipelineConfig(setup=replace(tactical, method="hdr+", bias=given_bias(0.3))))
     msgs = run_live(known, make_frames(omega))
     assert {m["model"] for m in msgs} == {"grade tactical"}
     assert all(m["I"] == 0.0 for m in msgs)
-    measured = Pipeline(PipelineConfig(method="hdr+", startup_s=5.0))
+    measured = Pipeline(PipelineConfig(startup_s=5.0, setup=MethodSetup(method="hdr+")))
     got = [m for m in run_live(measured, make_frames(omega)) if "yaw" in m]
     assert got and {m["model"] for m in got} == {"calibration"}
 
@@ -306,7 +312,7 @@ def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled:
     cfg = parse_config(
         {"hdr": {"method": "hdr+"}, "standstill": {"enabled": enabled, "from_gyro": from_gyro}}
     )
-    pc = replace(pipeline_config(cfg), bias_dps=0.5)
+    pc = pipeline_config(cfg, given_bias(0.5))
     rng = np.random.default_rng(4)
     omega = 0.5 + rng.normal(0, 0.05, 400)  # 40 s parked, 10 Hz, eps0 known
     msgs = run_live(Pipeline(pc), make_frames(omega))
@@ -320,9 +326,9 @@ def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled:
 
 
 def test_switching_method_keeps_the_heading():
-    p = Pipeline(PipelineConfig(bias_dps=0.0, method="hdr"))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr", bias=given_bias(0.0))))
     a = run_live_no_finish(p, make_frames(np.full(100, 1.0)))
-    p.reconfigure(PipelineConfig(bias_dps=0.0, method="hdr+"))
+    p.reconfigure(PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(0.0))))
     b = run_live(p, make_frames(np.full(50, 1.0), t0_us=10_000_000))
     assert b[0]["yaw"] - a[-1]["yaw"] == pytest.approx(1.0, abs=0.2)
     assert "zupt" in b[0] and "zupt" not in a[-1]
@@ -334,7 +340,7 @@ def test_switching_method_keeps_the_heading():
 def test_a_step_message_has_every_field_under_its_name() -> None:
     rng = np.random.default_rng(8)
     bias = 0.5
-    p = Pipeline(PipelineConfig(bias_dps=bias))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(bias))))
     msgs = []
     for f in make_frames(bias + rng.normal(0.0, 0.3, 200), temp_cc=2150):
         msgs.extend(p.feed(f, 4, now=1000.0))
@@ -349,7 +355,7 @@ def test_a_step_message_has_every_field_under_its_name() -> None:
 
 
 def test_gaps_add_up_until_the_next_step_reports_them() -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     frames = make_frames(np.zeros(100))
     # two gaps: the steps of 2-3 s and 4-5 s get no sample; each is reported by the next step
     msgs = run_live(p, frames[:20] + frames[35:36] + frames[56:])
@@ -358,7 +364,7 @@ def test_gaps_add_up_until_the_next_step_reports_them() -> None:
 
 
 def test_the_stale_message_names_its_fields() -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.25, heading0_deg=10.0))
+    p = Pipeline(PipelineConfig(heading0_deg=10.0, setup=MethodSetup(bias=given_bias(0.25))))
     run_live(p, make_frames(np.full(30, 0.25)))
     m = p.stale_message(now=None, silent_s=1.0, bad_frames=7)
     assert m["class"] == "HDR" and m["v"] == 1 and "time" not in m
@@ -373,7 +379,7 @@ def test_a_heading_a_hair_below_north_is_north() -> None:
 
 
 def test_sample_interval_and_time_to_the_next_step() -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0, params=HdrParams(T=1.0)))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=1.0), bias=given_bias(0.0))))
     frames = make_frames(np.zeros(14), hz=10.0)
     assert p.sample_interval_s() is None and p.until_step_s() is None
     for f in frames[:11]:  # one step closed; the open block [1 s, 2 s) holds the 1.0 s sample
@@ -387,7 +393,7 @@ def test_sample_interval_and_time_to_the_next_step() -> None:
 
 
 def test_a_bias_adjustment_is_recorded_and_moves_eps0() -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.5))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.5))))
     p.adjust_bias(0.0, "gps")
     assert p.stepper.events == [] and p.stepper.bias is not None
     p.adjust_bias(0.125, "gps")
@@ -402,9 +408,9 @@ def test_a_bias_adjustment_is_recorded_and_moves_eps0() -> None:
 
 
 def test_reconfigure_names_what_cannot_change() -> None:
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     with pytest.raises(ValueError, match="^hdr.T cannot change while running; restart"):
-        p.reconfigure(PipelineConfig(bias_dps=0.0, params=HdrParams(T=2.0)))
+        p.reconfigure(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=2.0), bias=given_bias(0.0))))
 
 
 def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> None:
@@ -413,14 +419,82 @@ def test_a_configured_bias_has_no_spread_and_a_recorded_one_keeps_its_own() -> N
     from hdrd.core.gyronoise import GyroNoise
     from hdrd.daemon.pipeline import pipeline_config
 
-    p = Pipeline(PipelineConfig(bias_dps=0.3))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.3))))
     assert p.stepper.bias == BiasRecord(0.3, 0.0, 0, 0.0)
     noise = GyroNoise(white_dps_per_rthz=0.05, rrw_dps_per_sqrt_s=3e-4, quant_step_dps=0.0076)
     rec = BiasRecord(0.42, 0.1, 300, 30.0, None, 1.0, noise)
     pc = pipeline_config(Config(), rec)
-    assert pc.bias_dps == 0.42 and pc.bias_record is rec
+    assert pc.setup.bias is rec  # one route: the record is the bias
     # the recorded error model is the one HDR+ is fitted to
-    hp = Pipeline(replace(pc, method="hdr+"))
+    hp = Pipeline(replace(pc, setup=replace(pc.setup, method="hdr+")))
     run_live(hp, make_frames(np.full(30, 0.42)))
     assert hp.stepper.settings.model == noise.source
-    assert pipeline_config(Config()).bias_dps is None
+    assert pipeline_config(Config()).setup.bias is None
+
+
+# -- the health of the heading and the link (bias_source, calib_age_s, frames, reconnects) ----
+
+
+def test_bias_source_says_what_last_changed_the_bias() -> None:
+    omega = np.full(100, 0.2)
+    p = Pipeline(PipelineConfig(startup_s=1.0))  # measured at start-up
+    first = p.feed_array(to_array(make_frames(omega)))
+    steps = [m for m in first if "yaw" in m]
+    assert steps and "bias_source" not in first[0]  # calibrating: no bias yet
+    assert {m["bias_source"] for m in steps} == {"calibration"}
+    p.adjust_bias(0.01, "gps")
+    later = p.feed_array(to_array(make_frames(omega, t0_us=10_000_000)))
+    assert later and {m["bias_source"] for m in later} == {"gps"}
+    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "gps"
+    p.reconfigure(
+        PipelineConfig(startup_s=1.0, setup=MethodSetup(bias=given_bias(0.3)))
+    )  # a new bias from the config
+    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "calibration"
+    # HDR+ standing still: its zero-rate updates move the bias
+    plus = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(0.5))))
+    plus.set_speed(0.0)
+    msgs = run_live(plus, make_frames(0.6 + np.random.default_rng(3).normal(0, 0.05, 400)))
+    assert msgs[-1]["zupt"] == 1 and msgs[-1]["bias_source"] == "stops"
+
+
+def test_calibration_age_by_the_host_clock_and_absent_when_unknown() -> None:
+    from hdrd.core.calibrate import BiasRecord
+
+    frames = make_frames(np.full(60, 0.2))
+    p = Pipeline(PipelineConfig(startup_s=1.0))
+    msgs = []
+    for i, f in enumerate(frames):  # the host clock: 1000 s + 0.1 s per frame
+        msgs.extend(p.feed(f, 0, 1000.0 + 0.1 * i))
+    ages = [m.get("calib_age_s") for m in msgs]
+    assert ages[0] is None  # calibrating
+    assert ages[1] == 1.0 and ages[-1] == pytest.approx(len(ages) - 1, abs=1e-6)
+    replayed = Pipeline(PipelineConfig(startup_s=1.0)).feed_array(to_array(frames))
+    assert not [m for m in replayed if "calib_age_s" in m]  # no host clock
+    rec = BiasRecord(0.2, 0.01, 600, 60.0, None, 500.0)  # a bias file measured at 500 s
+    filed = Pipeline(PipelineConfig(setup=MethodSetup(bias=rec)))
+    assert [m["calib_age_s"] for m in filed.feed(frames[0], 0, 800.0) + filed.finish(0, 801.5)] == [
+        301.5
+    ]
+    assert filed.stale_message(802.0, 3.0)["calib_age_s"] == 302.0
+    given = Pipeline(
+        PipelineConfig(setup=MethodSetup(bias=given_bias(0.2)))
+    )  # --bias: when is not known
+    assert [m for m in run_live(given, frames) if "calib_age_s" in m] == []
+
+
+def test_frames_and_reconnects_count_the_link_alike_live_and_replayed() -> None:
+    frames = make_frames(np.full(95, 0.1))
+    live = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
+    msgs = run_live(live, frames)
+    assert [m["frames"] for m in msgs] == [11, 21, 31, 41, 51, 61, 71, 81, 91, 95]
+    assert {m["reconnects"] for m in msgs} == {0}
+    fast = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
+    assert [m["frames"] for m in fast.feed_array(to_array(frames)) + fast.finish()] == [
+        m["frames"] for m in msgs
+    ]
+    back = live.resync(2.0)
+    assert live.reconnects == 1 and back == []
+    more = run_live(live, make_frames(np.full(20, 0.1)))
+    assert {m["reconnects"] for m in more} == {1} and more[-1]["frames"] == 115
+    stale = live.stale_message(1.0e9, 3.0)
+    assert stale["frames"] == 115 and stale["reconnects"] == 1

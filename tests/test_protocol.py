@@ -10,11 +10,14 @@ from typing import Any
 
 import numpy as np
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io import protocol
 from hdrd.io.frames import FRAME_DTYPE
 from hdrd.io.gpsd import Fix
+from tests.test_aiding import on_message
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
@@ -38,7 +41,7 @@ def published() -> list[dict[str, Any]]:
     after a gap, saturated samples, a stale report, and GPS-aided steps."""
     out: list[dict[str, Any]] = []
     for method in ("hdr", "hdr+"):
-        p = Pipeline(PipelineConfig(method=method, startup_s=1.0))
+        p = Pipeline(PipelineConfig(startup_s=1.0, setup=MethodSetup(method=method)))
         p.set_speed(0.0)  # standing: HDR+ makes zero-rate updates
         arr = frames(400, gap_at=200)
         arr["rate"][300:310] = 65535  # at the rail: saturated
@@ -46,10 +49,10 @@ def published() -> list[dict[str, Any]]:
         out += p.finish()
         out.append(p.stale_message(1.0e9, 4.0, 0))
     a = GpsAiding(AidingConfig())
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     for k, m in enumerate(p.feed_array(frames(300))):
         a.on_fix(Fix(mode=3, track_deg=90.0, speed_mps=15.0, epd=2.0), float(k))
-        out.append(a.on_message(m, k + 0.5)[0])
+        out.append(on_message(a, m, k + 0.5)[0])
     return out
 
 

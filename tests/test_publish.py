@@ -18,6 +18,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.io.publish import (
     OutputClosed,
     StdoutPublisher,
@@ -296,7 +298,7 @@ def _pipeline_messages(method: str, speed: float | None) -> list[dict[str, Any]]
     from tests.test_pipeline import make_frames, run_live
 
     rng = np.random.default_rng(7)
-    p = Pipeline(PipelineConfig(bias_dps=0.5, method=method))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method=method, bias=given_bias(0.5))))
     p.set_speed(speed)
     msgs = run_live(p, make_frames(0.5 + rng.normal(0, 0.05, 400)))
     msgs.append(p.stale_message(1e9, silent_s=4.0))  # then the cable is pulled

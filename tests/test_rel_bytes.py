@@ -30,6 +30,8 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
@@ -308,7 +310,7 @@ def test_sequence_and_clock_histories_are_counted_as_built(
         assert vstats == stats
     # The pipeline takes the same history without a crash: a repeated or slightly earlier
     # time is dropped, a reset starts the clock again; steps only go forward.
-    cfg = PipelineConfig(bias_dps=0.1)
+    cfg = PipelineConfig(setup=MethodSetup(bias=given_bias(0.1)))
     live = Pipeline(cfg)
     msgs = [m for f in array_to_frames(arr) for m in live.feed(f)] + live.finish()
     assert (
@@ -351,7 +353,7 @@ def test_rails_and_out_of_range_samples_are_flagged_per_step(
     arr["t_us"] = np.arange(len(counts)) * 100_000  # 10 Hz: 10 samples per 1 s step
     arr["rate"] = counts
     arr["temp"] = 2000
-    p = Pipeline(PipelineConfig(bias_dps=0.0))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     if as_capture:
         msgs = p.feed_array(arr) + p.finish()
     else:

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from hdrd.cli import main as cli
-from hdrd.commands.fakegyro import FakeGyro
-from hdrd.commands.replay import replay_capture
 from hdrd.config import Config
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
+from hdrd.daemon.replay import replay_capture
 from hdrd.io.biasfile import save_bias
 from hdrd.io.drivelog import read_drive
+from hdrd.sim.fakegyro import FakeGyro
 from tests.test_daemon import drive_profile, strip_time
 
 WAIT = 30.0
@@ -162,6 +162,26 @@ def test_replay_bias_sources(tmp_path, capsys):
     assert [m["status"] for m in c[:3]] == ["calibrating"] * 3 and "bias" in c[3]
 
 
+def test_replay_never_takes_the_machines_bias_file(tmp_path, capsys, monkeypatch):
+    # `hdrd run` falls back to $STATE_DIRECTORY/bias.yaml; a replay does not (its lines must
+    # not depend on the machine), and its --help no longer claims it does.
+    cap = tmp_path / "c.bin"
+    FakeGyro(drive_profile(seconds=20)).write_capture(cap)
+    empty = tmp_path / "h.yaml"
+    empty.write_text("{}\n")
+    _, alone, _ = replay_cli(capsys, str(cap), "--config", str(empty))
+    state = tmp_path / "state"
+    save_bias(state / "bias.yaml", BiasRecord(0.31, 0.01, 300, 30.0))
+    monkeypatch.setenv("STATE_DIRECTORY", str(state))
+    _, with_state, _ = replay_cli(capsys, str(cap), "--config", str(empty))
+    assert with_state == alone and 0.31 not in {m.get("bias") for m in alone}
+    with pytest.raises(SystemExit):
+        cli(["replay", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "never this machine's $STATE_DIRECTORY or /var/lib/hdrd bias file" in text
+    assert "--heading0 DEG compass heading at start, deg (default output.heading0_deg, 0)" in text
+
+
 def test_replay_errors(tmp_path, capsys):
     rc, _, err = replay_cli(capsys, str(tmp_path / "missing.bin"))
     assert rc == 1 and "cannot read" in err
@@ -203,7 +223,7 @@ def test_replay_capture_is_pure_and_repeatable(tmp_path):
 def test_replay_in_chunks_is_replay_whole(tmp_path):
     # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
     # steps before the next (memory follows the chunk, not the capture): the same messages.
-    from hdrd.commands.replay import replay_steps
+    from hdrd.daemon.replay import replay_steps
     from hdrd.io.capture import decode_capture
 
     cap = tmp_path / "c.bin"

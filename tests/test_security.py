@@ -181,7 +181,7 @@ def test_the_daemon_listens_on_nothing(
 
 def test_hdrd_tail_binds_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.commands.tail import DEFAULT_TAIL_LISTEN
+    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
@@ -394,3 +394,12 @@ def test_the_daemon_finds_its_bias_in_the_units_state_directory(
     assert default_bias_path() == tmp_path / "a" / "bias.yaml"
     monkeypatch.delenv("STATE_DIRECTORY")
     assert default_bias_path() == Path("/var/lib/hdrd/bias.yaml")  # StateDirectory=hdrd's path
+
+
+def test_hdrd_web_listens_on_loopback_by_default() -> None:
+    from hdrd.cli import build_parser
+    from hdrd.io.webserver import DEFAULT_WEB_LISTEN, is_loopback
+
+    args = build_parser().parse_args(["web"])
+    for address in (args.listen, args.udp, DEFAULT_WEB_LISTEN):
+        assert is_loopback(address.rsplit(":", 1)[0]), address

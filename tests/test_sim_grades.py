@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.cli import build_parser
-from hdrd.commands.simulate import simulate_main
+from hdrd.cli import build_parser, main
 from hdrd.core.allan import allan_deviation, arw_from_adev
 from hdrd.core.grades import GRADES, Grade
 from hdrd.io.drivelog import read_drive
@@ -84,13 +83,16 @@ def _args(argv: list[str]) -> argparse.Namespace:
     return build_parser().parse_args(["simulate", *argv])
 
 
+def simulate(argv: list[str]) -> int:
+    """``hdrd simulate ARGV`` through the command line's entry point, as the user runs it."""
+    return main(["simulate", *argv])
+
+
 def test_cli_simulate_grade(tmp_path: Path) -> None:
     out = tmp_path / "a.csv"
     assert (
-        simulate_main(
-            _args(
-                ["--drive", "highway", "--minutes", "1", "--grade", "automotive", "--out", str(out)]
-            )
+        simulate(
+            ["--drive", "highway", "--minutes", "1", "--grade", "automotive", "--out", str(out)]
         )
         == 0
     )
@@ -101,18 +103,16 @@ def test_cli_simulate_grade(tmp_path: Path) -> None:
     assert np.max(np.abs(codes - np.round(codes))) < 1e-3
     # crs03 is the default: the same log as without --grade (but for the grade line).
     a, b = tmp_path / "a1.csv", tmp_path / "b1.csv"
-    assert simulate_main(_args(["--minutes", "1", "--out", str(a)])) == 0
-    assert simulate_main(_args(["--minutes", "1", "--grade", "crs03", "--out", str(b)])) == 0
+    assert simulate(["--minutes", "1", "--out", str(a)]) == 0
+    assert simulate(["--minutes", "1", "--grade", "crs03", "--out", str(b)]) == 0
     strip = lambda p: [ln for ln in p.read_text().splitlines() if not ln.startswith("# grade")]  # noqa: E731
     assert strip(a) == strip(b)
 
 
 def test_cli_simulate_benchmark_grade(tmp_path: Path) -> None:
     assert (
-        simulate_main(
-            _args(
-                ["--benchmark", "test", "--grade", "tactical", "--hz", "10", "--out", str(tmp_path)]
-            )
+        simulate(
+            ["--benchmark", "test", "--grade", "tactical", "--hz", "10", "--out", str(tmp_path)]
         )
         == 0
     )
@@ -125,7 +125,7 @@ def test_cli_simulate_benchmark_grade(tmp_path: Path) -> None:
 
 
 def test_cli_simulate_grade_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    assert simulate_main(_args(["--grade", "nope", "--out", str(tmp_path / "x.csv")])) == 2
+    assert simulate(["--grade", "nope", "--out", str(tmp_path / "x.csv")]) == 2
     assert "unknown --grade 'nope'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         _args(["--grade", "phone", "--model", "m.yaml"])

@@ -52,7 +52,8 @@ def test_what_a_drive_lacks_is_nan_in_every_step() -> None:
 
 def test_a_step_input_holds_plain_floats() -> None:
     inp = drive(omega_std=np.array([0.1, 0.2, 0.3], np.float32)).input(0)
-    assert all(type(v) is float for v in inp)  # not numpy scalars: a method's hot loop
+    assert all(type(v) is float for v in inp[:-1])  # not numpy scalars: a method's hot loop
+    assert inp.heading_reset is False
 
 
 def test_a_step_past_the_end_is_an_error() -> None:

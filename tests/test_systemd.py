@@ -378,3 +378,91 @@ def test_the_daemon_runs_well_inside_the_units_limits(tmp_path: Path) -> None:
     assert hwm_kb * 1024 * 3 <= _bytes(one["MemoryMax"]), hwm_kb
     assert threads * 4 <= int(one["TasksMax"]), threads
     assert fds * 4 <= int(one["LimitNOFILE"]), fds
+
+
+# -- systemd/hdrd-web.service: the live page beside the daemon ------------------------------
+
+WEB_UNIT = ROOT / "systemd" / "hdrd-web.service"
+WEB_DOC = ROOT / "docs" / "web.md"
+# What the daemon's unit sets for its devices and its state, which the page needs none of.
+NOT_FOR_THE_PAGE = {
+    "Type",
+    "NotifyAccess",
+    "WatchdogSec",
+    "ExecReload",
+    "Nice",
+    "RestartPreventExitStatus",
+    "MemoryMax",
+    "Environment",
+    "TasksMax",
+    "LimitNOFILE",
+    "SupplementaryGroups",
+    "StateDirectory",
+    "StateDirectoryMode",
+    "ConfigurationDirectory",
+    "UMask",
+    "DeviceAllow",
+    "ExecStart",
+}
+
+
+def web_unit_copy(tmp_path: Path, exec_path: str) -> Path:
+    text = WEB_UNIT.read_text()
+    assert "ExecStart=/usr/local/bin/hdrd web\n" in text
+    out = tmp_path / "hdrd-web.service"
+    out.write_text(text.replace("ExecStart=/usr/local/bin/hdrd ", f"ExecStart={exec_path} "))
+    return out
+
+
+def test_the_web_unit_is_sandboxed_as_the_daemons() -> None:
+    daemon, web = parse_unit(UNIT.read_text()), parse_unit(WEB_UNIT.read_text())
+    ours = {k: v for k, v in web["Service"]}
+    for key, value in daemon["Service"]:
+        if key not in NOT_FOR_THE_PAGE:
+            assert value in values(web, key), (key, value)
+    assert ours["ExecStart"] == "/usr/local/bin/hdrd web"  # its defaults: loopback only
+    assert ours["PrivateDevices"] == "yes" and "DeviceAllow" not in ours
+    assert ours["IPAddressDeny"] == "any" and ours["IPAddressAllow"] == "localhost"
+    assert "2" in ours["RestartPreventExitStatus"].split()  # a bad --listen stays bad
+    assert _bytes(ours["MemoryMax"]) <= _bytes(dict(daemon["Service"])["MemoryMax"])
+    # the sockets hdrd web binds by default, and no other
+    assert sorted(values(web, "SocketBindAllow")) == ["tcp:8080", "udp:10110"]
+    assert values(web, "WantedBy", "Install") == ["multi-user.target"]
+
+
+@needs_analyze
+def test_systemd_analyze_verifies_the_web_unit_and_rates_it_as_the_docs_say(
+    tmp_path: Path,
+) -> None:
+    unit = web_unit_copy(tmp_path, hdrd_executable())
+    r = subprocess.run(
+        ["systemd-analyze", "verify", str(unit)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0 and "hdrd-web.service" not in r.stdout + r.stderr, r.stderr
+    r = subprocess.run(
+        ["systemd-analyze", "security", "--offline=true", str(unit)],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    m = re.search(r"Overall exposure level for hdrd-web\.service:\s*([0-9.]+)", r.stdout)
+    if m is None and "--offline" in r.stderr:
+        pytest.skip(f"this systemd-analyze has no --offline: {r.stderr.strip()}")
+    assert m, r.stdout + r.stderr
+    score = float(m.group(1))
+    assert score <= MAX_EXPOSURE
+    recorded = re.search(
+        r"exposure \*\*([0-9.]+) [A-Z]+\*\* \(systemd (\d+)\)", WEB_DOC.read_text()
+    )
+    assert recorded, "docs/web.md does not record the unit's systemd-analyze security exposure"
+    v = subprocess.run(
+        ["systemd-analyze", "--version"], check=False, capture_output=True, text=True, timeout=60
+    )
+    here = re.search(r"systemd (\d+)", v.stdout)
+    if here and int(here.group(1)) == int(recorded.group(2)):
+        assert score == float(recorded.group(1))

@@ -26,6 +26,7 @@ from hdrd.analysis.tune import (
 from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
 from hdrd.core.hdr import HdrParams
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import write_drive
 from tests.test_evaluate import CITY_TURNS, make_drive
 
@@ -86,7 +87,7 @@ def test_vectorised_scores_agree_with_the_scalar_evaluation(train: list) -> None
         )
         for i, d in enumerate(train):
             assert e[i, j] == pytest.approx(
-                evaluate_prepared(d, p).e_psi["hdr"], rel=1e-9, abs=1e-9
+                evaluate_prepared(d, setup=MethodSetup(hdr=p)).e_psi["hdr"], rel=1e-9, abs=1e-9
             )
 
 

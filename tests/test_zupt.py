@@ -16,8 +16,10 @@ import pytest
 
 from hdrd.core import biasbank as bb
 from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, run_batch, step
+from hdrd.core.plusparams import one_model
 from hdrd.core.standstill import StandstillParams, block_mean_variance
 from hdrd.core.steps import StepInput
+from tests.test_hdrplus import plus
 
 NAN = math.nan
 SS = StandstillParams()
@@ -77,13 +79,13 @@ def test_yaw_does_not_move_at_standstill() -> None:
     # Driving with a residual bias makes yaw move; at standstill omega is 0 whatever u is.
     u = [0.2] * 75
     speed = [10.0] * 10 + [0.0] * 60 + [10.0] * 5
-    still = HdrPlusParams().ablated(heading_fix=False)
-    tr = run_batch(u, [0.15] * 75, speed, None, 1.0, still)
+    tr = run_batch(u, [0.15] * 75, speed, None, 1.0, HdrPlusParams())
+    yaw = tr.yaw - np.cumsum(tr.heading_fix_deg)  # without the heading fix
     a = 10 + SS.steps_speed - 1  # the first zero-rate update
     assert tr.standstill.tolist() == [False] * a + [True] * (70 - a) + [False] * 5
     assert np.all(tr.omega[a:70] == 0.0)
-    assert np.all(tr.yaw[a:70] == tr.yaw[a - 1])
-    assert tr.yaw[a - 1] > 1.0
+    assert np.allclose(yaw[a:70], yaw[a - 1], rtol=0.0, atol=1e-12)
+    assert yaw[a - 1] > 1.0
     # ... and after the stop most of the bias it measured (0.2) is removed: the estimate
     # weighs the stop against its prior (the start-up eps0) and a bias that could not have
     # moved much in 10 s, so not all of it at once.
@@ -102,7 +104,7 @@ def test_yaw_does_not_move_at_standstill() -> None:
 
 def test_zero_rate_update_through_step_publishes_standstill() -> None:
     # A start-up bias known to +-1 deg/s only; stops count from their first step.
-    vague = HdrPlusParams(bias_p0=1.0, standstill=StandstillParams(steps_speed=1))
+    vague = plus(bias_p0=1.0, standstill=StandstillParams(steps_speed=1))
     s = INITIAL_PLUS_STATE
     s, o = step(s, StepInput(0.5, 0.1, 0.0, NAN, 1.0), vague)
     assert o.standstill and o.omega == 0.0 and o.yaw == 0.0 and o.W == 0
@@ -121,7 +123,7 @@ def test_bias_converges_to_the_true_bias_on_a_noisy_stationary_segment() -> None
     u = true_bias + sigma / math.sqrt(n_samples) * rng.standard_normal(steps)
     # A bias that does not wander (q = 0) and a vague start-up prior: the filter's answer
     # is then the mean of the block means, as good as the samples allow.
-    p = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=0.0, bank=False)
+    p = plus(bias_p0=1.0, bank=one_model(0.0))
     tr = run_batch(u, np.full(steps, sigma), np.zeros(steps), None, 1.0, p)
     used = steps - (SS.steps_speed - 1)  # the first steps of a stop are not measurements
     expect_sd = math.sqrt(sigma**2 + SS.noise_floor_dps**2) / math.sqrt(n_samples * used)
@@ -139,11 +141,11 @@ def test_a_wandering_bias_is_followed_from_stop_to_stop() -> None:
     n = 40
     u = [0.10] * n + [0.18] * n
     speed = [0.0] * (2 * n)
-    fast = HdrPlusParams(bias_p0=1.0, bias_q_no_temp=4e-5, stop_offset_var=0.0, bank=False)
+    fast = plus(bias_p0=1.0, stop_offset_var=0.0, bank=one_model(4e-5))
     tr = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, fast)
     assert tr.bias_corr_dps[n - 1] == pytest.approx(0.10, abs=0.005)
     assert tr.bias_corr_dps[-1] == pytest.approx(0.18, abs=0.01)
-    slow = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, HdrPlusParams(bias_p0=1.0, bank=False))
+    slow = run_batch(u, [0.15] * (2 * n), speed, None, 1.0, plus(bias_p0=1.0, bank=one_model(3e-7)))
     assert 0.10 < slow.bias_corr_dps[-1] < 0.16
 
 
@@ -175,7 +177,7 @@ def test_stops_weigh_by_duration_and_quietness() -> None:
 
 def test_temperature_coefficient_is_learned_from_stops_at_different_temperatures() -> None:
     b_true, k_true, t0 = 0.05, 0.009, 8.0
-    p = HdrPlusParams(bias_p0=1.0)
+    p = plus(bias_p0=1.0)
     u, spread, speed, temp = [], [], [], []
     for t_c in (8.0, 12.0, 16.0, 20.0):
         for _ in range(15):

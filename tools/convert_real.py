@@ -9,12 +9,14 @@ and those of public repositories listed in tools/real_sources.yaml (docs/real-da
     python tools/convert_real.py all --out-dir /tmp/real [--data ../shared/data]
     python tools/convert_real.py oan   --data CLONE --out-dir /tmp/real   # 3 logs, oan_<stamp>.csv
     python tools/convert_real.py psins --data CLONE --out /tmp/real/psins_fog_mems.csv
+    python tools/convert_real.py boreas --data CLONE --out-dir /tmp/real  # 2 routes, boreas_<stamp>.csv
 
-``--data`` (alias ``--src``) is the recording's folder, for oan and psins a clone of the public
+``--data`` (alias ``--src``) is the recording's folder, for oan, psins and boreas a clone of the public
 repository (its work tree, or a bare git directory read at the recorded commit); with ``all``
 the folder holding the recordings' folders. Defaults: ../shared/data beside the repository (or
-$HDRD_REAL_DATA), and for oan and psins the snapshot the search tool's fetch leaves under
-$HDRD_MIRRORS (default /work/.mirror). ``all`` converts the ../shared/data recordings only.
+$HDRD_REAL_DATA); for the public ones, ``$HDRD_MIRRORS/<owner>+<name>/repo`` when
+$HDRD_MIRRORS names a folder of repository snapshots, else none (a missing clone is named with
+its ``git clone`` command). ``all`` converts the ../shared/data recordings only.
 
 The recordings are third-party (see each folder's README.txt and licence, and
 tools/real_sources.yaml) and are read in place, never copied into this repository; write the
@@ -95,6 +97,35 @@ Sign conventions (checked against the data, see the README.txt files):
   mean(omega - omega_truth) = 0.028 deg/s the heading stays within 0.4 deg (mean) of the INS,
   1.0 deg flipped (little turning: the correlations are the evidence). The INS heading and its
   velocity's course differ by ~4.4 deg on average (mounting).
+- boreas (pyboreas ``pyboreas/test/demo/gt/<sequence>/applanix/lidar_poses.csv``; two drives
+  ``boreas_20210805_1334`` (18.6 min, 7.9 km, tunes) and ``boreas_20210902_1142`` (17.2 min,
+  8.0 km, judges), each from a standing start to a stop, with 4 and 6 stops of 6-81 s between)
+  are *routes*, not gyros: the Applanix POS
+  LV's post-processed (RTS-smoothed GNSS + IMU + wheel encoder) pose of the lidar frame at
+  ~9.64 Hz (the lidar's scans; GPSTime is UTC microseconds). omega = omega_truth =
+  degrees(angvel_z) (a perfect gyro; metadata ``route``), heading_truth = degrees(heading) +
+  43.2 (compass), speed = hypot(vel_east, vel_north). **Axis and sign, verified**: angvel_z
+  is the rate about the lidar frame's z axis, which T_applanix_lidar puts within 0.06 deg of
+  the Applanix z (up); it correlates -0.99915 / -0.99932 with the time derivative of the
+  unwrapped ``heading`` (slope -1.0001 / -1.0010; 1 s means -0.99991, slope -0.996: the body
+  axis tilts with roll and pitch of up to 5.7 deg) at zero lag (-0.996 one sample off), while
+  angvel_x and angvel_y do not (|r| < 0.03); integrated, it follows minus the heading's change
+  to within 1.5 / 2.2 deg over 2,990 / 2,888 deg of turning (mean 0.42 / 0.71 deg, at most
+  1.7 / 2.0 deg, over any 120 s), and with the sign flipped it is 517 / 523 deg off. Against
+  the course over ground from the Applanix velocities (compass, atan2(vel_east, vel_north)),
+  1 s means of angvel_z correlate -0.987 / -0.985 with the course's rate at > 5 m/s (slope
+  -0.97): angvel_z is counter-clockwise positive about up, hdrd's sign. **Heading**: the
+  ``heading`` turns *against* angvel_z, so it is clockwise (compass sense; pyboreas's
+  yawPitchRollToRot takes Barfoot's C3, the negative of an ENU yaw), range [-180, 180). It is
+  the lidar frame's, not the car's: the course over ground minus ``heading`` is 43.21 / 43.17
+  deg (circular mean over 3,348 / 3,290 rows of straight road: speed > 5 m/s, |angvel_z| < 1
+  deg/s; sd 0.50 / 0.52 deg; 43.17-43.22 at > 3, 5 or 10 m/s), in line with T_applanix_lidar's
+  42.66 deg yaw of the lidar frame (lidar x axis 47.34 deg clockwise of the Applanix y axis,
+  forward; the 0.55 deg left is the Applanix frame's misalignment to the car's direction of
+  travel). In turns the course leads the heading by 0.36 deg per m/s^2 of lateral acceleration
+  (sideslip at the lidar's lever arm). The positions' course (easting/northing differences)
+  equals the velocities' (mean difference 0.002 deg). A lead-in from the speed (<= 0.3 m/s,
+  1 s margin): 8 s and 3 s.
 
 Each log that starts at standstill says so in ``lead_in_s`` (docs/drive-format.md): the seconds
 from the first sample during which the vehicle stood still, so that the static bias can be
@@ -510,9 +541,10 @@ def driveplotr_to_drives(folder: Path = DATA / "driveplotr_nds") -> list[DriveLo
 # -- public repositories (tools/real_sources.yaml) -------------------------------------------
 
 SOURCES_YAML = Path(__file__).resolve().parent / "real_sources.yaml"
-MIRRORS = Path(os.environ.get("HDRD_MIRRORS", "/work/.mirror"))
-"""Where the search tool's ``fetch`` puts repository snapshots (``<owner>+<name>/repo``, bare git
-directories): the default source of the recordings of tools/real_sources.yaml."""
+MIRRORS: Path | None = Path(os.environ["HDRD_MIRRORS"]) if os.environ.get("HDRD_MIRRORS") else None
+"""$HDRD_MIRRORS: a folder of repository snapshots (``<owner>+<name>/repo``, a clone or a bare
+git directory), where the recordings of tools/real_sources.yaml are read without --data. No
+default: a clone is wherever its user put it."""
 
 
 def public_source(key: str) -> dict[str, Any]:
@@ -524,9 +556,45 @@ def public_source(key: str) -> dict[str, Any]:
     return dict(doc["sources"][key])
 
 
-def default_clone(key: str) -> Path:
-    """Default location of a public source: the fetched snapshot of its repository."""
+def default_clone(key: str) -> Path | None:
+    """Default location of a public source: its repository's snapshot under $HDRD_MIRRORS
+    (None without it)."""
+    if MIRRORS is None:
+        return None
     return MIRRORS / public_source(key)["repo"].replace("/", "+") / "repo"
+
+
+def clone_command(key: str) -> str:
+    """The commands that make a clone of public source ``key`` at its recorded commit."""
+    meta = public_source(key)
+    folder = meta["repo"].rsplit("/", 1)[-1]
+    return (
+        f"git clone https://github.com/{meta['repo']} {folder} && "
+        f"git -C {folder} checkout {meta['commit']}"
+    )
+
+
+def no_clone(key: str) -> str:
+    """Why public source ``key`` cannot be read without --data, and how to get it."""
+    return f"no clone of github.com/{public_source(key)['repo']} given; {clone_hint(key)}"
+
+
+def clone_hint(key: str) -> str:
+    """How to make public source ``key`` readable: its clone command, and where to name it."""
+    repo = public_source(key)["repo"]
+    return (
+        f"clone it (`{clone_command(key)}`) and pass the clone with --data, or set "
+        f"HDRD_MIRRORS to a folder holding it as {repo.replace('/', '+')}/repo "
+        "(docs/real-data.md)"
+    )
+
+
+def _clone(key: str, src: Path | None) -> Path:
+    """``src``, else the snapshot under $HDRD_MIRRORS; ValueError naming the clone command."""
+    src = default_clone(key) if src is None else src
+    if src is None:
+        raise ValueError(no_clone(key))
+    return src
 
 
 def read_source_file(src: Path, key: str, path: str) -> bytes:
@@ -620,7 +688,7 @@ def _after_handling(gyro: FloatArray, fix: FloatArray, margin_s: float = 2.0) ->
 
 def oan_to_drives(src: Path | None = None) -> list[DriveLog]:
     """The Open Aided Navigation car drives as drive logs (see the module docstring)."""
-    src = default_clone("oan") if src is None else src
+    src = _clone("oan", src)
     meta = public_source("oan")
     logs = []
     for name, folder in meta["drives"].items():
@@ -677,7 +745,7 @@ def psins_to_drive(src: Path | None = None) -> DriveLog:
 
     from scipy.io import loadmat
 
-    src = default_clone("psins") if src is None else src
+    src = _clone("psins", src)
     meta = public_source("psins")
     path = meta["drives"]["psins_fog_mems"]
     mat = loadmat(io.BytesIO(read_source_file(src, "psins", path)))
@@ -718,6 +786,68 @@ def psins_to_drive(src: Path | None = None) -> DriveLog:
     )
 
 
+BOREAS_COLUMNS = (
+    "GPSTime", "easting", "northing", "altitude", "vel_east", "vel_north", "vel_up",
+    "roll", "pitch", "heading", "angvel_z", "angvel_y", "angvel_x",
+)  # fmt: skip
+"""The columns of a Boreas ``applanix/<sensor>_poses.csv``, in order (DATA_REFERENCE.md)."""
+BOREAS_HEADING_OFFSET_DEG = 43.2
+"""Compass course of the car minus the Applanix ``heading`` of the lidar frame (taken as
+clockwise, deg) on straight road: 43.21 deg on the tuning drive, 43.17 on the judging drive
+(sd 0.5; the module docstring)."""
+
+
+def _boreas_table(data: bytes, label: str) -> FloatArray:
+    """The rows of a Boreas pose CSV (header :data:`BOREAS_COLUMNS`), strictly increasing in
+    time; ValueError naming the file otherwise."""
+    import io
+
+    text = data.decode("utf-8", errors="replace")
+    head = tuple(c.strip() for c in text.split("\n", 1)[0].split(","))
+    if head != BOREAS_COLUMNS:
+        raise ValueError(f"{label}: header is not {','.join(BOREAS_COLUMNS)}")
+    rows = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
+    if rows.shape[0] < 2 or rows.shape[1] != len(BOREAS_COLUMNS):
+        raise ValueError(f"{label}: fewer than 2 rows of {len(BOREAS_COLUMNS)} numbers")
+    if not np.all(np.isfinite(rows)) or not np.all(np.diff(rows[:, 0]) > 0):
+        raise ValueError(f"{label}: a value is not finite or the time does not increase")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def boreas_to_drives(src: Path | None = None) -> list[DriveLog]:
+    """The two Boreas drives as *routes*: drive logs whose ``omega`` is the true rate (a
+    perfect gyro) for :mod:`hdrd.sim.roads` to carry simulated gyros (see the module
+    docstring)."""
+    src = _clone("boreas", src)
+    meta = public_source("boreas")
+    logs = []
+    for name, folder in meta["drives"].items():
+        path = f"pyboreas/test/demo/gt/{folder}/applanix/lidar_poses.csv"
+        a = _boreas_table(read_source_file(src, "boreas", path), path)
+        t = (a[:, 0] - a[0, 0]) * 1e-6
+        rate = np.degrees(a[:, 10])  # about the lidar's z axis (up): CCW positive
+        heading = np.mod(np.degrees(a[:, 9]) + BOREAS_HEADING_OFFSET_DEG, 360.0)
+        speed = np.hypot(a[:, 4], a[:, 5])
+        lead = lead_in_seconds(t, speed, rate, margin_s=1.0)
+        m = {
+            "source": f"Boreas {folder} {path} (github.com/{meta['repo']} "
+            f"{meta['commit'][:12]}; Burnett et al., IJRR 2023), data CC BY 4.0",
+            "route": "true rate: omega is omega_truth, a perfect gyro (hdrd.sim.roads puts a "
+            "simulated gyro on this route)",
+            "omega": "Applanix POS LV angvel_z (post-processed, bias-free) of the lidar frame, "
+            "z up, deg/s, CCW positive, ~9.6 Hz",
+            "omega_truth": "the same",
+            "heading_truth": f"Applanix heading (clockwise, of the lidar frame) + "
+            f"{BOREAS_HEADING_OFFSET_DEG:g} deg: the car's course on straight road, compass",
+            "speed": "Applanix horizontal speed hypot(vel_east, vel_north)",
+            "t0_s": f"{a[0, 0] * 1e-6:.6f} (UTC, s since 1970)",
+        }
+        if lead is not None:
+            m["lead_in_s"] = f"{lead:g}"
+        logs.append(DriveLog(t, rate, None, heading, rate.copy(), speed, name=name, meta=m))
+    return logs
+
+
 def _one(fn: Callable[[Path], DriveLog]) -> Callable[[Path], list[DriveLog]]:
     return lambda folder: [fn(folder)]
 
@@ -733,21 +863,18 @@ these."""
 PUBLIC: dict[str, tuple[Callable[[Path], list[DriveLog]], str]] = {
     "oan": (oan_to_drives, "oan"),
     "psins": (_one(psins_to_drive), "psins"),
+    "boreas": (boreas_to_drives, "boreas"),
 }
 """Recording of a public repository -> (converter, its key in tools/real_sources.yaml); read from
 a clone (--data) or the fetched snapshot. Not part of ``all``."""
-MULTI = {"driveplotr", "oan"}
+MULTI = {"driveplotr", "oan", "boreas"}
 """Recordings that become several logs (written with --out-dir)."""
 
 
 def _absent_hint(name: str) -> str:
     """What to do when a recording's default location is absent."""
     if name in PUBLIC:
-        meta = public_source(PUBLIC[name][1])
-        return (
-            f"; clone github.com/{meta['repo']}, check out {meta['commit']} and pass the "
-            "clone with --data (docs/real-data.md)"
-        )
+        return "; " + clone_hint(PUBLIC[name][1])
     return (
         "; the default is ../shared/data beside the repository (or $HDRD_REAL_DATA): pass the "
         "recording's folder with --data ('all': the folder holding every recording's folder)"
@@ -762,8 +889,9 @@ def main(argv: list[str] | None = None) -> int:
         "--src",
         dest="data",
         type=Path,
-        help="the recording's folder, or for oan/psins a clone of its repository (default: "
-        "../shared/data/<folder>, or the fetched snapshot); with 'all', the folder holding the "
+        help="the recording's folder, or for oan/psins/boreas a clone of its repository (default: "
+        "../shared/data/<folder>; for those $HDRD_MIRRORS/<owner>+<name>/repo, no default "
+        "without it); with 'all', the folder holding the "
         "recordings' folders (default ../shared/data)",
     )
     p.add_argument("--out", type=Path, help="drive log CSV to write (one single-log recording)")
@@ -782,7 +910,11 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [(name, fn, root / folder) for name, (fn, folder) in CONVERTERS.items()]
     elif args.which in PUBLIC:
         fn, key = PUBLIC[args.which]
-        jobs = [(args.which, fn, args.data if args.data is not None else default_clone(key))]
+        clone = args.data if args.data is not None else default_clone(key)
+        if clone is None:
+            print(f"convert_real: {args.which}: {no_clone(key)}", file=sys.stderr)
+            return 1
+        jobs = [(args.which, fn, clone)]
     else:
         fn, folder = CONVERTERS[args.which]
         jobs = [(args.which, fn, args.data if args.data is not None else DATA / folder)]

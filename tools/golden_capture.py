@@ -31,11 +31,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hdrd.commands.fakegyro import FakeGyro
 from hdrd.io.capture import decode_capture
 from hdrd.io.frames import array_to_frames
 from hdrd.io.protocol import CLOCK_WRAP_US
 from hdrd.sim import simulate_drive
+from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile, profile_frames
 
 OUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "drive-faults.bin"

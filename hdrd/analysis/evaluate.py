@@ -29,6 +29,7 @@ How a drive log becomes Table II numbers:
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -43,7 +44,6 @@ from hdrd.analysis.outages import OutageResult, outages_json
 from hdrd.analysis.prepare import (
     DEFAULT_LIMITS,
     DEFAULTS,
-    PAPER_PARAMS,
     TRUTH_MAX_GAP_S,
     EvaluationError,
     PreparedDrive,
@@ -53,8 +53,7 @@ from hdrd.analysis.prepare import (
 from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import StandstillLimits
-from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext, StepInputs
+from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
@@ -76,10 +75,12 @@ __all__ = [
     "method_yaw",
     "plus_model",
     "prepare_drive",
-    "read_limits",
     "read_ref",
     "summarize",
     "to_json",
+    "trace_columns",
+    "trace_csv",
+    "TRACE_METHODS",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -122,6 +123,8 @@ class DriveResult:
     outages: OutageResult | None = None
     """With ``--outages``: each method's heading error at the end of each GNSS outage
     (:mod:`hdrd.analysis.outages`)."""
+    trace: dict[str, FloatArray] | None = field(default=None, repr=False)
+    """With ``--trace``: one value per step, :func:`trace_columns`."""
 
     @property
     def primary(self) -> str:
@@ -147,61 +150,52 @@ def evaluated_methods(methods: Sequence[str]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def method_yaw(
-    prep: PreparedDrive,
-    method: str,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> FloatArray:
+def method_yaw(prep: PreparedDrive, method: str, setup: MethodSetup = DEFAULTS) -> FloatArray:
     """Yaw (deg CCW since the drive's start) at each step end of one method on a prepared
-    drive: its batch form with its settings derived as the daemon derives them. params: the
-    HDR parameters (``hdr.*``); context: what the configuration says about the settings
-    (:func:`hdrd.config.settings_context`: the grade, ``standstill.*``; HDR+'s base). The
-    output step is the log's own (its lattice), as the daemon knows its ADC's."""
+    drive: its batch form with its settings derived as the daemon derives them from the setup
+    (:func:`hdrd.config.method_setup`: ``hdr.*``, the gyro's error model, ``standstill.*``;
+    HDR+'s base) and the drive (:func:`hdrd.analysis.prepare.method_settings`). The output
+    step is the log's own (its lattice), as the daemon knows its ADC's."""
     m = registry.get(method)
-    return m.batch(prep.steps, method_settings(prep, method, params, context))
+    return m.batch(prep.steps, method_settings(prep, method, setup))
 
 
 PLUS = "hdr+"
 
 
-def plus_model(
-    prep: PreparedDrive,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> str:
+def plus_model(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> str:
     """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
     ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
-    return str(getattr(method_settings(prep, PLUS, params, context), "model", ""))
+    return str(getattr(method_settings(prep, PLUS, setup), "model", ""))
 
 
 def evaluate_prepared(
     prep: PreparedDrive,
-    params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
 ) -> DriveResult:
     """Eψ and NEψ of each method on a prepared drive. ``none`` is always evaluated (first).
-    ``context``: what the configuration says about the methods' settings (default: the
-    built-in configuration's; :func:`hdrd.config.settings_context`)."""
+    ``setup``: the methods' setup (default: the built-in configuration's;
+    :func:`hdrd.config.method_setup`), each method's settings derived from it."""
     ms = evaluated_methods(methods)
-    if params.T != prep.steps.T:
+    T = setup.hdr.T
+    if T != prep.steps.T:
         raise EvaluationError(
-            f"{prep.name}: params.T = {params.T} s but the drive was stepped at {prep.steps.T} s"
+            f"{prep.name}: hdr.T = {T} s but the drive was stepped at {prep.steps.T} s"
         )
     e: dict[str, float] = {}
     ne: dict[str, float] = {}
     heading: dict[str, FloatArray] = {}
     for m in ms:
-        yaw = method_yaw(prep, m, params, context)
-        e[m] = float(e_psi(yaw, prep.truth, prep.k))
+        yaw = method_yaw(prep, m, setup)
+        e[m] = float(e_psi(yaw, prep.truth, prep.k, prep.align_n))
         ne[m] = float(ne_psi(e[m], prep.duration_min))
         if not (math.isfinite(e[m]) and math.isfinite(ne[m])):
             raise EvaluationError(
                 f"{prep.name}: {m} gives a heading error of {e[m]!r} deg over "
                 f"{prep.duration_min!r} min, not a number to report"
             )
-        heading[m] = gyro_heading(yaw, prep.truth, prep.k)
+        heading[m] = gyro_heading(yaw, prep.truth, prep.k, prep.align_n)
     return DriveResult(
         name=prep.name,
         duration_min=prep.duration_min,
@@ -217,25 +211,62 @@ def evaluate_prepared(
         truth=prep.truth,
         heading=heading,
         warnings=tuple(w for w in (sign_warning(prep.name, prep.sign),) if w is not None),
-        plus_model=plus_model(prep, params, context) if PLUS in ms else None,
+        plus_model=plus_model(prep, setup) if PLUS in ms else None,
     )
+
+
+TRACE_METHODS = ("none", "hdr", "hdr+")
+"""The methods whose heading ``--trace`` writes, whatever ``--method`` asks."""
+
+
+def trace_columns(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> dict[str, FloatArray]:
+    """A drive's trace, one value per step (``hdrd evaluate --trace``): ``t`` (s, the step's
+    end, since the log's first sample), ``heading_truth`` (compass deg; NaN where unknown),
+    ``speed`` (m/s, the step's mean; NaN where unknown) and ``heading_<m>`` for each of
+    :data:`TRACE_METHODS`: its compass heading in [0, 360), aligned as Eψ aligns it
+    (:func:`hdrd.analysis.prepare.alignment`), as the daemon would have published it had it
+    been given that heading at the start."""
+    s = prep.steps
+    n = s.u.shape[0]
+    cols: dict[str, FloatArray] = {
+        "t": s.t_end,
+        "heading_truth": prep.truth,
+        "speed": s.speed if s.speed is not None else np.full(n, math.nan),
+    }
+    for m in TRACE_METHODS:
+        yaw = method_yaw(prep, m, setup)
+        cols[f"heading_{m}"] = np.mod(gyro_heading(yaw, prep.truth, prep.k, prep.align_n), 360.0)
+    return cols
+
+
+def trace_csv(cols: dict[str, FloatArray]) -> str:
+    """A trace as CSV text: a header of the column names, a row per step, an empty cell
+    where a value is unknown."""
+
+    def cell(v: float, digits: int) -> str:
+        return f"{v:.{digits}f}" if math.isfinite(v) else ""
+
+    names = list(cols)
+    lines = [",".join(names)]
+    for i in range(cols["t"].shape[0]):
+        lines.append(",".join(cell(float(cols[k][i]), 3 if k == "t" else 4) for k in names))
+    return "\n".join(lines) + "\n"
 
 
 def evaluate_drive(
     log: DriveLog,
-    params: HdrParams = PAPER_PARAMS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
 ) -> DriveResult:
     """Table II's row for one drive log: Eψ (Eq. 12) and NEψ (Eq. 13) per method.
 
     bias: static bias eps0, deg/s; None = measured per drive (``calibrate_seconds``, else
     the log's lead-in, else a standstill found in it; EvaluationError if there is none).
     """
-    prep = prepare_drive(log, bias, calibrate_seconds, params.T)
-    return evaluate_prepared(prep, params, methods, context)
+    prep = prepare_drive(log, bias, calibrate_seconds, setup.hdr.T)
+    return evaluate_prepared(prep, methods, setup)
 
 
 def _mean_std(values: Sequence[float]) -> tuple[float, float]:
@@ -390,34 +421,54 @@ def format_table(results: Sequence[DriveResult]) -> str:
 # -- reading drive logs ------------------------------------------------------------------
 
 
-def drive_refs(paths: Sequence[str]) -> list[DriveRef]:
+YAML_SUFFIXES = (".yaml", ".yml")
+
+
+def drive_refs(
+    paths: Sequence[str],
+    notes: list[str] | None = None,
+    *,
+    strict: bool = False,
+    yaml_option: str | None = None,
+) -> list[DriveRef]:
     """The drives named (:func:`hdrd.io.drivefiles.find_drives`: files, directories, globs; CSV
-    or Parquet), in order; EvaluationError for a missing path or a directory without logs."""
+    or Parquet), in order, each once. EvaluationError for a missing path, a directory without
+    logs, or a YAML file (a configuration or a model given where a drive goes: the message
+    asks whether ``yaml_option`` was meant). What was left out is added to ``notes``: what a
+    directory's scan could not read (with ``strict``: EvaluationError), and a drive named
+    more than once (scored once)."""
     from hdrd.io.drivefiles import find_drives
     from hdrd.io.drivelog import DriveLogError
+    from hdrd.io.files import shown_path
 
+    for p in paths:
+        if p.lower().endswith(YAML_SUFFIXES) and Path(p).is_file():
+            hint = f"; did you mean {yaml_option} {p}?" if yaml_option else ""
+            raise EvaluationError(
+                f"{shown_path(p)}: a YAML file, not a drive log (.csv, .parquet){hint}"
+            )
+    problems: list[str] = []
     try:
-        return find_drives(paths)
+        refs = find_drives(paths, problems)
     except DriveLogError as e:
         raise EvaluationError(str(e)) from None
+    if problems and strict:
+        raise EvaluationError(problems[0])
+    once: dict[tuple[str, Any], DriveRef] = {}
+    for r in refs:
+        key = (os.path.realpath(r.path), r.key)
+        if key in once:
+            problems.append(f"{r.name}: named more than once; taken once")
+        else:
+            once[key] = r
+    if notes is not None:
+        notes.extend(problems)
+    return list(once.values())
 
 
 def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
     """Each drive named (:func:`drive_refs`) as (its file or partition directory, its name)."""
     return [(Path(r.path), r.name) for r in drive_refs(paths)]
-
-
-def read_limits(args: Any) -> ReadLimits:
-    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
-    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.drivelog import ReadLimits
-
-    given = {
-        "max_rows": getattr(args, "max_rows", None),
-        "max_rate_dps": getattr(args, "max_rate", None),
-        "max_gap_s": getattr(args, "max_gap", None),
-    }
-    return ReadLimits(**{k: v for k, v in given.items() if v is not None})
 
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
@@ -448,9 +499,8 @@ def load_drives(paths: Sequence[str]) -> list[DriveLog]:
 
 def evaluate_logs(
     logs: Sequence[DriveLog],
-    params: HdrParams = PAPER_PARAMS,
     methods: Sequence[str] = ("none", "hdr"),
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     limits: StandstillLimits = DEFAULT_LIMITS,
@@ -462,8 +512,8 @@ def evaluate_logs(
     skipped: list[str] = []
     for log in logs:
         try:
-            prep = prepare_drive(log, bias, calibrate_seconds, params.T, truth_max_gap_s, limits)
-            results.append(evaluate_prepared(prep, params, methods, context))
+            prep = prepare_drive(log, bias, calibrate_seconds, setup.hdr.T, truth_max_gap_s, limits)
+            results.append(evaluate_prepared(prep, methods, setup))
         except EvaluationError as e:
             if len(logs) == 1:
                 raise

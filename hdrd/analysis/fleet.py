@@ -24,29 +24,37 @@ run are pure, so a task run twice gives the same result.
 
 from __future__ import annotations
 
-import argparse
+import asyncio
+import contextlib
 import functools
 import logging
+import signal
+import threading
 import weakref
 from collections.abc import Callable, Generator, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from hdrd.errors import HdrdError
 
 __all__ = [
     "INSTALL",
+    "MIN_CLUSTER_WORK_S",
+    "MIN_WORK_ENV",
     "DaskRunner",
     "FleetError",
     "LocalRunner",
     "Runner",
+    "TlsFiles",
+    "Where",
     "batches",
-    "fleet_requested",
     "open_runner",
     "run_batch",
+    "scheduler_warning",
 ]
 
 INSTALL = "pip install 'hdrd[fleet]'"
-GUIDE = 8
+GUIDE = 4
 """A task takes 1/(GUIDE x threads) of the items not yet sent (guided self-scheduling): large
 tasks first, where the per-task cost matters, then ever smaller ones, so that the workers
 finish together (the last tasks are single drives)."""
@@ -66,9 +74,37 @@ class FleetError(HdrdError, RuntimeError):
     worker died too often); the message says what, in one line."""
 
 
-def fleet_requested(args: argparse.Namespace) -> bool:
-    """True if the command line asks for a cluster (``--workers`` or ``--scheduler``)."""
-    return bool(getattr(args, "workers", None) or getattr(args, "scheduler", None))
+MIN_CLUSTER_WORK_S = 4.0
+"""``--workers N`` runs in this process when the work is estimated below this many seconds of
+one process: a local cluster's start, stop and upkeep (about 1.5 s of CPU, and the start's
+second or so of waiting) would not pay for themselves (bench/fleet.py: 60 drives of 12
+minutes, about 1.3 s, were slower on two workers than in one process)."""
+
+
+MIN_WORK_ENV = "HDRD_FLEET_MIN_WORK_S"
+"""The environment variable that sets :data:`MIN_CLUSTER_WORK_S` (0: always the cluster)."""
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a command's work runs (``--workers``, ``--scheduler``, ``--tls-*``): in this
+    process (neither), on a local cluster of ``workers`` processes, or on the cluster whose
+    scheduler is at ``scheduler``."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    tls: TlsFiles = field(default_factory=lambda: TlsFiles())
+    min_work_s: float = MIN_CLUSTER_WORK_S
+    """Work (estimated seconds in one process) below which ``workers`` runs in this process."""
+
+    def __post_init__(self) -> None:
+        if self.tls.given() and not self.scheduler:
+            raise FleetError("the --tls-* options are for a tls:// --scheduler")
+
+    @property
+    def cluster(self) -> bool:
+        """True if the work runs on a Dask cluster."""
+        return bool(self.workers or self.scheduler)
 
 
 def run_batch(fn: Callable[..., Any], items: Sequence[Any], *args: Any) -> list[Any]:
@@ -156,6 +192,164 @@ class LocalRunner(Runner):
         return value
 
 
+@dataclass(frozen=True)
+class TlsFiles:
+    """The client's TLS files for a ``tls://`` scheduler (PEM paths): the cluster's CA
+    certificate, this client's certificate and its key (None: the key is in the certificate's
+    file). Any left None comes from the Dask configuration (``distributed.comm.tls.ca-file``,
+    ``distributed.comm.tls.client.cert``, ``distributed.comm.tls.client.key``)."""
+
+    ca_file: str | None = None
+    cert: str | None = None
+    key: str | None = None
+
+    def given(self) -> dict[str, str]:
+        """The files given, as ``distributed.security.Security`` takes them."""
+        fields = {"tls_ca_file": self.ca_file, "tls_client_cert": self.cert}
+        fields["tls_client_key"] = self.key
+        return {k: v for k, v in fields.items() if v is not None}
+
+
+SCHEMES = ("tcp", "tls")
+"""The scheduler addresses hdrd connects to: plain TCP, or TLS (docs/fleet.md, "Trust")."""
+TLS_HELP = (
+    "--tls-ca-file CA.pem --tls-cert CLIENT.pem [--tls-key CLIENT.key], or "
+    "distributed.comm.tls.ca-file and distributed.comm.tls.client.cert/key in the Dask "
+    "configuration"
+)
+
+
+def _one_line(e: BaseException) -> str:
+    from hdrd.errors import clipped
+    from hdrd.io.files import printable
+
+    text = " ".join(str(e).split())
+    return clipped(printable(text), 200) or type(e).__name__
+
+
+def _scheme(address: str) -> tuple[str, str]:
+    """(scheme, host) of a scheduler's address (no scheme: tcp); FleetError for an address
+    that is not one, or a scheme hdrd does not connect to."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address, strict=False)
+    except (ValueError, TypeError) as e:
+        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
+    if scheme not in SCHEMES:
+        raise FleetError(
+            f"--scheduler {address}: the {scheme}:// scheme is not supported; give "
+            "tcp://HOST:PORT or tls://HOST:PORT"
+        )
+    try:
+        host, _ = parse_host_port(loc, 8786)
+    except (ValueError, TypeError) as e:
+        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
+    return scheme, host
+
+
+def scheduler_warning(address: str | None) -> str | None:
+    """The warning a scheduler's address deserves: plain TCP to another machine than this one
+    (no encryption, no proof of whom it reaches; docs/fleet.md, "Trust"), else None."""
+    if not address:
+        return None
+    try:
+        scheme, host = _scheme(address)
+    except FleetError:
+        return None  # said as an error when it is used
+    if scheme != "tcp" or host == "localhost" or _loopback(host):
+        return None
+    return (
+        f"{address} is plain TCP to another machine: no encryption, and no proof that the "
+        "scheduler there is yours (a scheduler runs code in this process); use tls:// "
+        '(docs/fleet.md, "Trust")'
+    )
+
+
+def _loopback(host: str) -> bool:
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _security(distributed: Any, address: str, scheme: str, tls: TlsFiles) -> Any:
+    """The client's ``Security`` for ``scheme``: TLS from ``tls`` and the Dask configuration;
+    FleetError when TLS files are given for a tcp:// address, are missing for a tls:// one, or
+    cannot be loaded."""
+    given = tls.given()
+    if scheme != "tls":
+        if given:
+            raise FleetError(f"--tls-* options need a tls:// scheduler address, not {address}")
+        return None
+    sec = distributed.Security(**given)
+    if not (sec.tls_ca_file and sec.tls_client_cert):
+        raise FleetError(
+            f"{address}: TLS needs the cluster's CA certificate and a client certificate: "
+            + TLS_HELP
+        )
+    try:
+        sec.get_connection_args("client")  # loads the files now: an error says which
+    except (OSError, ValueError) as e:  # ssl.SSLError is an OSError
+        used = f"CA {sec.tls_ca_file}, certificate {sec.tls_client_cert}, key "
+        used += sec.tls_client_key or "(in the certificate's file)"
+        raise FleetError(f"{address}: cannot load the TLS files ({used}): {_one_line(e)}") from None
+    return sec
+
+
+def connect_timeout() -> float:
+    """Seconds to reach a scheduler and finish the handshake with it: Dask's
+    ``distributed.comm.timeouts.connect`` (30 s by default)."""
+    import dask
+    from dask.utils import parse_timedelta
+
+    return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s"))
+
+
+def _connect(distributed: Any, address: str, tls: TlsFiles) -> Any:
+    """A client of the scheduler at ``address``, connected and past the handshake within
+    :func:`connect_timeout` (a listener that accepts and says nothing included); FleetError
+    in one line for anything else."""
+    scheme, _ = _scheme(address)
+    security = _security(distributed, address, scheme, tls)
+    deadline = connect_timeout()
+
+    class Bounded(distributed.Client):
+        failed = False
+
+        def start(self, **kwargs: Any) -> None:
+            # Dask bounds the connection, not the handshake after it: the whole start is.
+            kwargs.setdefault("callback_timeout", deadline)
+            try:
+                super().start(**kwargs)
+            except BaseException:
+                self.failed = True  # closed here, not again (with a traceback) at exit
+                with contextlib.suppress(Exception):
+                    self.close(timeout=1)
+                raise
+
+        def __del__(self) -> None:
+            if not self.failed:
+                super().__del__()
+
+    try:
+        return Bounded(address, security=security, timeout=deadline)
+    except (TimeoutError, asyncio.TimeoutError):
+        raise FleetError(
+            f"cannot reach the Dask scheduler at {address}: no answer within {deadline:g} s "
+            "(distributed.comm.timeouts.connect)"
+        ) from None
+    except OSError as e:  # refused, closed, TLS refused (ssl.SSLError)
+        raise FleetError(f"cannot reach the Dask scheduler at {address}: {_one_line(e)}") from None
+    except Exception as e:  # noqa: BLE001 - whatever answered, one line, never a traceback
+        raise FleetError(
+            f"what answered at {address} is not a Dask scheduler this client can use "
+            f"({type(e).__name__}: {_one_line(e)})"
+        ) from None
+
+
 def _dask() -> Any:
     try:
         import distributed
@@ -164,56 +358,183 @@ def _dask() -> Any:
     return distributed
 
 
-class DaskRunner(Runner):
-    """A ``dask.distributed`` client (and the local cluster it started, if any)."""
+def dask_setup(worker: Any) -> None:
+    """Dask's preload hook, run in each worker process of a local cluster (``--workers``) as
+    it starts, a restarted one included. Ctrl-C at a terminal sends SIGINT to every process of
+    the command; the command says "interrupted" in one line and closes its cluster, so its
+    workers ignore SIGINT (else each prints a traceback)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
-    distributed = True
 
-    def __init__(self, client: Any, cluster: Any = None) -> None:
-        self.client = client
-        self.cluster = cluster
-        self.threads = max(1, sum(client.nthreads().values()))
-        self._open: weakref.WeakSet[Generator[Any, None, None]] = weakref.WeakSet()
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
+    # What a local cluster of one-thread workers running coarse tasks does not need; each
+    # costs CPU that the work would otherwise have (bench/fleet.py, bench/RESULTS.md).
+    "distributed.worker.profile.enabled": False,  # a stack sample of the task every 10 ms
+    "distributed.scheduler.work-stealing": False,  # the client sizes and spreads the tasks
+    "distributed.admin.tick.interval": "1s",  # every server's event-loop check, 20 ms
+    "distributed.admin.system-monitor.interval": "5s",  # psutil in every server, 500 ms
+    "distributed.admin.system-monitor.disk": False,
+    "distributed.worker.memory.monitor-interval": "1s",  # the nannies' psutil, 100 ms
+}
+FORKSERVER_PRELOAD = ("distributed", "numpy", "hdrd.analysis.fleet_jobs")
+"""What a local cluster's workers import once, in the fork server they are forked from
+(where there is one, as on Linux), instead of each importing it: a worker starts in a tenth
+of the time and CPU."""
 
-    @classmethod
-    def open(cls, workers: int | None = None, scheduler: str | None = None) -> DaskRunner:
-        """A local cluster of ``workers`` processes (one thread each), or the cluster whose
-        scheduler is at ``scheduler`` (``tcp://host:8786``). FleetError if it cannot be had."""
-        distributed = _dask()
-        if scheduler:
-            try:  # waits distributed.comm.timeouts.connect (30 s) for the scheduler
-                client = distributed.Client(scheduler)
-            except (OSError, TimeoutError, ValueError) as e:
-                raise FleetError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
-            return cls(client)
-        if workers is None or workers < 1:
-            raise FleetError(f"--workers must be >= 1, got {workers}")
-        try:
+
+def _start_forkserver() -> None:
+    """The fork server a local cluster's workers are forked from (where there is one, as on
+    Linux), started now, having imported :data:`FORKSERVER_PRELOAD` (its start returns at
+    once; it imports while this process goes on)."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    from multiprocessing import forkserver
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    forkserver.ensure_running()
+
+
+def _local_cluster(distributed: Any, workers: int) -> tuple[Any, Any]:
+    """(client, cluster): a local cluster of ``workers`` one-thread worker processes with
+    :data:`LOCAL_CLUSTER_CONFIG`, forked from the fork server (:func:`_start_forkserver`),
+    their environment without Dask's ``MALLOC_TRIM_THRESHOLD_`` (which hands freed memory
+    back to the system at once, and makes every large numpy array a fresh mapping).
+    FleetError if it cannot be started."""
+    import multiprocessing
+
+    import dask
+
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    conf = {**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        conf["distributed.worker.multiprocessing-method"] = "forkserver"
+        _start_forkserver()  # (Dask's preload list does not name hdrd's module)
+    cluster = None
+    try:
+        with dask.config.set(conf):
             cluster = distributed.LocalCluster(
                 n_workers=workers,
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=None,
-                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's concern
+                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
+                preload=[__name__],  # dask_setup, in every worker process
             )
-        except (OSError, TimeoutError, RuntimeError) as e:
-            raise FleetError(
-                f"cannot start a local Dask cluster of {workers} workers: {e}"
-            ) from None
-        try:
-            client = distributed.Client(cluster)
-        except BaseException:
+        return distributed.Client(cluster), cluster
+    except BaseException as e:
+        if cluster is not None:
             cluster.close()
-            raise
+        if isinstance(e, (OSError, TimeoutError, RuntimeError)):
+            raise FleetError(
+                f"cannot start a local Dask cluster of {workers} workers: {_one_line(e)}"
+            ) from None
+        raise
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the processes
+    started meanwhile (the fork server, and so every worker forked from it) inherit it, and
+    Python leaves a SIGINT ignored at its start ignored. A Ctrl-C meanwhile is lost (a signal
+    cannot be both ignored by them and caught here): the fork server's start, milliseconds,
+    with :meth:`DaskRunner.start`; the whole cluster's with :meth:`DaskRunner.open`."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class DaskRunner(Runner):
+    """A ``dask.distributed`` client (and the local cluster it started, if any).
+
+    A local cluster may still be starting (:meth:`start`): until it is up, :meth:`map` runs
+    the first items in this process, in order (the same functions: the same results), and
+    hands the rest to the cluster once it is; :meth:`persist` and :meth:`share` wait for it.
+    """
+
+    distributed = True
+
+    def __init__(self, client: Any = None, cluster: Any = None, threads: int = 0) -> None:
+        self.client = client
+        self.cluster = cluster
+        self.threads = threads or max(1, sum(client.nthreads().values()))
+        self._open: weakref.WeakSet[Generator[Any, None, None]] = weakref.WeakSet()
+        self._up = threading.Event()  # the client is there (or its start failed)
+        self._start_error: BaseException | None = None
+        self._starting: threading.Thread | None = None
+        if client is not None:
+            self._up.set()
+
+    @classmethod
+    def open(
+        cls, workers: int | None = None, scheduler: str | None = None, tls: TlsFiles | None = None
+    ) -> DaskRunner:
+        """A local cluster of ``workers`` processes (one thread each), or the cluster whose
+        scheduler is at ``scheduler`` (``tcp://host:8786``, ``tls://host:8786`` with ``tls``
+        or the Dask configuration's TLS files), up when this returns. FleetError if it cannot
+        be had."""
+        distributed = _dask()
+        if scheduler:
+            return cls(_connect(distributed, scheduler, tls or TlsFiles()))
+        if workers is None or workers < 1:
+            raise FleetError(f"--workers must be >= 1, got {workers}")
+        with _sigint_ignored():  # the worker processes inherit it (and see dask_setup)
+            client, cluster = _local_cluster(distributed, workers)
         return cls(client, cluster)
+
+    @classmethod
+    def start(cls, workers: int) -> DaskRunner:
+        """A local cluster of ``workers`` processes (one thread each), started in the
+        background: this process works meanwhile (the class docstring). FleetError (when the
+        cluster is first needed) if it cannot be had."""
+        if workers < 1:
+            raise FleetError(f"--workers must be >= 1, got {workers}")
+        import importlib.util
+
+        if importlib.util.find_spec("distributed") is None:
+            _dask()  # the one-line error, now
+        with _sigint_ignored():  # the fork server, and so every worker, inherits it
+            _start_forkserver()
+        runner = cls(threads=workers)
+        runner._starting = threading.Thread(
+            target=runner._start, args=(workers,), name="hdrd-cluster-start", daemon=True
+        )
+        runner._starting.start()
+        return runner
+
+    def _start(self, workers: int) -> None:
+        try:
+            self.client, self.cluster = _local_cluster(_dask(), workers)
+        except BaseException as e:  # noqa: BLE001 - raised where the cluster is needed
+            self._start_error = e
+        finally:
+            self._up.set()
+
+    def _ready(self) -> None:
+        """Wait for the cluster; its start's error (FleetError) if it failed."""
+        self._up.wait()
+        if self._start_error is not None:
+            raise self._start_error
 
     def close(self) -> None:
         # A map left half-read (its consumer raised) cancels its tasks now, while the client
         # is open, not when it is collected after the client closed (which would wait forever).
         for gen in list(self._open):
             gen.close()
+        if self._starting is not None:
+            self._starting.join()  # a cluster still starting is closed once up
         try:
-            self.client.close()
+            if self.client is not None:
+                self.client.close()
         finally:
             if self.cluster is not None:
                 self.cluster.close()
@@ -259,14 +580,16 @@ class DaskRunner(Runner):
         weights: Sequence[int] | None,
         batch: int | None,
     ) -> Generator[Any, None, None]:
+        w = list(weights) if weights is not None else [1] * len(items)
+        total = sum(w)
+        first = yield from self._while_starting(fn, items, args, progress, w)
+        if first == len(items):
+            return
+        self._ready()
+        done, items, w, n = sum(w[:first]), items[first:], w[first:], len(items) - first
         distributed = _dask()
-        n = len(items)
-        if batch:
-            chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)]
-        else:
-            chunks = batches(n, self.threads)
-        w = list(weights) if weights is not None else [1] * n
-        total, done = sum(w), 0
+        chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)] if batch else []
+        chunks = chunks or batches(n, self.threads)
         window = max(MIN_WINDOW, WINDOW_PER_THREAD * self.threads)
         pending = distributed.as_completed()
         chunk_of: dict[str, int] = {}
@@ -307,10 +630,32 @@ class DaskRunner(Runner):
                 f.cancel()
             pending.clear()
 
+    def _while_starting(
+        self,
+        fn: Callable[..., Any],
+        items: Sequence[Any],
+        args: tuple[Any, ...],
+        progress: Progress | None,
+        w: list[int],
+    ) -> Generator[Any, None, int]:
+        """``fn`` on the first items in this process, in order, while the cluster starts;
+        returns how many."""
+        total, done, first = sum(w), 0, 0
+        while first < len(items) and not self._up.is_set():
+            out = fn(items[first], *args)
+            done += w[first]
+            first += 1
+            if progress is not None:
+                progress(done, total)
+            yield out
+        return first
+
     def persist(self, fn: Callable[..., Any], items: Sequence[Any], *args: Any) -> list[Any]:
+        self._ready()
         return [self.client.submit(fn, item, *args, pure=False) for item in items]
 
     def share(self, value: Any) -> Any:
+        self._ready()
         # In a list: a dict given alone would be scattered as named values, one per key.
         return self.client.scatter([value], broadcast=True, hash=False)[0]
 
@@ -321,12 +666,25 @@ def _describe(items: Sequence[Any], idx: range) -> str:
     return names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]} ({len(names)} drives)"
 
 
-def open_runner(args: argparse.Namespace) -> Runner:
-    """The runner a command line asks for: a :class:`DaskRunner` with ``--workers N`` or
-    ``--scheduler ADDRESS``, else a :class:`LocalRunner` (and Dask is never imported)."""
-    if not fleet_requested(args):
+def open_runner(
+    where: Where, work_s: float | None = None, say: Callable[[str], None] | None = None
+) -> Runner:
+    """The runner ``where`` asks for: a :class:`DaskRunner` with ``workers`` or ``scheduler``,
+    else a :class:`LocalRunner` (and Dask is never imported). ``work_s``: the work's
+    estimated seconds in one process; below ``where.min_work_s``, ``workers`` runs in this
+    process all the same (``say`` is told so)."""
+    if where.workers and work_s is not None and work_s < where.min_work_s:
+        if say is not None:
+            say(
+                f"about {work_s:.1f} s of work: run in this process (a local cluster pays "
+                f"for its start from about {where.min_work_s:g} s: {MIN_WORK_ENV})"
+            )
         return LocalRunner()
-    workers = getattr(args, "workers", None)
+    if not where.cluster:
+        return LocalRunner()
+    workers = where.workers
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise FleetError(f"--workers must be >= 1, got {workers}")
-    return DaskRunner.open(workers, getattr(args, "scheduler", None))
+    if workers:
+        return DaskRunner.start(workers)
+    return DaskRunner.open(None, where.scheduler, where.tls)

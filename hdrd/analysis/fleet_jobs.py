@@ -20,9 +20,10 @@ drives than workers to keep busy.
 
 from __future__ import annotations
 
-import argparse
 import math
-from collections.abc import Iterator, Sequence
+import os
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -31,30 +32,32 @@ import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
     DEFAULTS,
-    PAPER_PARAMS,
     DriveResult,
     EvaluationError,
     PreparedDrive,
     evaluate_prepared,
     prepare_drive,
     read_ref,
+    trace_columns,
 )
-from hdrd.analysis.fleet import Progress, Runner, batches, open_runner
+from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
-from hdrd.analysis.prepare import DEFAULT_LIMITS, TRUTH_MAX_GAP_S
+from hdrd.analysis.prepare import DEFAULT_LIMITS, PAPER_PARAMS, TRUTH_MAX_GAP_S
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
     PARAM_NAMES,
     Candidates,
+    Interrupted,
     TuneResult,
     check_budget,
-    outcome,
+    check_held_out,
+    content_key,
     score_candidates,
-    search,
+    search_outcome,
 )
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivefiles import DriveRef
 from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
@@ -66,6 +69,7 @@ __all__ = [
     "GapOutcome",
     "PrepareJob",
     "evaluate_one",
+    "estimated_work_s",
     "evaluate_refs",
     "gap_one",
     "gap_refs",
@@ -137,9 +141,8 @@ class EvaluateJob:
     :func:`hdrd.analysis.evaluate.evaluate_logs` takes them); traces: keep each drive's
     headings (for the per-drive plot)."""
 
-    params: HdrParams = PAPER_PARAMS
     methods: tuple[str, ...] = ("none", "hdr")
-    context: SettingsContext = DEFAULTS
+    setup: MethodSetup = DEFAULTS
     bias: float | None = None
     calibrate_seconds: float | None = None
     limits: StandstillLimits = DEFAULT_LIMITS
@@ -149,6 +152,9 @@ class EvaluateJob:
     read_limits: ReadLimits = DEFAULT_READ_LIMITS
     outages: OutageSpec | None = None
     """``--outages``: each drive's GNSS outages through the aiding path too."""
+    trace: bool = False
+    """``--trace``: each drive's headings per step (:func:`hdrd.analysis.evaluate.
+    trace_columns`)."""
 
 
 def with_outages(
@@ -158,7 +164,7 @@ def with_outages(
     too short for one, or without a course to aid from, says so among its warnings."""
     assert job.outages is not None
     try:
-        o = run_outages(prep, log, job.outages, job.methods, job.params, job.context)
+        o = run_outages(prep, log, job.outages, job.methods, job.setup)
     except EvaluationError as e:
         why = str(e).removeprefix(f"{r.name}: ")
         return replace(r, warnings=(*r.warnings, f"{r.name}: no outages scored: {why}"))
@@ -171,11 +177,13 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     try:
         log = read_ref(ref, job.read_limits)
         prep = prepare_drive(
-            log, job.bias, job.calibrate_seconds, job.params.T, job.truth_max_gap_s, job.limits
+            log, job.bias, job.calibrate_seconds, job.setup.hdr.T, job.truth_max_gap_s, job.limits
         )
-        r = evaluate_prepared(prep, job.params, job.methods, job.context)
+        r = evaluate_prepared(prep, job.methods, job.setup)
         if job.outages is not None:
             r = with_outages(r, prep, log, job)
+        if job.trace:
+            r = replace(r, trace=trace_columns(prep, job.setup))
     except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
         return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
     if job.strict and r.warnings:  # --strict: data that looks wrong is refused, not scored
@@ -183,18 +191,45 @@ def evaluate_one(ref: DriveRef, job: EvaluateJob) -> DriveOutcome:
     return DriveOutcome(ref.name, r if job.traces else slim(r))
 
 
+WORK_S_PER_BYTE = 60e-9
+"""One process's time to read and evaluate a drive, per byte of its file (CSV and Parquet
+alike, about 60 ns on the machine of bench/RESULTS.md): what :func:`estimated_work_s`
+counts."""
+
+
+def _size(ref: DriveRef, sharing: int) -> int:
+    """Bytes of a drive's file (its share of a file holding ``sharing`` drives), or of a
+    partition's files; 0 if they cannot be seen."""
+    try:
+        if os.path.isdir(ref.path):
+            return sum(e.stat().st_size for e in os.scandir(ref.path) if e.is_file())
+        return os.path.getsize(ref.path) // max(1, sharing)
+    except OSError:
+        return 0
+
+
+def estimated_work_s(refs: Sequence[DriveRef]) -> float:
+    """Seconds ``hdrd evaluate`` would take on the drives in one process, estimated from their
+    files' sizes (:data:`WORK_S_PER_BYTE`; no file is read)."""
+    sharing = Counter(r.path for r in refs)
+    return WORK_S_PER_BYTE * sum(_size(r, sharing[r.path]) for r in refs)
+
+
 def run_evaluate(
-    args: argparse.Namespace, refs: Sequence[DriveRef], job: EvaluateJob
+    where: Where,
+    refs: Sequence[DriveRef],
+    job: EvaluateJob,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> tuple[list[DriveResult], list[str]]:
-    """:func:`evaluate_refs` on the runner the command line asks for, with a progress bar on
-    stderr for a fleet (more than :data:`PLOT_PANELS_MAX` drives) or a cluster, unless
-    ``--no-progress``."""
+    """:func:`evaluate_refs` on the runner ``where`` asks for (in this process when a local
+    cluster would not pay for itself: :func:`hdrd.analysis.fleet.open_runner`, ``say`` told),
+    with a progress bar on stderr (``progress``) for a fleet (more than
+    :data:`PLOT_PANELS_MAX` drives) or a cluster."""
     from hdrd.analysis.progress import ProgressBar
 
-    with open_runner(args) as runner:
-        show = not getattr(args, "no_progress", False) and (
-            runner.distributed or len(refs) > PLOT_PANELS_MAX
-        )
+    with open_runner(where, estimated_work_s(refs), say) as runner:
+        show = progress and (runner.distributed or len(refs) > PLOT_PANELS_MAX)
         bar = ProgressBar(f"evaluate {len(refs)} drives") if show else None
         try:
             return evaluate_refs(refs, job, runner, bar)
@@ -249,6 +284,11 @@ def steps_of(drives: Sequence[PreparedDrive | str]) -> list[int | str]:
     return [d if isinstance(d, str) else int(d.steps.u.shape[0]) for d in drives]
 
 
+def keys_of(drives: Sequence[PreparedDrive | str]) -> list[tuple[str, str]]:
+    """(name, :func:`~hdrd.analysis.tune.content_key`) of each prepared drive of a batch."""
+    return [(d.name, content_key(d)) for d in _good(drives)]
+
+
 def score_block(item: tuple[Sequence[PreparedDrive | str], Candidates], T: float) -> FloatArray:
     """Eψ / Td of every parameter set of a block on every prepared drive of a batch: shape
     (drives, sets), each row a drive's share of the objective's sum."""
@@ -263,7 +303,13 @@ def evaluate_sets(
     drives: Sequence[PreparedDrive | str], sets: Sequence[HdrParams]
 ) -> list[list[DriveResult]]:
     """Per prepared drive of a batch, its result with each parameter set (``none``, ``hdr``)."""
-    return [[slim(evaluate_prepared(d, p, ("none", "hdr"))) for p in sets] for d in _good(drives)]
+    return [
+        [
+            slim(evaluate_prepared(d, methods=("none", "hdr"), setup=MethodSetup(hdr=p)))
+            for p in sets
+        ]
+        for d in _good(drives)
+    ]
 
 
 def parameter_blocks(
@@ -341,16 +387,28 @@ class _FleetScore:
 
         sums: list[FloatArray | None] = [None] * len(blocks)
         rows = runner.map(score_block, items, self.T, progress=report, weights=weights, batch=1)
-        for i, part in enumerate(rows):
-            q = i // len(train)
-            for row in part:  # the drives in order, one after the other
-                acc = sums[q]
-                if acc is None:
-                    sums[q] = row.copy()
-                else:
-                    acc += row
+        got = 0
+        try:
+            for i, part in enumerate(rows):
+                q = i // len(train)
+                for row in part:  # the drives in order, one after the other
+                    acc = sums[q]
+                    if acc is None:
+                        sums[q] = row.copy()
+                    else:
+                        acc += row
+                got = i + 1
+        except KeyboardInterrupt:
+            full = got // len(train)  # the blocks summed over every drive
+            raise Interrupted(self._objective(blocks[:full], sums)) from None
         self.done = start + sum(weights)
-        out = np.empty(n_sets)
+        return self._objective(blocks, sums)
+
+    def _objective(
+        self, blocks: list[tuple[int, int]], sums: list[FloatArray | None]
+    ) -> FloatArray:
+        """Each set's objective, for the sets of ``blocks`` (the first blocks)."""
+        out = np.empty(blocks[-1][1] if blocks else 0)
         for (a, b), acc in zip(blocks, sums):
             assert acc is not None
             out[a:b] = acc / self.n_drives
@@ -386,6 +444,9 @@ def tune_fleet(
     all_steps = list(runner.map(steps_of, train, batch=1))
     test_steps = list(runner.map(steps_of, test, batch=1))
     steps, n_drives = _usable_steps(all_steps, test_steps, len(train_refs), strict, skipped)
+    if test_refs:
+        keys = [list(runner.map(keys_of, part, batch=1)) for part in (train, test)]
+        check_held_out(*([k for batch in part for k in batch] for part in keys))
     longest = max(max(s, default=0) for s in steps)
     batch_steps = [sum(s) for s in steps]
     score = _FleetScore(
@@ -406,8 +467,7 @@ def tune_fleet(
         te = _per_set(runner.map(evaluate_sets, test, sets, batch=1), len(sets))
         return tr, te
 
-    cand, obj = search(score, n_candidates, seed, base)
-    return outcome(base, cand, obj, seed, runs)
+    return search_outcome(score, n_candidates, seed, base, runs)
 
 
 def _per_set(batches: Iterator[list[list[DriveResult]]], n_sets: int) -> list[list[DriveResult]]:

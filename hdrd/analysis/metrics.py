@@ -5,9 +5,14 @@ Pure. Conventions (``shared/paper/HDR-NOTES.md``):
 - gyro yaw ψ: degrees counter-clockwise since the start of the drive (HDR's output, Eq. 3);
 - truth heading: compass degrees, clockwise from north, NaN where unknown;
 - the gyro has no absolute reference, so its yaw is turned into a compass heading by aligning
-  it to the truth at the first step where both exist (index k)::
+  it to the truth at a step k (by default the first step where both exist)::
 
       heading_gyro_i = truth_k - (yaw_i - yaw_k)        (CCW yaw -> CW heading: minus sign)
+
+  or, over n steps from k (``n`` > 1: a noisy truth such as a GPS course, aligned where it is
+  trustworthy; :func:`hdrd.analysis.prepare.alignment` chooses k and n), to the circular mean
+  A of truth_j + (yaw_j - yaw_k) over those steps with a truth: heading_gyro_i = A - (yaw_i -
+  yaw_k);
 
 - the momentary error is wrapped to [-180, 180) before the absolute value, so 359° vs 1° is
   a 2° error, not 358°;
@@ -34,6 +39,7 @@ __all__ = [
     "gyro_heading",
     "heading_error",
     "improvement",
+    "reference",
     "ne_psi",
     "truth_at",
     "wrap180",
@@ -63,6 +69,20 @@ def align_index(yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike)
     return int(ok[0]) if ok.shape[0] else None
 
 
+def reference(yaw: FloatArray, truth: FloatArray, k: int, n: int = 1) -> float | FloatArray:
+    """The compass heading (deg) the gyro's yaw at step k is aligned to: truth_k (n <= 1), or
+    the circular mean over steps k .. k+n-1 with a truth of truth_j + (yaw_j - yaw_k) (per
+    column of a 2-D yaw). yaw deg CCW, truth compass deg CW."""
+    if n <= 1:
+        return float(truth[k])
+    t = truth[k : k + n]
+    ok = np.isfinite(t)
+    y = yaw[k : k + n][ok] - yaw[k]
+    a = np.radians(t[ok].reshape((-1,) + (1,) * (yaw.ndim - 1)) + y)
+    ref = np.degrees(np.arctan2(np.sin(a).mean(axis=0), np.cos(a).mean(axis=0)))
+    return float(ref) if np.ndim(ref) == 0 else ref
+
+
 def _aligned(
     yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None
 ) -> tuple[FloatArray, FloatArray, int | None]:
@@ -76,30 +96,37 @@ def _aligned(
 
 
 def gyro_heading(
-    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+    yaw_deg_ccw: npt.ArrayLike,
+    heading_truth_deg_cw: npt.ArrayLike,
+    k: int | None = None,
+    n: int = 1,
 ) -> FloatArray:
     """The gyro's compass heading (deg CW, NOT wrapped: continuous for plots), aligned to the
-    truth at step k (default: the first step where both exist). All NaN if never aligned.
+    truth at step k (default: the first step where both exist), over n steps
+    (:func:`reference`). All NaN if never aligned.
 
     yaw has shape (n,) or (n, P) (P candidate runs); truth has shape (n,).
     """
     yaw, truth, k = _aligned(yaw_deg_ccw, heading_truth_deg_cw, k)
     if k is None:
         return np.full(yaw.shape, np.nan)
-    return truth[k] - (yaw - yaw[k])
+    return reference(yaw, truth, k, n) - (yaw - yaw[k])
 
 
 def heading_error(
-    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+    yaw_deg_ccw: npt.ArrayLike,
+    heading_truth_deg_cw: npt.ArrayLike,
+    k: int | None = None,
+    n: int = 1,
 ) -> FloatArray:
     """Signed momentary heading error gyro - truth, deg, wrapped to [-180, 180); NaN where the
     truth is unknown. The gyro's yaw is aligned to the truth at step k (default: the first
-    step where both exist), so the error there is 0.
+    step where both exist; the error there is 0), over n steps (:func:`reference`).
 
     yaw: deg CCW since start, shape (n,) or (n, P). truth: compass deg CW, shape (n,).
     """
     truth = np.asarray(heading_truth_deg_cw, dtype=np.float64)
-    h = gyro_heading(yaw_deg_ccw, truth, k)
+    h = gyro_heading(yaw_deg_ccw, truth, k, n)
     t = truth.reshape((-1,) + (1,) * (h.ndim - 1))
     return wrap180(h - t)
 
@@ -118,11 +145,15 @@ def abs_wrap180(d: npt.ArrayLike) -> FloatArray:
 
 
 def e_psi(
-    yaw_deg_ccw: npt.ArrayLike, heading_truth_deg_cw: npt.ArrayLike, k: int | None = None
+    yaw_deg_ccw: npt.ArrayLike,
+    heading_truth_deg_cw: npt.ArrayLike,
+    k: int | None = None,
+    n: int = 1,
 ) -> float | FloatArray:
     """Average heading error Eψ, deg (paper Eq. 12): mean |gyro - truth| over the steps where
-    truth exists, the gyro aligned as in :func:`heading_error`. A float for yaw of shape (n,),
-    an array (P,) for (n, P). NaN if no truth (or no step to align at)."""
+    truth exists, the gyro aligned as in :func:`heading_error` (at step k, over n steps). A
+    float for yaw of shape (n,), an array (P,) for (n, P). NaN if no truth (or no step to
+    align at)."""
     yaw, truth, k = _aligned(yaw_deg_ccw, heading_truth_deg_cw, k)
     valid = np.isfinite(truth)
     if k is None or not valid.any():
@@ -132,7 +163,11 @@ def e_psi(
     # the sign does not matter under |.|. Only the rows with truth are computed (tuning speed).
     d = yaw[valid]
     d -= yaw[k]
-    d += (truth[valid] - truth[k]).reshape((-1,) + (1,) * (yaw.ndim - 1))
+    if n <= 1:
+        d += (truth[valid] - truth[k]).reshape((-1,) + (1,) * (yaw.ndim - 1))
+    else:
+        d += truth[valid].reshape((-1,) + (1,) * (yaw.ndim - 1))
+        d -= reference(yaw, truth, k, n)
     m = np.mean(abs_wrap180(d), axis=0)
     return float(m) if np.ndim(m) == 0 else m
 

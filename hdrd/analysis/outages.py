@@ -11,10 +11,11 @@ heading when the fix comes back. :func:`run_outages` replays a prepared drive
    separate GPS, its ``heading_truth`` and ``speed`` (one fix per truth sample), each handed
    to :meth:`~hdrd.daemon.aiding.GpsAiding.on_fix` at its time, except inside an outage;
 2. each step: the speed the pipeline would have from gpsd (:meth:`~hdrd.daemon.aiding.
-   GpsAiding.speed`: none in an outage), the method's step (:class:`hdrd.core.methods.Method`)
-   on u = block mean - the static bias in force, the message the pipeline publishes (heading,
-   omega, raw rate, bias), through :meth:`~hdrd.daemon.aiding.GpsAiding.on_message`, whose
-   bias correction moves the static bias as ``Pipeline.adjust_bias`` does;
+   GpsAiding.speed`: none in an outage), then the daemon's own stepper
+   (:class:`hdrd.daemon.pipeline.Stepper`) with its GPS aiding stage: the method's step on u =
+   block mean - the static bias in force, the aiding's view of it (a course for a method that
+   estimates the bias itself, HDR+, as its next step's measurement; a learned correction of
+   the static bias for the others), the message the daemon publishes;
 3. at the end of each outage, the published (aligned) heading against the truth.
 
 ``none`` through this path is *aiding with the bias frozen at the outage's start*: the static
@@ -30,25 +31,18 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.analysis.prepare import (
-    DEFAULTS,
-    PAPER_PARAMS,
-    EvaluationError,
-    PreparedDrive,
-    method_settings,
-)
-from hdrd.core import methods as registry
-from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext
-from hdrd.core.steps import StepInput
+from hdrd.analysis.prepare import DEFAULTS, PAPER_PARAMS, EvaluationError, PreparedDrive
+from hdrd.core.calibrate import BiasRecord
+from hdrd.core.methods import MethodSetup
+from hdrd.core.resample import Block
 from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
-from hdrd.daemon.pipeline import heading_from_yaw
+from hdrd.daemon.pipeline import PipelineConfig, Stepper
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [
@@ -84,9 +78,11 @@ class OutageSpec:
     period_s: float
 
     @classmethod
-    def parse(cls, text: str) -> OutageSpec:
-        """``D/P`` with units s (the default), min or h: ``120s/10min``, ``90/600``.
-        ValueError saying what is allowed."""
+    def parse(cls, text: str, step_s: float = PAPER_PARAMS.T) -> OutageSpec:
+        """``D/P`` with units s (the default), min or h: ``120s/10min``, ``90/600``; the
+        duration at least one step of ``step_s`` (the drift reducer's T, s: a shorter outage
+        cuts no fix, and a period as short makes millions of outages). ValueError saying what
+        is allowed."""
         m = _SPEC_RE.match(text)
         if m is None:
             raise ValueError(
@@ -99,6 +95,11 @@ class OutageSpec:
             raise ValueError(
                 f"outages {text!r}: the duration must be > 0 and shorter than the period "
                 f"({d:g} s every {p:g} s)"
+            )
+        if d < step_s:
+            raise ValueError(
+                f"outages {text!r}: an outage of {d:g} s is shorter than a step ({step_s:g} s, "
+                "hdr.T); give at least one step"
             )
         return cls(d, p)
 
@@ -181,25 +182,37 @@ class OutageResult:
 
 
 def _in_outage(t: float, windows: Sequence[tuple[float, float]]) -> bool:
-    return any(a <= t < b for a, b in windows)
+    """A fix at t (s) falls in an outage: from its start to its end, both included (a fix
+    at the very end would reach the aiding before the end's heading is scored)."""
+    return any(a <= t <= b for a, b in windows)
+
+
+def _block(prep: PreparedDrive, i: int) -> Block:
+    """Step i of a prepared drive as the closed block the daemon's stepper takes: its raw mean
+    (u + the static bias), samples, spread and temperature."""
+    s = prep.steps
+    raw = float(s.u[i]) + s.bias_dps
+    n = int(s.n_samples[i])
+    sd = 0.0 if s.omega_std is None else float(s.omega_std[i])
+    temp = None if s.temp_c is None or math.isnan(s.temp_c[i]) else float(s.temp_c[i])
+    t = float(s.t_end[i])
+    return Block(i, t - s.T, t, raw, n, temp, 0, n * (sd * sd + raw * raw))
 
 
 def _aided_run(
     prep: PreparedDrive,
-    method: str,
-    settings: Any,
+    config: PipelineConfig,
     fix_t: FloatArray,
     fixes: Sequence[LogFix],
     windows: Sequence[tuple[float, float]],
     aiding_config: AidingConfig,
 ) -> tuple[FloatArray, int]:
     """The published heading (compass deg, NaN before the first alignment) at each step end
-    of one method through the aiding path, and the steps aided."""
+    of one method through the daemon's stepper and its GPS aiding stage, and the steps
+    aided. The aiding's clock is the log's (s since its first sample)."""
     s = prep.steps
-    m = registry.get(method)
     aiding = GpsAiding(aiding_config)
-    state = m.initial_state()
-    eps0 = s.bias_dps  # the static bias in force, deg/s; the aiding moves it
+    stepper = Stepper(config, aiding)
     n = s.u.shape[0]
     heading = np.full(n, math.nan)
     j, aided, t_prev = 0, 0, -math.inf
@@ -209,31 +222,13 @@ def _aided_run(
             if not _in_outage(float(fix_t[j]), windows):
                 aiding.on_fix(fixes[j], float(fix_t[j]))
             j += 1
-        v = aiding.speed(t)
-        inp = StepInput(
-            float(s.u[i]) + s.bias_dps - eps0,
-            math.nan if s.omega_std is None else float(s.omega_std[i]),
-            math.nan if v is None else v,
-            math.nan if s.temp_c is None else float(s.temp_c[i]),
-            s.T,
-        )
-        state, out = m.step(state, inp, settings)
-        pub = m.publish(out, settings)
-        msg: dict[str, Any] = {
-            "t": t,
-            "omega": out.omega,
-            "heading": heading_from_yaw(0.0, out.yaw),
-            "omega_raw": float(s.u[i]) + s.bias_dps,
-            "bias": eps0 + pub.bias_corr_dps,
-        }
-        if t - t_prev > 1.5 * s.T and t_prev > -math.inf:
-            msg["gap_s"] = t - t_prev - s.T  # a step without samples before this one
+        stepper.speed_mps = aiding.speed(t)
+        gap = t - t_prev - s.T if t - t_prev > 1.5 * s.T and t_prev > -math.inf else 0.0
         t_prev = t
-        published, delta = aiding.on_message(msg, t)
-        eps0 += delta
-        if "heading_offset" in published:
-            heading[i] = float(published["heading"])
-        aided += published.get("mode") == "aided"
+        msg = stepper.message(_block(prep, i), i, t, 0, None, gap)
+        if "heading_offset" in msg:
+            heading[i] = float(msg["heading"])
+        aided += msg.get("mode") == "aided"
     return heading, aided
 
 
@@ -242,14 +237,14 @@ def run_outages(
     log: DriveLog,
     spec: OutageSpec,
     methods: Sequence[str] = (FROZEN, "hdr", "hdr+"),
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
+    setup: MethodSetup = DEFAULTS,
     aiding_config: AidingConfig | None = None,
 ) -> OutageResult:
     """Each method's heading error at the end of each outage of a drive (module docstring).
 
-    prep: the drive prepared from ``log`` (its steps and truth at step ends). params, context:
-    the methods' settings as ``hdrd evaluate`` derives them. aiding_config: the aiding's
+    prep: the drive prepared from ``log`` (its steps and truth at step ends). setup: the
+    methods' setup, as ``hdrd evaluate`` has it (the drive's calibration, or the bias given,
+    and its output step are added here). aiding_config: the aiding's
     thresholds (default: the daemon's, with the drive's step period). EvaluationError when the
     drive has no outage, or no fix to aid from."""
     s = prep.steps
@@ -270,9 +265,11 @@ def run_outages(
     ends = [int(np.searchsorted(s.t_end, b, side="right")) - 1 for _, b in windows]
     errors: dict[str, FloatArray] = {}
     aided: dict[str, int] = {}
+    q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
+    bias = prep.bias if prep.bias is not None else BiasRecord.given(s.bias_dps)
     for m in methods:
-        settings = method_settings(prep, m, params, context)
-        heading, aided[m] = _aided_run(prep, m, settings, fix_t, fixes, windows, cfg)
+        config = PipelineConfig(setup=replace(setup, method=m, bias=bias, quant_step_dps=q))
+        heading, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
         e = np.full(len(windows), math.nan)
         for k, i in enumerate(ends):
             if i >= 0 and math.isfinite(prep.truth[i]) and math.isfinite(heading[i]):

@@ -35,23 +35,41 @@ class PlotError(HdrdError, RuntimeError):
 
 def plot_to_file(draw: Callable[[str], None], path: str) -> str | None:
     """Run ``draw(path)``; None on success, else the one-line error for the user (matplotlib
-    missing, or the file not writable). The command-line edges share this."""
+    missing, the file not writable, a format matplotlib cannot write). The command-line edges
+    share this."""
+    from hdrd.io.files import shown_path
+
     try:
         draw(path)
     except PlotError as e:
         return str(e)
-    except OSError as e:
-        return f"cannot write {path}: {e.strerror or e}"
+    except (OSError, ValueError) as e:
+        why = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
+        return f"cannot write {shown_path(path)}: {why}"
     return None
 
 
-def plotting_unavailable() -> str | None:
-    """None if plots can be drawn, else the one-line error for the user. Commands with
-    ``--plot`` ask this first, so a missing matplotlib is said before any work is done."""
+def plotting_unavailable(path: str | None = None) -> str | None:
+    """None if plots can be drawn (to ``path``: in a format matplotlib writes, named by its
+    suffix), else the one-line error for the user. Commands with ``--plot`` ask this first,
+    so it is said before any work is done."""
     try:
         pyplot()
     except PlotError as e:
         return str(e)
+    if path is None:
+        return None
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from hdrd.io.files import shown_path
+
+    suffix = os.path.splitext(path)[1].lstrip(".").lower()
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if suffix and suffix not in formats:
+        return (
+            f"--plot {shown_path(path)}: matplotlib cannot write .{suffix} files; name a "
+            f"{', '.join('.' + f for f in sorted(formats))} file (.png is usual)"
+        )
     return None
 
 
@@ -61,6 +79,8 @@ def pyplot() -> Any:
         import matplotlib
 
         matplotlib.use("Agg")  # files only; never needs a display
+        # Text is text: a drive named "$x^$" is not TeX (mathtext would fail to parse it).
+        matplotlib.rcParams["text.parse_math"] = False
         import matplotlib.pyplot as plt
     except ImportError:
         raise PlotError(

@@ -36,10 +36,15 @@ import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
-from hdrd.core import methods as registry
-from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, estimate_bias
+from hdrd.core.calibrate import (
+    BiasRecord,
+    MotionDetected,
+    StandstillLimits,
+    estimate_bias,
+    given_bias,
+)
 from hdrd.core.hdr import HdrParams
-from hdrd.core.methods import SettingsContext, StepInputs
+from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
 from hdrd.daemon.pipeline import PipelineConfig, Stepper
@@ -76,13 +81,20 @@ STANDSTILL_MIN_S = 6.0
 the standstill test's noise-scaled checks need)."""
 STANDSTILL_MAX_S = 30.0
 """Longest window taken from a found standstill, s (the paper's Tbias)."""
+ALIGN_S = 10.0
+"""Where the truth is a course over ground, the gyro is aligned over the first this many
+seconds of straight driving at speed, s (:func:`alignment`)."""
+ALIGN_MIN_SPEED_MPS = 5.0
+"""... at or above this speed, m/s (the GPS aiding's: a course below it is noise) ..."""
+ALIGN_MAX_TURN_DPS = 1.0
+"""... with the truth turning by at most this from step to step, deg/s."""
 DEFAULT_LIMITS = StandstillLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
 PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
-DEFAULTS = SettingsContext()
-"""What the built-in configuration says about the methods' settings (HDR+'s defaults, no
-grade, standstill on; :func:`hdrd.config.settings_context` of a configuration)."""
+DEFAULTS = MethodSetup()
+"""The built-in configuration's setup of the methods (Table III, HDR+'s defaults, no grade,
+standstill on; :func:`hdrd.config.method_setup` of a configuration)."""
 
 
 class EvaluationError(HdrdError, ValueError):
@@ -111,8 +123,8 @@ class PreparedDrive:
     """A drive reduced to what the metrics need: per-step inputs and truth at step ends.
 
     steps: the steps after the calibration (t_end in s since the log's first sample). truth:
-    compass heading, deg CW, at each step end (NaN where unknown). k: the step where the gyro
-    is aligned to the truth. duration_min: Td of Eq. 13. bias_source: where the bias came from
+    compass heading, deg CW, at each step end (NaN where unknown). k, align_n: the step where
+    the gyro is aligned to the truth, and over how many steps (:func:`alignment`). duration_min: Td of Eq. 13. bias_source: where the bias came from
     (:class:`CalibrationPlan`). bias_std_dps: spread of the calibration samples, deg/s (NaN if
     given). missing_steps: steps without samples after the start (not evaluated). start_s:
     where the evaluated drive starts, s after the log's first sample (the end of the
@@ -141,6 +153,8 @@ class PreparedDrive:
     sign: SignCheck = NO_CHECK
     """How the log's rate follows its truth heading over the turns (a flipped sign, a wrong
     unit: :mod:`hdrd.analysis.signcheck`)."""
+    align_n: int = 1
+    """Steps the gyro is aligned over from k (:func:`alignment`; 1: at k itself)."""
 
 
 # -- where the bias comes from -------------------------------------------------------------
@@ -241,11 +255,13 @@ def plan_calibration(
             raise EvaluationError(f"{name}: bias {bias!r} is not a finite number")
         return CalibrationPlan(float(bias), 0, None, "given")
     if calibrate_seconds is not None:
-        if not calibrate_seconds > 0:
+        window = _whole_steps(calibrate_seconds, T) if calibrate_seconds > 0 else 0.0
+        if not window > 0:
             raise EvaluationError(
-                f"{name}: calibration window must be > 0 s, got {calibrate_seconds!r}"
+                f"{name}: calibration window must hold at least one step of {T:g} s, got "
+                f"{calibrate_seconds!r}"
             )
-        return CalibrationPlan(None, 0, calibrate_seconds, f"first {calibrate_seconds:g} s")
+        return CalibrationPlan(None, 0, window, f"first {window:g} s")
     lead = _lead_in_s(log)
     if lead is not None and _whole_steps(lead, T) > 0:
         window = _whole_steps(lead, T)
@@ -379,11 +395,9 @@ def _stepped_after_calibration(
     drive = log.slice(plan.start) if plan.start else log
     offset = float(drive.t[0] - log.t[0])
     config = PipelineConfig(
-        params=HdrParams(T=T),
-        method="none",
-        bias_dps=plan.bias_dps,
         startup_s=plan.window_s if plan.window_s is not None else 1.0,
         limits=limits,
+        setup=MethodSetup(method="none", hdr=HdrParams(T=T), bias=given_bias(plan.bias_dps)),
     )
     t_us = _t_us(log.t)[plan.start :]
     stepped = step_log(drive, config, t_us - t_us[0])
@@ -446,13 +460,14 @@ def prepare_drive(
     t_end = np.array([b.t_end for b in stepped.blocks]) + offset
     start_s = stepped.start_s + offset
     truth = truth_at(log.t - log.t[0], heading_truth, t_end, truth_max_gap_s)
-    k = align_index(np.zeros(t_end.shape[0]), truth)
-    if k is None:
+    if align_index(np.zeros(t_end.shape[0]), truth) is None:
         raise EvaluationError(
             f"{name}: no truth heading at any step end after the start (fixes further than "
             f"{truth_max_gap_s:g} s apart, or only during calibration)"
         )
     steps = _step_inputs(log, stepped, t_end, T, rec, measured)
+    exact = log.omega_truth is not None and bool(np.isfinite(log.omega_truth).any())
+    k, align_n = alignment(truth, steps.speed, T, exact)
     source = plan.source
     if measured and stepper.window.attempts > 1:
         source = (
@@ -464,6 +479,7 @@ def prepare_drive(
         steps=steps,
         truth=truth,
         k=k,
+        align_n=align_n,
         duration_min=(float(t_end[-1]) - start_s) / 60.0,
         bias_source=source,
         bias_std_dps=rec.std_dps if measured else math.nan,
@@ -477,17 +493,40 @@ def prepare_drive(
     )
 
 
-def method_settings(
-    prep: PreparedDrive,
-    method: str,
-    params: HdrParams = PAPER_PARAMS,
-    context: SettingsContext = DEFAULTS,
-) -> Any:
+def alignment(
+    truth: FloatArray, speed: FloatArray | None, T: float, exact: bool
+) -> tuple[int, int]:
+    """(k, n): the step the gyro is aligned to the truth at, and over how many steps
+    (:func:`hdrd.analysis.metrics.reference`).
+
+    An exact truth (a simulated drive, an INS: the log has ``omega_truth``) aligns at its first
+    value, n = 1. A course over ground is noisy and meaningless at walking pace, and a first
+    fix often falls at 2 m/s in a turn: it aligns over the first :data:`ALIGN_S` of straight
+    driving at speed (every step with a truth, a speed of at least
+    :data:`ALIGN_MIN_SPEED_MPS` where the log has one, and the truth turning by at most
+    :data:`ALIGN_MAX_TURN_DPS`); where no such stretch exists, at the first value too.
+    """
+    first = align_index(np.zeros(truth.shape[0]), truth)
+    assert first is not None
+    n = max(2, int(round(ALIGN_S / T)))
+    if exact or truth.shape[0] < n:
+        return first, 1
+    ok = np.isfinite(truth)
+    if speed is not None:
+        ok &= np.nan_to_num(speed, nan=-1.0) >= ALIGN_MIN_SPEED_MPS
+    turn = np.abs((np.diff(truth) + 180.0) % 360.0 - 180.0) <= ALIGN_MAX_TURN_DPS * T
+    good = ok[1:] & ok[:-1] & turn  # step j+1 straight after step j
+    run = 0
+    for j in range(first, good.shape[0]):
+        run = run + 1 if good[j] else 0
+        if run >= n - 1:
+            return j + 2 - n, n
+    return first, 1
+
+
+def method_settings(prep: PreparedDrive, method: str, setup: MethodSetup = DEFAULTS) -> Any:
     """A method's settings for a prepared drive, derived as the daemon derives them: the
-    context with this drive's samples per step, calibration record and output step."""
+    setup with this drive's samples per step, calibration record and output step."""
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
-    ctx = replace(
-        context, hdr=params, samples_per_step=prep.samples_per_step, bias=prep.bias,
-        quant_step_dps=q,
-    )  # fmt: skip
-    return registry.get(method).settings(ctx)
+    drive = replace(setup, method=method).for_drive(prep.samples_per_step, prep.bias, q)
+    return drive.settings()

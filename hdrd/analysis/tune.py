@@ -35,7 +35,6 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
-    PAPER_PARAMS,
     DriveResult,
     PreparedDrive,
     Summary,
@@ -44,11 +43,14 @@ from hdrd.analysis.evaluate import (
     summarize,
 )
 from hdrd.analysis.metrics import e_psi
+from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.core.hdr import HdrParams, run_many
+from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [
     "CHUNK_ELEMENTS",
+    "Interrupted",
     "PARAM_NAMES",
     "RANGES",
     "Progress",
@@ -56,7 +58,10 @@ __all__ = [
     "Score",
     "TuneResult",
     "check_budget",
+    "check_held_out",
+    "content_key",
     "format_report",
+    "interrupted_json",
     "objective",
     "outcome",
     "params_yaml",
@@ -64,6 +69,7 @@ __all__ = [
     "sample_candidates",
     "score_candidates",
     "search",
+    "search_outcome",
     "to_json",
     "tune",
 ]
@@ -85,6 +91,25 @@ RANGES: dict[str, tuple[float, float]] = {
 
 CHUNK_ELEMENTS = 1 << 22
 """Largest (steps x parameter sets) block scored at once: bounds memory to ~32 MB per array."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a tuning, with what was done. From a score: ``scored``, its values for
+    the first sets it was given (Eψ per drive and set from :func:`score_candidates`, the
+    objective from a :data:`Score`). From :func:`search` and :func:`tune`: ``cand``, every set
+    scored so far in the order scored, and ``scored``, their objective."""
+
+    def __init__(self, scored: FloatArray, cand: Candidates | None = None) -> None:
+        super().__init__()
+        self.scored = scored
+        self.cand = cand
+
+    def best(self, base: HdrParams) -> tuple[HdrParams, float] | None:
+        """The best set so far and its objective (None if no set was scored)."""
+        if self.cand is None or self.scored.shape[0] == 0:
+            return None
+        i = int(np.argsort(self.scored, kind="stable")[0])
+        return _params(base, self.cand, i), float(self.scored[i])
 
 
 def _sig3(a: FloatArray) -> FloatArray:
@@ -146,15 +171,19 @@ def score_candidates(
     steps_all = sum(d.steps.u.shape[0] for d in drives)
     total = total if total is not None else steps_all * P
     done = done0
-    for a in range(0, P, chunk):
-        b = min(P, a + chunk)
-        ic, ta, th, k1, k2 = (cand[k][a:b] for k in PARAM_NAMES)
-        for j, d in enumerate(drives):
-            yaw = run_many(d.steps.u, ic, ta, th, k1, k2, T=T)
-            out[j, a:b] = e_psi(yaw, d.truth, d.k)
-            done += d.steps.u.shape[0] * (b - a)
-            if progress is not None:
-                progress(done, total)
+    a = 0
+    try:
+        for a in range(0, P, chunk):
+            b = min(P, a + chunk)
+            ic, ta, th, k1, k2 = (cand[k][a:b] for k in PARAM_NAMES)
+            for j, d in enumerate(drives):
+                yaw = run_many(d.steps.u, ic, ta, th, k1, k2, T=T)
+                out[j, a:b] = e_psi(yaw, d.truth, d.k, d.align_n)
+                done += d.steps.u.shape[0] * (b - a)
+                if progress is not None:
+                    progress(done, total)
+    except KeyboardInterrupt:
+        raise Interrupted(out[:, :a]) from None  # the chunks finished on every drive
     return out
 
 
@@ -243,17 +272,41 @@ def search(
 
     start = {k: np.array([getattr(base, k)], dtype=np.float64) for k in PARAM_NAMES}
     cand = _concat(start, sample_candidates(rng, n_random, ranges))
-    obj = score(cand)
+    obj = _scored(score, cand, {k: np.empty(0) for k in PARAM_NAMES}, np.empty(0))
     spread = 1.5
     for n_r in per_round:
         if n_r == 0:
             continue
         order = np.argsort(obj, kind="stable")[: max(1, top_k)]
         new = refine_candidates(rng, _take(cand, order), n_r, spread)
-        obj = np.concatenate([obj, score(new)])
+        obj = np.concatenate([obj, _scored(score, new, cand, obj)])
         cand = _concat(cand, new)
         spread = 1.0 + (spread - 1.0) / 2.5
     return cand, obj
+
+
+def _scored(score: Score, new: Candidates, cand: Candidates, obj: FloatArray) -> FloatArray:
+    """score(new); on Ctrl-C, :class:`Interrupted` with every set scored so far (``cand``,
+    then the first of ``new`` that the score finished) and their objective."""
+    try:
+        return score(new)
+    except KeyboardInterrupt as e:
+        part = e.scored if isinstance(e, Interrupted) else np.empty(0)
+        k = part.shape[0]
+        done = _take(new, np.arange(k, dtype=np.int64))
+        raise Interrupted(np.concatenate([obj, part]), _concat(cand, done)) from None
+
+
+def search_outcome(
+    score: Score, n_candidates: int, seed: int, base: HdrParams, runs: Runs, **kw: Any
+) -> TuneResult:
+    """:func:`search`, then its :func:`outcome`; Ctrl-C in either is :class:`Interrupted`
+    with the sets scored so far."""
+    cand, obj = search(score, n_candidates, seed, base, **kw)
+    try:
+        return outcome(base, cand, obj, seed, runs)
+    except KeyboardInterrupt:
+        raise Interrupted(obj, cand) from None
 
 
 Runs = Callable[[Sequence[HdrParams]], tuple[list[list[DriveResult]], list[list[DriveResult]]]]
@@ -317,7 +370,10 @@ def tune(
 
     def score(cand: Candidates) -> FloatArray:
         nonlocal done
-        e = score_candidates(train, cand, base.T, progress, done, total)
+        try:
+            e = score_candidates(train, cand, base.T, progress, done, total)
+        except Interrupted as i:
+            raise Interrupted(objective(i.scored, train)) from None
         done += steps_all * cand["i_c"].shape[0]
         return objective(e, train)
 
@@ -325,14 +381,21 @@ def tune(
         sets: Sequence[HdrParams],
     ) -> tuple[list[list[DriveResult]], list[list[DriveResult]]]:
         def run(drives: list[PreparedDrive], p: HdrParams) -> list[DriveResult]:
-            return [evaluate_prepared(d, p, ("none", "hdr")) for d in drives]
+            return [evaluate_prepared(d, ("none", "hdr"), MethodSetup(hdr=p)) for d in drives]
 
         return [run(train, p) for p in sets], [run(test, p) for p in sets]
 
-    cand, obj = search(
-        score, n_candidates, seed, base, ranges, refine_fraction, refine_rounds, top_k
+    return search_outcome(
+        score,
+        n_candidates,
+        seed,
+        base,
+        runs,
+        ranges=ranges,
+        refine_fraction=refine_fraction,
+        refine_rounds=refine_rounds,
+        top_k=top_k,
     )
-    return outcome(base, cand, obj, seed, runs)
 
 
 def params_yaml(params: HdrParams, comment: Sequence[str] = ()) -> str:
@@ -430,3 +493,65 @@ def to_json(r: TuneResult, seconds: float | None = None) -> dict[str, Any]:
         "train": block("train"),
         "test": block("test"),
     }
+
+
+def interrupted_json(e: Interrupted, base: HdrParams, seed: int, asked: int) -> dict[str, Any]:
+    """What an interrupted tuning writes as its JSON: :func:`to_json`'s keys, with the best
+    set so far as ``tuned``, ``"interrupted": true``, and no evaluated drives."""
+    best = e.best(base)
+    scored = 0 if e.cand is None else int(e.scored.shape[0])
+    return {
+        "interrupted": True,
+        "seed": seed,
+        "candidates": scored,
+        "candidates_asked": asked,
+        "seconds": None,
+        "params": {
+            "baseline": {k: getattr(base, k) for k in PARAM_NAMES},
+            "tuned": {k: getattr(best[0], k) for k in PARAM_NAMES} if best else None,
+        },
+        "objective": {
+            "baseline": float(e.scored[0]) if scored else None,
+            "tuned": best[1] if best else None,
+        },
+        "train": None,
+        "test": None,
+    }
+
+
+def content_key(d: PreparedDrive) -> str:
+    """A digest of what tuning sees of a drive (its steps' inputs and times, its truth and
+    alignment): the same drive under two names, or in two formats, has the same key."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    st = d.steps
+    for a in (st.u, st.t_end, st.n_samples, st.speed, st.temp_c, st.omega_std, d.truth):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes() + b"|")
+    h.update(repr((st.T, st.bias_dps, d.k, d.duration_min, d.start_s)).encode())
+    return h.hexdigest()
+
+
+SHOWN_OVERLAPS = 3
+"""Test drives named in the error of an overlap (the others counted)."""
+
+
+def check_held_out(train: Sequence[tuple[str, str]], test: Sequence[tuple[str, str]]) -> None:
+    """EvaluationError if a test drive is also a training drive, by content
+    (:func:`content_key`; each drive given as (name, key)): the test column would claim a
+    held-out score it is not."""
+    from hdrd.analysis.evaluate import EvaluationError
+
+    seen = {key: name for name, key in train}
+    both = [(name, seen[key]) for name, key in test if key in seen]
+    if not both:
+        return
+    shown = ", ".join(
+        name if name == other else f"{name} (training drive {other})"
+        for name, other in both[:SHOWN_OVERLAPS]
+    )
+    more = f" and {len(both) - SHOWN_OVERLAPS} more" if len(both) > SHOWN_OVERLAPS else ""
+    raise EvaluationError(
+        f"{len(both)} of the {len(test)} test drives are training drives too (the same data): "
+        f"{shown}{more}; a test drive must be held out of the training"
+    )

@@ -13,10 +13,15 @@ from hdrd.analysis.evaluate import (
     drive_refs,
     evaluated_methods,
     format_table,
-    read_limits,
     to_json,
 )
-from hdrd.config import Config, ConfigError, load_config, settings_context
+from hdrd.commands.options import (
+    check_bias_arg,
+    config_from_args,
+    outputs_ok,
+    read_limits_from_args,
+)
+from hdrd.config import Config, ConfigError, method_setup
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
 
@@ -38,18 +43,22 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet import FleetError
 
     try:
-        cfg, _ = load_config(args.config)
+        cfg, _ = config_from_args(args)  # --config, and --method over hdr.method
+        check_bias_arg(args.bias, cfg)  # as run and replay check it
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
+    if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
+        return 1
+    trace = getattr(args, "trace", None)
+    if trace is not None and not _trace_dir_ok(trace):
         return 1
     outages = None
     if getattr(args, "outages", None):
         from hdrd.analysis.outages import OutageSpec
 
         try:
-            outages = OutageSpec.parse(args.outages)
+            outages = OutageSpec.parse(args.outages, cfg.hdr.params.T)
         except ValueError as e:
             _err(f"--outages: {e}")
             return EX_USAGE
@@ -59,18 +68,8 @@ def main(args: argparse.Namespace) -> int:
         _err(str(e))
         return 1
     _print_results(results, len(skipped), outages is not None)
-    return _write_files(args, results, job.traces)
-
-
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
+    rc = _write_files(args, results, job.traces)
+    return _write_traces(trace, results) if trace is not None and rc == 0 else rc
 
 
 def _evaluate(
@@ -79,26 +78,32 @@ def _evaluate(
     """The drives' results, why each drive left out was skipped (both said on stderr, with
     each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+    from hdrd.commands.options import where_from_args
 
-    method = args.method or cfg.hdr.method
-    params = cfg.hdr.params
+    method = cfg.hdr.method
     # HDR+ is shown beside the paper's HDR it improves on.
     ms = evaluated_methods(["hdr", method] if method == "hdr+" else [method])
-    refs = drive_refs(args.drives)
+    notes: list[str] = []
+    strict = bool(getattr(args, "strict", False))
+    refs = drive_refs(args.drives, notes, strict=strict, yaml_option="--config")
+    for note in notes:
+        print(f"hdrd evaluate: warning: {note}", file=sys.stderr)
     job = EvaluateJob(
-        params,
         ms,
-        settings_context(cfg),  # the configured grade, plus.*, standstill.*
+        method_setup(cfg),  # hdr.*, the configured gyro's error model, standstill.*
         args.bias,
         args.calibrate_seconds,
         standstill_limits(cfg),
         traces=bool(args.plot) and len(refs) <= PLOT_PANELS_MAX,
-        strict=bool(getattr(args, "strict", False)),
-        read_limits=read_limits(args),
+        trace=getattr(args, "trace", None) is not None,
+        strict=strict,
+        read_limits=read_limits_from_args(args),
         outages=outages,
     )
     # Drive after drive here, or on a cluster (--workers / --scheduler): the same results.
-    results, skipped = run_evaluate(args, refs, job)
+    where = where_from_args(args, "hdrd evaluate")
+    say = lambda msg: print(f"hdrd evaluate: note: {msg}", file=sys.stderr)  # noqa: E731
+    results, skipped = run_evaluate(where, refs, job, not getattr(args, "no_progress", False), say)
     for why in skipped:
         print(f"hdrd evaluate: skipped {why}", file=sys.stderr)
     for r in results:
@@ -125,16 +130,54 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
         print(fleet_summary(results, n_skipped))
 
 
+def _trace_dir_ok(folder: str) -> bool:
+    """--trace DIR: a folder that exists (or can be made) and is not a file."""
+    import os
+
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        _err(f"--trace {folder!r}: not a folder")
+        return False
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        _err(f"--trace {folder!r}: cannot make it: {e.strerror or e}")
+        return False
+    return True
+
+
+def _write_traces(folder: str, results: list[DriveResult]) -> int:
+    """--trace DIR: DIR/<drive>.csv for each drive (its name from the data, kept inside DIR:
+    :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out); the exit
+    status."""
+    from hdrd.analysis.evaluate import trace_csv
+    from hdrd.io.files import UnsafeNameError, atomic_write_text, path_inside, shown_path
+
+    for r in results:
+        if r.trace is None:
+            continue
+        try:
+            path = path_inside(folder, r.name, ".csv")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, trace_csv(r.trace))
+        except UnsafeNameError as e:
+            print(f"hdrd evaluate: warning: --trace: {e}", file=sys.stderr)
+        except OSError as e:
+            _err(f"cannot write the trace of {r.name}: {e.strerror or e}")
+            return 1
+    print(f"hdrd evaluate: traces in {shown_path(folder)}", file=sys.stderr)
+    return 0
+
+
 def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: bool) -> int:
     """The --json file and the --plot (each drive's traces, or a fleet's NEpsi distribution);
     the exit status."""
     if args.json:
         try:
-            from hdrd.io.files import atomic_write_json
+            from hdrd.io.files import atomic_write_json, shown_path
 
             atomic_write_json(args.json, to_json(results))
         except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
+            _err(f"cannot write {shown_path(args.json)}: {e.strerror or e}")
             return 1
     if args.plot:
         from hdrd.analysis.fleet_report import plot_fleet

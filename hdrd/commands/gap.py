@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from hdrd.analysis.fleet_jobs import GapOutcome
     from hdrd.io.drivefiles import DriveRef
 
-__all__ = ["main", "parse_period", "plus_section"]
+__all__ = ["main", "parse_period", "gyro_section"]
 
 
 def _err(msg: str) -> None:
@@ -38,8 +38,8 @@ def parse_period(text: str) -> tuple[float, float]:
     return t0, t1
 
 
-def plus_section(model: GyroModel, drive: str) -> str:
-    """A fitted model as HDR+'s error model: the ``plus:`` section of hdrd.yaml (the keys of
+def gyro_section(model: GyroModel, drive: str) -> str:
+    """A fitted model as HDR+'s error model: the ``gyro:`` section of hdrd.yaml (the keys of
     docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
     from hdrd.sim.grades import model_noise
 
@@ -50,8 +50,8 @@ def plus_section(model: GyroModel, drive: str) -> str:
         known.pop("bias_tau_s", None)
     lines = [
         f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
-        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its plus: section.',
-        "plus:",
+        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its gyro: section.',
+        "gyro:",
     ]
     lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
     if not known:
@@ -61,7 +61,7 @@ def plus_section(model: GyroModel, drive: str) -> str:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd gap MEASURED... [--model MODEL.yaml] [--out FITTED.yaml|DIR] [--report REPORT.json]
-    [--plus-out PLUS.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
+    [--gyro-out GYRO.yaml] [--plot FILE.png] [--standstill] [--exclude T0:T1 ...] [--seed N] [--workers N |
     --scheduler ADDRESS] [--no-progress]``. Exit 0 ok, 1 bad input or I/O error, 78 bad
     model file. Several drives (files, directories, globs): each analysed on its own, one line
     each (:mod:`hdrd.analysis.gap.fleet`)."""
@@ -74,8 +74,6 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
     from hdrd.io.drivelog import DriveLogError
 
-    if args.plot and _plotting_unavailable():  # said before the work, not after it
-        return 1
     start = _start_model(args)
     if start is None:
         return 78
@@ -83,7 +81,12 @@ def main(args: argparse.Namespace) -> int:
     refs = _drives(args, measured)
     if refs is None:
         return 1
-    from hdrd.analysis.evaluate import read_limits
+    from hdrd.commands.options import outputs_ok
+
+    flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
+    if not outputs_ok(args, _err, flags):  # said before the work, not after it
+        return 1
+    from hdrd.commands.options import read_limits_from_args
 
     job = GapJob(
         start,
@@ -91,14 +94,19 @@ def main(args: argparse.Namespace) -> int:
         tuple(exclude),
         int(args.seed),
         bool(args.plot),
-        read_limits(args),
+        read_limits_from_args(args),
     )
-    try:
-        with open_runner(args) as runner:
-            if len(refs) > 1:
-                from hdrd.analysis.gap.fleet import gap_fleet
+    from hdrd.commands.options import where_from_args
 
-                return gap_fleet(args, refs, job, runner)
+    try:
+        with open_runner(where_from_args(args, "hdrd gap")) as runner:
+            if len(refs) > 1:
+                from hdrd.analysis.gap.fleet import GapOutputs, gap_fleet
+
+                strict = bool(getattr(args, "strict", False))
+                progress = not getattr(args, "no_progress", False)
+                outputs = GapOutputs(args.out, args.report, strict, progress)
+                return gap_fleet(outputs, refs, job, runner)
             one = next(gap_refs(refs, job, runner))
     except (DriveLogError, FleetError) as e:
         _err(str(e))
@@ -108,17 +116,6 @@ def main(args: argparse.Namespace) -> int:
         return 1
     print(one.result.summary)
     return _write_files(args, one.result, measured)
-
-
-def _plotting_unavailable() -> bool:
-    """Whether plots cannot be drawn here (why said on stderr)."""
-    from hdrd.analysis.plots import plotting_unavailable
-
-    problem = plotting_unavailable()
-    if problem:
-        _err(problem)
-        return True
-    return False
 
 
 def _start_model(args: argparse.Namespace) -> GyroModel | None:
@@ -139,29 +136,32 @@ def _start_model(args: argparse.Namespace) -> GyroModel | None:
 
 def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
     """The drives named; None when they cannot be found or are too many for --plot or
-    --plus-out, which describe one drive (why said on stderr)."""
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import DriveLogError
+    --gyro-out, which describe one drive (why said on stderr)."""
+    from hdrd.analysis.evaluate import EvaluationError, drive_refs
 
+    notes: list[str] = []
     try:
-        refs = find_drives(measured)
-    except DriveLogError as e:
+        strict = bool(getattr(args, "strict", False))
+        refs = drive_refs(measured, notes, strict=strict, yaml_option="--model")
+    except EvaluationError as e:
         _err(f"cannot read {e}")
         return None
+    for note in notes:
+        _err(f"warning: {note}")
     if len(refs) > 1 and args.plot:
         _err(f"--plot draws one drive; {len(refs)} were given")
         return None
-    if len(refs) > 1 and getattr(args, "plus_out", None):
-        _err(f"--plus-out describes one gyro from one drive; {len(refs)} were given")
+    if len(refs) > 1 and getattr(args, "gyro_out", None):
+        _err(f"--gyro-out describes one gyro from one drive; {len(refs)} were given")
         return None
     return refs
 
 
 def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str]) -> int:
-    """One drive's --report, --out, --plus-out and --plot; the exit status."""
+    """One drive's --report, --out, --gyro-out and --plot; the exit status."""
     from hdrd.sim.gyro import save_model
 
-    plus_out = getattr(args, "plus_out", None)
+    gyro_out = getattr(args, "gyro_out", None)
     try:
         if args.report:
             from hdrd.io.files import atomic_write_json
@@ -169,11 +169,11 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
             atomic_write_json(args.report, res.report)
         if args.out:
             save_model(res.model, args.out)
-        if plus_out:
+        if gyro_out:
             from hdrd.io.files import atomic_write_text, shown_path
 
             # the name goes into a YAML comment: one printable line, whatever the file is called
-            atomic_write_text(plus_out, plus_section(res.model, shown_path(measured[0])))
+            atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
         return 1

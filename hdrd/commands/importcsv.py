@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hdrd.io.csvimport import Mapping, import_csv
+from hdrd.errors import clipped
+from hdrd.io.csvimport import Mapping, import_csv, unit_warnings
 from hdrd.io.drivelog import DriveLogError
 from hdrd.io.files import printable, shown_path
 
@@ -17,8 +18,8 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd import SOURCE.csv --out DRIVE.csv --t COL --omega COL [...]``: exit 0, or 1 with
     one line on stderr (a source that cannot be read or converted, an output that cannot be
     written)."""
-    from hdrd.analysis.evaluate import read_limits
     from hdrd.analysis.signcheck import check_sign, sign_warning
+    from hdrd.commands.options import read_limits_from_args
     from hdrd.io.drivefiles import log_format, write_log
 
     mapping = Mapping(
@@ -35,7 +36,7 @@ def main(args: argparse.Namespace) -> int:
         speed_unit=args.speed_unit,
     )
     try:
-        log = import_csv(args.source, mapping, args.delimiter, read_limits(args))
+        log = import_csv(args.source, mapping, args.delimiter, read_limits_from_args(args))
     except DriveLogError as e:
         print(f"hdrd import: error: {e}", file=sys.stderr)
         return 1
@@ -45,6 +46,8 @@ def main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
+    for unit in unit_warnings(log, mapping):
+        print(f"hdrd import: warning: {clipped(printable(unit), 300)}", file=sys.stderr)
     if log.heading_truth is not None:
         check = check_sign(log.t, log.omega, log.heading_truth)
         warning = sign_warning(log.name, check)

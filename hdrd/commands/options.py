@@ -1,19 +1,35 @@
-"""The command line's flags applied to the configuration, for the commands that read one
-(``hdrd run``, ``calibrate``, ``replay``, ``convert``). :mod:`hdrd.cli` parses the flags (and
-stays light for ``hdrd --help``); this module, imported by the commands, turns them into a
-validated :class:`hdrd.config.Config`: a bad value is a :class:`hdrd.config.ConfigError`
-naming the flag (exit 78).
+"""The command line's flags turned into what the commands hand on: the configuration, for
+every command that reads one (``hdrd run``, ``calibrate``, ``replay``, ``convert``,
+``evaluate``: :func:`config_from_args`, the one path), where the work runs
+(:func:`where_from_args`), what a drive log may hold (:func:`read_limits_from_args`), and the
+output files checked before the work (:func:`outputs_ok`). :mod:`hdrd.cli` parses the flags
+(and stays light for ``hdrd --help``); this module, imported by the commands, turns them into
+typed values: a bad configuration value is a :class:`hdrd.config.ConfigError` naming the flag
+(exit 78). Nothing below commands/ sees an ``argparse.Namespace``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from typing import Any
+import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from hdrd.config import Config, ConfigError, apply_overrides, load_config
 
-__all__ = ["check_bias_arg", "config_from_args"]
+if TYPE_CHECKING:
+    from hdrd.analysis.fleet import Where
+    from hdrd.io.drivelog import ReadLimits
+
+__all__ = [
+    "check_bias_arg",
+    "config_from_args",
+    "output_problem",
+    "outputs_ok",
+    "read_limits_from_args",
+    "where_from_args",
+]
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
@@ -74,3 +90,114 @@ def check_bias_arg(value: float | None, cfg: Config) -> None:
             f"must be a finite number within +/-{limit:g} deg/s (calibration.max_bias_dps)",
             "command line",
         )
+
+
+def where_from_args(args: argparse.Namespace, prog: str) -> Where:
+    """Where the work runs (``--workers``, ``--scheduler``, ``--tls-*``; docs/fleet.md); a
+    scheduler reached by plain TCP from another machine is warned about on stderr."""
+    import os
+
+    from hdrd.analysis.fleet import (
+        MIN_CLUSTER_WORK_S,
+        MIN_WORK_ENV,
+        FleetError,
+        TlsFiles,
+        Where,
+        scheduler_warning,
+    )
+
+    g = lambda name: getattr(args, name, None)  # noqa: E731
+    tls = TlsFiles(g("tls_ca_file"), g("tls_cert"), g("tls_key"))
+    warning = scheduler_warning(g("scheduler"))
+    if warning:
+        print(f"{prog}: warning: {warning}", file=sys.stderr)
+    text = os.environ.get(MIN_WORK_ENV, "")
+    try:
+        min_work = float(text) if text else MIN_CLUSTER_WORK_S
+    except ValueError:
+        min_work = math.nan
+    if not (min_work >= 0 and math.isfinite(min_work)):
+        raise FleetError(f"{MIN_WORK_ENV}={text!r}: give seconds, a finite number >= 0")
+    return Where(g("workers"), g("scheduler"), tls, min_work)
+
+
+TEMP_DECORATION = 24
+"""Bytes an atomic writer adds to a file's name for its temporary file
+(``.NAME.PID.RANDOM.tmp``, :func:`hdrd.io.files.atomic_write_text`)."""
+
+
+def output_problem(flag: str, path: str) -> str | None:
+    """Why ``FLAG PATH`` could not be written, found before any work: its name too long for
+    the file system (with the temporary file's decoration), a folder on its way that is a
+    file, a folder where the file should be; None if it looks writable (what only the write
+    can tell, it tells)."""
+    import os
+    from pathlib import Path
+
+    from hdrd.io.files import shown_path
+
+    def exists(p: Path) -> bool:
+        try:
+            os.stat(p)
+        except OSError:  # missing, or a name too long to look up
+            return False
+        return True
+
+    target = Path(path)
+    ancestor = target.parent
+    while not exists(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not os.path.isdir(ancestor):
+        return f"{flag} {shown_path(path)}: {shown_path(ancestor)} is not a directory"
+    try:
+        most = os.pathconf(ancestor, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        most = 255
+    for part in target.relative_to(ancestor).parts[:-1]:
+        if len(os.fsencode(part)) > most:
+            return f"{flag} {shown_path(path)}: a folder's name is over {most} bytes"
+    size = len(os.fsencode(target.name))
+    extra = 0 if flag == "--plot" else TEMP_DECORATION  # a plot is written in place
+    if size + extra > most:
+        return (
+            f"{flag} {shown_path(path)}: the file's name is {size} bytes; at most "
+            f"{most - extra} can be written here"
+            + (f" (a temporary file's name takes {extra} more)" if extra else "")
+        )
+    if os.path.isdir(target):
+        return f"{flag} {shown_path(path)}: is a directory"
+    return None
+
+
+def outputs_ok(
+    args: argparse.Namespace, err: Callable[[str], None], flags: tuple[str, ...]
+) -> bool:
+    """Whether every output file the command line names (``flags``, e.g. ``--json``) can be
+    written, asked before any work; what is wrong with the first that cannot is said through
+    ``err``. ``--plot`` also needs matplotlib and a format it writes."""
+    for flag in flags:
+        path = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+        if not path:
+            continue
+        problem = output_problem(flag, path)
+        if problem is None and flag == "--plot":
+            from hdrd.analysis.plots import plotting_unavailable
+
+            problem = plotting_unavailable(path)
+        if problem is not None:
+            err(problem)
+            return False
+    return True
+
+
+def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
+    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
+    from hdrd.io.drivelog import ReadLimits
+
+    given = {
+        "max_rows": getattr(args, "max_rows", None),
+        "max_rate_dps": getattr(args, "max_rate", None),
+        "max_gap_s": getattr(args, "max_gap", None),
+    }
+    return ReadLimits(**{k: v for k, v in given.items() if v is not None})

@@ -18,69 +18,16 @@ import math
 import os
 import signal
 import sys
-import time
 from typing import Any
 
-from hdrd.io.serialport import DeviceBack, DeviceLost, SerialReader
+from hdrd.io.record import record
+from hdrd.io.serialport import SerialReader
 
-__all__ = ["main", "record"]
-
-FLUSH_INTERVAL_S = 1.0
-READ_TIMEOUT_S = 0.2
-"""Longest a read waits, s: bounds how late a signal or --seconds is noticed."""
+__all__ = ["main"]
 
 
 def _note(msg: str) -> None:
     print(f"hdrd record: {msg}", file=sys.stderr, flush=True)
-
-
-def record(
-    reader: SerialReader,
-    out: Any,
-    seconds: float | None = None,
-    stop: Any = None,
-    note: Any = _note,
-) -> dict[str, Any]:
-    """Copy bytes from ``reader`` to the binary file ``out`` until ``seconds`` have passed
-    (None: forever) or ``stop()`` is true; returns counters (bytes, losses, seconds) and,
-    if writing failed (the recording then stops), ``error``: the OSError."""
-    clock = time.monotonic
-    start = clock()
-    last_flush = start
-    total = 0
-    losses = 0
-    should_stop = stop or (lambda: False)
-    try:
-        while not should_stop():
-            now = clock()
-            timeout = READ_TIMEOUT_S
-            if seconds is not None:
-                left = start + seconds - now
-                if left <= 0:
-                    break
-                timeout = min(timeout, left)
-            item = reader.read(timeout)
-            if isinstance(item, bytes):
-                out.write(item)
-                total += len(item)
-            elif isinstance(item, DeviceLost):
-                losses += 1
-                note(f"device lost ({item.reason}); reconnecting to {reader.url}")
-            elif isinstance(item, DeviceBack):
-                note(f"device back: {reader.url}")
-            if clock() - last_flush >= FLUSH_INTERVAL_S:
-                out.flush()
-                last_flush = clock()
-        # Take what the port still holds: it was sent before we stopped.
-        while reader.is_open:
-            item = reader.read(0)
-            if not isinstance(item, bytes):
-                break
-            out.write(item)
-            total += len(item)
-    except OSError as e:  # the capture file, not the port (the reader never raises)
-        return {"bytes": total, "losses": losses, "seconds": clock() - start, "error": e}
-    return {"bytes": total, "losses": losses, "seconds": clock() - start}
 
 
 def _finish(out: Any) -> OSError | None:
@@ -154,7 +101,7 @@ def _record_until_stopped(
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     result: dict[str, Any] = {}
     try:
-        result = record(reader, out, seconds, stop=lambda: stopping)
+        result = record(reader, out, seconds, stop=lambda: stopping, note=_note)
     finally:
         error = result.get("error") or _finish(out)
         if result.get("error"):

@@ -1,9 +1,9 @@
 """``hdrd replay`` and ``hdrd convert``: a recorded capture through the daemon's pipeline.
 
-Replay decodes the whole capture at once (:func:`hdrd.io.capture.decode_capture`) and feeds it
-to the same :class:`hdrd.daemon.pipeline.Pipeline` the daemon uses, as fast as possible; its JSON
-lines are bit-identical to what ``hdrd run`` publishes for the same bytes, except ``time``
-(the UNIX time of publication), which a recording does not have and replay leaves out.
+Replay writes the messages of :func:`hdrd.daemon.replay.replay_steps` (the daemon's own
+pipeline on the decoded capture) as JSON lines, bit-identical to what ``hdrd run`` publishes for
+the same bytes, except ``time`` (the UNIX time of publication), which a recording does not
+have and replay leaves out.
 
 Memory follows the file: its bytes (read whole, a regular file of at most
 :data:`hdrd.io.files.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
@@ -14,75 +14,19 @@ one chunk of frames at a time; never the device time the capture spans
 from __future__ import annotations
 
 import argparse
+import os
+import shlex
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
-from hdrd.errors import EX_CONFIG
+from hdrd.daemon.replay import replay_steps
+from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.biasfile import BiasFileError, load_bias
 
-__all__ = ["convert_main", "main", "replay_capture", "replay_steps"]
-
-STEP_CHUNK_FRAMES = 16384
-"""Frames fed to the pipeline at once by ``hdrd replay``, whose messages are written out
-before the next chunk: the messages of a long capture are never all held at once."""
-
-
-def replay_steps(
-    frames: Any,
-    bad_before: Any,
-    bad_frames: int,
-    cfg: Config,
-    bias_dps: float | None,
-    startup_s: float | None = None,
-    chunk: int = STEP_CHUNK_FRAMES,
-    bias_record: BiasRecord | None = None,
-) -> Iterator[list[dict[str, Any]]]:
-    """The daemon's messages (without ``time``) for decoded frames, a list per chunk of
-    frames: the same messages, in the same order, as one pass (the pipeline's state carries
-    over, and its block sums run in sample order either way). Pure. bias_record: the bias
-    file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from dataclasses import replace
-
-    from hdrd.daemon.pipeline import Pipeline, pipeline_config
-
-    # the record also brings the noise parameters it holds (HDR+'s error model)
-    pc = replace(pipeline_config(cfg, bias_record), bias_dps=bias_dps, bias_record=bias_record)
-    if startup_s is not None:
-        pc = replace(pc, startup_s=startup_s)
-    p = Pipeline(pc)
-    for lo in range(0, frames.shape[0], chunk):
-        yield p.feed_array(frames[lo : lo + chunk], bad_before[lo : lo + chunk])
-    yield p.finish(int(bad_frames))
-
-
-def replay_capture(
-    data: bytes,
-    cfg: Config,
-    bias_dps: float | None,
-    startup_s: float | None = None,
-    bias_record: BiasRecord | None = None,
-) -> list[dict[str, Any]]:
-    """Every message the daemon would publish for these bytes (without ``time``). Pure.
-    bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from hdrd.io.capture import decode_capture
-
-    frames, stats = decode_capture(data, cfg.device.protocol)
-    out: list[dict[str, Any]] = []
-    for msgs in replay_steps(
-        frames,
-        stats.bad_before,
-        stats.bad_frames,
-        cfg,
-        bias_dps,
-        startup_s,
-        bias_record=bias_record,
-    ):
-        out.extend(msgs)
-    return out
+__all__ = ["convert_main", "main"]
 
 
 def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config, bytes] | int:
@@ -168,6 +112,15 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_the_capture(out: str, capture: str) -> bool:
+    """Whether writing ``out`` would write over ``capture`` (the same file, under its name, a
+    link or another hard link)."""
+    try:
+        return os.path.samefile(out, capture)
+    except OSError:  # one of them does not exist (or cannot be looked at): not the same
+        return False
+
+
 def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv|DRIVE.parquet|DIR [--format F]``: every frame as a
     drive-log row (raw deg/s)."""
@@ -176,9 +129,17 @@ def convert_main(args: argparse.Namespace) -> int:
     from hdrd.io.capture import decode_capture
     from hdrd.io.clocks import DeviceClock
     from hdrd.io.drivefiles import log_format, write_log
-    from hdrd.io.drivelog import DriveLog, DriveLogError
+    from hdrd.io.drivelog import DriveLog, DriveLogError, converted_name
+    from hdrd.io.files import shown_path
     from hdrd.io.protocol import TEMP_NOT_FITTED
 
+    if _is_the_capture(args.out, args.capture):
+        print(
+            f"hdrd convert: --out {shown_path(args.out)} is the capture itself; name another "
+            f"file, e.g. --out {shlex.quote(converted_name(args.capture))}",
+            file=sys.stderr,
+        )
+        return EX_USAGE
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):
         return loaded

@@ -24,6 +24,7 @@ from hdrd.core.grades import DEFAULT_GRADE, GRADES, Grade
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.drivefiles import log_format, write_log
 from hdrd.io.drivelog import DriveLogError, write_drive
+from hdrd.io.files import missing_folder, shown_path
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model
@@ -70,6 +71,10 @@ def simulate_main(args: argparse.Namespace) -> int:
     ok, errors = _errors(args)
     if not ok:
         return EX_CONFIG
+    missing = _missing_folder(args.out)
+    if missing:
+        _err(missing)  # said before the work
+        return 1
     if args.benchmark:
         return _benchmark(args, model, grade, errors)
     return _one_drive(args, model, grade, errors)
@@ -80,8 +85,6 @@ def _errors(args: argparse.Namespace) -> tuple[bool, FittedErrors | None]:
     they cannot be read (why said on stderr)."""
     if not getattr(args, "errors_from", None):
         return True, None
-    from hdrd.io.files import shown_path
-
     try:
         return True, errors_from(args.errors_from)
     except OSError as e:
@@ -89,6 +92,13 @@ def _errors(args: argparse.Namespace) -> tuple[bool, FittedErrors | None]:
     except ValueError as e:
         _err(str(e))
     return False, None
+
+
+def _missing_folder(out: str | None) -> str | None:
+    """Why ``--out`` cannot be made for want of its folder (a typo must not create folders),
+    or None."""
+    missing = missing_folder(out) if out and out != "-" else None
+    return None if missing is None else f"cannot write {shown_path(out or '')}: {missing}"
 
 
 def _one_drive(

@@ -9,11 +9,27 @@ import sys
 import time
 from collections.abc import Sequence
 
-from hdrd.analysis.evaluate import EvaluationError, PreparedDrive, drive_refs, read_limits
-from hdrd.analysis.fleet import FleetError, fleet_requested, open_runner
+from hdrd.analysis.evaluate import (
+    EvaluationError,
+    PreparedDrive,
+    drive_refs,
+)
+from hdrd.analysis.fleet import FleetError, open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
+from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.analysis.progress import ProgressBar
-from hdrd.analysis.tune import TuneResult, format_report, params_yaml, to_json, tune
+from hdrd.analysis.tune import (
+    Interrupted,
+    TuneResult,
+    check_held_out,
+    content_key,
+    format_report,
+    interrupted_json,
+    params_yaml,
+    to_json,
+    tune,
+)
+from hdrd.commands.options import outputs_ok, read_limits_from_args, where_from_args
 from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
@@ -47,12 +63,17 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
     from hdrd.analysis.fleet_jobs import tune_fleet
 
     strict = bool(getattr(args, "strict", False))
-    train_refs = drive_refs(args.train)
-    test_refs = drive_refs(args.test or [])
-    if not fleet_requested(args):
-        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits(args))
+    notes: list[str] = []
+    train_refs = drive_refs(args.train, notes, strict=strict)
+    test_refs = drive_refs(args.test or [], notes, strict=strict)
+    for note in notes:
+        print(f"hdrd tune: warning: {note}", file=sys.stderr)
+    where = where_from_args(args, "hdrd tune")
+    if not where.cluster:
+        job = PrepareJob(None, args.calibrate_seconds, read_limits=read_limits_from_args(args))
         train = _prepared(train_refs, job, strict, skipped)
         test = _prepared(test_refs, job, strict, skipped)
+        check_held_out(*([(d.name, content_key(d)) for d in part] for part in (train, test)))
         if not train:
             raise EvaluationError(
                 skipped.pop(0)
@@ -67,7 +88,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
             calibrate_seconds=args.calibrate_seconds,
             progress=bar,
         )
-    with open_runner(args) as runner:
+    with open_runner(where) as runner:
         return tune_fleet(
             runner,
             train_refs,
@@ -78,7 +99,7 @@ def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) 
             progress=bar,
             strict=strict,
             skipped=skipped,
-            read_limits=read_limits(args),
+            read_limits=read_limits_from_args(args),
         )
 
 
@@ -107,25 +128,60 @@ def _comment(result: TuneResult, seed: int) -> list[str]:
     return [c for c in comment if c]
 
 
+def _interrupted(args: argparse.Namespace, e: Interrupted) -> int:
+    """Ctrl-C: the best set so far on stdout (and in --out, --json), said in one line on
+    stderr; exit 130. The set is not checked on the test drives."""
+    from hdrd.io.files import atomic_write_json, atomic_write_text
+
+    best = e.best(PAPER_PARAMS)
+    if best is None:
+        print("hdrd tune: interrupted before any parameter set was scored", file=sys.stderr)
+        return 130
+    n = e.scored.shape[0]
+    what = (
+        f"the best of the first {n} of {args.candidates} parameter sets (seed {args.seed}): "
+        f"mean training NEpsi {best[1]:.3f} deg/min, not checked on the test drives"
+    )
+    snippet = params_yaml(best[0], [f"HDR parameters from an interrupted `hdrd tune`: {what}"])
+    print(snippet, end="")
+    written = []
+    try:
+        if args.out:
+            atomic_write_text(args.out, snippet)
+            written.append(args.out)
+        if args.json:
+            atomic_write_json(
+                args.json, interrupted_json(e, PAPER_PARAMS, args.seed, args.candidates)
+            )
+            written.append(args.json)
+    except OSError as err:
+        _err(f"cannot write {err.filename or ''}: {err.strerror or err}")
+    where = f"; written to {' and '.join(written)}" if written else ""
+    print(f"hdrd tune: interrupted: {what}{where}", file=sys.stderr)
+    return 130
+
+
 def main(args: argparse.Namespace) -> int:
     """``hdrd tune TRAIN.csv|DIR... --test TEST.csv|DIR... [--candidates N] [--seed S]
     [--calibrate-seconds S] [--out YAML] [--json FILE] [--strict] [--no-progress]
     [--workers N | --scheduler ADDRESS]``."""
-    from hdrd.io.files import atomic_write_json, atomic_write_text
-
     if args.candidates < 1:
         _err(f"--candidates must be >= 1, got {args.candidates}")
         return 2
+    if not outputs_ok(args, _err, ("--out", "--json")):  # before the work
+        return 1
     bar = None if args.no_progress else ProgressBar(f"tune {args.candidates} sets")
     t0 = time.monotonic()
     skipped: list[str] = []
     try:
         result = _run(args, bar, skipped)
-    except (EvaluationError, FleetError) as e:
+    except (EvaluationError, FleetError, Interrupted) as e:
         if bar is not None:
             bar.close()
         for why in skipped:
             print(f"hdrd tune: skipped {why}", file=sys.stderr)
+        if isinstance(e, Interrupted):
+            return _interrupted(args, e)
         _err(str(e))
         return 1
     if bar is not None:
@@ -134,16 +190,21 @@ def main(args: argparse.Namespace) -> int:
         print(f"hdrd tune: skipped {why}", file=sys.stderr)
     seconds = time.monotonic() - t0
     print(format_report(result, seconds))
-    if args.out:
-        try:
+    return _write(args, result, seconds)
+
+
+def _write(args: argparse.Namespace, result: TuneResult, seconds: float) -> int:
+    """--out and --json; the exit status."""
+    from hdrd.io.files import atomic_write_json, atomic_write_text, shown_path
+
+    path = args.out
+    try:
+        if args.out:
             atomic_write_text(args.out, params_yaml(result.best, _comment(result, args.seed)))
-        except OSError as e:
-            _err(f"cannot write {args.out}: {e.strerror or e}")
-            return 1
-    if args.json:
-        try:
+        path = args.json
+        if args.json:
             atomic_write_json(args.json, to_json(result, seconds))
-        except OSError as e:
-            _err(f"cannot write {args.json}: {e.strerror or e}")
-            return 1
+    except OSError as e:
+        _err(f"cannot write {shown_path(path)}: {e.strerror or e}")
+        return 1
     return 0

@@ -49,6 +49,7 @@ __all__ = [
     "StandstillLimits",
     "StartupWindow",
     "estimate_bias",
+    "given_bias",
     "noise_sigma",
 ]
 
@@ -107,6 +108,11 @@ class BiasRecord:
     time: float = 0.0
     noise: GyroNoise | None = None
 
+    @classmethod
+    def given(cls, bias_dps: float) -> BiasRecord:
+        """The record of a bias given, not measured (``--bias``): n = 0, no spread known."""
+        return cls(bias_dps, 0.0, 0, 0.0)
+
     def to_dict(self) -> dict[str, Any]:
         """The record as a bias file holds it (``noise``: its known parameters by name)."""
         d: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -114,6 +120,11 @@ class BiasRecord:
         if self.noise is not None:
             d["noise"] = self.noise.to_dict()
         return d
+
+
+def given_bias(bias_dps: float | None) -> BiasRecord | None:
+    """The record of a bias given (:meth:`BiasRecord.given`), None for none (measure it)."""
+    return None if bias_dps is None else BiasRecord.given(bias_dps)
 
 
 def estimate_bias(
@@ -255,8 +266,10 @@ class StartupWindow:
     def for_seconds(
         cls, seconds: float, T: float, limits: StandstillLimits = StandstillLimits()
     ) -> StartupWindow:
-        """A window of ``seconds`` rounded up to whole steps of T s (at least one)."""
-        return cls(max(1, math.ceil(seconds / T - 1e-9)), limits, T)
+        """A window of the whole steps of T s within ``seconds`` (rounded down: no sample past
+        ``seconds`` is taken in), and at least one (a window shorter than a step is one
+        step: the configured ``calibration.startup_s`` of 1 s with hdr.T = 2 s)."""
+        return cls(max(1, math.floor(seconds / T + 1e-9)), limits, T)
 
     @property
     def n(self) -> int:

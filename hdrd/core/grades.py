@@ -1,5 +1,5 @@
 """Gyro grades: named presets of a gyro's error model from datasheets (docs/gyro-model.md,
-"Grades"); data the product uses (``plus.grade``: HDR+'s error model) and the simulator too.
+"Grades"); data the product uses (``gyro.grade``: HDR+'s error model) and the simulator too.
 
 A grade is plain data (:data:`GRADE_TABLE`: one mapping per grade, each value with its source
 in ``sources``). :func:`hdrd.core.gyronoise.grade_noise` gives it as HDR+'s error model

@@ -1,7 +1,7 @@
 """A gyro's error model as HDR+ uses it: Allan parameters, temperature coefficient, output step.
 
 Pure data and arithmetic, no I/O. One vocabulary for the three places it comes from: a grade
-preset (:func:`grade_noise`), the config's ``plus.noise`` keys, and the noise
+preset (:func:`grade_noise`), the config's ``gyro.*`` keys, and the noise
 parameters ``hdrd calibrate`` records beside the bias (:meth:`GyroNoise.to_dict` /
 :meth:`GyroNoise.from_mapping`). :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` turns it into the
 bias model's process noise (docs/hdrplus.md).
@@ -125,7 +125,7 @@ NOISE_KEYS: tuple[str, ...] = (
     "temp_coeff_dps_per_c",
     "quant_step_dps",
 )
-"""The parameters of :class:`GyroNoise` by name (bias files, the config's ``plus.noise``)."""
+"""The parameters of :class:`GyroNoise` by name (bias files, the config's ``gyro.*``)."""
 
 
 ALLAN_MIN_S = 600.0
@@ -225,7 +225,7 @@ def noise_in_force(
 
     1. ``recorded``: parameters ``hdrd calibrate`` measured on this gyro (the bias file), when
        they say how the bias moves (:meth:`GyroNoise.known`: a long enough standstill);
-    2. ``given``: measured parameters from the configuration (``plus.*``; 0 = not given;
+    2. ``given``: measured parameters from the configuration (``gyro.*``; 0 = not given;
        ``bias_tau_s`` only with a given bias instability), on top of the grade's when one is
        configured (source ``config``);
     3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.

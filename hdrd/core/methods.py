@@ -12,7 +12,7 @@ A method (:class:`Method`) is a small object with six operations:
   :class:`hdrd.core.steps.StepInputs` from the initial state, the fast form for offline tools;
   bit-identical to looping ``step`` (tests/test_methods.py);
 - ``settings(context) -> settings``: how its settings follow from what the caller knows
-  (:class:`SettingsContext`: the configured HDR parameters, HDR+'s configured base, the
+  (:class:`MethodSetup`: the configured HDR parameters, HDR+'s configured base, the
   gyro's samples per step, the calibration record, its error model). HDR+'s are derived in
   one function, :func:`plus_settings`, for the daemon, replay and evaluate alike;
 - ``publish(output, settings) -> Published``: the message fields of a step's output.
@@ -42,7 +42,7 @@ __all__ = [
     "REGISTRY",
     "Method",
     "Published",
-    "SettingsContext",
+    "MethodSetup",
     "StepInput",
     "StepInputs",
     "StepOutput",
@@ -77,21 +77,26 @@ class Published(NamedTuple):
 
 
 @dataclass(frozen=True)
-class SettingsContext:
-    """What a method's settings are derived from: what the configuration says, and what the
-    gyro and this drive's calibration show.
+class MethodSetup:
+    """One drift reducer's setup, typed: built once from the configuration, the bias file and
+    the sensor (:func:`hdrd.config.method_setup`) and used alike by the daemon, replay and
+    evaluate; each derives the method's settings from it (:meth:`settings`), with what a
+    drive adds (:meth:`for_drive`: the gyro's samples per step, a calibration measured at
+    start, a recorded log's output step).
 
-    From the configuration (:func:`hdrd.config.settings_context`): hdr, the HDR parameters
-    (``hdr.*``; T is the step period, s); hdr_i_c_from_gyro, ``hdr.i_c_from: gyro`` (HDR's
-    increment follows a known error model's drift, :func:`hdr_settings`); grade, ``plus.grade`` (``none``: no preset);
-    given_noise, the ``plus.*`` noise parameters given (name, value; 0 = not given);
+    From the configuration: method, ``hdr.method``; hdr, the HDR parameters (``hdr.*``; T is
+    the step period, s); i_c_auto, ``hdr.i_c: auto`` (HDR's increment follows a known error
+    model's drift, :func:`hdr_settings`); grade, ``gyro.grade`` (``none``: no preset);
+    given_noise, the ``gyro.*`` noise parameters given (name, value; 0 = not given);
     standstill and standstill_from_gyro, ``standstill.enabled`` and ``standstill.from_gyro``.
-    plus: HDR+'s base settings (its defaults; benchmarks ablate them).
+    plus: HDR+'s base settings (its defaults; benchmarks override them).
 
-    From the gyro and the drive: samples_per_step, samples averaged in one step (the gyro's
-    sample rate times T; None = unknown); bias, the calibration record behind the static bias
-    (None, or n = 0, when the bias was given; a bias file's record carries the error model
-    ``hdrd calibrate`` measured); quant_step_dps, the gyro's output step, deg/s, when known.
+    From the bias file and the sensor, and the drive: bias, the static bias and the record
+    behind it (None: measured at start-up; a given bias: :meth:`hdrd.core.calibrate.
+    BiasRecord.given`, n = 0; a bias file's record carries the error model ``hdrd calibrate``
+    measured); quant_step_dps, the gyro's output step, deg/s (the ADC's LSB; for a recorded
+    log, the lattice of its values), None = unknown; samples_per_step, samples averaged in
+    one step (the gyro's sample rate times T; None = unknown).
     """
 
     hdr: HdrParams = HdrParams()
@@ -99,11 +104,28 @@ class SettingsContext:
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
     quant_step_dps: float | None = None
-    hdr_i_c_from_gyro: bool = True
+    i_c_auto: bool = True
     grade: str = "none"
     given_noise: tuple[tuple[str, float], ...] = ()
     standstill: bool = True
     standstill_from_gyro: bool = False
+    method: str = "hdr"
+
+    def for_drive(
+        self,
+        samples_per_step: float | None,
+        bias: BiasRecord | None,
+        quant_step_dps: float | None = None,
+    ) -> MethodSetup:
+        """This setup with what a drive shows: its samples per step, the bias in force (a
+        calibration measured at start, or the one given), its output step when known
+        otherwise than the setup's (a recorded log's lattice)."""
+        q = self.quant_step_dps if quant_step_dps is None else quant_step_dps
+        return replace(self, samples_per_step=samples_per_step, bias=bias, quant_step_dps=q)
+
+    def settings(self) -> Any:
+        """The method's settings for this setup (:meth:`Method.settings`)."""
+        return get(self.method).settings(self)
 
 
 def calibration_of(
@@ -120,12 +142,12 @@ def calibration_of(
     return CalibrationNoise(var / bias.n, var / per, math.nan, per, 1 if var == 0.0 else 0)
 
 
-def error_model(ctx: SettingsContext) -> GyroNoise | None:
+def error_model(setup: MethodSetup) -> GyroNoise | None:
     """The gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded
-    by ``hdrd calibrate`` in the bias file, else the ``plus.*`` parameters given, else the
+    by ``hdrd calibrate`` in the bias file, else the ``gyro.*`` parameters given, else the
     grade's); None when nothing is known."""
-    recorded = ctx.bias.noise if ctx.bias is not None else None
-    return noise_in_force(ctx.grade, dict(ctx.given_noise), recorded)
+    recorded = setup.bias.noise if setup.bias is not None else None
+    return noise_in_force(setup.grade, dict(setup.given_noise), recorded)
 
 
 I_C_WINDOW_S = 30.0
@@ -136,7 +158,7 @@ warm-up). For the CRS03-04 grade 0.024 deg/s (Table III: 0.0422), the automotive
 RESULTS.md, "HDR's increment from the gyro")."""
 
 
-def hdr_settings(ctx: SettingsContext) -> HdrParams:
+def hdr_settings(setup: MethodSetup) -> HdrParams:
     """The paper's HDR parameters for this gyro: the configured ``hdr.*`` (Table III by
     default); with ``hdr.i_c_from: gyro`` and the gyro's error model known
     (:func:`error_model`), i_c = min(hdr.i_c, sqrt(Q x :data:`I_C_WINDOW_S`)), Q its bias random
@@ -144,37 +166,37 @@ def hdr_settings(ctx: SettingsContext) -> HdrParams:
     by a binary increment meant for a CRS03-04's drift, which only straightens real curves.
     Without a known model Table III stays (the start-up calibration shows the white noise, not
     how the bias drifts)."""
-    p = ctx.hdr
-    if not ctx.hdr_i_c_from_gyro:
+    p = setup.hdr
+    if not setup.i_c_auto:
         return p
-    noise = error_model(ctx)
+    noise = error_model(setup)
     if noise is None or not noise.known():
         return p
     drift = math.sqrt(max(noise.bias_q_no_temp(), 0.0) * I_C_WINDOW_S)
     return p if drift >= p.i_c else replace(p, i_c=drift)
 
 
-def plus_settings(ctx: SettingsContext) -> HdrPlusParams:
+def plus_settings(setup: MethodSetup) -> HdrPlusParams:
     """HDR+'s settings for this gyro and this drive: the one place they are derived (the
     daemon, replay and evaluate all come here).
 
-    From ctx (:class:`SettingsContext`): HDR+'s base settings with ``standstill.*`` applied
+    From setup (:class:`MethodSetup`): HDR+'s base settings with ``standstill.*`` applied
     (its own core, tuned with its extras; the configured ``hdr.*`` parameters are not used
     but for T, the step period); the samples per step (a 1 Hz gyro has 1), which turn a
     step's spread into the variance of its mean at a standstill; the calibration record's
     noise (:func:`calibration_of`; a given bias has none, and the base's bias_p0 stays); the
     gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded by
-    ``hdrd calibrate``, else the ``plus.*`` parameters given, else the grade's); the output
+    ``hdrd calibrate``, else the ``gyro.*`` parameters given, else the grade's); the output
     step (the ADC's LSB; for a recorded log, the lattice of its values).
     :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` fits the bias model to them.
     """
-    base = ctx.plus
-    ss = replace(base.standstill, enabled=ctx.standstill, gyro_only=ctx.standstill_from_gyro)
-    p = base.with_(hdr=replace(base.hdr, T=ctx.hdr.T), standstill=ss)
-    n = ctx.samples_per_step
+    base = setup.plus
+    ss = replace(base.standstill, enabled=setup.standstill, gyro_only=setup.standstill_from_gyro)
+    p = base.with_(hdr=replace(base.hdr, T=setup.hdr.T), standstill=ss)
+    n = setup.samples_per_step
     if n is not None and n > 0:
         p = p.with_(standstill=replace(p.standstill, samples_per_step=float(n)))
-    return p.fitted(calibration_of(ctx.bias, n), error_model(ctx), ctx.quant_step_dps)
+    return p.fitted(calibration_of(setup.bias, n), error_model(setup), setup.quant_step_dps)
 
 
 class Method(ABC, Generic[S, P]):
@@ -203,7 +225,7 @@ class Method(ABC, Generic[S, P]):
         """The yaw of every step of a drive from the initial state, deg CCW."""
 
     @abstractmethod
-    def settings(self, ctx: SettingsContext) -> P:
+    def settings(self, setup: MethodSetup) -> P:
         """The settings for this gyro and drive."""
 
     def publish(self, out: StepOutput, settings: P) -> Published:
@@ -235,8 +257,8 @@ class _Hdr(Method[HdrState, HdrParams]):
     def batch(self, steps: StepInputs, settings: HdrParams) -> FloatArray:
         return hdr.run_batch(steps.u, settings).yaw
 
-    def settings(self, ctx: SettingsContext) -> HdrParams:
-        return hdr_settings(ctx)
+    def settings(self, setup: MethodSetup) -> HdrParams:
+        return hdr_settings(setup)
 
 
 class _None(_Hdr):
@@ -250,8 +272,8 @@ class _None(_Hdr):
         # to hdr.step with I frozen at 0 (tests/test_methods.py).
         return np.cumsum(steps.u * settings.T)
 
-    def settings(self, ctx: SettingsContext) -> HdrParams:
-        return replace(ctx.hdr, enabled=False)
+    def settings(self, setup: MethodSetup) -> HdrParams:
+        return replace(setup.hdr, enabled=False)
 
 
 class _Plus(Method[PlusState, HdrPlusParams]):
@@ -277,8 +299,8 @@ class _Plus(Method[PlusState, HdrPlusParams]):
             steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, settings
         ).yaw
 
-    def settings(self, ctx: SettingsContext) -> HdrPlusParams:
-        return plus_settings(ctx)
+    def settings(self, setup: MethodSetup) -> HdrPlusParams:
+        return plus_settings(setup)
 
     def publish(self, out: StepOutput, settings: HdrPlusParams) -> Published:
         assert isinstance(out, PlusOutput)

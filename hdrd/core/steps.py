@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["StepInput", "StepInputs"]
+__all__ = ["StepInput", "StepInputs", "per_step"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -34,6 +34,16 @@ class StepInput(NamedTuple):
     """Board temperature, degC."""
     T: float
     """Step length, s."""
+    heading_err_deg: float = math.nan
+    """A GPS course's measurement of the heading error at the end of the step before: the
+    heading published then minus the course carried to that time, compass deg wrapped to
+    [-180, 180) (+: the heading reads clockwise of the truth); NaN: no measurement. Only a
+    method that owns the heading reads it (HDR+; the aiding stage makes it)."""
+    heading_err_var: float = math.nan
+    """Its variance, deg^2."""
+    heading_reset: bool = False
+    """The heading was (re)aligned to a course before this step: what the method knew of
+    its heading error starts again (with ``heading_err_var`` as its variance)."""
 
 
 @dataclass(frozen=True)
@@ -70,3 +80,16 @@ class StepInputs:
         return StepInput(
             float(self.u[i]), at(self.omega_std), at(self.speed), at(self.temp_c), self.T
         )
+
+
+def per_step(v: npt.ArrayLike | None, n: int, name: str) -> list[float]:
+    """An input of n steps as a list of floats: None is unknown (NaN) throughout, a scalar the
+    same at every step, else one value per step (ValueError naming ``name`` otherwise)."""
+    if v is None:
+        return [math.nan] * n
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim == 0:
+        return [float(a)] * n
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have one value per step ({a.shape} vs {n})")
+    return a.tolist()

@@ -22,10 +22,17 @@ least ``min_speed_mps``, a course error estimate (``epd``, when sent) within
   the static bias removed, ``sum((omega_raw - bias) * dt)`` (deg, CCW), is compared with
   the GPS's, ``-(course change)`` (compass course is CW): the difference over the window's
   length is the error of the static bias eps0 (deg/s, paper Eq. 2). ``bias_gain`` times it
-  (at most ``max_bias_step_dps``) is returned for ``Pipeline.adjust_bias(delta, "gps")``;
-  a window whose estimate exceeds ``max_residual_dps`` is discarded (a GPS glitch, a skid).
-  Learning eps0 rather than correcting HDR's output leaves the I-controller (Eqs. 4, 9) to
-  do its job during outages with the best static bias known; HDR's I then relaxes to 0.
+  (at most ``max_bias_step_dps``) is returned (``Aid.bias_delta_dps``) for the pipeline to
+  add to the static bias; a window whose estimate exceeds ``max_residual_dps`` is discarded
+  (a GPS glitch, a skid). Learning eps0 rather than correcting HDR's output leaves the
+  I-controller (Eqs. 4, 9) to do its job during outages with the best static bias known.
+
+  That is for the baselines, ``none`` and paper ``hdr``. A method that estimates the bias
+  and the heading error itself (HDR+, :class:`hdrd.core.methods.Method` ``bias_model``) is
+  their one owner: the aiding aligns its heading once (and again on a realignment, below),
+  then hands it each good course as a measurement (:class:`HeadingFix`: the published
+  heading minus the course, its variance from the course's error and, in a turn, its
+  latency), and neither moves the offset nor learns a bias itself.
 
 ``"dead-reckoning"`` otherwise (no fix, a tunnel, standing at a light, gpsd gone, a course
 the gate rejected): the heading continues from the last alignment, carried by the HDR yaw,
@@ -52,20 +59,32 @@ hands over to the next receiver with a fix (a ``gps_device`` event).
 Events for the log are appended to :attr:`GpsAiding.events` as ``(name, fields)``, for the
 caller to log and clear (:class:`hdrd.daemon.gpslink.GpsdLink` does).
 
-Messages are the pipeline's dicts (docs/protocol.md); keys are only added or, for
-``heading``, replaced by the aligned value: ``mode``; ``heading_offset`` (deg, once
-aligned); ``gps_course`` (deg, while aided) and ``gps_speed`` (m/s, with a fresh fix).
-A message without a heading (calibrating) passes unchanged. Time ``now`` is any monotonic
-clock in seconds, passed in by the caller; fixes are stamped with it when received.
+A stage of the pipeline (:class:`hdrd.daemon.pipeline.Stepper`): it sees each step as a
+typed :class:`StepView` before the message is built and answers with an :class:`Aid`, from
+which the message takes ``mode``, the aligned ``heading``, ``heading_offset`` (deg, once
+aligned), ``gps_course`` (deg, while aided), ``gps_age_s`` (s since the last course was
+received) and ``gps_speed`` (m/s, with a fresh fix), docs/protocol.md. A step that is still
+calibrating has no heading and is not shown to it. Time ``now`` is any monotonic clock in
+seconds, passed in by the caller; fixes are stamped with it when received.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
-__all__ = ["AIDED", "DEAD_RECKONING", "AidingConfig", "FixLike", "GpsAiding", "wrap180"]
+__all__ = [
+    "AIDED",
+    "DEAD_RECKONING",
+    "Aid",
+    "AidingConfig",
+    "FixLike",
+    "GpsAiding",
+    "HeadingFix",
+    "StepView",
+    "wrap180",
+]
 
 AIDED = "aided"
 DEAD_RECKONING = "dead-reckoning"
@@ -130,6 +149,9 @@ class AidingConfig:
     """Largest correction applied at once, deg/s."""
     default_course_err_deg: float = 5.0
     """A fix's course error (95 %, deg) when it gives neither ``epd`` nor ``eps``."""
+    default_speed_err_mps: float = 0.5
+    """A fix's ground-speed error (95 %, m/s) when it gives neither ``epd`` nor ``eps``, for
+    the variance of its course as a measurement (:meth:`GpsAiding.course_var`)."""
     gate_min_deg: float = 5.0
     """The gate is never narrower than this, deg."""
     max_drift_dps: float = 0.1
@@ -161,6 +183,7 @@ class AidingConfig:
             "align_max_rate_dps",
             "max_course_step_deg",
             "default_course_err_deg",
+            "default_speed_err_mps",
             "gate_min_deg",
             "max_drift_dps",
             "latency_s",
@@ -185,12 +208,67 @@ class AidingConfig:
             )
 
 
-class GpsAiding:
-    """Turns the pipeline's messages into GPS-aided ones (see the module doc). Pure.
+@dataclass(frozen=True, slots=True)
+class StepView:
+    """What the aiding sees of a step, before its message is built.
 
-    ``on_fix(fix, now)`` for each fix received; ``on_message(msg, now) -> (msg, delta)`` for
-    each message before publishing, delta (deg/s) to add to the static bias (0.0: none);
-    ``speed(now)`` the fresh GPS ground speed for ``Pipeline.set_speed``.
+    t: device time at the step's end, s. omega_dps: the method's corrected rate, deg/s CCW (0
+    for a report that is not a step). raw_dps: the step's raw block mean, deg/s CCW. bias_dps:
+    the bias in force (the static bias and the method's correction), deg/s. heading_deg: the
+    compass heading of the method's yaw, deg. gap: samples were missing before the step.
+    step: a new step (False: a report of the held heading, e.g. while the gyro is silent).
+    """
+
+    t: float
+    omega_dps: float
+    raw_dps: float
+    bias_dps: float
+    heading_deg: float
+    gap: bool = False
+    step: bool = True
+
+
+class HeadingFix(NamedTuple):
+    """A GPS course's measurement for a method that owns the heading error (HDR+).
+
+    err_deg: the published heading minus the course at the step's end, compass deg wrapped to
+    [-180, 180). var_deg2: its variance. reset: the heading was aligned (anew) at this step:
+    its error restarts at 0 with this variance.
+    """
+
+    err_deg: float
+    var_deg2: float
+    reset: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Aid:
+    """What the aiding says of a step (:meth:`GpsAiding.on_step`).
+
+    mode: ``aided`` or ``dead-reckoning``. heading_deg: the heading to publish, compass deg
+    (the method's plus the offset; None before the first alignment). offset_deg: the offset.
+    course_deg: the course of the good fix in use (None while not aided). course_age_s: s since
+    the last course was received (None before one). speed_mps: the ground speed of a fresh
+    fix. bias_delta_dps: a correction to the static bias, deg/s, for a method that does not
+    estimate the bias itself. fix: the measurement for one that does (None: none this step).
+    """
+
+    mode: str
+    heading_deg: float | None
+    offset_deg: float | None
+    course_deg: float | None
+    course_age_s: float | None
+    speed_mps: float | None
+    bias_delta_dps: float = 0.0
+    fix: HeadingFix | None = None
+
+
+class GpsAiding:
+    """GPS aiding as a stage of the pipeline (see the module doc). Pure.
+
+    ``on_fix(fix, now)`` for each fix received; ``on_step(view, now, owner) -> Aid`` for each
+    step (and held-heading report) before its message is built; ``speed(now)`` the fresh GPS
+    ground speed for the standstill detection.
     """
 
     def __init__(self, config: AidingConfig = AidingConfig()) -> None:
@@ -223,6 +301,7 @@ class GpsAiding:
         self.realignments = 0
         """Offsets set anew after ``realign_after`` agreeing rejections."""
         self._accepted_at = -math.inf  # when the gate last accepted a course
+        self._realigned = False  # the offset was set anew since the last step
         self._streak: list[float] = []  # the implied offsets of the rejections in a row
         self.events: list[tuple[str, dict[str, Any]]] = []
         """``(name, fields)`` for the log: gps_device, gps_course_rejected, gps_realigned."""
@@ -348,6 +427,7 @@ class GpsAiding:
             return False
         old = self.offset_deg
         self.offset_deg = implied
+        self._realigned = True
         self.realignments += 1
         self._accepted_at = now
         self._streak.clear()
@@ -365,36 +445,61 @@ class GpsAiding:
             return None
         return self._speed
 
-    # -- per message --
-    def on_message(self, msg: dict[str, Any], now: float) -> tuple[dict[str, Any], float]:
-        """The message as published (a new dict) and the bias correction to apply, deg/s."""
-        if "heading" not in msg:
-            return msg, 0.0
-        out = dict(msg)
-        h_hdr = float(msg["heading"])
-        is_step = "omega" in msg
-        omega = float(msg["omega"]) if is_step else 0.0
-        fix, course = self._trusted_course(h_hdr, omega, now)
+    # -- per step --
+    def on_step(self, view: StepView, now: float, owner: bool = False) -> Aid:
+        """What the aiding says of a step (:class:`Aid`), before its message is built; ``now``
+        the aiding's clock, s. owner: the method estimates the bias and the heading error
+        itself (HDR+: the heading is aligned once, then each good course is a measurement
+        for it, :class:`HeadingFix`); else (none, paper HDR) the offset follows the course
+        and a learned bias correction is returned for the static bias (the baselines)."""
+        h_hdr = view.heading_deg
+        fix, course = self._trusted_course(h_hdr, view.omega_dps, now)
+        reset, self._realigned = self._realigned, False  # the gate set the offset anew
+        heading_fix: HeadingFix | None = None
         if fix is not None and course is not None:
             if self.offset_deg is None:
                 self.offset_deg = wrap180(course - h_hdr)
-            elif is_step and abs(omega) <= self.config.align_max_rate_dps:
+                reset = True
+            elif view.step and abs(view.omega_dps) <= self.config.align_max_rate_dps:
                 err = wrap180(course - (h_hdr + self.offset_deg))
-                self.offset_deg = wrap180(self.offset_deg + self.config.align_gain * err)
+                if owner:
+                    heading_fix = HeadingFix(-err, self.course_var(fix, view.omega_dps), False)
+                else:
+                    self.offset_deg = wrap180(self.offset_deg + self.config.align_gain * err)
             self.mode = AIDED
         else:
             self.mode = DEAD_RECKONING
-        if self.offset_deg is not None:
-            out["heading"] = _compass(h_hdr + self.offset_deg)
-            out["heading_offset"] = self.offset_deg
-        out["mode"] = self.mode
-        if fix is not None:
-            out["gps_course"] = fix.track_deg
-        spd = self.speed(now)
-        if spd is not None:
-            out["gps_speed"] = spd
-        delta = self._learn(msg, course) if is_step else 0.0
-        return out, delta
+        if reset and owner:  # the heading's error restarts, known to the course's
+            var = self.course_var(fix, view.omega_dps) if fix is not None else math.nan
+            heading_fix = HeadingFix(0.0, var, True)
+        delta = self._learn(view, course) if view.step and not owner else 0.0
+        return Aid(
+            mode=self.mode,
+            heading_deg=None if self.offset_deg is None else _compass(h_hdr + self.offset_deg),
+            offset_deg=self.offset_deg,
+            course_deg=fix.track_deg if fix is not None else None,
+            course_age_s=round(max(0.0, now - self._course_at), 3)
+            if math.isfinite(self._course_at)
+            else None,
+            speed_mps=self.speed(now),
+            bias_delta_dps=delta,
+            fix=heading_fix,
+        )
+
+    def course_var(self, fix: FixLike, omega_dps: float) -> float:
+        """A course's variance as a measurement of the heading, deg^2: its error (95 %, / 1.96:
+        ``epd``; else from the speed error, ``atan(eps / speed)``, with ``eps`` at most
+        ``default_speed_err_mps`` when the fix gives none: a course is better the faster the
+        vehicle; at most ``default_course_err_deg``) and, in a turn, the latency the
+        carrying-forward may miss (``|omega| x latency_s``)."""
+        c = self.config
+        err = self.course_err_deg(fix)
+        spd = fix.speed_mps
+        if fix.epd is None and fix.eps is None and spd is not None and spd > 0.0:
+            err = min(err, math.degrees(math.atan2(c.default_speed_err_mps, spd)))
+        sd = err / 1.96
+        lag = abs(omega_dps) * self.config.latency_s
+        return sd * sd + lag * lag
 
     def _trusted_course(
         self, h_hdr: float, omega: float, now: float
@@ -420,28 +525,28 @@ class GpsAiding:
         self._prev_t, self._prev_course = t, course
         self._win_dt = self._win_yaw = self._win_course = 0.0
 
-    def _learn(self, msg: dict[str, Any], course: float | None) -> float:
+    def _learn(self, view: StepView, course: float | None) -> float:
+        """The static bias error a window of straight driving shows, times ``bias_gain``
+        (deg/s; 0.0 until a window completes): see the module doc."""
         c = self.config
-        t = msg.get("t")
-        raw, bias = msg.get("omega_raw"), msg.get("bias")
-        if course is None or t is None or raw is None or bias is None or "gap_s" in msg:
+        t = view.t
+        if course is None or view.gap:
             self._restart_window(None, None)
             return 0.0
-        t = float(t)
         if self._prev_t is None or self._prev_course is None:
             self._restart_window(t, course)
             return 0.0
         dt = t - self._prev_t
         dcourse = wrap180(course - self._prev_course)
         straight = (
-            abs(float(msg["omega"])) <= c.straight_max_dps and abs(dcourse) <= c.max_course_step_deg
+            abs(view.omega_dps) <= c.straight_max_dps and abs(dcourse) <= c.max_course_step_deg
         )
         if not (abs(dt - c.step_s) <= 0.5 * c.step_s and straight):
             self._restart_window(t, course)
             return 0.0
         self._prev_t, self._prev_course = t, course
         self._win_dt += dt
-        self._win_yaw += (float(raw) - float(bias)) * dt
+        self._win_yaw += (view.raw_dps - view.bias_dps) * dt
         self._win_course += dcourse
         if self._win_dt < c.bias_window_s - 1e-9:
             return 0.0

@@ -44,20 +44,18 @@ class AidedPipeline(Protocol):
 
     def set_speed(self, speed_mps: float | None) -> None: ...
 
-    def adjust_bias(self, delta_dps: float, source: str) -> None: ...
-
 
 class GpsdLink:
     """What ``hdrd run --gpsd`` adds to the run loop (edge).
 
     :meth:`poll` every loop turn: reads the fixes, stamps them with the monotonic clock,
     and feeds the GPS speed to the pipeline (``Pipeline.set_speed``; None when no fresh
-    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s). :meth:`aid` on each batch of messages before they are published: each gains
-    ``mode`` (and, while aided, the GPS-aligned heading, ``gps_course``, ...; see
-    :class:`hdrd.daemon.aiding.GpsAiding`), and a learned bias correction goes to
-    ``Pipeline.adjust_bias(delta, "gps")``. The aiding's events are logged: ``gps_device``
-    (the receiver followed) and ``gps_realigned`` each time, ``gps_course_rejected`` at most
-    every 10 s with the count since the last one.
+    fix); lines that could not be used are logged (``gpsd_bad_lines``, at most every 10 s).
+    The aiding itself (:class:`hdrd.daemon.aiding.GpsAiding`) is a stage of the pipeline,
+    which it is given to (``Pipeline.set_aiding``): the messages come out of the pipeline
+    aided. :meth:`log_mode` on each batch logs a change of mode and the aiding's events:
+    ``gps_device`` (the receiver followed) and ``gps_realigned`` each time,
+    ``gps_course_rejected`` at most every 10 s with the count since the last one.
     """
 
     def __init__(
@@ -99,23 +97,17 @@ class GpsdLink:
             )
             self._bad_logged, self._bad_log_at = bad, now
 
-    def aid(
-        self, msgs: list[Message], pipeline: AidedPipeline, now: float | None = None
-    ) -> list[Message]:
+    def log_mode(self, msgs: list[Message], now: float | None = None) -> None:
+        """Log a change of the aiding's mode (``gps_mode``) in the published messages, and the
+        aiding's events."""
         now = self._clock() if now is None else now
-        out = []
         for m in msgs:
-            m2, delta = self.aiding.on_message(m, now)
-            if delta:
-                pipeline.adjust_bias(delta, "gps")
-            mode = m2.get("mode")
+            mode = m.get("mode")
             if mode is not None and mode != self._mode:
                 self._mode = mode
-                fields_ = {k: m2[k] for k in ("heading", "gps_course", "gps_speed") if k in m2}
+                fields_ = {k: m[k] for k in ("heading", "gps_course", "gps_speed") if k in m}
                 log.info("gps_mode", mode=mode, **fields_)
-            out.append(m2)
         self._log_events(now)
-        return out
 
     def _log_events(self, now: float) -> None:
         """Log the aiding's events (rejections at most every BAD_LOG_INTERVAL_S)."""

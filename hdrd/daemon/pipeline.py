@@ -24,6 +24,7 @@ is left out, never sent as null or 0.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -36,6 +37,7 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
+from hdrd.daemon.aiding import Aid, GpsAiding, HeadingFix, StepView
 from hdrd.io.clocks import DeviceClock
 from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 
@@ -77,34 +79,49 @@ class PipelineConfig:
     :class:`hdrd.config.Config`."""
 
     sensor: SensorModel = SensorModel()
-    params: HdrParams = HdrParams()
-    method: str = "hdr"
-    bias_dps: float | None = None
-    """Static bias eps0, deg/s; None = measure it over the first startup_s at standstill."""
-    bias_record: BiasRecord | None = None
-    """The calibration record behind bias_dps (a bias file), when there is one: its spread
-    and sample count set HDR+'s prior on the bias. Ignored unless its bias is bias_dps."""
+    setup: methods.MethodSetup = methods.MethodSetup()
+    """The drift reducer's setup (:class:`hdrd.core.methods.MethodSetup`): the method, its
+    HDR parameters, the static bias and its record (None: measured over the first
+    ``startup_s`` at standstill), the gyro's error model; the stepper adds the gyro's samples
+    per step, the bias measured at start-up and the ADC's step (unless the setup knows the
+    gyro's output step otherwise, as a recorded log's lattice), and the method derives its
+    settings from it (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
     startup_s: float = 1.0
-    """Start-up calibration window, s, rounded up to whole steps (paper Sec. 6: 1 s)."""
+    """Start-up calibration window, s, rounded down to whole steps (at least one; paper
+    Sec. 6: 1 s)."""
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
-    context: methods.SettingsContext = methods.SettingsContext()
-    """What the configuration says about the method's settings (:func:`hdrd.config.
-    settings_context`: HDR+'s error model, ``standstill.*``); the stepper adds the gyro's
-    samples per step, the bias record (a bias file's carries the error model ``hdrd
-    calibrate`` measured) and the ADC's step, and the method derives its settings from it
-    (HDR+: :func:`hdrd.core.methods.plus_settings`). Its ``hdr`` is ``params``."""
+
+    @property
+    def params(self) -> HdrParams:
+        """The HDR parameters (the setup's; T is the step period, s)."""
+        return self.setup.hdr
+
+    @property
+    def method(self) -> str:
+        """The drift reducer's name (the setup's)."""
+        return self.setup.method
 
 
-def _given_bias(config: PipelineConfig) -> BiasRecord | None:
-    """The bias record of a configured bias (None: measure it at start-up)."""
-    if config.bias_dps is None:
-        return None
-    rec = config.bias_record
-    if rec is not None and rec.bias_dps == config.bias_dps:
-        return rec
-    return BiasRecord(config.bias_dps, 0.0, 0, 0.0)
+def _calibrated_at(rec: BiasRecord | None) -> float | None:
+    """When a record was measured, UNIX s (a bias file's); None: unknown (``--bias``)."""
+    return rec.time if rec is not None and rec.time > 0 else None
+
+
+def add_aid(msg: Message, aid: Aid) -> None:
+    """The aiding's keys of a message (docs/protocol.md): the aligned ``heading``,
+    ``heading_offset``, ``mode``, ``gps_course``, ``gps_age_s``, ``gps_speed``."""
+    if aid.heading_deg is not None:
+        msg["heading"] = aid.heading_deg
+        msg["heading_offset"] = aid.offset_deg
+    msg["mode"] = aid.mode
+    if aid.course_deg is not None:
+        msg["gps_course"] = aid.course_deg
+    if aid.course_age_s is not None:
+        msg["gps_age_s"] = aid.course_age_s
+    if aid.speed_mps is not None:
+        msg["gps_speed"] = aid.speed_mps
 
 
 # -- from a configuration ---------------------------------------------------------------------
@@ -117,22 +134,17 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
 
 
 def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
-    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, method and
-    HDR parameters, start-up window and standstill test, heading0, what the method's settings
-    are derived from (:func:`hdrd.config.settings_context`); the static bias of ``bias``
-    (None: measured at start-up)."""
-    from hdrd.config import settings_context
+    """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, the
+    method's setup (:func:`hdrd.config.method_setup`) with the static bias of ``bias`` (None:
+    measured at start-up), start-up window and standstill test, heading0."""
+    from hdrd.config import method_setup
 
     return PipelineConfig(
         sensor=cfg.sensor,
-        params=cfg.hdr.params,
-        method=cfg.hdr.method,
-        bias_dps=None if bias is None else bias.bias_dps,
-        bias_record=bias,
+        setup=method_setup(cfg, bias),
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
-        context=settings_context(cfg),
     )
 
 
@@ -149,11 +161,28 @@ class Stepper:
     log ("calibrated", "calibration_rejected", "bias_adjusted").
     """
 
-    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig = PipelineConfig(),
+        aiding: GpsAiding | None = None,
+        aid_clock: Callable[[], float] | None = None,
+    ) -> None:
         self.config = config
+        self.aiding = aiding
+        """The GPS aiding stage (None: none), :mod:`hdrd.daemon.aiding`."""
+        self.aid_clock = aid_clock
+        """The aiding's clock (the daemon's monotonic one); None: the step's device time."""
+        self._fix: HeadingFix | None = None  # the aiding's measurement for the next step
+        self._t_view = 0.0  # device time of the last step, s
         self.method = methods.get(config.method)
         self.state: Any = self.method.initial_state()
-        self.bias: BiasRecord | None = _given_bias(config)
+        self.bias: BiasRecord | None = config.setup.bias
+        self.bias_source = "calibration"
+        """What last changed the published bias (``bias_source``, docs/protocol.md)."""
+        self.calibrated_at = _calibrated_at(self.bias)
+        """When the static bias was measured, UNIX s (None: unknown)."""
+        self._bias_corr = 0.0  # the method's last correction to eps0, deg/s
+        self._just_calibrated = False  # the start-up window closed in this step
         self.window = StartupWindow.for_seconds(config.startup_s, config.params.T, config.limits)
         self.events: list[tuple[str, dict[str, Any]]] = []
         self.speed_mps: float | None = None
@@ -174,10 +203,10 @@ class Stepper:
 
     def reconfigure(self, config: PipelineConfig) -> None:
         """New parameters, method or bias; the state (heading, controller) is kept."""
-        if config.bias_dps is not None and (
-            self.bias is None or config.bias_dps != self.bias.bias_dps
-        ):
-            self.bias = _given_bias(config)
+        given = config.setup.bias
+        if given is not None and (self.bias is None or given.bias_dps != self.bias.bias_dps):
+            self.bias = given
+            self.bias_source, self.calibrated_at = "calibration", _calibrated_at(self.bias)
         self.config = config
         method = methods.get(config.method)
         if method is not self.method:  # a new method continues the heading
@@ -192,6 +221,7 @@ class Stepper:
         if self.bias is None or delta_dps == 0.0:
             return
         self.bias = replace(self.bias, bias_dps=self.bias.bias_dps + delta_dps)
+        self.bias_source = source
         self.events.append(
             (
                 "bias_adjusted",
@@ -206,13 +236,18 @@ class Stepper:
 
     def input_for(self, block: Block) -> StepInput:
         """The method's input for a block: u = block mean - eps0 (Eqs. 2, 11), the samples'
-        spread, the speed set last (NaN = unknown), the block's temperature, T."""
+        spread, the speed set last (NaN = unknown), the block's temperature, T; and the GPS
+        course's measurement of the heading error the aiding stage made at the step before,
+        if any (a method that estimates the bias itself: HDR+)."""
         assert self.bias is not None
         temp = math.nan if block.temp_c is None else block.temp_c
         speed = math.nan if self.speed_mps is None else self.speed_mps
-        return StepInput(
-            block.mean - self.bias.bias_dps, block.std, speed, temp, self.config.params.T
-        )
+        fix, self._fix = self._fix, None
+        T = self.config.params.T
+        u = block.mean - self.bias.bias_dps
+        if fix is None:
+            return StepInput(u, block.std, speed, temp, T)
+        return StepInput(u, block.std, speed, temp, T, fix.err_deg, fix.var_deg2, fix.reset)
 
     def prepare(self, block: Block) -> StepInput | None:
         """A block closed: None while calibrating (it was a step of the start-up window),
@@ -230,14 +265,14 @@ class Stepper:
         """The method's settings for this gyro and drive (:mod:`hdrd.core.methods`): the config,
         the samples per step, the bias record (HDR+: :func:`hdrd.core.methods.plus_settings`)."""
         if self._settings is None:
-            ctx = replace(
-                self.config.context,
-                hdr=self.config.params,
-                samples_per_step=self.samples_per_step,
-                bias=self.bias,
-                quant_step_dps=self.config.sensor.lsb_dps,  # the ADC's output step, deg/s
+            setup = self.config.setup
+            q = setup.quant_step_dps
+            setup = setup.for_drive(
+                self.samples_per_step,
+                self.bias,
+                self.config.sensor.lsb_dps if q is None else q,  # else the ADC's output step
             )
-            self._settings = self.method.settings(ctx)
+            self._settings = self.method.settings(setup)
         return self._settings
 
     def step(self, block: Block) -> methods.Published | None:
@@ -267,19 +302,16 @@ class Stepper:
         msg["t"] = t
         msg["step"] = step
         msg["omega_raw"] = block.mean
+        self._t_view = t
+        aided = self._fix is not None  # a GPS measurement goes into this step
         pub = self.step(block)
         if pub is None or self.bias is None:
             status = "calibrating"
+            aid = None
         else:
-            core = pub.core
-            msg["omega"] = core["omega"]
-            msg["yaw"] = core["yaw"]
-            msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
-            for key in ("I", "W", "R", "r"):
-                msg[key] = core[key]
-            msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
-            status = "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
-            msg.update(pub.extra)
+            status = self._step_fields(msg, pub, aided)
+            aid = self._aid(StepView(t, pub.core["omega"], block.mean, msg["bias"],
+                                     msg["heading"], gap_s > 0))  # fmt: skip
         msg["samples"] = block.n
         msg["bad_frames"] = bad_frames
         msg["status"] = status
@@ -289,7 +321,62 @@ class Stepper:
             msg["gap_s"] = gap_s
         if block.saturated:
             msg["saturated"] = block.saturated
+        self.add_bias_origin(msg, now)
+        if aid is not None:
+            add_aid(msg, aid)
         return msg
+
+    def _step_fields(self, msg: Message, pub: methods.Published, aided: bool) -> str:
+        """A step's fields from the method's output (rate, yaw, heading, the controller, the
+        bias in force and the method's own); its status."""
+        assert self.bias is not None
+        core = pub.core
+        msg["omega"] = core["omega"]
+        msg["yaw"] = core["yaw"]
+        msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
+        for key in ("I", "W", "R", "r"):
+            msg[key] = core[key]
+        msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
+        if pub.bias_corr_dps != self._bias_corr:  # the method moved it (HDR+)
+            self._bias_corr = pub.bias_corr_dps
+            self.bias_source = "gps" if aided else "stops" if pub.standstill else "driving"
+        msg.update(pub.extra)
+        return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
+
+    def _aid(self, view: StepView) -> Aid | None:
+        """The GPS aiding stage on a step (None without one): a method that estimates the bias
+        itself takes the course as its next step's measurement; for the others a learned
+        correction moves the static bias."""
+        if self.aiding is None:
+            return None
+        now = self.aid_clock() if self.aid_clock is not None else view.t
+        aid = self.aiding.on_step(view, now, owner=self.method.bias_model)
+        if aid.fix is not None:
+            self._fix = aid.fix
+        if aid.bias_delta_dps:
+            self.adjust_bias(aid.bias_delta_dps, "gps")
+        return aid
+
+    def held_aid(self, msg: Message) -> None:
+        """The aiding's view of a report of the held heading (no new step: nothing is learned
+        or measured), added to ``msg``."""
+        if self.aiding is None or "heading" not in msg or self.bias is None:
+            return
+        view = StepView(self._t_view, 0.0, math.nan, msg["bias"], msg["heading"], step=False)
+        now = self.aid_clock() if self.aid_clock is not None else view.t
+        add_aid(msg, self.aiding.on_step(view, now, owner=self.method.bias_model))
+
+    def add_bias_origin(self, msg: Message, now: float | None) -> None:
+        """``bias_source`` and ``calib_age_s`` (s since the static bias was measured, by the
+        host clock ``now``; absent when unknown) added to a message that has a ``bias``."""
+        if self._just_calibrated:  # the start-up window closed in this message's step
+            self._just_calibrated = False
+            self.calibrated_at = now
+        if "bias" not in msg:
+            return
+        msg["bias_source"] = self.bias_source
+        if now is not None and self.calibrated_at is not None and now >= self.calibrated_at:
+            msg["calib_age_s"] = round(now - self.calibrated_at, 3)
 
     def _calibration_step(self) -> None:
         """A calibration block closed (its samples are in the window): measure once the
@@ -304,6 +391,7 @@ class Stepper:
         if rec is None:
             return
         self.bias = rec
+        self.bias_source, self._just_calibrated = "calibration", True
         self.events.append(
             (
                 "calibrated",
@@ -324,16 +412,25 @@ class Pipeline:
     "calibration_rejected"); the edge drains it.
     """
 
-    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig = PipelineConfig(),
+        aiding: GpsAiding | None = None,
+        aid_clock: Callable[[], float] | None = None,
+    ) -> None:
         self.config = config
         self._clock = DeviceClock()
         self._avg = BlockAverager(config.params.T)
-        self.stepper = Stepper(config)
+        self.stepper = Stepper(config, aiding, aid_clock)
         self._step_offset = 0  # step numbers continue across a device resync
         self._t_offset = 0.0  # device seconds continue across a device resync
         self._last_step: int | None = None
         self._t_last = 0.0
         self._pending_gap_s = 0.0
+        self.frames = 0
+        """Frames fed since start (the link's good frames), published as ``frames``."""
+        self.reconnects = 0
+        """Times the device came back (:meth:`resync`), published as ``reconnects``."""
 
     # -- state ---------------------------------------------------------------------------
 
@@ -381,6 +478,18 @@ class Pipeline:
         self.config = config
         self.stepper.reconfigure(config)
 
+    def set_aiding(
+        self, aiding: GpsAiding | None, aid_clock: Callable[[], float] | None = None
+    ) -> None:
+        """A GPS aiding stage (None: none) and its clock, from the next step on (a new gpsd
+        connection after SIGHUP)."""
+        self.stepper.aiding, self.stepper.aid_clock = aiding, aid_clock
+
+    @property
+    def aiding(self) -> GpsAiding | None:
+        """The GPS aiding stage, if any."""
+        return self.stepper.aiding
+
     def set_speed(self, speed_mps: float | None) -> None:
         """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
         the next closed step (standstill detection); the edge keeps it fresh."""
@@ -400,6 +509,7 @@ class Pipeline:
 
         bad_frames: corrupt frames counted so far, published as is. now: UNIX time to stamp.
         """
+        self.frames += 1
         t = self._clock.unwrap(frame.t_us)
         if t is None:
             return []
@@ -425,6 +535,7 @@ class Pipeline:
         before frame i in the byte stream.
         """
         n = frames.shape[0]
+        start = self.frames  # frames fed before these
         bad = np.zeros(n, np.int64) if bad_before is None else np.asarray(bad_before, np.int64)
         out: list[Message] = []
         i = 0
@@ -455,7 +566,9 @@ class Pipeline:
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
         for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
+            self.frames = start + int(keep[pos]) + 1  # as feed() counts at the closing frame
             out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
+        self.frames = start + n
         return out
 
     def finish(self, bad_frames: int = 0, now: float | None = None) -> list[Message]:
@@ -473,6 +586,7 @@ class Pipeline:
         a gap within a connection: the steps missed are skipped, not invented.
         """
         out = self.finish(bad_frames, now)
+        self.reconnects += 1
         if self._last_step is not None:
             missed = int(gap_s // self.config.params.T) if gap_s and gap_s > 0 else 0
             self._step_offset = self._last_step + 1 + missed
@@ -507,7 +621,10 @@ class Pipeline:
         self._t_last = self._t_offset + block.t_end
         gap = self._pending_gap_s
         self._pending_gap_s = 0.0
-        return self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        msg["frames"] = self.frames
+        msg["reconnects"] = self.reconnects
+        return msg
 
     def sample_interval_s(self) -> float | None:
         """Sample interval of the open block, device s: (last - block start) / (n - 1), never
@@ -553,6 +670,10 @@ class Pipeline:
         msg["bad_frames"] = bad_frames
         msg["status"] = status
         msg["stale_s"] = silent_s
+        self.stepper.add_bias_origin(msg, now)
+        self.stepper.held_aid(msg)
+        msg["frames"] = self.frames
+        msg["reconnects"] = self.reconnects
         return msg
 
 

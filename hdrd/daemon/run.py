@@ -212,7 +212,8 @@ class Daemon:
         self.watchdog = WatchdogGate(self.notifier.watchdog_s)
         self._dropped_logged = 0
         self._dropped_log_at = -math.inf
-        self.gps = _gps_link(cfg)  # GPS aiding through gpsd
+        self.gps = _gps_link(cfg)  # GPS aiding through gpsd: a stage of the pipeline
+        self._aid_pipeline()
         # Set by _start: the input, its name, and the pacing of a serial port's reads.
         self.src: Source | None = None
         self.src_name = ""
@@ -460,6 +461,12 @@ class Daemon:
             if pause:
                 time.sleep(pause)
 
+    def _aid_pipeline(self) -> None:
+        """The gpsd link's aiding as the pipeline's stage (none without a link), on the
+        monotonic clock the link stamps fixes with."""
+        aiding = self.gps.aiding if self.gps is not None else None
+        self.pipeline.set_aiding(aiding, time.monotonic if aiding is not None else None)
+
     # -- publishing ------------------------------------------------------------------------
 
     # systemd status line, like gpsd's: what a `systemctl status hdrd` reader wants to see
@@ -471,8 +478,8 @@ class Daemon:
     def _publish(self, msgs: list[Message], steps: bool = True) -> None:
         if msgs:
             self.watchdog.progress()
-        if self.gps is not None:  # mode, GPS-aligned heading; learned bias -> pipeline
-            msgs = self.gps.aid(msgs, self.pipeline)
+        if self.gps is not None:  # the aiding is the pipeline's: log its mode and events
+            self.gps.log_mode(msgs)
         for m in msgs:
             for p in self.publishers:
                 try:
@@ -549,6 +556,7 @@ class Daemon:
             if self.gps is not None:
                 self.gps.close()
             self.gps = _gps_link(cfg)
+            self._aid_pipeline()
             log.info(
                 "gpsd_reconfigured",
                 enabled=cfg.gpsd.enabled,

@@ -28,6 +28,7 @@ import numpy.typing as npt
 from hdrd.errors import clipped
 from hdrd.io.drivelog import (
     DEFAULT_READ_LIMITS,
+    HEADING_LIMIT_DEG,
     DriveLog,
     DriveLogError,
     ReadLimits,
@@ -47,6 +48,7 @@ __all__ = [
     "Mapping",
     "convert",
     "import_csv",
+    "unit_warnings",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -148,6 +150,7 @@ def convert(
     out["omega"] = arrays["omega"] * (OMEGA_UNITS[mapping.omega_unit] * sign)
     if "heading_truth" in arrays:
         h = arrays["heading_truth"] * HEADING_UNITS[mapping.heading_unit]
+        _check_heading(arrays["heading_truth"], h, mapping, where, shown["heading_truth"])
         if mapping.heading_ref == "enu":
             h = 90.0 - h
         with np.errstate(invalid="ignore"):
@@ -167,6 +170,27 @@ def convert(
             "to 0.1 ms (10 kHz at most)"
         )
     return DriveLog(**out)  # type: ignore[arg-type]
+
+
+def _check_heading(
+    raw: FloatArray, deg: FloatArray, mapping: Mapping, where: Callable[[int], str], shown: str
+) -> None:
+    """SourceCsvError for a heading beyond a turn either way (+/- :data:`HEADING_LIMIT_DEG`,
+    in degrees, before it is wrapped: 999 would become 279 and -1e300 0), naming the unit
+    option when the value would fit in the other unit."""
+    with np.errstate(invalid="ignore"):
+        out = np.abs(deg) > HEADING_LIMIT_DEG
+    if not out.any():
+        return
+    i = int(np.flatnonzero(out)[0])
+    hint = ""
+    if mapping.heading_unit == "rad" and abs(raw[i]) <= HEADING_LIMIT_DEG:
+        hint = "; is the column in degrees? --heading-unit deg"
+    raise SourceCsvError(
+        f"{where(i)}: column {shown}: {raw[i]:.6g} {mapping.heading_unit} is outside +/-"
+        f"{HEADING_LIMIT_DEG:g} deg; a heading is a direction (not unwrapped, not a "
+        f"placeholder such as 999){hint}"
+    )
 
 
 def _header(lines: Iterator[str], label: str, delimiter: str) -> tuple[list[str], int]:
@@ -237,12 +261,14 @@ def _seconds(
     t_src: npt.NDArray[np.float64], t_int: array[int] | None, scale: float
 ) -> npt.NDArray[np.float64]:
     """The times in seconds from the first row; integers are subtracted exactly before they
-    are scaled; an empty time stays empty (NaN: refused by the checks)."""
+    are scaled (unless two are further apart than an int64 holds: a time that went back past
+    the integers' wrap); an empty time stays empty (NaN: refused by the checks)."""
+    t_s = (t_src - t_src[0]) * scale
     if t_int is not None:
         ti64 = np.frombuffer(t_int, dtype=np.int64)
-        t_s = (ti64 - ti64[0]).astype(np.float64) * scale
-    else:
-        t_s = (t_src - t_src[0]) * scale
+        d = ti64 - ti64[0]  # wraps where beyond int64: the sign says where
+        if not (((ti64 ^ ti64[0]) & (ti64 ^ d)) < 0).any():
+            t_s = d.astype(np.float64) * scale
     t_s[np.isnan(t_src)] = math.nan
     return t_s
 
@@ -279,6 +305,52 @@ def import_csv(
         name=Path(path).stem,
         meta={"source": f"hdrd import {Path(path).name}", **_described(mapping)},
     )
+
+
+MIN_RATE_HZ = 0.5
+"""Below this rate, Hz, :func:`unit_warnings` suspects the time unit: a gyro logs at 1 Hz or
+more (a millisecond column read as seconds gives 0.01 Hz at 10 Hz)."""
+TURN_DPS = 3.0
+"""A rate above this, deg/s, counts as turning in :func:`unit_warnings` (a gyro's bias stays
+below it)."""
+MIN_TURN_DEG = 90.0
+"""Turning the rate must show, deg, before a heading that barely moves is suspected."""
+
+
+def unit_warnings(log: DriveLog, mapping: Mapping) -> list[str]:
+    """What an imported log suggests of a wrong unit, each naming the option that fixes it:
+    times that give fewer than :data:`MIN_RATE_HZ` samples a second (a millisecond column
+    read as seconds), and a heading that moves within 2 pi degrees while the rate turns at
+    least :data:`MIN_TURN_DEG` (radians read as degrees)."""
+    out = []
+    if len(log) > 2:
+        step = float(np.median(np.diff(log.t)))
+        rate = 1.0 / step
+        if rate < MIN_RATE_HZ:
+            here = TIME_UNITS[mapping.time_unit]
+            fits = [
+                (abs(math.log10(rate * here / scale / 100.0)), u)
+                for u, scale in TIME_UNITS.items()
+                if 1.0 <= rate * here / scale <= 10_000.0
+            ]
+            hint = f"; is it in {min(fits)[1]}? --time-unit {min(fits)[1]}" if fits else ""
+            out.append(
+                f"column {mapping.t!r} (--t) gives a sample every {step:.6g} s ({rate:.3g} Hz, "
+                f"{len(log)} rows over {log.duration_s:,.1f} s); a gyro logs at 1 Hz or more{hint}"
+            )
+    h = log.heading_truth
+    if h is not None and mapping.heading_unit == "deg" and np.isfinite(h).sum() > 1:
+        ok = np.isfinite(h)
+        moved = np.degrees(np.unwrap(np.radians(h[ok])))
+        span = float(moved.max() - moved.min())
+        w = np.abs(log.omega)
+        turned = float(np.sum(np.where(w[1:] > TURN_DPS, w[1:], 0.0) * np.diff(log.t)))
+        if turned >= MIN_TURN_DEG and span <= 2 * math.pi + 0.01:  # radians, as degrees
+            out.append(
+                f"column {mapping.heading!r} (--heading) moves within {span:.3g} deg while the "
+                f"rate turns {turned:.0f} deg; is it in radians? --heading-unit rad"
+            )
+    return out
 
 
 def _described(mapping: Mapping) -> dict[str, str]:

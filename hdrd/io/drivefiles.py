@@ -90,16 +90,47 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
     return [DriveRef(str(path), drive_name(name or path.stem))]
 
 
-def _scan(root: Path) -> list[Path]:
+def _not_a_file(path: Path) -> str | None:
+    """Why ``path`` (found or named as a drive log) is not a file to read, or None: a link to
+    nothing, a FIFO (reading it would wait for a writer), a socket, a device."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as e:
+        if os.path.islink(path):
+            return f"{shown_path(path)}: a symbolic link to nothing"
+        return f"{shown_path(path)}: cannot be read ({e.strerror or e})"
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    kind = "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+    return f"{shown_path(path)}: is {kind}, not a drive log file"
+
+
+def _scan(root: Path, problems: list[str]) -> list[Path]:
     """Drive logs under a directory at any depth, sorted: ``*.csv`` and ``*.parquet`` files,
-    and partition directories ``drive=NAME`` (whose files are that drive's)."""
+    and partition directories ``drive=NAME`` (whose files are that drive's). What is left out
+    is said in ``problems``: a folder that cannot be read, and a FIFO, socket, device or link
+    to nothing named as a drive log."""
+
+    def unreadable(e: OSError) -> None:
+        where = shown_path(e.filename) if e.filename else "a folder"
+        problems.append(f"{where}: a folder that cannot be read ({e.strerror or e})")
+
     found: list[Path] = []
-    for dirpath, dirnames, filenames in os.walk(root):
+    for dirpath, dirnames, filenames in os.walk(root, onerror=unreadable):
         here = Path(dirpath)
         found.extend(here / d for d in dirnames if d.startswith(PARTITION_PREFIX))
         dirnames[:] = [d for d in dirnames if not d.startswith(PARTITION_PREFIX)]
         found.extend(here / f for f in filenames if f.endswith((CSV_SUFFIX, PARQUET_SUFFIX)))
-    return sorted(f for f in found if f.is_dir() or f.is_file())
+    out = []
+    for f in found:
+        why = _not_a_file(f)
+        if why is None:
+            out.append(f)
+        else:
+            problems.append(why)
+    return sorted(out)
 
 
 def _partition(path: Path, parent: str = ".") -> DriveRef:
@@ -110,9 +141,9 @@ def _partition(path: Path, parent: str = ".") -> DriveRef:
     return DriveRef(str(path), drive_name(value if parent == "." else f"{parent}/{value}"))
 
 
-def _in_dir(root: Path, given: str) -> list[DriveRef]:
+def _in_dir(root: Path, given: str, problems: list[str]) -> list[DriveRef]:
     out: list[DriveRef] = []
-    for f in _scan(root):
+    for f in _scan(root, problems):
         rel = f.relative_to(root)
         if f.is_dir():
             out.append(_partition(f, rel.parent.as_posix()))
@@ -123,24 +154,27 @@ def _in_dir(root: Path, given: str) -> list[DriveRef]:
     return out
 
 
-def _one(path: Path, given: str) -> list[DriveRef]:
+def _one(path: Path, given: str, problems: list[str]) -> list[DriveRef]:
     if path.is_dir():
         if path.name.startswith(PARTITION_PREFIX):
             return [_partition(path)]
-        return _in_dir(path, given)
+        return _in_dir(path, given, problems)
     if path.exists():
-        return _in_file(path, "")
+        return _in_file(path, "")  # (reading it refuses a FIFO or a device)
     raise DriveLogError(f"{given}: no such file")
 
 
-def find_drives(paths: Sequence[str]) -> list[DriveRef]:
+def find_drives(paths: Sequence[str], problems: list[str] | None = None) -> list[DriveRef]:
     """The drives named, in order: a file as given (a CSV, a Parquet file: named by its stem;
     a Parquet file with a ``drive`` column: each of its drives, named by the value), a
     directory searched at any depth (sorted; named by the path inside it without the suffix),
     a partition directory ``drive=NAME``, or a glob (``'fleet/**/*.parquet'``, quoted so that
     the shell leaves it: a fleet may be more files than a command line holds), expanded
     sorted. DriveLogError for a path that does not exist, a glob that matches nothing or a
-    directory without logs."""
+    directory without logs. What a directory's scan leaves out (a
+    folder that cannot be read, a FIFO, socket, device or link to nothing named as a drive
+    log) is added to ``problems``, one line each."""
+    problems = [] if problems is None else problems
     out: list[DriveRef] = []
     for p in paths:
         path = Path(p)
@@ -149,9 +183,13 @@ def find_drives(paths: Sequence[str]) -> list[DriveRef]:
             if not matches:
                 raise DriveLogError(f"{p}: no file matches")
             for m in matches:
-                out.extend(_one(Path(m), m))
+                why = _not_a_file(Path(m))
+                if why is not None:  # a glob is a scan: its odd matches are left out, said
+                    problems.append(why)
+                    continue
+                out.extend(_one(Path(m), m, problems))
         else:
-            out.extend(_one(path, p))
+            out.extend(_one(path, p, problems))
     return out
 
 

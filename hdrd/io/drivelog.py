@@ -23,6 +23,7 @@ import csv
 import io
 import math
 import os
+import re
 import shlex
 import stat
 from array import array
@@ -51,11 +52,14 @@ __all__ = [
     "TEMP_LIMITS_C",
     "ReadLimits",
     "check_columns",
+    "converted_name",
     "csv_values",
+    "escape_meta",
     "open_regular",
     "parse_cell",
     "read_drive",
     "text_lines",
+    "unescape_meta",
     "write_drive",
 ]
 
@@ -73,6 +77,7 @@ COLUMNS = (
 REQUIRED = ("t", "omega")
 OPTIONAL = COLUMNS[2:]
 DIRECTION_COLUMNS = ("heading_truth", "gps_course")
+SPEED_COLUMNS = ("speed", "gps_speed")
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -260,9 +265,9 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
     for protocol in ("hdr-bin", "hdr-text"):
         frames, _ = decode_capture(head, protocol)
         if frames.shape[0] >= 3:
-            stem = Path(path).stem or "drive"
             given = str(path) if len(str(path)) <= 80 else Path(path).name
-            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(stem + '.csv')}"
+            out = converted_name(path)
+            cmd = f"hdrd convert {shlex.quote(given)} --out {shlex.quote(out)}"
             return (
                 f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
                 f"make one with `{clipped(printable(cmd), 200)}`"
@@ -275,6 +280,15 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
             "docs/drive-format.md)"
         )
     return None
+
+
+def converted_name(capture: str | os.PathLike[str]) -> str:
+    """The drive log's file name to suggest for ``hdrd convert CAPTURE``: the capture's stem
+    with ``.csv``, or with ``-drive.csv`` when that is the capture's own name (a capture
+    renamed ``x.csv``: converting it onto itself would lose it)."""
+    p = Path(capture)
+    stem = p.stem or "drive"
+    return stem + ("-drive.csv" if p.name == stem + ".csv" else ".csv")
 
 
 def text_lines(f: io.TextIOBase | BinaryIO, label: str) -> Iterator[str]:
@@ -314,12 +328,58 @@ def _meta_and_header(lines: Iterator[str], label: str) -> tuple[dict[str, str], 
         if not s:
             continue
         if s.startswith("#"):
-            k, _, v = s[1:].partition(":")
-            if v:
-                meta[k.strip()] = v.strip()
+            k, colon, v = s[1:].partition(":")
+            if colon:
+                meta[unescape_meta(k.strip())] = unescape_meta(v.strip())
             continue
         return meta, s, lineno
     raise DriveLogError(f"{label}: empty file, expected a header line 't,omega,...'")
+
+
+_UNESCAPE = re.compile(r"\\(\\|n|r|t|x[0-9a-fA-F]{2}|u[0-9a-fA-F]{4}|U[0-9a-fA-F]{8})")
+
+
+def escape_meta(text: str, key: bool = False) -> str:
+    """A metadata key or value as its ``# key: value`` line holds it, on that one line: a
+    backslash as ``\\\\``, a line break, tab or any other character a terminal could act on as
+    its Python escape (``\\n``, ``\\t``, ``\\x1b``, ``\\u2028``), a space at either end as
+    ``\\x20`` (the reader strips the line), and in a ``key`` a ``:`` as ``\\x3a`` (the line
+    splits at its first colon). A value from data (a file's name in ``source``) can then never
+    add a line of its own. :func:`unescape_meta` undoes it."""
+    plain = text.isprintable() and "\\" not in text and not (key and ":" in text)
+    if plain and text.strip(" ") == text:
+        return text
+    out = []
+    for c in text:
+        if c == "\\":
+            out.append("\\\\")
+        elif key and c == ":":
+            out.append("\\x3a")
+        else:
+            out.append(c if c.isprintable() else repr(c)[1:-1])
+    line = "".join(out)
+    if line.startswith(" "):
+        line = "\\x20" + line[1:]
+    if line.endswith(" "):
+        line = line[:-1] + "\\x20"
+    return line
+
+
+def unescape_meta(text: str) -> str:
+    """A metadata key or value as :func:`escape_meta` wrote it, back to its text; a backslash
+    that starts no escape is kept as it is (a value written before escaping reads the same
+    unless it held one)."""
+    if "\\" not in text:
+        return text
+
+    def one(m: re.Match[str]) -> str:
+        code = m.group(1)
+        if len(code) == 1:
+            return {"\\": "\\", "n": "\n", "r": "\r", "t": "\t"}[code]
+        n = int(code[1:], 16)
+        return chr(n) if n <= 0x10FFFF else m.group(0)
+
+    return _UNESCAPE.sub(one, text)
 
 
 def _header(header_line: str, label: str, lineno: int) -> list[str]:
@@ -401,8 +461,8 @@ def check_columns(
 ) -> None:
     """The checks every drive log passes, whatever its file format: ``valid`` is 0 or 1 in
     every row, ``t`` and ``omega`` are present in every row, no value is infinite, directions
-    within +/- :data:`HEADING_LIMIT_DEG`, ``temp_c`` within :data:`TEMP_LIMITS_C`, ``t``
-    strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
+    within +/- :data:`HEADING_LIMIT_DEG`, speeds not negative, ``temp_c`` within
+    :data:`TEMP_LIMITS_C`, ``t`` strictly increases; and, unless ``limits`` is None, its :class:`ReadLimits`. ``where(i)``
     names row i for the message (``file:line`` for a CSV, ``file: row N`` for Parquet);
     ``names`` what to call a column in it (``hdrd import``: the source's own column).
     DriveLogError on the first problem."""
@@ -460,7 +520,7 @@ def _check_present_and_finite(
 def _check_ranges(
     arrays: dict[str, FloatArray], where: Callable[[int], str], col: Callable[[str], str]
 ) -> None:
-    """:func:`check_columns`: directions and temperatures within their limits."""
+    """:func:`check_columns`: directions, speeds and temperatures within their limits."""
     for c in DIRECTION_COLUMNS:
         if c not in arrays:
             continue
@@ -474,6 +534,16 @@ def _check_ranges(
                 f"[-{HEADING_LIMIT_DEG:g}, {HEADING_LIMIT_DEG:g}]; a compass heading is in "
                 "[0, 360) (a signed one in [-180, 180] is taken too), not unwrapped"
             )
+    for c in SPEED_COLUMNS:
+        if c in arrays:
+            with np.errstate(invalid="ignore"):
+                neg = arrays[c] < 0.0  # NaN (empty) is not
+            if neg.any():
+                i = int(np.flatnonzero(neg)[0])
+                raise DriveLogError(
+                    f"{where(i)}: column {col(c)}: {float(arrays[c][i]):.6g} m/s is negative; a "
+                    "speed is a magnitude, >= 0 (reversing too)"
+                )
     if "temp_c" in arrays:
         lo, hi = TEMP_LIMITS_C
         tc = arrays["temp_c"]
@@ -570,17 +640,24 @@ def csv_values(column: str, values: FloatArray) -> FloatArray:
 
 
 def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
-    """Write a drive log CSV (metadata as leading '# key: value' lines)."""
+    """Write a drive log CSV (metadata as leading '# key: value' lines). A path is written
+    whole or not at all (:func:`hdrd.io.files.atomic_output`: its folder must exist; a
+    character device or a FIFO is written through); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
-        with open(path, "w", newline="", encoding="utf-8") as f:
+        from hdrd.io.files import atomic_output
+
+        with atomic_output(path) as raw:
+            f = io.TextIOWrapper(raw, "utf-8", newline="")
             _write(f, log)
+            f.flush()
+            f.detach()  # the file stays open: atomic_output syncs and closes it
     else:
         _write(path, log)
 
 
 def _write(f: io.TextIOBase, log: DriveLog) -> None:
     for k, v in log.meta.items():
-        f.write(f"# {k}: {v}\n")
+        f.write(f"# {escape_meta(k, key=True)}: {escape_meta(v)}\n")
     cols = log.columns()
     f.write(",".join(cols) + "\n")
     data = [getattr(log, c).tolist() for c in cols]

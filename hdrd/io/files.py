@@ -8,9 +8,12 @@ a number with more digits than Python converts, an impossible date) becomes one
 (:class:`hdrd.config.ConfigError`, :class:`hdrd.io.biasfile.BiasFileError`, the capture
 commands' message).
 
-Writing: the bias file, and the ``--json``/``--out``/``--report`` files of evaluate, tune and
-gap, are written whole or not at all (:func:`atomic_write_text`, :func:`atomic_write_json`),
-so a reader or a power cut sees the old or the new content. :func:`default_bias_path` is where
+Writing: the bias file, the ``--json``/``--out``/``--report`` files of evaluate, tune and
+gap, and drive logs are written whole or not at all (:func:`atomic_output`,
+:func:`atomic_write_text`, :func:`atomic_write_json`), so a reader or a power cut sees the old
+or the new content. A character device or a FIFO named as the output (``/dev/null``,
+``/dev/stdout``, a named pipe) is written through, never replaced by a regular file; a
+directory, a block device or a socket is refused (:class:`OutputFileError`). :func:`default_bias_path` is where
 the bias file lives when none is named. A name that comes from data (a drive's name: a
 Parquet ``drive`` value, a hive folder ``drive=NAME``) becomes a path only through
 :func:`path_inside`, which refuses any name that would lead out of the output folder.
@@ -18,13 +21,15 @@ Parquet ``drive`` value, a hive folder ``drive=NAME``) becomes a path only throu
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import glob
 import os
 import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from hdrd.errors import HdrdError, clipped
 
@@ -35,15 +40,19 @@ __all__ = [
     "MAX_NAME_BYTES",
     "MAX_YAML_DEPTH",
     "InputFileError",
+    "OutputFileError",
     "UnsafeNameError",
+    "atomic_output",
     "atomic_write_json",
     "atomic_write_text",
     "default_bias_path",
     "load_yaml",
+    "missing_folder",
     "path_inside",
     "printable",
     "read_limited",
     "shown_path",
+    "size_text",
 ]
 
 MAX_CONFIG_BYTES = 1 << 20
@@ -89,11 +98,10 @@ def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            kind = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
-            raise InputFileError(f"is {kind}, not a regular file")
+            raise InputFileError(f"is {_kind(st.st_mode)}, not a regular file")
         if st.st_size > max_bytes:
             raise InputFileError(
-                f"is {_size(st.st_size)}, larger than the {_size(max_bytes)} allowed"
+                f"is {size_text(st.st_size)}, larger than the {size_text(max_bytes)} allowed"
             )
         chunks: list[bytes] = []
         got = 0
@@ -104,13 +112,14 @@ def read_limited(path: str | os.PathLike[str], max_bytes: int) -> bytes:
             chunks.append(chunk)
             got += len(chunk)
             if got > max_bytes:
-                raise InputFileError(f"grew beyond the {_size(max_bytes)} allowed while read")
+                raise InputFileError(f"grew beyond the {size_text(max_bytes)} allowed while read")
         return b"".join(chunks)
     finally:
         os.close(fd)
 
 
-def _size(n: int) -> str:
+def size_text(n: int) -> str:
+    """A size in bytes for a message: ``1.5 GiB``, ``64 KiB``, ``300 bytes``."""
     for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
         if n >= 1 << shift:
             return f"{n / (1 << shift):.3g} {unit}"
@@ -250,40 +259,90 @@ def _remove_stale_temps(target: Path) -> None:
             os.close(fd)
 
 
-def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
-    """Write a file so that a reader (or a power cut) sees the old or the new content, whole.
+class OutputFileError(HdrdError, OSError):
+    """A file that cannot be written where it is named: ``str()`` says why (its folder does
+    not exist; a directory, a block device or a socket is there)."""
 
-    Temp file in the same directory (``.NAME.PID.RANDOM.tmp``, unique, flocked by its writer
-    until renamed), fsync, chmod, rename over the target, fsync the directory. Temp files
-    that an earlier writer left behind (killed, or a power cut, before its rename) are
-    removed first, so they never pile up; a live concurrent writer's is left alone, so
-    writers may run at once (the last rename wins, each file whole).
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+
+
+@contextlib.contextmanager
+def atomic_output(
+    path: str | os.PathLike[str], mode: int = 0o644, make_parents: bool = False
+) -> Iterator[IO[bytes]]:
+    """A binary file to write ``path`` through, so that a reader (or a power cut) sees the old
+    or the new content, whole. What ``path`` is decides how:
+
+    - nothing, or a regular file (a symbolic link: the file it names, the link kept): a temp
+      file in the same directory (``.NAME.PID.RANDOM.tmp``, unique, flocked by its writer
+      until renamed), fsync'd, chmod'ed to ``mode`` and renamed over the target when the
+      ``with`` block ends without an exception (removed if it raises); then the directory is
+      fsync'd. Temp files that an earlier writer left behind (killed, or a power cut, before
+      its rename) are removed first, so they never pile up; a live concurrent writer's is
+      left alone, so writers may run at once (the last rename wins, each file whole);
+    - a character device or a FIFO (``/dev/null``, ``/dev/stdout``, a named pipe): written
+      through, as a shell's ``>`` does, never replaced (a rename would put a regular file in
+      the device's place: as root, ``/dev/null``'s); a FIFO waits for its reader;
+    - a directory, a block device or a socket: :class:`OutputFileError`, nothing written.
+
+    The folder must exist (:class:`OutputFileError` naming it), unless ``make_parents``.
     """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        st: os.stat_result | None = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        st = None
+    if st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        with open(path, "wb") as through:
+            yield through
+        return
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise OutputFileError(
+            f"is {_kind(st.st_mode)}: only a regular file (replaced whole), a character device "
+            "or a FIFO (written through) is written"
+        )
+    target = Path(os.path.realpath(path))
+    if make_parents:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    elif (missing := missing_folder(target)) is not None:
+        raise OutputFileError(missing)
     _remove_stale_temps(target)
     fd, tmp = tempfile.mkstemp(
         prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent
     )
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours: no cleaner may take it
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            yield f
             f.flush()
             os.fsync(f.fileno())
             os.chmod(tmp, mode)
             os.replace(tmp, target)  # still locked: a cleaner never sees it unlocked
     except BaseException:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        except FileNotFoundError:
-            pass
         raise
     dfd = os.open(target.parent, os.O_RDONLY)
     try:
         os.fsync(dfd)
     finally:
         os.close(dfd)
+
+
+def missing_folder(path: str | os.PathLike[str]) -> str | None:
+    """Why ``path`` cannot be made for want of its folder ("the folder F does not exist"), or
+    None: a command's output is made in a folder that exists, never with its parents (a typo
+    in ``--out /nonexistent/x.csv`` must not create ``/nonexistent``)."""
+    folder = Path(path).parent
+    return None if folder.is_dir() else f"the folder {shown_path(folder)} does not exist"
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+    """:func:`atomic_output` of ``text`` (UTF-8), its folder made if need be (the bias file's
+    state directory, a ``--json`` report's folder)."""
+    with atomic_output(path, mode, make_parents=True) as f:
+        f.write(text.encode("utf-8"))
 
 
 def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:

@@ -34,7 +34,7 @@ from hdrd.io.drivelog import (
     check_columns,
     csv_values,
 )
-from hdrd.io.files import printable, shown_path
+from hdrd.io.files import printable, shown_path, size_text
 
 __all__ = [
     "DRIVE_COLUMN",
@@ -204,6 +204,41 @@ def _too_many(label: str, rows: int, limits: ReadLimits) -> DriveLogError:
     )
 
 
+MAX_CHUNK_BYTES = 256 << 20
+"""Largest column chunk a drive log's file may hold, uncompressed bytes, read from the file's
+metadata before any value is read: a column of 10 million numbers in one row group takes 80 MB;
+the decoder holds a chunk's page whole, however small the file (zstd turns a gigabyte of one
+letter into 30 KB)."""
+MAX_VALUE_BYTES = 1024
+"""Most uncompressed bytes a column chunk may take per value, on average (beyond
+:data:`CHUNK_SLACK_BYTES`): a number takes 8, a drive's name in the ``drive`` column a few dozen
+(one longer than 200 bytes cannot name a file anyway)."""
+CHUNK_SLACK_BYTES = 64 << 10
+"""Uncompressed bytes a column chunk may take beyond :data:`MAX_VALUE_BYTES` a value: page
+headers and a dictionary of names."""
+
+
+def _check_sizes(pf: Any, columns: list[str], groups: list[int], label: str) -> None:
+    """DriveLogError if a chunk of ``columns`` in row groups ``groups`` is larger, uncompressed,
+    than :data:`MAX_CHUNK_BYTES` or :data:`MAX_VALUE_BYTES` a value: from the file's metadata,
+    before anything is read (a string bomb: two 1 GB names in a 33 KB file)."""
+    md = pf.metadata
+    # a column's leaves (a list column's is "drive.list.element"); the names read hold no dot
+    leaves = [j for j in range(md.num_columns) if md.schema.column(j).path.split(".")[0] in columns]
+    for i in groups:
+        rg = md.row_group(i)
+        for j in leaves:
+            cc = rg.column(j)
+            size, n = cc.total_uncompressed_size, cc.num_values
+            if size > min(MAX_CHUNK_BYTES, n * MAX_VALUE_BYTES + CHUNK_SLACK_BYTES):
+                raise DriveLogError(
+                    f"{label}: column {clipped(printable(cc.path_in_schema), 60)} takes "
+                    f"{size_text(size)} uncompressed for {n} values in row group {i + 1}; a "
+                    f"drive log's column takes at most {MAX_VALUE_BYTES} bytes a value and "
+                    f"{size_text(MAX_CHUNK_BYTES)} a row group (refused before reading)"
+                )
+
+
 def _regular(path: str | os.PathLike[str], label: str) -> None:
     """DriveLogError unless ``path`` is a regular file (opening a FIFO would wait for ever)."""
     mode = os.stat(path).st_mode
@@ -227,6 +262,7 @@ def _read_file(
         if drive is None:
             if pf.metadata.num_rows > limits.max_rows:
                 raise _too_many(label, pf.metadata.num_rows, limits)
+            _check_sizes(pf, names, list(range(pf.num_row_groups)), label)
             table = pf.read(columns=names)
             meta = _strings(_meta_of(schema, label), label)
         else:
@@ -236,11 +272,13 @@ def _read_file(
                     f"{clipped(repr(drive), 80)} in"
                 )
             label = f"{label} (drive {printable(clipped(str(drive), 80))})"
+            groups = _groups_with(pf, drive)
+            _check_sizes(pf, [*names, DRIVE_COLUMN], groups, label)
             parts = []
             n = 0
             for batch in pf.iter_batches(
                 batch_size=BATCH_ROWS,
-                row_groups=_groups_with(pf, drive),
+                row_groups=groups,
                 columns=[*names, DRIVE_COLUMN],
                 use_threads=False,
             ):
@@ -392,6 +430,7 @@ def drives_in_file(path: str | os.PathLike[str]) -> list[Any] | None:
                     f"{label}: column {DRIVE_COLUMN!r} holds {clipped(str(typ), 60)}; a drive's name is a string "
                     "or an integer"
                 )
+            _check_sizes(pf, [DRIVE_COLUMN], list(range(pf.num_row_groups)), label)
             seen: dict[Any, None] = {}
             for batch in pf.iter_batches(
                 batch_size=BATCH_ROWS, columns=[DRIVE_COLUMN], use_threads=False
@@ -425,26 +464,24 @@ def _table(log: DriveLog) -> Any:
 
 
 def write_parquet_drive(path: str | os.PathLike[str], log: DriveLog) -> None:
-    """Write one drive as a Parquet file (zstd), atomically (a temporary file renamed); its
-    directory is made if need be."""
+    """Write one drive as a Parquet file (zstd), whole or not at all
+    (:func:`hdrd.io.files.atomic_output`: its folder must exist; a character device or a FIFO
+    is written through); OSError if it cannot be."""
+    from hdrd.io.files import atomic_output
+
     _, _, pq = _pyarrow()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    try:
-        pq.write_table(_table(log), tmp, compression="zstd")
-        os.replace(tmp, p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_output(path) as f:
+        pq.write_table(_table(log), f, compression="zstd")
 
 
 def write_dataset_drive(root: str | os.PathLike[str], log: DriveLog, name: str) -> Path:
     """Add drive ``name`` to the dataset partitioned by drive at ``root``:
     ``ROOT/drive=NAME/part-0.parquet`` (NAME URI-encoded, as pyarrow's hive partitioning
-    reads it), replacing the drive if it is there. Returns the file written."""
+    reads it), replacing the drive if it is there; ROOT is made if need be, in a folder that
+    exists (OSError otherwise). Returns the file written."""
     part = partition_dir(root, name)
-    part.mkdir(parents=True, exist_ok=True)
+    Path(root).mkdir(exist_ok=True)  # the dataset's folder, in one that exists
+    part.mkdir(exist_ok=True)
     for old in part.glob("*" + SUFFIX):
         if old.name != "part-0" + SUFFIX:
             old.unlink()

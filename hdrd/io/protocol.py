@@ -15,6 +15,7 @@ from typing import Any
 
 __all__ = [
     "ADDED_KEYS",
+    "BIAS_SOURCES",
     "BIN_FRAME_LEN",
     "CLOCK_WRAP_US",
     "MESSAGE_CLASS",
@@ -96,9 +97,16 @@ ADDED_KEYS = (
     "heading_offset",
     "gps_course",
     "gps_speed",
+    "gps_age_s",
+    "bias_source",
+    "calib_age_s",
+    "frames",
+    "reconnects",
 )
 """Keys added without changing ``v`` (docs: "known additions"); readers ignore keys they do
 not know."""
+BIAS_SOURCES = ("calibration", "stops", "driving", "gps")
+"""The ``bias_source`` values hdrd sends: what last changed the published bias."""
 STATUSES = ("ok", "turning", "standstill", "calibrating", "stale")
 """The ``status`` values hdrd sends; a reader treats any other as "rate not trusted"."""
 RATE_VALID_STATUSES = frozenset({"ok", "turning", "standstill", "aided", "dead-reckoning"})

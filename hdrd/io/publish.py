@@ -1,4 +1,4 @@
-"""Publishers: where each HDR step's message goes (``hdrd tail``, in :mod:`hdrd.commands.tail`, prints it).
+"""Publishers: where each HDR step's message goes (``hdrd tail`` and ``hdrd web`` read it, :mod:`hdrd.io.datagrams`).
 
 A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
 "Published messages", and :mod:`hdrd.io.protocol`):

@@ -65,7 +65,7 @@ def model_noise(model: GyroModel, source: str = "model") -> GyroNoise:
     white noise density, the Gauss-Markov bias as its Allan peak (0.62 sigma) and correlation
     time, the rate random walk, the linear temperature coefficient, the output step; a
     missing effect is unknown. For a model fitted to a drive (``hdrd gap``) to become the
-    ``plus.*`` keys or a bias file's ``noise``."""
+    ``gyro.*`` keys or a bias file's ``noise``."""
     nan = math.nan
     white = model.get("white_noise")
     gm = model.get("bias_instability")

@@ -10,10 +10,11 @@ Two surfaces:
   capture, a Parquet file); written under a file name that may hold control characters;
 - ``driveparquet``: a Parquet drive (pyarrow) whose columns change type (int64 beyond 2^53,
   strings, lists, timestamps), repeat or go missing, whose ``drive`` column names drives
-  ``../../x``, ``/abs/x``, NUL, 300 characters, whose ``hdrd.meta`` nests 100,000 deep, whose
-  row groups are tiny, or which holds 10 million delta-encoded rows in a few KB; laid out as a
-  file, a file of many drives or a dataset partition ``drive=NAME`` (NAME from the input),
-  its bytes sometimes damaged.
+  ``../../x``, ``/abs/x``, NUL, 300 characters (or holds names of megabytes: a string bomb,
+  16 MB in a few KB of zstd, refused from the metadata), whose ``hdrd.meta`` nests 100,000
+  deep, whose row groups are tiny, or which holds 10 million delta-encoded rows in a few KB;
+  laid out as a file, a file of many drives or a dataset partition ``drive=NAME`` (NAME from
+  the input), its bytes sometimes damaged.
 
 An input is an envelope (:func:`pack`): the layout, a name, the files' bytes. The target
 (:class:`DriveLogTarget`) lays it out in a fresh folder and runs the commands through their
@@ -267,7 +268,7 @@ def _parquet_bytes(rng: random.Random, log: Any, plain: bool = False) -> bytes:
     meta: dict[bytes, bytes] = {b"hdrd.meta": json.dumps(log.meta).encode()}
     kw: dict[str, Any] = {}
     for _ in range(0 if plain else rng.choice((1, 1, 2, 3))):
-        r = rng.randrange(11)
+        r = rng.randrange(12)
         n = len(log)
         if r == 0:  # a column's type
             c = rng.choice(list(cols))
@@ -335,6 +336,13 @@ def _parquet_bytes(rng: random.Random, log: Any, plain: bool = False) -> bytes:
             cols["heading_truth"] = pa.array(h)
         elif r == 9 and "omega" in cols:
             cols["omega"] = pa.array(-np.asarray(log.omega))
+        elif r == 10:  # a string bomb: two names of megabytes, in a few KB of zstd
+            big = rng.choice((70_000, 1 << 20, 8 << 20))
+            names = pa.array(["a" * big, "b" * big])
+            half = (np.arange(n) >= n // 2).astype(np.int32)
+            cols["drive"] = pa.DictionaryArray.from_arrays(pa.array(half), names)
+            kw["use_dictionary"] = True  # each name stored once, however many rows
+            kw["compression"] = "zstd"
         else:
             kw["compression"] = rng.choice(("zstd", "snappy", "none", "gzip"))
     lengths = {len(v) for v in cols.values()}

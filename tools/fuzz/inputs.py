@@ -26,6 +26,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.io.frames import FRAME_DTYPE, SYNC, encode_array
 
 from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
@@ -297,7 +299,7 @@ def _hdr_messages() -> tuple[str, ...]:
 
     arr = stress_frames(random.Random(1), 3000)
     arr["t_us"] = np.arange(3000) * 10_000
-    p = Pipeline(PipelineConfig(bias_dps=0.1))
+    p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
     msgs = p.feed_array(arr) + p.finish(3)
     msgs.append(p.stale_message(1.7e9, 4.0, 3))
     return tuple(format_json(m).decode() for m in msgs)

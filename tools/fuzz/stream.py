@@ -46,6 +46,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.capture import decode_capture
@@ -281,7 +283,7 @@ def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
     exact = frames == sent_frames
     # The pipeline on what was recovered: rails and out-of-range samples flagged, no crash.
     t0 = time.perf_counter()
-    pipe = Pipeline(PipelineConfig(bias_dps=0.0))
+    pipe = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     msgs = pipe.feed_array(arr, vstats.bad_before) + pipe.finish(vstats.bad_frames)
     t_pipe = time.perf_counter() - t0
     sensor = SensorModel()

@@ -19,7 +19,7 @@ Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in 
 and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
 ``stale_message``, ``finish``); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
 a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
-:meth:`hdrd.io.publish.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
+:meth:`hdrd.io.datagrams.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
 SIGHUP read), a :class:`hdrd.daemon.run.Daemon` built from the result and a running one
 reloaded with it (the SIGHUP handler's body), then the daemon's pipeline stepped;
 bias, :func:`hdrd.io.biasfile.load_bias` and the daemon's :func:`hdrd.daemon.run.choose_bias`
@@ -44,6 +44,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hdrd.core.calibrate import given_bias
+from hdrd.core.methods import MethodSetup
 
 from .inputs import stress_frames
 
@@ -114,13 +117,17 @@ def _pipeline_variants() -> list[Any]:
 
     rec = BiasRecord(0.3, 0.05, 300, 30.0)
     return [
-        PipelineConfig(bias_dps=0.1),
-        PipelineConfig(method="hdr+", bias_dps=rec.bias_dps, bias_record=rec),
-        PipelineConfig(method="none", bias_dps=-2.9),
+        PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))),
+        PipelineConfig(setup=MethodSetup(method="hdr+", bias=rec)),
+        PipelineConfig(setup=MethodSetup(method="none", bias=given_bias(-2.9))),
         PipelineConfig(startup_s=1.0),  # a start-up calibration
-        PipelineConfig(method="hdr+", startup_s=0.5),
-        PipelineConfig(params=HdrParams(T=0.01, c1=1000.0, c2=10.0, i_c=10.0), bias_dps=0.0),
-        PipelineConfig(params=HdrParams(T=60.0, tau=3600.0), bias_dps=0.0),
+        PipelineConfig(startup_s=0.5, setup=MethodSetup(method="hdr+")),
+        PipelineConfig(
+            setup=MethodSetup(
+                hdr=HdrParams(T=0.01, c1=1000.0, c2=10.0, i_c=10.0), bias=given_bias(0.0)
+            )
+        ),
+        PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=60.0, tau=3600.0), bias=given_bias(0.0))),
     ]
 
 
@@ -213,7 +220,11 @@ class GpsdTarget(Target):
         self.clock = 1000.0
         client = GpsdClient("127.0.0.1", port, clock=lambda: self.clock)
         self.link = GpsdLink(client, GpsAiding(AidingConfig()), clock=lambda: self.clock)
-        self.pipeline = Pipeline(PipelineConfig(method="hdr+", bias_dps=0.2))
+        self.pipeline = Pipeline(
+            PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(0.2))),
+            self.link.aiding,
+            lambda: self.clock,
+        )
         self.peer: socket.socket | None = None
         self.count = 0
         self.t_us = 0
@@ -267,8 +278,8 @@ class GpsdTarget(Target):
             msgs: list[dict[str, Any]] = []
             for f in self._step_frames():
                 msgs += self.pipeline.feed(f, 0, 1.7e9 + self.clock)
-            aided = self.link.aid(msgs, self.pipeline, self.clock)
-            check_messages(aided)
+            self.link.log_mode(msgs, self.clock)
+            check_messages(msgs)
             v = self.link.client.version
             if sent == len(out) and isinstance(v, Version) and v.release == f"fuzz-{self.count}":
                 break
@@ -293,7 +304,7 @@ class TailTarget(Target):
     surface = "tail"
 
     def __init__(self, seed: int) -> None:
-        from hdrd.commands.tail import TailFormatter
+        from hdrd.io.datagrams import TailFormatter
 
         self.formatters = [TailFormatter(raw=False), TailFormatter(raw=True)]
         self.count = 0
@@ -382,8 +393,8 @@ class ConfigTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.commands.options import config_from_args
-        from hdrd.commands.replay import replay_capture
         from hdrd.config import ConfigError
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import Daemon
 
         self.count += 1
@@ -427,7 +438,7 @@ class ConfigTarget(Target):
 
             msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
         if d.gps is not None:
-            msgs = d.gps.aid(msgs, d.pipeline)
+            d.gps.log_mode(msgs)
         check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
 
     def close(self) -> None:
@@ -469,7 +480,7 @@ class BiasTarget(Target):
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.commands.replay import replay_capture
+        from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import choose_bias
         from hdrd.io.biasfile import BiasFileError, load_bias
 

@@ -5,13 +5,13 @@ never holds the fleet's reports)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import tempfile
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
@@ -23,7 +23,14 @@ from hdrd.io.drivefiles import DriveRef
 if TYPE_CHECKING:
     from hdrd.analysis.progress import ProgressBar
 
-__all__ = ["ReportStream", "gap_fleet", "gap_fleet_summary", "gap_row", "gap_table_head"]
+__all__ = [
+    "GapOutputs",
+    "ReportStream",
+    "gap_fleet",
+    "gap_fleet_summary",
+    "gap_row",
+    "gap_table_head",
+]
 
 
 def gap_table_head(name_w: int) -> str:
@@ -103,30 +110,39 @@ class ReportStream:
             self.tmp.unlink()
 
 
-def gap_fleet(
-    args: argparse.Namespace, refs: Sequence[DriveRef], job: GapJob, runner: Runner
-) -> int:
+@dataclass(frozen=True)
+class GapOutputs:
+    """What ``hdrd gap`` on many drives writes and how it goes on: ``out``, the folder of the
+    fitted models (``OUT/NAME.yaml``); ``report``, the JSON file of the reports; ``strict``:
+    stop at the first drive that cannot be used; ``progress``: a progress bar on stderr."""
+
+    out: str | None = None
+    report: str | None = None
+    strict: bool = False
+    progress: bool = True
+
+
+def gap_fleet(outputs: GapOutputs, refs: Sequence[DriveRef], job: GapJob, runner: Runner) -> int:
     """Run ``hdrd gap`` on every drive; print and write as the drives come in. Exit status 0,
     or 1 if no drive could be analysed or a file could not be written. Raises DriveLogError
     (a drive cannot be read) and FleetError."""
     from hdrd.analysis.progress import ProgressBar
 
     name_w = max(12, *(len(r.name) for r in refs))
-    show = not getattr(args, "no_progress", False)
     skipped: list[str] = []
     n_given = len(refs)
     paths: dict[str, Path] = {}
-    if args.out:
-        refs, paths, unnamed = model_paths(refs, args.out)
+    if outputs.out:
+        refs, paths, unnamed = model_paths(refs, outputs.out)
         skipped.extend(unnamed)
-        if unnamed and getattr(args, "strict", False):
+        if unnamed and outputs.strict:
             print(f"hdrd gap: {unnamed[0]}", file=sys.stderr)
             return 1
-    bar = ProgressBar(f"gap {len(refs)} drives") if show else None
-    run = _FleetRun(args, name_w, paths, skipped, bar)
+    bar = ProgressBar(f"gap {len(refs)} drives") if outputs.progress else None
+    run = _FleetRun(outputs, name_w, paths, skipped, bar)
     print(gap_table_head(name_w), flush=True)
     try:
-        with ReportStream(args.report) if args.report else _NoReport() as report:
+        with ReportStream(outputs.report) if outputs.report else _NoReport() as report:
             for o in gap_refs(refs, job, runner, bar):
                 if not run.take(o, report):
                     return 1
@@ -152,13 +168,13 @@ class _FleetRun:
 
     def __init__(
         self,
-        args: argparse.Namespace,
+        outputs: GapOutputs,
         name_w: int,
         paths: dict[str, Path],
         skipped: list[str],
         bar: ProgressBar | None,
     ) -> None:
-        self.args, self.name_w, self.paths = args, name_w, paths
+        self.outputs, self.name_w, self.paths = outputs, name_w, paths
         self.skipped, self.bar = skipped, bar
         self.found: Counter[str] = Counter()
         self.n_ok = 0
@@ -174,7 +190,7 @@ class _FleetRun:
         from hdrd.sim.gyro import save_model
 
         if o.skipped is not None:
-            if getattr(self.args, "strict", False):
+            if self.outputs.strict:
                 self.close_bar()
                 print(f"hdrd gap: {o.skipped}", file=sys.stderr)
                 return False
@@ -187,7 +203,7 @@ class _FleetRun:
             sys.stderr.write("\r\033[K")  # the bar's line, cleared for the table's
         print(gap_row(o.name, rep, self.name_w), flush=True)
         report.add(rep)
-        if self.args.out:
+        if self.outputs.out:
             _save(save_model, o.result.model, self.paths[o.name])
         return True
 
@@ -197,13 +213,15 @@ def model_paths(
 ) -> tuple[list[DriveRef], dict[str, Path], list[str]]:
     """Where each drive's fitted model goes, ``OUT/NAME.yaml``: the drives whose name can be
     such a file (:func:`hdrd.io.files.path_inside`: never outside OUT), their paths, and why each
-    other drive is left out (a name that would lead out of OUT, or a file another drive
-    already takes)."""
-    from hdrd.io.files import UnsafeNameError, path_inside, shown_path
+    other drive is left out (a name that would lead out of OUT; a file another drive already
+    takes, or that would be a folder of another drive's file or hold it, ``a.yaml/b`` and
+    ``a``; a folder already where the file goes, or a file where a folder must be)."""
+    from hdrd.io.files import UnsafeNameError, path_inside
 
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}
     taken: dict[Path, str] = {}
+    folders: dict[Path, str] = {}  # folders the files taken need, and whose file needs each
     why: list[str] = []
     for r in refs:
         try:
@@ -211,15 +229,39 @@ def model_paths(
         except UnsafeNameError as e:
             why.append(f"{r.name}: {e}")
             continue
-        if path in taken or r.name in paths:
-            why.append(
-                f"{r.name}: its model would be {shown_path(path)}, as that of an earlier drive"
-            )
+        clash = _clash(path, Path(out), taken, folders, r.name in paths)
+        if clash:
+            why.append(f"{r.name}: {clash}")
             continue
         taken[path] = r.name
         paths[r.name] = path
+        for folder in path.relative_to(out).parents:
+            folders.setdefault(Path(out) / folder, r.name)
         kept.append(r)
     return kept, paths, why
+
+
+def _clash(
+    path: Path, out: Path, taken: dict[Path, str], folders: dict[Path, str], named: bool
+) -> str | None:
+    """Why a drive's model cannot be ``path`` (None if it can), given the files and folders
+    the drives before it take."""
+    from hdrd.io.files import shown_path
+
+    shown = shown_path(path)
+    if path in taken or named:
+        return f"its model would be {shown}, as that of an earlier drive"
+    if path in folders:
+        return f"its model would be {shown}, a folder of drive {folders[path]}'s model"
+    for folder in path.relative_to(out).parents:
+        above = out / folder
+        if above in taken:
+            return f"its model would be {shown}, inside drive {taken[above]}'s model file"
+        if above.exists() and not above.is_dir():
+            return f"its model would be {shown}, but {shown_path(above)} is a file"
+    if path.is_dir():
+        return f"its model would be {shown}, a folder that exists"
+    return None
 
 
 def _save(save: Any, model: Any, path: Path) -> None:

@@ -1,0 +1,488 @@
+"""``hdrd web``'s server: the daemon's UDP JSON in, one read-only page and a stream of
+server-sent events out (docs/web.md). Standard library only: asyncio, in one thread.
+
+What it serves, to ``GET`` only: the page (``/``), its script, style sheet and icon (package
+data, read once at start), and the stream (``/events``, ``text/event-stream``, the events of
+:mod:`hdrd.io.webstate`). Any other method is refused (405), any other path is 404; nothing
+changes anything. Every response carries a content security policy that lets the page run
+only its own script and connect only to its own server.
+
+Whom it trusts: nobody who connects. A request's head must arrive whole within
+``head_timeout_s`` and fit in :data:`MAX_HEAD_BYTES` (else 408, 431); a malformed one is 400.
+While it listens on a loopback address, a request whose ``Host`` is not a loopback name or
+address is refused (403): a web site in the viewer's browser cannot reach the page by
+rebinding its own name to 127.0.0.1. At most ``max_clients`` streams at once (more: 503) and
+a few more connections for the page itself (more are closed at once). A stream's writes never
+wait: each goes to the kernel, or to the connection's queue when the kernel's buffer (set to
+``send_buffer`` bytes) is full; a client whose queue holds more than ``queue_bytes`` when the
+next event comes is disconnected (its browser reconnects and starts afresh), so a stalled or
+slow client costs the others nothing. Datagrams are taken from whoever can send to the UDP
+address (loopback by default), validated as ``hdrd tail`` validates them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import socket
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+from hdrd.io.datagrams import shown_address
+from hdrd.io.logs import log
+from hdrd.io.publish import parse_hostport
+from hdrd.io.webstate import LiveState
+
+__all__ = [
+    "ASSETS",
+    "DEFAULT_MAX_CLIENTS",
+    "DEFAULT_WEB_LISTEN",
+    "MAX_HEAD_BYTES",
+    "Request",
+    "WebServer",
+    "WebSettings",
+    "host_allowed",
+    "http_response",
+    "is_loopback",
+    "load_assets",
+    "parse_request",
+    "tcp_listener",
+]
+
+DEFAULT_WEB_LISTEN = "127.0.0.1:8080"
+"""Where ``hdrd web`` serves the page by default (this computer only)."""
+DEFAULT_MAX_CLIENTS = 16
+"""Streams served at once by default (``--max-clients``)."""
+MAX_HEAD_BYTES = 8192
+"""The longest request line and headers taken, bytes."""
+EXTRA_CONNECTIONS = 16
+"""Connections beyond ``max_clients`` for the page and its assets (short-lived)."""
+LOG_INTERVAL_S = 10.0
+"""At most one log line per this many seconds for each kind of repeated trouble."""
+
+ASSETS: dict[str, tuple[str, str]] = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/app.js": ("app.js", "text/javascript; charset=utf-8"),
+    "/style.css": ("style.css", "text/css; charset=utf-8"),
+    "/favicon.svg": ("favicon.svg", "image/svg+xml"),
+}
+"""Path -> (file in ``hdrd/io/webpage/``, content type)."""
+STREAM_PATH = "/events"
+
+_CSP = (
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; "
+    "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+)
+_HEADERS = (
+    f"Content-Security-Policy: {_CSP}",
+    "X-Content-Type-Options: nosniff",
+    "X-Frame-Options: DENY",
+    "Referrer-Policy: no-referrer",
+)
+_REASONS = {
+    200: "OK",
+    400: "Bad Request",
+    403: "Forbidden",
+    404: "Not Found",
+    405: "Method Not Allowed",
+    408: "Request Timeout",
+    431: "Request Header Fields Too Large",
+    503: "Service Unavailable",
+}
+
+
+@dataclass(frozen=True)
+class WebSettings:
+    """The server's bounds (units in the names)."""
+
+    max_clients: int = DEFAULT_MAX_CLIENTS
+    """Streams at once (``--max-clients``)."""
+    queue_bytes: int = 65_536
+    """A stream client with more than this waiting for it is disconnected."""
+    send_buffer: int = 32_768
+    """The kernel's send buffer of each connection (``SO_SNDBUF``; Linux doubles it)."""
+    head_timeout_s: float = 10.0
+    """A request's head must arrive within this."""
+    linger_s: float = 30.0
+    """A page response not taken by then is dropped."""
+    keepalive_s: float = 15.0
+    """A comment line goes to every stream this often (finds dead connections)."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.max_clients <= 10_000:
+            raise ValueError(f"max_clients must be 1..10000, got {self.max_clients!r}")
+
+
+# -- HTTP, pure ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """A request's method, path (no query) and ``Host`` header (None: not sent)."""
+
+    method: str
+    path: str
+    host: str | None
+
+
+def parse_request(head: bytes) -> Request | None:
+    """A request line and its headers (without the blank line), or None when malformed:
+    not ``METHOD /target HTTP/1.x``, a header line without a colon or with space before it,
+    two ``Host`` headers."""
+    lines = head.decode("latin-1").split("\r\n")
+    parts = lines[0].split(" ")
+    if len(parts) != 3 or parts[2] not in ("HTTP/1.0", "HTTP/1.1"):
+        return None
+    method, target, _ = parts
+    if not (method.isascii() and method.isalpha() and method.isupper()):
+        return None
+    if not target.startswith("/"):
+        return None
+    host: str | None = None
+    for line in lines[1:]:
+        name, sep, value = line.partition(":")
+        if not sep or not name or name != name.strip():
+            return None
+        if name.lower() == "host":
+            if host is not None:
+                return None
+            host = value.strip()
+    return Request(method, target.split("?", 1)[0].split("#", 1)[0], host)
+
+
+def is_loopback(address: str) -> bool:
+    """Whether an IP address (an IPv6 one may carry ``%zone``) is a loopback address."""
+    try:
+        return ipaddress.ip_address(address.split("%", 1)[0]).is_loopback
+    except ValueError:
+        return False
+
+
+def host_allowed(host: str | None, local: bool) -> bool:
+    """Whether a request's ``Host`` may be served: always unless the server listens on a
+    loopback address, then only ``localhost`` (and its subdomains) or a loopback address (no
+    ``Host``, as HTTP/1.0 may send, is taken)."""
+    if not local or host is None:
+        return True
+    if host.startswith("["):
+        name = host[1 : host.find("]")] if "]" in host else ""
+    else:
+        name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+    name = name.lower().rstrip(".")
+    return name == "localhost" or name.endswith(".localhost") or is_loopback(name)
+
+
+def http_response(
+    status: int,
+    body: bytes = b"",
+    content_type: str = "text/plain; charset=utf-8",
+    headers: Sequence[str] = (),
+) -> bytes:
+    """A whole response that closes the connection: status line, the security headers,
+    ``headers``, the body."""
+    lines = [
+        f"HTTP/1.1 {status} {_REASONS.get(status, 'Error')}",
+        f"Content-Type: {content_type}",
+        f"Content-Length: {len(body)}",
+        "Cache-Control: no-cache",
+        "Connection: close",
+        *_HEADERS,
+        *headers,
+    ]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1") + body
+
+
+STREAM_HEAD = (
+    "\r\n".join(
+        [
+            "HTTP/1.1 200 OK",
+            "Content-Type: text/event-stream",
+            "Cache-Control: no-store",
+            "Connection: keep-alive",
+            *_HEADERS,
+        ]
+    )
+    + "\r\n\r\nretry: 2000\n\n"
+).encode("latin-1")
+"""The head of a stream response, and the browser's reconnection delay (2 s)."""
+
+
+def load_assets() -> dict[str, tuple[bytes, str]]:
+    """Path -> (body, content type) of the page's files (package data)."""
+    folder = resources.files("hdrd.io").joinpath("webpage")
+    return {path: (folder.joinpath(name).read_bytes(), ct) for path, (name, ct) in ASSETS.items()}
+
+
+def tcp_listener(listen: str) -> tuple[socket.socket, str, bool]:
+    """A listening TCP socket on ``listen`` (HOST:PORT; the first address the host resolves
+    to), that address as shown to a user, and whether it is a loopback address.
+
+    ValueError: malformed or not resolved. OSError: it cannot be bound."""
+    try:
+        host, port = parse_hostport(listen)
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (ValueError, OSError, UnicodeError) as e:
+        raise ValueError(str(e)) from None
+    family, _, _, _, sockaddr = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(sockaddr)
+        sock.listen(64)
+    except OSError:
+        sock.close()
+        raise
+    return sock, shown_address(host, port), is_loopback(str(sockaddr[0]))
+
+
+# -- the server ------------------------------------------------------------------------------
+
+
+class _Throttle:
+    """Says yes at most once per :data:`LOG_INTERVAL_S` (monotonic clock)."""
+
+    def __init__(self) -> None:
+        self._at = -LOG_INTERVAL_S
+
+    def due(self) -> bool:
+        now = time.monotonic()
+        if now - self._at < LOG_INTERVAL_S:
+            return False
+        self._at = now
+        return True
+
+
+class WebServer:
+    """Serves the page and the stream from the sockets given (see the module doc).
+
+    :meth:`serve` runs until :meth:`stop` (thread-safe); counters: ``refused`` (streams over
+    the limit), ``dropped`` (slow clients disconnected).
+    """
+
+    def __init__(
+        self,
+        http_sock: socket.socket,
+        udp_sock: socket.socket,
+        local: bool,
+        udp_shown: str = "",
+        settings: WebSettings = WebSettings(),
+        version: str = "",
+    ) -> None:
+        self.http_sock = http_sock
+        self.udp_sock = udp_sock
+        self.local = local
+        self.settings = settings
+        self.state = LiveState(udp_shown, version)
+        self.assets = load_assets()
+        self.clients: set[_Connection] = set()
+        """The open streams."""
+        self.open: set[_Connection] = set()
+        """Every open connection (streams, page loads, requests still coming)."""
+        self.refused = 0
+        self.dropped = 0
+        self._ignored_logged = 0
+        self._throttles = {k: _Throttle() for k in ("ignored", "refused", "dropped")}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+
+    async def serve(self) -> None:
+        """Serve until :meth:`stop`; then every connection is closed."""
+        loop = self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        self.http_sock.setblocking(False)
+        self.udp_sock.setblocking(False)
+        server = await loop.create_server(lambda: _Connection(self), sock=self.http_sock)
+        udp, _ = await loop.create_datagram_endpoint(lambda: _Datagrams(self), sock=self.udp_sock)
+        keepalive = loop.call_later(self.settings.keepalive_s, self._keepalive)
+        try:
+            await self._stop.wait()
+        finally:
+            keepalive.cancel()
+            server.close()
+            udp.close()
+            for c in list(self.open):
+                c.transport.abort()
+            await server.wait_closed()
+
+    @property
+    def connections(self) -> int:
+        """Open connections."""
+        return len(self.open)
+
+    def stop(self) -> None:
+        """End :meth:`serve` (from any thread)."""
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+
+    # -- streams --
+
+    def open_stream(self, conn: _Connection) -> bool:
+        """A new stream: sent the snapshot, or refused (False) when ``max_clients`` are in."""
+        if len(self.clients) >= self.settings.max_clients:
+            self.refused += 1
+            if self._throttles["refused"].due():
+                log.warning(
+                    "web_client_refused",
+                    reason="max_clients reached",
+                    max_clients=self.settings.max_clients,
+                    refused=self.refused,
+                )
+            return False
+        self.clients.add(conn)
+        conn.transport.write(STREAM_HEAD + self.state.snapshot(time.time()))
+        return True
+
+    def broadcast(self, event: bytes) -> None:
+        """Queue ``event`` on every stream; a client with more than ``queue_bytes`` already
+        queued is disconnected instead."""
+        limit = self.settings.queue_bytes
+        for c in list(self.clients):
+            if c.transport.get_write_buffer_size() > limit:
+                self.clients.discard(c)
+                self.dropped += 1
+                if self._throttles["dropped"].due():
+                    log.warning(
+                        "web_client_dropped",
+                        reason="too slow: its queue is full",
+                        peer=c.peer,
+                        dropped=self.dropped,
+                    )
+                c.transport.abort()
+            else:
+                c.transport.write(event)
+
+    def _keepalive(self) -> None:
+        self.broadcast(b": keepalive\n\n")
+        assert self._loop is not None
+        self._loop.call_later(self.settings.keepalive_s, self._keepalive)
+
+    def on_datagram(self, data: bytes, addr: Any) -> None:
+        """A datagram: validated, kept, pushed (see :class:`hdrd.io.webstate.LiveState`)."""
+        sender = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
+        for event in self.state.take(data, sender, time.time()):
+            self.broadcast(event)
+        ignored = self.state.ignored
+        if ignored > self._ignored_logged and self._throttles["ignored"].due():
+            log.warning(
+                "web_datagrams_ignored",
+                total=ignored,
+                new=ignored - self._ignored_logged,
+                last=self.state.last_reason,
+            )
+            self._ignored_logged = ignored
+
+
+class _Datagrams(asyncio.DatagramProtocol):
+    def __init__(self, server: WebServer) -> None:
+        self.server = server
+
+    def datagram_received(self, data: bytes, addr: Any) -> None:
+        self.server.on_datagram(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        pass  # an ICMP error from a sender that went away: nothing to do
+
+
+class _Connection(asyncio.Protocol):
+    """One HTTP connection: a request, then a page response or a stream."""
+
+    def __init__(self, server: WebServer) -> None:
+        self.server = server
+        self.transport: Any = None
+        self.peer = "?"
+        self.head = b""
+        self.answered = False
+        self.timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: Any) -> None:
+        self.transport = transport
+        s = self.server
+        s.open.add(self)
+        peer = transport.get_extra_info("peername")
+        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
+        if s.connections > s.settings.max_clients + EXTRA_CONNECTIONS:
+            transport.abort()
+            return
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, s.settings.send_buffer)
+        self._arm(s.settings.head_timeout_s, self._too_slow)
+
+    def _arm(self, delay: float, what: Any) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        self.timer = asyncio.get_running_loop().call_later(delay, what)
+
+    def _too_slow(self) -> None:
+        self._answer(http_response(408, b"request too slow\n"))
+
+    def data_received(self, data: bytes) -> None:
+        if self.answered:
+            return  # a stream's client has nothing more to say: ignored
+        self.head += data
+        end = self.head.find(b"\r\n\r\n")
+        if end < 0:
+            if len(self.head) > MAX_HEAD_BYTES:
+                self._answer(http_response(431, b"request head too long\n"))
+            return
+        if end > MAX_HEAD_BYTES:
+            self._answer(http_response(431, b"request head too long\n"))
+            return
+        self._route(parse_request(self.head[:end]))
+
+    def _route(self, req: Request | None) -> None:
+        s = self.server
+        if req is None:
+            self._answer(http_response(400, b"malformed request\n"))
+        elif not host_allowed(req.host, s.local):
+            self._answer(http_response(403, b"this server answers to localhost only\n"))
+        elif req.method != "GET":
+            self._answer(http_response(405, b"read only: GET\n", headers=("Allow: GET",)))
+        elif req.path == STREAM_PATH:
+            self._stream()
+        elif req.path in s.assets:
+            body, ct = s.assets[req.path]
+            self._answer(http_response(200, body, ct))
+        else:
+            self._answer(http_response(404, b"not found\n"))
+
+    def _stream(self) -> None:
+        self.answered = True
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        if not self.server.open_stream(self):
+            self._answer(http_response(503, b"too many viewers\n", headers=("Retry-After: 10",)))
+
+    def _answer(self, response: bytes) -> None:
+        """Send a whole response and close; dropped if not taken within ``linger_s``."""
+        self.answered = True
+        self.transport.write(response)
+        self.transport.close()
+        self._arm(self.server.settings.linger_s, self.transport.abort)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        self.server.clients.discard(self)
+        self.server.open.discard(self)
+
+    def eof_received(self) -> bool | None:
+        return None  # the client closed its side: close the connection
+
+
+def run_server(server: WebServer) -> None:
+    """Serve until SIGTERM or SIGINT (then every connection is closed)."""
+    import signal
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, server.stop)
+        task = asyncio.create_task(server.serve())
+        await task
+
+    asyncio.run(main())

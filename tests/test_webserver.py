@@ -1,0 +1,380 @@
+"""hdrd.io.webserver without a browser: the page and nothing else (read only), the stream,
+validation of what reaches it, the bound on clients, a stalled client, and ``hdrd web`` as a
+process. The server runs on real sockets (in a thread of this process, or as ``hdrd web``);
+clients are plain sockets. The page in a real browser: tests/test_web_browser.py."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hdrd.io.publish import format_json
+from hdrd.io.webserver import (
+    ASSETS,
+    EXTRA_CONNECTIONS,
+    WebServer,
+    WebSettings,
+    host_allowed,
+    parse_request,
+)
+
+GUARD_S = 30.0  # a guard against a hang; no test asserts a duration
+PAGE = Path(__file__).resolve().parents[1] / "hdrd" / "io" / "webpage"
+
+
+def hdr(step: int, **over: Any) -> dict[str, Any]:
+    msg: dict[str, Any] = {"class": "HDR", "v": 1, "step": step, "heading": 12.5, "status": "ok"}
+    msg.update(over)
+    return msg
+
+
+class Served:
+    """A WebServer on loopback sockets in a thread, and a UDP sender to it."""
+
+    def __init__(self, server: WebServer) -> None:
+        self.server = server
+        self.port = server.http_sock.getsockname()[1]
+        self.udp_addr = server.udp_sock.getsockname()
+        self.sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def send(self, msg: dict[str, Any] | bytes) -> None:
+        self.sender.sendto(msg if isinstance(msg, bytes) else format_json(msg), self.udp_addr)
+
+    def connect(self) -> socket.socket:
+        return socket.create_connection(("127.0.0.1", self.port), timeout=GUARD_S)
+
+    def get(self, request: bytes) -> tuple[int, dict[str, str], bytes]:
+        """One request as given; the status, headers (lower-case names) and body."""
+        with self.connect() as c:
+            c.sendall(request)
+            data = b""
+            while chunk := c.recv(65536):
+                data += chunk
+        head, _, body = data.partition(b"\r\n\r\n")
+        lines = head.decode("latin-1").split("\r\n")
+        headers = dict((k.lower(), v.strip()) for k, _, v in (x.partition(":") for x in lines[1:]))
+        return int(lines[0].split()[1]), headers, body
+
+
+@contextmanager
+def serving(local: bool = True, **settings: Any) -> Iterator[Served]:
+    http = socket.create_server(("127.0.0.1", 0))
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp.bind(("127.0.0.1", 0))
+    server = WebServer(
+        http, udp, local, f"127.0.0.1:{udp.getsockname()[1]}", WebSettings(**settings), "test"
+    )
+    thread = threading.Thread(target=asyncio.run, args=(server.serve(),), daemon=True)
+    thread.start()
+    wait_for(lambda: server._stop is not None, "the server to start")
+    served = Served(server)
+    try:
+        yield served
+    finally:
+        server.stop()
+        thread.join(GUARD_S)
+        served.sender.close()
+        http.close()
+        udp.close()
+    assert not thread.is_alive()
+
+
+def wait_for(cond: Any, what: str) -> None:
+    deadline = time.monotonic() + GUARD_S
+    while not cond():
+        assert time.monotonic() < deadline, f"waited {GUARD_S} s for {what}"
+        time.sleep(0.01)
+
+
+class Stream:
+    """A client of /events on a plain socket: the response's status, then its events."""
+
+    def __init__(self, served: Served, rcvbuf: int | None = None) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        if rcvbuf is not None:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        self.sock.settimeout(GUARD_S)
+        self.sock.connect(("127.0.0.1", served.port))
+        self.sock.sendall(
+            b"GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n"
+        )
+        self.buf = b""
+
+    def status(self) -> int:
+        while b"\r\n\r\n" not in self.buf:
+            chunk = self.sock.recv(65536)
+            assert chunk, "closed before the response's head"
+            self.buf += chunk
+        head, _, self.buf = self.buf.partition(b"\r\n\r\n")
+        return int(head.split(b" ")[1])
+
+    def event(self) -> tuple[str, Any]:
+        """The next event (comments and the retry line skipped)."""
+        while True:
+            while b"\n\n" not in self.buf:
+                chunk = self.sock.recv(65536)
+                assert chunk, "the stream ended"
+                self.buf += chunk
+            block, _, self.buf = self.buf.partition(b"\n\n")
+            fields = dict(
+                line.split(": ", 1)
+                for line in block.decode().split("\n")
+                if not line.startswith((":", "retry"))
+            )
+            if fields:
+                return fields["event"], json.loads(fields["data"])
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+# -- pure parts ------------------------------------------------------------------------------
+
+
+def test_requests_are_parsed_strictly() -> None:
+    r = parse_request(b"GET /events?x=1 HTTP/1.1\r\nHost: 127.0.0.1:8080\r\nAccept: */*")
+    assert r is not None and (r.method, r.path, r.host) == ("GET", "/events", "127.0.0.1:8080")
+    for bad in (
+        b"GET / HTTP/2.0",
+        b"GET http://evil/ HTTP/1.1",
+        b"GET  / HTTP/1.1",
+        b"get / HTTP/1.1",
+        b"GET / HTTP/1.1\r\nno colon",
+        b"GET / HTTP/1.1\r\nHost : x",
+        b"GET / HTTP/1.1\r\nHost: a\r\nHost: b",
+        b"\x00\xff",
+    ):
+        assert parse_request(bad) is None, bad
+
+
+@pytest.mark.parametrize(
+    ("host", "local", "ok"),
+    [
+        ("127.0.0.1:8080", True, True),
+        ("localhost:8080", True, True),
+        ("LOCALHOST", True, True),
+        ("[::1]:8080", True, True),
+        ("127.9.9.9", True, True),
+        (None, True, True),
+        ("evil.example:8080", True, False),
+        ("192.168.1.5:8080", True, False),
+        ("[::1", True, False),
+        ("evil.example", False, True),  # listening beyond loopback: any name the user uses
+    ],
+)
+def test_a_local_server_answers_to_loopback_names_only(
+    host: str | None, local: bool, ok: bool
+) -> None:
+    assert host_allowed(host, local) is ok
+
+
+def test_the_page_loads_nothing_from_elsewhere_and_never_parses_markup() -> None:
+    for name, _ in ASSETS.values():
+        text = (PAGE / name).read_text()
+        urls = re.findall(r"(?:https?:)?//[\w.-]+", text)
+        assert set(urls) <= {"http://www.w3.org"}, (name, urls)  # SVG's namespace, not a fetch
+    js = (PAGE / "app.js").read_text()
+    for sink in (
+        "innerHTML",
+        "outerHTML",
+        "insertAdjacentHTML",
+        "document.write",
+        "eval(",
+        "Function(",
+    ):
+        assert sink not in js, sink
+    html = (PAGE / "index.html").read_text()
+    assert "<script>" not in html and not re.search(r"\s(style|on\w+)\s*=", html)
+
+
+# -- the server ------------------------------------------------------------------------------
+
+
+def test_get_serves_the_page_and_its_assets_with_a_strict_policy() -> None:
+    with serving() as s:
+        for path, (name, ctype) in ASSETS.items():
+            status, headers, body = s.get(
+                f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode()
+            )
+            assert status == 200 and headers["content-type"] == ctype
+            assert body == (PAGE / name).read_bytes()
+            assert "script-src 'self'" in headers["content-security-policy"]
+            assert "default-src 'none'" in headers["content-security-policy"]
+            assert headers["x-content-type-options"] == "nosniff"
+
+
+def test_nothing_but_get_of_the_page_and_the_stream() -> None:
+    with serving(head_timeout_s=0.5) as s:
+        for method in ("POST", "PUT", "DELETE", "PATCH", "HEAD", "OPTIONS"):
+            status, headers, _ = s.get(f"{method} / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+            assert status == 405 and headers["allow"] == "GET", method
+        for path in ("/index.html", "/../etc/passwd", "/events/", "/app.js/x"):
+            assert s.get(f"GET {path} HTTP/1.1\r\n\r\n".encode())[0] == 404, path
+        assert s.get(b"GARBAGE\r\n\r\n")[0] == 400
+        assert s.get(b"GET / HTTP/1.1\r\nX: " + b"a" * 10_000)[0] == 431
+        assert s.get(b"GET / HTTP/1.1\r\n")[0] == 408  # the rest never comes
+        assert s.get(b"GET / HTTP/1.1\r\nHost: evil.example\r\n\r\n")[0] == 403
+        assert s.get(b"GET / HTTP/1.0\r\n\r\n")[0] == 200
+
+
+def test_the_stream_pushes_each_message_and_a_new_client_gets_the_latest() -> None:
+    with serving() as s:
+        a = Stream(s)
+        assert a.status() == 200
+        assert a.event()[0] == "hello" and a.event() == ("history", {"points": []})
+        s.send(hdr(1))
+        name, data = a.event()
+        assert name == "msg" and data["msg"] == hdr(1) and data["rx"] > 1e9
+        s.send(hdr(2, heading=200.0))
+        assert a.event()[1]["msg"] == hdr(2, heading=200.0)
+        b = Stream(s)
+        assert b.status() == 200 and b.event()[0] == "hello"
+        assert [p[0:2] for p in b.event()[1]["points"]] != []
+        assert b.event()[1]["msg"] == hdr(2, heading=200.0)
+        a.close()
+        b.close()
+
+
+def test_only_what_tail_accepts_and_only_hdr_messages_reach_the_stream() -> None:
+    with serving() as s:
+        a = Stream(s)
+        assert a.status() == 200 and a.event()[0] == "hello" and a.event()[0] == "history"
+        for bad in (
+            b"\xff",
+            b"{",
+            b"[]",
+            b'{"class":"TPV"}',
+            b'{"class":"HDR","x":NaN}',
+            b"$HNHDT,1.00,T*00",
+        ):
+            s.send(bad)
+        s.send(hdr(3))
+        assert a.event()[1]["msg"] == hdr(3)  # the first event after them is the good one
+        assert s.server.state.ignored == 6
+        a.close()
+
+
+def test_clients_beyond_the_limit_are_refused_until_one_leaves() -> None:
+    with serving(max_clients=2) as s:
+        a, b = Stream(s), Stream(s)
+        assert a.status() == 200 and b.status() == 200
+        c = Stream(s)
+        assert c.status() == 503 and s.server.refused == 1
+        c.close()
+        a.close()
+        wait_for(lambda: len(s.server.clients) == 1, "the server to see a client leave")
+        d = Stream(s)
+        assert d.status() == 200
+        # Connections that never ask for anything are bounded too: beyond the limit, closed.
+        idle = [s.connect() for _ in range(2 + EXTRA_CONNECTIONS - 2)]
+        wait_for(lambda: s.server.connections == 2 + EXTRA_CONNECTIONS, "the idle connections")
+        extra = s.connect()
+        assert extra.recv(100) == b""
+        for sock in [*idle, extra]:
+            sock.close()
+        b.close()
+        d.close()
+
+
+def test_a_stalled_client_is_dropped_and_never_delays_the_others() -> None:
+    """One client stops reading. Each datagram is sent once the live client has its
+    predecessor, so were the server to wait for the stalled one, this test would hang (and
+    fail at the guard)."""
+    with serving(queue_bytes=8192, send_buffer=4096) as s:
+        stalled = Stream(s, rcvbuf=4096)
+        live = Stream(s)
+        assert stalled.status() == 200 and live.status() == 200
+        assert live.event()[0] == "hello" and live.event()[0] == "history"
+        pad = "x" * 500  # ~600-byte events: the stalled client's buffers fill in ~100 of them
+        step = 0
+        while s.server.dropped == 0:
+            assert step < 10_000, "the stalled client was never dropped"
+            s.send(hdr(step, model=pad))
+            assert live.event()[1]["msg"]["step"] == step
+            step += 1
+        s.send(hdr(step))  # and the live one goes on
+        assert live.event()[1]["msg"]["step"] == step
+        assert s.server.dropped == 1 and len(s.server.clients) == 1
+        stalled.sock.settimeout(GUARD_S)
+        try:  # what it had queued is dropped with it: its stream ends (EOF or reset)
+            while stalled.sock.recv(65536):
+                pass
+        except ConnectionResetError:
+            pass
+        stalled.close()
+        live.close()
+
+
+# -- hdrd web as a process -------------------------------------------------------------------
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def start_web(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "hdrd", "web", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_hdrd_web_serves_until_sigterm_and_warns_when_not_local() -> None:
+    port, uport = free_port(), free_port(socket.SOCK_DGRAM)
+    p = start_web("--listen", f"0.0.0.0:{port}", "--udp", f"127.0.0.1:{uport}")
+    try:
+        assert p.stderr is not None
+        seen = ""
+        while "hdrd web: open" not in seen:
+            line = p.stderr.readline()
+            assert line, seen
+            seen += line
+        assert "web_listen_not_local" in seen
+        with socket.create_connection(("127.0.0.1", port), timeout=GUARD_S) as c:
+            c.sendall(b"GET / HTTP/1.1\r\nHost: vehicle.lan\r\n\r\n")  # not local: any name
+            assert c.recv(12) == b"HTTP/1.1 200"
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(GUARD_S) == 0
+        assert "Traceback" not in p.stderr.read()
+    finally:
+        p.kill()
+        p.wait()
+
+
+def test_hdrd_web_says_why_it_cannot_start() -> None:
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "hdrd", "web", *args],
+            capture_output=True,
+            text=True,
+            timeout=GUARD_S,
+        )
+
+    r = run("--listen", "localhost")
+    assert r.returncode == 2 and "hdrd web: bad --listen 'localhost'" in r.stderr
+    r = run("--listen", f"127.0.0.1:{free_port()}", "--udp", "[::1")
+    assert r.returncode == 2 and "bad --udp" in r.stderr
+    r = run("--max-clients", "0")
+    assert r.returncode == 2 and "--max-clients" in r.stderr
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        r = run("--listen", f"127.0.0.1:{taken.getsockname()[1]}")
+        assert r.returncode == 1 and "cannot listen on" in r.stderr
+    for out in (r.stdout, r.stderr):
+        assert "Traceback" not in out
