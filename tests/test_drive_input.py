@@ -217,6 +217,7 @@ def test_a_time_gap_over_the_limit_is_refused_naming_the_row(
 # -- a rate no gyro gives, a score that is no number ------------------------------------------------
 
 
+@pytest.mark.slow
 def test_an_absurd_rate_is_refused_naming_the_row(good: DriveLog, tmp_path: Path) -> None:
     """One omega of 1e200 once turned Epsi raw from 3.35 into 0.25 deg, exit 0."""
     w = good.omega.copy()
@@ -254,6 +255,7 @@ def test_a_score_that_is_not_a_number_is_an_error(good: DriveLog) -> None:
 # -- valid = 0: the row is left out, as if dropped ---------------------------------------------------
 
 
+@pytest.mark.slow
 def test_evaluate_and_tune_leave_out_rows_marked_not_valid(good: DriveLog, tmp_path: Path) -> None:
     """The device handled for 20 s (its rate all over the place), marked valid = 0: scored as
     the drive with those rows dropped from the file, not with them (gap always honoured it)."""
@@ -312,6 +314,7 @@ print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024, "MiB")
 """
 
 
+@pytest.mark.slow
 def test_a_tiny_file_of_40_million_rows_is_refused_before_it_is_read(tmp_path: Path) -> None:
     """360 KB of delta-encoded rows once took evaluate to 2.4 GB before any check."""
     f = tmp_path / "tiny.parquet"
@@ -358,6 +361,7 @@ def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) ->
 # -- files that are no drive log ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("protocol", ["hdr-bin", "hdr-text"])
 def test_a_capture_is_recognised_and_convert_named(protocol: str, tmp_path: Path) -> None:
     """``hdrd evaluate drive.cap`` once showed a UnicodeDecodeError."""
@@ -376,6 +380,7 @@ def test_a_capture_is_recognised_and_convert_named(protocol: str, tmp_path: Path
     assert c.returncode == 0, c.stderr
 
 
+@pytest.mark.slow
 def test_the_hint_never_converts_a_capture_onto_itself(tmp_path: Path) -> None:
     # A capture renamed x.csv: the hint once said `hdrd convert x.csv --out x.csv`, which
     # overwrote the capture. It names another file now, and convert refuses its own input,
@@ -402,6 +407,7 @@ def test_the_hint_never_converts_a_capture_onto_itself(tmp_path: Path) -> None:
     assert len(read_drive(tmp_path / "renamed-drive.csv")) == 360  # every frame of the capture
 
 
+@pytest.mark.slow
 def test_files_that_are_no_drive_log_are_one_line(good: DriveLog, tmp_path: Path) -> None:
     from hdrd.io.parquetlog import write_parquet_drive
 

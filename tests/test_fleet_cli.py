@@ -138,6 +138,7 @@ def test_ctrl_c_during_tune_writes_the_best_so_far(
         pytest.param(["--workers", "2"], id="cluster", marks=SLOW),
     ],
 )
+@pytest.mark.slow
 def test_tune_refuses_test_drives_that_are_training_drives(
     fleet: Path, tmp_path: Path, workers: list[str]
 ) -> None:
@@ -168,6 +169,7 @@ def _stand(path: Path, seed: int = 1) -> None:
     write_drive(path, simulate_drive("standstill", 1.0, seed))
 
 
+@pytest.mark.slow
 def test_output_files_are_checked_before_the_work(fleet: Path, tmp_path: Path) -> None:
     drive = str(sorted(fleet.glob("*.csv"))[0])
     long = "y" * 240
@@ -243,6 +245,7 @@ def test_a_config_file_given_as_a_drive_is_refused(fleet: Path, tmp_path: Path) 
     assert p.returncode == 1 and "a YAML file, not a drive log (.csv, .parquet)" in p.stderr
 
 
+@pytest.mark.slow
 def test_a_drive_named_twice_is_scored_once(fleet: Path, tmp_path: Path) -> None:
     one = sorted(fleet.glob("*.csv"))[0]
     p = hdrd("evaluate", str(one), str(one), "--json", str(tmp_path / "twice.json"))
@@ -331,6 +334,7 @@ def test_evaluate_help_gives_every_default() -> None:
         assert option.endswith("(default: none)") or "default: none)" in option, option
 
 
+@pytest.mark.slow
 def test_little_work_stays_in_this_process(fleet: Path) -> None:
     from hdrd.analysis.fleet_jobs import WORK_S_PER_BYTE, estimated_work_s
     from hdrd.io.drivefiles import find_drives

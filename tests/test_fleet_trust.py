@@ -160,6 +160,7 @@ def test_listeners_that_are_not_a_scheduler_are_one_line_errors(
         assert address in line
 
 
+@pytest.mark.slow
 def test_every_scheme_but_tcp_and_tls_is_one_line(drives: Path) -> None:
     for address in ("ucx://127.0.0.1:8786", "inproc://x", "ws://127.0.0.1:1", "foo://h:1"):
         line = one_error(hdrd("evaluate", str(drives), "--scheduler", address))

@@ -344,6 +344,7 @@ def test_inputs_are_reproducible_from_seed_surface_and_index() -> None:
     assert shown == generate("config", 3, 17)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("surface", SURFACES)
 def test_a_short_seeded_run_of_each_surface(surface: str) -> None:
     n = {"config": 40, "drivecsv": 48, "driveparquet": 48}.get(surface, 120)  # evaluate, tune, gap

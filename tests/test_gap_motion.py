@@ -37,6 +37,7 @@ def city(model_offset_dps: float) -> DriveLog:
     return replace(log, heading_truth=None, name="city")
 
 
+@pytest.mark.slow
 def test_a_bias_while_moving_is_named_fitted_and_closes_the_gap(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -63,6 +64,7 @@ def test_a_bias_while_moving_is_named_fitted_and_closes_the_gap(
     assert mo.offset_dps == pytest.approx(OFFSET_DPS, abs=0.015) and mo.moving_mps == 0.5
 
 
+@pytest.mark.slow
 def test_the_offset_s_sign_is_read() -> None:
     res = run_gap(city(-OFFSET_DPS))
     assert [s.effect for s in res.steps] == ["motion_offset"], summary(res)
