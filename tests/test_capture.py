@@ -16,15 +16,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.io import capture as capture_mod
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    Frame,
-    Parser,
-    array_to_frames,
-    encode_array,
-    encode_bin,
-)
+from hdrd.io.capture import decode_capture, encode_array
+from hdrd.io.frames import FRAME_DTYPE, Frame, Parser, array_to_frames, encode_bin
 from hdrd.io.protocol import PROTOCOLS, SYNC
 from tests.test_frames import _NEAR, frames_st, run
 

@@ -652,7 +652,8 @@ def _hard_capture() -> bytes:
     """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
-    from hdrd.io.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.capture import encode_array
+    from hdrd.io.frames import FRAME_DTYPE
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)

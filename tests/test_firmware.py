@@ -34,8 +34,8 @@ import pytest
 
 from hdrd.config import load_config
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import Frame, encode_array, encode_bin, encode_text
+from hdrd.io.capture import decode_capture, encode_array
+from hdrd.io.frames import Frame, encode_bin, encode_text
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware"

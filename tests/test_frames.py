@@ -11,7 +11,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from hdrd.io.capture import decode_capture, decode_frames
+from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, decode_frames, encode_array
 from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
@@ -20,11 +20,9 @@ from hdrd.io.frames import (
     ParserStats,
     array_to_frames,
     crc16_ccitt_false,
-    crc16_ccitt_false_rows,
     decode_bin,
     decode_text,
     encode,
-    encode_array,
     encode_bin,
     encode_text,
     frames_to_array,

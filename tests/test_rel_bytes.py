@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
-from hdrd.io.capture import decode_capture
+from hdrd.io.capture import decode_capture, encode_array
 from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
@@ -40,7 +40,6 @@ from hdrd.io.frames import (
     Parser,
     array_to_frames,
     decode_bin,
-    encode_array,
     encode_bin,
     encode_text,
 )

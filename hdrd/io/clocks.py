@@ -7,6 +7,8 @@
   the pipeline cuts its blocks of T on it;
 - :class:`SampleClock`: how much device time a calibration window spans, robust to one frame
   with a glitched timestamp (``hdrd calibrate``);
+- :class:`WallClockCheck`: whether the device clock agrees with the host's (``hdrd run``: a
+  frame whose clock does not is dropped, not integrated);
 - :func:`device_seconds`: a capture's device time since its first frame, s (pacing a replay).
 
 The device clock's constants (wrap at 2**32 us, a reset is a step back of more than 1 s) are
@@ -29,6 +31,7 @@ __all__ = [
     "ManualClock",
     "RealClock",
     "SampleClock",
+    "WallClockCheck",
     "device_seconds",
     "unwrap_us",
 ]
@@ -245,3 +248,108 @@ def device_seconds(t_us: npt.NDArray[np.integer[Any]]) -> npt.NDArray[np.float64
     d = np.mod(np.diff(t_us.astype(np.int64)), CLOCK_WRAP_US)
     d[d >= CLOCK_WRAP_US // 2] = 0
     return np.concatenate(([0.0], np.cumsum(d) / 1e6))
+
+
+# -- the device's clock against the host's --------------------------------------------------
+
+
+class WallClockCheck:
+    """Whether each frame's device time agrees with the host's monotonic clock. Pure: the
+    caller passes the times (``hdrd run``: when the frame was in hand).
+
+    A frame's offset, o = (host time in hand) - (device seconds since the first frame) /
+    ``rate``, is its delay in reaching the host plus a constant, while the device clock runs
+    at ``rate`` device seconds per host second (1: a gyro; N: a feed N times real time). The
+    reference A starts at the first frame's offset and follows the frames kept by at most
+    ``drift`` seconds per second either way (a crystal is off by 1e-4 at most). :meth:`check`
+    says:
+
+    - :data:`AGREES` when |o - A| <= ``tolerance_s`` (a frame late by a stalled reader, a burst
+      of USB frames, the device's crystal: all well inside);
+    - :data:`DISAGREES` otherwise (counted in ``mismatches``): a device clock running fast,
+      slow or stopped, or one that jumped; the frame is not to be integrated;
+    - :data:`JUMPED` when the frames have disagreed for ``reanchor_s`` of host time while
+      agreeing among themselves (offsets within ``tolerance_s`` of the first of them: the
+      device clock jumped once and runs at the rate since): A is set to this frame's offset
+      and the frame kept (counted in ``jumps``); the caller takes the device time since the
+      last frame kept as unknown (the daemon counts the steps on by the host's clock).
+
+    A device clock that goes back (a restart of the device, which
+    :class:`hdrd.io.frames.FrameTracker` has confirmed) continues from the last frame kept,
+    as in :class:`DeviceClock`. ``rate`` 0 turns the check off: every frame agrees.
+    """
+
+    AGREES = 0
+    DISAGREES = 1
+    JUMPED = 2
+
+    __slots__ = (
+        "_a",
+        "_at",
+        "_last_raw",
+        "_run_at",
+        "_run_o",
+        "_tau",
+        "drift",
+        "jumps",
+        "mismatches",
+        "rate",
+        "reanchor_s",
+        "tolerance_s",
+    )
+
+    def __init__(
+        self,
+        rate: float = 1.0,
+        tolerance_s: float = 5.0,
+        drift: float = 1e-3,
+        reanchor_s: float = 5.0,
+    ) -> None:
+        if not (rate >= 0 and tolerance_s > 0 and drift >= 0 and reanchor_s >= 0):
+            raise ValueError("need rate >= 0, tolerance_s > 0, drift >= 0, reanchor_s >= 0")
+        self.rate = rate
+        self.tolerance_s = tolerance_s
+        self.drift = drift
+        self.reanchor_s = reanchor_s
+        self.mismatches = 0
+        self.jumps = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """A new connection: the next frame starts a new reference."""
+        self._last_raw: int | None = None
+        self._tau = 0.0  # device seconds of the last frame kept, since the first
+        self._a = 0.0  # the reference offset, s
+        self._at = 0.0  # host time of the last frame kept
+        self._run_o: float | None = None  # the first offset of a run of disagreeing frames
+        self._run_at = 0.0
+
+    def check(self, t_us: int, now: float) -> int:
+        """The verdict on a frame with raw device time ``t_us`` in hand at host time ``now``
+        (s): :data:`AGREES`, :data:`DISAGREES` or :data:`JUMPED` (see the class doc)."""
+        if self.rate == 0:
+            return self.AGREES
+        if self._last_raw is None:
+            self._keep(t_us, 0.0, now, now)
+            return self.AGREES
+        d = (t_us - self._last_raw) % CLOCK_WRAP_US
+        tau = self._tau + (d / 1e6 if d < _HALF_WRAP else 0.0)
+        o = now - tau / self.rate
+        step = self.drift * max(0.0, now - self._at)
+        if abs(o - self._a) <= self.tolerance_s:
+            self._keep(t_us, tau, self._a + min(max(o - self._a, -step), step), now)
+            return self.AGREES
+        self.mismatches += 1
+        if self._run_o is None or abs(o - self._run_o) > self.tolerance_s:
+            self._run_o, self._run_at = o, now
+            return self.DISAGREES
+        if now - self._run_at < self.reanchor_s:
+            return self.DISAGREES
+        self.mismatches -= 1
+        self.jumps += 1
+        self._keep(t_us, tau, o, now)
+        return self.JUMPED
+
+    def _keep(self, t_us: int, tau: float, a: float, now: float) -> None:
+        self._last_raw, self._tau, self._a, self._at = t_us, tau, a, now
+        self._run_o = None

@@ -1,13 +1,16 @@
 """The wire protocol of the gyro's USB ADC: hdr-bin and hdr-text frames (docs/protocol.md).
 
-Pure: no port, no clock. Two layers here, in the manner of pyubx2 and pyserial's threaded
-protocols, and a third beside it:
+Pure: no port, no clock. Three layers here, in the manner of pyubx2 and pyserial's threaded
+protocols, and a fourth beside it:
 
 - codecs: :func:`encode_bin` / :func:`decode_bin`, :func:`encode_text` / :func:`decode_text`
   (one frame <-> its bytes; a bad frame raises :class:`FrameError`);
+- :class:`FrameTracker`: the sequence number and device clock of a stream, the one place that
+  decides which frames are new and whose clock agrees with their sequence, and counts the
+  rest (:class:`ParserStats`);
 - :class:`Parser`: a push parser, ``feed(chunk) -> frames``, that keeps partial frames across
-  chunks, resynchronises after garbage, drops and counts bad frames and reports sequence gaps
-  and device-clock wraps in :class:`ParserStats`;
+  chunks, resynchronises after garbage, drops and counts bad frames, and hands its good ones
+  to its tracker;
 - :func:`hdrd.io.capture.decode_capture`: a vectorised decoder of a whole capture into a numpy
   structured array (:data:`FRAME_DTYPE`), giving exactly the frames and counters of the push
   parser.
@@ -29,6 +32,7 @@ pattern inside a payload or in garbage never costs the next good frame.
 
 from __future__ import annotations
 
+import itertools
 import re
 import struct
 from binascii import crc_hqx
@@ -42,9 +46,10 @@ import numpy.typing as npt
 from hdrd.errors import HdrdError
 from hdrd.io.protocol import (
     BIN_FRAME_LEN,
+    BREAK_CONFIRM_FRAMES,
     CLOCK_WRAP_US,
     PROTOCOLS,
-    RESET_THRESHOLD_US,
+    SEQ_CLOCK_RATIO,
     SEQ_REORDER_WINDOW,
     SYNC,
     TEMP_NOT_FITTED,
@@ -57,21 +62,18 @@ __all__ = [
     "FRAME_DTYPE",
     "Frame",
     "FrameError",
+    "FrameTracker",
     "Parser",
     "ParserStats",
     "array_to_frames",
     "check_protocol",
-    "crc_ok_at",
     "crc16_ccitt_false",
-    "crc16_ccitt_false_rows",
     "decode_bin",
     "decode_text",
     "encode",
-    "encode_array",
     "encode_bin",
     "encode_text",
     "frames_to_array",
-    "sequence_stats",
 ]
 
 _BODY = struct.Struct("<HIHHhH")  # seq, t_us, rate, ref, temp, crc: bytes 2..15
@@ -157,60 +159,6 @@ def _crc_table() -> npt.NDArray[np.uint16]:
 
 CRC_TABLE = _crc_table()
 """The table-driven CRC-16/CCITT-FALSE: crc' = (crc << 8) ^ TABLE[(crc >> 8) ^ byte]."""
-
-
-def _crc_table16_le() -> npt.NDArray[np.uint16]:
-    # Two bytes at a time: a 16-bit register shifts out whole, so crc' = T16[crc ^ w], w the
-    # next two bytes big-endian, T16[w] the register after feeding w from 0. Keeping the
-    # register byte-swapped (c = swap(crc)) lets the words be read little-endian in place:
-    # c' = TLE[c ^ w_le] with TLE[x] = swap(T16[swap(x)]).
-    x = np.arange(65536, dtype=np.uint16)
-    hi = CRC_TABLE[x >> 8]
-    t16 = (hi << 8) ^ CRC_TABLE[(hi >> 8) ^ (x & 0xFF)]
-    swap = (x >> 8) | (x << 8)
-    t = t16[swap]
-    return (t >> 8) | (t << 8)
-
-
-_CRC_TABLE16_LE = _crc_table16_le()
-
-
-def _crc_words_le(words: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:
-    """CRC-16/CCITT-FALSE of each row of (k, m) uint16 words read little-endian from the
-    bytes, returned byte-swapped (``swap(crc)``)."""
-    c = np.full(words.shape[0], 0xFFFF, np.uint16)
-    for j in range(words.shape[1]):
-        c = _CRC_TABLE16_LE[c ^ words[:, j]]
-    return c
-
-
-def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16]:
-    """CRC-16/CCITT-FALSE of every row of a (k, m) uint8 array at once (table-driven)."""
-    rows = np.asarray(rows, dtype=np.uint8)
-    k, m = rows.shape
-    if m % 2 == 0:
-        c = _crc_words_le(np.ascontiguousarray(rows).view("<u2"))
-        return ((c >> 8) | (c << 8)).astype(np.uint16, copy=False)
-    crc = np.full(k, 0xFFFF, np.uint16)
-    for j in range(m):
-        crc = (crc << 8) ^ CRC_TABLE[(crc >> 8) ^ rows[:, j]]
-    return crc
-
-
-def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Whether the hdr-bin frame starting at each position ``cand`` (sorted, each with room
-    for a whole frame) of the bytes ``a`` carries a matching CRC."""
-    k = cand.shape[0]
-    if k == 0:
-        return np.zeros(0, bool)
-    if cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
-        # A clean run of frames with no stray sync pattern: a view, no gather.
-        rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
-    else:
-        rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
-    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
-    stored = words[:, 7]
-    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
 
 
 # --------------------------------------------------------------------------- codecs
@@ -366,24 +314,7 @@ def array_to_frames(arr: npt.NDArray[np.void]) -> list[Frame]:
     ]
 
 
-def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
-    """A whole :data:`FRAME_DTYPE` array encoded back to back (vectorised for hdr-bin)."""
-    check_protocol(protocol)
-    arr = np.ascontiguousarray(arr, dtype=FRAME_DTYPE)
-    if protocol == "hdr-text":
-        return b"".join(encode_text(f) for f in array_to_frames(arr))
-    k = arr.shape[0]
-    out = np.empty((k, BIN_FRAME_LEN), np.uint8)
-    out[:, 0] = 0xA5
-    out[:, 1] = 0x5A
-    out[:, 2:14] = arr.view(np.uint8).reshape(k, 12)
-    crc = crc16_ccitt_false_rows(out[:, 2:14])
-    out[:, 14] = crc & 0xFF
-    out[:, 15] = crc >> 8
-    return out.tobytes()
-
-
-# --------------------------------------------------------------------------- push parser
+# --------------------------------------------------------------------------- sequence and clock
 
 
 @dataclass(slots=True, eq=False)
@@ -393,12 +324,15 @@ class ParserStats:
     frames: good frames returned. bad_frames: frames that started with a sync pattern but
     failed their CRC, checksum or syntax. garbage_bytes: bytes not part of a good frame
     (bad frames' bytes included; bytes still buffered are not counted until ``flush``).
-    seq_gaps: jumps forward of the sequence number by more than 1 (events); lost_frames: the
-    sum of the sequence numbers skipped. seq_repeats: frames whose sequence number repeats or
-    is at most :data:`SEQ_REORDER_WINDOW` behind the last (kept, but the counter is not moved
-    back). seq_resets: larger backward jumps (a device restart). clock_wraps: device-clock
-    wraps at 2**32 us. clock_back: device-clock steps that did not go forward (a step back of
-    more than 1 s resets the reference, like :class:`hdrd.io.clocks.DeviceClock`).
+    The sequence number and the device clock (:class:`FrameTracker`, docs/protocol.md
+    "Sequence and clock"): seq_gaps: jumps forward of the sequence number by more than 1
+    (events); lost_frames: the sum of the sequence numbers skipped. seq_resets: breaks after
+    which the sequence went on from further behind (a device restart). clock_wraps:
+    device-clock wraps at 2**32 us. Frames dropped (CRC-valid, but not returned):
+    seq_repeats: not new (a sequence number repeated or at most :data:`SEQ_REORDER_WINDOW`
+    behind, the device clock not ahead); seq_clock_mismatch: the device time disagrees with
+    the sequence number (a frozen, slow, fast or jumping clock, a random frame that passed
+    the CRC).
     """
 
     frames: int = 0
@@ -409,7 +343,7 @@ class ParserStats:
     seq_repeats: int = 0
     seq_resets: int = 0
     clock_wraps: int = 0
-    clock_back: int = 0
+    seq_clock_mismatch: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -424,8 +358,270 @@ class ParserStats:
 _COUNTERS = tuple(f.name for f in fields(ParserStats))
 
 
-_SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDOW behind
+_SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # k >= this: at most SEQ_REORDER_WINDOW behind
 _HALF_WRAP = CLOCK_WRAP_US >> 1
+_R = SEQ_CLOCK_RATIO
+
+
+def _agrees(d: int, k: int, d0: int, k0: int) -> bool:
+    """Whether d us over k sequence steps keep to the interval d0 us per k0 steps (within
+    :data:`SEQ_CLOCK_RATIO`); any step does when there is no interval yet (k0 = 0)."""
+    return k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k)
+
+
+@dataclass(frozen=True, slots=True)
+class _At:
+    """A frame of an array, as :meth:`FrameTracker.run` reads it: its place ``i``."""
+
+    seq: int
+    t_us: int
+    i: int
+
+
+class FrameTracker:
+    """The sequence number and device clock of a stream of frames, in one place: which frames
+    are kept, and the sequence/clock counters of :class:`ParserStats`. Pure.
+
+    A frame is judged against the last frame kept, k sequence steps on (modulo 2**16) and d
+    microseconds on (modulo 2**32):
+
+    - **kept** when 0 < k < 2**15, the clock forward (0 < d < 2**31) and d / k within a factor
+      :data:`SEQ_CLOCK_RATIO` of the interval (the last two kept frames' d / k; any for the
+      second frame). k > 1 is a gap of k - 1 frames (``seq_gaps``, ``lost_frames``);
+    - **dropped, not new** (``seq_repeats``) when k = 0 or at most :data:`SEQ_REORDER_WINDOW`
+      behind and the clock not forward: a repeated or reordered frame;
+    - otherwise a **break**: the frame is held. A later frame that is kept as above drops what
+      is held (``seq_clock_mismatch``: a random frame that passed the CRC, a frozen, slow or
+      fast clock). :data:`BREAK_CONFIRM_FRAMES` held frames in a row, each at most
+      SEQ_REORDER_WINDOW steps after the one before, its clock forward and at the interval
+      (once two steps in a row have agreed on one; else at their own), are released and kept:
+      the device restarted (``seq_resets``) or jumped on (a gap). A held frame that does not
+      continue the ones before drops them.
+
+    :meth:`run` (the push parsers, a batch of frames) and :meth:`run_array` (a whole capture,
+    numpy over the runs where each step agrees with the one before) decide alike. At the end
+    of the input :meth:`flush` drops what is held.
+    """
+
+    __slots__ = ("_agreed", "_d", "_held", "_k", "_kept_run", "_seq", "_t", "stats")
+
+    def __init__(self, stats: ParserStats | None = None) -> None:
+        self.stats = ParserStats() if stats is None else stats
+        self._seq: int | None = None  # the last frame kept: its sequence number, device time
+        self._t = 0
+        self._d = 0  # the interval: device us over _k sequence steps (0: none yet)
+        self._k = 0
+        self._agreed = 0  # steps kept since the start or the last break
+        self._kept_run = 0  # frames kept by the rule in a row, to the last one judged
+        self._held: list[tuple[Any, int, int, int]] = []  # (item, seq, t_us, bad) after a break
+
+    @property
+    def held(self) -> int:
+        """Frames held after a break, not decided yet."""
+        return len(self._held)
+
+    def run(self, items: list[Any], bads: list[int]) -> tuple[list[Any], list[int]]:
+        """Judge a batch of frames (``items``, each with ``seq`` and ``t_us``, and the bad
+        frames before each): the items kept, in order, with their bad-frame counts (frames held
+        earlier and released now come first). The common case, every frame kept, returns the
+        lists given; :meth:`_run_all` takes the rest from the first frame that is not."""
+        seq0, t0, d0, k0 = self._seq, self._t, self._d, self._k
+        if seq0 is None or self._held:
+            return self._run_all(items, bads, 0)
+        st = self.stats
+        j = 0
+        for f in items:
+            s = f.seq
+            t = f.t_us
+            k = (s - seq0) & 0xFFFF
+            d = (t - t0) & 0xFFFFFFFF
+            if not (
+                0 < k < 0x8000
+                and 0 < d < 0x80000000
+                and (k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k))
+            ):
+                break
+            if k > 1:
+                st.seq_gaps += 1
+                st.lost_frames += k - 1
+            if t < t0:
+                st.clock_wraps += 1
+            seq0, t0, d0, k0 = s, t, d, k
+            j += 1
+        self._seq, self._t, self._d, self._k = seq0, t0, d0, k0
+        self._agreed += j
+        self._kept_run += j
+        if j == len(items):
+            return items, bads
+        out, out_bad = self._run_all(items, bads, j)
+        return items[:j] + out, bads[:j] + out_bad
+
+    def _run_all(
+        self, items: list[Any], bads: list[int], start: int
+    ) -> tuple[list[Any], list[int]]:
+        """:meth:`run` from ``items[start]`` on, breaks and repeats included."""
+        out: list[Any] = []
+        out_bad: list[int] = []
+        st = self.stats
+        for j in range(start, len(items)):
+            f, b = items[j], bads[j]
+            seq0 = self._seq
+            if seq0 is None:  # the first frame: nothing to judge it by
+                self._seq, self._t, self._kept_run = f.seq, f.t_us, 1
+                out.append(f)
+                out_bad.append(b)
+                continue
+            k = (f.seq - seq0) & 0xFFFF
+            d = (f.t_us - self._t) & 0xFFFFFFFF
+            fwd = 0 < d < _HALF_WRAP
+            if 0 < k < 0x8000 and fwd and _agrees(d, k, self._d, self._k):
+                if k > 1:
+                    st.seq_gaps += 1
+                    st.lost_frames += k - 1
+                if f.t_us < self._t:
+                    st.clock_wraps += 1
+                self._seq, self._t, self._d, self._k = f.seq, f.t_us, d, k
+                self._agreed += 1
+                self._kept_run += 1
+                self._drop_held()
+                out.append(f)
+                out_bad.append(b)
+                continue
+            self._kept_run = 0
+            if (k == 0 or k >= _SEQ_BACK) and not fwd:
+                st.seq_repeats += 1
+                continue
+            for it, bb in self._on_break(f, f.seq, f.t_us, b):
+                out.append(it)
+                out_bad.append(bb)
+        return out, out_bad
+
+    def _on_break(self, item: Any, s: int, t: int, b: int) -> list[tuple[Any, int]]:
+        """A frame that breaks the sequence or the clock: held; the frames released if it is
+        the last of :data:`BREAK_CONFIRM_FRAMES` that continue one another."""
+        held = self._held
+        if held:
+            _, ps, pt, _ = held[-1]
+            k = (s - ps) & 0xFFFF
+            d = (t - pt) & 0xFFFFFFFF
+            d0, k0 = self._d, self._k
+            if self._agreed < 2:  # no interval agreed on yet: the held frames' own
+                d0, k0 = 0, 0
+                if len(held) >= 2:
+                    d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
+            if not (0 < k <= SEQ_REORDER_WINDOW and 0 < d < _HALF_WRAP and _agrees(d, k, d0, k0)):
+                self._drop_held()
+        held.append((item, s, t, b))
+        if len(held) < BREAK_CONFIRM_FRAMES:
+            return []
+        return self._release()
+
+    def _release(self) -> list[tuple[Any, int]]:
+        """The held frames continue one another: they are kept, the last one the reference."""
+        held, st = self._held, self.stats
+        assert self._seq is not None  # a break follows a kept frame
+        k = (held[0][1] - self._seq) & 0xFFFF
+        if k >= 0x8000:
+            st.seq_resets += 1
+        elif k > 1:
+            st.seq_gaps += 1
+            st.lost_frames += k - 1
+        for (_, sa, ta, _), (_, sb, tb, _) in itertools.pairwise(held):
+            kk = (sb - sa) & 0xFFFF
+            if kk > 1:
+                st.seq_gaps += 1
+                st.lost_frames += kk - 1
+            if tb < ta:
+                st.clock_wraps += 1
+            self._seq, self._t, self._d, self._k = sb, tb, (tb - ta) & 0xFFFFFFFF, kk
+        self._agreed = len(held) - 1
+        out = [(it, bb) for it, _, _, bb in held]
+        held.clear()
+        return out
+
+    def _drop_held(self) -> None:
+        self.stats.seq_clock_mismatch += len(self._held)
+        self._held.clear()
+
+    def flush(self) -> None:
+        """End of the input: the frames held after a break are dropped (never confirmed)."""
+        self._drop_held()
+        self._kept_run = 0
+
+    def run_array(self, arr: npt.NDArray[np.void]) -> npt.NDArray[np.int64]:
+        """:meth:`run` over a :data:`FRAME_DTYPE` array in stream order (a whole capture): the
+        positions of the frames kept, in order. The same decisions and counters as ``run``:
+        numpy over the runs in which every step is forward and agrees with the step before
+        (the tracker being where ``run`` would be), ``run`` itself around the rest."""
+        n = arr.shape[0]
+        if self._seq is None and n > 1 and self._all_kept(arr):
+            return np.arange(n, dtype=np.int64)
+        seq = arr["seq"].astype(np.int64)
+        t = arr["t_us"].astype(np.int64)
+        k = np.zeros(n, np.int64)
+        d = np.zeros(n, np.int64)
+        np.bitwise_and(np.diff(seq), 0xFFFF, out=k[1:])
+        np.bitwise_and(np.diff(t), 0xFFFFFFFF, out=d[1:])
+        good = (k > 0) & (k < 0x8000) & (d > 0) & (d < _HALF_WRAP)
+        good[2:] &= (_R * d[2:] * k[1:-1] >= d[1:-1] * k[2:]) & (
+            d[2:] * k[1:-1] <= _R * d[1:-1] * k[2:]
+        )
+        breaks = np.flatnonzero(~good)
+        w = 2 * BREAK_CONFIRM_FRAMES + 2  # after this many good steps the tracker is at rest
+        calm = np.empty(0, np.int64)
+        if n >= w:
+            calm = np.flatnonzero(np.lib.stride_tricks.sliding_window_view(good, w).all(axis=1))
+        kept: list[npt.NDArray[np.int64]] = []
+        i = 0
+        while i < n:
+            if i >= 2 and self._kept_run >= 2 and good[i]:  # at i - 1, the step into it known
+                j = int(breaks[np.searchsorted(breaks, i)]) if breaks[-1] >= i else n
+                self._numpy_run(k[i:j], t[i - 1 : j])
+                self._seq, self._t = int(seq[j - 1]), int(t[j - 1])
+                self._d, self._k = int(d[j - 1]), int(k[j - 1])
+                kept.append(np.arange(i, j, dtype=np.int64))
+                i = j
+                continue
+            at = int(np.searchsorted(calm, i))  # run to the end of the next calm stretch
+            hi = min(n, int(calm[at]) + w) if at < calm.shape[0] else n
+            hi = max(hi, i + 1)
+            rows = [_At(*x) for x in zip(seq[i:hi].tolist(), t[i:hi].tolist(), range(i, hi))]
+            got, _ = self.run(rows, [0] * len(rows))
+            kept.append(np.fromiter((r.i for r in got), np.int64, len(got)))
+            i = hi
+        return np.concatenate(kept) if kept else np.empty(0, np.int64)
+
+    def _all_kept(self, arr: npt.NDArray[np.void]) -> bool:
+        """The common case of a whole capture, from a new tracker, cheaply: every step forward
+        and every step's device time per sequence step within a factor 1.99 of every other's
+        (so of the step before, whatever the rounding). Then all is kept and counted here."""
+        seq, t = arr["seq"], arr["t_us"]
+        k = np.diff(seq)  # uint16 and uint32: the differences wrap as the wire's counters do
+        d = np.diff(t)
+        if not (np.all(k.view(np.int16) > 0) and np.all(d.view(np.int32) > 0)):
+            return False
+        per = d / k
+        if not per.max() <= 1.99 * per.min():
+            return False
+        self._seq, self._t = int(seq[0]), int(t[0])
+        self._numpy_run(k, t)
+        self._seq, self._t, self._d, self._k = int(seq[-1]), int(t[-1]), int(d[-1]), int(k[-1])
+        self._kept_run += 1
+        return True
+
+    def _numpy_run(self, k: npt.NDArray[np.int64], t: npt.NDArray[np.int64]) -> None:
+        """Count the steps ``k`` (into frames whose device times are ``t[1:]``, ``t[0]`` the
+        frame before) of a run that is kept whole."""
+        st = self.stats
+        jumps = k[k > 1]
+        st.seq_gaps += int(jumps.size)
+        st.lost_frames += int((jumps - 1).sum())
+        st.clock_wraps += int(np.count_nonzero(t[1:] < t[:-1]))
+        self._agreed += int(k.size)
+        self._kept_run += int(k.size)
+
+
+# --------------------------------------------------------------------------- push parser
 
 
 def _sync_at(buf: bytes, k: int) -> bool | None:
@@ -463,25 +659,71 @@ def _displaced(buf: bytes, i: int, final: bool) -> bool | None:
     return False
 
 
+_Scan = tuple[list[Frame], list[int], int, int]
+"""What :func:`_scan_bin` found: frames and the bad frames before each; the bad frames so far;
+where the bytes that wait for more start."""
+
+
+def _scan_bin(buf: bytes, bad: int, final: bool) -> _Scan:
+    """Long because it is the binary parser's hot path: one loop with its names bound to
+    locals. The frames in ``buf`` by the resynchronisation rule (module doc)."""
+    n = len(buf)
+    find = buf.find
+    unpack = _BODY.unpack_from
+    frames: list[Frame] = []
+    bads: list[int] = []
+    add_f, add_b = frames.append, bads.append
+    p = 0
+    nxt = -2  # the first sync pattern at or after p when known (-1: none), else -2
+    while True:
+        i = find(SYNC, p) if nxt == -2 else nxt
+        if i < 0:
+            return frames, bads, bad, n - 1 if n > p and buf[n - 1] == 0xA5 else n
+        if i + 16 > n:
+            return frames, bads, bad, i
+        seq, t_us, rate, ref, temp, crc = unpack(buf, i + 2)
+        nxt = -2
+        if crc_hqx(buf[i + 2 : i + 14], 0xFFFF) != crc:
+            bad += 1
+            p = i + 1
+            continue
+        # The next sync pattern after this one's: beyond the frame, the next scan starts
+        # there; inside it (rare), is this frame a CRC coincidence? (:func:`_displaced`)
+        nxt = find(SYNC, i + 2)
+        if 0 <= nxt < i + 16:
+            nxt = -2
+            verdict = _displaced(buf, i, final)
+            if verdict is None:  # the bytes that decide have not arrived yet
+                return frames, bads, bad, i
+            if verdict:
+                bad += 1
+                p = i + 1
+                continue
+        p = i + 16
+        add_f(_frame(seq, t_us, rate, ref, None if temp == -32768 else temp))
+        add_b(bad)
+
+
 class Parser:
     """Push parser: ``feed(chunk) -> list[Frame]`` (pyserial ``threaded.Packetizer`` style).
 
     Any bytes are accepted and nothing raises: partial frames wait for the next chunk, bad
-    frames and garbage are counted in :attr:`stats`. Feeding a stream in any split gives
-    the same frames and counters. ``flush()`` at end of input counts the leftover bytes.
+    frames and garbage are counted in :attr:`stats`; good frames are judged by their sequence
+    number and device clock (:class:`FrameTracker`): those not new or whose clock disagrees
+    with their sequence are dropped and counted. Feeding a stream in any split gives the same
+    frames and counters. ``flush()`` at end of input counts the leftover bytes.
     """
 
-    __slots__ = ("_buf", "_feed", "_last_seq", "_last_t", "bad_before", "protocol", "stats")
+    __slots__ = ("_buf", "_feed", "bad_before", "protocol", "stats", "tracker")
 
     def __init__(self, protocol: str = "hdr-bin") -> None:
         check_protocol(protocol)
         self.protocol = protocol
         self.stats = ParserStats()
+        self.tracker = FrameTracker(self.stats)
         self.bad_before: list[int] = []
         """For each frame the last ``feed`` returned: ``stats.bad_frames`` just before it."""
         self._buf = b""
-        self._last_seq: int | None = None
-        self._last_t: int | None = None
         self._feed = self._feed_bin if protocol == "hdr-bin" else self._feed_text
 
     @property
@@ -500,7 +742,8 @@ class Parser:
         """End of input (or a link reset): the frames still held back are decided and
         returned (hdr-bin: a complete frame waits only while the bytes that tell a CRC
         coincidence from a real frame are missing, see :func:`_displaced`; at the end they
-        never come), then the leftover bytes are dropped and counted as garbage.
+        never come), then the leftover bytes are dropped and counted as garbage, and the
+        frames held after a break in the sequence (:class:`FrameTracker`) are dropped.
 
         The sequence and clock references are kept, so a gap across a reconnection is
         still reported. :attr:`bad_before` describes the returned frames."""
@@ -511,147 +754,24 @@ class Parser:
             self.bad_before = []
         self.stats.garbage_bytes += len(self._buf)
         self._buf = b""
+        self.tracker.flush()
         return out
 
-    def _track(self, seq: int, t_us: int) -> None:
-        """Sequence and clock bookkeeping for one good frame (the push path's rule, shared by
-        the text parser and the vectorised decoder's slow path)."""
-        st = self.stats
-        last = self._last_seq
-        if last is None:
-            self._last_seq = seq
-        else:
-            d = (seq - last) & _U16
-            if d == 1:
-                self._last_seq = seq
-            elif d == 0 or d >= _SEQ_BACK:
-                st.seq_repeats += 1
-            elif d < 0x8000:
-                st.seq_gaps += 1
-                st.lost_frames += d - 1
-                self._last_seq = seq
-            else:
-                st.seq_resets += 1
-                self._last_seq = seq
-        lt = self._last_t
-        if lt is None:
-            self._last_t = t_us
-        else:
-            d = (t_us - lt) & _U32
-            if 0 < d < _HALF_WRAP:
-                if t_us < lt:
-                    st.clock_wraps += 1
-                self._last_t = t_us
-            else:
-                st.clock_back += 1
-                if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
-                    self._last_t = t_us
-
     def _feed_bin(self, chunk: bytes, final: bool = False) -> list[Frame]:
-        """Long because and Complex because it is the binary parser's hot path: one loop over
-        the buffer with its names bound to locals and :meth:`_track` copied inline, as a call
-        per frame would cost."""
         buf = self._buf + chunk if self._buf else chunk
-        n = len(buf)
-        find = buf.find
-        unpack = _BODY.unpack_from
-        crc16 = crc_hqx
-        new, set_seq, set_t, set_rate, set_ref, set_temp = (
-            _new,
-            _SET_SEQ,
-            _SET_T,
-            _SET_RATE,
-            _SET_REF,
-            _SET_TEMP,
-        )
-        out: list[Frame] = []
-        append = out.append
-        bad = self.stats.bad_frames
-        bad_before: list[int] = []
-        bb_append = bad_before.append
-        p = 0
-        nxt = -2  # the first sync pattern at or after p when known (-1: none), else -2
-        last_seq = self._last_seq
-        last_t = self._last_t
         st = self.stats
-        while True:
-            i = find(SYNC, p) if nxt == -2 else nxt
-            if i < 0:
-                keep = n - 1 if n > p and buf[n - 1] == 0xA5 else n
-                break
-            if i + 16 > n:
-                keep = i
-                break
-            seq, t_us, rate, ref, temp, crc = unpack(buf, i + 2)
-            if crc16(buf[i + 2 : i + 14], 0xFFFF) != crc:
-                bad += 1
-                p = i + 1
-                nxt = -2
-                continue
-            # The next sync pattern after this one's: beyond the frame, the next scan starts
-            # there; inside it (rare), is this frame a CRC coincidence? (:func:`_displaced`)
-            nxt = find(SYNC, i + 2)
-            if 0 <= nxt < i + 16:
-                verdict = _displaced(buf, i, final)
-                if verdict is None:  # the bytes that decide have not arrived yet
-                    keep = i
-                    break
-                if verdict:
-                    bad += 1
-                    p = i + 1
-                    nxt = -2
-                    continue
-                nxt = -2
-            p = i + 16
-            # Inline copy of _track (the hot path); keep the two in step.
-            if last_seq is None or seq == (last_seq + 1) & 0xFFFF:
-                last_seq = seq
-            else:
-                d = (seq - last_seq) & _U16
-                if d == 0 or d >= _SEQ_BACK:
-                    st.seq_repeats += 1
-                elif d < 0x8000:
-                    st.seq_gaps += 1
-                    st.lost_frames += d - 1
-                    last_seq = seq
-                else:
-                    st.seq_resets += 1
-                    last_seq = seq
-            if last_t is None:
-                last_t = t_us
-            else:
-                d = (t_us - last_t) & 0xFFFFFFFF
-                if 0 < d < 0x80000000:  # forward by less than half the wrap
-                    if t_us < last_t:
-                        st.clock_wraps += 1
-                    last_t = t_us
-                else:
-                    st.clock_back += 1
-                    if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
-                        last_t = t_us
-            f = new(Frame)
-            set_seq(f, seq)
-            set_t(f, t_us)
-            set_rate(f, rate)
-            set_ref(f, ref)
-            set_temp(f, None if temp == -32768 else temp)
-            append(f)
-            bb_append(bad)
-        self._last_seq = last_seq
-        self._last_t = last_t
-        self._buf = buf[keep:] if keep < n else b""
-        nf = len(out)
-        st.frames += nf
-        st.bad_frames = bad
-        self.bad_before = bad_before
-        st.garbage_bytes += keep - 16 * nf
+        frames, bads, st.bad_frames, keep = _scan_bin(buf, st.bad_frames, final)
+        self._buf = buf[keep:] if keep < len(buf) else b""
+        st.garbage_bytes += keep - 16 * len(frames)
+        out, self.bad_before = self.tracker.run(frames, bads)
+        st.frames += len(out)
         return out
 
     def _feed_text(self, chunk: bytes) -> list[Frame]:
         buf = self._buf + chunk if self._buf else chunk
         n = len(buf)
-        out: list[Frame] = []
-        bad_before: list[int] = []
+        found: list[Frame] = []
+        bads: list[int] = []
         st = self.stats
         p = 0
         good_bytes = 0
@@ -678,43 +798,12 @@ class Parser:
                 st.bad_frames += 1
                 p = i + 1
                 continue
-            self._track(f.seq, f.t_us)
-            out.append(f)
-            bad_before.append(st.bad_frames)
+            found.append(f)
+            bads.append(st.bad_frames)
             good_bytes += e + 1 - i
             p = e + 1
         self._buf = buf[keep:] if keep < n else b""
-        st.frames += len(out)
         st.garbage_bytes += keep - good_bytes
-        self.bad_before = bad_before
+        out, self.bad_before = self.tracker.run(found, bads)
+        st.frames += len(out)
         return out
-
-
-def sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
-    """Add the sequence/clock counters of the frames ``arr`` (a :data:`FRAME_DTYPE` array, in
-    stream order) to ``st`` as the push parser counts them, vectorised in the common case (all
-    steps forward), else through the push parser's own rule."""
-    if arr.shape[0] < 2:
-        return
-    seq = arr["seq"].astype(np.int64)
-    t = arr["t_us"].astype(np.int64)
-    ds = np.diff(seq) & _U16
-    dt = np.diff(t) & _U32
-    seq_fast = bool(np.all((ds >= 1) & (ds < 0x8000)))
-    clock_fast = bool(np.all((dt > 0) & (dt < _HALF_WRAP)))
-    if seq_fast and clock_fast:
-        jumps = ds[ds > 1]
-        st.seq_gaps += int(jumps.size)
-        st.lost_frames += int((jumps - 1).sum())
-        st.clock_wraps += int(np.count_nonzero(t[1:] < t[:-1]))
-        return
-    p = Parser()
-    for s, tu in zip(seq.tolist(), t.tolist()):
-        p._track(s, tu)
-    ps = p.stats
-    st.seq_gaps += ps.seq_gaps
-    st.lost_frames += ps.lost_frames
-    st.seq_repeats += ps.seq_repeats
-    st.seq_resets += ps.seq_resets
-    st.clock_wraps += ps.clock_wraps
-    st.clock_back += ps.clock_back

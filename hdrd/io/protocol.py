@@ -16,6 +16,7 @@ from typing import Any
 __all__ = [
     "ADDED_KEYS",
     "BIN_FRAME_LEN",
+    "BREAK_CONFIRM_FRAMES",
     "CLOCK_WRAP_US",
     "MESSAGE_CLASS",
     "NMEA_TALKER",
@@ -23,6 +24,7 @@ __all__ = [
     "RATE_VALID_STATUSES",
     "RESET_THRESHOLD_US",
     "SCHEMA_VERSION",
+    "SEQ_CLOCK_RATIO",
     "SEQ_REORDER_WINDOW",
     "STATUSES",
     "STEP_KEYS",
@@ -55,6 +57,13 @@ CLOCK_WRAP_US = 1 << 32
 (71.6 min)."""
 RESET_THRESHOLD_US = 1_000_000
 """A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
+SEQ_CLOCK_RATIO = 2
+"""A frame's device time per sequence step may differ from the interval before it by at most
+this factor (docs/protocol.md, "Sequence and clock"); beyond, its clock disagrees with its
+sequence number."""
+BREAK_CONFIRM_FRAMES = 3
+"""After a break in the sequence or the clock (a device restart, a jump), the frames are believed
+once this many in a row continue one another at the sample interval."""
 
 # -- published messages ("Published messages") -------------------------------------------------
 

@@ -4,7 +4,7 @@
 and ``hdrd calibrate``) and ``hdrd record`` (raw bytes to a capture). It reports a lost
 device once (:class:`DeviceLost`), reopens it with backoff inside its ``read`` calls, and
 reports it back (:class:`DeviceBack`); nothing it does blocks longer than the timeout a
-caller gives, ``socket://`` connections included. The port is opened exclusively, so a
+caller gives, ``socket://`` connections and the lookup of their host name included. The port is opened exclusively, so a
 second hdrd on the same device gets a clear "in use" error instead of half the frames.
 Time comes from a :class:`Clock` (real, or a test's :class:`ManualClock`).
 """
@@ -22,6 +22,7 @@ import serial
 from serial.urlhandler import protocol_socket
 
 from hdrd.io.clocks import Clock, RealClock
+from hdrd.io.resolve import Resolver, default_resolver
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -154,6 +155,7 @@ class SerialReader:
         reconnect_min_s: float = 0.5,
         reconnect_max_s: float = 10.0,
         clock: Clock | None = None,
+        resolver: Resolver | None = None,
     ) -> None:
         if not reconnect_min_s > 0 or not reconnect_max_s >= reconnect_min_s:
             raise ValueError(
@@ -164,6 +166,8 @@ class SerialReader:
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
         self.clock: Clock = clock or RealClock()
+        self.resolver = resolver or default_resolver()
+        """Looks up a ``socket://`` host off the caller's thread (:mod:`hdrd.io.resolve`)."""
         self.stats = LinkStats()
         self.port: Any = None
         self._timeout: object = object()  # the timeout the open port is set to (unset)
@@ -173,6 +177,7 @@ class SerialReader:
         self._report: DeviceLost | None = None
         self._fd_poll: tuple[int, select.poll] | None = None
         self._connecting: tuple[socket.socket, float] | None = None  # socket://, in progress
+        self._looking_up = False  # socket://: its host's address is being looked up
         self.last_error: str | None = None
         self.busy = False
         """The last open failed because another program holds the port (its lock)."""
@@ -186,14 +191,17 @@ class SerialReader:
         except (OSError, serial.SerialException):
             pass  # e.g. a socket:// host that does not resolve yet: treated as a lost device
         opened = self._open()
-        if not opened and self._connecting is not None:
-            # A connection under way: give it a moment before calling the device lost.
+        if not opened and (self._connecting is not None or self._looking_up):
+            # A lookup or connection under way: give it a moment before calling the device lost.
             deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
-            while not opened and self._connecting is not None:
+            while not opened and (self._connecting is not None or self._looking_up):
                 left = deadline - self.clock.monotonic()
                 if left <= 0:
                     break
-                self._wait_connect(min(left, CONNECT_POLL_S))
+                if self._connecting is not None:
+                    self._wait_connect(min(left, CONNECT_POLL_S))
+                else:
+                    self.clock.sleep(min(left, CONNECT_POLL_S / 5))
                 opened = self._open()
         if not opened:
             self._report = DeviceLost(self.last_error or "cannot open")
@@ -246,13 +254,23 @@ class SerialReader:
         now = self.clock.monotonic()
         if self._connecting is None:
             try:
-                port = _SocketPort(None)
-                host, tcp_port = port.from_url(self.url)
-                family, kind, proto, _, addr = socket.getaddrinfo(
-                    host, tcp_port, type=socket.SOCK_STREAM
-                )[0]
+                host, tcp_port = _SocketPort(None).from_url(self.url)
+            except Exception as e:  # noqa: BLE001 - a bad URL: still lost
+                self._open_failed(e)
+                return False
+            found = self.resolver.lookup(host, tcp_port, socket.SOCK_STREAM, refresh=True)
+            self._looking_up = not found.infos and found.pending and found.error is None
+            if not found.infos:
+                if self._looking_up:  # being looked up: look again soon
+                    self.last_error = f"connecting to {self.url}: looking up {host}"
+                    self._next_try = now + CONNECT_POLL_S
+                else:
+                    self._open_failed(found.error or f"cannot resolve {host}")
+                return False
+            family, kind, proto, _, addr = found.infos[0]
+            try:
                 sock = socket.socket(family, kind, proto)
-            except Exception as e:  # noqa: BLE001 - a bad or unresolvable URL: still lost
+            except OSError as e:
                 self._open_failed(e)
                 return False
             sock.setblocking(False)

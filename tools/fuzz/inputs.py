@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.frames import FRAME_DTYPE, SYNC, encode_array
+from hdrd.io.capture import encode_array
+from hdrd.io.frames import FRAME_DTYPE, SYNC
 
 from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 

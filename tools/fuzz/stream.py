@@ -48,17 +48,9 @@ import numpy.typing as npt
 
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
-from hdrd.io.capture import decode_capture
+from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, encode_array
 from hdrd.io.clocks import unwrap_us
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    Parser,
-    ParserStats,
-    array_to_frames,
-    crc16_ccitt_false_rows,
-    encode_array,
-    encode_text,
-)
+from hdrd.io.frames import FRAME_DTYPE, Parser, ParserStats, array_to_frames, encode_text
 from hdrd.io.protocol import BIN_FRAME_LEN
 
 TEXT_SYNC = b"$HDRG,"

@@ -346,7 +346,7 @@ def _quiet_logging() -> _Events:
 
 def stress_capture(seed: int) -> bytes:
     """A short hdr-bin capture that drives the pipeline's corners (rails, clock jumps)."""
-    from hdrd.io.frames import encode_array
+    from hdrd.io.capture import encode_array
 
     arr = stress_frames(random.Random(f"{seed}:capture"), 600)
     arr["t_us"] = (np.arange(600) * 10_000 + 2**32 - 2_000_000) % 2**32
