@@ -414,12 +414,14 @@ class Daemon:
                 self.pacer.reset()  # a new device clock
             return msgs
         assert isinstance(item, Frame)
-        return self._take_frame(item, now, bad)
+        return self.take_frame(item, now, bad)
 
-    def _take_frame(self, frame: Frame, now: float, bad: int) -> list[Message]:
-        """A frame: dropped if its device clock disagrees with the host's (counted in
-        :attr:`wallclock`), else to the pipeline. A device clock that jumped and runs at the
-        rate since resynchronises the pipeline, the steps moving on by the host's clock."""
+    def take_frame(self, frame: Frame, now: float, bad: int) -> list[Message]:
+        """A frame in hand at host time ``now`` (monotonic s), ``bad`` frames so far: dropped
+        if its device clock disagrees with the host's (counted in :attr:`wallclock`), else to
+        the pipeline; the messages of the steps it closed. A device clock that jumped and runs
+        at the rate since resynchronises the pipeline, the steps moving on by the host's
+        clock. Public so that a test or a tool can feed frames without a port."""
         verdict = self.wallclock.check(frame.t_us, now)
         if verdict == WallClockCheck.DISAGREES:
             return []

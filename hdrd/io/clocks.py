@@ -265,12 +265,15 @@ class WallClockCheck:
     says:
 
     - :data:`AGREES` when |o - A| <= ``tolerance_s`` (a frame late by a stalled reader, a burst
-      of USB frames, the device's crystal: all well inside);
+      of USB frames, the device's crystal: all well inside). Frames more than half the
+      tolerance off that run at the rate among themselves for ``reanchor_s`` (the device clock
+      fell behind once, in a stall) move A to them at once;
     - :data:`DISAGREES` otherwise (counted in ``mismatches``): a device clock running fast,
       slow or stopped, or one that jumped; the frame is not to be integrated;
     - :data:`JUMPED` when the frames have disagreed for ``reanchor_s`` of host time while
-      agreeing among themselves (offsets within ``tolerance_s`` of the first of them: the
-      device clock jumped once and runs at the rate since): A is set to this frame's offset
+      running at the rate among themselves (device time and host time since the first of them
+      within :attr:`RUN_TOLERANCE` of ``tolerance_s``: the device clock jumped once, or
+      restarted after a silence, and runs at the rate since): A is set to this frame's offset
       and the frame kept (counted in ``jumps``); the caller takes the device time since the
       last frame kept as unknown (the daemon counts the steps on by the host's clock).
 
@@ -282,13 +285,16 @@ class WallClockCheck:
     AGREES = 0
     DISAGREES = 1
     JUMPED = 2
+    RUN_TOLERANCE = 0.05
+    """Frames off centre run at the rate among themselves when their device time and host
+    time since the first of them differ by at most this share of ``tolerance_s``."""
 
     __slots__ = (
         "_a",
         "_at",
         "_last_raw",
         "_run_at",
-        "_run_o",
+        "_run_raw",
         "_tau",
         "drift",
         "jumps",
@@ -321,8 +327,8 @@ class WallClockCheck:
         self._tau = 0.0  # device seconds of the last frame kept, since the first
         self._a = 0.0  # the reference offset, s
         self._at = 0.0  # host time of the last frame kept
-        self._run_o: float | None = None  # the first offset of a run of disagreeing frames
-        self._run_at = 0.0
+        self._run_raw: int | None = None  # the first of a run of frames off centre: its
+        self._run_at = 0.0  # device time, and when it was in hand
 
     def check(self, t_us: int, now: float) -> int:
         """The verdict on a frame with raw device time ``t_us`` in hand at host time ``now``
@@ -335,21 +341,42 @@ class WallClockCheck:
         d = (t_us - self._last_raw) % CLOCK_WRAP_US
         tau = self._tau + (d / 1e6 if d < _HALF_WRAP else 0.0)
         o = now - tau / self.rate
+        off = o - self._a
         step = self.drift * max(0.0, now - self._at)
-        if abs(o - self._a) <= self.tolerance_s:
-            self._keep(t_us, tau, self._a + min(max(o - self._a, -step), step), now)
+        if abs(off) <= self.tolerance_s / 2:
+            self._run_raw = None
+            self._keep(t_us, tau, self._a + min(max(off, -step), step), now)
             return self.AGREES
-        self.mismatches += 1
-        if self._run_o is None or abs(o - self._run_o) > self.tolerance_s:
-            self._run_o, self._run_at = o, now
+        lasted = self._run(t_us, now)  # off centre: how long at the rate since the first such
+        if abs(off) <= self.tolerance_s:
+            # agreeing, but off centre for reanchor_s at the rate: the centre follows at once
+            moved = lasted >= self.reanchor_s
+            self._keep(t_us, tau, o if moved else self._a + min(max(off, -step), step), now)
+            if moved:
+                self._run_raw = None
+            return self.AGREES
+        if lasted < self.reanchor_s:
+            self.mismatches += 1
             return self.DISAGREES
-        if now - self._run_at < self.reanchor_s:
-            return self.DISAGREES
-        self.mismatches -= 1
         self.jumps += 1
+        self._run_raw = None
         self._keep(t_us, tau, o, now)
         return self.JUMPED
 
+    def _run(self, t_us: int, now: float) -> float:
+        """Host seconds since the first of the frames off centre in a row that run at the rate
+        among themselves (device time and host time since it within :attr:`RUN_TOLERANCE` of
+        ``tolerance_s``); a frame that does not starts a new run (0)."""
+        if self._run_raw is not None:
+            d = (t_us - self._run_raw) % CLOCK_WRAP_US
+            host = now - self._run_at
+            if (
+                d < _HALF_WRAP
+                and abs(d / 1e6 / self.rate - host) <= self.RUN_TOLERANCE * self.tolerance_s
+            ):
+                return host
+        self._run_raw, self._run_at = t_us, now
+        return 0.0
+
     def _keep(self, t_us: int, tau: float, a: float, now: float) -> None:
         self._last_raw, self._tau, self._a, self._at = t_us, tau, a, now
-        self._run_o = None

@@ -50,6 +50,7 @@ from hdrd.io.protocol import (
     CLOCK_WRAP_US,
     PROTOCOLS,
     SEQ_CLOCK_RATIO,
+    SEQ_GAP_WINDOW,
     SEQ_REORDER_WINDOW,
     SYNC,
     TEMP_NOT_FITTED,
@@ -361,6 +362,7 @@ _COUNTERS = tuple(f.name for f in fields(ParserStats))
 _SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # k >= this: at most SEQ_REORDER_WINDOW behind
 _HALF_WRAP = CLOCK_WRAP_US >> 1
 _R = SEQ_CLOCK_RATIO
+_GAP = SEQ_GAP_WINDOW
 
 
 def _agrees(d: int, k: int, d0: int, k0: int) -> bool:
@@ -385,18 +387,19 @@ class FrameTracker:
     A frame is judged against the last frame kept, k sequence steps on (modulo 2**16) and d
     microseconds on (modulo 2**32):
 
-    - **kept** when 0 < k < 2**15, the clock forward (0 < d < 2**31) and d / k within a factor
-      :data:`SEQ_CLOCK_RATIO` of the interval (the last two kept frames' d / k; any for the
-      second frame). k > 1 is a gap of k - 1 frames (``seq_gaps``, ``lost_frames``);
+    - **kept** when 0 < k <= :data:`SEQ_GAP_WINDOW`, the clock forward (0 < d < 2**31) and
+      d / k within a factor :data:`SEQ_CLOCK_RATIO` of the interval (the last two kept
+      frames' d / k; any for the second frame). k > 1 is a gap of k - 1 frames lost
+      (``seq_gaps``, ``lost_frames``);
     - **dropped, not new** (``seq_repeats``) when k = 0 or at most :data:`SEQ_REORDER_WINDOW`
       behind and the clock not forward: a repeated or reordered frame;
-    - otherwise a **break**: the frame is held. A later frame that is kept as above drops what
-      is held (``seq_clock_mismatch``: a random frame that passed the CRC, a frozen, slow or
-      fast clock). :data:`BREAK_CONFIRM_FRAMES` held frames in a row, each at most
-      SEQ_REORDER_WINDOW steps after the one before, its clock forward and at the interval
-      (once two steps in a row have agreed on one; else at their own), are released and kept:
-      the device restarted (``seq_resets``) or jumped on (a gap). A held frame that does not
-      continue the ones before drops them.
+    - otherwise a **break**: the frame is held, and so is each frame after it that continues
+      the held ones (at most SEQ_GAP_WINDOW steps after the last, its clock forward and at the
+      interval: the one agreed on once two steps in a row have, else the held frames' own).
+      :data:`BREAK_CONFIRM_FRAMES` held frames are released and kept: the device restarted
+      (the sequence behind: ``seq_resets``) or jumped on (a gap). A frame kept as above, or a
+      break that does not continue them, drops the held frames (``seq_clock_mismatch``: a
+      random frame that passed the CRC; a frozen, slow or fast clock).
 
     :meth:`run` (the push parsers, a batch of frames) and :meth:`run_array` (a whole capture,
     numpy over the runs where each step agrees with the one before) decide alike. At the end
@@ -436,7 +439,7 @@ class FrameTracker:
             k = (s - seq0) & 0xFFFF
             d = (t - t0) & 0xFFFFFFFF
             if not (
-                0 < k < 0x8000
+                0 < k <= _GAP
                 and 0 < d < 0x80000000
                 and (k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k))
             ):
@@ -474,7 +477,7 @@ class FrameTracker:
             k = (f.seq - seq0) & 0xFFFF
             d = (f.t_us - self._t) & 0xFFFFFFFF
             fwd = 0 < d < _HALF_WRAP
-            if 0 < k < 0x8000 and fwd and _agrees(d, k, self._d, self._k):
+            if 0 < k <= _GAP and fwd and _agrees(d, k, self._d, self._k):
                 if k > 1:
                     st.seq_gaps += 1
                     st.lost_frames += k - 1
@@ -488,7 +491,7 @@ class FrameTracker:
                 out_bad.append(b)
                 continue
             self._kept_run = 0
-            if (k == 0 or k >= _SEQ_BACK) and not fwd:
+            if (k == 0 or k >= _SEQ_BACK) and not fwd and not self._continues_held(f.seq, f.t_us):
                 st.seq_repeats += 1
                 continue
             for it, bb in self._on_break(f, f.seq, f.t_us, b):
@@ -496,23 +499,31 @@ class FrameTracker:
                 out_bad.append(bb)
         return out, out_bad
 
-    def _on_break(self, item: Any, s: int, t: int, b: int) -> list[tuple[Any, int]]:
-        """A frame that breaks the sequence or the clock: held; the frames released if it is
-        the last of :data:`BREAK_CONFIRM_FRAMES` that continue one another."""
+    def _continues_held(self, s: int, t: int) -> bool:
+        """Whether a frame continues the held ones: at most SEQ_REORDER_WINDOW steps after
+        the last, its clock forward and at the interval (the one agreed on; before two steps
+        in a row have agreed on one, the held frames' own)."""
         held = self._held
-        if held:
-            _, ps, pt, _ = held[-1]
-            k = (s - ps) & 0xFFFF
-            d = (t - pt) & 0xFFFFFFFF
-            d0, k0 = self._d, self._k
-            if self._agreed < 2:  # no interval agreed on yet: the held frames' own
-                d0, k0 = 0, 0
-                if len(held) >= 2:
-                    d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
-            if not (0 < k <= SEQ_REORDER_WINDOW and 0 < d < _HALF_WRAP and _agrees(d, k, d0, k0)):
-                self._drop_held()
-        held.append((item, s, t, b))
-        if len(held) < BREAK_CONFIRM_FRAMES:
+        if not held:
+            return False
+        _, ps, pt, _ = held[-1]
+        k = (s - ps) & 0xFFFF
+        d = (t - pt) & 0xFFFFFFFF
+        d0, k0 = self._d, self._k
+        if self._agreed < 2:
+            d0, k0 = 0, 0
+            if len(held) >= 2:
+                d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
+        return 0 < k <= _GAP and 0 < d < _HALF_WRAP and _agrees(d, k, d0, k0)
+
+    def _on_break(self, item: Any, s: int, t: int, b: int) -> list[tuple[Any, int]]:
+        """A frame that breaks the sequence or the clock: held (after what is held, if it
+        continues it; else in its place); the frames released if it is the last of
+        :data:`BREAK_CONFIRM_FRAMES` that continue one another."""
+        if not self._continues_held(s, t):
+            self._drop_held()
+        self._held.append((item, s, t, b))
+        if len(self._held) < BREAK_CONFIRM_FRAMES:
             return []
         return self._release()
 
@@ -562,7 +573,7 @@ class FrameTracker:
         d = np.zeros(n, np.int64)
         np.bitwise_and(np.diff(seq), 0xFFFF, out=k[1:])
         np.bitwise_and(np.diff(t), 0xFFFFFFFF, out=d[1:])
-        good = (k > 0) & (k < 0x8000) & (d > 0) & (d < _HALF_WRAP)
+        good = (k > 0) & (k <= _GAP) & (d > 0) & (d < _HALF_WRAP)
         good[2:] &= (_R * d[2:] * k[1:-1] >= d[1:-1] * k[2:]) & (
             d[2:] * k[1:-1] <= _R * d[1:-1] * k[2:]
         )
@@ -598,7 +609,7 @@ class FrameTracker:
         seq, t = arr["seq"], arr["t_us"]
         k = np.diff(seq)  # uint16 and uint32: the differences wrap as the wire's counters do
         d = np.diff(t)
-        if not (np.all(k.view(np.int16) > 0) and np.all(d.view(np.int32) > 0)):
+        if not (np.all(k - np.uint16(1) < _GAP) and np.all(d.view(np.int32) > 0)):
             return False
         per = d / k
         if not per.max() <= 1.99 * per.min():

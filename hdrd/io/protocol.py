@@ -25,6 +25,7 @@ __all__ = [
     "RESET_THRESHOLD_US",
     "SCHEMA_VERSION",
     "SEQ_CLOCK_RATIO",
+    "SEQ_GAP_WINDOW",
     "SEQ_REORDER_WINDOW",
     "STATUSES",
     "STEP_KEYS",
@@ -57,6 +58,10 @@ CLOCK_WRAP_US = 1 << 32
 (71.6 min)."""
 RESET_THRESHOLD_US = 1_000_000
 """A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
+SEQ_GAP_WINDOW = 64
+"""A sequence number at most this far ahead of the last one kept, its clock agreeing, is a gap
+(the frames between lost); further ahead, a break in the sequence, believed only once the
+frames after it continue it (a random frame that passed the CRC is not a gap)."""
 SEQ_CLOCK_RATIO = 2
 """A frame's device time per sequence step may differ from the interval before it by at most
 this factor (docs/protocol.md, "Sequence and clock"); beyond, its clock disagrees with its
