@@ -378,7 +378,7 @@ class UdpPublisher:
         found = self._resolver.lookup(d.stats.host, d.stats.port, socket.SOCK_DGRAM, refresh)
         if found.failures > d.failures_seen:
             d.failures_seen = found.failures
-            d.stats.count("resolve_slow" if found.pending else "resolve", found.error or "")
+            d.stats.count("resolve_slow" if found.slow else "resolve", found.error or "")
         if found.infos:
             best = next((i for i in found.infos if i[0] == socket.AF_INET), found.infos[0])
             d.family, d.sockaddr = best[0], best[4]

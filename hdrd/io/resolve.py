@@ -60,14 +60,16 @@ GetAddrInfo = Callable[..., list[Any]]
 @dataclass(frozen=True, slots=True)
 class Lookup:
     """What is known of a name now. ``infos``: its addresses (IPv4 and IPv6 only), the last
-    found, None while none has been found. ``pending``: a lookup is running. ``error``: why
-    the last lookup failed, or that the running one has been slow (None: no trouble).
-    ``failures``: lookups that failed or were slow, since the name was first asked for."""
+    found, None while none has been found. ``pending``: a lookup is running; ``slow``: it has
+    passed its deadline. ``error``: why the last lookup failed, or that the running one is
+    slow (None: no trouble). ``failures``: lookups that failed or were slow, since the name
+    was first asked for."""
 
     infos: tuple[AddrInfo, ...] | None
     pending: bool
     error: str | None
     failures: int
+    slow: bool = False
 
 
 class _Name:
@@ -157,7 +159,10 @@ class Resolver:
                 name.slow_counted = False
                 self.lookups += 1
             slow = self._check_slow(name, now)
-            found = Lookup(name.infos, name.pending_since is not None, name.error, name.failures)
+            pending = name.pending_since is not None
+            found = Lookup(
+                name.infos, pending, name.error, name.failures, pending and name.slow_counted
+            )
         if slow:
             log.warning(
                 "resolve_slow",
