@@ -57,6 +57,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "device.reconnect_min_s": (1, [0, -1.0, NAN, INF, "1", True, None, 3601]),
     "device.reconnect_max_s": (30.0, [0, -1, NAN, INF, "30", [30], 1e308]),
     "device.stale_after_s": (5.0, [0.0, -0.1, NAN, -INF, "5s", 1e308]),
+    "device.clock_rate": (4.0, [-1.0, NAN, INF, "4x", 1e7, True]),
     "sensor.adc_bits": (12, [7, 33, 0, 16.0, "16", True, NAN]),
     "sensor.vref_v": (3.3, [0, -5.0, NAN, INF, 10**400, "5V", 1e308, 1e-320]),
     "sensor.null_v": (1.65, [-0.1, NAN, INF, "2.5", 1e308]),

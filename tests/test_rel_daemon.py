@@ -121,10 +121,17 @@ class Proc:
     """`python -m hdrd <command> ...` with its JSON log read live from stderr."""
 
     def __init__(
-        self, argv: list[str], env: dict[str, str], stdout: Any = subprocess.DEVNULL
+        self,
+        argv: list[str],
+        env: dict[str, str],
+        stdout: Any = subprocess.DEVNULL,
+        prefix: tuple[str, ...] = (),
     ) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hdrd", *argv], stdout=stdout, stderr=subprocess.PIPE, env=env
+            [*prefix, sys.executable, "-m", "hdrd", *argv],
+            stdout=stdout,
+            stderr=subprocess.PIPE,
+            env=env,
         )
         self.events: list[dict[str, Any]] = []
         self.other: list[str] = []
@@ -193,20 +200,24 @@ class Proc:
 @pytest.fixture
 def hdrd(tmp_path: Path) -> Iterator[Callable[..., Proc]]:
     """Factory of hdrd processes, all killed after the test. STATE_DIRECTORY is an empty
-    directory of the test's (no bias file) unless the test sets it."""
+    directory of the test's (no bias file) unless the test sets it; ``prefix`` runs the
+    command under another (``unshare ...``)."""
     made: list[Proc] = []
     state = tmp_path / "empty-state"
     state.mkdir()
 
     def make(
-        *argv: str, env: dict[str, str] | None = None, stdout: Any = subprocess.DEVNULL
+        *argv: str,
+        env: dict[str, str] | None = None,
+        stdout: Any = subprocess.DEVNULL,
+        prefix: tuple[str, ...] = (),
     ) -> Proc:
         e = dict(os.environ)
         for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
             e.pop(k, None)
         e["STATE_DIRECTORY"] = str(state)
         e.update(env or {})
-        p = Proc(list(argv), e, stdout)
+        p = Proc(list(argv), e, stdout, prefix)
         made.append(p)
         return p
 

@@ -17,7 +17,6 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.io.frames import (
-    CRC_TABLE,
     FRAME_DTYPE,
     Frame,
     FrameTracker,
@@ -31,6 +30,7 @@ from hdrd.io.frames import (
 from hdrd.io.protocol import BIN_FRAME_LEN
 
 __all__ = [
+    "CRC_TABLE",
     "CaptureStats",
     "crc16_ccitt_false_rows",
     "crc_ok_at",
@@ -41,6 +41,20 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- vectorised CRC
+
+
+def _crc_table() -> npt.NDArray[np.uint16]:
+    table = np.empty(256, np.uint16)
+    for b in range(256):
+        c = b << 8
+        for _ in range(8):
+            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
+        table[b] = c & 0xFFFF
+    return table
+
+
+CRC_TABLE = _crc_table()
+"""The table-driven CRC-16/CCITT-FALSE: crc' = (crc << 8) ^ TABLE[(crc >> 8) ^ byte]."""
 
 
 def _crc_table16_le() -> npt.NDArray[np.uint16]:

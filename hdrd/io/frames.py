@@ -59,7 +59,6 @@ from hdrd.io.protocol import (
 )
 
 __all__ = [
-    "CRC_TABLE",
     "FRAME_DTYPE",
     "Frame",
     "FrameError",
@@ -146,20 +145,6 @@ def crc16_ccitt_false(data: bytes) -> int:
     Check value: ``crc16_ccitt_false(b"123456789") == 0x29B1``.
     """
     return crc_hqx(data, 0xFFFF)
-
-
-def _crc_table() -> npt.NDArray[np.uint16]:
-    table = np.empty(256, np.uint16)
-    for b in range(256):
-        c = b << 8
-        for _ in range(8):
-            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
-        table[b] = c & 0xFFFF
-    return table
-
-
-CRC_TABLE = _crc_table()
-"""The table-driven CRC-16/CCITT-FALSE: crc' = (crc << 8) ^ TABLE[(crc >> 8) ^ byte]."""
 
 
 # --------------------------------------------------------------------------- codecs
@@ -418,11 +403,6 @@ class FrameTracker:
         self._kept_run = 0  # frames kept by the rule in a row, to the last one judged
         self._held: list[tuple[Any, int, int, int]] = []  # (item, seq, t_us, bad) after a break
 
-    @property
-    def held(self) -> int:
-        """Frames held after a break, not decided yet."""
-        return len(self._held)
-
     def run(self, items: list[Any], bads: list[int]) -> tuple[list[Any], list[int]]:
         """Judge a batch of frames (``items``, each with ``seq`` and ``t_us``, and the bad
         frames before each): the items kept, in order, with their bad-frame counts (frames held
@@ -434,8 +414,7 @@ class FrameTracker:
         st = self.stats
         j = 0
         for f in items:
-            s = f.seq
-            t = f.t_us
+            s, t = f.seq, f.t_us
             k = (s - seq0) & 0xFFFF
             d = (t - t0) & 0xFFFFFFFF
             if not (
@@ -478,9 +457,7 @@ class FrameTracker:
             d = (f.t_us - self._t) & 0xFFFFFFFF
             fwd = 0 < d < _HALF_WRAP
             if 0 < k <= _GAP and fwd and _agrees(d, k, self._d, self._k):
-                if k > 1:
-                    st.seq_gaps += 1
-                    st.lost_frames += k - 1
+                self._gap(k)
                 if f.t_us < self._t:
                     st.clock_wraps += 1
                 self._seq, self._t, self._d, self._k = f.seq, f.t_us, d, k
@@ -534,14 +511,11 @@ class FrameTracker:
         k = (held[0][1] - self._seq) & 0xFFFF
         if k >= 0x8000:
             st.seq_resets += 1
-        elif k > 1:
-            st.seq_gaps += 1
-            st.lost_frames += k - 1
+        else:
+            self._gap(k)
         for (_, sa, ta, _), (_, sb, tb, _) in itertools.pairwise(held):
             kk = (sb - sa) & 0xFFFF
-            if kk > 1:
-                st.seq_gaps += 1
-                st.lost_frames += kk - 1
+            self._gap(kk)
             if tb < ta:
                 st.clock_wraps += 1
             self._seq, self._t, self._d, self._k = sb, tb, (tb - ta) & 0xFFFFFFFF, kk
@@ -549,6 +523,11 @@ class FrameTracker:
         out = [(it, bb) for it, _, _, bb in held]
         held.clear()
         return out
+
+    def _gap(self, k: int) -> None:
+        if k > 1:
+            self.stats.seq_gaps += 1
+            self.stats.lost_frames += k - 1
 
     def _drop_held(self) -> None:
         self.stats.seq_clock_mismatch += len(self._held)

@@ -190,22 +190,25 @@ class SerialReader:
             raise ValueError(f"unusable serial port URL {url!r}: {e}") from None
         except (OSError, serial.SerialException):
             pass  # e.g. a socket:// host that does not resolve yet: treated as a lost device
-        opened = self._open()
-        if not opened and (self._connecting is not None or self._looking_up):
-            # A lookup or connection under way: give it a moment before calling the device lost.
-            deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
-            while not opened and (self._connecting is not None or self._looking_up):
-                left = deadline - self.clock.monotonic()
-                if left <= 0:
-                    break
-                if self._connecting is not None:
-                    self._wait_connect(min(left, CONNECT_POLL_S))
-                else:
-                    self.clock.sleep(min(left, CONNECT_POLL_S / 5))
-                opened = self._open()
-        if not opened:
+        if not self._first_open():
             self._report = DeviceLost(self.last_error or "cannot open")
             self.stats.lost += 1
+
+    def _first_open(self) -> bool:
+        """Open at construction; a ``socket://`` lookup or connection under way gets
+        START_CONNECT_WAIT_S before the device is called lost."""
+        opened = self._open()
+        deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
+        while not opened and (self._connecting is not None or self._looking_up):
+            left = deadline - self.clock.monotonic()
+            if left <= 0:
+                break
+            if self._connecting is not None:
+                self._wait_connect(min(left, CONNECT_POLL_S))
+            else:
+                self.clock.sleep(min(left, CONNECT_POLL_S / 5))
+            opened = self._open()
+        return opened
 
     @property
     def is_open(self) -> bool:
@@ -253,28 +256,17 @@ class SerialReader:
         later calls see whether it is made, failed, or has taken CONNECT_TIMEOUT_S."""
         now = self.clock.monotonic()
         if self._connecting is None:
-            try:
-                host, tcp_port = _SocketPort(None).from_url(self.url)
-            except Exception as e:  # noqa: BLE001 - a bad URL: still lost
-                self._open_failed(e)
+            addr = self._socket_address(now)
+            if addr is None:
                 return False
-            found = self.resolver.lookup(host, tcp_port, socket.SOCK_STREAM, refresh=True)
-            self._looking_up = not found.infos and found.pending and found.error is None
-            if not found.infos:
-                if self._looking_up:  # being looked up: look again soon
-                    self.last_error = f"connecting to {self.url}: looking up {host}"
-                    self._next_try = now + CONNECT_POLL_S
-                else:
-                    self._open_failed(found.error or f"cannot resolve {host}")
-                return False
-            family, kind, proto, _, addr = found.infos[0]
+            family, kind, proto, _, sockaddr = addr
             try:
                 sock = socket.socket(family, kind, proto)
             except OSError as e:
                 self._open_failed(e)
                 return False
             sock.setblocking(False)
-            code = sock.connect_ex(addr)
+            code = sock.connect_ex(sockaddr)
             if code not in (0, errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK):
                 sock.close()
                 self._open_failed(f"could not connect to {self.url}: {os.strerror(code)}")
@@ -310,6 +302,25 @@ class SerialReader:
         port.adopt(sock)
         self._adopt(port)
         return True
+
+    def _socket_address(self, now: float) -> Any:
+        """The ``socket://`` host's address as the resolver knows it now (never waits); None,
+        with the next try due, while it is looked up or when it failed."""
+        try:
+            host, tcp_port = _SocketPort(None).from_url(self.url)
+        except Exception as e:  # noqa: BLE001 - a bad URL: still lost
+            self._open_failed(e)
+            return None
+        found = self.resolver.lookup(host, tcp_port, socket.SOCK_STREAM, refresh=True)
+        self._looking_up = not found.infos and found.pending and found.error is None
+        if found.infos:
+            return found.infos[0]
+        if self._looking_up:  # being looked up: look again soon
+            self.last_error = f"connecting to {self.url}: looking up {host}"
+            self._next_try = now + CONNECT_POLL_S
+        else:
+            self._open_failed(found.error or f"cannot resolve {host}")
+        return None
 
     def _wait_connect(self, timeout: float) -> None:
         """Wait up to ``timeout`` s for the connection under way to be made or fail."""
