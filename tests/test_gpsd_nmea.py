@@ -492,9 +492,9 @@ def test_hdrd_run_aided_by_gpsd_through_an_outage(need_gpsfake, procs, fake_gyro
     js, nm = udp(), udp()
     g = fake_gyro(straight_gyro(200.0, 0.3), speedup=5.0)
     d = hdrd_run(
+        procs,
         "--clock-rate",
         "5.0",
-        procs,
         "--port",
         g.path,
         "--bias",
@@ -682,9 +682,9 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
         speedup=10.0,
     )
     d = hdrd_run(
+        procs,
         "--clock-rate",
         "10.0",
-        procs,
         "--config",
         str(cfg),
         "--port",

@@ -167,29 +167,9 @@ class DeviceClock:
 
 
 def unwrap_us(t_us: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """Vectorised :class:`DeviceClock`: (unwrapped times, accepted mask) for a whole capture.
-
-    Identical to feeding ``DeviceClock.unwrap`` in order; rejected samples get time -1.
-    """
-    raw = np.asarray(t_us, dtype=np.int64)
-    n = raw.shape[0]
-    if n == 0:
-        return np.empty(0, np.int64), np.empty(0, bool)
-    d = np.diff(raw) % CLOCK_WRAP_US
-    if np.all((d > 0) & (d < _HALF_WRAP)):
-        out = np.empty(n, np.int64)
-        out[0] = raw[0]
-        np.cumsum(d, out=out[1:])
-        out[1:] += raw[0]
-        return out, np.ones(n, bool)
-    # Rare: repeats, reordering or resets. Take the exact streaming path.
-    clock = DeviceClock()
-    out = np.full(n, -1, np.int64)
-    for i, t in enumerate(raw.tolist()):
-        u = clock.unwrap(t)
-        if u is not None:
-            out[i] = u
-    return out, out >= 0
+    """A whole capture's device times through a new :class:`DeviceClock`: (unwrapped times,
+    accepted mask; rejected samples get time -1)."""
+    return DeviceClock().unwrap_many(t_us)
 
 
 class SampleClock:
