@@ -68,7 +68,7 @@ class WatchdogGate:
     usable data comes: the device silent, or its frames dropped as not new or with a clock that
     disagrees), or it found the source with nothing to hand out (everything that arrived is
     handled: the state while the device is unplugged, before it first appears, or when it
-    sends only garbage). Frames that arrive but are dropped are not progress. A loop that turns without either (a flood of other work keeps it
+    sends only garbage or frames that are dropped). A loop that turns without either (a flood of other work keeps it
     from the frames that are waiting, so steps come late or never) stops pinging, and
     systemd restarts the daemon after WatchdogSec. Steps come every T, so WatchdogSec must
     be longer than T; at least 2 T leaves room (docs/operations.md).
