@@ -563,6 +563,7 @@ class Daemon:
         """``frames_dropped`` at most every ``log.bad_frame_interval_s``, with the counts."""
         if now - self._drops_log_at < self.cfg.log.bad_frame_interval_s or self.src is None:
             return
+        self._drops_log_at = now  # looked at no more often than that (src.stats copies)
         drops = self._frame_drops(self.src)
         total = sum(drops.values())
         if total <= self._drops_logged:
@@ -574,7 +575,7 @@ class Daemon:
                 "needs device.clock_rate (--clock-rate)"
             )
         log.warning("frames_dropped", total=total, new=total - self._drops_logged, **drops, **extra)
-        self._drops_logged, self._drops_log_at = total, now
+        self._drops_logged = total
 
     def _dropped(self) -> int:
         """Messages dropped by the publishers so far (stdout with a stalled reader)."""
