@@ -313,19 +313,22 @@ class WallClockCheck:
     def check(self, t_us: int, now: float) -> int:
         """The verdict on a frame with raw device time ``t_us`` in hand at host time ``now``
         (s): :data:`AGREES`, :data:`DISAGREES` or :data:`JUMPED` (see the class doc)."""
-        if self.rate == 0:
+        last = self._last_raw
+        if last is None or self.rate == 0:
+            if self.rate:
+                self._keep(t_us, 0.0, now, now)
             return self.AGREES
-        if self._last_raw is None:
-            self._keep(t_us, 0.0, now, now)
-            return self.AGREES
-        d = (t_us - self._last_raw) % CLOCK_WRAP_US
-        tau = self._tau + (d / 1e6 if d < _HALF_WRAP else 0.0)
+        d = (t_us - last) & 0xFFFFFFFF
+        tau = self._tau + d / 1e6 if d < _HALF_WRAP else self._tau
         o = now - tau / self.rate
         off = o - self._a
-        step = self.drift * max(0.0, now - self._at)
-        if abs(off) <= self.tolerance_s / 2:
+        step = self.drift * (now - self._at)
+        if step < 0.0:
+            step = 0.0
+        if -self.tolerance_s / 2 <= off <= self.tolerance_s / 2:  # the common case
             self._run_raw = None
-            self._keep(t_us, tau, self._a + min(max(off, -step), step), now)
+            self._last_raw, self._tau, self._at = t_us, tau, now
+            self._a += off if -step <= off <= step else (step if off > 0 else -step)
             return self.AGREES
         lasted = self._run(t_us, now)  # off centre: how long at the rate since the first such
         if abs(off) <= self.tolerance_s:

@@ -336,8 +336,9 @@ def report(r: dict[str, Any]) -> str:
         ),
         (
             f"  sequence: gaps {c['seq_gaps']:,} (lost {c['lost_frames']:,}), "
-            f"repeats/reordered {c['seq_repeats']:,}, restarts {c['seq_resets']:,}; "
-            f"clock: wraps {c['clock_wraps']}, steps back {c['clock_back']:,}"
+            f"restarts {c['seq_resets']:,}; "
+            f"clock: wraps {c['clock_wraps']}; frames dropped as not new {c['seq_repeats']:,}, "
+            f"whose clock disagreed {c['seq_clock_mismatch']:,}"
         ),
         (
             f"  push parser == vectorised decoder: {r['push_equals_vectorised']}; "
