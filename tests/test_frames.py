@@ -342,7 +342,9 @@ def dirty_text_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
     parts: list[bytes] = []
     good: list[Frame] = []
     bad = 0
-    garbage = st.binary(min_size=1, max_size=40).map(lambda b: b.replace(b"$", b"#"))
+    garbage = st.binary(min_size=1, max_size=40).map(  # no line start, no line end
+        lambda b: b.replace(b"$", b"#").replace(b"\n", b" ")
+    )
     clock = draw(STREAM_CLOCK)  # the frames (bad ones too) are a healthy stream's
     for n in range(draw(st.integers(1, 20))):
         kind = draw(st.sampled_from(["good", "good", "garbage", "corrupt", "truncated"]))

@@ -86,9 +86,10 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
     )
     kept: list[int] = []
     ref: tuple[int, int] | None = None  # the last frame kept
-    interval: tuple[int, int] | None = None  # (us, steps) of the last step kept
+    interval: tuple[int, int] | None = None  # (us, 1) of the last single step kept
     agreed = 0  # steps kept since the start or the last break
     held: list[int] = []
+    held_off = False  # a held step off the interval agreed on
 
     def step(a: tuple[int, int], b: tuple[int, int]) -> tuple[int, int]:
         return (b[0] - a[0]) % 65536, (b[1] - a[1]) % 2**32
@@ -101,7 +102,7 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
             return False
         k, d = step(pairs[held[-1]], p)
         own = None if len(held) < 2 else step(pairs[held[-2]], pairs[held[-1]])[::-1]
-        return 1 <= k <= 64 and 0 < d < 2**31 and agrees(d, k, interval if agreed >= 2 else own)
+        return 1 <= k <= 64 and 0 < d < 2**31 and agrees(d, k, own)
 
     def gap(k: int) -> None:
         if k > 1:
@@ -118,18 +119,23 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
         if 0 < k <= 64 and fwd and agrees(d, k, interval):
             gap(k)
             c["clock_wraps"] += p[1] < ref[1]
-            ref, interval, agreed = p, (d, k), agreed + 1
+            ref, agreed = p, agreed + 1
+            if k == 1:  # the interval: a single step's
+                interval = (d, 1)
             c["seq_clock_mismatch"] += len(held)
-            held = []
+            held, held_off = [], False
             kept.append(i)
         elif (k == 0 or k >= 65536 - 64) and not fwd and not continues_held(p):
             c["seq_repeats"] += 1
         else:
-            if not continues_held(p):
+            if continues_held(p):
+                kk, dd = step(pairs[held[-1]], p)
+                held_off = held_off or not agrees(dd, kk, interval)
+            else:
                 c["seq_clock_mismatch"] += len(held)
-                held = []
+                held, held_off = [], False
             held.append(i)
-            if len(held) == 3:
+            if len(held) >= 16 or (len(held) >= 3 and (agreed < 2 or not held_off)):
                 k0 = step(ref, pairs[held[0]])[0]
                 if k0 >= 2**15:
                     c["seq_resets"] += 1
@@ -139,10 +145,14 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
                     gap(step(pairs[a], pairs[b])[0])
                     c["clock_wraps"] += pairs[b][1] < pairs[a][1]
                 ref = pairs[held[-1]]
-                kk, dd = step(pairs[held[-2]], ref)
-                interval, agreed = (dd, kk), 2
+                if agreed < 2 or held_off:  # the held frames' own interval
+                    for a, b in itertools.pairwise(held):
+                        kk, dd = step(pairs[a], pairs[b])
+                        if kk == 1:
+                            interval = (dd, 1)
+                agreed = len(held) - 1
                 kept += held
-                held = []
+                held, held_off = [], False
     c["seq_clock_mismatch"] += len(held)
     return kept, c
 

@@ -32,6 +32,7 @@ pattern inside a payload or in garbage never costs the next good frame.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import re
 import struct
@@ -47,6 +48,7 @@ from hdrd.errors import HdrdError
 from hdrd.io.protocol import (
     BIN_FRAME_LEN,
     BREAK_CONFIRM_FRAMES,
+    BREAK_REBASE_FRAMES,
     CLOCK_WRAP_US,
     PROTOCOLS,
     SEQ_CLOCK_RATIO,
@@ -305,20 +307,13 @@ def array_to_frames(arr: npt.NDArray[np.void]) -> list[Frame]:
 
 @dataclass(slots=True, eq=False)
 class ParserStats:
-    """Counters of a parser (or a source). All counts since the parser was made.
-
-    frames: good frames returned. bad_frames: frames that started with a sync pattern but
-    failed their CRC, checksum or syntax. garbage_bytes: bytes not part of a good frame
-    (bad frames' bytes included; bytes still buffered are not counted until ``flush``).
-    The sequence number and the device clock (:class:`FrameTracker`, docs/protocol.md
-    "Sequence and clock"): seq_gaps: jumps forward of the sequence number by more than 1
-    (events); lost_frames: the sum of the sequence numbers skipped. seq_resets: breaks after
-    which the sequence went on from further behind (a device restart). clock_wraps:
-    device-clock wraps at 2**32 us. Frames dropped (CRC-valid, but not returned):
-    seq_repeats: not new (a sequence number repeated or at most :data:`SEQ_REORDER_WINDOW`
-    behind, the device clock not ahead); seq_clock_mismatch: the device time disagrees with
-    the sequence number (a frozen, slow, fast or jumping clock, a random frame that passed
-    the CRC).
+    """Counters of a parser (or a source), since it was made. frames: good frames returned.
+    bad_frames: frames that started with a sync pattern but failed their CRC, checksum or
+    syntax. garbage_bytes: bytes not part of a good frame (bad frames' included; bytes still
+    buffered count at ``flush``). Of the sequence and the clock (:class:`FrameTracker`):
+    seq_gaps, lost_frames (events of frames lost, and how many); seq_resets (a device
+    restart); clock_wraps (of the device clock at 2**32 us); and the good frames dropped:
+    seq_repeats (not new), seq_clock_mismatch (the clock disagrees with the sequence).
     """
 
     frames: int = 0
@@ -356,42 +351,25 @@ def _agrees(d: int, k: int, d0: int, k0: int) -> bool:
     return k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k)
 
 
-@dataclass(frozen=True, slots=True)
-class _At:
-    """A frame of an array, as :meth:`FrameTracker.run` reads it: its place ``i``."""
-
-    seq: int
-    t_us: int
-    i: int
+_At = collections.namedtuple("_At", "seq t_us i")  # a frame of an array, for run: its place i
 
 
 class FrameTracker:
     """The sequence number and device clock of a stream of frames, in one place: which frames
-    are kept, and the sequence/clock counters of :class:`ParserStats`. Pure.
-
-    A frame is judged against the last frame kept, k sequence steps on (modulo 2**16) and d
-    microseconds on (modulo 2**32):
-
-    - **kept** when 0 < k <= :data:`SEQ_GAP_WINDOW`, the clock forward (0 < d < 2**31) and
-      d / k within a factor :data:`SEQ_CLOCK_RATIO` of the interval (the last two kept
-      frames' d / k; any for the second frame). k > 1 is a gap of k - 1 frames lost
-      (``seq_gaps``, ``lost_frames``);
-    - **dropped, not new** (``seq_repeats``) when k = 0 or at most :data:`SEQ_REORDER_WINDOW`
-      behind and the clock not forward: a repeated or reordered frame;
-    - otherwise a **break**: the frame is held, and so is each frame after it that continues
-      the held ones (at most SEQ_GAP_WINDOW steps after the last, its clock forward and at the
-      interval: the one agreed on once two steps in a row have, else the held frames' own).
-      :data:`BREAK_CONFIRM_FRAMES` held frames are released and kept: the device restarted
-      (the sequence behind: ``seq_resets``) or jumped on (a gap). A frame kept as above, or a
-      break that does not continue them, drops the held frames (``seq_clock_mismatch``: a
-      random frame that passed the CRC; a frozen, slow or fast clock).
-
-    :meth:`run` (the push parsers, a batch of frames) and :meth:`run_array` (a whole capture,
-    numpy over the runs where each step agrees with the one before) decide alike. At the end
-    of the input :meth:`flush` drops what is held.
+    are kept, and the sequence/clock counters of :class:`ParserStats`. Pure. The rule
+    (docs/protocol.md, "Sequence and clock"), for a frame k sequence steps and d us after the
+    last frame kept: **kept** if 0 < k <= :data:`SEQ_GAP_WINDOW`, d forward and d / k within
+    :data:`SEQ_CLOCK_RATIO` of the interval (the last single step's d; any before it);
+    **dropped, not new** (``seq_repeats``) if k = 0 or at most :data:`SEQ_REORDER_WINDOW`
+    behind, d not forward; else a **break**: held with the frames after it that continue it
+    by their own clock, released when :data:`BREAK_CONFIRM_FRAMES` do at the interval agreed on
+    (or none was) or :data:`BREAK_REBASE_FRAMES` at their own (a restart: ``seq_resets``; a
+    jump: a gap), dropped by a frame kept or a break that does not continue them
+    (``seq_clock_mismatch``). :meth:`run` (a batch of frames) and :meth:`run_array` (a whole
+    capture, numpy where each step agrees) decide alike; :meth:`flush` drops what is held.
     """
 
-    __slots__ = ("_agreed", "_d", "_held", "_k", "_kept_run", "_seq", "_t", "stats")
+    __slots__ = ("_agreed", "_d", "_held", "_held_off", "_k", "_kept_run", "_seq", "_t", "stats")
 
     def __init__(self, stats: ParserStats | None = None) -> None:
         self.stats = ParserStats() if stats is None else stats
@@ -402,6 +380,7 @@ class FrameTracker:
         self._agreed = 0  # steps kept since the start or the last break
         self._kept_run = 0  # frames kept by the rule in a row, to the last one judged
         self._held: list[tuple[Any, int, int, int]] = []  # (item, seq, t_us, bad) after a break
+        self._held_off = False  # a held step off the interval agreed on
 
     def run(self, items: list[Any], bads: list[int]) -> tuple[list[Any], list[int]]:
         """Judge a batch of frames (``items``, each with ``seq`` and ``t_us``, and the bad
@@ -428,7 +407,9 @@ class FrameTracker:
                 st.lost_frames += k - 1
             if t < t0:
                 st.clock_wraps += 1
-            seq0, t0, d0, k0 = s, t, d, k
+            seq0, t0 = s, t
+            if k == 1:  # the interval: a single step's (a gap's average may hide a skip)
+                d0, k0 = d, 1
             j += 1
         self._seq, self._t, self._d, self._k = seq0, t0, d0, k0
         self._agreed += j
@@ -460,7 +441,9 @@ class FrameTracker:
                 self._gap(k)
                 if f.t_us < self._t:
                     st.clock_wraps += 1
-                self._seq, self._t, self._d, self._k = f.seq, f.t_us, d, k
+                self._seq, self._t = f.seq, f.t_us
+                if k == 1:
+                    self._d, self._k = d, 1
                 self._agreed += 1
                 self._kept_run += 1
                 self._drop_held()
@@ -477,35 +460,40 @@ class FrameTracker:
         return out, out_bad
 
     def _continues_held(self, s: int, t: int) -> bool:
-        """Whether a frame continues the held ones: at most SEQ_REORDER_WINDOW steps after
-        the last, its clock forward and at the interval (the one agreed on; before two steps
-        in a row have agreed on one, the held frames' own)."""
+        """Whether a frame continues the held ones by their own clock: at most SEQ_GAP_WINDOW
+        steps after the last, forward, and at the interval of the two before it."""
         held = self._held
         if not held:
             return False
         _, ps, pt, _ = held[-1]
-        k = (s - ps) & 0xFFFF
-        d = (t - pt) & 0xFFFFFFFF
-        d0, k0 = self._d, self._k
-        if self._agreed < 2:
-            d0, k0 = 0, 0
-            if len(held) >= 2:
-                d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
+        d0 = k0 = 0
+        if len(held) >= 2:
+            d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
+        k, d = (s - ps) & 0xFFFF, (t - pt) & 0xFFFFFFFF
         return 0 < k <= _GAP and 0 < d < _HALF_WRAP and _agrees(d, k, d0, k0)
 
     def _on_break(self, item: Any, s: int, t: int, b: int) -> list[tuple[Any, int]]:
         """A frame that breaks the sequence or the clock: held (after what is held, if it
-        continues it; else in its place); the frames released if it is the last of
-        :data:`BREAK_CONFIRM_FRAMES` that continue one another."""
-        if not self._continues_held(s, t):
+        continues it; else in its place); the held frames released once
+        :data:`BREAK_CONFIRM_FRAMES` continue one another at the interval agreed on (or none
+        was), or :data:`BREAK_REBASE_FRAMES` at an interval of their own."""
+        if self._continues_held(s, t):
+            _, ps, pt, _ = self._held[-1]
+            self._held_off |= not _agrees(
+                (t - pt) & 0xFFFFFFFF, (s - ps) & 0xFFFF, self._d, self._k
+            )
+        else:
             self._drop_held()
         self._held.append((item, s, t, b))
-        if len(self._held) < BREAK_CONFIRM_FRAMES:
-            return []
-        return self._release()
+        n = len(self._held)
+        agreed = self._agreed < 2 or not self._held_off
+        if n >= BREAK_REBASE_FRAMES or (n >= BREAK_CONFIRM_FRAMES and agreed):
+            return self._release()
+        return []
 
     def _release(self) -> list[tuple[Any, int]]:
-        """The held frames continue one another: they are kept, the last one the reference."""
+        """The held frames continue one another: they are kept, the last one the reference;
+        the interval agreed on before the break stays (they kept to it), else it is theirs."""
         held, st = self._held, self.stats
         assert self._seq is not None  # a break follows a kept frame
         k = (held[0][1] - self._seq) & 0xFFFF
@@ -513,15 +501,19 @@ class FrameTracker:
             st.seq_resets += 1
         else:
             self._gap(k)
+        keep_interval = self._agreed >= 2 and not self._held_off
         for (_, sa, ta, _), (_, sb, tb, _) in itertools.pairwise(held):
             kk = (sb - sa) & 0xFFFF
             self._gap(kk)
             if tb < ta:
                 st.clock_wraps += 1
-            self._seq, self._t, self._d, self._k = sb, tb, (tb - ta) & 0xFFFFFFFF, kk
+            self._seq, self._t = sb, tb
+            if kk == 1 and not keep_interval:
+                self._d, self._k = (tb - ta) & 0xFFFFFFFF, 1
         self._agreed = len(held) - 1
         out = [(it, bb) for it, _, _, bb in held]
         held.clear()
+        self._held_off = False
         return out
 
     def _gap(self, k: int) -> None:
@@ -532,6 +524,7 @@ class FrameTracker:
     def _drop_held(self) -> None:
         self.stats.seq_clock_mismatch += len(self._held)
         self._held.clear()
+        self._held_off = False
 
     def flush(self) -> None:
         """End of the input: the frames held after a break are dropped (never confirmed)."""
@@ -544,7 +537,7 @@ class FrameTracker:
         numpy over the runs in which every step is forward and agrees with the step before
         (the tracker being where ``run`` would be), ``run`` itself around the rest."""
         n = arr.shape[0]
-        if self._seq is None and n > 1 and self._all_kept(arr):
+        if n == 0 or (self._seq is None and n > 1 and self._all_kept(arr)):
             return np.arange(n, dtype=np.int64)
         seq = arr["seq"].astype(np.int64)
         t = arr["t_us"].astype(np.int64)
@@ -552,10 +545,14 @@ class FrameTracker:
         d = np.zeros(n, np.int64)
         np.bitwise_and(np.diff(seq), 0xFFFF, out=k[1:])
         np.bitwise_and(np.diff(t), 0xFFFFFFFF, out=d[1:])
-        good = (k > 0) & (k <= _GAP) & (d > 0) & (d < _HALF_WRAP)
-        good[2:] &= (_R * d[2:] * k[1:-1] >= d[1:-1] * k[2:]) & (
-            d[2:] * k[1:-1] <= _R * d[1:-1] * k[2:]
-        )
+        # The interval for each step: the last single step's before it (as run has it when
+        # it kept that step; a run through numpy starts only there).
+        one = np.maximum.accumulate(np.where(k == 1, np.arange(n), -1))
+        prev = np.empty(n, np.int64)
+        prev[0], prev[1:] = -1, one[:-1]
+        d_i = d[np.maximum(prev, 0)]
+        good = (prev >= 0) & (k > 0) & (k <= _GAP) & (d > 0) & (d < _HALF_WRAP)
+        good &= (_R * d >= d_i * k) & (d <= _R * d_i * k)
         breaks = np.flatnonzero(~good)
         w = 2 * BREAK_CONFIRM_FRAMES + 2  # after this many good steps the tracker is at rest
         calm = np.empty(0, np.int64)
@@ -564,11 +561,11 @@ class FrameTracker:
         kept: list[npt.NDArray[np.int64]] = []
         i = 0
         while i < n:
-            if i >= 2 and self._kept_run >= 2 and good[i]:  # at i - 1, the step into it known
+            if i and self._kept_run >= 2 and k[i - 1] == 1 and good[i]:  # i - 2, i - 1 kept
                 j = int(breaks[np.searchsorted(breaks, i)]) if breaks[-1] >= i else n
                 self._numpy_run(k[i:j], t[i - 1 : j])
                 self._seq, self._t = int(seq[j - 1]), int(t[j - 1])
-                self._d, self._k = int(d[j - 1]), int(k[j - 1])
+                self._d, self._k = int(d[one[j - 1]]), 1
                 kept.append(np.arange(i, j, dtype=np.int64))
                 i = j
                 continue
@@ -595,7 +592,10 @@ class FrameTracker:
             return False
         self._seq, self._t = int(seq[0]), int(t[0])
         self._numpy_run(k, t)
-        self._seq, self._t, self._d, self._k = int(seq[-1]), int(t[-1]), int(d[-1]), int(k[-1])
+        self._seq, self._t = int(seq[-1]), int(t[-1])
+        single = np.flatnonzero(k == 1)
+        if single.shape[0]:
+            self._d, self._k = int(d[single[-1]]), 1
         self._kept_run += 1
         return True
 
@@ -649,9 +649,7 @@ def _displaced(buf: bytes, i: int, final: bool) -> bool | None:
     return False
 
 
-_Scan = tuple[list[Frame], list[int], int, int]
-"""What :func:`_scan_bin` found: frames and the bad frames before each; the bad frames so far;
-where the bytes that wait for more start."""
+_Scan = tuple[list[Frame], list[int], int, int]  # frames, bad before each, bad, kept from
 
 
 def _scan_bin(buf: bytes, bad: int, final: bool) -> _Scan:

@@ -17,6 +17,7 @@ __all__ = [
     "ADDED_KEYS",
     "BIN_FRAME_LEN",
     "BREAK_CONFIRM_FRAMES",
+    "BREAK_REBASE_FRAMES",
     "CLOCK_WRAP_US",
     "MESSAGE_CLASS",
     "NMEA_TALKER",
@@ -68,7 +69,10 @@ this factor (docs/protocol.md, "Sequence and clock"); beyond, its clock disagree
 sequence number."""
 BREAK_CONFIRM_FRAMES = 3
 """After a break in the sequence or the clock (a device restart, a jump), the frames are believed
-once this many in a row continue one another at the sample interval."""
+once this many in a row continue one another at the sample interval agreed on before it."""
+BREAK_REBASE_FRAMES = 16
+"""... or once this many in a row continue one another at a new interval (a device clock whose
+rate changed for good; the wall clock check, live, still judges its rate)."""
 
 # -- published messages ("Published messages") -------------------------------------------------
 

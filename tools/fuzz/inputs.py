@@ -193,7 +193,7 @@ def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, .
     """One break of a healthy stream (``st``: seq, t, wall, interval), appended to ``rows``."""
     step = st["interval"]
     kind = rng.choice(("repeat", "frozen", "rate", "random", "restart", "jump", "gap", "late"))
-    m = rng.choice((1, 2, 3, 5, 20))
+    m = rng.choice((1, 2, 3, 5, 12))  # fewer than BREAK_REBASE_FRAMES: a new rate is not taken
     if kind == "repeat":  # the last frame again and again: not new
         for _ in range(m):
             st["wall"] += step / 1e6
