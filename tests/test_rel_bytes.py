@@ -135,7 +135,12 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
                 c["seq_clock_mismatch"] += len(held)
                 held, held_off = [], False
             held.append(i)
-            if len(held) >= 16 or (len(held) >= 3 and (agreed < 2 or not held_off)):
+            own = step(pairs[held[-2]], pairs[held[-1]])[::-1] if len(held) >= 2 else (0, 1)
+            near = interval is None or (
+                4 * own[0] * interval[1] >= interval[0] * own[1]
+                and own[0] * interval[1] <= 4 * interval[0] * own[1]
+            )
+            if (len(held) >= 16 and near) or (len(held) >= 3 and (agreed < 2 or not held_off)):
                 k0 = step(ref, pairs[held[0]])[0]
                 if k0 >= 2**15:
                     c["seq_resets"] += 1

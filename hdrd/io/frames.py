@@ -13,10 +13,7 @@ protocols, and a fourth beside it:
   to its tracker;
 - :func:`hdrd.io.capture.decode_capture`: a vectorised decoder of a whole capture into a numpy
   structured array (:data:`FRAME_DTYPE`), giving exactly the frames and counters of the push
-  parser.
-
-The layout's constants (sync bytes, frame length, "no temperature", the device clock's wrap)
-are in :mod:`hdrd.io.protocol`.
+  parser. The layout's constants are in :mod:`hdrd.io.protocol`.
 
 **hdr-bin**, 16 bytes, little-endian: sync ``A5 5A``, seq u16, t_us u32, rate u16, ref u16,
 temp i16 (0.01 degC, -32768 = not fitted), CRC-16/CCITT-FALSE u16 over bytes 2..13.
@@ -51,6 +48,7 @@ from hdrd.io.protocol import (
     BREAK_REBASE_FRAMES,
     CLOCK_WRAP_US,
     PROTOCOLS,
+    REBASE_RATIO,
     SEQ_CLOCK_RATIO,
     SEQ_GAP_WINDOW,
     SEQ_REORDER_WINDOW,
@@ -345,10 +343,10 @@ _R = SEQ_CLOCK_RATIO
 _GAP = SEQ_GAP_WINDOW
 
 
-def _agrees(d: int, k: int, d0: int, k0: int) -> bool:
-    """Whether d us over k sequence steps keep to the interval d0 us per k0 steps (within
-    :data:`SEQ_CLOCK_RATIO`); any step does when there is no interval yet (k0 = 0)."""
-    return k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k)
+def _agrees(d: int, k: int, d0: int, k0: int, r: int = _R) -> bool:
+    """Whether d us over k sequence steps keep to the interval d0 us per k0 steps (within a
+    factor r, :data:`SEQ_CLOCK_RATIO`); any step does when there is no interval yet (k0 = 0)."""
+    return k0 == 0 or (r * d * k0 >= d0 * k and d * k0 <= r * d0 * k)
 
 
 _At = collections.namedtuple("_At", "seq t_us i")  # a frame of an array, for run: its place i
@@ -363,7 +361,8 @@ class FrameTracker:
     **dropped, not new** (``seq_repeats``) if k = 0 or at most :data:`SEQ_REORDER_WINDOW`
     behind, d not forward; else a **break**: held with the frames after it that continue it
     by their own clock, released when :data:`BREAK_CONFIRM_FRAMES` do at the interval agreed on
-    (or none was) or :data:`BREAK_REBASE_FRAMES` at their own (a restart: ``seq_resets``; a
+    (or none was) or :data:`BREAK_REBASE_FRAMES` at their own within :data:`REBASE_RATIO`
+    of it (a restart: ``seq_resets``; a
     jump: a gap), dropped by a frame kept or a break that does not continue them
     (``seq_clock_mismatch``). :meth:`run` (a batch of frames) and :meth:`run_array` (a whole
     capture, numpy where each step agrees) decide alike; :meth:`flush` drops what is held.
@@ -476,7 +475,7 @@ class FrameTracker:
         """A frame that breaks the sequence or the clock: held (after what is held, if it
         continues it; else in its place); the held frames released once
         :data:`BREAK_CONFIRM_FRAMES` continue one another at the interval agreed on (or none
-        was), or :data:`BREAK_REBASE_FRAMES` at an interval of their own."""
+        was), or :data:`BREAK_REBASE_FRAMES` at one of their own near it."""
         if self._continues_held(s, t):
             _, ps, pt, _ = self._held[-1]
             self._held_off |= not _agrees(
@@ -486,10 +485,13 @@ class FrameTracker:
             self._drop_held()
         self._held.append((item, s, t, b))
         n = len(self._held)
-        agreed = self._agreed < 2 or not self._held_off
-        if n >= BREAK_REBASE_FRAMES or (n >= BREAK_CONFIRM_FRAMES and agreed):
+        if n >= BREAK_CONFIRM_FRAMES and (self._agreed < 2 or not self._held_off):
             return self._release()
-        return []
+        if n < BREAK_REBASE_FRAMES:
+            return []
+        (_, sa, ta, _), (_, sb, tb, _) = self._held[-2:]  # their interval: near the old one?
+        near = _agrees((tb - ta) & 0xFFFFFFFF, (sb - sa) & 0xFFFF, self._d, self._k, REBASE_RATIO)
+        return self._release() if near else []
 
     def _release(self) -> list[tuple[Any, int]]:
         """The held frames continue one another: they are kept, the last one the reference;
@@ -527,9 +529,11 @@ class FrameTracker:
         self._held_off = False
 
     def flush(self) -> None:
-        """End of the input: the frames held after a break are dropped (never confirmed)."""
+        """End of the input (or of a connection): the frames held after a break are dropped
+        (never confirmed), the interval forgotten (another device may come); the last frame
+        kept stays, so that a gap across a reconnection is still counted."""
         self._drop_held()
-        self._kept_run = 0
+        self._kept_run = self._agreed = self._d = self._k = 0
 
     def run_array(self, arr: npt.NDArray[np.void]) -> npt.NDArray[np.int64]:
         """:meth:`run` over a :data:`FRAME_DTYPE` array in stream order (a whole capture): the
@@ -731,10 +735,8 @@ class Parser:
         returned (hdr-bin: a complete frame waits only while the bytes that tell a CRC
         coincidence from a real frame are missing, see :func:`_displaced`; at the end they
         never come), then the leftover bytes are dropped and counted as garbage, and the
-        frames held after a break in the sequence (:class:`FrameTracker`) are dropped.
-
-        The sequence and clock references are kept, so a gap across a reconnection is
-        still reported. :attr:`bad_before` describes the returned frames."""
+        tracker flushed (:meth:`FrameTracker.flush`: a gap across a reconnection is still
+        counted). :attr:`bad_before` describes the returned frames."""
         out: list[Frame] = []
         if self._buf and self.protocol == "hdr-bin":
             out = self._feed_bin(b"", final=True)

@@ -22,6 +22,7 @@ __all__ = [
     "MESSAGE_CLASS",
     "NMEA_TALKER",
     "PROTOCOLS",
+    "REBASE_RATIO",
     "RATE_VALID_STATUSES",
     "RESET_THRESHOLD_US",
     "SCHEMA_VERSION",
@@ -71,8 +72,11 @@ BREAK_CONFIRM_FRAMES = 3
 """After a break in the sequence or the clock (a device restart, a jump), the frames are believed
 once this many in a row continue one another at the sample interval agreed on before it."""
 BREAK_REBASE_FRAMES = 16
-"""... or once this many in a row continue one another at a new interval (a device clock whose
-rate changed for good; the wall clock check, live, still judges its rate)."""
+"""... or once this many in a row continue one another at a new interval within a factor
+:data:`REBASE_RATIO` of it (the interval agreed on was off); a clock 100x slow or fast is never
+taken."""
+REBASE_RATIO = 4
+"""How far from the interval agreed on a new one may be, to be taken after BREAK_REBASE_FRAMES."""
 
 # -- published messages ("Published messages") -------------------------------------------------
 
