@@ -140,7 +140,10 @@ def reference_track(pairs: list[tuple[int, int]]) -> tuple[list[int], dict[str, 
                 4 * own[0] * interval[1] >= interval[0] * own[1]
                 and own[0] * interval[1] <= 4 * interval[0] * own[1]
             )
-            if (len(held) >= 16 and near) or (len(held) >= 3 and (agreed < 2 or not held_off)):
+            if len(held) >= 16 and not near and not (agreed < 2 or not held_off):
+                held.pop(0)  # a new interval far from the old: never taken
+                c["seq_clock_mismatch"] += 1
+            elif (len(held) >= 16 and near) or (len(held) >= 3 and (agreed < 2 or not held_off)):
                 k0 = step(ref, pairs[held[0]])[0]
                 if k0 >= 2**15:
                     c["seq_resets"] += 1

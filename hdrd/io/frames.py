@@ -382,10 +382,9 @@ class FrameTracker:
         self._held_off = False  # a held step off the interval agreed on
 
     def run(self, items: list[Any], bads: list[int]) -> tuple[list[Any], list[int]]:
-        """Judge a batch of frames (``items``, each with ``seq`` and ``t_us``, and the bad
-        frames before each): the items kept, in order, with their bad-frame counts (frames held
-        earlier and released now come first). The common case, every frame kept, returns the
-        lists given; :meth:`_run_all` takes the rest from the first frame that is not."""
+        """Judge frames (each with ``seq`` and ``t_us``; ``bads``: bad frames before each): those
+        kept, in order, with their bads (held ones released now first). :meth:`_run_all`
+        takes over from the first frame that the common case does not keep."""
         seq0, t0, d0, k0 = self._seq, self._t, self._d, self._k
         if seq0 is None or self._held:
             return self._run_all(items, bads, 0)
@@ -490,8 +489,11 @@ class FrameTracker:
         if n < BREAK_REBASE_FRAMES:
             return []
         (_, sa, ta, _), (_, sb, tb, _) = self._held[-2:]  # their interval: near the old one?
-        near = _agrees((tb - ta) & 0xFFFFFFFF, (sb - sa) & 0xFFFF, self._d, self._k, REBASE_RATIO)
-        return self._release() if near else []
+        if _agrees((tb - ta) & 0xFFFFFFFF, (sb - sa) & 0xFFFF, self._d, self._k, REBASE_RATIO):
+            return self._release()
+        self._held.pop(0)  # far from it: never taken, the oldest dropped as the next comes
+        self.stats.seq_clock_mismatch += 1
+        return []
 
     def _release(self) -> list[tuple[Any, int]]:
         """The held frames continue one another: they are kept, the last one the reference;
@@ -536,10 +538,8 @@ class FrameTracker:
         self._kept_run = self._agreed = self._d = self._k = 0
 
     def run_array(self, arr: npt.NDArray[np.void]) -> npt.NDArray[np.int64]:
-        """:meth:`run` over a :data:`FRAME_DTYPE` array in stream order (a whole capture): the
-        positions of the frames kept, in order. The same decisions and counters as ``run``:
-        numpy over the runs in which every step is forward and agrees with the step before
-        (the tracker being where ``run`` would be), ``run`` itself around the rest."""
+        """:meth:`run` over a :data:`FRAME_DTYPE` array (a whole capture): the positions of the
+        frames kept. Numpy over the runs ``run`` would keep whole, ``run`` around the rest."""
         n = arr.shape[0]
         if n == 0 or (self._seq is None and n > 1 and self._all_kept(arr)):
             return np.arange(n, dtype=np.int64)
