@@ -458,8 +458,7 @@ class FrameTracker:
         return out, out_bad
 
     def _continues_held(self, s: int, t: int) -> bool:
-        """Whether a frame continues the held ones by their own clock: at most SEQ_GAP_WINDOW
-        steps after the last, forward, and at the interval of the two before it."""
+        """Whether a frame continues the held ones (by their own clock: class doc)."""
         held = self._held
         if not held:
             return False
@@ -496,8 +495,7 @@ class FrameTracker:
         return []
 
     def _release(self) -> list[tuple[Any, int]]:
-        """The held frames continue one another: they are kept, the last one the reference;
-        the interval agreed on before the break stays (they kept to it), else it is theirs."""
+        """The held frames are kept; the interval agreed on stays if they kept to it."""
         held, st = self._held, self.stats
         assert self._seq is not None  # a break follows a kept frame
         k = (held[0][1] - self._seq) & 0xFFFF
@@ -574,18 +572,22 @@ class FrameTracker:
                 i = j
                 continue
             at = int(np.searchsorted(calm, i))  # run to the end of the next calm stretch
-            hi = min(n, int(calm[at]) + w) if at < calm.shape[0] else n
-            hi = max(hi, i + 1)
-            rows = [_At(*x) for x in zip(seq[i:hi].tolist(), t[i:hi].tolist(), range(i, hi))]
-            got, _ = self.run(rows, [0] * len(rows))
-            kept.append(np.fromiter((r.i for r in got), np.int64, len(got)))
+            hi = max(min(n, int(calm[at]) + w) if at < calm.shape[0] else n, i + 1)
+            kept.append(self._run_slice(seq, t, i, hi))
             i = hi
         return np.concatenate(kept) if kept else np.empty(0, np.int64)
 
+    def _run_slice(
+        self, seq: npt.NDArray[np.int64], t: npt.NDArray[np.int64], lo: int, hi: int
+    ) -> npt.NDArray[np.int64]:
+        """:meth:`run` over frames lo .. hi - 1 of an array: the positions kept."""
+        rows = [_At(*x) for x in zip(seq[lo:hi].tolist(), t[lo:hi].tolist(), range(lo, hi))]
+        got, _ = self.run(rows, [0] * len(rows))
+        return np.fromiter((r.i for r in got), np.int64, len(got))
+
     def _all_kept(self, arr: npt.NDArray[np.void]) -> bool:
-        """The common case of a whole capture, from a new tracker, cheaply: every step forward
-        and every step's device time per sequence step within a factor 1.99 of every other's
-        (so of the step before, whatever the rounding). Then all is kept and counted here."""
+        """A whole capture kept whole by a new tracker, cheaply told: every step forward, and
+        every step's d / k within 1.99 of every other's (whatever the rounding)."""
         seq, t = arr["seq"], arr["t_us"]
         k = np.diff(seq)  # uint16 and uint32: the differences wrap as the wire's counters do
         d = np.diff(t)
@@ -604,8 +606,7 @@ class FrameTracker:
         return True
 
     def _numpy_run(self, k: npt.NDArray[np.int64], t: npt.NDArray[np.int64]) -> None:
-        """Count the steps ``k`` (into frames whose device times are ``t[1:]``, ``t[0]`` the
-        frame before) of a run that is kept whole."""
+        """Count the steps ``k`` (into the frames at ``t[1:]``) of a run kept whole."""
         st = self.stats
         jumps = k[k > 1]
         st.seq_gaps += int(jumps.size)
