@@ -433,8 +433,8 @@ class Daemon:
                 port=self.src_name,
                 gap_s=round(gap, 3),
                 jumps=self.wallclock.jumps,
-                reason="the device clock jumped and runs at its rate since: steps go on by "
-                "the host's clock",
+                reason="the device clock jumped (or went back: a restart) and runs at its "
+                "rate since: steps go on by the host's clock",
             )
             msgs = self.pipeline.resync(gap, bad, time.time())
             if self.pacer is not None:

@@ -258,8 +258,10 @@ class WallClockCheck:
       last frame kept as unknown (the daemon counts the steps on by the host's clock).
 
     A device clock that goes back (a restart of the device, which
-    :class:`hdrd.io.frames.FrameTracker` has confirmed) continues from the last frame kept,
-    as in :class:`DeviceClock`. ``rate`` 0 turns the check off: every frame agrees.
+    :class:`hdrd.io.frames.FrameTracker` has confirmed; or one that jumped half its wrap on,
+    which no one can tell from it) is :data:`JUMPED` at once, the reference following it: the
+    caller counts the time since the last frame kept by its own clock. ``rate`` 0 turns the
+    check off: every frame agrees.
     """
 
     AGREES = 0
@@ -319,7 +321,12 @@ class WallClockCheck:
                 self._keep(t_us, 0.0, now, now)
             return self.AGREES
         d = (t_us - last) & 0xFFFFFFFF
-        tau = self._tau + d / 1e6 if d < _HALF_WRAP else self._tau
+        if d >= _HALF_WRAP:  # back (a restart FrameTracker confirmed), or 2**31 us on: unknown
+            self.jumps += 1
+            self._run_raw = None
+            self._keep(t_us, self._tau, now - self._tau / self.rate, now)
+            return self.JUMPED
+        tau = self._tau + d / 1e6
         o = now - tau / self.rate
         off = o - self._a
         step = self.drift * (now - self._at)

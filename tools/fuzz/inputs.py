@@ -190,14 +190,20 @@ hand (s), and what the daemon must do with it: 0 integrate, 1 drop, 2 either."""
 
 
 def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, ...]]) -> None:
-    """One break of a healthy stream (``st``: seq, t, wall, interval), appended to ``rows``."""
+    """One break of a healthy stream (``st``: seq, t, wall, interval), appended to ``rows``.
+    Frames that must be dropped are labelled 1, but 2 while the checks have not settled
+    since the last break (``st["quiet"]``): then anything may be."""
     step = st["interval"]
     kind = rng.choice(("repeat", "frozen", "rate", "random", "restart", "jump", "gap", "late"))
     m = rng.choice((1, 2, 3, 5, 12))  # fewer than BREAK_REBASE_FRAMES: a new rate is not taken
-    if kind == "repeat":  # the last frame again and again: not new
+    drop = 1 if st["wall"] > st["quiet"] else 2
+    if kind == "repeat":  # the last frame again and again; the device's own go unheard
+        seq, t = st["seq"], st["t"]
         for _ in range(m):
+            st["seq"] += 1
+            st["t"] += step
             st["wall"] += step / 1e6
-            rows.append((st["seq"], st["t"], st["wall"], 1))
+            rows.append((seq, t, st["wall"], drop))
     elif kind in ("frozen", "rate"):  # the sequence advancing, the clock frozen, slow or fast
         factor = 0.0 if kind == "frozen" else rng.choice((0.01, 0.3, 3.0, 100.0))
         for j in range(m):
@@ -205,9 +211,9 @@ def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, .
             st["t"] += int(step * factor)
             st["wall"] += step / 1e6
             # the last one's clock is where the device's runs on from: a jump, believed
-            rows.append((st["seq"], st["t"], st["wall"], 1 if j < m - 1 else 2))
+            rows.append((st["seq"], st["t"], st["wall"], drop if j < m - 1 else 2))
     elif kind == "random":  # a random frame that passed the CRC
-        rows.append((rng.getrandbits(16), rng.getrandbits(32), st["wall"], 1))
+        rows.append((rng.getrandbits(16), rng.getrandbits(32), st["wall"], drop))
     elif kind == "restart":
         st["seq"], st["t"] = rng.randrange(10), rng.getrandbits(20)
     elif kind == "jump":
@@ -216,10 +222,12 @@ def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, .
         st["seq"] += m * 5
         st["t"] += m * 5 * step
         st["wall"] += m * 5 * step / 1e6
+        if drop == 2:  # the checks had not settled: they start again
+            st["quiet"] = st["wall"] + CLOCK_QUIET_S
         return
     else:  # a stalled reader: a burst read at once, up to 2 s late (within the tolerance)
         n = max(1, int(rng.choice((0.05, 0.5, 2.0)) / (step / 1e6)))
-        label = 0 if st["wall"] > st["quiet"] else 2
+        label = 0 if drop == 1 else 2
         for _ in range(n):
             st["seq"] += 1
             st["t"] += step
@@ -228,7 +236,7 @@ def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, .
         if label == 2:  # the host clock's check had not settled: it starts again
             st["quiet"] = st["wall"] + CLOCK_QUIET_S
         return
-    if kind not in ("random", "repeat"):
+    if kind not in ("random", "repeat") or drop == 2:
         st["quiet"] = st["wall"] + CLOCK_QUIET_S
 
 
