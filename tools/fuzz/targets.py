@@ -128,7 +128,8 @@ def _pipeline_variants() -> list[Any]:
 class SerialTarget(Target):
     """The daemon's path for the gyro's bytes: parser fed in random chunks, the live
     pipeline a frame at a time; one parser and pipeline live across inputs (a daemon that
-    never restarts), a new one every ``RESTART_EVERY`` inputs (another configuration)."""
+    never restarts; each input a reconnection, the parser flushed as on a loss), a new one
+    every ``RESTART_EVERY`` inputs (another configuration)."""
 
     surface = "serial"
     RESTART_EVERY = 500
@@ -169,6 +170,11 @@ class SerialTarget(Target):
         rng = self.rng
         frames = 0
         msgs: list[dict[str, Any]] = []
+        # Each input is what a device sends after (re)connecting: the parser ends the last
+        # one's input as the daemon does on a loss (its tracker forgets that device's rate).
+        for f in parser.flush():
+            frames += 1
+            msgs += p.feed(f, parser.stats.bad_frames, self.now)
         pos = 0
         while pos < len(stream):
             n = rng.choice((1, 7, 64, 4096))
