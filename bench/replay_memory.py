@@ -38,7 +38,8 @@ from _common import REPO, append_section, machine_line
 
 
 def _jumps(n: int) -> bytes:
-    from hdrd.io.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.capture import encode_array
+    from hdrd.io.frames import FRAME_DTYPE
 
     arr = np.zeros(n, FRAME_DTYPE)
     arr["seq"] = np.arange(n) & 0xFFFF
@@ -49,7 +50,8 @@ def _jumps(n: int) -> bytes:
 
 
 def _clean(n: int, hz: float) -> bytes:
-    from hdrd.io.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.capture import encode_array
+    from hdrd.io.frames import FRAME_DTYPE
 
     rng = np.random.default_rng(1)
     arr = np.zeros(n, FRAME_DTYPE)

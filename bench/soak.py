@@ -256,6 +256,8 @@ def soak(
                     "-m",
                     "hdrd",
                     "run",
+                    "--clock-rate",
+                    str(speedup),
                     "--config",
                     str(cfg),
                     "--port",

@@ -98,6 +98,13 @@ def _run(p: argparse.ArgumentParser) -> None:
         help="with --simulate: play the drive X times faster (default simulate.speedup, 1)",
     )
     p.add_argument(
+        "--clock-rate",
+        type=float,
+        metavar="X",
+        help="the device clock keeps X device seconds per wall second: 1 for the gyro, X for "
+        "`hdrd fakegyro --speedup X`, 0 = not checked (default device.clock_rate, 1)",
+    )
+    p.add_argument(
         "--heading0",
         type=float,
         metavar="DEG",

@@ -95,7 +95,12 @@ class DeviceConfig:
     """First wait before reopening a lost device, s; doubles up to reconnect_max_s."""
     reconnect_max_s: float = 10.0
     stale_after_s: float = 3.0
-    """No sample for this long (wall clock) -> status "stale", s."""
+    """No sample kept (or no step) for this long (wall clock) -> status "stale", s."""
+    clock_rate: float = 1.0
+    """Device seconds per wall-clock second the device's clock keeps: 1 for the gyro; N for a
+    feed N times real time (``hdrd fakegyro --speedup N``); 0: the device clock is not checked
+    against the wall clock (a feed as fast as it is read). A frame whose clock disagrees is
+    dropped (docs/protocol.md, "Sequence and clock")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -341,6 +346,7 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "device.reconnect_min_s": _SECONDS,
     "device.reconnect_max_s": _SECONDS,
     "device.stale_after_s": _SECONDS,
+    "device.clock_rate": _num(0, 1_000_000),
     "sensor.adc_bits": _num(8, 32),
     "sensor.vref_v": _num(0.01, 100),
     "sensor.null_v": _num(0, 100),

@@ -239,6 +239,72 @@ def test_the_gate_is_the_fixs_own_error_plus_the_gyros():
     assert on_message(b, step_msg(10.0, t=1.0), 1.0)[0]["mode"] == DEAD_RECKONING
 
 
+def _after_an_hour(a: GpsAiding, fixes: Sequence[Fix | None]) -> list[dict[str, Any]]:
+    """Aligned to 90 by five fixes while the gyro stands still in its own frame (HDR heading
+    0), then an hour without a course, then ``fixes``, one a second."""
+    still(a, [good(90.0)] * 5)
+    out = []
+    for k, f in enumerate(fixes):
+        now = 3600.0 + k
+        if f is not None:
+            a.on_fix(f, now - 0.7)
+        out.append(on_message(a, step_msg(0.0, t=now), now)[0])
+    return out
+
+
+def test_after_a_long_gap_one_course_moves_nothing_and_several_agreeing_reacquire():
+    """After an hour with no course accepted the gate had grown to 365 deg: one fix 180 deg
+    off was accepted and moved the heading 90 -> 54 deg (reported "aided"), and the true
+    courses after it were rejected. Now the gate stops at gate_max_deg, and after a long gap
+    no single course is taken: realign_after courses in a row that agree re-acquire."""
+    a = GpsAiding(AidingConfig(realign_after=3))
+    msgs = _after_an_hour(a, [good(270.0)] + [good(90.0)] * 5)
+    assert [round(m["heading"], 6) for m in msgs] == [90.0] * 6
+    assert [m["mode"] for m in msgs] == [DEAD_RECKONING] * 3 + [AIDED] * 3
+    assert a.realignments == 1
+    (name, fields_) = next(e for e in a.events if e[0] == "gps_realigned")
+    assert fields_["reason"] == "re-acquired after a long gap"
+    rejected = [f for n, f in a.events if n == "gps_course_rejected"]
+    assert rejected[0]["course"] == 270.0 and rejected[0]["long_gap_s"] >= 3590.0
+
+
+def test_after_a_long_gap_one_true_course_is_not_enough_either():
+    a = GpsAiding(AidingConfig(realign_after=3))
+    msgs = _after_an_hour(a, [good(95.0), None, None])
+    assert msgs[0]["mode"] == DEAD_RECKONING and herr(msgs[0]["heading"], 90.0) < 1e-9
+
+
+def test_the_gate_stops_widening_at_gate_max_deg():
+    a = GpsAiding(AidingConfig(gate_max_deg=30.0, max_drift_dps=0.1))
+    a.on_fix(good(10.0), 0.0)
+    on_message(a, step_msg(10.0), 0.0)
+    assert a.gate_deg(good(0.0), 0.0, 100.0) == pytest.approx(15.0)
+    assert a.gate_deg(good(0.0), 0.0, 3600.0) == 30.0
+    assert a.gate_deg(good(0.0), 100.0, 1.0) == 30.0  # a fast turn's latency too
+    assert not a.long_gap(299.0) and a.long_gap(300.0)
+    with pytest.raises(ValueError, match="gate_max_deg"):
+        AidingConfig(gate_min_deg=10.0, gate_max_deg=5.0)
+
+
+@pytest.mark.parametrize(
+    "fix",
+    [
+        good(150.0, 10.0, eps=10.0 * math.tan(math.radians(60.0))),  # 60 deg from eps
+        good(150.0, epd=60.0),
+    ],
+)
+def test_a_course_error_above_max_epd_deg_is_not_used_however_it_is_known(fix: Fix) -> None:
+    """A course error worked out from eps was not held to max_epd_deg: a course 60 deg off
+    with eps saying 60 deg was accepted. Now any course error above max_epd_deg means no
+    course."""
+    a = GpsAiding(AidingConfig(max_epd_deg=15.0))
+    msgs = still(a, [good(90.0)] * 3 + [fix])
+    assert a.course_err_deg(fix) == pytest.approx(60.0)
+    assert a.good_fix(3.5) is None
+    assert msgs[-1]["mode"] == DEAD_RECKONING and herr(msgs[-1]["heading"], 90.0) < 1e-9
+    assert a.courses_rejected == 0  # not a gate rejection: no course at all
+
+
 @given(
     st.floats(0.0, 359.9),
     st.floats(-179.0, 179.0),

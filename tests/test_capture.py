@@ -16,15 +16,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.io import capture as capture_mod
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    Frame,
-    Parser,
-    array_to_frames,
-    encode_array,
-    encode_bin,
-)
+from hdrd.io.capture import decode_capture, encode_array
+from hdrd.io.frames import FRAME_DTYPE, Frame, Parser, array_to_frames, encode_bin
 from hdrd.io.protocol import PROTOCOLS, SYNC
 from tests.test_frames import _NEAR, frames_st, run
 
@@ -64,14 +57,9 @@ def test_vectorised_slow_path_equals_push_on_messy_sequences() -> None:
     data = encode_array(arr)
     frames, stats = run("hdr-bin", data, list(rng.integers(0, len(data), 40)))
     got, vstats = decode_capture(data)
-    assert np.array_equal(got, arr) and array_to_frames(arr) == frames and vstats == stats
-    assert (
-        stats.seq_gaps
-        and stats.seq_repeats
-        and stats.seq_resets
-        and stats.clock_back
-        and stats.clock_wraps
-    )
+    assert array_to_frames(got) == frames and vstats == stats
+    assert stats.seq_gaps and stats.seq_repeats and stats.seq_clock_mismatch
+    assert stats.frames + stats.seq_repeats + stats.seq_clock_mismatch == n
 
 
 def test_vectorised_on_a_large_dirty_capture() -> None:

@@ -1,7 +1,8 @@
 """hdrd.io.clocks: the 32-bit microsecond device clock unwrapped (one sample at a time and a
 whole array at once, which agree in every output and counter), the calibration window's
-glitch-proof :class:`SampleClock`, a capture's device seconds, and the host clocks a source
-sleeps on. Pure apart from :class:`RealClock`.
+glitch-proof :class:`SampleClock`, a capture's device seconds, the host clocks a source
+sleeps on, and :class:`WallClockCheck`, the device clock against the host's. Pure apart from
+:class:`RealClock`.
 
 The device clock's use by the resampler (blocks across a wrap, a reset mid-drive):
 test_resample.py; the calibration window that SampleClock measures: test_calibrate.py.
@@ -22,6 +23,7 @@ from hdrd.io.clocks import (
     ManualClock,
     RealClock,
     SampleClock,
+    WallClockCheck,
     device_seconds,
     unwrap_us,
 )
@@ -315,3 +317,73 @@ def test_real_clock_is_the_hosts_monotonic_clock() -> None:
     c.sleep(0.0)
     c.sleep(-1.0)  # never an error (time.sleep would raise on a negative)
     assert a <= b and c.monotonic() - b >= 0.01
+
+
+# -- the device clock against the host's ------------------------------------------------------
+
+AGREES, DISAGREES, JUMPED = WallClockCheck.AGREES, WallClockCheck.DISAGREES, WallClockCheck.JUMPED
+
+
+def verdicts(
+    check: WallClockCheck,
+    n: int,
+    dev_step_us: int,
+    host_step_s: float,
+    t0: int = 0,
+    at: float = 0.0,
+) -> list[int]:
+    """``n`` frames ``dev_step_us`` apart on the device clock, ``host_step_s`` apart in hand."""
+    return [check.check((t0 + k * dev_step_us) % 2**32, at + k * host_step_s) for k in range(n)]
+
+
+def test_a_device_clock_at_the_host_rate_agrees_late_frames_and_a_wrap_included() -> None:
+    c = WallClockCheck()
+    assert set(verdicts(c, 500, 100_000, 0.1, t0=2**32 - 10_000_000)) == {AGREES}  # wraps
+    # a burst read 3 s late (a stalled reader), then frames in time again: all agree
+    t = (2**32 - 10_000_000 + 500 * 100_000) % 2**32
+    assert {c.check((t + k * 100_000) % 2**32, 50.0 + 3.0) for k in range(30)} == {AGREES}
+    assert set(verdicts(c, 30, 100_000, 0.1, t0=t + 30 * 100_000, at=53.0)) == {AGREES}
+    assert c.mismatches == 0 and c.jumps == 0
+
+
+@pytest.mark.parametrize("factor", [100.0, 0.01, 3.0, 0.3])
+def test_a_device_clock_too_fast_or_too_slow_disagrees_and_is_never_followed(factor: float) -> None:
+    c = WallClockCheck(tolerance_s=5.0, reanchor_s=5.0)
+    assert set(verdicts(c, 50, 100_000, 0.1)) == {AGREES}
+    t0 = 49 * 100_000
+    # 20 s: 100x fast, 2,000 s of device time, short of half the 32-bit clock's wrap (a step
+    # beyond it reads as a step back, a restart, which only FrameTracker in front can judge)
+    got = [c.check(int(t0 + k * 100_000 * factor) % 2**32, 4.9 + k * 0.1) for k in range(1, 200)]
+    assert JUMPED not in got  # never re-anchored
+    first = got.index(DISAGREES)
+    assert set(got[:first]) <= {AGREES}  # within 5 s of the host clock before that
+    assert set(got[first:]) == {DISAGREES}
+
+
+def test_a_jump_of_the_device_clock_is_followed_after_reanchor_s() -> None:
+    c = WallClockCheck(tolerance_s=5.0, reanchor_s=5.0)
+    verdicts(c, 50, 100_000, 0.1)
+    got = verdicts(c, 200, 100_000, 0.1, t0=368_000_000, at=5.0)  # 368 s on, then at the rate
+    jumped = got.index(JUMPED)
+    assert got[:jumped] == [DISAGREES] * jumped and set(got[jumped + 1 :]) == {AGREES}
+    assert 50 <= jumped <= 51 and c.jumps == 1  # 5 s of frames 0.1 s apart
+    # a device restart (its clock back to 0): a jump at once, then the frames agree
+    got = verdicts(c, 20, 100_000, 0.1, t0=0, at=25.0)
+    assert got[0] == JUMPED and set(got[1:]) == {AGREES} and c.jumps == 2
+
+
+def test_clock_rate_scales_the_device_clock_and_0_turns_the_check_off() -> None:
+    fast = WallClockCheck(rate=4.0)
+    assert set(verdicts(fast, 400, 100_000, 0.025)) == {AGREES}  # a feed 4x real time
+    assert DISAGREES in verdicts(WallClockCheck(), 400, 100_000, 0.025)
+    off = WallClockCheck(rate=0.0)
+    assert set(verdicts(off, 400, 10**9, 0.001)) == {AGREES} and off.mismatches == 0
+    with pytest.raises(ValueError):
+        WallClockCheck(rate=-1.0)
+
+
+def test_reset_starts_a_new_reference() -> None:
+    c = WallClockCheck()
+    verdicts(c, 10, 100_000, 0.1)
+    c.reset()  # a new connection: whatever its device time, the first frame is the reference
+    assert set(verdicts(c, 10, 100_000, 0.1, t0=123_456_789, at=500.0)) == {AGREES}

@@ -59,6 +59,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "device.reconnect_min_s": (1, [0, -1.0, NAN, INF, "1", True, None, 3601]),
     "device.reconnect_max_s": (30.0, [0, -1, NAN, INF, "30", [30], 1e308]),
     "device.stale_after_s": (5.0, [0.0, -0.1, NAN, -INF, "5s", 1e308]),
+    "device.clock_rate": (4.0, [-1.0, NAN, INF, "4x", 1e7, True]),
     "sensor.adc_bits": (12, [7, 33, 0, 16.0, "16", True, NAN]),
     "sensor.vref_v": (3.3, [0, -5.0, NAN, INF, 10**400, "5V", 1e308, 1e-320]),
     "sensor.null_v": (1.65, [-0.1, NAN, INF, "2.5", 1e308]),
@@ -692,7 +693,8 @@ def _hard_capture() -> bytes:
     """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
-    from hdrd.io.frames import FRAME_DTYPE, encode_array
+    from hdrd.io.capture import encode_array
+    from hdrd.io.frames import FRAME_DTYPE
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)

@@ -166,6 +166,8 @@ def test_run_publishes_hdr_steps_over_udp_nmea_and_stdout(fake_gyro, daemon, udp
     g = fake_gyro(drive_profile(), speedup=0)
     js, nm = udp(), udp()
     d = daemon(
+        "--clock-rate",
+        "0",
         "--port",
         g.path,
         "--bias",
@@ -214,7 +216,7 @@ def test_run_publishes_hdr_steps_over_udp_nmea_and_stdout(fake_gyro, daemon, udp
 def test_startup_calibration_without_a_bias_file(fake_gyro, daemon, udp, tmp_path):
     g = fake_gyro(builtin_profile("standstill", minutes=0.5, bias_dps=-0.6, lead_in_s=0), speedup=0)
     u = udp()
-    d = daemon("--port", g.path, "--udp", u.addr)
+    d = daemon("--clock-rate", "0", "--port", g.path, "--udp", u.addr)
     g.start()
     got = u.messages(lambda ms: len(ms) >= 5)
     rc, _, err = d.stop()
@@ -235,6 +237,8 @@ def test_sd_notify_ready_status_watchdog(fake_gyro, daemon, udp, tmp_path):
         g = fake_gyro(drive_profile(), speedup=5)
         u = udp()
         d = daemon(
+            "--clock-rate",
+            "5",
             "--port",
             g.path,
             "--bias",
@@ -276,7 +280,18 @@ def test_unplug_and_replug_reports_stale_and_resumes(fake_gyro, daemon, udp, tmp
         pull_for=3.0,
     )
     u = udp()
-    d = daemon("--config", str(cfg), "--port", str(link), "--bias", "0", "--udp", u.addr)
+    d = daemon(
+        "--clock-rate",
+        "4",
+        "--config",
+        str(cfg),
+        "--port",
+        str(link),
+        "--bias",
+        "0",
+        "--udp",
+        u.addr,
+    )
     g.start()
     got = u.messages(
         lambda ms: (
@@ -312,7 +327,7 @@ def test_sighup_reloads_keeping_heading_and_rejects_bad_config(fake_gyro, daemon
         ),
         speedup=5,
     )
-    d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0")
+    d = daemon("--clock-rate", "5", "--config", str(cfg), "--port", g.path, "--bias", "0")
     g.start()
     first = u1.messages(lambda ms: len(ms) >= 3)
     cfg.write_text(f"output:\n  udp: ['{u2.addr}']\n  heading0_deg: 90\n")
@@ -342,6 +357,8 @@ def test_dead_udp_peers_do_not_stop_the_daemon(fake_gyro, daemon, udp):
     g = fake_gyro(drive_profile(), speedup=0)
     u = udp()
     d = daemon(
+        "--clock-rate",
+        "0",
         "--port",
         g.path,
         "--bias",
@@ -453,7 +470,9 @@ def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_
     )
     g2 = fake_gyro(drive_profile(), speedup=0)
     u = udp()
-    d = daemon("--port", g2.path, "--bias-file", str(bias_file), "--udp", u.addr)
+    d = daemon(
+        "--clock-rate", "0", "--port", g2.path, "--bias-file", str(bias_file), "--udp", u.addr
+    )
     g2.start()
     got = u.messages(lambda ms: len(ms) >= 2)
     d.stop()
@@ -509,7 +528,7 @@ def test_sighup_switches_gpsd_aiding_on(fake_gyro, daemon, udp, tmp_path):
     u = udp()
     cfg.write_text(f"output:\n  udp: ['{u.addr}']\n")
     g = fake_gyro(drive_profile(), speedup=5)
-    d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0.3")
+    d = daemon("--clock-rate", "5", "--config", str(cfg), "--port", g.path, "--bias", "0.3")
     g.start()
     u.messages(lambda ms: len(ms) >= 2)
     cfg.write_text(

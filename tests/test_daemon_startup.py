@@ -39,7 +39,7 @@ def test_sighup_during_start_up_does_not_kill_the_daemon(fake_gyro, daemon, udp)
     # daemon is importing numpy (its shared object just mapped), long before the loop.
     g = fake_gyro(STANDSTILL, speedup=5)
     u = udp()
-    d = daemon("--port", g.path, "--bias", "0.2", "--udp", u.addr)
+    d = daemon("--clock-rate", "5", "--port", g.path, "--bias", "0.2", "--udp", u.addr)
     deadline = time.monotonic() + WAIT
     while "_multiarray_umath" not in _maps(d.proc.pid):
         assert d.proc.poll() is None and time.monotonic() < deadline
@@ -176,7 +176,7 @@ def test_sighup_with_a_file_the_yaml_parser_cannot_take_keeps_the_old_config(
     good = f"output:\n  udp: ['{u.addr}']\n"
     cfg.write_text(good)
     g = fake_gyro(STANDSTILL, speedup=5)
-    d = daemon("--config", str(cfg), "--port", g.path, "--bias", "0.2")
+    d = daemon("--clock-rate", "5", "--config", str(cfg), "--port", g.path, "--bias", "0.2")
     g.start()
     u.messages(lambda ms: len(ms) >= 1)
 

@@ -96,7 +96,7 @@ def test_decoder_and_push_parser_agree_with_what_was_sent(capture: tuple[bytes, 
     assert cst.frames == inj.frames > 60_000
     assert cst.bad_frames == inj.expected_bad_frames > 100
     assert cst.lost_frames == inj.missing_frames > 0
-    assert cst.clock_wraps == 1 and cst.clock_back == 0 and cst.seq_resets == 0
+    assert cst.clock_wraps == 1 and cst.seq_clock_mismatch == 0 and cst.seq_resets == 0
     assert cst.garbage_bytes == inj.garbage_bytes + 16 * inj.crc_errors
 
 

@@ -34,8 +34,8 @@ import pytest
 
 from hdrd.config import load_config
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import Frame, encode_array, encode_bin, encode_text
+from hdrd.io.capture import decode_capture, encode_array
+from hdrd.io.frames import Frame, encode_bin, encode_text
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware"
@@ -491,7 +491,7 @@ def test_clock_and_seq_wrap_as_the_protocol_says(
     st, f = run.stats, run.frames
     assert int(f["t_us"][0]) == t0 and int(f["seq"][0]) == seq0
     assert st.clock_wraps == 1 and st.bad_frames == 0
-    assert (st.seq_gaps, st.lost_frames, st.seq_resets, st.clock_back) == (0, 0, 0, 0)
+    assert (st.seq_gaps, st.lost_frames, st.seq_resets, st.seq_clock_mismatch) == (0, 0, 0, 0)
     assert np.all(np.mod(np.diff(f["t_us"].astype(np.int64)), 2**32) == FRAME_US)
     assert np.all(np.mod(np.diff(f["seq"].astype(np.int64)), 65536) == 1)
     # hdrd unwraps it: its steps run on, one second apart, across the wrap.

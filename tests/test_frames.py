@@ -11,26 +11,25 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from hdrd.io.capture import decode_capture, decode_frames
+from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, decode_frames, encode_array
 from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
     FrameError,
+    FrameTracker,
     Parser,
     ParserStats,
     array_to_frames,
     crc16_ccitt_false,
-    crc16_ccitt_false_rows,
     decode_bin,
     decode_text,
     encode,
-    encode_array,
     encode_bin,
     encode_text,
     frames_to_array,
 )
 from hdrd.io.protocol import PROTOCOLS, SYNC
-from tests.test_rel_bytes import scan_bin_reference
+from tests.test_rel_bytes import as_stream, scan_bin_reference
 
 
 def crc_bitwise(data: bytes) -> int:
@@ -53,6 +52,22 @@ frames_st = st.builds(
     temp_cc=st.none() | st.integers(-32767, 32767),
 )
 NON_SYNC_BIN = st.integers(0, 255).filter(lambda b: b not in (0xA5, 0x5A))
+STREAM_CLOCK = st.tuples(st.integers(0, 0xFFFF), st.integers(0, 2**32 - 1), st.integers(1, 1 << 20))
+"""A healthy stream's first sequence number and device time, and its sample interval, us."""
+
+
+def restamp(f: Frame, clock: tuple[int, int, int], i: int) -> Frame:
+    """Frame ``i`` of the healthy stream ``clock`` (as :func:`as_stream`), with f's payload."""
+    seq0, t0, step = clock
+    return as_stream([f], ((seq0 + i) & 0xFFFF, (t0 + i * step) & 0xFFFFFFFF, step))[0]
+
+
+def kept_by_tracker(frames: list[Frame]) -> list[Frame]:
+    """The frames a new :class:`FrameTracker` keeps of ``frames`` (the input ends after them)."""
+    tr = FrameTracker()
+    kept, _ = tr.run(frames, [0] * len(frames))
+    tr.flush()
+    return kept
 
 
 def run(
@@ -231,7 +246,9 @@ def test_array_helpers_round_trip(frames: list[Frame]) -> None:
     for protocol in PROTOCOLS:
         data = encode_array(arr, protocol)
         assert data == b"".join(encode(f, protocol) for f in frames)
-        assert decode_frames(data, protocol) == frames
+        assert decode_frames(data, protocol) == kept_by_tracker(frames)
+        healthy = as_stream(frames)
+        assert decode_frames(encode_array(frames_to_array(healthy), protocol), protocol) == healthy
 
 
 # --------------------------------------------------------------------------- push parser
@@ -266,12 +283,13 @@ def dirty_bin_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
     parts: list[bytes] = []
     good: list[Frame] = []
     bad = 0
-    for _ in range(draw(st.integers(1, 25))):
+    clock = draw(STREAM_CLOCK)  # the frames (bad ones too) are a healthy stream's
+    for i in range(draw(st.integers(1, 25))):
         kind = draw(st.sampled_from(["good", "good", "garbage", "corrupt", "truncated"]))
         if kind == "garbage":
             parts.append(bytes(draw(st.lists(NON_SYNC_BIN, min_size=1, max_size=40))))
             continue
-        f = draw(frames_st)
+        f = restamp(draw(frames_st), clock, i)
         b = bytearray(encode_bin(f))
         if kind == "corrupt":
             pos = draw(st.integers(2, 15))
@@ -283,7 +301,7 @@ def dirty_bin_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
         else:
             good.append(f)
         parts.append(bytes(b))
-    last = draw(frames_st)
+    last = restamp(draw(frames_st), clock, i + 1)
     parts.append(encode_bin(last))
     good.append(last)
     return b"".join(parts), good, bad
@@ -324,13 +342,16 @@ def dirty_text_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
     parts: list[bytes] = []
     good: list[Frame] = []
     bad = 0
-    garbage = st.binary(min_size=1, max_size=40).map(lambda b: b.replace(b"$", b"#"))
-    for _ in range(draw(st.integers(1, 20))):
+    garbage = st.binary(min_size=1, max_size=40).map(  # no line start, no line end
+        lambda b: b.replace(b"$", b"#").replace(b"\n", b" ")
+    )
+    clock = draw(STREAM_CLOCK)  # the frames (bad ones too) are a healthy stream's
+    for n in range(draw(st.integers(1, 20))):
         kind = draw(st.sampled_from(["good", "good", "garbage", "corrupt", "truncated"]))
         if kind == "garbage":
             parts.append(draw(garbage))
             continue
-        f = draw(frames_st)
+        f = restamp(draw(frames_st), clock, n)
         b = bytearray(encode_text(f))
         if kind == "corrupt":
             digits = [i for i in range(6, len(b) - 5) if 0x30 <= b[i] <= 0x39]
@@ -343,7 +364,7 @@ def dirty_text_stream(draw: st.DrawFn) -> tuple[bytes, list[Frame], int]:
         else:
             good.append(f)
         parts.append(bytes(b))
-    last = draw(frames_st)
+    last = restamp(draw(frames_st), clock, n + 1)
     parts.append(encode_text(last))
     good.append(last)
     return b"".join(parts), good, bad
@@ -416,9 +437,10 @@ def test_sync_pattern_in_payload_does_not_lose_the_next_frame() -> None:
     syncs = sum(1 for i in range(16) if data[i : i + 2] == SYNC)
     assert syncs >= 7 and stats.bad_frames == syncs  # the frame's own and those inside it
     # A sync-like prefix (a lone A5, or A5 5A and a few bytes) before a good frame.
+    after = Frame(0x5AA7, 0x5AA55AA7, 0x5AA5, 0x5AA5, 0x5AA5)  # sync patterns inside, too
     for prefix in (b"\xa5", b"\xa5\x5a", b"\xa5\x5a\x01\x02\x03", b"\xa5\xa5\x5a"):
-        frames, _ = run("hdr-bin", prefix + encode_bin(nxt) + encode_bin(f))
-        assert frames == [nxt, f]
+        frames, _ = run("hdr-bin", prefix + encode_bin(nxt) + encode_bin(after))
+        assert frames == [nxt, after]
 
 
 def test_partial_frame_is_kept_across_feeds() -> None:
@@ -446,66 +468,99 @@ def test_text_partial_line_and_missing_line_end() -> None:
 # --------------------------------------------------------------------------- sequence and clock
 
 
-def seq_stream(pairs: list[tuple[int, int]], protocol: str = "hdr-bin") -> ParserStats:
-    data = b"".join(encode(Frame(s, t, 100, 0, None), protocol) for s, t in pairs)
+I = 100_000  # us: a 10 Hz device
+
+
+def seq_stream(
+    pairs: list[tuple[int, int]], protocol: str = "hdr-bin"
+) -> tuple[list[int], ParserStats]:
+    """Frames with these (seq, t_us) through the push parser (whole, and byte by byte) and the
+    vectorised decoder: the indices of the frames kept, and the counters (all alike)."""
+    sent = [Frame(s, t, k, 0, None) for k, (s, t) in enumerate(pairs)]  # rate = index
+    data = b"".join(encode(f, protocol) for f in sent)
     frames, stats = run(protocol, data)
-    assert len(frames) == len(pairs)
-    _, vstats = decode_capture(data, protocol)
-    assert vstats == stats
-    return stats
+    assert run(protocol, data, list(range(len(data)))) == (frames, stats)
+    arr, vstats = decode_capture(data, protocol)
+    assert array_to_frames(arr) == frames and vstats == stats
+    assert stats.frames == len(frames)
+    return [f.rate for f in frames], stats
+
+
+def counts(s: ParserStats) -> tuple[int, ...]:
+    return (s.seq_gaps, s.lost_frames, s.seq_repeats, s.seq_resets, s.seq_clock_mismatch)
+
+
+S = 1000
+HEALTHY = [(S + k, k * I) for k in range(3)]  # the stream before each case below
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+@pytest.mark.parametrize(
+    "tail, kept, want",
+    [
+        # the last frame repeated: not new
+        ([(S + 2, 2 * I), (S + 2, 2 * I), (S + 3, 3 * I)], [0, 1, 2, 5], (0, 0, 2, 0, 0)),
+        # the sequence advancing with a frozen clock, then a frame at the right time
+        (
+            [(S + 3, 2 * I), (S + 4, 2 * I), (S + 5, 2 * I), (S + 6, 6 * I)],
+            [0, 1, 2, 6],
+            (1, 3, 0, 0, 3),
+        ),
+        # a clock 100x slow, then 100x fast: never integrated, each held and dropped
+        ([(S + 3 + k, 2 * I + (k + 1) * I // 100) for k in range(5)], [0, 1, 2], (0, 0, 0, 0, 5)),
+        ([(S + 3 + k, 2 * I + (k + 1) * I * 100) for k in range(5)], [0, 1, 2], (0, 0, 0, 0, 5)),
+        # a random frame that passed the CRC, between good ones
+        ([(31337, 123_456_789), (S + 3, 3 * I)], [0, 1, 2, 4], (0, 0, 0, 0, 1)),
+        # reordered: one ahead (a gap), the one behind it (not new)
+        ([(S + 4, 4 * I), (S + 3, 3 * I), (S + 5, 5 * I)], [0, 1, 2, 3, 5], (1, 1, 1, 0, 0)),
+        # a device restart: held until three continue one another, then all kept
+        ([(0, 5), (1, 5 + I), (2, 5 + 2 * I), (3, 5 + 3 * I)], list(range(7)), (0, 0, 0, 1, 0)),
+        # a restart not confirmed: the input ends two frames after it
+        ([(0, 5), (1, 5 + I)], [0, 1, 2], (0, 0, 0, 0, 2)),
+        # the clock jumped on once and runs at the interval since: believed after three
+        (
+            [(S + 3, 10**9), (S + 4, 10**9 + I), (S + 5, 10**9 + 2 * I)],
+            list(range(6)),
+            (0, 0, 0, 0, 0),
+        ),
+        # a gap the clock agrees with, and a gap it does not (held, then dropped)
+        ([(S + 6, 6 * I), (S + 9, 7 * I), (S + 7, 7 * I)], [0, 1, 2, 3, 5], (1, 3, 0, 0, 1)),
+    ],
+)
+def test_frames_not_new_or_with_a_clock_that_disagrees_are_dropped(
+    protocol: str, tail: list[tuple[int, int]], kept: list[int], want: tuple[int, ...]
+) -> None:
+    got, s = seq_stream(HEALTHY + tail, protocol)
+    assert got == kept and counts(s) == want
 
 
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_sequence_wrap_is_not_a_gap(protocol: str) -> None:
-    s = seq_stream([(65534, 0), (65535, 100), (0, 200), (1, 300)], protocol)
-    assert (s.seq_gaps, s.lost_frames, s.seq_repeats, s.seq_resets) == (0, 0, 0, 0)
+    got, s = seq_stream([(65534, 0), (65535, 100), (0, 200), (1, 300)], protocol)
+    assert got == [0, 1, 2, 3] and counts(s) == (0, 0, 0, 0, 0)
 
 
 @pytest.mark.parametrize("protocol", PROTOCOLS)
-def test_sequence_gaps_repeats_and_resets(protocol: str) -> None:
-    pairs = [
-        (10, 0),
-        (11, 1),
-        (14, 2),
-        (14, 3),
-        (13, 4),
-        (15, 5),
-        (30000, 6),
-        (30001, 7),
-        (30004, 8),
-    ]
-    #        ok       gap 2    repeat   behind   ok       gap 29984   ok          gap 2
-    s = seq_stream(pairs, protocol)
-    assert s.seq_gaps == 3
-    assert s.lost_frames == 2 + 29984 + 2
-    assert s.seq_repeats == 2
-    # Far behind: a device restart, not a repeat nor a huge gap.
-    s = seq_stream([(20000, 0), (20001, 1), (0, 2), (1, 3), (2, 4)], protocol)
-    assert (s.seq_resets, s.seq_repeats, s.seq_gaps, s.lost_frames) == (1, 0, 0, 0)
-
-
-@pytest.mark.parametrize("protocol", PROTOCOLS)
-def test_clock_wraps_and_steps_back(protocol: str) -> None:
+def test_clock_wraps(protocol: str) -> None:
     top = 2**32
-    s = seq_stream(
-        [
-            (0, top - 200_000),
-            (1, top - 100_000),
-            (2, 0),
-            (3, 100_000),
-            (4, 2**31),
-            (5, top - 50),
-            (6, 50),
-        ],
+    got, s = seq_stream(
+        [(0, top - 2 * I), (1, top - I), (2, 0), (3, I), (4, 2 * I), (5, top - 50), (6, 50)],
         protocol,
     )
-    assert s.clock_wraps == 2 and s.clock_back == 0
-    # A repeat (same time), a small step back (reference kept), a reset (big step back).
-    s = seq_stream(
-        [(0, 5_000_000), (1, 5_000_000), (2, 4_900_000), (3, 5_100_000), (4, 1_000), (5, 2_000)],
-        protocol,
-    )
-    assert s.clock_back == 3 and s.clock_wraps == 0
+    # frame 5 is 2**32 - 50 - 2 I on: far ahead of its one step, held; 6 is back, dropped
+    assert got == [0, 1, 2, 3, 4] and s.clock_wraps == 1 and s.seq_clock_mismatch == 2
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_the_interval_follows_a_slow_drift_but_not_a_jump(protocol: str) -> None:
+    # Each step 1.5x the one before is kept (within SEQ_CLOCK_RATIO of the step before);
+    # 2.5x is not.
+    t, pairs = 0, []
+    for k, step in enumerate([I, I, int(1.5 * I), int(2.25 * I), int(2.25 * 2.5 * I)]):
+        t += step
+        pairs.append((k, t))
+    got, s = seq_stream(pairs, protocol)
+    assert got == [0, 1, 2, 3] and s.seq_clock_mismatch == 1
 
 
 # --------------------------------------------------------------------------- CRC coincidences
@@ -535,9 +590,9 @@ def _forging_pair(cut: int, seed: int = 0) -> tuple[bytes, Frame]:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_a_crc_coincidence_does_not_hide_the_real_frame(seed: int) -> None:
-    prev = Frame(1, 1_000_000, 200, 0, None)
-    after = Frame(3, 1_200_000, 300, 0, None)
     forging, b = _forging_pair(10, seed)
+    prev = Frame((b.seq - 1) & 0xFFFF, (b.t_us - I) % 2**32, 200, 0, None)
+    after = Frame((b.seq + 1) & 0xFFFF, (b.t_us + I) % 2**32, 300, 0, None)
     data = encode_bin(prev) + forging + encode_bin(after)
     for cuts in (None, [16], [20, 30], list(range(1, len(data)))):
         bb: list[int] = []
@@ -561,7 +616,7 @@ def test_a_coincidence_at_the_very_end_cannot_be_told_and_is_kept() -> None:
 
 def test_a_frame_with_a_sync_pattern_inside_waits_for_the_next_sync_then_flush_decides() -> None:
     inner = Frame(0x5AA5, 10, 1, 2, 3)  # A5 5A at its bytes 2-3
-    plain = Frame(2, 20, 3, 4, None)
+    plain = Frame(0x5AA6, 20, 3, 4, None)
     p = Parser()
     assert p.feed(encode_bin(inner)) == [] and p.pending == 16  # could be a coincidence
     assert p.feed(encode_bin(plain)[:2]) == [inner]  # a sync follows it: a real frame
@@ -606,29 +661,28 @@ def test_each_codec_error_says_what_is_wrong() -> None:
 
 
 @pytest.mark.parametrize(
-    "step, counts",
+    "step, kept, want",
     [
-        (1, (0, 0, 0, 0)),
-        (0x7FFF, (1, 0x7FFE, 0, 0)),  # the largest gap
-        (0x8000, (0, 0, 0, 1)),  # half the sequence: a reset
-        (0x10000 - 65, (0, 0, 0, 1)),  # 65 back: a reset
-        (0x10000 - 64, (0, 0, 1, 0)),  # 64 back (SEQ_REORDER_WINDOW): a repeat
-        (0, (0, 0, 1, 0)),
+        (1, 5, (0, 0, 0, 0, 0)),
+        (0x7FFF, 5, (1, 0x7FFE, 0, 0, 0)),  # the largest gap
+        (0x8000, 5, (0, 0, 0, 1, 0)),  # half the sequence: a restart
+        (0x10000 - 65, 5, (0, 0, 0, 1, 0)),  # 65 back: a restart
+        (0x10000 - 64, 2, (0, 0, 3, 0, 0)),  # 64 back (SEQ_REORDER_WINDOW): not new
+        (0, 4, (0, 0, 1, 0, 0)),  # the same number and time: not new
     ],
 )
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_sequence_steps_at_their_limits(
-    step: int, counts: tuple[int, int, int, int], protocol: str
+    step: int, kept: int, want: tuple[int, ...], protocol: str
 ) -> None:
-    seqs = [1000, 1001, (1001 + step) & 0xFFFF]
-    frames = [
-        Frame(seq=s, t_us=100_000 * k, rate=1, ref=0, temp_cc=None) for k, s in enumerate(seqs)
-    ]
-    data = b"".join(encode(f, protocol) for f in frames)
-    _, st_ = run(protocol, data)
-    assert (st_.seq_gaps, st_.lost_frames, st_.seq_repeats, st_.seq_resets) == counts
-    _, vst = decode_capture(data, protocol)
-    assert vst == st_
+    # 10 us a step, so that the largest gap stays forward on the clock; a step back goes back.
+    s2 = (1001 + step) & 0xFFFF
+    back = step >= 0x8000
+    t2 = 30 + (step - 0x10000 if back else step) * 10
+    pairs = [(1000, 20), (1001, 30), (s2, t2 % 2**32), (s2 + 1, (t2 + 10) % 2**32)]
+    pairs.append((s2 + 2, (t2 + 20) % 2**32))
+    got, st_ = seq_stream([(s & 0xFFFF, t) for s, t in pairs], protocol)
+    assert len(got) == kept and counts(st_) == want
 
 
 def test_a_sync_pattern_inside_the_first_frame_is_not_a_bad_frame() -> None:

@@ -20,14 +20,12 @@ from hypothesis import strategies as st
 from hdrd.daemon.aiding import GpsAiding
 from hdrd.io.gpsd import (
     WATCH_COMMAND,
-    Attitude,
     Device,
     Devices,
     Fix,
     GpsdClient,
     GpsdError,
     GpsdProtocolError,
-    Sky,
     Version,
     Watch,
     parse_line,
@@ -101,16 +99,11 @@ def test_doc_tpv():
     assert f.device == "/dev/pts/1"
 
 
-def test_doc_sky_counts_used_satellites():
-    s = parse_line(DOC_SKY)
-    assert isinstance(s, Sky)
-    assert (s.nsat, s.usat) == (8, 5)
-    assert s.hdop == pytest.approx(1.24) and s.pdop == pytest.approx(1.99)
-    assert [x.prn for x in s.satellites if x.used] == [8, 10, 4, 2, 27]
-    # gpsd 3.23+ also sends the counts; they win
-    newer = json.loads(DOC_SKY) | {"nSat": 12, "uSat": 9}
-    s2 = parse_line(json.dumps(newer))
-    assert isinstance(s2, Sky) and (s2.nsat, s2.usat) == (12, 9)
+def test_sky_and_att_are_not_read() -> None:
+    """hdrd uses neither satellites (SKY) nor attitude (ATT): they read as classes hdrd does
+    not use, whatever they hold."""
+    for line in (DOC_SKY, DOC_ATT, REAL_ATT, '{"class":"SKY","satellites":{}}'):
+        assert parse_line(line) is None
 
 
 def test_doc_session_reports():
@@ -126,13 +119,6 @@ def test_doc_session_reports():
     assert parse_line(REAL_DEVICE) == Device(
         "/dev/pts/1", "NMEA0183", "2026-11-21T20:08:20.212Z", 4800
     )
-
-
-def test_att_old_numeric_time_and_new_device():
-    a = parse_line(DOC_ATT)
-    assert isinstance(a, Attitude)
-    assert a.time == pytest.approx(1270938096.843) and a.heading == 14223.0 and a.roll == -43.0
-    assert parse_line(REAL_ATT) == Attitude(heading=123.45, device="udp://127.0.0.1:29481")
 
 
 def test_real_gpsd_tpv_variants():
@@ -172,8 +158,6 @@ def test_track_is_normalised_to_compass_range():
         ('{"class":"TPV","mode":"3"}', "'mode' is not a number"),
         ('{"class":"TPV","mode":3,"track":true}', "'track' is not a number"),
         ('{"class":"TPV","mode":3,"device":5}', "'device' is not a string"),
-        ('{"class":"SKY","satellites":{}}', "'satellites' is not a list"),
-        ('{"class":"SKY","satellites":[1]}', "a satellite is not an object"),
         ('{"class":"DEVICES","devices":[1]}', "'devices' is not a list of objects"),
         ('{"class":"WATCH","enable":1}', "'enable' is not true/false"),
         (b"\xff\xfe{}", "not UTF-8"),
@@ -334,11 +318,11 @@ def test_client_watches_buffers_partial_lines_and_skips_bad_ones(peer):
         assert got == [Version("3.22", "3.22", 3, 14), Watch(True, True)]
         assert c.version == Version("3.22", "3.22", 3, 14)
         peer.send(REAL_TPV[50:] + "\r\n{garbage\r\n" + REAL_TPV_NOFIX + "\r\n" + DOC_SKY + "\r\n")
-        got = poll_until(c, lambda g: len(g) >= 3)
-        assert [type(r) for r in got] == [Fix, Fix, Sky]
+        got = poll_until(c, lambda g: len(g) >= 2)
+        assert [type(r) for r in got] == [Fix, Fix]  # SKY: not a report hdrd reads
         assert got[0] == parse_line(REAL_TPV) and got[1].mode == 1
         assert c.stats.bad_lines == 1 and "garbage" in c.stats.errors[-1]
-        assert c.stats.fixes == 2 and c.sky is not None and c.sky.usat == 5
+        assert c.stats.fixes == 2
         # an over-long line without a newline is dropped, and what follows still parses
         peer.send(b"x" * 70000)
         poll_until(c, lambda _: c.stats.bad_lines == 2)
@@ -463,8 +447,6 @@ def test_integers_beyond_float_range_read_as_absent(key, sign):
 
 def test_numbers_in_every_report_class_beyond_float_range():
     for line in (
-        '{"class":"SKY","nSat":' + BEYOND_FLOAT + ',"satellites":[{"PRN":' + BEYOND_FLOAT + "}]}",
-        '{"class":"ATT","heading":' + BEYOND_FLOAT + ',"time":' + BEYOND_FLOAT + "}",
         '{"class":"VERSION","release":"3.22","proto_major":' + BEYOND_FLOAT + "}",
         '{"class":"DEVICE","bps":' + BEYOND_FLOAT + "}",
     ):

@@ -43,7 +43,7 @@ from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.gpsd import Attitude, Fix, GpsdClient
+from hdrd.io.gpsd import WATCH_COMMAND, Fix, GpsdClient
 from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
 from tests.test_aiding import on_message
 
@@ -496,6 +496,8 @@ def test_hdrd_run_aided_by_gpsd_through_an_outage(need_gpsfake, procs, fake_gyro
     g = fake_gyro(straight_gyro(200.0, 0.3), speedup=5.0)
     d = hdrd_run(
         procs,
+        "--clock-rate",
+        "5.0",
         "--port",
         g.path,
         "--bias",
@@ -569,12 +571,59 @@ def start_gpsd_udp(procs: Callable[..., Proc]) -> tuple[Proc, int, int]:
     return gpsd, port, uport
 
 
-def watch(port: int, proc: Proc) -> GpsdClient:
-    c = GpsdClient("127.0.0.1", port, reconnect_min_s=0.05, reconnect_max_s=0.2)
+@dataclass(frozen=True)
+class Attitude:
+    """gpsd's ATT report: its heading (compass deg) and the device it came from."""
+
+    heading: float | None
+    device: str | None
+
+
+class AttWatch:
+    """gpsd's ATT reports, read from its JSON here (hdrd's client has no use for them and
+    does not parse them)."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=WAIT)
+        self.sock.sendall(WATCH_COMMAND)
+        self.sock.setblocking(False)
+        self.buf = b""
+        self.classes: set[str] = set()
+
+    def poll_reports(self) -> list[Attitude]:
+        try:
+            while chunk := self.sock.recv(65536):
+                self.buf += chunk
+        except BlockingIOError:
+            pass
+        *lines, self.buf = self.buf.split(b"\n")
+        out = []
+        for line in lines:
+            obj = json.loads(line)
+            self.classes.add(obj["class"])
+            if obj["class"] == "ATT":
+                out.append(Attitude(obj.get("heading"), obj.get("device")))
+        return out
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def watch(port: int, proc: Proc) -> AttWatch:
     deadline = time.monotonic() + WAIT
     while time.monotonic() < deadline:
+        try:
+            c = AttWatch(port)
+            break
+        except ConnectionRefusedError:
+            if proc.p.poll() is not None:
+                raise AssertionError(f"gpsd exited: {proc.stderr()}") from None
+            time.sleep(0.02)
+    else:
+        raise AssertionError(f"gpsd did not listen: {proc.stderr()}")
+    while time.monotonic() < deadline:
         c.poll_reports()
-        if c.devices is not None:  # answered our WATCH: gpsd reads the UDP port now
+        if "DEVICES" in c.classes:  # answered our WATCH: gpsd reads the UDP port now
             return c
         if proc.p.poll() is not None:
             break
@@ -599,7 +648,7 @@ def test_gpsd_reports_hdrd_heading_as_att_from_hc_but_drops_hn(need_gpsd, procs)
             hc.on_message(msg | {"heading": 222.25 + k})  # datagrams are read in order
             k += 1
             time.sleep(0.05)
-            atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+            atts += c.poll_reports()
         assert [d.errors for d in hn.stats() + hc.stats()] == [0, 0]
     finally:
         c.close()
@@ -637,6 +686,8 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
     )
     d = hdrd_run(
         procs,
+        "--clock-rate",
+        "10.0",
         "--config",
         str(cfg),
         "--port",
@@ -656,7 +707,7 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
     try:
         deadline = time.monotonic() + WAIT
         while len(atts) < 10 and time.monotonic() < deadline:
-            atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+            atts += c.poll_reports()
             time.sleep(0.02)
         msgs = [json.loads(x) for x in js.datagrams(lambda dgs: len(dgs) >= 40, "JSON messages")]
     finally:
@@ -695,7 +746,7 @@ def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
 # -- what gpsd 3.22 does with a held heading, and which talkers it reads -------------------------
 
 
-def _atts_for(c: GpsdClient, pub: UdpNmeaPublisher, msgs: list[dict[str, Any]]) -> list[Attitude]:
+def _atts_for(c: AttWatch, pub: UdpNmeaPublisher, msgs: list[dict[str, Any]]) -> list[Attitude]:
     """Send *msgs* (each once), then a live marker message until gpsd reports it; the ATT
     reports seen before the marker are what *msgs* produced (datagrams are read in order)."""
     for m in msgs:
@@ -706,7 +757,7 @@ def _atts_for(c: GpsdClient, pub: UdpNmeaPublisher, msgs: list[dict[str, Any]]) 
     while not any(a.heading == 300.5 for a in atts) and time.monotonic() < deadline:
         pub.on_message(marker)
         time.sleep(0.05)
-        atts += [r for r in c.poll_reports() if isinstance(r, Attitude)]
+        atts += c.poll_reports()
     assert any(a.heading == 300.5 for a in atts), "gpsd never reported the marker heading"
     return atts[: next(i for i, a in enumerate(atts) if a.heading == 300.5)]
 

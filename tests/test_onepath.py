@@ -22,8 +22,9 @@ from hdrd.core.methods import MethodSetup, names
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline, PipelineConfig
 from hdrd.daemon.replay import replay_capture
+from hdrd.io.capture import encode_array
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE, encode_array
+from hdrd.io.frames import FRAME_DTYPE
 
 SENSOR = SensorModel()
 T0_US = (1 << 32) - 45_000_000  # the device clock wraps 45 s into the capture

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -32,6 +33,7 @@ from hdrd.io.publish import (
     nmea_sentences,
     parse_nmea,
 )
+from hdrd.io.resolve import Resolver
 
 RECV_TIMEOUT_S = 10.0  # a guard against hanging, not a timing assertion
 
@@ -416,11 +418,54 @@ def test_udp_ipv6_destination() -> None:
         r.close()
 
 
+def resolved(pub: UdpPublisher, until: Any = lambda d: d.address is not None) -> Any:
+    """The publisher's destinations once ``until`` holds for the first (names are looked up
+    on a thread: the publisher never waits for them)."""
+    deadline = time.monotonic() + RECV_TIMEOUT_S
+    while not until(pub.stats()[0]) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return pub.stats()
+
+
 def test_localhost_name_goes_to_ipv4(receiver: socket.socket) -> None:
     # "localhost" often resolves to ::1 first; hdrd tail listens on 127.0.0.1 by default.
     with UdpJsonPublisher([("localhost", receiver.getsockname()[1])]) as pub:
+        assert resolved(pub)[0].address == "127.0.0.1"
         pub.on_message(full_message())
         assert receiver.recv(65535) == format_json(full_message())
+
+
+def test_a_name_not_known_yet_costs_its_datagrams_never_a_wait(receiver: socket.socket) -> None:
+    """A name is looked up on a thread: until its address is known its datagrams are dropped
+    (counted), the other destinations served; a name known from before (the publishers rebuilt
+    on SIGHUP, the same resolver) is used at once, while it is looked up again."""
+    gate = threading.Event()
+
+    def slow_dns(host: str, port: int, type: int = 0, flags: int = 0) -> list[Any]:  # noqa: A002
+        if flags & socket.AI_NUMERICHOST:
+            return socket.getaddrinfo(host, port, type=type, flags=flags)
+        gate.wait(RECV_TIMEOUT_S)
+        return [(socket.AF_INET, type, 0, "", ("127.0.0.1", port))]
+
+    res = Resolver(slow_dns, refresh_min_s=0.0)
+    good = receiver.getsockname()[1]
+    pub = UdpJsonPublisher([("gyro-display.example", good), ("127.0.0.1", good)], resolver=res)
+    pub.on_message(full_message(step=1))  # returns at once, the lookup still running
+    assert receiver.recv(65535) == format_json(full_message(step=1))  # the numeric one
+    named, numeric = pub.stats()
+    assert named.dropped == 1 and named.address is None and numeric.sent == 1
+    gate.set()
+    resolved(pub)
+    pub.on_message(full_message(step=2))
+    assert [json.loads(receiver.recv(65535))["step"] for _ in range(2)] == [2, 2]
+    pub.stop()
+    gate.clear()  # the next lookup of the name waits again: the old address serves meanwhile
+    again = UdpJsonPublisher([("gyro-display.example", good)], resolver=res)
+    again.on_message(full_message(step=3))
+    assert json.loads(receiver.recv(65535))["step"] == 3
+    assert again.stats()[0].dropped == 0
+    gate.set()
+    again.stop()
 
 
 def test_refusing_destination_is_counted_and_never_stops_the_others(
@@ -454,7 +499,7 @@ def test_unresolvable_host_is_counted_and_not_fatal(receiver: socket.socket) -> 
     pub = UdpJsonPublisher(
         [("no-such-host.invalid", 10110), ("127.0.0.1", receiver.getsockname()[1])]
     )
-    bad, _ = pub.stats()
+    bad, _ = resolved(pub, lambda d: d.errors >= 1)
     assert bad.errors >= 1 and bad.by_error["resolve"] >= 1 and bad.address is None
     assert "no-such-host.invalid" in (bad.last_error or "")
     pub.on_message(full_message())
@@ -469,9 +514,10 @@ def test_unresolvable_host_is_counted_and_not_fatal(receiver: socket.socket) -> 
 
 
 def test_unresolvable_host_is_retried_in_the_background() -> None:
-    pub = UdpJsonPublisher([("no-such-host.invalid", 10110)], resolve_retry_s=0.0)
+    res = Resolver(retry_min_s=0.0)
+    pub = UdpJsonPublisher([("no-such-host.invalid", 10110)], resolver=res)
     deadline = time.monotonic() + RECV_TIMEOUT_S
-    while pub.stats()[0].by_error["resolve"] < 2 and time.monotonic() < deadline:
+    while pub.stats()[0].by_error.get("resolve", 0) < 2 and time.monotonic() < deadline:
         pub.on_message(full_message())  # starts a retry when none is running; never blocks on it
         time.sleep(0.01)
     assert pub.stats()[0].by_error["resolve"] >= 2

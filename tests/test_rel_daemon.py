@@ -121,10 +121,17 @@ class Proc:
     """`python -m hdrd <command> ...` with its JSON log read live from stderr."""
 
     def __init__(
-        self, argv: list[str], env: dict[str, str], stdout: Any = subprocess.DEVNULL
+        self,
+        argv: list[str],
+        env: dict[str, str],
+        stdout: Any = subprocess.DEVNULL,
+        prefix: tuple[str, ...] = (),
     ) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hdrd", *argv], stdout=stdout, stderr=subprocess.PIPE, env=env
+            [*prefix, sys.executable, "-m", "hdrd", *argv],
+            stdout=stdout,
+            stderr=subprocess.PIPE,
+            env=env,
         )
         self.events: list[dict[str, Any]] = []
         self.other: list[str] = []
@@ -193,20 +200,24 @@ class Proc:
 @pytest.fixture
 def hdrd(tmp_path: Path) -> Iterator[Callable[..., Proc]]:
     """Factory of hdrd processes, all killed after the test. STATE_DIRECTORY is an empty
-    directory of the test's (no bias file) unless the test sets it."""
+    directory of the test's (no bias file) unless the test sets it; ``prefix`` runs the
+    command under another (``unshare ...``)."""
     made: list[Proc] = []
     state = tmp_path / "empty-state"
     state.mkdir()
 
     def make(
-        *argv: str, env: dict[str, str] | None = None, stdout: Any = subprocess.DEVNULL
+        *argv: str,
+        env: dict[str, str] | None = None,
+        stdout: Any = subprocess.DEVNULL,
+        prefix: tuple[str, ...] = (),
     ) -> Proc:
         e = dict(os.environ)
         for k in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
             e.pop(k, None)
         e["STATE_DIRECTORY"] = str(state)
         e.update(env or {})
-        p = Proc(list(argv), e, stdout)
+        p = Proc(list(argv), e, stdout, prefix)
         made.append(p)
         return p
 
@@ -311,6 +322,8 @@ def test_cable_pulled_for_5_s_then_repeatedly_then_sigterm_while_out(
     rx = receivers()
     d = hdrd(
         *run_args(
+            "--clock-rate",
+            "4",
             "--config",
             str(cfg),
             "--port",
@@ -396,7 +409,18 @@ def test_cable_pulled_for_long(fake_gyro, hdrd, receivers, tmp_path):
     rx = receivers()
     env = {"NOTIFY_SOCKET": str(tmp_path / "notify.sock"), "WATCHDOG_USEC": "1000000"}
     d = hdrd(
-        *run_args("--config", str(cfg), "--port", str(link), "--bias", "0", "--udp", rx.addr),
+        *run_args(
+            "--clock-rate",
+            "4",
+            "--config",
+            str(cfg),
+            "--port",
+            str(link),
+            "--bias",
+            "0",
+            "--udp",
+            rx.addr,
+        ),
         env=env,
     )
     resume_after_device_back(g, d)
@@ -452,7 +476,20 @@ def test_device_that_sends_nothing(fake_gyro, hdrd, receivers, tmp_path):
     cfg = fast_config(tmp_path)
     g = fake_gyro(silent_hole_frames(), speedup=8)
     rx = receivers()
-    d = hdrd(*run_args("--config", str(cfg), "--port", g.path, "--bias", "0", "--udp", rx.addr))
+    d = hdrd(
+        *run_args(
+            "--clock-rate",
+            "8",
+            "--config",
+            str(cfg),
+            "--port",
+            g.path,
+            "--bias",
+            "0",
+            "--udp",
+            rx.addr,
+        )
+    )
     early = rx.wait(lambda ms: len(ms) >= 2, what="stale reports before any data")
     assert all(m["status"] == "stale" and "step" not in m and "heading" not in m for m in early)
     g.start()
@@ -521,7 +558,11 @@ def test_dead_peers_neither_stop_nor_slow_the_daemon(fake_gyro, hdrd, receivers)
     for extra in ([], dead):
         g = fake_gyro(profile, speedup=0)
         rx = receivers()
-        d = hdrd(*run_args("--port", g.path, "--bias", "0.0", "--udp", rx.addr, *extra))
+        d = hdrd(
+            *run_args(
+                "--clock-rate", "0", "--port", g.path, "--bias", "0.0", "--udp", rx.addr, *extra
+            )
+        )
         g.start()
         rx.wait(lambda ms: len(ms) >= 119, what="119 steps")
         assert g.wait(WAIT) and d.alive
@@ -540,7 +581,18 @@ def test_tail_that_comes_and_goes(fake_gyro, hdrd, receivers):
     g = fake_gyro(constant_turn(minutes=5, rate_dps=1.0), speedup=4)
     rx = receivers()
     d = hdrd(
-        *run_args("--port", g.path, "--bias", "0", "--udp", f"127.0.0.1:{port}", "--udp", rx.addr)
+        *run_args(
+            "--clock-rate",
+            "4",
+            "--port",
+            g.path,
+            "--bias",
+            "0",
+            "--udp",
+            f"127.0.0.1:{port}",
+            "--udp",
+            rx.addr,
+        )
     )
     wait_port_open(d, g.path)
     g.start()
@@ -585,7 +637,9 @@ def test_stdout_closed_by_the_reader_mid_run(fake_gyro, hdrd, receivers):
     g = fake_gyro(constant_turn(minutes=5, rate_dps=1.0), speedup=4)
     rx = receivers()
     d = hdrd(
-        *run_args("--port", g.path, "--bias", "0", "--stdout", "--udp", rx.addr),
+        *run_args(
+            "--clock-rate", "4", "--port", g.path, "--bias", "0", "--stdout", "--udp", rx.addr
+        ),
         stdout=subprocess.PIPE,
     )
     wait_port_open(d, g.path)
@@ -646,7 +700,7 @@ def test_sigterm_during_startup_calibration(fake_gyro, hdrd, receivers, tmp_path
     g = fake_gyro(standstill(), speedup=4)
     rx = receivers()
     d = hdrd(
-        *run_args("--config", str(cfg), "--port", g.path, "--udp", rx.addr),
+        *run_args("--clock-rate", "4", "--config", str(cfg), "--port", g.path, "--udp", rx.addr),
         env={"NOTIFY_SOCKET": str(tmp_path / "notify.sock")},
     )
     wait_port_open(d, g.path)
@@ -666,7 +720,18 @@ def test_sigterm_during_a_burst_of_bad_frames(fake_gyro, hdrd, receivers, tmp_pa
     g = fake_gyro(standstill(), speedup=4, protocol=protocol, crc_errors=0.9, garbage=0.9, seed=11)
     rx = receivers()
     d = hdrd(
-        *run_args("--port", g.path, "--protocol", protocol, "--bias", "0.37", "--udp", rx.addr)
+        *run_args(
+            "--clock-rate",
+            "4",
+            "--port",
+            g.path,
+            "--protocol",
+            protocol,
+            "--bias",
+            "0.37",
+            "--udp",
+            rx.addr,
+        )
     )
     wait_port_open(d, g.path)
     g.start()
@@ -686,7 +751,7 @@ def test_sighup_with_broken_or_missing_config_keeps_the_old_one(
     cfg = tmp_path / "hdrd.yaml"
     cfg.write_text(f"output:\n  udp: ['{rx.addr}']\n  heading0_deg: 0\n")
     g = fake_gyro(constant_turn(minutes=5, rate_dps=1.0), speedup=4)
-    d = hdrd(*run_args("--config", str(cfg), "--port", g.path, "--bias", "0"))
+    d = hdrd(*run_args("--clock-rate", "4", "--config", str(cfg), "--port", g.path, "--bias", "0"))
     wait_port_open(d, g.path)
     g.start()
     rx.wait(lambda ms: len(ms) >= 2, what="2 steps")
@@ -738,7 +803,7 @@ def test_restart_resumes_with_the_saved_bias(fake_gyro, hdrd, receivers, tmp_pat
     for _ in range(2):
         g = fake_gyro(standstill(minutes=1, bias_dps=0.37), speedup=0)
         rx = receivers()
-        d = hdrd(*run_args("--port", g.path, "--udp", rx.addr), env=env)
+        d = hdrd(*run_args("--clock-rate", "0", "--port", g.path, "--udp", rx.addr), env=env)
         g.start()
         ms = rx.wait(lambda ms: len(ms) >= 3, what="3 steps")
         assert d.stop() == 0
@@ -759,7 +824,7 @@ def test_saturation_is_flagged_in_the_daemons_messages(fake_gyro, hdrd, receiver
     omega = np.select([t < 2, t < 4, t < 5], [0.0, 300.0, -300.0], 0.0)
     g = fake_gyro(DriveLog(t=t, omega=omega), speedup=0)
     rx = receivers()
-    d = hdrd(*run_args("--port", g.path, "--bias", "0", "--udp", rx.addr))
+    d = hdrd(*run_args("--clock-rate", "0", "--port", g.path, "--bias", "0", "--udp", rx.addr))
     g.start()
     rx.wait(lambda ms: len(ms) >= 5, what="5 steps")
     assert d.stop() == 0 and not d.traceback

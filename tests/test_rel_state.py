@@ -203,6 +203,8 @@ def test_bad_bias_file_with_fallback_measures_the_bias_at_start(fake_gyro, tmp_p
             "-m",
             "hdrd",
             "run",
+            "--clock-rate",
+            "0",
             "--config",
             str(cfg),
             "--port",

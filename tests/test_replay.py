@@ -52,6 +52,8 @@ def test_replay_matches_the_live_daemon_bit_for_bit_with_faults(
             "-m",
             "hdrd",
             "run",
+            "--clock-rate",
+            "0",
             "--port",
             g.path,
             "--bias",

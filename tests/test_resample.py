@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.core.resample import Block, BlockAverager, Missing, block_average_seconds, block_means
+from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.io.clocks import DeviceClock, unwrap_us
 from hdrd.io.protocol import CLOCK_WRAP_US
 
@@ -218,38 +218,18 @@ def test_vectorised_equals_streaming(cap: tuple[list[int], list[float]], T_s: fl
     assert t_us[ok].tolist() == [x for x in stream_t if x is not None]
     if len(raw):
         assert np.all(np.diff(t_us[ok]) > 0)
-    # block_means == BlockAverager (+ flush), bit for bit
+    # feed_many (+ flush) == feed (+ flush), bit for bit
     out, _, _ = run_stream(raw, values, T_s)
-    idx, mean, n = block_means(t_us[ok], np.array(values, dtype=np.float64)[ok], T_s)
+    many = BlockAverager(T_s)
+    got = [b for _, b in many.feed_many(t_us[ok], np.array(values, dtype=np.float64)[ok])]
     bs = blocks(out)
-    assert idx.tolist() == [b.index for b in bs]
-    assert n.tolist() == [b.n for b in bs]
-    assert mean.tolist() == [b.mean for b in bs]  # exact float equality
+    assert blocks(got + many.flush()) == bs  # exact float equality
     # Missing runs cover exactly the empty steps between the blocks.
     covered = sorted(
         [b.index for b in bs]
         + [m.first + k for m in out if isinstance(m, Missing) for k in range(m.count)]
     )
     assert covered == list(range(len(covered)))
-
-
-def test_block_means_empty() -> None:
-    idx, mean, n = block_means(np.empty(0, np.int64), np.empty(0))
-    assert idx.shape == mean.shape == n.shape == (0,)
-    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64
-
-
-def test_block_average_seconds_for_drive_logs() -> None:
-    t = 100.0 + np.arange(35) * 0.1  # 10 Hz in seconds, first sample at 100 s
-    v = np.arange(35, dtype=np.float64)
-    idx, mean, n = block_average_seconds(t, v)
-    assert idx.tolist() == [0, 1, 2, 3]
-    assert n.tolist() == [10, 10, 10, 5]
-    assert mean.tolist() == pytest.approx([4.5, 14.5, 24.5, 32.0])
-    # A gap leaves its steps out (callers see the index jump).
-    idx, _, _ = block_average_seconds([0.0, 0.5, 3.2], [1.0, 1.0, 2.0])
-    assert idx.tolist() == [0, 3]
-    assert block_average_seconds([], [])[0].shape == (0,)
 
 
 def test_block_spread_streaming_equals_vectorised_and_numpy():
@@ -274,9 +254,6 @@ def test_memory_follows_the_samples_not_the_device_time_they_span() -> None:
     # would be 10**11 bins here), and agree with the streaming form bit for bit.
     t = np.array([0, 5, 10**17, 10**17 + 1, 10**17 + 2_000_000], np.int64)
     v = np.array([1.0, 0.25, 2.0, 4.0, -1.5])
-    idx, mean, n = block_means(t, v)
-    assert idx.tolist() == [0, 10**11, 10**11 + 2] and n.tolist() == [2, 2, 1]
-    assert mean.tolist() == [0.625, 3.0, -1.5]
     stream = BlockAverager(1.0)
     want = [b for i in range(len(t)) for b in stream.feed(int(t[i]), float(v[i]))]
     want += stream.flush()
@@ -474,21 +451,3 @@ def test_block_std_is_never_nan_for_equal_samples() -> None:
     assert b.sumsq / b.n - b.mean * b.mean < 0.0
     assert b.std == 0.0
     assert Block(0, 0.0, 1.0, 2.0, 4, sumsq=20.0).std == 1.0
-
-
-def test_block_average_seconds_works_in_float64_whatever_comes_in() -> None:
-    # A drive log read with float32 times (e.g. from a compact file): 1077 s after the
-    # first sample is step 1077. In float32, 1077 s * 1e6 rounds to 1076999936 us (24-bit
-    # mantissa) and would land in step 1076.
-    t = np.array([100.0, 1177.0], np.float32)
-    v = np.array([1.0, 2.0], np.float32)
-    idx, mean, n = block_average_seconds(t, v)
-    assert idx.tolist() == [0, 1077] and mean.tolist() == [1.0, 2.0] and n.tolist() == [1, 1]
-    t = (1000.0 + np.arange(25) * 0.1).astype(np.float32)
-    v = np.linspace(-1.0, 1.0, 25).astype(np.float32)
-    want = block_average_seconds(t.astype(np.float64), v.astype(np.float64))
-    got = block_average_seconds(t, v)
-    for a, b in zip(got, want):
-        assert a.dtype == b.dtype and np.array_equal(a, b)
-    idx, mean, n = block_average_seconds([], [])
-    assert idx.dtype == n.dtype == np.int64 and mean.dtype == np.float64

@@ -115,7 +115,7 @@ def test_lines_no_parser_can_use_do_not_stop_run_gpsd(
     g = fake_gyro(constant_turn(minutes=3), speedup=4)
     rx = receivers()
     d = hdrd(
-        *run_args("--port", g.path, "--bias", "0", "--udp", rx.addr),
+        *run_args("--clock-rate", "4", "--port", g.path, "--bias", "0", "--udp", rx.addr),
         "--gpsd",
         f"127.0.0.1:{gpsd_peer.port}",
     )
@@ -161,7 +161,7 @@ def test_a_flooding_gpsd_does_not_hold_up_the_steps(
     notify = receivers(tmp_path / "notify.sock")
     env = {"NOTIFY_SOCKET": str(tmp_path / "notify.sock"), "WATCHDOG_USEC": "2000000"}
     d = hdrd(
-        *run_args("--port", g.path, "--bias", "0", "--udp", rx.addr),
+        *run_args("--clock-rate", "4", "--port", g.path, "--bias", "0", "--udp", rx.addr),
         "--gpsd",
         f"127.0.0.1:{gpsd_peer.port}",
         env=env,
@@ -246,7 +246,18 @@ def test_no_hdt_while_the_gyro_is_unplugged(hdrd, receivers, fake_gyro, tmp_path
     nm = Receiver(ns, parse_nmea)
     try:
         d = hdrd(
-            *run_args("--config", str(cfg), "--port", str(link), "--bias", "0", "--udp", rx.addr),
+            *run_args(
+                "--clock-rate",
+                "4",
+                "--config",
+                str(cfg),
+                "--port",
+                str(link),
+                "--bias",
+                "0",
+                "--udp",
+                rx.addr,
+            ),
             "--nmea-udp",
             f"127.0.0.1:{ns.getsockname()[1]}",
             "--nmea-ths",

@@ -128,6 +128,8 @@ def daemon_publishing(
     )
     env.pop("WATCHDOG_USEC", None)
     args = [
+        "--clock-rate",
+        "4",
         "--port",
         g.path,
         "--bias",

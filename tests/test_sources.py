@@ -314,7 +314,7 @@ def test_a_frame_held_for_a_look_past_it_comes_before_device_lost(tmp_path: Path
     path = tmp_path / "gyro"
     path.symlink_to(os.ttyname(slave))
     os.close(slave)
-    sent = array_to_frames(frames_array(3)) + [Frame(0x5AA5, 400_000, 5, 0, None)]
+    sent = array_to_frames(frames_array(3, seq0=0x5AA2)) + [Frame(0x5AA5, 300_000, 5, 0, None)]
     try:
         with SerialSource(str(path), reconnect_min_s=0.05, reconnect_max_s=0.1) as src:
             os.write(master, b"\xa5\x5a\x00" + b"".join(encode_bin(f) for f in sent))

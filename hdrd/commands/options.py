@@ -38,6 +38,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "device.port": g("port"),
         "device.protocol": g("protocol"),
         "device.baud": g("baud"),
+        "device.clock_rate": g("clock_rate"),
         "output.stdout": g("stdout"),
         "output.nmea_ths": g("nmea_ths"),
         "output.heading0_deg": g("heading0"),

@@ -7,10 +7,11 @@ time. A dropped frame only shortens its block; a block without samples is report
 wraps every 2**32 us (71.6 min); :class:`hdrd.io.clocks.DeviceClock` unwraps it into a monotonic integer
 count so block edges are exact integers.
 
-Two forms give bit-identical block means: the streaming :class:`BlockAverager` (the live
-daemon, one sample at a time, sums in arrival order) and :func:`block_means` (whole
-captures; ``numpy.bincount`` also sums in order, one bin per non-empty block, so memory
-follows the number of samples, not the device time they span).
+One block mean, in two forms that give bit-identical results: :meth:`BlockAverager.feed`
+(the live daemon, one sample at a time, sums in arrival order) and
+:meth:`BlockAverager.feed_many` (whole captures and drive logs; ``numpy.bincount`` also sums
+in order, one bin per non-empty block, so memory follows the number of samples, not the
+device time they span).
 """
 
 from __future__ import annotations
@@ -25,8 +26,6 @@ __all__ = [
     "Block",
     "BlockAverager",
     "Missing",
-    "block_average_seconds",
-    "block_means",
 ]
 
 
@@ -224,24 +223,6 @@ class BlockAverager:
         return [block]
 
 
-def block_means(
-    t_us: npt.NDArray[np.int64], values: npt.NDArray[np.float64], T_s: float = 1.0
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
-    """Vectorised :class:`BlockAverager` over unwrapped, increasing device times (us).
-
-    Returns (index, mean, n) of the non-empty blocks, in order, the last (partial) block
-    included as ``flush`` would. Means are bit-identical to the streaming form.
-    """
-    if t_us.shape[0] == 0:
-        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
-    T_us = round(T_s * 1_000_000)
-    idx = (t_us - t_us[0]) // T_us
-    starts, labels = _runs(idx)
-    sums = np.bincount(labels, weights=values)
-    counts = np.bincount(labels)
-    return idx[starts].astype(np.int64), sums / counts, counts.astype(np.int64)
-
-
 def _runs(idx: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """For non-decreasing block indices: (position where each run of equal indices starts,
     each sample's run number 0, 1, ...). ``numpy.bincount`` over run numbers sums each block
@@ -253,18 +234,3 @@ def _runs(idx: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArra
     labels = np.cumsum(change, dtype=np.int64)
     labels -= 1
     return np.flatnonzero(change), labels
-
-
-def block_average_seconds(
-    t_s: npt.ArrayLike, values: npt.ArrayLike, T_s: float = 1.0
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
-    """Block means of samples timed in seconds (drive logs): (index, mean, n), non-empty only.
-
-    Step i holds the samples with t in [t[0] + i*T, t[0] + (i+1)*T).
-    """
-    t = np.asarray(t_s, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
-    if t.shape[0] == 0:
-        return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64)
-    t_us = np.rint((t - t[0]) * 1e6).astype(np.int64)
-    return block_means(t_us, v, T_s)

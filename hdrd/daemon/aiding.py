@@ -44,11 +44,15 @@ must be within ``gate_deg`` (:meth:`GpsAiding.gate_deg`): the fix's own course e
 gpsd's ``epd``; else from the speed error, ``atan(eps / speed)``; else
 ``default_course_err_deg``), plus what the gyro may have drifted since the last course
 accepted (``max_drift_dps`` times that time), plus the fix's latency in a turn
-(``|omega| * latency_s``), and at least ``gate_min_deg``. A course outside it is rejected
-(a multipath glitch, a reversed course, another receiver): that step is dead reckoning.
-``realign_after`` rejections in a row that agree with one another (their implied offsets
-within each one's own gate) mean the gyro's heading is what is wrong (a wrong start, a long
-outage): the offset is set to the GPS course at once (a ``gps_realigned`` event).
+(``|omega| * latency_s``), at least ``gate_min_deg`` and at most ``gate_max_deg``. A fix
+whose course error (however it is known) exceeds ``max_epd_deg`` gives no course at all. A
+course outside the gate is rejected (a multipath glitch, a reversed course, another
+receiver): that step is dead reckoning. ``realign_after`` rejections in a row that agree with
+one another (their implied offsets within each one's own gate) mean the gyro's heading is what
+is wrong (a wrong start, a long outage): the offset is set to the GPS course at once (a
+``gps_realigned`` event). After a long gap (no course accepted for ``gate_max_deg /
+max_drift_dps``, when the gate has stopped widening) no single course is taken, inside the
+gate or not: the heading is re-acquired only on ``realign_after`` courses in a row that agree.
 
 **One receiver.** gpsd reports every receiver it reads, each TPV naming its ``device``.
 Aiding follows one: ``device`` when configured (``gpsd.device``), else the first that
@@ -154,6 +158,10 @@ class AidingConfig:
     the variance of its course as a measurement (:meth:`GpsAiding.course_var`)."""
     gate_min_deg: float = 5.0
     """The gate is never narrower than this, deg."""
+    gate_max_deg: float = 30.0
+    """The gate is never wider than this, deg. Once the drift allowance alone reaches it
+    (``gate_max_deg / max_drift_dps`` without a course accepted: 300 s) the gap is long: a
+    course is taken again only when ``realign_after`` in a row agree with one another."""
     max_drift_dps: float = 0.1
     """How fast the gyro heading may drift from the truth, deg/s: the gate widens by this
     times the time since the last course accepted (after a 2-minute outage, by 12 deg)."""
@@ -185,6 +193,7 @@ class AidingConfig:
             "default_course_err_deg",
             "default_speed_err_mps",
             "gate_min_deg",
+            "gate_max_deg",
             "max_drift_dps",
             "latency_s",
             "device_timeout_s",
@@ -200,6 +209,11 @@ class AidingConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"AidingConfig.{name} must be in [0, 1], got {v!r}")
+        if self.gate_max_deg < self.gate_min_deg:
+            raise ValueError(
+                f"AidingConfig.gate_max_deg ({self.gate_max_deg!r}) must be >= gate_min_deg "
+                f"({self.gate_min_deg!r})"
+            )
         if isinstance(self.realign_after, bool) or not (
             isinstance(self.realign_after, int) and self.realign_after >= 1
         ):
@@ -369,8 +383,8 @@ class GpsAiding:
         if f is None or not self._has_fix(now) or now - self._course_at > c.max_fix_age_s:
             return None
         assert f.speed_mps is not None
-        if f.speed_mps < c.min_speed_mps or (f.epd is not None and f.epd > c.max_epd_deg):
-            return None
+        if f.speed_mps < c.min_speed_mps or self.course_err_deg(f) > c.max_epd_deg:
+            return None  # too slow, or a course error (however known) above max_epd_deg
         return f
 
     def course_err_deg(self, fix: FixLike) -> float:
@@ -387,57 +401,71 @@ class GpsAiding:
         """The largest innovation (deg) a course from ``fix`` may have at ``now``, the
         yaw rate being ``omega_dps`` (see the module doc)."""
         c = self.config
-        since = max(0.0, now - self._accepted_at) if math.isfinite(self._accepted_at) else 0.0
-        width = self.course_err_deg(fix) + c.max_drift_dps * since + abs(omega_dps) * c.latency_s
-        return max(c.gate_min_deg, width)
+        width = (
+            self.course_err_deg(fix)
+            + c.max_drift_dps * self._since_accepted(now)
+            + abs(omega_dps) * c.latency_s
+        )
+        return min(c.gate_max_deg, max(c.gate_min_deg, width))
+
+    def _since_accepted(self, now: float) -> float:
+        """Seconds since the gate last accepted a course (0 before the first)."""
+        return max(0.0, now - self._accepted_at) if math.isfinite(self._accepted_at) else 0.0
+
+    def long_gap(self, now: float) -> bool:
+        """No course accepted for so long that the gate has stopped widening (the drift
+        allowance alone has reached ``gate_max_deg``): one course is not enough to re-acquire."""
+        c = self.config
+        return c.max_drift_dps * self._since_accepted(now) >= c.gate_max_deg
 
     def _judge(self, fix: FixLike, course: float, h_hdr: float, omega: float, now: float) -> bool:
-        """The gate's verdict on a new course (True: use it); a run of agreeing rejections
-        sets the offset anew."""
+        """The gate's verdict on a new course (True: use it); a run of agreeing courses that
+        the gate rejected, or any run after a long gap, sets the offset anew."""
         if self.offset_deg is None:  # nothing to test against yet: the first course aligns
-            self._accepted_at = now
-            self._streak.clear()
+            self._accept(now)
             return True
         innovation = wrap180(course - (h_hdr + self.offset_deg))
         gate = self.gate_deg(fix, omega, now)
-        if abs(innovation) <= gate:
-            self._accepted_at = now
-            self._streak.clear()
+        long_gap = self.long_gap(now)
+        if abs(innovation) <= gate and not long_gap:
+            self._accept(now)
             return True
         implied = wrap180(course - h_hdr)  # the offset this course asks for
         own = max(
             self.config.gate_min_deg, self.course_err_deg(fix) + abs(omega) * self.config.latency_s
         )
         if self._streak and abs(wrap180(implied - self._streak[-1])) > own:
-            self._streak.clear()  # it disagrees with the rejections before it: a new run
+            self._streak.clear()  # it disagrees with the courses before it: a new run
         self._streak.append(implied)
         self.courses_rejected += 1
-        self.events.append(
-            (
-                "gps_course_rejected",
-                {
-                    "course": fix.track_deg,
-                    "innovation_deg": round(innovation, 2),
-                    "gate_deg": round(gate, 2),
-                    "in_a_row": len(self._streak),
-                },
-            )
-        )
+        fields: dict[str, Any] = {
+            "course": fix.track_deg,
+            "innovation_deg": round(innovation, 2),
+            "gate_deg": round(gate, 2),
+            "in_a_row": len(self._streak),
+        }
+        if long_gap:
+            fields["long_gap_s"] = round(self._since_accepted(now), 1)
+        self.events.append(("gps_course_rejected", fields))
         if len(self._streak) < self.config.realign_after:
             return False
         old = self.offset_deg
         self.offset_deg = implied
         self._realigned = True
         self.realignments += 1
+        self._accept(now)
+        realigned: dict[str, Any] = {
+            "offset_deg": round(implied, 2),
+            "previous_offset_deg": round(old, 2),
+        }
+        if long_gap:
+            realigned["reason"] = "re-acquired after a long gap"
+        self.events.append(("gps_realigned", realigned))
+        return True
+
+    def _accept(self, now: float) -> None:
         self._accepted_at = now
         self._streak.clear()
-        self.events.append(
-            (
-                "gps_realigned",
-                {"offset_deg": round(implied, 2), "previous_offset_deg": round(old, 2)},
-            )
-        )
-        return True
 
     def speed(self, now: float) -> float | None:
         """Ground speed of a fresh 2D/3D fix, m/s; None when unknown."""

@@ -31,6 +31,7 @@ from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
 from hdrd.daemon.signals import Signals
 from hdrd.io.biasfile import BiasFileError, load_bias
+from hdrd.io.clocks import WallClockCheck
 from hdrd.io.files import default_bias_path
 from hdrd.io.frames import Frame
 from hdrd.io.logs import log
@@ -44,12 +45,19 @@ from hdrd.io.publish import (
     UdpPublisher,
     parse_hostport,
 )
+from hdrd.io.resolve import Resolver, default_resolver
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source, SourceEvent
 
 if TYPE_CHECKING:
     from hdrd.daemon.gpslink import GpsdLink
 
 __all__ = ["BiasChoice", "Daemon", "build_publishers", "choose_bias"]
+
+
+def _clock_rate(cfg: Config, simulate: bool) -> float:
+    """Device seconds per host second the input's clock keeps (0: not checked): the
+    simulated gyro's ``simulate.speedup``, else ``device.clock_rate``."""
+    return cfg.simulate.speedup if simulate else cfg.device.clock_rate
 
 
 # -- bias ---------------------------------------------------------------------------------
@@ -96,16 +104,22 @@ def _gps_link(cfg: Config) -> GpsdLink | None:
     return GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
 
 
-def build_publishers(cfg: Config) -> list[Publisher]:
-    """Publishers for the configured outputs; stdout when nothing else is configured."""
+def build_publishers(cfg: Config, resolver: Resolver | None = None) -> list[Publisher]:
+    """Publishers for the configured outputs; stdout when nothing else is configured. Host
+    names are looked up by ``resolver`` (the process's), never waiting on DNS: an address it
+    already knows (before a SIGHUP) is used while the name is looked up again."""
     o = cfg.output
     pubs: list[Publisher] = []
+    res = resolver or default_resolver()
     if o.udp:
-        pubs.append(UdpJsonPublisher([parse_hostport(a) for a in o.udp]))
+        pubs.append(UdpJsonPublisher([parse_hostport(a) for a in o.udp], resolver=res))
     if o.nmea_udp:
         pubs.append(
             UdpNmeaPublisher(
-                [parse_hostport(a) for a in o.nmea_udp], ths=o.nmea_ths, talker=o.nmea_talker
+                [parse_hostport(a) for a in o.nmea_udp],
+                ths=o.nmea_ths,
+                talker=o.nmea_talker,
+                resolver=res,
             )
         )
     if o.stdout or not pubs:
@@ -135,7 +149,7 @@ def stop_publishers(pubs: list[Publisher]) -> None:
 
 
 def _log_udp_stats(p: UdpPublisher) -> None:
-    """Log one UDP output's destinations as :func:`_stop_all` says."""
+    """Log one UDP output's destinations as :func:`stop_publishers` says."""
     output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
     stats = p.stats()
     shown = stats
@@ -210,6 +224,11 @@ class Daemon:
         self.steps = 0
         self.reconnects = 0
         self.watchdog = WatchdogGate(self.notifier.watchdog_s)
+        self.wallclock = WallClockCheck(_clock_rate(cfg, simulate))
+        """The device clock against the host's: a frame whose clock disagrees is dropped."""
+        self._drops_logged = 0  # frames dropped (not new, clock disagrees) as last logged
+        self._drops_log_at = -math.inf
+        self._drops_at_step = 0  # ... when the last step was published
         self._dropped_logged = 0
         self._dropped_log_at = -math.inf
         self.gps = _gps_link(cfg)  # GPS aiding through gpsd: a stage of the pipeline
@@ -220,7 +239,8 @@ class Daemon:
         self.serial: SerialSource | None = None
         self.pacer: ReadPacer | None = None
         # The loop's clocks (time.monotonic, s) and counters between turns.
-        self._last_data = 0.0
+        self._last_data = 0.0  # the last frame kept
+        self._last_step_at = 0.0  # the last step published
         self._lost_at: float | None = None
         self._last_stale = 0.0
         self._last_bad = 0
@@ -264,7 +284,7 @@ class Daemon:
         if isinstance(src, SerialSource):
             self.serial = src
             self.pacer = ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S)
-        self._last_data = time.monotonic()
+        self._last_data = self._last_step_at = time.monotonic()
         T = self.cfg.hdr.params.T
         wd = self.notifier.watchdog_s
         if wd is not None and T > wd:
@@ -294,6 +314,7 @@ class Daemon:
             "stop",
             steps=self.steps,
             bad_frames=int(src.stats.bad_frames),
+            frames_dropped=self._frame_drops(src),
             reconnects=self.reconnects,
             output_dropped=self._dropped(),
         )
@@ -371,6 +392,8 @@ class Daemon:
             return []
         if isinstance(item, DeviceBack):
             gap = now - (self._lost_at if self._lost_at is not None else self._last_data)
+            self.wallclock.reset()  # a new connection: a new reference for the device clock
+            self._last_step_at = now
             if self._waiting_since is not None:  # it appeared: opened for the first time
                 log.info("device_open", port=self.src_name, waited_s=round(gap, 3))
                 self._waiting_since = None
@@ -392,8 +415,34 @@ class Daemon:
                 self.pacer.reset()  # a new device clock
             return msgs
         assert isinstance(item, Frame)
+        return self.take_frame(item, now, bad)
+
+    def take_frame(self, frame: Frame, now: float, bad: int) -> list[Message]:
+        """A frame in hand at host time ``now`` (monotonic s), ``bad`` frames so far: dropped
+        if its device clock disagrees with the host's (counted in :attr:`wallclock`), else to
+        the pipeline; the messages of the steps it closed. A device clock that jumped and runs
+        at the rate since resynchronises the pipeline, the steps moving on by the host's
+        clock. Public so that a test or a tool can feed frames without a port."""
+        verdict = self.wallclock.check(frame.t_us, now)
+        if verdict == WallClockCheck.DISAGREES:
+            return []
+        msgs: list[Message] = []
+        if verdict == WallClockCheck.JUMPED:
+            gap = now - self._last_data
+            log.warning(
+                "device_clock_jumped",
+                port=self.src_name,
+                gap_s=round(gap, 3),
+                jumps=self.wallclock.jumps,
+                reason="the device clock jumped (or went back: a restart) and runs at its "
+                "rate since: steps go on by the host's clock",
+            )
+            msgs = self.pipeline.resync(gap, bad, time.time())
+            if self.pacer is not None:
+                self.pacer.reset()
         self._last_data = now
-        return self.pipeline.feed(item, bad, time.time())
+        msgs.extend(self.pipeline.feed(frame, bad, time.time()))
+        return msgs
 
     WAITING_LOG_INTERVAL_S = 60.0
     """While the device has never been there, ``device_waiting`` is logged again this often."""
@@ -416,6 +465,8 @@ class Daemon:
 
     def _status_after(self, last: Message, bad: int) -> None:
         """systemd's status line after publishing steps (once the bias is known)."""
+        if self.src is not None:
+            self._drops_at_step = sum(self._frame_drops(self.src).values())
         bias = self.pipeline.bias
         if bias is not None:
             self._set_status(
@@ -424,9 +475,10 @@ class Daemon:
             )
 
     def _duties(self, now: float, bad: int) -> None:
-        """Every turn: a stale report while the device is silent, the bad-frames warning, the
+        """Every turn: a stale report while no frame is kept or no step comes (the device
+        silent, or its frames dropped), the bad-frames and dropped-frames warnings, the
         watchdog ping, the output-dropped warning, each at most as often as allowed."""
-        silent = now - self._last_data
+        silent = max(now - self._last_data, now - self._last_step_at - self.cfg.hdr.params.T)
         if (
             silent > self.cfg.device.stale_after_s
             and now - self._last_stale >= self.cfg.hdr.params.T
@@ -438,6 +490,7 @@ class Daemon:
             self._last_bad, self._last_bad_log = bad, now
         if self.watchdog.due(now):
             self.notifier.notify("WATCHDOG=1")
+        self._log_frame_drops(now)
         self._log_drops(now)
         if (
             self._waiting_since is not None
@@ -477,7 +530,9 @@ class Daemon:
 
     def _publish(self, msgs: list[Message], steps: bool = True) -> None:
         if msgs:
-            self.watchdog.progress()
+            self.watchdog.progress()  # a step, or a stale report on time: the loop does its job
+            if steps:
+                self._last_step_at = time.monotonic()
         if self.gps is not None:  # the aiding is the pipeline's: log its mode and events
             self.gps.log_mode(msgs)
         for m in msgs:
@@ -493,8 +548,41 @@ class Daemon:
 
     def _publish_stale(self, silent: float, bad: int) -> None:
         msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
-        self._set_status(f"stale: no data for {silent:.0f} s")
+        drops = self._frame_drops(self.src) if self.src is not None else {}
+        if sum(drops.values()) > self._drops_at_step:
+            shown = ", ".join(f"{k} {v}" for k, v in drops.items() if v)
+            self._set_status(f"stale: no usable data for {silent:.0f} s, frames dropped ({shown})")
+        else:
+            self._set_status(f"stale: no data for {silent:.0f} s")
         self._publish([msg], steps=False)  # a stale report is not a step
+
+    def _frame_drops(self, src: Source) -> dict[str, int]:
+        """Frames dropped as not new or with a clock that disagrees, by reason: the parser's
+        (:class:`hdrd.io.frames.FrameTracker`) and the host clock's (:attr:`wallclock`)."""
+        st = src.stats
+        return {
+            "seq_repeats": int(getattr(st, "seq_repeats", 0)),
+            "seq_clock_mismatch": int(getattr(st, "seq_clock_mismatch", 0)),
+            "wall_clock_mismatch": self.wallclock.mismatches,
+        }
+
+    def _log_frame_drops(self, now: float) -> None:
+        """``frames_dropped`` at most every ``log.bad_frame_interval_s``, with the counts."""
+        if now - self._drops_log_at < self.cfg.log.bad_frame_interval_s or self.src is None:
+            return
+        self._drops_log_at = now  # looked at no more often than that (src.stats copies)
+        drops = self._frame_drops(self.src)
+        total = sum(drops.values())
+        if total <= self._drops_logged:
+            return
+        extra = {}
+        if drops["wall_clock_mismatch"]:
+            extra["hint"] = (
+                "the device clock disagrees with the wall clock; a feed faster than real time "
+                "needs device.clock_rate (--clock-rate)"
+            )
+        log.warning("frames_dropped", total=total, new=total - self._drops_logged, **drops, **extra)
+        self._drops_logged = total
 
     def _dropped(self) -> int:
         """Messages dropped by the publishers so far (stdout with a stalled reader)."""

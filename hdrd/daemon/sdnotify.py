@@ -64,10 +64,11 @@ class WatchdogGate:
 
     A ping says "the loop is doing its job", so it is sent (at most every *interval_s*, half
     of WatchdogSec) only if, since the previous ping, the loop has made **progress**
-    (:meth:`progress`): it published a message (a step, or a stale report while the device
-    is silent), or it found the source with nothing to hand out (everything that arrived is
+    (:meth:`progress`): it published a message (a step, or a stale report on time while no
+    usable data comes: the device silent, or its frames dropped as not new or with a clock that
+    disagrees), or it found the source with nothing to hand out (everything that arrived is
     handled: the state while the device is unplugged, before it first appears, or when it
-    sends only garbage). A loop that turns without either (a flood of other work keeps it
+    sends only garbage or frames that are dropped). A loop that turns without either (a flood of other work keeps it
     from the frames that are waiting, so steps come late or never) stops pinging, and
     systemd restarts the daemon after WatchdogSec. Steps come every T, so WatchdogSec must
     be longer than T; at least 2 T leaves room (docs/operations.md).

@@ -1,11 +1,12 @@
 """Whole captures: the vectorised decoder of a capture file's bytes (``hdrd replay``,
-``hdrd convert``, the benches).
+``hdrd convert``, the benches) and encoder of frames (:func:`encode_array`).
 
 Pure. :func:`decode_capture` gives exactly the frames and counters of a
 :class:`hdrd.io.frames.Parser` fed the same bytes and flushed, plus for each frame the bad frames
 that came before it (:class:`CaptureStats`), as a numpy structured array
 (:data:`hdrd.io.frames.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
-bounded memory; hdr-text through the push parser.
+bounded memory (the CRCs table-driven, two bytes per step); hdr-text through the push parser.
+Both judge the frames' sequence and clock with :class:`hdrd.io.frames.FrameTracker`.
 """
 
 from __future__ import annotations
@@ -18,17 +19,116 @@ import numpy.typing as npt
 from hdrd.io.frames import (
     FRAME_DTYPE,
     Frame,
+    FrameTracker,
     Parser,
     ParserStats,
     array_to_frames,
     check_protocol,
-    crc_ok_at,
+    encode_text,
     frames_to_array,
-    sequence_stats,
 )
 from hdrd.io.protocol import BIN_FRAME_LEN
 
-__all__ = ["CaptureStats", "decode_capture", "decode_frames"]
+__all__ = [
+    "CRC_TABLE",
+    "CaptureStats",
+    "crc16_ccitt_false_rows",
+    "crc_ok_at",
+    "decode_capture",
+    "decode_frames",
+    "encode_array",
+]
+
+
+# --------------------------------------------------------------------------- vectorised CRC
+
+
+def _crc_table() -> npt.NDArray[np.uint16]:
+    table = np.empty(256, np.uint16)
+    for b in range(256):
+        c = b << 8
+        for _ in range(8):
+            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
+        table[b] = c & 0xFFFF
+    return table
+
+
+CRC_TABLE = _crc_table()
+"""The table-driven CRC-16/CCITT-FALSE: crc' = (crc << 8) ^ TABLE[(crc >> 8) ^ byte]."""
+
+
+def _crc_table16_le() -> npt.NDArray[np.uint16]:
+    # Two bytes at a time: a 16-bit register shifts out whole, so crc' = T16[crc ^ w], w the
+    # next two bytes big-endian, T16[w] the register after feeding w from 0. Keeping the
+    # register byte-swapped (c = swap(crc)) lets the words be read little-endian in place:
+    # c' = TLE[c ^ w_le] with TLE[x] = swap(T16[swap(x)]).
+    x = np.arange(65536, dtype=np.uint16)
+    hi = CRC_TABLE[x >> 8]
+    t16 = (hi << 8) ^ CRC_TABLE[(hi >> 8) ^ (x & 0xFF)]
+    swap = (x >> 8) | (x << 8)
+    t = t16[swap]
+    return (t >> 8) | (t << 8)
+
+
+_CRC_TABLE16_LE = _crc_table16_le()
+
+
+def _crc_words_le(words: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:
+    """CRC-16/CCITT-FALSE of each row of (k, m) uint16 words read little-endian from the
+    bytes, returned byte-swapped (``swap(crc)``)."""
+    c = np.full(words.shape[0], 0xFFFF, np.uint16)
+    for j in range(words.shape[1]):
+        c = _CRC_TABLE16_LE[c ^ words[:, j]]
+    return c
+
+
+def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16]:
+    """CRC-16/CCITT-FALSE of every row of a (k, m) uint8 array at once (table-driven)."""
+    rows = np.asarray(rows, dtype=np.uint8)
+    k, m = rows.shape
+    if m % 2 == 0:
+        c = _crc_words_le(np.ascontiguousarray(rows).view("<u2"))
+        return ((c >> 8) | (c << 8)).astype(np.uint16, copy=False)
+    crc = np.full(k, 0xFFFF, np.uint16)
+    for j in range(m):
+        crc = (crc << 8) ^ CRC_TABLE[(crc >> 8) ^ rows[:, j]]
+    return crc
+
+
+def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Whether the hdr-bin frame starting at each position ``cand`` (sorted, each with room
+    for a whole frame) of the bytes ``a`` carries a matching CRC."""
+    k = cand.shape[0]
+    if k == 0:
+        return np.zeros(0, bool)
+    if cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
+        # A clean run of frames with no stray sync pattern: a view, no gather.
+        rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
+    else:
+        rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
+    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
+    stored = words[:, 7]
+    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
+
+
+def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
+    """A whole :data:`FRAME_DTYPE` array encoded back to back (vectorised for hdr-bin)."""
+    check_protocol(protocol)
+    arr = np.ascontiguousarray(arr, dtype=FRAME_DTYPE)
+    if protocol == "hdr-text":
+        return b"".join(encode_text(f) for f in array_to_frames(arr))
+    k = arr.shape[0]
+    out = np.empty((k, BIN_FRAME_LEN), np.uint8)
+    out[:, 0] = 0xA5
+    out[:, 1] = 0x5A
+    out[:, 2:14] = arr.view(np.uint8).reshape(k, 12)
+    crc = crc16_ccitt_false_rows(out[:, 2:14])
+    out[:, 14] = crc & 0xFF
+    out[:, 15] = crc >> 8
+    return out.tobytes()
+
+
+# --------------------------------------------------------------------------- decoding
 
 
 @dataclass(slots=True, eq=False)
@@ -248,9 +348,13 @@ def decode_capture(
         st.bad_frames = int(counts.sum())
         st.bad_before = np.cumsum(counts[: acc.shape[0]], dtype=np.int64)
     arr = _payload(a, acc)
+    st.garbage_bytes = n - BIN_FRAME_LEN * int(arr.shape[0])
+    tracker = FrameTracker(st)
+    kept = tracker.run_array(arr)
+    tracker.flush()
+    if kept.shape[0] < arr.shape[0]:
+        arr, st.bad_before = arr[kept], st.bad_before[kept]
     st.frames = int(arr.shape[0])
-    st.garbage_bytes = n - BIN_FRAME_LEN * st.frames
-    sequence_stats(arr, st)
     return arr, st
 
 

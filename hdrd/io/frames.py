@@ -1,19 +1,19 @@
 """The wire protocol of the gyro's USB ADC: hdr-bin and hdr-text frames (docs/protocol.md).
 
-Pure: no port, no clock. Two layers here, in the manner of pyubx2 and pyserial's threaded
-protocols, and a third beside it:
+Pure: no port, no clock. Three layers here, in the manner of pyubx2 and pyserial's threaded
+protocols, and a fourth beside it:
 
 - codecs: :func:`encode_bin` / :func:`decode_bin`, :func:`encode_text` / :func:`decode_text`
   (one frame <-> its bytes; a bad frame raises :class:`FrameError`);
+- :class:`FrameTracker`: the sequence number and device clock of a stream, the one place that
+  decides which frames are new and whose clock agrees with their sequence, and counts the
+  rest (:class:`ParserStats`);
 - :class:`Parser`: a push parser, ``feed(chunk) -> frames``, that keeps partial frames across
-  chunks, resynchronises after garbage, drops and counts bad frames and reports sequence gaps
-  and device-clock wraps in :class:`ParserStats`;
+  chunks, resynchronises after garbage, drops and counts bad frames, and hands its good ones
+  to its tracker;
 - :func:`hdrd.io.capture.decode_capture`: a vectorised decoder of a whole capture into a numpy
   structured array (:data:`FRAME_DTYPE`), giving exactly the frames and counters of the push
-  parser.
-
-The layout's constants (sync bytes, frame length, "no temperature", the device clock's wrap)
-are in :mod:`hdrd.io.protocol`.
+  parser. The layout's constants are in :mod:`hdrd.io.protocol`.
 
 **hdr-bin**, 16 bytes, little-endian: sync ``A5 5A``, seq u16, t_us u32, rate u16, ref u16,
 temp i16 (0.01 degC, -32768 = not fitted), CRC-16/CCITT-FALSE u16 over bytes 2..13.
@@ -29,6 +29,8 @@ pattern inside a payload or in garbage never costs the next good frame.
 
 from __future__ import annotations
 
+import collections
+import itertools
 import re
 import struct
 from binascii import crc_hqx
@@ -42,9 +44,13 @@ import numpy.typing as npt
 from hdrd.errors import HdrdError
 from hdrd.io.protocol import (
     BIN_FRAME_LEN,
+    BREAK_CONFIRM_FRAMES,
+    BREAK_REBASE_FRAMES,
     CLOCK_WRAP_US,
     PROTOCOLS,
-    RESET_THRESHOLD_US,
+    REBASE_RATIO,
+    SEQ_CLOCK_RATIO,
+    SEQ_GAP_WINDOW,
     SEQ_REORDER_WINDOW,
     SYNC,
     TEMP_NOT_FITTED,
@@ -53,25 +59,21 @@ from hdrd.io.protocol import (
 )
 
 __all__ = [
-    "CRC_TABLE",
     "FRAME_DTYPE",
     "Frame",
     "FrameError",
+    "FrameTracker",
     "Parser",
     "ParserStats",
     "array_to_frames",
     "check_protocol",
-    "crc_ok_at",
     "crc16_ccitt_false",
-    "crc16_ccitt_false_rows",
     "decode_bin",
     "decode_text",
     "encode",
-    "encode_array",
     "encode_bin",
     "encode_text",
     "frames_to_array",
-    "sequence_stats",
 ]
 
 _BODY = struct.Struct("<HIHHhH")  # seq, t_us, rate, ref, temp, crc: bytes 2..15
@@ -143,74 +145,6 @@ def crc16_ccitt_false(data: bytes) -> int:
     Check value: ``crc16_ccitt_false(b"123456789") == 0x29B1``.
     """
     return crc_hqx(data, 0xFFFF)
-
-
-def _crc_table() -> npt.NDArray[np.uint16]:
-    table = np.empty(256, np.uint16)
-    for b in range(256):
-        c = b << 8
-        for _ in range(8):
-            c = ((c << 1) ^ 0x1021) if c & 0x8000 else (c << 1)
-        table[b] = c & 0xFFFF
-    return table
-
-
-CRC_TABLE = _crc_table()
-"""The table-driven CRC-16/CCITT-FALSE: crc' = (crc << 8) ^ TABLE[(crc >> 8) ^ byte]."""
-
-
-def _crc_table16_le() -> npt.NDArray[np.uint16]:
-    # Two bytes at a time: a 16-bit register shifts out whole, so crc' = T16[crc ^ w], w the
-    # next two bytes big-endian, T16[w] the register after feeding w from 0. Keeping the
-    # register byte-swapped (c = swap(crc)) lets the words be read little-endian in place:
-    # c' = TLE[c ^ w_le] with TLE[x] = swap(T16[swap(x)]).
-    x = np.arange(65536, dtype=np.uint16)
-    hi = CRC_TABLE[x >> 8]
-    t16 = (hi << 8) ^ CRC_TABLE[(hi >> 8) ^ (x & 0xFF)]
-    swap = (x >> 8) | (x << 8)
-    t = t16[swap]
-    return (t >> 8) | (t << 8)
-
-
-_CRC_TABLE16_LE = _crc_table16_le()
-
-
-def _crc_words_le(words: npt.NDArray[np.uint16]) -> npt.NDArray[np.uint16]:
-    """CRC-16/CCITT-FALSE of each row of (k, m) uint16 words read little-endian from the
-    bytes, returned byte-swapped (``swap(crc)``)."""
-    c = np.full(words.shape[0], 0xFFFF, np.uint16)
-    for j in range(words.shape[1]):
-        c = _CRC_TABLE16_LE[c ^ words[:, j]]
-    return c
-
-
-def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16]:
-    """CRC-16/CCITT-FALSE of every row of a (k, m) uint8 array at once (table-driven)."""
-    rows = np.asarray(rows, dtype=np.uint8)
-    k, m = rows.shape
-    if m % 2 == 0:
-        c = _crc_words_le(np.ascontiguousarray(rows).view("<u2"))
-        return ((c >> 8) | (c << 8)).astype(np.uint16, copy=False)
-    crc = np.full(k, 0xFFFF, np.uint16)
-    for j in range(m):
-        crc = (crc << 8) ^ CRC_TABLE[(crc >> 8) ^ rows[:, j]]
-    return crc
-
-
-def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Whether the hdr-bin frame starting at each position ``cand`` (sorted, each with room
-    for a whole frame) of the bytes ``a`` carries a matching CRC."""
-    k = cand.shape[0]
-    if k == 0:
-        return np.zeros(0, bool)
-    if cand[-1] - cand[0] == BIN_FRAME_LEN * (k - 1) and np.all(np.diff(cand) == BIN_FRAME_LEN):
-        # A clean run of frames with no stray sync pattern: a view, no gather.
-        rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
-    else:
-        rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
-    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
-    stored = words[:, 7]
-    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
 
 
 # --------------------------------------------------------------------------- codecs
@@ -366,39 +300,18 @@ def array_to_frames(arr: npt.NDArray[np.void]) -> list[Frame]:
     ]
 
 
-def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
-    """A whole :data:`FRAME_DTYPE` array encoded back to back (vectorised for hdr-bin)."""
-    check_protocol(protocol)
-    arr = np.ascontiguousarray(arr, dtype=FRAME_DTYPE)
-    if protocol == "hdr-text":
-        return b"".join(encode_text(f) for f in array_to_frames(arr))
-    k = arr.shape[0]
-    out = np.empty((k, BIN_FRAME_LEN), np.uint8)
-    out[:, 0] = 0xA5
-    out[:, 1] = 0x5A
-    out[:, 2:14] = arr.view(np.uint8).reshape(k, 12)
-    crc = crc16_ccitt_false_rows(out[:, 2:14])
-    out[:, 14] = crc & 0xFF
-    out[:, 15] = crc >> 8
-    return out.tobytes()
-
-
-# --------------------------------------------------------------------------- push parser
+# --------------------------------------------------------------------------- sequence and clock
 
 
 @dataclass(slots=True, eq=False)
 class ParserStats:
-    """Counters of a parser (or a source). All counts since the parser was made.
-
-    frames: good frames returned. bad_frames: frames that started with a sync pattern but
-    failed their CRC, checksum or syntax. garbage_bytes: bytes not part of a good frame
-    (bad frames' bytes included; bytes still buffered are not counted until ``flush``).
-    seq_gaps: jumps forward of the sequence number by more than 1 (events); lost_frames: the
-    sum of the sequence numbers skipped. seq_repeats: frames whose sequence number repeats or
-    is at most :data:`SEQ_REORDER_WINDOW` behind the last (kept, but the counter is not moved
-    back). seq_resets: larger backward jumps (a device restart). clock_wraps: device-clock
-    wraps at 2**32 us. clock_back: device-clock steps that did not go forward (a step back of
-    more than 1 s resets the reference, like :class:`hdrd.io.clocks.DeviceClock`).
+    """Counters of a parser (or a source), since it was made. frames: good frames returned.
+    bad_frames: frames that started with a sync pattern but failed their CRC, checksum or
+    syntax. garbage_bytes: bytes not part of a good frame (bad frames' included; bytes still
+    buffered count at ``flush``). Of the sequence and the clock (:class:`FrameTracker`):
+    seq_gaps, lost_frames (events of frames lost, and how many); seq_resets (a device
+    restart); clock_wraps (of the device clock at 2**32 us); and the good frames dropped:
+    seq_repeats (not new), seq_clock_mismatch (the clock disagrees with the sequence).
     """
 
     frames: int = 0
@@ -409,7 +322,7 @@ class ParserStats:
     seq_repeats: int = 0
     seq_resets: int = 0
     clock_wraps: int = 0
-    clock_back: int = 0
+    seq_clock_mismatch: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters by name."""
@@ -424,8 +337,286 @@ class ParserStats:
 _COUNTERS = tuple(f.name for f in fields(ParserStats))
 
 
-_SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # d >= this: at most SEQ_REORDER_WINDOW behind
+_SEQ_BACK = 0x10000 - SEQ_REORDER_WINDOW  # k >= this: at most SEQ_REORDER_WINDOW behind
 _HALF_WRAP = CLOCK_WRAP_US >> 1
+_R = SEQ_CLOCK_RATIO
+_GAP = SEQ_GAP_WINDOW
+
+
+def _agrees(d: int, k: int, d0: int, k0: int, r: int = _R) -> bool:
+    """Whether d us over k sequence steps keep to the interval d0 us per k0 steps (within a
+    factor r, :data:`SEQ_CLOCK_RATIO`); any step does when there is no interval yet (k0 = 0)."""
+    return k0 == 0 or (r * d * k0 >= d0 * k and d * k0 <= r * d0 * k)
+
+
+_At = collections.namedtuple("_At", "seq t_us i")  # a frame of an array, for run: its place i
+
+
+class FrameTracker:
+    """The sequence number and device clock of a stream of frames, in one place: which frames
+    are kept, and the sequence/clock counters of :class:`ParserStats`. Pure. The rule
+    (docs/protocol.md, "Sequence and clock"), for a frame k sequence steps and d us after the
+    last frame kept: **kept** if 0 < k <= :data:`SEQ_GAP_WINDOW`, d forward and d / k within
+    :data:`SEQ_CLOCK_RATIO` of the interval (the last single step's d; any before it);
+    **dropped, not new** (``seq_repeats``) if k = 0 or at most :data:`SEQ_REORDER_WINDOW`
+    behind, d not forward; else a **break**: held with the frames after it that continue it
+    by their own clock, released when :data:`BREAK_CONFIRM_FRAMES` do at the interval agreed on
+    (or none was) or :data:`BREAK_REBASE_FRAMES` at their own within :data:`REBASE_RATIO`
+    of it (a restart: ``seq_resets``; a
+    jump: a gap), dropped by a frame kept or a break that does not continue them
+    (``seq_clock_mismatch``). :meth:`run` (a batch of frames) and :meth:`run_array` (a whole
+    capture, numpy where each step agrees) decide alike; :meth:`flush` drops what is held.
+    """
+
+    __slots__ = ("_agreed", "_d", "_held", "_held_off", "_k", "_kept_run", "_seq", "_t", "stats")
+
+    def __init__(self, stats: ParserStats | None = None) -> None:
+        self.stats = ParserStats() if stats is None else stats
+        self._seq: int | None = None  # the last frame kept: its sequence number, device time
+        self._t = 0
+        self._d = 0  # the interval: device us over _k sequence steps (0: none yet)
+        self._k = 0
+        self._agreed = 0  # steps kept since the start or the last break
+        self._kept_run = 0  # frames kept by the rule in a row, to the last one judged
+        self._held: list[tuple[Any, int, int, int]] = []  # (item, seq, t_us, bad) after a break
+        self._held_off = False  # a held step off the interval agreed on
+
+    def run(self, items: list[Any], bads: list[int]) -> tuple[list[Any], list[int]]:
+        """Judge frames (each with ``seq`` and ``t_us``; ``bads``: bad frames before each): those
+        kept, in order, with their bads (held ones released now first). :meth:`_run_all`
+        takes over from the first frame that the common case does not keep."""
+        seq0, t0, d0, k0 = self._seq, self._t, self._d, self._k
+        if seq0 is None or self._held:
+            return self._run_all(items, bads, 0)
+        st = self.stats
+        j = 0
+        for f in items:
+            s, t = f.seq, f.t_us
+            k = (s - seq0) & 0xFFFF
+            d = (t - t0) & 0xFFFFFFFF
+            if not (
+                0 < k <= _GAP
+                and 0 < d < 0x80000000
+                and (k0 == 0 or (_R * d * k0 >= d0 * k and d * k0 <= _R * d0 * k))
+            ):
+                break
+            if k > 1:
+                st.seq_gaps += 1
+                st.lost_frames += k - 1
+            if t < t0:
+                st.clock_wraps += 1
+            seq0, t0 = s, t
+            if k == 1:  # the interval: a single step's (a gap's average may hide a skip)
+                d0, k0 = d, 1
+            j += 1
+        self._seq, self._t, self._d, self._k = seq0, t0, d0, k0
+        self._agreed += j
+        self._kept_run += j
+        if j == len(items):
+            return items, bads
+        out, out_bad = self._run_all(items, bads, j)
+        return items[:j] + out, bads[:j] + out_bad
+
+    def _run_all(
+        self, items: list[Any], bads: list[int], start: int
+    ) -> tuple[list[Any], list[int]]:
+        """:meth:`run` from ``items[start]`` on, breaks and repeats included."""
+        out: list[Any] = []
+        out_bad: list[int] = []
+        st = self.stats
+        for j in range(start, len(items)):
+            f, b = items[j], bads[j]
+            seq0 = self._seq
+            if seq0 is None:  # the first frame: nothing to judge it by
+                self._seq, self._t, self._kept_run = f.seq, f.t_us, 1
+                out.append(f)
+                out_bad.append(b)
+                continue
+            k = (f.seq - seq0) & 0xFFFF
+            d = (f.t_us - self._t) & 0xFFFFFFFF
+            fwd = 0 < d < _HALF_WRAP
+            if 0 < k <= _GAP and fwd and _agrees(d, k, self._d, self._k):
+                self._gap(k)
+                if f.t_us < self._t:
+                    st.clock_wraps += 1
+                self._seq, self._t = f.seq, f.t_us
+                if k == 1:
+                    self._d, self._k = d, 1
+                self._agreed += 1
+                self._kept_run += 1
+                self._drop_held()
+                out.append(f)
+                out_bad.append(b)
+                continue
+            self._kept_run = 0
+            if (k == 0 or k >= _SEQ_BACK) and not fwd and not self._continues_held(f.seq, f.t_us):
+                st.seq_repeats += 1
+                continue
+            for it, bb in self._on_break(f, f.seq, f.t_us, b):
+                out.append(it)
+                out_bad.append(bb)
+        return out, out_bad
+
+    def _continues_held(self, s: int, t: int) -> bool:
+        """Whether a frame continues the held ones (by their own clock: class doc)."""
+        held = self._held
+        if not held:
+            return False
+        _, ps, pt, _ = held[-1]
+        d0 = k0 = 0
+        if len(held) >= 2:
+            d0, k0 = (pt - held[-2][2]) & 0xFFFFFFFF, (ps - held[-2][1]) & 0xFFFF
+        k, d = (s - ps) & 0xFFFF, (t - pt) & 0xFFFFFFFF
+        return 0 < k <= _GAP and 0 < d < _HALF_WRAP and _agrees(d, k, d0, k0)
+
+    def _on_break(self, item: Any, s: int, t: int, b: int) -> list[tuple[Any, int]]:
+        """A frame that breaks the sequence or the clock: held (after what is held, if it
+        continues it; else in its place); the held frames released once
+        :data:`BREAK_CONFIRM_FRAMES` continue one another at the interval agreed on (or none
+        was), or :data:`BREAK_REBASE_FRAMES` at one of their own near it."""
+        if self._continues_held(s, t):
+            _, ps, pt, _ = self._held[-1]
+            self._held_off |= not _agrees(
+                (t - pt) & 0xFFFFFFFF, (s - ps) & 0xFFFF, self._d, self._k
+            )
+        else:
+            self._drop_held()
+        self._held.append((item, s, t, b))
+        n = len(self._held)
+        if n >= BREAK_CONFIRM_FRAMES and (self._agreed < 2 or not self._held_off):
+            return self._release()
+        if n < BREAK_REBASE_FRAMES:
+            return []
+        (_, sa, ta, _), (_, sb, tb, _) = self._held[-2:]  # their interval: near the old one?
+        if _agrees((tb - ta) & 0xFFFFFFFF, (sb - sa) & 0xFFFF, self._d, self._k, REBASE_RATIO):
+            return self._release()
+        self._held.pop(0)  # far from it: never taken, the oldest dropped as the next comes
+        self.stats.seq_clock_mismatch += 1
+        return []
+
+    def _release(self) -> list[tuple[Any, int]]:
+        """The held frames are kept; the interval agreed on stays if they kept to it."""
+        held, st = self._held, self.stats
+        assert self._seq is not None  # a break follows a kept frame
+        k = (held[0][1] - self._seq) & 0xFFFF
+        if k >= 0x8000:
+            st.seq_resets += 1
+        else:
+            self._gap(k)
+        keep_interval = self._agreed >= 2 and not self._held_off
+        for (_, sa, ta, _), (_, sb, tb, _) in itertools.pairwise(held):
+            kk = (sb - sa) & 0xFFFF
+            self._gap(kk)
+            if tb < ta:
+                st.clock_wraps += 1
+            self._seq, self._t = sb, tb
+            if kk == 1 and not keep_interval:
+                self._d, self._k = (tb - ta) & 0xFFFFFFFF, 1
+        self._agreed = len(held) - 1
+        out = [(it, bb) for it, _, _, bb in held]
+        held.clear()
+        self._held_off = False
+        return out
+
+    def _gap(self, k: int) -> None:
+        if k > 1:
+            self.stats.seq_gaps += 1
+            self.stats.lost_frames += k - 1
+
+    def _drop_held(self) -> None:
+        self.stats.seq_clock_mismatch += len(self._held)
+        self._held.clear()
+        self._held_off = False
+
+    def flush(self) -> None:
+        """End of the input (or of a connection): the frames held after a break are dropped
+        (never confirmed), the interval forgotten (another device may come); the last frame
+        kept stays, so that a gap across a reconnection is still counted."""
+        self._drop_held()
+        self._kept_run = self._agreed = self._d = self._k = 0
+
+    def run_array(self, arr: npt.NDArray[np.void]) -> npt.NDArray[np.int64]:
+        """:meth:`run` over a :data:`FRAME_DTYPE` array (a whole capture): the positions of the
+        frames kept. Numpy over the runs ``run`` would keep whole, ``run`` around the rest."""
+        n = arr.shape[0]
+        if n == 0 or (self._seq is None and n > 1 and self._all_kept(arr)):
+            return np.arange(n, dtype=np.int64)
+        seq = arr["seq"].astype(np.int64)
+        t = arr["t_us"].astype(np.int64)
+        k = np.zeros(n, np.int64)
+        d = np.zeros(n, np.int64)
+        np.bitwise_and(np.diff(seq), 0xFFFF, out=k[1:])
+        np.bitwise_and(np.diff(t), 0xFFFFFFFF, out=d[1:])
+        # The interval for each step: the last single step's before it (as run has it when
+        # it kept that step; a run through numpy starts only there).
+        one = np.maximum.accumulate(np.where(k == 1, np.arange(n), -1))
+        prev = np.empty(n, np.int64)
+        prev[0], prev[1:] = -1, one[:-1]
+        d_i = d[np.maximum(prev, 0)]
+        good = (prev >= 0) & (k > 0) & (k <= _GAP) & (d > 0) & (d < _HALF_WRAP)
+        good &= (_R * d >= d_i * k) & (d <= _R * d_i * k)
+        breaks = np.flatnonzero(~good)
+        w = 2 * BREAK_CONFIRM_FRAMES + 2  # after this many good steps the tracker is at rest
+        calm = np.empty(0, np.int64)
+        if n >= w:
+            calm = np.flatnonzero(np.lib.stride_tricks.sliding_window_view(good, w).all(axis=1))
+        kept: list[npt.NDArray[np.int64]] = []
+        i = 0
+        while i < n:
+            if i and self._kept_run >= 2 and k[i - 1] == 1 and good[i]:  # i - 2, i - 1 kept
+                j = int(breaks[np.searchsorted(breaks, i)]) if breaks[-1] >= i else n
+                self._numpy_run(k[i:j], t[i - 1 : j])
+                self._seq, self._t = int(seq[j - 1]), int(t[j - 1])
+                self._d, self._k = int(d[one[j - 1]]), 1
+                kept.append(np.arange(i, j, dtype=np.int64))
+                i = j
+                continue
+            at = int(np.searchsorted(calm, i))  # run to the end of the next calm stretch
+            hi = max(min(n, int(calm[at]) + w) if at < calm.shape[0] else n, i + 1)
+            kept.append(self._run_slice(seq, t, i, hi))
+            i = hi
+        return np.concatenate(kept) if kept else np.empty(0, np.int64)
+
+    def _run_slice(
+        self, seq: npt.NDArray[np.int64], t: npt.NDArray[np.int64], lo: int, hi: int
+    ) -> npt.NDArray[np.int64]:
+        """:meth:`run` over frames lo .. hi - 1 of an array: the positions kept."""
+        rows = [_At(*x) for x in zip(seq[lo:hi].tolist(), t[lo:hi].tolist(), range(lo, hi))]
+        got, _ = self.run(rows, [0] * len(rows))
+        return np.fromiter((r.i for r in got), np.int64, len(got))
+
+    def _all_kept(self, arr: npt.NDArray[np.void]) -> bool:
+        """A whole capture kept whole by a new tracker, cheaply told: every step forward, and
+        every step's d / k within 1.99 of every other's (whatever the rounding)."""
+        seq, t = arr["seq"], arr["t_us"]
+        k = np.diff(seq)  # uint16 and uint32: the differences wrap as the wire's counters do
+        d = np.diff(t)
+        if not (np.all(k - np.uint16(1) < _GAP) and np.all(d.view(np.int32) > 0)):
+            return False
+        per = d / k
+        if not per.max() <= 1.99 * per.min():
+            return False
+        self._seq, self._t = int(seq[0]), int(t[0])
+        self._numpy_run(k, t)
+        self._seq, self._t = int(seq[-1]), int(t[-1])
+        single = np.flatnonzero(k == 1)
+        if single.shape[0]:
+            self._d, self._k = int(d[single[-1]]), 1
+        self._kept_run += 1
+        return True
+
+    def _numpy_run(self, k: npt.NDArray[np.int64], t: npt.NDArray[np.int64]) -> None:
+        """Count the steps ``k`` (into the frames at ``t[1:]``) of a run kept whole."""
+        st = self.stats
+        jumps = k[k > 1]
+        st.seq_gaps += int(jumps.size)
+        st.lost_frames += int((jumps - 1).sum())
+        st.clock_wraps += int(np.count_nonzero(t[1:] < t[:-1]))
+        self._agreed += int(k.size)
+        self._kept_run += int(k.size)
+
+
+# --------------------------------------------------------------------------- push parser
 
 
 def _sync_at(buf: bytes, k: int) -> bool | None:
@@ -463,25 +654,69 @@ def _displaced(buf: bytes, i: int, final: bool) -> bool | None:
     return False
 
 
+_Scan = tuple[list[Frame], list[int], int, int]  # frames, bad before each, bad, kept from
+
+
+def _scan_bin(buf: bytes, bad: int, final: bool) -> _Scan:
+    """Long because it is the binary parser's hot path: one loop with its names bound to
+    locals. The frames in ``buf`` by the resynchronisation rule (module doc)."""
+    n = len(buf)
+    find = buf.find
+    unpack = _BODY.unpack_from
+    frames: list[Frame] = []
+    bads: list[int] = []
+    add_f, add_b = frames.append, bads.append
+    p = 0
+    nxt = -2  # the first sync pattern at or after p when known (-1: none), else -2
+    while True:
+        i = find(SYNC, p) if nxt == -2 else nxt
+        if i < 0:
+            return frames, bads, bad, n - 1 if n > p and buf[n - 1] == 0xA5 else n
+        if i + 16 > n:
+            return frames, bads, bad, i
+        seq, t_us, rate, ref, temp, crc = unpack(buf, i + 2)
+        nxt = -2
+        if crc_hqx(buf[i + 2 : i + 14], 0xFFFF) != crc:
+            bad += 1
+            p = i + 1
+            continue
+        # The next sync pattern after this one's: beyond the frame, the next scan starts
+        # there; inside it (rare), is this frame a CRC coincidence? (:func:`_displaced`)
+        nxt = find(SYNC, i + 2)
+        if 0 <= nxt < i + 16:
+            nxt = -2
+            verdict = _displaced(buf, i, final)
+            if verdict is None:  # the bytes that decide have not arrived yet
+                return frames, bads, bad, i
+            if verdict:
+                bad += 1
+                p = i + 1
+                continue
+        p = i + 16
+        add_f(_frame(seq, t_us, rate, ref, None if temp == -32768 else temp))
+        add_b(bad)
+
+
 class Parser:
     """Push parser: ``feed(chunk) -> list[Frame]`` (pyserial ``threaded.Packetizer`` style).
 
     Any bytes are accepted and nothing raises: partial frames wait for the next chunk, bad
-    frames and garbage are counted in :attr:`stats`. Feeding a stream in any split gives
-    the same frames and counters. ``flush()`` at end of input counts the leftover bytes.
+    frames and garbage are counted in :attr:`stats`; good frames are judged by their sequence
+    number and device clock (:class:`FrameTracker`): those not new or whose clock disagrees
+    with their sequence are dropped and counted. Feeding a stream in any split gives the same
+    frames and counters. ``flush()`` at end of input counts the leftover bytes.
     """
 
-    __slots__ = ("_buf", "_feed", "_last_seq", "_last_t", "bad_before", "protocol", "stats")
+    __slots__ = ("_buf", "_feed", "bad_before", "protocol", "stats", "tracker")
 
     def __init__(self, protocol: str = "hdr-bin") -> None:
         check_protocol(protocol)
         self.protocol = protocol
         self.stats = ParserStats()
+        self.tracker = FrameTracker(self.stats)
         self.bad_before: list[int] = []
         """For each frame the last ``feed`` returned: ``stats.bad_frames`` just before it."""
         self._buf = b""
-        self._last_seq: int | None = None
-        self._last_t: int | None = None
         self._feed = self._feed_bin if protocol == "hdr-bin" else self._feed_text
 
     @property
@@ -500,10 +735,9 @@ class Parser:
         """End of input (or a link reset): the frames still held back are decided and
         returned (hdr-bin: a complete frame waits only while the bytes that tell a CRC
         coincidence from a real frame are missing, see :func:`_displaced`; at the end they
-        never come), then the leftover bytes are dropped and counted as garbage.
-
-        The sequence and clock references are kept, so a gap across a reconnection is
-        still reported. :attr:`bad_before` describes the returned frames."""
+        never come), then the leftover bytes are dropped and counted as garbage, and the
+        tracker flushed (:meth:`FrameTracker.flush`: a gap across a reconnection is still
+        counted). :attr:`bad_before` describes the returned frames."""
         out: list[Frame] = []
         if self._buf and self.protocol == "hdr-bin":
             out = self._feed_bin(b"", final=True)
@@ -511,147 +745,24 @@ class Parser:
             self.bad_before = []
         self.stats.garbage_bytes += len(self._buf)
         self._buf = b""
+        self.tracker.flush()
         return out
 
-    def _track(self, seq: int, t_us: int) -> None:
-        """Sequence and clock bookkeeping for one good frame (the push path's rule, shared by
-        the text parser and the vectorised decoder's slow path)."""
-        st = self.stats
-        last = self._last_seq
-        if last is None:
-            self._last_seq = seq
-        else:
-            d = (seq - last) & _U16
-            if d == 1:
-                self._last_seq = seq
-            elif d == 0 or d >= _SEQ_BACK:
-                st.seq_repeats += 1
-            elif d < 0x8000:
-                st.seq_gaps += 1
-                st.lost_frames += d - 1
-                self._last_seq = seq
-            else:
-                st.seq_resets += 1
-                self._last_seq = seq
-        lt = self._last_t
-        if lt is None:
-            self._last_t = t_us
-        else:
-            d = (t_us - lt) & _U32
-            if 0 < d < _HALF_WRAP:
-                if t_us < lt:
-                    st.clock_wraps += 1
-                self._last_t = t_us
-            else:
-                st.clock_back += 1
-                if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
-                    self._last_t = t_us
-
     def _feed_bin(self, chunk: bytes, final: bool = False) -> list[Frame]:
-        """Long because and Complex because it is the binary parser's hot path: one loop over
-        the buffer with its names bound to locals and :meth:`_track` copied inline, as a call
-        per frame would cost."""
         buf = self._buf + chunk if self._buf else chunk
-        n = len(buf)
-        find = buf.find
-        unpack = _BODY.unpack_from
-        crc16 = crc_hqx
-        new, set_seq, set_t, set_rate, set_ref, set_temp = (
-            _new,
-            _SET_SEQ,
-            _SET_T,
-            _SET_RATE,
-            _SET_REF,
-            _SET_TEMP,
-        )
-        out: list[Frame] = []
-        append = out.append
-        bad = self.stats.bad_frames
-        bad_before: list[int] = []
-        bb_append = bad_before.append
-        p = 0
-        nxt = -2  # the first sync pattern at or after p when known (-1: none), else -2
-        last_seq = self._last_seq
-        last_t = self._last_t
         st = self.stats
-        while True:
-            i = find(SYNC, p) if nxt == -2 else nxt
-            if i < 0:
-                keep = n - 1 if n > p and buf[n - 1] == 0xA5 else n
-                break
-            if i + 16 > n:
-                keep = i
-                break
-            seq, t_us, rate, ref, temp, crc = unpack(buf, i + 2)
-            if crc16(buf[i + 2 : i + 14], 0xFFFF) != crc:
-                bad += 1
-                p = i + 1
-                nxt = -2
-                continue
-            # The next sync pattern after this one's: beyond the frame, the next scan starts
-            # there; inside it (rare), is this frame a CRC coincidence? (:func:`_displaced`)
-            nxt = find(SYNC, i + 2)
-            if 0 <= nxt < i + 16:
-                verdict = _displaced(buf, i, final)
-                if verdict is None:  # the bytes that decide have not arrived yet
-                    keep = i
-                    break
-                if verdict:
-                    bad += 1
-                    p = i + 1
-                    nxt = -2
-                    continue
-                nxt = -2
-            p = i + 16
-            # Inline copy of _track (the hot path); keep the two in step.
-            if last_seq is None or seq == (last_seq + 1) & 0xFFFF:
-                last_seq = seq
-            else:
-                d = (seq - last_seq) & _U16
-                if d == 0 or d >= _SEQ_BACK:
-                    st.seq_repeats += 1
-                elif d < 0x8000:
-                    st.seq_gaps += 1
-                    st.lost_frames += d - 1
-                    last_seq = seq
-                else:
-                    st.seq_resets += 1
-                    last_seq = seq
-            if last_t is None:
-                last_t = t_us
-            else:
-                d = (t_us - last_t) & 0xFFFFFFFF
-                if 0 < d < 0x80000000:  # forward by less than half the wrap
-                    if t_us < last_t:
-                        st.clock_wraps += 1
-                    last_t = t_us
-                else:
-                    st.clock_back += 1
-                    if (CLOCK_WRAP_US - d) & _U32 > RESET_THRESHOLD_US:
-                        last_t = t_us
-            f = new(Frame)
-            set_seq(f, seq)
-            set_t(f, t_us)
-            set_rate(f, rate)
-            set_ref(f, ref)
-            set_temp(f, None if temp == -32768 else temp)
-            append(f)
-            bb_append(bad)
-        self._last_seq = last_seq
-        self._last_t = last_t
-        self._buf = buf[keep:] if keep < n else b""
-        nf = len(out)
-        st.frames += nf
-        st.bad_frames = bad
-        self.bad_before = bad_before
-        st.garbage_bytes += keep - 16 * nf
+        frames, bads, st.bad_frames, keep = _scan_bin(buf, st.bad_frames, final)
+        self._buf = buf[keep:] if keep < len(buf) else b""
+        st.garbage_bytes += keep - 16 * len(frames)
+        out, self.bad_before = self.tracker.run(frames, bads)
+        st.frames += len(out)
         return out
 
     def _feed_text(self, chunk: bytes) -> list[Frame]:
         buf = self._buf + chunk if self._buf else chunk
         n = len(buf)
-        out: list[Frame] = []
-        bad_before: list[int] = []
+        found: list[Frame] = []
+        bads: list[int] = []
         st = self.stats
         p = 0
         good_bytes = 0
@@ -678,43 +789,12 @@ class Parser:
                 st.bad_frames += 1
                 p = i + 1
                 continue
-            self._track(f.seq, f.t_us)
-            out.append(f)
-            bad_before.append(st.bad_frames)
+            found.append(f)
+            bads.append(st.bad_frames)
             good_bytes += e + 1 - i
             p = e + 1
         self._buf = buf[keep:] if keep < n else b""
-        st.frames += len(out)
         st.garbage_bytes += keep - good_bytes
-        self.bad_before = bad_before
+        out, self.bad_before = self.tracker.run(found, bads)
+        st.frames += len(out)
         return out
-
-
-def sequence_stats(arr: npt.NDArray[np.void], st: ParserStats) -> None:
-    """Add the sequence/clock counters of the frames ``arr`` (a :data:`FRAME_DTYPE` array, in
-    stream order) to ``st`` as the push parser counts them, vectorised in the common case (all
-    steps forward), else through the push parser's own rule."""
-    if arr.shape[0] < 2:
-        return
-    seq = arr["seq"].astype(np.int64)
-    t = arr["t_us"].astype(np.int64)
-    ds = np.diff(seq) & _U16
-    dt = np.diff(t) & _U32
-    seq_fast = bool(np.all((ds >= 1) & (ds < 0x8000)))
-    clock_fast = bool(np.all((dt > 0) & (dt < _HALF_WRAP)))
-    if seq_fast and clock_fast:
-        jumps = ds[ds > 1]
-        st.seq_gaps += int(jumps.size)
-        st.lost_frames += int((jumps - 1).sum())
-        st.clock_wraps += int(np.count_nonzero(t[1:] < t[:-1]))
-        return
-    p = Parser()
-    for s, tu in zip(seq.tolist(), t.tolist()):
-        p._track(s, tu)
-    ps = p.stats
-    st.seq_gaps += ps.seq_gaps
-    st.lost_frames += ps.lost_frames
-    st.seq_repeats += ps.seq_repeats
-    st.seq_resets += ps.seq_resets
-    st.clock_wraps += ps.clock_wraps
-    st.clock_back += ps.clock_back

@@ -4,9 +4,9 @@ gpsd (https://gpsd.io, ``gpsd_json(5)``) speaks newline-delimited JSON objects t
 ``"class"``. A client sends ``?WATCH={"enable":true,"json":true}`` and then receives, per
 GPS cycle, a ``TPV`` report (time, position, velocity: ``mode`` 0/1 = no fix, 2 = 2D,
 3 = 3D; ``track`` = course over ground, compass degrees clockwise from true north;
-``speed`` = ground speed, m/s; ``epd``/``eps`` their 95 % error estimates) and now and then
-``SKY`` (satellites, DOPs), ``ATT`` (attitude: ``heading`` in compass degrees) and the
-session reports ``VERSION``, ``DEVICES``, ``DEVICE``, ``WATCH`` and ``ERROR``. An
+``speed`` = ground speed, m/s; ``epd``/``eps`` their 95 % error estimates), now and then
+``SKY`` and ``ATT`` (which hdrd does not use: read as unknown classes) and the session
+reports ``VERSION``, ``DEVICES``, ``DEVICE``, ``WATCH`` and ``ERROR``. An
 attribute whose value is unknown is left out, never sent as null: so are ours.
 
 Pure core: :func:`parse_line` turns one line into a small frozen dataclass (or ``None`` for
@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 from hdrd.errors import HdrdError, clipped
 from hdrd.io.logs import log
+from hdrd.io.resolve import Resolver, default_resolver
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -42,7 +43,6 @@ __all__ = [
     "DEFAULT_HOST",
     "DEFAULT_PORT",
     "WATCH_COMMAND",
-    "Attitude",
     "Device",
     "Devices",
     "Fix",
@@ -50,8 +50,6 @@ __all__ = [
     "GpsdError",
     "GpsdProtocolError",
     "Report",
-    "Satellite",
-    "Sky",
     "Version",
     "Watch",
     "parse_address",
@@ -67,6 +65,8 @@ MAX_LINE = 65536
 READ_CHUNK = 16384
 """Most bytes read from gpsd per :meth:`GpsdClient.poll`: a poll's work is bounded whatever
 the peer sends (a flooding peer is slowed by TCP flow control, not by the daemon's loop)."""
+RESOLVE_POLL_S = 0.1
+"""While the gpsd host's name is being looked up, how often a connection is tried again, s."""
 LINES_PER_POLL = 32
 """Most lines parsed per :meth:`GpsdClient.poll`; gpsd sends a few lines per second, the
 daemon polls every loop turn (at least 10 times a second), so these bounds never delay a
@@ -146,44 +146,13 @@ class Fix:
 
 
 @dataclass(frozen=True, slots=True)
-class Satellite:
-    prn: int | None = None
-    used: bool = False
-    ss_dbhz: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Sky:
-    """``SKY``: satellites in view and used, and the dilutions of precision."""
-
-    time: float | None = None
-    nsat: int = 0
-    usat: int = 0
-    hdop: float | None = None
-    pdop: float | None = None
-    satellites: tuple[Satellite, ...] = ()
-    device: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Attitude:
-    """``ATT``: attitude; heading in compass deg (true, clockwise from north)."""
-
-    heading: float | None = None
-    time: float | None = None
-    pitch: float | None = None
-    roll: float | None = None
-    device: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
 class GpsdError:
     """``ERROR``: gpsd did not like a request."""
 
     message: str
 
 
-Report = Version | Devices | Device | Watch | Fix | Sky | Attitude | GpsdError
+Report = Version | Devices | Device | Watch | Fix | GpsdError
 
 _TIME_RE = re.compile(r"(\d{4})-(\d\d)-(\d\d)T(\d\d):(\d\d):(\d\d)(\.\d+)?Z?\Z")
 
@@ -298,30 +267,6 @@ def _fix(obj: Mapping[str, Any]) -> Fix:
     )
 
 
-def _sky(obj: Mapping[str, Any]) -> Sky:
-    sats_raw = obj.get("satellites", [])
-    if not isinstance(sats_raw, list):
-        raise GpsdProtocolError("'satellites' is not a list")
-    sats = []
-    for s in sats_raw:
-        if not isinstance(s, dict):
-            raise GpsdProtocolError("a satellite is not an object")
-        sats.append(
-            Satellite(prn=_int(s, "PRN"), used=bool(_bool(s, "used")), ss_dbhz=_num(s, "ss"))
-        )
-    nsat = _int(obj, "nSat")
-    usat = _int(obj, "uSat")
-    return Sky(
-        time=parse_time(obj.get("time")),
-        nsat=len(sats) if nsat is None else nsat,
-        usat=sum(s.used for s in sats) if usat is None else usat,
-        hdop=_num(obj, "hdop"),
-        pdop=_num(obj, "pdop"),
-        satellites=tuple(sats),
-        device=_str(obj, "device"),
-    )
-
-
 def parse_line(line: bytes | str) -> Report | None:
     """One line of gpsd output -> a report; None for a class hdrd does not use.
 
@@ -365,16 +310,6 @@ def parse_line(line: bytes | str) -> Report | None:
 def _report(cls: str, obj: Mapping[str, Any]) -> Report | None:
     if cls == "TPV":
         return _fix(obj)
-    if cls == "SKY":
-        return _sky(obj)
-    if cls == "ATT":
-        return Attitude(
-            heading=_num(obj, "heading"),
-            time=parse_time(obj.get("time")),
-            pitch=_num(obj, "pitch"),
-            roll=_num(obj, "roll"),
-            device=_str(obj, "device"),
-        )
     if cls == "VERSION":
         return _version(obj)
     if cls == "DEVICES":
@@ -474,11 +409,13 @@ class GpsdClient:
     Call :meth:`poll` often (the daemon: every loop turn): it connects when due, sends
     ``?WATCH={"enable":true,"json":true}``, reads what is there (at most :data:`READ_CHUNK`
     bytes and :data:`LINES_PER_POLL` lines per call, so a peer that floods cannot hold up
-    the caller), and returns the fixes (TPV) received since the last call. A refused or lost connection is retried after
-    ``reconnect_min_s``, doubling up to ``reconnect_max_s``. Other reports are kept:
-    ``version``, ``devices``, ``sky``, ``attitude`` (the latest of each); :meth:`poll_reports`
-    returns every report. Host names are resolved when connecting (numeric addresses never
-    wait on DNS).
+    the caller), and returns the fixes (TPV) received since the last call. A refused or lost
+    connection is retried after ``reconnect_min_s``, doubling up to ``reconnect_max_s``. Other
+    reports are kept: ``version`` and ``devices`` (the latest of each); :meth:`poll_reports`
+    returns every report. Host names are resolved by *resolver*
+    (:func:`hdrd.io.resolve.default_resolver`) off the caller's thread: while a lookup runs,
+    :meth:`poll` returns at once, a lookup slow or failed is a failed attempt (backoff), and an
+    address found before is used while the name is looked up again.
     """
 
     def __init__(
@@ -489,8 +426,10 @@ class GpsdClient:
         reconnect_min_s: float = 0.5,
         reconnect_max_s: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
+        resolver: Resolver | None = None,
     ) -> None:
         self.host, self.port = host, port
+        self._resolver = resolver or default_resolver()
         self.reconnect_min_s, self.reconnect_max_s = reconnect_min_s, reconnect_max_s
         self._clock = clock
         self._sock: socket.socket | None = None
@@ -505,8 +444,6 @@ class GpsdClient:
         self.stats = ClientStats()
         self.version: Version | None = None
         self.devices: Devices | None = None
-        self.sky: Sky | None = None
-        self.attitude: Attitude | None = None
 
     def __repr__(self) -> str:
         return f"GpsdClient({self.host!r}, {self.port})"
@@ -540,17 +477,14 @@ class GpsdClient:
         self._last_failure = reason
 
     def _start_connect(self) -> None:
-        try:
-            try:
-                infos = socket.getaddrinfo(
-                    self.host, self.port, type=socket.SOCK_STREAM, flags=socket.AI_NUMERICHOST
-                )
-            except socket.gaierror:
-                infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
-        except (OSError, UnicodeError) as e:
-            self._fail(f"cannot resolve {self.host}: {e}")
+        found = self._resolver.lookup(self.host, self.port, socket.SOCK_STREAM, refresh=True)
+        if not found.infos:
+            if found.pending and found.error is None:  # being looked up: look again soon
+                self._next_try = self._clock() + RESOLVE_POLL_S
+            else:
+                self._fail(found.error or f"cannot resolve {self.host}")
             return
-        family, stype, proto, _, addr = infos[0]
+        family, stype, proto, _, addr = found.infos[0]
         try:
             s = socket.socket(family, stype | socket.SOCK_CLOEXEC, proto)
         except OSError as e:
@@ -688,17 +622,13 @@ class GpsdClient:
         return True
 
     def _keep(self, rep: Report) -> None:
-        """Count a fix; keep the latest version, devices, sky and attitude; note an error."""
+        """Count a fix; keep the latest version and devices; note an error."""
         if isinstance(rep, Fix):
             self.stats.fixes += 1
         elif isinstance(rep, Version):
             self.version = rep
         elif isinstance(rep, Devices):
             self.devices = rep
-        elif isinstance(rep, Sky):
-            self.sky = rep
-        elif isinstance(rep, Attitude):
-            self.attitude = rep
         elif isinstance(rep, GpsdError):
             self.stats.note(f"gpsd error: {rep.message}")
 

@@ -17,13 +17,18 @@ __all__ = [
     "ADDED_KEYS",
     "BIAS_SOURCES",
     "BIN_FRAME_LEN",
+    "BREAK_CONFIRM_FRAMES",
+    "BREAK_REBASE_FRAMES",
     "CLOCK_WRAP_US",
     "MESSAGE_CLASS",
     "NMEA_TALKER",
     "PROTOCOLS",
+    "REBASE_RATIO",
     "RATE_VALID_STATUSES",
     "RESET_THRESHOLD_US",
     "SCHEMA_VERSION",
+    "SEQ_CLOCK_RATIO",
+    "SEQ_GAP_WINDOW",
     "SEQ_REORDER_WINDOW",
     "STATUSES",
     "STEP_KEYS",
@@ -56,6 +61,23 @@ CLOCK_WRAP_US = 1 << 32
 (71.6 min)."""
 RESET_THRESHOLD_US = 1_000_000
 """A device clock that goes back by more than this (1 s) was reset, not merely reordered."""
+SEQ_GAP_WINDOW = 64
+"""A sequence number at most this far ahead of the last one kept, its clock agreeing, is a gap
+(the frames between lost); further ahead, a break in the sequence, believed only once the
+frames after it continue it (a random frame that passed the CRC is not a gap)."""
+SEQ_CLOCK_RATIO = 2
+"""A frame's device time per sequence step may differ from the interval before it by at most
+this factor (docs/protocol.md, "Sequence and clock"); beyond, its clock disagrees with its
+sequence number."""
+BREAK_CONFIRM_FRAMES = 3
+"""After a break in the sequence or the clock (a device restart, a jump), the frames are believed
+once this many in a row continue one another at the sample interval agreed on before it."""
+BREAK_REBASE_FRAMES = 16
+"""... or once this many in a row continue one another at a new interval within a factor
+:data:`REBASE_RATIO` of it (the interval agreed on was off); a clock 100x slow or fast is never
+taken."""
+REBASE_RATIO = 4
+"""How far from the interval agreed on a new one may be, to be taken after BREAK_REBASE_FRAMES."""
 
 # -- published messages ("Published messages") -------------------------------------------------
 

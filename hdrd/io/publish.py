@@ -18,7 +18,7 @@ Two layers, as in pyubx2 (pure codec) and python-can (listeners):
 No publisher blocks the caller, so none can hold up another. A UDP destination that is
 down, refuses (ICMP port unreachable), is unreachable or whose name does not resolve never
 blocks and never raises: the failure is counted per destination (:meth:`UdpPublisher.stats`)
-for the daemon to log. Standard output is written by a thread of its own: a reader that
+for the daemon to log; names are looked up off the caller's thread (:mod:`hdrd.io.resolve`). Standard output is written by a thread of its own: a reader that
 stalls costs dropped (counted) lines, never a late step elsewhere; when its reader goes away
 (``hdrd run --stdout | head``) :class:`StdoutPublisher` raises :class:`OutputClosed` so that
 the daemon ends cleanly with exit status 0.
@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 from hdrd.errors import HdrdError
 from hdrd.io.display import for_display
 from hdrd.io.protocol import NMEA_TALKER, RATE_VALID_STATUSES
+from hdrd.io.resolve import Resolver, default_resolver
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -333,9 +334,8 @@ class _Destination:
     stats: DestinationStats
     family: int | None = None
     sockaddr: tuple[Any, ...] | None = None
-    retry_at: float = 0.0
-    retry_wait: float = 0.0
-    resolving: bool = False
+    watch: bool = True  # asking the resolver each message: no address yet, or a refresh running
+    failures_seen: int = 0  # the resolver's failures of this name already counted here
 
 
 Formatter = Callable[[Mapping[str, Any]], "bytes | Sequence[bytes]"]
@@ -345,13 +345,15 @@ class UdpPublisher:
     """Sends each message, formatted by *formatter* (bytes = one datagram, or a sequence of
     datagrams), to every destination ``(host, port)``.
 
-    One non-blocking UDP socket per address family, unconnected. Host names are resolved
-    once, here; a name resolving to both IPv4 and IPv6 is sent to its IPv4 address (where
-    ``hdrd tail`` listens by default), write ``[::1]:PORT`` for IPv6. A name that does not
-    resolve is counted and tried again in a background thread after *resolve_retry_s*
-    (doubling up to 10 minutes), so a slow DNS never delays a step. Send errors are counted
-    per destination and swallowed: :meth:`on_message` never blocks and never raises an
-    OSError.
+    One non-blocking UDP socket per address family, unconnected. Host names are resolved by
+    *resolver* (:func:`hdrd.io.resolve.default_resolver`), off the caller's thread: a name
+    whose address is not known yet drops its datagrams (counted) until it is, one known from
+    before (a SIGHUP rebuilt the publishers) is used while it is looked up again; so a slow or
+    dead DNS never delays a step. A name resolving to both IPv4 and IPv6 is sent to its IPv4
+    address (where ``hdrd tail`` listens by default), write ``[::1]:PORT`` for IPv6. A failed
+    or slow lookup is counted per destination (``resolve``, ``resolve_slow``). Send errors
+    are counted per destination and swallowed: :meth:`on_message` never blocks and never
+    raises an OSError.
     """
 
     def __init__(
@@ -359,51 +361,29 @@ class UdpPublisher:
         destinations: Iterable[tuple[str, int]],
         formatter: Formatter,
         *,
-        resolve_retry_s: float = 30.0,
+        resolver: Resolver | None = None,
     ) -> None:
         self._formatter = formatter
-        self._resolve_retry_s = resolve_retry_s
-        self._lock = threading.Lock()
+        self._resolver = resolver or default_resolver()
         self._socks: dict[int, socket.socket | None] = {}
         self._dests = [_Destination(DestinationStats(h, int(p))) for h, p in destinations]
         self._stopped = False
         for d in self._dests:
-            self._resolve(d)
+            self._resolve(d, refresh=True)
 
     # -- name resolution --
-    def _resolve(self, d: _Destination) -> None:
-        """Blocking getaddrinfo; on the constructor's thread or a background one."""
-        try:
-            infos = socket.getaddrinfo(
-                d.stats.host, d.stats.port, type=socket.SOCK_DGRAM, proto=socket.IPPROTO_UDP
-            )
-            infos = [i for i in infos if i[0] in (socket.AF_INET, socket.AF_INET6)]
-            if not infos:
-                raise socket.gaierror(f"no IPv4 or IPv6 address for {d.stats.host}")
-            best = next((i for i in infos if i[0] == socket.AF_INET), infos[0])
-        except (OSError, UnicodeError) as e:  # gaierror is an OSError
-            with self._lock:
-                d.stats.count("resolve", f"resolve {d.stats.host}: {e}")
-                d.retry_wait = min(max(2 * d.retry_wait, self._resolve_retry_s), 600.0)
-                d.retry_at = time.monotonic() + d.retry_wait
-                d.resolving = False
-            return
-        with self._lock:
+    def _resolve(self, d: _Destination, refresh: bool = False) -> None:
+        """The destination's address as the resolver knows it now (never waits); its new
+        failures counted."""
+        found = self._resolver.lookup(d.stats.host, d.stats.port, socket.SOCK_DGRAM, refresh)
+        if found.failures > d.failures_seen:
+            d.failures_seen = found.failures
+            d.stats.count("resolve_slow" if found.slow else "resolve", found.error or "")
+        if found.infos:
+            best = next((i for i in found.infos if i[0] == socket.AF_INET), found.infos[0])
             d.family, d.sockaddr = best[0], best[4]
             d.stats.address = str(best[4][0])
-            d.resolving = False
-
-    def _retry_resolution(self) -> None:
-        now = time.monotonic()
-        for d in self._dests:
-            with self._lock:
-                due = d.sockaddr is None and not d.resolving and now >= d.retry_at
-                if due:
-                    d.resolving = True
-            if due:
-                threading.Thread(
-                    target=self._resolve, args=(d,), name="hdrd-resolve", daemon=True
-                ).start()
+        d.watch = found.pending or not found.infos
 
     # -- sockets --
     def _socket(self, family: int) -> socket.socket | None:
@@ -479,12 +459,11 @@ class UdpPublisher:
             return
         out = self._formatter(msg)
         datagrams = [out] if isinstance(out, (bytes, bytearray)) else list(out)
-        self._retry_resolution()
         self._drain_all()
         for d in self._dests:
-            with self._lock:
-                ready = d.sockaddr is not None
-            if not ready:
+            if d.watch:
+                self._resolve(d)
+            if d.sockaddr is None:
                 d.stats.dropped += len(datagrams)
                 continue
             for dg in datagrams:
@@ -505,8 +484,10 @@ class UdpPublisher:
         """A snapshot of every destination's counters (ICMP reports read first)."""
         if not self._stopped:
             self._drain_all()
-        with self._lock:
-            return [replace(d.stats, by_error=dict(d.stats.by_error)) for d in self._dests]
+            for d in self._dests:
+                if d.watch:
+                    self._resolve(d)
+        return [replace(d.stats, by_error=dict(d.stats.by_error)) for d in self._dests]
 
     def __enter__(self) -> Self:
         return self

@@ -4,7 +4,7 @@
 and ``hdrd calibrate``) and ``hdrd record`` (raw bytes to a capture). It reports a lost
 device once (:class:`DeviceLost`), reopens it with backoff inside its ``read`` calls, and
 reports it back (:class:`DeviceBack`); nothing it does blocks longer than the timeout a
-caller gives, ``socket://`` connections included. The port is opened exclusively, so a
+caller gives, ``socket://`` connections and the lookup of their host name included. The port is opened exclusively, so a
 second hdrd on the same device gets a clear "in use" error instead of half the frames.
 Time comes from a :class:`Clock` (real, or a test's :class:`ManualClock`).
 """
@@ -22,6 +22,7 @@ import serial
 from serial.urlhandler import protocol_socket
 
 from hdrd.io.clocks import Clock, RealClock
+from hdrd.io.resolve import Resolver, default_resolver
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -154,6 +155,7 @@ class SerialReader:
         reconnect_min_s: float = 0.5,
         reconnect_max_s: float = 10.0,
         clock: Clock | None = None,
+        resolver: Resolver | None = None,
     ) -> None:
         if not reconnect_min_s > 0 or not reconnect_max_s >= reconnect_min_s:
             raise ValueError(
@@ -164,6 +166,8 @@ class SerialReader:
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
         self.clock: Clock = clock or RealClock()
+        self.resolver = resolver or default_resolver()
+        """Looks up a ``socket://`` host off the caller's thread (:mod:`hdrd.io.resolve`)."""
         self.stats = LinkStats()
         self.port: Any = None
         self._timeout: object = object()  # the timeout the open port is set to (unset)
@@ -173,6 +177,7 @@ class SerialReader:
         self._report: DeviceLost | None = None
         self._fd_poll: tuple[int, select.poll] | None = None
         self._connecting: tuple[socket.socket, float] | None = None  # socket://, in progress
+        self._looking_up = False  # socket://: its host's address is being looked up
         self.last_error: str | None = None
         self.busy = False
         """The last open failed because another program holds the port (its lock)."""
@@ -185,19 +190,25 @@ class SerialReader:
             raise ValueError(f"unusable serial port URL {url!r}: {e}") from None
         except (OSError, serial.SerialException):
             pass  # e.g. a socket:// host that does not resolve yet: treated as a lost device
-        opened = self._open()
-        if not opened and self._connecting is not None:
-            # A connection under way: give it a moment before calling the device lost.
-            deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
-            while not opened and self._connecting is not None:
-                left = deadline - self.clock.monotonic()
-                if left <= 0:
-                    break
-                self._wait_connect(min(left, CONNECT_POLL_S))
-                opened = self._open()
-        if not opened:
+        if not self._first_open():
             self._report = DeviceLost(self.last_error or "cannot open")
             self.stats.lost += 1
+
+    def _first_open(self) -> bool:
+        """Open at construction; a ``socket://`` lookup or connection under way gets
+        START_CONNECT_WAIT_S before the device is called lost."""
+        opened = self._open()
+        deadline = self.clock.monotonic() + START_CONNECT_WAIT_S
+        while not opened and (self._connecting is not None or self._looking_up):
+            left = deadline - self.clock.monotonic()
+            if left <= 0:
+                break
+            if self._connecting is not None:
+                self._wait_connect(min(left, CONNECT_POLL_S))
+            else:
+                self.clock.sleep(min(left, CONNECT_POLL_S / 5))
+            opened = self._open()
+        return opened
 
     @property
     def is_open(self) -> bool:
@@ -245,18 +256,17 @@ class SerialReader:
         later calls see whether it is made, failed, or has taken CONNECT_TIMEOUT_S."""
         now = self.clock.monotonic()
         if self._connecting is None:
+            addr = self._socket_address(now)
+            if addr is None:
+                return False
+            family, kind, proto, _, sockaddr = addr
             try:
-                port = _SocketPort(None)
-                host, tcp_port = port.from_url(self.url)
-                family, kind, proto, _, addr = socket.getaddrinfo(
-                    host, tcp_port, type=socket.SOCK_STREAM
-                )[0]
                 sock = socket.socket(family, kind, proto)
-            except Exception as e:  # noqa: BLE001 - a bad or unresolvable URL: still lost
+            except OSError as e:
                 self._open_failed(e)
                 return False
             sock.setblocking(False)
-            code = sock.connect_ex(addr)
+            code = sock.connect_ex(sockaddr)
             if code not in (0, errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK):
                 sock.close()
                 self._open_failed(f"could not connect to {self.url}: {os.strerror(code)}")
@@ -292,6 +302,25 @@ class SerialReader:
         port.adopt(sock)
         self._adopt(port)
         return True
+
+    def _socket_address(self, now: float) -> Any:
+        """The ``socket://`` host's address as the resolver knows it now (never waits); None,
+        with the next try due, while it is looked up or when it failed."""
+        try:
+            host, tcp_port = _SocketPort(None).from_url(self.url)
+        except Exception as e:  # noqa: BLE001 - a bad URL: still lost
+            self._open_failed(e)
+            return None
+        found = self.resolver.lookup(host, tcp_port, socket.SOCK_STREAM, refresh=True)
+        self._looking_up = not found.infos and found.pending and found.error is None
+        if found.infos:
+            return found.infos[0]
+        if self._looking_up:  # being looked up: look again soon
+            self.last_error = f"connecting to {self.url}: looking up {host}"
+            self._next_try = now + CONNECT_POLL_S
+        else:
+            self._open_failed(found.error or f"cannot resolve {host}")
+        return None
 
     def _wait_connect(self, timeout: float) -> None:
         """Wait up to ``timeout`` s for the connection under way to be made or fail."""

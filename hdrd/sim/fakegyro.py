@@ -42,9 +42,10 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.core.sensor import SensorModel
+from hdrd.io.capture import encode_array
 from hdrd.io.clocks import device_seconds
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE, Frame, array_to_frames, encode_array, encode_text
+from hdrd.io.frames import FRAME_DTYPE, Frame, array_to_frames, encode_text
 from hdrd.io.protocol import PROTOCOLS, SYNC
 from hdrd.sim.profiles import profile_frames
 

@@ -1,13 +1,15 @@
 """Fuzz every input surface of hdrd: no traceback, no hang, bounded memory, clear refusals.
 
-    python -m tools.fuzz [--surface all|stream|serial|gpsd|tail|config|bias|capture
+    python -m tools.fuzz [--surface all|stream|serial|clock|gpsd|tail|config|bias|capture
                           |drivecsv|driveparquet ...]
                          [--inputs N] [--seconds S] [--seed K] [--hang-s S]
                          [--process | --process-only] [--process-inputs N] [--process-seconds S]
                          [--json FILE] [--show SURFACE:I]
 
 Surfaces (what an attacker, a broken cable or a careless edit can hand hdrd): ``serial``
-(the gyro's bytes), ``gpsd`` (lines from whatever answers on the gpsd address), ``tail``
+(the gyro's bytes), ``clock`` (a frame stream whose sequence numbers and device clock break
+now and then, each frame with the host time it arrives), ``gpsd`` (lines from whatever answers
+on the gpsd address), ``tail``
 (UDP datagrams to ``hdrd tail``), ``config`` (the configuration file, at start and on
 SIGHUP), ``bias`` (the bias file), ``capture`` (a file for ``hdrd replay``/``convert``),
 ``drivecsv`` and ``driveparquet`` (drive logs, and the names in them that become paths, for

@@ -17,7 +17,8 @@ across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes o
 
 Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in random chunks
 and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
-``stale_message``, ``finish``); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
+``stale_message``, ``finish``); clock, the same parser and the run loop's frame edge
+(:meth:`hdrd.daemon.run.Daemon.take_frame`) at each frame's arrival time (:class:`ClockTarget`); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
 a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
 :meth:`hdrd.io.datagrams.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
 SIGHUP read), a :class:`hdrd.daemon.run.Daemon` built from the result and a running one
@@ -134,7 +135,8 @@ def _pipeline_variants() -> list[Any]:
 class SerialTarget(Target):
     """The daemon's path for the gyro's bytes: parser fed in random chunks, the live
     pipeline a frame at a time; one parser and pipeline live across inputs (a daemon that
-    never restarts), a new one every ``RESTART_EVERY`` inputs (another configuration)."""
+    never restarts; each input a reconnection, the parser flushed as on a loss), a new one
+    every ``RESTART_EVERY`` inputs (another configuration)."""
 
     surface = "serial"
     RESTART_EVERY = 500
@@ -175,6 +177,11 @@ class SerialTarget(Target):
         rng = self.rng
         frames = 0
         msgs: list[dict[str, Any]] = []
+        # Each input is what a device sends after (re)connecting: the parser ends the last
+        # one's input as the daemon does on a loss (its tracker forgets that device's rate).
+        for f in parser.flush():
+            frames += 1
+            msgs += p.feed(f, parser.stats.bad_frames, self.now)
         pos = 0
         while pos < len(stream):
             n = rng.choice((1, 7, 64, 4096))
@@ -192,6 +199,95 @@ class SerialTarget(Target):
             msgs.append(p.stale_message(self.now, rng.choice((3.0, 1e9)), parser.stats.bad_frames))
         check_messages(msgs)
         return "frames" if frames else "no frames"
+
+
+# -- clock: the sequence and the device clock against the host's --------------------------------
+
+
+class ClockTarget(Target):
+    """A healthy stream broken by its sequence numbers and device clock
+    (:func:`tools.fuzz.inputs.clock_input`), through what the daemon runs: the push parser
+    (frame by frame, and in random chunks: the same as the vectorised decoder) and the run
+    loop's frame edge (:meth:`hdrd.daemon.run.Daemon.take_frame`: the device clock against
+    the host's, then the pipeline), each frame in hand at its arrival time. Promises: a frame
+    labelled "drop" (a repeat; a frozen, slow or fast clock; a random frame) is never
+    integrated, one labelled "integrate" always is; steps only go forward, and never by more
+    than the host's clock allows (no gap_s of hours after a jump of the device clock); every
+    message keeps the usual promises."""
+
+    surface = "clock"
+    SLACK_S = 12.0  # host-clock tolerance, jump re-anchoring and a step each side
+
+    def __init__(self, seed: int) -> None:
+        self.rng = random.Random(f"{seed}:clock-target")
+
+    def run(self, data: bytes) -> str:
+        from hdrd.io.capture import decode_capture, encode_array
+        from hdrd.io.frames import Parser, array_to_frames
+
+        from .inputs import CLOCK_ROW
+
+        rows = np.frombuffer(data, CLOCK_ROW)
+        wire = encode_array(rows["frame"])
+        chunked = Parser()
+        pos, got = 0, []
+        while pos < len(wire):
+            n = self.rng.choice((1, 16, 64, 4096))
+            got += chunked.feed(wire[pos : pos + n])
+            pos += n
+        got += chunked.flush()
+        arr, vst = decode_capture(wire)
+        _check(array_to_frames(arr) == got and vst == chunked.stats, "push parser != decoder")
+        integrated = self._through_the_edge(Parser(), wire, rows)
+        for i, label in enumerate(rows["label"].tolist()):
+            _check(label != 1 or i not in integrated, f"row {i} integrated, labelled drop")
+            _check(label != 0 or i in integrated, f"row {i} dropped, labelled integrate")
+        return "all integrated" if len(integrated) == len(rows) else "some dropped"
+
+    def _through_the_edge(self, parser: Any, wire: bytes, rows: Any) -> set[int]:
+        """Each frame's bytes in turn into ``parser``, what it hands out into the run loop's
+        frame edge at that frame's arrival; the rows integrated. Checks the steps."""
+        from hdrd.config import Config
+        from hdrd.core.calibrate import BiasRecord
+        from hdrd.daemon.run import BiasChoice, Daemon
+
+        d = Daemon(
+            Config(),
+            "fuzz",
+            lambda: (Config(), "fuzz"),
+            BiasChoice(BiasRecord(0.1, 0, 0, 0), "--bias"),
+        )
+        integrated: set[int] = set()
+        last: tuple[int, float] | None = None  # step, host time of its last data
+        last_in = 0.0  # host time of the last frame integrated
+        arrival = rows["arrival"].tolist()
+        for i in range(len(rows) + 1):
+            frames = parser.feed(wire[16 * i : 16 * i + 16]) if i < len(rows) else parser.flush()
+            now = arrival[min(i, len(rows) - 1)]
+            for f in frames:
+                mismatches = d.wallclock.mismatches
+                msgs = d.take_frame(f, now, 0)
+                check_messages(msgs)
+                for m in msgs:  # a step's data ends with the frame integrated before this one
+                    if last is not None:
+                        self._check_step(m, last, last_in)
+                    last = (m["step"], last_in)
+                if d.wallclock.mismatches == mismatches:
+                    integrated.add(f.rate)
+                    last_in = now
+        d.pipeline.finish()
+        return integrated
+
+    def _check_step(self, m: Mapping[str, Any], last: tuple[int, float], host: float) -> None:
+        """Steps go forward, and by no more than the host's clock allows (T = 1 s)."""
+        step, at = last
+        allowed = host - at + self.SLACK_S
+        _check(m["step"] > step, f"step {m['step']} after {step}")
+        _check(
+            m["step"] - step <= allowed and m.get("gap_s", 0.0) <= allowed,
+            f"step {step} -> {m['step']} (gap_s {m.get('gap_s')}) in {host - at:.1f} s of "
+            "host time",
+        )
 
 
 # -- gpsd: client + aiding over a real TCP connection ---------------------------------------------
@@ -357,7 +453,7 @@ def _quiet_logging() -> _Events:
 
 def stress_capture(seed: int) -> bytes:
     """A short hdr-bin capture that drives the pipeline's corners (rails, clock jumps)."""
-    from hdrd.io.frames import encode_array
+    from hdrd.io.capture import encode_array
 
     arr = stress_frames(random.Random(f"{seed}:capture"), 600)
     arr["t_us"] = (np.arange(600) * 10_000 + 2**32 - 2_000_000) % 2**32
@@ -599,6 +695,8 @@ def make_target(surface: str, seed: int, workdir: Path) -> Target:
     _quiet_logging()
     if surface == "serial":
         return SerialTarget(seed)
+    if surface == "clock":
+        return ClockTarget(seed)
     if surface == "gpsd":
         return GpsdTarget(seed)
     if surface == "tail":
