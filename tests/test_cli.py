@@ -150,14 +150,14 @@ def test_help_output_ends_each_such_option_with_its_default() -> None:
 
 
 def _run_overrides() -> dict[str, str]:
-    """Configuration key -> the `hdrd run` option (dest) that overrides it (hdrd.commands.options)."""
-    from hdrd.commands.options import _overrides
+    """Configuration key -> the `hdrd run` option (dest) that overrides it (hdrd.cliconfig)."""
+    from hdrd.cliconfig import config_overrides
 
     sub = _subparsers()["run"]
     dests = {a.dest for a in sub._actions if a.option_strings}
     marked = argparse.Namespace(**{d: f"@{d}" for d in dests if d != "gpsd"}, gpsd=None)
     out = {}
-    for key, value in _overrides(marked).items():
+    for key, value in config_overrides(marked).items():
         text = "".join(value) if isinstance(value, tuple) else value
         if isinstance(text, str) and text.startswith("@"):
             out[key] = text[1:]

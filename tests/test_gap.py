@@ -539,7 +539,7 @@ def test_a_step_that_raises_the_gap_is_not_added(
 
 
 def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
-    from hdrd.commands.gap import gyro_section
+    from hdrd.analysis.gap.report import gyro_section
     from hdrd.config import load_config, method_setup
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise

@@ -641,7 +641,7 @@ def test_bad_gpsd_addresses_say_what_is_wrong(text):
 def test_run_gpsd_option_is_the_address_gpsd_listens_on(arg, host, port, tmp_path):
     import argparse
 
-    from hdrd.commands.options import config_from_args
+    from hdrd.cliconfig import config_from_args
 
     empty = tmp_path / "hdrd.yaml"
     empty.write_text("{}\n")

@@ -186,18 +186,12 @@ def test_simulate_makes_no_missing_folder(
 
 
 def test_simulate_makes_a_drive_just_inside_the_limit_of_its_arguments() -> None:
-    import argparse
+    from hdrd.sim.drive import LEAD_IN_S, MAX_SAMPLES, too_big
 
-    from hdrd.commands.simulate import MAX_SAMPLES, _too_big
-
-    def args(**kw: object) -> argparse.Namespace:
-        base: dict[str, object] = {"benchmark": None, "seed": 0, "minutes": 20.0, "hz": 10.0}
-        return argparse.Namespace(**{**base, **kw})
-
-    longest = (MAX_SAMPLES / 10.0 - 30.0) / 60.0  # minutes at 10 Hz, 30 s lead-in
-    assert _too_big(args(minutes=longest * 0.99999)) is None
-    assert _too_big(args(minutes=longest * 1.001)) is not None
-    assert _too_big(args(benchmark="test", seed=-1, hz=1000.0)) is None
+    longest = (MAX_SAMPLES / 10.0 - LEAD_IN_S) / 60.0  # minutes at 10 Hz, 30 s lead-in
+    assert too_big(longest * 0.99999, 10.0) is None
+    assert "at most 5,000,000" in str(too_big(longest * 1.001, 10.0))
+    assert too_big(float("inf"), 10.0) is None  # a bad number is said where it is checked
 
 
 def _unblock_later(fifo: Path, after_s: float = 3.0) -> Callable[[], None]:

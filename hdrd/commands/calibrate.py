@@ -19,7 +19,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from hdrd.commands.options import config_from_args
+from hdrd.cliconfig import config_from_args
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StartupWindow
 from hdrd.core.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise

@@ -15,7 +15,7 @@ from hdrd.analysis.evaluate import (
     format_table,
     to_json,
 )
-from hdrd.commands.options import (
+from hdrd.cliconfig import (
     check_bias_arg,
     config_from_args,
     outputs_ok,
@@ -78,7 +78,7 @@ def _evaluate(
     """The drives' results, why each drive left out was skipped (both said on stderr, with
     each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
     from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
-    from hdrd.commands.options import where_from_args
+    from hdrd.cliconfig import where_from_args
 
     method = cfg.hdr.method
     # HDR+ is shown beside the paper's HDR it improves on.

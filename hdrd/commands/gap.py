@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from hdrd.analysis.fleet_jobs import GapOutcome
     from hdrd.io.drivefiles import DriveRef
 
-__all__ = ["main", "parse_period", "gyro_section"]
+__all__ = ["main", "parse_period"]
 
 
 def _err(msg: str) -> None:
@@ -36,27 +36,6 @@ def parse_period(text: str) -> tuple[float, float]:
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
         raise ValueError(f"--exclude {text!r}: need finite times with T0 <= T1")
     return t0, t1
-
-
-def gyro_section(model: GyroModel, drive: str) -> str:
-    """A fitted model as HDR+'s error model: the ``gyro:`` section of hdrd.yaml (the keys of
-    docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
-    from hdrd.sim.grades import model_noise
-
-    known = model_noise(model, source="config").to_dict()
-    if "bias_instability_dps" in known:  # its correlation time; the config takes 1 .. 1e6 s
-        known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
-    else:
-        known.pop("bias_tau_s", None)
-    lines = [
-        f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
-        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its gyro: section.',
-        "gyro:",
-    ]
-    lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
-    if not known:
-        lines.append("  grade: none  # the fit named no noise parameter HDR+ uses")
-    return "\n".join(lines) + "\n"
 
 
 def main(args: argparse.Namespace) -> int:
@@ -81,12 +60,12 @@ def main(args: argparse.Namespace) -> int:
     refs = _drives(args, measured)
     if refs is None:
         return 1
-    from hdrd.commands.options import outputs_ok
+    from hdrd.cliconfig import outputs_ok
 
     flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
     if not outputs_ok(args, _err, flags):  # said before the work, not after it
         return 1
-    from hdrd.commands.options import read_limits_from_args
+    from hdrd.cliconfig import read_limits_from_args
 
     job = GapJob(
         start,
@@ -96,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
         bool(args.plot),
         read_limits_from_args(args),
     )
-    from hdrd.commands.options import where_from_args
+    from hdrd.cliconfig import where_from_args
 
     try:
         with open_runner(where_from_args(args, "hdrd gap")) as runner:
@@ -170,9 +149,10 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
         if args.out:
             save_model(res.model, args.out)
         if gyro_out:
+            # the name goes into a YAML comment: one printable line, whatever the file is called
+            from hdrd.analysis.gap.report import gyro_section
             from hdrd.io.files import atomic_write_text, shown_path
 
-            # the name goes into a YAML comment: one printable line, whatever the file is called
             atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
     except OSError as e:
         _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")

@@ -19,7 +19,7 @@ def main(args: argparse.Namespace) -> int:
     one line on stderr (a source that cannot be read or converted, an output that cannot be
     written)."""
     from hdrd.analysis.signcheck import check_sign, sign_warning
-    from hdrd.commands.options import read_limits_from_args
+    from hdrd.cliconfig import read_limits_from_args
     from hdrd.io.drivefiles import log_format, write_log
 
     mapping = Mapping(

@@ -34,7 +34,7 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
-    from hdrd.commands.options import check_bias_arg, config_from_args
+    from hdrd.cliconfig import check_bias_arg, config_from_args
     from hdrd.io.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:

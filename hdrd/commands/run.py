@@ -7,7 +7,7 @@ import argparse
 import os
 import sys
 
-from hdrd.commands.options import check_bias_arg, config_from_args
+from hdrd.cliconfig import check_bias_arg, config_from_args
 from hdrd.config import Config, ConfigError
 from hdrd.daemon.run import Daemon, choose_bias
 from hdrd.daemon.signals import Signals

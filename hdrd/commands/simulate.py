@@ -179,29 +179,14 @@ def _benchmark(
     return 0
 
 
-MAX_SAMPLES = 5_000_000
-"""Most samples one simulated drive may have: a drive takes about 300 bytes of memory per
-sample while it is made (1,000 min at 10 Hz, 600,300 samples: 220 MB peak), so at most
-~1.5 GB; 8,300 minutes at 10 Hz."""
-LEAD_IN_S = 30.0
-"""The standstill before every drive (hdrd.sim.drive.simulate_drive's lead_in_s)."""
-
-
 def _too_big(args: argparse.Namespace) -> str | None:
-    """Why the drive(s) asked for cannot be made (a seed below 0, more than MAX_SAMPLES
-    samples), or None. Before: --minutes 1e308 or --hz 1e308 was an OverflowError, and
-    --minutes 1e6 filled the memory."""
+    """Why the drive(s) asked for cannot be made (a seed below 0, too many samples:
+    :func:`hdrd.sim.drive.too_big`), or None."""
+    from hdrd.sim.drive import too_big
+
     if not args.benchmark and args.seed < 0:
         return f"--seed must be >= 0, got {args.seed}"
     specs = TRAIN_DRIVES if args.benchmark == "train" else TEST_DRIVES
     minutes = max(s.minutes for s in specs) if args.benchmark else args.minutes
-    if not (math.isfinite(minutes) and minutes > 0):
-        return None  # said below, as before
-    samples = (minutes * 60.0 + LEAD_IN_S) * args.hz
-    if samples <= MAX_SAMPLES:
-        return None
     what = "the longest benchmark drive" if args.benchmark else "a drive"
-    return (
-        f"{what} of {minutes:g} min at {args.hz:g} Hz is {samples:.3g} samples; at most "
-        f"{MAX_SAMPLES:,} are simulated (about 300 bytes each in memory)"
-    )
+    return too_big(minutes, args.hz, what)

@@ -29,7 +29,7 @@ from hdrd.analysis.tune import (
     to_json,
     tune,
 )
-from hdrd.commands.options import outputs_ok, read_limits_from_args, where_from_args
+from hdrd.cliconfig import outputs_ok, read_limits_from_args, where_from_args
 from hdrd.io.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]

@@ -20,7 +20,7 @@ from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.gyro import GyroModel, crs03_default_model
 from hdrd.sim.vehicle import DRIVE_TYPES, PROFILES, CabinTemperature, RoadProfile, generate_motion
 
-__all__ = ["simulate_drive", "simulate_legs"]
+__all__ = ["MAX_SAMPLES", "simulate_drive", "simulate_legs", "too_big"]
 
 DEFAULT_GPS = GpsModel()
 """1 Hz course, unusable below 2 m/s, no outages."""
@@ -183,4 +183,26 @@ def simulate_drive(
         name=drive,
         meta={"drive": drive},
         sensor_hz=sensor_hz,
+    )
+
+
+MAX_SAMPLES = 5_000_000
+"""Most samples one simulated drive may have: a drive takes about 300 bytes of memory per
+sample while it is made (1,000 min at 10 Hz, 600,300 samples: 220 MB peak), so at most
+~1.5 GB; 8,300 minutes at 10 Hz."""
+LEAD_IN_S = 30.0
+"""The standstill before every drive (:func:`simulate_drive`'s lead_in_s)."""
+
+
+def too_big(minutes: float, hz: float, what: str = "a drive") -> str | None:
+    """Why a drive of ``minutes`` at ``hz`` cannot be made (more than :data:`MAX_SAMPLES`
+    samples with its lead-in), or None (a bad number is said where it is checked)."""
+    if not (math.isfinite(minutes) and minutes > 0):
+        return None
+    samples = (minutes * 60.0 + LEAD_IN_S) * hz
+    if samples <= MAX_SAMPLES:
+        return None
+    return (
+        f"{what} of {minutes:g} min at {hz:g} Hz is {samples:.3g} samples; at most "
+        f"{MAX_SAMPLES:,} are simulated (about 300 bytes each in memory)"
     )

@@ -470,7 +470,7 @@ class ConfigTarget(Target):
     surface = "config"
 
     def __init__(self, seed: int, workdir: Path) -> None:
-        from hdrd.commands.options import config_from_args
+        from hdrd.cliconfig import config_from_args
         from hdrd.daemon.run import BiasChoice, Daemon, build_publishers
 
         self.events = _quiet_logging()  # its events: did a reload fail?
@@ -488,7 +488,7 @@ class ConfigTarget(Target):
         self.count = 0
 
     def run(self, data: bytes) -> str:
-        from hdrd.commands.options import config_from_args
+        from hdrd.cliconfig import config_from_args
         from hdrd.config import ConfigError
         from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import Daemon

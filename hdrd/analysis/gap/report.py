@@ -8,8 +8,9 @@ from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.metric import GAP_METRIC
 from hdrd.analysis.gap.search import Ambiguity, GapResult, Step, sig4
+from hdrd.sim.gyro import GyroModel
 
-__all__ = ["summary", "to_report"]
+__all__ = ["gyro_section", "summary", "to_report"]
 
 
 def to_report(res: GapResult) -> dict[str, Any]:
@@ -168,3 +169,24 @@ def summary(res: GapResult) -> str:
     )
     lines.extend(_bound_line(b) for b in res.final_at_bound)
     return "\n".join(lines)
+
+
+def gyro_section(model: GyroModel, drive: str) -> str:
+    """A fitted model as HDR+'s error model: the ``gyro:`` section of hdrd.yaml (the keys of
+    docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
+    from hdrd.sim.grades import model_noise
+
+    known = model_noise(model, source="config").to_dict()
+    if "bias_instability_dps" in known:  # its correlation time; the config takes 1 .. 1e6 s
+        known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
+    else:
+        known.pop("bias_tau_s", None)
+    lines = [
+        f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
+        '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its gyro: section.',
+        "gyro:",
+    ]
+    lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
+    if not known:
+        lines.append("  grade: none  # the fit named no noise parameter HDR+ uses")
+    return "\n".join(lines) + "\n"

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = [
     "check_bias_arg",
     "config_from_args",
+    "config_overrides",
     "output_problem",
     "outputs_ok",
     "read_limits_from_args",
@@ -32,7 +33,7 @@ __all__ = [
 ]
 
 
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+def config_overrides(args: argparse.Namespace) -> dict[str, Any]:
     g = lambda name: getattr(args, name, None)  # noqa: E731
     o: dict[str, Any] = {
         "device.port": g("port"),
@@ -71,7 +72,7 @@ def config_from_args(args: argparse.Namespace) -> tuple[Config, str]:
     """Load --config (or the default) and apply the command-line overrides; ConfigError."""
     cfg, where = load_config(getattr(args, "config", None))
     try:
-        cfg = apply_overrides(cfg, _overrides(args))
+        cfg = apply_overrides(cfg, config_overrides(args))
     except ConfigError as e:
         raise e.with_source("command line") from None
     return cfg, where
