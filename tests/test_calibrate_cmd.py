@@ -169,6 +169,7 @@ def test_a_write_that_fails_says_where_in_one_line(tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.slow
 def test_bad_seconds_is_a_config_error() -> None:
     for value in ("nan", "0", "-3", "1e308"):
         p = calibrate("--simulate", "--seconds", value, timeout=60)

@@ -119,6 +119,7 @@ def test_a_dataset_partition_stays_inside_its_folder(tmp_path: Path) -> None:
     }  # fmt: skip
 
 
+@pytest.mark.slow
 def test_simulate_and_convert_write_a_dataset_inside_out(tmp_path: Path) -> None:
     """``--format dataset`` names the partition from the drive (simulate) or the capture's
     stem (convert; ``...cap``'s stem is ``..``): a folder directly inside OUT either way."""

@@ -70,6 +70,7 @@ def hdrd(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
 # -- in this process: the runner's contract, no Dask -------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_default_path_does_not_import_dask(fleet: Path) -> None:
     two = [str(fleet / "city.csv"), str(fleet / "rural.csv")]
     code = (

@@ -193,6 +193,7 @@ def test_output_files_are_checked_before_the_work(fleet: Path, tmp_path: Path) -
     assert p.stderr.startswith("hdrd gap: --report ") and "at most 231" in p.stderr
 
 
+@pytest.mark.slow
 def test_a_drive_named_like_tex_is_plotted_as_text(fleet: Path, tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
     src = sorted(fleet.glob("*.csv"))[0]
@@ -230,6 +231,7 @@ def test_gap_models_whose_names_are_each_others_folders(tmp_path: Path, first: s
     assert "fleet: 2 drives analysed, 1 skipped" in p.stdout
 
 
+@pytest.mark.slow
 def test_a_config_file_given_as_a_drive_is_refused(fleet: Path, tmp_path: Path) -> None:
     cfg = tmp_path / "tuned.yaml"
     cfg.write_text("hdr:\n  method: hdr\n")
@@ -274,6 +276,7 @@ def _lower_privileges() -> list[str]:
     return [setpriv, "--inh-caps=-all", "--bounding-set=-dac_override,-dac_read_search"]
 
 
+@pytest.mark.slow
 def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> None:
     src = sorted(fleet.glob("*.csv"))
     scan = tmp_path / "scan"
@@ -312,6 +315,7 @@ def test_what_a_fleet_scan_cannot_read_is_said(fleet: Path, tmp_path: Path) -> N
     ]
 
 
+@pytest.mark.slow
 def test_evaluate_refuses_a_bias_run_and_replay_refuse(fleet: Path) -> None:
     drive = str(sorted(fleet.glob("*.csv"))[0])
     for value in ("5", "nan", "-inf"):

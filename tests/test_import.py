@@ -75,6 +75,7 @@ def _scores(cwd: Path, f: str) -> dict[str, float]:
     return json.loads((cwd / (f + ".json")).read_text())["drives"][0]
 
 
+@pytest.mark.slow
 def test_their_csv_imported_scores_as_the_drive_it_came_from(
     drive: DriveLog, tmp_path: Path
 ) -> None:
@@ -125,6 +126,7 @@ def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path)
     assert np.all((got.heading_truth[ok] >= 0) & (got.heading_truth[ok] < 360))
 
 
+@pytest.mark.slow
 def test_a_wrong_sign_or_unit_is_warned_with_the_option_that_fixes_it(
     drive: DriveLog, tmp_path: Path
 ) -> None:

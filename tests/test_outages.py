@@ -149,6 +149,7 @@ def test_a_drive_without_an_outage_says_so() -> None:
         run_outages(prepare_drive(log), log, OutageSpec(120.0, 600.0))
 
 
+@pytest.mark.slow
 def test_evaluate_outages_as_a_user_runs_it(tmp_path: Path) -> None:
     path = tmp_path / "d.csv"
     write_drive(path, drive())

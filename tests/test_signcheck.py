@@ -61,6 +61,7 @@ def test_a_drive_without_turns_is_not_judged() -> None:
     assert check_sign(t[:1], np.zeros(1), np.zeros(1)).turns == 0
 
 
+@pytest.mark.slow
 def test_evaluate_warns_of_a_flipped_rate_and_strict_refuses_it(
     city: DriveLog, tmp_path: Path
 ) -> None:
