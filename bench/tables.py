@@ -17,7 +17,8 @@ them one by one):
 Then it times :func:`hdrd.analysis.tune.tune` in-process on the nine drives with 10,000
 parameter sets (target: <= 30 s), computes the continuous-heading Eψ the paper's
 Table II must have used, and rewrites its own section of bench/RESULTS.md
-("## Table II analogue (simulated) and real recordings"), leaving every other section as it is.
+("## Table II analogue (simulated) and real recordings", in Accuracy: simulated drives),
+leaving every other section as it is.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import fmt, machine_line, replace_section, run_recorded
+from _common import fmt, machine_line, put_section, run_recorded
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -214,7 +215,7 @@ def main() -> int:
     )
     print(section)
     if not a.no_write:
-        replace_section(SECTION, section)
+        put_section("sim", section)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SECTION})")
     return 0
 
