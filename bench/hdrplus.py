@@ -1002,7 +1002,7 @@ equations: docs/hdrplus.md.
   on a real car the spread may separate them, which this simulator cannot show.
 - **Not kept:** the speed gate (I frozen below 3 m/s: neutral, 0.164 -> 0.165) and the
   hold-off after turns (worse, 0.177), both retired from this script with their rows (last
-  recorded 2026-12-01, "Retired studies" in bench/RESULTS.md); the adaptive increment (max(i_c, sd of the bias model): worse,
+  recorded 2026-12-01, "Retired results" in bench/RESULTS.md); the adaptive increment (max(i_c, sd of the bias model): worse,
   0.238 — larger steps undo what the small increment gains).
 - **Withheld inputs.** With neither speed nor temperature HDR+ still scores 0.164 / 0.208 on
   the route sets (HDR 0.253 / 0.298): it needs neither. Withholding the speed only switches
