@@ -1,8 +1,8 @@
 """Shared helpers of the benchmarks: the machine's description, timing helpers, the 1-hour
 test capture, the scoring that more than one script needs (NEψ of a yaw, means per drive type
 and the share of drives worse than a reference over a set, the bias oracle of a simulated
-drive), and report writing (a command run and recorded, a figure formatted, a dated
-"## Performance: ..." section appended to bench/RESULTS.md or a script's own section replaced).
+drive), and report writing (a command run and recorded, a figure formatted, a script's own
+section of bench/RESULTS.md replaced in place or added at the end of its part).
 
 Benchmarks measure; tests never assert timings. Every figure is reported with the machine it
 was taken on, including the load average at the time: this 2-core machine is shared with other
@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     import numpy as np
@@ -257,9 +257,7 @@ def capture_bench_setup(doc: str, argv: list[str] | None) -> tuple[Any, Path, di
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--workdir", default="/tmp/hdrd-bench", help="where the capture is kept")
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write RESULTS.md")
     a = ap.parse_args(argv)
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
@@ -287,39 +285,66 @@ def ratio(value: float, target: float, higher_is_better: bool) -> str:
     return f"{r:.2f}x"
 
 
-def append_section(title: str, body: str, write: bool = True) -> str:
-    """Append ``## Performance: <title> (<date>)`` with ``body`` to bench/RESULTS.md (never
-    touching the sections before it); returns the section's text. ``write=False`` only
-    returns it."""
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    text = f"\n## Performance: {title} ({stamp})\n\n{body.rstrip()}\n"
-    if write:
-        # Append mode: other benchmarks rewrite only their own sections, so an append never
-        # overwrites theirs (and theirs never drop ours: they keep every other section).
-        with open(RESULTS, "a", encoding="utf-8") as f:
-            f.write(text)
-    return text
+Topic = Literal["speed", "real", "sim", "gap", "reliability"]
+TOPICS: dict[str, str] = {
+    "speed": "# Speed",
+    "real": "# Accuracy: real drives",
+    "sim": "# Accuracy: simulated drives",
+    "gap": "# Model gap",
+    "reliability": "# Reliability",
+}
+"""The parts of bench/RESULTS.md, in order; each script names the part its sections live in."""
 
 
-def replace_section(heading: str, section: str) -> None:
-    """Replace the section that starts with the line ``heading`` in RESULTS.md (up to the next
-    ``## `` heading) by ``section``, or append it; the other sections are left alone. For the
-    scripts that keep one section up to date (bench/tables.py, bench/hdrplus.py)."""
-    text = (
-        RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# hdrd benchmark results\n\n"
-    )
+def _headings(lines: list[str]) -> list[tuple[int, int]]:
+    """(line index, level) of each ``# `` and ``## `` heading outside fenced code."""
+    found, fenced = [], False
+    for i, line in enumerate(lines):
+        if line.startswith("```"):
+            fenced = not fenced
+        elif not fenced and line.startswith(("# ", "## ")):
+            found.append((i, 1 if line.startswith("# ") else 2))
+    return found
+
+
+def placed(text: str, topic: Topic, section: str) -> str:
+    """``text`` (RESULTS.md's) with ``section``, whose first line is its ``## `` heading, in place
+    of the section with that heading wherever it is, else at the end of the part ``topic``
+    (the part added at the end if missing). A section runs to the next ``#`` or ``##`` heading."""
     lines = text.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
-    if start is None:
-        if not text.endswith("\n\n"):
-            text = text.rstrip("\n") + "\n\n"
-        RESULTS.write_text(text + section, encoding="utf-8")
-        return
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-    tail = "".join(lines[end:])
-    RESULTS.write_text(
-        "".join(lines[:start]) + section + ("\n" + tail if tail else ""), encoding="utf-8"
-    )
+    marks = _headings(lines)
+    heading = section.splitlines()[0].rstrip()
+    start = next((i for i, lvl in marks if lvl == 2 and lines[i].rstrip() == heading), None)
+    if start is not None:
+        end = next((i for i, _ in marks if i > start), len(lines))
+    else:
+        part = next(
+            (i for i, lvl in marks if lvl == 1 and lines[i].rstrip() == TOPICS[topic]), None
+        )
+        if part is None:
+            return f"{text.rstrip()}\n\n{TOPICS[topic]}\n\n{section.rstrip()}\n"
+        start = end = next((i for i, lvl in marks if lvl == 1 and i > part), len(lines))
+    before = "".join(lines[:start]).rstrip()
+    after = "".join(lines[end:]).lstrip("\n")
+    return f"{before}\n\n{section.rstrip()}\n" + (f"\n{after}" if after else "")
+
+
+def put_section(topic: Topic, section: str, write: bool = True) -> str:
+    """Write ``section`` (``## heading`` first) into bench/RESULTS.md where :func:`placed` puts
+    it, leaving every other section as it is; returns the section. ``write=False`` only returns
+    it."""
+    if write:
+        text = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else ""
+        RESULTS.write_text(placed(text or "# hdrd benchmark results\n", topic, section), "utf-8")
+    return section
+
+
+def write_section(topic: Topic, title: str, body: str, write: bool = True) -> str:
+    """:func:`put_section` of ``## <title>`` (a heading that stays the same from run to run, so
+    that a run replaces the last one) with ``body`` headed by the date; the body gives the
+    command and :func:`machine_line` (with the commit)."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return put_section(topic, f"## {title}\n\n({stamp}) {body.strip()}\n", write)
 
 
 # --------------------------------------------------------------------------- report writing

@@ -22,7 +22,8 @@ Each variant is HDR+ as ``hdrd evaluate --method hdr+`` runs it, with one of its
 (:func:`_common.plus_with`) changed in the context's base settings
 (``MethodSetup.plus``; what :func:`hdrd.core.methods.plus_settings` then fits to each drive).
 Printed: mean NEψ (deg/min) per set and how many drives are harmed (NEψ above 1.1 x bias
-removal's and Eψ 0.5 deg above it). Rewrites its own section of bench/RESULTS.md.
+removal's and Eψ 0.5 deg above it). Rewrites its own section of bench/RESULTS.md (Accuracy:
+simulated drives).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ sys.path.insert(0, str(REPO / "bench"))
 
 import grades as G  # noqa: E402
 import real as R  # noqa: E402
-from _common import machine_line, plus_with, replace_section  # noqa: E402
+from _common import machine_line, plus_with, put_section  # noqa: E402
 
 from hdrd.analysis.evaluate import DEFAULTS, method_yaw  # noqa: E402
 from hdrd.analysis.metrics import e_psi  # noqa: E402
@@ -209,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(text)
     if not a.no_write:
-        replace_section(SECTION, text)
+        put_section("sim", text)
     return 0
 
 

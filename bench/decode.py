@@ -15,7 +15,7 @@ simulated drive at 100 Hz (``bench/_common.py``: 363,000 frames, 1 % of the byte
 Both give the same frames and counters (checked here too). Figures: best of ``--repeats`` runs,
 wall clock and CPU time (``time.process_time``), against the targets (push >= 500,000
 frames/s, vectorised >= 5,000,000) and the wire's limit (a 3 Mbaud link carries at most 18,750
-hdr-bin frames/s). Prints them and appends them to bench/RESULTS.md.
+hdr-bin frames/s). Prints them and writes its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import (
     WIRE_FRAMES_PER_S,
-    append_section,
     capture_bench_setup,
     capture_line,
     machine_line,
     ratio,
     time_in_process,
+    write_section,
 )
 
 from hdrd.io.capture import decode_capture
@@ -108,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         ),
     ]
     text = "\n".join(lines)
-    append_section("decode", text, write=not a.no_write)
+    title = "Decoding: the push parser and the vectorised decoder"
+    write_section("speed", title, text, write=not a.no_write)
     print(text)
     return 0 if same else 1
 

@@ -18,8 +18,8 @@ model, 30 s standstill + 9.5 min, its own 5 V supply wandering inside 4.75 .. 5.
   board's 5 V, which is the ADC's reference, REF=0).
 
 Nothing is tuned here: the converter noise (0.5 LSB rms) is the harness's default, an
-assumption about the real chip, not fitted to any data. Prints the figures and appends them to
-bench/RESULTS.md.
+assumption about the real chip, not fitted to any data. Prints the figures and
+writes its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import REPO, append_section, machine_line, time_process
+from _common import REPO, machine_line, time_process, write_section
 
 from tests import test_firmware as tf  # the test's own checks, so bench and test agree
 
@@ -97,9 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "--minutes", type=float, default=tf.DRIVE_MINUTES, help="after the 30 s lead-in"
     )
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/hdrd-bench-fw"))
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write RESULTS.md")
     a = ap.parse_args(argv)
     if tf._MISSING:
         raise SystemExit(f"bench/firmware.py: {tf._MISSING}")
@@ -202,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
     ]
     text = "\n".join(lines) + "\n"
     print(text)
-    append_section("the USB ADC in simavr", text, write=not a.no_write)
+    title = "The USB ADC in simavr: speed, and what the board sends"
+    write_section("speed", title, text, write=not a.no_write)
     return 0
 
 

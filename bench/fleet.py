@@ -28,7 +28,7 @@ This machine has 2 cores shared with other sessions, and Linux shares the CPU be
 (autogroups), not processes: while another session is busy, two workers share one session's
 half and the cluster cannot be faster. The best of several runs is the figure closest to an
 idle machine; the load averages say how busy it was. Below a 1-minute load average of 0.3 at
-the start the section replaces bench/RESULTS.md's, above it only with ``--force``.
+the start it replaces its section of bench/RESULTS.md (Speed), above it only with ``--force``.
 """
 
 from __future__ import annotations
@@ -47,14 +47,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import REPO, hdrd_command, machine, machine_line, replace_section
+from _common import REPO, hdrd_command, machine, machine_line, write_section
 
 TARGET_SPEEDUP = 1.8
 TARGET_OVERHEAD = 0.05
 MAX_LOAD = 0.3
 KINDS = ("city", "suburbs", "rural", "highway", "mixed")
 DATA = Path("/tmp/hdrd-bench")
-HEADING = "## Performance: fleet (Dask)"
+TITLE = "Fleet (Dask): one process against local workers"
 
 
 def make_fleet(n: int, minutes: float) -> Path:
@@ -137,8 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     if load1 >= MAX_LOAD and not a.force:
         print(f"not written to RESULTS.md: load average {load1:.2f} >= {MAX_LOAD} (--force)")
         return 0
-    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    replace_section(HEADING, f"{HEADING}\n\n({stamp}) {body.rstrip()}\n")
+    write_section("speed", TITLE, body)
     return 0
 
 

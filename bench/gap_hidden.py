@@ -6,7 +6,7 @@ gap ratio over eight gyro seeds, the figures behind tests/test_gap.py's toleranc
 
 Takes about 5 minutes. The drive, the hidden effects and their values are those of
 tests/test_gap.py (docs/model-gap.md, "What the tests establish"); the seeds are 1..N.
-Appends the table to bench/RESULTS.md.
+Writes its section of bench/RESULTS.md (Model gap).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import append_section, machine_line
+from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if not a.no_write:
-        append_section("Model gap: one hidden effect on a simulated drive", text)
+        write_section("gap", "Model gap: one hidden effect on a simulated drive", text)
     return 0
 
 

@@ -19,7 +19,7 @@ Takes about 3 minutes. Needs scipy and allantools (``pip install scipy allantool
 4. Allan deviation (overlapping) against allantools.oadev, and on a log with gaps against
    allantools.gradev: largest relative difference and time.
 
-Appends the tables to bench/RESULTS.md.
+Writes its section of bench/RESULTS.md (Model gap).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
-from _common import append_section, machine_line
+from _common import machine_line, write_section
 
 from hdrd.analysis.gap.data import GapData, prepare
 from hdrd.analysis.gap.fit import Fitter, with_params
@@ -492,8 +492,8 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if not a.no_write:
-        append_section(
-            "Model gap: our optimisers vs scipy, our Allan deviation vs allantools", text
+        write_section(
+            "gap", "Model gap: our optimisers vs scipy, our Allan deviation vs allantools", text
         )
     return 0
 

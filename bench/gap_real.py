@@ -19,7 +19,7 @@ measured on the tuning drives, and the gap before and after the simulator got it
    over six seeds, before (the preset at the log's rate) and after (the recording's profile,
    :func:`hdrd.sim.recordings.log_rate_model`), and what ``hdrd gap --model`` still names
    from the after model. Recordings without tuning drives (rtklib, smartLoc) have no after.
-4. Rewrites its own section of bench/RESULTS.md.
+4. Rewrites its own section of bench/RESULTS.md (Model gap).
 
 The judging drives (DrivePlotR even drive numbers, rtklib drive 0708, smartLoc) were run once,
 after the profile's values were fixed from the tuning drives.
@@ -43,7 +43,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from _common import machine_line, replace_section
+from _common import machine_line, put_section
 from real import TUNING, drive_set, grade_of
 
 from hdrd.analysis.gap import GapError, prepare, run_gap
@@ -531,7 +531,7 @@ def main(argv: list[str] | None = None) -> int:
     text = section(ms, p, rows, skipped, machine)
     print(text)
     if not args.no_write:
-        replace_section(SECTION, text)
+        put_section("gap", text)
     return 0
 
 

@@ -20,7 +20,7 @@ tests/gap_standins.py to the properties measured on real devices (docs/model-gap
 - Null logs: the starting model itself, 30 seeds of a 10-minute city drive at 5 Hz, 10 of a
   20-minute drive at 10 Hz, and 10 standstill logs of 30 minutes at 10 Hz: nothing named.
 
-Appends the table to bench/RESULTS.md.
+Writes its section of bench/RESULTS.md (Model gap).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
-from _common import append_section, machine_line
+from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
 from hdrd.io.drivelog import DriveLog
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if not a.no_write:
-        append_section("Model gap on stand-ins for real logs at rest", text)
+        write_section("gap", "Model gap on stand-ins for real logs at rest", text)
     return 0
 
 

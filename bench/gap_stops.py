@@ -16,7 +16,7 @@ standstill as the simulator writes them); the seeds are 11..10+N (the tests use 
 - ``span_drive``'s unit and twin: an INS rate only while moving beside 0.01 rad/s codes, with
   and without -0.085 deg/s while driving.
 
-Appends the table to bench/RESULTS.md.
+Writes its section of bench/RESULTS.md (Model gap).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import append_section, machine_line
+from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
 from hdrd.sim.gyro import Effect, MotionOffset
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if not a.no_write:
-        append_section("Model gap: stops as truth on GPS-course drives", text)
+        write_section("gap", "Model gap: stops as truth on GPS-course drives", text)
     return 0
 
 

@@ -16,7 +16,7 @@ training routes draw their gyro from (``hdrd simulate --errors-from``).
    drives the workflow skips, with its reason.
 3. ``hdrd simulate --benchmark train --errors-from gap.json``: which tuning drive each training
    route draws.
-4. Rewrites its own section of bench/RESULTS.md.
+4. Rewrites its own section of bench/RESULTS.md (Model gap).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from _common import machine_line, replace_section
+from _common import machine_line, put_section
 from real import TUNING, convert_all
 
 from hdrd.io.drivelog import read_drive
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines) + "\n"
     print(text)
     if not args.no_write:
-        replace_section(SECTION, text)
+        put_section("gap", text)
     return 0
 
 

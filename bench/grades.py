@@ -23,7 +23,7 @@ real-road-like curving road (:func:`curvy`):
   more than 10 %" (a type's mean over that many held-out routes) and the share of single
   drives more than 10 % worse than HDR, HDR+ against the oracle.
 
-Rewrites its own section of bench/RESULTS.md.
+Rewrites its own section of bench/RESULTS.md (Accuracy: simulated drives).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from _common import fmt, machine_line, oracle_yaw, replace_section, share_worse, type_means
+from _common import fmt, machine_line, oracle_yaw, put_section, share_worse, type_means
 
 from hdrd.analysis.evaluate import (
     DEFAULTS,
@@ -463,7 +463,7 @@ single drives whose NEψ exceeds 1.1 x paper HDR's):
 {DISCUSSION.strip()}
 """
     if not a.no_write:
-        replace_section(SECTION, section)
+        put_section("sim", section)
         print(f"wrote {SECTION!r}")
     return 0
 

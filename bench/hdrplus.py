@@ -14,7 +14,8 @@
    table, one row per idea (added to paper HDR, and taken out of HDR+), with speed and
    temperature withheld; the calibration study (a 1 s start-up calibration plus standstill
    re-calibration vs a 30 s one); the cost of a step.
-3. Rewrites its own section of bench/RESULTS.md, leaving every other section as it is.
+3. Rewrites its own section of bench/RESULTS.md (Accuracy: simulated drives), leaving every
+   other section as it is.
 
 Honesty rules this script keeps: HDR+'s parameters were tuned on the nine training drives'
 types only (``--tune`` repeats that search on them); the five test drives and the test-type
@@ -48,7 +49,7 @@ from _common import (
     oracle_yaw,
     paper_plus,
     plus_with,
-    replace_section,
+    put_section,
     run_recorded,
     share_worse,
     true_gyro_error,
@@ -581,7 +582,7 @@ def single_drive_odds(n_routes: int, write: bool) -> None:
     text = "\n".join(L) + "\n"
     print(text)
     if write:
-        replace_section(SINGLE_SECTION, text)
+        put_section("sim", text)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SINGLE_SECTION})")
 
 
@@ -736,7 +737,7 @@ def main() -> int:
     )
     print(section)
     if not args.no_write:
-        replace_section(SECTION, section)
+        put_section("sim", section)
         print(f"wrote {RESULTS.relative_to(REPO)} ({SECTION})")
     return 0
 
@@ -1001,7 +1002,7 @@ equations: docs/hdrplus.md.
   on a real car the spread may separate them, which this simulator cannot show.
 - **Not kept:** the speed gate (I frozen below 3 m/s: neutral, 0.164 -> 0.165) and the
   hold-off after turns (worse, 0.177), both retired from this script with their rows (last
-  recorded 2026-12-01, "Retired studies" in bench/RESULTS.md); the adaptive increment (max(i_c, sd of the bias model): worse,
+  recorded 2026-12-01, "Retired results" in bench/RESULTS.md); the adaptive increment (max(i_c, sd of the bias model): worse,
   0.238 — larger steps undo what the small increment gains).
 - **Withheld inputs.** With neither speed nor temperature HDR+ still scores 0.164 / 0.208 on
   the route sets (HDR 0.253 / 0.298): it needs neither. Withholding the speed only switches

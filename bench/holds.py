@@ -39,7 +39,8 @@ configuration):
 Converted logs are kept in ``--workdir`` (converted again only when the converter or its
 source list changed); the simulated gyros are made in memory (faster than reading them back),
 ``--write-logs`` also writes them there as drive logs (``hdrd evaluate`` reads them).
-``--set tune`` prints only; ``--set judge`` rewrites its section of bench/RESULTS.md (the
+``--set tune`` prints only; ``--set judge`` rewrites its section of bench/RESULTS.md (Accuracy:
+real drives; the
 judging set is run once, to report; ``--no-write`` prints only). ``--dry-run`` converts and
 simulates, lists the drives and their groups, and scores nothing. ``--json PATH`` writes every
 drive's figures. About 1-2 minutes on this machine.
@@ -64,7 +65,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from _common import fmt, machine_line, plus_with, replace_section
+from _common import fmt, machine_line, plus_with, put_section
 from peer import kalman_peer
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
 
@@ -433,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
             'computes it, on the judging set only (docs/real-data.md, "The split"); the '
             "script's docstring says what is scored.\n\n" + text + "\n"
         )
-        replace_section(f"{SECTION} (judge)", body)
+        put_section("real", body)
         print(f"wrote the section {SECTION!r} (judge) of bench/RESULTS.md")
     return 0
 

@@ -7,8 +7,8 @@ the daemon runs it, and :func:`hdr.run_batch`, as replay and evaluate run it) an
 
 ``--vs`` times an older checkout too (``git worktree add /tmp/old COMMIT``; the same script
 run as a process with that checkout first on its path): the timing pair of one definition of
-the kernel against the copies it replaced. Appends a dated ``## Performance: HDR kernel``
-section to bench/RESULTS.md.
+the kernel against the copies it replaced. Writes its section of
+bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             check=True,
         )  # fmt: skip
         old = json.loads(out.stdout)
-    from _common import append_section, machine_line
+    from _common import machine_line, write_section
 
     head = "| form | µs/step |" + (f" µs/step at `{a.vs}` | ratio |" if old else "")
     sep = "|---|---|" + ("---|---|" if old else "")
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         + f"`. CPU microseconds per step, best of {REPEATS} runs over {STEPS} steps.\n\n"
         + "\n".join([head, sep, *lines])
     )
-    print(append_section("HDR kernel", body, write=not a.no_write))
+    print(write_section("speed", "HDR kernel: CPU time per step", body, write=not a.no_write))
     return 0
 
 

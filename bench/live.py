@@ -25,7 +25,8 @@ work does to the figures (CPU time per wake-up grows with cold caches; latency w
 for a core).
 
 Targets at 1 kHz: <= 2 % of one core, peak RSS <= 60 MB, p99 latency <= 2 ms.
-Prints the figures and appends them, with the machine's description, to bench/RESULTS.md.
+Prints the figures and writes them, with the machine's description, in its section of
+bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import append_section, hdrd_command, machine, machine_line, ratio
+from _common import hdrd_command, machine, machine_line, ratio, write_section
 
 from hdrd.io.clocks import unwrap_us
 from hdrd.sim.fakegyro import FakeGyro
@@ -316,9 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         metavar="N",
         help="run N busy processes meanwhile (a machine busy with other work)",
     )
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write RESULTS.md")
     a = ap.parse_args(argv)
     m = machine()
     print(machine_line(m), flush=True)
@@ -340,8 +339,9 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     text = report(results, a.seconds, a.load)
-    title = "live daemon" + (f", {a.load} busy processes beside it" if a.load else "")
-    append_section(title, text, write=not a.no_write)
+    beside = f" beside {a.load} busy process{'es' if a.load > 1 else ''}" if a.load else ""
+    title = f"Live daemon{beside}: CPU, memory and step latency"
+    write_section("speed", title, text, write=not a.no_write)
     print(text)
     return 0
 

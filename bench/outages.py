@@ -58,7 +58,7 @@ bench/RESULTS.md, "GNSS outages ... (tune)".
 Sets (docs/real-data.md, "The split"): ``tune`` (the real tuning drives, converted by
 ``tools/convert_real.py``), ``judge`` (the real judging drives: run once, to report), ``sim``
 (simulated drives of every grade, seeds 7001-7003, temperature logged). Rewrites its own
-section of bench/RESULTS.md (with ``--set judge``, ``--set sim`` and ``--tune-peer``;
+section of bench/RESULTS.md, Accuracy: real drives (with ``--set judge``, ``--set sim`` and ``--tune-peer``;
 ``--no-write`` prints).
 """
 
@@ -77,7 +77,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from _common import machine_line, replace_section
+from _common import machine_line, put_section
 from peer import SWEEP, PeerParams, kalman_peer
 
 from hdrd.analysis.outages import (
@@ -269,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         + text
         + "\n"
     )
-    replace_section(f"{SECTION} ({a.set})", body)
+    put_section("real", body)
     return 0
 
 
@@ -296,7 +296,7 @@ def tune_peer(work: Path, no_write: bool) -> int:
         + text
         + "\n"
     )
-    replace_section(f"{SECTION} (tune)", body)
+    put_section("real", body)
     print(f"wrote the section {SECTION!r} (tune) of bench/RESULTS.md")
     return 0
 

@@ -12,7 +12,8 @@ standstill, per drive, on a tuning and a judging set fixed before any result was
    "best constant bias in hindsight": the single bias that minimises the drive's Eψ with no
    other correction (Eψ is convex in it: a golden-section search). NEψ and Eψ per drive, means
    per set, and how often each method is worse than bias removal.
-3. Rewrites its own section of bench/RESULTS.md, leaving every other section as it is.
+3. Rewrites its own section of bench/RESULTS.md (Accuracy: real drives), leaving every other
+   section as it is.
 
 **The split** (written here before any method was run on these drives; see :data:`TUNING`):
 tuning = the DrivePlotR drives with an *odd* drive number, and comma2k19; judging = the
@@ -47,7 +48,7 @@ sys.path.insert(0, str(REPO))
 
 import json
 
-from _common import fmt, machine_line, replace_section, run_recorded
+from _common import fmt, machine_line, put_section, run_recorded
 
 from hdrd.analysis.evaluate import (
     EvaluationError,
@@ -368,34 +369,12 @@ drives had been run before with earlier HDR+ designs (judging mean 3.251, then 3
 setting of that design was switched off because of them, then 2.886 with the bank's first
 form of evidence), so they are not untouched; the present evidence (each filter's prediction
 of every straight step and stop) and `drift_prior` 0.3 were chosen without looking at them
-again. This round: `hdr.i_c_from`'s 30 s window was chosen on simulated tuning routes
+again. This round: `hdr.i_c: auto`'s 30 s window was chosen on simulated tuning routes
 (bench/grades.py's tuning set), the other ideas tried on tuning data only (bench/ablate.py);
 then the judging drives were run once (the run above; oan_20201121_152755 joined them).
 
-**Reading** (written by hand from the run above; re-read the tables if the code changed).
-HDR+ still does not reach the real-drive targets: on the judging drives its mean NEψ (2.899
-deg/min) is 0.92 of bias removal's (3.144; the target is 0.67) and below paper HDR's (3.328);
-two of seven are more than 10 % and 0.5° worse than bias removal: DrivePlotR 8 (4.84° ->
-9.33°) and DrivePlotR 18 (24.69° -> 28.05°). This round's changes to HDR+ (the stop gate
-without a calibration; `Ablation.motion_offset_var`, off) leave every calibrated drive's
-figure as it was. The DrivePlotR logs are 1 Hz point samples of a phone gyro in 1/16 deg/s
-steps: aliasing of turns and a scale-factor error of 3-17 % against the GPS course dominate
-their heading error (the best constant bias in hindsight leaves 1.1-5 deg/min), and their
-roads curve gently.
-
-*HDR's increment from the gyro* (`hdr.i_c_from: gyro`, the default; the column *hdr (grade)*
-is paper HDR with the recording's grade configured): on rtklib drive 0708 (a tactical-grade
-IMU) paper HDR with Table III turns 1.11° into 11.47°; with the tactical grade known its
-increment is 0.0016 deg/s and it leaves 0.86° (bias removal 1.11°); smartLoc (automotive
-preset) 9.14° -> 7.64° (bias removal 1.42°: the preset's drift still allows an increment that
-straightens its curves). The phone preset's drift is above Table III's, so the DrivePlotR and
-oan drives are unchanged.
-
-*With the grade configured* (the grade chosen from the hardware): HDR+ on rtklib drive 0708
-with the tactical preset 1.11° -> 1.09°; drive 30 with the phone preset 42.3° -> 14.6°; but
-the DrivePlotR judging drives as a set do worse with the phone preset (drive 18 24.7° ->
-44.5°): a preset is a guess at a part, and a recorded error model (`hdrd calibrate --seconds
-1800`) would be the gyro's.
+These figures against the targets, read by hand: "Heading that holds: what tuned what, and where
+the targets stand", in this part.
 """
 
 
@@ -475,7 +454,7 @@ calibration, but what a method adds to (or takes from) a perfect static bias:
 {DISCUSSION.strip()}
 """
     if not a.no_write:
-        replace_section(SECTION, body)
+        put_section("real", body)
         print(f"wrote the section {SECTION!r} of bench/RESULTS.md")
     return 0
 

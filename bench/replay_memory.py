@@ -20,7 +20,7 @@ The captures (made once in the work directory):
 - ``clean-20mb``: 1.25 million valid frames at 1 kHz (20 min), the largest ordinary capture.
 
 What "bounded" means here: memory follows the number of bytes and frames in the file, never
-the device time it spans. Prints a table and appends it to bench/RESULTS.md.
+the device time it spans. Prints a table and writes its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
-from _common import REPO, append_section, machine_line
+from _common import REPO, machine_line, write_section
 
 
 def _jumps(n: int) -> bytes:
@@ -130,7 +130,7 @@ def main() -> int:
     )
     print(table)
     if not args.no_write:
-        append_section("replay memory", table)
+        write_section("speed", "Replay memory on ordinary and hostile captures", table)
     return 0
 
 

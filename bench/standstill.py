@@ -17,7 +17,7 @@ noise-scaled tests; ``max_shift_se = 0``) and with all its tests (the default):
    0.05 deg/s, the last one (or two) the first second(s) of a turn, 2,000 seeded windows each:
    the share refused and, for the absolute limits, the mean bias they accept.
 
-Rewrites its own section of bench/RESULTS.md.
+Rewrites its own section of bench/RESULTS.md (Reliability).
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def turn_starts() -> list[tuple[str, float, float, float, float]]:
 
 
 def main() -> int:
-    from _common import machine_line, replace_section
+    from _common import machine_line, put_section
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-write", action="store_true", help="print, do not touch RESULTS.md")
@@ -190,7 +190,7 @@ def main() -> int:
     section = "\n".join(L)
     print(section)
     if not a.no_write:
-        replace_section(SECTION, section)
+        put_section("reliability", section)
         print("wrote bench/RESULTS.md")
     return 0
 

@@ -14,8 +14,8 @@ Takes about 20 s.
   ``READY=1`` datagram. With ``--bias`` the daemon is ready once the port delivers a frame
   (at most 10 ms at 100 Hz after it opens the port), no calibration.
 
-Target: ``hdrd --help`` <= 0.3 s. Prints the figures and appends them to
-bench/RESULTS.md.
+Target: ``hdrd --help`` <= 0.3 s. Prints the figures and
+writes its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import append_section, hdrd_command, machine_line, ratio, time_process
+from _common import hdrd_command, machine_line, ratio, time_process, write_section
 
 HELP_TARGET_S = 0.3
 HEAVY = ("numpy", "serial", "structlog", "yaml", "asyncio")
@@ -121,9 +121,7 @@ def time_to_ready(repeats: int) -> list[float]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=10)
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write RESULTS.md")
     a = ap.parse_args(argv)
     print(machine_line(), flush=True)
     hdrd = hdrd_command()
@@ -168,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
         ),
     ]
     text = "\n".join(lines)
-    append_section("startup", text, write=not a.no_write)
+    title = "Start-up: `hdrd --help`, and `hdrd run` to READY=1"
+    write_section("speed", title, text, write=not a.no_write)
     print(text)
     return 0
 

@@ -10,7 +10,7 @@ refinement; every set scored on all nine drives by :func:`hdrd.core.hdr.run_many
 the paper's set re-run with the scalar stepper). Best and median of ``--repeats`` runs, wall and
 CPU time; a profile split from one more run (scoring vs the rest).
 
-Target: <= 30 s. Prints the figures and appends them to bench/RESULTS.md.
+Target: <= 30 s. Prints the figures and writes its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import append_section, machine_line, ratio, time_in_process
+from _common import machine_line, ratio, time_in_process, write_section
 
 TARGET_S = 30.0
 
@@ -33,9 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--candidates", type=int, default=10_000)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument(
-        "--no-write", action="store_true", help="print only; do not append to RESULTS.md"
-    )
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write RESULTS.md")
     a = ap.parse_args(argv)
     print(machine_line(), flush=True)
 
@@ -91,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
         + f". Rate: {a.candidates * steps / t.best_wall / 1e6:.1f} M parameter-set steps per second.",
     ]
     text = "\n".join(lines)
-    append_section("tune", text, write=not a.no_write)
+    title = "Tuning: `tune()` on the nine training drives"
+    write_section("speed", title, text, write=not a.no_write)
     print(text)
     return 0
 

@@ -12,7 +12,7 @@ aided step has (~370 bytes). Measured over the run, after a 5 s warm-up: the CPU
 core (user + system, ``/proc/<pid>/stat``), the resident memory (``VmRSS`` every 10 s, and
 ``VmHWM``, the peak), and the time from a datagram's send to its event's arrival at each
 viewer (p50, p99, max). Every viewer must get every message (checked). Prints the figures and
-replaces its section of bench/RESULTS.md.
+replaces its section of bench/RESULTS.md (Speed).
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import fmt, hdrd_command, machine_line, replace_section
+from _common import fmt, hdrd_command, machine_line, put_section
 
-HEADING = "## Performance: hdrd web with viewers"
+HEADING = "## hdrd web with viewers"
 WARMUP_S = 5.0
 
 
@@ -201,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     if r["missing"]:
         raise SystemExit(f"{r['missing']} events did not reach their viewer")
     if not args.no_write:
-        replace_section(HEADING, text)
+        put_section("speed", text)
     return 0
 
 

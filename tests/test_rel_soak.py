@@ -5,7 +5,7 @@ Ten minutes of device time of a simulated drive at 100 Hz, played 100 times fast
 and two cable pulls. Counts are asserted, never timings: every step the delivered frames make
 is published once (numbers in order, skipping only across reconnects), every delivered frame is in one step, every damaged
 frame is counted, every pull is a reconnect, the daemon exits 0 without a traceback. The
-long run (6 hours of device time) and its figures are in bench/RESULTS.md, "## Soak".
+long run (6 hours of device time) and its figures are in bench/RESULTS.md, "Soak".
 """
 
 from __future__ import annotations

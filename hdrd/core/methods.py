@@ -154,13 +154,14 @@ I_C_WINDOW_S = 30.0
 """HDR's increment with a known error model is at most the bias's drift over this long, s:
 sqrt(Q x 30 s), Q the model's random walk without a temperature (K^2 + 2 sigma^2 / tau + a
 warm-up). For the CRS03-04 grade 0.024 deg/s (Table III: 0.0422), the automotive grade
-0.016, the tactical grade 0.0016; a phone's drift is above Table III's, which stays. Chosen on simulated tuning routes of every grade (bench/
-RESULTS.md, "HDR's increment from the gyro")."""
+0.016, the tactical grade 0.0016; a phone's drift is above Table III's, which stays. Chosen on
+simulated tuning routes of every grade (bench/RESULTS.md,
+Real drives, "What tuned what")."""
 
 
 def hdr_settings(setup: MethodSetup) -> HdrParams:
     """The paper's HDR parameters for this gyro: the configured ``hdr.*`` (Table III by
-    default); with ``hdr.i_c_from: gyro`` and the gyro's error model known
+    default); with ``hdr.i_c: auto`` and the gyro's error model known
     (:func:`error_model`), i_c = min(hdr.i_c, sqrt(Q x :data:`I_C_WINDOW_S`)), Q its bias random
     walk without a temperature, (deg/s)^2/s: a gyro whose bias barely moves is not "corrected"
     by a binary increment meant for a CRS03-04's drift, which only straightens real curves.

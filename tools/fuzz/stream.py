@@ -31,7 +31,7 @@ a valid frame overlapping no real one is the exception no receiver can avoid. Sa
 rail or beyond +/-200 deg/s that the device clock accepts is flagged in its step's
 ``saturated`` count.
 
-Exit status 1 if any expectation fails. Results: bench/RESULTS.md, "## Fuzz".
+Exit status 1 if any expectation fails. Results: bench/RESULTS.md, "Fuzz: a byte stream through both parsers".
 """
 
 from __future__ import annotations
