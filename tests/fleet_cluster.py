@@ -189,6 +189,7 @@ def serve_tls(n: int, certdir: str) -> None:
         protocol="tls://",
         security=sec,
         dashboard_address=None,
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # not 8787: tests run at once
     ) as cluster:
         print(cluster.scheduler_address, flush=True)
         sys.stdin.read()

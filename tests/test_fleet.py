@@ -189,6 +189,30 @@ def test_evaluate_on_a_cluster_is_bit_identical(fleet: Path, tmp_path: Path) -> 
 
 
 @pytest.mark.slow
+def test_two_fleets_at_once_neither_collide_nor_warn(fleet: Path, tmp_path: Path) -> None:
+    """Each local cluster's scheduler serves its HTTP routes on a free port of localhost: two
+    runs at once on one machine (two users, two tests) both finish without a word of Dask's."""
+    cmd = [sys.executable, "-m", "hdrd", "evaluate", str(fleet), "--workers", "1", "--json"]
+    runs = [
+        subprocess.Popen(
+            [*cmd, str(tmp_path / f"{i}.json")],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=ENV,
+            cwd=ROOT,
+            stdin=subprocess.DEVNULL,
+        )
+        for i in range(2)
+    ]
+    outs = [p.communicate(timeout=600) for p in runs]
+    for p, (_, err) in zip(runs, outs, strict=True):
+        assert p.returncode == 0, err
+        assert "already in use" not in err and "Warning" not in err, err
+    assert (tmp_path / "0.json").read_bytes() == (tmp_path / "1.json").read_bytes()
+
+
+@pytest.mark.slow
 def test_tune_on_a_cluster_finds_the_same_parameters(fleet: Path, tmp_path: Path) -> None:
     drives = [str(p) for p in (fleet / "city.csv", fleet / "rural.csv", fleet / "ds")]
     test = str(fleet / "suburbs.parquet")

@@ -422,6 +422,9 @@ def _local_cluster(distributed: Any, workers: int) -> tuple[Any, Any]:
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=None,
+                # its HTTP routes (health, metrics) on a free port of localhost, not 8787:
+                # two fleets at once neither collide nor warn
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                 silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
                 preload=[__name__],  # dask_setup, in every worker process
             )
