@@ -25,8 +25,8 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from tests.test_aiding import on_message
 from tools.fuzz import harness as fuzz
-from tools.fuzz.inputs import SURFACES, generate
 from tools.fuzz.mutate import Tok, emit_json, emit_yaml
+from tools.fuzz.surfaces import SURFACES, generate
 from tools.fuzz.targets import check_messages, one_line
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -3,10 +3,11 @@
     python -m tools.fuzz --help          # the harness: tools/fuzz/harness.py
     python -m tools.fuzz.stream --help   # the long-stream check of the frame parsers alone
 
-Modules: ``harness`` (the watched worker processes, reports, the command line), ``inputs``
-and ``mutate`` (input *i* of a surface from (seed, surface, i) alone), ``targets`` (each
-surface's input through the code the daemon runs, by its public interfaces), ``drivelog``
-(drive-log files for ``hdrd evaluate``/``tune``/``gap``), ``process`` (hdrd as processes),
+Modules: ``harness`` (the watched worker processes, reports, the command line), ``surfaces``,
+``inputs`` and ``mutate`` (input *i* of a surface from (seed, surface, i) alone), ``contract``
+(what every target promises), ``targets`` (each surface's input through the code the daemon
+runs, by its public interfaces), ``drivelog`` (drive-log files for ``hdrd
+evaluate``/``tune``/``gap``), ``process`` (hdrd as processes),
 ``stream`` (10^7 random bytes per protocol through both parsers against a reference scan).
 Results: bench/RESULTS.md, "Fuzz".
 """

@@ -45,8 +45,9 @@ from typing import Any
 
 import numpy as np
 
+from .contract import Broken, Target, one_line
+from .inputs import serial_input
 from .mutate import giant_string, mutate_bytes
-from .targets import Broken, Target, one_line
 
 __all__ = ["DriveLogTarget", "drivecsv_input", "driveparquet_input", "pack", "unpack"]
 
@@ -212,8 +213,6 @@ def drivecsv_input(rng: random.Random) -> bytes:
     if r < 0.04:
         body = rng.randbytes(rng.randint(0, 5000))
     elif r < 0.07:
-        from .inputs import serial_input
-
         body = serial_input(rng, 300)[1:]
     elif r < 0.08:
         body = _parquet_bytes(rng, base_logs()[0], plain=True)

@@ -66,12 +66,36 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .inputs import SURFACES, generate
-from .targets import Broken, make_target
+from . import targets
+from .drivelog import DriveLogTarget
+from .surfaces import SURFACES, generate
+from .targets import Broken
 
 ALL = (*SURFACES, "stream")
 """In the order run: the stream check last, so that the memory it takes (its 10^7-byte
 streams) is not in the workers forked for the other surfaces."""
+
+
+def make_target(surface: str, seed: int, workdir: Path) -> targets.Target:
+    """The target of *surface*; hdrd's log is dropped (ConfigTarget reads its events)."""
+    targets.quiet_logging()
+    if surface == "serial":
+        return targets.SerialTarget(seed)
+    if surface == "clock":
+        return targets.ClockTarget(seed)
+    if surface == "gpsd":
+        return targets.GpsdTarget(seed)
+    if surface == "tail":
+        return targets.TailTarget(seed)
+    if surface == "config":
+        return targets.ConfigTarget(seed, workdir)
+    if surface == "bias":
+        return targets.BiasTarget(seed, workdir)
+    if surface == "capture":
+        return targets.CaptureTarget(seed, workdir)
+    if surface in ("drivecsv", "driveparquet"):
+        return DriveLogTarget(surface, seed, workdir)
+    raise ValueError(f"unknown surface {surface!r}")
 
 
 def _status_kb(field_: str, pid: int | str = "self") -> int:

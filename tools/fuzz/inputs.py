@@ -1,6 +1,7 @@
-"""The fuzzed inputs of tools/fuzz, one generator per input surface.
+"""The fuzzed inputs of tools/fuzz, one generator per input surface (tools/fuzz/surfaces.py
+names them all).
 
-``generate(surface, seed, i) -> bytes`` is input *i* of a surface's sequence: a valid input
+``surfaces.generate(surface, seed, i) -> bytes`` is input *i* of a surface's sequence: a valid input
 (what hdrd or gpsd would really send or write) mutated by :mod:`tools.fuzz.mutate`, or random
 bytes. Each input comes from its own :class:`random.Random` seeded with (seed, surface, i),
 so any input can be made again on its own (``python -m tools.fuzz --show SURFACE:I``).
@@ -34,19 +35,7 @@ from hdrd.io.frames import FRAME_DTYPE, SYNC
 
 from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 
-__all__ = ["SURFACES", "generate", "rng_for"]
-
-SURFACES = (
-    "serial",
-    "clock",
-    "gpsd",
-    "tail",
-    "config",
-    "bias",
-    "capture",
-    "drivecsv",
-    "driveparquet",
-)
+__all__ = ["rng_for"]
 
 MAX_DATAGRAM = 65507
 """Largest UDP payload over IPv4."""
@@ -575,33 +564,3 @@ def bias_input(rng: random.Random) -> bytes:
     if rng.random() < 0.03:
         data = rng.randbytes(rng.randint(0, 70_000)) + b"\n# end\n"
     return data
-
-
-def drivecsv_input(rng: random.Random) -> bytes:
-    from .drivelog import drivecsv_input as make  # not at the top: it imports .targets
-
-    return make(rng)
-
-
-def driveparquet_input(rng: random.Random) -> bytes:
-    from .drivelog import driveparquet_input as make
-
-    return make(rng)
-
-
-_GENERATORS = {
-    "serial": serial_input,
-    "clock": clock_input,
-    "gpsd": gpsd_input,
-    "tail": tail_input,
-    "config": config_input,
-    "bias": bias_input,
-    "capture": capture_input,
-    "drivecsv": drivecsv_input,
-    "driveparquet": driveparquet_input,
-}
-
-
-def generate(surface: str, seed: int, i: int) -> bytes:
-    """Input *i* of *surface*'s sequence for *seed*."""
-    return _GENERATORS[surface](rng_for(seed, surface, i))

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .inputs import generate
+from .surfaces import generate
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -1,6 +1,6 @@
 """In-process fuzz targets of tools/fuzz: each input through the code the daemon runs.
 
-A target is made once per worker (``make_target(surface, workdir)``) and keeps its state
+A target is made once per worker (``harness.make_target(surface, seed, workdir)``) and keeps its state
 across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes one input
 (tools/fuzz/inputs.py) and returns a short label of what happened ("accepted",
 "rejected", ...). Anything it raises is a defect; so is a broken promise, raised as
@@ -49,26 +49,10 @@ import numpy as np
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 
+from .contract import Broken, Target, check, one_line
 from .inputs import stress_frames
 
-__all__ = ["Broken", "Target", "make_target"]
-
-
-class Broken(AssertionError):
-    """A promise the code under test did not keep (not an exception it raised)."""
-
-
-def _check(ok: bool, what: str) -> None:
-    if not ok:
-        raise Broken(what)
-
-
-def one_line(text: str, what: str) -> None:
-    """A refusal is one printable line of reasonable length."""
-    _check(isinstance(text, str) and bool(text.strip()), f"{what}: empty message")
-    _check("\n" not in text and "\r" not in text, f"{what}: more than one line: {text[:200]!r}")
-    _check(text.isprintable(), f"{what}: not printable: {text[:200]!r}")
-    _check(len(text) <= 600, f"{what}: {len(text)} characters: {text[:200]!r}")
+__all__ = ["Broken", "Target"]
 
 
 def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: bool = True) -> int:
@@ -80,12 +64,12 @@ def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: b
         n += 1
         for k, v in m.items():
             if isinstance(v, float):
-                _check(math.isfinite(v), f"message {k} = {v!r}: {dict(m)}")
+                check(math.isfinite(v), f"message {k} = {v!r}: {dict(m)}")
         h = m.get("heading")
         if h is not None:
-            _check(0.0 <= h < 360.0, f"heading {h!r} outside [0, 360)")
+            check(0.0 <= h < 360.0, f"heading {h!r} outside [0, 360)")
         line = format_json(m)
-        _check(line.endswith(b"\n") and line.count(b"\n") == 1, f"JSON line {line[:200]!r}")
+        check(line.endswith(b"\n") and line.count(b"\n") == 1, f"JSON line {line[:200]!r}")
         json.loads(line, parse_constant=_no_constant)
         for s in nmea_sentences(m, ths=ths, talker=talker):
             parse_nmea(s)
@@ -94,18 +78,6 @@ def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: b
 
 def _no_constant(name: str) -> Any:
     raise Broken(f"JSON line holds {name}")
-
-
-class Target:
-    """One surface's target (see the module doc)."""
-
-    surface = ""
-
-    def run(self, data: bytes) -> str:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        pass
 
 
 # -- serial: push parser + live pipeline --------------------------------------------------------
@@ -237,11 +209,11 @@ class ClockTarget(Target):
             pos += n
         got += chunked.flush()
         arr, vst = decode_capture(wire)
-        _check(array_to_frames(arr) == got and vst == chunked.stats, "push parser != decoder")
+        check(array_to_frames(arr) == got and vst == chunked.stats, "push parser != decoder")
         integrated = self._through_the_edge(Parser(), wire, rows)
         for i, label in enumerate(rows["label"].tolist()):
-            _check(label != 1 or i not in integrated, f"row {i} integrated, labelled drop")
-            _check(label != 0 or i in integrated, f"row {i} dropped, labelled integrate")
+            check(label != 1 or i not in integrated, f"row {i} integrated, labelled drop")
+            check(label != 0 or i in integrated, f"row {i} dropped, labelled integrate")
         return "all integrated" if len(integrated) == len(rows) else "some dropped"
 
     def _through_the_edge(self, parser: Any, wire: bytes, rows: Any) -> set[int]:
@@ -282,8 +254,8 @@ class ClockTarget(Target):
         """Steps go forward, and by no more than the host's clock allows (T = 1 s)."""
         step, at = last
         allowed = host - at + self.SLACK_S
-        _check(m["step"] > step, f"step {m['step']} after {step}")
-        _check(
+        check(m["step"] > step, f"step {m['step']} after {step}")
+        check(
             m["step"] - step <= allowed and m.get("gap_s", 0.0) <= allowed,
             f"step {step} -> {m['step']} (gap_s {m.get('gap_s')}) in {host - at:.1f} s of "
             "host time",
@@ -335,7 +307,7 @@ class GpsdTarget(Target):
                 self.peer, _ = self.server.accept()
                 self.peer.setblocking(False)
                 break
-        _check(self.peer is not None, "the gpsd client did not connect")
+        check(self.peer is not None, "the gpsd client did not connect")
         for _ in range(100):
             self.link.poll(self.pipeline)
             if self.link.client.connected:
@@ -370,7 +342,7 @@ class GpsdTarget(Target):
                     pass
             self.clock += 0.1
             self.link.poll(self.pipeline, self.clock)
-            _check(self.link.client.connected, "the gpsd client dropped the connection")
+            check(self.link.client.connected, "the gpsd client dropped the connection")
             msgs: list[dict[str, Any]] = []
             for f in self._step_frames():
                 msgs += self.pipeline.feed(f, 0, 1.7e9 + self.clock)
@@ -409,12 +381,12 @@ class TailTarget(Target):
         self.count += 1
         f = self.formatters[self.count % 2]
         out, notes, n = f.lines(data, sender="127.0.0.1:9")
-        _check(isinstance(n, int) and n >= 0, f"count {n!r}")
+        check(isinstance(n, int) and n >= 0, f"count {n!r}")
         for line in out + notes:
-            _check(isinstance(line, str) and line.isprintable(), f"tail prints {line[:200]!r}")
+            check(isinstance(line, str) and line.isprintable(), f"tail prints {line[:200]!r}")
             line.encode("utf-8")  # what the terminal gets
         for note in notes:
-            _check(len(note) <= 400, f"a {len(note)}-character note")
+            check(len(note) <= 400, f"a {len(note)}-character note")
         return (
             "printed"
             if out and not notes
@@ -443,7 +415,7 @@ class _Events:
         raise structlog.DropEvent
 
 
-def _quiet_logging() -> _Events:
+def quiet_logging() -> _Events:
     import structlog
 
     events = _Events()
@@ -473,7 +445,7 @@ class ConfigTarget(Target):
         from hdrd.cliconfig import config_from_args
         from hdrd.daemon.run import BiasChoice, Daemon, build_publishers
 
-        self.events = _quiet_logging()  # its events: did a reload fail?
+        self.events = quiet_logging()  # its events: did a reload fail?
         self.path = workdir / "hdrd.yaml"
         self.args = argparse.Namespace(config=str(self.path))
         self.path.write_text("hdr: {}\n")
@@ -520,11 +492,11 @@ class ConfigTarget(Target):
         d.reload_config()  # what SIGHUP does (the process-level run sends real ones)
         names = [e.get("event") for e in self.events.events]
         if "config_reload_failed" in names:
-            _check(d.cfg is old, "a refused reload changed the running configuration")
+            check(d.cfg is old, "a refused reload changed the running configuration")
             err = next(e for e in self.events.events if e.get("event") == "config_reload_failed")
             one_line(str(err.get("error")), "config_reload_failed")
         else:
-            _check("config_reloaded" in names, f"reload logged {names}")
+            check("config_reloaded" in names, f"reload logged {names}")
         if d.gps is not None:
             d.gps.poll(d.pipeline)  # connects (or fails to) as the loop would
         msgs: list[dict[str, Any]] = []
@@ -590,15 +562,15 @@ class BiasTarget(Target):
             rec = None
         try:
             choice = choose_bias(self.cfg_error, None)
-            _check(
+            check(
                 rec is not None and choice.record == rec,
                 "choose_bias took a file load_bias refused",
             )
         except BiasFileError as e:
-            _check(rec is None, "choose_bias refused a file load_bias took")
+            check(rec is None, "choose_bias refused a file load_bias took")
             one_line(str(e), "bias file error")
         cal = choose_bias(self.cfg_cal, None)
-        _check((cal.record is None) == (rec is None), "on_bad_bias_file: calibrate disagrees")
+        check((cal.record is None) == (rec is None), "on_bad_bias_file: calibrate disagrees")
         if rec is None:
             return "rejected"
         if self.count % 4 == 0:
@@ -678,40 +650,16 @@ class CaptureTarget(Target):
             out="/dev/null",
         )
         rc, err, out = self._call(replay.main, args)
-        _check(rc in (0, 1), f"replay exit {rc}")
+        check(rc in (0, 1), f"replay exit {rc}")
         if rc == 1:
             one_line(err.rstrip("\n"), "replay's error")
         else:
-            _check(err == "", f"replay exit 0 wrote to stderr: {err[:200]!r}")
+            check(err == "", f"replay exit 0 wrote to stderr: {err[:200]!r}")
         if self.count % 4 == 0:
             rc2, err2, _ = self._call(replay.convert_main, args)
-            _check(rc2 == rc, f"convert exit {rc2}, replay {rc}")
+            check(rc2 == rc, f"convert exit {rc2}, replay {rc}")
             one_line(err2.rstrip("\n"), "convert's stderr")
         return "replayed" if rc == 0 else "no frames"
-
-
-def make_target(surface: str, seed: int, workdir: Path) -> Target:
-    """The target of *surface*; hdrd's log is dropped (ConfigTarget reads its events)."""
-    _quiet_logging()
-    if surface == "serial":
-        return SerialTarget(seed)
-    if surface == "clock":
-        return ClockTarget(seed)
-    if surface == "gpsd":
-        return GpsdTarget(seed)
-    if surface == "tail":
-        return TailTarget(seed)
-    if surface == "config":
-        return ConfigTarget(seed, workdir)
-    if surface == "bias":
-        return BiasTarget(seed, workdir)
-    if surface == "capture":
-        return CaptureTarget(seed, workdir)
-    if surface in ("drivecsv", "driveparquet"):
-        from .drivelog import DriveLogTarget
-
-        return DriveLogTarget(surface, seed, workdir)
-    raise ValueError(f"unknown surface {surface!r}")
 
 
 def now() -> float:
