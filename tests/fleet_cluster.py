@@ -9,7 +9,8 @@ never holds Dask's threads and sockets): ``python tests/fleet_cluster.py COMMAND
   what the scheduler saw.
 - ``always DIR OUT.json``: a drive whose task kills its worker every time: after Dask's
   allowed failures (set to 1 here), a one-line FleetError naming the drive, not a missing row.
-- ``order OUT.json``: items that finish in the reverse of their order come back in order.
+- ``order OUT.json``: items that finish in the reverse of their order come back in order;
+  the progress shown at each call, and how many items the caller had by then.
 - ``hybrid OUT.json``: a cluster started in the background (as ``--workers`` starts it): the
   items this process takes while it starts and those the workers take, in order.
 - ``foreign ADDRESS``: a task the cluster cannot load (its module exists only here) is a
@@ -261,10 +262,19 @@ def hybrid(out: str) -> None:
 
 def order(out: str) -> None:
     n = 12
+    doc: dict[str, Any] = {}
     with DaskRunner.open(workers=2) as runner:
-        got = list(runner.map(slow_echo, list(range(n)), n, batch=1))
-        batched = list(runner.map(slow_echo, list(range(n)), n, batch=5))
-    Path(out).write_text(json.dumps({"batch1": got, "batch5": batched}))
+        for batch in (1, 5):
+            got: list[int] = []
+            shown: list[list[int]] = []  # [done, items the caller had] at each progress call
+
+            def progress(done: int, _total: int, got: list[int] = got, shown: list = shown) -> None:
+                shown.append([done, len(got)])
+
+            for x in runner.map(slow_echo, list(range(n)), n, batch=batch, progress=progress):
+                got.append(x)
+            doc[f"batch{batch}"], doc[f"progress{batch}"] = got, shown
+    Path(out).write_text(json.dumps(doc))
 
 
 if __name__ == "__main__":

@@ -141,7 +141,9 @@ class Runner:
         batch: int | None = None,
     ) -> Iterator[Any]:
         """``fn(item, *args)`` for every item, yielded in the items' order. progress(done,
-        total) after each finished task, in items (or in ``weights``, one per item). batch:
+        total) as each task's results are handed over (a task finished out of order waits for
+        those before it: what progress shows done is what the caller has, so a Ctrl-C keeps
+        it), in items (or in ``weights``, one per item). batch:
         items per task (default :func:`batches`); 1 passes the item itself (a handle from
         :meth:`persist` or :meth:`share` is then resolved to its value)."""
         raise NotImplementedError
@@ -620,11 +622,11 @@ class DaskRunner(Runner):
                 out = self._result(fut, functools.partial(_describe, items, chunks[ci]))
                 fut.release()
                 finished[ci] = [out] if batch == 1 else out
-                done += sum(w[i] for i in chunks[ci])
-                if progress is not None:
-                    progress(done, total)
-                while yielded in finished:
+                while yielded in finished:  # in order; progress counts what was handed over
                     results = finished.pop(yielded)
+                    done += sum(w[i] for i in chunks[yielded])
+                    if progress is not None:
+                        progress(done, total)
                     yielded += 1
                     top_up()
                     yield from results
