@@ -275,3 +275,42 @@ def test_the_page_reconnects_by_itself_when_hdrd_web_restarts(browser: Any) -> N
         assert [e for e in p.errors if "ERR_CONNECTION_REFUSED" not in e] == []
     finally:
         p.page.close()
+
+
+def needle(page: Page) -> str:
+    return str(page.page.locator("#needle").evaluate("n => n.style.transform"))
+
+
+def test_an_absurd_heading_never_freezes_the_needle(browser: Any) -> None:
+    web = Web()  # a server of its own: 1e20 is the first heading the page is sent
+    page = Page(browser, web.url)
+    try:
+        web.send(heading=1e20)
+        web.send(heading=90.0)
+        page.wait_text("heading", "90.0")
+        assert needle(page) == "rotate(90deg)"
+        # The page on its own, as if a server let such a message through: not a heading.
+        page.page.evaluate(
+            "() => onMessage({data: JSON.stringify({rx: Date.now() / 1000, "
+            "msg: {class: 'HDR', status: 'ok', heading: -1e20}})})"
+        )
+        assert page.text("heading") == "\u2013" and page.text("status") == "ok"
+        web.send(heading=100.0)
+        page.wait_text("heading", "100.0")
+        assert needle(page) == "rotate(100deg)"
+        assert page.errors == []
+    finally:
+        page.page.close()
+        web.close()
+
+
+def test_a_heading_that_rounds_to_360_is_shown_as_0(page: Page, web: Web) -> None:
+    # hdrd tail shows 359.996 as 0.00, as NMEA does: the page wraps after rounding too.
+    web.send(heading=359.96, mode="aided", gps_course=359.97, gps_speed=3.0, gps_age_s=0.2)
+    page.wait_text("heading", "0.0")
+    assert page.page.locator("#dial").get_attribute("data-heading") == "359.96"
+    assert page.text("gps") == "0.0\u00b0 at 3.0 m/s"
+    web.send(heading=359.996)
+    page.wait_text("heading", "0.0")
+    assert page.page.locator("#dial").get_attribute("data-heading") == "0.00"
+    assert page.errors == []

@@ -41,6 +41,15 @@ const num = (v) => (typeof v === "number" && Number.isFinite(v) ? v : null);
 const str = (v) => (typeof v === "string" ? (v.length > 200 ? v.slice(0, 199) + "\u2026" : v) : null);
 const serverNow = () => Date.now() / 1000 + state.offset;
 const wrap180 = (d) => ((((d + 180) % 360) + 360) % 360) - 180;
+// A compass heading or course, deg: a finite number in [0, 360], else null (not a heading: it
+// is never drawn, and the needle's unwrapped angle never leaves the range a float keeps exact).
+const compass = (v) => (typeof v === "number" && v >= 0 && v <= 360 ? v : null);
+// A compass heading as text: rounded first, then wrapped (359.96 is "0.0", as hdrd tail and
+// NMEA write it, never "360.0").
+const compassText = (d, digits) => {
+  const r = Number(d.toFixed(digits));
+  return (r >= 360 ? r - 360 : r).toFixed(digits);
+};
 
 function setText(id, text) {
   const el = $(id);
@@ -101,7 +110,7 @@ function setNeedle(heading) {
   // eased over at most the time to the next message, so a fast stream never leaves it behind
   needle.style.transitionDuration = `${Math.min(0.4, 0.8 * state.interval).toFixed(3)}s`;
   needle.style.transform = `rotate(${state.angle.toFixed(2)}deg)`;
-  dial.setAttribute("data-heading", heading.toFixed(2));
+  dial.setAttribute("data-heading", compassText(heading, 2));
 }
 
 // -- the message -----------------------------------------------------------------------------
@@ -122,8 +131,8 @@ function showMode(mode) {
 }
 
 function show(msg, rx) {
-  const heading = num(msg.heading);
-  setText("heading", heading === null ? "\u2013" : heading.toFixed(1));
+  const heading = compass(msg.heading);
+  setText("heading", heading === null ? "\u2013" : compassText(heading, 1));
   setNeedle(heading);
   showMode(modeOf(msg));
   const omega = num(msg.omega);
@@ -158,10 +167,10 @@ function showGps(msg) {
     setText("gps-age", "\u2013");
     return;
   }
-  const course = num(msg.gps_course);
+  const course = compass(msg.gps_course);
   const speed = num(msg.gps_speed);
   const at = speed === null ? "" : ` at ${speed.toFixed(1)} m/s`;
-  setText("gps", course === null ? "not in use" + at : `${course.toFixed(1)}\u00b0${at}`);
+  setText("gps", course === null ? "not in use" + at : `${compassText(course, 1)}\u00b0${at}`);
   const a = num(msg.gps_age_s);
   setText("gps-age", a === null ? "none received" : `${age(a)} ago`);
 }
@@ -238,8 +247,8 @@ function onMessage(e) {
   }
   state.lastRx = m.rx;
   show(m.msg, m.rx);
-  const heading = num(m.msg.heading);
-  const course = num(m.msg.gps_course);
+  const heading = compass(m.msg.heading);
+  const course = compass(m.msg.gps_course);
   const aided = m.msg.mode === "aided" && heading !== null && course !== null;
   addPoint([m.rx, num(m.msg.omega), aided ? wrap180(heading - course) : null]);
   tick();
