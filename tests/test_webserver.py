@@ -30,6 +30,7 @@ from hdrd.io.webserver import (
     host_allowed,
     parse_request,
 )
+from hdrd.io.webstate import TRACE_STEP_S
 
 GUARD_S = 30.0  # a guard against a hang; no test asserts a duration
 PAGE = Path(__file__).resolve().parents[1] / "hdrd" / "io" / "webpage"
@@ -58,7 +59,12 @@ class Served:
 
     def get(self, request: bytes) -> tuple[int, dict[str, str], bytes]:
         """One request as given; the status, headers (lower-case names) and body."""
-        with self.connect() as c:
+        return self.get_from(self.port, request)
+
+    @staticmethod
+    def get_from(port: int, request: bytes) -> tuple[int, dict[str, str], bytes]:
+        """:meth:`get` of a server on ``port`` of 127.0.0.1."""
+        with socket.create_connection(("127.0.0.1", port), timeout=GUARD_S) as c:
             c.sendall(request)
             data = b""
             while chunk := c.recv(65536):
@@ -102,12 +108,12 @@ def wait_for(cond: Any, what: str) -> None:
 class Stream:
     """A client of /events on a plain socket: the response's status, then its events."""
 
-    def __init__(self, served: Served, rcvbuf: int | None = None) -> None:
+    def __init__(self, served: Served | int, rcvbuf: int | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         if rcvbuf is not None:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
         self.sock.settimeout(GUARD_S)
-        self.sock.connect(("127.0.0.1", served.port))
+        self.sock.connect(("127.0.0.1", served if isinstance(served, int) else served.port))
         self.sock.sendall(
             b"GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n"
         )
@@ -378,3 +384,68 @@ def test_hdrd_web_says_why_it_cannot_start() -> None:
         assert r.returncode == 1 and "cannot listen on" in r.stderr
     for out in (r.stdout, r.stderr):
         assert "Traceback" not in out
+
+
+def started(p: subprocess.Popen[str]) -> str:
+    """What ``hdrd web`` said on stderr up to its "open" line (it serves from then on)."""
+    assert p.stderr is not None
+    seen = ""
+    while "hdrd web: open" not in seen:
+        line = p.stderr.readline()
+        assert line, seen
+        seen += line
+    return seen
+
+
+def latest_step(port: int) -> int:
+    """The step of the latest message a new viewer of ``hdrd web`` on ``port`` gets (its
+    ``hello`` and ``history`` first; -1: none yet). Its heading must be 12.5 (:func:`hdr`)."""
+    viewer = Stream(port)
+    try:
+        assert viewer.status() == 200 and viewer.event()[0] == "hello"
+        assert viewer.event()[0] == "history"
+        viewer.sock.settimeout(0.2)
+        try:
+            name, data = viewer.event()
+        except TimeoutError:
+            return -1
+    finally:
+        viewer.close()
+    assert name == "msg" and data["msg"]["heading"] == 12.5, data
+    return int(data["msg"]["step"])
+
+
+def wait_for_step(port: int, step: int) -> None:
+    for _ in range(1000):  # until the server has taken it (no duration asserted)
+        if latest_step(port) == step:
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"hdrd web never showed step {step}")
+
+
+def test_one_absurd_datagram_never_keeps_new_viewers_out() -> None:
+    port, uport = free_port(), free_port(socket.SOCK_DGRAM)
+    p = start_web("--listen", f"127.0.0.1:{port}", "--udp", f"127.0.0.1:{uport}")
+    try:
+        started(p)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as daemon:
+            daemon.sendto(format_json(hdr(1)), ("127.0.0.1", uport))
+            wait_for_step(port, 1)
+            time.sleep(2 * TRACE_STEP_S)  # the next message makes a trace point of its own
+            daemon.sendto(
+                b'{"class":"HDR","status":"ok","mode":"aided","heading":1e308,'
+                b'"gps_course":-1e308}\n',
+                ("127.0.0.1", uport),
+            )
+            time.sleep(0.01)  # not in the same millisecond (a trace point's resolution)
+            daemon.sendto(format_json(hdr(2)), ("127.0.0.1", uport))
+        wait_for_step(port, 2)  # every viewer meanwhile got its page: never the absurd one
+        status, _, body = Served.get_from(port, b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        assert status == 200 and body == (PAGE / "index.html").read_bytes()
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(GUARD_S) == 0
+        err = p.stderr.read() if p.stderr else ""
+        assert "Traceback" not in err and "web_datagrams_ignored" in err and "heading" in err
+    finally:
+        p.kill()
+        p.communicate()

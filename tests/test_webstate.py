@@ -132,3 +132,51 @@ def test_any_datagram_is_taken_or_ignored_never_a_crash(data: bytes) -> None:
         ((name, body),) = events(event)
         assert name == "msg" and isinstance(body["msg"], dict)
     assert s.received + s.ignored >= len([x for x in data.split(b"\n") if x.strip()])
+
+
+@pytest.mark.parametrize(
+    "over",
+    [
+        {"mode": "aided", "heading": 1e308, "gps_course": -1e308},  # their difference: inf
+        {"heading": 1e20},
+        {"heading": -0.5},
+        {"heading": 360.5},
+        {"mode": "aided", "gps_course": 720.0},
+        {"omega": 1e300},
+        {"omega": -1e16},
+        {"step": 10**400},  # an integer beyond any float
+        {"time": 1e200},
+    ],
+)
+def test_absurd_values_never_enter_the_state(over: dict[str, Any]) -> None:
+    s = LiveState()
+    s.take(format_json(hdr(step=1)), "x", 1.0)
+    before = (s.latest, list(s.trace), s.received)
+    msg = json.dumps({**hdr(step=2), **over}).encode()
+    assert s.take(msg, "127.0.0.1:9", 2.0) == []
+    assert (s.latest, list(s.trace), s.received) == before
+    key = next(iter(k for k in over if k != "mode"))
+    assert s.ignored == 1 and f"{key} " in s.last_reason and "127.0.0.1:9" in s.last_reason
+    got = events(s.snapshot(3.0))  # a new viewer gets its page, with the last good message
+    assert [n for n, _ in got] == ["hello", "history", "msg"] and got[2][1]["msg"] == hdr(step=1)
+
+
+def test_what_hdrd_sends_and_keys_not_known_are_not_judged() -> None:
+    s = LiveState()
+    for over in (
+        {"heading": 0.0, "mode": "aided", "gps_course": 360.0},
+        {"heading": 359.996, "omega": -1e4, "calib_age_s": -3.0, "yaw": -1e7},
+        {"future_key": 1e300, "nested": {"a": -1e300}},
+    ):
+        assert len(s.take(format_json(hdr(**over)), "x", 1.0)) == 1, over
+    assert s.ignored == 0
+
+
+def test_messages_within_a_millisecond_never_look_like_a_clock_going_back() -> None:
+    # Points keep rx to the millisecond: 1000.0006 is kept as 1000.001, and a message at
+    # 1000.0007 is not earlier than it.
+    s = LiveState()
+    s.take(format_json(hdr(step=1)), "x", 999.0)
+    s.take(format_json(hdr(step=2)), "x", 1000.0006)
+    s.take(format_json(hdr(step=3)), "x", 1000.0007)
+    assert [p[0] for p in s.trace] == [999.0, 1000.001]

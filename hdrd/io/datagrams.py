@@ -5,7 +5,8 @@ and ``hdrd tail``'s printing of them.
 lines that are UTF-8 and either an NMEA 0183 sentence with a good checksum
 (:func:`hdrd.io.publish.parse_nmea`) or a JSON object; a note for each other line (not UTF-8,
 malformed, a number of more than 4,300 digits, nesting too deep, a JSON value that is not an
-object). :func:`udp_listener` binds the UDP socket both read from.
+object). :func:`implausible` says why an HDR message holds a value no hdrd can send (``hdrd
+web`` refuses such a message). :func:`udp_listener` binds the UDP socket both read from.
 
 :class:`TailFormatter` turns datagrams into ``hdrd tail``'s lines: the table's header, a row per
 HDR step, or the JSON lines and NMEA sentences as received (``raw``). What it returns is
@@ -25,13 +26,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdrd.io.display import fit, for_display
-from hdrd.io.protocol import MESSAGE_CLASS
+from hdrd.io.protocol import ADDED_KEYS, MESSAGE_CLASS, STEP_KEYS
 from hdrd.io.publish import heading_field, parse_hostport, parse_nmea
 
 __all__ = [
     "DEFAULT_TAIL_LISTEN",
+    "MAX_MAGNITUDE",
     "Received",
     "TailFormatter",
+    "implausible",
     "printable",
     "read_datagram",
     "shown_address",
@@ -97,6 +100,36 @@ def _read_line(raw_line: bytes, sender: str, who: str) -> Received | str:
     if not isinstance(msg, dict):
         return f"{who}: ignored a JSON value that is not an object from {sender}: {shown!r}"
     return Received(text, msg=msg)
+
+
+MAX_MAGNITUDE = 1e15
+"""No number hdrd publishes comes near this (in a count, a time in UNIX s, an angle in deg, a
+rate in deg/s); below 2**53, so an integer up to it is exact in a browser too."""
+_COMPASS_KEYS = ("heading", "gps_course")
+"""Compass headings, deg clockwise from north: in [0, 360] (360 once rounded)."""
+_KNOWN_KEYS = STEP_KEYS + ADDED_KEYS
+
+
+def _shown_number(v: float | int) -> str:
+    if isinstance(v, int) and abs(v) >= 10**16:
+        return f"(an integer of {len(str(abs(v)))} digits)"
+    return f"{v:.6g}"
+
+
+def implausible(msg: Mapping[str, Any]) -> str | None:
+    """Why an HDR message holds a value no hdrd can send, or None: a number under a key
+    docs/protocol.md defines that is not finite, or beyond :data:`MAX_MAGNITUDE`, or a compass
+    heading (``heading``, ``gps_course``) outside [0, 360]. Other types, and keys this version
+    does not know, are not judged (readers ignore what they do not understand). Pure."""
+    for key in _KNOWN_KEYS:
+        v = msg.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        if not abs(v) <= MAX_MAGNITUDE:  # NaN too; exact for an integer of any length
+            return f"{key} {_shown_number(v)} is beyond any value hdrd sends"
+        if key in _COMPASS_KEYS and not 0.0 <= v <= 360.0:
+            return f"{key} {_shown_number(v)} is not a compass heading (0 to 360 deg)"
+    return None
 
 
 def read_datagram(

@@ -28,7 +28,7 @@ import math
 from collections import deque
 from typing import Any
 
-from hdrd.io.datagrams import read_datagram
+from hdrd.io.datagrams import implausible, read_datagram
 from hdrd.io.protocol import MESSAGE_CLASS
 
 __all__ = [
@@ -79,7 +79,8 @@ def trace_point(msg: dict[str, Any], rx: float) -> Point:
     heading, course = _number(msg.get("heading")), _number(msg.get("gps_course"))
     dgps = None
     if msg.get("mode") == "aided" and heading is not None and course is not None:
-        dgps = round((heading - course + 180.0) % 360.0 - 180.0, 3)
+        diff = heading - course  # inf only for values implausible() refuses
+        dgps = round((diff + 180.0) % 360.0 - 180.0, 3) if math.isfinite(diff) else None
     return (round(rx, 3), None if omega is None else round(omega, 4), dgps)
 
 
@@ -119,22 +120,27 @@ class LiveState:
         return out
 
     def _event(self, msg: dict[str, Any], sender: str, rx: float) -> bytes | None:
-        try:
-            event = sse_event("msg", {"rx": round(rx, 3), "msg": msg})
-        except (ValueError, TypeError, RecursionError):
-            event = None  # NaN or infinity, nesting too deep: not JSON a browser reads
-        if event is None or len(event) > MAX_EVENT_BYTES:
+        why = implausible(msg)
+        event = b""
+        if why is None:
+            try:
+                event = sse_event("msg", {"rx": round(rx, 3), "msg": msg})
+            except (ValueError, TypeError, RecursionError):
+                why = "not finite or nested too deeply"  # not JSON a browser reads
+            if len(event) > MAX_EVENT_BYTES:
+                why = "too long"
+        if why is not None:
             self.ignored += 1
-            why = "not finite or nested too deeply" if event is None else "too long"
             self.last_reason = f"hdrd web: ignored an HDR message from {sender}: {why}"
             return None
         self.received += 1
         self.latest = event
-        self._add_point(trace_point(msg, rx), rx)
+        self._add_point(trace_point(msg, rx))
         return event
 
-    def _add_point(self, point: Point, rx: float) -> None:
+    def _add_point(self, point: Point) -> None:
         trace = self.trace
+        rx = point[0]  # to the millisecond, as every point before it
         if trace and rx < trace[-1][0]:
             trace.clear()  # the clock went back: the old points would be drawn in the future
         if trace and rx - trace[-1][0] < TRACE_STEP_S:
