@@ -25,10 +25,12 @@ from hdrd.io.publish import format_json
 from hdrd.io.webserver import (
     ASSETS,
     EXTRA_CONNECTIONS,
+    PEER_PENDING,
     WebServer,
     WebSettings,
     host_allowed,
     parse_request,
+    peer_key,
 )
 from hdrd.io.webstate import TRACE_STEP_S
 
@@ -187,6 +189,21 @@ def test_a_local_server_answers_to_loopback_names_only(
     assert host_allowed(host, local) is ok
 
 
+@pytest.mark.parametrize(
+    ("address", "key"),
+    [
+        ("192.168.1.5", "192.168.1.5"),
+        ("::ffff:192.168.1.5", "192.168.1.5"),
+        ("2001:db8::1", "2001:db8::/64"),
+        ("2001:db8::ffff:1%eth0", "2001:db8::/64"),  # one host may hold its whole /64
+        ("fe80::1%eth0", "fe80::/64"),
+        ("?", "?"),
+    ],
+)
+def test_a_peer_is_its_address_or_its_ipv6_64(address: str, key: str) -> None:
+    assert peer_key(address) == key
+
+
 def test_the_page_loads_nothing_from_elsewhere_and_never_parses_markup() -> None:
     for name, _ in ASSETS.values():
         text = (PAGE / name).read_text()
@@ -284,15 +301,53 @@ def test_clients_beyond_the_limit_are_refused_until_one_leaves() -> None:
         wait_for(lambda: len(s.server.clients) == 1, "the server to see a client leave")
         d = Stream(s)
         assert d.status() == 200
-        # Connections that never ask for anything are bounded too: beyond the limit, closed.
-        idle = [s.connect() for _ in range(2 + EXTRA_CONNECTIONS - 2)]
-        wait_for(lambda: s.server.connections == 2 + EXTRA_CONNECTIONS, "the idle connections")
-        extra = s.connect()
-        assert extra.recv(100) == b""
-        for sock in [*idle, extra]:
-            sock.close()
         b.close()
         d.close()
+
+
+def closed_by_the_server(sock: socket.socket) -> bool:
+    """Whether the server closed ``sock`` without an answer (it asked for nothing)."""
+    try:
+        return sock.recv(100) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_a_peer_keeps_few_connections_waiting_its_oldest_are_closed() -> None:
+    with serving() as s:
+        idle = [
+            socket.create_connection(("127.0.0.1", s.port), GUARD_S, ("127.0.0.2", 0))
+            for _ in range(PEER_PENDING + 12)
+        ]
+        try:
+            # the same address asks for the page: the newest is served, never the one closed
+            with socket.create_connection(
+                ("127.0.0.1", s.port), GUARD_S, ("127.0.0.2", 0)
+            ) as viewer:
+                viewer.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+                assert viewer.recv(12) == b"HTTP/1.1 200"
+            assert s.server.connections <= PEER_PENDING
+            assert all(closed_by_the_server(sock) for sock in idle[:13])
+            assert s.server.closed_waiting >= 13
+        finally:
+            for sock in idle:
+                sock.close()
+
+
+def test_connections_waiting_are_bounded_in_total_the_busiest_peer_gives_way() -> None:
+    with serving() as s:
+        idle = [
+            socket.create_connection(("127.0.0.1", s.port), GUARD_S, (f"127.0.0.{k}", 0))
+            for k in (2, 3, 4, 5)
+            for _ in range(PEER_PENDING)
+        ]
+        try:
+            status, _, body = s.get(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            assert status == 200 and body == (PAGE / "index.html").read_bytes()
+            assert s.server.connections <= EXTRA_CONNECTIONS
+        finally:
+            for sock in idle:
+                sock.close()
 
 
 def test_a_stalled_client_is_dropped_and_never_delays_the_others() -> None:
@@ -447,5 +502,85 @@ def test_one_absurd_datagram_never_keeps_new_viewers_out() -> None:
         err = p.stderr.read() if p.stderr else ""
         assert "Traceback" not in err and "web_datagrams_ignored" in err and "heading" in err
     finally:
+        p.kill()
+        p.communicate()
+
+
+class Slowloris:
+    """Sockets from the given source addresses of 127/8 that never finish a request (half of
+    them send the start of one), reopened as soon as the server closes them, in a thread."""
+
+    def __init__(self, port: int, sources: list[str], per_source: int) -> None:
+        self.port = port
+        self.socks: dict[socket.socket, str] = {}
+        self.reopened = 0
+        for src in sources:
+            for k in range(per_source):
+                self._open(src, k)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _open(self, src: str, k: int) -> None:
+        sock = socket.create_connection(
+            ("127.0.0.1", self.port), timeout=GUARD_S, source_address=(src, 0)
+        )
+        if k % 2:
+            sock.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never the blank line
+        self.socks[sock] = src
+
+    def _run(self) -> None:
+        import select
+
+        while not self._stop.is_set():
+            readable, _, _ = select.select(list(self.socks), [], [], 0.05)
+            for sock in readable:  # the server closed it (or answered 408): open another
+                src = self.socks.pop(sock)
+                sock.close()
+                self._open(src, self.reopened)
+                self.reopened += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(GUARD_S)
+        for sock in self.socks:
+            sock.close()
+
+
+def page_load(port: int) -> list[int]:
+    """The statuses of the page's files and of its stream (0: closed without an answer)."""
+    statuses = []
+    for path in [*ASSETS, "/events"]:
+        with socket.create_connection(("127.0.0.1", port), timeout=GUARD_S) as c:
+            c.sendall(f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+            try:
+                head = c.recv(12)
+            except ConnectionResetError:
+                head = b""
+            statuses.append(int(head[9:12]) if head.startswith(b"HTTP/1.1 ") else 0)
+    return statuses
+
+
+def test_idle_and_half_open_connections_never_keep_a_page_load_out() -> None:
+    """32 connections (max_clients + 16) from four other addresses that never finish a request,
+    each reopened as soon as it is closed, while a viewer loads the page."""
+    port, uport = free_port(), free_port(socket.SOCK_DGRAM)
+    p = start_web("--listen", f"127.0.0.1:{port}", "--udp", f"127.0.0.1:{uport}")
+    attack = None
+    try:
+        started(p)
+        attack = Slowloris(port, [f"127.0.0.{k}" for k in (2, 3, 4, 5)], 8)
+        for _ in range(3):
+            assert page_load(port) == [200] * (len(ASSETS) + 1)
+        assert attack.reopened > 0  # the server closed some of them: the attack went on
+        attack.close()
+        attack = None
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(GUARD_S) == 0
+        err = p.stderr.read() if p.stderr else ""
+        assert "Traceback" not in err and "web_connections_closed" in err
+    finally:
+        if attack is not None:
+            attack.close()
         p.kill()
         p.communicate()

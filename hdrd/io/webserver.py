@@ -11,8 +11,12 @@ Whom it trusts: nobody who connects. A request's head must arrive whole within
 ``head_timeout_s`` and fit in :data:`MAX_HEAD_BYTES` (else 408, 431); a malformed one is 400.
 While it listens on a loopback address, a request whose ``Host`` is not a loopback name or
 address is refused (403): a web site in the viewer's browser cannot reach the page by
-rebinding its own name to 127.0.0.1. At most ``max_clients`` streams at once (more: 503) and
-a few more connections for the page itself (more are closed at once). A stream's writes never
+rebinding its own name to 127.0.0.1. At most ``max_clients`` streams at once (more: 503).
+Connections still waiting for their request's head are bounded per peer
+(:data:`PEER_PENDING`) and in total (:data:`EXTRA_CONNECTIONS`): beyond, the oldest of that
+peer, or of the peer with the most, is closed, so connections that never ask for anything
+(a slowloris) cannot keep a page load out; and the total of connections is bounded
+(``max_connections``: more are closed at once). A stream's writes never
 wait: each goes to the kernel, or to the connection's queue when the kernel's buffer (set to
 ``send_buffer`` bytes) is full; a client whose queue holds more than ``queue_bytes`` when the
 next event comes is disconnected (its browser reconnects and starts afresh), so a stalled or
@@ -40,7 +44,9 @@ __all__ = [
     "ASSETS",
     "DEFAULT_MAX_CLIENTS",
     "DEFAULT_WEB_LISTEN",
+    "EXTRA_CONNECTIONS",
     "MAX_HEAD_BYTES",
+    "PEER_PENDING",
     "Request",
     "WebServer",
     "WebSettings",
@@ -49,6 +55,7 @@ __all__ = [
     "is_loopback",
     "load_assets",
     "parse_request",
+    "peer_key",
     "tcp_listener",
 ]
 
@@ -59,7 +66,10 @@ DEFAULT_MAX_CLIENTS = 16
 MAX_HEAD_BYTES = 8192
 """The longest request line and headers taken, bytes."""
 EXTRA_CONNECTIONS = 16
-"""Connections beyond ``max_clients`` for the page and its assets (short-lived)."""
+"""Connections waiting for their request's head, in all (page loads: short-lived)."""
+PEER_PENDING = 8
+"""Connections waiting for their request's head from one peer (an address; IPv6: its /64). A
+browser opens at most 6 at once to a server."""
 LOG_INTERVAL_S = 10.0
 """At most one log line per this many seconds for each kind of repeated trouble."""
 
@@ -104,8 +114,8 @@ class WebSettings:
     """A stream client with more than this waiting for it is disconnected."""
     send_buffer: int = 32_768
     """The kernel's send buffer of each connection (``SO_SNDBUF``; Linux doubles it)."""
-    head_timeout_s: float = 10.0
-    """A request's head must arrive within this."""
+    head_timeout_s: float = 5.0
+    """A request's head must arrive within this (a browser sends it at once)."""
     linger_s: float = 30.0
     """A page response not taken by then is dropped."""
     keepalive_s: float = 15.0
@@ -114,6 +124,12 @@ class WebSettings:
     def __post_init__(self) -> None:
         if not 1 <= self.max_clients <= 10_000:
             raise ValueError(f"max_clients must be 1..10000, got {self.max_clients!r}")
+
+    @property
+    def max_connections(self) -> int:
+        """Connections open at once, at most: the streams, those waiting for a request, and as
+        many again for responses on their way out (more are closed at once)."""
+        return self.max_clients + 2 * EXTRA_CONNECTIONS
 
 
 # -- HTTP, pure ----------------------------------------------------------------------------
@@ -151,6 +167,20 @@ def parse_request(head: bytes) -> Request | None:
                 return None
             host = value.strip()
     return Request(method, target.split("?", 1)[0].split("#", 1)[0], host)
+
+
+def peer_key(address: str) -> str:
+    """Whom the per-peer bound counts a connection against: its IPv4 address, or its IPv6
+    address's /64 (one host may hold a whole /64); the address as given if it is none."""
+    try:
+        ip = ipaddress.ip_address(address.split("%", 1)[0])
+    except ValueError:
+        return address
+    if isinstance(ip, ipaddress.IPv6Address):
+        if ip.ipv4_mapped is not None:
+            return str(ip.ipv4_mapped)
+        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
+    return str(ip)
 
 
 def is_loopback(address: str) -> bool:
@@ -259,7 +289,8 @@ class WebServer:
     """Serves the page and the stream from the sockets given (see the module doc).
 
     :meth:`serve` runs until :meth:`stop` (thread-safe); counters: ``refused`` (streams over
-    the limit), ``dropped`` (slow clients disconnected).
+    the limit), ``dropped`` (slow clients disconnected), ``closed_waiting`` (connections
+    closed while waiting for a request, for a newer one).
     """
 
     def __init__(
@@ -281,10 +312,15 @@ class WebServer:
         """The open streams."""
         self.open: set[_Connection] = set()
         """Every open connection (streams, page loads, requests still coming)."""
+        self.waiting: dict[str, dict[_Connection, None]] = {}
+        """Peer (:func:`peer_key`) -> its connections waiting for a request's head, oldest
+        first."""
+        self.n_waiting = 0
         self.refused = 0
         self.dropped = 0
+        self.closed_waiting = 0
         self._ignored_logged = 0
-        self._throttles = {k: _Throttle() for k in ("ignored", "refused", "dropped")}
+        self._throttles = {k: _Throttle() for k in ("ignored", "refused", "dropped", "waiting")}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
 
@@ -316,6 +352,42 @@ class WebServer:
         """End :meth:`serve` (from any thread)."""
         if self._loop is not None and self._stop is not None:
             self._loop.call_soon_threadsafe(self._stop.set)
+
+    # -- connections waiting for a request --
+
+    def admit(self, conn: _Connection) -> None:
+        """A new connection, waiting for its request: the oldest of its peer's is closed when
+        that peer has more than :data:`PEER_PENDING`, else the oldest of the peer with the
+        most when more than :data:`EXTRA_CONNECTIONS` wait in all."""
+        mine = self.waiting.setdefault(conn.key, {})
+        mine[conn] = None
+        self.n_waiting += 1
+        if len(mine) > PEER_PENDING:
+            victim = next(iter(mine))
+        elif self.n_waiting > EXTRA_CONNECTIONS:
+            busiest = max(self.waiting.values(), key=len)
+            victim = next(iter(busiest))
+        else:
+            return
+        self.unwait(victim)
+        victim.transport.abort()
+        self.closed_waiting += 1
+        if self._throttles["waiting"].due():
+            log.warning(
+                "web_connections_closed",
+                reason="too many connections waiting for a request (idle or slow)",
+                peer=victim.peer,
+                closed=self.closed_waiting,
+            )
+
+    def unwait(self, conn: _Connection) -> None:
+        """``conn`` no longer waits for a request (answered, closed); idempotent."""
+        mine = self.waiting.get(conn.key)
+        if mine is not None and conn in mine:
+            del mine[conn]
+            self.n_waiting -= 1
+            if not mine:
+                del self.waiting[conn.key]
 
     # -- streams --
 
@@ -393,6 +465,8 @@ class _Connection(asyncio.Protocol):
         self.server = server
         self.transport: Any = None
         self.peer = "?"
+        self.key = "?"
+        """The peer the per-peer bound counts it against (:func:`peer_key`)."""
         self.head = b""
         self.answered = False
         self.timer: asyncio.TimerHandle | None = None
@@ -402,14 +476,16 @@ class _Connection(asyncio.Protocol):
         s = self.server
         s.open.add(self)
         peer = transport.get_extra_info("peername")
-        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
-        if s.connections > s.settings.max_clients + EXTRA_CONNECTIONS:
+        if isinstance(peer, tuple):
+            self.peer, self.key = shown_address(str(peer[0]), int(peer[1])), peer_key(peer[0])
+        if s.connections > s.settings.max_connections:
             transport.abort()
             return
         sock = transport.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, s.settings.send_buffer)
         self._arm(s.settings.head_timeout_s, self._too_slow)
+        s.admit(self)
 
     def _arm(self, delay: float, what: Any) -> None:
         if self.timer is not None:
@@ -451,6 +527,7 @@ class _Connection(asyncio.Protocol):
 
     def _stream(self) -> None:
         self.answered = True
+        self.server.unwait(self)
         if self.timer is not None:
             self.timer.cancel()
             self.timer = None
@@ -460,6 +537,7 @@ class _Connection(asyncio.Protocol):
     def _answer(self, response: bytes) -> None:
         """Send a whole response and close; dropped if not taken within ``linger_s``."""
         self.answered = True
+        self.server.unwait(self)
         self.transport.write(response)
         self.transport.close()
         self._arm(self.server.settings.linger_s, self.transport.abort)
@@ -467,6 +545,7 @@ class _Connection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if self.timer is not None:
             self.timer.cancel()
+        self.server.unwait(self)
         self.server.clients.discard(self)
         self.server.open.discard(self)
 
