@@ -165,8 +165,19 @@ def _tail(p: argparse.ArgumentParser) -> None:
 @command("web", "hdrd.commands.web:main", "a live page of heading, mode and health (read only)")
 def _web(p: argparse.ArgumentParser) -> None:
     address(p, "--listen", "127.0.0.1:8080", "the page's address (not loopback: a warning)")
-    address(p, "--udp", "127.0.0.1:10110", "UDP address to receive the daemon's JSON on")
-    p.add_argument("--max-clients", type=int, default=16, metavar="N", help="viewers at once")
+    address(
+        p,
+        "--udp",
+        "127.0.0.1:10110",
+        "UDP address to receive the daemon's JSON on (not loopback: a warning)",
+    )
+    p.add_argument(
+        "--max-clients",
+        type=int,
+        default=16,
+        metavar="N",
+        help="viewers at once (fewer if the descriptor limit allows fewer: a warning)",
+    )
 
 
 @command("fakegyro", "hdrd.commands.fakegyro:main", "a fake gyro on a pty (for tests and demos)")

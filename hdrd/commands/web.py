@@ -9,6 +9,7 @@ address is a usage error (2); one that cannot be bound (in use, not this host's)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import socket
 import sys
 
@@ -20,6 +21,8 @@ from hdrd.io.webserver import (
     DEFAULT_WEB_LISTEN,
     WebServer,
     WebSettings,
+    descriptors,
+    is_loopback,
     run_server,
     tcp_listener,
 )
@@ -47,6 +50,41 @@ def _bind(
         return 1, f"hdrd web: cannot listen on {udp} (UDP): {e.strerror or e}"
 
 
+def _warn_not_local(shown: str, local: bool, udp_shown: str, udp_local: bool) -> None:
+    """A warning for each address reachable from elsewhere."""
+    if not local:
+        log.warning(
+            "web_listen_not_local",
+            listen=shown,
+            reason="anyone who can reach this address can watch the vehicle (read only); "
+            "the default, 127.0.0.1, is this computer only",
+        )
+    if not udp_local:
+        log.warning(
+            "web_udp_not_local",
+            udp=udp_shown,
+            reason="anyone who can send to this address can put values on the page; "
+            "the default, 127.0.0.1, is this computer only",
+        )
+
+
+def _fit_descriptors(settings: WebSettings) -> WebSettings:
+    """``settings`` with as many streams as this process's descriptors allow (a note when
+    fewer than asked)."""
+    nofile, in_use, fitted = descriptors(settings.max_clients)
+    if fitted == settings.max_clients:
+        return settings
+    log.warning(
+        "web_max_clients_clamped",
+        asked=settings.max_clients,
+        max_clients=fitted,
+        nofile=nofile,
+        reason=f"{nofile} descriptors (RLIMIT_NOFILE, LimitNOFILE=) serve {fitted} at most; "
+        "raise the limit for more",
+    )
+    return dataclasses.replace(settings, max_clients=fitted)
+
+
 def main(args: argparse.Namespace) -> int:
     """``hdrd web [--listen HOST:PORT] [--udp HOST:PORT] [--max-clients N]``."""
     listen = getattr(args, "listen", None) or DEFAULT_WEB_LISTEN
@@ -62,13 +100,8 @@ def main(args: argparse.Namespace) -> int:
         return bound[0]
     (http_sock, shown, local), (udp_sock, udp_shown) = bound
     setup_logging()
-    if not local:
-        log.warning(
-            "web_listen_not_local",
-            listen=shown,
-            reason="anyone who can reach this address can watch the vehicle (read only); "
-            "the default, 127.0.0.1, is this computer only",
-        )
+    _warn_not_local(shown, local, udp_shown, is_loopback(str(udp_sock.getsockname()[0])))
+    settings = _fit_descriptors(settings)
     server = WebServer(http_sock, udp_sock, local, udp_shown, settings, __version__)
     log.info("web_start", url=f"http://{shown}/", udp=udp_shown, max_clients=settings.max_clients)
     print(

@@ -20,14 +20,20 @@ peer, or of the peer with the most, is closed, so connections that never ask for
 wait: each goes to the kernel, or to the connection's queue when the kernel's buffer (set to
 ``send_buffer`` bytes) is full; a client whose queue holds more than ``queue_bytes`` when the
 next event comes is disconnected (its browser reconnects and starts afresh), so a stalled or
-slow client costs the others nothing. Datagrams are taken from whoever can send to the UDP
-address (loopback by default), validated as ``hdrd tail`` validates them.
+slow client costs the others nothing. :func:`descriptors` fits ``max_clients`` to the
+process's descriptor limit; should accepting run out of descriptors all the same, that is one
+warning every :data:`LOG_INTERVAL_S`, not a traceback per retry. Datagrams are taken from
+whoever can send to the UDP address (loopback by default), validated as ``hdrd tail``
+validates them.
 """
 
 from __future__ import annotations
 
 import asyncio
+import errno
 import ipaddress
+import os
+import resource
 import socket
 import time
 from collections.abc import Sequence
@@ -50,6 +56,8 @@ __all__ = [
     "Request",
     "WebServer",
     "WebSettings",
+    "descriptors",
+    "fitted_max_clients",
     "host_allowed",
     "http_response",
     "is_loopback",
@@ -70,6 +78,9 @@ EXTRA_CONNECTIONS = 16
 PEER_PENDING = 8
 """Connections waiting for their request's head from one peer (an address; IPv6: its /64). A
 browser opens at most 6 at once to a server."""
+SPARE_DESCRIPTORS = 16
+"""Descriptors kept beyond the connections: the event loop's (3), and connections accepted
+but not yet counted (asyncio accepts a burst of them at once)."""
 LOG_INTERVAL_S = 10.0
 """At most one log line per this many seconds for each kind of repeated trouble."""
 
@@ -116,6 +127,9 @@ class WebSettings:
     """The kernel's send buffer of each connection (``SO_SNDBUF``; Linux doubles it)."""
     head_timeout_s: float = 5.0
     """A request's head must arrive within this (a browser sends it at once)."""
+    grace_s: float = 1.0
+    """A connection waiting for its request this long may be closed for a newer one (younger,
+    its request may not have been read yet)."""
     linger_s: float = 30.0
     """A page response not taken by then is dropped."""
     keepalive_s: float = 15.0
@@ -268,6 +282,36 @@ def tcp_listener(listen: str) -> tuple[socket.socket, str, bool]:
     return sock, shown_address(host, port), is_loopback(str(sockaddr[0]))
 
 
+def fitted_max_clients(asked: int, nofile: int, in_use: int) -> int:
+    """The most streams (at most ``asked``, at least 1) whose connections
+    (:attr:`WebSettings.max_connections`) fit in ``nofile`` descriptors of which ``in_use``
+    are taken, :data:`SPARE_DESCRIPTORS` kept aside. Pure."""
+    room = nofile - in_use - SPARE_DESCRIPTORS - 2 * EXTRA_CONNECTIONS
+    return max(1, min(asked, room))
+
+
+def descriptors(asked: int) -> tuple[int, int, int]:
+    """This process's descriptors for ``asked`` streams: (the soft RLIMIT_NOFILE, raised
+    toward the hard one as far as they need, descriptors open now, :func:`fitted_max_clients`
+    of that)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    try:  # those numbered below the limit (a new one takes the lowest free number)
+        fds = [int(n) for n in os.listdir("/proc/self/fd")]
+        in_use = sum(1 for fd in fds if soft == resource.RLIM_INFINITY or fd < soft) - 1
+    except (OSError, ValueError):
+        in_use = 16  # no /proc: a guess above what hdrd web holds at start
+    need = asked + 2 * EXTRA_CONNECTIONS + SPARE_DESCRIPTORS + in_use
+    if soft != resource.RLIM_INFINITY and soft < need:
+        raised = need if hard == resource.RLIM_INFINITY else min(need, hard)
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (raised, hard))
+            soft = raised
+        except (ValueError, OSError):
+            pass  # kept as it is: fewer clients
+    nofile = need if soft == resource.RLIM_INFINITY else soft
+    return nofile, in_use, fitted_max_clients(asked, nofile, in_use)
+
+
 # -- the server ------------------------------------------------------------------------------
 
 
@@ -320,13 +364,16 @@ class WebServer:
         self.dropped = 0
         self.closed_waiting = 0
         self._ignored_logged = 0
-        self._throttles = {k: _Throttle() for k in ("ignored", "refused", "dropped", "waiting")}
+        self._throttles = {
+            k: _Throttle() for k in ("ignored", "refused", "dropped", "waiting", "descriptors")
+        }
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
 
     async def serve(self) -> None:
         """Serve until :meth:`stop`; then every connection is closed."""
         loop = self._loop = asyncio.get_running_loop()
+        loop.set_exception_handler(self._loop_error)
         self._stop = asyncio.Event()
         self.http_sock.setblocking(False)
         self.udp_sock.setblocking(False)
@@ -353,21 +400,33 @@ class WebServer:
         if self._loop is not None and self._stop is not None:
             self._loop.call_soon_threadsafe(self._stop.set)
 
+    def _loop_error(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        """What asyncio could not hand to anyone: out of descriptors (or memory) to accept a
+        connection is one rate-limited warning (asyncio pauses accepting for 1 s each time),
+        not a traceback per retry; anything else as asyncio reports it."""
+        exc = context.get("exception")
+        if isinstance(exc, OSError) and exc.errno in _OUT_OF:
+            if self._throttles["descriptors"].due():
+                log.warning(
+                    "web_descriptors_exhausted",
+                    reason="no descriptor for a new connection: new ones wait, retried every "
+                    "second (raise LimitNOFILE, or lower --max-clients)",
+                    error=errno.errorcode.get(exc.errno or 0, str(exc.errno)),
+                    open=len(self.open),
+                )
+            return
+        loop.default_exception_handler(context)
+
     # -- connections waiting for a request --
 
     def admit(self, conn: _Connection) -> None:
-        """A new connection, waiting for its request: the oldest of its peer's is closed when
-        that peer has more than :data:`PEER_PENDING`, else the oldest of the peer with the
-        most when more than :data:`EXTRA_CONNECTIONS` wait in all."""
+        """A new connection, waiting for its request; one is closed when too many wait
+        (:meth:`_victim`)."""
         mine = self.waiting.setdefault(conn.key, {})
         mine[conn] = None
         self.n_waiting += 1
-        if len(mine) > PEER_PENDING:
-            victim = next(iter(mine))
-        elif self.n_waiting > EXTRA_CONNECTIONS:
-            busiest = max(self.waiting.values(), key=len)
-            victim = next(iter(busiest))
-        else:
+        victim = self._victim(conn, mine)
+        if victim is None:
             return
         self.unwait(victim)
         victim.transport.abort()
@@ -379,6 +438,26 @@ class WebServer:
                 peer=victim.peer,
                 closed=self.closed_waiting,
             )
+
+    def _victim(self, conn: _Connection, mine: dict[_Connection, None]) -> _Connection | None:
+        """Which connection to close, if any, for ``conn`` (of a peer with ``mine`` waiting):
+        when its peer has more than :data:`PEER_PENDING` waiting, the peer's oldest, or
+        ``conn`` if that one is younger than ``grace_s`` (a burst: the request of the first
+        may not have been read yet); else when more than :data:`EXTRA_CONNECTIONS` wait in
+        all, the oldest of the peer with the most, or ``conn`` if that peer has no more than
+        ``conn``'s and its oldest is young."""
+        if len(mine) > PEER_PENDING:
+            oldest = next(iter(mine))
+            return oldest if self._old(oldest) else conn
+        if self.n_waiting <= EXTRA_CONNECTIONS:
+            return None
+        busiest = max(self.waiting.values(), key=len)
+        oldest = next(iter(busiest))
+        return oldest if self._old(oldest) or len(busiest) > len(mine) else conn
+
+    def _old(self, conn: _Connection) -> bool:
+        assert self._loop is not None
+        return self._loop.time() - conn.since >= self.settings.grace_s
 
     def unwait(self, conn: _Connection) -> None:
         """``conn`` no longer waits for a request (answered, closed); idempotent."""
@@ -447,6 +526,10 @@ class WebServer:
             self._ignored_logged = ignored
 
 
+_OUT_OF = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+"""What ``accept`` fails with when the process or the system runs out of resources."""
+
+
 class _Datagrams(asyncio.DatagramProtocol):
     def __init__(self, server: WebServer) -> None:
         self.server = server
@@ -467,12 +550,15 @@ class _Connection(asyncio.Protocol):
         self.peer = "?"
         self.key = "?"
         """The peer the per-peer bound counts it against (:func:`peer_key`)."""
+        self.since = 0.0
+        """When it was made (the event loop's clock, s)."""
         self.head = b""
         self.answered = False
         self.timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
+        self.since = asyncio.get_running_loop().time()
         s = self.server
         s.open.add(self)
         peer = transport.get_extra_info("peername")
