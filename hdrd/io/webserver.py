@@ -14,8 +14,9 @@ address is refused (403): a web site in the viewer's browser cannot reach the pa
 rebinding its own name to 127.0.0.1. At most ``max_clients`` streams at once (more: 503).
 Connections still waiting for their request's head are bounded per peer
 (:data:`PEER_PENDING`) and in total (:data:`EXTRA_CONNECTIONS`): beyond, the oldest of that
-peer, or of the peer with the most, is closed, so connections that never ask for anything
-(a slowloris) cannot keep a page load out; and the total of connections is bounded
+peer, or of the peer with the most, is closed (once what came with them is read), so
+connections that never ask for anything (a slowloris) cannot keep a page load from another
+peer out; and the total of connections is bounded
 (``max_connections``: more are closed at once). A stream's writes never
 wait: each goes to the kernel, or to the connection's queue when the kernel's buffer (set to
 ``send_buffer`` bytes) is full; a client whose queue holds more than ``queue_bytes`` when the
@@ -127,9 +128,6 @@ class WebSettings:
     """The kernel's send buffer of each connection (``SO_SNDBUF``; Linux doubles it)."""
     head_timeout_s: float = 5.0
     """A request's head must arrive within this (a browser sends it at once)."""
-    grace_s: float = 1.0
-    """A connection waiting for its request this long may be closed for a newer one (younger,
-    its request may not have been read yet)."""
     linger_s: float = 30.0
     """A page response not taken by then is dropped."""
     keepalive_s: float = 15.0
@@ -367,6 +365,7 @@ class WebServer:
         self._throttles = {
             k: _Throttle() for k in ("ignored", "refused", "dropped", "waiting", "descriptors")
         }
+        self._enforcing: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
 
@@ -420,44 +419,40 @@ class WebServer:
     # -- connections waiting for a request --
 
     def admit(self, conn: _Connection) -> None:
-        """A new connection, waiting for its request; one is closed when too many wait
-        (:meth:`_victim`)."""
+        """A new connection, waiting for its request; when too many wait, some are closed,
+        soon (:meth:`_enforce`)."""
         mine = self.waiting.setdefault(conn.key, {})
         mine[conn] = None
         self.n_waiting += 1
-        victim = self._victim(conn, mine)
-        if victim is None:
-            return
-        self.unwait(victim)
-        victim.transport.abort()
+        over = len(mine) > PEER_PENDING or self.n_waiting > EXTRA_CONNECTIONS
+        if over and self._enforcing is None and self._loop is not None:
+            # A timer: it runs after the loop has read what the connections accepted with
+            # this one already sent, so a request that came with a burst is answered first.
+            self._enforcing = self._loop.call_later(0.0, self._enforce)
+
+    def _enforce(self) -> None:
+        """The bounds on connections waiting for a request: a peer's oldest beyond
+        :data:`PEER_PENDING`, then the oldest of the peer with the most beyond
+        :data:`EXTRA_CONNECTIONS` in all, closed."""
+        self._enforcing = None
+        for mine in list(self.waiting.values()):
+            while len(mine) > PEER_PENDING:
+                self._close_waiting(next(iter(mine)))
+        while self.n_waiting > EXTRA_CONNECTIONS:
+            busiest = max(self.waiting.values(), key=len)
+            self._close_waiting(next(iter(busiest)))
+
+    def _close_waiting(self, conn: _Connection) -> None:
+        self.unwait(conn)
+        conn.transport.abort()
         self.closed_waiting += 1
         if self._throttles["waiting"].due():
             log.warning(
                 "web_connections_closed",
                 reason="too many connections waiting for a request (idle or slow)",
-                peer=victim.peer,
+                peer=conn.peer,
                 closed=self.closed_waiting,
             )
-
-    def _victim(self, conn: _Connection, mine: dict[_Connection, None]) -> _Connection | None:
-        """Which connection to close, if any, for ``conn`` (of a peer with ``mine`` waiting):
-        when its peer has more than :data:`PEER_PENDING` waiting, the peer's oldest, or
-        ``conn`` if that one is younger than ``grace_s`` (a burst: the request of the first
-        may not have been read yet); else when more than :data:`EXTRA_CONNECTIONS` wait in
-        all, the oldest of the peer with the most, or ``conn`` if that peer has no more than
-        ``conn``'s and its oldest is young."""
-        if len(mine) > PEER_PENDING:
-            oldest = next(iter(mine))
-            return oldest if self._old(oldest) else conn
-        if self.n_waiting <= EXTRA_CONNECTIONS:
-            return None
-        busiest = max(self.waiting.values(), key=len)
-        oldest = next(iter(busiest))
-        return oldest if self._old(oldest) or len(busiest) > len(mine) else conn
-
-    def _old(self, conn: _Connection) -> bool:
-        assert self._loop is not None
-        return self._loop.time() - conn.since >= self.settings.grace_s
 
     def unwait(self, conn: _Connection) -> None:
         """``conn`` no longer waits for a request (answered, closed); idempotent."""
@@ -550,15 +545,12 @@ class _Connection(asyncio.Protocol):
         self.peer = "?"
         self.key = "?"
         """The peer the per-peer bound counts it against (:func:`peer_key`)."""
-        self.since = 0.0
-        """When it was made (the event loop's clock, s)."""
         self.head = b""
         self.answered = False
         self.timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
-        self.since = asyncio.get_running_loop().time()
         s = self.server
         s.open.add(self)
         peer = transport.get_extra_info("peername")
