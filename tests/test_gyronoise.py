@@ -21,9 +21,15 @@ def test_parameters_by_name_round_trip_and_are_checked() -> None:
     assert g.source == "grade tactical" and g.known()
     again = GyroNoise.from_mapping(g.to_dict(), source="recorded")
     assert again.to_dict() == g.to_dict() and again.source == "recorded"
-    assert set(g.to_dict()) == {k for k in NOISE_KEYS if k != "temp_coeff_dps_per_c"} | {
-        "temp_coeff_dps_per_c"
-    }
+    # a grade says nothing of a unit's own motion offset or stop scatter
+    unit_only = {"motion_offset_dps", "motion_offset_sd_dps", "stop_scatter_dps"}
+    assert set(g.to_dict()) == set(NOISE_KEYS) - unit_only
+    signed = GyroNoise.from_mapping({"motion_offset_dps": -0.09, "motion_offset_sd_dps": 0.004})
+    assert signed.motion_offset_dps == -0.09 and signed.to_dict()["motion_offset_sd_dps"] == 0.004
+    with pytest.raises(ValueError, match="motion_offset_sd_dps = -0.004"):
+        GyroNoise.from_mapping({"motion_offset_sd_dps": -0.004})
+    with pytest.raises(ValueError, match="motion_offset_dps = inf must be a finite number"):
+        GyroNoise.from_mapping({"motion_offset_dps": float("inf")})
     with pytest.raises(ValueError, match="unknown noise parameter 'white'"):
         GyroNoise.from_mapping({"white": 0.1})
     with pytest.raises(ValueError, match="rrw_dps_per_sqrt_s = -1"):

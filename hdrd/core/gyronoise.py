@@ -46,8 +46,11 @@ class GyroNoise:
     white_dps_per_rthz: white rate noise N, deg/s/sqrt(Hz). bias_instability_dps: the Allan
     floor B, deg/s (a Gauss-Markov bias of sigma B / 0.62 and correlation time bias_tau_s, s).
     rrw_dps_per_sqrt_s: rate random walk K. temp_coeff_dps_per_c: the bias temperature
-    coefficient. quant_step_dps: the output step q, deg/s. source: where it came from, for
-    the reader and the published message (``grade crs03``, ``recorded``, ``config``).
+    coefficient. quant_step_dps: the output step q, deg/s. motion_offset_dps and
+    motion_offset_sd_dps: the unit's driving bias minus its bias at rest, deg/s, and how well
+    it is known. stop_scatter_dps: how far one stop reads from another, deg/s (1 sigma).
+    source: where it came from, for the reader and the published message (``grade crs03``,
+    ``recorded``, ``config``, ``learned``).
     """
 
     white_dps_per_rthz: float = math.nan
@@ -56,6 +59,9 @@ class GyroNoise:
     rrw_dps_per_sqrt_s: float = math.nan
     temp_coeff_dps_per_c: float = math.nan
     quant_step_dps: float = math.nan
+    motion_offset_dps: float = math.nan
+    motion_offset_sd_dps: float = math.nan
+    stop_scatter_dps: float = math.nan
     source: str = "given"
 
     def __post_init__(self) -> None:
@@ -63,7 +69,10 @@ class GyroNoise:
             if f.name == "source":
                 continue
             v = float(getattr(self, f.name))
-            if not (math.isnan(v) or (math.isfinite(v) and v >= 0.0)):
+            if f.name in SIGNED_KEYS:
+                if not (math.isnan(v) or math.isfinite(v)):
+                    raise ValueError(f"{f.name} must be a finite number (or unknown), got {v!r}")
+            elif not (math.isnan(v) or (math.isfinite(v) and v >= 0.0)):
                 raise ValueError(f"{f.name} must be a number >= 0 (or unknown), got {v!r}")
             if f.name == "bias_tau_s" and not v > 0.0:
                 raise ValueError(f"bias_tau_s must be > 0, got {v!r}")
@@ -111,7 +120,10 @@ class GyroNoise:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"{key} = {value!r} is not a number")
             v = float(value)
-            if not (math.isfinite(v) and v >= 0.0) or (key == "bias_tau_s" and not v > 0.0):
+            if key in SIGNED_KEYS:
+                if not math.isfinite(v):
+                    raise ValueError(f"{key} = {value!r} must be a finite number")
+            elif not (math.isfinite(v) and v >= 0.0) or (key == "bias_tau_s" and not v > 0.0):
                 raise ValueError(f"{key} = {value!r} must be a finite number >= 0")
             kw[key] = v
         return cls(**kw, source=source)
@@ -124,8 +136,14 @@ NOISE_KEYS: tuple[str, ...] = (
     "rrw_dps_per_sqrt_s",
     "temp_coeff_dps_per_c",
     "quant_step_dps",
+    "motion_offset_dps",
+    "motion_offset_sd_dps",
+    "stop_scatter_dps",
 )
 """The parameters of :class:`GyroNoise` by name (bias files, the config's ``gyro.*``)."""
+
+SIGNED_KEYS = frozenset({"motion_offset_dps"})
+"""The parameters that may be negative."""
 
 
 ALLAN_MIN_S = 600.0
