@@ -225,7 +225,8 @@ def trace_columns(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> dict[st
     ``speed`` (m/s, the step's mean; NaN where unknown) and ``heading_<m>`` for each of
     :data:`TRACE_METHODS`: its compass heading in [0, 360), aligned as Eψ aligns it
     (:func:`hdrd.analysis.prepare.alignment`), as the daemon would have published it had it
-    been given that heading at the start."""
+    been given that heading at the start; and ``heading_sd_<m>`` (deg, 1 sigma) for each that
+    estimates its uncertainty (HDR+)."""
     s = prep.steps
     n = s.u.shape[0]
     cols: dict[str, FloatArray] = {
@@ -236,6 +237,10 @@ def trace_columns(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> dict[st
     for m in TRACE_METHODS:
         yaw = method_yaw(prep, m, setup)
         cols[f"heading_{m}"] = np.mod(gyro_heading(yaw, prep.truth, prep.k, prep.align_n), 360.0)
+    for m in TRACE_METHODS:
+        sd = registry.get(m).heading_sd(prep.steps, method_settings(prep, m, setup))
+        if sd is not None:
+            cols[f"heading_sd_{m}"] = sd
     return cols
 
 

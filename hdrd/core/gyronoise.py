@@ -80,15 +80,27 @@ class GyroNoise:
 
     def bias_q(self) -> float:
         """Random walk of the bias a temperature model cannot explain, (deg/s)^2/s:
-        K^2 + 2 sigma^2 / tau (the Gauss-Markov term's rate of variance growth); NaN when
+        K^2 + 2 sigma^2 / tau (the Gauss-Markov term's rate of variance growth; only for a
+        correlation time above :data:`FAST_TAU_S`, else :meth:`fast_wander_q`); NaN when
         neither term is known."""
         terms = []
         if math.isfinite(self.rrw_dps_per_sqrt_s):
             terms.append(self.rrw_dps_per_sqrt_s**2)
         if math.isfinite(self.bias_instability_dps):
             sigma = self.bias_instability_dps / GM_PEAK
-            terms.append(2.0 * sigma * sigma / self.bias_tau_s)
+            terms.append(2.0 * sigma * sigma / self.bias_tau_s if self.bias_tau_s > FAST_TAU_S else 0.0)
         return float(sum(terms)) if terms else math.nan
+
+    def fast_wander_q(self) -> float:
+        """A Gauss-Markov bias whose correlation time is at most :data:`FAST_TAU_S` wanders
+        too fast to follow from stops or roads: its integral is the heading's random walk,
+        2 sigma^2 tau, deg^2/s (0 for a slower one; NaN unknown)."""
+        if not math.isfinite(self.bias_instability_dps):
+            return math.nan
+        if self.bias_tau_s > FAST_TAU_S:
+            return 0.0
+        sigma = self.bias_instability_dps / GM_PEAK
+        return 2.0 * sigma * sigma * self.bias_tau_s
 
     def bias_q_no_temp(self) -> float:
         """The same without a temperature: plus a warm-up of WARMUP_DEG_C over WARMUP_S seen
@@ -145,6 +157,9 @@ NOISE_KEYS: tuple[str, ...] = (
 SIGNED_KEYS = frozenset({"motion_offset_dps"})
 """The parameters that may be negative."""
 
+FAST_TAU_S = 120.0
+"""A Gauss-Markov bias of at most this correlation time, s, is heading noise to HDR+, not a
+bias to follow (:meth:`GyroNoise.fast_wander_q`)."""
 
 ALLAN_MIN_S = 600.0
 """A standstill at least this long, s, is read for its bias instability and rate random walk

@@ -1,25 +1,36 @@
-"""HDR+: the paper's HDR kept as a core, under a Kalman model of the bias that adapts to the gyro.
+"""HDR+: one estimator that owns the heading and the bias, pure.
 
-Pure. One step per period T on HDR's input, u_i = block mean - eps0 (paper Eqs. 2, 11),
-deg/s, + = CCW, plus what HDR does not use: the samples' spread, the speed, the temperature
-(each NaN when unknown) and, with GPS aiding, a course's measurement of the heading error.
-docs/hdrplus.md has the reasoning and the measurements behind every default.
+A bank of Kalman filters (:class:`hdrd.core.kalman.Bank`, an interacting multiple model), one
+per kind of unit (:class:`hdrd.core.plusparams.Hypothesis`), each over the same states:
 
-1. **Bias model** (:mod:`hdrd.core.biasbank`): Kalman filters of the bias b, the standstill
-   offset c, the temperature coefficient k, the road's gentle curvature r and the heading
-   error psi; the HDR core runs on u_c = u - (b + k dT). The filters form a bank of
-   hypotheses that is data (:attr:`HdrPlusParams.bank`): a stable and a drifting gyro
-   weighed by evidence (stops, straight steps) without an error model; one, of the model's
-   random walk, with it; with a temperature the last member alone.
-2. **The core's increment follows the bias uncertainty**: ``ic_alpha`` x the bias sd (capped
-   at ``i_c_max``), with a bank only while "drifting" weighs at least half.
-3. **Standstill (zero-rate) updates** publish omega = 0, fold I into b and measure b + c.
-4. **Straight-driving measurements**: a step the turn switch lets I move (W = 1), its rate
-   within ``straight_gate_dps``, measures b + r.
-5. **GPS**: once aligned, each course measures psi (the one owner of bias and heading error;
-   docs/hdrplus.md, "GPS: one estimator").
+- ``YAW``: the yaw, deg CCW since start (the heading published is heading0 - yaw);
+- ``BIAS``: the driving bias minus the start-up static bias eps0 (paper Eq. 2), deg/s;
+- ``OFFSET``: the bias at rest minus the driving bias, deg/s: what a stop reads that driving
+  does not (a motion offset, with the sign turned; the output's rounding at rest);
+- ``STOP``: this stop's own offset, deg/s (each stop reads a little differently);
+- ``ROAD``: the yaw rate of the road's gentle curves on a straight step, deg/s;
+- ``TEMP``: the bias's temperature coefficient, deg/s/degC (while a temperature is known).
 
-Settings: :mod:`hdrd.core.plusparams` (what a gyro's fit sets, the bank, the constants).
+One step of T seconds on u = block mean - eps0 (deg/s CCW, Eqs. 2, 11): time passes (the yaw
+integrates u minus the driving bias, except at a stop, where the vehicle does not turn);
+then each measurement is an update of every member with its own row h and variance R, and
+weighs the members by how well each predicted it:
+
+- a *stop* (a zero-rate update: :func:`hdrd.core.standstill.standstill_candidate` for
+  ``steps_speed`` steps running, and the step's level within the stop gate) measures
+  BIAS + OFFSET + STOP (+ TEMP dT);
+- a step of *driving* that is not a stop measures BIAS + ROAD (+ TEMP dT) -- the paper's
+  heuristic that roads are mostly straight, as a likelihood that knows roads curve: a
+  straight step (``Road.p_straight``) or a curve, each step weighted by which it looks like;
+- a *GPS course* (from the aiding stage, at the end of the step before) measures YAW; the
+  heading aligned anew restarts YAW's error at the course's variance.
+
+The calibration window is the prior: BIAS + OFFSET is eps0's error (var(eps0)), OFFSET the
+member's motion offset prior plus what the output's rounding hides at rest. Published: the
+combined yaw and its sd (``heading_sd``), omega = u - the driving bias (0 at a stop), the
+driving bias's correction and its sd, the rest offset. docs/hdrplus.md has the reasoning and
+says which effect enters which state.
+
 :func:`step` (immutable :class:`PlusState`, the daemon's) and :func:`run_batch` (arrays,
 evaluate's) run the same code (:class:`_Run`), so they agree to the bit.
 """
@@ -33,39 +44,58 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.core import biasbank as bb
-from hdrd.core.biasbank import INITIAL_BANK, BankState, Filter
-from hdrd.core.hdr import INITIAL_STATE, HdrState, kernel
-from hdrd.core.plusparams import DEFAULTS, HdrPlusParams
+from hdrd.core.kalman import Bank, Filter, log_likelihood
+from hdrd.core.plusparams import DEFAULTS, PlusParams
 from hdrd.core.standstill import block_mean_variance, standstill_candidate
 from hdrd.core.steps import StepInput, per_step
 
 __all__ = [
+    "BIAS",
     "INITIAL_PLUS_STATE",
-    "HdrPlusParams",
+    "OFFSET",
     "PlusOutput",
+    "PlusParams",
     "PlusState",
     "PlusTrace",
+    "YAW",
+    "prior_filters",
     "run_batch",
     "step",
 ]
+
+YAW, BIAS, OFFSET, STOP, ROAD, TEMP = range(6)
+N_STATES = 6
+
+_H_YAW = ((YAW, 1.0),)
+_H_BIAS = ((BIAS, 1.0),)
+_H_OFFSET = ((OFFSET, 1.0),)
 
 
 class PlusState(NamedTuple):
     """State carried between steps. Immutable.
 
-    core: the paper HDR state (x, I, yaw, r, s, n). bank: the bias model
-    (:class:`hdrd.core.biasbank.BankState`). still: consecutive standstill-candidate steps.
-    aided: the heading has been aligned to a GPS course (its error is then tracked and
-    corrected every step, whatever the bank). u_prev: the last step's input, deg/s (NaN
-    before one), for what a turn's onset adds to the heading's error.
+    xs, Ps: each member's state and covariance (tuples); empty before the first step (the
+    prior is built then, from the settings). mu: the members' probabilities. still:
+    consecutive standstill-candidate steps. in_stop: the last step was a stop. t_ref: the
+    first temperature seen, degC (NaN: none yet). u_prev: the last step's input, deg/s (NaN
+    before one). yaw: the yaw published at the last step, deg CCW (what a GPS course's
+    measurement is relative to). aided: the heading has been aligned to a GPS course.
+    stop_n, stop_mean, stop_m2: the readings of the stop in progress (count, mean deg/s, sum
+    of squared deviations (deg/s)^2: Welford's), how much they scatter from step to step.
     """
 
-    core: HdrState = INITIAL_STATE
-    bank: BankState = INITIAL_BANK
+    xs: tuple[tuple[float, ...], ...] = ()
+    Ps: tuple[tuple[tuple[float, ...], ...], ...] = ()
+    mu: tuple[float, ...] = ()
     still: int = 0
-    aided: bool = False
+    in_stop: bool = False
+    t_ref: float = math.nan
     u_prev: float = math.nan
+    yaw: float = 0.0
+    aided: bool = False
+    stop_n: int = 0
+    stop_mean: float = 0.0
+    stop_m2: float = 0.0
 
 
 INITIAL_PLUS_STATE = PlusState()
@@ -74,94 +104,87 @@ INITIAL_PLUS_STATE = PlusState()
 class PlusOutput(NamedTuple):
     """What one step publishes.
 
-    omega: corrected yaw rate, deg/s CCW (0 at standstill). yaw: deg CCW since start (with the
-    heading correction of this step). I: the core's integrator applied in this step, deg/s.
-    W, R, r, filtered: as :class:`hdrd.core.hdr.HdrOutput` (W = 0 at standstill). bias_corr_dps:
-    the learned correction to eps0 at this step's temperature, deg/s (published bias = eps0 +
-    bias_corr). standstill: this step was a zero-rate update. bias_sd_dps: its standard
-    deviation, deg/s. temp_coeff_dps_per_c: k. i_c_dps: the core's increment in force, deg/s.
-    bias_q: the bias random walk in force (the bank's weighted), (deg/s)^2/s. drift_weight:
-    the weight of the bank's last, most drifting member (1 with one). heading_fix_deg: the
-    heading correction made in this step, deg CCW.
+    omega: the corrected yaw rate, deg/s CCW (0 at a stop). yaw: deg CCW since start.
+    heading_sd_deg: the yaw's (so the heading's) standard deviation, deg. bias_corr_dps: the
+    driving bias's correction to eps0 at this step's temperature, deg/s (published bias =
+    eps0 + this). bias_sd_dps: its sd. offset_dps: the estimated motion offset (driving bias
+    minus rest bias), deg/s. standstill: this step was a zero-rate update. straight: the
+    weight with which the step counted as straight road (0 at a stop or a course). weights:
+    each member's probability after the step.
     """
 
     omega: float
     yaw: float
-    I: float
-    W: int
-    R: float
-    r: int
-    filtered: float
+    heading_sd_deg: float
     bias_corr_dps: float
-    standstill: bool
     bias_sd_dps: float
-    temp_coeff_dps_per_c: float
-    i_c_dps: float
-    bias_q: float
-    drift_weight: float
-    heading_fix_deg: float
+    offset_dps: float
+    standstill: bool
+    straight: float
+    weights: tuple[float, ...]
 
 
-# -- one step, shared by both forms: the filter's phases ---------------------------------------
-
-
-class _Mix(NamedTuple):
-    """A step's correction in force (after predict): ws the members' weights ([1] when not
-    mixing); corrs each member's b + k dT, deg/s, and corr their weighted mean; inc the core's
-    increment, deg/s; qs the random walks in force, (deg/s)^2/s; mixing: the bank weighs its
-    members this step (several, and no temperature)."""
-
-    ws: list[float]
-    corrs: list[float]
-    corr: float
-    inc: float
-    qs: list[float]
-    mixing: bool
+def prior_filters(p: PlusParams, yaw: float = 0.0) -> list[Filter]:
+    """Each member's filter at the end of the start-up calibration (module docstring)."""
+    out = []
+    for h in p.bank:
+        x = [0.0] * N_STATES
+        P = [[0.0] * N_STATES for _ in range(N_STATES)]
+        x[YAW] = yaw
+        x[OFFSET] = -h.offset_dps  # rest minus driving
+        x[BIAS] = h.offset_dps
+        vc = h.offset_sd_dps**2 + p.quant_var
+        P[OFFSET][OFFSET] = vc
+        P[BIAS][BIAS] = vc + p.bias_p0
+        P[BIAS][OFFSET] = P[OFFSET][BIAS] = -vc
+        P[ROAD][ROAD] = p.road.sd_dps**2
+        P[TEMP][TEMP] = p.temp_coeff_sd**2
+        out.append(Filter(x, P))
+    return out
 
 
 class _Run:
-    """The filter on mutable locals: :func:`step` runs one step of it from a state,
-    :func:`run_batch` many. :meth:`advance` calls the phases in order (predict, mixture,
-    standstill test, then a standstill or a driving update, heading fix, output); each phase
-    is a method below. Any change here changes both forms alike."""
+    """The estimator on mutable members: :func:`step` runs one step of it from a state,
+    :func:`run_batch` many; the phases are its methods."""
 
-    def __init__(self, state: PlusState, p: HdrPlusParams) -> None:
-        self.p, self.t, self.f = p, p.tuning, p.fit
-        c = state.core
-        self.x, self.I, self.yaw, self.r, self.s, self.n = c.x, c.I, c.yaw, c.r, c.s, c.n
-        self.still = state.still
-        self.aided = state.aided
-        self.u_prev = state.u_prev
-        self.measured = False  # a GPS course measured the heading error in this step
-        self.need = 0  # consecutive candidates the current standstill test asks for
-        q = self.f.quant_step_dps
-        self.q2 = q * q / 12.0
-        k = state.bank
-        n = len(p.bank)
-        # A state from another bank (a reconfigured daemon): members are matched from the
-        # last (the one in force with a known model); the others start from the prior.
-        have = k.filters[-n:] if k.filters else ()
-        init = bb.prior(self.f.bias_p0 + self.q2, self.f.stop_offset_var,
-                        self.f.temp_coeff_sd**2, self.t.road_var)  # fmt: skip
-        fs = [init] * (n - len(have)) + list(have)
-        self.xs = [list(f.x) for f in fs]
-        self.Ps = [list(f.P) for f in fs]
-        p0 = p.bank[0].prior
-        lo = [math.log(h.prior / p0) for h in p.bank]
-        lo[0] = 0.0
-        keep = k.log_odds[-n:] if len(k.log_odds) >= n else ()
-        self.lo = [0.0, *keep[1:]] if keep else lo
-        self.t_ref = k.t_ref
-        self.qs = [h.q for h in p.bank]  # the members' random walks without a temperature
-        self.qs_temp = [*self.qs[:-1], self.f.bias_q]  # ... and with one
-        self.road_a = math.nan  # the road's decay over the last T (cached)
-        self.road_T = math.nan
+    def __init__(self, state: PlusState, p: PlusParams) -> None:
+        self.p = p
+        m = len(p.bank)
+        if len(state.xs) == m:
+            fs = [Filter(x, P) for x, P in zip(state.xs, state.Ps)]
+            mu = list(state.mu)
+        else:  # the first step, or a bank of another size (a reconfigured daemon)
+            fs = prior_filters(p, state.yaw)
+            mu = [h.prior for h in p.bank]
+            total = sum(mu)
+            mu = [w / total for w in mu]
+        self.tilt = [h.share / h.prior for h in p.bank]  # decision -> population weights
+        s = p.switch_p if m > 1 else 0.0
+        M = [[1.0 - s if i == j else s / (m - 1) for j in range(m)] for i in range(m)]
+        self.bank = Bank(fs, mu, M)
+        self.still, self.in_stop = state.still, state.in_stop
+        self.t_ref, self.u_prev = state.t_ref, state.u_prev
+        self.yaw, self.aided = state.yaw, state.aided
+        self.stop_n, self.stop_mean, self.stop_m2 = state.stop_n, state.stop_mean, state.stop_m2
+        self.road_a = math.exp(-p.T / p.road.tau_s)
+        self.road_q = p.road.sd_dps**2 * (1.0 - self.road_a**2)
 
     def state(self) -> PlusState:
-        core = HdrState(x=self.x, I=self.I, yaw=self.yaw, r=self.r, s=self.s, n=self.n)
-        filters = tuple(Filter(tuple(x), tuple(P)) for x, P in zip(self.xs, self.Ps))
-        bank = BankState(filters, tuple(self.lo), self.t_ref)
-        return PlusState(core, bank, self.still, self.aided, self.u_prev)
+        fs = self.bank.filters
+        return PlusState(
+            tuple(tuple(f.x) for f in fs),
+            tuple(tuple(tuple(r) for r in f.P) for f in fs),
+            tuple(self.bank.mu),
+            self.still,
+            self.in_stop,
+            self.t_ref,
+            self.u_prev,
+            self.yaw,
+            self.aided,
+            self.stop_n,
+            self.stop_mean,
+            self.stop_m2,
+        )
 
     def advance(
         self,
@@ -176,238 +199,196 @@ class _Run:
     ) -> PlusOutput:
         """One step of T seconds: u deg/s CCW, the samples' spread sp deg/s, speed v m/s,
         temperature te degC (NaN = unknown); a GPS course's measurement of the heading error
-        at the step before (herr deg, of variance hvar deg^2; NaN: none), the heading aligned
-        anew before it (reset)."""
-        dT, have_temp = self.temperature(te)
-        self.measured = herr == herr  # a GPS course measures the heading error this step
-        if reset or self.measured:
-            self.aid(herr, hvar, reset)
-        mix = self.predict(T, dT, have_temp)
-        zero = self.standstill_test(u - mix.corr, sp, v, mix)
+        at the end of the step before (herr deg, variance hvar deg^2; NaN: none), the heading
+        aligned anew before it (reset)."""
+        dT = self.temperature(te)
+        lls = [0.0] * len(self.bank.filters)
+        measured = herr == herr
+        if reset or measured:
+            self.course(herr, hvar, reset, lls)
+        self.bank.transition()
+        h_bias = ((BIAS, 1.0), (TEMP, dT))
+        corr = self.bank.mean(h_bias)
+        zero = self.standstill_test(u - corr, sp, v, dT) and self.p.measure
+        self.predict(u, sp, T, dT, corr, zero)
+        straight = 0.0
         if zero:
-            out = self.standstill_update(u, sp, dT, mix)
-        else:
-            out = self.driving_update(u, sp, T, dT, mix)
+            self.stop_update(u, sp, dT, lls)
+        elif not measured and self.p.measure:
+            straight = self.road_update(u, dT, lls)
+        ew = self.p.evidence_weight
+        self.bank.weigh([ew * ll for ll in lls])
         self.u_prev = u
-        heading = self.heading_fix(mix) if mix.mixing or self.aided else 0.0
-        m = self.t.drift_odds_max
-        lo = self.lo
-        for i in range(1, len(lo)):
-            lo[i] = min(max(lo[i], -m), m)
-        return self.output(out, zero, dT, mix, heading)
+        return self.output(u, dT, zero, straight)
 
-    # -- the phases ------------------------------------------------------------------------
+    # -- the phases ----------------------------------------------------------------------
 
-    def aid(self, herr: float, hvar: float, reset: bool) -> None:
-        """A GPS course: the heading aligned anew (psi restarts at 0, of variance hvar), and/or
-        a measurement of psi, herr deg of variance hvar, moving each member's bias by their
-        covariance; it does the integrator's work (I folded into b, b - I unchanged). Not
-        weighed as evidence: each course corrects the heading the next is compared with, so
-        the innovations would count only the members' spreads (docs/hdrplus.md)."""
+    def temperature(self, te: float) -> float:
+        """degC above the first temperature seen; 0 without one."""
+        if te != te:
+            return 0.0
+        if self.t_ref != self.t_ref:
+            self.t_ref = te
+        return te - self.t_ref
+
+    def course(self, herr: float, hvar: float, reset: bool, lls: list[float]) -> None:
+        """A GPS course at the end of the step before: the true yaw was the published one plus
+        herr (the published heading minus the course; compass degrees turn the other way);
+        reset: the heading was aligned anew, its error restarts at the course's variance."""
         var = hvar if hvar > 0.0 else 0.0
         if reset:
-            for x, P in zip(self.xs, self.Ps):
-                bb.reset_heading(x, P, var)
+            for f in self.bank.filters:
+                for i in range(N_STATES):
+                    f.P[YAW][i] = f.P[i][YAW] = 0.0
+                f.P[YAW][YAW] = var
+                f.x[YAW] = self.yaw
             self.aided = True
-        if herr == herr and self.aided:
-            for x, P in zip(self.xs, self.Ps):
-                x[bb.B] -= self.I
-                bb.update_heading(x, P, herr, var)
-            self.I = 0.0
+        if herr == herr and self.aided and var > 0.0:
+            z = self.yaw + herr
+            for k, f in enumerate(self.bank.filters):
+                inn = f.update(z, _H_YAW, var)
+                lls[k] += log_likelihood(inn.nu, inn.S)
 
-    def temperature(self, te: float) -> tuple[float, bool]:
-        """(dT, a temperature is used): degC above the first one seen, 0 without."""
-        have_temp = not math.isnan(te)
-        if have_temp and math.isnan(self.t_ref):
-            self.t_ref = te
-        return (te - self.t_ref if have_temp else 0.0), have_temp
-
-    def predict(self, T: float, dT: float, have_temp: bool) -> _Mix:
-        """Let T pass (the random walks, the road's decay) and weigh the bank: the correction
-        and the core's increment in force for this step. With a temperature the last member
-        runs at the walk the temperature model leaves and is in force alone."""
-        t = self.t
-        qs = self.qs_temp if have_temp else self.qs
-        if T != self.road_T:
-            self.road_T = T
-            self.road_a = math.exp(-T / t.road_tau_s) if t.road_var > 0.0 else 1.0
-        a = self.road_a
-        road_q = t.road_var * (1.0 - a * a)
-        for x, P, q in zip(self.xs, self.Ps, qs):
-            bb.predict(x, P, q, T, a, road_q)
-        corrs = [bb.bias_at(x, dT) for x in self.xs]
-        if len(qs) > 1 and not have_temp:
-            ws = bb.weights(self.lo)
-            inc = 0.0 if self.measured else self.bank_increment(ws[-1])
-            return _Mix(ws, corrs, bb.weighted(ws, corrs), inc, qs, True)
-        inc = 0.0 if self.measured else self.increment(bb.bias_var_at(self.Ps[-1], dT), qs[-1])
-        return _Mix([1.0], corrs, corrs[-1], inc, qs, False)
-
-    def increment(self, var_t: float, q_i: float) -> float:
-        """The core's increment of one member in force, deg/s (module docstring, 2)."""
-        t = self.t
-        if t.ic_alpha > 0.0:
-            inc = min(t.i_c_max, t.ic_alpha * math.sqrt(var_t if var_t > 0.0 else 0.0))
-        else:
-            inc = self.p.hdr.i_c
-        ratio = self.f.ic_drift_ratio
-        if ratio > 0.0 and q_i * t.road_tau_s < ratio * t.road_var:
-            inc = 0.0
-        return inc
-
-    def bank_increment(self, w_last: float) -> float:
-        """The core's increment with a bank of several, deg/s: ``ic_alpha`` x the most drifting
-        member's bias sd (capped at ``i_c_max``) while it weighs at least 0.5, else 0."""
-        t, v1 = self.t, self.Ps[-1][bb.BB]
-        sd1 = math.sqrt(v1 if v1 > 0.0 else 0.0)
-        return min(t.i_c_max, t.ic_alpha * sd1) if w_last >= 0.5 else 0.0
-
-    def standstill_test(self, uc: float, sp: float, v: float, mix: _Mix) -> bool:
-        """Is this step a zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
-        standstill_candidate`) whose corrected level is within ``stop_gate_sigma`` of what
-        the model allows at rest, for ``steps_speed`` (or ``steps_gyro``) steps running."""
-        p, t = self.p, self.t
-        level = uc + self.I
+    def standstill_test(self, level: float, sp: float, v: float, dT: float) -> bool:
+        """A zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
+        standstill_candidate`) whose corrected level is within ``stop_gate_sigma`` of what the
+        bank allows at rest, for ``steps_speed`` (or ``steps_gyro``) steps running."""
+        p = self.p
         cand, need = standstill_candidate(level, sp, v, p.standstill)
-        if cand and t.stop_gate_sigma > 0.0:
-            hv = bb.stop_var(self.Ps[-1])
-            if mix.mixing:  # the widest member, and how far apart the members are
-                for P in self.Ps[:-1]:
-                    hv = max(hv, bb.stop_var(P))
-                hv += (max(mix.corrs) - min(mix.corrs)) ** 2
-            bv = self.f.block_var
-            if math.isnan(bv):  # no calibration (a given bias): this step's own spread
-                bv = block_mean_variance(sp, p.standstill)
-            allow = bv + (hv if hv > 0.0 else 0.0) + mix.inc * mix.inc
-            allow += t.gate_floor_dps**2
-            cand = abs(level) <= t.stop_gate_sigma * math.sqrt(allow)
+        if cand and p.stop_gate_sigma > 0.0:
+            rest = ((BIAS, 1.0), (OFFSET, 1.0), (TEMP, dT))
+            allow = self.bank.var(rest) + p.stop_scatter_dps**2 + p.gate_floor_dps**2
+            bv = p.block_var if p.block_var == p.block_var else block_mean_variance(sp, p.standstill)
+            cand = abs(level - self.bank.mean(_H_OFFSET)) <= p.stop_gate_sigma * math.sqrt(
+                allow + bv
+            )
         self.still = self.still + 1 if cand else 0
-        self.need = need
         return cand and self.still >= need
 
-    def weigh(self, evidence: list[tuple[float, float]], floor2: float) -> None:
-        """Each member's log-odds gain how much better than the first it predicted a
-        measurement (innovation, its variance), every variance widened by floor2."""
-        nu0, s0 = evidence[0]
-        for i in range(1, len(evidence)):
-            nu, s = evidence[i]
-            self.lo[i] += bb.log_evidence(nu, s + floor2, nu0, s0 + floor2)
-
-    def standstill_update(
-        self, u: float, sp: float, dT: float, mix: _Mix
-    ) -> tuple[float, float, int, float, int, float]:
-        """A zero-rate update: the true rate is 0, so u measures what a stop reads, b + c.
-        I is folded into b first (omega = u - b + I = u - (b - I)); I, a sum of +-i_c steps,
-        is only known to about one increment. The core restarts; omega = 0 is published."""
+    def predict(self, u: float, sp: float, T: float, dT: float, corr: float, zero: bool) -> None:
+        """Let T pass in every member: the driving bias's random walk, the road's decay, and
+        -- unless the vehicle stands -- the yaw integrating u minus the bias, with the noise
+        of what the bias does not explain (module docstring)."""
         p = self.p
-        rv = block_mean_variance(sp, p.standstill)
-        bv = self.f.block_var
-        if not math.isnan(bv) and bv > rv:
-            rv = bv
-        first = self.still == self.need
-        evidence = []
-        for x, P in zip(self.xs, self.Ps):
-            x[bb.B] -= self.I
-            if first:
-                P[bb.BB] += mix.inc * mix.inc
-            evidence.append(bb.update(x, P, 1.0, dT, 0.0, u, rv + self.q2))
-        if mix.mixing:  # both allow a calibration error: stop_floor_dps
-            self.weigh(evidence, self.t.stop_floor_dps**2)
-        self.x, self.I, self.r, self.s, self.n = 0.0, 0.0, 1, 0, self.n + 1
-        return 0.0, 0.0, 0, 1.0, 1, 0.0
-
-    def driving_update(
-        self, u: float, sp: float, T: float, dT: float, mix: _Mix
-    ) -> tuple[float, float, int, float, int, float]:
-        """The paper's step (:func:`hdrd.core.hdr.kernel`) on u_c = u - the correction, with the
-        increment in force; then, on a straight step, a measurement of b + r. The heading's
-        correction grows by the bias's uncertainty and, once aided, by the step's rate noise
-        integrated (its block mean's variance x T^2) and by what a turn adds: ``turn_err``
-        of the angle turned in the step (scale factor, a point-sampled gyro's aliasing)."""
-        t = self.t
-        if mix.mixing or self.aided:
-            q_psi = 0.0
-            if self.aided:
-                q_psi = self.heading_noise(u - mix.corr, u, sp, T)
-            for P in self.Ps:
-                bb.heading_predict(P, T, dT, q_psi)
-        I_out = self.I
-        x, self.I, self.yaw, r, s, W, R, y, omega = kernel(
-            u - mix.corr, self.x, I_out, self.yaw, self.r, self.s, mix.inc, T, self.p.hdr
-        )
-        self.x, self.r, self.s, self.n = x, r, s, self.n + 1
-        if len(self.xs) > 1 and self.aided:
-            # The yaw integrated the bank's correction, not each member's: each member's
-            # heading correction moves by what its own bias says the yaw missed (once a course
-            # measures the heading: each member is then compared with the same heading).
-            for x_ in self.xs:
-                x_[bb.PSI] += T * ((u - bb.bias_at(x_, dT)) - omega)
-        if t.straight_r > 0.0 and W and abs(omega) <= t.straight_gate_dps and not self.measured:
-            evidence = [
-                bb.update(x_, P_, 0.0, dT, 1.0, u, t.straight_r) for x_, P_ in zip(self.xs, self.Ps)
-            ]
-            if mix.mixing:  # which member predicted this step (and its road) better
-                self.weigh(evidence, 0.0)
-        return omega, I_out, W, R, r, y
+        a = self.road_a if T == p.T else math.exp(-T / p.road.tau_s)
+        rq = self.road_q if T == p.T else p.road.sd_dps**2 * (1.0 - a * a)
+        rows: dict[int, tuple[tuple[int, float], ...]] = {ROAD: ((ROAD, a),)}
+        qh = 0.0
+        if not zero:
+            rows[YAW] = ((YAW, 1.0), (BIAS, -T), (TEMP, -T * dT))
+            qh = self.heading_noise(u - corr, u, sp, T)
+        new_stop = zero and not self.in_stop
+        self.in_stop = zero
+        if new_stop or not zero:
+            self.stop_n, self.stop_mean, self.stop_m2 = 0, 0.0, 0.0
+        for h, f in zip(self.p.bank, self.bank.filters):
+            f.predict(rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, rq), (YAW, YAW, qh)))
+            if not zero:
+                f.x[YAW] += T * u
+            if new_stop:  # each stop reads with an offset of its own
+                for i in range(N_STATES):
+                    f.P[STOP][i] = f.P[i][STOP] = 0.0
+                f.x[STOP] = 0.0
+                f.P[STOP][STOP] = p.stop_scatter_dps**2
 
     def heading_noise(self, uc: float, u: float, sp: float, T: float) -> float:
-        """What one step adds to the heading's error beside the bias, deg^2: the rate noise
-        integrated (the block mean's variance at rest x T^2: the calibration's, else this
-        step's spread's), ``turn_err`` of the angle turned (a
-        scale factor's error), and a turn's onset between samples that the block mean
-        misses (the rate's change from the last step x T / (2 x samples per step): a 1 Hz
-        point-sampled gyro's aliasing)."""
-        bv = self.f.block_var  # the noise at rest (while driving, a step's spread is the road's)
-        if bv != bv and sp == sp:
-            bv = block_mean_variance(sp, self.p.standstill)
-        turned = self.t.turn_err * uc * T
-        q = (bv * T * T if bv == bv else 0.0) + turned * turned
+        """What a step of driving adds to the yaw's variance beside the bias, deg^2: the rate
+        noise integrated (a step's variance at rest x T^2), ``turn_err`` of the angle turned,
+        a turn's onset between samples that a point-sampled gyro misses (the rate's change
+        x T / (2 x samples per step)), and a bias wander too fast to follow."""
+        p = self.p
+        bv = p.block_var
+        if bv != bv:
+            bv = block_mean_variance(sp, p.standstill) if sp == sp else 0.0
+        turned = p.turn_err * uc * T
+        q = bv * T * T + turned * turned + p.heading_q * T
         if self.u_prev == self.u_prev:
-            onset = (u - self.u_prev) * T / (2.0 * self.p.standstill.samples_per_step)
+            onset = (u - self.u_prev) * T / (2.0 * p.standstill.samples_per_step)
             q += onset * onset
         return q
 
-    def heading_fix(self, mix: _Mix) -> float:
-        """Correct the yaw by the heading error the measurements revealed (the bank's
-        weighted psi), deg CCW; once aided each member's correction keeps what the bank's did
-        not take (else, and with one member, psi restarts at 0)."""
-        heading = bb.weighted(mix.ws, [x[bb.PSI] for x in self.xs])
-        self.yaw += heading
-        for x in self.xs:
-            x[bb.PSI] = x[bb.PSI] - heading if self.aided and len(self.xs) > 1 else 0.0
-        return heading
+    def stop_update(self, u: float, sp: float, dT: float, lls: list[float]) -> None:
+        """A zero-rate update: u measures what a stop reads, BIAS + OFFSET + STOP (+ TEMP
+        dT), of a step's variance at rest: the largest of the calibration's, the step's own
+        spread's, how the stop's readings scatter from step to step so far (the samples of a
+        band-limited gyro and an idling engine's vibration are correlated within a step), and
+        ``stop_floor_dps``^2 -- which a stop's first steps, before they show their scatter,
+        take times four."""
+        p = self.p
+        self.stop_n += 1
+        d = u - self.stop_mean
+        self.stop_mean += d / self.stop_n
+        self.stop_m2 += d * (u - self.stop_mean)
+        floor = p.stop_floor_dps**2
+        rv = max(block_mean_variance(sp, p.standstill), floor if self.stop_n >= 3 else 4.0 * floor)
+        if p.block_var == p.block_var and p.block_var > rv:
+            rv = p.block_var
+        if self.stop_n >= 3:
+            rv = max(rv, self.stop_m2 / (self.stop_n - 1))
+        h = ((BIAS, 1.0), (OFFSET, 1.0), (STOP, 1.0), (TEMP, dT))
+        for k, f in enumerate(self.bank.filters):
+            inn = f.update(u, h, rv)
+            lls[k] += log_likelihood(inn.nu, inn.S)
 
-    def output(
-        self,
-        core: tuple[float, float, int, float, int, float],
-        zero: bool,
-        dT: float,
-        mix: _Mix,
-        heading: float,
-    ) -> PlusOutput:
-        """What is published: the core's output and the bias model after this step (the
-        bank's mixture: within and between its members)."""
-        if mix.mixing:
-            ws = mix.ws
-            bs = [bb.bias_at(x, dT) for x in self.xs]
-            bc = bb.weighted(ws, bs)
-            spread = [bb.bias_var_at(P, dT) + (b - bc) ** 2 for P, b in zip(self.Ps, bs)]
-            var_b = bb.weighted(ws, spread)
-            kc = bb.weighted(ws, [x[bb.K] for x in self.xs])
-            q_in = bb.weighted(ws, mix.qs)
-            w_last = ws[-1]
-        else:
-            x1 = self.xs[-1]
-            bc, var_b = bb.bias_at(x1, dT), bb.bias_var_at(self.Ps[-1], dT)
-            kc, q_in, w_last = x1[bb.K], mix.qs[-1], 1.0
-        sd = math.sqrt(var_b if var_b > 0.0 else 0.0)
-        omega, I_out, W, R, r, y = core
-        return PlusOutput(omega, self.yaw, I_out, W, R, r, y, bc, zero, sd, kc, mix.inc, q_in,
-                          w_last, heading)  # fmt: skip
+    def road_update(self, u: float, dT: float, lls: list[float]) -> float:
+        """A step of driving: u measures BIAS + ROAD (+ TEMP dT) if the road is straight, with
+        ``sway_var``; a curve adds ``curve_var``. Each member weighs the two by its own
+        innovation and updates as far as the step looks straight; the mixture's likelihood
+        is its evidence. Returns the bank's weight of "straight"."""
+        road = self.p.road
+        h = ((BIAS, 1.0), (ROAD, 1.0), (TEMP, dT))
+        ls0 = math.log(road.p_straight)
+        lc0 = math.log(1.0 - road.p_straight) if road.p_straight < 1.0 else -math.inf
+        straight = 0.0
+        for k, f in enumerate(self.bank.filters):
+            inn = f.innovation(u, h, road.sway_var)
+            ls = ls0 + log_likelihood(inn.nu, inn.S)
+            lc = lc0 + log_likelihood(inn.nu, inn.S + road.curve_var) if lc0 > -math.inf else -math.inf
+            top = max(ls, lc)
+            total = top + math.log(math.exp(ls - top) + math.exp(lc - top))
+            w = math.exp(ls - total)
+            if w > 1e-3:
+                f.update(u, h, road.sway_var / w)
+            lls[k] += total
+            straight += self.bank.mu[k] * w
+        return straight
+
+    def output(self, u: float, dT: float, zero: bool, straight: float) -> PlusOutput:
+        """The bank's combined estimate after the step."""
+        b = self.bank
+        h_bias = ((BIAS, 1.0), (TEMP, dT))
+        corr = b.mean(h_bias)
+        yaw = b.mean(_H_YAW)
+        self.yaw = yaw
+        omega = 0.0 if zero else u - corr
+        return PlusOutput(
+            omega,
+            yaw,
+            math.sqrt(self.heading_var(yaw)),
+            corr,
+            math.sqrt(b.var(h_bias)),
+            -b.mean(_H_OFFSET),
+            zero,
+            straight,
+            tuple(b.mu),
+        )
+
+
+    def heading_var(self, yaw: float) -> float:
+        """The published yaw's variance, deg^2, over the members weighted as common as their
+        kinds are (:attr:`hdrd.core.plusparams.Hypothesis.share`) given the evidence so far:
+        each member's own variance and its distance from the yaw published."""
+        w = [m * t for m, t in zip(self.bank.mu, self.tilt)]
+        total = sum(w)
+        var = 0.0
+        for wi, f in zip(w, self.bank.filters):
+            d = f.x[YAW] - yaw
+            var += wi * (f.P[YAW][YAW] + d * d)
+        return var / total if total > 0.0 else 0.0
 
 
 def step(
-    state: PlusState, inp: StepInput, params: HdrPlusParams = DEFAULTS
+    state: PlusState, inp: StepInput, params: PlusParams = DEFAULTS
 ) -> tuple[PlusState, PlusOutput]:
     """Advance HDR+ by one step of inp.T seconds. Pure (the same code as :func:`run_batch`)."""
     run = _Run(state, params)
@@ -416,42 +397,21 @@ def step(
     return run.state(), out
 
 
-# -- the batch form ---------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class PlusTrace:
-    """Every step's output of a batch run, as arrays (one element per step)."""
+    """Every step's output of a batch run, as arrays (one element per step), and the final
+    state. weights: steps x members."""
 
     omega: npt.NDArray[np.float64]
     yaw: npt.NDArray[np.float64]
-    I: npt.NDArray[np.float64]
-    W: npt.NDArray[np.int8]
-    R: npt.NDArray[np.float64]
-    r: npt.NDArray[np.int64]
-    filtered: npt.NDArray[np.float64]
+    heading_sd_deg: npt.NDArray[np.float64]
     bias_corr_dps: npt.NDArray[np.float64]
-    standstill: npt.NDArray[np.bool_]
     bias_sd_dps: npt.NDArray[np.float64]
-    temp_coeff_dps_per_c: npt.NDArray[np.float64]
-    i_c_dps: npt.NDArray[np.float64]
-    bias_q: npt.NDArray[np.float64]
-    drift_weight: npt.NDArray[np.float64]
-    heading_fix_deg: npt.NDArray[np.float64]
+    offset_dps: npt.NDArray[np.float64]
+    standstill: npt.NDArray[np.bool_]
+    straight: npt.NDArray[np.float64]
+    weights: npt.NDArray[np.float64]
     final: PlusState
-
-
-_DTYPES: tuple[type[np.generic], ...] = (
-    *(np.float64,) * 3,
-    np.int8,
-    np.float64,
-    np.int64,
-    np.float64,
-    np.float64,
-    np.bool_,
-    *(np.float64,) * 6,
-)
-"""The dtypes of :class:`PlusTrace`'s arrays, in the order of :class:`PlusOutput`."""
 
 
 def run_batch(
@@ -460,18 +420,17 @@ def run_batch(
     speed: npt.ArrayLike | None = None,
     temp: npt.ArrayLike | None = None,
     T: npt.ArrayLike | None = None,
-    params: HdrPlusParams = DEFAULTS,
+    params: PlusParams = DEFAULTS,
     state: PlusState = INITIAL_PLUS_STATE,
     heading_err: npt.ArrayLike | None = None,
     heading_err_var: npt.ArrayLike | None = None,
     heading_reset: npt.ArrayLike | None = None,
 ) -> PlusTrace:
     """Run HDR+ over arrays of steps: u (deg/s), spread (deg/s), speed (m/s), temp (degC),
-    each per step or None (unknown throughout), T a scalar or per step (None: params.hdr.T);
-    GPS courses' measurements of the heading error (deg, NaN where none), their variances
-    (deg^2) and where the heading was aligned anew (:class:`hdrd.core.steps.StepInput`), or
-    None (no GPS). :func:`step` looped, without building a state between steps (the same
-    code)."""
+    each per step or None (unknown throughout), T a scalar or per step (None: params.T); GPS
+    courses' measurements of the heading error (deg, NaN where none), their variances (deg^2)
+    and where the heading was aligned anew (:class:`hdrd.core.steps.StepInput`), or None (no
+    GPS). :func:`step` looped, without building a state between steps (the same code)."""
     uu = np.asarray(u, dtype=np.float64)
     n = uu.shape[0]
     cols = [
@@ -479,18 +438,25 @@ def run_batch(
         per_step(spread, n, "spread"),
         per_step(speed, n, "speed"),
         per_step(temp, n, "temp"),
-        per_step(params.hdr.T if T is None else T, n, "T"),
+        per_step(params.T if T is None else T, n, "T"),
     ]
     if heading_err is not None or heading_reset is not None:
         cols.append(per_step(heading_err, n, "heading_err"))
         cols.append(per_step(heading_err_var, n, "heading_err_var"))
         resets = [False] * n if heading_reset is None else per_step(heading_reset, n, "reset")
         cols.append([bool(r) for r in resets])
-    if n == 0:  # nothing ran: not even the prior is set
-        return PlusTrace(*(np.empty(0, dt) for dt in _DTYPES), final=state)  # type: ignore[misc, arg-type]
     run = _Run(state, params)
     rows = [run.advance(*row) for row in zip(*cols, strict=True)]
-    outs: list[npt.NDArray[np.generic]] = [
-        np.array(col, dtype=dt) for col, dt in zip(zip(*rows, strict=True), _DTYPES, strict=True)
-    ]
-    return PlusTrace(*outs, final=run.state())  # type: ignore[misc, arg-type]
+    m = len(params.bank)
+    if not rows:
+        e = np.empty(0)
+        return PlusTrace(e, e, e, e, e, e, np.empty(0, bool), e, np.empty((0, m)), run.state())
+    cols_out = list(zip(*rows, strict=True))
+    f = [np.array(c, dtype=np.float64) for c in cols_out[:6]]
+    return PlusTrace(
+        *f,
+        standstill=np.array(cols_out[6], dtype=np.bool_),
+        straight=np.array(cols_out[7], dtype=np.float64),
+        weights=np.array(cols_out[8], dtype=np.float64).reshape(n, m),
+        final=run.state(),
+    )

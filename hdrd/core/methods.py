@@ -34,7 +34,8 @@ from hdrd.core import hdr, hdrplus
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.gyronoise import GyroNoise, noise_in_force
 from hdrd.core.hdr import INITIAL_STATE, HdrOutput, HdrParams, HdrState
-from hdrd.core.hdrplus import INITIAL_PLUS_STATE, HdrPlusParams, PlusOutput, PlusState
+from hdrd.core.hdrplus import INITIAL_PLUS_STATE, PlusOutput, PlusState
+from hdrd.core.plusparams import PlusParams
 from hdrd.core.standstill import CalibrationNoise
 from hdrd.core.steps import StepInput, StepInputs
 
@@ -100,7 +101,7 @@ class MethodSetup:
     """
 
     hdr: HdrParams = HdrParams()
-    plus: HdrPlusParams = HdrPlusParams()
+    plus: PlusParams = PlusParams()
     samples_per_step: float | None = None
     bias: BiasRecord | None = None
     quant_step_dps: float | None = None
@@ -177,7 +178,7 @@ def hdr_settings(setup: MethodSetup) -> HdrParams:
     return p if drift >= p.i_c else replace(p, i_c=drift)
 
 
-def plus_settings(setup: MethodSetup) -> HdrPlusParams:
+def plus_settings(setup: MethodSetup) -> PlusParams:
     """HDR+'s settings for this gyro and this drive: the one place they are derived (the
     daemon, replay and evaluate all come here).
 
@@ -189,11 +190,11 @@ def plus_settings(setup: MethodSetup) -> HdrPlusParams:
     gyro's error model when known (:func:`hdrd.core.gyronoise.noise_in_force`: recorded by
     ``hdrd calibrate``, else the ``gyro.*`` parameters given, else the grade's); the output
     step (the ADC's LSB; for a recorded log, the lattice of its values).
-    :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` fits the bias model to them.
+    :meth:`hdrd.core.plusparams.PlusParams.fitted` fits the bank to them.
     """
     base = setup.plus
     ss = replace(base.standstill, enabled=setup.standstill, gyro_only=setup.standstill_from_gyro)
-    p = base.with_(hdr=replace(base.hdr, T=setup.hdr.T), standstill=ss)
+    p = base.with_(T=setup.hdr.T, standstill=ss)
     n = setup.samples_per_step
     if n is not None and n > 0:
         p = p.with_(standstill=replace(p.standstill, samples_per_step=float(n)))
@@ -228,6 +229,11 @@ class Method(ABC, Generic[S, P]):
     @abstractmethod
     def settings(self, setup: MethodSetup) -> P:
         """The settings for this gyro and drive."""
+
+    def heading_sd(self, steps: StepInputs, settings: P) -> FloatArray | None:
+        """The standard deviation of every step's yaw (so heading), deg, for a method that
+        estimates it (HDR+); None for one that does not."""
+        return None
 
     def publish(self, out: StepOutput, settings: P) -> Published:
         """A step's output as message fields."""
@@ -277,7 +283,7 @@ class _None(_Hdr):
         return replace(setup.hdr, enabled=False)
 
 
-class _Plus(Method[PlusState, HdrPlusParams]):
+class _Plus(Method[PlusState, PlusParams]):
     """HDR+ (:mod:`hdrd.core.hdrplus`)."""
 
     name = "hdr+"
@@ -285,32 +291,45 @@ class _Plus(Method[PlusState, HdrPlusParams]):
     bias_model = True
 
     def initial_state(self, yaw: float = 0.0) -> PlusState:
-        return INITIAL_PLUS_STATE._replace(core=INITIAL_STATE._replace(yaw=yaw))
+        return INITIAL_PLUS_STATE._replace(yaw=yaw)
 
     def yaw(self, state: PlusState) -> float:
-        return state.core.yaw
+        if state.xs:
+            return float(sum(m * x[hdrplus.YAW] for m, x in zip(state.mu, state.xs)))
+        return state.yaw
 
     def step(
-        self, state: PlusState, inp: StepInput, settings: HdrPlusParams
+        self, state: PlusState, inp: StepInput, settings: PlusParams
     ) -> tuple[PlusState, StepOutput]:
         return hdrplus.step(state, inp, settings)
 
-    def batch(self, steps: StepInputs, settings: HdrPlusParams) -> FloatArray:
+    def batch(self, steps: StepInputs, settings: PlusParams) -> FloatArray:
+        return self._run(steps, settings).yaw
+
+    def heading_sd(self, steps: StepInputs, settings: PlusParams) -> FloatArray:
+        return self._run(steps, settings).heading_sd_deg
+
+    @staticmethod
+    def _run(steps: StepInputs, settings: PlusParams) -> hdrplus.PlusTrace:
         return hdrplus.run_batch(
             steps.u, steps.omega_std, steps.speed, steps.temp_c, steps.T, settings
-        ).yaw
+        )
 
-    def settings(self, setup: MethodSetup) -> HdrPlusParams:
+    def settings(self, setup: MethodSetup) -> PlusParams:
         return plus_settings(setup)
 
-    def publish(self, out: StepOutput, settings: HdrPlusParams) -> Published:
+    def publish(self, out: StepOutput, settings: PlusParams) -> Published:
         assert isinstance(out, PlusOutput)
+        core: dict[str, float | int] = {
+            "omega": out.omega, "yaw": out.yaw, "I": 0.0, "W": int(out.straight >= 0.5),
+            "R": 0.0, "r": 0,
+        }  # fmt: skip
         extra: dict[str, float | int | str] = {
             "zupt": int(out.standstill),
             "model": settings.model,  # the error model in force
             "bias_sd": out.bias_sd_dps,
         }
-        return Published(_core_fields(out), extra, out.bias_corr_dps, out.standstill)
+        return Published(core, extra, out.bias_corr_dps, out.standstill)
 
 
 REGISTRY: dict[str, Method[Any, Any]] = {m.name: m for m in (_None(), _Hdr(), _Plus())}

@@ -1,11 +1,11 @@
-"""HDR+'s settings, in three parts: what one gyro's error model and start-up calibration set
-(:class:`GyroFit`, fitted by :meth:`HdrPlusParams.fitted`), the bank of hypotheses (data:
-:class:`hdrd.core.biasbank.Hypothesis`), and the filter's constants (:class:`Tuning`; the
-daemon runs :data:`TUNING`, chosen on tuning data as bench/RESULTS.md records; benchmarks
-override them). The filter itself is :mod:`hdrd.core.hdrplus`. Pure.
+"""HDR+'s settings: the hypotheses of its bank, the road and the stops it measures by, and
+what one unit's error model and start-up calibration set. The estimator is
+:mod:`hdrd.core.hdrplus`; :meth:`PlusParams.fitted` is the one place settings follow from what
+is known of the unit. Pure.
 
 Units: rates deg/s, + = counter-clockwise seen from above; variances (deg/s)^2; random walks
-(deg/s)^2/s; temperature degC; time s.
+(deg/s)^2/s; heading deg; temperature degC; time s. A *motion offset* is the driving bias
+minus the bias at rest (what a stop reads), deg/s.
 """
 
 from __future__ import annotations
@@ -13,231 +13,238 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
-from hdrd.core.biasbank import Hypothesis
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.core.hdr import HdrParams
 from hdrd.core.standstill import CalibrationNoise, StandstillParams
 
 __all__ = [
     "DEFAULTS",
-    "DEFAULT_BANK",
-    "DRIFT_PRIOR",
-    "PLUS_CORE",
-    "TUNING",
-    "GyroFit",
-    "HdrPlusParams",
-    "Tuning",
-    "one_model",
+    "FRESH_BANK",
+    "Hypothesis",
+    "PlusParams",
+    "Road",
+    "unit_bank",
 ]
 
-PLUS_CORE = HdrParams(i_c=0.0048, tau=0.5, theta_w=0.45, c1=0.14, c2=0.88)
-"""HDR+'s core parameters (the fixed increment i_c applies only with ``ic_alpha = 0``)."""
 
-DRIFT_PRIOR = 0.3
-"""Weight of "drifting" at start (the increment is off until the evidence exceeds 0.5)."""
+@dataclass(frozen=True, slots=True)
+class Hypothesis:
+    """One member of the bank: a kind of unit. ``drift_q``: its driving bias's random walk,
+    (deg/s)^2/s; ``offset_dps`` and ``offset_sd_dps``: the prior mean and sd of its motion
+    offset (driving minus rest), deg/s. Two probabilities at start, each in (0, 1]:
+    ``prior``, the weight the correction in force starts from (a unit is taken for steady
+    until the evidence shows otherwise: a correction that harms a good unit is worse than
+    one that misses an offset), and ``share``, how common such units are, which the published
+    uncertainty starts from (the heading's sd must hold for the units there are)."""
 
-DEFAULT_BANK = (
-    Hypothesis("stable", 1e-8, 1.0 - DRIFT_PRIOR),  # 0.006 deg/s over an hour
-    Hypothesis("drifting", 1e-5, DRIFT_PRIOR),  # a 0.1 deg/s warm-up within 15 minutes
+    name: str
+    prior: float
+    drift_q: float = 1e-9
+    offset_dps: float = 0.0
+    offset_sd_dps: float = 0.0015
+    share: float = math.nan
+    """NaN: the same as ``prior``."""
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.prior <= 1.0):
+            raise ValueError(f"hypothesis {self.name}: prior must be in (0, 1], got {self.prior!r}")
+        if math.isnan(self.share):
+            object.__setattr__(self, "share", self.prior)
+        if not (0.0 < self.share <= 1.0):
+            raise ValueError(f"hypothesis {self.name}: share must be in (0, 1], got {self.share!r}")
+        for name in ("drift_q", "offset_sd_dps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"hypothesis {self.name}: {name} must be >= 0, got {v!r}")
+        if not math.isfinite(self.offset_dps):
+            raise ValueError(f"hypothesis {self.name}: offset_dps must be finite")
+
+
+FRESH_BANK: tuple[Hypothesis, ...] = (
+    Hypothesis("steady", 0.93, share=0.4),
+    Hypothesis("offset", 0.02, offset_sd_dps=0.08, share=0.4),
+    Hypothesis("drifting", 0.05, drift_q=1e-5, offset_sd_dps=0.02, share=0.2),
 )
-"""The bank for a gyro of unknown error model: a stable and a drifting bias, (deg/s)^2/s."""
+"""The bank of a unit nothing is known of: its driving bias is what a stop reads and stays
+there (*steady*); or it differs from the rest bias by a constant motion offset of up to
+~0.1 deg/s (*offset*: real MEMS units, -0.09 .. 0 deg/s); or it wanders (*drifting*: a
+warm-up, a phone). Steady is the default; the others need the evidence of the road and the
+stops. bench/RESULTS.md says which data chose these numbers."""
 
 
-def one_model(q: float, name: str = "model") -> tuple[Hypothesis]:
-    """A bank of one: a known error model whose bias random walk is q, (deg/s)^2/s."""
-    return (Hypothesis(name, q, 1.0),)
+def unit_bank(noise: GyroNoise, fresh: tuple[Hypothesis, ...] = FRESH_BANK) -> tuple[Hypothesis, ...]:
+    """The bank of a unit whose profile says something (a grade, the configuration's ``gyro.*``
+    keys, a recorded or learned profile): the fresh bank with what is known put in. A known
+    motion offset becomes every member's mean, and the steady member's sd is the profile's;
+    a known random walk becomes the steady and offset members' (the drifting member stays:
+    a profile from one drive does not rule a warm-up out). The offset member keeps its wide
+    sd, and its prior, so that an offset the profile got wrong can still show."""
+    q = noise.bias_q_no_temp()
+    m = noise.motion_offset_dps
+    sd = noise.motion_offset_sd_dps
+    out = []
+    for h in fresh:
+        kw: dict[str, float] = {}
+        if math.isfinite(m):
+            kw["offset_dps"] = m
+            if h is fresh[0]:
+                kw["offset_sd_dps"] = max(sd if math.isfinite(sd) else 0.01, 1e-4)
+        if math.isfinite(q) and h.drift_q <= fresh[0].drift_q * 10.0:
+            kw["drift_q"] = q
+        out.append(replace(h, **kw) if kw else h)
+    return tuple(out)
 
 
-def _check_numbers(obj: object, skip: tuple[str, ...] = ()) -> None:
-    """Every float field of a frozen record finite and >= 0 (block_var may be NaN)."""
+@dataclass(frozen=True, slots=True)
+class Road:
+    """What a step of driving that is not a stop says of the driving bias: the road's yaw rate
+    is a Gauss-Markov process of ``sd_dps`` and ``tau_s`` (gentle curves), plus ``sway_var``
+    of white noise per step, (deg/s)^2 (steering, the body's sway), on a step that is straight
+    (probability ``p_straight``); a curve adds ``curve_var``, (deg/s)^2. The heading roads
+    curve is thus never forced to zero: a step whose rate is far from the bias counts for
+    little."""
+
+    sd_dps: float = 0.015
+    tau_s: float = 120.0
+    sway_var: float = 0.04
+    p_straight: float = 0.6
+    curve_var: float = 4.0
+
+    def __post_init__(self) -> None:
+        _check(self)
+        if not 0.0 < self.p_straight <= 1.0:
+            raise ValueError(f"p_straight must be in (0, 1], got {self.p_straight!r}")
+
+
+def _check(obj: object, nan_ok: tuple[str, ...] = ()) -> None:
+    """Every number of a frozen record finite and >= 0 (those in nan_ok may be NaN)."""
     for f in fields(obj):  # type: ignore[arg-type]
-        if f.name in skip:
+        v = getattr(obj, f.name)
+        if not isinstance(v, float | int) or isinstance(v, bool):
             continue
-        v = float(getattr(obj, f.name))
-        if f.name == "block_var" and math.isnan(v):
-            pass
-        elif not (math.isfinite(v) and v >= 0.0):
+        v = float(v)
+        if f.name in nan_ok and math.isnan(v):
+            continue
+        if not (math.isfinite(v) and v >= 0.0):
             raise ValueError(f"{f.name} must be a number >= 0, got {getattr(obj, f.name)!r}")
         object.__setattr__(obj, f.name, v)
 
 
 @dataclass(frozen=True, slots=True)
-class Tuning:
-    """HDR+'s constants, chosen once on tuning data (bench/RESULTS.md says which): the
-    daemon always runs :data:`TUNING`; only benchmarks and tests override them."""
+class PlusParams:
+    """HDR+'s settings (module docstring). The defaults are a CRS03-04's before any fit."""
 
-    straight_r: float = 0.05
-    """Variance of a straight-driving measurement beyond the road state, (deg/s)^2 (sway);
-    0 switches these measurements off."""
-    straight_gate_dps: float = 0.93
-    """Largest |u_c + I| of a step used as a straight-driving measurement, deg/s."""
-    road_var: float = 0.0025
-    """Variance of the road's yaw rate that passes for straight driving, (deg/s)^2 (gentle
-    curvature: a Gauss-Markov rate of 0.05 deg/s sd ..."""
-    road_tau_s: float = 120.0
-    """... and this correlation time, s: straight driving on real roads misleads a bias
-    estimate by 0.025 deg/s per drive, as on the real tuning drives)."""
-    ic_alpha: float = 0.1
-    """The core's increment is ic_alpha x the bias sd at this temperature, deg/s (capped at
-    ``i_c_max``); 0 = the core's fixed i_c."""
-    i_c_max: float = 0.008
-    """Largest increment, deg/s."""
-    drift_odds_max: float = 4.6
-    """Each member's log-odds stay within +-this (1 % .. 99 % for two): later evidence can
-    always turn the bank round."""
-    stop_floor_dps: float = 0.02
-    """A stop's reading is allowed this much error, deg/s, in every member's innovation
-    variance when it is weighed as evidence (a start-up calibration error is a constant, not
-    a drift)."""
-    offset_white_ratio: float = 0.5
-    """:meth:`HdrPlusParams.fitted` without an error model: the standstill offset's sd is this
-    times the calibration's white noise density N (deg/s/sqrt(Hz): a step's standstill
-    variance x T): a gyro that is noisy at rest is not trusted to read the driving bias at a
-    stop."""
-    stop_gate_sigma: float = 4.0
-    """A standstill step's corrected level must be within this many standard deviations of
-    what the model allows at rest (block_var + the bias variance + i_c^2 + gate_floor_dps^2): a
-    turn that a stale speed calls standstill is not taken for the bias (0 = off; without
-    block_var, the step's own spread stands for it)."""
-    gate_floor_dps: float = 0.03
-    """The stop gate allows at least this much bias error, deg/s (a start-up calibration that
-    missed the bias by 0.02 deg/s must not shut its own correction out)."""
-    turn_err: float = 0.01
-    """Once the heading is aligned to GPS: the heading error a turn adds, as a share of the
-    angle turned (1 sigma; a scale factor's error): how far a course after a turn may
-    correct it."""
-
-    def __post_init__(self) -> None:
-        _check_numbers(self)
-
-
-TUNING = Tuning()
-"""The constants the daemon runs."""
-
-
-@dataclass(frozen=True, slots=True)
-class GyroFit:
-    """What one gyro's error model and its start-up calibration set
-    (:meth:`HdrPlusParams.fitted`); the defaults are a CRS03-04's."""
-
-    bias_p0: float = 8e-5
-    """Variance of the start-up eps0 from the calibration's noise, (deg/s)^2 (sample variance /
-    samples; default: 30 s of a CRS03-04 at 10 Hz). The prior variance of b is this plus
-    q^2/12 (``quant_step_dps``) plus the standstill offset's variance."""
-    stop_offset_var: float = 4.9e-6
-    """Prior variance F of the standstill offset c, (deg/s)^2: what a stop reads may differ
-    from the driving bias by about a quantisation step (q^2/12) and, for a gyro of unknown
-    error model, by ``offset_white_ratio`` x its standstill noise density. 0: stops measure
-    the driving bias itself."""
-    quant_step_dps: float = 0.00763
-    """The gyro's output step q, deg/s: a stop's block mean is trusted to q^2/12 at best."""
-    block_var: float = math.nan
-    """Variance of one step's mean at standstill, (deg/s)^2 (from the calibration; NaN =
-    unknown): the floor of a stop measurement's variance and the scale of the stop gate."""
-    bias_q: float = 1e-6
-    """Random walk of the bias left unexplained by the temperature model, (deg/s)^2/s."""
-    temp_coeff_sd: float = 0.01
-    """Prior standard deviation of k, deg/s/degC (prior mean 0)."""
-    ic_drift_ratio: float = 0.0
-    """With a bank of one, the increment is 0 while its random walk over ``road_tau_s`` is
-    below this times ``road_var`` (0 = off; set with a known error model)."""
-    model: str = "defaults"
-    """Which error model the settings were fitted to (published by the daemon): ``defaults``,
-    ``calibration`` (the start-up window's noise; the bank weighs the evidence), or the known
-    model's source (``grade NAME``, ``recorded``, ``config``)."""
-
-    def __post_init__(self) -> None:
-        _check_numbers(self, skip=("model",))
-
-
-@dataclass(frozen=True, slots=True)
-class HdrPlusParams:
-    """HDR+'s settings: the HDR core, standstill detection, what the gyro's fit sets, the
-    bank of hypotheses, and the constants (see the module docstring)."""
-
-    hdr: HdrParams = PLUS_CORE
-    """The HDR core (i_c deg/s, tau s, theta_w deg/s, c1, c2, T s; paper Table III names)."""
+    T: float = 1.0
+    """Step period, s."""
+    bank: tuple[Hypothesis, ...] = FRESH_BANK
+    """The hypotheses."""
+    evidence_weight: float = 0.6
+    """How much one step's measurements count as evidence between the members (a tempered
+    likelihood): the road's sway and a stop's noise are correlated over several steps, which a
+    filter that takes each step as independent would count many times over, in favour of
+    whichever member predicts most loosely."""
+    switch_p: float = 1e-6
+    """Probability per step that the unit turns out to be of another kind: a Markov
+    transition between the members, so that no member's probability is ever stuck at 0."""
+    road: Road = Road()
     standstill: StandstillParams = field(default_factory=StandstillParams)
-    """Standstill detection and the variance of a standstill measurement."""
-    fit: GyroFit = GyroFit()
-    """What the gyro's error model and calibration set."""
-    bank: tuple[Hypothesis, ...] = DEFAULT_BANK
-    """The hypotheses, from the most stable to the most drifting."""
-    tuning: Tuning = TUNING
-    """The filter's constants."""
+    """Standstill detection; a stop is a zero-rate update."""
+    stop_floor_dps: float = 0.01
+    """No step at a stop is trusted to better than this, deg/s (1 sigma): the samples of a
+    band-limited gyro, and a stop's vibration, are correlated within a step."""
+    stop_scatter_dps: float = 0.01
+    """How far a later stop may read from the calibration's rest bias, deg/s (1 sigma, each
+    stop its own: idling, a slope, the engine's vibration)."""
+    bias_p0: float = 8e-5
+    """Variance of the start-up bias eps0, (deg/s)^2 (the calibration's sample variance /
+    samples; default: 30 s of a CRS03-04 at 10 Hz)."""
+    block_var: float = math.nan
+    """Variance of one step's mean at standstill, (deg/s)^2 (the calibration's; NaN unknown:
+    each step's own spread stands for it)."""
+    quant_var: float = 4.9e-6
+    """Variance of what the rest readings miss of the bias by the output's rounding,
+    (deg/s)^2: q^2/12 for a unit that sits on one code at rest (undithered), about 0 when its
+    noise dithers it."""
+    temp_coeff_sd: float = 0.0
+    """Prior sd of the bias's temperature coefficient, deg/s/degC (0: not estimated)."""
+    heading_q: float = 0.0
+    """A wander of the bias too fast to follow (correlation time within a couple of minutes),
+    as the heading's random walk, deg^2/s."""
+    turn_err: float = 0.01
+    """The heading error a turn adds, as a share of the angle turned (1 sigma: a scale
+    factor's error)."""
+    stop_gate_sigma: float = 4.0
+    """A stop's corrected level must be within this many sd of what the bank allows at rest
+    (0: off): a turn that a stale speed calls standstill is not taken for the bias."""
+    gate_floor_dps: float = 0.03
+    """The stop gate allows at least this much bias error, deg/s."""
+    measure: bool = True
+    """False: no stop or road measurement, the yaw integrates every step (the ``frozen``
+    outage policy, :mod:`hdrd.core.selfcheck`: the driving bias the courses taught, held)."""
+    model: str = "defaults"
+    """Which error model the settings were fitted to (published as ``model``):
+    ``defaults``, ``calibration``, or the known model's source (``grade NAME``, ``config``,
+    ``recorded``, ``learned``)."""
 
     def __post_init__(self) -> None:
         if not self.bank:
             raise ValueError("the bank needs at least one hypothesis")
         object.__setattr__(self, "bank", tuple(self.bank))
+        _check(self, nan_ok=("block_var",))
+        if not self.T > 0.0:
+            raise ValueError(f"T must be > 0, got {self.T!r}")
 
-    @property
-    def model(self) -> str:
-        """The error model the settings were fitted to (:attr:`GyroFit.model`)."""
-        return self.fit.model
-
-    def with_(self, **kw: object) -> HdrPlusParams:
-        """A copy with some fields replaced (each by a whole object)."""
+    def with_(self, **kw: object) -> PlusParams:
+        """A copy with some fields replaced."""
         return replace(self, **kw)  # type: ignore[arg-type]
-
-    def with_fit(self, **kw: object) -> HdrPlusParams:
-        """A copy with some of :class:`GyroFit`'s fields replaced."""
-        return replace(self, fit=replace(self.fit, **kw))  # type: ignore[arg-type]
 
     def fitted(
         self,
         calibration: CalibrationNoise | None = None,
         noise: GyroNoise | None = None,
         quant_step_dps: float | None = None,
-    ) -> HdrPlusParams:
-        """These settings fitted to one gyro and its start-up calibration.
+    ) -> PlusParams:
+        """These settings fitted to one unit and its start-up calibration.
 
-        calibration: the calibration window's noise (:func:`hdrd.core.standstill.calibration_noise`):
-        samples per step, the step's standstill variance (block_var), bias_p0 = var(eps0).
-        noise: the gyro's error model when known (a grade preset, the config's, or the
-        parameters recorded beside the bias): a bank of one whose random walk is the model's
-        (K^2 + 2 sigma^2 / tau; without a temperature plus a warm-up), the prior on k, and the
-        increment off where it would only straighten gentle curves. Without it, the bank, and
-        a standstill offset of ``offset_white_ratio`` x the calibration's white noise.
-        quant_step_dps: the output step q when known otherwise (the ADC's LSB; for a log, the
-        lattice of its values); else the calibration's, else the noise model's. The stop
-        offset's variance is q^2/12 (+ the above). Unknown pieces keep their current values.
-        """
+        calibration (:func:`hdrd.core.standstill.calibration_noise`, or a record's): samples
+        per step, a step's variance at rest, var(eps0), and whether the window sat on one or
+        two codes (undithered: the rest bias is then known to the output step only). noise:
+        the unit's error model when known (a grade, ``gyro.*``, a recorded or learned
+        profile): the bank of :func:`unit_bank`, the fast wander as heading noise, the prior on
+        the temperature coefficient, the stop scatter. quant_step_dps: the output step when
+        known otherwise (the ADC's LSB; a log's lattice)."""
         p = self
         q = _output_step(quant_step_dps, calibration, noise)
-        if math.isfinite(q):
-            p = p.with_fit(quant_step_dps=q, stop_offset_var=q * q / 12.0)
-        known = noise is not None and noise.known()
         if calibration is not None:
-            p = p._with_calibration(calibration, known)
-        if noise is not None and known:
-            p = p._with_model(noise)
+            p = p._with_calibration(calibration, q)
+        elif math.isfinite(q):
+            p = p.with_(quant_var=q * q / 12.0)
+        if noise is not None:
+            p = p._with_noise(noise)
         return p
 
-    def _with_calibration(self, calibration: CalibrationNoise, known: bool) -> HdrPlusParams:
-        """:meth:`fitted`'s calibration part: samples per step, block_var, bias_p0, and
-        without a known error model the standstill offset's white-noise part."""
-        ss = replace(self.standstill, samples_per_step=max(1.0, calibration.samples_per_step))
-        p = self.with_(standstill=ss).with_fit(model="calibration")
-        if math.isfinite(calibration.block_var) and calibration.block_var >= 0:
-            p = p.with_fit(block_var=calibration.block_var)
-            if not known:
-                white2 = calibration.block_var * p.hdr.T  # N^2: a step's variance x T
-                off = p.fit.stop_offset_var + p.tuning.offset_white_ratio**2 * white2
-                p = p.with_fit(stop_offset_var=off)
-        if math.isfinite(calibration.bias_var) and calibration.bias_var >= 0:
-            p = p.with_fit(bias_p0=calibration.bias_var)
+    def _with_calibration(self, cal: CalibrationNoise, q: float) -> PlusParams:
+        ss = replace(self.standstill, samples_per_step=max(1.0, cal.samples_per_step))
+        p = self.with_(standstill=ss, model="calibration")
+        if math.isfinite(cal.block_var) and cal.block_var >= 0.0:
+            p = p.with_(block_var=cal.block_var)
+        if math.isfinite(cal.bias_var) and cal.bias_var >= 0.0:
+            p = p.with_(bias_p0=cal.bias_var)
+        if math.isfinite(q):
+            undithered = 0 < cal.codes <= 2 or cal.bias_var == 0.0
+            p = p.with_(quant_var=q * q / 12.0 if undithered else 0.0)
         return p
 
-    def _with_model(self, noise: GyroNoise) -> HdrPlusParams:
-        """:meth:`fitted`'s known error model part: a bank of one of the model's random walk,
-        the prior on k, the increment off where it would only straighten gentle curves."""
-        qt, qnt = noise.bias_q(), noise.bias_q_no_temp()
-        p = self.with_(bank=one_model(qnt))
-        p = p.with_fit(bias_q=qt if math.isfinite(qt) else qnt, ic_drift_ratio=0.01)
-        p = p.with_fit(model=noise.source)
+    def _with_noise(self, noise: GyroNoise) -> PlusParams:
+        p = self.with_(model=noise.source)
+        if noise.known() or math.isfinite(noise.motion_offset_dps):
+            p = p.with_(bank=unit_bank(noise))
+        wander = noise.fast_wander_q()
+        if math.isfinite(wander):
+            p = p.with_(heading_q=wander)
         if math.isfinite(noise.temp_coeff_dps_per_c):
-            p = p.with_fit(temp_coeff_sd=max(noise.temp_coeff_dps_per_c, 1e-5))
+            p = p.with_(temp_coeff_sd=max(noise.temp_coeff_dps_per_c, 1e-5))
+        if math.isfinite(noise.stop_scatter_dps):
+            p = p.with_(stop_scatter_dps=noise.stop_scatter_dps)
         return p
 
 
@@ -256,5 +263,5 @@ def _output_step(
     return math.nan
 
 
-DEFAULTS = HdrPlusParams()
-"""HDR+'s settings before any fit: a CRS03-04's defaults, the two-member bank, :data:`TUNING`."""
+DEFAULTS = PlusParams()
+"""HDR+'s settings before any fit."""
