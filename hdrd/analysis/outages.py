@@ -159,6 +159,12 @@ class OutageResult:
     the published heading minus the truth at each outage's last step, deg, wrapped to
     [-180, 180) (NaN where the truth is unknown there). aided_steps: steps with the heading
     aligned to a fix (per method: the gate may reject a course for one and not another).
+    trace: one value per step (:data:`TRACE_COLUMNS`): ``t`` (s, the step's end),
+    ``in_outage`` (1 inside an outage, else 0), ``heading_truth`` (compass deg, as the
+    gyro-only trace has it), ``heading_frozen``, ``heading_hdr``, ``heading_hdr+`` (each
+    method's published heading, compass deg, NaN before its first alignment; ``frozen`` is
+    ``none``) and ``heading_sd_hdr+`` (deg, 1 sigma) -- the columns of ``hdrd evaluate
+    --outages --trace DIR``'s DIR/<drive>.outages.csv, for the methods run.
     """
 
     name: str
@@ -167,6 +173,7 @@ class OutageResult:
     methods: tuple[str, ...]
     errors: dict[str, FloatArray]
     aided_steps: dict[str, int]
+    trace: dict[str, FloatArray] | None = None
 
     def mean_abs(self, method: str) -> float:
         """Mean |error| at the end of the scored outages, deg (NaN with none)."""
@@ -206,15 +213,17 @@ def _aided_run(
     fixes: Sequence[LogFix],
     windows: Sequence[tuple[float, float]],
     aiding_config: AidingConfig,
-) -> tuple[FloatArray, int]:
-    """The published heading (compass deg, NaN before the first alignment) at each step end
-    of one method through the daemon's stepper and its GPS aiding stage, and the steps
-    aided. The aiding's clock is the log's (s since its first sample)."""
+) -> tuple[FloatArray, FloatArray, int]:
+    """The published heading (compass deg, NaN before the first alignment) and its sd (deg,
+    NaN where the method publishes none) at each step end of one method through the daemon's
+    stepper and its GPS aiding stage, and the steps aided. The aiding's clock is the log's (s
+    since its first sample)."""
     s = prep.steps
     aiding = GpsAiding(aiding_config)
     stepper = Stepper(config, aiding)
     n = s.u.shape[0]
     heading = np.full(n, math.nan)
+    sd = np.full(n, math.nan)
     j, aided, t_prev = 0, 0, -math.inf
     for i in range(n):
         t = float(s.t_end[i])
@@ -228,8 +237,10 @@ def _aided_run(
         msg = stepper.message(_block(prep, i), i, t, 0, None, gap)
         if "heading_offset" in msg:
             heading[i] = float(msg["heading"])
+        if "heading_sd" in msg:
+            sd[i] = float(msg["heading_sd"])
         aided += msg.get("mode") == "aided"
-    return heading, aided
+    return heading, sd, aided
 
 
 def run_outages(
@@ -267,15 +278,29 @@ def run_outages(
     aided: dict[str, int] = {}
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     bias = prep.bias if prep.bias is not None else BiasRecord.given(s.bias_dps)
+    inside = np.array([any(a <= t < b for a, b in windows) for t in s.t_end.tolist()])
+    trace: dict[str, FloatArray] = {
+        "t": s.t_end,
+        "in_outage": inside.astype(np.float64),
+        "heading_truth": prep.truth,
+    }
     for m in methods:
         config = PipelineConfig(setup=replace(setup, method=m, bias=bias, quant_step_dps=q))
-        heading, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
+        heading, sd, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
         e = np.full(len(windows), math.nan)
         for k, i in enumerate(ends):
             if i >= 0 and math.isfinite(prep.truth[i]) and math.isfinite(heading[i]):
                 e[k] = wrap180(float(heading[i]) - float(prep.truth[i]))
         errors[m] = e
-    return OutageResult(prep.name, spec, tuple(windows), tuple(methods), errors, aided)
+        trace[f"heading_{_TRACE_NAME.get(m, m)}"] = heading
+        if np.isfinite(sd).any():
+            trace[f"heading_sd_{m}"] = sd
+    return OutageResult(prep.name, spec, tuple(windows), tuple(methods), errors, aided, trace)
+
+
+_TRACE_NAME = {FROZEN: "frozen"}
+"""A method's name in the outage trace's columns (``none`` through the aiding is the frozen
+bias)."""
 
 
 def _label(method: str) -> str:

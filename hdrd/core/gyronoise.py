@@ -80,16 +80,26 @@ class GyroNoise:
 
     def bias_q(self) -> float:
         """Random walk of the bias a temperature model cannot explain, (deg/s)^2/s:
-        K^2 + 2 sigma^2 / tau (the Gauss-Markov term's rate of variance growth; only for a
-        correlation time above :data:`FAST_TAU_S`, else :meth:`fast_wander_q`); NaN when
+        K^2 + 2 sigma^2 / tau (the Gauss-Markov term's rate of variance growth); NaN when
         neither term is known."""
         terms = []
         if math.isfinite(self.rrw_dps_per_sqrt_s):
             terms.append(self.rrw_dps_per_sqrt_s**2)
         if math.isfinite(self.bias_instability_dps):
             sigma = self.bias_instability_dps / GM_PEAK
-            terms.append(2.0 * sigma * sigma / self.bias_tau_s if self.bias_tau_s > FAST_TAU_S else 0.0)
+            terms.append(2.0 * sigma * sigma / self.bias_tau_s)
         return float(sum(terms)) if terms else math.nan
+
+    def tracked_q_no_temp(self) -> float:
+        """The part of :meth:`bias_q_no_temp` a bias estimate can follow, (deg/s)^2/s: the
+        Gauss-Markov term only when its correlation time exceeds :data:`FAST_TAU_S` (a faster
+        wander is heading noise, :meth:`fast_wander_q`); NaN when nothing is known."""
+        fast = math.isfinite(self.bias_instability_dps) and self.bias_tau_s <= FAST_TAU_S
+        q = self.bias_q_no_temp()
+        if fast and math.isfinite(q):
+            sigma = self.bias_instability_dps / GM_PEAK
+            q -= 2.0 * sigma * sigma / self.bias_tau_s
+        return q
 
     def fast_wander_q(self) -> float:
         """A Gauss-Markov bias whose correlation time is at most :data:`FAST_TAU_S` wanders

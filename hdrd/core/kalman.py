@@ -58,24 +58,29 @@ class Filter:
 
     def predict(self, F: dict[int, Row], Q: Sequence[tuple[int, int, float]]) -> None:
         """x <- F x, P <- F P F' + Q. F: the sparse rows that differ from the identity's, by
-        state (a transition moves few states); Q: (i, j, value) entries added to P (give both
-        (i, j) and (j, i) off the diagonal)."""
+        state (a transition moves few states), each referring besides itself only to states
+        whose rows are the identity's (then each row is one shear of x and P, done in place in
+        O(n) instead of the O(n^3) of a full product); Q: (i, j, value) entries added to P
+        (give both (i, j) and (j, i) off the diagonal)."""
         x, P = self.x, self.P
         n = len(x)
-        if F:
-            x0 = list(x)
-            for i, row in F.items():
-                x[i] = sum(v * x0[k] for k, v in row)
-            # F P: only the changed rows differ from P's; then (F P) F': only their columns.
-            FP = [row[:] for row in P]
-            for i, row in F.items():
-                FP[i] = [sum(v * P[k][j] for k, v in row) for j in range(n)]
-            for r in range(n):
-                fr = FP[r]
-                new = fr[:]
-                for j, row in F.items():
-                    new[j] = sum(fr[k] * v for k, v in row)
-                P[r] = new
+        for i, row in F.items():
+            d = 1.0
+            others = []
+            for k, v in row:
+                if k == i:
+                    d = v
+                else:
+                    others.append((k, v))
+            # the new row i of P: d P[i] + sum v P[k], then its column, then its diagonal
+            Pi = P[i]
+            new = [d * Pi[j] + sum(v * P[k][j] for k, v in others) for j in range(n)]
+            diag = d * new[i] + sum(v * new[k] for k, v in others)
+            for j in range(n):
+                P[j][i] = new[j]
+            P[i] = new
+            P[i][i] = diag
+            x[i] = d * x[i] + sum(v * x[k] for k, v in others)
         for i, j, q in Q:
             P[i][j] += q
 
@@ -86,25 +91,21 @@ class Filter:
         return Innovation(z - sum(v * self.x[i] for i, v in h), S)
 
     def update(self, z: float, h: Row, R: float) -> Innovation:
-        """One measurement z of h . x with variance R (> 0): the Kalman update (Joseph form
-        is not needed at these sizes; P is kept symmetric). Returns its innovation."""
+        """One measurement z of h . x with variance R (> 0): the Kalman update. P stays
+        symmetric (P - Ph Ph' / S is, to rounding: both halves are computed alike) and no
+        variance is left negative by rounding. Returns its innovation."""
         x, P = self.x, self.P
         n = len(x)
-        Ph = [sum(P[r][i] * v for i, v in h) for r in range(n)]
+        Ph = [sum(row[i] * v for i, v in h) for row in P]
         S = R + sum(v * Ph[i] for i, v in h)
         nu = z - sum(v * x[i] for i, v in h)
         if S <= 0.0:
             return Innovation(nu, S)
+        g = nu / S
+        self.x = [xi + g * pi for xi, pi in zip(x, Ph)]
         for r in range(n):
             k = Ph[r] / S
-            x[r] += k * nu
-            row = P[r]
-            for c in range(n):
-                row[c] -= k * Ph[c]
-        for r in range(n):  # symmetric, and no negative variance from rounding
-            for c in range(r):
-                m = 0.5 * (P[r][c] + P[c][r])
-                P[r][c] = P[c][r] = m
+            P[r] = [a - k * b for a, b in zip(P[r], Ph)]
             if P[r][r] < 0.0:
                 P[r][r] = 0.0
         return Innovation(nu, S)

@@ -78,7 +78,7 @@ def unit_bank(noise: GyroNoise, fresh: tuple[Hypothesis, ...] = FRESH_BANK) -> t
     a known random walk becomes the steady and offset members' (the drifting member stays:
     a profile from one drive does not rule a warm-up out). The offset member keeps its wide
     sd, and its prior, so that an offset the profile got wrong can still show."""
-    q = noise.bias_q_no_temp()
+    q = noise.tracked_q_no_temp()
     m = noise.motion_offset_dps
     sd = noise.motion_offset_sd_dps
     out = []
@@ -164,7 +164,7 @@ class PlusParams:
     """Variance of what the rest readings miss of the bias by the output's rounding,
     (deg/s)^2: q^2/12 for a unit that sits on one code at rest (undithered), about 0 when its
     noise dithers it."""
-    temp_coeff_sd: float = 0.0
+    temp_coeff_sd: float = 0.005
     """Prior sd of the bias's temperature coefficient, deg/s/degC (0: not estimated)."""
     heading_q: float = 0.0
     """A wander of the bias too fast to follow (correlation time within a couple of minutes),
