@@ -471,10 +471,12 @@ class Pipeline:
         return self._clock
 
     def reconfigure(self, config: PipelineConfig) -> None:
-        """New parameters, method, heading0 or bias (SIGHUP), keeping heading and controller
-        state. T cannot change while running: it defines the block edges."""
+        """New parameters, method or bias (SIGHUP), keeping heading and controller state.
+        ``heading0_deg`` is the heading at start: a new one is not taken (the heading would
+        jump by the difference). T cannot change while running: it defines the block edges."""
         if config.params.T != self.config.params.T:
             raise ValueError("hdr.T cannot change while running; restart the daemon")
+        config = replace(config, heading0_deg=self.config.heading0_deg)
         self.config = config
         self.stepper.reconfigure(config)
 

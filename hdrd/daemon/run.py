@@ -613,8 +613,10 @@ class Daemon:
     # -- SIGHUP --------------------------------------------------------------------------
 
     def reload_config(self) -> None:
-        """What SIGHUP does: read the configuration again and apply it (the device and
-        ``hdr.T`` only at a restart), or log ``config_reload_failed`` and keep the running one.
+        """What SIGHUP does: read the configuration again and apply it (the device, ``hdr.T``
+        and ``output.heading0_deg``, the heading at start, only at a restart: each kept is a
+        ``config_reload_partial`` warning), or log ``config_reload_failed`` and keep the
+        running one.
         Public so that a test or a tool can reload without sending a signal."""
         try:
             cfg, where = self.reload()
@@ -625,17 +627,29 @@ class Daemon:
         if cfg.device != old.device and not self.simulate:
             log.warning(
                 "config_reload_partial",
+                key="device",
                 reason="device settings need a restart",
                 kept=str(old.device.port),
             )
             cfg = replace(cfg, device=old.device)
         if cfg.hdr.params.T != old.hdr.params.T:
             log.warning(
-                "config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T
+                "config_reload_partial",
+                key="hdr.T",
+                reason="hdr.T needs a restart",
+                kept=old.hdr.params.T,
             )
             cfg = replace(
                 cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T))
             )
+        if cfg.output.heading0_deg != old.output.heading0_deg:
+            log.warning(
+                "config_reload_partial",
+                key="output.heading0_deg",
+                reason="the heading at start: a reload keeps the heading (restart to set it)",
+                kept=old.output.heading0_deg,
+            )
+            cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
         if cfg.output != old.output:
             stop_publishers(self.publishers)
