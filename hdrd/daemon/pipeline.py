@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +52,16 @@ __all__ = [
     "pipeline_config",
     "standstill_limits",
 ]
+
+
+class Held(NamedTuple):
+    """What a step published of the heading and the bias, held by a report that is not a
+    step: yaw (deg CCW since start), heading (compass deg, the method's, before the aiding
+    aligns it) and bias (deg/s, the static bias and the method's correction)."""
+
+    yaw: float
+    heading: float
+    bias: float
 
 
 class FrameLike(Protocol):
@@ -190,11 +200,26 @@ class Stepper:
         """Samples per step the method's settings were derived with (the first block stepped:
         the gyro's sample rate times T)."""
         self._settings: Any = None  # derived at the first step (methods.Method.settings)
+        self.held: Held | None = None
+        """What the last step published of the heading and the bias (None before the first
+        step with a heading): a report that is not a step holds these."""
 
     @property
     def calibrating(self) -> bool:
         """True until the static bias is known."""
         return self.bias is None
+
+    def held_fields(self, msg: Message) -> None:
+        """The held heading's keys of a report that is not a step (stale, a sensor fault):
+        ``yaw``, ``heading`` (the method's, before the aiding aligns it) and ``bias``, as the
+        last step published them; before the first step, as they stand (none while
+        calibrating)."""
+        if self.held is not None:
+            msg["yaw"], msg["heading"], msg["bias"] = self.held
+        elif self.bias is not None:
+            msg["yaw"] = self.yaw
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, self.yaw)
+            msg["bias"] = self.bias.bias_dps
 
     @property
     def settings(self) -> Any:
@@ -341,6 +366,7 @@ class Stepper:
             self._bias_corr = pub.bias_corr_dps
             self.bias_source = "gps" if aided else "stops" if pub.standstill else "driving"
         msg.update(pub.extra)
+        self.held = Held(msg["yaw"], msg["heading"], msg["bias"])
         return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
 
     def _aid(self, view: StepView) -> Aid | None:
@@ -659,16 +685,14 @@ class Pipeline:
     def stale_message(
         self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
     ) -> Message:
-        """What to publish while no sample arrives: no new step, the heading held."""
+        """What to publish while no sample arrives: no new step; the heading and the bias
+        held as the last step published them (:meth:`Stepper.held_fields`)."""
         msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         if self._last_step is not None:
             msg["step"] = self._last_step
-        if self.bias is not None and self._last_step is not None:
-            msg["yaw"] = self.stepper.yaw
-            msg["heading"] = self.heading
-            msg["bias"] = self.bias.bias_dps
+            self.stepper.held_fields(msg)
         msg["bad_frames"] = bad_frames
         msg["status"] = status
         msg["stale_s"] = silent_s
