@@ -360,6 +360,8 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "sensor.range_dps": _num(0, 100_000, lo_open=True),
     "sensor.ref_divider": _num(0.01, 100),
     "sensor.supply_nominal_v": _num(0.01, 100),
+    "sensor.supply_tolerance": _num(0, 1, lo_open=True),
+    "sensor.supply_max_step_v": _num(0, 100, lo_open=True),
     "hdr.method": _method(),
     "hdr.i_c": _num(0, 10),
     "hdr.tau": _num(0, 3600),

@@ -68,6 +68,8 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "sensor.range_dps": (100.0, [0, -200.0, INF, NAN, "200", 1e308]),
     "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF, 1e-300, 1e308]),
     "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF, 1e-320, 1e308]),
+    "sensor.supply_tolerance": (0.1, [0.0, -0.05, 1.5, NAN, INF, "5 %"]),
+    "sensor.supply_max_step_v": (0.25, [0.0, -0.1, NAN, INF, 1e308]),
     "hdr.method": ("none", ["kalman", "HDR", 1, None]),
     "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", "Auto", True, 1e308]),
     "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75], 1e308]),

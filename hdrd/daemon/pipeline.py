@@ -280,7 +280,10 @@ class Stepper:
         samples per step the method's settings are derived with: the gyro's sample rate
         times T, as this block holds it (a 1 Hz gyro: 1)."""
         if self.bias is None:
-            self._calibration_step()
+            if block.saturated or block.faults:
+                self._calibration_broken(block)
+            else:
+                self._calibration_step()
             return None
         if self.samples_per_step is None:
             self.samples_per_step = float(block.n)
@@ -344,12 +347,58 @@ class Stepper:
             msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
         if gap_s:
             msg["gap_s"] = gap_s
-        if block.saturated:
-            msg["saturated"] = block.saturated
+        self._add_faults(msg, block)
         self.add_bias_origin(msg, now)
         if aid is not None:
             add_aid(msg, aid)
         return msg
+
+    def fault_message(
+        self, block: Block, step: int, t: float, bad_frames: int, now: float | None
+    ) -> Message:
+        """A block of which no sample could be averaged (each faulty or saturated): not a
+        step of the method; the heading held (:meth:`held_fields`), the status saying why
+        (``supply_fault``, ``saturated``), the counts and the supply seen."""
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        msg["t"] = t
+        msg["step"] = step
+        self.held_fields(msg)
+        msg["samples"] = 0
+        msg["bad_frames"] = bad_frames
+        msg["status"] = "supply_fault" if block.faults else "saturated"
+        self._add_faults(msg, block)
+        if self.bias is None:
+            self._calibration_broken(block)
+        self.add_bias_origin(msg, now)
+        self.held_aid(msg)
+        return msg
+
+    def _add_faults(self, msg: Message, block: Block) -> None:
+        """What a block held that was not averaged: ``saturated`` (samples at an ADC rail or
+        beyond the gyro's range), ``supply_faults`` (samples whose supply reading was a fault)
+        and ``supply_v`` (V, of those readings the one farthest from the nominal supply)."""
+        if block.saturated:
+            msg["saturated"] = block.saturated
+        if block.faults:
+            msg["supply_faults"] = block.faults
+            nominal = self.config.sensor.supply_nominal_v
+            lo, hi = block.fault_lo, block.fault_hi
+            msg["supply_v"] = hi if hi - nominal > nominal - lo else lo
+
+    def _calibration_broken(self, block: Block) -> None:
+        """A calibration step held samples the gyro cannot have given: the window is not
+        contiguous standstill any more; it starts again."""
+        self.window.clear()
+        why = (
+            f"{block.faults} samples with a supply fault"
+            if block.faults
+            else f"{block.saturated} samples at an ADC rail or beyond sensor.range_dps"
+        )
+        self.events.append(
+            ("calibration_rejected", {"reason": why, "attempt": self.window.attempts})
+        )
 
     def _step_fields(self, msg: Message, pub: methods.Published, aided: bool) -> str:
         """A step's fields from the method's output (rate, yaw, heading, the controller, the
@@ -453,6 +502,7 @@ class Pipeline:
         self._last_step: int | None = None
         self._t_last = 0.0
         self._pending_gap_s = 0.0
+        self._supply_before = math.nan  # the supply monitor's last reading, V (NaN: none)
         self.frames = 0
         """Frames fed since start (the link's good frames), published as ``frames``."""
         self.reconnects = 0
@@ -543,11 +593,14 @@ class Pipeline:
             return []
         sensor = self.config.sensor
         omega = sensor.to_dps_scalar(frame.rate, frame.ref)
-        sat = sensor.saturated_scalar(frame.rate, omega)
+        supply = sensor.supply_reading_scalar(frame.ref)
+        fault = sensor.supply_fault_scalar(supply, self._supply_before)
+        self._supply_before = supply
+        sat = not fault and sensor.saturated_scalar(frame.rate, omega)
         temp = frame.temp_c
-        closed = self._avg.feed(t, omega, temp, sat)
+        closed = self._avg.feed(t, omega, temp, sat, supply if fault else None)
         out = self._on_blocks(closed, bad_frames, now) if closed else []
-        if self.stepper.bias is None:
+        if self.stepper.bias is None and not (fault or sat):
             self.stepper.window.add(omega, temp)
         return out
 
@@ -590,10 +643,15 @@ class Pipeline:
         ref = rest["ref"].astype(np.int64)
         sensor = self.config.sensor
         omega = sensor.to_dps_array(rate, ref)
-        sat = np.asarray(sensor.saturated(rate, omega), bool)
+        supply = sensor.supply_readings(ref)
+        fault = sensor.supply_faults(supply, self._supply_before)
+        if supply.shape[0]:
+            self._supply_before = float(supply[-1])
+        sat = ~fault & np.asarray(sensor.saturated(rate, omega), bool)
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
-        for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
+        faults = np.where(fault, supply, np.nan)
+        for pos, item in self._avg.feed_many(t_us, omega, temps, sat, faults):
             self.frames = start + int(keep[pos]) + 1  # as feed() counts at the closing frame
             out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
         self.frames = start + n
@@ -621,6 +679,7 @@ class Pipeline:
             self._t_offset = self._t_last + missed * self.config.params.T
         self._clock = DeviceClock()
         self._avg = BlockAverager(self.config.params.T)
+        self._supply_before = math.nan  # a new connection: no reading to jump from
         if gap_s:
             self._pending_gap_s += gap_s
         if self.stepper.bias is None:  # a calibration window must be contiguous
@@ -647,9 +706,13 @@ class Pipeline:
         step = block.index + self._step_offset
         self._last_step = step
         self._t_last = self._t_offset + block.t_end
-        gap = self._pending_gap_s
-        self._pending_gap_s = 0.0
-        msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        if block.n:
+            gap = self._pending_gap_s
+            self._pending_gap_s = 0.0
+            msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        else:  # nothing usable: as a gap, the heading held and the reason said
+            self._pending_gap_s += block.t_end - block.t_start
+            msg = self.stepper.fault_message(block, step, self._t_last, bad_frames, now)
         msg["frames"] = self.frames
         msg["reconnects"] = self.reconnects
         return msg

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
+from hdrd.daemon.faultlog import FaultLog
 from hdrd.daemon.inputs import open_source
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
@@ -216,6 +217,8 @@ class Daemon:
         self.simulate = simulate
         self.bias_choice = bias
         self.pipeline = Pipeline(pipeline_config(cfg, bias.record))
+        self.faults = FaultLog(cfg.sensor, cfg.log.bad_frame_interval_s)
+        """The samples the gyro cannot have given, said in the log (rate-limited)."""
         self.signals = signals or Signals()
         self.notifier = SdNotifier()
         self.publishers: list[Publisher] = []
@@ -317,6 +320,8 @@ class Daemon:
             frames_dropped=self._frame_drops(src),
             reconnects=self.reconnects,
             output_dropped=self._dropped(),
+            supply_faults=self.faults.supply_faults,
+            saturated=self.faults.saturated,
         )
         self.notifier.close()
         self.signals.restore()
@@ -535,6 +540,7 @@ class Daemon:
                 self._last_step_at = time.monotonic()
         if self.gps is not None:  # the aiding is the pipeline's: log its mode and events
             self.gps.log_mode(msgs)
+        self.faults.note(msgs, time.monotonic())
         for m in msgs:
             for p in self.publishers:
                 try:
@@ -651,6 +657,7 @@ class Daemon:
             )
             cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
+        self.faults.sensor, self.faults.interval_s = cfg.sensor, cfg.log.bad_frame_interval_s
         if cfg.output != old.output:
             stop_publishers(self.publishers)
             self.publishers = build_publishers(cfg)
