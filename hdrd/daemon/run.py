@@ -413,8 +413,9 @@ class Daemon:
                 port=self.src_name,
                 gap_s=round(gap, 3),
                 reconnects=self.reconnects,
+                **self._device_gap_field(gap),
             )
-            msgs = self.pipeline.resync(gap, bad, time.time())
+            msgs = self.pipeline.resync(self._device_s(gap), bad, time.time())
             self._lost_at = None
             if self.pacer is not None:
                 self.pacer.reset()  # a new device clock
@@ -441,13 +442,27 @@ class Daemon:
                 jumps=self.wallclock.jumps,
                 reason="the device clock jumped (or went back: a restart) and runs at its "
                 "rate since: steps go on by the host's clock",
+                **self._device_gap_field(gap),
             )
-            msgs = self.pipeline.resync(gap, bad, time.time())
+            msgs = self.pipeline.resync(self._device_s(gap), bad, time.time())
             if self.pacer is not None:
                 self.pacer.reset()
         self._last_data = now
         msgs.extend(self.pipeline.feed(frame, bad, time.time()))
         return msgs
+
+    def _device_s(self, wall_s: float) -> float:
+        """Device seconds that pass in ``wall_s`` host seconds: the device clock's rate
+        (``device.clock_rate``; a simulated gyro's speed-up) times them; the wall clock's when
+        the rate is not known (0). Across a gap the device clock cannot say it itself (it may
+        have restarted), so steps and ``t`` move on by this."""
+        rate = _clock_rate(self.cfg, self.simulate)
+        return wall_s * rate if rate > 0 else wall_s
+
+    def _device_gap_field(self, wall_s: float) -> dict[str, float]:
+        """``device_gap_s`` for a log line, where it differs from the wall clock's gap."""
+        dev = self._device_s(wall_s)
+        return {} if dev == wall_s else {"device_gap_s": round(dev, 3)}
 
     WAITING_LOG_INTERVAL_S = 60.0
     """While the device has never been there, ``device_waiting`` is logged again this often."""
