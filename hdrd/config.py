@@ -193,7 +193,8 @@ class GpsdConfig:
     min_speed_mps: float = 5.0
     """Course from GPS is trusted above this speed, m/s."""
     max_fix_age_s: float = 2.5
-    """A fix older than this, s since it arrived, is stale (two missed 1 Hz fixes)."""
+    """A fix older than this, s since it arrived, is stale (two missed 1 Hz fixes); at most
+    :data:`MAX_FIX_AGE_S`."""
     max_epd_deg: float = 15.0
     """Course error estimate (gpsd's epd, 95 %) above which the course is not used, deg."""
     align_gain: float = 0.2
@@ -330,6 +331,10 @@ def _hostports(v: tuple[str, ...]) -> bool:
 
 
 _POS = _num(0, lo_open=True)
+MAX_FIX_AGE_S = 10.0
+"""Largest ``gpsd.max_fix_age_s``, s: a course older than that has been carried by the gyro
+through ten 1 s steps, and a speed that old (the standstill test's) says nothing of now; a
+1 Hz receiver that missed ten fixes has lost the sky."""
 _NONNEG = _num(0)
 # Upper (and some lower) bounds keep every later computation finite: a value inside them
 # cannot overflow a float, divide by zero or wait forever anywhere in hdrd (a test steps
@@ -355,6 +360,8 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "sensor.range_dps": _num(0, 100_000, lo_open=True),
     "sensor.ref_divider": _num(0.01, 100),
     "sensor.supply_nominal_v": _num(0.01, 100),
+    "sensor.supply_tolerance": _num(0, 1, lo_open=True),
+    "sensor.supply_max_step_v": _num(0, 100, lo_open=True),
     "hdr.method": _method(),
     "hdr.i_c": _num(0, 10),
     "hdr.tau": _num(0, 3600),
@@ -397,7 +404,7 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
-    "gpsd.max_fix_age_s": _POS,
+    "gpsd.max_fix_age_s": _num(0, MAX_FIX_AGE_S, lo_open=True),
     "gpsd.max_epd_deg": _num(0, 180, lo_open=True),
     "gpsd.align_gain": _num(0, 1),
     "gpsd.bias_window_s": _POS,
@@ -634,6 +641,15 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
         data = load_yaml(text)
     except InputFileError as e:
         raise ConfigError("(yaml)", e.where or "?", e.problem, str(p)) from None
+    from hdrd.io.yamlkeys import duplicate_key
+
+    if (dup := duplicate_key(text)) is not None:
+        raise ConfigError(
+            dup.path,
+            f"line {dup.first_line} and line {dup.second_line}",
+            "given twice; give each key once (YAML would keep the last without a word)",
+            str(p),
+        )
     return parse_config(data, str(p)), str(p)
 
 

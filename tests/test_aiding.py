@@ -703,3 +703,74 @@ def test_a_method_that_owns_the_bias_gets_the_course_as_a_measurement() -> None:
     b.on_fix(good(100.0), 1.3)
     base = b.on_step(StepView(2.0, 0.0, 0.2, 0.0, 91.0), 1.5)
     assert base.fix is None and base.offset_deg == pytest.approx(10.0 - 0.2)
+
+
+# -- courses faster than the step, and speeds no car has ------------------------------------------
+
+
+def alternating(a: GpsAiding, seconds: int, seed: int = 3) -> list[dict[str, Any]]:
+    """A still gyro (HDR heading 90) whose GPS first says 90 once a second for 5 s, then
+    reports at about 100 Hz, alternating 90 and 270 (two antennas, a receiver's bug); how many
+    fixes land in a step varies, so the course last before a step is now one, now the other."""
+    rng = np.random.default_rng(seed)
+    out = still(a, [good(90.0)] * 5, heading=90.0)
+    k = 0
+    for s in range(5, 5 + seconds):
+        n = int(rng.integers(95, 106))
+        for i in range(n):
+            a.on_fix(good(90.0 if k % 2 == 0 else 270.0), s + i / n)
+            k += 1
+        m, _ = on_message(a, step_msg(90.0, t=s + 1.0), s + 1.0)
+        out.append(m)
+    return out
+
+
+def test_courses_that_disagree_within_a_step_are_not_evidence() -> None:
+    """100 fixes a step, alternating 90 and 270: they are not a hundred agreeing witnesses
+    of either; the step takes no course (dead reckoning) and nothing realigns. The heading used
+    to flip to 270 and back (twice in 17 s), published as aided."""
+    a = GpsAiding()
+    msgs = alternating(a, 60)
+    assert a.realignments == 0, [e for e in a.events if e[0] == "gps_realigned"]
+    assert all(herr(m["heading"], 90.0) < 1e-9 for m in msgs), [m["heading"] for m in msgs]
+    assert [m["mode"] for m in msgs[5:]] == [DEAD_RECKONING] * 60
+    assert a.courses_disagreeing == 60
+    (first, *_) = [f for name, f in a.events if name == "gps_courses_disagree"]
+    assert first["spread_deg"] == 180.0 and first["allowed_deg"] < 180.0
+
+
+def test_fast_fixes_that_agree_are_aided() -> None:
+    """A 10 Hz receiver on a straight road, its course noisy within its error estimate, and
+    a 20 Hz one in a turn at 20 deg/s: every step aided, nothing found disagreeing."""
+    rng = np.random.default_rng(4)
+    a = GpsAiding()
+    for s in range(60):
+        for i in range(10):
+            a.on_fix(good(90.0 + rng.normal(0.0, 1.5), epd=3.0), s + i / 10)
+        m, _ = on_message(a, step_msg(90.0, t=s + 1.0), s + 1.0)
+        assert m["mode"] == AIDED
+    b = GpsAiding()
+    for s in range(20):
+        for i in range(20):
+            b.on_fix(good((90.0 - 20.0 * (s + i / 20)) % 360.0, speed=12.0), s + i / 20)
+        m, _ = on_message(b, step_msg((90.0 - 20.0 * (s + 1)) % 360.0, 20.0, t=s + 1.0), s + 1.0)
+    assert a.courses_disagreeing == b.courses_disagreeing == 0
+
+
+@pytest.mark.parametrize("speed", [1e9, 151.0, 1e300])
+def test_a_speed_no_car_has_is_not_a_fix(speed: float) -> None:
+    """A TPV with a ground speed beyond any car's (150 m/s, 540 km/h) is refused as a fix:
+    its course and speed are not used nor published, aiding ends as for a report without a
+    fix, and the refusal is counted and said."""
+    a = GpsAiding()
+    msgs = still(a, [good(90.0)] * 3 + [good(95.0, speed=speed)] * 3 + [good(90.0)] * 2)
+    assert [m["mode"] for m in msgs] == [AIDED] * 3 + [DEAD_RECKONING] * 3 + [AIDED] * 2
+    assert all("gps_speed" not in m and "gps_course" not in m for m in msgs[3:6])
+    assert all(m["gps_speed"] == 15.0 for m in msgs[:3] + msgs[6:])
+    assert a.fixes_refused == 3
+    b = GpsAiding()
+    b.on_fix(good(90.0), 0.0)
+    b.on_fix(good(90.0, speed=speed), 0.5)
+    assert b.speed(0.6) is None and b.good_fix(0.6) is None  # not the standstill test's either
+    refused = [f for name, f in a.events if name == "gps_fix_refused"]
+    assert refused[0]["speed_mps"] == speed and refused[0]["max_speed_mps"] == 150.0

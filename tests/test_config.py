@@ -68,6 +68,8 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "sensor.range_dps": (100.0, [0, -200.0, INF, NAN, "200", 1e308]),
     "sensor.ref_divider": (3.0, [0.0, -2.0, NAN, INF, 1e-300, 1e308]),
     "sensor.supply_nominal_v": (3.3, [0.0, -5.0, NAN, INF, 1e-320, 1e308]),
+    "sensor.supply_tolerance": (0.1, [0.0, -0.05, 1.5, NAN, INF, "5 %"]),
+    "sensor.supply_max_step_v": (0.25, [0.0, -0.1, NAN, INF, 1e308]),
     "hdr.method": ("none", ["kalman", "HDR", 1, None]),
     "hdr.i_c": (0.05, [-0.01, NAN, INF, "0.0422", "Auto", True, 1e308]),
     "hdr.tau": (0.0, [-0.75, NAN, INF, [0.75], 1e308]),
@@ -121,7 +123,7 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gpsd.host": ("gps.local", ["", " ", 127, None]),
     "gpsd.port": (2948, [0, 65536, -1, 2947.0, "2947", NAN]),
     "gpsd.min_speed_mps": (0.0, [-1.0, NAN, INF]),
-    "gpsd.max_fix_age_s": (1.0, [0.0, -1.0, NAN, "2"]),
+    "gpsd.max_fix_age_s": (1.0, [1e308, 10.01, 0.0, -1.0, NAN, "2"]),
     "gpsd.max_epd_deg": (30.0, [0.0, 181.0, INF]),
     "gpsd.align_gain": (0.5, [-0.1, 1.5, NAN]),
     "gpsd.bias_window_s": (60.0, [0.0, -5.0, INF]),
@@ -436,10 +438,10 @@ def test_exponent_numbers_yaml_reads_as_text_are_numbers(
     "must be a number". A number key takes them, as YAML 1.2 would."""
     assert isinstance(yaml.safe_load(f"x: {written}")["x"], str)  # what the parser gives
     f = tmp_path / "hdrd.yaml"
-    f.write_text(f"gpsd:\n  bias_window_s: {written}\n  max_fix_age_s: {written}\n")
+    f.write_text(f"gpsd:\n  bias_window_s: {written}\n  min_speed_mps: {written}\n")
     cfg, _ = load_config(f)
     assert cfg.gpsd.bias_window_s == value and type(cfg.gpsd.bias_window_s) is float
-    assert cfg.gpsd.max_fix_age_s == value
+    assert cfg.gpsd.min_speed_mps == value
 
 
 @pytest.mark.parametrize(

@@ -330,23 +330,48 @@ def test_sighup_reloads_keeping_heading_and_rejects_bad_config(fake_gyro, daemon
     d = daemon("--clock-rate", "5", "--config", str(cfg), "--port", g.path, "--bias", "0")
     g.start()
     first = u1.messages(lambda ms: len(ms) >= 3)
-    cfg.write_text(f"output:\n  udp: ['{u2.addr}']\n  heading0_deg: 90\n")
+    cfg.write_text(f"output:\n  udp: ['{u2.addr}']\n  heading0_deg: 0\n")
     d.signal(signal.SIGHUP)
     after = u2.messages(lambda ms: len(ms) >= 3)
-    # heading0 moved by 90 while yaw carried on from where it was
+    # the new destination gets the steps; yaw and heading carry on from where they were
     assert after[0]["step"] > first[-1]["step"]
     assert after[0]["yaw"] > first[-1]["yaw"]
-    assert after[0]["heading"] == pytest.approx((90.0 - after[0]["yaw"]) % 360)
+    assert after[0]["heading"] == pytest.approx((0.0 - after[0]["yaw"]) % 360)
     cfg.write_text("output:\n  heading0_deg: 400\n")
     d.signal(signal.SIGHUP)
     more = u2.messages(lambda ms: len(ms) >= 4)  # still publishing with the old config
-    assert more[-1]["heading"] == pytest.approx((90.0 - more[-1]["yaw"]) % 360)
+    assert more[-1]["heading"] == pytest.approx((0.0 - more[-1]["yaw"]) % 360)
     rc, _, err = d.stop()
     assert rc == 0
     ev = events(err)
     assert any(e["event"] == "config_reloaded" for e in ev)
     failed = [e for e in ev if e["event"] == "config_reload_failed"]
     assert failed and "output.heading0_deg" in failed[0]["error"]
+
+
+@pytest.mark.slow
+def test_a_sighup_that_changes_heading0_keeps_the_heading(fake_gyro, daemon, udp, tmp_path):
+    """A standing vehicle's heading never moves by itself: output.heading0_deg is the heading
+    at start, and a reload that changes it keeps the heading (and says so in the log). It
+    used to jump by the difference (2.61 -> 93.25 deg)."""
+    cfg = tmp_path / "hdrd.yaml"
+    u = udp()
+    cfg.write_text(f"output:\n  udp: ['{u.addr}']\n  heading0_deg: 2.5\n")
+    g = fake_gyro(builtin_profile("standstill", minutes=5, bias_dps=0.0, noise_dps=0.0), speedup=5)
+    d = daemon("--clock-rate", "5", "--config", str(cfg), "--port", g.path, "--bias", "0")
+    g.start()
+    before = u.messages(lambda ms: len(ms) >= 2)
+    assert {m["heading"] for m in before} == {2.5}
+    cfg.write_text(f"output:\n  udp: ['{u.addr}']\n  heading0_deg: 93.25\n")
+    d.signal(signal.SIGHUP)
+    after = u.messages(lambda ms: len(ms) >= 4)
+    rc, _, err = d.stop()
+    assert rc == 0
+    ev = events(err)
+    assert [e["source"] for e in ev if e["event"] == "config_reloaded"] == [str(cfg)]
+    assert {m["heading"] for m in after} == {2.5}, [m["heading"] for m in after]
+    kept = [e for e in ev if e["event"] == "config_reload_partial"]
+    assert [(e["key"], e["kept"]) for e in kept] == [("output.heading0_deg", 2.5)]
 
 
 def test_dead_udp_peers_do_not_stop_the_daemon(fake_gyro, daemon, udp):

@@ -148,12 +148,17 @@ def test_real_time_pacing_with_speedup(fake_gyro) -> None:
     assert got == array_to_frames(g.frames) and g.injected.unread_frames == 0
 
 
-def test_real_time_without_reader_sends_nothing(fake_gyro) -> None:
-    g = fake_gyro(profile(minutes=0.02, hz=50), speedup=50.0)
+def test_real_time_starts_with_its_reader(fake_gyro) -> None:
+    """A real-time drive waits for its first reader: one that opens the port a moment after
+    the start (a user typing the next command) gets the drive from its first frame. Once it
+    runs, frames due while nobody reads are lost, as a real device's are."""
+    g = fake_gyro(profile(minutes=0.05, hz=50), speedup=50.0)
     g.start()
-    assert g.wait(WAIT_S)
-    assert g.injected.frames == 0 and g.injected.unread_frames == len(g.frames)
-    assert not g.delivered.any()
+    assert not g.wait(0.5)  # nobody reads: the drive has not started
+    assert g.injected.frames == 0 and g.injected.unread_frames == 0
+    with SerialSource(g.path) as src:
+        got = read_all(src, g)
+    assert got == array_to_frames(g.frames) and g.injected.unread_frames == 0
 
 
 def test_as_fast_as_possible_waits_for_a_reader(fake_gyro) -> None:

@@ -799,3 +799,91 @@ def test_gpsd_reads_the_talkers_the_docs_offer(need_gpsd, procs, talker):
         c.close()
         pub.stop()
     assert [a.heading for a in atts] == [42.25]
+
+
+# -- GPS -> hdrd: courses faster than the step --------------------------------------------------
+
+
+def rmc(t_s: float, course: float, speed_mps: float = 15.0) -> bytes:
+    """One $GPRMC at t_s seconds after 12:00:00 (hundredths), a fix on ``course``."""
+    t = 12 * 3600.0 + t_s
+    hms = f"{int(t // 3600):02d}{int(t % 3600 // 60):02d}{t % 60:05.2f}"
+    body = (
+        f"GPRMC,{hms},A,4806.0000,N,01130.0000,E,{speed_mps / KNOT_MPS:.3f},{course:.2f},211125,,,A"
+    )
+    return sentence(body).encode()
+
+
+@pytest.mark.slow
+def test_hdrd_run_holds_its_heading_when_gpsd_alternates_two_courses(
+    need_gpsd, procs, fake_gyro, udp
+):
+    """A real gpsd reads a receiver that reports 100 times a second, alternating courses 90
+    and 270 (after 2 s of 90 alone); a real ``hdrd run --gpsd`` on a still gyro. The fixes of
+    one step contradict one another: no step takes a course and the heading never flips
+    (it used to realign to 270 and back, twice in 17 s, published as aided)."""
+    gpsd, port, uport = start_gpsd_udp(procs)
+    watch(port, gpsd).close()  # gpsd answers: it reads its UDP port
+    js = udp()
+    g = fake_gyro(straight_gyro(400.0, 0.0), speedup=5.0)
+    d = hdrd_run(
+        procs, "--clock-rate", "5.0", "--port", g.path, "--bias", "0", "--gpsd",
+        f"127.0.0.1:{port}", "--udp", js.addr,
+    )  # fmt: skip
+    g.start()
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        t0 = time.monotonic()
+        k = 0
+        while (now := time.monotonic() - t0) < 14.0:  # 70 steps of the gyro at 5x
+            course = 90.0 if now < 2.0 or k % 2 == 0 else 270.0
+            out.sendto(rmc(k * 0.01, course), ("127.0.0.1", uport))
+            k += 1
+            time.sleep(0.01)
+        msgs = [json.loads(x) for x in js.datagrams(lambda dgs: len(dgs) >= 60, "steps")]
+    finally:
+        out.close()
+        rc = d.stop()
+    assert rc == 0, d.stderr()
+    aligned = [m for m in msgs if "heading_offset" in m]
+    assert aligned, f"never aligned: {d.stderr()}"
+    assert all(abs(wrap180(m["heading"] - 90.0)) < 0.5 for m in aligned), [
+        m["heading"] for m in aligned
+    ]
+    log = [json.loads(x) for x in d.stderr().splitlines() if x.startswith("{")]
+    assert not [e for e in log if e.get("event") == "gps_realigned"]
+    said = [e for e in log if e.get("event") == "gps_courses_disagree"]
+    assert said and said[0]["level"] == "warning"
+    assert msgs[-1]["mode"] == DEAD_RECKONING  # the alternation is no course at all
+
+
+@pytest.mark.slow
+def test_hdrd_run_refuses_a_speed_no_car_has(procs, fake_gyro, udp):
+    """A gpsd peer whose TPVs say 1e9 m/s on course 90: not a fix. No step is aided, no
+    ``gps_speed`` is published (it was, 1e9, aided), the log says why once."""
+    from tests.test_gpsd import Peer
+
+    peer = Peer()
+    js = udp()
+    g = fake_gyro(straight_gyro(400.0, 0.0), speedup=5.0)
+    try:
+        d = hdrd_run(
+            procs, "--clock-rate", "5.0", "--port", g.path, "--bias", "0", "--gpsd",
+            f"127.0.0.1:{peer.port}", "--udp", js.addr,
+        )  # fmt: skip
+        g.start()
+        assert b"WATCH" in peer.accept()
+        peer.send('{"class":"VERSION","release":"3.22","proto_major":3,"proto_minor":14}\n')
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 4.0:  # 20 steps of the gyro at 5x
+            peer.send('{"class":"TPV","device":"/dev/ttyUSB0","mode":3,"track":90.0,"speed":1e9}\n')
+            time.sleep(0.05)
+        msgs = [json.loads(x) for x in js.datagrams(lambda dgs: len(dgs) >= 15, "steps")]
+        rc = d.stop()
+    finally:
+        peer.close()
+    assert rc == 0, d.stderr()
+    assert all("gps_speed" not in m and m["mode"] == DEAD_RECKONING for m in msgs), msgs[-1]
+    log = [json.loads(x) for x in d.stderr().splitlines() if x.startswith("{")]
+    refused = [e for e in log if e.get("event") == "gps_fix_refused"]
+    assert len(refused) == 1 and refused[0]["speed_mps"] == 1e9, refused

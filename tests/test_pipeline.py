@@ -498,3 +498,57 @@ def test_frames_and_reconnects_count_the_link_alike_live_and_replayed() -> None:
     assert {m["reconnects"] for m in more} == {1} and more[-1]["frames"] == 115
     stale = live.stale_message(1.0e9, 3.0)
     assert stale["frames"] == 115 and stale["reconnects"] == 1
+
+
+# -- a stale report holds the last step's values ----------------------------------------------
+
+# What a stale report says of itself (not a step) and the link's counters (frames of the open
+# step came since): the rest of its fields are the last step's.
+STALE_OWN = {"time", "status", "stale_s", "bad_frames", "calib_age_s", "frames"}
+
+
+@pytest.mark.parametrize("method", ["none", "hdr", "hdr+"])
+@pytest.mark.parametrize("speed", [0.0, None])
+def test_a_stale_report_publishes_the_last_steps_values(method: str, speed: float | None) -> None:
+    """HDR+ at a standstill moves the bias by zero-rate updates (``bias_source: stops``); a
+    stale report used to publish the static bias of start-up (0.5) under that label. Every
+    field of a stale report is the step's before it, but those that say it is a report."""
+    p = Pipeline(PipelineConfig(setup=MethodSetup(method=method, bias=given_bias(0.5))))
+    p.set_speed(speed)
+    msgs = [m for f in make_frames(np.full(200, 0.6)) for m in p.feed(f, 0, 1000.0)]
+    last = msgs[-1]
+    stale = p.stale_message(now=1004.0, silent_s=3.5, bad_frames=2)
+    assert stale["status"] == "stale" and stale["stale_s"] == 3.5 and stale["bad_frames"] == 2
+    for key in ("step", "yaw", "heading", "bias", "bias_source", "reconnects"):
+        assert key in stale, key
+    assert {k: v for k, v in stale.items() if k not in STALE_OWN} == {
+        k: last[k] for k in stale if k not in STALE_OWN
+    }
+    if method == "hdr+" and speed == 0.0:  # the case that was wrong: a bias from the stops
+        assert last["bias_source"] == "stops" and last["bias"] != 0.5
+
+
+@pytest.mark.parametrize("method", ["hdr", "hdr+"])
+def test_an_aided_stale_report_publishes_the_last_steps_values(method: str) -> None:
+    """The same with GPS aiding: the held heading is the aligned one, the fix still fresh."""
+    from hdrd.daemon.aiding import GpsAiding
+    from hdrd.io.gpsd import Fix
+
+    clock = [0.0]
+    aiding = GpsAiding()
+    cfg = PipelineConfig(heading0_deg=30.0, setup=MethodSetup(method=method, bias=given_bias(0.5)))
+    p = Pipeline(cfg, aiding, lambda: clock[0])
+    msgs = []
+    for i, f in enumerate(make_frames(np.full(200, 0.55))):
+        clock[0] = i / 10
+        if i % 10 == 3:
+            aiding.on_fix(Fix(mode=3, track_deg=100.0 + i / 100, speed_mps=12.0), clock[0])
+        msgs.extend(p.feed(f, 0, 1000.0 + clock[0]))
+    last = msgs[-1]
+    assert last["mode"] == "aided" and "heading_offset" in last
+    stale = p.stale_message(now=1021.0, silent_s=3.5)
+    # the GPS as it stands at the report (a course came after the last step)
+    own = STALE_OWN | {"gps_age_s", "gps_course", "gps_speed", "mode"}
+    assert {k: v for k, v in stale.items() if k not in own} == {
+        k: last[k] for k in stale if k not in own
+    }

@@ -7,6 +7,8 @@ wraps every 2**32 us.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -123,9 +125,9 @@ def test_flush() -> None:
     avg = BlockAverager()
     assert avg.flush() == []  # nothing fed
     avg.feed(0, 1.0)
-    avg.feed(300_000, 2.0, temp_c=20.0, saturated=True)
+    avg.feed(300_000, 2.0, temp_c=20.0, saturated=True)  # counted, not averaged
     avg.feed(600_000, 4.0, temp_c=22.0)
-    assert avg.flush() == [Block(0, 0.0, 1.0, 7.0 / 3, 3, 21.0, 1)]
+    assert avg.flush() == [Block(0, 0.0, 1.0, 5.0 / 2, 2, 22.0, 1)]
     assert avg.flush() == []  # idempotent
 
 
@@ -149,11 +151,12 @@ def test_feeding_after_flush_neither_repeats_nor_invents() -> None:
 def test_temperature_and_saturation_are_aggregated() -> None:
     avg = BlockAverager()
     avg.feed(0, 0.0, temp_c=None)
+    avg.feed(50_000, 0.0, temp_c=20.0)
     avg.feed(100_000, 0.0, temp_c=30.0, saturated=True)
     avg.feed(200_000, 0.0, temp_c=40.0, saturated=True)
     (b,) = avg.feed(1_000_000, 0.0)
     assert isinstance(b, Block)
-    assert (b.temp_c, b.saturated, b.n) == (35.0, 2, 3)
+    assert (b.temp_c, b.saturated, b.n) == (20.0, 2, 2)  # what was averaged only
     (b,) = avg.flush()
     assert isinstance(b, Block)
     assert b.temp_c is None and b.saturated == 0
@@ -275,8 +278,18 @@ def block_tuple(item: Block | Missing) -> tuple[object, ...]:
         return ("missing", item.first, item.count, item.t_start, item.t_end)
     return (
         "block", item.index, item.t_start, item.t_end, item.mean, item.n, item.temp_c,
-        item.saturated, item.sumsq,
+        item.saturated, item.sumsq, item.faults, item.fault_lo, item.fault_hi,
     )  # fmt: skip
+
+
+def same(a: object, b: object) -> bool:
+    """Equal, NaN equal to NaN (a block's mean and fault readings when it has none), -0.0
+    not equal to 0.0: bit for bit as far as floats go."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (a != a and b != b) or (a == b and math.copysign(1, a) == math.copysign(1, b))
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
 
 
 def averager_state(a: BlockAverager) -> tuple[object, ...]:
@@ -295,12 +308,14 @@ _SAMPLE = st.tuples(
     st.floats(-300, 300, allow_nan=False, allow_infinity=False),
     st.one_of(st.none(), st.floats(-40, 85, allow_nan=False)),
     st.booleans(),
+    st.one_of(st.none(), st.none(), st.floats(0.0, 10.0)),  # a fault's reading
 )
 
 
 @st.composite
 def sample_chunks(draw: st.DrawFn) -> tuple[float, list[tuple[str, bool, list[tuple]]]]:
-    """Samples (unwrapped us, value, temperature or None, saturated) in chunks, each fed
+    """Samples (unwrapped us, value, temperature or None, saturated, the reading of a fault
+    or None) in chunks, each fed
     either through feed_many or one by one, some followed by a flush. Times mostly go
     forward by up to 0.4 s; sometimes they jump a few steps ahead, repeat, or go back (as
     after a flush, or in a hostile array: the slow path)."""
@@ -317,9 +332,9 @@ def sample_chunks(draw: st.DrawFn) -> tuple[float, list[tuple[str, bool, list[tu
         )
     ):
         samples = []
-        for step, value, temp, sat in drawn:
+        for step, value, temp, sat, fault in drawn:
             t = max(0, t + step)
-            samples.append((t, value, temp, sat))
+            samples.append((t, value, temp, sat, fault))
         chunks.append((how, flush, samples))
     return T_s, chunks
 
@@ -334,8 +349,8 @@ def test_feed_many_is_feed_in_everything(
     for how, flush, samples in chunks:
         want = [
             (i, block_tuple(b))
-            for i, (t, v, tc, sat) in enumerate(samples)
-            for b in ref.feed(t, v, tc, sat)
+            for i, (t, v, tc, sat, f) in enumerate(samples)
+            for b in ref.feed(t, v, tc, sat, f)
         ]
         if how == "many":
             got = [
@@ -345,19 +360,22 @@ def test_feed_many_is_feed_in_everything(
                     np.array([s[1] for s in samples], np.float64),
                     np.array([np.nan if s[2] is None else s[2] for s in samples], np.float64),
                     np.array([s[3] for s in samples], bool),
+                    np.array([np.nan if s[4] is None else s[4] for s in samples], np.float64),
                 )
             ]
         else:
             got = [
                 (i, block_tuple(b))
-                for i, (t, v, tc, sat) in enumerate(samples)
-                for b in sub.feed(t, v, tc, sat)
+                for i, (t, v, tc, sat, f) in enumerate(samples)
+                for b in sub.feed(t, v, tc, sat, f)
             ]
-        assert got == want
+        assert same(got, want)
         assert averager_state(sub) == averager_state(ref)
         if flush:
-            assert [block_tuple(b) for b in sub.flush()] == [block_tuple(b) for b in ref.flush()]
-    assert [block_tuple(b) for b in sub.flush()] == [block_tuple(b) for b in ref.flush()]
+            assert same(
+                [block_tuple(b) for b in sub.flush()], [block_tuple(b) for b in ref.flush()]
+            )
+    assert same([block_tuple(b) for b in sub.flush()], [block_tuple(b) for b in ref.flush()])
 
 
 def test_feed_many_with_a_time_that_goes_back_reports_every_block() -> None:
@@ -369,9 +387,10 @@ def test_feed_many_with_a_time_that_goes_back_reports_every_block() -> None:
     v = np.arange(12, dtype=np.float64)
     ref = BlockAverager()
     want = [(i, block_tuple(b)) for i in range(12) for b in ref.feed(int(t[i]), float(v[i]))]
-    assert want == [(5, ("block", 0, 0.0, 1.0, 2.0, 5, None, 0, 30.0))] and ref.late == 1
+    assert same(want, [(5, ("block", 0, 0.0, 1.0, 2.0, 5, None, 0, 30.0, 0, math.nan, math.nan))])
+    assert ref.late == 1
     sub = BlockAverager()
-    assert [(i, block_tuple(b)) for i, b in sub.feed_many(t, v)] == want
+    assert same([(i, block_tuple(b)) for i, b in sub.feed_many(t, v)], want)
     assert averager_state(sub) == averager_state(ref)
 
 
@@ -381,12 +400,16 @@ def test_feed_many_without_temperatures_or_flags_is_feed_without_them() -> None:
     ref = BlockAverager()
     want = [(i, block_tuple(b)) for i in range(6) for b in ref.feed(int(t[i]), float(v[i]))]
     sub = BlockAverager()
-    assert [(i, block_tuple(b)) for i, b in sub.feed_many(t, v)] == want
-    assert want == [
-        (2, ("block", 0, 0.0, 1.0, 1.5, 2, None, 0, 5.0)),
-        (4, ("block", 1, 1.0, 2.0, 6.0, 2, None, 0, 80.0)),
-        (4, ("missing", 2, 1, 2.0, 3.0)),
-    ]
+    assert same([(i, block_tuple(b)) for i, b in sub.feed_many(t, v)], want)
+    nan = math.nan
+    assert same(
+        want,
+        [
+            (2, ("block", 0, 0.0, 1.0, 1.5, 2, None, 0, 5.0, 0, nan, nan)),
+            (4, ("block", 1, 1.0, 2.0, 6.0, 2, None, 0, 80.0, 0, nan, nan)),
+            (4, ("missing", 2, 1, 2.0, 3.0)),
+        ],
+    )
     assert averager_state(sub) == averager_state(ref) == (0, (3_000_000, 4_000_000, 2), 0)
     assert sub.feed_many(np.empty(0, np.int64), np.empty(0)) == []
 
@@ -401,13 +424,16 @@ def test_feed_many_closes_each_block_at_the_sample_that_ends_it() -> None:
     sat = np.array([False, True, True, True, False, False, True])
     a = BlockAverager()
     got = [(i, block_tuple(b)) for i, b in a.feed_many(t, v, temp, sat)]
-    assert got == [
-        (2, ("block", 0, 0.0, 1.0, 2.0, 2, 21.0, 1, 10.0)),
-        (4, ("block", 1, 1.0, 2.0, 15.0, 2, 30.0, 2, 500.0)),
-        (5, ("block", 2, 2.0, 3.0, -5.0, 1, 41.0, 0, 25.0)),
+    nan = math.nan
+    want = [
+        (2, ("block", 0, 0.0, 1.0, 1.0, 1, 20.0, 1, 1.0, 0, nan, nan)),
+        (4, ("block", 1, 1.0, 2.0, nan, 0, None, 2, 0.0, 0, nan, nan)),  # nothing averaged
+        (5, ("block", 2, 2.0, 3.0, -5.0, 1, 41.0, 0, 25.0, 0, nan, nan)),
         (5, ("missing", 3, 1, 3.0, 4.0)),
     ]
-    assert [block_tuple(b) for b in a.flush()] == [("block", 4, 4.0, 5.0, 8.0, 2, 50.0, 1, 130.0)]
+    assert same(got, want)
+    flushed = [block_tuple(b) for b in a.flush()]
+    assert same(flushed, [("block", 4, 4.0, 5.0, 7.0, 1, None, 1, 49.0, 0, nan, nan)])
 
 
 def test_flush_of_a_later_block_and_what_follows_it() -> None:
@@ -415,7 +441,9 @@ def test_flush_of_a_later_block_and_what_follows_it() -> None:
     for k in range(7):  # 0 .. 0.6 s in steps of 0.1 s: blocks 0 (5 samples) and 1 (open)
         a.feed(k * 100_000, float(k), temp_c=10.0 + k, saturated=k == 6)
     (b,) = a.flush()
-    assert block_tuple(b) == ("block", 1, 0.5, 1.0, 5.5, 2, 15.5, 1, 61.0)
+    assert same(
+        block_tuple(b), ("block", 1, 0.5, 1.0, 5.0, 1, 15.0, 1, 25.0, 0, math.nan, math.nan)
+    )
     assert a.open_block == (1_000_000, 1_500_000, 0)
     assert a.flush() == []
     # The flushed step is final: a late sample in it is counted, not added.
@@ -424,7 +452,10 @@ def test_flush_of_a_later_block_and_what_follows_it() -> None:
     # The step after the flushed one is open and empty: a sample two steps on reports one
     # missing step (1.0 .. 1.5 s), not the flushed one again.
     assert [block_tuple(x) for x in a.feed(1_600_000, 3.0)] == [("missing", 2, 1, 1.0, 1.5)]
-    assert [block_tuple(x) for x in a.flush()] == [("block", 3, 1.5, 2.0, 3.0, 1, None, 0, 9.0)]
+    assert same(
+        [block_tuple(x) for x in a.flush()],
+        [("block", 3, 1.5, 2.0, 3.0, 1, None, 0, 9.0, 0, math.nan, math.nan)],
+    )
 
 
 def test_temperatures_and_flags_do_not_leak_into_the_next_block() -> None:
@@ -436,8 +467,8 @@ def test_temperatures_and_flags_do_not_leak_into_the_next_block() -> None:
     (b1,) = a.feed(2_000_000, 3.0)
     (b2,) = a.flush()
     assert isinstance(b0, Block) and isinstance(b1, Block) and isinstance(b2, Block)
-    assert [(b.temp_c, b.saturated) for b in (b0, b1, b2)] == [(25.0, 2), (40.0, 1), (None, 0)]
-    assert [b.sumsq for b in (b0, b1, b2)] == [2.0, 8.0, 9.0]
+    assert [(b.temp_c, b.saturated) for b in (b0, b1, b2)] == [(None, 2), (40.0, 1), (None, 0)]
+    assert [(b.n, b.sumsq) for b in (b0, b1, b2)] == [(0, 0.0), (1, 4.0), (1, 9.0)]
 
 
 def test_block_std_is_never_nan_for_equal_samples() -> None:
@@ -451,3 +482,18 @@ def test_block_std_is_never_nan_for_equal_samples() -> None:
     assert b.sumsq / b.n - b.mean * b.mean < 0.0
     assert b.std == 0.0
     assert Block(0, 0.0, 1.0, 2.0, 4, sumsq=20.0).std == 1.0
+
+
+def test_faulty_samples_are_counted_with_their_readings_and_never_averaged() -> None:
+    """A block of faulty samples only is still a block (n = 0, no mean), never Missing: its
+    time passed and the step says why nothing was averaged."""
+    a = BlockAverager()
+    a.feed(0, 1.0, 20.0)
+    a.feed(300_000, -125.0, 20.0, fault=10.0)
+    a.feed(600_000, 3.0, 20.0, fault=4.0)
+    (b0,) = a.feed(1_000_000, 9.0, fault=0.1)
+    (b1,) = a.feed(2_100_000, 2.0)
+    assert isinstance(b0, Block) and isinstance(b1, Block)
+    assert (b0.n, b0.mean, b0.faults, b0.fault_lo, b0.fault_hi) == (1, 1.0, 2, 4.0, 10.0)
+    assert (b1.n, b1.faults, b1.fault_lo, b1.fault_hi, b1.temp_c) == (0, 1, 0.1, 0.1, None)
+    assert math.isnan(b1.mean) and math.isnan(b1.std)

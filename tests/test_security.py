@@ -182,38 +182,74 @@ def test_the_daemon_listens_on_nothing(
 
 
 def test_hdrd_tail_binds_loopback_by_default() -> None:
+    tail_on_the_default_port()
+
+
+@pytest.mark.slow
+def test_a_taken_default_port_skips_and_leaves_nothing_behind(tmp_path: Path) -> None:
+    """With the default port taken (a running ``hdrd tail``), the test above skips, and its
+    teardown finds nothing left behind: pytest, run on it as a user would, reports one skip
+    and no error."""
+    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
+
+    port = int(DEFAULT_TAIL_LISTEN.rsplit(":", 1)[1])
+    test = f"{Path(__file__).resolve()}::test_hdrd_tail_binds_loopback_by_default"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as holder:
+        try:
+            holder.bind(("127.0.0.1", port))
+        except OSError:
+            pass  # taken already: the case this test is about, either way
+        run = subprocess.run(
+            [sys.executable, "-m", "pytest", "-n0", "-q", "-p", "no:cacheprovider", "-rs", test],
+            capture_output=True,
+            cwd=tmp_path,
+            timeout=4 * WAIT,
+        )
+    out = run.stdout.decode(errors="replace")
+    assert run.returncode == 0, out
+    assert "1 skipped" in out and "error" not in out.lower(), out
+
+
+def tail_on_the_default_port() -> None:
+    """``hdrd tail`` with no --listen binds 127.0.0.1 on the default port and prints what it
+    receives; skips (leaving nothing behind) when that port is taken on this machine."""
     from hdrd.cli import build_parser
     from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
     port = int(DEFAULT_TAIL_LISTEN.rsplit(":", 1)[1])
-    p = subprocess.Popen(
+    # As a context manager: its pipes are closed and it is waited for on every way out,
+    # a skip included.
+    with subprocess.Popen(
         [sys.executable, "-m", "hdrd", "tail", "--count", "1"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-    )
-    try:
-        deadline = time.monotonic() + WAIT
-        bound: list[dict[str, Any]] = []
-        while not bound and time.monotonic() < deadline:
-            if p.poll() is not None:
-                err = p.stderr.read().decode() if p.stderr else ""
-                if "in use" in err:
-                    pytest.skip(f"the default port {port} is taken on this machine: {err.strip()}")
-                raise AssertionError(err)
-            bound = [s for s in inet_sockets(p.pid) if s["local"][1] == port]
-            time.sleep(0.02)
-        assert bound, "hdrd tail bound nothing"
-        assert [s["local"] for s in bound] == [("127.0.0.1", port)] and bound[0]["proto"] == "udp"
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.sendto(b'{"class":"HDR","v":1,"step":0,"status":"ok"}\n', ("127.0.0.1", port))
-        out, _ = p.communicate(timeout=WAIT)
-        assert p.returncode == 0 and b"ok" in out
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.communicate()
+    ) as p:
+        try:
+            deadline = time.monotonic() + WAIT
+            bound: list[dict[str, Any]] = []
+            while not bound and time.monotonic() < deadline:
+                if p.poll() is not None:
+                    err = p.stderr.read().decode() if p.stderr else ""
+                    if "in use" in err:
+                        pytest.skip(
+                            f"the default port {port} is taken on this machine: {err.strip()}"
+                        )
+                    raise AssertionError(err)
+                bound = [s for s in inet_sockets(p.pid) if s["local"][1] == port]
+                time.sleep(0.02)
+            assert bound, "hdrd tail bound nothing"
+            assert [s["local"] for s in bound] == [("127.0.0.1", port)]
+            assert bound[0]["proto"] == "udp"
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                s.sendto(b'{"class":"HDR","v":1,"step":0,"status":"ok"}\n', ("127.0.0.1", port))
+            out, _ = p.communicate(timeout=WAIT)
+            assert p.returncode == 0 and b"ok" in out
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
 
 
 # --------------------------------------------------------------------------- no shell, no eval

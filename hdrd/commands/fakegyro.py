@@ -81,8 +81,8 @@ def _serve(gyro: FakeGyro, speedup: float) -> int:
                 print(gyro.link, flush=True)
         except BrokenPipeError:
             pass
-        if speedup == 0:
-            _err("as fast as possible: waiting for a reader to open the port")
+        pace = "as fast as it reads" if speedup == 0 else f"at {speedup:g}x real time"
+        _err(f"waiting for a reader to open the port: the drive starts then, {pace}")
         gyro.start()
         while not stop.is_set() and not gyro.wait(0.2):
             pass

@@ -34,10 +34,13 @@ class Block:
     """One step's averaged rate (Eq. 11).
 
     index: step number i since t0. t_start, t_end: the block's edges in device seconds since
-    the first sample. mean: mean of the samples, in the unit fed (deg/s for the gyro). n:
-    number of samples. temp_c: mean board temperature, deg C, None if unknown. saturated:
-    how many samples were flagged saturated. sumsq: sum of the squared samples, from which
-    :attr:`std` (the samples' spread, same unit as mean) follows.
+    the first sample. mean: mean of the samples averaged, in the unit fed (deg/s for the
+    gyro; NaN when none was). n: number of samples averaged. temp_c: their mean board
+    temperature, deg C, None if unknown. saturated: samples flagged saturated, and faults:
+    samples flagged faulty, neither averaged (a block of only those has n = 0); fault_lo,
+    fault_hi: the lowest and highest reading that made a sample faulty (NaN: none). sumsq: sum
+    of the squared samples averaged, from which :attr:`std` (the samples' spread, same unit
+    as mean) follows.
     """
 
     index: int
@@ -48,10 +51,15 @@ class Block:
     temp_c: float | None = None
     saturated: int = 0
     sumsq: float = field(default=math.nan, compare=False)
+    faults: int = 0
+    fault_lo: float = field(default=math.nan, compare=False)
+    fault_hi: float = field(default=math.nan, compare=False)
 
     @property
     def std(self) -> float:
         """Population standard deviation of the block's samples (NaN if unknown)."""
+        if not self.n:
+            return math.nan
         return math.sqrt(max(self.sumsq / self.n - self.mean * self.mean, 0.0))
 
 
@@ -71,6 +79,8 @@ class BlockAverager:
     A block closes when the first sample of a later block arrives (that sample's arrival is
     the moment the step can be published). Times are unwrapped device microseconds
     (see :class:`hdrd.io.clocks.DeviceClock`); ``T_s`` is the step period (paper: 1 s).
+    A sample flagged saturated or faulty is counted in its block, not averaged: it still
+    makes its block a block (of n = 0 when nothing else came), never a :class:`Missing`.
     """
 
     def __init__(self, T_s: float = 1.0) -> None:
@@ -85,16 +95,20 @@ class BlockAverager:
         self._temp_sum = 0.0
         self._temp_n = 0
         self._sat = 0
+        self._faults = 0
+        self._fault_lo = math.nan
+        self._fault_hi = math.nan
+        self._seen = 0  # samples of the open block, averaged or not
         self.late = 0  # samples in a step already closed (only after flush, with DeviceClock)
 
     @property
     def open_block(self) -> tuple[int, int, int] | None:
-        """The open block: (start, end) in unwrapped device us and its sample count; None
-        before the first sample."""
+        """The open block: (start, end) in unwrapped device us and its sample count (averaged
+        or not); None before the first sample."""
         if self.t0_us is None:
             return None
         start = self.t0_us + self._index * self.T_us
-        return start, start + self.T_us, self._n
+        return start, start + self.T_us, self._seen
 
     def _edges(self, index: int, count: int = 1) -> tuple[float, float]:
         T = self.T_us
@@ -103,21 +117,32 @@ class BlockAverager:
     def _close(self) -> Block:
         t_start, t_end = self._edges(self._index)
         temp = self._temp_sum / self._temp_n if self._temp_n else None
+        mean = self._sum / self._n if self._n else math.nan
         block = Block(
-            self._index, t_start, t_end, self._sum / self._n, self._n, temp, self._sat, self._sumsq
-        )
+            self._index, t_start, t_end, mean, self._n, temp, self._sat, self._sumsq,
+            self._faults, self._fault_lo, self._fault_hi,
+        )  # fmt: skip
         self._sum = 0.0
         self._sumsq = 0.0
-        self._n = 0
+        self._n = self._seen = 0
         self._temp_sum = 0.0
         self._temp_n = 0
-        self._sat = 0
+        self._sat = self._faults = 0
+        self._fault_lo = self._fault_hi = math.nan
         return block
 
     def feed(
-        self, t_us: int, value: float, temp_c: float | None = None, saturated: bool = False
+        self,
+        t_us: int,
+        value: float,
+        temp_c: float | None = None,
+        saturated: bool = False,
+        fault: float | None = None,
     ) -> list[Block | Missing]:
-        """Add one sample at unwrapped device time t_us; return the blocks this closed."""
+        """Add one sample at unwrapped device time t_us; return the blocks this closed.
+        saturated: the sample is beyond what the sensor measures; fault: the reading that
+        makes it faulty (the supply monitor's volts), None when it is not: either is counted
+        and not averaged."""
         if self.t0_us is None:
             self.t0_us = t_us
         index = (t_us - self.t0_us) // self.T_us
@@ -125,13 +150,21 @@ class BlockAverager:
             self.late += 1
             return []
         out = self._advance(index)
+        self._seen += 1
+        if fault is not None:
+            self._faults += 1
+            self._fault_lo = fault if not fault >= self._fault_lo else self._fault_lo
+            self._fault_hi = fault if not fault <= self._fault_hi else self._fault_hi
+            return out
+        if saturated:
+            self._sat += 1
+            return out
         self._sum += value
         self._sumsq += value * value
         self._n += 1
         if temp_c is not None:
             self._temp_sum += temp_c
             self._temp_n += 1
-        self._sat += bool(saturated)
         return out
 
     def feed_many(
@@ -140,12 +173,15 @@ class BlockAverager:
         values: npt.NDArray[np.float64],
         temp_c: npt.NDArray[np.float64] | None = None,
         saturated: npt.NDArray[np.bool_] | None = None,
+        faults: npt.NDArray[np.float64] | None = None,
     ) -> list[tuple[int, Block | Missing]]:
         """:meth:`feed` over arrays of increasing unwrapped times; bit-identical results.
 
         Returns (position of the sample that closed it, block) pairs. temp_c: NaN = unknown.
-        Samples joining the open block are added one by one (sequential sums); the blocks
-        after it are summed with ``numpy.bincount``, which also adds in order from 0.0.
+        faults: each sample's fault reading, NaN where it is not faulty. Samples joining the
+        open block are added one by one (sequential sums); the blocks after it are summed
+        with ``numpy.bincount``, which also adds in order from 0.0 (a sample not averaged
+        adds 0.0, which leaves a sum as it is).
         """
         n = t_us.shape[0]
         out: list[tuple[int, Block | Missing]] = []
@@ -153,6 +189,7 @@ class BlockAverager:
             return out
         temps = np.full(n, np.nan) if temp_c is None else np.asarray(temp_c, np.float64)
         sat = np.zeros(n, bool) if saturated is None else np.asarray(saturated, bool)
+        bad = np.full(n, np.nan) if faults is None else np.asarray(faults, np.float64)
         if self.t0_us is None:
             self.t0_us = int(t_us[0])
         idx = (t_us - self.t0_us) // self.T_us
@@ -162,25 +199,15 @@ class BlockAverager:
         j = int(np.searchsorted(idx, self._index, side="right"))
         if j == n or np.any(np.diff(idx) < 0):
             for i in range(n):
-                tc = float(temps[i])
-                for b in self.feed(
-                    int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i])
-                ):
+                for b in self._feed_one(t_us, values, temps, sat, bad, i):
                     out.append((i, b))
             return out
         for i in range(j):
-            tc = float(temps[i])
-            self.feed(int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]))
+            self._feed_one(t_us, values, temps, sat, bad, i)
         # One bin per non-empty block, not per step index: memory follows the samples,
         # never the device time they span (a clock that jumps 2**31 us per frame).
         starts, labels = _runs(idx[j:])
-        sums = np.bincount(labels, weights=values[j:])
-        sumsq = np.bincount(labels, weights=values[j:] * values[j:])
-        counts = np.bincount(labels)
-        has_t = ~np.isnan(temps[j:])
-        tsum = np.bincount(labels, weights=np.where(has_t, temps[j:], 0.0))
-        tn = np.bincount(labels, weights=has_t.astype(np.float64))
-        sn = np.bincount(labels, weights=sat[j:].astype(np.float64))
+        sums = _BlockSums(labels, starts, values[j:], temps[j:], sat[j:], bad[j:])
         first_pos = j + starts
         block_index = idx[j:][starts]
         # Close the block that was open before these samples (as the j-th sample's feed would).
@@ -189,18 +216,33 @@ class BlockAverager:
         for k, index in enumerate(block_index.tolist()):
             for item in self._advance(index):
                 out.append((closer, item))
-            self._sum, self._sumsq, self._n = float(sums[k]), float(sumsq[k]), int(counts[k])
-            self._temp_sum, self._temp_n, self._sat = float(tsum[k]), int(tn[k]), int(sn[k])
+            sums.load(self, k)
             if k < last:
                 closer = int(first_pos[k + 1])
         return out
+
+    def _feed_one(
+        self,
+        t_us: npt.NDArray[np.int64],
+        values: npt.NDArray[np.float64],
+        temps: npt.NDArray[np.float64],
+        sat: npt.NDArray[np.bool_],
+        bad: npt.NDArray[np.float64],
+        i: int,
+    ) -> list[Block | Missing]:
+        """:meth:`feed` of sample i of :meth:`feed_many`'s arrays."""
+        tc, f = float(temps[i]), float(bad[i])
+        return self.feed(
+            int(t_us[i]), float(values[i]), None if tc != tc else tc, bool(sat[i]),
+            None if f != f else f,
+        )  # fmt: skip
 
     def _advance(self, index: int) -> list[Block | Missing]:
         """Move the open block to ``index`` (> the open one): close it, report the gap."""
         out: list[Block | Missing] = []
         if index <= self._index:
             return out
-        if self._n:
+        if self._seen:
             out.append(self._close())
             first = self._index + 1
         else:
@@ -216,11 +258,51 @@ class BlockAverager:
         The flushed block is final: a later sample in the same step counts as ``late``, and
         one in a later step reports only the steps after it as missing.
         """
-        if not self._n:
+        if not self._seen:
             return []
         block = self._close()
         self._index += 1
         return [block]
+
+
+class _BlockSums:
+    """Each block's sums over runs of samples (:func:`_runs`), as :meth:`BlockAverager.feed`
+    would have added them one by one."""
+
+    def __init__(
+        self,
+        labels: npt.NDArray[np.int64],
+        starts: npt.NDArray[np.int64],
+        values: npt.NDArray[np.float64],
+        temps: npt.NDArray[np.float64],
+        sat: npt.NDArray[np.bool_],
+        bad: npt.NDArray[np.float64],
+    ) -> None:
+        faulty = ~np.isnan(bad)
+        avg = ~(faulty | sat)  # the samples averaged
+        w = np.where(avg, values, 0.0)
+        self.sums = np.bincount(labels, weights=w)
+        self.sumsq = np.bincount(labels, weights=w * w)
+        self.counts = np.bincount(labels, weights=avg.astype(np.float64))
+        self.seen = np.bincount(labels)
+        has_t = avg & ~np.isnan(temps)
+        self.tsum = np.bincount(labels, weights=np.where(has_t, temps, 0.0))
+        self.tn = np.bincount(labels, weights=has_t.astype(np.float64))
+        self.sn = np.bincount(labels, weights=(sat & ~faulty).astype(np.float64))
+        self.fn = np.bincount(labels, weights=faulty.astype(np.float64))
+        self.lo = np.fmin.reduceat(bad, starts)
+        self.hi = np.fmax.reduceat(bad, starts)
+
+    def load(self, avg: BlockAverager, k: int) -> None:
+        """Block k's sums into the averager's open block."""
+        avg._sum, avg._sumsq, avg._n = (
+            float(self.sums[k]),
+            float(self.sumsq[k]),
+            int(self.counts[k]),
+        )
+        avg._temp_sum, avg._temp_n, avg._sat = float(self.tsum[k]), int(self.tn[k]), int(self.sn[k])
+        avg._faults, avg._seen = int(self.fn[k]), int(self.seen[k])
+        avg._fault_lo, avg._fault_hi = float(self.lo[k]), float(self.hi[k])
 
 
 def _runs(idx: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:

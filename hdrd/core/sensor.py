@@ -11,10 +11,20 @@ where k = supply / supply_nominal_v when a supply-monitor channel is wired (ref 
 supply = ref_counts * vref_v / 2**adc_bits * ref_divider) and k = 1 otherwise. Polarity +1
 means the gyro's positive output is counter-clockwise seen from above (a left turn); use -1
 for a gyro mounted upside down.
+
+What the gyro cannot have given is not a rate (:meth:`SensorModel.supply_faults`,
+:meth:`SensorModel.saturated`): a supply reading outside the CRS03-04's specified 5 V +/- 5 %
+(4.75 .. 5.25 V, docs/firmware.md, "Supply") makes k, and so the
+rate, wrong by 250 deg/s per unit of ratio (a divider that opens reads the ADC's rail, "10 V":
+-125 deg/s for a still gyro); so does a reading that jumps by more than ``supply_max_step_v``
+from one sample to the next, which a supply with its decoupling does not do (the reading's
+own noise is about 1.4 mV, docs/firmware.md); and a rate beyond ``range_dps`` or at an ADC
+rail is outside what the gyro measures.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import overload
 
@@ -24,6 +34,7 @@ import numpy.typing as npt
 __all__ = ["SensorModel"]
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,16 +52,34 @@ class SensorModel:
     polarity: int = 1
     """+1: positive output = counter-clockwise (left turn); -1: mounted upside down."""
     range_dps: float = 200.0
-    """Specified measurement range, +/- deg/s; beyond it a sample is flagged saturated."""
+    """Specified measurement range, +/- deg/s; beyond it a sample is flagged saturated (and is
+    not a rate)."""
     ref_divider: float = 2.0
     """Divider ratio in front of the supply-monitor ADC channel (supply = ref volts * this)."""
     supply_nominal_v: float = 5.0
     """Supply voltage at which null_v and scale_v_per_dps hold, V."""
+    supply_tolerance: float = 0.05
+    """The supply the gyro is specified for, as a share of supply_nominal_v either side
+    (CRS03-04: 5 V +/- 5 %, 4.75 .. 5.25 V); a supply-monitor reading outside it is a fault,
+    not a supply."""
+    supply_max_step_v: float = 0.1
+    """Largest change of the supply-monitor reading from one sample to the next, V; a larger
+    jump is a fault (a loose divider), not a supply (70 times the reading's noise)."""
 
     @property
     def full_scale(self) -> int:
         """Largest ADC count."""
         return (1 << self.adc_bits) - 1
+
+    @property
+    def supply_min_v(self) -> float:
+        """Lowest supply the gyro is specified for, V."""
+        return self.supply_nominal_v * (1.0 - self.supply_tolerance)
+
+    @property
+    def supply_max_v(self) -> float:
+        """Highest supply the gyro is specified for, V."""
+        return self.supply_nominal_v * (1.0 + self.supply_tolerance)
 
     @property
     def lsb_dps(self) -> float:
@@ -66,6 +95,43 @@ class SensorModel:
             self.supply_nominal_v,
         )
         return float(v) if v.ndim == 0 else v
+
+    def supply_reading_scalar(self, ref_counts: int) -> float:
+        """The supply the monitor reads, V; NaN when it is not wired (ref 0). Same operations
+        in the same order as :meth:`supply_readings`, so bit-identical to it."""
+        if ref_counts > 0:
+            return ref_counts * self.vref_v / (1 << self.adc_bits) * self.ref_divider
+        return math.nan
+
+    def supply_readings(self, ref_counts: npt.ArrayLike) -> FloatArray:
+        """:meth:`supply_reading_scalar` over an array."""
+        ref = np.asarray(ref_counts, dtype=np.float64)
+        v = ref * self.vref_v / (1 << self.adc_bits) * self.ref_divider
+        return np.where(ref > 0, v, math.nan)
+
+    def supply_fault_scalar(self, reading_v: float, before_v: float) -> bool:
+        """A sample's supply reading (V, NaN: not wired) is a fault: outside
+        [supply_min_v, supply_max_v], or more than supply_max_step_v from the reading of the
+        sample before (``before_v``; NaN: none, or not wired)."""
+        if reading_v != reading_v:
+            return False
+        return (
+            not self.supply_min_v <= reading_v <= self.supply_max_v
+            or abs(reading_v - before_v) > self.supply_max_step_v
+        )
+
+    def supply_faults(self, readings_v: FloatArray, before_v: float = math.nan) -> BoolArray:
+        """:meth:`supply_fault_scalar` of consecutive samples' readings (``before_v``: the
+        reading of the sample before the first)."""
+        v = np.asarray(readings_v, dtype=np.float64)
+        prev = np.empty_like(v)
+        prev[:1] = before_v
+        prev[1:] = v[:-1]
+        wired = ~np.isnan(v)
+        with np.errstate(invalid="ignore"):
+            out_of_range = (v < self.supply_min_v) | (v > self.supply_max_v)
+            jump = np.abs(v - prev) > self.supply_max_step_v
+        return wired & (out_of_range | jump)
 
     @overload
     def to_dps(self, rate_counts: int, ref_counts: int = 0) -> float: ...

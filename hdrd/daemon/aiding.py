@@ -54,6 +54,14 @@ is wrong (a wrong start, a long outage): the offset is set to the GPS course at 
 max_drift_dps``, when the gate has stopped widening) no single course is taken, inside the
 gate or not: the heading is re-acquired only on ``realign_after`` courses in a row that agree.
 
+**One witness a step.** The gate judges one course a step (the latest), so a run of
+rejections is counted in steps: agreement across time, not across one step's fixes. The
+courses received within one step are held against each other (:meth:`GpsAiding._compare_in_step`):
+two further apart than a car turns between them (``max_lateral_mps2`` at the lower of their
+speeds) plus twice their errors, and at least ``gate_max_deg``, contradict each other, and
+the step takes no course (a ``gps_courses_disagree`` event) and the run starts again. A TPV
+whose speed is beyond ``max_speed_mps`` (no car's) is refused as a fix (``gps_fix_refused``).
+
 **One receiver.** gpsd reports every receiver it reads, each TPV naming its ``device``.
 Aiding follows one: ``device`` when configured (``gpsd.device``), else the first that
 reports a 2D/3D fix; the others' reports are ignored (counted in ``fixes_ignored``). A
@@ -102,6 +110,18 @@ def wrap180(deg: float) -> float:
 def _compass(deg: float) -> float:
     h = deg % 360.0
     return 0.0 if h >= 360.0 else h
+
+
+@dataclass(frozen=True, slots=True)
+class _NoFix:
+    """A TPV refused as a fix: what aiding keeps of it (the receiver that sent it)."""
+
+    device: str | None
+    mode: int = 0
+    track_deg: float | None = None
+    speed_mps: float | None = None
+    epd: float | None = None
+    eps: float | None = None
 
 
 class FixLike(Protocol):
@@ -177,6 +197,13 @@ class AidingConfig:
     device_timeout_s: float = 10.0
     """A followed receiver (not a configured one) without a fix for this long hands over to
     another that has one, s."""
+    max_speed_mps: float = 150.0
+    """A ground speed beyond this is no car's (540 km/h, beyond any road vehicle's top
+    speed): the TPV is refused as a fix, m/s."""
+    max_lateral_mps2: float = 10.0
+    """The largest lateral acceleration a car turns with (about 1 g, the grip of a dry road),
+    m/s^2: at ground speed v the course turns at most by this / v rad/s; two courses of one
+    step further apart than that (and their errors) disagree."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -197,6 +224,8 @@ class AidingConfig:
             "max_drift_dps",
             "latency_s",
             "device_timeout_s",
+            "max_speed_mps",
+            "max_lateral_mps2",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0) or (
@@ -314,6 +343,12 @@ class GpsAiding:
         """Courses the gate rejected."""
         self.realignments = 0
         """Offsets set anew after ``realign_after`` agreeing rejections."""
+        self.fixes_refused = 0
+        """TPVs refused as fixes: a ground speed beyond ``max_speed_mps``."""
+        self.courses_disagreeing = 0
+        """Steps whose courses disagreed with one another (none of them used)."""
+        self._step_course: tuple[FixLike, float] | None = None  # the last course this step
+        self._disagree: tuple[float, float] | None = None  # this step's: (spread, allowed) deg
         self._accepted_at = -math.inf  # when the gate last accepted a course
         self._realigned = False  # the offset was set anew since the last step
         self._streak: list[float] = []  # the implied offsets of the rejections in a row
@@ -356,6 +391,20 @@ class GpsAiding:
         or non-finite speed is treated as no speed (the fix gives neither a speed nor a
         course).
         """
+        spd = fix.speed_mps
+        if fix.mode >= 2 and spd is not None and spd > self.config.max_speed_mps:
+            self.fixes_refused += 1
+            self.events.append(
+                (
+                    "gps_fix_refused",
+                    {
+                        "speed_mps": spd,
+                        "max_speed_mps": self.config.max_speed_mps,
+                        "device": fix.device,
+                    },
+                )
+            )
+            fix = _NoFix(fix.device)  # no car goes so fast: not a fix, whatever else it says
         if not self._follows(fix, now):
             self.fixes_ignored += 1
             return
@@ -370,6 +419,28 @@ class GpsAiding:
             if fix.track_deg is not None and math.isfinite(fix.track_deg):
                 self._course_fix, self._course_at = fix, now
                 self._course_seq += 1
+                self._compare_in_step(fix, now)
+
+    def _compare_in_step(self, fix: FixLike, now: float) -> None:
+        """A course received at ``now`` against the one received before it in the same step:
+        further apart than a car turns in between (``max_lateral_mps2`` at the lower of their
+        speeds), plus twice their errors, and at least ``gate_max_deg``, they disagree."""
+        prev, self._step_course = self._step_course, (fix, now)
+        if prev is None:
+            return
+        pf, at = prev
+        c = self.config
+        assert pf.speed_mps is not None and fix.speed_mps is not None
+        assert pf.track_deg is not None and fix.track_deg is not None
+        v = min(pf.speed_mps, fix.speed_mps)
+        if v <= 0.0 or v < c.min_speed_mps:
+            return  # courses aiding does not use
+        turn = math.degrees(c.max_lateral_mps2 / v) * max(0.0, now - at)
+        err = self.course_err_deg(pf) + self.course_err_deg(fix)
+        allowed = max(c.gate_max_deg, turn + 2.0 * err)
+        spread = abs(wrap180(fix.track_deg - pf.track_deg))
+        if spread > allowed and (self._disagree is None or spread > self._disagree[0]):
+            self._disagree = (spread, allowed)
 
     def _has_fix(self, now: float) -> bool:
         f = self._fix
@@ -535,6 +606,8 @@ class GpsAiding:
         """The good fix and its course carried forward to ``now`` with the yaw rate
         (compass deg), each new course judged once against HDR's heading; (None, None) when
         there is no good fix or its course was judged wrong."""
+        if self._step_disagreed():
+            return None, None
         fix = self.good_fix(now)
         course: float | None = None
         if fix is not None:
@@ -547,6 +620,27 @@ class GpsAiding:
             if not self._course_ok:
                 fix = course = None
         return fix, course
+
+    def _step_disagreed(self) -> bool:
+        """The courses received since the last step disagreed with one another: fixes faster
+        than the step are not independent evidence, and ones that contradict each other are
+        none at all. The step takes no course, the latest is not used, and a run of rejections
+        that would realign starts again."""
+        disagree, self._disagree = self._disagree, None
+        self._step_course = None
+        if disagree is None:
+            return False
+        self.courses_disagreeing += 1
+        self._streak.clear()
+        self._judged_seq, self._course_ok = self._course_seq, False
+        spread, allowed = disagree
+        self.events.append(
+            (
+                "gps_courses_disagree",
+                {"spread_deg": round(spread, 2), "allowed_deg": round(allowed, 2)},
+            )
+        )
+        return True
 
     # -- bias learning --
     def _restart_window(self, t: float | None, course: float | None) -> None:

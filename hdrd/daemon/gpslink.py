@@ -54,8 +54,9 @@ class GpsdLink:
     The aiding itself (:class:`hdrd.daemon.aiding.GpsAiding`) is a stage of the pipeline,
     which it is given to (``Pipeline.set_aiding``): the messages come out of the pipeline
     aided. :meth:`log_mode` on each batch logs a change of mode and the aiding's events:
-    ``gps_device`` (the receiver followed) and ``gps_realigned`` each time,
-    ``gps_course_rejected`` at most every 10 s with the count since the last one.
+    ``gps_device`` (the receiver followed) and ``gps_realigned`` each time;
+    ``gps_course_rejected``, ``gps_courses_disagree`` and ``gps_fix_refused`` at most every
+    10 s each, with the count since the last one.
     """
 
     def __init__(
@@ -67,8 +68,10 @@ class GpsdLink:
         self._mode: str | None = None
         self._bad_logged = 0
         self._bad_log_at = -math.inf
-        self._rejected_logged = 0
-        self._rejected_log_at = -math.inf
+        # The events that come with each fix or step, as many as a receiver sends: at most
+        # one warning each per BAD_LOG_INTERVAL_S, with the count since the last (the
+        # aiding's counter of each, and what it was when last logged, and when).
+        self._counted_logged: dict[str, tuple[int, float]] = {}
 
     @classmethod
     def from_config(cls, gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> GpsdLink:
@@ -109,17 +112,27 @@ class GpsdLink:
                 log.info("gps_mode", mode=mode, **fields_)
         self._log_events(now)
 
+    COUNTED = {
+        "gps_course_rejected": "courses_rejected",
+        "gps_courses_disagree": "courses_disagreeing",
+        "gps_fix_refused": "fixes_refused",
+    }
+    """The aiding's events that may come with every fix or step, and the aiding's counter of
+    each: logged at most every BAD_LOG_INTERVAL_S, with the total and the count since."""
+
     def _log_events(self, now: float) -> None:
-        """Log the aiding's events (rejections at most every BAD_LOG_INTERVAL_S)."""
+        """Log the aiding's events (the counted ones at most every BAD_LOG_INTERVAL_S)."""
         a = self.aiding
         for name, fields_ in a.events:
-            if name != "gps_course_rejected":
+            counter = self.COUNTED.get(name)
+            if counter is None:
                 (log.warning if name == "gps_realigned" else log.info)(name, **fields_)
                 continue
-            total = a.courses_rejected
-            if now - self._rejected_log_at >= self.BAD_LOG_INTERVAL_S:
-                log.warning(name, total=total, new=total - self._rejected_logged, **fields_)
-                self._rejected_logged, self._rejected_log_at = total, now
+            total = getattr(a, counter)
+            logged, at = self._counted_logged.get(name, (0, -math.inf))
+            if now - at >= self.BAD_LOG_INTERVAL_S:
+                log.warning(name, total=total, new=total - logged, **fields_)
+                self._counted_logged[name] = (total, now)
         a.events.clear()
 
     def close(self) -> None:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +52,16 @@ __all__ = [
     "pipeline_config",
     "standstill_limits",
 ]
+
+
+class Held(NamedTuple):
+    """What a step published of the heading and the bias, held by a report that is not a
+    step: yaw (deg CCW since start), heading (compass deg, the method's, before the aiding
+    aligns it) and bias (deg/s, the static bias and the method's correction)."""
+
+    yaw: float
+    heading: float
+    bias: float
 
 
 class FrameLike(Protocol):
@@ -190,11 +200,26 @@ class Stepper:
         """Samples per step the method's settings were derived with (the first block stepped:
         the gyro's sample rate times T)."""
         self._settings: Any = None  # derived at the first step (methods.Method.settings)
+        self.held: Held | None = None
+        """What the last step published of the heading and the bias (None before the first
+        step with a heading): a report that is not a step holds these."""
 
     @property
     def calibrating(self) -> bool:
         """True until the static bias is known."""
         return self.bias is None
+
+    def held_fields(self, msg: Message) -> None:
+        """The held heading's keys of a report that is not a step (stale, a sensor fault):
+        ``yaw``, ``heading`` (the method's, before the aiding aligns it) and ``bias``, as the
+        last step published them; before the first step, as they stand (none while
+        calibrating)."""
+        if self.held is not None:
+            msg["yaw"], msg["heading"], msg["bias"] = self.held
+        elif self.bias is not None:
+            msg["yaw"] = self.yaw
+            msg["heading"] = heading_from_yaw(self.config.heading0_deg, self.yaw)
+            msg["bias"] = self.bias.bias_dps
 
     @property
     def settings(self) -> Any:
@@ -255,7 +280,10 @@ class Stepper:
         samples per step the method's settings are derived with: the gyro's sample rate
         times T, as this block holds it (a 1 Hz gyro: 1)."""
         if self.bias is None:
-            self._calibration_step()
+            if block.saturated or block.faults:
+                self._calibration_broken(block)
+            else:
+                self._calibration_step()
             return None
         if self.samples_per_step is None:
             self.samples_per_step = float(block.n)
@@ -319,12 +347,58 @@ class Stepper:
             msg["temp"] = round(block.temp_c, 3)  # deg C; the sensor resolves 0.01
         if gap_s:
             msg["gap_s"] = gap_s
-        if block.saturated:
-            msg["saturated"] = block.saturated
+        self._add_faults(msg, block)
         self.add_bias_origin(msg, now)
         if aid is not None:
             add_aid(msg, aid)
         return msg
+
+    def fault_message(
+        self, block: Block, step: int, t: float, bad_frames: int, now: float | None
+    ) -> Message:
+        """A block of which no sample could be averaged (each faulty or saturated): not a
+        step of the method; the heading held (:meth:`held_fields`), the status saying why
+        (``supply_fault``, ``saturated``), the counts and the supply seen."""
+        msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
+        if now is not None:
+            msg["time"] = now
+        msg["t"] = t
+        msg["step"] = step
+        self.held_fields(msg)
+        msg["samples"] = 0
+        msg["bad_frames"] = bad_frames
+        msg["status"] = "supply_fault" if block.faults else "saturated"
+        self._add_faults(msg, block)
+        if self.bias is None:
+            self._calibration_broken(block)
+        self.add_bias_origin(msg, now)
+        self.held_aid(msg)
+        return msg
+
+    def _add_faults(self, msg: Message, block: Block) -> None:
+        """What a block held that was not averaged: ``saturated`` (samples at an ADC rail or
+        beyond the gyro's range), ``supply_faults`` (samples whose supply reading was a fault)
+        and ``supply_v`` (V, of those readings the one farthest from the nominal supply)."""
+        if block.saturated:
+            msg["saturated"] = block.saturated
+        if block.faults:
+            msg["supply_faults"] = block.faults
+            nominal = self.config.sensor.supply_nominal_v
+            lo, hi = block.fault_lo, block.fault_hi
+            msg["supply_v"] = hi if hi - nominal > nominal - lo else lo
+
+    def _calibration_broken(self, block: Block) -> None:
+        """A calibration step held samples the gyro cannot have given: the window is not
+        contiguous standstill any more; it starts again."""
+        self.window.clear()
+        why = (
+            f"{block.faults} samples with a supply fault"
+            if block.faults
+            else f"{block.saturated} samples at an ADC rail or beyond sensor.range_dps"
+        )
+        self.events.append(
+            ("calibration_rejected", {"reason": why, "attempt": self.window.attempts})
+        )
 
     def _step_fields(self, msg: Message, pub: methods.Published, aided: bool) -> str:
         """A step's fields from the method's output (rate, yaw, heading, the controller, the
@@ -341,6 +415,7 @@ class Stepper:
             self._bias_corr = pub.bias_corr_dps
             self.bias_source = "gps" if aided else "stops" if pub.standstill else "driving"
         msg.update(pub.extra)
+        self.held = Held(msg["yaw"], msg["heading"], msg["bias"])
         return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
 
     def _aid(self, view: StepView) -> Aid | None:
@@ -427,6 +502,7 @@ class Pipeline:
         self._last_step: int | None = None
         self._t_last = 0.0
         self._pending_gap_s = 0.0
+        self._supply_before = math.nan  # the supply monitor's last reading, V (NaN: none)
         self.frames = 0
         """Frames fed since start (the link's good frames), published as ``frames``."""
         self.reconnects = 0
@@ -471,10 +547,12 @@ class Pipeline:
         return self._clock
 
     def reconfigure(self, config: PipelineConfig) -> None:
-        """New parameters, method, heading0 or bias (SIGHUP), keeping heading and controller
-        state. T cannot change while running: it defines the block edges."""
+        """New parameters, method or bias (SIGHUP), keeping heading and controller state.
+        ``heading0_deg`` is the heading at start: a new one is not taken (the heading would
+        jump by the difference). T cannot change while running: it defines the block edges."""
         if config.params.T != self.config.params.T:
             raise ValueError("hdr.T cannot change while running; restart the daemon")
+        config = replace(config, heading0_deg=self.config.heading0_deg)
         self.config = config
         self.stepper.reconfigure(config)
 
@@ -515,11 +593,14 @@ class Pipeline:
             return []
         sensor = self.config.sensor
         omega = sensor.to_dps_scalar(frame.rate, frame.ref)
-        sat = sensor.saturated_scalar(frame.rate, omega)
+        supply = sensor.supply_reading_scalar(frame.ref)
+        fault = sensor.supply_fault_scalar(supply, self._supply_before)
+        self._supply_before = supply
+        sat = not fault and sensor.saturated_scalar(frame.rate, omega)
         temp = frame.temp_c
-        closed = self._avg.feed(t, omega, temp, sat)
+        closed = self._avg.feed(t, omega, temp, sat, supply if fault else None)
         out = self._on_blocks(closed, bad_frames, now) if closed else []
-        if self.stepper.bias is None:
+        if self.stepper.bias is None and not (fault or sat):
             self.stepper.window.add(omega, temp)
         return out
 
@@ -562,10 +643,15 @@ class Pipeline:
         ref = rest["ref"].astype(np.int64)
         sensor = self.config.sensor
         omega = sensor.to_dps_array(rate, ref)
-        sat = np.asarray(sensor.saturated(rate, omega), bool)
+        supply = sensor.supply_readings(ref)
+        fault = sensor.supply_faults(supply, self._supply_before)
+        if supply.shape[0]:
+            self._supply_before = float(supply[-1])
+        sat = ~fault & np.asarray(sensor.saturated(rate, omega), bool)
         raw_temp = rest["temp"].astype(np.int64)
         temps = np.where(raw_temp == TEMP_NOT_FITTED, np.nan, raw_temp / 100)
-        for pos, item in self._avg.feed_many(t_us, omega, temps, sat):
+        faults = np.where(fault, supply, np.nan)
+        for pos, item in self._avg.feed_many(t_us, omega, temps, sat, faults):
             self.frames = start + int(keep[pos]) + 1  # as feed() counts at the closing frame
             out.extend(self._on_blocks((item,), int(bad[keep[pos]]), None))
         self.frames = start + n
@@ -593,6 +679,7 @@ class Pipeline:
             self._t_offset = self._t_last + missed * self.config.params.T
         self._clock = DeviceClock()
         self._avg = BlockAverager(self.config.params.T)
+        self._supply_before = math.nan  # a new connection: no reading to jump from
         if gap_s:
             self._pending_gap_s += gap_s
         if self.stepper.bias is None:  # a calibration window must be contiguous
@@ -619,9 +706,13 @@ class Pipeline:
         step = block.index + self._step_offset
         self._last_step = step
         self._t_last = self._t_offset + block.t_end
-        gap = self._pending_gap_s
-        self._pending_gap_s = 0.0
-        msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        if block.n:
+            gap = self._pending_gap_s
+            self._pending_gap_s = 0.0
+            msg = self.stepper.message(block, step, self._t_last, bad_frames, now, gap)
+        else:  # nothing usable: as a gap, the heading held and the reason said
+            self._pending_gap_s += block.t_end - block.t_start
+            msg = self.stepper.fault_message(block, step, self._t_last, bad_frames, now)
         msg["frames"] = self.frames
         msg["reconnects"] = self.reconnects
         return msg
@@ -657,16 +748,14 @@ class Pipeline:
     def stale_message(
         self, now: float | None, silent_s: float, bad_frames: int = 0, status: str = "stale"
     ) -> Message:
-        """What to publish while no sample arrives: no new step, the heading held."""
+        """What to publish while no sample arrives: no new step; the heading and the bias
+        held as the last step published them (:meth:`Stepper.held_fields`)."""
         msg: Message = {"class": MESSAGE_CLASS, "v": SCHEMA_VERSION}
         if now is not None:
             msg["time"] = now
         if self._last_step is not None:
             msg["step"] = self._last_step
-        if self.bias is not None and self._last_step is not None:
-            msg["yaw"] = self.stepper.yaw
-            msg["heading"] = self.heading
-            msg["bias"] = self.bias.bias_dps
+            self.stepper.held_fields(msg)
         msg["bad_frames"] = bad_frames
         msg["status"] = status
         msg["stale_s"] = silent_s

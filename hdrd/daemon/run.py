@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
+from hdrd.daemon.faultlog import FaultLog
 from hdrd.daemon.inputs import open_source
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
@@ -216,6 +217,8 @@ class Daemon:
         self.simulate = simulate
         self.bias_choice = bias
         self.pipeline = Pipeline(pipeline_config(cfg, bias.record))
+        self.faults = FaultLog(cfg.sensor, cfg.log.bad_frame_interval_s)
+        """The samples the gyro cannot have given, said in the log (rate-limited)."""
         self.signals = signals or Signals()
         self.notifier = SdNotifier()
         self.publishers: list[Publisher] = []
@@ -317,6 +320,8 @@ class Daemon:
             frames_dropped=self._frame_drops(src),
             reconnects=self.reconnects,
             output_dropped=self._dropped(),
+            supply_faults=self.faults.supply_faults,
+            saturated=self.faults.saturated,
         )
         self.notifier.close()
         self.signals.restore()
@@ -408,8 +413,9 @@ class Daemon:
                 port=self.src_name,
                 gap_s=round(gap, 3),
                 reconnects=self.reconnects,
+                **self._device_gap_field(gap),
             )
-            msgs = self.pipeline.resync(gap, bad, time.time())
+            msgs = self.pipeline.resync(self._device_s(gap), bad, time.time())
             self._lost_at = None
             if self.pacer is not None:
                 self.pacer.reset()  # a new device clock
@@ -436,13 +442,27 @@ class Daemon:
                 jumps=self.wallclock.jumps,
                 reason="the device clock jumped (or went back: a restart) and runs at its "
                 "rate since: steps go on by the host's clock",
+                **self._device_gap_field(gap),
             )
-            msgs = self.pipeline.resync(gap, bad, time.time())
+            msgs = self.pipeline.resync(self._device_s(gap), bad, time.time())
             if self.pacer is not None:
                 self.pacer.reset()
         self._last_data = now
         msgs.extend(self.pipeline.feed(frame, bad, time.time()))
         return msgs
+
+    def _device_s(self, wall_s: float) -> float:
+        """Device seconds that pass in ``wall_s`` host seconds: the device clock's rate
+        (``device.clock_rate``; a simulated gyro's speed-up) times them; the wall clock's when
+        the rate is not known (0). Across a gap the device clock cannot say it itself (it may
+        have restarted), so steps and ``t`` move on by this."""
+        rate = _clock_rate(self.cfg, self.simulate)
+        return wall_s * rate if rate > 0 else wall_s
+
+    def _device_gap_field(self, wall_s: float) -> dict[str, float]:
+        """``device_gap_s`` for a log line, where it differs from the wall clock's gap."""
+        dev = self._device_s(wall_s)
+        return {} if dev == wall_s else {"device_gap_s": round(dev, 3)}
 
     WAITING_LOG_INTERVAL_S = 60.0
     """While the device has never been there, ``device_waiting`` is logged again this often."""
@@ -535,6 +555,7 @@ class Daemon:
                 self._last_step_at = time.monotonic()
         if self.gps is not None:  # the aiding is the pipeline's: log its mode and events
             self.gps.log_mode(msgs)
+        self.faults.note(msgs, time.monotonic())
         for m in msgs:
             for p in self.publishers:
                 try:
@@ -613,8 +634,10 @@ class Daemon:
     # -- SIGHUP --------------------------------------------------------------------------
 
     def reload_config(self) -> None:
-        """What SIGHUP does: read the configuration again and apply it (the device and
-        ``hdr.T`` only at a restart), or log ``config_reload_failed`` and keep the running one.
+        """What SIGHUP does: read the configuration again and apply it (the device, ``hdr.T``
+        and ``output.heading0_deg``, the heading at start, only at a restart: each kept is a
+        ``config_reload_partial`` warning), or log ``config_reload_failed`` and keep the
+        running one.
         Public so that a test or a tool can reload without sending a signal."""
         try:
             cfg, where = self.reload()
@@ -625,18 +648,31 @@ class Daemon:
         if cfg.device != old.device and not self.simulate:
             log.warning(
                 "config_reload_partial",
+                key="device",
                 reason="device settings need a restart",
                 kept=str(old.device.port),
             )
             cfg = replace(cfg, device=old.device)
         if cfg.hdr.params.T != old.hdr.params.T:
             log.warning(
-                "config_reload_partial", reason="hdr.T needs a restart", kept=old.hdr.params.T
+                "config_reload_partial",
+                key="hdr.T",
+                reason="hdr.T needs a restart",
+                kept=old.hdr.params.T,
             )
             cfg = replace(
                 cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T))
             )
+        if cfg.output.heading0_deg != old.output.heading0_deg:
+            log.warning(
+                "config_reload_partial",
+                key="output.heading0_deg",
+                reason="the heading at start: a reload keeps the heading (restart to set it)",
+                kept=old.output.heading0_deg,
+            )
+            cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
+        self.faults.sensor, self.faults.interval_s = cfg.sensor, cfg.log.bad_frame_interval_s
         if cfg.output != old.output:
             stop_publishers(self.publishers)
             self.publishers = build_publishers(cfg)

@@ -98,6 +98,10 @@ def _mapping(p: Path) -> dict[str, object]:
     except InputFileError as e:
         at = f" at {e.where}" if e.where else ""
         raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
+    from hdrd.io.yamlkeys import duplicate_key
+
+    if (dup := duplicate_key(text)) is not None:
+        raise BiasFileError(f"bias file {p}: {dup}")
     if not isinstance(data, dict):
         raise BiasFileError(f"bias file {p}: expected a mapping of bias_dps, std_dps, n, ...")
     return data

@@ -114,6 +114,8 @@ ADDED_KEYS = (
     "bias_sd",
     "gap_s",
     "saturated",
+    "supply_faults",
+    "supply_v",
     "stale_s",
     "mode",
     "heading_offset",
@@ -129,11 +131,12 @@ ADDED_KEYS = (
 not know."""
 BIAS_SOURCES = ("calibration", "stops", "driving", "gps")
 """The ``bias_source`` values hdrd sends: what last changed the published bias."""
-STATUSES = ("ok", "turning", "standstill", "calibrating", "stale")
+STATUSES = ("ok", "turning", "standstill", "calibrating", "stale", "supply_fault", "saturated")
 """The ``status`` values hdrd sends; a reader treats any other as "rate not trusted"."""
 RATE_VALID_STATUSES = frozenset({"ok", "turning", "standstill", "aided", "dead-reckoning"})
 """Statuses of a live step, whose rate and heading are current: $HNHDT is sent, $HNROT says
 A (valid) and $HNTHS A or E. In any other status (``stale``: no data, the heading held;
+``supply_fault``, ``saturated``: no usable sample in the step, the heading held;
 ``calibrating``; a status this version does not know) no $HNHDT is sent and $HNROT and
 $HNTHS say V. ``standstill`` (HDR+'s zero-rate update) is valid: the rate is known to be 0."""
 NMEA_TALKER = "HN"

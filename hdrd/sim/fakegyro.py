@@ -4,7 +4,9 @@
 Like gpsd's ``gps/fake.py`` FakePTY: :class:`FakeGyro` opens a pty pair and writes the frames
 of a drive profile to the master, so a reader opens the slave (:attr:`FakeGyro.path`, or the
 stable symlink :attr:`FakeGyro.link`) exactly as it would open ``/dev/ttyUSB0``. Frames go out
-at real time times ``speedup``, or as fast as the reader reads (``speedup`` 0).
+at real time times ``speedup``, or as fast as the reader reads (``speedup`` 0). Either way
+the drive starts when a reader first has the port open: a demo started a moment before its
+reader sees the drive from its first frame (its standstill lead-in, to calibrate on).
 
 Faults, drawn from a seeded generator so a run is reproducible:
 
@@ -17,12 +19,14 @@ Faults, drawn from a seeded generator so a run is reproducible:
   (the reader sees EOF/EIO) and the symlink removed; after ``pull_for`` seconds of wall time a
   NEW pty is opened and the symlink re-pointed to it. The device clock runs on meanwhile:
   the frames of the gap are never sent (``pull_for * speedup`` device seconds, or ``pull_for``
-  when ``speedup`` is 0).
+  when ``speedup`` is 0). A real-time reader that is slow to reopen loses the frames due
+  meanwhile too, as it would a real device's: the device time it misses is the wall-clock
+  time it was away times ``speedup``.
 
 :attr:`FakeGyro.injected` counts what went out; :meth:`FakeGyro.sent_frames` lists the frames
-delivered intact, in order. While no reader has the port open, real-time frames are not
-written (a reader's open flushes them anyway; counted in ``unread_frames``); at ``speedup`` 0
-the fake waits for a reader instead.
+delivered intact, in order. Once the drive has started, while no reader has the port open,
+real-time frames are not written (a reader's open flushes them anyway; counted in
+``unread_frames``); at ``speedup`` 0 the fake waits for a reader instead.
 """
 
 from __future__ import annotations
@@ -437,12 +441,23 @@ class FakeGyro:
     def on_pull_end(self) -> None:
         """Hook called after a pull, when the new pty is up (the CLI reports it)."""
 
+    def _await_reader(self) -> bool:
+        """Until a reader has the port open, and its open-time flush (pyserial) has passed:
+        a real-time drive starts then, not before (its first frames, a standstill to
+        calibrate on, would go to nobody). False if stopped meanwhile."""
+        while not self._reader_present():
+            if self._stop.wait(0.02):
+                return False
+        return not self._stop.wait(self.settle_s)
+
     def _run(self) -> None:
         n = self.frames.shape[0]
         t = self.t_s
         pulls = list(self.pull_at)
         k = 0
-        wall0 = time.monotonic()
+        if self.speedup > 0 and not self._await_reader():
+            return
+        wall0 = time.monotonic()  # the device clock starts with the reader
         batch_max = 256 if self.speedup == 0 else 4096
         while k < n and not self._stop.is_set():
             req, self._pull_request = self._pull_request, None

@@ -719,6 +719,10 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
     except InputFileError as exc:
         at = f" at {exc.where}" if exc.where else ""
         raise ValueError(f"{path}: not valid YAML{at}: {exc}") from None
+    from hdrd.io.yamlkeys import duplicate_key
+
+    if (dup := duplicate_key(text)) is not None:
+        raise ValueError(f"{path}: {dup}")
     try:
         return GyroModel.from_dict(data)
     except ValueError as exc:

@@ -29,7 +29,8 @@ whose frame never completes. Candidates that pass the CRC-16 by coincidence (abo
 coincidence rule (docs/protocol.md), which the reference scan applies too; garbage that forms
 a valid frame overlapping no real one is the exception no receiver can avoid. Saturation: every recovered sample at a
 rail or beyond +/-200 deg/s that the device clock accepts is flagged in its step's
-``saturated`` count.
+``saturated`` count, unless its supply reading is a fault: then in ``supply_faults``
+(docs/protocol.md, "What is not a rate").
 
 Exit status 1 if any expectation fails. Results: bench/RESULTS.md, "Fuzz: a byte stream through both parsers".
 """
@@ -298,12 +299,21 @@ def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
     sensor = SensorModel()
     _, accepted = unwrap_us(arr["t_us"])
     rate = arr["rate"][accepted].astype(np.int64)
-    omega = sensor.to_dps_array(rate, arr["ref"][accepted].astype(np.int64))
-    sat_sent = int(np.count_nonzero(np.asarray(sensor.saturated(rate, omega))))
+    monitor = arr["ref"][accepted].astype(np.int64)
+    omega = sensor.to_dps_array(rate, monitor)
+    fault = sensor.supply_faults(sensor.supply_readings(monitor))
+    sat_sent = int(np.count_nonzero(~fault & np.asarray(sensor.saturated(rate, omega))))
     sat_flagged = sum(int(m.get("saturated", 0)) for m in msgs)
+    faults_flagged = sum(int(m.get("supply_faults", 0)) for m in msgs)
     steps = [m["step"] for m in msgs]
     steps_ok = steps == sorted(set(steps))
-    ok = same_push_vec and as_reference and steps_ok and sat_flagged == sat_sent
+    ok = (
+        same_push_vec
+        and as_reference
+        and steps_ok
+        and sat_flagged == sat_sent
+        and faults_flagged == int(np.count_nonzero(fault))
+    )
     return {
         "protocol": protocol,
         "bytes": len(data),
@@ -324,6 +334,7 @@ def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
         "steps": len(msgs),
         "saturated_samples": sat_sent,
         "saturated_flagged": sat_flagged,
+        "supply_faults_flagged": faults_flagged,
         "seconds": {"generate": t_gen, "push": t_push, "vectorised": t_vec, "pipeline": t_pipe},
         "ok": ok,
     }
@@ -362,7 +373,8 @@ def report(r: dict[str, Any]) -> str:
         (
             f"  push parser == vectorised decoder: {r['push_equals_vectorised']}; "
             f"pipeline: {r['steps']:,} steps, saturated samples flagged "
-            f"{r['saturated_flagged']:,} of {r['saturated_samples']:,}"
+            f"{r['saturated_flagged']:,} of {r['saturated_samples']:,}, supply faults "
+            f"{r['supply_faults_flagged']:,}"
         ),
         (
             f"  time: push {sec['push']:.2f} s ({mb / sec['push']:.1f} MB/s), "
