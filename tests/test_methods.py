@@ -21,7 +21,8 @@ from hdrd.config import ConfigError, parse_config
 from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.hdr import HdrParams
-from hdrd.core.hdrplus import HdrPlusParams, PlusOutput
+from hdrd.core.hdrplus import PlusOutput
+from hdrd.core.plusparams import PlusParams
 from hdrd.core.methods import REGISTRY, MethodSetup, StepInputs, plus_settings
 from tests.test_hdrplus import core_params, plus_params
 
@@ -65,7 +66,7 @@ def test_batch_is_the_step_looped_bit_for_bit(
     name: str,
     data: list[tuple[float, float, float, float]],
     hdr: HdrParams,
-    plus: HdrPlusParams,
+    plus: PlusParams,
     n: float | None,
     bias: BiasRecord | None,
 ) -> None:
@@ -93,10 +94,9 @@ def test_a_method_switch_carries_the_yaw() -> None:
         state, m = new.initial_state(before), new
         assert m.yaw(state) == before
         state, out = m.step(state, steps.input(0), m.settings(ctx))
-        # (HDR+ may also correct the heading for a bias error its model has just seen)
-        fix = out.heading_fix_deg if isinstance(out, PlusOutput) else 0.0
-        assert out.yaw == pytest.approx(before + out.omega * 1.0 + fix, rel=1e-12)
-        assert m.yaw(state) == out.yaw
+        # (HDR+ also corrects the heading by what its first road measurement says of the bias)
+        assert out.yaw == pytest.approx(before + out.omega * 1.0, abs=0.01)
+        assert m.yaw(state) == pytest.approx(out.yaw, rel=1e-12)
     assert m.yaw(state) == pytest.approx(5 * 0.3, rel=0.2)  # a whole step each, none lost
 
 
@@ -107,29 +107,32 @@ def test_publish_gives_the_message_fields_of_each_method() -> None:
         s = m.settings(MethodSetup())
         state, out = m.step(m.initial_state(), steps.input(0), s)
         pub = m.publish(out, s)
-        assert list(pub.core) == ["omega", "yaw", "I", "W", "R", "r"]
         assert pub.core["yaw"] == out.yaw and pub.core["omega"] == out.omega
-        if m.bias_model:
+        if m.owns_heading:
             assert isinstance(out, PlusOutput)
-            assert list(pub.extra) == ["zupt", "model", "bias_sd"]
+            assert list(pub.core) == ["omega", "yaw", "W"]  # no paper controller
+            assert list(pub.extra) == ["zupt", "model", "bias_sd", "motion_offset"]
             assert pub.extra["model"] == s.model and pub.bias_corr_dps == out.bias_corr_dps
+            assert pub.heading_sd_deg == out.heading_sd_deg > 0.0
         else:
+            assert list(pub.core) == ["omega", "yaw", "I", "W", "R", "r"]
             assert pub.extra == {} and pub.bias_corr_dps == 0.0 and not pub.standstill
+            assert math.isnan(pub.heading_sd_deg)
 
 
 def test_hdr_plus_settings_follow_the_gyro_and_the_calibration() -> None:
-    base = HdrPlusParams()
+    base = PlusParams()
     # A 1 Hz gyro has one sample per step; a measured bias sets the prior.
     rec = BiasRecord(0.5, 0.2, 30, 30.0)
     ctx = MethodSetup(HdrParams(T=1.0), base, samples_per_step=1.0, bias=rec)
     p = plus_settings(ctx)
     assert p.standstill.samples_per_step == 1.0
-    assert p.fit.bias_p0 == 0.2 * 0.2 / 30
-    assert p.hdr.T == 1.0 and p.hdr.i_c == base.hdr.i_c
+    assert p.bias_p0 == 0.2 * 0.2 / 30
+    assert p.T == 1.0 and p.model == "calibration"
     # A given bias (no record of its spread) keeps the configured prior.
     given = MethodSetup(HdrParams(T=2.0), base, bias=BiasRecord(0.5, 0.0, 0, 0.0))
-    assert plus_settings(given).fit.bias_p0 == base.fit.bias_p0
-    assert plus_settings(MethodSetup(HdrParams(T=2.0))).hdr.T == 2.0
+    assert plus_settings(given).bias_p0 == base.bias_p0
+    assert plus_settings(MethodSetup(HdrParams(T=2.0))).T == 2.0
     # The configuration's standstill keys and grade reach it there, and only there.
     off = plus_settings(replace(ctx, standstill=False, standstill_from_gyro=True))
     assert not off.standstill.enabled and off.standstill.gyro_only

@@ -275,7 +275,9 @@ def test_hdr_plus_zero_rate_update_at_standstill():
     # The yaw does not turn at standstill; it moves only by HDR+'s heading fix, back towards
     # the truth (0) by the drift the first steps integrated before the stop was known.
     assert abs(msgs[-1]["yaw"]) <= abs(msgs[5]["yaw"])
-    assert msgs[-1]["bias"] == pytest.approx(0.6, abs=0.02)  # eps0 refined from the stop
+    # eps0 refined from the stop: a stop reads the rest bias, each stop with a scatter of its
+    # own (stop_scatter_dps), so one stop moves the driving bias most of the way, not all
+    assert 0.57 <= msgs[-1]["bias"] <= 0.6
     ref = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr", bias=given_bias(bias))))
     plain = run_live(ref, make_frames(omega))
     assert all(m["omega"] != 0.0 for m in plain[5:])  # paper HDR has no zero-rate update
@@ -286,8 +288,8 @@ def test_hdr_plus_zero_rate_update_at_standstill():
 
 def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
     # A configured grade (a known error model): published as such; a tactical-grade gyro's
-    # bias wanders too little for the binary increment, so I never moves. Measured at
-    # start-up without one: fitted to the calibration window.
+    # bias wanders too little to move on a straight road read with a gyro's noise. Measured
+    # at start-up without one: fitted to the calibration window.
     from hdrd.core.methods import MethodSetup
 
     rng = np.random.default_rng(5)
@@ -296,7 +298,8 @@ def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
     known = Pipeline(PipelineConfig(setup=replace(tactical, method="hdr+", bias=given_bias(0.3))))
     msgs = run_live(known, make_frames(omega))
     assert {m["model"] for m in msgs} == {"grade tactical"}
-    assert all(m["I"] == 0.0 for m in msgs)
+    assert all("I" not in m for m in msgs)  # HDR+ has no paper controller
+    assert all(abs(m["bias"] - 0.3) < 0.002 for m in msgs)
     measured = Pipeline(PipelineConfig(startup_s=5.0, setup=MethodSetup(method="hdr+")))
     got = [m for m in run_live(measured, make_frames(omega)) if "yaw" in m]
     assert got and {m["model"] for m in got} == {"calibration"}

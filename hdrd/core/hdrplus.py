@@ -445,12 +445,12 @@ def run_batch(
         cols.append(per_step(heading_err_var, n, "heading_err_var"))
         resets = [False] * n if heading_reset is None else per_step(heading_reset, n, "reset")
         cols.append([bool(r) for r in resets])
+    m = len(params.bank)
+    if n == 0:  # nothing ran: not even the prior is set
+        e = np.empty(0)
+        return PlusTrace(e, e, e, e, e, e, np.empty(0, bool), e, np.empty((0, m)), state)
     run = _Run(state, params)
     rows = [run.advance(*row) for row in zip(*cols, strict=True)]
-    m = len(params.bank)
-    if not rows:
-        e = np.empty(0)
-        return PlusTrace(e, e, e, e, e, e, np.empty(0, bool), e, np.empty((0, m)), run.state())
     cols_out = list(zip(*rows, strict=True))
     f = [np.array(c, dtype=np.float64) for c in cols_out[:6]]
     return PlusTrace(

@@ -63,18 +63,22 @@ StepOutput = HdrOutput | PlusOutput
 
 
 class Published(NamedTuple):
-    """A step's output as message fields (docs/protocol.md).
+    """A step's output as message fields (docs/protocol.md): what every method says of the
+    heading and the bias, in one shape.
 
-    core: omega, yaw, I, W, R, r, in that order (the heading and the bias are the
-    pipeline's). extra: the method's own fields after the bias (HDR+: zupt, model, bias_sd).
+    core: omega and yaw, then the paper's controller I, W, R, r where the method has them (HDR+
+    has W only: 1 on a step it took for straight road); the heading is the pipeline's. extra:
+    the method's own fields after the bias (HDR+: zupt, model, bias_sd, motion_offset).
     bias_corr_dps: what the method adds to the static bias eps0, deg/s (the published bias is
     eps0 + this). standstill: the step was a zero-rate update (status ``standstill``).
+    heading_sd_deg: the heading's standard deviation, deg (NaN: the method does not know it).
     """
 
     core: dict[str, float | int]
     extra: dict[str, float | int | str]
     bias_corr_dps: float = 0.0
     standstill: bool = False
+    heading_sd_deg: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -203,12 +207,14 @@ def plus_settings(setup: MethodSetup) -> PlusParams:
 
 class Method(ABC, Generic[S, P]):
     """One drift reducer (see the module docstring); subclasses define the operations.
-    ``bias_model``: the method refines the static bias itself and detects standstill, so the
-    pipeline publishes the corrected bias, the ``zupt`` flag and the error model in force."""
+    ``owns_heading``: the method owns the heading and the bias: it takes each GPS course as a
+    measurement of its heading (the aiding aligns it once and then hands it the courses) and
+    publishes its own bias; the others' heading is aligned by the aiding, whose learning moves
+    their static bias."""
 
     name: str = ""
     summary: str = ""
-    bias_model: bool = False
+    owns_heading: bool = False
 
     @abstractmethod
     def initial_state(self, yaw: float = 0.0) -> S:
@@ -288,7 +294,7 @@ class _Plus(Method[PlusState, PlusParams]):
 
     name = "hdr+"
     summary = "HDR with standstill re-calibration and a bias model"
-    bias_model = True
+    owns_heading = True
 
     def initial_state(self, yaw: float = 0.0) -> PlusState:
         return INITIAL_PLUS_STATE._replace(yaw=yaw)
@@ -321,15 +327,17 @@ class _Plus(Method[PlusState, PlusParams]):
     def publish(self, out: StepOutput, settings: PlusParams) -> Published:
         assert isinstance(out, PlusOutput)
         core: dict[str, float | int] = {
-            "omega": out.omega, "yaw": out.yaw, "I": 0.0, "W": int(out.straight >= 0.5),
-            "R": 0.0, "r": 0,
-        }  # fmt: skip
+            "omega": out.omega,
+            "yaw": out.yaw,
+            "W": int(out.straight >= 0.5),
+        }
         extra: dict[str, float | int | str] = {
             "zupt": int(out.standstill),
             "model": settings.model,  # the error model in force
             "bias_sd": out.bias_sd_dps,
+            "motion_offset": out.offset_dps,
         }
-        return Published(core, extra, out.bias_corr_dps, out.standstill)
+        return Published(core, extra, out.bias_corr_dps, out.standstill, out.heading_sd_deg)
 
 
 REGISTRY: dict[str, Method[Any, Any]] = {m.name: m for m in (_None(), _Hdr(), _Plus())}

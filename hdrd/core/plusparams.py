@@ -154,9 +154,10 @@ class PlusParams:
     stop_scatter_dps: float = 0.01
     """How far a later stop may read from the calibration's rest bias, deg/s (1 sigma, each
     stop its own: idling, a slope, the engine's vibration)."""
-    bias_p0: float = 8e-5
-    """Variance of the start-up bias eps0, (deg/s)^2 (the calibration's sample variance /
-    samples; default: 30 s of a CRS03-04 at 10 Hz)."""
+    bias_p0: float = 4e-4
+    """Variance of the start-up bias eps0, (deg/s)^2: the calibration's sample variance /
+    samples; without a calibration (a bias given, ``--bias``), (0.02 deg/s)^2, a bias of
+    unknown age."""
     block_var: float = math.nan
     """Variance of one step's mean at standstill, (deg/s)^2 (the calibration's; NaN unknown:
     each step's own spread stands for it)."""

@@ -28,7 +28,7 @@ least ``min_speed_mps``, a course error estimate (``epd``, when sent) within
   I-controller (Eqs. 4, 9) to do its job during outages with the best static bias known.
 
   That is for the baselines, ``none`` and paper ``hdr``. A method that estimates the bias
-  and the heading error itself (HDR+, :class:`hdrd.core.methods.Method` ``bias_model``) is
+  and the heading error itself (HDR+, :class:`hdrd.core.methods.Method` ``owns_heading``) is
   their one owner: the aiding aligns its heading once (and again on a realignment, below),
   then hands it each good course as a measurement (:class:`HeadingFix`: the published
   heading minus the course, its variance from the course's error and, in a turn, its

@@ -37,7 +37,8 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
-from hdrd.daemon.aiding import Aid, GpsAiding, HeadingFix, StepView
+from hdrd.core.selfcheck import FROZEN, OutageRecord, SelfCheck, frozen_params
+from hdrd.daemon.aiding import DEAD_RECKONING, Aid, GpsAiding, HeadingFix, StepView
 from hdrd.io.clocks import DeviceClock
 from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 
@@ -54,14 +55,22 @@ __all__ = [
 ]
 
 
-class Held(NamedTuple):
-    """What a step published of the heading and the bias, held by a report that is not a
-    step: yaw (deg CCW since start), heading (compass deg, the method's, before the aiding
-    aligns it) and bias (deg/s, the static bias and the method's correction)."""
-
-    yaw: float
-    heading: float
-    bias: float
+HELD_KEYS = (
+    "yaw",
+    "heading",
+    "bias",
+    "model",
+    "bias_sd",
+    "motion_offset",
+    "heading_sd",
+    "outage_policy",
+    "outage_trials",
+)
+"""What a step published of the heading and the bias that a report which is not a step
+(stale, a sensor fault) repeats: yaw (deg CCW since start), heading (compass deg, the
+method's, before the aiding aligns it), bias (deg/s, the static bias and the method's
+correction), and the method's own account of them (HDR+: its error model, the bias's and the
+heading's sd, the motion offset, the outage policy)."""
 
 
 class FrameLike(Protocol):
@@ -102,6 +111,9 @@ class PipelineConfig:
     limits: StandstillLimits = StandstillLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
+    outage_record: OutageRecord = OutageRecord()
+    """The outage policies' record the unit starts with (its state file's;
+    :mod:`hdrd.core.selfcheck`)."""
 
     @property
     def params(self) -> HdrParams:
@@ -158,6 +170,11 @@ def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConf
     )
 
 
+OUTAGE_CHECK_S = 120.0
+"""A virtual outage's length, and how often one starts while aided, s: the outage a car in a
+tunnel or a multi-storey car park meets (``hdrd evaluate --outages 120s/10min``'s)."""
+
+
 # -- stepping ----------------------------------------------------------------------------------
 
 
@@ -200,9 +217,18 @@ class Stepper:
         """Samples per step the method's settings were derived with (the first block stepped:
         the gyro's sample rate times T)."""
         self._settings: Any = None  # derived at the first step (methods.Method.settings)
-        self.held: Held | None = None
-        """What the last step published of the heading and the bias (None before the first
-        step with a heading): a report that is not a step holds these."""
+        self.held: dict[str, Any] | None = None
+        """What the last step published of the heading and the bias (:data:`HELD_KEYS`; None
+        before the first step with a heading): a report that is not a step holds these."""
+        self.selfcheck: SelfCheck | None = None
+        """The virtual outages of a method that owns the heading (HDR+), once it is aided
+        (:mod:`hdrd.core.selfcheck`); None for the others."""
+        self.outage_record = config.outage_record
+        """The outage policies' record: the unit's, as given, then what this run adds."""
+        self._mode: str | None = None  # the aiding's mode at the last step
+        self.aided_stops = 0
+        """Zero-rate updates while the heading was aligned to GPS: the steps that show the
+        rest bias beside a driving bias the courses teach (the motion offset is observable)."""
 
     @property
     def calibrating(self) -> bool:
@@ -215,7 +241,7 @@ class Stepper:
         last step published them; before the first step, as they stand (none while
         calibrating)."""
         if self.held is not None:
-            msg["yaw"], msg["heading"], msg["bias"] = self.held
+            msg.update(self.held)
         elif self.bias is not None:
             msg["yaw"] = self.yaw
             msg["heading"] = heading_from_yaw(self.config.heading0_deg, self.yaw)
@@ -305,13 +331,36 @@ class Stepper:
 
     def step(self, block: Block) -> methods.Published | None:
         """One block: None while calibrating (the window closes a step), else the method's
-        output as message fields (:meth:`hdrd.core.methods.Method.publish`)."""
+        output as message fields (:meth:`hdrd.core.methods.Method.publish`). A method that
+        owns the heading runs, in an outage (aligned to GPS before, dead reckoning now), the
+        outage policy its record favours, and its virtual outages while aided
+        (:mod:`hdrd.core.selfcheck`)."""
         inp = self.prepare(block)
         if inp is None:
             return None
         settings = self.derive_settings()
-        self.state, o = self.method.step(self.state, inp, settings)
-        return self.method.publish(o, settings)
+        if not self.method.owns_heading:
+            self.state, o = self.method.step(self.state, inp, settings)
+            return self.method.publish(o, settings)
+        before = self.state
+        in_outage = before.aided and self._mode == DEAD_RECKONING
+        policy = self.outage_record.policy()
+        used = frozen_params(settings) if in_outage and policy == FROZEN else settings
+        self.state, o = self.method.step(before, inp, used)
+        course = inp.heading_err_deg == inp.heading_err_deg
+        if self.selfcheck is None and self.state.aided:
+            T = self.config.params.T
+            n = max(1, round(OUTAGE_CHECK_S / T))
+            self.selfcheck = SelfCheck(self.outage_record, n, n)
+        if self.selfcheck is not None:
+            self.selfcheck.on_step(before, inp, settings, o.yaw, course and not in_outage)
+            self.outage_record = self.selfcheck.record
+        if o.standstill and self.state.aided:
+            self.aided_stops += 1
+        pub = self.method.publish(o, settings)
+        pub.extra["outage_policy"] = policy
+        pub.extra["outage_trials"] = self.outage_record.trials
+        return pub
 
     def message(
         self,
@@ -409,13 +458,16 @@ class Stepper:
         msg["yaw"] = core["yaw"]
         msg["heading"] = heading_from_yaw(self.config.heading0_deg, core["yaw"])
         for key in ("I", "W", "R", "r"):
-            msg[key] = core[key]
+            if key in core:
+                msg[key] = core[key]
         msg["bias"] = self.bias.bias_dps + pub.bias_corr_dps
         if pub.bias_corr_dps != self._bias_corr:  # the method moved it (HDR+)
             self._bias_corr = pub.bias_corr_dps
             self.bias_source = "gps" if aided else "stops" if pub.standstill else "driving"
         msg.update(pub.extra)
-        self.held = Held(msg["yaw"], msg["heading"], msg["bias"])
+        if math.isfinite(pub.heading_sd_deg):
+            msg["heading_sd"] = pub.heading_sd_deg
+        self.held = {k: msg[k] for k in HELD_KEYS if k in msg}
         return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
 
     def _aid(self, view: StepView) -> Aid | None:
@@ -425,7 +477,8 @@ class Stepper:
         if self.aiding is None:
             return None
         now = self.aid_clock() if self.aid_clock is not None else view.t
-        aid = self.aiding.on_step(view, now, owner=self.method.bias_model)
+        aid = self.aiding.on_step(view, now, owner=self.method.owns_heading)
+        self._mode = aid.mode
         if aid.fix is not None:
             self._fix = aid.fix
         if aid.bias_delta_dps:
@@ -439,7 +492,7 @@ class Stepper:
             return
         view = StepView(self._t_view, 0.0, math.nan, msg["bias"], msg["heading"], step=False)
         now = self.aid_clock() if self.aid_clock is not None else view.t
-        add_aid(msg, self.aiding.on_step(view, now, owner=self.method.bias_model))
+        add_aid(msg, self.aiding.on_step(view, now, owner=self.method.owns_heading))
 
     def add_bias_origin(self, msg: Message, now: float | None) -> None:
         """``bias_source`` and ``calib_age_s`` (s since the static bias was measured, by the
