@@ -461,6 +461,7 @@ def plus_with(base: HdrPlusParams | None = None, **kw: Any) -> HdrPlusParams:
     from dataclasses import fields, replace
 
     from hdrd.core.biasbank import Hypothesis
+
     from hdrd.core.plusparams import DEFAULT_BANK, DEFAULTS, GyroFit, Tuning
 
     p = DEFAULTS if base is None else base

@@ -26,7 +26,8 @@ from hdrd.daemon.aiding import (
     StepView,
     wrap180,
 )
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig, add_aid
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig, add_aid
 from hdrd.io.gpsd import Fix
 
 KNOT = 0.514444

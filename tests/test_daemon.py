@@ -21,7 +21,8 @@ import pytest
 
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import frames_to_array
 from hdrd.io.publish import nmea_checksum

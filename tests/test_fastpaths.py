@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 from hdrd.core.calibrate import given_bias
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import decode_capture
 from hdrd.io.frames import Frame, Parser, array_to_frames
 from hdrd.io.publish import _format_clean, format_json

@@ -227,7 +227,8 @@ _CAPTURE = _capture()
     protocol=st.sampled_from(["hdr-bin", "hdr-text"]),
 )
 def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: str) -> None:
-    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+    from hdrd.daemon.pipeline import Pipeline
+    from hdrd.daemon.stepper import PipelineConfig
     from hdrd.io.frames import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]

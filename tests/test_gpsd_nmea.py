@@ -41,7 +41,8 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.gpsd import WATCH_COMMAND, Fix, GpsdClient
 from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea

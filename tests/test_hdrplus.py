@@ -108,7 +108,9 @@ def test_batch_is_bit_identical_to_step(
     state = INITIAL_PLUS_STATE
     outs = []
     for i in range(len(data)):
-        state, o = step(state, StepInput(u[i], sp[i], v[i], te[i], params.T, herr[i], var[i], reset[i]), params)
+        state, o = step(
+            state, StepInput(u[i], sp[i], v[i], te[i], params.T, herr[i], var[i], reset[i]), params
+        )
         outs.append(o)
     assert trace.yaw.tolist() == [o.yaw for o in outs]
     assert trace.heading_sd_deg.tolist() == [o.heading_sd_deg for o in outs]
@@ -116,7 +118,11 @@ def test_batch_is_bit_identical_to_step(
     assert trace.standstill.tolist() == [o.standstill for o in outs]
     assert trace.final == state
     for o in outs:
-        assert math.isfinite(o.yaw) and o.heading_sd_deg >= 0.0 and sum(o.weights) == pytest.approx(1.0)
+        assert (
+            math.isfinite(o.yaw)
+            and o.heading_sd_deg >= 0.0
+            and sum(o.weights) == pytest.approx(1.0)
+        )
 
 
 @settings(max_examples=40, deadline=None)
@@ -250,7 +256,9 @@ def test_a_profile_s_offset_is_in_force_from_the_first_step() -> None:
 
 
 def test_unit_bank_puts_what_is_known_into_the_fresh_bank() -> None:
-    b = unit_bank(GyroNoise(motion_offset_dps=0.05, motion_offset_sd_dps=0.004, rrw_dps_per_sqrt_s=1e-4))
+    b = unit_bank(
+        GyroNoise(motion_offset_dps=0.05, motion_offset_sd_dps=0.004, rrw_dps_per_sqrt_s=1e-4)
+    )
     assert [h.name for h in b] == [h.name for h in FRESH_BANK]
     assert all(h.offset_dps == 0.05 for h in b)
     assert b[0].offset_sd_dps == 0.004 and b[1].offset_sd_dps == FRESH_BANK[1].offset_sd_dps
@@ -261,8 +269,6 @@ def test_unit_bank_puts_what_is_known_into_the_fresh_bank() -> None:
 def test_courses_teach_the_driving_bias_and_the_heading_sd_follows_them() -> None:
     d = drive(10, 5, offset=0.05)
     n = d["u"].shape[0]
-    err = np.full(n, NAN)
-    var = np.full(n, 1.0)
     reset = np.zeros(n, bool)
     reset[0] = True
     state = INITIAL_PLUS_STATE
@@ -271,7 +277,16 @@ def test_courses_teach_the_driving_bias_and_the_heading_sd_follows_them() -> Non
     yaw_prev = 0.0
     for i in range(n):
         herr = true_yaw[i - 1] - yaw_prev if 0 < i < n // 2 else NAN  # courses, then an outage
-        inp = StepInput(d["u"][i], 0.1, d["speed"][i], NAN, 1.0, herr, 1.0 if herr == herr else NAN, bool(reset[i]))
+        inp = StepInput(
+            d["u"][i],
+            0.1,
+            d["speed"][i],
+            NAN,
+            1.0,
+            herr,
+            1.0 if herr == herr else NAN,
+            bool(reset[i]),
+        )
         state, o = step(state, inp, DEFAULTS)
         yaw_prev = o.yaw
         sds.append(o.heading_sd_deg)
@@ -289,7 +304,9 @@ def test_the_frozen_policy_measures_nothing() -> None:
     assert tr.yaw == pytest.approx(np.cumsum(d["u"]), abs=1e-9)
 
 
-def test_a_stop_reading_off_a_steady_unit_moves_its_driving_bias_by_less_than_the_stop_reads() -> None:
+def test_a_stop_reading_off_a_steady_unit_moves_its_driving_bias_by_less_than_the_stop_reads() -> (
+    None
+):
     # Real stops read 0.005-0.04 deg/s off a still-good driving bias: one stop 0.03 off moves
     # a steady unit's driving bias, but by less than it reads (each stop has its own offset).
     u = np.concatenate([np.full(100, 0.0), np.full(60, 0.03), np.full(100, 0.0)])
@@ -329,8 +346,15 @@ def test_the_temperature_coefficient_is_learned_from_stops_at_different_temperat
 
 def test_the_published_sd_weighs_the_members_by_how_common_they_are() -> None:
     # a member of small prior but a large share widens the published sd (the units there are)
-    narrow = DEFAULTS.with_(bank=(Hypothesis("a", 0.98, share=0.98), Hypothesis("b", 0.02, offset_sd_dps=0.1, share=0.02)))
-    wide = DEFAULTS.with_(bank=(Hypothesis("a", 0.98, share=0.5), Hypothesis("b", 0.02, offset_sd_dps=0.1, share=0.5)))
+    narrow = DEFAULTS.with_(
+        bank=(
+            Hypothesis("a", 0.98, share=0.98),
+            Hypothesis("b", 0.02, offset_sd_dps=0.1, share=0.02),
+        )
+    )
+    wide = DEFAULTS.with_(
+        bank=(Hypothesis("a", 0.98, share=0.5), Hypothesis("b", 0.02, offset_sd_dps=0.1, share=0.5))
+    )
     d = drive(5, 8)
     a, b = _run(d, narrow), _run(d, wide)
     assert a.yaw.tolist() == b.yaw.tolist()  # the same estimate ...

@@ -54,7 +54,12 @@ def test_predict_is_F_P_Ft_plus_Q(
     x=st.lists(vals, min_size=N, max_size=N),
     z=vals,
     R=st.floats(1e-4, 10.0),
-    h=st.lists(st.tuples(st.integers(0, N - 1), st.floats(-2.0, 2.0)), min_size=1, max_size=3, unique_by=lambda t: t[0]),
+    h=st.lists(
+        st.tuples(st.integers(0, N - 1), st.floats(-2.0, 2.0)),
+        min_size=1,
+        max_size=3,
+        unique_by=lambda t: t[0],
+    ),
 )
 def test_update_is_the_kalman_update(
     P: np.ndarray, x: list[float], z: float, R: float, h: list[tuple[int, float]]
@@ -81,7 +86,9 @@ def test_update_is_the_kalman_update(
 
 def test_log_likelihood_is_the_normal_density() -> None:
     assert log_likelihood(0.0, 1.0) == pytest.approx(-0.5 * math.log(2 * math.pi))
-    assert log_likelihood(2.0, 4.0) == pytest.approx(math.log(math.exp(-0.5) / math.sqrt(8 * math.pi)))
+    assert log_likelihood(2.0, 4.0) == pytest.approx(
+        math.log(math.exp(-0.5) / math.sqrt(8 * math.pi))
+    )
 
 
 def test_a_bank_weighs_by_likelihood_and_its_transition_keeps_every_member_alive() -> None:
@@ -110,4 +117,6 @@ def test_the_bank_s_mean_and_variance_are_the_mixture_s() -> None:
     va, vb = 1.0 + 4 * 0.5 + 4 * 2.0, 4.0 + 4 * 1.0
     mean = 0.25 * ma + 0.75 * mb
     assert bank.mean(h) == pytest.approx(mean)
-    assert bank.var(h) == pytest.approx(0.25 * (va + (ma - mean) ** 2) + 0.75 * (vb + (mb - mean) ** 2))
+    assert bank.var(h) == pytest.approx(
+        0.25 * (va + (ma - mean) ** 2) + 0.75 * (vb + (mb - mean) ** 2)
+    )

@@ -22,8 +22,8 @@ from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import PlusOutput
-from hdrd.core.plusparams import PlusParams
 from hdrd.core.methods import REGISTRY, MethodSetup, StepInputs, plus_settings
+from hdrd.core.plusparams import PlusParams
 from tests.test_hdrplus import core_params, plus_params
 
 NAN = math.nan

@@ -20,8 +20,9 @@ from hdrd.config import Config, method_setup, parse_config
 from hdrd.core.calibrate import BiasRecord, given_bias
 from hdrd.core.methods import MethodSetup, names
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.replay import replay_capture
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import encode_array
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.frames import FRAME_DTYPE

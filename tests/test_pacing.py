@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pacing import ReadPacer
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.frames import Frame
 
 

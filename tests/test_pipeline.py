@@ -15,7 +15,8 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig, heading_from_yaw
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig, heading_from_yaw
 
 CAPTURE_DTYPE = np.dtype(
     [("seq", "<u2"), ("t_us", "<u4"), ("rate", "<u2"), ("ref", "<u2"), ("temp", "<i2")]

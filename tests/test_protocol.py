@@ -13,7 +13,8 @@ import numpy as np
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io import protocol
 from hdrd.io.frames import FRAME_DTYPE
 from hdrd.io.gpsd import Fix

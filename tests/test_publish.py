@@ -296,7 +296,8 @@ def test_nmea_property(omega: float, heading: float, ths: bool) -> None:
 
 def _pipeline_messages(method: str, speed: float | None) -> list[dict[str, Any]]:
     """Real pipeline messages: 40 s of a parked car at 10 Hz, eps0 known."""
-    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+    from hdrd.daemon.pipeline import Pipeline
+    from hdrd.daemon.stepper import PipelineConfig
     from tests.test_pipeline import make_frames, run_live
 
     rng = np.random.default_rng(7)

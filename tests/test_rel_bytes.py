@@ -34,7 +34,8 @@ from hypothesis import strategies as st
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import decode_capture, encode_array
 from hdrd.io.frames import (
     FRAME_DTYPE,

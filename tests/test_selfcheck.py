@@ -108,7 +108,9 @@ def test_an_outage_that_ends_unaided_is_dropped_and_frozen_settings_measure_noth
     check = SelfCheck(length_steps=3, every_steps=3)
     state = hdrplus.INITIAL_PLUS_STATE
     for i in range(10):
-        inp = StepInput(0.1, 0.1, 10.0, NAN, 1.0, 0.0 if i < 5 else NAN, 1.0 if i < 5 else NAN, i == 0)
+        inp = StepInput(
+            0.1, 0.1, 10.0, NAN, 1.0, 0.0 if i < 5 else NAN, 1.0 if i < 5 else NAN, i == 0
+        )
         before = state
         state, out = hdrplus.step(state, inp, DEFAULTS)
         check.on_step(before, inp, DEFAULTS, out.yaw, i < 5)

@@ -29,7 +29,8 @@ from hypothesis import strategies as st
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.frames import FRAME_DTYPE, array_to_frames
 from hdrd.io.publish import nmea_sentences, parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures

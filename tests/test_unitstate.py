@@ -50,15 +50,23 @@ def test_no_offset_learned_is_written_as_none(tmp_path: Path) -> None:
         ("version: 1\ntrips: 2\n", "truncated"),
         ("version: 2\n# end\n", "version 2, this hdrd reads version 1"),
         ("- 1\n# end\n", "expected a mapping"),
-        ("version: 1\nmotion_offset_dps: 9.0\nmotion_offset_sd_dps: 0.1\n# end\n", "motion_offset_dps = 9.0 must be a number in -5..5"),
+        (
+            "version: 1\nmotion_offset_dps: 9.0\nmotion_offset_sd_dps: 0.1\n# end\n",
+            "motion_offset_dps = 9.0 must be a number in -5..5",
+        ),
         ("version: 1\nmotion_offset_dps: 0.01\n# end\n", "go together"),
         ("version: 1\ntrips: -3\n# end\n", "trips = -3 is not a count"),
         ("version: 1\nfoo: 1\n# end\n", "unknown key 'foo'"),
-        ("version: 1\noutage_record: {frozen: {n: 1, mean_abs_deg: 500, rms_deg: 1}}\n# end\n", "must be in 0..360"),
+        (
+            "version: 1\noutage_record: {frozen: {n: 1, mean_abs_deg: 500, rms_deg: 1}}\n# end\n",
+            "must be in 0..360",
+        ),
         ("version: [1\n# end\n", "not valid YAML"),
     ],
 )
-def test_a_state_that_cannot_be_used_is_refused_in_one_line(tmp_path: Path, text: str, why: str) -> None:
+def test_a_state_that_cannot_be_used_is_refused_in_one_line(
+    tmp_path: Path, text: str, why: str
+) -> None:
     path = tmp_path / "unit.yaml"
     path.write_text(text)
     with pytest.raises(UnitStateError, match=why) as e:

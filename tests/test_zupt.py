@@ -38,9 +38,7 @@ def one(q: float = 0.0, **kw: object) -> PlusParams:
 # -- the detector over step sequences, inside HDR+ -------------------------------------------
 
 
-def _run(
-    u: list[float], spread: list[float], speed: list[float], params: PlusParams
-) -> np.ndarray:
+def _run(u: list[float], spread: list[float], speed: list[float], params: PlusParams) -> np.ndarray:
     return run_batch(u, spread, speed, None, 1.0, params).standstill
 
 

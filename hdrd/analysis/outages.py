@@ -42,7 +42,7 @@ from hdrd.core.calibrate import BiasRecord
 from hdrd.core.methods import MethodSetup
 from hdrd.core.resample import Block
 from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
-from hdrd.daemon.pipeline import PipelineConfig, Stepper
+from hdrd.daemon.stepper import PipelineConfig, Stepper
 from hdrd.io.drivelog import DriveLog
 
 __all__ = [

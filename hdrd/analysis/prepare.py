@@ -47,7 +47,7 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
-from hdrd.daemon.pipeline import PipelineConfig, Stepper
+from hdrd.daemon.stepper import PipelineConfig, Stepper
 from hdrd.errors import HdrdError
 from hdrd.io.drivelog import DriveLog
 

@@ -258,7 +258,9 @@ class _Run:
         if cand and p.stop_gate_sigma > 0.0:
             rest = ((BIAS, 1.0), (OFFSET, 1.0), (TEMP, dT))
             allow = self.bank.var(rest) + p.stop_scatter_dps**2 + p.gate_floor_dps**2
-            bv = p.block_var if p.block_var == p.block_var else block_mean_variance(sp, p.standstill)
+            bv = (
+                p.block_var if p.block_var == p.block_var else block_mean_variance(sp, p.standstill)
+            )
             cand = abs(level - self.bank.mean(_H_OFFSET)) <= p.stop_gate_sigma * math.sqrt(
                 allow + bv
             )
@@ -282,7 +284,13 @@ class _Run:
         if new_stop or not zero:
             self.stop_n, self.stop_mean, self.stop_m2 = 0, 0.0, 0.0
         for h, f in zip(self.p.bank, self.bank.filters):
-            f.predict(rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, rq), (YAW, YAW, qh)))
+            if h.drift_tau_s < math.inf:  # a bounded wander about the member's offset
+                ab = math.exp(-T / h.drift_tau_s)
+                f.x[BIAS] -= h.offset_dps
+                f.predict({**rows, BIAS: ((BIAS, ab),)}, ((BIAS, BIAS, h.drift_q * h.drift_tau_s / 2.0 * (1.0 - ab * ab)), (ROAD, ROAD, rq), (YAW, YAW, qh)))
+                f.x[BIAS] += h.offset_dps
+            else:
+                f.predict(rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, rq), (YAW, YAW, qh)))
             if not zero:
                 f.x[YAW] += T * u
             if new_stop:  # each stop reads with an offset of its own
@@ -343,7 +351,11 @@ class _Run:
         for k, f in enumerate(self.bank.filters):
             inn = f.innovation(u, h, road.sway_var)
             ls = ls0 + log_likelihood(inn.nu, inn.S)
-            lc = lc0 + log_likelihood(inn.nu, inn.S + road.curve_var) if lc0 > -math.inf else -math.inf
+            lc = (
+                lc0 + log_likelihood(inn.nu, inn.S + road.curve_var)
+                if lc0 > -math.inf
+                else -math.inf
+            )
             top = max(ls, lc)
             total = top + math.log(math.exp(ls - top) + math.exp(lc - top))
             w = math.exp(ls - total)
@@ -372,7 +384,6 @@ class _Run:
             straight,
             tuple(b.mu),
         )
-
 
     def heading_var(self, yaw: float) -> float:
         """The published yaw's variance, deg^2, over the members weighted as common as their

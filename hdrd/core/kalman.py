@@ -58,10 +58,11 @@ class Filter:
 
     def predict(self, F: dict[int, Row], Q: Sequence[tuple[int, int, float]]) -> None:
         """x <- F x, P <- F P F' + Q. F: the sparse rows that differ from the identity's, by
-        state (a transition moves few states), each referring besides itself only to states
-        whose rows are the identity's (then each row is one shear of x and P, done in place in
-        O(n) instead of the O(n^3) of a full product); Q: (i, j, value) entries added to P
-        (give both (i, j) and (j, i) off the diagonal)."""
+        state (a transition moves few states), applied in their order as shears of x and P in
+        place (O(n) each instead of the O(n^3) of a full product): a row may refer to states
+        whose rows come later or not at all, which still hold their old values when it is
+        applied, never to one changed before it; Q: (i, j, value) entries added to P (give both
+        (i, j) and (j, i) off the diagonal)."""
         x, P = self.x, self.P
         n = len(x)
         for i, row in F.items():

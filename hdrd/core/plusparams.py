@@ -43,6 +43,10 @@ class Hypothesis:
     offset_sd_dps: float = 0.0015
     share: float = math.nan
     """NaN: the same as ``prior``."""
+    drift_tau_s: float = math.inf
+    """The driving bias's wander is mean-reverting with this correlation time, s (a Gauss-Markov
+    process of variance drift_q x drift_tau_s / 2 about the member's offset: a bias wanders
+    within bounds); inf: a random walk."""
 
     def __post_init__(self) -> None:
         if not (0.0 < self.prior <= 1.0):
@@ -51,6 +55,8 @@ class Hypothesis:
             object.__setattr__(self, "share", self.prior)
         if not (0.0 < self.share <= 1.0):
             raise ValueError(f"hypothesis {self.name}: share must be in (0, 1], got {self.share!r}")
+        if not self.drift_tau_s > 0.0:
+            raise ValueError(f"hypothesis {self.name}: drift_tau_s must be > 0, got {self.drift_tau_s!r}")
         for name in ("drift_q", "offset_sd_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
@@ -71,7 +77,9 @@ warm-up, a phone). Steady is the default; the others need the evidence of the ro
 stops. bench/RESULTS.md says which data chose these numbers."""
 
 
-def unit_bank(noise: GyroNoise, fresh: tuple[Hypothesis, ...] = FRESH_BANK) -> tuple[Hypothesis, ...]:
+def unit_bank(
+    noise: GyroNoise, fresh: tuple[Hypothesis, ...] = FRESH_BANK
+) -> tuple[Hypothesis, ...]:
     """The bank of a unit whose profile says something (a grade, the configuration's ``gyro.*``
     keys, a recorded or learned profile): the fresh bank with what is known put in. A known
     motion offset becomes every member's mean, and the steady member's sd is the profile's;

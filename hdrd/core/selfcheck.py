@@ -109,7 +109,9 @@ class OutageRecord:
     def from_dict(cls, data: object) -> OutageRecord:
         """From :meth:`to_dict`'s form; ValueError naming what is wrong."""
         if not isinstance(data, dict):
-            raise ValueError("outage_record must be a mapping of policy -> {n, mean_abs_deg, rms_deg}")
+            raise ValueError(
+                "outage_record must be a mapping of policy -> {n, mean_abs_deg, rms_deg}"
+            )
         scores = []
         for name in POLICIES:
             d = data.get(name, {"n": 0})
@@ -123,8 +125,10 @@ class OutageRecord:
                 continue
             m, r = d.get("mean_abs_deg"), d.get("rms_deg")
             for key, v in (("mean_abs_deg", m), ("rms_deg", r)):
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
-                    math.isfinite(v) and 0.0 <= v <= 360.0
+                if (
+                    isinstance(v, bool)
+                    or not isinstance(v, (int, float))
+                    or not (math.isfinite(v) and 0.0 <= v <= 360.0)
                 ):
                     raise ValueError(f"outage_record.{name}.{key} must be in 0..360, got {v!r}")
             assert isinstance(m, (int, float)) and isinstance(r, (int, float))
@@ -153,7 +157,9 @@ class SelfCheck:
         every_steps: int = 120,
     ) -> None:
         if length_steps < 1 or every_steps < 1:
-            raise ValueError("a virtual outage needs at least one step, and one start per step at most")
+            raise ValueError(
+                "a virtual outage needs at least one step, and one start per step at most"
+            )
         self.record = record
         self.length_steps = length_steps
         self.every_steps = every_steps
@@ -180,8 +186,15 @@ class SelfCheck:
         course; those that end are scored against ``aided_yaw`` (only while aided: an outage
         that ends in a real one is dropped); a new one starts from ``before`` when due."""
         settings = self._settings(params)
-        blind = inp._replace(heading_err_deg=math.nan, heading_err_var=math.nan, heading_reset=False)
-        if aided and self._since_start >= self.every_steps and before.aided and not inp.heading_reset:
+        blind = inp._replace(
+            heading_err_deg=math.nan, heading_err_var=math.nan, heading_reset=False
+        )
+        if (
+            aided
+            and self._since_start >= self.every_steps
+            and before.aided
+            and not inp.heading_reset
+        ):
             self._running.extend(_Virtual(p, before, self.length_steps) for p in POLICIES)
             self._since_start = 0
         self._since_start += 1

@@ -104,7 +104,9 @@ def load_unit_state(path: str | os.PathLike[str]) -> UnitState | None:
     except (InputFileError, OSError, UnicodeDecodeError) as e:
         raise UnitStateError(f"unit state {p}: cannot be read: {e}") from None
     if not text.rstrip().endswith("# end"):
-        raise UnitStateError(f"unit state {p}: truncated (no '# end' line); delete it to start afresh")
+        raise UnitStateError(
+            f"unit state {p}: truncated (no '# end' line); delete it to start afresh"
+        )
     try:
         data = load_yaml(text)
     except InputFileError as e:

@@ -388,7 +388,8 @@ def gpsd_input(rng: random.Random) -> bytes:
 @cache
 def _hdr_messages() -> tuple[str, ...]:
     """Real per-step messages (JSON lines) of the daemon's pipeline, and a stale report."""
-    from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+    from hdrd.daemon.pipeline import Pipeline
+    from hdrd.daemon.stepper import PipelineConfig
     from hdrd.io.publish import format_json
 
     arr = stress_frames(random.Random(1), 3000)

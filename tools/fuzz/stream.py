@@ -52,7 +52,8 @@ import numpy.typing as npt
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+from hdrd.daemon.pipeline import Pipeline
+from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, encode_array
 from hdrd.io.clocks import unwrap_us
 from hdrd.io.frames import (

@@ -86,7 +86,7 @@ def _no_constant(name: str) -> Any:
 def _pipeline_variants() -> list[Any]:
     from hdrd.core.calibrate import BiasRecord
     from hdrd.core.hdr import HdrParams
-    from hdrd.daemon.pipeline import PipelineConfig
+    from hdrd.daemon.stepper import PipelineConfig
 
     rec = BiasRecord(0.3, 0.05, 300, 30.0)
     return [
@@ -279,7 +279,8 @@ class GpsdTarget(Target):
     def __init__(self, seed: int) -> None:
         from hdrd.daemon.aiding import AidingConfig, GpsAiding
         from hdrd.daemon.gpslink import GpsdLink
-        from hdrd.daemon.pipeline import Pipeline, PipelineConfig
+        from hdrd.daemon.pipeline import Pipeline
+        from hdrd.daemon.stepper import PipelineConfig
         from hdrd.io.gpsd import GpsdClient
 
         self.rng = random.Random(f"{seed}:gpsd-target")
