@@ -150,19 +150,24 @@ def _write_traces(folder: str, results: list[DriveResult]) -> int:
     :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out); the exit
     status."""
     from hdrd.analysis.evaluate import trace_csv
-    from hdrd.io.files import UnsafeNameError, atomic_write_text, path_inside, shown_path
+    from hdrd.io.files import (
+        UnsafeNameError,
+        atomic_write_text,
+        path_inside,
+        printable,
+        shown_path,
+    )
 
     for r in results:
         if r.trace is None:
             continue
         try:
             path = path_inside(folder, r.name, ".csv")
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, trace_csv(r.trace))
+            atomic_write_text(path, trace_csv(r.trace), inside=folder)  # no link followed
         except UnsafeNameError as e:
             print(f"hdrd evaluate: warning: --trace: {e}", file=sys.stderr)
         except OSError as e:
-            _err(f"cannot write the trace of {r.name}: {e.strerror or e}")
+            _err(f"cannot write the trace of {printable(r.name)}: {e.strerror or e}")
             return 1
     print(f"hdrd evaluate: traces in {shown_path(folder)}", file=sys.stderr)
     return 0

@@ -155,7 +155,7 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
 
             atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
     except OSError as e:
-        _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
+        _err(f"cannot write: {e.strerror or e}" + (f" ({e.filename})" if e.filename else ""))
         return 1
     if args.plot:
         from hdrd.analysis.gap.plots import plot_gap

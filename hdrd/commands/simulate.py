@@ -167,7 +167,7 @@ def _benchmark(
             if grade is not None:
                 log.meta["grade"] = grade
             target = str(out) if fmt == "dataset" else str(out / f"{spec.name}{suffix}")
-            path = write_log(target, log, fmt, spec.name)
+            path = write_log(target, log, fmt, spec.name, inside=out)  # no link followed
             drawn = log.meta.get("gyro_errors_from")
             print(
                 f"{path}: {spec.minutes:g} min, {spec.description}"

@@ -639,14 +639,19 @@ def csv_values(column: str, values: FloatArray) -> FloatArray:
     return out
 
 
-def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
+def write_drive(
+    path: str | os.PathLike[str] | io.TextIOBase,
+    log: DriveLog,
+    inside: str | os.PathLike[str] | None = None,
+) -> None:
     """Write a drive log CSV (metadata as leading '# key: value' lines). A path is written
-    whole or not at all (:func:`hdrd.io.files.atomic_output`: its folder must exist; a
-    character device or a FIFO is written through); OSError if it cannot be."""
+    whole or not at all (:func:`hdrd.io.files.atomic_output`: its missing folders made; a
+    character device or a FIFO is written through; ``inside``: a file hdrd names in that
+    folder, only a regular file replaced); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
         from hdrd.io.files import atomic_output
 
-        with atomic_output(path) as raw:
+        with atomic_output(path, make_parents=True, inside=inside) as raw:
             f = io.TextIOWrapper(raw, "utf-8", newline="")
             _write(f, log)
             f.flush()

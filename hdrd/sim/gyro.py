@@ -75,6 +75,7 @@ __all__ = [
     "crs03_default_model",
     "effect_from_dict",
     "load_model",
+    "model_text",
     "save_model",
 ]
 
@@ -727,11 +728,22 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
         raise ValueError(f"{path}: not a gyro model ({type(exc).__name__}: {exc})") from None
 
 
-def save_model(model: GyroModel, path: str | os.PathLike[str]) -> None:
-    """Write a model YAML that :func:`load_model` reads back equal."""
-    text = (
+def model_text(model: GyroModel) -> str:
+    """A model as the YAML :func:`load_model` reads back equal."""
+    return (
         "# hdrd gyro error model (docs/gyro-model.md): rates deg/s, + = CCW; times s; temps degC\n"
         + yaml.safe_dump(model.to_dict(), sort_keys=False, default_flow_style=None)
     )
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(text)
+
+
+def save_model(
+    model: GyroModel,
+    path: str | os.PathLike[str],
+    inside: str | os.PathLike[str] | None = None,
+) -> None:
+    """Write a model YAML that :func:`load_model` reads back equal, whole or not at all
+    (:func:`hdrd.io.files.atomic_write_text`; ``inside``: a drive's model in a folder the
+    user named, as its ``inside``)."""
+    from hdrd.io.files import atomic_write_text
+
+    atomic_write_text(path, model_text(model), inside=inside)

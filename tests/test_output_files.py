@@ -1,0 +1,148 @@
+"""Files hdrd writes where the user said: each command run as a user runs it (a real ``hdrd``
+process, real files, links and FIFOs), and the file system looked at afterwards.
+
+A file hdrd names itself in a folder the user named (``evaluate --trace DIR``'s DIR/NAME.csv,
+``simulate --benchmark``'s drive logs, a dataset's partitions, ``gap --out DIR``'s models)
+replaces only a regular file: a symbolic link planted there is never written through (a file
+outside the folder replaced) nor a FIFO opened (the command hung), and no folder on the way
+leads out of it."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def hdrd(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """``hdrd ARGS`` in ``cwd``; a command that hangs (on a FIFO) fails the test at
+    ``timeout`` instead of hanging it."""
+    return subprocess.run(
+        [sys.executable, "-m", "hdrd", *args],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=cwd,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def plant(where: Path, kind: str, outside: Path) -> None:
+    """A symbolic link to the file ``outside`` (kind "link") or a FIFO (kind "fifo") at
+    ``where``."""
+    where.parent.mkdir(parents=True, exist_ok=True)
+    if kind == "link":
+        where.symlink_to(outside)
+    else:
+        os.mkfifo(where)
+
+
+def unchanged(where: Path, kind: str, outside: Path) -> bool:
+    """The planted thing is still there, as it was, and the file outside holds what it held."""
+    mode = where.lstat().st_mode
+    still = stat.S_ISLNK(mode) if kind == "link" else stat.S_ISFIFO(mode)
+    return still and outside.read_text() == "not hdrd's\n"
+
+
+@pytest.fixture
+def outside(tmp_path: Path) -> Path:
+    f = tmp_path / "elsewhere" / "precious.txt"
+    f.parent.mkdir()
+    f.write_text("not hdrd's\n")
+    return f
+
+
+@pytest.mark.parametrize("kind", ["link", "fifo"])
+def test_evaluate_trace_replaces_only_a_regular_file_in_its_folder(
+    tmp_path: Path, outside: Path, kind: str
+) -> None:
+    # Before: the trace was written through a link (the file outside DIR replaced) and the
+    # command hung on a FIFO.
+    work = tmp_path / "work"
+    work.mkdir()
+    assert hdrd("simulate", "--drive", "city", "--minutes", "2", "--out", "city.csv",
+                cwd=work).returncode == 0  # fmt: skip
+    plant(work / "traces" / "city.csv", kind, outside)
+    p = hdrd("evaluate", "city.csv", "--trace", "traces", "--no-progress", cwd=work, timeout=120)
+    assert p.returncode == 1, p.stderr
+    last = p.stderr.splitlines()[-1]
+    assert last.startswith("hdrd evaluate: error: cannot write the trace of city: "), p.stderr
+    assert "traces/city.csv is a " in last and "only a regular file is replaced" in last
+    assert "Traceback" not in p.stderr
+    assert unchanged(work / "traces" / "city.csv", kind, outside)
+    assert os.listdir(work / "traces") == ["city.csv"]  # no temporary file left
+
+
+def test_evaluate_trace_still_replaces_its_own_file(tmp_path: Path) -> None:
+    assert hdrd("simulate", "--drive", "city", "--minutes", "2", "--out", "city.csv",
+                cwd=tmp_path).returncode == 0  # fmt: skip
+    (tmp_path / "traces").mkdir()
+    (tmp_path / "traces" / "city.csv").write_text("an old trace\n")
+    p = hdrd("evaluate", "city.csv", "--trace", "traces", "--no-progress", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert (tmp_path / "traces" / "city.csv").read_text().startswith("t,heading_truth,")
+
+
+@pytest.mark.parametrize("kind", ["link", "fifo"])
+def test_simulate_benchmark_replaces_only_a_regular_file_in_its_folder(
+    tmp_path: Path, outside: Path, kind: str
+) -> None:
+    plant(tmp_path / "bench" / "city3.csv", kind, outside)
+    p = hdrd("simulate", "--benchmark", "test", "--out", "bench", cwd=tmp_path, timeout=120)
+    assert p.returncode == 1, p.stderr
+    assert len(p.stderr.splitlines()) == 1, p.stderr
+    assert "bench/city3.csv is a " in p.stderr, p.stderr
+    assert unchanged(tmp_path / "bench" / "city3.csv", kind, outside)
+
+
+def test_a_dataset_partition_never_leads_out_of_its_folder(tmp_path: Path, outside: Path) -> None:
+    # A partition folder that is a link to another folder: the drive was written there.
+    pytest.importorskip("pyarrow")
+    (tmp_path / "fleet").mkdir()
+    (tmp_path / "fleet" / "drive=city-3").symlink_to(outside.parent)
+    p = hdrd("simulate", "--drive", "city", "--minutes", "1", "--seed", "3", "--out", "fleet",
+             "--format", "dataset", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 1, p.stderr
+    assert len(p.stderr.splitlines()) == 1, p.stderr
+    assert "fleet/drive=city-3 leads out of fleet" in p.stderr, p.stderr
+    assert os.listdir(outside.parent) == ["precious.txt"]
+
+
+@pytest.mark.slow  # a model-gap search of two drives
+@pytest.mark.parametrize("kind", ["link", "fifo"])
+def test_gap_out_replaces_only_a_regular_file_in_its_folder(
+    tmp_path: Path, outside: Path, kind: str
+) -> None:
+    pytest.importorskip("scipy")
+    for seed in ("1", "2"):
+        assert hdrd("simulate", "--drive", "standstill", "--minutes", "0.5", "--seed", seed,
+                    "--out", f"s{seed}.csv", cwd=tmp_path).returncode == 0  # fmt: skip
+    plant(tmp_path / "models" / "s1.yaml", kind, outside)
+    p = hdrd("gap", "s1.csv", "s2.csv", "--standstill", "--out", "models", "--no-progress",
+             cwd=tmp_path, timeout=300)  # fmt: skip
+    assert p.returncode == 1, p.stderr
+    assert "models/s1.yaml is a " in p.stderr.splitlines()[-1], p.stderr
+    assert unchanged(tmp_path / "models" / "s1.yaml", kind, outside)
+
+
+def test_a_link_inside_the_folder_is_followed_one_out_of_it_is_not(tmp_path: Path) -> None:
+    from hdrd.io.files import OutputFileError, atomic_write_text
+
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    (out / "inner").mkdir(parents=True)
+    elsewhere.mkdir()
+    (out / "in").symlink_to(out / "inner")
+    (out / "away").symlink_to(elsewhere)
+    atomic_write_text(out / "in" / "x.yaml", "x\n", inside=out)
+    assert (out / "inner" / "x.yaml").read_text() == "x\n"
+    with pytest.raises(OutputFileError, match="away leads out of .*out"):
+        atomic_write_text(out / "away" / "deeper" / "y.yaml", "y\n", inside=out)
+    assert os.listdir(elsewhere) == []  # not even the folder "deeper"
