@@ -146,3 +146,100 @@ def test_a_link_inside_the_folder_is_followed_one_out_of_it_is_not(tmp_path: Pat
     with pytest.raises(OutputFileError, match="away leads out of .*out"):
         atomic_write_text(out / "away" / "deeper" / "y.yaml", "y\n", inside=out)
     assert os.listdir(elsewhere) == []  # not even the folder "deeper"
+
+
+# -- the folders an output needs, made; what cannot be written, said before the work ----------
+
+
+def test_simulate_and_convert_make_the_folders_their_out_needs(tmp_path: Path) -> None:
+    # The README's `hdrd simulate --benchmark test --out drives/test` in an empty folder said
+    # "the folder drives does not exist", and every example after it failed.
+    pytest.importorskip("pyarrow")
+    runs = [
+        ("simulate", "--benchmark", "test", "--out", "drives/test"),
+        ("simulate", "--drive", "city", "--minutes", "1", "--out", "a/b/c.csv"),
+        ("simulate", "--drive", "city", "--minutes", "1", "--out", "p/q/c.parquet"),
+        ("simulate", "--drive", "city", "--minutes", "1", "--out", "d/fleet", "--format",
+         "dataset"),
+        ("fakegyro", "--drive", "city", "--minutes", "1", "--out", "drive.cap"),
+        ("convert", "drive.cap", "--out", "e/f/drive.csv"),
+    ]  # fmt: skip
+    for args in runs:
+        p = hdrd(*args, cwd=tmp_path)
+        assert p.returncode == 0, (args, p.stderr)
+    assert len(os.listdir(tmp_path / "drives" / "test")) == 5
+    for made in ("a/b/c.csv", "p/q/c.parquet", "d/fleet/drive=city-1/part-0.parquet",
+                 "e/f/drive.csv"):  # fmt: skip
+        assert (tmp_path / made).is_file(), made
+
+
+def test_a_plot_in_a_missing_folder_is_made(tmp_path: Path) -> None:
+    # Was: the table printed, then "cannot write nodir/x.png: No such file or directory".
+    pytest.importorskip("matplotlib")
+    assert hdrd("simulate", "--drive", "city", "--minutes", "1", "--out", "c.csv",
+                cwd=tmp_path).returncode == 0  # fmt: skip
+    p = hdrd("evaluate", "c.csv", "--plot", "nodir/x.png", "--no-progress", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert (tmp_path / "nodir" / "x.png").stat().st_size > 0
+
+
+NOWHERE = "/proc/hdrd-nowhere"
+"""A folder no one can make, root included (/proc takes no new entries)."""
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("evaluate", "c.csv", "--plot", f"{NOWHERE}/x.png"),
+        ("evaluate", "c.csv", "--json", f"{NOWHERE}/x.json"),
+        ("evaluate", "c.csv", "--trace", f"{NOWHERE}/traces"),
+        ("tune", "c.csv", "--candidates", "20", "--out", f"{NOWHERE}/tuned.yaml"),
+        ("tune", "c.csv", "--candidates", "20", "--json", f"{NOWHERE}/tune.json"),
+        ("gap", "c.csv", "--report", f"{NOWHERE}/r.json"),
+        ("gap", "c.csv", "--plot", f"{NOWHERE}/g.png"),
+        ("gap", "c.csv", "--out", f"{NOWHERE}/m.yaml"),
+        ("gap", "c.csv", "--gyro-out", f"{NOWHERE}/g.yaml"),
+        ("gap", "c.csv", "c2.csv", "--out", f"{NOWHERE}/models"),
+        ("simulate", "--drive", "city", "--minutes", "1", "--out", f"{NOWHERE}/x.csv"),
+        ("simulate", "--benchmark", "test", "--out", f"{NOWHERE}/drives"),
+        ("convert", "drive.cap", "--out", f"{NOWHERE}/x.csv"),
+    ],
+    ids=lambda a: " ".join(a[:1] + a[-2:-1]),
+)
+def test_an_output_that_cannot_be_written_is_said_before_the_work(
+    tmp_path: Path, args: tuple[str, ...]
+) -> None:
+    # Was: evaluate printed its table, gap ran its search, then "cannot write".
+    if not os.path.isdir("/proc/self"):
+        pytest.skip("no /proc here: the folder no one can make is /proc's")
+    for made in (("simulate", "--drive", "city", "--minutes", "1", "--out", "c.csv"),
+                 ("simulate", "--drive", "city", "--minutes", "1", "--out", "c2.csv"),
+                 ("fakegyro", "--drive", "city", "--minutes", "0.5", "--out", "drive.cap")):  # fmt: skip
+        assert hdrd(*made, cwd=tmp_path).returncode == 0
+    p = hdrd(*args, "--no-progress", cwd=tmp_path) if args[0] in ("evaluate", "tune", "gap") \
+        else hdrd(*args, cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 1, p.stderr
+    assert p.stdout == "", p.stdout  # no table, no search: nothing done
+    assert len(p.stderr.splitlines()) == 1 and NOWHERE in p.stderr, p.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "flag"),
+    [
+        (("gap", "s1.csv", "s2.csv", "--standstill", "--out", "one.yaml"), "--out one.yaml"),
+        (("simulate", "--benchmark", "test", "--out", "bench.csv"), "--out bench.csv"),
+        (("evaluate", "s1.csv", "--trace", "trace.csv"), "--trace trace.csv"),
+    ],
+)
+def test_a_folder_output_named_like_a_file_is_refused(
+    tmp_path: Path, args: tuple[str, ...], flag: str
+) -> None:
+    # Was: `gap a b --out one.yaml` made a folder named one.yaml, silently.
+    for seed in ("1", "2"):
+        assert hdrd("simulate", "--drive", "standstill", "--minutes", "0.5", "--seed", seed,
+                    "--out", f"s{seed}.csv", cwd=tmp_path).returncode == 0  # fmt: skip
+    p = hdrd(*args, cwd=tmp_path)
+    assert p.returncode == 1, p.stderr
+    assert p.stdout == "" and len(p.stderr.splitlines()) == 1, p.stderr
+    assert f"{flag}: " in p.stderr and "a folder" in p.stderr, p.stderr
+    assert sorted(os.listdir(tmp_path)) == ["s1.csv", "s2.csv"]  # nothing made

@@ -48,11 +48,10 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
+    folders = {"--trace": "--trace writes a folder of traces (DIR/NAME.csv each)"}
+    if not outputs_ok(args, _err, ("--json", "--plot"), folders):  # before the work
         return 1
     trace = getattr(args, "trace", None)
-    if trace is not None and not _trace_dir_ok(trace):
-        return 1
     outages = None
     if getattr(args, "outages", None):
         from hdrd.analysis.outages import OutageSpec
@@ -128,21 +127,6 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
         print(format_outages(runs) if runs else "GNSS outages: none could be scored")
     if len(results) > PLOT_PANELS_MAX:
         print(fleet_summary(results, n_skipped))
-
-
-def _trace_dir_ok(folder: str) -> bool:
-    """--trace DIR: a folder that exists (or can be made) and is not a file."""
-    import os
-
-    if os.path.exists(folder) and not os.path.isdir(folder):
-        _err(f"--trace {folder!r}: not a folder")
-        return False
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        _err(f"--trace {folder!r}: cannot make it: {e.strerror or e}")
-        return False
-    return True
 
 
 def _write_traces(folder: str, results: list[DriveResult]) -> int:

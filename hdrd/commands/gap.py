@@ -17,6 +17,10 @@ if TYPE_CHECKING:
 __all__ = ["main", "parse_period"]
 
 
+FLEET_OUT = "several drives write a folder of models (OUT/NAME.yaml each)"
+"""What ``--out`` is for several drives, said when it names a file."""
+
+
 def _err(msg: str) -> None:
     print(f"hdrd gap: {msg}", file=sys.stderr)
 
@@ -63,7 +67,8 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.cliconfig import outputs_ok
 
     flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
-    if not outputs_ok(args, _err, flags):  # said before the work, not after it
+    folders = {} if len(refs) == 1 else {"--out": FLEET_OUT}
+    if not outputs_ok(args, _err, flags, folders):  # said before the work, not after it
         return 1
     from hdrd.cliconfig import read_limits_from_args
 

@@ -126,6 +126,7 @@ def convert_main(args: argparse.Namespace) -> int:
     drive-log row (raw deg/s)."""
     import numpy as np
 
+    from hdrd.cliconfig import drive_log_outputs_ok
     from hdrd.io.capture import decode_capture
     from hdrd.io.clocks import DeviceClock
     from hdrd.io.drivefiles import log_format, write_log
@@ -140,6 +141,10 @@ def convert_main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EX_USAGE
+    fmt = log_format(args.out, getattr(args, "format", None))
+    say = lambda msg: print(f"hdrd convert: {msg}", file=sys.stderr)  # noqa: E731
+    if not drive_log_outputs_ok(args, say, fmt == "dataset"):  # said before the work
+        return 1
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):
         return loaded
@@ -162,7 +167,6 @@ def convert_main(args: argparse.Namespace) -> int:
             "bad_frames": str(stats.bad_frames),
         },
     )
-    fmt = log_format(args.out, getattr(args, "format", None))
     try:
         written = write_log(args.out, log, fmt, log.name)
     except (OSError, DriveLogError) as e:

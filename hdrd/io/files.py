@@ -437,6 +437,37 @@ def missing_folder(path: str | os.PathLike[str]) -> str | None:
     return None if folder.is_dir() else f"the folder {shown_path(folder)} does not exist"
 
 
+def write_problem(path: str | os.PathLike[str], folder: bool = False) -> str | None:
+    """Why nothing can be written at ``path`` (a file; ``folder``: a folder to write files
+    into), found by doing it: the missing folders made, then a temporary file made and removed
+    in the folder it goes in; None if that worked, or if ``path`` is a character device or a
+    FIFO (written through, never replaced). For a command to say before its work what would
+    otherwise fail after it (a folder that cannot be made, a read-only file system)."""
+    target = Path(path)
+    try:
+        st = os.stat(target)
+    except OSError:
+        st = None
+    if not folder and st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        return None
+    where = target if folder else target.parent
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        return f"cannot make the folder {shown_path(where)}: {e.strerror or e}"
+    try:
+        fd = os.open(where, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        try:
+            probe, name = _temp_file(fd, target.name if not folder else "probe")
+            os.close(probe)
+            os.unlink(name, dir_fd=fd)
+        finally:
+            os.close(fd)
+    except OSError as e:
+        return f"cannot write in {shown_path(where)}: {e.strerror or e}"
+    return None
+
+
 def atomic_write_text(
     path: str | os.PathLike[str],
     text: str,
