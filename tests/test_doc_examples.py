@@ -188,6 +188,14 @@ UNTIL_CTRL_C = {("hdrplus.md", "printf 'method: hdr+"): 8.0}
 """Blocks that run until Ctrl-C: interrupted after this many seconds, they must end with
 status 0, having printed, and without a traceback."""
 
+SAYS = {
+    ("README.md", "hdrd simulate --benchmark test --out drives/test"): (
+        "hdrd evaluate: note: about 0.2 s of work: on a local cluster of 2 workers"
+    ),
+}
+"""What a block must say on stderr: the README's Dask example shows the cluster it promises
+(it once said "run in this process")."""
+
 TOOLS = ("jq",)
 """Programs besides hdrd that blocks use; a block that needs a missing one is skipped."""
 
@@ -278,12 +286,14 @@ def test_a_documented_example_runs_verbatim_in_an_empty_folder(
         assert "Traceback" not in err, err
     if _key(page, body, UNTIL_CTRL_C) is not None:
         assert out.strip(), f"{page}:{line}: printed nothing before Ctrl-C:\n{err}"
+    if (said := _key(page, body, SAYS)) is not None:
+        assert SAYS[said] in err.splitlines(), err
 
 
 def test_every_sh_block_is_run_or_listed_with_why() -> None:
     blocks = _sh_blocks()
     assert len(blocks) > 40
-    for table in (NOT_RUN, FIRST, UNTIL_CTRL_C):
+    for table in (NOT_RUN, FIRST, UNTIL_CTRL_C, SAYS):
         for key in table:  # each entry names exactly one block
             named = [(p, n) for p, n, b in blocks if _key(p, b, {key: 0}) == key]
             assert len(named) == 1, f"{key} names {named}"
