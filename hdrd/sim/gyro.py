@@ -50,6 +50,7 @@ import numpy.typing as npt
 import yaml
 
 from hdrd.core.sensor import SensorModel
+from hdrd.sim.gyrolimits import limit_problem
 
 __all__ = [
     "DEFAULT_START_MODEL",
@@ -496,7 +497,8 @@ def _required(cls: type[Effect]) -> list[str]:
 
 
 def effect_from_dict(d: dict[str, Any]) -> Effect:
-    """One effect from ``{name: ..., <param>: <value>, ...}``; ValueError naming what is wrong."""
+    """One effect from ``{name: ..., <param>: <value>, ...}``, every parameter within what a
+    gyro can have (:data:`hdrd.sim.gyrolimits.LIMITS`); ValueError naming what is wrong."""
     if not isinstance(d, dict):
         raise ValueError(f"an effect must be a mapping with a 'name', got {d!r}")  # noqa: TRY004 - a bad model is a ValueError
     name = d.get("name")
@@ -516,7 +518,11 @@ def effect_from_dict(d: dict[str, Any]) -> Effect:
     for k, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ValueError(f"{name}.{k}: {v!r} is not a number")  # noqa: TRY004 - a bad model is a ValueError
-    return cls(**{k: float(v) for k, v in params.items()})
+    effect = cls(**{k: float(v) for k, v in params.items()})  # its own rules first (> 0, ...)
+    for k, v in params.items():  # then what a gyro can have
+        if (problem := limit_problem(name, k, float(v))) is not None:
+            raise ValueError(problem)
+    return effect
 
 
 # -- the model -------------------------------------------------------------------------------
