@@ -125,3 +125,67 @@ def test_the_docs_state_every_limit() -> None:
         row = next((x for x in text.splitlines() if x.startswith(f"| `{effect}.{param}` |")), "")
         assert row, f"docs/gyro-model.md has no row for {effect}.{param}"
         assert f"{hi:g}" in row and unit in row, row
+
+
+# -- what an hdrd gap report may hold (simulate --errors-from) ---------------------------------
+
+
+def test_a_report_of_empty_objects_is_refused_before_it_is_built(tmp_path: Path) -> None:
+    # A 60 MB report of `{}`s took gigabytes (6.6 GB for 256 MiB) to say "not an hdrd gap
+    # report": json built every object first. Under a 1 GiB address-space limit that was a
+    # MemoryError; now it is refused from a count of its values, before any is built.
+    import resource
+    import subprocess
+    import sys
+
+    from hdrd.sim.recordings import MAX_GAP_REPORT_BYTES
+
+    big = tmp_path / "gap.json"
+    n = 20_000_000
+    with big.open("wb") as f:
+        f.write(b'{"drives": [')
+        for _ in range(n // 1_000_000):
+            f.write(b"{}," * 1_000_000)
+        f.write(b"{}]}")
+    assert big.stat().st_size < MAX_GAP_REPORT_BYTES  # the size alone does not refuse it
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+
+    p = subprocess.run(
+        [sys.executable, "-m", "hdrd", "simulate", "--benchmark", "train", "--errors-from",
+         str(big), "--out", str(tmp_path / "train")],
+        capture_output=True, text=True, preexec_fn=limited, timeout=300,
+        env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )  # fmt: skip
+    assert p.returncode == 78, p.stderr
+    assert len(p.stderr.splitlines()) == 1, p.stderr
+    assert f"{big}: holds about 20,000,004 JSON values, more than the 4,000,000" in p.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ('{"final_params": [{"name": "static_bias", "bias_dps": ' + "1" * 5000 + "}]}",
+         "not JSON (a number of more than 4300 digits)"),
+        ('{"final_params": [{"name": ["static_bias"], "bias_dps": 1}]}',
+         "unknown effect name(s): ['static_bias']"),
+        ('{"final_params": [{"name": {"a": 1}}]}', "unknown effect name(s): {'a': 1}"),
+        ("[{}, {}]", "not an hdrd gap report (a JSON object: one drive's report, or "),
+        ('{"drives": {}}', "no drive's report in it"),
+    ],
+    ids=["5000 digits", "a list as a name", "a mapping as a name", "a list", "no drives"],
+)  # fmt: skip
+def test_a_report_that_is_not_one_says_so_naming_its_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, why: str
+) -> None:
+    # Was: the 5000-digit number's "Exceeds the limit (4300 digits) ..." without the file's
+    # name; "unhashable type: 'list'".
+    path = tmp_path / "gap.json"
+    path.write_text(text)
+    out = tmp_path / "d.csv"
+    assert main(["simulate", "--errors-from", str(path), "--out", str(out)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and err.startswith(f"hdrd simulate: {path}"), err
+    assert why in err, err
+    assert "unhashable" not in err and "Exceeds" not in err
