@@ -136,6 +136,8 @@ def _one_drive(
             write_drive(sys.stdout, log)  # type: ignore[arg-type]
         else:
             out = write_log(out, log, fmt, f"{args.drive}-{args.seed}")
+    except BrokenPipeError:
+        raise  # the reader went away (`| head`): hdrd.cli ends quietly, status 0
     except (OSError, DriveLogError) as e:
         _err(f"cannot write {out}: {_why(e)}")
         return 1
