@@ -53,7 +53,25 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
 
 def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
-    """A file that holds no valid frame (not a capture, or another --protocol): exit 1."""
+    """A file that holds no valid frame (a drive log; not a capture; another --protocol):
+    exit 1."""
+    from hdrd.io.drivelog import SNIFF_BYTES, drive_log_kind
+    from hdrd.io.files import shown_path
+
+    try:
+        with open(capture, "rb") as f:  # a regular file: read_limited took it whole
+            kind = drive_log_kind(f.read(SNIFF_BYTES))
+    except OSError:
+        kind = None
+    if kind is not None:
+        shown = shown_path(capture)
+        print(
+            f"hdrd {command}: {shown} is a drive log ({kind}), not a capture of the gyro's "
+            f"frames: `hdrd evaluate {shlex.quote(shown)}` runs a drive log through the drift "
+            "reducers as the daemon would (docs/evaluation.md)",
+            file=sys.stderr,
+        )
+        return 1
     other = "hdr-text" if protocol == "hdr-bin" else "hdr-bin"
     print(
         f"hdrd {command}: no valid frames in {capture} ({stats.bad_frames} bad frames, "
