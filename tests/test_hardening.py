@@ -45,7 +45,7 @@ def test_config_with_a_control_character_is_exit_78_with_one_line(
 ) -> None:
     p = tmp_path / "hdrd.yaml"
     p.write_bytes(b'hdr:\n  method: "a\x1bb"\n')
-    with pytest.raises(ConfigError, match=r"\(yaml\) = 'line 2, column 13'.*#x001b"):
+    with pytest.raises(ConfigError, match=r"\.yaml, line 2, column 13: .*#x001b"):
         load_config(p)
     assert main(["replay", str(capture), "--config", str(p)]) == 78
     err = capsys.readouterr().err
