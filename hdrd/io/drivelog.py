@@ -285,7 +285,7 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
 
 
 def drive_log_kind(head: bytes) -> str | None:
-    """"CSV" or "Parquet" when a file's first bytes are those of a drive log (a Parquet
+    """``CSV`` or ``Parquet`` when a file's first bytes are those of a drive log (a Parquet
     file's magic; a CSV's ``# key: value`` lines, then a header naming ``t`` and ``omega``),
     else None: for the capture tools to say what they were given instead."""
     if head.startswith(PARQUET_MAGIC):
