@@ -246,7 +246,7 @@ def drive_log_outputs_ok(
     what = (
         "--format dataset writes a folder (DIR/drive=NAME/part-0.parquet)"
         if fmt == "dataset"
-        else "--benchmark writes a folder of drive logs (DIR/NAME.csv each)"
+        else "--benchmark writes a folder of drive logs (DIR/NAME.csv or .parquet each)"
     )
     return outputs_ok(args, err, (), {"--out": what})
 
