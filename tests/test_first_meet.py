@@ -14,17 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-
-
-def hdrd(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hdrd", *args],
-        capture_output=True, text=True, env=ENV, cwd=cwd, timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-
+from tests.hdrd_process import ENV, hdrd
 
 # -- a reader that goes away (`| head`) -------------------------------------------------------
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from hdrd.cli import main
+from tests.hdrd_process import ENV
 
 ABSURD = [
     ("time_offset", "delay_s", -1e9, {}),
@@ -156,7 +157,7 @@ def test_a_report_of_empty_objects_is_refused_before_it_is_built(tmp_path: Path)
         [sys.executable, "-m", "hdrd", "simulate", "--benchmark", "train", "--errors-from",
          str(big), "--out", str(tmp_path / "train")],
         capture_output=True, text=True, preexec_fn=limited, timeout=300,
-        env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+        env=ENV,
     )  # fmt: skip
     assert p.returncode == 78, p.stderr
     assert len(p.stderr.splitlines()) == 1, p.stderr

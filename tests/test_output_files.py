@@ -11,28 +11,11 @@ from __future__ import annotations
 
 import os
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-
-
-def hdrd(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    """``hdrd ARGS`` in ``cwd``; a command that hangs (on a FIFO) fails the test at
-    ``timeout`` instead of hanging it."""
-    return subprocess.run(
-        [sys.executable, "-m", "hdrd", *args],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=cwd,
-        timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )
+from tests.hdrd_process import hdrd
 
 
 def plant(where: Path, kind: str, outside: Path) -> None:

@@ -439,10 +439,12 @@ def missing_folder(path: str | os.PathLike[str]) -> str | None:
 
 def write_problem(path: str | os.PathLike[str], folder: bool = False) -> str | None:
     """Why nothing can be written at ``path`` (a file; ``folder``: a folder to write files
-    into), found by doing it: the missing folders made, then a temporary file made and removed
-    in the folder it goes in; None if that worked, or if ``path`` is a character device or a
-    FIFO (written through, never replaced). For a command to say before its work what would
-    otherwise fail after it (a folder that cannot be made, a read-only file system)."""
+    into), found by doing it: the missing folders made, a temporary file made and removed in
+    the folder it goes in, then the folders made removed again (the writer makes them; a
+    command that stops before it leaves nothing); None if that worked, or if ``path`` is a
+    character device or a FIFO (written through, never replaced). For a command to say before
+    its work what would otherwise fail after it (a folder that cannot be made, a read-only
+    file system)."""
     target = Path(path)
     try:
         st = os.stat(target)
@@ -451,11 +453,11 @@ def write_problem(path: str | os.PathLike[str], folder: bool = False) -> str | N
     if not folder and st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
         return None
     where = target if folder else target.parent
+    made = [p for p in (where, *where.parents) if not os.path.lexists(p)]
+    doing = f"cannot make the folder {shown_path(where)}"
     try:
         where.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        return f"cannot make the folder {shown_path(where)}: {e.strerror or e}"
-    try:
+        doing = f"cannot write in {shown_path(where)}"
         fd = os.open(where, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
         try:
             probe, name = _temp_file(fd, target.name if not folder else "probe")
@@ -464,7 +466,11 @@ def write_problem(path: str | os.PathLike[str], folder: bool = False) -> str | N
         finally:
             os.close(fd)
     except OSError as e:
-        return f"cannot write in {shown_path(where)}: {e.strerror or e}"
+        return f"{doing}: {e.strerror or e}"
+    finally:
+        for folder_made in made:  # deepest first; only those still empty
+            with contextlib.suppress(OSError):
+                os.rmdir(folder_made)
     return None
 
 
