@@ -385,6 +385,9 @@ def _temp_file(folder: int, name: str) -> tuple[int, str]:
             return os.open(tmp, flags, 0o600, dir_fd=folder), tmp
         except FileExistsError:
             continue
+        except OSError as e:  # named whole, as a path-based open would name it
+            e.filename = os.path.join(_real_folder(folder), tmp)
+            raise
     raise FileExistsError(f"no free temporary name for {name}")  # pragma: no cover
 
 
