@@ -14,6 +14,7 @@ import argparse
 import math
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdrd.config import Config, ConfigError, apply_overrides, load_config
@@ -26,6 +27,7 @@ __all__ = [
     "check_bias_arg",
     "config_from_args",
     "config_overrides",
+    "drive_log_outputs_ok",
     "output_problem",
     "outputs_ok",
     "read_limits_from_args",
@@ -128,13 +130,51 @@ TEMP_DECORATION = 24
 (``.NAME.PID.RANDOM.tmp``, :func:`hdrd.io.files.atomic_write_text`)."""
 
 
-def output_problem(flag: str, path: str) -> str | None:
+FILE_SUFFIXES = frozenset((".yaml", ".yml", ".json", ".jsonl", ".csv", ".png", ".svg", ".pdf",
+                           ".txt"))  # fmt: skip
+"""Name endings of the files hdrd reads and writes: an output meant as a folder that does
+not exist yet and is so named is a file's name given by mistake (``gap a b --out one.yaml``).
+Not ``.parquet``: a Parquet dataset's folder is often named so."""
+
+
+def output_problem(flag: str, path: str, folder: str | None = None) -> str | None:
     """Why ``FLAG PATH`` could not be written, found before any work: its name too long for
     the file system (with the temporary file's decoration), a folder on its way that is a
-    file, a folder where the file should be; None if it looks writable (what only the write
-    can tell, it tells)."""
+    file, a folder where the file should be, and what writing there tells (its missing
+    folders are made and a temporary file made and removed: :func:`hdrd.io.files.write_problem`);
+    None if it can be written.
+
+    ``folder``: PATH is a folder the command writes files into, and this says so ("several
+    drives write a folder of models, OUT/NAME.yaml each"): a file there, or a name that does
+    not exist yet and ends like a file's (:data:`FILE_SUFFIXES`), is refused."""
     import os
     from pathlib import Path
+
+    from hdrd.io.files import shown_path, write_problem
+
+    target = Path(path)
+    shown = f"{flag} {shown_path(path)}"
+    if folder is not None:
+        if os.path.exists(target) and not os.path.isdir(target):
+            return f"{shown}: is a file, but {folder}: name a folder"
+        if not os.path.exists(target) and target.suffix.lower() in FILE_SUFFIXES:
+            return (
+                f"{shown}: looks like a file's name, but {folder}: name a folder "
+                f"(e.g. {flag} {shown_path(target.with_suffix(''))}/)"
+            )
+    problem = _name_problem(target, flag == "--plot" or folder is not None)
+    if problem is None and folder is None and os.path.isdir(target):
+        problem = "is a directory"
+    if problem is None:
+        problem = write_problem(target, folder=folder is not None)
+    return None if problem is None else f"{shown}: {problem}"
+
+
+def _name_problem(target: Path, in_place: bool) -> str | None:
+    """Why ``target``'s name cannot be made where it goes: a folder on its way that is a
+    file, a name longer than the file system takes (with a temporary file's decoration,
+    unless the file is written ``in_place``); None if it can."""
+    import os
 
     from hdrd.io.files import shown_path
 
@@ -145,51 +185,70 @@ def output_problem(flag: str, path: str) -> str | None:
             return False
         return True
 
-    target = Path(path)
     ancestor = target.parent
     while not exists(ancestor) and ancestor != ancestor.parent:
         ancestor = ancestor.parent
     if not os.path.isdir(ancestor):
-        return f"{flag} {shown_path(path)}: {shown_path(ancestor)} is not a directory"
+        return f"{shown_path(ancestor)} is not a directory"
     try:
         most = os.pathconf(ancestor, "PC_NAME_MAX")
     except (OSError, ValueError):
         most = 255
     for part in target.relative_to(ancestor).parts[:-1]:
         if len(os.fsencode(part)) > most:
-            return f"{flag} {shown_path(path)}: a folder's name is over {most} bytes"
+            return f"a folder's name is over {most} bytes"
     size = len(os.fsencode(target.name))
-    extra = 0 if flag == "--plot" else TEMP_DECORATION  # a plot is written in place
+    extra = 0 if in_place else TEMP_DECORATION
     if size + extra > most:
-        return (
-            f"{flag} {shown_path(path)}: the file's name is {size} bytes; at most "
-            f"{most - extra} can be written here"
-            + (f" (a temporary file's name takes {extra} more)" if extra else "")
+        return f"the file's name is {size} bytes; at most {most - extra} can be written here" + (
+            f" (a temporary file's name takes {extra} more)" if extra else ""
         )
-    if os.path.isdir(target):
-        return f"{flag} {shown_path(path)}: is a directory"
     return None
 
 
 def outputs_ok(
-    args: argparse.Namespace, err: Callable[[str], None], flags: tuple[str, ...]
+    args: argparse.Namespace,
+    err: Callable[[str], None],
+    flags: tuple[str, ...],
+    folders: dict[str, str] | None = None,
 ) -> bool:
-    """Whether every output file the command line names (``flags``, e.g. ``--json``) can be
-    written, asked before any work; what is wrong with the first that cannot is said through
-    ``err``. ``--plot`` also needs matplotlib and a format it writes."""
-    for flag in flags:
+    """Whether every output the command line names (``flags``, e.g. ``--json``; ``folders``:
+    the flags that name a folder, each with what the command writes there, as
+    :func:`output_problem`'s ``folder``) can be written, asked before any work (their missing
+    folders made); what is wrong with the first that cannot is said through ``err``.
+    ``--plot`` also needs matplotlib and a format it writes."""
+    wanted = [(flag, None) for flag in flags] + list((folders or {}).items())
+    for flag, folder in wanted:
         path = getattr(args, flag.lstrip("-").replace("-", "_"), None)
-        if not path:
+        if not path or path == "-":
             continue
-        problem = output_problem(flag, path)
-        if problem is None and flag == "--plot":
+        problem = None
+        if flag == "--plot":  # said first: no folder made for a plot that cannot be drawn
             from hdrd.analysis.plots import plotting_unavailable
 
             problem = plotting_unavailable(path)
+        if problem is None:
+            problem = output_problem(flag, path, folder)
         if problem is not None:
             err(problem)
             return False
     return True
+
+
+def drive_log_outputs_ok(
+    args: argparse.Namespace, err: Callable[[str], None], folder: bool
+) -> bool:
+    """:func:`outputs_ok` for a drive log's ``--out`` (``-``: stdout, nothing to check):
+    a file, or with ``folder`` a folder (``--benchmark``'s drive logs, a dataset)."""
+    if not folder:
+        return outputs_ok(args, err, ("--out",))
+    fmt = getattr(args, "format", None)
+    what = (
+        "--format dataset writes a folder (DIR/drive=NAME/part-0.parquet)"
+        if fmt == "dataset"
+        else "--benchmark writes a folder of drive logs (DIR/NAME.csv or .parquet each)"
+    )
+    return outputs_ok(args, err, (), {"--out": what})
 
 
 def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:

@@ -48,12 +48,22 @@ __all__ = [
 DEFAULT_CONFIG_PATH = Path("/etc/hdrd/hdrd.yaml")
 
 
+FILE_KEYS = ("(file)", "(yaml)")
+"""A :class:`ConfigError`'s key for the file as a whole: ``(file)`` (missing, unreadable, empty,
+not a mapping; ``allowed`` says so in words), ``(yaml)`` (its YAML; the value is "line L,
+column C")."""
+
+
 class ConfigError(HdrdError, ValueError):
     """An invalid configuration. ``str()`` is the one line shown to the user."""
 
     def __init__(self, key: str, value: Any, allowed: str, source: str | None = None) -> None:
         self.key, self.value, self.allowed, self.source = key, value, allowed, source
         where = f" in {source}" if source else ""
+        if key in FILE_KEYS:  # the file as a whole, not a key of it: no "key = value"
+            at = f", {value}" if key == "(yaml)" and value else ""
+            super().__init__(f"config error{where}{at}: {allowed}")
+            return
         shown = _show(value)
         # One line always: a key or a value read from YAML may hold line breaks.
         name = key if key.isprintable() else repr(key)
@@ -573,9 +583,11 @@ def parse_config(data: Any, source: str | None = None) -> Config:
     """A validated :class:`Config` from parsed YAML (a mapping of sections)."""
     try:
         if data is None:
-            raise ConfigError("(file)", "", "is empty; expected a mapping of sections")
+            raise ConfigError("(file)", "", "the file is empty; expected a mapping of sections")
         if not isinstance(data, dict):
-            raise ConfigError("(file)", data, "expected a mapping of sections")
+            raise ConfigError(
+                "(file)", data, f"the file holds {_show(data)}, not a mapping of sections"
+            )
         data = _top_level_method(data)
         cfg: Config = _build(Config, data, "")
         _cross_check(cfg)
@@ -630,7 +642,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")
     except FileNotFoundError:
-        raise ConfigError("(file)", str(p), "not found", str(p)) from None
+        raise ConfigError("(file)", str(p), "no such file", str(p)) from None
     except InputFileError as e:
         raise ConfigError("(file)", str(p), f"cannot be read: {e}", str(p)) from None
     except (OSError, UnicodeDecodeError) as e:

@@ -127,7 +127,7 @@ def test_interrupt_during_write_leaves_no_temp(
     p = tmp_path / "bias.yaml"
     save_bias(p, REC)
 
-    def interrupted(*a: object) -> None:
+    def interrupted(*a: object, **k: object) -> None:  # os.replace(..., src_dir_fd=...)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(biasfile.os, "replace", interrupted)

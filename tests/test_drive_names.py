@@ -6,32 +6,16 @@ the file system is searched afterwards for anything written outside the output f
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from hdrd.io.drivefiles import find_drives
 from hdrd.sim.drive import simulate_drive
+from tests.hdrd_process import hdrd
 
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
-
-ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-
-
-def hdrd(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "hdrd", *args],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=cwd,
-        timeout=300,
-        stdin=subprocess.DEVNULL,
-    )
 
 
 def files_under(root: Path) -> set[str]:

@@ -772,7 +772,7 @@ def test_sighup_with_broken_or_missing_config_keeps_the_old_one(
         assert d.alive
     failed = d.named("config_reload_failed")
     assert all("\n" not in e["error"] and str(cfg) in e["error"] for e in failed)
-    assert "not found" in failed[1]["error"]
+    assert "no such file" in failed[1]["error"]
     cfg.write_text(f"output:\n  udp: ['{rx.addr}']\n  heading0_deg: 90\n")
     d.proc.send_signal(signal.SIGHUP)
     d.wait_event("config_reloaded")

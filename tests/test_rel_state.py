@@ -87,7 +87,7 @@ CONFIG_CASES: dict[str, tuple[str | None, list[str], str]] = {
     "empty file": ("", [], "empty"),
     "not a mapping": ("- device\n- hdr\n", [], "mapping"),
     "YAML syntax error": ("hdr: [\n", [], "line 2"),
-    "missing file": (None, [], "not found"),
+    "missing file": (None, [], "no such file"),
     "bad override": ("", ["--heading0", "400"], "output.heading0_deg = "),
 }
 
@@ -113,7 +113,8 @@ def test_run_exits_78_with_one_line_naming_the_key(tmp_path: Path) -> None:
         assert r.stdout == b"", name
         assert len(lines) == 1, (name, err)
         where = "command line" if name.startswith("bad override") else str(files[name])
-        assert lines[0].startswith(f"hdrd: config error in {where}: "), (name, lines[0])
+        at = ", line 2, column 1" if name == "YAML syntax error" else ""  # where in the file
+        assert lines[0].startswith(f"hdrd: config error in {where}{at}: "), (name, lines[0])
         assert names in lines[0], (name, lines[0])
 
 
@@ -242,25 +243,36 @@ def test_bad_bias_file_with_fallback_measures_the_bias_at_start(fake_gyro, tmp_p
 # --------------------------------------------------------------------------- power cut during calibrate
 
 # Runs `hdrd calibrate` and SIGKILLs itself at a chosen point of the bias file's writing,
-# found through the interpreter's audit events (PEP 578): no change to the code under test.
+# found through the interpreter's audit events (PEP 578), which come before each call, and for
+# "after rename" the return of os.replace seen by a profile function: no change to the code
+# under test. The writer works in its folder by descriptor: its temp file is opened by name
+# relative to the folder (".bias.yaml.PID.RANDOM.tmp", O_CREAT), chmod'ed and renamed by
+# descriptor.
 KILLER = r"""
-import os, signal, sys
+import os, signal, sys, threading
 point, state = sys.argv[1], sys.argv[2]
-armed = []
+armed, renamed = [], []
 def hook(event, args):
-    if event == "tempfile.mkstemp" and os.path.dirname(args[0]) == state:
+    if (event == "open" and isinstance(args[0], str) and args[2] is not None
+            and os.path.basename(args[0]).startswith(".bias.yaml.") and args[2] & os.O_CREAT):
         armed.append(args[0])  # raised just before the temp file is created
         return
-    hit = (
+    if event == "os.rename" and armed:
+        renamed.append(args)
+    hit = armed and (
         # the temp file's fd wrapped by os.fdopen: it exists, empty
-        (point == "temp created" and armed and event == "open" and isinstance(args[0], int))
-        or (point == "temp written" and event == "os.chmod" and str(args[0]).startswith(state))
-        or (point == "before rename" and event == "os.rename" and str(args[1]).startswith(state))
-        or (point == "after rename" and event == "open" and str(args[0]) == state)
+        (point == "temp created" and event == "open" and isinstance(args[0], int))
+        or (point == "temp written" and event == "os.chmod")  # written and fsync'd
+        or (point == "before rename" and event == "os.rename")
     )
     if hit:
         os.kill(os.getpid(), signal.SIGKILL)
+def returned(frame, event, arg):
+    if point == "after rename" and renamed and event == "c_return" and arg is os.replace:
+        os.kill(os.getpid(), signal.SIGKILL)
 sys.addaudithook(hook)
+sys.setprofile(returned)
+threading.setprofile(returned)
 from hdrd.cli import main
 sys.exit(main(sys.argv[3:]))
 """

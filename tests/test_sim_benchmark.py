@@ -184,5 +184,7 @@ def test_cli_simulate_bad_model_and_unwritable_output(
     model.write_text("effects:\n  - {name: static_bias, bias: 0.5}\n")
     assert main(["simulate", "--model", str(model), "--out", str(tmp_path / "x.csv")]) == 78
     assert "unknown parameter(s) bias" in capsys.readouterr().err
-    assert main(["simulate", "--minutes", "0.2", "--out", str(tmp_path / "no" / "x.csv")]) == 1
-    assert "cannot write" in capsys.readouterr().err
+    (tmp_path / "a-file").write_text("")
+    out = tmp_path / "a-file" / "x.csv"  # a folder on its way that is a file
+    assert main(["simulate", "--minutes", "0.2", "--out", str(out)]) == 1
+    assert "a-file is not a directory" in capsys.readouterr().err

@@ -44,6 +44,7 @@ from hdrd.sim.gyro import (
     load_model,
     save_model,
 )
+from hdrd.sim.gyrolimits import LIMITS
 
 ISSUE_VOCABULARY = {
     "static_bias": {"bias_dps"},
@@ -76,7 +77,12 @@ def _run(
 
 def test_vocabulary_is_exactly_the_issues() -> None:
     assert {
-        n: {p for p in effect_from_dict({"name": n, **{q: 1.0 for q in ps}}).params()}
+        n: {
+            p
+            for p in effect_from_dict(
+                {"name": n, **{q: min(1.0, LIMITS[n, q][1]) for q in ps}}
+            ).params()
+        }
         for n, ps in ISSUE_VOCABULARY.items()
     } == ISSUE_VOCABULARY
     assert set(EFFECT_NAMES) == set(ISSUE_VOCABULARY)
@@ -407,7 +413,11 @@ def test_yaml_in_the_documented_form(tmp_path: Path) -> None:
 
 effect_dicts = st.sampled_from(EFFECT_NAMES).flatmap(
     lambda name: st.fixed_dictionaries(
-        {"name": st.just(name)} | {p: st.floats(0.001, 500.0) for p in ISSUE_VOCABULARY[name]}
+        {"name": st.just(name)}
+        | {  # within what a gyro can have (hdrd.sim.gyrolimits)
+            p: st.floats(max(0.001, LIMITS[name, p][0]), min(500.0, LIMITS[name, p][1]))
+            for p in ISSUE_VOCABULARY[name]
+        }
     )
 )
 

@@ -677,7 +677,7 @@ def open_runner(
     """The runner ``where`` asks for: a :class:`DaskRunner` with ``workers`` or ``scheduler``,
     else a :class:`LocalRunner` (and Dask is never imported). ``work_s``: the work's
     estimated seconds in one process; below ``where.min_work_s``, ``workers`` runs in this
-    process all the same (``say`` is told so)."""
+    process all the same (``say`` is told so, as it is told of the local cluster started)."""
     if where.workers and work_s is not None and work_s < where.min_work_s:
         if say is not None:
             say(
@@ -691,5 +691,8 @@ def open_runner(
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise FleetError(f"--workers must be >= 1, got {workers}")
     if workers:
-        return DaskRunner.start(workers)
+        runner = DaskRunner.start(workers)
+        if say is not None and work_s is not None:
+            say(f"about {work_s:.1f} s of work: on a local cluster of {workers} workers")
+        return runner
     return DaskRunner.open(None, where.scheduler, where.tls)

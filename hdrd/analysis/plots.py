@@ -40,6 +40,7 @@ def plot_to_file(draw: Callable[[str], None], path: str) -> str | None:
     from hdrd.io.files import shown_path
 
     try:
+        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)  # as every output's folder
         draw(path)
     except PlotError as e:
         return str(e)

@@ -48,11 +48,10 @@ def main(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"hdrd evaluate: {e}", file=sys.stderr)
         return EX_CONFIG
-    if not outputs_ok(args, _err, ("--json", "--plot")):  # before the work
+    folders = {"--trace": "--trace writes a folder of traces (DIR/NAME.csv each)"}
+    if not outputs_ok(args, _err, ("--json", "--plot"), folders):  # before the work
         return 1
     trace = getattr(args, "trace", None)
-    if trace is not None and not _trace_dir_ok(trace):
-        return 1
     outages = None
     if getattr(args, "outages", None):
         from hdrd.analysis.outages import OutageSpec
@@ -130,39 +129,29 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
         print(fleet_summary(results, n_skipped))
 
 
-def _trace_dir_ok(folder: str) -> bool:
-    """--trace DIR: a folder that exists (or can be made) and is not a file."""
-    import os
-
-    if os.path.exists(folder) and not os.path.isdir(folder):
-        _err(f"--trace {folder!r}: not a folder")
-        return False
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        _err(f"--trace {folder!r}: cannot make it: {e.strerror or e}")
-        return False
-    return True
-
-
 def _write_traces(folder: str, results: list[DriveResult]) -> int:
     """--trace DIR: DIR/<drive>.csv for each drive (its name from the data, kept inside DIR:
     :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out); the exit
     status."""
     from hdrd.analysis.evaluate import trace_csv
-    from hdrd.io.files import UnsafeNameError, atomic_write_text, path_inside, shown_path
+    from hdrd.io.files import (
+        UnsafeNameError,
+        atomic_write_text,
+        path_inside,
+        printable,
+        shown_path,
+    )
 
     for r in results:
         if r.trace is None:
             continue
         try:
             path = path_inside(folder, r.name, ".csv")
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, trace_csv(r.trace))
+            atomic_write_text(path, trace_csv(r.trace), inside=folder)  # no link followed
         except UnsafeNameError as e:
             print(f"hdrd evaluate: warning: --trace: {e}", file=sys.stderr)
         except OSError as e:
-            _err(f"cannot write the trace of {r.name}: {e.strerror or e}")
+            _err(f"cannot write the trace of {printable(r.name)}: {e.strerror or e}")
             return 1
     print(f"hdrd evaluate: traces in {shown_path(folder)}", file=sys.stderr)
     return 0

@@ -17,6 +17,10 @@ if TYPE_CHECKING:
 __all__ = ["main", "parse_period"]
 
 
+FLEET_OUT = "several drives write a folder of models (OUT/NAME.yaml each)"
+"""What ``--out`` is for several drives, said when it names a file."""
+
+
 def _err(msg: str) -> None:
     print(f"hdrd gap: {msg}", file=sys.stderr)
 
@@ -63,7 +67,8 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.cliconfig import outputs_ok
 
     flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
-    if not outputs_ok(args, _err, flags):  # said before the work, not after it
+    folders = {} if len(refs) == 1 else {"--out": FLEET_OUT}
+    if not outputs_ok(args, _err, flags, folders):  # said before the work, not after it
         return 1
     from hdrd.cliconfig import read_limits_from_args
 
@@ -155,7 +160,7 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
 
             atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
     except OSError as e:
-        _err(f"cannot write: {e.strerror or e} ({e.filename or ''})")
+        _err(f"cannot write: {e.strerror or e}" + (f" ({e.filename})" if e.filename else ""))
         return 1
     if args.plot:
         from hdrd.analysis.gap.plots import plot_gap

@@ -8,7 +8,7 @@ import sys
 
 from hdrd.errors import clipped
 from hdrd.io.csvimport import Mapping, import_csv, unit_warnings
-from hdrd.io.drivelog import DriveLogError
+from hdrd.io.drivelog import DriveLog, DriveLogError
 from hdrd.io.files import printable, shown_path
 
 __all__ = ["main"]
@@ -18,10 +18,13 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd import SOURCE.csv --out DRIVE.csv --t COL --omega COL [...]``: exit 0, or 1 with
     one line on stderr (a source that cannot be read or converted, an output that cannot be
     written)."""
-    from hdrd.analysis.signcheck import check_sign, sign_warning
-    from hdrd.cliconfig import read_limits_from_args
+    from hdrd.cliconfig import drive_log_outputs_ok, read_limits_from_args
     from hdrd.io.drivefiles import log_format, write_log
 
+    fmt = log_format(args.out, getattr(args, "format", None))
+    say = lambda msg: print(f"hdrd import: error: {msg}", file=sys.stderr)  # noqa: E731
+    if not drive_log_outputs_ok(args, say, fmt == "dataset"):  # said before the work
+        return 1
     mapping = Mapping(
         t=args.t,
         omega=args.omega,
@@ -48,19 +51,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     for unit in unit_warnings(log, mapping):
         print(f"hdrd import: warning: {clipped(printable(unit), 300)}", file=sys.stderr)
-    if log.heading_truth is not None:
-        check = check_sign(log.t, log.omega, log.heading_truth)
-        warning = sign_warning(log.name, check)
-        if warning is not None:
-            hint = (
-                "; --omega-sign cw flips it"
-                if mapping.omega_sign == "ccw"
-                else "; --omega-sign ccw keeps it"
-            )
-            if not check.flipped:
-                hint = " (--omega-unit)"
-            print(f"hdrd import: warning: {warning}{hint}", file=sys.stderr)
-    fmt = log_format(args.out, getattr(args, "format", None))
+    _warn_of_the_sign(log, mapping)
     try:
         written = write_log(args.out, log, fmt, log.name)
     except (OSError, DriveLogError) as e:
@@ -72,3 +63,23 @@ def main(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def _warn_of_the_sign(log: DriveLog, mapping: Mapping) -> None:
+    """A warning on stderr when the rate's sign disagrees with the truth heading's turns."""
+    from hdrd.analysis.signcheck import check_sign, sign_warning
+
+    if log.heading_truth is None:
+        return
+    check = check_sign(log.t, log.omega, log.heading_truth)
+    warning = sign_warning(log.name, check)
+    if warning is None:
+        return
+    hint = (
+        "; --omega-sign cw flips it"
+        if mapping.omega_sign == "ccw"
+        else "; --omega-sign ccw keeps it"
+    )
+    if not check.flipped:
+        hint = " (--omega-unit)"
+    print(f"hdrd import: warning: {warning}{hint}", file=sys.stderr)

@@ -53,7 +53,25 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
 
 def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
-    """A file that holds no valid frame (not a capture, or another --protocol): exit 1."""
+    """A file that holds no valid frame (a drive log; not a capture; another --protocol):
+    exit 1."""
+    from hdrd.io.drivelog import SNIFF_BYTES, drive_log_kind
+    from hdrd.io.files import shown_path
+
+    try:
+        with open(capture, "rb") as f:  # a regular file: read_limited took it whole
+            kind = drive_log_kind(f.read(SNIFF_BYTES))
+    except OSError:
+        kind = None
+    if kind is not None:
+        shown = shown_path(capture)
+        print(
+            f"hdrd {command}: {shown} is a drive log ({kind}), not a capture of the gyro's "
+            f"frames: `hdrd evaluate {shlex.quote(shown)}` runs a drive log through the drift "
+            "reducers as the daemon would (docs/evaluation.md)",
+            file=sys.stderr,
+        )
+        return 1
     other = "hdr-text" if protocol == "hdr-bin" else "hdr-bin"
     print(
         f"hdrd {command}: no valid frames in {capture} ({stats.bad_frames} bad frames, "
@@ -126,6 +144,7 @@ def convert_main(args: argparse.Namespace) -> int:
     drive-log row (raw deg/s)."""
     import numpy as np
 
+    from hdrd.cliconfig import drive_log_outputs_ok
     from hdrd.io.capture import decode_capture
     from hdrd.io.clocks import DeviceClock
     from hdrd.io.drivefiles import log_format, write_log
@@ -140,6 +159,10 @@ def convert_main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EX_USAGE
+    fmt = log_format(args.out, getattr(args, "format", None))
+    say = lambda msg: print(f"hdrd convert: {msg}", file=sys.stderr)  # noqa: E731
+    if not drive_log_outputs_ok(args, say, fmt == "dataset"):  # said before the work
+        return 1
     loaded = _config_and_capture(args, "convert")
     if isinstance(loaded, int):
         return loaded
@@ -162,7 +185,6 @@ def convert_main(args: argparse.Namespace) -> int:
             "bad_frames": str(stats.bad_frames),
         },
     )
-    fmt = log_format(args.out, getattr(args, "format", None))
     try:
         written = write_log(args.out, log, fmt, log.name)
     except (OSError, DriveLogError) as e:

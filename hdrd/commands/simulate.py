@@ -20,11 +20,12 @@ import os
 import sys
 from pathlib import Path
 
+from hdrd.cliconfig import drive_log_outputs_ok
 from hdrd.core.grades import DEFAULT_GRADE, GRADES, Grade
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.drivefiles import log_format, write_log
 from hdrd.io.drivelog import DriveLogError, write_drive
-from hdrd.io.files import missing_folder, shown_path
+from hdrd.io.files import shown_path
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model
@@ -53,13 +54,8 @@ def simulate_main(args: argparse.Namespace) -> int:
     if args.hz is None:
         args.hz = Grade.from_table(grade or DEFAULT_GRADE).rate_hz
     if args.model:
-        try:
-            model = load_model(args.model)
-        except OSError as e:
-            _err(f"cannot read the model {args.model}: {e.strerror or e}")
-            return EX_CONFIG
-        except ValueError as e:
-            _err(str(e))
+        model = _model(args.model)
+        if model is None:
             return EX_CONFIG
     if not (math.isfinite(args.hz) and args.hz > 0):
         _err(f"--hz must be > 0, got {args.hz}")
@@ -71,13 +67,26 @@ def simulate_main(args: argparse.Namespace) -> int:
     ok, errors = _errors(args)
     if not ok:
         return EX_CONFIG
-    missing = _missing_folder(args.out)
-    if missing:
-        _err(missing)  # said before the work
+    folder = (
+        bool(args.benchmark)
+        or log_format(args.out or "-", getattr(args, "format", None)) == "dataset"
+    )
+    if not drive_log_outputs_ok(args, _err, folder):  # said before the work
         return 1
     if args.benchmark:
         return _benchmark(args, model, grade, errors)
     return _one_drive(args, model, grade, errors)
+
+
+def _model(path: str) -> GyroModel | None:
+    """The gyro model of ``--model``; None when it cannot be read (why said on stderr)."""
+    try:
+        return load_model(path)
+    except OSError as e:
+        _err(f"cannot read the model {shown_path(path)}: {e.strerror or e}")
+    except ValueError as e:
+        _err(str(e))
+    return None
 
 
 def _errors(args: argparse.Namespace) -> tuple[bool, FittedErrors | None]:
@@ -92,13 +101,6 @@ def _errors(args: argparse.Namespace) -> tuple[bool, FittedErrors | None]:
     except ValueError as e:
         _err(str(e))
     return False, None
-
-
-def _missing_folder(out: str | None) -> str | None:
-    """Why ``--out`` cannot be made for want of its folder (a typo must not create folders),
-    or None."""
-    missing = missing_folder(out) if out and out != "-" else None
-    return None if missing is None else f"cannot write {shown_path(out or '')}: {missing}"
 
 
 def _one_drive(
@@ -134,6 +136,8 @@ def _one_drive(
             write_drive(sys.stdout, log)  # type: ignore[arg-type]
         else:
             out = write_log(out, log, fmt, f"{args.drive}-{args.seed}")
+    except BrokenPipeError:
+        raise  # the reader went away (`| head`): hdrd.cli ends quietly, status 0
     except (OSError, DriveLogError) as e:
         _err(f"cannot write {out}: {_why(e)}")
         return 1
@@ -167,7 +171,7 @@ def _benchmark(
             if grade is not None:
                 log.meta["grade"] = grade
             target = str(out) if fmt == "dataset" else str(out / f"{spec.name}{suffix}")
-            path = write_log(target, log, fmt, spec.name)
+            path = write_log(target, log, fmt, spec.name, inside=out)  # no link followed
             drawn = log.meta.get("gyro_errors_from")
             print(
                 f"{path}: {spec.minutes:g} min, {spec.description}"

@@ -9,6 +9,7 @@ prints a table row per HDR step, or the JSON lines and NMEA sentences as receive
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import socket
@@ -52,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"hdrd tail: bad --listen {listen!r}: {e}", file=sys.stderr)
         return 2
     except OSError as e:
-        print(f"hdrd tail: cannot listen on {listen}: {e.strerror or e}", file=sys.stderr)
+        why = _in_use(listen) if e.errno == errno.EADDRINUSE else (e.strerror or str(e))
+        print(f"hdrd tail: cannot listen on {listen}: {why}", file=sys.stderr)
         return 1
     formatter = TailFormatter(raw=bool(getattr(args, "raw", False)), display=_is_tty(sys.stdout))
     in_main = threading.current_thread() is threading.main_thread()
@@ -74,6 +76,22 @@ def main(args: argparse.Namespace) -> int:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
         sock.close()
+
+
+def _in_use(listen: str) -> str:
+    """Why ``listen`` cannot be bound, when another socket holds it: which process, where
+    this user can see it (:func:`hdrd.io.portowner.udp_port_holders`)."""
+    from hdrd.io.portowner import udp_port_holders
+
+    try:
+        holders = udp_port_holders(int(listen.rpartition(":")[2]))
+    except (ValueError, OSError):
+        holders = []
+    held = "".join(f", held by pid {pid} ({cmd})" for pid, cmd in holders[:3])
+    return (
+        f"the address is in use{held}; stop that program, or listen on another address "
+        "(--listen HOST:PORT, and send there: hdrd run --udp HOST:PORT)"
+    )
 
 
 def _print_messages(sock: socket.socket, formatter: TailFormatter, count_max: int | None) -> None:

@@ -200,18 +200,23 @@ def log_format(out: str, fmt: str | None) -> str:
     return "parquet" if out.endswith(PARQUET_SUFFIX) else "csv"
 
 
-def write_log(out: str, log: DriveLog, fmt: str, name: str) -> str:
-    """Write a drive log as ``fmt`` (:data:`FORMATS`); ``name``: the drive's name in a
-    dataset. Returns what was written (the file). OSError if it cannot be written."""
+def write_log(
+    out: str, log: DriveLog, fmt: str, name: str, inside: str | os.PathLike[str] | None = None
+) -> str:
+    """Write a drive log as ``fmt`` (:data:`FORMATS`), its missing folders made; ``name``: the
+    drive's name in a dataset; ``inside``: ``out`` is a file hdrd names in that folder the user
+    named (a benchmark's drive), as :func:`hdrd.io.files.atomic_output`'s ``inside`` (a
+    dataset's partitions are always). Returns what was written (the file). OSError if it
+    cannot be written."""
     if fmt == "csv":
         from hdrd.io.drivelog import write_drive
 
-        write_drive(out, log)
+        write_drive(out, log, inside)
         return out
     if fmt == "parquet":
         from hdrd.io.parquetlog import write_parquet_drive
 
-        write_parquet_drive(out, log)
+        write_parquet_drive(out, log, inside)
         return out
     from hdrd.io.parquetlog import write_dataset_drive
 

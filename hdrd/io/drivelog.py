@@ -246,6 +246,8 @@ def open_regular(path: str | os.PathLike[str], label: str) -> BinaryIO:
         raise
 
 
+PARQUET_MAGIC = b"PAR1"
+"""The first (and last) four bytes of every Parquet file."""
 SNIFF_BYTES = 4096
 """Bytes looked at to say what a file that is no drive log is."""
 
@@ -272,13 +274,28 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
                 f"{label}: a capture of the gyro's frames ({protocol}), not a drive log; "
                 f"make one with `{clipped(printable(cmd), 200)}`"
             )
-    if head.startswith(b"PAR1"):
+    if head.startswith(PARQUET_MAGIC):
         return f"{label}: a Parquet file; name it {printable(Path(path).stem)}.parquet"
     if b"\x00" in head:
         return (
             f"{label}: binary data, not a drive log (a CSV file in UTF-8, or a .parquet file: "
             "docs/drive-format.md)"
         )
+    return None
+
+
+def drive_log_kind(head: bytes) -> str | None:
+    """``CSV`` or ``Parquet`` when a file's first bytes are those of a drive log (a Parquet
+    file's magic; a CSV's ``# key: value`` lines, then a header naming ``t`` and ``omega``),
+    else None: for the capture tools to say what they were given instead."""
+    if head.startswith(PARQUET_MAGIC):
+        return "Parquet"
+    text = head.decode("utf-8", "replace")
+    for line in text.splitlines()[:200]:
+        if not line.strip() or line.startswith("#"):
+            continue
+        cells = {c.strip() for c in line.split(",")}
+        return "CSV" if {"t", "omega"} <= cells else None
     return None
 
 
@@ -639,14 +656,19 @@ def csv_values(column: str, values: FloatArray) -> FloatArray:
     return out
 
 
-def write_drive(path: str | os.PathLike[str] | io.TextIOBase, log: DriveLog) -> None:
+def write_drive(
+    path: str | os.PathLike[str] | io.TextIOBase,
+    log: DriveLog,
+    inside: str | os.PathLike[str] | None = None,
+) -> None:
     """Write a drive log CSV (metadata as leading '# key: value' lines). A path is written
-    whole or not at all (:func:`hdrd.io.files.atomic_output`: its folder must exist; a
-    character device or a FIFO is written through); OSError if it cannot be."""
+    whole or not at all (:func:`hdrd.io.files.atomic_output`: its missing folders made; a
+    character device or a FIFO is written through; ``inside``: a file hdrd names in that
+    folder, only a regular file replaced); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
         from hdrd.io.files import atomic_output
 
-        with atomic_output(path) as raw:
+        with atomic_output(path, make_parents=True, inside=inside) as raw:
             f = io.TextIOWrapper(raw, "utf-8", newline="")
             _write(f, log)
             f.flush()

@@ -13,8 +13,12 @@ gap, and drive logs are written whole or not at all (:func:`atomic_output`,
 :func:`atomic_write_text`, :func:`atomic_write_json`), so a reader or a power cut sees the old
 or the new content. A character device or a FIFO named as the output (``/dev/null``,
 ``/dev/stdout``, a named pipe) is written through, never replaced by a regular file; a
-directory, a block device or a socket is refused (:class:`OutputFileError`). :func:`default_bias_path` is where
-the bias file lives when none is named. A name that comes from data (a drive's name: a
+directory, a block device or a socket is refused (:class:`OutputFileError`). A file hdrd
+names itself in a folder the user named (a drive's trace, a benchmark's drive log, a dataset's
+partition, a drive's fitted model: ``atomic_output(..., inside=FOLDER)``) replaces only a
+regular file, and no folder on its way leads out of FOLDER: a symbolic link or a FIFO planted
+there is refused, never written through. :func:`default_bias_path` is where the bias file
+lives when none is named. A name that comes from data (a drive's name: a
 Parquet ``drive`` value, a hive folder ``drive=NAME``) becomes a path only through
 :func:`path_inside`, which refuses any name that would lead out of the output folder.
 """
@@ -23,10 +27,8 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import glob
 import os
 import stat
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -69,6 +71,7 @@ MAX_NAME_BYTES = 200
 name may take 255; the suffix and a temporary file's decoration need the rest)."""
 
 _KINDS = (
+    (stat.S_ISLNK, "a symbolic link"),
     (stat.S_ISDIR, "a directory"),
     (stat.S_ISFIFO, "a FIFO"),
     (stat.S_ISCHR, "a character device"),
@@ -236,23 +239,27 @@ def _writer_alive(pid: int) -> bool:
     return True
 
 
-def _remove_stale_temps(target: Path) -> None:
-    """Remove the temp files of writers to ``target`` that died before their rename (killed,
-    or a power cut). A temp file is another writer's work in progress while that writer
-    lives: its name holds the writer's pid, and the writer holds an exclusive flock on it from
-    its creation to its rename; such a file is left alone. (Removing every temp file, as was
-    done, made a concurrent writer's rename fail: "No such file or directory".)"""
-    for stale in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
-        pid = stale.name[len(target.name) + 2 :].split(".", 1)[0]
+def _remove_stale_temps(folder: int, name: str) -> None:
+    """Remove the temp files of writers to ``name`` in the open folder ``folder`` that died
+    before their rename (killed, or a power cut). A temp file is another writer's work in
+    progress while that writer lives: its name holds the writer's pid, and the writer holds an
+    exclusive flock on it from its creation to its rename; such a file is left alone.
+    (Removing every temp file, as was done, made a concurrent writer's rename fail: "No such
+    file or directory".)"""
+    prefix = f".{name}."
+    for stale in os.listdir(folder):
+        if not (stale.startswith(prefix) and stale.endswith(".tmp")):
+            continue
+        pid = stale[len(prefix) :].split(".", 1)[0]
         if pid.isdigit() and _writer_alive(int(pid)):
             continue
         try:
-            fd = os.open(stale, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+            fd = os.open(stale, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW, dir_fd=folder)
         except OSError:
             continue  # gone already, or not ours to open
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held: a live writer's
-            stale.unlink()
+            os.unlink(stale, dir_fd=folder)
         except OSError:
             pass  # not ours to insist on; at worst one more leftover
         finally:
@@ -261,7 +268,8 @@ def _remove_stale_temps(target: Path) -> None:
 
 class OutputFileError(HdrdError, OSError):
     """A file that cannot be written where it is named: ``str()`` says why (its folder does
-    not exist; a directory, a block device or a socket is there)."""
+    not exist; a directory, a block device or a socket is there; in a folder the user named,
+    anything but a regular file, or a way out of the folder)."""
 
 
 def _kind(mode: int) -> str:
@@ -270,7 +278,10 @@ def _kind(mode: int) -> str:
 
 @contextlib.contextmanager
 def atomic_output(
-    path: str | os.PathLike[str], mode: int = 0o644, make_parents: bool = False
+    path: str | os.PathLike[str],
+    mode: int = 0o644,
+    make_parents: bool = False,
+    inside: str | os.PathLike[str] | None = None,
 ) -> Iterator[IO[bytes]]:
     """A binary file to write ``path`` through, so that a reader (or a power cut) sees the old
     or the new content, whole. What ``path`` is decides how:
@@ -288,7 +299,18 @@ def atomic_output(
     - a directory, a block device or a socket: :class:`OutputFileError`, nothing written.
 
     The folder must exist (:class:`OutputFileError` naming it), unless ``make_parents``.
+
+    ``inside``: ``path`` is a file hdrd names in a folder the user named (a drive's trace, a
+    benchmark's drive log, a dataset's partition, a drive's fitted model), not a file the user
+    named: only nothing or a regular file there is replaced (a symbolic link, a FIFO, a device
+    or a directory is :class:`OutputFileError`, never written through or followed), and the
+    folders on the way are made where missing but must stay inside ``inside`` (a symbolic
+    link that leads out of it is :class:`OutputFileError`, nothing made outside).
     """
+    if inside is not None:
+        with _replace_in(_folder_inside(inside, path), Path(path).name, mode, path) as f:
+            yield f
+        return
     try:
         st: os.stat_result | None = os.stat(path)
     except (FileNotFoundError, NotADirectoryError):
@@ -307,27 +329,107 @@ def atomic_output(
         target.parent.mkdir(parents=True, exist_ok=True)
     elif (missing := missing_folder(target)) is not None:
         raise OutputFileError(missing)
-    _remove_stale_temps(target)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent
-    )
+    folder = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    with _replace_in(folder, target.name, mode) as f:
+        yield f
+
+
+@contextlib.contextmanager
+def _replace_in(
+    folder: int, name: str, mode: int, strict: str | os.PathLike[str] | None = None
+) -> Iterator[IO[bytes]]:
+    """:func:`atomic_output`'s temp file and rename, in the open folder ``folder`` (closed
+    here), of the file ``name`` there. ``strict`` (the path, for a message): only nothing or a
+    regular file may be at ``name`` (a symbolic link, a FIFO, a device, a directory:
+    :class:`OutputFileError`); the rename replaces the name itself, whatever was put there
+    meanwhile, and never writes through it."""
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours: no cleaner may take it
-        with os.fdopen(fd, "wb") as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-            os.chmod(tmp, mode)
-            os.replace(tmp, target)  # still locked: a cleaner never sees it unlocked
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    dfd = os.open(target.parent, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
+        if strict is not None:
+            try:
+                st = os.stat(name, dir_fd=folder, follow_symlinks=False)
+            except FileNotFoundError:
+                pass
+            else:
+                if not stat.S_ISREG(st.st_mode):
+                    raise OutputFileError(
+                        f"{shown_path(strict)} is {_kind(st.st_mode)}: in a folder hdrd "
+                        "writes a file of its own into, only a regular file is replaced"
+                    )
+        _remove_stale_temps(folder, name)
+        fd, tmp = _temp_file(folder, name)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours: no cleaner may take it
+            with os.fdopen(fd, "wb") as f:
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+                os.fchmod(f.fileno(), mode)
+                # still locked: a cleaner never sees it unlocked
+                os.replace(tmp, name, src_dir_fd=folder, dst_dir_fd=folder)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp, dir_fd=folder)
+            raise
+        os.fsync(folder)
     finally:
-        os.close(dfd)
+        os.close(folder)
+
+
+def _temp_file(folder: int, name: str) -> tuple[int, str]:
+    """A new temp file ``.NAME.PID.RANDOM.tmp`` in the open folder, opened for writing,
+    and its name."""
+    for _ in range(100):
+        tmp = f".{name}.{os.getpid()}.{os.urandom(6).hex()}.tmp"
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+        try:
+            return os.open(tmp, flags, 0o600, dir_fd=folder), tmp
+        except FileExistsError:
+            continue
+        except OSError as e:  # named whole, as a path-based open would name it
+            e.filename = os.path.join(_real_folder(folder), tmp)
+            raise
+    raise FileExistsError(f"no free temporary name for {name}")  # pragma: no cover
+
+
+def _folder_inside(root: str | os.PathLike[str], path: str | os.PathLike[str]) -> int:
+    """The open folder of ``path``, a path inside ``root``: ``root`` made if missing (with its
+    parents: the user named it), then each folder on the way from it, made if missing and
+    opened in turn, each checked to lie inside ``root`` (the folder really opened, as
+    /proc/self/fd names it), so that no symbolic link among them leads out and nothing is made
+    outside. OutputFileError if one does."""
+    base = Path(root)
+    base.mkdir(parents=True, exist_ok=True)
+    parts = Path(path).relative_to(base).parts[:-1]
+    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC
+    fd = os.open(base, flags)
+    try:
+        top = _real_folder(fd)
+        for i, part in enumerate(parts):
+            with contextlib.suppress(FileExistsError):
+                os.mkdir(part, dir_fd=fd)
+            nfd = os.open(part, flags, dir_fd=fd)
+            os.close(fd)
+            fd = nfd
+            real = _real_folder(fd)
+            if real != top and not real.startswith(top.rstrip("/") + "/"):
+                way = shown_path(base.joinpath(*parts[: i + 1]))
+                raise OutputFileError(
+                    f"{way} leads out of {shown_path(base)} (a symbolic link): nothing is "
+                    "written outside the folder named"
+                )
+        return fd
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _real_folder(fd: int) -> str:
+    """The real path of an open folder (/proc/self/fd's link: the folder opened, whatever
+    names lead to it)."""
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:  # no /proc: the path it was opened by, resolved
+        return os.path.realpath(f"/dev/fd/{fd}")
 
 
 def missing_folder(path: str | os.PathLike[str]) -> str | None:
@@ -338,10 +440,52 @@ def missing_folder(path: str | os.PathLike[str]) -> str | None:
     return None if folder.is_dir() else f"the folder {shown_path(folder)} does not exist"
 
 
-def atomic_write_text(path: str | os.PathLike[str], text: str, mode: int = 0o644) -> None:
+def write_problem(path: str | os.PathLike[str], folder: bool = False) -> str | None:
+    """Why nothing can be written at ``path`` (a file; ``folder``: a folder to write files
+    into), found by doing it: the missing folders made, a temporary file made and removed in
+    the folder it goes in, then the folders made removed again (the writer makes them; a
+    command that stops before it leaves nothing); None if that worked, or if ``path`` is a
+    character device or a FIFO (written through, never replaced). For a command to say before
+    its work what would otherwise fail after it (a folder that cannot be made, a read-only
+    file system)."""
+    target = Path(path)
+    try:
+        st = os.stat(target)
+    except OSError:
+        st = None
+    if not folder and st is not None and (stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        return None
+    where = target if folder else target.parent
+    made = [p for p in (where, *where.parents) if not os.path.lexists(p)]
+    doing = f"cannot make the folder {shown_path(where)}"
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+        doing = f"cannot write in {shown_path(where)}"
+        fd = os.open(where, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        try:
+            probe, name = _temp_file(fd, target.name if not folder else "probe")
+            os.close(probe)
+            os.unlink(name, dir_fd=fd)
+        finally:
+            os.close(fd)
+    except OSError as e:
+        return f"{doing}: {e.strerror or e}"
+    finally:
+        for folder_made in made:  # deepest first; only those still empty
+            with contextlib.suppress(OSError):
+                os.rmdir(folder_made)
+    return None
+
+
+def atomic_write_text(
+    path: str | os.PathLike[str],
+    text: str,
+    mode: int = 0o644,
+    inside: str | os.PathLike[str] | None = None,
+) -> None:
     """:func:`atomic_output` of ``text`` (UTF-8), its folder made if need be (the bias file's
-    state directory, a ``--json`` report's folder)."""
-    with atomic_output(path, mode, make_parents=True) as f:
+    state directory, a ``--json`` report's folder); ``inside``: as :func:`atomic_output`'s."""
+    with atomic_output(path, mode, make_parents=True, inside=inside) as f:
         f.write(text.encode("utf-8"))
 
 

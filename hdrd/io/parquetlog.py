@@ -463,28 +463,34 @@ def _table(log: DriveLog) -> Any:
     return pa.Table.from_arrays(arrays, names=cols).replace_schema_metadata(meta)
 
 
-def write_parquet_drive(path: str | os.PathLike[str], log: DriveLog) -> None:
+def write_parquet_drive(
+    path: str | os.PathLike[str], log: DriveLog, inside: str | os.PathLike[str] | None = None
+) -> None:
     """Write one drive as a Parquet file (zstd), whole or not at all
-    (:func:`hdrd.io.files.atomic_output`: its folder must exist; a character device or a FIFO
-    is written through); OSError if it cannot be."""
+    (:func:`hdrd.io.files.atomic_output`: its missing folders made; a character device or a
+    FIFO is written through; ``inside``: a file hdrd names in that folder, only a regular file
+    replaced); OSError if it cannot be."""
     from hdrd.io.files import atomic_output
 
     _, _, pq = _pyarrow()
-    with atomic_output(path) as f:
+    with atomic_output(path, make_parents=True, inside=inside) as f:
         pq.write_table(_table(log), f, compression="zstd")
 
 
 def write_dataset_drive(root: str | os.PathLike[str], log: DriveLog, name: str) -> Path:
     """Add drive ``name`` to the dataset partitioned by drive at ``root``:
     ``ROOT/drive=NAME/part-0.parquet`` (NAME URI-encoded, as pyarrow's hive partitioning
-    reads it), replacing the drive if it is there; ROOT is made if need be, in a folder that
-    exists (OSError otherwise). Returns the file written."""
+    reads it), replacing the drive if it is there; ROOT and the partition's folder are made if
+    need be. The partition is a file hdrd names in the folder the user named
+    (:func:`hdrd.io.files.atomic_output`'s ``inside``: a link or a FIFO there is refused, and
+    a partition folder that leads out of ROOT). OSError if it cannot be written. Returns the
+    file written."""
     part = partition_dir(root, name)
-    Path(root).mkdir(exist_ok=True)  # the dataset's folder, in one that exists
-    part.mkdir(exist_ok=True)
-    for old in part.glob("*" + SUFFIX):
-        if old.name != "part-0" + SUFFIX:
-            old.unlink()
     path = part / ("part-0" + SUFFIX)
-    write_parquet_drive(path, log)
+    write_parquet_drive(path, log, inside=root)
+    real_root = Path(root).resolve()
+    if real_root in part.resolve().parents:  # what the write found: inside ROOT
+        for old in part.glob("*" + SUFFIX):
+            if old.name != "part-0" + SUFFIX:
+                old.unlink()
     return path

@@ -50,6 +50,8 @@ import numpy.typing as npt
 import yaml
 
 from hdrd.core.sensor import SensorModel
+from hdrd.errors import clipped
+from hdrd.sim.gyrolimits import limit_problem
 
 __all__ = [
     "DEFAULT_START_MODEL",
@@ -75,6 +77,7 @@ __all__ = [
     "crs03_default_model",
     "effect_from_dict",
     "load_model",
+    "model_text",
     "save_model",
 ]
 
@@ -495,16 +498,19 @@ def _required(cls: type[Effect]) -> list[str]:
 
 
 def effect_from_dict(d: dict[str, Any]) -> Effect:
-    """One effect from ``{name: ..., <param>: <value>, ...}``; ValueError naming what is wrong."""
+    """One effect from ``{name: ..., <param>: <value>, ...}``, every parameter within what a
+    gyro can have (:data:`hdrd.sim.gyrolimits.LIMITS`); ValueError naming what is wrong."""
     if not isinstance(d, dict):
         raise ValueError(f"an effect must be a mapping with a 'name', got {d!r}")  # noqa: TRY004 - a bad model is a ValueError
     name = d.get("name")
-    if name not in EFFECTS:
-        raise ValueError(f"unknown effect name {name!r} (known: {', '.join(EFFECT_NAMES)})")
+    if not isinstance(name, str) or name not in EFFECTS:  # a list or a mapping is no name
+        raise ValueError(
+            f"unknown effect name {clipped(repr(name), 80)} (known: {', '.join(EFFECT_NAMES)})"
+        )
     cls = EFFECTS[name]
     params = {k: v for k, v in d.items() if k != "name"}
     allowed = _param_names(cls)
-    unknown = sorted(set(params) - set(allowed))
+    unknown = sorted(str(k) for k in params if k not in allowed)
     if unknown:
         raise ValueError(
             f"effect {name}: unknown parameter(s) {', '.join(unknown)} (allowed: {', '.join(allowed)})"
@@ -512,10 +518,20 @@ def effect_from_dict(d: dict[str, Any]) -> Effect:
     missing = [p for p in _required(cls) if p not in params]
     if missing:
         raise ValueError(f"effect {name}: missing parameter(s) {', '.join(missing)}")
+    values = _numbers(name, params)
+    effect = cls(**values)  # its own rules first (> 0, ...)
+    for k, v in values.items():  # then what a gyro can have
+        if (problem := limit_problem(name, k, v)) is not None:
+            raise ValueError(problem)
+    return effect
+
+
+def _numbers(name: str, params: dict[str, Any]) -> dict[str, float]:
+    """An effect's parameters as floats; ValueError naming one that is not a number."""
     for k, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{name}.{k}: {v!r} is not a number")  # noqa: TRY004 - a bad model is a ValueError
-    return cls(**{k: float(v) for k, v in params.items()})
+            raise ValueError(f"{name}.{k}: {clipped(repr(v), 80)} is not a number")
+    return {k: float(v) for k, v in params.items()}
 
 
 # -- the model -------------------------------------------------------------------------------
@@ -582,9 +598,10 @@ class GyroModel:
         if not isinstance(items, list):
             raise ValueError("'effects' must be a list of {name: ..., <param>: ...} mappings")  # noqa: TRY004 - a bad model is a ValueError
         unknown = [
-            str(d.get("name"))
+            clipped(repr(name) if not isinstance(name, str) else name, 80)
             for d in items
-            if isinstance(d, dict) and d.get("name") not in EFFECTS
+            if isinstance(d, dict)
+            and not (isinstance(name := d.get("name"), str) and name in EFFECTS)
         ]
         if unknown:
             raise ValueError(
@@ -731,11 +748,22 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
         raise ValueError(f"{path}: not a gyro model ({type(exc).__name__}: {exc})") from None
 
 
-def save_model(model: GyroModel, path: str | os.PathLike[str]) -> None:
-    """Write a model YAML that :func:`load_model` reads back equal."""
-    text = (
+def model_text(model: GyroModel) -> str:
+    """A model as the YAML :func:`load_model` reads back equal."""
+    return (
         "# hdrd gyro error model (docs/gyro-model.md): rates deg/s, + = CCW; times s; temps degC\n"
         + yaml.safe_dump(model.to_dict(), sort_keys=False, default_flow_style=None)
     )
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(text)
+
+
+def save_model(
+    model: GyroModel,
+    path: str | os.PathLike[str],
+    inside: str | os.PathLike[str] | None = None,
+) -> None:
+    """Write a model YAML that :func:`load_model` reads back equal, whole or not at all
+    (:func:`hdrd.io.files.atomic_write_text`; ``inside``: a drive's model in a folder the
+    user named, as its ``inside``)."""
+    from hdrd.io.files import atomic_write_text
+
+    atomic_write_text(path, model_text(model), inside=inside)

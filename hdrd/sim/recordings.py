@@ -38,7 +38,9 @@ from typing import Any
 import numpy as np
 
 from hdrd.core.grades import Grade
+from hdrd.errors import clipped
 from hdrd.io.drivelog import DriveLog
+from hdrd.io.files import printable
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.gps import GpsModel
 from hdrd.sim.grades import grade_model
@@ -190,8 +192,14 @@ def simulate_recording(name: str, drive: str, minutes: float, seed: int) -> Driv
 
 # -- the errors real gyros showed, as the distribution simulated routes draw from ----------------
 
-MAX_GAP_REPORT_BYTES = 256 << 20
-"""Largest ``hdrd gap --report`` file read (a fleet's reports run to some 50 KB a drive)."""
+MAX_GAP_REPORT_BYTES = 64 << 20
+"""Largest ``hdrd gap --report`` file read: 64 MiB (a fleet's reports run to 20-50 KB a drive:
+1,300 to 3,000 drives)."""
+MAX_GAP_REPORT_VALUES = 4_000_000
+"""Most JSON values (objects, arrays, keys, numbers, strings) a report read may hold, counted
+before any is built: a drive's report holds some 1,300 to 3,000 (18 bytes a value), but 64 MiB
+of ``{},`` would be 22 million objects, 1.6 GB to build; 4 million of the smallest values take
+some 300 MB."""
 
 NOT_THE_GYRO = ("time_offset",)
 """Effects left out of a drive's draw when its truth was a heading (a GPS course): there a
@@ -225,7 +233,8 @@ def _report_model(rep: Any, where: str) -> tuple[str, GyroModel]:
     try:
         model = GyroModel.from_dict({"effects": rep["final_params"]})
     except (ValueError, TypeError) as exc:
-        raise ValueError(f"{where} ({name}): {exc}") from None
+        drive = f" ({clipped(printable(name), 80)})" if name != where else ""
+        raise ValueError(f"{where}{drive}: {exc}") from None
     if str(log.get("truth", "")).startswith("heading_truth"):
         for effect in NOT_THE_GYRO:
             model = model.without(effect)
@@ -236,7 +245,7 @@ def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors
     """The gyro errors of an ``hdrd gap --report`` file (one drive's report, or a fleet's
     ``{"drives": [...], "skipped": [...]}``), or of that JSON already read. Raises ValueError
     naming the file and what is wrong (one line), OSError if it cannot be read."""
-    from hdrd.io.files import InputFileError, printable, read_limited, shown_path
+    from hdrd.io.files import InputFileError, read_limited, shown_path
 
     if isinstance(source, dict):
         doc: Any = source
@@ -244,12 +253,15 @@ def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors
     else:
         where = shown_path(source)
         try:
-            doc = json.loads(read_limited(source, MAX_GAP_REPORT_BYTES).decode("utf-8"))
+            doc = _report_json(read_limited(source, MAX_GAP_REPORT_BYTES), where)
         except InputFileError as e:
             raise ValueError(f"{where}: cannot be read: {e}") from None
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-            raise ValueError(f"{where}: not JSON ({type(e).__name__})") from None
-    reports = doc.get("drives") if isinstance(doc, dict) and "drives" in doc else [doc]
+    if not isinstance(doc, dict):
+        raise ValueError(
+            f"{where}: not an hdrd gap report (a JSON object: one drive's report, or "
+            '{"drives": [report, ...]} of several)'
+        )
+    reports = doc.get("drives") if "drives" in doc else [doc]
     if not isinstance(reports, list) or not reports:
         raise ValueError(f"{where}: no drive's report in it")
     drives = tuple(
@@ -257,6 +269,33 @@ def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors
         for i, rep in enumerate(reports)
     )
     return FittedErrors(tuple((printable(n)[:100], m) for n, m in drives), where)
+
+
+def _report_json(data: bytes, where: str) -> Any:
+    """The JSON of a report's bytes, its values counted first (a comma, a colon or an opening
+    bracket before each but the first, an empty pair once; those inside strings counted too) and
+    refused beyond :data:`MAX_GAP_REPORT_VALUES` before any is built. ValueError naming
+    ``where`` and what is wrong, in one line."""
+    values = 1 + sum(data.count(c) for c in (b",", b":", b"[", b"{"))
+    values -= data.count(b"{}") + data.count(b"[]")  # an empty one's comma counted it
+    if values > MAX_GAP_REPORT_VALUES:
+        raise ValueError(
+            f"{where}: holds about {values:,} JSON values, more than the "
+            f"{MAX_GAP_REPORT_VALUES:,} a report is read with (a drive's report: some 3,000)"
+        )
+    try:
+        return json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{where}: not JSON (not UTF-8 text)") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(
+            f"{where}: not JSON ({e.msg} at line {e.lineno}, column {e.colno})"
+        ) from None
+    except RecursionError:
+        raise ValueError(f"{where}: not JSON this reads (nested too deep)") from None
+    except ValueError as e:  # int() of more digits than Python converts
+        digits = "more than 4300 digits" if "digits" in str(e) else type(e).__name__
+        raise ValueError(f"{where}: not JSON (a number of {digits})") from None
 
 
 def gyro_error_draws(

@@ -154,7 +154,8 @@ def gap_fleet(outputs: GapOutputs, refs: Sequence[DriveRef], job: GapJob, runner
                 return 1
             report.finish(skipped)
     except OSError as e:
-        print(f"hdrd gap: cannot write: {e.strerror or e} ({e.filename or ''})", file=sys.stderr)
+        where = f" ({e.filename})" if e.filename else ""
+        print(f"hdrd gap: cannot write: {e.strerror or e}{where}", file=sys.stderr)
         return 1
     finally:
         run.close_bar()
@@ -204,7 +205,8 @@ class _FleetRun:
         print(gap_row(o.name, rep, self.name_w), flush=True)
         report.add(rep)
         if self.outputs.out:
-            _save(save_model, o.result.model, self.paths[o.name])
+            # a link or a FIFO planted in OUT is refused, never followed
+            save_model(o.result.model, self.paths[o.name], inside=self.outputs.out)
         return True
 
 
@@ -262,21 +264,6 @@ def _clash(
     if path.is_dir():
         return f"its model would be {shown}, a folder that exists"
     return None
-
-
-def _save(save: Any, model: Any, path: Path) -> None:
-    """``save(model, path)`` through a temporary file renamed over ``path``: a file (or a
-    symbolic link) already at ``path`` is replaced, never written through."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        save(model, tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class _NoReport:
