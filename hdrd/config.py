@@ -21,6 +21,7 @@ from typing import Any
 from hdrd.core import methods
 from hdrd.core.calibrate import T_BIAS_S, BiasRecord
 from hdrd.core.grades import GRADES
+from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.hdr import HdrParams
 from hdrd.core.sensor import SensorModel
 from hdrd.errors import HdrdError, clipped
@@ -250,6 +251,13 @@ class GyroConfig:
     """Bias temperature coefficient, deg/s/degC."""
     quant_step_dps: float = 0.0
     """Output step, deg/s."""
+    motion_offset_dps: float = 0.0
+    """The unit's motion offset: its driving bias minus its bias at rest, deg/s (signed); used
+    only with ``motion_offset_sd_dps`` > 0 (``hdrd gap --gyro-out`` writes both)."""
+    motion_offset_sd_dps: float = 0.0
+    """How well the motion offset is known, deg/s (1 sigma); 0: no offset given."""
+    stop_scatter_dps: float = 0.0
+    """How far one stop reads from another, deg/s (1 sigma); 0: not given."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -411,6 +419,9 @@ RULES: dict[str, tuple[Check, str | Callable[[], str]]] = {
     "gyro.rrw_dps_per_sqrt_s": _num(0, 100),
     "gyro.temp_coeff_dps_per_c": _num(0, 100),
     "gyro.quant_step_dps": _num(0, 100),
+    "gyro.motion_offset_dps": _num(-5, 5),
+    "gyro.motion_offset_sd_dps": _num(0, 5),
+    "gyro.stop_scatter_dps": _num(0, 5),
     "gpsd.host": ((lambda v: bool(v.strip())), "a host name or address"),
     "gpsd.port": _num(1, 65535),
     "gpsd.min_speed_mps": _NONNEG,
@@ -710,13 +721,16 @@ def config_field_keys() -> list[str]:
     return keys
 
 
-def method_setup(cfg: Config, bias: BiasRecord | None = None) -> methods.MethodSetup:
+def method_setup(
+    cfg: Config, bias: BiasRecord | None = None, learned: GyroNoise | None = None
+) -> methods.MethodSetup:
     """The drift reducer's setup a configuration asks for (:class:`hdrd.core.methods.
     MethodSetup`): ``hdr.method`` and ``hdr.*``, the gyro's error model (``gyro.grade`` and
     the ``gyro.*`` noise parameters), ``standstill.*``, and the static bias of ``bias`` (a
     bias file's record, a given one's: :meth:`hdrd.core.calibrate.BiasRecord.given`; None:
-    measured at start-up). The daemon, replay and evaluate add what the gyro and the drive
-    show (:meth:`hdrd.core.methods.MethodSetup.for_drive`)."""
+    measured at start-up), and what the unit's trips taught (``learned``: the daemon's unit
+    state file, :mod:`hdrd.io.unitstate`). The daemon, replay and evaluate add what the gyro
+    and the drive show (:meth:`hdrd.core.methods.MethodSetup.for_drive`)."""
     from dataclasses import asdict
 
     given = tuple((k, float(v)) for k, v in asdict(cfg.gyro).items() if k != "grade")
@@ -729,4 +743,5 @@ def method_setup(cfg: Config, bias: BiasRecord | None = None) -> methods.MethodS
         standstill=cfg.standstill.enabled,
         standstill_from_gyro=cfg.standstill.from_gyro,
         method=cfg.hdr.method,
+        learned=learned,
     )

@@ -139,6 +139,9 @@ TABLE: dict[str, tuple[Any, list[Any]]] = {
     "gyro.rrw_dps_per_sqrt_s": (1e-5, [-1e-5, 1e3, True]),
     "gyro.temp_coeff_dps_per_c": (0.005, [-0.005, 200.0, NAN]),
     "gyro.quant_step_dps": (0.244, [-0.1, 1e9, INF]),
+    "gyro.motion_offset_dps": (-0.09, [-5.1, 5.1, INF, NAN]),
+    "gyro.motion_offset_sd_dps": (0.004, [-0.1, 5.1, INF]),
+    "gyro.stop_scatter_dps": (0.02, [-0.1, 5.1, INF]),
 }
 
 BAD_CASES = [(k, v) for k, (_, bad) in TABLE.items() for v in bad]

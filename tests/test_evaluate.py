@@ -575,7 +575,8 @@ def test_calibrate_seconds_never_takes_a_sample_past_it() -> None:
 
 def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path) -> None:
     """--trace DIR: DIR/<drive>.csv, one row per step: t, heading_truth, speed and the compass
-    heading of none, hdr and hdr+ (whatever --method), from which Eψ is computed again."""
+    heading of none, hdr and hdr+ (whatever --method), from which Eψ is computed again, and
+    HDR+'s heading sd."""
     from hdrd.sim import simulate_legs
     from hdrd.sim.benchmark import VARIANTS
 
@@ -587,12 +588,14 @@ def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path
     assert rc == 0
     lines = (tmp_path / "tr" / "city.csv").read_text().splitlines()
     cols = lines[0].split(",")
-    assert cols == ["t", "heading_truth", "speed", "heading_none", "heading_hdr", "heading_hdr+"]
+    assert cols == ["t", "heading_truth", "speed", "heading_none", "heading_hdr", "heading_hdr+",
+                    "heading_sd_hdr+"]  # fmt: skip
     rows = np.array([[float(v) if v else np.nan for v in ln.split(",")] for ln in lines[1:]])
     prep = prepare_drive(log)
-    assert rows.shape == (prep.steps.u.shape[0], 6)
+    assert rows.shape == (prep.steps.u.shape[0], 7)
     assert np.array_equal(rows[:, 0], np.round(prep.steps.t_end, 3))
-    assert np.all((rows[:, 3:] >= 0.0) & (rows[:, 3:] < 360.0))
+    assert np.all((rows[:, 3:6] >= 0.0) & (rows[:, 3:6] < 360.0))
+    assert np.all(rows[:, 6] > 0.0) and np.all(np.diff(rows[:40, 6]) >= -1e-3)  # it grows alone
     d = json.loads(out.read_text())["drives"][0]
     for k, m in ((3, "raw"), (4, "hdr")):  # Eψ again from the published headings
         ok = np.isfinite(rows[:, 1])

@@ -100,7 +100,18 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
     assert given is not None and given.source == "config"
     assert given.rrw_dps_per_sqrt_s == 2e-4 and given.bias_tau_s == 100.0  # the grade's tau
     recorded = GyroNoise(rrw_dps_per_sqrt_s=1e-6, source="recorded")
-    assert noise_in_force("phone", {}, recorded) is recorded
+    assert noise_in_force("phone", {}, recorded) == recorded
+    # what a standstill recording cannot show (the motion offset) still comes from the config
+    unit = {"motion_offset_dps": -0.09, "motion_offset_sd_dps": 0.004}
+    both = noise_in_force("phone", unit, recorded)
+    assert both is not None and both.source == "recorded" and both.motion_offset_dps == -0.09
+    assert noise_in_force("none", {"motion_offset_dps": -0.09}) is None  # no sd: not given
+    # a learned offset known better than the configured one is the one in force
+    learned = GyroNoise(motion_offset_dps=-0.07, motion_offset_sd_dps=0.002, source="learned")
+    got = noise_in_force("none", unit, None, learned)
+    assert got is not None and got.source == "learned" and got.motion_offset_dps == -0.07
+    vague = GyroNoise(motion_offset_dps=0.0, motion_offset_sd_dps=0.05, source="learned")
+    assert noise_in_force("none", unit, None, vague).motion_offset_dps == -0.09  # type: ignore[union-attr]
     short = GyroNoise(white_dps_per_rthz=0.01, source="recorded")  # says nothing of the walk
     assert noise_in_force("phone", {}, short).source == "grade phone"  # type: ignore[union-attr]
     # the daemon's choice from its config and bias file, in the one place HDR+'s settings

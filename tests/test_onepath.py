@@ -168,7 +168,7 @@ def test_a_bias_file_sets_hdr_plus_prior_in_the_daemon_as_in_evaluate() -> None:
     from hdrd.io.capture import decode_capture
 
     p.feed_array(decode_capture(data)[0])
-    assert p.stepper.settings.fit.bias_p0 == 0.05 * 0.05 / 300
+    assert p.stepper.settings.bias_p0 == 0.05 * 0.05 / 300
     without = replay_capture(data, _config("hdr+"), rec.bias_dps)
     assert [m["yaw"] for m in msgs] != [m["yaw"] for m in without]
     # evaluate measures its own record; with the one replay measured, the same prior.

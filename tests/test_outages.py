@@ -103,12 +103,18 @@ def test_outages_end_each_period_and_only_whole_ones_count() -> None:
 def test_the_fixes_are_the_gps_columns_else_the_truth() -> None:
     log = drive(minutes=2.0)
     t, fixes = drive_fixes(log)
-    assert t.shape[0] == len(fixes) == 120  # 1 Hz while moving
-    assert fixes[0].track_deg == pytest.approx(40.0) and fixes[0].speed_mps == 15.0
+    with_course = [f for f in fixes if f.track_deg is not None]
+    assert len(with_course) == 120  # 1 Hz while moving
+    assert with_course[0].track_deg == pytest.approx(40.0) and with_course[0].speed_mps == 15.0
     assert all(f.mode == 3 and f.epd is None for f in fixes)
+    # at the lead-in's standstill, where a course means nothing, the speed once a second
+    bare = [(tt, f) for tt, f in zip(t.tolist(), fixes) if f.track_deg is None]
+    assert len(bare) == 30 and all(f.speed_mps == 0.0 for _, f in bare)
+    assert [tt for tt, _ in bare] == sorted({math.floor(tt) for tt, _ in bare})
+    assert np.all(np.diff(t) >= 0.0)
     gps = drive(minutes=2.0, gps_offset_deg=10.0)
     _, fixes = drive_fixes(gps)
-    assert fixes[0].track_deg == pytest.approx(50.0)
+    assert [f for f in fixes if f.track_deg is not None][0].track_deg == pytest.approx(50.0)
     with pytest.raises(EvaluationError, match="no gps_course or heading_truth"):
         drive_fixes(DriveLog(t=log.t, omega=log.omega, name="bare"))
 

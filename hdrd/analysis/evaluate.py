@@ -252,10 +252,15 @@ def trace_csv(cols: dict[str, FloatArray]) -> str:
         return f"{v:.{digits}f}" if math.isfinite(v) else ""
 
     names = list(cols)
+    digits = [3 if k == "t" else 0 if k in FLAG_COLUMNS else 4 for k in names]
     lines = [",".join(names)]
     for i in range(cols["t"].shape[0]):
-        lines.append(",".join(cell(float(cols[k][i]), 3 if k == "t" else 4) for k in names))
+        lines.append(",".join(cell(float(cols[k][i]), d) for k, d in zip(names, digits)))
     return "\n".join(lines) + "\n"
+
+
+FLAG_COLUMNS = frozenset({"in_outage"})
+"""Trace columns of 0 and 1, written as such."""
 
 
 def evaluate_drive(

@@ -133,8 +133,9 @@ class LogFix(NamedTuple):
 
 def drive_fixes(log: DriveLog) -> tuple[FloatArray, list[LogFix]]:
     """(times s, fixes) of a drive log: its ``gps_course``/``gps_speed`` rows, else its
-    ``heading_truth``/``speed`` rows (a fix per truth sample). EvaluationError without
-    either."""
+    ``heading_truth``/``speed`` rows (a fix per truth sample); and, once a second where it
+    has no course, a fix with the log's ``speed`` alone (a receiver reports its speed at a
+    stop, where its course means nothing). EvaluationError without a course column."""
     course, speed = log.gps_course, log.gps_speed
     if course is None:
         course, speed = log.heading_truth, log.speed
@@ -142,13 +143,20 @@ def drive_fixes(log: DriveLog) -> tuple[FloatArray, list[LogFix]]:
         raise EvaluationError(
             f"{log.name}: no gps_course or heading_truth column to aid the heading from"
         )
-    rows = np.flatnonzero(np.isfinite(course))
-    t = np.asarray(log.t[rows], dtype=np.float64) - float(log.t[0])
-    fixes = []
-    for i in rows.tolist():
+    t0 = float(log.t[0])
+    out: list[tuple[float, LogFix]] = []
+    for i in np.flatnonzero(np.isfinite(course)).tolist():
         v = float(speed[i]) if speed is not None and math.isfinite(speed[i]) else None
-        fixes.append(LogFix(3, float(course[i]) % 360.0, v))
-    return t, fixes
+        out.append((float(log.t[i]) - t0, LogFix(3, float(course[i]) % 360.0, v)))
+    if log.speed is not None:
+        bare = ~np.isfinite(course) & np.isfinite(log.speed)
+        second = np.floor(np.asarray(log.t, dtype=np.float64) - t0)
+        first = np.concatenate(([True], np.diff(second) > 0))  # a row a second
+        for i in np.flatnonzero(bare & first).tolist():
+            out.append((float(log.t[i]) - t0, LogFix(3, None, float(log.speed[i]))))
+    out.sort(key=lambda tf: tf[0])
+    t = np.array([tf[0] for tf in out], dtype=np.float64)
+    return t, [tf[1] for tf in out]
 
 
 @dataclass(frozen=True)
@@ -278,12 +286,7 @@ def run_outages(
     aided: dict[str, int] = {}
     q = prep.quant_step_dps if prep.quant_step_dps > 0 else None
     bias = prep.bias if prep.bias is not None else BiasRecord.given(s.bias_dps)
-    inside = np.array([any(a <= t < b for a, b in windows) for t in s.t_end.tolist()])
-    trace: dict[str, FloatArray] = {
-        "t": s.t_end,
-        "in_outage": inside.astype(np.float64),
-        "heading_truth": prep.truth,
-    }
+    trace = _trace_start(prep, windows)
     for m in methods:
         config = PipelineConfig(setup=replace(setup, method=m, bias=bias, quant_step_dps=q))
         heading, sd, aided[m] = _aided_run(prep, config, fix_t, fixes, windows, cfg)
@@ -296,6 +299,16 @@ def run_outages(
         if np.isfinite(sd).any():
             trace[f"heading_sd_{m}"] = sd
     return OutageResult(prep.name, spec, tuple(windows), tuple(methods), errors, aided, trace)
+
+
+def _trace_start(
+    prep: PreparedDrive, windows: Sequence[tuple[float, float]]
+) -> dict[str, FloatArray]:
+    """The outage trace's first columns: ``t``, ``in_outage`` (1 inside [start, end)),
+    ``heading_truth``."""
+    s = prep.steps
+    inside = np.array([any(a <= t < b for a, b in windows) for t in s.t_end.tolist()])
+    return {"t": s.t_end, "in_outage": inside.astype(np.float64), "heading_truth": prep.truth}
 
 
 _TRACE_NAME = {FROZEN: "frozen"}

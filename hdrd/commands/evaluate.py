@@ -131,8 +131,9 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
 
 def _write_traces(folder: str, results: list[DriveResult]) -> int:
     """--trace DIR: DIR/<drive>.csv for each drive (its name from the data, kept inside DIR:
-    :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out); the exit
-    status."""
+    :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out), and with
+    --outages DIR/<drive>.outages.csv (the aided run through the outages,
+    :class:`hdrd.analysis.outages.OutageResult`'s trace); the exit status."""
     from hdrd.analysis.evaluate import trace_csv
     from hdrd.io.files import (
         UnsafeNameError,
@@ -143,11 +144,14 @@ def _write_traces(folder: str, results: list[DriveResult]) -> int:
     )
 
     for r in results:
-        if r.trace is None:
-            continue
+        files = [(".csv", r.trace)]
+        if r.outages is not None:
+            files.append((".outages.csv", r.outages.trace))
         try:
-            path = path_inside(folder, r.name, ".csv")
-            atomic_write_text(path, trace_csv(r.trace), inside=folder)  # no link followed
+            for suffix, cols in files:
+                if cols is not None:
+                    path = path_inside(folder, r.name, suffix)
+                    atomic_write_text(path, trace_csv(cols), inside=folder)  # no link followed
         except UnsafeNameError as e:
             print(f"hdrd evaluate: warning: --trace: {e}", file=sys.stderr)
         except OSError as e:

@@ -263,36 +263,59 @@ def noise_in_force(
     grade: str = "none",
     given: Mapping[str, float] | None = None,
     recorded: GyroNoise | None = None,
+    learned: GyroNoise | None = None,
 ) -> GyroNoise | None:
     """The error model HDR+ is fitted to, from what is known, most specific first:
 
     1. ``recorded``: parameters ``hdrd calibrate`` measured on this gyro (the bias file), when
        they say how the bias moves (:meth:`GyroNoise.known`: a long enough standstill);
     2. ``given``: measured parameters from the configuration (``gyro.*``; 0 = not given;
-       ``bias_tau_s`` only with a given bias instability), on top of the grade's when one is
-       configured (source ``config``);
+       ``bias_tau_s`` only with a given bias instability; ``motion_offset_dps`` only with a
+       ``motion_offset_sd_dps`` > 0), on top of the grade's when one is configured (source
+       ``config``);
     3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.
 
-    None when nothing is known: HDR+ weighs a stable and a drifting bias by evidence. ValueError for an
-    unknown grade."""
+    The unit's motion offset is the one known best: ``learned`` (what the daemon's trips
+    taught, :mod:`hdrd.io.unitstate`) when its sd is below the configuration's (source
+    ``learned``). None when nothing is known: HDR+ starts from the bank of a fresh unit.
+    ValueError for an unknown grade."""
+    merged, source = _configured(grade, dict(given or {}))
     if recorded is not None and recorded.known():
-        return recorded
+        merged = {**recorded.to_dict(), **{k: v for k, v in merged.items() if k in _UNIT_KEYS}}
+        source = recorded.source
+    if learned is not None and learned.motion_offset_sd_dps < merged.get(
+        "motion_offset_sd_dps", math.inf
+    ):
+        merged["motion_offset_dps"] = learned.motion_offset_dps
+        merged["motion_offset_sd_dps"] = learned.motion_offset_sd_dps
+        source = learned.source
+    if not merged:
+        return None
+    return GyroNoise.from_mapping(merged, source=source)
+
+
+def _configured(grade: str, given: dict[str, float]) -> tuple[dict[str, float], str]:
+    """The configuration's part of :func:`noise_in_force`: the grade's parameters with the
+    ``gyro.*`` ones given on top (each only as the docstring there says), and their source."""
     base: dict[str, float] = {}
     source = "config"
     if grade != "none":
         g = grade_noise(grade)
         base = g.to_dict()
         source = g.source
-    given = dict(given or {})
     tau = given.pop("bias_tau_s", None)
+    offset = given.pop("motion_offset_dps", None)
     extra = {k: float(v) for k, v in given.items() if v}
     if tau is not None and "bias_instability_dps" in extra:  # the given B's own time
         extra["bias_tau_s"] = float(tau)
-    if extra:
-        source = "config"
-    if not base and not extra:
-        return None
-    return GyroNoise.from_mapping({**base, **extra}, source=source)
+    if offset is not None and "motion_offset_sd_dps" in extra:  # with its sd only
+        extra["motion_offset_dps"] = float(offset)
+    return {**base, **extra}, "config" if extra else source
+
+
+_UNIT_KEYS = frozenset({"motion_offset_dps", "motion_offset_sd_dps", "stop_scatter_dps"})
+"""What a standstill recording cannot show and the configuration or the road can: kept beside
+a recorded error model."""
 
 
 def grade_noise(name: str) -> GyroNoise:

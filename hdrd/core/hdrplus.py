@@ -58,6 +58,7 @@ __all__ = [
     "PlusState",
     "PlusTrace",
     "YAW",
+    "motion_offset",
     "prior_filters",
     "run_batch",
     "step",
@@ -287,7 +288,14 @@ class _Run:
             if h.drift_tau_s < math.inf:  # a bounded wander about the member's offset
                 ab = math.exp(-T / h.drift_tau_s)
                 f.x[BIAS] -= h.offset_dps
-                f.predict({**rows, BIAS: ((BIAS, ab),)}, ((BIAS, BIAS, h.drift_q * h.drift_tau_s / 2.0 * (1.0 - ab * ab)), (ROAD, ROAD, rq), (YAW, YAW, qh)))
+                f.predict(
+                    {**rows, BIAS: ((BIAS, ab),)},
+                    (
+                        (BIAS, BIAS, h.drift_q * h.drift_tau_s / 2.0 * (1.0 - ab * ab)),
+                        (ROAD, ROAD, rq),
+                        (YAW, YAW, qh),
+                    ),
+                )
                 f.x[BIAS] += h.offset_dps
             else:
                 f.predict(rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, rq), (YAW, YAW, qh)))
@@ -396,6 +404,16 @@ class _Run:
             d = f.x[YAW] - yaw
             var += wi * (f.P[YAW][YAW] + d * d)
         return var / total if total > 0.0 else 0.0
+
+
+def motion_offset(state: PlusState) -> tuple[float, float]:
+    """(the motion offset, its sd), deg/s, a state's bank holds: the driving bias minus the
+    rest bias, combined over the members; (NaN, NaN) before the first step."""
+    if not state.xs:
+        return math.nan, math.nan
+    fs = [Filter(x, P) for x, P in zip(state.xs, state.Ps)]
+    bank = Bank(fs, state.mu, [[1.0]])
+    return -bank.mean(_H_OFFSET), math.sqrt(bank.var(_H_OFFSET))
 
 
 def step(

@@ -101,7 +101,8 @@ class MethodSetup:
     BiasRecord.given`, n = 0; a bias file's record carries the error model ``hdrd calibrate``
     measured); quant_step_dps, the gyro's output step, deg/s (the ADC's LSB; for a recorded
     log, the lattice of its values), None = unknown; samples_per_step, samples averaged in
-    one step (the gyro's sample rate times T; None = unknown).
+    one step (the gyro's sample rate times T; None = unknown). learned: what the unit's trips
+    taught of it (the daemon's unit state file, :mod:`hdrd.io.unitstate`; None: nothing).
     """
 
     hdr: HdrParams = HdrParams()
@@ -115,6 +116,7 @@ class MethodSetup:
     standstill: bool = True
     standstill_from_gyro: bool = False
     method: str = "hdr"
+    learned: GyroNoise | None = None
 
     def for_drive(
         self,
@@ -152,7 +154,7 @@ def error_model(setup: MethodSetup) -> GyroNoise | None:
     by ``hdrd calibrate`` in the bias file, else the ``gyro.*`` parameters given, else the
     grade's); None when nothing is known."""
     recorded = setup.bias.noise if setup.bias is not None else None
-    return noise_in_force(setup.grade, dict(setup.given_noise), recorded)
+    return noise_in_force(setup.grade, dict(setup.given_noise), recorded, setup.learned)
 
 
 I_C_WINDOW_S = 30.0

@@ -56,7 +56,9 @@ class Hypothesis:
         if not (0.0 < self.share <= 1.0):
             raise ValueError(f"hypothesis {self.name}: share must be in (0, 1], got {self.share!r}")
         if not self.drift_tau_s > 0.0:
-            raise ValueError(f"hypothesis {self.name}: drift_tau_s must be > 0, got {self.drift_tau_s!r}")
+            raise ValueError(
+                f"hypothesis {self.name}: drift_tau_s must be > 0, got {self.drift_tau_s!r}"
+            )
         for name in ("drift_q", "offset_sd_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):

@@ -3,8 +3,9 @@ record of each outage policy, and the policy a real outage uses. Pure.
 
 While the heading is aligned to GPS courses, every :attr:`SelfCheck.every_steps` steps a
 *virtual outage* starts: a copy of the estimator's state for each policy, stepped on the same
-gyro steps without the courses for :attr:`SelfCheck.length_steps` steps, then scored against
-the aided heading at its end (|yaw difference|, deg). The policies (:data:`POLICIES`):
+gyro steps without the courses (nor the GPS speed) for :attr:`SelfCheck.length_steps` steps,
+then scored against the aided heading at its end (|yaw difference|, deg). The policies
+(:data:`POLICIES`):
 
 - ``frozen``: the driving bias the courses taught, frozen: no stop or road measurement, the
   yaw integrates every step (the baseline a GPS-aided gyro falls back to);

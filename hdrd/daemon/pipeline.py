@@ -33,6 +33,7 @@ import numpy.typing as npt
 
 from hdrd.core.calibrate import BiasRecord, StandstillLimits
 from hdrd.core.resample import Block, BlockAverager, Missing
+from hdrd.core.selfcheck import OutageRecord
 from hdrd.daemon.aiding import GpsAiding
 from hdrd.daemon.stepper import PipelineConfig, Stepper, heading_from_yaw
 from hdrd.io.clocks import DeviceClock
@@ -40,6 +41,7 @@ from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Mes
 
 if TYPE_CHECKING:
     from hdrd.config import Config
+    from hdrd.io.unitstate import UnitState
 
 __all__ = [
     "Pipeline",
@@ -70,18 +72,22 @@ def standstill_limits(cfg: Config) -> StandstillLimits:
     return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
 
 
-def pipeline_config(cfg: Config, bias: BiasRecord | None = None) -> PipelineConfig:
+def pipeline_config(
+    cfg: Config, bias: BiasRecord | None = None, unit: UnitState | None = None
+) -> PipelineConfig:
     """The pipeline a configuration asks for (``hdrd run``, ``hdrd replay``): sensor, the
     method's setup (:func:`hdrd.config.method_setup`) with the static bias of ``bias`` (None:
-    measured at start-up), start-up window and standstill test, heading0."""
+    measured at start-up) and what the unit's trips taught (``unit``, its state file), start-up
+    window and standstill test, heading0."""
     from hdrd.config import method_setup
 
     return PipelineConfig(
         sensor=cfg.sensor,
-        setup=method_setup(cfg, bias),
+        setup=method_setup(cfg, bias, unit.profile() if unit is not None else None),
         startup_s=cfg.calibration.startup_s,
         limits=standstill_limits(cfg),
         heading0_deg=cfg.output.heading0_deg,
+        outage_record=unit.outage_record if unit is not None else OutageRecord(),
     )
 
 

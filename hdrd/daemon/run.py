@@ -31,6 +31,7 @@ from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
 from hdrd.daemon.signals import Signals
+from hdrd.daemon.unitkeeper import UnitKeeper
 from hdrd.io.biasfile import BiasFileError, load_bias
 from hdrd.io.clocks import WallClockCheck
 from hdrd.io.files import default_bias_path
@@ -216,7 +217,10 @@ class Daemon:
         self.reload = reload
         self.simulate = simulate
         self.bias_choice = bias
-        self.pipeline = Pipeline(pipeline_config(cfg, bias.record))
+        from_file = bias.source not in ("--bias", "startup")
+        self.unit = UnitKeeper(bias.source if from_file else None)
+        """The unit's state file (its trips' learning), beside a bias file."""
+        self.pipeline = Pipeline(pipeline_config(cfg, bias.record, self.unit.state))
         self.faults = FaultLog(cfg.sensor, cfg.log.bad_frame_interval_s)
         """The samples the gyro cannot have given, said in the log (rate-limited)."""
         self.signals = signals or Signals()
@@ -309,6 +313,7 @@ class Daemon:
             self._publish(self.pipeline.finish(int(src.stats.bad_frames), time.time()))
         except OutputClosed:
             pass
+        self.unit.save(self.pipeline.stepper, time.monotonic(), time.time())
         src.close()
         if self.gps is not None:
             self.gps.close()
@@ -510,6 +515,8 @@ class Daemon:
             self._last_bad, self._last_bad_log = bad, now
         if self.watchdog.due(now):
             self.notifier.notify("WATCHDOG=1")
+        if self.unit.due(now) and self.steps:
+            self.unit.save(self.pipeline.stepper, now, time.time())
         self._log_frame_drops(now)
         self._log_drops(now)
         if (
@@ -671,7 +678,7 @@ class Daemon:
                 kept=old.output.heading0_deg,
             )
             cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
-        self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias))
+        self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias, self.unit.state))
         self.faults.sensor, self.faults.interval_s = cfg.sensor, cfg.log.bad_frame_interval_s
         if cfg.output != old.output:
             stop_publishers(self.publishers)

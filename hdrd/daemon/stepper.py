@@ -211,6 +211,21 @@ class Stepper:
         self.samples_per_step = None
         self._settings = None  # derived again at the next step
 
+    LEARN_MIN_STOPS = 10
+    """Zero-rate updates while aided before the motion offset counts as learned (a stop's
+    reading beside a driving bias the courses taught)."""
+
+    def learned_offset(self) -> tuple[float, float] | None:
+        """(motion offset, its sd), deg/s, as this run has learned it: only from a method that
+        owns the heading, once it has seen :data:`LEARN_MIN_STOPS` stops while aided (the
+        offset is observable then); None otherwise."""
+        if not self.method.owns_heading or self.aided_stops < self.LEARN_MIN_STOPS:
+            return None
+        from hdrd.core.hdrplus import motion_offset
+
+        m, sd = motion_offset(self.state)
+        return (m, sd) if math.isfinite(m) and math.isfinite(sd) else None
+
     def adjust_bias(self, delta_dps: float, source: str) -> None:
         """Add delta_dps to the static bias eps0 (deg/s); no effect while calibrating."""
         if self.bias is None or delta_dps == 0.0:
