@@ -595,7 +595,7 @@ def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path
     assert rows.shape == (prep.steps.u.shape[0], 7)
     assert np.array_equal(rows[:, 0], np.round(prep.steps.t_end, 3))
     assert np.all((rows[:, 3:6] >= 0.0) & (rows[:, 3:6] < 360.0))
-    assert np.all(rows[:, 6] > 0.0) and np.all(np.diff(rows[:40, 6]) >= -1e-3)  # it grows alone
+    assert np.all(rows[:, 6] > 0.0) and rows[-1, 6] > 5 * rows[0, 6]  # it grows without GPS
     d = json.loads(out.read_text())["drives"][0]
     for k, m in ((3, "raw"), (4, "hdr")):  # Eψ again from the published headings
         ok = np.isfinite(rows[:, 1])
