@@ -15,8 +15,11 @@ spread sd, and of its turn, (scale_sd x the angle turned)^2; a step after a gap 
   an innovation beyond ``gate_sigma`` sigma is not used, and ``realign_after`` such in a row
   set the heading to the course (the filter, not the GPS, has lost it);
 - a stop (the daemon's test, :func:`hdrd.core.standstill.standstill_candidate` with its
-  defaults: the GPS speed at most 0.3 m/s and the gyro agreeing, |omega - b| <= 1 deg/s, for
-  3 steps in a row; a logged speed lags a car that already turns): the heading does not move
+  defaults: the speed at most 0.3 m/s and the gyro agreeing, |omega - b| <= 1 deg/s, for 3
+  steps in a row; a logged speed lags a car that already turns). The speed is the log's
+  ``speed``, as a receiver reports it with or without a course, outside the outages only
+  (:func:`hdrd.analysis.outages.run_outages` gives the daemon's methods a speed only with a
+  course, and none at rest where a log has no course below 2 m/s). The heading does not move
   (no prediction) and the step's mean rate measures the bias, z = omega, H = [0, 1], R = the
   calibration's spread^2 / n + ``stop_sd_dps``^2.
 
