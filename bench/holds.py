@@ -235,14 +235,14 @@ def score(log: DriveLog, group: str, min_td: float | None = 0.0) -> Scored:
 # -- tables --------------------------------------------------------------------------------------
 
 
-def _groups(rows: Sequence[Scored]) -> dict[str, list[Scored]]:
-    """Rows by group, in order of first appearance, and every road drive as ``roads (all)``."""
+def _groups(rows: Sequence[Scored], pooled: str = "roads (all)") -> dict[str, list[Scored]]:
+    """Rows by group, in order of first appearance, and every drive not real as ``pooled``."""
     out: dict[str, list[Scored]] = {}
     for r in rows:
         out.setdefault(r.group, []).append(r)
     roads = [r for r in rows if r.group != "real"]
     if roads:
-        out["roads (all)"] = roads
+        out[pooled] = roads
     return out
 
 
@@ -268,9 +268,10 @@ def gyro_table(rows: Sequence[Scored]) -> str:
     return "\n".join(lines)
 
 
-def outage_table(rows: Sequence[Scored]) -> str:
+def outage_table(rows: Sequence[Scored], together: str = "roads (all)") -> str:
     """(b), (c): per group the mean |error| at the outages' ends of each method and the peer
-    (pooled), frozen / hdr+, drives harmed against frozen."""
+    (pooled), frozen / hdr+, drives harmed against frozen; the drives not real together as
+    ``together``."""
     cols = (*METHODS, PEER)
     head = (
         "| group | drives | outages | "
@@ -280,7 +281,7 @@ def outage_table(rows: Sequence[Scored]) -> str:
         + " |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for g, rs in _groups(rows).items():
+    for g, rs in _groups(rows, together).items():
         rs = [r for r in rs if r.outages and r.scored_outages().any()]
         if not rs:
             continue

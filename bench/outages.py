@@ -141,7 +141,7 @@ def report(rows: Sequence[holds.Scored], which: str) -> str:
     return (
         f"{plan_text().capitalize()}; *outages*: those scored (a truth at the end), pooled; "
         "*harmed*: a drive whose mean exceeds max(1.1 x frozen's, frozen's + 0.5°).\n\n"
-        + holds.outage_table(rows)
+        + holds.outage_table(rows, "roads (all)" if which != "sim" else "all drives")
         + f"\n\nThe {'real ' if which != 'sim' else ''}drives one by one (* harmed):\n\n"
         + drive_table(rows, each)
     )
