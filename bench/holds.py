@@ -28,13 +28,16 @@ configuration):
     driving at speed); real drives whose scored part is under 5 minutes are left out, as in
     bench/real.py. Per group: mean NEψ, none / hdr+, and the drives *harmed*: Eψ above max(1.1
     x none's, none's + 0.5 deg).
-(b) *outages* of 120 s at the end of every 10 minutes (``hdrd evaluate --outages``,
-    :func:`hdrd.analysis.outages.run_outages`): each method through the daemon's GPS-aiding
-    path, ``none`` being the bias frozen at the outage's start; per group the mean |heading
-    error| at the outages' ends (pooled over outages), frozen / hdr+, and the drives harmed:
-    a drive's mean above max(1.1 x frozen's, frozen's + 0.5 deg).
-(c) the *Kalman peer* of bench/outages.py (:func:`outages.kalman_peer`, its tuned defaults) on
-    the same outages, harmed against frozen the same way.
+(b) *outages* (``hdrd evaluate --outages``, :func:`hdrd.analysis.outages.run_outages`) of
+    120 s at the end of every 10 minutes, every 5 minutes on a drive whose scored part is
+    longer than 30 minutes, the grid run at 4 phases a quarter period apart (0, 150, 300,
+    450 s; each a run of its own: bench/peer.py's :func:`peer.outage_plan`): each method
+    through the daemon's GPS-aiding path, ``none`` being the bias frozen at the outage's
+    start; per group the outages scored, the mean |heading error| at their ends (pooled over
+    outages), frozen / hdr+, and the drives harmed: a drive's mean above max(1.1 x frozen's,
+    frozen's + 0.5 deg).
+(c) the *Kalman peer* (bench/peer.py, :func:`peer.kalman_peer`, its tuned defaults) on the
+    same outages, harmed against frozen the same way.
 
 Converted logs are kept in ``--workdir`` (converted again only when the converter or its
 source list changed); the simulated gyros are made in memory (faster than reading them back),
@@ -43,7 +46,7 @@ source list changed); the simulated gyros are made in memory (faster than readin
 real drives; the
 judging set is run once, to report; ``--no-write`` prints only). ``--dry-run`` converts and
 simulates, lists the drives and their groups, and scores nothing. ``--json PATH`` writes every
-drive's figures. About 1-2 minutes on this machine.
+drive's figures. About 1 minute a set on this machine.
 """
 
 from __future__ import annotations
@@ -66,11 +69,11 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 from _common import fmt, machine_line, plus_with, put_section
-from peer import kalman_peer
+from peer import plan_errors, plan_text
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
 
 from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
-from hdrd.analysis.outages import FROZEN, OutageSpec, run_outages
+from hdrd.analysis.outages import FROZEN
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.core.grades import Grade
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
@@ -79,7 +82,6 @@ from hdrd.sim.roads import grade_on_road, route_stops
 SECTION = "## Heading that holds: gyro-only and GNSS outages, real drives and real roads"
 METHODS = ("none", "hdr", "hdr+")
 PEER = "kalman peer"
-SPEC = "120s/10min"
 GRADES = ("crs03", "phone", "automotive", "tactical")
 ROUTES = {"tune": "boreas_20210805_1334", "judge": "boreas_20210902_1142"}
 """The Boreas route of each set (tools/real_sources.yaml, ``split``)."""
@@ -124,6 +126,11 @@ class Scored:
 
 def harmed(value: float, ref: float) -> bool:
     return value > max(HARM_FACTOR * ref, ref + HARM_DEG)
+
+
+def label(method: str) -> str:
+    """A method's column heading: ``none`` through an outage is the frozen bias."""
+    return "frozen bias" if method == FROZEN else method
 
 
 # -- the drives ----------------------------------------------------------------------------------
@@ -203,41 +210,39 @@ def road_logs(route: DriveLog, which: str, seeds: int) -> list[tuple[str, DriveL
 # -- scoring -------------------------------------------------------------------------------------
 
 
-def score(log: DriveLog, group: str, spec: OutageSpec, min_td: float = 0.0) -> Scored:
-    """One drive's figures (module docstring); ``min_td``: gyro-only only from this Td, min."""
+def score(log: DriveLog, group: str, min_td: float | None = 0.0) -> Scored:
+    """One drive's figures (module docstring); ``min_td``: gyro-only only from this Td, min
+    (None: outages only)."""
     s = Scored(log.name, group)
     try:
         prep = prepare_drive(log)
     except EvaluationError as e:
         s.notes.append(str(e).replace(f"{log.name}: ", "").split(";")[0])
         return s
-    if prep.duration_min >= min_td:
+    if min_td is not None and prep.duration_min >= min_td:
         r = evaluate_prepared(prep, methods=METHODS, setup=PLUS)
         s.td_min, s.e = prep.duration_min, dict(r.e_psi)
-    else:
+    elif min_td is not None:
         s.notes.append(f"gyro-only: {prep.duration_min:.1f} min < {min_td:g} after calibration")
     try:
-        o = run_outages(prep, log, spec, METHODS, setup=PLUS)
+        s.outages = plan_errors(prep, log, METHODS, PLUS, PEER).errors
     except EvaluationError as e:
         why = str(e).replace(f"{log.name}: ", "")
         s.notes.append(f"no outage in {prep.duration_min:.1f} min" if "no outage" in why else why)
-        return s
-    s.outages = {m: o.errors[m] for m in METHODS}
-    s.outages[PEER] = kalman_peer(prep, log, spec)
     return s
 
 
 # -- tables --------------------------------------------------------------------------------------
 
 
-def _groups(rows: Sequence[Scored]) -> dict[str, list[Scored]]:
-    """Rows by group, in order of first appearance, and every road drive as ``roads (all)``."""
+def _groups(rows: Sequence[Scored], pooled: str = "roads (all)") -> dict[str, list[Scored]]:
+    """Rows by group, in order of first appearance, and every drive not real as ``pooled``."""
     out: dict[str, list[Scored]] = {}
     for r in rows:
         out.setdefault(r.group, []).append(r)
     roads = [r for r in rows if r.group != "real"]
     if roads:
-        out["roads (all)"] = roads
+        out[pooled] = roads
     return out
 
 
@@ -263,20 +268,20 @@ def gyro_table(rows: Sequence[Scored]) -> str:
     return "\n".join(lines)
 
 
-def outage_table(rows: Sequence[Scored]) -> str:
+def outage_table(rows: Sequence[Scored], together: str = "roads (all)") -> str:
     """(b), (c): per group the mean |error| at the outages' ends of each method and the peer
-    (pooled), frozen / hdr+, drives harmed against frozen."""
+    (pooled), frozen / hdr+, drives harmed against frozen; the drives not real together as
+    ``together``."""
     cols = (*METHODS, PEER)
-    label = {FROZEN: "frozen bias"}
     head = (
         "| group | drives | outages | "
-        + " | ".join(label.get(m, m) for m in cols)
+        + " | ".join(label(m) for m in cols)
         + " | frozen / hdr+ | "
         + " | ".join(f"harmed {m}" for m in cols[1:])
         + " |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for g, rs in _groups(rows).items():
+    for g, rs in _groups(rows, together).items():
         rs = [r for r in rs if r.outages and r.scored_outages().any()]
         if not rs:
             continue
@@ -374,10 +379,10 @@ none's + 0.5°).
 
 {gyro_table(rows)}
 
-GNSS outages of 120 s at the end of every 10 minutes (b, c): mean |heading error| at their
-ends (deg, pooled over the outages); *frozen bias*: the daemon's aiding with the bias frozen
-at the outage's start (``none``); *harmed*: a drive's mean above max(1.1 x frozen's, frozen's +
-0.5°).
+GNSS outages (b, c): {plan_text()}; *outages*: those scored (a truth at the end); mean
+|heading error| at their ends (deg, pooled over the outages); *frozen bias*: the daemon's aiding
+with the bias frozen at the outage's start (``none``); *harmed*: a drive's mean above max(1.1 x
+frozen's, frozen's + 0.5°).
 
 {outage_table(rows)}
 
@@ -413,7 +418,6 @@ def main(argv: list[str] | None = None) -> int:
         PLUS = replace(PLUS, plus=plus_with(PLUS.plus, **a.plus))
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
-    spec = OutageSpec.parse(SPEC)
     todo, starts = drives(a.workdir, a.which, a.seeds, a.write_logs)
     if a.dry_run:
         for group, log in todo:
@@ -422,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         print(f"{len(todo)} drives of the {a.which} set; --dry-run: nothing scored")
         return 0
-    rows = [score(log, g, spec, MIN_SCORED_MIN if g == "real" else 0.0) for g, log in todo]
+    rows = [score(log, g, MIN_SCORED_MIN if g == "real" else 0.0) for g, log in todo]
     text = report(rows, a.which, a.seeds, starts)
     print(text)
     if a.json is not None:
@@ -430,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.which == "judge" and not a.no_write:
         body = (
             f"{SECTION} (judge)\n\nGenerated by `python bench/holds.py --set judge` "
-            f"({machine_line()}). Every figure as `hdrd evaluate` (and `--outages {SPEC}`) "
+            f"({machine_line()}). Every figure as `hdrd evaluate` (and `--outages`) "
             'computes it, on the judging set only (docs/real-data.md, "The split"); the '
             "script's docstring says what is scored.\n\n" + text + "\n"
         )

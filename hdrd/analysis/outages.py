@@ -107,13 +107,16 @@ class OutageSpec:
         return f"{self.duration_s:g}s/{self.period_s:g}s"
 
 
-def outage_windows(spec: OutageSpec, start_s: float, end_s: float) -> list[tuple[float, float]]:
-    """The outages of a drive from ``start_s`` to ``end_s`` (s): [start + k P - D, start + k P)
-    for k = 1, 2, ... while wholly inside it."""
+def outage_windows(
+    spec: OutageSpec, start_s: float, end_s: float, phase_s: float = 0.0
+) -> list[tuple[float, float]]:
+    """The outages of a drive from ``start_s`` to ``end_s`` (s): [start + phase + k P - D,
+    start + phase + k P) for k = 1, 2, ... while wholly inside it; ``phase_s`` (s) starts the
+    grid that much later (other instants of the same drive)."""
     out = []
     k = 1
-    while start_s + k * spec.period_s <= end_s + 1e-9:
-        stop = start_s + k * spec.period_s
+    while start_s + phase_s + k * spec.period_s <= end_s + 1e-9:
+        stop = start_s + phase_s + k * spec.period_s
         out.append((stop - spec.duration_s, stop))
         k += 1
     return out
@@ -258,20 +261,22 @@ def run_outages(
     methods: Sequence[str] = (FROZEN, "hdr", "hdr+"),
     setup: MethodSetup = DEFAULTS,
     aiding_config: AidingConfig | None = None,
+    phase_s: float = 0.0,
 ) -> OutageResult:
     """Each method's heading error at the end of each outage of a drive (module docstring).
 
     prep: the drive prepared from ``log`` (its steps and truth at step ends). setup: the
     methods' setup, as ``hdrd evaluate`` has it (the drive's calibration, or the bias given,
     and its output step are added here). aiding_config: the aiding's
-    thresholds (default: the daemon's, with the drive's step period). EvaluationError when the
+    thresholds (default: the daemon's, with the drive's step period). phase_s: the grid of
+    outages starts this much later, s (:func:`outage_windows`). EvaluationError when the
     drive has no outage, or no fix to aid from."""
     s = prep.steps
     if s.u.shape[0] == 0:
         raise EvaluationError(f"{prep.name}: no steps to evaluate")
     start = prep.start_s
     end = float(s.t_end[-1])
-    windows = outage_windows(spec, start, end)
+    windows = outage_windows(spec, start, end, phase_s)
     if not windows:
         raise EvaluationError(
             f"{prep.name}: {(end - start) / 60.0:.1f} min after calibration hold no outage of "
