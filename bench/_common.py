@@ -33,8 +33,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from hdrd.analysis.evaluate import PreparedDrive
-    from hdrd.core.hdr import HdrParams
-    from hdrd.core.plusparams import HdrPlusParams
+    from hdrd.core.plusparams import PlusParams
     from hdrd.io.drivelog import DriveLog
 
 REPO = Path(__file__).resolve().parents[1]
@@ -453,45 +452,17 @@ def oracle_yaw(
 # --------------------------------------------------------------------------- HDR+ experiments
 
 
-def plus_with(base: HdrPlusParams | None = None, **kw: Any) -> HdrPlusParams:
-    """HDR+'s settings with some values overridden by flat name, for experiments: a field of
-    :class:`hdrd.core.plusparams.GyroFit` or :class:`~hdrd.core.plusparams.Tuning` goes to its
-    record; ``q_stable``, ``q_drifting`` and ``drift_prior`` rebuild the two-member bank; the
-    rest (``hdr``, ``standstill``, ``bank``) replace the settings' own fields."""
-    from dataclasses import fields, replace
+def plus_with(base: PlusParams | None = None, **kw: Any) -> PlusParams:
+    """HDR+'s settings with some values overridden by flat name, for experiments on tuning
+    data: a field of :class:`hdrd.core.plusparams.PlusParams` by its name; ``road_<field>`` for
+    the :class:`~hdrd.core.plusparams.Road`'s; ``bank`` as a list of mappings of
+    :class:`~hdrd.core.plusparams.Hypothesis`'s fields."""
+    from dataclasses import replace
 
-    from hdrd.core.biasbank import Hypothesis
-
-    from hdrd.core.plusparams import DEFAULT_BANK, DEFAULTS, GyroFit, Tuning
+    from hdrd.core.plusparams import DEFAULTS, Hypothesis
 
     p = DEFAULTS if base is None else base
-    fit = {k: kw.pop(k) for k in list(kw) if k in {f.name for f in fields(GyroFit)}}
-    tun = {k: kw.pop(k) for k in list(kw) if k in {f.name for f in fields(Tuning)}}
-    if {"q_stable", "q_drifting", "drift_prior"} & set(kw):
-        stable, drifting = DEFAULT_BANK
-        prior = float(kw.pop("drift_prior", drifting.prior))
-        kw["bank"] = (
-            Hypothesis("stable", float(kw.pop("q_stable", stable.q)), 1.0 - prior),
-            Hypothesis("drifting", float(kw.pop("q_drifting", drifting.q)), prior),
-        )
-    return replace(p, fit=replace(p.fit, **fit), tuning=replace(p.tuning, **tun), **kw)
-
-
-def paper_plus(core: HdrParams | None = None) -> HdrPlusParams:
-    """HDR+ with every extra off (no stops, no straight-driving measurements, the core's fixed
-    increment, one filter): paper HDR with ``core`` (Table III by default), bit for bit; run
-    it with the temperature withheld for no temperature model."""
-    from hdrd.core.hdr import HdrParams
-    from hdrd.core.plusparams import GyroFit, HdrPlusParams, one_model
-    from hdrd.core.standstill import StandstillParams
-
-    return plus_with(
-        HdrPlusParams(
-            hdr=HdrParams() if core is None else core,
-            standstill=StandstillParams(enabled=False),
-            fit=GyroFit(stop_offset_var=0.0, model="paper"),
-            bank=one_model(3e-7),
-        ),
-        straight_r=0.0,
-        ic_alpha=0.0,
-    )
+    road = {k[5:]: kw.pop(k) for k in list(kw) if k.startswith("road_")}
+    if "bank" in kw:
+        kw["bank"] = tuple(Hypothesis(**h) for h in kw["bank"])
+    return replace(p, road=replace(p.road, **road), **kw)

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.core.kalman import Bank, Filter, log_likelihood
+from hdrd.core.kalman import Bank, Filter, Row, log_likelihood
 from hdrd.core.plusparams import DEFAULTS, PlusParams
 from hdrd.core.standstill import block_mean_variance, standstill_candidate
 from hdrd.core.steps import StepInput, per_step
@@ -275,7 +275,7 @@ class _Run:
         p = self.p
         a = self.road_a if T == p.T else math.exp(-T / p.road.tau_s)
         rq = self.road_q if T == p.T else p.road.sd_dps**2 * (1.0 - a * a)
-        rows: dict[int, tuple[tuple[int, float], ...]] = {ROAD: ((ROAD, a),)}
+        rows: dict[int, Row] = {ROAD: ((ROAD, a),)}
         qh = 0.0
         if not zero:
             rows[YAW] = ((YAW, 1.0), (BIAS, -T), (TEMP, -T * dT))
@@ -480,12 +480,15 @@ def run_batch(
         return PlusTrace(e, e, e, e, e, e, np.empty(0, bool), e, np.empty((0, m)), state)
     run = _Run(state, params)
     rows = [run.advance(*row) for row in zip(*cols, strict=True)]
-    cols_out = list(zip(*rows, strict=True))
-    f = [np.array(c, dtype=np.float64) for c in cols_out[:6]]
+    c = list(zip(*rows, strict=True))
+
+    def f(i: int) -> npt.NDArray[np.float64]:
+        return np.array(c[i], dtype=np.float64)
+
     return PlusTrace(
-        *f,
-        standstill=np.array(cols_out[6], dtype=np.bool_),
-        straight=np.array(cols_out[7], dtype=np.float64),
-        weights=np.array(cols_out[8], dtype=np.float64).reshape(n, m),
+        f(0), f(1), f(2), f(3), f(4), f(5),
+        standstill=np.array(c[6], dtype=np.bool_),
+        straight=f(7),
+        weights=np.array(c[8], dtype=np.float64).reshape(n, m),
         final=run.state(),
-    )
+    )  # fmt: skip

@@ -21,7 +21,7 @@ states their meaning.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 __all__ = ["Bank", "Filter", "Innovation", "Row", "log_likelihood"]
@@ -56,7 +56,7 @@ class Filter:
     def copy(self) -> Filter:
         return Filter(self.x, self.P)
 
-    def predict(self, F: dict[int, Row], Q: Sequence[tuple[int, int, float]]) -> None:
+    def predict(self, F: Mapping[int, Row], Q: Sequence[tuple[int, int, float]]) -> None:
         """x <- F x, P <- F P F' + Q. F: the sparse rows that differ from the identity's, by
         state (a transition moves few states), applied in their order as shears of x and P in
         place (O(n) each instead of the O(n^3) of a full product): a row may refer to states

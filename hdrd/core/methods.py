@@ -249,6 +249,7 @@ class Method(ABC, Generic[S, P]):
 
 
 def _core_fields(o: StepOutput) -> dict[str, float | int]:
+    assert isinstance(o, HdrOutput)  # the paper's controller: its fields
     return {"omega": o.omega, "yaw": o.yaw, "I": o.I, "W": o.W, "R": o.R, "r": o.r}
 
 

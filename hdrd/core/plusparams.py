@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.standstill import CalibrationNoise, StandstillParams
@@ -93,7 +94,7 @@ def unit_bank(
     sd = noise.motion_offset_sd_dps
     out = []
     for h in fresh:
-        kw: dict[str, float] = {}
+        kw: dict[str, Any] = {}
         if math.isfinite(m):
             kw["offset_dps"] = m
             if h is fresh[0]:

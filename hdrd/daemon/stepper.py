@@ -20,6 +20,7 @@ from typing import Any
 from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.core.hdr import HdrParams
+from hdrd.core.hdrplus import PlusOutput
 from hdrd.core.resample import Block
 from hdrd.core.selfcheck import FROZEN, OutageRecord, SelfCheck, frozen_params
 from hdrd.core.sensor import SensorModel
@@ -306,6 +307,7 @@ class Stepper:
         policy = self.outage_record.policy()
         used = frozen_params(settings) if in_outage and policy == FROZEN else settings
         self.state, o = self.method.step(before, inp, used)
+        assert isinstance(o, PlusOutput)  # the method that owns the heading: HDR+
         course = inp.heading_err_deg == inp.heading_err_deg
         if self.selfcheck is None and self.state.aided:
             T = self.config.params.T
