@@ -34,6 +34,7 @@ from hdrd.sim.gyro import (
     ScaleAsymmetry,
     ScaleFactor,
     StaticBias,
+    StopOffset,
     TemperatureBias,
     TimeOffset,
     WarmupTransient,
@@ -54,6 +55,7 @@ ISSUE_VOCABULARY = {
     "quantization": {"step_dps"},
     "temperature_bias": {"coeff_dps_per_c", "ref_temp_c", "quad_dps_per_c2"},
     "motion_offset": {"offset_dps", "moving_mps", "coeff_dps_per_mps"},
+    "stop_offset": {"sd_dps", "moving_mps"},
     "warmup_transient": {"amplitude_dps", "tau_s"},
     "scale_factor": {"error"},
     "scale_asymmetry": {"pos_error", "neg_error"},
@@ -61,6 +63,20 @@ ISSUE_VOCABULARY = {
     "time_offset": {"delay_s"},
     "bandwidth": {"cutoff_hz"},
 }
+
+
+def test_each_stop_reads_its_own_offset_and_driving_none() -> None:
+    t = np.arange(120.0)
+    speed = np.where((t < 10) | ((t >= 40) & (t < 60)) | (t >= 100), 0.0, 10.0)
+    y = GyroModel((StopOffset(0.02),)).apply(
+        t, np.zeros(120), None, np.random.default_rng(3), speed
+    )
+    stops = [y[:10], y[40:60], y[100:]]
+    assert all(np.all(s == s[0]) for s in stops)  # one offset a stop ...
+    assert len({float(s[0]) for s in stops}) == 3  # ... each its own
+    assert np.all(y[speed > 0.5] == 0.0)  # none while driving
+    with pytest.raises(ValueError, match="stop_offset needs the vehicle's speed"):
+        GyroModel((StopOffset(0.02),)).apply(t, np.zeros(120), None, np.random.default_rng(3))
 
 
 def _run(

@@ -67,6 +67,7 @@ __all__ = [
     "STREAMS",
     "Saturation",
     "ScaleAsymmetry",
+    "StopOffset",
     "ScaleFactor",
     "StaticBias",
     "TemperatureBias",
@@ -314,6 +315,35 @@ class MotionOffset(Effect):
 
 
 @dataclass(frozen=True)
+class StopOffset(Effect):
+    """Each stop reads its own bias: while the speed v (m/s) is at or below moving_mps, the
+    gyro reads an offset drawn anew for every such run of samples (every stop, the standstill
+    at power-on too) from N(0, sd_dps), deg/s; nothing while moving. Real stops read 0.005-0.04
+    deg/s off a still-good driving bias (idling, a slope, the engine's vibration). Needs the
+    speed of every sample, as motion_offset does."""
+
+    name: ClassVar[str] = "stop_offset"
+    order: ClassVar[int] = 6
+    sd_dps: float = 0.0
+    moving_mps: float = 0.5
+
+    def __post_init__(self) -> None:
+        _nonneg(self.name, "sd_dps", self.sd_dps)
+        _nonneg(self.name, "moving_mps", self.moving_mps)
+
+    def apply(self, x: FloatArray, ctx: _Ctx) -> FloatArray:
+        if ctx.speed_mps is None:
+            raise ValueError("stop_offset needs the vehicle's speed (speed_mps) for every sample")
+        still = np.asarray(ctx.speed_mps <= self.moving_mps)
+        starts = still & ~np.concatenate(([False], still[:-1]))
+        run = np.cumsum(starts)  # the stop each sample belongs to (1, 2, ...)
+        offsets = np.concatenate(
+            ([0.0], ctx.rng.normal(0.0, self.sd_dps, int(run[-1]) if run.shape[0] else 0))
+        )
+        return x + np.where(still, offsets[run], 0.0)
+
+
+@dataclass(frozen=True)
 class BiasInstability(Effect):
     """First-order Gauss-Markov bias: stationary standard deviation sigma_dps (deg/s),
     correlation time tau_s (s); exact discretisation b[k] = a b[k-1] + sigma sqrt(1 - a^2) w,
@@ -453,6 +483,7 @@ EFFECTS: dict[str, type[Effect]] = {
             WarmupTransient,
             TemperatureBias,
             MotionOffset,
+            StopOffset,
             BiasInstability,
             RateRandomWalk,
             WhiteNoise,
@@ -481,6 +512,7 @@ STREAMS: dict[str, int] = {
     "saturation": 10,
     "quantization": 11,
     "motion_offset": 12,
+    "stop_offset": 13,
 }
 """The random stream of each effect (:meth:`GyroModel.apply`): a number fixed per effect and
 never reused, apart from the order of application, so that a new effect (given the next

@@ -32,6 +32,8 @@ LIMITS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("motion_offset", "offset_dps"): (-100.0, 100.0, "deg/s"),
     ("motion_offset", "moving_mps"): (0.0, 100.0, "m/s"),
     ("motion_offset", "coeff_dps_per_mps"): (-1.0, 1.0, "deg/s per m/s"),
+    ("stop_offset", "sd_dps"): (0.0, 100.0, "deg/s"),
+    ("stop_offset", "moving_mps"): (0.0, 100.0, "m/s"),
     ("bias_instability", "sigma_dps"): (0.0, 100.0, "deg/s"),
     ("bias_instability", "tau_s"): (1e-3, 1e7, "s"),
     ("rate_random_walk", "k_dps_per_sqrt_s"): (0.0, 1.0, "deg/s/sqrt(s)"),
