@@ -71,10 +71,12 @@ sys.path.insert(0, str(REPO / "bench"))
 from _common import fmt, machine_line, plus_with, put_section
 from peer import plan_errors, plan_text
 from real import JUDGING, MIN_SCORED_MIN, PLUS, TUNING, convert_all
+from units import unit_logs
 
-from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
+from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared, method_settings
 from hdrd.analysis.outages import FROZEN
 from hdrd.analysis.prepare import prepare_drive
+from hdrd.core import methods as registry
 from hdrd.core.grades import Grade
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.roads import grade_on_road, route_stops
@@ -111,6 +113,10 @@ class Scored:
     e: dict[str, float] = field(default_factory=dict)
     outages: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    cover: np.ndarray = field(default_factory=lambda: np.zeros(3, int))
+    """HDR+'s heading sd gyro-only: steps with a truth, of them |error| within 1.96 sd, within 1 sd."""
+    cover_ends: np.ndarray = field(default_factory=lambda: np.zeros(3, int))
+    """The same at the outages' ends."""
 
     def out_mean(self, m: str) -> float:
         """Mean |error| over the outages scored for every method and the peer, deg."""
@@ -222,28 +228,69 @@ def score(log: DriveLog, group: str, min_td: float | None = 0.0) -> Scored:
     if min_td is not None and prep.duration_min >= min_td:
         r = evaluate_prepared(prep, methods=METHODS, setup=PLUS)
         s.td_min, s.e = prep.duration_min, dict(r.e_psi)
+        sd = registry.get("hdr+").heading_sd(prep.steps, method_settings(prep, "hdr+", PLUS))
+        if sd is not None:
+            err = (r.heading["hdr+"] - prep.truth + 180.0) % 360.0 - 180.0
+            s.cover = coverage(err, sd)
     elif min_td is not None:
         s.notes.append(f"gyro-only: {prep.duration_min:.1f} min < {min_td:g} after calibration")
     try:
-        s.outages = plan_errors(prep, log, METHODS, PLUS, PEER).errors
+        plan = plan_errors(prep, log, METHODS, PLUS, PEER)
+        s.outages = plan.errors
+        s.cover_ends = coverage(plan.errors["hdr+"], plan.sd)
     except EvaluationError as e:
         why = str(e).replace(f"{log.name}: ", "")
         s.notes.append(f"no outage in {prep.duration_min:.1f} min" if "no outage" in why else why)
     return s
 
 
+def coverage(err: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """(values with both known, |err| <= 1.96 sd among them, |err| <= sd among them)."""
+    ok = np.isfinite(err) & np.isfinite(sd)
+    e, d = np.abs(err[ok]), sd[ok]
+    return np.array([ok.sum(), (e <= 1.96 * d).sum(), (e <= d).sum()], dtype=int)
+
+
 # -- tables --------------------------------------------------------------------------------------
 
 
+UNIT = "unit: "
+"""The group prefix of the population's units (bench/units.py)."""
+
+
 def _groups(rows: Sequence[Scored], pooled: str = "roads (all)") -> dict[str, list[Scored]]:
-    """Rows by group, in order of first appearance, and every drive not real as ``pooled``."""
+    """Rows by group, in order of first appearance; the grades on the route as ``pooled``, the
+    units as ``units (all)``."""
     out: dict[str, list[Scored]] = {}
     for r in rows:
         out.setdefault(r.group, []).append(r)
-    roads = [r for r in rows if r.group != "real"]
+    roads = [r for r in rows if r.group != "real" and not r.group.startswith(UNIT)]
     if roads:
         out[pooled] = roads
+    units = [r for r in rows if r.group.startswith(UNIT)]
+    if units:
+        out["units (all)"] = units
     return out
+
+
+def coverage_table(rows: Sequence[Scored]) -> str:
+    """HDR+'s published heading sd against its errors, per group: gyro-only at every step
+    with a truth, and at the outages' ends."""
+    lines = [
+        "| group | steps | within 1.96 sd | within 1 sd | outage ends | within 1.96 sd | within 1 sd |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for g, rs in _groups(rows).items():
+        a = sum((r.cover for r in rs), np.zeros(3, int))
+        b = sum((r.cover_ends for r in rs), np.zeros(3, int))
+
+        def share(c: np.ndarray, i: int) -> str:
+            return f"{c[i] / c[0]:.0%}" if c[0] else "–"
+
+        lines.append(
+            f"| {g} | {a[0]} | {share(a, 1)} | {share(a, 2)} | {b[0]} | {share(b, 1)} | {share(b, 2)} |"
+        )
+    return "\n".join(lines)
 
 
 def gyro_table(rows: Sequence[Scored]) -> str:
@@ -358,13 +405,14 @@ def to_json(rows: Sequence[Scored]) -> dict[str, Any]:
 
 
 def drives(
-    work: Path, which: str, seeds: int, write_logs: bool
+    work: Path, which: str, seeds: int, write_logs: bool, units: int = 0
 ) -> tuple[list[tuple[str, DriveLog]], list[float]]:
     """(group, log) of every drive of the set, the real ones, then the roads; the roads'
     starts on the route, s."""
     out = [("real", log) for log in real_logs(work, which)]
     route = route_log(work, which)
     roads = road_logs(route, which, seeds)
+    roads += [(UNIT + u.kind, log) for u, log in unit_logs(which, units, route)]
     if write_logs:
         folder = work / f"roads-{which}"
         folder.mkdir(parents=True, exist_ok=True)
@@ -386,19 +434,27 @@ frozen's, frozen's + 0.5°).
 
 {outage_table(rows)}
 
+HDR+'s heading sd (`heading_sd`) against its errors: the share of steps with a truth whose
+|error| is within 1.96 sd and within 1 sd, gyro-only and at the outages' ends (calibrated:
+88-98 % and 55-80 %).
+
+{coverage_table(rows)}
+
 The real drives ({which} set; * harmed):
 
 {real_table(rows)}
 
 Roads: {ROUTES[which]} with each grade's gyro, seeds {FIRST_SEED[which]}-{FIRST_SEED[which] + seeds - 1}
 from its stops at {", ".join(f"{a:.0f}" for a in starts)} s (cycling), each also with a motion offset of
-±{MOTION_OFFSET_BI:g} x the grade's bias instability."""
+±{MOTION_OFFSET_BI:g} x the grade's bias instability. Units: bench/units.py's population of
+the set (what real units were measured to do), grouped by what is most telling of each."""
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", choices=("tune", "judge"), required=True, dest="which")
     ap.add_argument("--seeds", type=int, default=5, help="simulated gyros per grade (default 5)")
+    ap.add_argument("--units", type=int, default=32, help="units of bench/units.py (default 32)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/hdrd-holds"))
     ap.add_argument("--json", type=Path, help="write every drive's figures here")
     ap.add_argument("--write-logs", action="store_true", help="write the road drives' logs too")
@@ -418,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
         PLUS = replace(PLUS, plus=plus_with(PLUS.plus, **a.plus))
     if a.seeds < 1:
         ap.error("--seeds must be at least 1")
-    todo, starts = drives(a.workdir, a.which, a.seeds, a.write_logs)
+    todo, starts = drives(a.workdir, a.which, a.seeds, a.write_logs, a.units)
     if a.dry_run:
         for group, log in todo:
             print(

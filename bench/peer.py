@@ -42,6 +42,7 @@ import numpy as np
 
 from hdrd.analysis.outages import (
     LogFix,
+    OutageResult,
     OutageSpec,
     drive_fixes,
     outage_windows,
@@ -283,14 +284,31 @@ class PlanErrors:
     windows: list[tuple[float, float]] = field(default_factory=list)
     phases: list[float] = field(default_factory=list)
     errors: dict[str, np.ndarray] = field(default_factory=dict)
+    sd: np.ndarray = field(default_factory=lambda: np.empty(0))
+    """HDR+'s published heading sd at each outage's end, deg (NaN: not run)."""
 
     def add(
-        self, errors: dict[str, np.ndarray], windows: Sequence[tuple[float, float]], phase: float
+        self,
+        errors: dict[str, np.ndarray],
+        windows: Sequence[tuple[float, float]],
+        phase: float,
+        sd: np.ndarray | None = None,
     ) -> None:
         self.windows.extend(windows)
         self.phases.extend([phase] * len(windows))
         for m, e in errors.items():
             self.errors[m] = np.concatenate([self.errors.get(m, np.empty(0)), e])
+        more = np.full(len(windows), np.nan) if sd is None else sd
+        self.sd = np.concatenate([self.sd, more])
+
+
+def _sd_at_ends(prep: PreparedDrive, r: OutageResult) -> np.ndarray | None:
+    """HDR+'s heading sd at each outage's last step (the step the error is scored at), deg."""
+    if r.trace is None or "heading_sd_hdr+" not in r.trace:
+        return None
+    sd = r.trace["heading_sd_hdr+"]
+    ends = [int(np.searchsorted(prep.steps.t_end, b, side="right")) - 1 for _, b in r.windows]
+    return np.array([sd[i] if i >= 0 else np.nan for i in ends])
 
 
 def plan_errors(
@@ -315,7 +333,7 @@ def plan_errors(
         errors = dict(r.errors)
         if peer is not None:
             errors[peer] = kalman_peer(prep, log, spec, params, phase)
-        out.add(errors, r.windows, phase)
+        out.add(errors, r.windows, phase, _sd_at_ends(prep, r))
     if not out.windows:
         raise EvaluationError(why)
     return out

@@ -70,7 +70,7 @@ class Hypothesis:
 
 FRESH_BANK: tuple[Hypothesis, ...] = (
     Hypothesis("steady", 0.93, share=0.4),
-    Hypothesis("offset", 0.02, offset_sd_dps=0.08, share=0.4),
+    Hypothesis("offset", 0.02, offset_sd_dps=0.05, share=0.4),
     Hypothesis("drifting", 0.05, drift_q=1e-5, offset_sd_dps=0.02, share=0.2),
 )
 """The bank of a unit nothing is known of: its driving bias is what a stop reads and stays
@@ -114,8 +114,8 @@ class Road:
     curve is thus never forced to zero: a step whose rate is far from the bias counts for
     little."""
 
-    sd_dps: float = 0.015
-    tau_s: float = 120.0
+    sd_dps: float = 0.01
+    tau_s: float = 60.0
     sway_var: float = 0.04
     p_straight: float = 0.6
     curve_var: float = 4.0
@@ -176,8 +176,10 @@ class PlusParams:
     """Variance of what the rest readings miss of the bias by the output's rounding,
     (deg/s)^2: q^2/12 for a unit that sits on one code at rest (undithered), about 0 when its
     noise dithers it."""
-    temp_coeff_sd: float = 0.005
-    """Prior sd of the bias's temperature coefficient, deg/s/degC (0: not estimated)."""
+    temp_coeff_sd: float = 0.002
+    """Prior sd of the bias's temperature coefficient, deg/s/degC, while a temperature is
+    logged (0: not estimated). Small: a cabin's warm-up is monotonic, and a wide prior lets the
+    road's curvature pass for a temperature coefficient on a good gyro."""
     heading_q: float = 0.0
     """A wander of the bias too fast to follow (correlation time within a couple of minutes),
     as the heading's random walk, deg^2/s."""
