@@ -314,3 +314,14 @@ def test_a_heading_that_rounds_to_360_is_shown_as_0(page: Page, web: Web) -> Non
     page.wait_text("heading", "0.0")
     assert page.page.locator("#dial").get_attribute("data-heading") == "0.00"
     assert page.errors == []
+
+
+def test_the_heading_is_shown_with_its_sd_when_hdrd_knows_it(page: Page, web: Web) -> None:
+    # HDR+ publishes heading_sd: the page shows "123.4° ± 2.1"; without it, the heading alone.
+    web.send(heading=123.44, heading_sd=2.06)
+    page.wait_text("heading", "123.4")
+    page.wait_text("heading-sd", " \u00b1 2.1")
+    web.send(heading=124.0)
+    page.wait_text("heading", "124.0")
+    page.wait_text("heading-sd", "")
+    assert page.errors == []

@@ -133,6 +133,8 @@ function showMode(mode) {
 function show(msg, rx) {
   const heading = compass(msg.heading);
   setText("heading", heading === null ? "\u2013" : compassText(heading, 1));
+  const headingSd = num(msg.heading_sd);  // how well the heading is known, deg (1 sigma)
+  setText("heading-sd", heading === null || headingSd === null || headingSd < 0 ? "" : ` \u00b1 ${headingSd.toFixed(1)}`);
   setNeedle(heading);
   showMode(modeOf(msg));
   const omega = num(msg.omega);
