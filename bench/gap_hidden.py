@@ -21,7 +21,7 @@ from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import Saturation
+from hdrd.sim.effects import Saturation
 from tests.test_gap import HIDDEN, measured, rail
 
 

@@ -46,16 +46,16 @@ from hdrd.analysis.gap.noise import Noise, Whitener, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf, least_squares_bounded, minimize_simplex
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import (
+from hdrd.sim.effects import (
     Bandwidth,
     BiasInstability,
-    GyroModel,
     RateRandomWalk,
     ScaleFactor,
     TemperatureBias,
     TimeOffset,
     WarmupTransient,
 )
+from hdrd.sim.gyro import GyroModel
 from tests.gap_standins import imu_log, phone_log
 
 Row = dict[str, Any]

@@ -53,15 +53,9 @@ from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import gap_metric
 from hdrd.core.grades import Grade
 from hdrd.io.drivelog import read_drive
+from hdrd.sim.effects import Quantization, RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import (
-    DEFAULT_START_MODEL,
-    GyroModel,
-    Quantization,
-    RateRandomWalk,
-    TimeOffset,
-    WhiteNoise,
-)
+from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 from hdrd.sim.recordings import Recording, log_rate_model, point_sampled_sd
 
 SECTION = "## Model gap on the real moving drives: what the simulator lacked, before and after"

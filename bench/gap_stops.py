@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
-from hdrd.sim.gyro import Effect, MotionOffset
+from hdrd.sim.effects import Effect, MotionOffset
 from tests.test_gap_stops import STEP_DPS, UNDITHERED, gps_drive, span_drive
 
 OFFSETS = (0.05, -0.06, 0.07, -0.08, 0.09, -0.1, 0.06, -0.05)

@@ -56,8 +56,8 @@ from hdrd.core.gyronoise import GyroNoise, grade_noise
 from hdrd.core.methods import MethodSetup
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
+from hdrd.sim.effects import StaticBias, WhiteNoise
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import StaticBias, WhiteNoise
 
 SECTION = "## HDR+ across gyro grades (simulated; held-out routes)"
 CALIBRATE_S = 30.0

@@ -29,8 +29,9 @@ import numpy as np
 from hdrd.core.grades import GM_PEAK, Grade
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.effects import BiasInstability, MotionOffset, Quantization, StopOffset
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import BiasInstability, GyroModel, MotionOffset, Quantization, StopOffset
+from hdrd.sim.gyro import GyroModel
 from hdrd.sim.roads import road_drive, route_stops
 
 __all__ = ["Unit", "draw_unit", "unit_logs", "unit_model"]

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.io.drivelog import DriveLog
-from hdrd.sim.gyro import ar1
+from hdrd.sim.effects import ar1
 
 FloatArray = npt.NDArray[np.float64]
 

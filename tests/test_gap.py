@@ -40,10 +40,9 @@ from hdrd.core.allan import allan_deviation
 from hdrd.core.sensor import SensorModel
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import (
+from hdrd.sim.effects import (
     BiasInstability,
     Effect,
-    GyroModel,
     Quantization,
     RateRandomWalk,
     Saturation,
@@ -52,8 +51,8 @@ from hdrd.sim.gyro import (
     TemperatureBias,
     TimeOffset,
     WarmupTransient,
-    load_model,
 )
+from hdrd.sim.gyro import GyroModel, load_model
 
 START = DEFAULT_START_MODEL.names()
 
@@ -542,7 +541,8 @@ def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None
     from hdrd.analysis.gap.report import gyro_section
     from hdrd.config import load_config, method_setup
     from hdrd.core.gyronoise import noise_in_force
-    from hdrd.sim.gyro import BiasInstability, GyroModel, StaticBias, TemperatureBias, WhiteNoise
+    from hdrd.sim.effects import BiasInstability, StaticBias, TemperatureBias, WhiteNoise
+    from hdrd.sim.gyro import GyroModel
 
     model = GyroModel(
         (

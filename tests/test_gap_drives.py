@@ -14,8 +14,9 @@ from hdrd.analysis.gap.data import stop_interior
 from hdrd.analysis.gap.metric import GapMeasure
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
+from hdrd.sim.effects import ScaleFactor, WhiteNoise
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import GyroModel, ScaleFactor, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 
 
 def test_stop_interior_leaves_out_the_stop_edges_short_stops_and_excluded_rows() -> None:

@@ -22,7 +22,8 @@ from hdrd.analysis.gap.candidates import not_identifiable
 from hdrd.cli import main as cli_main
 from hdrd.io.drivelog import DriveLog, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import MotionOffset, load_model
+from hdrd.sim.effects import MotionOffset
+from hdrd.sim.gyro import load_model
 
 OFFSET_DPS = 0.09
 

@@ -11,7 +11,7 @@ import pytest
 from hdrd.analysis.gap import GapResult, run_gap
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import ScaleFactor, TemperatureBias
+from hdrd.sim.effects import ScaleFactor, TemperatureBias
 
 pytest.importorskip("matplotlib")
 

@@ -22,14 +22,8 @@ from hdrd.analysis.gap.metric import gap_metric
 from hdrd.analysis.gap.predict import deterministic_part
 from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
-from hdrd.sim.gyro import (
-    Effect,
-    GyroModel,
-    MotionOffset,
-    Quantization,
-    StaticBias,
-    WhiteNoise,
-)
+from hdrd.sim.effects import Effect, MotionOffset, Quantization, StaticBias, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 
 STEP_DPS = 0.573
 """A rate logged in 0.01 rad/s codes (0.573 deg/s), as the real drive that motivated this."""

@@ -17,7 +17,8 @@ import pytest
 from hdrd.cli import main as cli_main
 from hdrd.io.drivelog import read_drive
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate, generate_all
-from hdrd.sim.gyro import GyroModel, MotionOffset, StaticBias, TimeOffset, WhiteNoise
+from hdrd.sim.effects import MotionOffset, StaticBias, TimeOffset, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 from hdrd.sim.recordings import FittedErrors, errors_from, gyro_error_draws
 
 

@@ -20,7 +20,8 @@ from hdrd.analysis.prepare import PreparedDrive, prepare_drive
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.methods import MethodSetup
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate
-from hdrd.sim.gyro import GyroModel, StaticBias, WhiteNoise
+from hdrd.sim.effects import StaticBias, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 
 BIAS_DPS = 0.2
 WHITE = 0.02  # deg/s/sqrt(Hz), a CRS03-04's

@@ -95,8 +95,9 @@ def test_every_limit_admits_every_built_in_gyro_and_says_its_unit() -> None:
     from dataclasses import fields
 
     from hdrd.core.grades import GRADES
+    from hdrd.sim.effects import EFFECTS
     from hdrd.sim.grades import grade_model
-    from hdrd.sim.gyro import DEFAULT_START_MODEL, EFFECTS, crs03_default_model
+    from hdrd.sim.gyro import DEFAULT_START_MODEL, crs03_default_model
     from hdrd.sim.gyrolimits import LIMITS, limit_problem
     from hdrd.sim.recordings import RECORDINGS, log_rate_model, recording_model
 

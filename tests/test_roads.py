@@ -11,9 +11,10 @@ import pytest
 
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.sim.effects import MotionOffset, StaticBias, WhiteNoise
 from hdrd.sim.gps import GpsModel, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import GyroModel, MotionOffset, StaticBias, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 from hdrd.sim.roads import RouteError, grade_on_road, road_drive, route_stops, route_truth
 from hdrd.sim.vehicle import CabinTemperature
 

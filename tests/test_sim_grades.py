@@ -14,8 +14,9 @@ from hdrd.core.allan import allan_deviation, arw_from_adev
 from hdrd.core.grades import GRADES, Grade
 from hdrd.io.drivelog import read_drive
 from hdrd.sim import simulate_drive
+from hdrd.sim.effects import BiasInstability, StaticBias
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import BiasInstability, StaticBias, crs03_default_model
+from hdrd.sim.gyro import crs03_default_model
 from hdrd.sim.source import SimulatedSource
 
 

@@ -19,14 +19,12 @@ from hdrd.core.allan import (
     rrw_from_adev,
 )
 from hdrd.core.sensor import SensorModel
-from hdrd.sim.gyro import (
-    DEFAULT_START_MODEL,
+from hdrd.sim.effects import (
     EFFECT_NAMES,
     EFFECTS,
     STREAMS,
     Bandwidth,
     BiasInstability,
-    GyroModel,
     MotionOffset,
     Quantization,
     RateRandomWalk,
@@ -40,8 +38,12 @@ from hdrd.sim.gyro import (
     WarmupTransient,
     WhiteNoise,
     ar1,
-    crs03_default_model,
     effect_from_dict,
+)
+from hdrd.sim.gyro import (
+    DEFAULT_START_MODEL,
+    GyroModel,
+    crs03_default_model,
     load_model,
     save_model,
 )

@@ -13,9 +13,9 @@ import pytest
 from hdrd.analysis.gap import run_gap, summary
 from hdrd.core.grades import Grade
 from hdrd.sim import simulate_drive
+from hdrd.sim.effects import RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.recordings import (
     RECORDINGS,
     Recording,

@@ -13,15 +13,12 @@ from north; time s since power-on; temperature deg C.
 """
 
 from hdrd.sim.drive import simulate_drive, simulate_legs
-from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
-from hdrd.sim.gyro import (
-    DEFAULT_START_MODEL,
+from hdrd.sim.effects import (
     EFFECT_NAMES,
     EFFECTS,
     Bandwidth,
     BiasInstability,
     Effect,
-    GyroModel,
     MotionOffset,
     Quantization,
     RateRandomWalk,
@@ -33,8 +30,13 @@ from hdrd.sim.gyro import (
     TimeOffset,
     WarmupTransient,
     WhiteNoise,
-    crs03_default_model,
     effect_from_dict,
+)
+from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
+from hdrd.sim.gyro import (
+    DEFAULT_START_MODEL,
+    GyroModel,
+    crs03_default_model,
     load_model,
     save_model,
 )

@@ -14,11 +14,10 @@ import numpy as np
 
 from hdrd.core.grades import GM_PEAK, Grade
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.sim.gyro import (
+from hdrd.sim.effects import (
     Bandwidth,
     BiasInstability,
     Effect,
-    GyroModel,
     Quantization,
     RateRandomWalk,
     Saturation,
@@ -26,8 +25,8 @@ from hdrd.sim.gyro import (
     StaticBias,
     TemperatureBias,
     WhiteNoise,
-    crs03_default_model,
 )
+from hdrd.sim.gyro import GyroModel, crs03_default_model
 
 __all__ = ["grade_model", "model_noise"]
 

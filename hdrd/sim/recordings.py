@@ -42,16 +42,10 @@ from hdrd.errors import clipped
 from hdrd.io.drivelog import DriveLog
 from hdrd.io.files import printable
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.effects import Bandwidth, Quantization, RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.gps import GpsModel
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import (
-    Bandwidth,
-    GyroModel,
-    Quantization,
-    RateRandomWalk,
-    TimeOffset,
-    WhiteNoise,
-)
+from hdrd.sim.gyro import GyroModel
 
 __all__ = [
     "MAX_GAP_REPORT_BYTES",

@@ -32,9 +32,10 @@ import numpy.typing as npt
 from hdrd import __version__
 from hdrd.errors import HdrdError
 from hdrd.io.drivelog import DriveLog
+from hdrd.sim.effects import MotionOffset
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.gyro import GyroModel, MotionOffset
+from hdrd.sim.gyro import GyroModel
 from hdrd.sim.vehicle import CabinTemperature
 
 __all__ = ["RouteError", "grade_on_road", "road_drive", "route_stops", "route_truth"]

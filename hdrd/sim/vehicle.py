@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.sim.gyro import ar1
+from hdrd.sim.effects import ar1
 
 __all__ = [
     "DRIVE_TYPES",

@@ -16,10 +16,9 @@ from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, Fitter, clipping_rail
 from hdrd.analysis.gap.noise import Whitener, adev_cluster_sizes, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
 from hdrd.core.allan import gauss_markov_adev
-from hdrd.sim.gyro import (
+from hdrd.sim.effects import (
     Bandwidth,
     BiasInstability,
-    GyroModel,
     MotionOffset,
     Quantization,
     RateRandomWalk,
@@ -32,6 +31,7 @@ from hdrd.sim.gyro import (
     WarmupTransient,
     WhiteNoise,
 )
+from hdrd.sim.gyro import GyroModel
 
 __all__ = [
     "ALPHA",

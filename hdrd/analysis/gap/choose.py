@@ -19,14 +19,8 @@ from hdrd.analysis.gap.candidates import (
 from hdrd.analysis.gap.diagnose import correlation
 from hdrd.analysis.gap.fit import Fit, Fitter
 from hdrd.analysis.gap.optimize import chi2_sf
-from hdrd.sim.gyro import (
-    BiasInstability,
-    Effect,
-    GyroModel,
-    RateRandomWalk,
-    ScaleAsymmetry,
-    ScaleFactor,
-)
+from hdrd.sim.effects import BiasInstability, Effect, RateRandomWalk, ScaleAsymmetry, ScaleFactor
+from hdrd.sim.gyro import GyroModel
 
 __all__ = [
     "AMBIGUITY_BIC",

@@ -26,7 +26,8 @@ from hdrd.analysis.gap.truth import (
     truth_rate_from_heading,
 )
 from hdrd.io.drivelog import DriveLog
-from hdrd.sim.gyro import GyroModel, MotionOffset
+from hdrd.sim.effects import MotionOffset
+from hdrd.sim.gyro import GyroModel
 
 __all__ = [
     "STOP_MARGIN_S",

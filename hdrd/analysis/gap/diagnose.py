@@ -16,7 +16,7 @@ from hdrd.analysis.gap.data import GapData, moving_indicator
 from hdrd.analysis.gap.fit import Fit, clipping_rail
 from hdrd.analysis.gap.lowpass import pole, white_factor
 from hdrd.analysis.gap.metric import GapMeasure
-from hdrd.sim.gyro import Bandwidth, MotionOffset, WarmupTransient
+from hdrd.sim.effects import Bandwidth, MotionOffset, WarmupTransient
 
 __all__ = ["REGRESSOR", "correlation", "diagnostics", "regressors", "where_phrase"]
 

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.sim.gyro import Bandwidth, GyroModel, WhiteNoise
+from hdrd.sim.effects import Bandwidth, WhiteNoise
+from hdrd.sim.gyro import GyroModel
 
 __all__ = ["DITHERED", "MIN_REST_SAMPLES", "dither_sd", "expected_output", "fast_noise_sd"]
 

@@ -23,16 +23,16 @@ from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
 from hdrd.analysis.gap.predict import NOISE_EFFECTS, deterministic_part
 from hdrd.analysis.gap.white import white_levels
-from hdrd.sim.gyro import (
+from hdrd.sim.effects import (
     Bandwidth,
     BiasInstability,
-    GyroModel,
     Quantization,
     RateRandomWalk,
     Saturation,
     TemperatureBias,
     WhiteNoise,
 )
+from hdrd.sim.gyro import GyroModel
 
 __all__ = [
     "GLITCH_P",

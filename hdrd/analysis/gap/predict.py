@@ -15,7 +15,8 @@ import numpy.typing as npt
 
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.dither import DITHERED, expected_output, fast_noise_sd
-from hdrd.sim.gyro import Bandwidth, GyroModel, Quantization
+from hdrd.sim.effects import Bandwidth, Quantization
+from hdrd.sim.gyro import GyroModel
 
 __all__ = ["NOISE_EFFECTS", "deterministic_part", "signal"]
 

@@ -26,7 +26,8 @@ from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import GapMeasure, gap_metric
 from hdrd.io.drivelog import DriveLog
-from hdrd.sim.gyro import DEFAULT_START_MODEL, EFFECTS, Effect, GyroModel
+from hdrd.sim.effects import EFFECTS, Effect
+from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 
 __all__ = [
     "GAP_NOISE_SEEDS",

@@ -23,7 +23,8 @@ from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.dither import dither_sd
 from hdrd.analysis.gap.lowpass import fit_lowpass, pole, white_factor
 from hdrd.analysis.gap.predict import signal
-from hdrd.sim.gyro import Bandwidth, GyroModel
+from hdrd.sim.effects import Bandwidth
+from hdrd.sim.gyro import GyroModel
 
 __all__ = ["MIN_STOP_PAIRS", "STRAIGHT_DPS", "white_levels"]
 
