@@ -183,7 +183,7 @@ class PlusParams:
     heading_q: float = 0.0
     """A wander of the bias too fast to follow (correlation time within a couple of minutes),
     as the heading's random walk, deg^2/s."""
-    turn_err: float = 0.01
+    turn_err: float = 0.02
     """The heading error a turn adds, as a share of the angle turned (1 sigma: a scale
     factor's error)."""
     stop_gate_sigma: float = 4.0
