@@ -16,6 +16,8 @@ rounded to the CSV's decimals) and the hidden truth. Rates deg/s, + = CCW; t s; 
   white noise after the low-pass (the output stage's).
 - :func:`with_handling`: the same log with periods where someone picked the device up (large
   rates), marked ``valid`` = 0, or with those rows dropped.
+- :func:`span_drive`: a drive, not a rest: a MEMS unit in 0.01 rad/s codes beside an INS that
+  gives its rate only while moving, reading a motion offset while driving (or not: its twin).
 """
 
 from __future__ import annotations
@@ -27,7 +29,15 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.io.drivelog import DriveLog
-from hdrd.sim.gyro import ar1
+from hdrd.sim.drive import simulate_drive
+from hdrd.sim.gyro import (
+    GyroModel,
+    MotionOffset,
+    Quantization,
+    StaticBias,
+    WhiteNoise,
+    ar1,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -120,16 +130,24 @@ def phone_log(
     rrw_dps_per_sqrt_s: float = 1.5e-4,
     bias_dps: float = 0.21,
     output_sd_dps: float = 0.0,
+    cutoff_hz: float = 0.0,
+    step_dps: float = 0.0,
 ) -> tuple[DriveLog, Hidden]:
     """The phone at rest (see the module docstring). The low-pass is ``filter_order`` cascaded
     first-order sections, tuned so that neighbouring samples correlate at ``neighbour_r``
-    (without the output noise); ``output_sd_dps``: white noise after it, sd per sample (the
-    output stage's own: the shortest tau reads more than the low-passed noise alone)."""
+    (without the output noise), or, given ``cutoff_hz`` (first order only), at that cutoff
+    whatever the rate; ``output_sd_dps``: white noise after it, sd per sample (the output
+    stage's own: the shortest tau reads more than the low-passed noise alone); ``step_dps``:
+    every value rounded to that ADC step (0: float output)."""
     rng = np.random.default_rng([seed, 6])
     n = int(hours * 3600.0 * hz)
     t = np.arange(n) / hz
     # Pole a of each section: first order: rho1 = a; two equal poles: rho1 = 2a / (1 + a**2).
-    if filter_order == 1:
+    if cutoff_hz > 0.0:
+        if filter_order != 1:
+            raise ValueError("cutoff_hz is for a first-order low-pass")
+        a = math.exp(-2.0 * math.pi * cutoff_hz / hz)
+    elif filter_order == 1:
         a = neighbour_r
     elif filter_order == 2:
         a = (1.0 - math.sqrt(1.0 - neighbour_r**2)) / neighbour_r
@@ -148,6 +166,8 @@ def phone_log(
     omega = _lowpass(bias_dps + gm + rw + white, a, filter_order)
     if output_sd_dps > 0:
         omega = omega + output_sd_dps * np.random.default_rng([seed, 7]).standard_normal(n)
+    if step_dps > 0.0:
+        omega = step_dps * np.round(omega / step_dps)
     u = t / t[-1]
     temp = 27.0 + 1.6 * (1.0 - np.exp(-u / 0.15)) - 0.6 * u + 0.1 * rng.standard_normal(n)
     log = DriveLog(t=np.round(t, 4), omega=omega, temp_c=np.round(temp, 1), name=f"phone{seed}")
@@ -159,6 +179,7 @@ def phone_log(
         cutoff_hz=cutoff,
         filter_order=filter_order,
         output_sd_dps=output_sd_dps,
+        step_dps=step_dps,
     )
 
 
@@ -201,6 +222,26 @@ def with_handling(
             temp_c=None if out.temp_c is None else out.temp_c[keep],
         )
     return out
+
+
+RAD_CODE_DPS = 0.5729577951308232
+"""0.01 rad/s in deg/s: the code of the log that motivated the twin drives below."""
+
+
+def span_drive(seed: int, offset_dps: float) -> DriveLog:
+    """A MEMS unit beside an INS that gives its rate only while moving (written with 9
+    decimals, the gyro with 7): 0.01 rad/s codes, a bias of 0.05 deg/s and a noise of 0.23 deg/s
+    per 10 Hz sample that leave ~78 % of the rows at rest exactly 0; ``offset_dps`` while
+    driving (the unit) or none (its twin). 15 minutes of city driving at 10 Hz."""
+    model = GyroModel((StaticBias(0.05), WhiteNoise(0.073), Quantization(step_dps=RAD_CODE_DPS)))
+    if offset_dps:
+        model = model.with_effect(MotionOffset(offset_dps=offset_dps))
+    log = simulate_drive("city", 15.0, seed, hz=10.0, model=model)
+    assert log.omega_truth is not None and log.speed is not None
+    ins = np.where(log.speed > 0.5, np.round(log.omega_truth, 9) + 1e-9 * np.pi, np.nan)
+    return replace(
+        log, omega=np.round(log.omega, 7), omega_truth=ins, heading_truth=None, temp_c=None
+    )
 
 
 def least_squares_slope(log: DriveLog) -> float:

@@ -357,6 +357,45 @@ class Fitter:
         bic = -2.0 * lnl + k * math.log(self.data.n_used)
         return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
 
+    def standard_errors(self, fit: Fit) -> dict[str, dict[str, float]]:
+        """Standard errors of a fit's deterministic parameters (the static bias left out:
+        where a power-on puts it is no property of the unit), by effect and parameter, in
+        the parameter's units (deg/s, s, ...): the covariance of :meth:`fit_det`'s estimate,
+        linearised at the fit, under the fit's whole noise model. That estimate weighs the
+        blocks by the white part of the noise only (deterministic before stochastic); its
+        error is A n with A = (J'J)^-1 J' M_w (J the whitened Jacobian, M_w the white
+        whitening), n of covariance Sigma = (M'M)^-1 (M the full whitening, correlated noise
+        and a heading truth's error included), so Cov = Z'Z with Z = M^-T A'. A parameter
+        the data cannot determine (a singular J'J) is left out."""
+        free = _free_det(fit.model, fit.quad)
+        if not free or not any(p[0] != "static_bias" for p in free):
+            return {}
+        theta = _theta(fit.model, free)
+        cols = []
+        for i, (_, _, _, h) in enumerate(free):
+            up, dn = theta.copy(), theta.copy()
+            up[i] += h
+            dn[i] -= h
+            _, bu = self.dbar(with_params(fit.model, free, up, self.tau_bounds))
+            _, bd = self.dbar(with_params(fit.model, free, dn, self.tau_bounds))
+            cols.append((bu - bd) / (2.0 * h))
+        jac = np.stack(cols, axis=1)
+        eye = np.eye(jac.shape[0])
+        m_w = Whitener(self.data, replace(fit.noise, bi_sigma=0.0, rrw_k=0.0)).whiten(eye)
+        m_f = Whitener(self.data, fit.noise).whiten(eye)
+        jw = m_w @ jac
+        info = jw.T @ jw
+        if np.linalg.cond(info) > 1e12:
+            return {}
+        z = np.linalg.solve(m_f.T, np.linalg.solve(info, jw.T @ m_w).T)
+        var = np.einsum("ij,ij->j", z, z)
+        out: dict[str, dict[str, float]] = {}
+        for (eff, p, kind, _), th, v in zip(free, theta, var):
+            se = math.sqrt(float(v)) * (math.exp(float(th)) if kind == "log" else 1.0)
+            if eff != "static_bias" and math.isfinite(se):
+                out.setdefault(eff, {})[p] = se
+        return out
+
     def full(
         self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2
     ) -> Fit:
