@@ -14,6 +14,11 @@ rounded to the CSV's decimals) and the hidden truth. Rates deg/s, + = CCW; t s; 
   deg/s) and a rate random walk ~1.5e-4 deg/s/sqrt(s); a battery temperature that drifts by a
   degree or two and has nothing to do with the gyro; float output (no ADC lattice); optionally
   white noise after the low-pass (the output stage's).
+- :func:`phone50_log`: a phone at rest for 6 h at 50 Hz whose filter has two sections (-3 dB at
+  0.2 Hz) after its ADC (1/16.4 deg/s, dithered by the sensor's own noise: float output), a
+  bias of an Allan floor of 0.0055 deg/s and tau_c 36 s, a random walk of 1.5e-4
+  deg/s/sqrt(s): a real phone's Allan analysis; read with a one-section low-pass, hdrd gap
+  named only the low-pass and stopped at a large gap.
 - :func:`with_handling`: the same log with periods where someone picked the device up (large
   rates), marked ``valid`` = 0, or with those rows dropped.
 - :func:`span_drive`: a drive, not a rest: a MEMS unit in 0.01 rad/s codes beside an INS that
@@ -132,28 +137,29 @@ def phone_log(
     output_sd_dps: float = 0.0,
     cutoff_hz: float = 0.0,
     step_dps: float = 0.0,
+    adc_first: bool = False,
 ) -> tuple[DriveLog, Hidden]:
     """The phone at rest (see the module docstring). The low-pass is ``filter_order`` cascaded
     first-order sections, tuned so that neighbouring samples correlate at ``neighbour_r``
-    (without the output noise), or, given ``cutoff_hz`` (first order only), at that cutoff
-    whatever the rate; ``output_sd_dps``: white noise after it, sd per sample (the output
+    (without the output noise), or, given ``cutoff_hz``, with the cascade's -3 dB there; ``output_sd_dps``: white noise after it, sd per sample (the output
     stage's own: the shortest tau reads more than the low-passed noise alone); ``step_dps``:
-    every value rounded to that ADC step (0: float output)."""
+    every value rounded to that ADC step (0: float output), or with ``adc_first`` the sensor's
+    rate rounded before the low-pass (a filter after the ADC: float output)."""
     rng = np.random.default_rng([seed, 6])
     n = int(hours * 3600.0 * hz)
     t = np.arange(n) / hz
     # Pole a of each section: first order: rho1 = a; two equal poles: rho1 = 2a / (1 + a**2).
-    if cutoff_hz > 0.0:
-        if filter_order != 1:
-            raise ValueError("cutoff_hz is for a first-order low-pass")
-        a = math.exp(-2.0 * math.pi * cutoff_hz / hz)
+    if cutoff_hz > 0.0:  # each section's cutoff puts the cascade's -3 dB at cutoff_hz
+        section = cutoff_hz / math.sqrt(2.0 ** (1.0 / filter_order) - 1.0)
+        a = math.exp(-2.0 * math.pi * section / hz)
     elif filter_order == 1:
         a = neighbour_r
     elif filter_order == 2:
         a = (1.0 - math.sqrt(1.0 - neighbour_r**2)) / neighbour_r
     else:
         raise ValueError("filter_order must be 1 or 2")
-    cutoff = -math.log(a) * hz / (2.0 * math.pi)
+    # The whole filter's -3 dB (each section's for one section).
+    cutoff = -math.log(a) * hz / (2.0 * math.pi) * math.sqrt(2.0 ** (1.0 / filter_order) - 1.0)
     white = white_dps_per_rthz * math.sqrt(hz) * rng.standard_normal(n)
     ag = math.exp(-1.0 / (hz * gm_tau_s))
     gm = ar1(
@@ -163,10 +169,13 @@ def phone_log(
     )
     rw = np.cumsum(rrw_dps_per_sqrt_s * math.sqrt(1.0 / hz) * rng.standard_normal(n))
     rw -= rw[0]
-    omega = _lowpass(bias_dps + gm + rw + white, a, filter_order)
+    rate = bias_dps + gm + rw + white
+    if step_dps > 0.0 and adc_first:
+        rate = step_dps * np.round(rate / step_dps)
+    omega = _lowpass(rate, a, filter_order)
     if output_sd_dps > 0:
         omega = omega + output_sd_dps * np.random.default_rng([seed, 7]).standard_normal(n)
-    if step_dps > 0.0:
+    if step_dps > 0.0 and not adc_first:
         omega = step_dps * np.round(omega / step_dps)
     u = t / t[-1]
     temp = 27.0 + 1.6 * (1.0 - np.exp(-u / 0.15)) - 0.6 * u + 0.1 * rng.standard_normal(n)
@@ -180,6 +189,31 @@ def phone_log(
         filter_order=filter_order,
         output_sd_dps=output_sd_dps,
         step_dps=step_dps,
+    )
+
+
+PHONE_STEP_DPS = 1.0 / 16.4
+"""A +/-2000 deg/s 16-bit MEMS gyro's step (a phone's): 0.061 deg/s."""
+
+
+def phone50_log(
+    seed: int = 0, hours: float = 6.0, adc_first: bool = True
+) -> tuple[DriveLog, Hidden]:
+    """The phone at rest at 50 Hz (see the module docstring): white noise 0.015
+    deg/s/sqrt(Hz) through two low-pass sections, -3 dB at 0.2 Hz; a Gauss-Markov bias of
+    sigma 0.0055 / 0.62 deg/s (an Allan floor of 0.0055) and tau_c 36 s; a random walk of
+    1.5e-4 deg/s/sqrt(s); the ADC's 1/16.4 deg/s step before the filter (``adc_first``; else
+    after it, where the filtered noise, a fifth of a step, does not dither it)."""
+    return phone_log(
+        seed,
+        hours=hours,
+        hz=50.0,
+        filter_order=2,
+        cutoff_hz=0.2,
+        gm_sigma_dps=0.0055 / 0.62,
+        gm_tau_s=36.0,
+        step_dps=PHONE_STEP_DPS,
+        adc_first=adc_first,
     )
 
 

@@ -263,9 +263,11 @@ def _noise_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
         m = model.with_effect(RateRandomWalk(k_dps_per_sqrt_s=nz.rrw_k))
     m = f.fit_det(m, nz, cur.quad)
     first = f.finish(m, nz, cur.quad)
-    if any(s in model for s in SLOW_NOISE):
+    if any(s in model for s in SLOW_NOISE) or ("bandwidth" in model and f.rest):
         # Another slow process is in already: refit them all jointly (a random walk that
-        # took over a Gauss-Markov bias's block-to-block changes gives some back).
+        # took over a Gauss-Markov bias's block-to-block changes gives some back). A
+        # low-pass fitted at rest without this process took its power above the block
+        # frequency (a lower cutoff, more white noise): refit it and the white level too.
         return [first, f.full(first.model, quad=cur.quad, extra_var=nz.extra_var)]
     return [first]
 

@@ -18,7 +18,14 @@ import numpy.typing as npt
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lattice import on_lattice
-from hdrd.analysis.gap.lowpass import cutoff_hz, differences, fit_lowpass, pole
+from hdrd.analysis.gap.lowpass import (
+    Slow,
+    cascade_cutoff_hz,
+    differences,
+    fit_lowpass,
+    pole,
+    slow_noise,
+)
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
 from hdrd.analysis.gap.predict import NOISE_EFFECTS, deterministic_part
@@ -264,25 +271,27 @@ class Fitter:
                 model = self._lsq(model, bias, Whitener(self.data, noise))
         return model
 
-    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float]:
-        """Neighbouring differences of the unexplained residual and the ADC's white variance
-        (deg/s)**2. The slow processes' floor in the differences is left out: above the
-        block frequency it is negligible, and keeping it would make the high-frequency term
-        move with the slow noise's parameters, which the block likelihood alone should judge."""
+    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float, Slow]:
+        """Neighbouring differences of the unexplained residual, the ADC's white variance
+        (deg/s)**2 and the slow processes as the noise has them (their power above the block
+        frequency: a bias of tau_c a few blocks long has much of it there)."""
         data = self.data
         de = differences(data.omega - data.truth_filled - d, data.valid, data.time_gap)
-        return de, noise.q_step**2 / 12.0
+        slow = slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / data.fs_hz)
+        return de, noise.q_step**2 / 12.0, slow
 
     def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
         """At rest: the low-pass cutoff, and the white level after it, by the Whittle
         likelihood of the differences."""
         d, _ = self.dbar(model)
-        de, qv = self._lowpass_input(d, noise)
-        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
+        de, qv, slow = self._lowpass_input(d, noise)
+        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, slow)
         out = math.sqrt(lp.after_var / self.data.fs_hz)
         return model.with_effect(
             Bandwidth(
-                cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz), output_noise_dps_per_rthz=out
+                cutoff_hz=cascade_cutoff_hz(lp.a, lp.order, 1.0 / self.data.fs_hz),
+                output_noise_dps_per_rthz=out,
+                sections=lp.order,
             )
         )
 
@@ -293,9 +302,9 @@ class Fitter:
         bw = model.get("bandwidth")
         if not (self.rest and isinstance(bw, Bandwidth)):
             return 0.0
-        de, qv = self._lowpass_input(d, noise)
-        a = pole(bw.cutoff_hz, 1.0 / self.data.fs_hz)
-        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, 0.0, a).gain
+        de, qv, slow = self._lowpass_input(d, noise)
+        a = pole(bw.section_hz(), 1.0 / self.data.fs_hz)
+        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, slow, a, bw.sections).gain
 
     def loglik(self, model: GyroModel, noise: Noise, dbar: FloatArray) -> float:
         return Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
@@ -345,7 +354,8 @@ class Fitter:
     def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
         if "white_noise" not in model:
             return noise
-        wv, after = white_levels(self.data, d, noise.q_step, model)
+        slow = slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / self.data.fs_hz)
+        wv, after = white_levels(self.data, d, noise.q_step, model, slow)
         return replace(noise, white_var=wv, after_var=after)
 
     def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
