@@ -271,14 +271,17 @@ class Fitter:
                 model = self._lsq(model, bias, Whitener(self.data, noise))
         return model
 
+    def _slow(self, noise: Noise) -> Slow:
+        """The noise's slow processes per sample (the low-pass fit's known part)."""
+        return slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / self.data.fs_hz)
+
     def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float, Slow]:
         """Neighbouring differences of the unexplained residual, the ADC's white variance
         (deg/s)**2 and the slow processes as the noise has them (their power above the block
         frequency: a bias of tau_c a few blocks long has much of it there)."""
         data = self.data
         de = differences(data.omega - data.truth_filled - d, data.valid, data.time_gap)
-        slow = slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / data.fs_hz)
-        return de, noise.q_step**2 / 12.0, slow
+        return de, noise.q_step**2 / 12.0, self._slow(noise)
 
     def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
         """At rest: the low-pass cutoff, and the white level after it, by the Whittle
@@ -354,8 +357,7 @@ class Fitter:
     def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
         if "white_noise" not in model:
             return noise
-        slow = slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / self.data.fs_hz)
-        wv, after = white_levels(self.data, d, noise.q_step, model, slow)
+        wv, after = white_levels(self.data, d, noise.q_step, model, self._slow(noise))
         return replace(noise, white_var=wv, after_var=after)
 
     def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:

@@ -3,11 +3,11 @@ neighbouring samples, fitted by the Whittle likelihood of their spectrum. Pure.
 
 At rest the unexplained residual e (omega - truth - D, deg/s) is white noise of variance W per
 sample and slow processes (a Gauss-Markov bias g, a random walk r) seen through the sensor's
-first-order low-pass y[k] = a y[k-1] + (1 - a) x[k] (a = exp(-2 pi f_c dt), the simulator's
-``bandwidth``), plus a white level s**2 after it. First differences within contiguous valid
-runs have the spectrum
+low-pass, n equal sections y[k] = a y[k-1] + (1 - a) x[k] (the simulator's ``bandwidth`` with
+``sections`` n; for one, a = exp(-2 pi f_c dt)), plus a white level s**2 after it. First
+differences within contiguous valid runs have the spectrum
 
-    S(w) = H(w) [(2 - 2 cos w) (W + G(w)) + R] + (2 - 2 cos w) s**2,
+    S(w) = H(w)**n [(2 - 2 cos w) (W + G(w)) + R] + (2 - 2 cos w) s**2,
     H(w) = (1 - a)**2 / (1 - 2 a cos w + a**2),  G(w) = sigma**2 (1 - p**2) / (1 - 2 p cos w + p**2)
 
 per sample (w in rad per sample; p = exp(-dt / tau_c) and sigma the Gauss-Markov bias's, R =
@@ -15,7 +15,7 @@ K**2 dt the walk's variance per step), s**2 the white noise after the low-pass (
 q**2/12, or more), fitted; the slow processes' part is known (:class:`Slow`, from the block
 likelihood's fit). A bias of tau_c a few blocks long still has much of its power above the
 block frequency: left out, it pulled the cutoff down and the white noise up (a phone's bias of
-tau_c 10 s under a white noise of 0.004 deg/s/sqrt(Hz): 0.07 Hz for 0.2, 2.8x the noise). The
+tau_c 20 s under a white noise of 0.004 deg/s/sqrt(Hz): 0.11 Hz for 0.2, 1.8x the noise). The
 Whittle log-likelihood ln L = -sum_k [ln S(w_k) + I_k / S(w_k)] over the periodogram I_k of
 the differences is the Gaussian one to O(1) for a long series; it is summed over narrow
 frequency bins (the spectrum is smooth across each), from the block frequency up: below it
@@ -76,8 +76,8 @@ def cutoff_hz(a: float, dt_s: float) -> float:
 ORDERS = (1, 2)
 """Equal first-order sections of the low-pass tried (the simulator's ``bandwidth`` with that
 many ``sections``): the differences' spectrum of two peaks at the cutoff and falls beyond it,
-which one section cannot draw (fitted with one, a phone's second-order filter at 0.2 Hz ran
-the pole to its bound and the white noise to 40x)."""
+which one section cannot draw (fitted with one, a phone's filter of two sections at 0.2 Hz
+ran the pole to its bound and the white noise to 4x at 50 Hz, 40x at 10 Hz)."""
 
 
 def noise_share(a: float, order: int) -> float:
