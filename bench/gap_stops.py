@@ -32,7 +32,8 @@ from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
 from hdrd.sim.effects import Effect, MotionOffset
-from tests.test_gap_stops import STEP_DPS, UNDITHERED, gps_drive, span_drive
+from tests.gap_standins import span_drive
+from tests.test_gap_stops import STEP_DPS, UNDITHERED, gps_drive
 
 OFFSETS = (0.05, -0.06, 0.07, -0.08, 0.09, -0.1, 0.06, -0.05)
 """The hidden motion offsets, deg/s, one per seed (cycled)."""

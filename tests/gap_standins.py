@@ -14,8 +14,15 @@ rounded to the CSV's decimals) and the hidden truth. Rates deg/s, + = CCW; t s; 
   deg/s) and a rate random walk ~1.5e-4 deg/s/sqrt(s); a battery temperature that drifts by a
   degree or two and has nothing to do with the gyro; float output (no ADC lattice); optionally
   white noise after the low-pass (the output stage's).
+- :func:`phone50_log`: a phone at rest for 6 h at 50 Hz whose filter has two sections (-3 dB at
+  0.2 Hz) after its ADC (1/16.4 deg/s, dithered by the sensor's own noise: float output), a
+  bias of an Allan floor of 0.0055 deg/s and tau_c 36 s, a random walk of 1.5e-4
+  deg/s/sqrt(s): a real phone's Allan analysis; read with a one-section low-pass, hdrd gap
+  named only the low-pass and stopped at a large gap.
 - :func:`with_handling`: the same log with periods where someone picked the device up (large
   rates), marked ``valid`` = 0, or with those rows dropped.
+- :func:`span_drive`: a drive, not a rest: a MEMS unit in 0.01 rad/s codes beside an INS that
+  gives its rate only while moving, reading a motion offset while driving (or not: its twin).
 """
 
 from __future__ import annotations
@@ -27,7 +34,9 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.io.drivelog import DriveLog
-from hdrd.sim.effects import ar1
+from hdrd.sim.drive import simulate_drive
+from hdrd.sim.effects import MotionOffset, Quantization, StaticBias, WhiteNoise, ar1
+from hdrd.sim.gyro import GyroModel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -120,22 +129,31 @@ def phone_log(
     rrw_dps_per_sqrt_s: float = 1.5e-4,
     bias_dps: float = 0.21,
     output_sd_dps: float = 0.0,
+    cutoff_hz: float = 0.0,
+    step_dps: float = 0.0,
+    adc_first: bool = False,
 ) -> tuple[DriveLog, Hidden]:
     """The phone at rest (see the module docstring). The low-pass is ``filter_order`` cascaded
     first-order sections, tuned so that neighbouring samples correlate at ``neighbour_r``
-    (without the output noise); ``output_sd_dps``: white noise after it, sd per sample (the
-    output stage's own: the shortest tau reads more than the low-passed noise alone)."""
+    (without the output noise), or, given ``cutoff_hz``, with the cascade's -3 dB there; ``output_sd_dps``: white noise after it, sd per sample (the output
+    stage's own: the shortest tau reads more than the low-passed noise alone); ``step_dps``:
+    every value rounded to that ADC step (0: float output), or with ``adc_first`` the sensor's
+    rate rounded before the low-pass (a filter after the ADC: float output)."""
     rng = np.random.default_rng([seed, 6])
     n = int(hours * 3600.0 * hz)
     t = np.arange(n) / hz
     # Pole a of each section: first order: rho1 = a; two equal poles: rho1 = 2a / (1 + a**2).
-    if filter_order == 1:
+    if cutoff_hz > 0.0:  # each section's cutoff puts the cascade's -3 dB at cutoff_hz
+        section = cutoff_hz / math.sqrt(2.0 ** (1.0 / filter_order) - 1.0)
+        a = math.exp(-2.0 * math.pi * section / hz)
+    elif filter_order == 1:
         a = neighbour_r
     elif filter_order == 2:
         a = (1.0 - math.sqrt(1.0 - neighbour_r**2)) / neighbour_r
     else:
         raise ValueError("filter_order must be 1 or 2")
-    cutoff = -math.log(a) * hz / (2.0 * math.pi)
+    # The whole filter's -3 dB (each section's for one section).
+    cutoff = -math.log(a) * hz / (2.0 * math.pi) * math.sqrt(2.0 ** (1.0 / filter_order) - 1.0)
     white = white_dps_per_rthz * math.sqrt(hz) * rng.standard_normal(n)
     ag = math.exp(-1.0 / (hz * gm_tau_s))
     gm = ar1(
@@ -145,9 +163,14 @@ def phone_log(
     )
     rw = np.cumsum(rrw_dps_per_sqrt_s * math.sqrt(1.0 / hz) * rng.standard_normal(n))
     rw -= rw[0]
-    omega = _lowpass(bias_dps + gm + rw + white, a, filter_order)
+    rate = bias_dps + gm + rw + white
+    if step_dps > 0.0 and adc_first:
+        rate = step_dps * np.round(rate / step_dps)
+    omega = _lowpass(rate, a, filter_order)
     if output_sd_dps > 0:
         omega = omega + output_sd_dps * np.random.default_rng([seed, 7]).standard_normal(n)
+    if step_dps > 0.0 and not adc_first:
+        omega = step_dps * np.round(omega / step_dps)
     u = t / t[-1]
     temp = 27.0 + 1.6 * (1.0 - np.exp(-u / 0.15)) - 0.6 * u + 0.1 * rng.standard_normal(n)
     log = DriveLog(t=np.round(t, 4), omega=omega, temp_c=np.round(temp, 1), name=f"phone{seed}")
@@ -159,6 +182,32 @@ def phone_log(
         cutoff_hz=cutoff,
         filter_order=filter_order,
         output_sd_dps=output_sd_dps,
+        step_dps=step_dps,
+    )
+
+
+PHONE_STEP_DPS = 1.0 / 16.4
+"""A +/-2000 deg/s 16-bit MEMS gyro's step (a phone's): 0.061 deg/s."""
+
+
+def phone50_log(
+    seed: int = 0, hours: float = 6.0, adc_first: bool = True
+) -> tuple[DriveLog, Hidden]:
+    """The phone at rest at 50 Hz (see the module docstring): white noise 0.015
+    deg/s/sqrt(Hz) through two low-pass sections, -3 dB at 0.2 Hz; a Gauss-Markov bias of
+    sigma 0.0055 / 0.62 deg/s (an Allan floor of 0.0055) and tau_c 36 s; a random walk of
+    1.5e-4 deg/s/sqrt(s); the ADC's 1/16.4 deg/s step before the filter (``adc_first``; else
+    after it, where the filtered noise, a fifth of a step, does not dither it)."""
+    return phone_log(
+        seed,
+        hours=hours,
+        hz=50.0,
+        filter_order=2,
+        cutoff_hz=0.2,
+        gm_sigma_dps=0.0055 / 0.62,
+        gm_tau_s=36.0,
+        step_dps=PHONE_STEP_DPS,
+        adc_first=adc_first,
     )
 
 
@@ -201,6 +250,26 @@ def with_handling(
             temp_c=None if out.temp_c is None else out.temp_c[keep],
         )
     return out
+
+
+RAD_CODE_DPS = 0.5729577951308232
+"""0.01 rad/s in deg/s: the code of the log that motivated the twin drives below."""
+
+
+def span_drive(seed: int, offset_dps: float) -> DriveLog:
+    """A MEMS unit beside an INS that gives its rate only while moving (written with 9
+    decimals, the gyro with 7): 0.01 rad/s codes, a bias of 0.05 deg/s and a noise of 0.23 deg/s
+    per 10 Hz sample that leave ~78 % of the rows at rest exactly 0; ``offset_dps`` while
+    driving (the unit) or none (its twin). 15 minutes of city driving at 10 Hz."""
+    model = GyroModel((StaticBias(0.05), WhiteNoise(0.073), Quantization(step_dps=RAD_CODE_DPS)))
+    if offset_dps:
+        model = model.with_effect(MotionOffset(offset_dps=offset_dps))
+    log = simulate_drive("city", 15.0, seed, hz=10.0, model=model)
+    assert log.omega_truth is not None and log.speed is not None
+    ins = np.where(log.speed > 0.5, np.round(log.omega_truth, 9) + 1e-9 * np.pi, np.nan)
+    return replace(
+        log, omega=np.round(log.omega, 7), omega_truth=ins, heading_truth=None, temp_c=None
+    )
 
 
 def least_squares_slope(log: DriveLog) -> float:

@@ -13,9 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from hdrd.analysis.gap import GapResult, run_gap, summary, to_report
+from hdrd.analysis.gap.report import gyro_section
 from hdrd.cli import main as cli_main
+from hdrd.core.gyronoise import GyroNoise
 from hdrd.io.drivelog import DriveLog, write_drive
 from hdrd.sim.effects import Bandwidth, BiasInstability, RateRandomWalk, TemperatureBias, WhiteNoise
 from hdrd.sim.gyro import DEFAULT_START_MODEL
@@ -24,6 +27,7 @@ from tests.gap_standins import (
     handling_periods,
     imu_log,
     least_squares_slope,
+    phone50_log,
     phone_log,
     with_handling,
 )
@@ -156,6 +160,51 @@ def test_phone_noise_after_its_low_pass_is_in_the_model() -> None:
     assert res.final_sim.gap <= 0.3, summary(res)
     ratio = res.final_sim.adev_meas[0] / res.final_sim.adev_sim[0]
     assert 0.8 < ratio < 1.25, summary(res)
+
+
+# -- the phone at 50 Hz, its filter of two sections: the low-pass, then the slow noise ---------
+
+
+@pytest.fixture(scope="module")
+def phone50() -> tuple[DriveLog, GapResult]:
+    log, _ = phone50_log(seed=3)
+    return log, run_gap(log, standstill=True)
+
+
+@pytest.mark.slow  # a whole model-gap search on 6 hours at 50 Hz
+def test_phone_filter_of_two_sections_then_its_slow_noise(
+    phone50: tuple[DriveLog, GapResult],
+) -> None:
+    """A real phone's log like this one named only a 0.035 Hz low-pass and stopped at a gap of
+    0.55: a low-pass of one section cannot draw a filter of two, its pole ran to its bound
+    and its white noise to 4x, which then hid the bias instability and the random walk in
+    the blocks. Now: the low-pass with its two sections at 0.2 Hz, the white noise at its
+    input, the bias instability (its Allan floor and tau_c) and the random walk near what
+    went in, the gap at the level of a correct model; the profile holds them."""
+    _, res = phone50
+    names = set(res.final_model.names())
+    assert not names & (NOT_AT_REST | {"warmup_transient", "quantization"}), summary(res)
+    bw = res.final_model.get("bandwidth")
+    assert isinstance(bw, Bandwidth) and bw.sections == 2, summary(res)
+    assert bw.cutoff_hz == pytest.approx(0.2, rel=0.15), summary(res)
+    wn = res.final_model.get("white_noise")
+    assert isinstance(wn, WhiteNoise)
+    assert wn.density_dps_per_rthz == pytest.approx(0.015, rel=0.15), summary(res)
+    bi = res.final_model.get("bias_instability")
+    assert isinstance(bi, BiasInstability), summary(res)
+    assert 0.62 * bi.sigma_dps == pytest.approx(0.0055, rel=0.25), summary(res)
+    assert 18.0 <= bi.tau_s <= 72.0, summary(res)
+    rw = res.final_model.get("rate_random_walk")
+    assert isinstance(rw, RateRandomWalk), summary(res)
+    assert rw.k_dps_per_sqrt_s == pytest.approx(1.5e-4, rel=0.5), summary(res)
+    assert res.final_sim.gap <= 0.3, summary(res)
+    gaps_never_rise(res)
+    no_contradiction(res)
+    doc = yaml.safe_load(gyro_section(res.final_model, "phone", to_report(res)))
+    noise = GyroNoise.from_mapping(doc["gyro"])
+    assert noise.bias_instability_dps == pytest.approx(0.0055, rel=0.25)
+    assert noise.rrw_dps_per_sqrt_s == pytest.approx(1.5e-4, rel=0.5)
+    assert noise.white_dps_per_rthz == pytest.approx(0.015, rel=0.15)
 
 
 # -- handling periods ---------------------------------------------------------------------------

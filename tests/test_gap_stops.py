@@ -24,6 +24,7 @@ from hdrd.io.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import Effect, MotionOffset, Quantization, StaticBias, WhiteNoise
 from hdrd.sim.gyro import GyroModel
+from tests.gap_standins import span_drive
 
 STEP_DPS = 0.573
 """A rate logged in 0.01 rad/s codes (0.573 deg/s), as the real drive that motivated this."""
@@ -42,26 +43,6 @@ def gps_drive(seed: int, hidden: tuple[Effect, ...] = (), minutes: float = 12.0)
         model = model.with_effect(e)
     log = simulate_drive("city", minutes, seed, hz=10.0, model=model)
     return replace(log, omega_truth=None, name=f"city{seed}")
-
-
-RAD_CODE_DPS = 0.5729577951308232
-"""0.01 rad/s in deg/s: the code of the log that motivated the twin drives below."""
-
-
-def span_drive(seed: int, offset_dps: float) -> DriveLog:
-    """A MEMS unit beside an INS that gives its rate only while moving (written with 9
-    decimals, the gyro with 7): 0.01 rad/s codes, a bias of 0.05 deg/s and a noise of 0.23 deg/s
-    per 10 Hz sample that leave ~78 % of the rows at rest exactly 0; ``offset_dps`` while
-    driving (the unit) or none (its twin)."""
-    model = GyroModel((StaticBias(0.05), WhiteNoise(0.073), Quantization(step_dps=RAD_CODE_DPS)))
-    if offset_dps:
-        model = model.with_effect(MotionOffset(offset_dps=offset_dps))
-    log = simulate_drive("city", 15.0, seed, hz=10.0, model=model)
-    assert log.omega_truth is not None and log.speed is not None
-    ins = np.where(log.speed > 0.5, np.round(log.omega_truth, 9) + 1e-9 * np.pi, np.nan)
-    return replace(
-        log, omega=np.round(log.omega, 7), omega_truth=ins, heading_truth=None, temp_c=None
-    )
 
 
 def test_a_stop_is_truth_with_a_gps_course() -> None:

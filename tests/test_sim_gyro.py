@@ -224,6 +224,24 @@ def test_bandwidth_step_response_and_dc_gain() -> None:
     assert out[-1] == pytest.approx(1.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("sections", [1, 2, 3])
+def test_bandwidth_sections_are_3_db_down_at_the_cutoff(sections: int) -> None:
+    """Equal first-order sections, each at the cutoff that puts the whole filter 3 dB down at
+    cutoff_hz; unit gain at DC; written to a model file only when more than one."""
+    fs, fc = 100.0, 2.0
+    t = np.arange(0.0, 60.0, 1.0 / fs)
+    bw = Bandwidth(fc, sections=sections)
+    for f, want in ((fc, 1.0 / math.sqrt(2.0)), (0.0, 1.0)):
+        x = np.cos(2.0 * math.pi * f * t)
+        out = _run(GyroModel((bw,)), x, fs=fs)[len(t) // 2 :]
+        assert float(np.max(np.abs(out))) == pytest.approx(want, rel=0.01)
+    d = GyroModel((bw,)).to_dict()["effects"][0]
+    assert ("sections" in d) == (sections > 1)
+    assert GyroModel.from_dict({"effects": [d]}) == GyroModel((bw,))
+    with pytest.raises(ValueError, match="sections"):
+        Bandwidth(fc, sections=5)
+
+
 def test_ar1_matches_a_plain_loop_on_irregular_steps() -> None:
     rng = np.random.default_rng(5)
     dt = rng.uniform(0.01, 3.0, 3000)

@@ -158,7 +158,9 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
             from hdrd.analysis.gap.report import gyro_section
             from hdrd.io.files import atomic_write_text, shown_path
 
-            atomic_write_text(gyro_out, gyro_section(res.model, shown_path(measured[0])))
+            atomic_write_text(
+                gyro_out, gyro_section(res.model, shown_path(measured[0]), res.report)
+            )
     except OSError as e:
         _err(f"cannot write: {e.strerror or e}" + (f" ({e.filename})" if e.filename else ""))
         return 1

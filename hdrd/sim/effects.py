@@ -398,34 +398,53 @@ class WhiteNoise(Effect):
 
 @dataclass(frozen=True)
 class Bandwidth(Effect):
-    """First-order low-pass of the sensor's output, cutoff_hz (Hz, -3 dB; CRS03-04: 10 Hz).
-    Exact for a rate held over each sample step: y[k] = a y[k-1] + (1 - a) x[k],
-    a = exp(-2 pi cutoff dt); starts settled (y[0] = x[0]). Optional
-    output_noise_dps_per_rthz (deg/s/sqrt(Hz), default 0): white noise added after the
-    low-pass (the output stage's and the ADC's own), sample sd N_out / sqrt(dt): what the
-    low-pass leaves of the sensor's noise at high frequency is not all there is."""
+    """Low-pass of the sensor's output, cutoff_hz (Hz, -3 dB; CRS03-04: 10 Hz): ``sections``
+    equal first-order sections (default 1; 1 .. 4), each exact for a rate held over each
+    sample step: y[k] = a y[k-1] + (1 - a) x[k], a = exp(-2 pi f_s dt), f_s = cutoff /
+    sqrt(2**(1/sections) - 1) so that the whole filter is 3 dB down at cutoff_hz; starts
+    settled (y[0] = x[0]). Optional output_noise_dps_per_rthz (deg/s/sqrt(Hz), default 0):
+    white noise added after the low-pass (the output stage's and the ADC's own), sample sd
+    N_out / sqrt(dt): what the low-pass leaves of the sensor's noise at high frequency is not
+    all there is."""
 
     name: ClassVar[str] = "bandwidth"
     order: ClassVar[int] = 10
     cutoff_hz: float = 10.0
     output_noise_dps_per_rthz: float = 0.0
+    sections: int = 1
 
     def __post_init__(self) -> None:
         _positive(self.name, "cutoff_hz", self.cutoff_hz)
         _nonneg(self.name, "output_noise_dps_per_rthz", self.output_noise_dps_per_rthz)
+        n = self.sections
+        if isinstance(n, bool) or not isinstance(n, (int, float)) or n not in (1, 2, 3, 4):
+            raise ValueError(f"{self.name}.sections: {n!r} must be 1, 2, 3 or 4")
+        object.__setattr__(self, "sections", int(n))
 
     def params(self) -> dict[str, float]:
-        """The parameters; the output noise only when there is one (a model written before it
-        existed reads and writes back the same)."""
+        """The parameters; the output noise only when there is one, the sections only when
+        more than one (a model written before they existed reads and writes back the same)."""
         out = super().params()
         if self.output_noise_dps_per_rthz == 0.0:
             del out["output_noise_dps_per_rthz"]
+        if self.sections == 1:
+            del out["sections"]
+        else:
+            out["sections"] = self.sections
         return out
 
+    def section_hz(self) -> float:
+        """Each section's cutoff, Hz (the cutoff itself for one section)."""
+        if self.sections == 1:
+            return self.cutoff_hz
+        return self.cutoff_hz / math.sqrt(2.0 ** (1.0 / self.sections) - 1.0)
+
     def apply(self, x: FloatArray, ctx: Context) -> FloatArray:
-        decay = 2.0 * math.pi * self.cutoff_hz * ctx.dt
+        decay = 2.0 * math.pi * self.section_hz() * ctx.dt
         a = np.exp(-np.minimum(decay, _STEP_CAP))
-        y = ar1(decay, (1.0 - a) * x, float(x[0]))
+        y = x
+        for _ in range(self.sections):
+            y = ar1(decay, (1.0 - a) * y, float(y[0]))
         if self.output_noise_dps_per_rthz > 0.0:
             sd = self.output_noise_dps_per_rthz / np.sqrt(ctx.dt)
             y = y + sd * ctx.rng.standard_normal((x.shape[0],))
@@ -520,7 +539,13 @@ def param_names(cls: type[Effect]) -> list[str]:
 
 def _required(cls: type[Effect]) -> list[str]:
     # Every parameter is required in a file except the documented optional ones.
-    optional = {"quad_dps_per_c2", "moving_mps", "coeff_dps_per_mps", "output_noise_dps_per_rthz"}
+    optional = {
+        "quad_dps_per_c2",
+        "moving_mps",
+        "coeff_dps_per_mps",
+        "output_noise_dps_per_rthz",
+        "sections",
+    }
     return [p for p in param_names(cls) if p not in optional]
 
 

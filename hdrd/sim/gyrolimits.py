@@ -40,6 +40,7 @@ LIMITS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("white_noise", "density_dps_per_rthz"): (0.0, 1.0, "deg/s/sqrt(Hz)"),
     ("bandwidth", "cutoff_hz"): (1e-6, 1e5, "Hz"),
     ("bandwidth", "output_noise_dps_per_rthz"): (0.0, 1.0, "deg/s/sqrt(Hz)"),
+    ("bandwidth", "sections"): (1.0, 4.0, "equal first-order sections"),
     ("saturation", "limit_dps"): (1.0, 10000.0, "deg/s"),
     ("quantization", "step_dps"): (1e-9, 10.0, "deg/s"),
 }

@@ -10,6 +10,7 @@ import numpy as np
 
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lowpass import A_MAX, A_MIN, cutoff_hz
+from hdrd.sim.effects import Bandwidth
 from hdrd.sim.gyro import GyroModel
 
 __all__ = [
@@ -62,7 +63,7 @@ def param_bounds(data: GapData) -> dict[tuple[str, str], tuple[float, float, str
         ("bandwidth", "cutoff_hz"): (
             cutoff_hz(A_MAX, dt),
             cutoff_hz(A_MIN, dt),
-            "a time constant of 1000 samples .. 1.1 x the sample rate",
+            "a time constant of 1000 samples .. 1.1 x the sample rate (each section's)",
         ),
     }
 
@@ -76,8 +77,10 @@ def params_at_bounds(model: GyroModel, data: GapData) -> list[dict[str, Any]]:
         if e is None:
             continue
         v = float(getattr(e, p))
+        # A low-pass of several sections is bounded by its sections' pole.
+        at = e.section_hz() if isinstance(e, Bandwidth) else v
         for side, lim in (("lower", lo), ("upper", hi)):
-            if math.isfinite(lim) and abs(v - lim) <= 0.005 * max(abs(lim), 1e-12):
+            if math.isfinite(lim) and abs(at - lim) <= 0.005 * max(abs(lim), 1e-12):
                 out.append(
                     {
                         "effect": eff,

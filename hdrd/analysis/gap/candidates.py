@@ -13,6 +13,7 @@ import numpy.typing as npt
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, at_rest
 from hdrd.analysis.gap.data import GapData, moving_indicator
 from hdrd.analysis.gap.fit import NOISE_EFFECTS, Fit, Fitter, clipping_rail
+from hdrd.analysis.gap.lowpass import noise_share, pole
 from hdrd.analysis.gap.noise import Whitener, adev_cluster_sizes, allan_deviation_masked
 from hdrd.analysis.gap.optimize import chi2_sf
 from hdrd.core.allan import gauss_markov_adev
@@ -227,7 +228,8 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
     """Fitted models of the current model plus effect ``name`` (one per variant)."""
     if name == "bandwidth":  # the cutoff is fitted by Fitter.full (at rest)
         m = cur.model.with_effect(Bandwidth(cutoff_hz=0.25 * f.data.fs_hz))
-        return [f.full(m, quad=cur.quad, extra_var=cur.noise.extra_var)]
+        fit = f.full(m, quad=cur.quad, extra_var=cur.noise.extra_var)
+        return [fit if _passes_noise(fit, f.data.fs_hz) else cur]
     if name in NOISE_EFFECTS:
         return _noise_fits(f, cur, name)
     fits: list[Fit] = []
@@ -235,6 +237,24 @@ def _candidate_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
         m = f.fit_det(m, cur.noise, quad)
         fits.append(f.finish(m, cur.noise, quad))
     return fits
+
+
+MIN_LOWPASS_SHARE = 0.05
+"""A low-pass through which less than this share of the fast noise passes (the rest is white
+noise after it) is no low-pass: its output noise is the white noise already in the model, and
+its shape only follows small departures from whiteness (an ADC's; an IMU at 10 Hz got two
+sections at 0.004 Hz carrying nothing)."""
+
+
+def _passes_noise(fit: Fit, fs_hz: float) -> bool:
+    """Whether the fitted low-pass carries at least :data:`MIN_LOWPASS_SHARE` of the noise
+    after it (per-sample variances)."""
+    bw = fit.model.get("bandwidth")
+    if not isinstance(bw, Bandwidth):
+        return False
+    a = pole(bw.section_hz(), 1.0 / fs_hz)
+    passed = fit.noise.white_var * noise_share(a, bw.sections)
+    return passed >= MIN_LOWPASS_SHARE * (passed + fit.noise.after_var)
 
 
 def _noise_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
@@ -263,9 +283,11 @@ def _noise_fits(f: Fitter, cur: Fit, name: str) -> list[Fit]:
         m = model.with_effect(RateRandomWalk(k_dps_per_sqrt_s=nz.rrw_k))
     m = f.fit_det(m, nz, cur.quad)
     first = f.finish(m, nz, cur.quad)
-    if any(s in model for s in SLOW_NOISE):
+    if any(s in model for s in SLOW_NOISE) or ("bandwidth" in model and f.rest):
         # Another slow process is in already: refit them all jointly (a random walk that
-        # took over a Gauss-Markov bias's block-to-block changes gives some back).
+        # took over a Gauss-Markov bias's block-to-block changes gives some back). A
+        # low-pass fitted at rest without this process took its power above the block
+        # frequency (a lower cutoff, more white noise): refit it and the white level too.
         return [first, f.full(first.model, quad=cur.quad, extra_var=nz.extra_var)]
     return [first]
 

@@ -258,11 +258,12 @@ def _bandwidth_lead(data: GapData, cand: Candidate, allan: str) -> str:
     bw = cand.fit.model.get("bandwidth")
     if not isinstance(bw, Bandwidth):
         return allan
-    a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
+    a = pole(bw.section_hz(), 1.0 / data.fs_hz)
+    kind = "" if bw.sections == 1 else f"{bw.sections} sections "
     return (
-        f"{allan}; neighbouring samples correlate (a low-pass at {bw.cutoff_hz:.3g} Hz: "
-        f"the white noise is {math.sqrt(white_factor(a)):.3g}x what their differences "
-        "alone suggest)"
+        f"{allan}; neighbouring samples correlate (a low-pass of {kind}at {bw.cutoff_hz:.3g} Hz: "
+        f"the white noise is {math.sqrt(white_factor(a, bw.sections)):.3g}x what their "
+        "differences alone suggest)"
     )
 
 

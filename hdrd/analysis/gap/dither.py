@@ -51,8 +51,10 @@ def fast_noise_sd(model: GyroModel, fs_hz: float) -> float:
     var = float(white.density_dps_per_rthz) ** 2 * fs_hz if isinstance(white, WhiteNoise) else 0.0
     bw = model.get("bandwidth")
     if isinstance(bw, Bandwidth):
-        a = math.exp(-2.0 * math.pi * bw.cutoff_hz / fs_hz)
-        var = var * (1.0 - a) / (1.0 + a) + bw.output_noise_dps_per_rthz**2 * fs_hz
+        from hdrd.analysis.gap.lowpass import noise_share
+
+        a = math.exp(-2.0 * math.pi * bw.section_hz() / fs_hz)
+        var = var * noise_share(a, bw.sections) + bw.output_noise_dps_per_rthz**2 * fs_hz
     return math.sqrt(var)
 
 

@@ -18,7 +18,14 @@ import numpy.typing as npt
 from hdrd.analysis.gap.bounds import DELAY_MAX_S, GAIN_MIN, at_rest, param_bounds
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.lattice import on_lattice
-from hdrd.analysis.gap.lowpass import cutoff_hz, differences, fit_lowpass, pole
+from hdrd.analysis.gap.lowpass import (
+    Slow,
+    cascade_cutoff_hz,
+    differences,
+    fit_lowpass,
+    pole,
+    slow_noise,
+)
 from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.analysis.gap.optimize import least_squares_bounded, minimize_simplex
 from hdrd.analysis.gap.predict import NOISE_EFFECTS, deterministic_part
@@ -264,25 +271,30 @@ class Fitter:
                 model = self._lsq(model, bias, Whitener(self.data, noise))
         return model
 
-    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float]:
-        """Neighbouring differences of the unexplained residual and the ADC's white variance
-        (deg/s)**2. The slow processes' floor in the differences is left out: above the
-        block frequency it is negligible, and keeping it would make the high-frequency term
-        move with the slow noise's parameters, which the block likelihood alone should judge."""
+    def _slow(self, noise: Noise) -> Slow:
+        """The noise's slow processes per sample (the low-pass fit's known part)."""
+        return slow_noise(noise.bi_sigma, noise.bi_tau, noise.rrw_k, 1.0 / self.data.fs_hz)
+
+    def _lowpass_input(self, d: FloatArray, noise: Noise) -> tuple[FloatArray, float, Slow]:
+        """Neighbouring differences of the unexplained residual, the ADC's white variance
+        (deg/s)**2 and the slow processes as the noise has them (their power above the block
+        frequency: a bias of tau_c a few blocks long has much of it there)."""
         data = self.data
         de = differences(data.omega - data.truth_filled - d, data.valid, data.time_gap)
-        return de, noise.q_step**2 / 12.0
+        return de, noise.q_step**2 / 12.0, self._slow(noise)
 
     def fit_bandwidth(self, model: GyroModel, noise: Noise) -> GyroModel:
         """At rest: the low-pass cutoff, and the white level after it, by the Whittle
         likelihood of the differences."""
         d, _ = self.dbar(model)
-        de, qv = self._lowpass_input(d, noise)
-        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv)
+        de, qv, slow = self._lowpass_input(d, noise)
+        lp = fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, slow)
         out = math.sqrt(lp.after_var / self.data.fs_hz)
         return model.with_effect(
             Bandwidth(
-                cutoff_hz=cutoff_hz(lp.a, 1.0 / self.data.fs_hz), output_noise_dps_per_rthz=out
+                cutoff_hz=cascade_cutoff_hz(lp.a, lp.order, 1.0 / self.data.fs_hz),
+                output_noise_dps_per_rthz=out,
+                sections=lp.order,
             )
         )
 
@@ -293,9 +305,9 @@ class Fitter:
         bw = model.get("bandwidth")
         if not (self.rest and isinstance(bw, Bandwidth)):
             return 0.0
-        de, qv = self._lowpass_input(d, noise)
-        a = pole(bw.cutoff_hz, 1.0 / self.data.fs_hz)
-        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, 0.0, a).gain
+        de, qv, slow = self._lowpass_input(d, noise)
+        a = pole(bw.section_hz(), 1.0 / self.data.fs_hz)
+        return fit_lowpass(de, self.data.block_s * self.data.fs_hz, qv, slow, a, bw.sections).gain
 
     def loglik(self, model: GyroModel, noise: Noise, dbar: FloatArray) -> float:
         return Whitener(self.data, noise).loglik(self.ebar - dbar) + _lattice_loglik(
@@ -345,7 +357,7 @@ class Fitter:
     def _white(self, model: GyroModel, d: FloatArray, noise: Noise) -> Noise:
         if "white_noise" not in model:
             return noise
-        wv, after = white_levels(self.data, d, noise.q_step, model)
+        wv, after = white_levels(self.data, d, noise.q_step, model, self._slow(noise))
         return replace(noise, white_var=wv, after_var=after)
 
     def finish(self, model: GyroModel, noise: Noise, quad: bool) -> Fit:
@@ -356,6 +368,45 @@ class Fitter:
         k = _count_params(full, len(_free_det(full, quad)), self.data)
         bic = -2.0 * lnl + k * math.log(self.data.n_used)
         return Fit(model=full, lnl=lnl, k=k, bic=bic, d=d, dbar=db, noise=noise, quad=quad)
+
+    def standard_errors(self, fit: Fit) -> dict[str, dict[str, float]]:
+        """Standard errors of a fit's deterministic parameters (the static bias left out:
+        where a power-on puts it is no property of the unit), by effect and parameter, in
+        the parameter's units (deg/s, s, ...): the covariance of :meth:`fit_det`'s estimate,
+        linearised at the fit, under the fit's whole noise model. That estimate weighs the
+        blocks by the white part of the noise only (deterministic before stochastic); its
+        error is A n with A = (J'J)^-1 J' M_w (J the whitened Jacobian, M_w the white
+        whitening), n of covariance Sigma = (M'M)^-1 (M the full whitening, correlated noise
+        and a heading truth's error included), so Cov = Z'Z with Z = M^-T A'. A parameter
+        the data cannot determine (a singular J'J) is left out."""
+        free = _free_det(fit.model, fit.quad)
+        if not free or not any(p[0] != "static_bias" for p in free):
+            return {}
+        theta = _theta(fit.model, free)
+        cols = []
+        for i, (_, _, _, h) in enumerate(free):
+            up, dn = theta.copy(), theta.copy()
+            up[i] += h
+            dn[i] -= h
+            _, bu = self.dbar(with_params(fit.model, free, up, self.tau_bounds))
+            _, bd = self.dbar(with_params(fit.model, free, dn, self.tau_bounds))
+            cols.append((bu - bd) / (2.0 * h))
+        jac = np.stack(cols, axis=1)
+        eye = np.eye(jac.shape[0])
+        m_w = Whitener(self.data, replace(fit.noise, bi_sigma=0.0, rrw_k=0.0)).whiten(eye)
+        m_f = Whitener(self.data, fit.noise).whiten(eye)
+        jw = m_w @ jac
+        info = jw.T @ jw
+        if np.linalg.cond(info) > 1e12:
+            return {}
+        z = np.linalg.solve(m_f.T, np.linalg.solve(info, jw.T @ m_w).T)
+        var = np.einsum("ij,ij->j", z, z)
+        out: dict[str, dict[str, float]] = {}
+        for (eff, p, kind, _), th, v in zip(free, theta, var):
+            se = math.sqrt(float(v)) * (math.exp(float(th)) if kind == "log" else 1.0)
+            if eff != "static_bias" and math.isfinite(se):
+                out.setdefault(eff, {})[p] = se
+        return out
 
     def full(
         self, model: GyroModel, quad: bool = False, extra_var: float = 0.0, rounds: int = 2

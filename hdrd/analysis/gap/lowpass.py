@@ -2,15 +2,20 @@
 neighbouring samples, fitted by the Whittle likelihood of their spectrum. Pure.
 
 At rest the unexplained residual e (omega - truth - D, deg/s) is white noise of variance W per
-sample seen through the sensor's first-order low-pass y[k] = a y[k-1] + (1 - a) x[k]
-(a = exp(-2 pi f_c dt), the simulator's ``bandwidth``), plus the ADC's white q**2/12 after it,
-plus slow processes (bias instability, random walk). First differences within contiguous
-valid runs take the slow part away but for a small flat floor c, and have the spectrum
+sample and slow processes (a Gauss-Markov bias g, a random walk r) seen through the sensor's
+low-pass, n equal sections y[k] = a y[k-1] + (1 - a) x[k] (the simulator's ``bandwidth`` with
+``sections`` n; for one, a = exp(-2 pi f_c dt)), plus a white level s**2 after it. First
+differences within contiguous valid runs have the spectrum
 
-    S(w) = (2 - 2 cos w) [W (1 - a)**2 / (1 - 2 a cos w + a**2) + q**2 / 12] + c
+    S(w) = H(w)**n [(2 - 2 cos w) (W + G(w)) + R] + (2 - 2 cos w) s**2,
+    H(w) = (1 - a)**2 / (1 - 2 a cos w + a**2),  G(w) = sigma**2 (1 - p**2) / (1 - 2 p cos w + p**2)
 
-per sample (w in rad per sample), s**2 the white noise after the low-pass (the ADC's q**2/12,
-or more: a quantiser fed with noise narrower than its step is not uniform), fitted. The
+per sample (w in rad per sample; p = exp(-dt / tau_c) and sigma the Gauss-Markov bias's, R =
+K**2 dt the walk's variance per step), s**2 the white noise after the low-pass (the ADC's
+q**2/12, or more), fitted; the slow processes' part is known (:class:`Slow`, from the block
+likelihood's fit). A bias of tau_c a few blocks long still has much of its power above the
+block frequency: left out, it pulled the cutoff down and the white noise up (a phone's bias of
+tau_c 20 s under a white noise of 0.004 deg/s/sqrt(Hz): 0.11 Hz for 0.2, 1.8x the noise). The
 Whittle log-likelihood ln L = -sum_k [ln S(w_k) + I_k / S(w_k)] over the periodogram I_k of
 the differences is the Gaussian one to O(1) for a long series; it is summed over narrow
 frequency bins (the spectrum is smooth across each), from the block frequency up: below it
@@ -26,12 +31,27 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["A_MAX", "A_MIN", "LowpassFit", "cutoff_hz", "fit_lowpass", "pole", "white_factor"]
+__all__ = [
+    "A_MAX",
+    "A_MIN",
+    "ORDERS",
+    "LowpassFit",
+    "Slow",
+    "cascade_cutoff_hz",
+    "cutoff_hz",
+    "fit_lowpass",
+    "noise_share",
+    "pole",
+    "slow_noise",
+    "white_factor",
+]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -53,15 +73,73 @@ def cutoff_hz(a: float, dt_s: float) -> float:
     return -math.log(a) / (2.0 * math.pi * dt_s)
 
 
-def white_factor(a: float) -> float:
-    """Input white variance over the white-equivalent variance of neighbouring differences."""
-    return (1.0 + a) / (1.0 - a) ** 2
+ORDERS = (1, 2)
+"""Equal first-order sections of the low-pass tried (the simulator's ``bandwidth`` with that
+many ``sections``): the differences' spectrum of two peaks at the cutoff and falls beyond it,
+which one section cannot draw (fitted with one, a phone's filter of two sections at 0.2 Hz
+ran the pole to its bound and the white noise to 4x at 50 Hz, 40x at 10 Hz)."""
+
+
+def noise_share(a: float, order: int) -> float:
+    """Variance of white noise after ``order`` equal sections of pole a, per unit variance
+    before: (1 - a) / (1 + a) for one, (1 - a)**4 (1 + a**2) / (1 - a**2)**3 for two, summed
+    over the impulse response beyond."""
+    if order == 1:
+        return (1.0 - a) / (1.0 + a)
+    if order == 2:
+        return (1.0 - a) ** 4 * (1.0 + a * a) / (1.0 - a * a) ** 3
+    return float(np.sum(_impulse(a, order) ** 2))
+
+
+def _impulse(a: float, order: int) -> FloatArray:
+    """Impulse response of ``order`` equal sections of pole a, until it has decayed."""
+    n = int(min(60.0 * order / max(1.0 - a, 1e-6), 2e6)) + 2
+    h = (1.0 - a) * a ** np.arange(n, dtype=np.float64)
+    out = h
+    for _ in range(order - 1):
+        out = np.convolve(out, h)[:n]
+    return np.asarray(out)
+
+
+def cascade_cutoff_hz(a: float, order: int, dt_s: float) -> float:
+    """The -3 dB cutoff (Hz) of ``order`` equal sections of pole a at the sample period dt_s
+    (as the simulator's ``bandwidth`` with that many ``sections`` reads its cutoff)."""
+    return cutoff_hz(a, dt_s) * math.sqrt(2.0 ** (1.0 / order) - 1.0)
+
+
+def white_factor(a: float, order: int = 1) -> float:
+    """Input white variance over the white-equivalent variance of neighbouring differences
+    (half their variance), ``order`` sections of pole a."""
+    if order == 1:
+        return (1.0 + a) / (1.0 - a) ** 2
+    return 2.0 / float(np.sum(np.diff(_impulse(a, order), prepend=0.0) ** 2))
 
 
 def differences(e: FloatArray, valid: BoolArray, time_gap: BoolArray) -> FloatArray:
     """Differences of neighbouring samples, both valid and with no time gap between them."""
     ok = valid[1:] & valid[:-1] & ~time_gap[1:]
     return np.asarray(np.diff(e)[ok])
+
+
+@dataclass(frozen=True)
+class Slow:
+    """The slow processes before the low-pass, per sample: a Gauss-Markov bias of variance
+    ``gm_var`` (deg/s)**2 and pole ``gm_pole`` = exp(-dt / tau_c), a random walk whose steps
+    have variance ``rw_var`` = K**2 dt (deg/s)**2."""
+
+    gm_var: float = 0.0
+    gm_pole: float = 0.0
+    rw_var: float = 0.0
+
+
+def slow_noise(sigma_dps: float, tau_s: float, k_dps_per_sqrt_s: float, dt_s: float) -> Slow:
+    """:class:`Slow` of a Gauss-Markov bias (sigma deg/s, tau_c s; sigma 0: none) and a random
+    walk (K deg/s/sqrt(s)) sampled every ``dt_s``."""
+    return Slow(
+        gm_var=sigma_dps**2 if sigma_dps > 0.0 else 0.0,
+        gm_pole=math.exp(-dt_s / tau_s) if sigma_dps > 0.0 and tau_s > 0.0 else 0.0,
+        rw_var=k_dps_per_sqrt_s**2 * dt_s,
+    )
 
 
 @dataclass(frozen=True)
@@ -76,6 +154,8 @@ class LowpassFit:
     loglik: float
     loglik_white: float
     after_var: float = 0.0
+    order: int = 1
+    """Equal first-order sections of the low-pass (:data:`ORDERS`), each of pole ``a``."""
 
     @property
     def gain(self) -> float:
@@ -101,9 +181,21 @@ class _Spectrum:
         self.w = np.add.reduceat(w, edges[:-1]) / self.m
         self.d2 = 2.0 - 2.0 * np.cos(self.w)
 
-    def shape(self, a: float) -> FloatArray:
-        """Spectrum of the differences per unit input white variance, pole a."""
-        return np.asarray(self.d2 * (1.0 - a) ** 2 / (1.0 - 2.0 * a * np.cos(self.w) + a * a))
+    def gain(self, a: float, order: int = 1) -> FloatArray:
+        """|H(w)|**2 of ``order`` equal first-order sections of pole a."""
+        return np.asarray(((1.0 - a) ** 2 / (1.0 - 2.0 * a * np.cos(self.w) + a * a)) ** order)
+
+    def shape(self, a: float, order: int = 1) -> FloatArray:
+        """Spectrum of the differences per unit input white variance, ``order`` poles a."""
+        return np.asarray(self.d2 * self.gain(a, order))
+
+    def slow(self, a: float, order: int, slow: Slow | None) -> FloatArray:
+        """Spectrum of the differences of the slow processes seen through ``order`` poles a."""
+        if slow is None or (slow.gm_var <= 0.0 and slow.rw_var <= 0.0):
+            return np.zeros_like(self.w)
+        p = slow.gm_pole
+        g = slow.gm_var * (1.0 - p * p) / (1.0 - 2.0 * p * np.cos(self.w) + p * p)
+        return np.asarray(self.gain(a, order) * (self.d2 * g + slow.rw_var))
 
     def loglik(self, s: FloatArray) -> float:
         return -float(np.sum(self.m * (np.log(s) + self.i / s)))
@@ -149,51 +241,69 @@ def fit_lowpass(
     de: FloatArray,
     block_samples: float,
     q_var: float = 0.0,
-    floor: float = 0.0,
+    slow: Slow | None = None,
     a: float | None = None,
+    order: int = 1,
 ) -> LowpassFit:
     """Whittle fit of the differences ``de`` (deg/s) from the block frequency (one cycle per
-    ``block_samples``) up: the pole a (given, or fitted over [A_MIN, A_MAX]), the input white
+    ``block_samples``) up: the pole a of each section and their number (given, or fitted: a
+    over [A_MIN, A_MAX] for each of :data:`ORDERS`, the likelier kept), the input white
     variance W and the white variance after the low-pass (at least the ADC's ``q_var`` =
-    q**2/12), with the slow processes' flat ``floor`` ((deg/s)**2) known."""
+    q**2/12), with the slow processes (``slow``) known."""
     sp = _spectrum(np.asarray(de, dtype=np.float64), 2.0 * math.pi / max(block_samples, 2.0))
     if not float(np.sum(sp.m)) > 0:  # no frequency above the block's: nothing to fit a pole to
         white = max(float(np.var(de)) / 2.0 - q_var, 0.0) if len(de) else 0.0
         return LowpassFit(
-            a=A_MIN if a is None else a, white_var=white, loglik=0.0, loglik_white=0.0
+            a=A_MIN if a is None else a,
+            white_var=white,
+            loglik=0.0,
+            loglik_white=0.0,
+            order=1 if a is None else order,
         )
-    g0 = sp.d2 * q_var + floor
-    _, ll_white = sp.best_linear([sp.d2], g0)
+    g0 = sp.d2 * q_var
+    _, ll_white = sp.best_linear([sp.d2], g0)  # the reference: white noise alone
 
-    def at(av: float) -> tuple[float, float, float]:
-        c, ll = sp.best_linear([sp.shape(av), sp.d2], g0)
+    def at(av: float, o: int) -> tuple[float, float, float]:
+        c, ll = sp.best_linear([sp.shape(av, o), sp.d2], g0 + sp.slow(av, o, slow))
         return float(c[0]), ll, float(c[1])
 
     if a is None:
-        # Grid over ln(1 - a), then golden-section refinement around the best point.
-        grid = 1.0 - np.logspace(math.log10(1.0 - A_MAX), math.log10(1.0 - A_MIN), 40)
-        vals = [at(float(x))[1] for x in grid]
-        j = int(np.argmax(vals))
-        lo = math.log(1.0 - float(grid[min(j + 1, 39)]))
-        hi = math.log(1.0 - float(grid[max(j - 1, 0)]))
-        g = (math.sqrt(5.0) - 1.0) / 2.0
-        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-        f1, f2 = at(1.0 - math.exp(x1))[1], at(1.0 - math.exp(x2))[1]
-        for _ in range(25):
-            if f1 > f2:
-                hi, x2, f2 = x2, x1, f1
-                x1 = hi - g * (hi - lo)
-                f1 = at(1.0 - math.exp(x1))[1]
-            else:
-                lo, x1, f1 = x1, x2, f2
-                x2 = lo + g * (hi - lo)
-                f2 = at(1.0 - math.exp(x2))[1]
-        a = 1.0 - math.exp(0.5 * (lo + hi))
-        if vals[j] > at(a)[1]:
-            a = float(grid[j])
+        fits = [(*_best_pole(partial(_ll_of, at, o), A_MIN, A_MAX), o) for o in ORDERS]
+        a, _, order = max(fits, key=lambda f: f[1])
     a = min(max(a, A_MIN), A_MAX)
-    w, ll, after = at(a)
-    return LowpassFit(a=a, white_var=w, loglik=ll, loglik_white=ll_white, after_var=after)
+    w, ll, after = at(a, order)
+    return LowpassFit(
+        a=a, white_var=w, loglik=ll, loglik_white=ll_white, after_var=after, order=order
+    )
+
+
+def _ll_of(at: Callable[[float, int], tuple[float, float, float]], order: int, a: float) -> float:
+    return at(a, order)[1]
+
+
+def _best_pole(f: Callable[[float], float], a_lo: float, a_hi: float) -> tuple[float, float]:
+    """(a, f(a)) maximising ``f`` over poles in [a_lo, a_hi]: a grid over ln(1 - a), then
+    golden-section refinement around the best point."""
+    grid = 1.0 - np.logspace(math.log10(1.0 - a_hi), math.log10(1.0 - a_lo), 40)
+    vals = [f(float(x)) for x in grid]
+    j = int(np.argmax(vals))
+    lo = math.log(1.0 - float(grid[min(j + 1, 39)]))
+    hi = math.log(1.0 - float(grid[max(j - 1, 0)]))
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = f(1.0 - math.exp(x1)), f(1.0 - math.exp(x2))
+    for _ in range(25):
+        if f1 > f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - g * (hi - lo)
+            f1 = f(1.0 - math.exp(x1))
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + g * (hi - lo)
+            f2 = f(1.0 - math.exp(x2))
+    a = 1.0 - math.exp(0.5 * (lo + hi))
+    fa = f(a)
+    return (a, fa) if fa >= vals[j] else (float(grid[j]), vals[j])
 
 
 _CACHE: dict[tuple[int, float, bytes], _Spectrum] = {}

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from typing import Any
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN
 from hdrd.analysis.gap.data import GapData
 from hdrd.analysis.gap.metric import GAP_METRIC
 from hdrd.analysis.gap.search import Ambiguity, GapResult, Step, sig4
+from hdrd.sim.effects import MotionOffset, Quantization
 from hdrd.sim.gyro import GyroModel
 
-__all__ = ["gyro_section", "summary", "to_report"]
+__all__ = ["PROFILE_ORDER", "gyro_section", "summary", "to_report"]
 
 
 def to_report(res: GapResult) -> dict[str, Any]:
@@ -33,6 +36,9 @@ def to_report(res: GapResult) -> dict[str, Any]:
         "remaining_candidates": list(res.remaining),
         "initial_params": res.initial_fit.model.to_dict()["effects"],
         "final_params": res.final_model.to_dict()["effects"],
+        "final_standard_errors": {
+            e: {k: sig4(v) for k, v in ps.items()} for e, ps in res.final_standard_errors.items()
+        },
         "final_diagnostics": res.final_diagnostics,
         "criterion": (
             f"BIC = -2 lnL + k ln(n) on n = {d.n_used} blocks of {d.block_s:g} s; an effect is "
@@ -171,9 +177,28 @@ def summary(res: GapResult) -> str:
     return "\n".join(lines)
 
 
-def gyro_section(model: GyroModel, drive: str) -> str:
-    """A fitted model as HDR+'s error model: the ``gyro:`` section of hdrd.yaml (the keys of
-    docs/configuration.md; an effect the model lacks is left out, i.e. unknown)."""
+PROFILE_ORDER = (
+    "motion_offset_dps",
+    "motion_offset_sd_dps",
+    "bias_instability_dps",
+    "bias_tau_s",
+    "rrw_dps_per_sqrt_s",
+    "white_dps_per_rthz",
+    "quant_step_dps",
+    "temp_coeff_dps_per_c",
+)
+"""The keys ``--gyro-out`` writes, in this order (of :data:`hdrd.core.gyronoise.NOISE_KEYS`)."""
+
+
+def gyro_section(model: GyroModel, drive: str, report: Mapping[str, Any] | None = None) -> str:
+    """A fitted model as the unit's profile: a ``gyro:`` section of hdrd.yaml, usable as a whole
+    ``--config`` file, holding every parameter the fit named that the profile has a key for
+    (:data:`PROFILE_ORDER`; an effect the model lacks is left out, i.e. unknown): the motion
+    offset (driving bias minus rest bias, deg/s, signed) with its standard error from the
+    report's ``final_standard_errors``, the slow noise, the white noise, the output step and
+    the temperature coefficient (its size: the profile's is >= 0). ``report``
+    (:func:`to_report`) also gives the sample rate at which a comment says whether the noise
+    dithers the ADC at rest."""
     from hdrd.sim.grades import model_noise
 
     known = model_noise(model, source="config").to_dict()
@@ -181,12 +206,44 @@ def gyro_section(model: GyroModel, drive: str) -> str:
         known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
     else:
         known.pop("bias_tau_s", None)
+    mo = model.get("motion_offset")
+    notes = []
+    if isinstance(mo, MotionOffset):
+        known["motion_offset_dps"] = mo.offset_dps
+        se = ((report or {}).get("final_standard_errors") or {}).get("motion_offset", {})
+        if math.isfinite(se.get("offset_dps", math.nan)):
+            known["motion_offset_sd_dps"] = se["offset_dps"]
+        if mo.coeff_dps_per_mps:
+            notes.append(
+                f"# left out: motion_offset's speed term ({mo.coeff_dps_per_mps:.4g} deg/s per "
+                "m/s), which the profile has no key for"
+            )
+    rate = float(((report or {}).get("log") or {}).get("rate_hz", math.nan))
+    notes.extend(_dither_note(model, rate))
     lines = [
         f"# HDR+'s error model, fitted by `hdrd gap` to {drive} (docs/hdrplus.md,",
         '# "Configuration"); paste into /etc/hdrd/hdrd.yaml, replacing its gyro: section.',
-        "gyro:",
+        *notes,
+        "gyro:" if known else "gyro: {}  # the fit named no parameter the profile holds",
     ]
-    lines += [f"  {k}: {v:.7g}" for k, v in known.items()]
-    if not known:
-        lines.append("  grade: none  # the fit named no noise parameter HDR+ uses")
+    lines += [f"  {k}: {known[k]:.7g}" for k in PROFILE_ORDER if k in known]
     return "\n".join(lines) + "\n"
+
+
+def _dither_note(model: GyroModel, rate_hz: float) -> list[str]:
+    """A comment on whether the noise at the ADC's input dithers it at rest (docs/model-gap.md,
+    "Quantization and dither"): [] without a quantization or a sample rate."""
+    from hdrd.analysis.gap.dither import DITHERED, fast_noise_sd
+
+    q = model.get("quantization")
+    if not (isinstance(q, Quantization) and math.isfinite(rate_hz) and rate_hz > 0):
+        return []
+    s = fast_noise_sd(model, rate_hz) / q.step_dps
+    if s >= DITHERED:
+        return [
+            f"# dithered at rest: its noise is {s:.2f} of a step at the ADC; a stop reads its bias"
+        ]
+    return [
+        f"# UNDITHERED at rest: its noise is {s:.2f} of a step at the ADC (dithered from "
+        f"{DITHERED:g}); a stop reads the code nearest its bias, up to half a step off"
+    ]

@@ -108,6 +108,9 @@ class GapResult:
     final_at_bound: tuple[dict[str, Any], ...]
     gap_noise: dict[str, Any]
     """The final gap re-measured with other seeds: its seed-to-seed spread."""
+    final_standard_errors: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Standard errors of the final model's deterministic parameters by effect and
+    parameter (:meth:`Fitter.standard_errors`; the static bias left out)."""
 
     @property
     def final_model(self) -> GyroModel:
@@ -452,6 +455,7 @@ def run_gap(
         rejected=tuple(s.rejected),
         final_at_bound=tuple(params_at_bounds(s.cur.model, data)),
         gap_noise=_gap_noise(data, s.cur, seed, s.cur_sim.gap),
+        final_standard_errors=f.standard_errors(s.cur),
     )
 
 

@@ -21,9 +21,16 @@ import numpy.typing as npt
 from hdrd.analysis.gap.bounds import at_rest
 from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.dither import dither_sd
-from hdrd.analysis.gap.lowpass import fit_lowpass, pole, white_factor
+from hdrd.analysis.gap.lowpass import (
+    Slow,
+    fit_lowpass,
+    noise_share,
+    pole,
+    slow_noise,
+    white_factor,
+)
 from hdrd.analysis.gap.predict import signal
-from hdrd.sim.effects import Bandwidth
+from hdrd.sim.effects import Bandwidth, BiasInstability, RateRandomWalk
 from hdrd.sim.gyro import GyroModel
 
 __all__ = ["MIN_STOP_PAIRS", "STRAIGHT_DPS", "white_levels"]
@@ -43,12 +50,13 @@ _TINY = 1e-12
 
 
 def white_levels(
-    data: GapData, d: FloatArray, q_step: float, model: GyroModel
+    data: GapData, d: FloatArray, q_step: float, model: GyroModel, slow: Slow | None = None
 ) -> tuple[float, float]:
     """(W, after): the white-noise variance per sample at the sensor's input, and the white
     variance per sample after its low-pass beyond the ADC's q**2/12 (the model's
     ``bandwidth`` output noise: fitted at rest, else as the model gives it), (deg/s)**2.
-    ``d``: the model's deterministic prediction D per sample."""
+    ``d``: the model's deterministic prediction D per sample; ``slow``: the slow processes
+    (default: the model's)."""
     bw = model.get("bandwidth")
     after = bw.output_noise_dps_per_rthz**2 * data.fs_hz if isinstance(bw, Bandwidth) else 0.0
     if data.heading_mode:
@@ -59,10 +67,22 @@ def white_levels(
     if de.shape[0] < 10:
         return float(np.var(e[data.valid])), after
     if isinstance(bw, Bandwidth) and at_rest(data):
-        a = pole(bw.cutoff_hz, 1.0 / data.fs_hz)
-        fit = fit_lowpass(de, data.block_s * data.fs_hz, q_step**2 / 12.0, 0.0, a)
+        a = pole(bw.section_hz(), 1.0 / data.fs_hz)
+        slow = slow or _slow(model, data)
+        fit = fit_lowpass(de, data.block_s * data.fs_hz, q_step**2 / 12.0, slow, a, bw.sections)
         return float(max(fit.white_var, _TINY)), fit.after_var
     return _from_differences(data, de, q_step, model, data.sample_truth, after), after
+
+
+def _slow(model: GyroModel, data: GapData) -> Slow:
+    """The model's slow processes, per sample (the low-pass fit's known part)."""
+    bi, rw = model.get("bias_instability"), model.get("rate_random_walk")
+    return slow_noise(
+        bi.sigma_dps if isinstance(bi, BiasInstability) else 0.0,
+        bi.tau_s if isinstance(bi, BiasInstability) else 1.0,
+        rw.k_dps_per_sqrt_s if isinstance(rw, RateRandomWalk) else 0.0,
+        1.0 / data.fs_hz,
+    )
 
 
 def _from_differences(
@@ -76,18 +96,19 @@ def _from_differences(
     mad = float(np.median(np.abs(de - np.median(de))))
     lat = data.lattice
     bw = model.get("bandwidth")
-    a = pole(bw.cutoff_hz, 1.0 / data.fs_hz) if isinstance(bw, Bandwidth) else 0.0
+    a = pole(bw.section_hz(), 1.0 / data.fs_hz) if isinstance(bw, Bandwidth) else 0.0
+    order = bw.sections if isinstance(bw, Bandwidth) else 1
     if mad == 0.0 or (lat is not None and mad < 1.5 * lat.step_dps):
         sd = None
         if mad == 0.0 and q_step:  # most neighbours on one code: it mostly sits on its code
             sd = dither_sd(data.omega[rows], signal(data, model)[rows], q_step)
         if sd is not None:  # the variance at the ADC, carried back through the low-pass
-            return max(sd * sd - after, _TINY) * (1.0 + a) / (1.0 - a)
+            return max(sd * sd - after, _TINY) / noise_share(a, order)
         v = float(np.var(de)) / 2.0
     else:
         v = (1.4826 * mad) ** 2 / 2.0
     v = max(v - q_step**2 / 12.0, _TINY)
-    return float(v * white_factor(a)) if a > 0 else float(v)
+    return float(v * white_factor(a, order)) if a > 0 else float(v)
 
 
 def _heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel, after: float) -> float:
@@ -116,5 +137,5 @@ def _heading(data: GapData, d: FloatArray, q_step: float, model: GyroModel, afte
     v = max(v - q_step**2 / 12.0, _TINY)
     bw = model.get("bandwidth")
     if isinstance(bw, Bandwidth):
-        v *= white_factor(pole(bw.cutoff_hz, 1.0 / data.fs_hz))
+        v *= white_factor(pole(bw.section_hz(), 1.0 / data.fs_hz), bw.sections)
     return float(v)
