@@ -32,7 +32,7 @@ driving bias's correction and its sd, the rest offset. docs/hdrplus.md has the r
 says which effect enters which state.
 
 :func:`step` (immutable :class:`PlusState`, the daemon's) and :func:`run_batch` (arrays,
-evaluate's) run the same code (:class:`_Run`), so they agree to the bit.
+evaluate's) run the same code (:class:`_Estimator`), so they agree to the bit.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def prior_filters(p: PlusParams, yaw: float = 0.0) -> list[Filter]:
     return out
 
 
-class _Run:
+class _Estimator:
     """The estimator on mutable members: :func:`step` runs one step of it from a state,
     :func:`run_batch` many; the phases are its methods."""
 
@@ -190,53 +190,55 @@ class _Run:
     def advance(
         self,
         u: float,
-        sp: float,
-        v: float,
-        te: float,
+        spread: float,
+        speed: float,
+        temp_c: float,
         T: float,
-        herr: float = math.nan,
-        hvar: float = math.nan,
+        course_err: float = math.nan,
+        course_var: float = math.nan,
         reset: bool = False,
     ) -> PlusOutput:
-        """One step of T seconds: u deg/s CCW, the samples' spread sp deg/s, speed v m/s,
-        temperature te degC (NaN = unknown); a GPS course's measurement of the heading error
-        at the end of the step before (herr deg, variance hvar deg^2; NaN: none), the heading
+        """One step of T seconds: u deg/s CCW, the samples' spread deg/s, speed m/s, temp_c
+        degC (NaN = unknown); a GPS course's measurement of the heading error at the end of
+        the step before (course_err deg, variance course_var deg^2; NaN: none), the heading
         aligned anew before it (reset)."""
-        dT = self.temperature(te)
-        lls = [0.0] * len(self.bank.filters)
-        measured = herr == herr
+        dtemp = self.temperature(temp_c)
+        loglik = [0.0] * len(self.bank.filters)
+        measured = course_err == course_err
         if reset or measured:
-            self.course(herr, hvar, reset, lls)
+            self.course(course_err, course_var, reset, loglik)
         self.bank.transition()
-        h_bias = ((BIAS, 1.0), (TEMP, dT))
+        h_bias = ((BIAS, 1.0), (TEMP, dtemp))
         corr = self.bank.mean(h_bias)
-        zero = self.standstill_test(u - corr, sp, v, dT) and self.p.measure
-        self.predict(u, sp, T, dT, corr, zero)
+        zero = self.standstill_test(u - corr, spread, speed, dtemp) and self.p.measure
+        self.predict(u, spread, T, dtemp, corr, zero)
         straight = 0.0
         if zero:
-            self.stop_update(u, sp, dT, lls)
+            self.stop_update(u, spread, dtemp, loglik)
         elif not measured and self.p.measure:
-            straight = self.road_update(u, dT, lls)
+            straight = self.road_update(u, dtemp, loglik)
         ew = self.p.evidence_weight
-        self.bank.weigh([ew * ll for ll in lls])
+        self.bank.weigh([ew * ll for ll in loglik])
         self.u_prev = u
-        return self.output(u, dT, zero, straight)
+        return self.output(u, dtemp, zero, straight)
 
     # -- the phases ----------------------------------------------------------------------
 
-    def temperature(self, te: float) -> float:
+    def temperature(self, temp_c: float) -> float:
         """degC above the first temperature seen; 0 without one."""
-        if te != te:
+        if temp_c != temp_c:
             return 0.0
         if self.t_ref != self.t_ref:
-            self.t_ref = te
-        return te - self.t_ref
+            self.t_ref = temp_c
+        return temp_c - self.t_ref
 
-    def course(self, herr: float, hvar: float, reset: bool, lls: list[float]) -> None:
+    def course(
+        self, course_err: float, course_var: float, reset: bool, loglik: list[float]
+    ) -> None:
         """A GPS course at the end of the step before: the true yaw was the published one plus
-        herr (the published heading minus the course; compass degrees turn the other way);
+        course_err (the published heading minus the course; compass degrees turn the other way);
         reset: the heading was aligned anew, its error restarts at the course's variance."""
-        var = hvar if hvar > 0.0 else 0.0
+        var = course_var if course_var > 0.0 else 0.0
         if reset:
             for f in self.bank.filters:
                 for i in range(N_STATES):
@@ -244,42 +246,46 @@ class _Run:
                 f.P[YAW][YAW] = var
                 f.x[YAW] = self.yaw
             self.aided = True
-        if herr == herr and self.aided and var > 0.0:
-            z = self.yaw + herr
+        if course_err == course_err and self.aided and var > 0.0:
+            z = self.yaw + course_err
             for k, f in enumerate(self.bank.filters):
                 inn = f.update(z, _H_YAW, var)
-                lls[k] += log_likelihood(inn.nu, inn.S)
+                loglik[k] += log_likelihood(inn.nu, inn.S)
 
-    def standstill_test(self, level: float, sp: float, v: float, dT: float) -> bool:
+    def standstill_test(self, level: float, spread: float, speed: float, dtemp: float) -> bool:
         """A zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
         standstill_candidate`) whose corrected level is within ``stop_gate_sigma`` of what the
         bank allows at rest, for ``steps_speed`` (or ``steps_gyro``) steps running."""
         p = self.p
-        cand, need = standstill_candidate(level, sp, v, p.standstill)
+        cand, need = standstill_candidate(level, spread, speed, p.standstill)
         if cand and p.stop_gate_sigma > 0.0:
-            rest = ((BIAS, 1.0), (OFFSET, 1.0), (TEMP, dT))
+            rest = ((BIAS, 1.0), (OFFSET, 1.0), (TEMP, dtemp))
             allow = self.bank.var(rest) + p.stop_scatter_dps**2 + p.gate_floor_dps**2
-            bv = (
-                p.block_var if p.block_var == p.block_var else block_mean_variance(sp, p.standstill)
+            bvar = (
+                p.block_var
+                if p.block_var == p.block_var
+                else block_mean_variance(spread, p.standstill)
             )
             cand = abs(level - self.bank.mean(_H_OFFSET)) <= p.stop_gate_sigma * math.sqrt(
-                allow + bv
+                allow + bvar
             )
         self.still = self.still + 1 if cand else 0
         return cand and self.still >= need
 
-    def predict(self, u: float, sp: float, T: float, dT: float, corr: float, zero: bool) -> None:
+    def predict(
+        self, u: float, spread: float, T: float, dtemp: float, corr: float, zero: bool
+    ) -> None:
         """Let T pass in every member: the driving bias's random walk, the road's decay, and
         -- unless the vehicle stands -- the yaw integrating u minus the bias, with the noise
         of what the bias does not explain (module docstring)."""
         p = self.p
         a = self.road_a if T == p.T else math.exp(-T / p.road.tau_s)
-        rq = self.road_q if T == p.T else p.road.sd_dps**2 * (1.0 - a * a)
+        q_road = self.road_q if T == p.T else p.road.sd_dps**2 * (1.0 - a * a)
         rows: dict[int, Row] = {ROAD: ((ROAD, a),)}
-        qh = 0.0
+        q_yaw = 0.0
         if not zero:
-            rows[YAW] = ((YAW, 1.0), (BIAS, -T), (TEMP, -T * dT))
-            qh = self.heading_noise(u - corr, u, sp, T)
+            rows[YAW] = ((YAW, 1.0), (BIAS, -T), (TEMP, -T * dtemp))
+            q_yaw = self.heading_noise(u - corr, u, spread, T)
         new_stop = zero and not self.in_stop
         self.in_stop = zero
         if new_stop or not zero:
@@ -292,13 +298,15 @@ class _Run:
                     {**rows, BIAS: ((BIAS, ab),)},
                     (
                         (BIAS, BIAS, h.drift_q * h.drift_tau_s / 2.0 * (1.0 - ab * ab)),
-                        (ROAD, ROAD, rq),
-                        (YAW, YAW, qh),
+                        (ROAD, ROAD, q_road),
+                        (YAW, YAW, q_yaw),
                     ),
                 )
                 f.x[BIAS] += h.offset_dps
             else:
-                f.predict(rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, rq), (YAW, YAW, qh)))
+                f.predict(
+                    rows, ((BIAS, BIAS, h.drift_q * T), (ROAD, ROAD, q_road), (YAW, YAW, q_yaw))
+                )
             if not zero:
                 f.x[YAW] += T * u
             if new_stop:  # each stop reads with an offset of its own
@@ -307,25 +315,25 @@ class _Run:
                 f.x[STOP] = 0.0
                 f.P[STOP][STOP] = p.stop_scatter_dps**2
 
-    def heading_noise(self, uc: float, u: float, sp: float, T: float) -> float:
+    def heading_noise(self, u_corr: float, u: float, spread: float, T: float) -> float:
         """What a step of driving adds to the yaw's variance beside the bias, deg^2: the rate
         noise integrated (a step's variance at rest x T^2), ``turn_err`` of the angle turned,
         a turn's onset between samples that a point-sampled gyro misses (the rate's change
         x T / (2 x samples per step)), and a bias wander too fast to follow."""
         p = self.p
-        bv = p.block_var
-        if bv != bv:
-            bv = block_mean_variance(sp, p.standstill) if sp == sp else 0.0
-        turned = p.turn_err * uc * T
-        q = bv * T * T + turned * turned + p.heading_q * T
+        bvar = p.block_var
+        if bvar != bvar:
+            bvar = block_mean_variance(spread, p.standstill) if spread == spread else 0.0
+        turned = p.turn_err * u_corr * T
+        q = bvar * T * T + turned * turned + p.heading_q * T
         if self.u_prev == self.u_prev:
             onset = (u - self.u_prev) * T / (2.0 * p.standstill.samples_per_step)
             q += onset * onset
         return q
 
-    def stop_update(self, u: float, sp: float, dT: float, lls: list[float]) -> None:
+    def stop_update(self, u: float, spread: float, dtemp: float, loglik: list[float]) -> None:
         """A zero-rate update: u measures what a stop reads, BIAS + OFFSET + STOP (+ TEMP
-        dT), of a step's variance at rest: the largest of the calibration's, the step's own
+        dtemp), of a step's variance at rest: the largest of the calibration's, the step's own
         spread's, how the stop's readings scatter from step to step so far (the samples of a
         band-limited gyro and an idling engine's vibration are correlated within a step), and
         ``stop_floor_dps``^2 -- which a stop's first steps, before they show their scatter,
@@ -336,23 +344,25 @@ class _Run:
         self.stop_mean += d / self.stop_n
         self.stop_m2 += d * (u - self.stop_mean)
         floor = p.stop_floor_dps**2
-        rv = max(block_mean_variance(sp, p.standstill), floor if self.stop_n >= 3 else 4.0 * floor)
-        if p.block_var == p.block_var and p.block_var > rv:
-            rv = p.block_var
+        r_var = max(
+            block_mean_variance(spread, p.standstill), floor if self.stop_n >= 3 else 4.0 * floor
+        )
+        if p.block_var == p.block_var and p.block_var > r_var:
+            r_var = p.block_var
         if self.stop_n >= 3:
-            rv = max(rv, self.stop_m2 / (self.stop_n - 1))
-        h = ((BIAS, 1.0), (OFFSET, 1.0), (STOP, 1.0), (TEMP, dT))
+            r_var = max(r_var, self.stop_m2 / (self.stop_n - 1))
+        h = ((BIAS, 1.0), (OFFSET, 1.0), (STOP, 1.0), (TEMP, dtemp))
         for k, f in enumerate(self.bank.filters):
-            inn = f.update(u, h, rv)
-            lls[k] += log_likelihood(inn.nu, inn.S)
+            inn = f.update(u, h, r_var)
+            loglik[k] += log_likelihood(inn.nu, inn.S)
 
-    def road_update(self, u: float, dT: float, lls: list[float]) -> float:
-        """A step of driving: u measures BIAS + ROAD (+ TEMP dT) if the road is straight, with
+    def road_update(self, u: float, dtemp: float, loglik: list[float]) -> float:
+        """A step of driving: u measures BIAS + ROAD (+ TEMP dtemp) if the road is straight, with
         ``sway_var``; a curve adds ``curve_var``. Each member weighs the two by its own
         innovation and updates as far as the step looks straight; the mixture's likelihood
         is its evidence. Returns the bank's weight of "straight"."""
         road = self.p.road
-        h = ((BIAS, 1.0), (ROAD, 1.0), (TEMP, dT))
+        h = ((BIAS, 1.0), (ROAD, 1.0), (TEMP, dtemp))
         ls0 = math.log(road.p_straight)
         lc0 = math.log(1.0 - road.p_straight) if road.p_straight < 1.0 else -math.inf
         straight = 0.0
@@ -369,14 +379,14 @@ class _Run:
             w = math.exp(ls - total)
             if w > 1e-3:
                 f.update(u, h, road.sway_var / w)
-            lls[k] += total
+            loglik[k] += total
             straight += self.bank.mu[k] * w
         return straight
 
-    def output(self, u: float, dT: float, zero: bool, straight: float) -> PlusOutput:
+    def output(self, u: float, dtemp: float, zero: bool, straight: float) -> PlusOutput:
         """The bank's combined estimate after the step."""
         b = self.bank
-        h_bias = ((BIAS, 1.0), (TEMP, dT))
+        h_bias = ((BIAS, 1.0), (TEMP, dtemp))
         corr = b.mean(h_bias)
         yaw = b.mean(_H_YAW)
         self.yaw = yaw
@@ -420,9 +430,9 @@ def step(
     state: PlusState, inp: StepInput, params: PlusParams = DEFAULTS
 ) -> tuple[PlusState, PlusOutput]:
     """Advance HDR+ by one step of inp.T seconds. Pure (the same code as :func:`run_batch`)."""
-    run = _Run(state, params)
-    u, sp, v, te, T, herr, hvar, reset = (float(x) for x in inp)
-    out = run.advance(u, sp, v, te, T, herr, hvar, bool(reset))
+    run = _Estimator(state, params)
+    u, spread, speed, temp_c, T, course_err, course_var, reset = (float(x) for x in inp)
+    out = run.advance(u, spread, speed, temp_c, T, course_err, course_var, bool(reset))
     return run.state(), out
 
 
@@ -478,7 +488,7 @@ def run_batch(
     if n == 0:  # nothing ran: not even the prior is set
         e = np.empty(0)
         return PlusTrace(e, e, e, e, e, e, np.empty(0, bool), e, np.empty((0, m)), state)
-    run = _Run(state, params)
+    run = _Estimator(state, params)
     rows = [run.advance(*row) for row in zip(*cols, strict=True)]
     c = list(zip(*rows, strict=True))
 
