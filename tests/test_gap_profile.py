@@ -25,6 +25,7 @@ from hdrd.analysis.gap import fit_model, prepare
 from hdrd.analysis.gap.fit import Fitter
 from hdrd.analysis.gap.report import PROFILE_ORDER, gyro_section
 from hdrd.core.gyronoise import NOISE_KEYS, GyroNoise
+from hdrd.core.plusparams import Hypothesis
 from hdrd.io.drivelog import write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import (
@@ -118,6 +119,28 @@ def test_the_profile_holds_every_named_parameter_it_has_a_key_for() -> None:
     bare = gyro_section(GyroModel((StaticBias(0.1),)), "d.csv")
     profile(bare)
     assert yaml.safe_load(bare)["gyro"] == {}, bare
+
+
+def test_the_profile_is_a_whole_config_file_that_hdr_plus_uses(tmp_path: Path) -> None:
+    """``--config unit.yaml``: the profile loads as a whole configuration, and HDR+'s bank
+    takes its motion offset as every member's mean, the steady member's sd the profile's
+    together with how far an offset may move between drives (a negative offset too)."""
+    from hdrd.config import Config, load_config, method_setup
+    from hdrd.core.plusparams import FRESH_BANK, PROFILE_OFFSET_SD_DPS
+
+    def bank(c: Config) -> tuple[Hypothesis, ...]:
+        return method_setup(replace(c, hdr=replace(c.hdr, method="hdr+"))).settings().bank
+
+    model = GyroModel((StaticBias(0.3), MotionOffset(offset_dps=-0.09), WhiteNoise(0.015)))
+    report = {"final_standard_errors": {"motion_offset": {"offset_dps": 0.004}}}
+    path = tmp_path / "unit.yaml"
+    path.write_text(gyro_section(model, "drive.csv", report))
+    cfg, _ = load_config(path)
+    assert cfg.gyro.motion_offset_dps == -0.09 and cfg.gyro.motion_offset_sd_dps == 0.004
+    learned = bank(cfg)
+    assert [h.offset_dps for h in learned] == [-0.09] * len(FRESH_BANK)
+    assert learned[0].offset_sd_dps == pytest.approx(math.hypot(0.004, PROFILE_OFFSET_SD_DPS))
+    assert bank(Config()) == FRESH_BANK  # without the profile: a fresh unit
 
 
 @pytest.mark.parametrize("truth", ["omega_truth", "gps_course"])

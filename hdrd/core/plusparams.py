@@ -80,6 +80,12 @@ warm-up, a phone). Steady is the default; the others need the evidence of the ro
 stops. bench/RESULTS.md says which data chose these numbers."""
 
 
+PROFILE_OFFSET_SD_DPS = 0.02
+"""How far a unit's motion offset may differ from one drive to the next, deg/s (1 sigma,
+beside the profile's own standard error): a profile is learned on an earlier drive, whose
+warm-up and stops added to what it read. Chosen on the tuning units (bench/profile.py)."""
+
+
 def unit_bank(
     noise: GyroNoise, fresh: tuple[Hypothesis, ...] = FRESH_BANK
 ) -> tuple[Hypothesis, ...]:
@@ -98,7 +104,8 @@ def unit_bank(
         if math.isfinite(m):
             kw["offset_dps"] = m
             if h is fresh[0]:
-                kw["offset_sd_dps"] = max(sd if math.isfinite(sd) else 0.01, 1e-4)
+                own = sd if math.isfinite(sd) else 0.01
+                kw["offset_sd_dps"] = math.hypot(own, PROFILE_OFFSET_SD_DPS)
         if math.isfinite(q) and h.drift_q <= fresh[0].drift_q * 10.0:
             kw["drift_q"] = q
         out.append(replace(h, **kw) if kw else h)
