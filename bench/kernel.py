@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """The HDR kernel's cost: CPU microseconds per step of paper HDR (:func:`hdr.step` looped, as
 the daemon runs it, and :func:`hdr.run_batch`, as replay and evaluate run it) and of HDR+
-(:func:`hdrplus.run_batch`), on two hours of 1 Hz steps (seeded), best of 7.
+(:func:`hdrplus.run_batch`; and :func:`hdrplus.step` as the daemon runs it while aided, a
+course every step and the self-check's virtual outages beside it), on two hours of 1 Hz
+steps (seeded), best of 7.
 
     python bench/kernel.py [--vs CHECKOUT] [--no-write]
 
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import json
 import os
 import subprocess
@@ -66,13 +69,28 @@ def measure() -> dict[str, float]:
         for x in u.tolist():
             s, _ = hdr.step(s, x, p)
 
-    return {
+    def plus_aided() -> None:
+        # The daemon's aided step: a course every step, the self-check's virtual outages.
+        from hdrd.core.selfcheck import SelfCheck
+        from hdrd.core.steps import StepInput
+
+        s, check = hdrplus.INITIAL_PLUS_STATE, SelfCheck()
+        for i, x in enumerate(u.tolist()):
+            inp = StepInput(x, 0.05, 15.0, float("nan"), 1.0, 0.1, 0.25, i == 0)
+            before = s
+            s, o = hdrplus.step(s, inp)
+            check.on_step(before, inp, hdrplus.DEFAULTS, o.yaw, True)
+
+    forms = {
         "hdr.step, looped": best(loop),
         "hdr.run_batch": best(lambda: hdr.run_batch(u, p)),
         "hdrplus.run_batch (speed, spread given)": best(
             lambda: hdrplus.run_batch(u, np.full(STEPS, 0.05), np.full(STEPS, 15.0), None, 1.0)
         ),
     }
+    if hasattr(hdrplus, "DEFAULTS") and importlib.util.find_spec("hdrd.core.selfcheck"):
+        forms["hdrplus.step, a course every step, with the self-check"] = best(plus_aided)
+    return forms
 
 
 def main(argv: list[str] | None = None) -> int:
