@@ -164,7 +164,7 @@ PLUS = "hdr+"
 
 
 def plus_model(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> str:
-    """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
+    """The error model HDR+'s settings were fitted to on this drive (``PlusParams.model``:
     ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
     return str(getattr(method_settings(prep, PLUS, setup), "model", ""))
 
