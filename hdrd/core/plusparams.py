@@ -84,7 +84,7 @@ stops. bench/RESULTS.md says which data chose these numbers."""
 PROFILE_OFFSET_SD_DPS = 0.02
 """How far a unit's motion offset may differ from one drive to the next, deg/s (1 sigma,
 beside the profile's own standard error): a profile is learned on an earlier drive, whose
-warm-up and stops added to what it read. Chosen on the tuning units (bench/profile.py)."""
+warm-up and stops added to what it read. Chosen on the tuning units (bench/unit_profile.py)."""
 
 
 def unit_bank(
