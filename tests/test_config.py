@@ -705,7 +705,7 @@ def _hard_capture() -> bytes:
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
     from hdrd.io.capture import encode_array
-    from hdrd.io.frames import FRAME_DTYPE
+    from hdrd.io.codec import FRAME_DTYPE
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)

@@ -23,8 +23,8 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
+from hdrd.io.codec import frames_to_array
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import frames_to_array
 from hdrd.io.publish import nmea_checksum
 from hdrd.sim.profiles import builtin_profile
 
@@ -141,7 +141,7 @@ def expected_messages(
 ) -> list[dict[str, Any]]:
     """What the HDR core says the daemon must publish for these frames (without time)."""
     p = Pipeline(PipelineConfig(heading0_deg=heading0, setup=MethodSetup(bias=given_bias(bias))))
-    from hdrd.io.frames import array_to_frames
+    from hdrd.io.codec import array_to_frames
 
     out: list[dict[str, Any]] = []
     for f in array_to_frames(frames):

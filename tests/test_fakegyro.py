@@ -16,8 +16,9 @@ import pytest
 
 from hdrd.core.sensor import SensorModel
 from hdrd.io.capture import decode_capture
+from hdrd.io.codec import Frame, array_to_frames
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import Frame, Parser, array_to_frames
+from hdrd.io.parser import Parser
 from hdrd.io.sources import SerialSource
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile

@@ -4,7 +4,7 @@ The vectorised capture decoder (``hdrd replay``), the push parser (what the live
 and the live daemon's path (a real pty read by :class:`hdrd.io.sources.SerialSource`, each frame
 through :meth:`hdrd.daemon.pipeline.Pipeline.feed`) must give the same frames, the same counters and
 the same messages as the replay path (:func:`hdrd.io.capture.decode_capture` then
-:meth:`~hdrd.daemon.pipeline.Pipeline.feed_array`) on the same bytes. test_frames, test_pipeline and
+:meth:`~hdrd.daemon.pipeline.Pipeline.feed_array`) on the same bytes. test_parser, test_pipeline and
 test_replay check each pair on small or synthetic inputs; this module ties all of them together
 on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a device-clock wrap.
 
@@ -34,7 +34,8 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import decode_capture
-from hdrd.io.frames import Frame, Parser, array_to_frames
+from hdrd.io.codec import Frame, array_to_frames
+from hdrd.io.parser import Parser
 from hdrd.io.publish import _format_clean, format_json
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
 from hdrd.sim import simulate_drive

@@ -229,7 +229,7 @@ _CAPTURE = _capture()
 def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: str) -> None:
     from hdrd.daemon.pipeline import Pipeline
     from hdrd.daemon.stepper import PipelineConfig
-    from hdrd.io.frames import Parser
+    from hdrd.io.parser import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]
     parser, p = Parser(protocol), Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))

@@ -26,7 +26,7 @@ def _bias_body(bias: str = "0.25") -> str:
 
 @pytest.fixture
 def capture(tmp_path: Path) -> Path:
-    from hdrd.io.frames import Frame, encode_bin
+    from hdrd.io.codec import Frame, encode_bin
 
     p = tmp_path / "c.bin"
     p.write_bytes(b"".join(encode_bin(Frame(i, i * 100_000, 32768, 0, None)) for i in range(30)))

@@ -24,8 +24,8 @@ from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.replay import replay_capture
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.capture import encode_array
+from hdrd.io.codec import FRAME_DTYPE
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE
 
 SENSOR = SensorModel()
 T0_US = (1 << 32) - 45_000_000  # the device clock wraps 45 s into the capture

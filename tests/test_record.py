@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hdrd.io.capture import decode_capture
-from hdrd.io.frames import array_to_frames
+from hdrd.io.codec import array_to_frames
 from hdrd.io.record import record
 from hdrd.io.sources import SerialReader
 from hdrd.sim.fakegyro import FakeGyro

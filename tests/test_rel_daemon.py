@@ -37,8 +37,8 @@ import pytest
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
 from hdrd.io.biasfile import load_bias, save_bias
+from hdrd.io.codec import FRAME_DTYPE
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it

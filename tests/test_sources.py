@@ -14,16 +14,10 @@ import pytest
 from hdrd.core.sensor import SensorModel
 from hdrd.io.capture import decode_capture
 from hdrd.io.clocks import ManualClock
+from hdrd.io.codec import FRAME_DTYPE, Frame, array_to_frames, encode, encode_bin
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    Frame,
-    ParserStats,
-    array_to_frames,
-    encode,
-    encode_bin,
-)
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
+from hdrd.io.tracker import ParserStats
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.sim.source import SimulatedSource
 

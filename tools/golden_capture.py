@@ -32,7 +32,7 @@ import tempfile
 from pathlib import Path
 
 from hdrd.io.capture import decode_capture
-from hdrd.io.frames import array_to_frames
+from hdrd.io.codec import array_to_frames
 from hdrd.io.protocol import CLOCK_WRAP_US
 from hdrd.sim import simulate_drive
 from hdrd.sim.fakegyro import FakeGyro

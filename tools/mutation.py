@@ -48,7 +48,7 @@ LAYERS = ("core", "io", "daemon")
 # through real files in tests/test_biasfile.py and tests/test_files.py.
 EXTRA: dict[str, tuple[list[str], list[str] | None]] = {
     "clocks": (["tests/test_resample.py"], None),  # the device clock under the resampler
-    "capture": (["tests/test_frames.py"], None),  # the decoder beside the push parser
+    "capture": (["tests/test_parser.py"], None),  # the decoder beside the push parser
     "standstill": (["tests/test_zupt.py"], None),  # the detector inside HDR+
     "calibrate": (
         [],

@@ -29,8 +29,8 @@ from hdrd.daemon.signals import Signals
 from hdrd.errors import EX_CONFIG
 from hdrd.io.biasfile import save_bias
 from hdrd.io.clocks import SampleClock
+from hdrd.io.codec import Frame
 from hdrd.io.files import default_bias_path
-from hdrd.io.frames import Frame
 from hdrd.io.logs import log, setup_logging
 from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
 

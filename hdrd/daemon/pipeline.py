@@ -51,7 +51,7 @@ __all__ = [
 
 
 class FrameLike(Protocol):
-    """What the pipeline reads of a frame (hdrd.io.frames.Frame, or a capture row)."""
+    """What the pipeline reads of a frame (hdrd.io.codec.Frame, or a capture row)."""
 
     @property
     def t_us(self) -> int: ...

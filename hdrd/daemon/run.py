@@ -34,8 +34,8 @@ from hdrd.daemon.signals import Signals
 from hdrd.daemon.unitkeeper import UnitKeeper
 from hdrd.io.biasfile import BiasFileError, load_bias
 from hdrd.io.clocks import WallClockCheck
+from hdrd.io.codec import Frame
 from hdrd.io.files import default_bias_path
-from hdrd.io.frames import Frame
 from hdrd.io.logs import log
 from hdrd.io.protocol import Message
 from hdrd.io.publish import (
@@ -586,7 +586,7 @@ class Daemon:
 
     def _frame_drops(self, src: Source) -> dict[str, int]:
         """Frames dropped as not new or with a clock that disagrees, by reason: the parser's
-        (:class:`hdrd.io.frames.FrameTracker`) and the host clock's (:attr:`wallclock`)."""
+        (:class:`hdrd.io.tracker.FrameTracker`) and the host clock's (:attr:`wallclock`)."""
         st = src.stats
         return {
             "seq_repeats": int(getattr(st, "seq_repeats", 0)),

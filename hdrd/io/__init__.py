@@ -1,7 +1,7 @@
 """Input and output: bytes, files and sockets in and out, on top of the core.
 
-The wire format (:mod:`~hdrd.io.protocol`), frames and captures (:mod:`~hdrd.io.frames`,
-:mod:`~hdrd.io.capture`), the serial port and the sources built on it
+The wire format (:mod:`~hdrd.io.protocol`), frames and captures (:mod:`~hdrd.io.codec`,
+:mod:`~hdrd.io.tracker`, :mod:`~hdrd.io.parser`, :mod:`~hdrd.io.capture`), the serial port and the sources built on it
 (:mod:`~hdrd.io.serialport`, :mod:`~hdrd.io.sources`), the outputs (:mod:`~hdrd.io.publish`,
 :mod:`~hdrd.io.display`), their readers (:mod:`~hdrd.io.datagrams`: validation and ``hdrd
 tail``'s table; :mod:`~hdrd.io.webstate`, :mod:`~hdrd.io.webserver`: ``hdrd web``), the gpsd client (:mod:`~hdrd.io.gpsd`), drive logs

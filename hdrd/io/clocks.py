@@ -258,7 +258,7 @@ class WallClockCheck:
       last frame kept as unknown (the daemon counts the steps on by the host's clock).
 
     A device clock that goes back (a restart of the device, which
-    :class:`hdrd.io.frames.FrameTracker` has confirmed; or one that jumped half its wrap on,
+    :class:`hdrd.io.tracker.FrameTracker` has confirmed; or one that jumped half its wrap on,
     which no one can tell from it) is :data:`JUMPED` at once, the reference following it: the
     caller counts the time since the last frame kept by its own clock. ``rate`` 0 turns the
     check off: every frame agrees.

@@ -48,8 +48,8 @@ import numpy.typing as npt
 from hdrd.core.sensor import SensorModel
 from hdrd.io.capture import encode_array
 from hdrd.io.clocks import device_seconds
+from hdrd.io.codec import FRAME_DTYPE, Frame, array_to_frames, encode_text
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE, Frame, array_to_frames, encode_text
 from hdrd.io.protocol import PROTOCOLS, SYNC
 from hdrd.sim.profiles import profile_frames
 
@@ -110,7 +110,7 @@ class FakeGyro:
     """A fake ADC on a pty, writing the frames of ``profile`` (see the module doc).
 
     profile: a drive (:class:`hdrd.io.drivelog.DriveLog`, its raw ``omega`` turned into counts
-    by ``sensor``) or frames (:data:`hdrd.io.frames.FRAME_DTYPE` array). Pacing follows the
+    by ``sensor``) or frames (:data:`hdrd.io.codec.FRAME_DTYPE` array). Pacing follows the
     frames' device clock. Use as a context manager (``open``/``close``); ``start()`` begins
     writing; ``wait(timeout)`` until all is written; ``stop()`` ends early.
     """

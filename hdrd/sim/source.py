@@ -12,9 +12,10 @@ import numpy as np
 
 from hdrd.core.sensor import SensorModel
 from hdrd.io.clocks import Clock, RealClock
+from hdrd.io.codec import Frame, array_to_frames
 from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import Frame, ParserStats, array_to_frames
 from hdrd.io.sources import EndOfInput, SourceBase, SourceEvent
+from hdrd.io.tracker import ParserStats
 from hdrd.sim.profiles import load_profile, profile_frames
 
 __all__ = ["SimulatedSource"]

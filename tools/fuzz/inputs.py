@@ -31,7 +31,8 @@ import numpy.typing as npt
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.io.capture import encode_array
-from hdrd.io.frames import FRAME_DTYPE, SYNC
+from hdrd.io.codec import FRAME_DTYPE
+from hdrd.io.protocol import SYNC
 
 from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 

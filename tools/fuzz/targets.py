@@ -15,7 +15,7 @@ across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes o
 - gpsd: the client stays in step with the peer (a marker line sent after each input is
   read) and the aiding publishes only finite values.
 
-Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in random chunks
+Surfaces and paths: serial, the push parser (:class:`hdrd.io.parser.Parser`) in random chunks
 and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
 ``stale_message``, ``finish``); clock, the same parser and the run loop's frame edge
 (:meth:`hdrd.daemon.run.Daemon.take_frame`) at each frame's arrival time (:class:`ClockTarget`); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
@@ -122,7 +122,7 @@ class SerialTarget(Target):
 
     def _new(self) -> None:
         from hdrd.daemon.pipeline import Pipeline
-        from hdrd.io.frames import Parser
+        from hdrd.io.parser import Parser
 
         k = (self.count // self.RESTART_EVERY) % len(self.variants)
         self.pipeline = Pipeline(self.variants[k])
@@ -195,7 +195,8 @@ class ClockTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.io.capture import decode_capture, encode_array
-        from hdrd.io.frames import Parser, array_to_frames
+        from hdrd.io.codec import array_to_frames
+        from hdrd.io.parser import Parser
 
         from .inputs import CLOCK_ROW
 
@@ -316,7 +317,7 @@ class GpsdTarget(Target):
         raise Broken("the gpsd client did not finish connecting")
 
     def _step_frames(self) -> list[Any]:
-        from hdrd.io.frames import Frame
+        from hdrd.io.codec import Frame
 
         out = []
         for k in range(10):
@@ -503,7 +504,7 @@ class ConfigTarget(Target):
         msgs: list[dict[str, Any]] = []
         for _ in range(12):
             self.t_us = (self.t_us + 100_000) % 2**32
-            from hdrd.io.frames import Frame
+            from hdrd.io.codec import Frame
 
             msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
         if d.gps is not None:
