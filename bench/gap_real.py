@@ -52,7 +52,7 @@ from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import gap_metric
 from hdrd.core.grades import Grade
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.drivelog import read_drive
 from hdrd.sim.effects import Quantization, RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel

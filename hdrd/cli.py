@@ -37,7 +37,7 @@ from hdrd.cliargs import (
     strict,
 )
 from hdrd.daemon.signals import command_of, hold_hangup
-from hdrd.io.protocol import PROTOCOLS
+from hdrd.io.wire.protocol import PROTOCOLS
 
 Adder = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, str, Adder]] = {}
@@ -377,7 +377,7 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     "make a drive log of your own CSV: its columns, units and signs mapped",
 )
 def _import(p: argparse.ArgumentParser) -> None:
-    # the units are hdrd.io.csvimport's (not imported here: it needs numpy; a test keeps them equal)
+    # the units are hdrd.io.files.csvimport's (not imported here: it needs numpy; a test keeps them equal)
     p.add_argument("source", metavar="SOURCE.csv", help="your CSV: a header line, then rows")
     p.add_argument("--out", metavar="FILE", required=True, help="drive log to write")
     p.add_argument("--t", required=True, metavar="COL", help="the column of sample times")

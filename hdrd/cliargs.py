@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterator, Sequence
 
-from hdrd.io.protocol import PROTOCOLS
+from hdrd.io.wire.protocol import PROTOCOLS
 
 __all__ = [
     "DRIVES",

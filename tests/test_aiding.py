@@ -28,7 +28,7 @@ from hdrd.daemon.aiding import (
 )
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig, add_aid
-from hdrd.io.gpsd import Fix
+from hdrd.io.net.gpsd import Fix
 
 KNOT = 0.514444
 

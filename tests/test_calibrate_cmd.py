@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.io.biasfile import load_bias
+from hdrd.io.files.biasfile import load_bias
 from hdrd.sim.profiles import builtin_profile, profile_frames
 
 WAIT = 120.0
@@ -183,7 +183,7 @@ def test_the_port_of_a_running_daemon_is_refused_at_once(fake_gyro, tmp_path: Pa
     # The daemon holds the port (exclusively); calibrate must not steal half its frames.
     frames = profile_frames(builtin_profile("standstill", minutes=5, lead_in_s=0))
     g = fake_gyro(frames, speedup=20)
-    from hdrd.io.sources import SerialSource
+    from hdrd.io.wire.sources import SerialSource
 
     with SerialSource(g.path) as holder:  # the first opener, as `hdrd run` opens it
         g.start()

@@ -1,4 +1,4 @@
-"""hdrd.io.codec: the CRC, one frame <-> its bytes in both formats, frames <-> arrays, and what a
+"""hdrd.io.wire.codec: the CRC, one frame <-> its bytes in both formats, frames <-> arrays, and what a
 bad frame's error says (docs/protocol.md is the contract: its worked examples byte for byte)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, decode_frames, encode_array
-from hdrd.io.codec import (
+from hdrd.io.wire.capture import crc16_ccitt_false_rows, decode_capture, decode_frames, encode_array
+from hdrd.io.wire.codec import (
     FRAME_DTYPE,
     Frame,
     FrameError,
@@ -24,9 +24,9 @@ from hdrd.io.codec import (
     encode_text,
     frames_to_array,
 )
-from hdrd.io.parser import Parser
-from hdrd.io.protocol import PROTOCOLS, SYNC
-from hdrd.io.tracker import FrameTracker
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import PROTOCOLS, SYNC
+from hdrd.io.wire.tracker import FrameTracker
 from tests.test_rel_bytes import as_stream
 
 
@@ -238,7 +238,7 @@ def test_each_codec_error_says_what_is_wrong() -> None:
         b"$HDRG,1,2,3,y,": "hdr-text ref b'y' is not a decimal integer",
         b"$HDRG,1,2,3,4,2.5.0": "hdr-text temp_c b'2.5.0' is not a decimal number",
     }
-    from hdrd.io.codec import _xor
+    from hdrd.io.wire.codec import _xor
 
     for line, message in cases.items():
         if line is not body:  # a valid checksum: the error is the field's

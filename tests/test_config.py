@@ -29,7 +29,7 @@ from hdrd.config import (
 )
 from hdrd.core.hdr import HdrParams
 from hdrd.errors import EX_CONFIG, HdrdError
-from hdrd.io.publish import parse_hostport
+from hdrd.io.net.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
 NAN, INF = math.nan, math.inf
@@ -704,8 +704,8 @@ def _hard_capture() -> bytes:
     """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
-    from hdrd.io.capture import encode_array
-    from hdrd.io.codec import FRAME_DTYPE
+    from hdrd.io.wire.capture import encode_array
+    from hdrd.io.wire.codec import FRAME_DTYPE
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)

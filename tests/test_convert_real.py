@@ -14,7 +14,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, read_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "convert_real.py"
 

@@ -23,9 +23,9 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.codec import frames_to_array
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.publish import nmea_checksum
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.net.publish import nmea_checksum
+from hdrd.io.wire.codec import frames_to_array
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
@@ -141,7 +141,7 @@ def expected_messages(
 ) -> list[dict[str, Any]]:
     """What the HDR core says the daemon must publish for these frames (without time)."""
     p = Pipeline(PipelineConfig(heading0_deg=heading0, setup=MethodSetup(bias=given_bias(bias))))
-    from hdrd.io.codec import array_to_frames
+    from hdrd.io.wire.codec import array_to_frames
 
     out: list[dict[str, Any]] = []
     for f in array_to_frames(frames):
@@ -488,7 +488,7 @@ def test_calibrate_writes_bias_file_the_daemon_uses(fake_gyro, daemon, udp, tmp_
     assert p.returncode == 0, p.stderr.decode()
     assert b"written to" in p.stdout
     assert oct(bias_file.stat().st_mode & 0o777) == "0o644"
-    from hdrd.io.biasfile import load_bias
+    from hdrd.io.files.biasfile import load_bias
 
     rec = load_bias(bias_file)
     assert rec.bias_dps == pytest.approx(0.42, abs=0.02) and rec.duration_s == pytest.approx(

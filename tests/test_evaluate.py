@@ -26,7 +26,7 @@ from hdrd.cli import main as cli_main
 from hdrd.core import methods
 from hdrd.core.hdr import HdrParams, run_batch
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 
 
 def make_drive(

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.codec import Frame, array_to_frames
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.parser import Parser
-from hdrd.io.sources import SerialSource
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import Frame, array_to_frames
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.sources import SerialSource
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile
 

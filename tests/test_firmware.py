@@ -34,8 +34,8 @@ import pytest
 
 from hdrd.config import load_config
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture, encode_array
-from hdrd.io.codec import Frame, encode_bin, encode_text
+from hdrd.io.wire.capture import decode_capture, encode_array
+from hdrd.io.wire.codec import Frame, encode_bin, encode_text
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware"
@@ -633,7 +633,7 @@ int main(void) {
 
 
 def test_the_firmwares_encoder_writes_what_hdrd_frames_writes(tmp_path: Path) -> None:
-    """firmware/src/frame.c, compiled for the host, against hdrd.io.codec on the protocol's
+    """firmware/src/frame.c, compiled for the host, against hdrd.io.wire.codec on the protocol's
     worked examples, the field limits and random frames (temperature included, which the
     board itself does not send)."""
     driver = tmp_path / "driver.c"

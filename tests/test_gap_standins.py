@@ -16,7 +16,7 @@ import pytest
 
 from hdrd.analysis.gap import GapResult, run_gap, summary, to_report
 from hdrd.cli import main as cli_main
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim.effects import Bandwidth, BiasInstability, RateRandomWalk, TemperatureBias, WhiteNoise
 from hdrd.sim.gyro import DEFAULT_START_MODEL
 from tests.gap_standins import (

@@ -18,7 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.daemon.aiding import GpsAiding
-from hdrd.io.gpsd import (
+from hdrd.io.net.gpsd import (
     WATCH_COMMAND,
     Device,
     Devices,
@@ -567,7 +567,7 @@ def test_client_counts_lines_it_cannot_use_and_carries_on(peer):
 def test_a_flooding_peer_gets_bounded_work_per_poll_and_loses_nothing(peer):
     """Each poll reads at most READ_CHUNK bytes and parses at most LINES_PER_POLL lines;
     the rest stays in the kernel (TCP flow control slows the peer) and comes in order."""
-    from hdrd.io.gpsd import LINES_PER_POLL, READ_CHUNK
+    from hdrd.io.net.gpsd import LINES_PER_POLL, READ_CHUNK
 
     n = 20_000
     lines = [f'{{"class":"TPV","mode":3,"speed":{k}}}\n'.encode() for k in range(n)]
@@ -604,7 +604,7 @@ def test_a_flooding_peer_gets_bounded_work_per_poll_and_loses_nothing(peer):
     ],
 )
 def test_gpsd_address(text, addr):
-    from hdrd.io.gpsd import parse_address
+    from hdrd.io.net.gpsd import parse_address
 
     assert parse_address(text) == addr
 
@@ -628,7 +628,7 @@ def test_gpsd_address(text, addr):
     ],
 )
 def test_bad_gpsd_addresses_say_what_is_wrong(text):
-    from hdrd.io.gpsd import parse_address
+    from hdrd.io.net.gpsd import parse_address
 
     with pytest.raises(ValueError):
         parse_address(text)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 from tests.hdrd_process import hdrd
 
@@ -98,7 +98,7 @@ def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path)
              "--omega", "wz", "--heading", "yaw", "--heading-unit", "rad", "--heading-ref", "enu",
              cwd=tmp_path)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    from hdrd.io.parquetlog import read_parquet_drive
+    from hdrd.io.files.parquetlog import read_parquet_drive
 
     got = read_parquet_drive(tmp_path / "ros.parquet")
     assert np.array_equal(got.t, drive.t)  # nanoseconds since 2023: every digit kept
@@ -221,7 +221,7 @@ def test_a_file_name_cannot_put_a_metadata_line_in_the_log(tmp_path: Path) -> No
 
 def test_the_command_lines_units_are_the_modules() -> None:
     from hdrd import cli
-    from hdrd.io import csvimport as importcsv
+    from hdrd.io.files import csvimport as importcsv
 
     assert cli.TIME_UNITS == tuple(importcsv.TIME_UNITS)
     assert cli.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)

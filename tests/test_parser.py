@@ -1,5 +1,5 @@
-"""hdrd.io.parser: the push parser on small dirty streams in any split, with the vectorised decoder
-(hdrd.io.capture) beside it: every good frame recovered, every bad one counted, CRC
+"""hdrd.io.wire.parser: the push parser on small dirty streams in any split, with the vectorised decoder
+(hdrd.io.wire.capture) beside it: every good frame recovered, every bad one counted, CRC
 coincidences told from real frames (docs/protocol.md, "Resynchronisation"). The decoder's own
 cases (slicing, many bad candidates, large captures): test_capture.py."""
 
@@ -10,17 +10,17 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from hdrd.io.capture import decode_capture
-from hdrd.io.codec import (
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import (
     Frame,
     array_to_frames,
     crc16_ccitt_false,
     encode_bin,
     encode_text,
 )
-from hdrd.io.parser import Parser
-from hdrd.io.protocol import PROTOCOLS, SYNC
-from hdrd.io.tracker import ParserStats
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import PROTOCOLS, SYNC
+from hdrd.io.wire.tracker import ParserStats
 from tests.test_codec import frames_st
 from tests.test_rel_bytes import as_stream, scan_bin_reference
 

@@ -1,4 +1,4 @@
-"""hdrd.io.protocol: the wire's field table and the message schema in one place. hdr-bin's struct
+"""hdrd.io.wire.protocol: the wire's field table and the message schema in one place. hdr-bin's struct
 formats, numpy dtype, the firmware's C header and docs/protocol.md's layout all follow the
 table; what the pipeline and the GPS aiding publish uses only the schema's keys, in its order,
 with its class, version and statuses; docs/protocol.md's table lists the same keys."""
@@ -16,9 +16,9 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io import protocol
-from hdrd.io.codec import BIN_BODY, FRAME_DTYPE, Frame, encode_bin
-from hdrd.io.gpsd import Fix
+from hdrd.io.net.gpsd import Fix
+from hdrd.io.wire import protocol
+from hdrd.io.wire.codec import BIN_BODY, FRAME_DTYPE, Frame, encode_bin
 from tests.test_aiding import on_message
 from tools.gen_header import HEADER, c_header
 

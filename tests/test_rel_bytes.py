@@ -36,8 +36,8 @@ from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.capture import decode_capture, encode_array
-from hdrd.io.codec import (
+from hdrd.io.wire.capture import decode_capture, encode_array
+from hdrd.io.wire.codec import (
     FRAME_DTYPE,
     Frame,
     FrameError,
@@ -46,8 +46,8 @@ from hdrd.io.codec import (
     encode_bin,
     encode_text,
 )
-from hdrd.io.parser import Parser
-from hdrd.io.protocol import BIN_FRAME_LEN, SYNC
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import BIN_FRAME_LEN, SYNC
 
 TEXT_SYNC = b"$HDRG,"
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.codec import Frame, encode_bin
+from hdrd.io.wire.codec import Frame, encode_bin
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Receiver,

@@ -36,9 +36,9 @@ import pytest
 
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
-from hdrd.io.biasfile import load_bias, save_bias
-from hdrd.io.codec import FRAME_DTYPE
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.biasfile import load_bias, save_bias
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.codec import FRAME_DTYPE
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.prepare import prepare_drive
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.effects import MotionOffset, StaticBias, WhiteNoise
 from hdrd.sim.gps import GpsModel, heading_from_rate
 from hdrd.sim.grades import grade_model

@@ -21,8 +21,8 @@ import pytest
 from hdrd.config import Config, ConfigError, apply_overrides
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.run import BiasChoice, Daemon, build_publishers, choose_bias
-from hdrd.io.biasfile import BiasFileError, save_bias
-from hdrd.io.publish import StdoutPublisher, UdpJsonPublisher, UdpNmeaPublisher
+from hdrd.io.files.biasfile import BiasFileError, save_bias
+from hdrd.io.net.publish import StdoutPublisher, UdpJsonPublisher, UdpNmeaPublisher
 
 WAIT_S = 60.0  # upper bound for a run that should take a second or two
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import (
     DRIVE_TYPES,
     CabinTemperature,

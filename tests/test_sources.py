@@ -1,4 +1,4 @@
-"""hdrd.io.sources: serial (loop://, real ptys, cable pulls) and simulated sources: frames and
+"""hdrd.io.wire.sources: serial (loop://, real ptys, cable pulls) and simulated sources: frames and
 link events. The raw link underneath (reopening, backoff, sockets): test_serialport.py."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.clocks import ManualClock
-from hdrd.io.codec import FRAME_DTYPE, Frame, array_to_frames, encode, encode_bin
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
-from hdrd.io.tracker import ParserStats
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.clocks import ManualClock
+from hdrd.io.wire.codec import FRAME_DTYPE, Frame, array_to_frames, encode, encode_bin
+from hdrd.io.wire.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
+from hdrd.io.wire.tracker import ParserStats
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.sim.source import SimulatedSource
 

@@ -1,4 +1,4 @@
-"""hdrd.io.tracker: which frames are new, by their sequence number and device clock (docs/protocol.md,
+"""hdrd.io.wire.tracker: which frames are new, by their sequence number and device clock (docs/protocol.md,
 "Sequence and clock"): the rule itself, and each case through the push parser, byte by byte,
 and the vectorised decoder alike."""
 
@@ -9,14 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.capture import decode_capture
-from hdrd.io.codec import (
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import (
     Frame,
     array_to_frames,
     encode,
 )
-from hdrd.io.protocol import PROTOCOLS
-from hdrd.io.tracker import ParserStats, keeps
+from hdrd.io.wire.protocol import PROTOCOLS
+from hdrd.io.wire.tracker import ParserStats, keeps
 from tests.test_parser import I, run
 
 # --------------------------------------------------------------------------- sequence and clock

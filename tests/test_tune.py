@@ -27,7 +27,7 @@ from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import write_drive
+from hdrd.io.files.drivelog import write_drive
 from tests.test_evaluate import CITY_TURNS, make_drive
 
 

@@ -43,7 +43,7 @@ from hdrd.core.methods import MethodSetup
 from hdrd.core.resample import Block
 from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
 from hdrd.daemon.stepper import PipelineConfig, Stepper
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "FROZEN",

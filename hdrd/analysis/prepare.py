@@ -49,7 +49,7 @@ from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
 from hdrd.daemon.stepper import PipelineConfig, Stepper
 from hdrd.errors import HdrdError
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "DEFAULTS",

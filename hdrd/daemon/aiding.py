@@ -1,7 +1,7 @@
 """GPS aiding of the HDR heading, pure: mode, heading alignment and bias learning.
 
 hdrd's heading is dead reckoning: heading = (heading0 - yaw) mod 360, yaw the integral of the
-drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.gpsd`) the course over
+drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.net.gpsd`) the course over
 ground is an absolute heading whenever the vehicle moves fast enough for it to mean
 something. :class:`GpsAiding` uses it two ways, and says which mode it is in:
 
@@ -125,7 +125,7 @@ class _NoFix:
 
 
 class FixLike(Protocol):
-    """What aiding reads from a gpsd fix (:class:`hdrd.io.gpsd.Fix`)."""
+    """What aiding reads from a gpsd fix (:class:`hdrd.io.net.gpsd.Fix`)."""
 
     @property
     def mode(self) -> int: ...

@@ -7,7 +7,7 @@ outages (:mod:`hdrd.analysis.outages`) all step through :class:`Stepper`. It rea
 static bias eps0 and the method's correction) and one heading (the method's yaw; with GPS, the
 aiding's alignment), and builds every message, of a step or of a report that is not one (stale,
 a sensor fault), in one place. Message fields: docs/protocol.md ("Published messages"); their
-names and order: :mod:`hdrd.io.protocol`. An unknown value is left out, never sent as null.
+names and order: :mod:`hdrd.io.wire.protocol`. An unknown value is left out, never sent as null.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from hdrd.core.selfcheck import FROZEN, OutageRecord, SelfCheck, frozen_params
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
 from hdrd.daemon.aiding import DEAD_RECKONING, Aid, GpsAiding, HeadingFix, StepView
-from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, Message
+from hdrd.io.wire.protocol import MESSAGE_CLASS, SCHEMA_VERSION, Message
 
 __all__ = [
     "HELD_KEYS",

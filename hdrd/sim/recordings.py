@@ -39,8 +39,8 @@ import numpy as np
 
 from hdrd.core.grades import Grade
 from hdrd.errors import clipped
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.files import printable
+from hdrd.io.files.access import printable
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.effects import Bandwidth, Quantization, RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.gps import GpsModel
@@ -239,7 +239,7 @@ def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors
     """The gyro errors of an ``hdrd gap --report`` file (one drive's report, or a fleet's
     ``{"drives": [...], "skipped": [...]}``), or of that JSON already read. Raises ValueError
     naming the file and what is wrong (one line), OSError if it cannot be read."""
-    from hdrd.io.files import InputFileError, read_limited, shown_path
+    from hdrd.io.files.access import InputFileError, read_limited, shown_path
 
     if isinstance(source, dict):
         doc: Any = source

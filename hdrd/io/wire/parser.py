@@ -2,8 +2,8 @@
 
 Pure. :class:`Parser`, ``feed(chunk) -> frames`` in the manner of pyserial's threaded
 ``Packetizer``: partial frames wait for the next chunk, bad frames and garbage are counted, the
-good frames go to its :class:`hdrd.io.tracker.FrameTracker`. The vectorised decoder of a
-whole capture (:mod:`hdrd.io.capture`) gives exactly its frames and counters.
+good frames go to its :class:`hdrd.io.wire.tracker.FrameTracker`. The vectorised decoder of a
+whole capture (:mod:`hdrd.io.wire.capture`) gives exactly its frames and counters.
 
 The resynchronisation rule (both formats): the scan stops at each sync pattern (``A5 5A``,
 resp. ``$HDRG,``); if the frame there is good it is taken whole and the scan continues after
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from binascii import crc_hqx
 
-from hdrd.io.codec import (
+from hdrd.io.wire.codec import (
     BIN_BODY,
     Frame,
     FrameError,
@@ -24,7 +24,7 @@ from hdrd.io.codec import (
     decode_text,
     fast_frame,
 )
-from hdrd.io.protocol import (
+from hdrd.io.wire.protocol import (
     BIN_CRC_AT,
     BIN_FRAME_LEN,
     BIN_PAYLOAD_AT,
@@ -33,7 +33,7 @@ from hdrd.io.protocol import (
     TEXT_MAX_LINE,
     TEXT_SYNC,
 )
-from hdrd.io.tracker import FrameTracker, ParserStats
+from hdrd.io.wire.tracker import FrameTracker, ParserStats
 
 __all__ = ["Parser", "displaced"]
 

@@ -2,7 +2,7 @@
 
 Pure. :class:`FrameTracker` decides, by the rule :func:`keeps` (docs/protocol.md, "Sequence and
 clock"), which good frames are kept and counts the rest in :class:`ParserStats`; the push parser
-(:mod:`hdrd.io.parser`) and the vectorised decoder (:mod:`hdrd.io.capture`) hand it their frames.
+(:mod:`hdrd.io.wire.parser`) and the vectorised decoder (:mod:`hdrd.io.wire.capture`) hand it their frames.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any, overload
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.protocol import (
+from hdrd.io.wire.protocol import (
     BREAK_CONFIRM_FRAMES,
     BREAK_REBASE_FRAMES,
     CLOCK_WRAP_US,

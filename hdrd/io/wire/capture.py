@@ -2,13 +2,13 @@
 ``hdrd convert``, the benches) and encoder of frames (:func:`encode_array`).
 
 Pure. :func:`decode_capture` gives exactly the frames and counters of a
-:class:`hdrd.io.parser.Parser` fed the same bytes and flushed, plus for each frame the bad frames
+:class:`hdrd.io.wire.parser.Parser` fed the same bytes and flushed, plus for each frame the bad frames
 that came before it (:class:`CaptureStats`), as a numpy structured array
-(:data:`hdrd.io.codec.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
+(:data:`hdrd.io.wire.codec.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
 bounded memory (the CRCs table-driven, two bytes per step), by the parser's rule (the rare
-overlapping candidates through its own :func:`hdrd.io.parser.displaced`); hdr-text through the
+overlapping candidates through its own :func:`hdrd.io.wire.parser.displaced`); hdr-text through the
 push parser. Both judge the frames' sequence and clock with
-:class:`hdrd.io.tracker.FrameTracker`.
+:class:`hdrd.io.wire.tracker.FrameTracker`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.codec import (
+from hdrd.io.wire.codec import (
     FRAME_DTYPE,
     Frame,
     array_to_frames,
@@ -26,9 +26,9 @@ from hdrd.io.codec import (
     encode_text,
     frames_to_array,
 )
-from hdrd.io.parser import Parser, displaced
-from hdrd.io.protocol import BIN_CRC_AT, BIN_FRAME_LEN, BIN_PAYLOAD_AT, BIN_PAYLOAD_LEN, SYNC
-from hdrd.io.tracker import FrameTracker, ParserStats
+from hdrd.io.wire.parser import Parser, displaced
+from hdrd.io.wire.protocol import BIN_CRC_AT, BIN_FRAME_LEN, BIN_PAYLOAD_AT, BIN_PAYLOAD_LEN, SYNC
+from hdrd.io.wire.tracker import FrameTracker, ParserStats
 
 __all__ = [
     "CRC_TABLE",
@@ -173,7 +173,7 @@ def _greedy_accept(v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
 
 def _drop_displaced(a: npt.NDArray[np.uint8], v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     """Which CRC-valid candidates ``v`` (sorted positions) survive the push parser's
-    :func:`hdrd.io.parser.displaced` rule at the end of input; only a candidate with another
+    :func:`hdrd.io.wire.parser.displaced` rule at the end of input; only a candidate with another
     within 14 bytes can be a coincidence, so Python loops only over those (rare)."""
     keep = np.ones(v.shape[0], bool)
     if v.shape[0] < 2:

@@ -2,10 +2,10 @@
 
 Pure: no port, no clock. :func:`encode_bin` / :func:`decode_bin`, :func:`encode_text` /
 :func:`decode_text` (a bad frame raises :class:`FrameError`); :data:`FRAME_DTYPE`, the array
-form of frames the vectorised decoder (:mod:`hdrd.io.capture`) and the simulator use. hdr-bin's
-struct formats and the dtype are made from the field table :data:`hdrd.io.protocol.BIN_FIELDS`.
-The stream's parts: which frames are new (:mod:`hdrd.io.tracker`), bytes to frames
-(:mod:`hdrd.io.parser`).
+form of frames the vectorised decoder (:mod:`hdrd.io.wire.capture`) and the simulator use. hdr-bin's
+struct formats and the dtype are made from the field table :data:`hdrd.io.wire.protocol.BIN_FIELDS`.
+The stream's parts: which frames are new (:mod:`hdrd.io.wire.tracker`), bytes to frames
+(:mod:`hdrd.io.wire.parser`).
 
 **hdr-bin**, 16 bytes, little-endian: sync ``A5 5A``, seq u16, t_us u32, rate u16, ref u16,
 temp i16 (0.01 degC, -32768 = not fitted), CRC-16/CCITT-FALSE u16 over bytes 2..13.
@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError
-from hdrd.io.protocol import (
+from hdrd.io.wire.protocol import (
     BIN_CRC_AT,
     BIN_FIELDS,
     BIN_FRAME_LEN,
@@ -246,7 +246,7 @@ def decode_text(line: bytes) -> Frame:
 
 
 def check_protocol(protocol: str) -> None:
-    """ValueError unless ``protocol`` is one of :data:`hdrd.io.protocol.PROTOCOLS`."""
+    """ValueError unless ``protocol`` is one of :data:`hdrd.io.wire.protocol.PROTOCOLS`."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r} (expected one of {', '.join(PROTOCOLS)})")
 

@@ -26,7 +26,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import clipped
-from hdrd.io.drivelog import (
+from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.drivelog import (
     DEFAULT_READ_LIMITS,
     HEADING_LIMIT_DEG,
     DriveLog,
@@ -38,7 +39,6 @@ from hdrd.io.drivelog import (
     parse_cell,
     text_lines,
 )
-from hdrd.io.files import printable, shown_path
 
 __all__ = [
     "HEADING_UNITS",

@@ -1,7 +1,7 @@
-"""Publishers: where each HDR step's message goes (``hdrd tail`` and ``hdrd web`` read it, :mod:`hdrd.io.datagrams`).
+"""Publishers: where each HDR step's message goes (``hdrd tail`` and ``hdrd web`` read it, :mod:`hdrd.io.net.datagrams`).
 
 A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
-"Published messages", and :mod:`hdrd.io.protocol`):
+"Published messages", and :mod:`hdrd.io.wire.protocol`):
 ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
 Yaw rates are deg/s, positive counter-clockwise seen from above (a left turn); yaw is degrees
 CCW since start; heading is compass degrees, clockwise from north, in [0, 360). A value that
@@ -42,9 +42,9 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
 from hdrd.errors import HdrdError
-from hdrd.io.display import for_display
-from hdrd.io.protocol import NMEA_TALKER, RATE_VALID_STATUSES
+from hdrd.io.net.display import for_display
 from hdrd.io.resolve import Resolver, default_resolver
+from hdrd.io.wire.protocol import NMEA_TALKER, RATE_VALID_STATUSES
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -548,7 +548,7 @@ class StdoutPublisher:
     stream's own buffer, whose lock a blocked write would hold at interpreter exit); a
     stream without a descriptor is written through ``write``/``flush``.
 
-    *display*: print the numbers as a person reads them (:func:`hdrd.io.display.for_display`:
+    *display*: print the numbers as a person reads them (:func:`hdrd.io.net.display.for_display`:
     rounded to what they mean) instead of with full precision; None (the default): when the
     stream is a terminal. A pipe or a file gets full precision.
     """

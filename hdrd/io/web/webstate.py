@@ -1,7 +1,7 @@
 """What ``hdrd web`` keeps and pushes, pure: the latest HDR message, a trace of the last ten
 minutes, and the server-sent events (SSE) that carry them (docs/web.md).
 
-Datagrams are validated by :func:`hdrd.io.datagrams.read_datagram`, as ``hdrd tail`` validates
+Datagrams are validated by :func:`hdrd.io.net.datagrams.read_datagram`, as ``hdrd tail`` validates
 them; of what passes, only JSON objects of class ``HDR`` are kept (NMEA sentences and other
 classes are counted and ignored). A message is pushed re-encoded by :mod:`json` (ASCII only,
 no NaN or infinity: such a message is refused), so no byte of a datagram reaches a browser
@@ -28,8 +28,8 @@ import math
 from collections import deque
 from typing import Any
 
-from hdrd.io.datagrams import implausible, read_datagram
-from hdrd.io.protocol import MESSAGE_CLASS
+from hdrd.io.net.datagrams import implausible, read_datagram
+from hdrd.io.wire.protocol import MESSAGE_CLASS
 
 __all__ = [
     "HISTORY_S",
