@@ -49,9 +49,10 @@ from hdrd.analysis.outages import (
     run_outages,
 )
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive
+from hdrd.core.angles import wrap180
 from hdrd.core.methods import MethodSetup
 from hdrd.core.standstill import StandstillParams, standstill_candidate
-from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.io.files.drivelog import DriveLog
 
 LOST_VAR = 90.0**2

@@ -33,6 +33,7 @@ import numpy.typing as npt
 import pytest
 
 from hdrd.config import load_config
+from hdrd.core.angles import wrap180
 from hdrd.core.sensor import SensorModel
 from hdrd.io.wire.capture import decode_capture, encode_array
 from hdrd.io.wire.codec import Frame, encode_bin, encode_text
@@ -405,7 +406,7 @@ def _check_heading(run: BoardRun, ref_wired: bool) -> float:
     # noise makes, plus the dither bias bound over the run.
     truth_yaw = integral(run.wave, t0, t0 + steps, run.sensor)
     truth_heading = (0.0 - truth_yaw) % 360.0  # heading0 0 (compass: clockwise)
-    diff = (full[-1]["heading"] - truth_heading + 180.0) % 360.0 - 180.0
+    diff = wrap180(full[-1]["heading"] - truth_heading)
     tolerance = 4 * sigma_step * math.sqrt(steps) + float(bias_frames.mean()) * steps
     assert abs(diff) < tolerance, (diff, tolerance)
     return tolerance

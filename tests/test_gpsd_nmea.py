@@ -37,10 +37,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.files.drivelog import DriveLog

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd.core.angles import wrap180
 from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 from tests.hdrd_process import hdrd
@@ -104,7 +105,7 @@ def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path)
     assert np.array_equal(got.t, drive.t)  # nanoseconds since 2023: every digit kept
     assert got.heading_truth is not None
     ok = np.isfinite(drive.heading_truth)
-    diff = (got.heading_truth[ok] - drive.heading_truth[ok] + 180.0) % 360.0 - 180.0
+    diff = wrap180(got.heading_truth[ok] - drive.heading_truth[ok])
     assert np.max(np.abs(diff)) < 2e-3
     assert np.all((got.heading_truth[ok] >= 0) & (got.heading_truth[ok] < 360))
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.gap import run_gap, summary
+from hdrd.core.angles import wrap180
 from hdrd.core.grades import Grade
 from hdrd.sim import simulate_drive
 from hdrd.sim.effects import RateRandomWalk, TimeOffset, WhiteNoise
@@ -40,7 +41,7 @@ def test_course_latency_reports_the_heading_of_that_long_before() -> None:
     unwrapped = np.degrees(np.unwrap(np.radians(heading)))
     want = np.mod(np.interp(t[fix] - 1.2, t, unwrapped), 360.0)
     np.testing.assert_allclose(late[fix], want, atol=1e-9)
-    assert np.max(np.abs((late[fix] - now[fix] + 180.0) % 360.0 - 180.0)) > 5.0
+    assert np.max(np.abs(wrap180(late[fix] - now[fix]))) > 5.0
 
 
 def test_no_latency_leaves_the_course_as_it_was() -> None:

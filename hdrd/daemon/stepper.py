@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hdrd.core import methods
+from hdrd.core.angles import compass
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import PlusOutput
@@ -57,8 +58,7 @@ heading's sd, the motion offset, the outage policy)."""
 
 def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
     """Compass heading (deg clockwise from north, [0, 360)) from yaw (deg CCW since start)."""
-    h = (heading0_deg - yaw_deg) % 360.0
-    return 0.0 if h >= 360.0 else h
+    return compass(heading0_deg - yaw_deg)
 
 
 @dataclass(frozen=True)

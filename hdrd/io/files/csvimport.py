@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.angles import compass
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
 from hdrd.io.files.drivelog import (
@@ -154,8 +155,7 @@ def convert(
         if mapping.heading_ref == "enu":
             h = 90.0 - h
         with np.errstate(invalid="ignore"):
-            h = np.mod(h, 360.0)
-            h = np.where(h >= 360.0, 0.0, h)  # a tiny negative's mod rounds to 360
+            h = compass(h)
         out["heading_truth"] = h
     if "speed" in arrays:
         out["speed"] = arrays["speed"] * SPEED_UNITS[mapping.speed_unit]

@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
+from hdrd.core.angles import compass
 from hdrd.errors import HdrdError
 from hdrd.io.net.display import for_display
 from hdrd.io.resolve import Resolver, default_resolver
@@ -186,9 +187,8 @@ def _finite(msg: Mapping[str, Any], key: str) -> float | None:
 
 def heading_field(heading: float) -> str:
     """A compass heading (deg) as NMEA writes it: 2 decimals, in [0, 360)."""
-    # Round first, then wrap: 359.996 would otherwise print as 360.00, outside [0, 360).
-    h = round(heading % 360.0, 2)
-    return f"{0.0 if h >= 360.0 else h:.2f}"
+    # Wrap, round, wrap again: 359.996 rounds to 360.00, outside [0, 360).
+    return f"{compass(round(compass(heading), 2)):.2f}"
 
 
 def nmea_sentences(

@@ -28,6 +28,7 @@ import math
 from collections import deque
 from typing import Any
 
+from hdrd.core.angles import wrap180
 from hdrd.io.net.datagrams import implausible, read_datagram
 from hdrd.io.wire.protocol import MESSAGE_CLASS
 
@@ -80,7 +81,7 @@ def trace_point(msg: dict[str, Any], rx: float) -> Point:
     dgps = None
     if msg.get("mode") == "aided" and heading is not None and course is not None:
         diff = heading - course  # inf only for values implausible() refuses
-        dgps = round((diff + 180.0) % 360.0 - 180.0, 3) if math.isfinite(diff) else None
+        dgps = round(wrap180(diff), 3) if math.isfinite(diff) else None
     return (round(rx, 3), None if omega is None else round(omega, 4), dgps)
 
 
