@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from hdrd import __version__
 from hdrd.cliargs import (
     DRIVES,
+    HEADING_REFS,
     HEADING_UNITS,
     OMEGA_UNITS,
     SPEED_UNITS,
@@ -395,7 +396,7 @@ def _import(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heading-unit", choices=HEADING_UNITS, default="deg", help="default deg")
     p.add_argument(
         "--heading-ref",
-        choices=("compass", "enu"),
+        choices=HEADING_REFS,
         default="compass",
         help="compass: clockwise from north (a GPS course; default); enu: counter-clockwise "
         "from east (a yaw in an east-north-up frame)",

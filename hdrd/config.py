@@ -706,21 +706,6 @@ def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
     return cfg
 
 
-def config_field_keys() -> list[str]:
-    """Every 'section.key' the config accepts (for docs and the table-driven tests)."""
-    keys: list[str] = []
-    for sec in fields(Config):
-        default = getattr(Config(), sec.name)
-        for f in fields(default):
-            if f.name in _DERIVED:
-                continue
-            if f.name == "params":
-                keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
-            else:
-                keys.append(f"{sec.name}.{f.name}")
-    return keys
-
-
 def method_setup(
     cfg: Config, bias: BiasRecord | None = None, learned: GyroNoise | None = None
 ) -> methods.MethodSetup:

@@ -23,7 +23,6 @@ from hdrd.config import (
     Config,
     ConfigError,
     apply_overrides,
-    config_field_keys,
     load_config,
     parse_config,
 )
@@ -32,6 +31,21 @@ from hdrd.errors import EX_CONFIG, HdrdError
 from hdrd.io.net.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
+
+
+def config_field_keys() -> list[str]:
+    """Every 'section.key' a configuration may set: each section's fields, hdr's parameters
+    flat beside its ``method`` (not ``params``), less ``i_c_auto`` (``hdr.i_c: auto`` sets it)."""
+    keys: list[str] = []
+    for sec in fields(Config):
+        for f in fields(getattr(Config(), sec.name)):
+            if f.name == "params":
+                keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
+            elif f.name != "i_c_auto":
+                keys.append(f"{sec.name}.{f.name}")
+    return keys
+
+
 NAN, INF = math.nan, math.inf
 
 

@@ -74,7 +74,7 @@ def test_known_profile_matches_hdr_core():
     msgs = run_live(p, frames)
     assert [m["step"] for m in msgs] == list(range(60))
     sensor = SensorModel()
-    w = sensor.to_dps(np.array([f.rate for f in frames]))
+    w = sensor.to_dps_array(np.array([f.rate for f in frames]), 0)
     means = w.reshape(60, 10).mean(axis=1)
     np.testing.assert_allclose([m["omega_raw"] for m in msgs], means, rtol=0, atol=1e-12)
     trace = hdr.run_batch(np.array([m["omega_raw"] for m in msgs]) - bias)
@@ -102,7 +102,7 @@ def test_startup_calibration_then_steps():
     for m in msgs[:2]:
         for key in ("omega", "yaw", "heading", "I", "bias"):
             assert key not in m  # unknown while calibrating: left out
-    w = SensorModel().to_dps(np.array([f.rate for f in frames[:20]]))
+    w = SensorModel().to_dps_array(np.array([f.rate for f in frames[:20]]), 0)
     assert p.bias is not None
     assert p.bias.bias_dps == pytest.approx(float(np.mean(w)), abs=1e-12)
     assert msgs[2]["bias"] == p.bias.bias_dps
@@ -138,7 +138,9 @@ def test_gap_reported_and_steps_not_invented():
 def test_clock_wrap_inside_capture():
     omega = np.full(50, 1.5)
     frames = make_frames(omega, t0_us=2**32 - 1_250_000)
-    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams.off(), bias=given_bias(0.0))))
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(hdr=HdrParams(enabled=False), bias=given_bias(0.0)))
+    )
     msgs = run_live(p, frames)
     assert [m["step"] for m in msgs] == [0, 1, 2, 3, 4]
     assert all(m["samples"] == 10 for m in msgs)
@@ -146,7 +148,9 @@ def test_clock_wrap_inside_capture():
 
 
 def test_resync_keeps_heading_and_numbers():
-    p = Pipeline(PipelineConfig(setup=MethodSetup(hdr=HdrParams.off(), bias=given_bias(0.0))))
+    p = Pipeline(
+        PipelineConfig(setup=MethodSetup(hdr=HdrParams(enabled=False), bias=given_bias(0.0)))
+    )
     first = run_live_no_finish(p, make_frames(np.full(31, 2.0)))
     resumed = p.resync(gap_s=7.5)
     # the device comes back with its clock restarted
@@ -193,16 +197,16 @@ def test_method_none_is_plain_integration():
     p = Pipeline(PipelineConfig(setup=MethodSetup(method="none", bias=given_bias(0.0))))
     msgs = run_live(p, make_frames(omega))
     assert all(m["I"] == 0.0 for m in msgs)
-    w = SensorModel().to_dps(np.array(make_frames(omega)[0].rate))
+    w = SensorModel().to_dps_scalar(make_frames(omega)[0].rate)
     assert msgs[-1]["yaw"] == pytest.approx(10 * w)
 
 
 def test_reconfigure_keeps_state_and_refuses_new_T():
     p = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
     run_live_no_finish(p, make_frames(np.full(50, 0.4)))
-    before = p.method_state
+    before = p.stepper.state
     p.reconfigure(PipelineConfig(setup=MethodSetup(hdr=HdrParams(i_c=0.1), bias=given_bias(0.1))))
-    assert p.method_state == before
+    assert p.stepper.state == before
     with pytest.raises(ValueError, match="T"):
         p.reconfigure(PipelineConfig(setup=MethodSetup(hdr=HdrParams(T=2.0), bias=given_bias(0.1))))
 

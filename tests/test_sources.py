@@ -208,7 +208,7 @@ def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:
         assert st.garbage_bytes == inj.garbage_bytes + 16 * inj.crc_errors
         assert st.lost_frames == inj.dropped + inj.crc_errors
     # The counts decode to the profile's truth: 12.5 deg/s (+ bias) after the lead-in.
-    omega = SensorModel().to_dps(np.array([f.rate for f in got]))
+    omega = SensorModel().to_dps_array(np.array([f.rate for f in got]), 0)
     t = np.array([f.t_us for f in got]) / 1e6
     moving = omega[t >= 30.0].mean() - omega[t < 30.0].mean()
     assert moving == pytest.approx(12.5, abs=0.02)

@@ -139,18 +139,9 @@ class Pipeline:
         return self.stepper.speed_mps
 
     @property
-    def calibration_attempts(self) -> int:
-        return self.stepper.window.attempts
-
-    @property
     def calibrating(self) -> bool:
         """True until the static bias is known."""
         return self.stepper.bias is None
-
-    @property
-    def method_state(self) -> Any:
-        """The drift reducer's state (its method's own type)."""
-        return self.stepper.state
 
     @property
     def heading(self) -> float:

@@ -62,9 +62,6 @@ HEADING_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
 """deg per unit of the source's heading."""
 SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6, "mph": 0.44704}
 """m/s per unit of the source's speed."""
-HEADING_REFS = ("compass", "enu")
-"""compass: clockwise from north (a GPS course); enu: counter-clockwise from east (a yaw angle
-in an east-north-up frame, ROS REP 103): compass = 90 - yaw."""
 
 
 class SourceCsvError(DriveLogError):
@@ -88,6 +85,8 @@ class Mapping:
     omega_sign: str = "ccw"
     heading_unit: str = "deg"
     heading_ref: str = "compass"
+    """compass: clockwise from north (a GPS course); enu: counter-clockwise from east (a yaw
+    angle in an east-north-up frame, ROS REP 103): compass = 90 - yaw."""
     speed_unit: str = "m/s"
 
     def columns(self) -> dict[str, tuple[str, str]]:

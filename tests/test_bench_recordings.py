@@ -1,11 +1,13 @@
-"""The simulator's effects measured on the real drives: a GPS course that lags, a log that keeps
-point samples of a faster gyro, and the recording profile that combines them with the values
-the tuning drives gave (hdrd/sim/recordings.py; docs/model-gap.md)."""
+"""bench/recordings.py, the recording profile bench/gap_real.py measures, and the simulator's
+effects it rests on: a GPS course that lags, a log that keeps point samples of a faster gyro
+(docs/gyro-model.md, docs/model-gap.md)."""
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +19,11 @@ from hdrd.sim import simulate_drive
 from hdrd.sim.effects import RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.recordings import (
+from hdrd.sim.gyrolimits import limit_problem
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+
+from recordings import (  # noqa: E402
     RECORDINGS,
     Recording,
     log_rate_model,
@@ -95,6 +101,15 @@ def test_the_profile_is_the_grade_with_what_the_tuning_drives_measured() -> None
     assert white.density_dps_per_rthz == pytest.approx(per_sample / math.sqrt(r.log_hz))
     with pytest.raises(ValueError, match="unknown recording"):
         Recording.from_table("nope")
+
+
+def test_every_profiles_models_are_within_the_gyro_limits() -> None:
+    for r in RECORDINGS:
+        for m in (recording_model(r, 0), log_rate_model(r, 0)):
+            for e in m.to_dict()["effects"]:
+                for k, v in e.items():
+                    if k != "name":
+                        assert limit_problem(e["name"], k, v) is None, (r, e, k)
 
 
 @pytest.mark.slow  # a whole model-gap search
