@@ -86,6 +86,16 @@ def test_the_noise_parameters_are_recorded_beside_the_bias(fake_gyro, tmp_path: 
     assert b"noise recorded: white" in p.stdout and b"10 min or more" in p.stdout
 
 
+def test_calibrate_refuses_when_the_vehicle_moves(fake_gyro, tmp_path: Path) -> None:
+    bias_file = tmp_path / "bias.yaml"
+    g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=12.0, lead_in_s=2), speedup=0)
+    g.start()
+    p = calibrate("--port", g.path, "--seconds", "5", "--bias-file", str(bias_file))
+    assert p.returncode == 1
+    assert b"moved" in p.stderr
+    assert not bias_file.exists()
+
+
 @pytest.mark.slow
 def test_a_steady_rotation_is_refused_naming_the_limit(fake_gyro, tmp_path: Path) -> None:
     # 10 deg/s, perfectly steady: spread, trend and excursion all pass; the size does not.

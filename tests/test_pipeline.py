@@ -443,11 +443,15 @@ def test_bias_source_says_what_last_changed_the_bias() -> None:
     first = p.feed_array(to_array(make_frames(omega)))
     steps = [m for m in first if "yaw" in m]
     assert steps and "bias_source" not in first[0]  # calibrating: no bias yet
-    assert {m["bias_source"] for m in steps} == {"calibration"}
+    assert p.bias is not None
+    measured = p.bias.bias_dps  # the start-up window's mean
+    assert measured == pytest.approx(0.2, abs=SensorModel().lsb_dps)
+    assert {(m["bias"], m["bias_source"]) for m in steps} == {(measured, "calibration")}
     p.adjust_bias(0.01, "gps")
     later = p.feed_array(to_array(make_frames(omega, t0_us=10_000_000)))
-    assert later and {m["bias_source"] for m in later} == {"gps"}
-    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "gps"
+    assert later and {(m["bias"], m["bias_source"]) for m in later} == {(measured + 0.01, "gps")}
+    stale = p.stale_message(1.0e9, 3.0)
+    assert (stale["bias"], stale["bias_source"]) == (measured + 0.01, "gps")
     p.reconfigure(
         PipelineConfig(startup_s=1.0, setup=MethodSetup(bias=given_bias(0.3)))
     )  # a new bias from the config
