@@ -20,8 +20,8 @@ from hdrd.io.wire.capture import decode_capture, encode_array
 from hdrd.io.wire.codec import FRAME_DTYPE, Frame, array_to_frames, encode_bin
 from hdrd.io.wire.parser import Parser
 from hdrd.io.wire.protocol import PROTOCOLS, SYNC
-from tests.test_codec import frames_st
 from tests.test_parser import _NEAR, run
+from tests.test_rel_bytes import frames_st
 
 
 @given(

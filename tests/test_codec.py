@@ -27,7 +27,7 @@ from hdrd.io.wire.codec import (
 from hdrd.io.wire.parser import Parser
 from hdrd.io.wire.protocol import PROTOCOLS, SYNC
 from hdrd.io.wire.tracker import FrameTracker
-from tests.test_rel_bytes import as_stream
+from tests.test_rel_bytes import as_stream, frames_st
 
 
 def crc_bitwise(data: bytes) -> int:
@@ -39,16 +39,6 @@ def crc_bitwise(data: bytes) -> int:
         for _ in range(8):
             crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
     return crc
-
-
-frames_st = st.builds(
-    Frame,
-    seq=st.integers(0, 0xFFFF),
-    t_us=st.integers(0, 0xFFFFFFFF),
-    rate=st.integers(0, 0xFFFF),
-    ref=st.integers(0, 0xFFFF),
-    temp_cc=st.none() | st.integers(-32767, 32767),
-)
 
 
 def kept_by_tracker(frames: list[Frame]) -> list[Frame]:

@@ -21,8 +21,7 @@ from hdrd.io.wire.codec import (
 from hdrd.io.wire.parser import Parser
 from hdrd.io.wire.protocol import PROTOCOLS, SYNC
 from hdrd.io.wire.tracker import ParserStats
-from tests.test_codec import frames_st
-from tests.test_rel_bytes import as_stream, scan_bin_reference
+from tests.test_rel_bytes import as_stream, frames_st, scan_bin_reference
 
 I = 100_000  # us: a 10 Hz device
 NON_SYNC_BIN = st.integers(0, 255).filter(lambda b: b not in (0xA5, 0x5A))
