@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
     from hdrd.analysis.evaluate import PreparedDrive
     from hdrd.core.plusparams import PlusParams
-    from hdrd.io.drivelog import DriveLog
+    from hdrd.io.files.drivelog import DriveLog
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"

@@ -62,7 +62,7 @@ from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.config import ConfigError, load_config, method_setup
 from hdrd.core.grades import Grade
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim.drive import simulate_drive
 
 SECTION = "## A unit's profile: gyro-only with what gap learned on an earlier drive"

@@ -276,7 +276,7 @@ def noise_in_force(
     3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.
 
     The unit's motion offset is the one known best: ``learned`` (what the daemon's trips
-    taught, :mod:`hdrd.io.unitstate`) when its sd is below the configuration's (source
+    taught, :mod:`hdrd.io.files.unitstate`) when its sd is below the configuration's (source
     ``learned``). None when nothing is known: HDR+ starts from the bank of a fresh unit.
     ValueError for an unknown grade."""
     merged, source = _configured(grade, dict(given or {}))

@@ -5,7 +5,7 @@ never ends) no larger than a limit that fits its kind (:func:`read_limited`); YA
 with PyYAML's safe loader, its nesting depth bounded, and any failure of the parser (syntax,
 a number with more digits than Python converts, an impossible date) becomes one
 :class:`InputFileError` (:func:`load_yaml`). Callers turn that into their own one-line error
-(:class:`hdrd.config.ConfigError`, :class:`hdrd.io.biasfile.BiasFileError`, the capture
+(:class:`hdrd.config.ConfigError`, :class:`hdrd.io.files.biasfile.BiasFileError`, the capture
 commands' message).
 
 Writing: the bias file, the ``--json``/``--out``/``--report`` files of evaluate, tune and

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 from hdrd.errors import clipped
-from hdrd.io.files import printable
+from hdrd.io.files.access import printable
 
 __all__ = ["udp_port_holders"]
 

@@ -1,14 +1,14 @@
 """Drive logs as Parquet (docs/drive-format.md, "Parquet"): one file per drive, a file holding
 many drives in a ``drive`` column, or a dataset partitioned by drive (``DIR/drive=NAME/``).
 
-The same columns, units and signs as the CSV (:mod:`hdrd.io.drivelog`); a drive is read into the
-same :class:`~hdrd.io.drivelog.DriveLog` and passes the same checks. Metadata (the CSV's
+The same columns, units and signs as the CSV (:mod:`hdrd.io.files.drivelog`); a drive is read into the
+same :class:`~hdrd.io.files.drivelog.DriveLog` and passes the same checks. Metadata (the CSV's
 ``# key: value`` lines) is the Parquet schema's key-value metadata ``hdrd.meta``: a JSON
-object of strings. The writer keeps the CSV's decimals (:func:`hdrd.io.drivelog.csv_values`), so
+object of strings. The writer keeps the CSV's decimals (:func:`hdrd.io.files.drivelog.csv_values`), so
 a drive written as CSV and as Parquet reads back bit for bit the same.
 
 pyarrow is imported only here, and only when a Parquet file is read or written; without it a
-one-line :class:`~hdrd.io.drivelog.DriveLogError` says how to install it.
+one-line :class:`~hdrd.io.files.drivelog.DriveLogError` says how to install it.
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from hdrd.errors import clipped
-from hdrd.io.drivelog import (
+from hdrd.io.files.access import printable, shown_path, size_text
+from hdrd.io.files.drivelog import (
     COLUMNS,
     DEFAULT_READ_LIMITS,
     REQUIRED,
@@ -34,7 +35,6 @@ from hdrd.io.drivelog import (
     check_columns,
     csv_values,
 )
-from hdrd.io.files import printable, shown_path, size_text
 
 __all__ = [
     "DRIVE_COLUMN",
@@ -89,8 +89,8 @@ def partition_value(path: str | os.PathLike[str]) -> str:
 def partition_dir(root: str | os.PathLike[str], name: str) -> Path:
     """The partition directory of drive ``name`` in the dataset at ``root``: ``drive=NAME``
     with NAME URI-encoded (a ``/`` is ``%2F``), always directly inside ``root``
-    (:func:`hdrd.io.files.path_inside`); DriveLogError for an empty name or one too long."""
-    from hdrd.io.files import UnsafeNameError, path_inside
+    (:func:`hdrd.io.files.access.path_inside`); DriveLogError for an empty name or one too long."""
+    from hdrd.io.files.access import UnsafeNameError, path_inside
 
     if not name:
         raise DriveLogError(f"{root}: a drive needs a name to be a partition of the dataset")
@@ -467,10 +467,10 @@ def write_parquet_drive(
     path: str | os.PathLike[str], log: DriveLog, inside: str | os.PathLike[str] | None = None
 ) -> None:
     """Write one drive as a Parquet file (zstd), whole or not at all
-    (:func:`hdrd.io.files.atomic_output`: its missing folders made; a character device or a
+    (:func:`hdrd.io.files.access.atomic_output`: its missing folders made; a character device or a
     FIFO is written through; ``inside``: a file hdrd names in that folder, only a regular file
     replaced); OSError if it cannot be."""
-    from hdrd.io.files import atomic_output
+    from hdrd.io.files.access import atomic_output
 
     _, _, pq = _pyarrow()
     with atomic_output(path, make_parents=True, inside=inside) as f:
@@ -482,7 +482,7 @@ def write_dataset_drive(root: str | os.PathLike[str], log: DriveLog, name: str) 
     ``ROOT/drive=NAME/part-0.parquet`` (NAME URI-encoded, as pyarrow's hive partitioning
     reads it), replacing the drive if it is there; ROOT and the partition's folder are made if
     need be. The partition is a file hdrd names in the folder the user named
-    (:func:`hdrd.io.files.atomic_output`'s ``inside``: a link or a FIFO there is refused, and
+    (:func:`hdrd.io.files.access.atomic_output`'s ``inside``: a link or a FIFO there is refused, and
     a partition folder that leads out of ROOT). OSError if it cannot be written. Returns the
     file written."""
     part = partition_dir(root, name)

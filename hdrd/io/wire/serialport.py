@@ -1,6 +1,6 @@
 """The serial link: raw bytes from a port that reopens itself (pyserial underneath).
 
-:class:`SerialReader` is shared by :class:`hdrd.io.sources.SerialSource` (frames for the daemon
+:class:`SerialReader` is shared by :class:`hdrd.io.wire.sources.SerialSource` (frames for the daemon
 and ``hdrd calibrate``) and ``hdrd record`` (raw bytes to a capture). It reports a lost
 device once (:class:`DeviceLost`), reopens it with backoff inside its ``read`` calls, and
 reports it back (:class:`DeviceBack`); nothing it does blocks longer than the timeout a
@@ -21,8 +21,8 @@ from typing import Any
 import serial
 from serial.urlhandler import protocol_socket
 
-from hdrd.io.clocks import Clock, RealClock
 from hdrd.io.resolve import Resolver, default_resolver
+from hdrd.io.wire.clocks import Clock, RealClock
 
 __all__ = [
     "CONNECT_TIMEOUT_S",

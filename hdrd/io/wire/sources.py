@@ -1,11 +1,11 @@
 """Inputs of the daemon's pipeline: the serial gyro, or a simulated one.
 
 Every source is shaped like python-can's bus: ``recv(timeout) -> Frame | SourceEvent | None``,
-a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.io.frames.ParserStats`).
+a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.io.wire.tracker.ParserStats`).
 
 ``recv`` returns
 
-- a :class:`~hdrd.io.frames.Frame`;
+- a :class:`~hdrd.io.wire.codec.Frame`;
 - ``None``: nothing within ``timeout`` seconds ("no data yet" — never the end of the stream);
 - :class:`DeviceLost` (once, when the device goes away: unplugged, EOF on a pty, I/O error),
   then, after the source has reopened the same path by itself, :class:`DeviceBack`;
@@ -13,13 +13,13 @@ a context manager, an idempotent ``close()``, and ``stats`` (:class:`hdrd.io.fra
 
 I/O trouble never raises out of ``recv``. ``stats.bad_frames`` is the count of bad frames
 that came before the last frame ``recv`` returned (all of them after a ``None`` or an event),
-exactly what :class:`hdrd.io.capture.CaptureStats` ``.bad_before`` gives for a whole capture,
+exactly what :class:`hdrd.io.wire.capture.CaptureStats` ``.bad_before`` gives for a whole capture,
 so a live run and a replay of the same bytes publish the same counts (``hdrd replay`` decodes
-a capture whole, :mod:`hdrd.io.capture`, instead of reading it as a source).
+a capture whole, :mod:`hdrd.io.wire.capture`, instead of reading it as a source).
 
 The serial byte reader with its reconnect loop, :class:`SerialReader`, lives in
-:mod:`hdrd.io.serialport` (shared with ``hdrd record``); its link events are re-exported here,
-the clocks are in :mod:`hdrd.io.clocks`.
+:mod:`hdrd.io.wire.serialport` (shared with ``hdrd record``); its link events are re-exported here,
+the clocks are in :mod:`hdrd.io.wire.clocks`.
 """
 
 from __future__ import annotations
@@ -30,9 +30,11 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-from hdrd.io.clocks import Clock
-from hdrd.io.frames import Frame, Parser, ParserStats
-from hdrd.io.serialport import DeviceBack, DeviceLost, LinkStats, SerialReader
+from hdrd.io.wire.clocks import Clock
+from hdrd.io.wire.codec import Frame
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.serialport import DeviceBack, DeviceLost, LinkStats, SerialReader
+from hdrd.io.wire.tracker import ParserStats
 
 if TYPE_CHECKING:
     pass
@@ -133,7 +135,7 @@ class _FrameQueue:
 
 
 class _ParsedSource(SourceBase):
-    """A source whose bytes go through a :class:`hdrd.io.frames.Parser` (the serial port): frames
+    """A source whose bytes go through a :class:`hdrd.io.wire.parser.Parser` (the serial port): frames
     parsed but not handed out wait in a queue with the bad-frame count before each."""
 
     def __init__(self, protocol: str) -> None:
@@ -161,7 +163,7 @@ class _ParsedSource(SourceBase):
 class SerialSource(_ParsedSource):
     """Frames from a serial port (any pyserial URL), reopened by itself when lost.
 
-    ``recv`` parses what the port delivers with :class:`hdrd.io.frames.Parser`; on a loss the
+    ``recv`` parses what the port delivers with :class:`hdrd.io.wire.parser.Parser`; on a loss the
     partial frame is dropped (counted as garbage) and the parser's sequence/clock references
     are kept, so the frames lost across the gap show in ``stats.lost_frames``.
     """

@@ -25,8 +25,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.angles import compass
 from hdrd.errors import clipped
-from hdrd.io.drivelog import (
+from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.drivelog import (
     DEFAULT_READ_LIMITS,
     HEADING_LIMIT_DEG,
     DriveLog,
@@ -38,7 +40,6 @@ from hdrd.io.drivelog import (
     parse_cell,
     text_lines,
 )
-from hdrd.io.files import printable, shown_path
 
 __all__ = [
     "HEADING_UNITS",
@@ -61,9 +62,6 @@ HEADING_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
 """deg per unit of the source's heading."""
 SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6, "mph": 0.44704}
 """m/s per unit of the source's speed."""
-HEADING_REFS = ("compass", "enu")
-"""compass: clockwise from north (a GPS course); enu: counter-clockwise from east (a yaw angle
-in an east-north-up frame, ROS REP 103): compass = 90 - yaw."""
 
 
 class SourceCsvError(DriveLogError):
@@ -87,6 +85,8 @@ class Mapping:
     omega_sign: str = "ccw"
     heading_unit: str = "deg"
     heading_ref: str = "compass"
+    """compass: clockwise from north (a GPS course); enu: counter-clockwise from east (a yaw
+    angle in an east-north-up frame, ROS REP 103): compass = 90 - yaw."""
     speed_unit: str = "m/s"
 
     def columns(self) -> dict[str, tuple[str, str]]:
@@ -154,8 +154,7 @@ def convert(
         if mapping.heading_ref == "enu":
             h = 90.0 - h
         with np.errstate(invalid="ignore"):
-            h = np.mod(h, 360.0)
-            h = np.where(h >= 360.0, 0.0, h)  # a tiny negative's mod rounds to 360
+            h = compass(h)
         out["heading_truth"] = h
     if "speed" in arrays:
         out["speed"] = arrays["speed"] * SPEED_UNITS[mapping.speed_unit]

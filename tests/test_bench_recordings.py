@@ -1,22 +1,29 @@
-"""The simulator's effects measured on the real drives: a GPS course that lags, a log that keeps
-point samples of a faster gyro, and the recording profile that combines them with the values
-the tuning drives gave (hdrd/sim/recordings.py; docs/model-gap.md)."""
+"""bench/recordings.py, the recording profile bench/gap_real.py measures, and the simulator's
+effects it rests on: a GPS course that lags, a log that keeps point samples of a faster gyro
+(docs/gyro-model.md, docs/model-gap.md)."""
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hdrd.analysis.gap import run_gap, summary
+from hdrd.core.angles import wrap180
 from hdrd.core.grades import Grade
 from hdrd.sim import simulate_drive
 from hdrd.sim.effects import RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model
-from hdrd.sim.recordings import (
+from hdrd.sim.gyrolimits import limit_problem
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+
+from recordings import (  # noqa: E402
     RECORDINGS,
     Recording,
     log_rate_model,
@@ -40,7 +47,7 @@ def test_course_latency_reports_the_heading_of_that_long_before() -> None:
     unwrapped = np.degrees(np.unwrap(np.radians(heading)))
     want = np.mod(np.interp(t[fix] - 1.2, t, unwrapped), 360.0)
     np.testing.assert_allclose(late[fix], want, atol=1e-9)
-    assert np.max(np.abs((late[fix] - now[fix] + 180.0) % 360.0 - 180.0)) > 5.0
+    assert np.max(np.abs(wrap180(late[fix] - now[fix]))) > 5.0
 
 
 def test_no_latency_leaves_the_course_as_it_was() -> None:
@@ -94,6 +101,15 @@ def test_the_profile_is_the_grade_with_what_the_tuning_drives_measured() -> None
     assert white.density_dps_per_rthz == pytest.approx(per_sample / math.sqrt(r.log_hz))
     with pytest.raises(ValueError, match="unknown recording"):
         Recording.from_table("nope")
+
+
+def test_every_profiles_models_are_within_the_gyro_limits() -> None:
+    for r in RECORDINGS:
+        for m in (recording_model(r, 0), log_rate_model(r, 0)):
+            for e in m.to_dict()["effects"]:
+                for k, v in e.items():
+                    if k != "name":
+                        assert limit_problem(e["name"], k, v) is None, (r, e, k)
 
 
 @pytest.mark.slow  # a whole model-gap search

@@ -3,7 +3,7 @@ and ``hdrd tail``'s printing of them.
 
 :func:`read_datagram` is the one validation of a received datagram (pure, never raises): its
 lines that are UTF-8 and either an NMEA 0183 sentence with a good checksum
-(:func:`hdrd.io.publish.parse_nmea`) or a JSON object; a note for each other line (not UTF-8,
+(:func:`hdrd.io.net.publish.parse_nmea`) or a JSON object; a note for each other line (not UTF-8,
 malformed, a number of more than 4,300 digits, nesting too deep, a JSON value that is not an
 object). :func:`implausible` says why an HDR message holds a value no hdrd can send (``hdrd
 web`` refuses such a message). :func:`udp_listener` binds the UDP socket both read from.
@@ -13,7 +13,7 @@ HDR step, or the JSON lines and NMEA sentences as received (``raw``). What it re
 printable text only (:func:`printable`): no datagram can move the cursor, retitle the window or
 ring the bell. Every number fits its column (a yaw of 1e300 is ``1e+300``, never 300 digits); on
 a terminal JSON lines show their numbers rounded to what they mean
-(:func:`hdrd.io.display.for_display`), into a pipe exactly as received.
+(:func:`hdrd.io.net.display.for_display`), into a pipe exactly as received.
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdrd.io.display import fit, for_display
-from hdrd.io.protocol import ADDED_KEYS, MESSAGE_CLASS, STEP_KEYS
-from hdrd.io.publish import heading_field, parse_hostport, parse_nmea
+from hdrd.io.net.display import fit, for_display
+from hdrd.io.net.publish import heading_field, parse_hostport, parse_nmea
+from hdrd.io.wire.protocol import ADDED_KEYS, MESSAGE_CLASS, STEP_KEYS
 
 __all__ = [
     "DEFAULT_TAIL_LISTEN",
@@ -158,7 +158,7 @@ def shown_address(host: str, port: int) -> str:
 
 
 def udp_listener(listen: str) -> tuple[socket.socket, str]:
-    """A UDP socket bound to ``listen`` (HOST:PORT, :func:`hdrd.io.publish.parse_hostport`;
+    """A UDP socket bound to ``listen`` (HOST:PORT, :func:`hdrd.io.net.publish.parse_hostport`;
     the first address the host resolves to), and that address as shown to a user.
 
     ValueError: the address is malformed or does not resolve. OSError: it cannot be bound
@@ -219,7 +219,7 @@ class TailFormatter:
     printed as received with their decoded meaning; other JSON objects as received. With
     *raw*, everything valid is printed exactly as received (like ``gpspipe -w``). With
     *display* (stdout is a terminal), JSON lines are printed with their numbers rounded to
-    what they mean (:func:`hdrd.io.display.for_display`).
+    what they mean (:func:`hdrd.io.net.display.for_display`).
     """
 
     def __init__(self, raw: bool = False, display: bool = False) -> None:

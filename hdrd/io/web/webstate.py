@@ -1,7 +1,7 @@
 """What ``hdrd web`` keeps and pushes, pure: the latest HDR message, a trace of the last ten
 minutes, and the server-sent events (SSE) that carry them (docs/web.md).
 
-Datagrams are validated by :func:`hdrd.io.datagrams.read_datagram`, as ``hdrd tail`` validates
+Datagrams are validated by :func:`hdrd.io.net.datagrams.read_datagram`, as ``hdrd tail`` validates
 them; of what passes, only JSON objects of class ``HDR`` are kept (NMEA sentences and other
 classes are counted and ignored). A message is pushed re-encoded by :mod:`json` (ASCII only,
 no NaN or infinity: such a message is refused), so no byte of a datagram reaches a browser
@@ -28,8 +28,9 @@ import math
 from collections import deque
 from typing import Any
 
-from hdrd.io.datagrams import implausible, read_datagram
-from hdrd.io.protocol import MESSAGE_CLASS
+from hdrd.core.angles import wrap180
+from hdrd.io.net.datagrams import implausible, read_datagram
+from hdrd.io.wire.protocol import MESSAGE_CLASS
 
 __all__ = [
     "HISTORY_S",
@@ -80,7 +81,7 @@ def trace_point(msg: dict[str, Any], rx: float) -> Point:
     dgps = None
     if msg.get("mode") == "aided" and heading is not None and course is not None:
         diff = heading - course  # inf only for values implausible() refuses
-        dgps = round((diff + 180.0) % 360.0 - 180.0, 3) if math.isfinite(diff) else None
+        dgps = round(wrap180(diff), 3) if math.isfinite(diff) else None
     return (round(rx, 3), None if omega is None else round(omega, 4), dgps)
 
 

@@ -2,11 +2,13 @@
 ``hdrd convert``, the benches) and encoder of frames (:func:`encode_array`).
 
 Pure. :func:`decode_capture` gives exactly the frames and counters of a
-:class:`hdrd.io.frames.Parser` fed the same bytes and flushed, plus for each frame the bad frames
+:class:`hdrd.io.wire.parser.Parser` fed the same bytes and flushed, plus for each frame the bad frames
 that came before it (:class:`CaptureStats`), as a numpy structured array
-(:data:`hdrd.io.frames.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
-bounded memory (the CRCs table-driven, two bytes per step); hdr-text through the push parser.
-Both judge the frames' sequence and clock with :class:`hdrd.io.frames.FrameTracker`.
+(:data:`hdrd.io.wire.codec.FRAME_DTYPE`): hdr-bin without a Python loop per frame, in slices of
+bounded memory (the CRCs table-driven, two bytes per step), by the parser's rule (the rare
+overlapping candidates through its own :func:`hdrd.io.wire.parser.displaced`); hdr-text through the
+push parser. Both judge the frames' sequence and clock with
+:class:`hdrd.io.wire.tracker.FrameTracker`.
 """
 
 from __future__ import annotations
@@ -16,18 +18,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.frames import (
+from hdrd.io.wire.codec import (
     FRAME_DTYPE,
     Frame,
-    FrameTracker,
-    Parser,
-    ParserStats,
     array_to_frames,
     check_protocol,
     encode_text,
     frames_to_array,
 )
-from hdrd.io.protocol import BIN_FRAME_LEN
+from hdrd.io.wire.parser import Parser, displaced
+from hdrd.io.wire.protocol import BIN_CRC_AT, BIN_FRAME_LEN, BIN_PAYLOAD_AT, BIN_PAYLOAD_LEN, SYNC
+from hdrd.io.wire.tracker import FrameTracker, ParserStats
 
 __all__ = [
     "CRC_TABLE",
@@ -95,6 +96,10 @@ def crc16_ccitt_false_rows(rows: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16
     return crc
 
 
+_PAYLOAD_WORDS = slice(BIN_PAYLOAD_AT // 2, BIN_CRC_AT // 2)
+_CRC_WORD = BIN_CRC_AT // 2
+
+
 def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     """Whether the hdr-bin frame starting at each position ``cand`` (sorted, each with room
     for a whole frame) of the bytes ``a`` carries a matching CRC."""
@@ -106,9 +111,9 @@ def crc_ok_at(a: npt.NDArray[np.uint8], cand: npt.NDArray[np.int64]) -> npt.NDAr
         rows = a[cand[0] : cand[0] + BIN_FRAME_LEN * k].reshape(k, BIN_FRAME_LEN)
     else:
         rows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)[cand]
-    words = rows.view("<u2")  # (k, 8): sync, seq, t_us (2 words), rate, ref, temp, crc
-    stored = words[:, 7]
-    return _crc_words_le(words[:, 1:7]) == ((stored >> 8) | (stored << 8))
+    words = rows.view("<u2")  # (k, 8): sync, the payload's words, crc
+    stored = words[:, _CRC_WORD]
+    return _crc_words_le(words[:, _PAYLOAD_WORDS]) == ((stored >> 8) | (stored << 8))
 
 
 def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
@@ -119,12 +124,11 @@ def encode_array(arr: npt.NDArray[np.void], protocol: str = "hdr-bin") -> bytes:
         return b"".join(encode_text(f) for f in array_to_frames(arr))
     k = arr.shape[0]
     out = np.empty((k, BIN_FRAME_LEN), np.uint8)
-    out[:, 0] = 0xA5
-    out[:, 1] = 0x5A
-    out[:, 2:14] = arr.view(np.uint8).reshape(k, 12)
-    crc = crc16_ccitt_false_rows(out[:, 2:14])
-    out[:, 14] = crc & 0xFF
-    out[:, 15] = crc >> 8
+    out[:, :BIN_PAYLOAD_AT] = np.frombuffer(SYNC, np.uint8)
+    out[:, BIN_PAYLOAD_AT:BIN_CRC_AT] = arr.view(np.uint8).reshape(k, BIN_PAYLOAD_LEN)
+    crc = crc16_ccitt_false_rows(out[:, BIN_PAYLOAD_AT:BIN_CRC_AT])
+    out[:, BIN_CRC_AT] = crc & 0xFF
+    out[:, BIN_CRC_AT + 1] = crc >> 8
     return out.tobytes()
 
 
@@ -169,32 +173,14 @@ def _greedy_accept(v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
 
 def _drop_displaced(a: npt.NDArray[np.uint8], v: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     """Which CRC-valid candidates ``v`` (sorted positions) survive the push parser's
-    :func:`_displaced` rule at the end of input: x is a CRC coincidence, and dropped, if it is
-    not followed by a sync pattern at x + 16 while another valid candidate y, x + 2 <= y <=
-    x + 14, is followed by one at y + 16. Python loops only over valid candidates closer
-    than 15 bytes (rare)."""
+    :func:`hdrd.io.wire.parser.displaced` rule at the end of input; only a candidate with another
+    within 14 bytes can be a coincidence, so Python loops only over those (rare)."""
     keep = np.ones(v.shape[0], bool)
     if v.shape[0] < 2:
         return keep
-    near = np.flatnonzero(np.diff(v) <= BIN_FRAME_LEN - 2)
-    if near.size == 0:
-        return keep
-    n = a.shape[0]
-
-    def sync_after(x: int) -> bool:
-        return x + BIN_FRAME_LEN + 2 <= n and a[x + 16] == 0xA5 and a[x + 17] == 0x5A
-
-    last = v.shape[0]
-    for k in near.tolist():
+    for k in np.flatnonzero(np.diff(v) <= BIN_FRAME_LEN - 2).tolist():
         x = int(v[k])
-        if sync_after(x):
-            continue
-        m = k + 1
-        while m < last and v[m] <= x + BIN_FRAME_LEN - 2:
-            if sync_after(int(v[m])):
-                keep[k] = False
-                break
-            m += 1
+        keep[k] = not displaced(a[x : x + 2 * BIN_FRAME_LEN].tobytes(), 0, True)
     return keep
 
 
@@ -228,21 +214,21 @@ def _candidates(a: npt.NDArray[np.uint8], lo: int, hi: int) -> npt.NDArray[np.in
     """Positions i in [lo, hi) where a sync pattern starts (hi <= len(a) - 15: room for a
     whole frame)."""
     seg = a[lo : hi + 1]
-    cand = np.flatnonzero((seg[:-1] == 0xA5) & (seg[1:] == 0x5A)).astype(np.int64, copy=False)
+    cand = np.flatnonzero((seg[:-1] == SYNC[0]) & (seg[1:] == SYNC[1])).astype(np.int64, copy=False)
     if lo:
         cand += lo
     return cand
 
 
 def _payload(a: npt.NDArray[np.uint8], acc: npt.NDArray[np.int64]) -> npt.NDArray[np.void]:
-    """The :data:`FRAME_DTYPE` array of the frames starting at ``acc`` (bytes 2..13 each)."""
+    """The :data:`FRAME_DTYPE` array of the frames starting at ``acc`` (their payloads)."""
     k = acc.shape[0]
     out = np.empty(k, FRAME_DTYPE)
-    view = out.view(np.uint8).reshape(k, 12)
+    view = out.view(np.uint8).reshape(k, BIN_PAYLOAD_LEN)
     windows = np.lib.stride_tricks.sliding_window_view(a, BIN_FRAME_LEN)
     step = max(1, _SCAN_BYTES // BIN_FRAME_LEN)
     for lo in range(0, k, step):  # gathered in slices: 16 bytes a frame at a time, not all
-        view[lo : lo + step] = windows[acc[lo : lo + step], 2:14]
+        view[lo : lo + step] = windows[acc[lo : lo + step], BIN_PAYLOAD_AT:BIN_CRC_AT]
     return out
 
 
@@ -327,7 +313,7 @@ def decode_capture(
     if n < BIN_FRAME_LEN:
         st.garbage_bytes = n
         return np.empty(0, FRAME_DTYPE), st
-    top = n - 15  # a frame can start at 0 .. n - 16
+    top = n - BIN_FRAME_LEN + 1  # a frame can start at 0 .. n - 16
     slices = [(lo, min(lo + _SCAN_BYTES, top)) for lo in range(0, top, _SCAN_BYTES)]
     valid, failed_parts, failed = _crc_valid(a, slices)
     keep = _drop_displaced(a, valid)

@@ -20,7 +20,7 @@ from pathlib import Path
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.selfcheck import OutageRecord
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.files import atomic_write_text
+from hdrd.io.files.access import atomic_write_text
 
 __all__ = [
     "MAX_OFFSET_DPS",
@@ -94,7 +94,7 @@ def save_unit_state(path: str | os.PathLike[str], state: UnitState) -> None:
 def load_unit_state(path: str | os.PathLike[str]) -> UnitState | None:
     """Read a state file; None when there is none yet; UnitStateError (one line naming the
     file and the problem) when it cannot be used."""
-    from hdrd.io.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files.access import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
 
     p = Path(path)
     try:

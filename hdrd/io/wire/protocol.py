@@ -1,9 +1,10 @@
 """What docs/protocol.md specifies, as data: the ADC's frame formats and the published messages.
 
-No code and no numpy here (the command line reads the format names for its choices): the
-codecs are in :mod:`hdrd.io.frames` and :mod:`hdrd.io.capture`, the device clock's unwrapping in
-:mod:`hdrd.io.clocks`, the messages are built by :mod:`hdrd.daemon.pipeline` (and :mod:`hdrd.daemon.aiding`)
-and sent by :mod:`hdrd.io.publish`.
+Data only, and no numpy (the command line reads the format names for its choices): the codecs
+are :mod:`hdrd.io.wire.codec`, :mod:`hdrd.io.wire.parser` and :mod:`hdrd.io.wire.capture`,
+the device clock's unwrapping :mod:`hdrd.io.wire.clocks`; the messages are built by
+:mod:`hdrd.daemon.pipeline` (and :mod:`hdrd.daemon.aiding`) and sent by
+:mod:`hdrd.io.net.publish`.
 
 Units and signs of the message fields: yaw rates deg/s, + = counter-clockwise seen from above
 (a left turn); yaw deg CCW since start; heading compass deg, clockwise from north, [0, 360).
@@ -11,12 +12,16 @@ Units and signs of the message fields: yaw rates deg/s, + = counter-clockwise se
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 __all__ = [
     "ADDED_KEYS",
     "BIAS_SOURCES",
+    "BIN_CRC_AT",
+    "BIN_FIELDS",
     "BIN_FRAME_LEN",
+    "BIN_PAYLOAD_AT",
+    "BIN_PAYLOAD_LEN",
     "BREAK_CONFIRM_FRAMES",
     "BREAK_REBASE_FRAMES",
     "CLOCK_WRAP_US",
@@ -36,7 +41,10 @@ __all__ = [
     "TEMP_NOT_FITTED",
     "TEXT_MAX_LINE",
     "TEXT_SYNC",
+    "WIRE_TYPES",
     "Message",
+    "WireField",
+    "WireType",
 ]
 
 # -- the wire: the ADC's frames ("Wire protocol") --------------------------------------------
@@ -45,7 +53,58 @@ PROTOCOLS = ("hdr-bin", "hdr-text")
 """The frame formats (``device.protocol``, ``--protocol``)."""
 SYNC = b"\xa5\x5a"
 """hdr-bin's first two bytes."""
-BIN_FRAME_LEN = 16
+
+
+class WireType(NamedTuple):
+    """A field type of the wire, as each reader of the table spells it."""
+
+    size: int
+    """bytes"""
+    struct: str
+    """the :mod:`struct` code (the formats are little-endian)"""
+    numpy: str
+    """the numpy dtype, little-endian"""
+    c: str
+    """the C type (firmware/src/wire.h)"""
+
+
+WIRE_TYPES = {
+    "u16": WireType(2, "H", "<u2", "uint16_t"),
+    "u32": WireType(4, "I", "<u4", "uint32_t"),
+    "i16": WireType(2, "h", "<i2", "int16_t"),
+}
+"""The field types of hdr-bin, by name."""
+
+
+class WireField(NamedTuple):
+    """One field of hdr-bin's payload."""
+
+    name: str
+    """the column of the frames' numpy array and the member of the firmware's struct"""
+    type: str
+    """a key of :data:`WIRE_TYPES`"""
+    meaning: str
+    """what it holds, with its unit"""
+
+
+BIN_FIELDS = (
+    WireField("seq", "u16", "frame counter, +1 per frame, wraps at 2**16"),
+    WireField("t_us", "u32", "device clock, microseconds, wraps at 2**32"),
+    WireField("rate", "u16", "ADC counts of the gyro output (16-bit scale)"),
+    WireField("ref", "u16", "ADC counts of the supply monitor, 0 = not wired"),
+    WireField("temp", "i16", "board temperature, 0.01 degC, -32768 = not fitted"),
+)
+"""hdr-bin's payload, in the order sent, each field little-endian: the one table the frame's
+struct formats, the numpy dtype of the vectorised decoder and the firmware's C header
+(``python -m tools.gen_header``) are made from. A frame is :data:`SYNC`, these fields, and
+the CRC-16/CCITT-FALSE of them (u16)."""
+BIN_PAYLOAD_AT = len(SYNC)
+"""Offset of the payload (the first field) in a frame, bytes."""
+BIN_PAYLOAD_LEN = sum(WIRE_TYPES[f.type].size for f in BIN_FIELDS)
+"""Bytes of the payload: what the CRC covers."""
+BIN_CRC_AT = BIN_PAYLOAD_AT + BIN_PAYLOAD_LEN
+"""Offset of the CRC (u16) in a frame, bytes."""
+BIN_FRAME_LEN = BIN_CRC_AT + 2
 """Bytes in an hdr-bin frame."""
 TEMP_NOT_FITTED = -32768
 """hdr-bin temp value meaning "no temperature sensor fitted" (``Frame.temp_cc is None``)."""

@@ -14,14 +14,22 @@ from pathlib import Path
 from typing import Any
 
 from hdrd.errors import clipped
-from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, DriveLogError, ReadLimits, read_drive
-from hdrd.io.files import printable, shown_path
+from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.drivelog import (
+    DEFAULT_READ_LIMITS,
+    DriveLog,
+    DriveLogError,
+    ReadLimits,
+    read_drive,
+)
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
 CSV_SUFFIX = ".csv"
-PARQUET_SUFFIX = ".parquet"  # hdrd.io.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
-PARTITION_PREFIX = "drive="  # hdrd.io.parquetlog.PARTITION_PREFIX
+PARQUET_SUFFIX = (
+    ".parquet"  # hdrd.io.files.parquetlog.SUFFIX (not imported: it needs no pyarrow here)
+)
+PARTITION_PREFIX = "drive="  # hdrd.io.files.parquetlog.PARTITION_PREFIX
 MAX_NAME_CHARS = 100
 """A drive's name is cut to this many characters (ending in "..."): names come from data (a
 ``drive`` column, a folder's name) and are shown in every line about the drive."""
@@ -33,9 +41,9 @@ drive (OUT/drive=NAME/part-0.parquet)."""
 
 def drive_name(value: Any) -> str:
     """What results and messages call a drive whose name in the data is ``value``: its text
-    with non-printable characters escaped (:func:`hdrd.io.files.printable`), at most
+    with non-printable characters escaped (:func:`hdrd.io.files.access.printable`), at most
     :data:`MAX_NAME_CHARS` characters. A name becomes a path only through
-    :func:`hdrd.io.files.path_inside`."""
+    :func:`hdrd.io.files.access.path_inside`."""
     return clipped(printable(str(value)), MAX_NAME_CHARS)
 
 
@@ -64,7 +72,7 @@ class DriveRef:
         if self.problem is not None:
             raise DriveLogError(self.problem)
         if self.parquet:
-            from hdrd.io.parquetlog import read_parquet_drive
+            from hdrd.io.files.parquetlog import read_parquet_drive
 
             return read_parquet_drive(self.path, self.name, self.key, limits)
         return read_drive(self.path, self.name, limits)
@@ -75,7 +83,7 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
     ``drive`` column (named ``NAME/VALUE``, or VALUE when the file was named itself: ``name``
     empty)."""
     if path.suffix == PARQUET_SUFFIX:
-        from hdrd.io.parquetlog import drives_in_file
+        from hdrd.io.files.parquetlog import drives_in_file
 
         try:
             keys = drives_in_file(path)
@@ -135,7 +143,7 @@ def _scan(root: Path, problems: list[str]) -> list[Path]:
 
 def _partition(path: Path, parent: str = ".") -> DriveRef:
     """A partition directory ``drive=NAME``: named NAME, under the directories above it."""
-    from hdrd.io.parquetlog import partition_value
+    from hdrd.io.files.parquetlog import partition_value
 
     value = partition_value(path)
     return DriveRef(str(path), drive_name(value if parent == "." else f"{parent}/{value}"))
@@ -205,19 +213,19 @@ def write_log(
 ) -> str:
     """Write a drive log as ``fmt`` (:data:`FORMATS`), its missing folders made; ``name``: the
     drive's name in a dataset; ``inside``: ``out`` is a file hdrd names in that folder the user
-    named (a benchmark's drive), as :func:`hdrd.io.files.atomic_output`'s ``inside`` (a
+    named (a benchmark's drive), as :func:`hdrd.io.files.access.atomic_output`'s ``inside`` (a
     dataset's partitions are always). Returns what was written (the file). OSError if it
     cannot be written."""
     if fmt == "csv":
-        from hdrd.io.drivelog import write_drive
+        from hdrd.io.files.drivelog import write_drive
 
         write_drive(out, log, inside)
         return out
     if fmt == "parquet":
-        from hdrd.io.parquetlog import write_parquet_drive
+        from hdrd.io.files.parquetlog import write_parquet_drive
 
         write_parquet_drive(out, log, inside)
         return out
-    from hdrd.io.parquetlog import write_dataset_drive
+    from hdrd.io.files.parquetlog import write_dataset_drive
 
     return str(write_dataset_drive(out, log, name))

@@ -14,7 +14,7 @@ from pathlib import Path
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.files import atomic_write_text
+from hdrd.io.files.access import atomic_write_text
 
 __all__ = ["MAX_BIAS_N", "MAX_BIAS_STD_DPS", "BiasFileError", "load_bias", "save_bias"]
 
@@ -43,7 +43,7 @@ MAX_BIAS_STD_DPS = 1000.0
 def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = None) -> BiasRecord:
     """Read a bias file; BiasFileError (naming the file and the problem) if it is not whole
     and valid. A truncated file lacks the ``# end`` trailer and is refused. The file must be
-    a regular file of at most :data:`hdrd.io.files.MAX_BIAS_BYTES`.
+    a regular file of at most :data:`hdrd.io.files.access.MAX_BIAS_BYTES`.
 
     max_abs_bias_dps: refuse a bias_dps beyond +/- this, deg/s (the configuration's
     ``calibration.max_bias_dps``); None: any finite value.
@@ -81,7 +81,7 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
 
 def _mapping(p: Path) -> dict[str, object]:
     """The bias file's text, whole (ending in ``# end``), read as a YAML mapping."""
-    from hdrd.io.files import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files.access import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
@@ -98,7 +98,7 @@ def _mapping(p: Path) -> dict[str, object]:
     except InputFileError as e:
         at = f" at {e.where}" if e.where else ""
         raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
-    from hdrd.io.yamlkeys import duplicate_key
+    from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:
         raise BiasFileError(f"bias file {p}: {dup}")

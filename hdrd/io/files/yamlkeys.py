@@ -5,7 +5,7 @@ runs ``none``, and of two ``hdr:`` sections the first is dropped. hdrd refuses s
 instead (its configuration, a bias file, a gyro error model). YAML's merge key (``<<``)
 overrides on purpose and is not a duplicate; an alias repeats a node, not a key.
 
-Run on a text :func:`hdrd.io.files.load_yaml` has read (its size, nesting depth and
+Run on a text :func:`hdrd.io.files.access.load_yaml` has read (its size, nesting depth and
 characters already checked): the text is composed again into nodes, which carry their lines.
 Each node is looked at once, so aliases nested into a large graph (a "billion laughs") cost
 what their few nodes cost.
@@ -39,7 +39,7 @@ class DuplicateKey:
 
 def duplicate_key(text: str) -> DuplicateKey | None:
     """A key given twice in one mapping of the YAML document ``text`` (a mapping's own keys
-    are looked at before the mappings inside it), or None. ``text`` must be one that :func:`hdrd.io.files.load_yaml` has read."""
+    are looked at before the mappings inside it), or None. ``text`` must be one that :func:`hdrd.io.files.access.load_yaml` has read."""
     import yaml  # here, not at the top: as load_yaml's
 
     root = yaml.compose(text, Loader=yaml.SafeLoader)

@@ -1,4 +1,4 @@
-"""hdrd.io.files: reading the files hdrd is handed without trusting them (a regular file
+"""hdrd.io.files.access: reading the files hdrd is handed without trusting them (a regular file
 within a size limit, refused at once otherwise; YAML through the safe loader with its nesting
 bounded, every parser failure one InputFileError), writing its own atomically (whole or not
 at all, stale temporary files of dead writers cleaned, a live writer's left alone), and names
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.io.files import (
+from hdrd.io.files.access import (
     MAX_NAME_BYTES,
     MAX_SHOWN_PATH,
     MAX_YAML_DEPTH,
@@ -236,7 +236,7 @@ def test_a_fifo_is_written_through_to_its_reader(tmp_path: Path) -> None:
 
 def test_evaluate_json_to_a_device_leaves_the_device(tmp_path: Path) -> None:
     from hdrd.cli import main
-    from hdrd.io.drivelog import write_drive
+    from hdrd.io.files.drivelog import write_drive
     from hdrd.sim import simulate_drive
 
     node = char_device(tmp_path / "mynull")

@@ -1,7 +1,7 @@
-"""Publishers: where each HDR step's message goes (``hdrd tail`` and ``hdrd web`` read it, :mod:`hdrd.io.datagrams`).
+"""Publishers: where each HDR step's message goes (``hdrd tail`` and ``hdrd web`` read it, :mod:`hdrd.io.net.datagrams`).
 
 A message is the dict the pipeline builds once per HDR step (schema in ``docs/protocol.md``,
-"Published messages", and :mod:`hdrd.io.protocol`):
+"Published messages", and :mod:`hdrd.io.wire.protocol`):
 ``{"class": "HDR", "v": 1, "time": ..., "omega": ..., "heading": ...}``.
 Yaw rates are deg/s, positive counter-clockwise seen from above (a left turn); yaw is degrees
 CCW since start; heading is compass degrees, clockwise from north, in [0, 360). A value that
@@ -41,10 +41,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
+from hdrd.core.angles import compass
 from hdrd.errors import HdrdError
-from hdrd.io.display import for_display
-from hdrd.io.protocol import NMEA_TALKER, RATE_VALID_STATUSES
+from hdrd.io.net.display import for_display
 from hdrd.io.resolve import Resolver, default_resolver
+from hdrd.io.wire.protocol import NMEA_TALKER, RATE_VALID_STATUSES
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self from Python 3.11
@@ -186,9 +187,8 @@ def _finite(msg: Mapping[str, Any], key: str) -> float | None:
 
 def heading_field(heading: float) -> str:
     """A compass heading (deg) as NMEA writes it: 2 decimals, in [0, 360)."""
-    # Round first, then wrap: 359.996 would otherwise print as 360.00, outside [0, 360).
-    h = round(heading % 360.0, 2)
-    return f"{0.0 if h >= 360.0 else h:.2f}"
+    # Wrap, round, wrap again: 359.996 rounds to 360.00, outside [0, 360).
+    return f"{compass(round(compass(heading), 2)):.2f}"
 
 
 def nmea_sentences(
@@ -548,7 +548,7 @@ class StdoutPublisher:
     stream's own buffer, whose lock a blocked write would hold at interpreter exit); a
     stream without a descriptor is written through ``write``/``flush``.
 
-    *display*: print the numbers as a person reads them (:func:`hdrd.io.display.for_display`:
+    *display*: print the numbers as a person reads them (:func:`hdrd.io.net.display.for_display`:
     rounded to what they mean) instead of with full precision; None (the default): when the
     stream is a terminal. A pipe or a file gets full precision.
     """

@@ -3,7 +3,7 @@
 
 No parsing, so a capture keeps garbage and bad frames for replay and fault analysis; the
 file is flushed every :data:`FLUSH_INTERVAL_S`. A pulled cable is survived: the port is
-reopened by :class:`hdrd.io.serialport.SerialReader` (the same reconnect loop as the daemon).
+reopened by :class:`hdrd.io.wire.serialport.SerialReader` (the same reconnect loop as the daemon).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from hdrd.io.serialport import DeviceBack, DeviceLost, SerialReader
+from hdrd.io.wire.serialport import DeviceBack, DeviceLost, SerialReader
 
 __all__ = ["FLUSH_INTERVAL_S", "READ_TIMEOUT_S", "record"]
 

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.files import printable, shown_path
+from hdrd.io.files.access import printable, shown_path
 
 __all__ = [
     "COLUMNS",
@@ -262,7 +262,7 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
             head = f.read(SNIFF_BYTES)
     except (OSError, DriveLogError):
         return None
-    from hdrd.io.capture import decode_capture
+    from hdrd.io.wire.capture import decode_capture
 
     for protocol in ("hdr-bin", "hdr-text"):
         frames, _ = decode_capture(head, protocol)
@@ -662,11 +662,11 @@ def write_drive(
     inside: str | os.PathLike[str] | None = None,
 ) -> None:
     """Write a drive log CSV (metadata as leading '# key: value' lines). A path is written
-    whole or not at all (:func:`hdrd.io.files.atomic_output`: its missing folders made; a
+    whole or not at all (:func:`hdrd.io.files.access.atomic_output`: its missing folders made; a
     character device or a FIFO is written through; ``inside``: a file hdrd names in that
     folder, only a regular file replaced); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
-        from hdrd.io.files import atomic_output
+        from hdrd.io.files.access import atomic_output
 
         with atomic_output(path, make_parents=True, inside=inside) as raw:
             f = io.TextIOWrapper(raw, "utf-8", newline="")

@@ -3,7 +3,7 @@ server-sent events out (docs/web.md). Standard library only: asyncio, in one thr
 
 What it serves, to ``GET`` only: the page (``/``), its script, style sheet and icon (package
 data, read once at start), and the stream (``/events``, ``text/event-stream``, the events of
-:mod:`hdrd.io.webstate`). Any other method is refused (405), any other path is 404; nothing
+:mod:`hdrd.io.web.webstate`). Any other method is refused (405), any other path is 404; nothing
 changes anything. Every response carries a content security policy that lets the page run
 only its own script and connect only to its own server.
 
@@ -42,10 +42,10 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Any
 
-from hdrd.io.datagrams import shown_address
 from hdrd.io.logs import log
-from hdrd.io.publish import parse_hostport
-from hdrd.io.webstate import LiveState
+from hdrd.io.net.datagrams import shown_address
+from hdrd.io.net.publish import parse_hostport
+from hdrd.io.web.webstate import LiveState
 
 __all__ = [
     "ASSETS",
@@ -91,7 +91,7 @@ ASSETS: dict[str, tuple[str, str]] = {
     "/style.css": ("style.css", "text/css; charset=utf-8"),
     "/favicon.svg": ("favicon.svg", "image/svg+xml"),
 }
-"""Path -> (file in ``hdrd/io/webpage/``, content type)."""
+"""Path -> (file in ``hdrd/io/web/webpage/``, content type)."""
 STREAM_PATH = "/events"
 
 _CSP = (
@@ -254,7 +254,7 @@ STREAM_HEAD = (
 
 def load_assets() -> dict[str, tuple[bytes, str]]:
     """Path -> (body, content type) of the page's files (package data)."""
-    folder = resources.files("hdrd.io").joinpath("webpage")
+    folder = resources.files("hdrd.io.web").joinpath("webpage")
     return {path: (folder.joinpath(name).read_bytes(), ct) for path, (name, ct) in ASSETS.items()}
 
 
@@ -506,7 +506,7 @@ class WebServer:
         self._loop.call_later(self.settings.keepalive_s, self._keepalive)
 
     def on_datagram(self, data: bytes, addr: Any) -> None:
-        """A datagram: validated, kept, pushed (see :class:`hdrd.io.webstate.LiveState`)."""
+        """A datagram: validated, kept, pushed (see :class:`hdrd.io.web.webstate.LiveState`)."""
         sender = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
         for event in self.state.take(data, sender, time.time()):
             self.broadcast(event)

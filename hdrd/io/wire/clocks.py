@@ -12,7 +12,7 @@
 - :func:`device_seconds`: a capture's device time since its first frame, s (pacing a replay).
 
 The device clock's constants (wrap at 2**32 us, a reset is a step back of more than 1 s) are
-the wire protocol's: :mod:`hdrd.io.protocol`. Pure apart from :class:`RealClock`.
+the wire protocol's: :mod:`hdrd.io.wire.protocol`. Pure apart from :class:`RealClock`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.protocol import CLOCK_WRAP_US, RESET_THRESHOLD_US
+from hdrd.io.wire.protocol import CLOCK_WRAP_US, RESET_THRESHOLD_US
 
 __all__ = [
     "Clock",
@@ -258,7 +258,7 @@ class WallClockCheck:
       last frame kept as unknown (the daemon counts the steps on by the host's clock).
 
     A device clock that goes back (a restart of the device, which
-    :class:`hdrd.io.frames.FrameTracker` has confirmed; or one that jumped half its wrap on,
+    :class:`hdrd.io.wire.tracker.FrameTracker` has confirmed; or one that jumped half its wrap on,
     which no one can tell from it) is :data:`JUMPED` at once, the reference following it: the
     caller counts the time since the last frame kept by its own clock. ``rate`` 0 turns the
     check off: every frame agrees.
