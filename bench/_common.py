@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
     from hdrd.analysis.evaluate import PreparedDrive
     from hdrd.core.plusparams import PlusParams
-    from hdrd.io.drivelog import DriveLog
+    from hdrd.io.files.drivelog import DriveLog
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "RESULTS.md"
@@ -454,15 +454,14 @@ def oracle_yaw(
 
 def plus_with(base: PlusParams | None = None, **kw: Any) -> PlusParams:
     """HDR+'s settings with some values overridden by flat name, for experiments on tuning
-    data: a field of :class:`hdrd.core.plusparams.PlusParams` by its name; ``road_<field>`` for
-    the :class:`~hdrd.core.plusparams.Road`'s; ``bank`` as a list of mappings of
-    :class:`~hdrd.core.plusparams.Hypothesis`'s fields."""
+    data: a field of :class:`hdrd.core.plusparams.PlusParams` by its name; ``bank`` as a list
+    of mappings of :class:`~hdrd.core.plusparams.Hypothesis`'s fields. (The road model and the
+    other constants of :mod:`hdrd.core.plusparams` are edited there.)"""
     from dataclasses import replace
 
     from hdrd.core.plusparams import DEFAULTS, Hypothesis
 
     p = DEFAULTS if base is None else base
-    road = {k[5:]: kw.pop(k) for k in list(kw) if k.startswith("road_")}
     if "bank" in kw:
         kw["bank"] = tuple(Hypothesis(**h) for h in kw["bank"])
-    return replace(p, road=replace(p.road, **road), **kw)
+    return replace(p, **kw)

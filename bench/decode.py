@@ -7,9 +7,9 @@ Takes about 30 s (the first run also writes the capture, ~3 s). The capture is a
 simulated drive at 100 Hz (``bench/_common.py``: 363,000 frames, 1 % of the bytes garbage,
 0.1 % of the frames with a CRC error). Measured in this process:
 
-- **push parser** (:class:`hdrd.io.frames.Parser`, what ``hdrd run`` runs): the capture fed in
+- **push parser** (:class:`hdrd.io.wire.parser.Parser`, what ``hdrd run`` runs): the capture fed in
   chunks of 64 bytes (cut beforehand, not timed), then flushed;
-- **vectorised decoder** (:func:`hdrd.io.capture.decode_capture`, what ``hdrd replay`` runs): the
+- **vectorised decoder** (:func:`hdrd.io.wire.capture.decode_capture`, what ``hdrd replay`` runs): the
   whole capture at once; its first call in the process is reported apart (fresh memory).
 
 Both give the same frames and counters (checked here too). Figures: best of ``--repeats`` runs,
@@ -36,8 +36,9 @@ from _common import (
     write_section,
 )
 
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import Parser, array_to_frames
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import array_to_frames
+from hdrd.io.wire.parser import Parser
 
 PUSH_TARGET = 500_000
 VECTOR_TARGET = 5_000_000

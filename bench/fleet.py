@@ -59,7 +59,7 @@ TITLE = "Fleet (Dask): one process against local workers"
 
 def make_fleet(n: int, minutes: float) -> Path:
     """The dataset of n drives (made once; a marker file says it is complete)."""
-    from hdrd.io.parquetlog import write_dataset_drive
+    from hdrd.io.files.parquetlog import write_dataset_drive
     from hdrd.sim.drive import simulate_drive
 
     root = DATA / f"fleet-{n}-{minutes:g}"
@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def make_csv_fleet(n: int, minutes: float) -> Path:
     """n CSV drive logs of ``minutes`` (made once; a marker file says the fleet is complete)."""
-    from hdrd.io.drivelog import write_drive
+    from hdrd.io.files.drivelog import write_drive
     from hdrd.sim.drive import simulate_drive
 
     root = DATA / f"fleet-csv-{n}-{minutes:g}"
@@ -272,7 +272,7 @@ def cpu_of(root: str, workers: int) -> dict[str, Any]:
     process's, the workers' (from their start), the fork server's."""
     from hdrd.analysis.fleet import DaskRunner, LocalRunner
     from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs
-    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.files.drivefiles import find_drives
 
     refs = find_drives([root])
     if not workers:
@@ -303,8 +303,8 @@ def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
     from hdrd.analysis.evaluate import to_json
     from hdrd.analysis.fleet import DaskRunner, LocalRunner, batches
     from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, tune_fleet
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import read_drive, write_drive
+    from hdrd.io.files.drivefiles import find_drives
+    from hdrd.io.files.drivelog import read_drive, write_drive
 
     root = make_fleet(a.drives, a.minutes)
     refs = find_drives([str(root)])

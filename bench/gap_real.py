@@ -8,7 +8,7 @@ measured on the tuning drives, and the gap before and after the simulator got it
    then ``python -m hdrd gap DRIVE.csv --report R.json`` on every moving drive of at least
    :data:`MIN_MINUTES` (truth: the GNSS course).
 2. On the *tuning* drives only (bench/real.py's split: DrivePlotR odd drive numbers), what the
-   simulator's values for that recording are measured from (:mod:`hdrd.sim.recordings`):
+   simulator's values for that recording are measured from (bench/recordings.py):
    the noise inside stops, the course's latency (``time_offset``), the bias's random walk
    while driving, the course's noise; and the scale factor with the latency in the model
    (reported: it is not established, so the profile keeps the grade's). The script checks that the
@@ -17,7 +17,7 @@ measured on the tuning drives, and the gap before and after the simulator got it
    the recording's gyro *as given* (the grade preset bench/real.py configures for the
    hardware: phone for DrivePlotR, tactical for rtklib, automotive for smartLoc), mean and sd
    over six seeds, before (the preset at the log's rate) and after (the recording's profile,
-   :func:`hdrd.sim.recordings.log_rate_model`), and what ``hdrd gap --model`` still names
+   bench/recordings.py's :func:`log_rate_model`), and what ``hdrd gap --model`` still names
    from the after model. Recordings without tuning drives (rtklib, smartLoc) have no after.
 4. Rewrites its own section of bench/RESULTS.md (Model gap).
 
@@ -45,6 +45,7 @@ sys.path.insert(0, str(REPO))
 
 from _common import machine_line, put_section
 from real import TUNING, drive_set, grade_of
+from recordings import Recording, log_rate_model, point_sampled_sd
 
 from hdrd.analysis.gap import GapError, prepare, run_gap
 from hdrd.analysis.gap.candidates import evaluate_candidate
@@ -52,11 +53,10 @@ from hdrd.analysis.gap.data import GapData, stop_interior
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import gap_metric
 from hdrd.core.grades import Grade
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.drivelog import read_drive
 from hdrd.sim.effects import Quantization, RateRandomWalk, TimeOffset, WhiteNoise
 from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
-from hdrd.sim.recordings import Recording, log_rate_model, point_sampled_sd
 
 SECTION = "## Model gap on the real moving drives: what the simulator lacked, before and after"
 MIN_MINUTES = 4.5
@@ -304,7 +304,7 @@ def delta_bic(data: GapData, before: GyroModel, after: GyroModel) -> float:
 
 def ladder(name: str) -> list[tuple[str, GyroModel]]:
     """The before model with the profile's changes added one at a time (cumulative), the last
-    rung being :func:`hdrd.sim.recordings.log_rate_model`: what each change does to the gap."""
+    rung being bench/recordings.py's :func:`log_rate_model`: what each change does to the gap."""
     prof = profile_of(name)
     if prof is None:
         return []
@@ -397,7 +397,7 @@ def section(ms: list[Measure], p: Pooled, rows: list[Row], skipped: list[str], m
         f"drive of at least {MIN_MINUTES:g} min (truth: the GNSS course), then in-process the "
         "measurements and gaps below. Split (bench/real.py, fixed before any result): tuning = "
         "DrivePlotR odd drive numbers; judging = DrivePlotR even numbers, rtklib drive 0708, "
-        "smartLoc. The profile's values (hdrd/sim/recordings.py) come from the tuning drives "
+        "smartLoc. The profile's values (bench/recordings.py) come from the tuning drives "
         "only; the judging drives were run once, after they were fixed.",
         "",
         "**Tuning drives: what they show** (rates deg/s; `hdrd gap`'s fits with the log's "
@@ -436,7 +436,7 @@ def section(ms: list[Measure], p: Pooled, rows: list[Row], skipped: list[str], m
         "**The gap, simulated versus real** (docs/model-gap.md, section 8: mean ± sd over six "
         "seeds, each model *as given*; before = the grade preset bench/real.py configures for "
         "the hardware, at the log's rate, without its temperature effect; after = the "
-        "recording's profile as its log sees it, `hdrd.sim.recordings.log_rate_model`, the "
+        "recording's profile as its log sees it, bench/recordings.py's `log_rate_model`, the "
         "course latency as a `time_offset`; dBIC: the profile against the preset, both refitted, by `hdrd gap`'s likelihood):",
         "",
         "| set | drive | min | `hdrd gap` names (default start) | its gap initial -> final | gap before | gap after | dBIC after - before | `hdrd gap --model` after still names |",

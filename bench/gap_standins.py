@@ -42,7 +42,7 @@ import numpy as np
 from _common import machine_line, write_section
 
 from hdrd.analysis.gap import run_gap
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from tests.gap_standins import (
     MPU_STEP_DPS,

@@ -36,7 +36,7 @@ sys.path.insert(0, str(REPO / "bench"))
 from _common import machine_line, put_section
 from real import TUNING, convert_all
 
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.drivelog import read_drive
 
 SECTION = "## Model gap on the real tuning drives: stops as truth, and their errors for training"
 MAIN = {

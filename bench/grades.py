@@ -54,7 +54,7 @@ from hdrd.analysis.metrics import e_psi
 from hdrd.core.grades import GRADES, Grade
 from hdrd.core.gyronoise import GyroNoise, grade_noise
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, DriveSpec, generate
 from hdrd.sim.effects import StaticBias, WhiteNoise
 from hdrd.sim.grades import grade_model

@@ -78,7 +78,7 @@ from hdrd.analysis.outages import FROZEN
 from hdrd.analysis.prepare import prepare_drive
 from hdrd.core import methods as registry
 from hdrd.core.grades import Grade
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.roads import grade_on_road, route_stops
 
 SECTION = "## Heading that holds: gyro-only and GNSS outages, real drives and real roads"

@@ -51,7 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import hdrd_command, machine, machine_line, ratio, write_section
 
-from hdrd.io.clocks import unwrap_us
+from hdrd.io.wire.clocks import unwrap_us
 from hdrd.sim.fakegyro import FakeGyro
 
 SO_TIMESTAMPNS = getattr(

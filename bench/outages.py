@@ -95,7 +95,7 @@ from peer import SWEEP, PeerParams, kalman_peer, outage_plan, plan_text
 
 from hdrd.analysis.outages import FROZEN, OutageSpec, run_outages
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive, prepare_drive
-from hdrd.io.drivelog import DriveLog, read_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive
 
 SECTION = "## GNSS outages: through the daemon's aiding, against a course-aided Kalman filter"
 METHODS = holds.METHODS

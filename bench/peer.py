@@ -49,10 +49,11 @@ from hdrd.analysis.outages import (
     run_outages,
 )
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive
+from hdrd.core.angles import wrap180
 from hdrd.core.methods import MethodSetup
 from hdrd.core.standstill import StandstillParams, standstill_candidate
-from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
-from hdrd.io.drivelog import DriveLog
+from hdrd.daemon.aiding import AidingConfig, GpsAiding
+from hdrd.io.files.drivelog import DriveLog
 
 LOST_VAR = 90.0**2
 """The heading's variance after a gap in the log, deg^2: lost, so the next course sets it

@@ -59,7 +59,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.analysis.metrics import e_psi
 from hdrd.config import Config, method_setup
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import DriveLog, read_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive
 
 SECTION = "## Real drives: none / paper HDR / HDR+ with a start-up calibration per drive"
 DATA = REPO.parent / "shared" / "data"

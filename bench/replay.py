@@ -45,10 +45,10 @@ import numpy
 t.append(time.perf_counter())
 from hdrd.cli import build_parser
 from hdrd.core.calibrate import given_bias
-from hdrd.io.capture import decode_capture
+from hdrd.io.wire.capture import decode_capture
 from hdrd.config import load_config
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
-from hdrd.io.publish import format_json
+from hdrd.io.net.publish import format_json
 t.append(time.perf_counter())
 args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
 cfg, _ = load_config(args.config)  # replay's flags here override no key

@@ -38,8 +38,8 @@ from _common import REPO, machine_line, write_section
 
 
 def _jumps(n: int) -> bytes:
-    from hdrd.io.capture import encode_array
-    from hdrd.io.frames import FRAME_DTYPE
+    from hdrd.io.wire.capture import encode_array
+    from hdrd.io.wire.codec import FRAME_DTYPE
 
     arr = np.zeros(n, FRAME_DTYPE)
     arr["seq"] = np.arange(n) & 0xFFFF
@@ -50,8 +50,8 @@ def _jumps(n: int) -> bytes:
 
 
 def _clean(n: int, hz: float) -> bytes:
-    from hdrd.io.capture import encode_array
-    from hdrd.io.frames import FRAME_DTYPE
+    from hdrd.io.wire.capture import encode_array
+    from hdrd.io.wire.codec import FRAME_DTYPE
 
     rng = np.random.default_rng(1)
     arr = np.zeros(n, FRAME_DTYPE)

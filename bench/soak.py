@@ -51,7 +51,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hdrd.io.clocks import unwrap_us
+from hdrd.io.wire.clocks import unwrap_us
 from hdrd.sim.fakegyro import FakeGyro
 
 WAIT = 60.0  # upper bound for anything to happen; only a hung daemon reaches it

@@ -63,7 +63,7 @@ def continuous_errors(
     """Continuous-heading Eψ (raw, hdr) per drive, same steps and alignment as hdrd evaluate."""
     from hdrd.analysis.evaluate import method_yaw, prepare_drive
     from hdrd.analysis.metrics import e_psi_continuous
-    from hdrd.io.drivelog import read_drive
+    from hdrd.io.files.drivelog import read_drive
 
     out = {}
     for p in paths:
@@ -165,7 +165,7 @@ def main() -> int:
     real: list[tuple[str, str, dict[str, Any], str]] = []
     if DATA.is_dir() and paper_grade:
         run_recorded(py + ["tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
-        from hdrd.io.drivelog import read_drive
+        from hdrd.io.files.drivelog import read_drive
 
         comma = W / "real" / "comma2k19.csv"
         android = float(read_drive(comma).meta["android_bias_dps"])

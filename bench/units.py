@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hdrd.core.grades import GM_PEAK, Grade
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.effects import BiasInstability, MotionOffset, Quantization, StopOffset
 from hdrd.sim.grades import grade_model

@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from hdrd import __version__
 from hdrd.cliargs import (
     DRIVES,
+    HEADING_REFS,
     HEADING_UNITS,
     OMEGA_UNITS,
     SPEED_UNITS,
@@ -37,7 +38,7 @@ from hdrd.cliargs import (
     strict,
 )
 from hdrd.daemon.signals import command_of, hold_hangup
-from hdrd.io.protocol import PROTOCOLS
+from hdrd.io.wire.protocol import PROTOCOLS
 
 Adder = Callable[[argparse.ArgumentParser], None]
 COMMANDS: dict[str, tuple[str, str, Adder]] = {}
@@ -377,7 +378,7 @@ def _simulate(p: argparse.ArgumentParser) -> None:
     "make a drive log of your own CSV: its columns, units and signs mapped",
 )
 def _import(p: argparse.ArgumentParser) -> None:
-    # the units are hdrd.io.csvimport's (not imported here: it needs numpy; a test keeps them equal)
+    # the units are hdrd.io.files.csvimport's (not imported here: it needs numpy; a test keeps them equal)
     p.add_argument("source", metavar="SOURCE.csv", help="your CSV: a header line, then rows")
     p.add_argument("--out", metavar="FILE", required=True, help="drive log to write")
     p.add_argument("--t", required=True, metavar="COL", help="the column of sample times")
@@ -395,7 +396,7 @@ def _import(p: argparse.ArgumentParser) -> None:
     p.add_argument("--heading-unit", choices=HEADING_UNITS, default="deg", help="default deg")
     p.add_argument(
         "--heading-ref",
-        choices=("compass", "enu"),
+        choices=HEADING_REFS,
         default="compass",
         help="compass: clockwise from north (a GPS course; default); enu: counter-clockwise "
         "from east (a yaw in an east-north-up frame)",

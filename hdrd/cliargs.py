@@ -7,10 +7,11 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterator, Sequence
 
-from hdrd.io.protocol import PROTOCOLS
+from hdrd.io.wire.protocol import PROTOCOLS
 
 __all__ = [
     "DRIVES",
+    "HEADING_REFS",
     "HEADING_UNITS",
     "HelpFormatter",
     "LazyChoices",
@@ -273,6 +274,9 @@ def address(p: argparse.ArgumentParser, flag: str, default: str, help: str) -> N
 TIME_UNITS = ("s", "ms", "us", "ns")
 OMEGA_UNITS = ("deg/s", "rad/s")
 HEADING_UNITS = ("deg", "rad")
+HEADING_REFS = ("compass", "enu")
+"""``hdrd import --heading-ref``: what the heading column is measured from (the choices of
+:attr:`hdrd.io.files.csvimport.Mapping.heading_ref`)."""
 SPEED_UNITS = ("m/s", "km/h", "mph")
 
 

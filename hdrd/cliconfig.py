@@ -21,7 +21,7 @@ from hdrd.config import Config, ConfigError, apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
-    from hdrd.io.drivelog import ReadLimits
+    from hdrd.io.files.drivelog import ReadLimits
 
 __all__ = [
     "check_bias_arg",
@@ -57,7 +57,7 @@ def config_overrides(args: argparse.Namespace) -> dict[str, Any]:
     if g("nmea_udp"):
         o["output.nmea_udp"] = tuple(args.nmea_udp)
     if g("gpsd"):
-        from hdrd.io.gpsd import parse_address
+        from hdrd.io.net.gpsd import parse_address
 
         try:
             host, port = parse_address(args.gpsd)
@@ -127,7 +127,7 @@ def where_from_args(args: argparse.Namespace, prog: str) -> Where:
 
 TEMP_DECORATION = 24
 """Bytes an atomic writer adds to a file's name for its temporary file
-(``.NAME.PID.RANDOM.tmp``, :func:`hdrd.io.files.atomic_write_text`)."""
+(``.NAME.PID.RANDOM.tmp``, :func:`hdrd.io.files.access.atomic_write_text`)."""
 
 
 FILE_SUFFIXES = frozenset((".yaml", ".yml", ".json", ".jsonl", ".csv", ".png", ".svg", ".pdf",
@@ -141,7 +141,7 @@ def output_problem(flag: str, path: str, folder: str | None = None) -> str | Non
     """Why ``FLAG PATH`` could not be written, found before any work: its name too long for
     the file system (with the temporary file's decoration), a folder on its way that is a
     file, a folder where the file should be, and what writing there tells (its missing
-    folders are made and a temporary file made and removed: :func:`hdrd.io.files.write_problem`);
+    folders are made and a temporary file made and removed: :func:`hdrd.io.files.access.write_problem`);
     None if it can be written.
 
     ``folder``: PATH is a folder the command writes files into, and this says so ("several
@@ -150,7 +150,7 @@ def output_problem(flag: str, path: str, folder: str | None = None) -> str | Non
     import os
     from pathlib import Path
 
-    from hdrd.io.files import shown_path, write_problem
+    from hdrd.io.files.access import shown_path, write_problem
 
     target = Path(path)
     shown = f"{flag} {shown_path(path)}"
@@ -176,7 +176,7 @@ def _name_problem(target: Path, in_place: bool) -> str | None:
     unless the file is written ``in_place``); None if it can."""
     import os
 
-    from hdrd.io.files import shown_path
+    from hdrd.io.files.access import shown_path
 
     def exists(p: Path) -> bool:
         try:
@@ -252,9 +252,9 @@ def drive_log_outputs_ok(
 
 
 def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
-    """The :class:`~hdrd.io.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    """The :class:`~hdrd.io.files.drivelog.ReadLimits` a command line asks for (``--max-rows``,
     ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.drivelog import ReadLimits
+    from hdrd.io.files.drivelog import ReadLimits
 
     given = {
         "max_rows": getattr(args, "max_rows", None),

@@ -25,9 +25,9 @@ from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.hdr import HdrParams
 from hdrd.core.sensor import SensorModel
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.gpsd import DEFAULT_HOST, DEFAULT_PORT
-from hdrd.io.protocol import NMEA_TALKER, PROTOCOLS
-from hdrd.io.publish import parse_hostport
+from hdrd.io.net.gpsd import DEFAULT_HOST, DEFAULT_PORT
+from hdrd.io.net.publish import parse_hostport
+from hdrd.io.wire.protocol import NMEA_TALKER, PROTOCOLS
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
@@ -648,7 +648,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
-    from hdrd.io.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files.access import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")
@@ -664,7 +664,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
         data = load_yaml(text)
     except InputFileError as e:
         raise ConfigError("(yaml)", e.where or "?", e.problem, str(p)) from None
-    from hdrd.io.yamlkeys import duplicate_key
+    from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:
         raise ConfigError(
@@ -706,21 +706,6 @@ def apply_overrides(cfg: Config, overrides: dict[str, Any]) -> Config:
     return cfg
 
 
-def config_field_keys() -> list[str]:
-    """Every 'section.key' the config accepts (for docs and the table-driven tests)."""
-    keys: list[str] = []
-    for sec in fields(Config):
-        default = getattr(Config(), sec.name)
-        for f in fields(default):
-            if f.name in _DERIVED:
-                continue
-            if f.name == "params":
-                keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
-            else:
-                keys.append(f"{sec.name}.{f.name}")
-    return keys
-
-
 def method_setup(
     cfg: Config, bias: BiasRecord | None = None, learned: GyroNoise | None = None
 ) -> methods.MethodSetup:
@@ -729,7 +714,7 @@ def method_setup(
     the ``gyro.*`` noise parameters), ``standstill.*``, and the static bias of ``bias`` (a
     bias file's record, a given one's: :meth:`hdrd.core.calibrate.BiasRecord.given`; None:
     measured at start-up), and what the unit's trips taught (``learned``: the daemon's unit
-    state file, :mod:`hdrd.io.unitstate`). The daemon, replay and evaluate add what the gyro
+    state file, :mod:`hdrd.io.files.unitstate`). The daemon, replay and evaluate add what the gyro
     and the drive show (:meth:`hdrd.core.methods.MethodSetup.for_drive`)."""
     from dataclasses import asdict
 

@@ -3,7 +3,7 @@
 Every exception hdrd raises derives from :class:`HdrdError` (as pyubx2's from
 ``UBXMessageError``'s base), so a caller can catch them all at once. Each module keeps its own
 error class next to the code that raises it (:class:`hdrd.config.ConfigError`,
-:class:`hdrd.io.frames.FrameError`, ...); each also derives from the built-in exception it has
+:class:`hdrd.io.wire.codec.FrameError`, ...); each also derives from the built-in exception it has
 always been (most are ValueErrors), so ``except ValueError`` keeps working.
 
 Light on purpose: the command line imports it (``hdrd --help`` loads no numpy).

@@ -40,7 +40,7 @@ from typing import Any
 from hdrd.analysis.evaluate import to_json
 from hdrd.analysis.fleet import DaskRunner, FleetError, LocalRunner
 from hdrd.analysis.fleet_jobs import DriveOutcome, EvaluateJob, evaluate_one, evaluate_refs
-from hdrd.io.drivefiles import DriveRef, find_drives
+from hdrd.io.files.drivefiles import DriveRef, find_drives
 
 
 def die_once(ref: DriveRef, job: EvaluateJob, marker: str) -> DriveOutcome:

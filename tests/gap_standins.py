@@ -1,7 +1,7 @@
 """Synthetic stand-ins for real gyro logs at rest, built to the properties measured on real
 devices (docs/model-gap.md, "Real-data cases"), for the model-gap tests and bench/gap_real.py.
 
-Each builder returns a :class:`~hdrd.io.drivelog.DriveLog` *as a writer would have stored it* (values
+Each builder returns a :class:`~hdrd.io.files.drivelog.DriveLog` *as a writer would have stored it* (values
 rounded to the CSV's decimals) and the hidden truth. Rates deg/s, + = CCW; t s; temp degC.
 
 - :func:`imu_log`: an IMU at rest for hours while its temperature goes 5 -> 24 -> 21 degC; the
@@ -33,7 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.effects import MotionOffset, Quantization, StaticBias, WhiteNoise, ar1
 from hdrd.sim.gyro import GyroModel

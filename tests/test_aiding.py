@@ -14,21 +14,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.aiding import (
-    AIDED,
-    DEAD_RECKONING,
-    AidingConfig,
-    GpsAiding,
-    HeadingFix,
-    StepView,
-    wrap180,
-)
+from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, HeadingFix, StepView
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig, add_aid
-from hdrd.io.gpsd import Fix
+from hdrd.io.net.gpsd import Fix
 
 KNOT = 0.514444
 
@@ -100,13 +93,6 @@ def still(a: GpsAiding, fixes: Sequence[Fix | None], heading: float = 0.0) -> li
 
 
 # -- helpers -----------------------------------------------------------------------------------
-
-
-@given(st.floats(-1e6, 1e6, allow_nan=False))
-def test_wrap180_range_and_congruence(x):
-    w = wrap180(x)
-    assert -180.0 <= w < 180.0
-    assert math.isclose(math.remainder(w - x, 360.0), 0.0, abs_tol=1e-6)
 
 
 def test_config_rejects_nonsense():

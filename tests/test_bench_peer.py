@@ -17,7 +17,7 @@ import peer  # noqa: E402
 
 from hdrd.analysis.outages import FROZEN, OutageSpec  # noqa: E402
 from hdrd.analysis.prepare import DEFAULTS, prepare_drive  # noqa: E402
-from hdrd.io.drivelog import DriveLog  # noqa: E402
+from hdrd.io.files.drivelog import DriveLog  # noqa: E402
 from tests.test_outages import drive  # noqa: E402
 
 

@@ -1,4 +1,4 @@
-"""hdrd.io.biasfile: the bias file, a static bias record as YAML written atomically (mode
+"""hdrd.io.files.biasfile: the bias file, a static bias record as YAML written atomically (mode
 0644 whatever the umask, the old file whole if a write fails) and read back exactly, or
 refused in one line naming the file and the problem (truncated, corrupted, not a regular
 file, too large, a value no measurement gives, a bias beyond the configured limit).
@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.core.calibrate import BiasRecord
-from hdrd.io import biasfile
-from hdrd.io.biasfile import BiasFileError, load_bias, save_bias
+from hdrd.io.files import biasfile
+from hdrd.io.files.biasfile import BiasFileError, load_bias, save_bias
 
 REC = BiasRecord(
     bias_dps=0.8123456789012345,

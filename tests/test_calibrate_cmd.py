@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdrd.io.biasfile import load_bias
+from hdrd.io.files.biasfile import load_bias
 from hdrd.sim.profiles import builtin_profile, profile_frames
 
 WAIT = 120.0
@@ -84,6 +84,16 @@ def test_the_noise_parameters_are_recorded_beside_the_bias(fake_gyro, tmp_path: 
     assert rec.noise.white_dps_per_rthz == pytest.approx(0.05 / 10**0.5, rel=0.35)
     assert "noise:\n  white_dps_per_rthz:" in bias_file.read_text()
     assert b"noise recorded: white" in p.stdout and b"10 min or more" in p.stdout
+
+
+def test_calibrate_refuses_when_the_vehicle_moves(fake_gyro, tmp_path: Path) -> None:
+    bias_file = tmp_path / "bias.yaml"
+    g = fake_gyro(builtin_profile("constant", minutes=1, rate_dps=12.0, lead_in_s=2), speedup=0)
+    g.start()
+    p = calibrate("--port", g.path, "--seconds", "5", "--bias-file", str(bias_file))
+    assert p.returncode == 1
+    assert b"moved" in p.stderr
+    assert not bias_file.exists()
 
 
 @pytest.mark.slow
@@ -183,7 +193,7 @@ def test_the_port_of_a_running_daemon_is_refused_at_once(fake_gyro, tmp_path: Pa
     # The daemon holds the port (exclusively); calibrate must not steal half its frames.
     frames = profile_frames(builtin_profile("standstill", minutes=5, lead_in_s=0))
     g = fake_gyro(frames, speedup=20)
-    from hdrd.io.sources import SerialSource
+    from hdrd.io.wire.sources import SerialSource
 
     with SerialSource(g.path) as holder:  # the first opener, as `hdrd run` opens it
         g.start()

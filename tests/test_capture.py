@@ -1,10 +1,10 @@
-"""hdrd.io.capture: the vectorised decoder of a whole capture (``hdrd replay``), which must
-give exactly what the push parser (hdrd.io.frames) gives over the same bytes: the same frames,
+"""hdrd.io.wire.capture: the vectorised decoder of a whole capture (``hdrd replay``), which must
+give exactly what the push parser (hdrd.io.wire.parser) gives over the same bytes: the same frames,
 counters and per-frame bad counts, however the capture is sliced for scanning and however
 many bad candidates it holds.
 
 The push parser's own rules, and the decoder beside it on small dirty streams:
-test_frames.py; both on one realistic 10-minute capture: test_fastpaths.py.
+test_parser.py; both on one realistic 10-minute capture: test_fastpaths.py.
 """
 
 from __future__ import annotations
@@ -15,11 +15,13 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io import capture as capture_mod
-from hdrd.io.capture import decode_capture, encode_array
-from hdrd.io.frames import FRAME_DTYPE, Frame, Parser, array_to_frames, encode_bin
-from hdrd.io.protocol import PROTOCOLS, SYNC
-from tests.test_frames import _NEAR, frames_st, run
+from hdrd.io.wire import capture as capture_mod
+from hdrd.io.wire.capture import decode_capture, encode_array
+from hdrd.io.wire.codec import FRAME_DTYPE, Frame, array_to_frames, encode_bin
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import PROTOCOLS, SYNC
+from tests.test_parser import _NEAR, run
+from tests.test_rel_bytes import frames_st
 
 
 @given(

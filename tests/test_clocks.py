@@ -1,4 +1,4 @@
-"""hdrd.io.clocks: the 32-bit microsecond device clock unwrapped (one sample at a time and a
+"""hdrd.io.wire.clocks: the 32-bit microsecond device clock unwrapped (one sample at a time and a
 whole array at once, which agree in every output and counter), the calibration window's
 glitch-proof :class:`SampleClock`, a capture's device seconds, the host clocks a source
 sleeps on, and :class:`WallClockCheck`, the device clock against the host's. Pure apart from
@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.io.clocks import (
+from hdrd.io.wire.clocks import (
     Clock,
     DeviceClock,
     ManualClock,
@@ -27,7 +27,7 @@ from hdrd.io.clocks import (
     device_seconds,
     unwrap_us,
 )
-from hdrd.io.protocol import CLOCK_WRAP_US
+from hdrd.io.wire.protocol import CLOCK_WRAP_US
 
 
 def test_device_clock_unwraps_monotonically_across_wraps() -> None:

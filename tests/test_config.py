@@ -23,15 +23,29 @@ from hdrd.config import (
     Config,
     ConfigError,
     apply_overrides,
-    config_field_keys,
     load_config,
     parse_config,
 )
 from hdrd.core.hdr import HdrParams
 from hdrd.errors import EX_CONFIG, HdrdError
-from hdrd.io.publish import parse_hostport
+from hdrd.io.net.publish import parse_hostport
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "hdrd.yaml"
+
+
+def config_field_keys() -> list[str]:
+    """Every 'section.key' a configuration may set: each section's fields, hdr's parameters
+    flat beside its ``method`` (not ``params``), less ``i_c_auto`` (``hdr.i_c: auto`` sets it)."""
+    keys: list[str] = []
+    for sec in fields(Config):
+        for f in fields(getattr(Config(), sec.name)):
+            if f.name == "params":
+                keys.extend(f"{sec.name}.{p.name}" for p in fields(HdrParams))
+            elif f.name != "i_c_auto":
+                keys.append(f"{sec.name}.{f.name}")
+    return keys
+
+
 NAN, INF = math.nan, math.inf
 
 
@@ -704,8 +718,8 @@ def _hard_capture() -> bytes:
     """Two minutes at 10 Hz that drive every stage to its corners: rails (counts 0 and
     65535), a wired supply monitor at its extremes, a long same-sign stretch (the repetition
     counter grows), a clock jump of 20 s and a device clock wrap."""
-    from hdrd.io.capture import encode_array
-    from hdrd.io.frames import FRAME_DTYPE
+    from hdrd.io.wire.capture import encode_array
+    from hdrd.io.wire.codec import FRAME_DTYPE
 
     n = 1200
     arr = np.zeros(n, FRAME_DTYPE)

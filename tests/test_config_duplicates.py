@@ -13,7 +13,7 @@ import pytest
 
 from hdrd.config import ConfigError, load_config
 from hdrd.errors import EX_CONFIG
-from hdrd.io.biasfile import BiasFileError, load_bias
+from hdrd.io.files.biasfile import BiasFileError, load_bias
 
 WAIT = 60.0
 

@@ -14,7 +14,8 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, read_drive
+from hdrd.core.angles import wrap180
+from hdrd.io.files.drivelog import DriveLog, read_drive
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "convert_real.py"
 
@@ -77,7 +78,7 @@ def test_course_from_positions_is_compass() -> None:
         pos = origin + t[:, None] * v
         hdg, speed = cr.course_from_positions(t, pos)
         np.testing.assert_allclose(speed, 10.0, rtol=0.01)
-        np.testing.assert_allclose(((hdg - course + 180) % 360) - 180, 0.0, atol=1e-6)
+        np.testing.assert_allclose(wrap180(hdg - course), 0.0, atol=1e-6)
     slow, _ = cr.course_from_positions(t, origin + t[:, None] * east)
     assert np.all(np.isnan(slow))  # 1 m/s < 2 m/s
 
@@ -133,7 +134,7 @@ def course_rate_correlation(log: DriveLog, min_speed: float = 3.0) -> tuple[floa
     i0, i1 = ok[:-1], ok[1:]
     dt = t[i1] - t[i0]
     sel = (dt < 1.5) & (log.speed[i0] > min_speed) & (log.speed[i1] > min_speed)
-    course_rate = (((h[i1] - h[i0] + 180.0) % 360.0) - 180.0) / dt
+    course_rate = wrap180(h[i1] - h[i0]) / dt
     gyro_rate = (angle[i1] - angle[i0]) / dt
     return float(np.corrcoef(gyro_rate[sel], -course_rate[sel])[0, 1]), int(sel.sum())
 
@@ -303,7 +304,7 @@ def wrapped_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> 
     yaw = np.concatenate(([0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * np.diff(log.t))))
     ok = np.isfinite(log.heading_truth)
     h = log.heading_truth[ok]
-    err = ((h[0] - (yaw[ok] - yaw[ok][0]) - h + 180.0) % 360.0) - 180.0
+    err = wrap180(h[0] - (yaw[ok] - yaw[ok][0]) - h)
     return float(np.mean(np.abs(err)))
 
 
@@ -389,7 +390,7 @@ def test_psins(tmp_path: Path) -> None:
     assert np.isfinite(log.heading_truth).sum() == 1000  # every 10 Hz epoch
     # Heading north (compass = minus PSINS's counter-clockwise yaw): within a few degrees of 0.
     h = log.heading_truth[np.isfinite(log.heading_truth)]
-    assert np.all(np.abs(((h + 180.0) % 360.0) - 180.0) < 5.0)
+    assert np.all(np.abs(wrap180(h)) < 5.0)
     # CCW positive: 1 s means of the gyro follow the INS yaw rate (slope ~0.93), and the gyro
     # turns against the INS velocity's compass course.
     sec = np.floor(log.t).astype(int)

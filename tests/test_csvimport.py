@@ -1,4 +1,4 @@
-"""hdrd.io.csvimport: a user's own CSV made into a drive log, each mapped column converted to
+"""hdrd.io.files.csvimport: a user's own CSV made into a drive log, each mapped column converted to
 hdrd's units and signs (t s from the first row, omega deg/s + = CCW, heading compass degrees
 in [0, 360), speed m/s), every error naming the source's line and column and the option that
 named it. In process, on real files.
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.csvimport import (
+from hdrd.io.files.csvimport import (
     HEADING_UNITS,
     OMEGA_UNITS,
     SPEED_UNITS,
@@ -23,7 +23,7 @@ from hdrd.io.csvimport import (
     Mapping,
     import_csv,
 )
-from hdrd.io.drivelog import DriveLogError, ReadLimits
+from hdrd.io.files.drivelog import DriveLogError, ReadLimits
 
 NO_GAP_LIMIT = ReadLimits(max_gap_s=math.inf)
 

@@ -1,5 +1,5 @@
 """``hdrd run``'s start-up, configuration reload and bias choice under hostile input: real
-processes, real ptys, real signals, real sockets (hdrd/daemon/run.py, hdrd/io/serialport.py).
+processes, real ptys, real signals, real sockets (hdrd/daemon/run.py, hdrd/io/wire/serialport.py).
 
 No timings are asserted; the waits are generous bounds that only fail a hung daemon.
 """

@@ -1,4 +1,4 @@
-"""Numbers as a person reads them on a terminal (hdrd/io/display.py): rounded to what each key
+"""Numbers as a person reads them on a terminal (hdrd/io/net/display.py): rounded to what each key
 means, never a line of digits, the message otherwise unchanged. Pure."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.display import DECIMALS, fit, for_display, shown_number
+from hdrd.io.net.display import DECIMALS, fit, for_display, shown_number
 
 
 def test_each_key_to_what_it_means() -> None:

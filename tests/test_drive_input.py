@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 from tests.hdrd_process import ENV, hdrd
 
@@ -319,9 +319,9 @@ def test_a_tiny_file_of_40_million_rows_is_refused_before_it_is_read(tmp_path: P
 
 
 def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) -> None:
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import ReadLimits
-    from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
+    from hdrd.io.files.drivefiles import find_drives
+    from hdrd.io.files.drivelog import ReadLimits
+    from hdrd.io.files.parquetlog import write_dataset_drive, write_parquet_drive
 
     write_drive(tmp_path / "a.csv", good)
     write_parquet_drive(tmp_path / "b.parquet", good)
@@ -395,7 +395,7 @@ def test_the_hint_never_converts_a_capture_onto_itself(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_files_that_are_no_drive_log_are_one_line(good: DriveLog, tmp_path: Path) -> None:
-    from hdrd.io.parquetlog import write_parquet_drive
+    from hdrd.io.files.parquetlog import write_parquet_drive
 
     rng = np.random.default_rng(0)
     (tmp_path / "random.csv").write_bytes(rng.bytes(10_000))

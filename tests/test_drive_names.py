@@ -1,5 +1,5 @@
 """Names that come from data (a Parquet ``drive`` value, a hive folder ``drive=NAME``) become
-paths only inside the output folder (hdrd.io.files.path_inside): ``hdrd gap --out DIR`` on a fleet,
+paths only inside the output folder (hdrd.io.files.access.path_inside): ``hdrd gap --out DIR`` on a fleet,
 ``hdrd simulate``/``hdrd convert --format dataset``. Each command is run as a user runs it and
 the file system is searched afterwards for anything written outside the output folder."""
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.io.drivefiles import find_drives
+from hdrd.io.files.drivefiles import find_drives
 from hdrd.sim.drive import simulate_drive
 from tests.hdrd_process import hdrd
 
@@ -72,8 +72,8 @@ def test_gap_out_writes_every_model_inside_its_folder(tmp_path: Path) -> None:
 def test_gap_out_leaves_out_a_second_drive_with_the_same_file(tmp_path: Path) -> None:
     """city.csv and city.parquet are both the drive ``city``: one model file, not one written
     over the other."""
-    from hdrd.io.drivelog import write_drive
-    from hdrd.io.parquetlog import write_parquet_drive
+    from hdrd.io.files.drivelog import write_drive
+    from hdrd.io.files.parquetlog import write_parquet_drive
 
     log = simulate_drive("standstill", 0.5, 3)
     write_drive(tmp_path / "city.csv", log)
@@ -86,8 +86,8 @@ def test_gap_out_leaves_out_a_second_drive_with_the_same_file(tmp_path: Path) ->
 
 
 def test_a_dataset_partition_stays_inside_its_folder(tmp_path: Path) -> None:
-    from hdrd.io.drivelog import DriveLogError
-    from hdrd.io.parquetlog import partition_value, write_dataset_drive
+    from hdrd.io.files.drivelog import DriveLogError
+    from hdrd.io.files.parquetlog import partition_value, write_dataset_drive
 
     log = simulate_drive("standstill", 0.2, 1)
     root = tmp_path / "ds"
@@ -129,7 +129,7 @@ def test_a_name_with_a_line_break_cannot_write_yaml_keys(tmp_path: Path) -> None
     a name with a line break would start a key of its own there."""
     import yaml
 
-    from hdrd.io.drivelog import write_drive
+    from hdrd.io.files.drivelog import write_drive
 
     log = simulate_drive("city", 1.0, 4)
     evil = "x\nhdr:\n  c1: 999\n#"

@@ -1,4 +1,4 @@
-"""hdrd.io.drivefiles: which drives a command line names (files, directories searched at any
+"""hdrd.io.files.drivefiles: which drives a command line names (files, directories searched at any
 depth, globs, a dataset's partitions), what each is called, and a drive read or written by
 its format. Real files in a temporary folder.
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.drivefiles import (
+from hdrd.io.files.drivefiles import (
     MAX_NAME_CHARS,
     DriveRef,
     drive_name,
@@ -21,7 +21,7 @@ from hdrd.io.drivefiles import (
     log_format,
     write_log,
 )
-from hdrd.io.drivelog import DriveLog, DriveLogError, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, DriveLogError, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 
 
@@ -134,7 +134,7 @@ def test_a_name_from_data_is_shown_escaped_and_clipped() -> None:
 
 def test_directories_globs_and_mixed_formats(city: DriveLog, tmp_path: Path) -> None:
     pytest.importorskip("pyarrow")
-    from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
+    from hdrd.io.files.parquetlog import write_dataset_drive, write_parquet_drive
 
     (tmp_path / "a" / "b").mkdir(parents=True)
     write_drive(tmp_path / "a" / "x.csv", city)

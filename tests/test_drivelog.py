@@ -1,4 +1,4 @@
-"""Drive log CSV (hdrd/io/drivelog.py): round trip, empty cells = NaN, errors naming the line."""
+"""Drive log CSV (hdrd/io/files/drivelog.py): round trip, empty cells = NaN, errors naming the line."""
 
 from __future__ import annotations
 
@@ -11,7 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.io.drivelog import COLUMNS, OPTIONAL, DriveLog, DriveLogError, read_drive, write_drive
+from hdrd.io.files.drivelog import (
+    COLUMNS,
+    OPTIONAL,
+    DriveLog,
+    DriveLogError,
+    read_drive,
+    write_drive,
+)
 
 DIGITS = {
     "t": 4,
@@ -98,7 +105,7 @@ def test_metadata_round_trips_whatever_it_holds(meta: dict[str, str]) -> None:
 
 
 def test_a_metadata_value_cannot_add_a_line(tmp_path: Path) -> None:
-    from hdrd.io.drivelog import escape_meta, unescape_meta
+    from hdrd.io.files.drivelog import escape_meta, unescape_meta
 
     sneaky = "city\n# lead_in_s: 3\n.csv"
     log = DriveLog(t=np.array([0.0, 0.1]), omega=np.zeros(2), meta={"source": sneaky})

@@ -24,9 +24,10 @@ from hdrd.analysis.evaluate import (
 )
 from hdrd.cli import main as cli_main
 from hdrd.core import methods
+from hdrd.core.angles import wrap180
 from hdrd.core.hdr import HdrParams, run_batch
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 
 
 def make_drive(
@@ -599,7 +600,7 @@ def test_trace_writes_each_drives_headings_as_the_scores_see_them(tmp_path: Path
     d = json.loads(out.read_text())["drives"][0]
     for k, m in ((3, "raw"), (4, "hdr")):  # Eψ again from the published headings
         ok = np.isfinite(rows[:, 1])
-        err = np.abs((rows[ok, k] - rows[ok, 1] + 180.0) % 360.0 - 180.0)
+        err = np.abs(wrap180(rows[ok, k] - rows[ok, 1]))
         assert float(np.mean(err)) == pytest.approx(d[f"E_psi_{m}"], abs=1e-3)
     # a folder that is a file is refused before the work
     (tmp_path / "file").write_text("")

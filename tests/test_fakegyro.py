@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import Frame, Parser, array_to_frames
-from hdrd.io.sources import SerialSource
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import Frame, array_to_frames
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.sources import SerialSource
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile
 
@@ -316,7 +317,7 @@ def test_parser_sees_the_constant_rate_of_the_profile(tmp_path: Path) -> None:
     FakeGyro(prof).write_capture(out)
     p = Parser()
     frames = p.feed(out.read_bytes())
-    omega = SensorModel().to_dps(np.array([f.rate for f in frames]))
+    omega = SensorModel().to_dps_array(np.array([f.rate for f in frames]), 0)
     lsb = SensorModel().lsb_dps
     assert np.all(np.abs(omega[:10] - 0.25) <= lsb / 2 + 1e-12)
     assert np.all(np.abs(omega[10:] - (-7.5 + 0.25)) <= lsb / 2 + 1e-12)

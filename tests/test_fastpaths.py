@@ -1,10 +1,10 @@
 """The fast paths agree: one realistic capture through all of them.
 
 The vectorised capture decoder (``hdrd replay``), the push parser (what the live source runs)
-and the live daemon's path (a real pty read by :class:`hdrd.io.sources.SerialSource`, each frame
+and the live daemon's path (a real pty read by :class:`hdrd.io.wire.sources.SerialSource`, each frame
 through :meth:`hdrd.daemon.pipeline.Pipeline.feed`) must give the same frames, the same counters and
-the same messages as the replay path (:func:`hdrd.io.capture.decode_capture` then
-:meth:`~hdrd.daemon.pipeline.Pipeline.feed_array`) on the same bytes. test_frames, test_pipeline and
+the same messages as the replay path (:func:`hdrd.io.wire.capture.decode_capture` then
+:meth:`~hdrd.daemon.pipeline.Pipeline.feed_array`) on the same bytes. test_parser, test_pipeline and
 test_replay check each pair on small or synthetic inputs; this module ties all of them together
 on one 10-minute 100 Hz drive with garbage, CRC errors, dropped frames and a device-clock wrap.
 
@@ -33,10 +33,11 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import Frame, Parser, array_to_frames
-from hdrd.io.publish import _format_clean, format_json
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
+from hdrd.io.net.publish import _format_clean, format_json
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import Frame, array_to_frames
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource
 from hdrd.sim import simulate_drive
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import profile_frames

@@ -33,9 +33,10 @@ import numpy.typing as npt
 import pytest
 
 from hdrd.config import load_config
+from hdrd.core.angles import wrap180
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture, encode_array
-from hdrd.io.frames import Frame, encode_bin, encode_text
+from hdrd.io.wire.capture import decode_capture, encode_array
+from hdrd.io.wire.codec import Frame, encode_bin, encode_text
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware"
@@ -405,7 +406,7 @@ def _check_heading(run: BoardRun, ref_wired: bool) -> float:
     # noise makes, plus the dither bias bound over the run.
     truth_yaw = integral(run.wave, t0, t0 + steps, run.sensor)
     truth_heading = (0.0 - truth_yaw) % 360.0  # heading0 0 (compass: clockwise)
-    diff = (full[-1]["heading"] - truth_heading + 180.0) % 360.0 - 180.0
+    diff = wrap180(full[-1]["heading"] - truth_heading)
     tolerance = 4 * sigma_step * math.sqrt(steps) + float(bias_frames.mean()) * steps
     assert abs(diff) < tolerance, (diff, tolerance)
     return tolerance
@@ -633,7 +634,7 @@ int main(void) {
 
 
 def test_the_firmwares_encoder_writes_what_hdrd_frames_writes(tmp_path: Path) -> None:
-    """firmware/src/frame.c, compiled for the host, against hdrd.io.frames on the protocol's
+    """firmware/src/frame.c, compiled for the host, against hdrd.io.wire.codec on the protocol's
     worked examples, the field limits and random frames (temperature included, which the
     board itself does not send)."""
     driver = tmp_path / "driver.c"

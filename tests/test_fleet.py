@@ -25,9 +25,9 @@ from hdrd.analysis.fleet import MAX_BATCH, LocalRunner, batches
 from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, parameter_blocks, tune_fleet
 from hdrd.analysis.tune import tune
 from hdrd.cli import main as cli
-from hdrd.io.drivefiles import find_drives
-from hdrd.io.drivelog import write_drive
-from hdrd.io.parquetlog import write_dataset_drive, write_parquet_drive
+from hdrd.io.files.drivefiles import find_drives
+from hdrd.io.files.drivelog import write_drive
+from hdrd.io.files.parquetlog import write_dataset_drive, write_parquet_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]

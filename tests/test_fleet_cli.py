@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hdrd.io.drivelog import write_drive
+from hdrd.io.files.drivelog import write_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,8 +142,8 @@ def test_ctrl_c_during_tune_writes_the_best_so_far(
 def test_tune_refuses_test_drives_that_are_training_drives(
     fleet: Path, tmp_path: Path, workers: list[str]
 ) -> None:
-    from hdrd.io.drivelog import read_drive
-    from hdrd.io.parquetlog import write_parquet_drive
+    from hdrd.io.files.drivelog import read_drive
+    from hdrd.io.files.parquetlog import write_parquet_drive
 
     train = sorted(fleet.glob("*.csv"))[:3]
     held = tmp_path / "held"
@@ -341,7 +341,7 @@ def test_evaluate_help_gives_every_default() -> None:
 @pytest.mark.slow
 def test_little_work_stays_in_this_process(fleet: Path) -> None:
     from hdrd.analysis.fleet_jobs import WORK_S_PER_BYTE, estimated_work_s
-    from hdrd.io.drivefiles import find_drives
+    from hdrd.io.files.drivefiles import find_drives
 
     refs = find_drives([str(fleet)])
     size = sum(Path(r.path).stat().st_size for r in refs)

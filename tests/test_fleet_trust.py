@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from hdrd.analysis.fleet import scheduler_warning
-from hdrd.io.drivelog import write_drive
+from hdrd.io.files.drivelog import write_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]

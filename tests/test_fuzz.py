@@ -89,7 +89,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     cls: str, body: dict[str, Any], tail: bytes
 ) -> None:
     from hdrd.daemon.aiding import GpsAiding
-    from hdrd.io.gpsd import Fix, GpsdProtocolError, parse_line
+    from hdrd.io.net.gpsd import Fix, GpsdProtocolError, parse_line
 
     for key in ("mode", "track", "speed", "epd"):  # the fields aiding reads, made hostile too
         body.setdefault(key, body.get(key))
@@ -131,7 +131,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     raw=st.booleans(),
 )
 def test_tail_prints_only_printable_lines(parts: list[bytes], raw: bool) -> None:
-    from hdrd.io.datagrams import TailFormatter
+    from hdrd.io.net.datagrams import TailFormatter
 
     out, notes, n = TailFormatter(raw=raw).lines(b"\n".join(parts), "127.0.0.1:9")
     assert n >= 0
@@ -195,7 +195,7 @@ def test_a_bias_file_is_valid_or_one_bias_file_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.io.biasfile import BiasFileError, load_bias
+    from hdrd.io.files.biasfile import BiasFileError, load_bias
 
     p = tmp_path_factory.mktemp("bias") / "bias.yaml"
     text = ("# hdrd static bias\n" + emit_yaml(fields)).encode("utf-8", "surrogatepass")
@@ -229,7 +229,7 @@ _CAPTURE = _capture()
 def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: str) -> None:
     from hdrd.daemon.pipeline import Pipeline
     from hdrd.daemon.stepper import PipelineConfig
-    from hdrd.io.frames import Parser
+    from hdrd.io.wire.parser import Parser
 
     stream = _CAPTURE[:splice] + data + _CAPTURE[splice:]
     parser, p = Parser(protocol), Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.1))))
@@ -275,7 +275,7 @@ def test_a_drive_log_csv_is_read_or_one_drive_log_error(
 ) -> None:
     import io
 
-    from hdrd.io.drivelog import DriveLogError, read_drive
+    from hdrd.io.files.drivelog import DriveLogError, read_drive
 
     text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
     try:
@@ -297,8 +297,8 @@ def test_a_name_from_data_is_a_path_inside_or_refused(
 ) -> None:
     import os
 
-    from hdrd.io.drivefiles import drive_name
-    from hdrd.io.files import UnsafeNameError, path_inside
+    from hdrd.io.files.access import UnsafeNameError, path_inside
+    from hdrd.io.files.drivefiles import drive_name
 
     root = tmp_path_factory.mktemp("out")
     shown = drive_name(name)

@@ -38,7 +38,7 @@ from hdrd.analysis.gap.noise import Noise, Whitener
 from hdrd.cli import main as cli_main
 from hdrd.core.allan import allan_deviation
 from hdrd.core.sensor import SensorModel
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import (
     BiasInstability,

@@ -12,7 +12,7 @@ import pytest
 from hdrd.analysis.gap import GapData, prepare, run_gap, summary, to_report
 from hdrd.analysis.gap.data import stop_interior
 from hdrd.analysis.gap.metric import GapMeasure
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import ScaleFactor, WhiteNoise
 from hdrd.sim.grades import grade_model

@@ -20,7 +20,7 @@ import pytest
 from hdrd.analysis.gap import GapError, prepare, run_gap, summary
 from hdrd.analysis.gap.candidates import not_identifiable
 from hdrd.cli import main as cli_main
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import MotionOffset
 from hdrd.sim.gyro import load_model

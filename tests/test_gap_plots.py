@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.gap import GapResult, run_gap
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import ScaleFactor, TemperatureBias
 

@@ -26,7 +26,7 @@ from hdrd.analysis.gap.fit import Fitter
 from hdrd.analysis.gap.report import PROFILE_ORDER, gyro_section
 from hdrd.core.gyronoise import NOISE_KEYS, GyroNoise
 from hdrd.core.plusparams import Hypothesis
-from hdrd.io.drivelog import write_drive
+from hdrd.io.files.drivelog import write_drive
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import (
     Bandwidth,

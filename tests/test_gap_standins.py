@@ -19,7 +19,7 @@ from hdrd.analysis.gap import GapResult, run_gap, summary, to_report
 from hdrd.analysis.gap.report import gyro_section
 from hdrd.cli import main as cli_main
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim.effects import Bandwidth, BiasInstability, RateRandomWalk, TemperatureBias, WhiteNoise
 from hdrd.sim.gyro import DEFAULT_START_MODEL
 from tests.gap_standins import (

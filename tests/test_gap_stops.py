@@ -20,7 +20,7 @@ from hdrd.analysis.gap import GapData, prepare, run_gap, summary
 from hdrd.analysis.gap.dither import dither_sd, expected_output
 from hdrd.analysis.gap.metric import gap_metric
 from hdrd.analysis.gap.predict import deterministic_part
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import DEFAULT_START_MODEL, simulate_drive
 from hdrd.sim.effects import Effect, MotionOffset, Quantization, StaticBias, WhiteNoise
 from hdrd.sim.gyro import GyroModel

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hdrd.cli import main as cli_main
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.drivelog import read_drive
 from hdrd.sim.benchmark import TRAIN_DRIVES, generate, generate_all
 from hdrd.sim.effects import MotionOffset, StaticBias, TimeOffset, WhiteNoise
 from hdrd.sim.gyro import GyroModel

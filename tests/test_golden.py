@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from hdrd.cli import main as cli
-from hdrd.io.capture import decode_capture
-from hdrd.io.clocks import DeviceClock
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.clocks import DeviceClock
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "golden"
 CAPTURE = GOLDEN / "drive-faults.bin"

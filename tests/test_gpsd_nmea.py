@@ -1,7 +1,7 @@
 """hdrd and the real gpsd, both directions.
 
 GPS -> hdrd: gpsfake (gpsd-clients) replays an NMEA log we write ($GPGGA/$GPRMC, a drive
-through north, a GPS outage) into a real gpsd; :class:`hdrd.io.gpsd.GpsdClient` receives the
+through north, a GPS outage) into a real gpsd; :class:`hdrd.io.net.gpsd.GpsdClient` receives the
 TPV reports, :class:`hdrd.daemon.aiding.GpsAiding` switches aided -> dead-reckoning -> aided and
 the heading stays continuous; and a real ``hdrd run --gpsd`` does the same end to end.
 
@@ -37,15 +37,16 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
-from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.gpsd import WATCH_COMMAND, Fix, GpsdClient
-from hdrd.io.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.net.gpsd import WATCH_COMMAND, Fix, GpsdClient
+from hdrd.io.net.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
 from tests.test_aiding import on_message
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
@@ -726,7 +727,7 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
 
 
 def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
-    from hdrd.io.publish import nmea_sentences
+    from hdrd.io.net.publish import nmea_sentences
 
     base = {"class": "HDR", "v": 1, "omega": -0.5, "heading": 359.996, "status": "ok"}
 

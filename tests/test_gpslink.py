@@ -23,8 +23,8 @@ from hdrd.daemon.aiding import AIDED, GpsAiding
 from hdrd.daemon.gpslink import GpsdLink
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.gpsd import GpsdClient
-from hdrd.io.protocol import Message
+from hdrd.io.net.gpsd import GpsdClient
+from hdrd.io.wire.protocol import Message
 from tests.test_gpsd import REAL_TPV, WAIT, Peer, peer  # noqa: F401 - peer: a fixture
 
 

@@ -99,7 +99,6 @@ def test_every_limit_admits_every_built_in_gyro_and_says_its_unit() -> None:
     from hdrd.sim.grades import grade_model
     from hdrd.sim.gyro import DEFAULT_START_MODEL, crs03_default_model
     from hdrd.sim.gyrolimits import LIMITS, limit_problem
-    from hdrd.sim.recordings import RECORDINGS, log_rate_model, recording_model
 
     every = {(name, f.name) for name, cls in EFFECTS.items() for f in fields(cls)}
     assert set(LIMITS) == every  # every parameter has its bound
@@ -108,9 +107,6 @@ def test_every_limit_admits_every_built_in_gyro_and_says_its_unit() -> None:
         assert limit_problem(effect, param, hi) is None  # the bound itself is allowed
         assert limit_problem(effect, param, math.nextafter(hi, math.inf)) is not None
     models = [grade_model(g, s) for g in GRADES for s in range(3)]
-    models += [recording_model(r, 0) for r in RECORDINGS] + [
-        log_rate_model(r, 0) for r in RECORDINGS
-    ]
     models += [crs03_default_model(), DEFAULT_START_MODEL]
     for m in models:
         for e in m.to_dict()["effects"]:

@@ -131,8 +131,8 @@ def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> N
     from hdrd.config import parse_config
     from hdrd.core.calibrate import BiasRecord
     from hdrd.daemon.replay import replay_capture
-    from hdrd.io.capture import encode_array
-    from hdrd.io.frames import FRAME_DTYPE
+    from hdrd.io.wire.capture import encode_array
+    from hdrd.io.wire.codec import FRAME_DTYPE
 
     n = 600
     a = np.zeros(n, FRAME_DTYPE)

@@ -11,8 +11,8 @@ import pytest
 
 from hdrd.cli import main
 from hdrd.config import ConfigError, load_config
-from hdrd.io.biasfile import BiasFileError, load_bias
-from hdrd.io.files import InputFileError, load_yaml
+from hdrd.io.files.access import InputFileError, load_yaml
+from hdrd.io.files.biasfile import BiasFileError, load_bias
 
 BIAS_HEAD = "# hdrd static bias (eps0), written by `hdrd calibrate`; rates in deg/s, + = CCW\n"
 
@@ -26,7 +26,7 @@ def _bias_body(bias: str = "0.25") -> str:
 
 @pytest.fixture
 def capture(tmp_path: Path) -> Path:
-    from hdrd.io.frames import Frame, encode_bin
+    from hdrd.io.wire.codec import Frame, encode_bin
 
     p = tmp_path / "c.bin"
     p.write_bytes(b"".join(encode_bin(Frame(i, i * 100_000, 32768, 0, None)) for i in range(30)))
@@ -337,7 +337,7 @@ def test_thousands_of_udp_destinations_are_summed_up_at_stop() -> None:
     from structlog.testing import capture_logs
 
     from hdrd.daemon import run as daemon_mod
-    from hdrd.io.publish import UdpJsonPublisher, UdpNmeaPublisher
+    from hdrd.io.net.publish import UdpJsonPublisher, UdpNmeaPublisher
 
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))

@@ -17,7 +17,15 @@ from hdrd.core import hdrplus
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import INITIAL_PLUS_STATE, PlusState, run_batch, step
-from hdrd.core.plusparams import DEFAULTS, FRESH_BANK, Hypothesis, PlusParams, Road, unit_bank
+from hdrd.core.plusparams import (
+    DEFAULTS,
+    FRESH_BANK,
+    PROFILE_OFFSET_SD_DPS,
+    Hypothesis,
+    PlusParams,
+    Road,
+    unit_bank,
+)
 from hdrd.core.standstill import CalibrationNoise, StandstillParams
 from hdrd.core.steps import StepInput
 
@@ -69,14 +77,6 @@ def plus_params(draw: st.DrawFn) -> PlusParams:
     return PlusParams(
         T=draw(st.sampled_from([0.5, 1.0, 2.0])),
         bank=bank,
-        evidence_weight=draw(st.floats(0.0, 1.0)),
-        road=Road(
-            draw(st.floats(0.0, 0.1)),
-            draw(st.floats(10.0, 600.0)),
-            draw(st.floats(0.001, 0.2)),
-            draw(st.floats(0.1, 1.0)),
-            draw(st.floats(0.1, 10.0)),
-        ),
         standstill=StandstillParams(
             enabled=draw(st.booleans()),
             gyro_only=draw(st.booleans()),
@@ -261,7 +261,9 @@ def test_unit_bank_puts_what_is_known_into_the_fresh_bank() -> None:
     )
     assert [h.name for h in b] == [h.name for h in FRESH_BANK]
     assert all(h.offset_dps == 0.05 for h in b)
-    assert b[0].offset_sd_dps == 0.004 and b[1].offset_sd_dps == FRESH_BANK[1].offset_sd_dps
+    # the steady member: the profile's sd and how far an offset moves between drives
+    assert b[0].offset_sd_dps == pytest.approx(math.hypot(0.004, PROFILE_OFFSET_SD_DPS))
+    assert b[1].offset_sd_dps == FRESH_BANK[1].offset_sd_dps
     assert b[0].drift_q == pytest.approx(1e-8) and b[2].drift_q == FRESH_BANK[2].drift_q
     assert unit_bank(GyroNoise()) == FRESH_BANK  # nothing known: the fresh bank
 

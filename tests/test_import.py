@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.core.angles import wrap180
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 from tests.hdrd_process import hdrd
 
@@ -98,13 +99,13 @@ def test_parquet_out_and_enu_heading_in_radians(drive: DriveLog, tmp_path: Path)
              "--omega", "wz", "--heading", "yaw", "--heading-unit", "rad", "--heading-ref", "enu",
              cwd=tmp_path)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    from hdrd.io.parquetlog import read_parquet_drive
+    from hdrd.io.files.parquetlog import read_parquet_drive
 
     got = read_parquet_drive(tmp_path / "ros.parquet")
     assert np.array_equal(got.t, drive.t)  # nanoseconds since 2023: every digit kept
     assert got.heading_truth is not None
     ok = np.isfinite(drive.heading_truth)
-    diff = (got.heading_truth[ok] - drive.heading_truth[ok] + 180.0) % 360.0 - 180.0
+    diff = wrap180(got.heading_truth[ok] - drive.heading_truth[ok])
     assert np.max(np.abs(diff)) < 2e-3
     assert np.all((got.heading_truth[ok] >= 0) & (got.heading_truth[ok] < 360))
 
@@ -221,7 +222,7 @@ def test_a_file_name_cannot_put_a_metadata_line_in_the_log(tmp_path: Path) -> No
 
 def test_the_command_lines_units_are_the_modules() -> None:
     from hdrd import cli
-    from hdrd.io import csvimport as importcsv
+    from hdrd.io.files import csvimport as importcsv
 
     assert cli.TIME_UNITS == tuple(importcsv.TIME_UNITS)
     assert cli.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)

@@ -13,8 +13,8 @@ import numpy as np
 
 from hdrd.config import Config, apply_overrides
 from hdrd.daemon.inputs import open_source
-from hdrd.io.frames import Frame, encode_text
-from hdrd.io.sources import SerialSource
+from hdrd.io.wire.codec import Frame, encode_text
+from hdrd.io.wire.sources import SerialSource
 from hdrd.sim.source import SimulatedSource
 
 

@@ -164,6 +164,68 @@ def test_the_layer_rules_are_not_empty_words() -> None:
     assert layer_of("hdrd.daemon.pipeline") not in LAYERS["core"]
 
 
+# io/'s rooms, lowest first: each imports only the rooms before it and io's shared modules,
+# which import no room (docs/development.md draws them).
+IO_ROOMS = ("wire", "files", "net", "web")
+IO_SHARED = {"hdrd.io", "hdrd.io.logs", "hdrd.io.resolve"}
+
+
+def room_of(module: str) -> str | None:
+    """A module's room of io/ ("" for io's shared modules); None outside io/."""
+    parts = module.split(".")
+    if parts[:2] != ["hdrd", "io"]:
+        return None
+    return parts[2] if len(parts) > 3 or parts[2:] and parts[2] in IO_ROOMS else ""
+
+
+def test_every_io_module_is_in_a_room_or_shared() -> None:
+    io = {m for m in modules() if room_of(m) is not None}
+    assert {m for m in io if room_of(m) == ""} == IO_SHARED
+    assert {room_of(m) for m in io} - {""} == set(IO_ROOMS)
+    assert {
+        p.name for p in (PKG / "io").iterdir() if p.is_dir() and p.name != "__pycache__"
+    } == set(IO_ROOMS)
+
+
+def rooms_climbing(graph: dict[str, set[str]]) -> list[str]:
+    floor = {"": 0, **{r: i + 1 for i, r in enumerate(IO_ROOMS)}}
+    wrong = []
+    for name, deps in graph.items():
+        here = room_of(name)
+        for d in deps:
+            there = room_of(d)
+            if here is not None and there is not None and floor[there] > floor[here]:
+                wrong.append(f"{name} -> {d}")
+    return sorted(wrong)
+
+
+def test_each_room_of_io_imports_only_the_rooms_below_it() -> None:
+    graph = import_graph()
+    assert rooms_climbing(graph) == []
+    # the rule sees an arrow up, lazy or not: the wire reaching for the web page, the shared
+    # logging for a file format
+    lazy = ast.parse("def f():\n    from hdrd.io.web.webserver import WebServer\n")
+    graph["hdrd.io.wire.parser"] = imports(lazy, set(graph))
+    graph["hdrd.io.logs"] = {"hdrd.io.files.access"}
+    assert rooms_climbing(graph) == [
+        "hdrd.io.logs -> hdrd.io.files.access",
+        "hdrd.io.wire.parser -> hdrd.io.web.webserver",
+    ]
+
+
+def test_the_web_page_ships_as_package_data() -> None:
+    """pyproject.toml's package data names every file of the page the server reads."""
+    import tomllib
+
+    from hdrd.io.web.webserver import ASSETS
+
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    shipped = {p for pattern in data["package-data"]["hdrd"] for p in PKG.glob(pattern)}
+    page = PKG / "io" / "web" / "webpage"
+    assert {page / name for name, _ in ASSETS.values()} <= shipped
+    assert all(p.is_file() for p in shipped)
+
+
 NO_COMMAND_LINE = ("core", "io", "sim", "daemon", "analysis")
 """Layers that never see the command line: they take typed values (commands/ turns the flags
 into them), so none imports argparse, even lazily."""
@@ -328,7 +390,8 @@ def test_the_command_lines_light_copies_equal_their_homes() -> None:
     """hdrd/cli.py imports nothing heavy (``hdrd --help`` loads no numpy), so it repeats a
     few defaults instead of importing their modules; they must stay equal."""
     from hdrd.cli import build_parser
-    from hdrd.io import datagrams, gpsd, webserver
+    from hdrd.io.net import datagrams, gpsd
+    from hdrd.io.web import webserver
 
     parser = build_parser()
     assert parser.parse_args(["run", "--gpsd"]).gpsd == f"{gpsd.DEFAULT_HOST}:{gpsd.DEFAULT_PORT}"

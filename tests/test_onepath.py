@@ -23,9 +23,9 @@ from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.replay import replay_capture
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.capture import encode_array
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import encode_array
+from hdrd.io.wire.codec import FRAME_DTYPE
 
 SENSOR = SensorModel()
 T0_US = (1 << 32) - 45_000_000  # the device clock wraps 45 s into the capture
@@ -150,7 +150,7 @@ def test_a_1_hz_gyro_has_one_sample_per_step_in_the_daemon_and_in_evaluate() -> 
     data, log = capture(drive(1.0, noise_dps=0.02))
     ctx = method_setup(_config("hdr+"))
     p = Pipeline(PipelineConfig(setup=replace(ctx, method="hdr+", bias=given_bias(0.4))))
-    from hdrd.io.capture import decode_capture
+    from hdrd.io.wire.capture import decode_capture
 
     frames, _ = decode_capture(data)
     p.feed_array(frames)
@@ -165,7 +165,7 @@ def test_a_bias_file_sets_hdr_plus_prior_in_the_daemon_as_in_evaluate() -> None:
     rec = BiasRecord(0.41, 0.05, 300, 30.0)
     msgs = replay_capture(data, _config("hdr+"), rec.bias_dps, None, rec)
     p = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr+", bias=rec)))
-    from hdrd.io.capture import decode_capture
+    from hdrd.io.wire.capture import decode_capture
 
     p.feed_array(decode_capture(data)[0])
     assert p.stepper.settings.bias_p0 == 0.05 * 0.05 / 300

@@ -24,7 +24,7 @@ from hdrd.analysis.outages import (
     run_outages,
 )
 from hdrd.analysis.prepare import EvaluationError, prepare_drive
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 
 LEAD_S = 30.0
 

@@ -117,7 +117,7 @@ def test_gap_out_replaces_only_a_regular_file_in_its_folder(
 
 
 def test_a_link_inside_the_folder_is_followed_one_out_of_it_is_not(tmp_path: Path) -> None:
-    from hdrd.io.files import OutputFileError, atomic_write_text
+    from hdrd.io.files.access import OutputFileError, atomic_write_text
 
     out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
     (out / "inner").mkdir(parents=True)

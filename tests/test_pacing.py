@@ -19,7 +19,7 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.frames import Frame
+from hdrd.io.wire.codec import Frame
 
 
 def simulate_reader(hz: float, seconds: float, delays: np.ndarray, pacer: ReadPacer) -> list[float]:

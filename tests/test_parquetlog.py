@@ -1,6 +1,6 @@
-"""Drive logs as Parquet (hdrd/io/parquetlog.py): read exactly like the CSV, the same checks,
+"""Drive logs as Parquet (hdrd/io/files/parquetlog.py): read exactly like the CSV, the same checks,
 files, a file holding many drives, a dataset partitioned by drive, as the drives a command
-line names find them (hdrd/io/drivefiles.py; its directories, globs and mixed formats:
+line names find them (hdrd/io/files/drivefiles.py; its directories, globs and mixed formats:
 test_drivefiles.py)."""
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
-from hdrd.io.drivefiles import find_drives
-from hdrd.io.drivelog import (
+from hdrd.io.files.drivefiles import find_drives
+from hdrd.io.files.drivelog import (
     NO_LIMITS,
     DriveLog,
     DriveLogError,
@@ -28,7 +28,7 @@ from hdrd.io.drivelog import (
     read_drive,
     write_drive,
 )
-from hdrd.io.parquetlog import (
+from hdrd.io.files.parquetlog import (
     DRIVE_META_KEY,
     META_KEY,
     drives_in_file,
@@ -329,7 +329,7 @@ def test_a_chunk_too_large_is_refused_whatever_its_values(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, no_reading: None
 ) -> None:
     # 20,000 names of 100 bytes (short each) in one row group: 2 MB, over a lowered cap.
-    import hdrd.io.parquetlog as parquetlog
+    import hdrd.io.files.parquetlog as parquetlog
 
     monkeypatch.setattr(parquetlog, "MAX_CHUNK_BYTES", 1 << 20)
     big = _bomb(tmp_path / "big.parquet", 100, rows=20_000)

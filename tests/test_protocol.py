@@ -1,6 +1,7 @@
-"""hdrd.io.protocol: the message schema in one place. What the pipeline and the GPS aiding publish
-uses only its keys, in its order, with its class, version and statuses; docs/protocol.md's
-table lists the same keys."""
+"""hdrd.io.wire.protocol: the wire's field table and the message schema in one place. hdr-bin's struct
+formats, numpy dtype, the firmware's C header and docs/protocol.md's layout all follow the
+table; what the pipeline and the GPS aiding publish uses only the schema's keys, in its order,
+with its class, version and statuses; docs/protocol.md's table lists the same keys."""
 
 from __future__ import annotations
 
@@ -15,10 +16,11 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io import protocol
-from hdrd.io.frames import FRAME_DTYPE
-from hdrd.io.gpsd import Fix
+from hdrd.io.net.gpsd import Fix
+from hdrd.io.wire import protocol
+from hdrd.io.wire.codec import BIN_BODY, FRAME_DTYPE, Frame, encode_bin
 from tests.test_aiding import on_message
+from tools.gen_header import HEADER, c_header
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
@@ -88,3 +90,52 @@ def test_the_docs_name_every_added_key_and_the_valid_statuses() -> None:
         assert f"`{key}`" in text, key
     for status in protocol.RATE_VALID_STATUSES:
         assert f"`{status}`" in text, status
+
+
+def doc_bin_layout() -> list[tuple[int, int, str]]:
+    """docs/protocol.md's hdr-bin table: (offset, size, field name) per row."""
+    section = DOC.read_text().split("\n### hdr-bin (default)\n", 1)[1].split("\n### ", 1)[0]
+    rows = re.findall(r"^\| (\d+) \| (\d+) \| (?:sync bytes|(\w+):)", section, re.MULTILINE)
+    return [(int(o), int(n), name or "sync") for o, n, name in rows]
+
+
+def test_the_wire_follows_the_one_field_table() -> None:
+    sizes = [protocol.WIRE_TYPES[f.type].size for f in protocol.BIN_FIELDS]
+    offsets = [protocol.BIN_PAYLOAD_AT + sum(sizes[:i]) for i in range(len(sizes))]
+    names = [f.name for f in protocol.BIN_FIELDS]
+    # the numpy dtype of the vectorised decoder: the payload, packed
+    assert FRAME_DTYPE.names == tuple(names) and FRAME_DTYPE.itemsize == protocol.BIN_PAYLOAD_LEN
+    assert FRAME_DTYPE.fields is not None
+    assert [FRAME_DTYPE.fields[n][1] + protocol.BIN_PAYLOAD_AT for n in names] == offsets
+    # the struct format: the payload then the CRC, to the frame's end
+    assert BIN_BODY.size == protocol.BIN_FRAME_LEN - protocol.BIN_PAYLOAD_AT
+    wire = encode_bin(Frame(258, 1_000_000, 33554, 32768, 2512))
+    assert BIN_BODY.unpack_from(wire, protocol.BIN_PAYLOAD_AT)[:-1] == (
+        258,
+        1_000_000,
+        33554,
+        32768,
+        2512,
+    )
+    assert (
+        wire[protocol.BIN_PAYLOAD_AT :]
+        == np.array([(258, 1_000_000, 33554, 32768, 2512)], FRAME_DTYPE).tobytes()
+        + wire[protocol.BIN_CRC_AT :]
+    )
+    # the docs' layout
+    assert doc_bin_layout() == [
+        (0, len(protocol.SYNC), "sync"),
+        *zip(offsets, sizes, names),
+        (protocol.BIN_CRC_AT, 2, "crc"),
+    ]
+    assert protocol.BIN_CRC_AT + 2 == protocol.BIN_FRAME_LEN
+
+
+def test_the_firmwares_header_is_what_the_field_table_makes() -> None:
+    """firmware/src/wire.h is generated (``python -m tools.gen_header``): the committed one
+    is the table's, and it declares each field of the table, in order, with its C type."""
+    text = HEADER.read_text()
+    assert text == c_header()
+    struct = text.split("typedef struct {", 1)[1].split("} hdr_sample_t;", 1)[0]
+    members = re.findall(r"^\s+(\w+)\s+(\w+);", struct, re.MULTILINE)
+    assert members == [(protocol.WIRE_TYPES[f.type].c, f.name) for f in protocol.BIN_FIELDS]

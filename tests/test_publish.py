@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
-from hdrd.io.publish import (
+from hdrd.io.net.publish import (
     OutputClosed,
     StdoutPublisher,
     UdpJsonPublisher,
@@ -651,7 +651,7 @@ def test_stdout_closed_by_head_exits_without_traceback() -> None:
     code = textwrap.dedent(
         """
         import sys
-        from hdrd.io.publish import OutputClosed, StdoutPublisher
+        from hdrd.io.net.publish import OutputClosed, StdoutPublisher
         pub = StdoutPublisher()
         try:
             for i in range(1_000_000):
@@ -754,7 +754,7 @@ def _decimals(v: float) -> int:
 def test_run_stdout_on_a_terminal_rounds_numbers_and_a_pipe_keeps_them(tmp_path: Any) -> None:
     """A yaw of -0.0025271484375000014 is noise on a terminal: there hdrd run --stdout shows
     each number to what it means; a pipe (a program, a file) gets every digit."""
-    from hdrd.io.display import DECIMALS
+    from hdrd.io.net.display import DECIMALS
 
     shown = _run_stdout(tmp_path, on_tty=True)
     for m in shown:

@@ -1,4 +1,4 @@
-"""hdrd.io.record and `hdrd record`: raw bytes from the port to a capture file, losing nothing."""
+"""hdrd.io.wire.record and `hdrd record`: raw bytes from the port to a capture file, losing nothing."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import array_to_frames
-from hdrd.io.record import record
-from hdrd.io.sources import SerialReader
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import array_to_frames
+from hdrd.io.wire.record import record
+from hdrd.io.wire.sources import SerialReader
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile
 

@@ -1,7 +1,7 @@
 """Bad bytes: the parsers and the pipeline never crash on anything the wire
 can carry, recover every intact frame, and count every bad one.
 
-What tests/test_frames.py already covers is not repeated here: arbitrary bytes never raise
+What tests/test_parser.py and tests/test_tracker.py already cover is not repeated here: arbitrary bytes never raise
 (push == vectorised), dirty streams of good / corrupted / truncated frames and clean garbage
 (every good frame back, every sync pattern of a bad piece counted), any chunking, a sync
 pattern inside a corrupted payload, example sequences of gaps / repeats / resets and clock
@@ -36,18 +36,18 @@ from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.capture import decode_capture, encode_array
-from hdrd.io.frames import (
+from hdrd.io.wire.capture import decode_capture, encode_array
+from hdrd.io.wire.codec import (
     FRAME_DTYPE,
     Frame,
     FrameError,
-    Parser,
     array_to_frames,
     decode_bin,
     encode_bin,
     encode_text,
 )
-from hdrd.io.protocol import BIN_FRAME_LEN, SYNC
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import BIN_FRAME_LEN, SYNC
 
 TEXT_SYNC = b"$HDRG,"
 

@@ -11,7 +11,7 @@ clock"; docs/operations.md, "Stale data"): no step is made of those frames, the 
 stale reports, the frames are counted by reason in the ``stop`` event, and steps resume, their
 numbers moving on by the host's clock, when good frames come back.
 
-The module-level tests: test_frames.py (FrameTracker), test_clocks.py (WallClockCheck).
+The module-level tests: test_tracker.py (FrameTracker), test_clocks.py (WallClockCheck).
 No timings are asserted: waits are upper bounds that only a hung daemon reaches.
 """
 
@@ -27,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.frames import Frame, encode_bin
+from hdrd.io.wire.codec import Frame, encode_bin
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Receiver,

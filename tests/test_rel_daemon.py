@@ -36,9 +36,9 @@ import pytest
 
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
-from hdrd.io.biasfile import load_bias, save_bias
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE
+from hdrd.io.files.biasfile import load_bias, save_bias
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.codec import FRAME_DTYPE
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung daemon reaches it
@@ -65,6 +65,8 @@ class Receiver(threading.Thread):
         self.times: list[float] = []
         self.cond = threading.Condition()
         self.done = threading.Event()
+        self.addr = ""
+        """HOST:PORT of a UDP receiver (what ``--udp`` takes)."""
         self.start()
 
     def run(self) -> None:
@@ -107,7 +109,7 @@ def udp_receiver() -> Receiver:
     s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
     s.bind(("127.0.0.1", 0))
     r = Receiver(s, json.loads)
-    r.addr = f"127.0.0.1:{s.getsockname()[1]}"  # type: ignore[attr-defined]
+    r.addr = f"127.0.0.1:{s.getsockname()[1]}"
     return r
 
 
@@ -279,6 +281,32 @@ def resume_after_device_back(g: Any, d: Proc) -> None:
     g.on_pull_end = lambda: d.wait_event("device_back", g.injected.pulls)
 
 
+def run_on_link(
+    hdrd: Callable[..., Proc],
+    g: Any,
+    link: Path,
+    cfg: Path,
+    rx: Receiver,
+    *more: str,
+    env: dict[str, str] | None = None,
+) -> Proc:
+    """``hdrd run`` on the fake gyro ``g`` at 4 times real time, reached through the symbolic
+    link ``link`` (a cable that can be pulled), with the configuration ``cfg``, bias 0 and UDP
+    to ``rx`` (and ``more`` options); the gyro starts once the daemon holds the port and
+    resumes after a pull only once it has it back."""
+    d = hdrd(
+        *run_args(
+            "--clock-rate", "4", "--config", str(cfg), "--port", str(link), "--bias", "0",
+            "--udp", rx.addr, *more,
+        ),
+        env=env,
+    )  # fmt: skip
+    resume_after_device_back(g, d)
+    wait_port_open(d, link)
+    g.start()
+    return d
+
+
 def constant_turn(minutes: float = 5.0, rate_dps: float = 2.0) -> DriveLog:
     return builtin_profile(
         "constant", minutes=minutes, rate_dps=rate_dps, bias_dps=0.0, noise_dps=0.0, lead_in_s=0
@@ -320,26 +348,8 @@ def test_cable_pulled_for_5_s_then_repeatedly_then_sigterm_while_out(
     notify = receivers(tmp_path / "notify.sock")
     g = fake_gyro(constant_turn(), speedup=4, link=link)
     rx = receivers()
-    d = hdrd(
-        *run_args(
-            "--clock-rate",
-            "4",
-            "--config",
-            str(cfg),
-            "--port",
-            str(link),
-            "--bias",
-            "0",
-            "--udp",
-            rx.addr,
-            "--heading0",
-            "10",
-        ),
-        env={"NOTIFY_SOCKET": str(tmp_path / "notify.sock")},
-    )
-    resume_after_device_back(g, d)
-    wait_port_open(d, link)
-    g.start()
+    env = {"NOTIFY_SOCKET": str(tmp_path / "notify.sock")}
+    d = run_on_link(hdrd, g, link, cfg, rx, "--heading0", "10", env=env)
     rx.wait(lambda ms: len(steps_of(ms)) >= 6, what="6 steps")
     pulls = [5.0, 1.5, 1.5, 1.5]
     for k, seconds in enumerate(pulls, 1):
@@ -408,24 +418,7 @@ def test_cable_pulled_for_long(fake_gyro, hdrd, receivers, tmp_path):
     g = fake_gyro(constant_turn(minutes=2 + LONG_PULL_S * 4 / 60), speedup=4, link=link)
     rx = receivers()
     env = {"NOTIFY_SOCKET": str(tmp_path / "notify.sock"), "WATCHDOG_USEC": "1000000"}
-    d = hdrd(
-        *run_args(
-            "--clock-rate",
-            "4",
-            "--config",
-            str(cfg),
-            "--port",
-            str(link),
-            "--bias",
-            "0",
-            "--udp",
-            rx.addr,
-        ),
-        env=env,
-    )
-    resume_after_device_back(g, d)
-    wait_port_open(d, link)
-    g.start()
+    d = run_on_link(hdrd, g, link, cfg, rx, env=env)
     rx.wait(lambda ms: len(steps_of(ms)) >= 4, what="4 steps")
     g.pull(LONG_PULL_S)
 

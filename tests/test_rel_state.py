@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from hdrd.core.calibrate import BiasRecord
-from hdrd.io.biasfile import load_bias, save_bias
+from hdrd.io.files.biasfile import load_bias, save_bias
 from hdrd.sim.profiles import builtin_profile
 
 WAIT = 60.0
@@ -426,11 +426,11 @@ def test_power_cut_at_random_moments(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------------- writers at once
 
-# Writes the bias file N times, as `hdrd calibrate` does (hdrd.io.biasfile.save_bias).
+# Writes the bias file N times, as `hdrd calibrate` does (hdrd.io.files.biasfile.save_bias).
 WRITER = r"""
 import sys
 from hdrd.core.calibrate import BiasRecord
-from hdrd.io.biasfile import save_bias
+from hdrd.io.files.biasfile import save_bias
 path, who, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 for k in range(n):
     save_bias(path, BiasRecord(0.001 * who, 0.01, k + 1, 10.0, None, 1.7e9))

@@ -19,8 +19,8 @@ from hdrd.config import Config
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.replay import replay_capture
-from hdrd.io.biasfile import save_bias
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.biasfile import save_bias
+from hdrd.io.files.drivelog import read_drive
 from hdrd.sim.fakegyro import FakeGyro
 from tests.test_daemon import drive_profile, strip_time
 
@@ -226,7 +226,7 @@ def test_replay_in_chunks_is_replay_whole(tmp_path):
     # hdrd replay feeds the pipeline a chunk of frames at a time and writes each chunk's
     # steps before the next (memory follows the chunk, not the capture): the same messages.
     from hdrd.daemon.replay import replay_steps
-    from hdrd.io.capture import decode_capture
+    from hdrd.io.wire.capture import decode_capture
 
     cap = tmp_path / "c.bin"
     FakeGyro(drive_profile(seconds=60), crc_errors=0.05, garbage=0.05, seed=3).write_capture(cap)

@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.core.resample import Block, BlockAverager, Missing
-from hdrd.io.clocks import DeviceClock, unwrap_us
-from hdrd.io.protocol import CLOCK_WRAP_US
+from hdrd.io.wire.clocks import DeviceClock, unwrap_us
+from hdrd.io.wire.protocol import CLOCK_WRAP_US
 
 S = 1_000_000  # us per s
 

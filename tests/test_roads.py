@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.prepare import prepare_drive
-from hdrd.io.drivelog import DriveLog, read_drive, write_drive
+from hdrd.core.angles import wrap180
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.effects import MotionOffset, StaticBias, WhiteNoise
 from hdrd.sim.gps import GpsModel, heading_from_rate
 from hdrd.sim.grades import grade_model
@@ -86,7 +87,7 @@ def test_road_drive_columns_lead_in_and_exact_heading() -> None:
     # Resampling keeps the route's heading within a small fraction of a degree.
     assert route.heading_truth is not None and route.omega_truth is not None
     back = np.interp(route.t + 30.0, log.t, np.unwrap(log.heading_truth, period=360.0))
-    err = (back - route.heading_truth + 180.0) % 360.0 - 180.0
+    err = wrap180(back - route.heading_truth)
     assert np.max(np.abs(err[route.t < route.t[-1] - 0.2])) < 0.2
 
 
@@ -99,7 +100,7 @@ def test_gps_course_is_a_noisy_one_hertz_course_above_its_speed() -> None:
     assert np.all(log.speed[fixes] >= 2.0) and fixes.shape[0] > 250
     np.testing.assert_array_equal(np.isfinite(log.gps_speed), np.isfinite(log.gps_course))
     np.testing.assert_array_equal(log.gps_speed[fixes], log.speed[fixes])
-    err = (log.gps_course[fixes] - log.heading_truth[fixes] + 180.0) % 360.0 - 180.0
+    err = wrap180(log.gps_course[fixes] - log.heading_truth[fixes])
     assert 0.7 < float(np.std(err)) < 1.5 and abs(float(np.mean(err))) < 0.2
 
 

@@ -21,8 +21,8 @@ import pytest
 from hdrd.config import Config, ConfigError, apply_overrides
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.run import BiasChoice, Daemon, build_publishers, choose_bias
-from hdrd.io.biasfile import BiasFileError, save_bias
-from hdrd.io.publish import StdoutPublisher, UdpJsonPublisher, UdpNmeaPublisher
+from hdrd.io.files.biasfile import BiasFileError, save_bias
+from hdrd.io.net.publish import StdoutPublisher, UdpJsonPublisher
 
 WAIT_S = 60.0  # upper bound for a run that should take a second or two
 
@@ -61,8 +61,9 @@ def test_a_named_bias_file_must_exist(state_dir: Path, tmp_path: Path) -> None:
     lenient = apply_overrides(cfg, {"calibration.on_bad_bias_file": "calibrate"})
     with pytest.raises(BiasFileError, match="not found"):
         choose_bias(lenient, None)
-    save_bias(named, BiasRecord(0.25, 0.01, 300, 30.0))
-    assert choose_bias(cfg, None).source == str(named)
+    rec = BiasRecord(0.25, 0.01, 300, 30.0)
+    save_bias(named, rec)
+    assert choose_bias(cfg, None) == BiasChoice(rec, str(named))
 
 
 def test_a_bad_bias_file_stops_the_start_unless_told_to_measure(state_dir: Path) -> None:
@@ -78,33 +79,6 @@ def test_a_bias_beyond_the_configured_limit_is_a_bad_file(state_dir: Path) -> No
     cfg = apply_overrides(Config(), {"calibration.max_bias_dps": 2.0})
     with pytest.raises(BiasFileError, match="beyond"):
         choose_bias(cfg, None)
-
-
-# -- publishers ----------------------------------------------------------------------------
-
-
-def test_stdout_when_nothing_else_is_configured() -> None:
-    (pub,) = build_publishers(Config())
-    assert isinstance(pub, StdoutPublisher)
-
-
-def test_each_configured_output_gets_its_publisher() -> None:
-    cfg = apply_overrides(
-        Config(),
-        {"output.udp": ["127.0.0.1:9"], "output.nmea_udp": ["127.0.0.1:10"], "output.stdout": True},
-    )
-    pubs = build_publishers(cfg)
-    try:
-        assert [type(p) for p in pubs] == [UdpJsonPublisher, UdpNmeaPublisher, StdoutPublisher]
-    finally:
-        for p in pubs:
-            p.stop()
-    only_udp = build_publishers(apply_overrides(Config(), {"output.udp": ["127.0.0.1:9"]}))
-    try:
-        assert [type(p) for p in only_udp] == [UdpJsonPublisher]  # no stdout then
-    finally:
-        for p in only_udp:
-            p.stop()
 
 
 # -- a whole run ---------------------------------------------------------------------------
@@ -139,6 +113,61 @@ class Receiver:
         if self._thread is not None:
             self._thread.join(WAIT_S)
         self.sock.close()
+
+
+# -- publishers ----------------------------------------------------------------------------
+
+STEP = {"class": "HDR", "v": 1, "step": 7, "omega": 0.25, "heading": 12.5, "status": "ok"}
+
+
+def receivers(n: int) -> list[Receiver]:
+    out = [Receiver() for _ in range(n)]
+    for r in out:
+        r.sock.bind(("127.0.0.1", 0))
+        r.start()
+    return out
+
+
+def at(r: Receiver) -> str:
+    return f"127.0.0.1:{r.sock.getsockname()[1]}"
+
+
+def publish_one(cfg: Config) -> None:
+    """STEP handed to the publishers ``cfg`` makes, which are then stopped (flushed)."""
+    pubs = build_publishers(cfg)
+    try:
+        for p in pubs:
+            p.on_message(STEP)
+    finally:
+        for p in pubs:
+            p.stop()
+
+
+def test_stdout_when_nothing_else_is_configured(capfd: pytest.CaptureFixture[str]) -> None:
+    (pub,) = build_publishers(Config())
+    assert isinstance(pub, StdoutPublisher)
+    publish_one(Config())
+    assert [json.loads(x) for x in capfd.readouterr().out.splitlines()] == [STEP]
+
+
+def test_each_configured_output_gets_its_publisher(capfd: pytest.CaptureFixture[str]) -> None:
+    """A step handed to the publishers arrives at every configured output: one JSON datagram
+    at output.udp's address, the NMEA sentences at output.nmea_udp's, a JSON line on stdout;
+    with only output.udp, nothing on stdout."""
+    json_rx, nmea_rx = receivers(2)
+    try:
+        cfg = {"output.udp": [at(json_rx)], "output.nmea_udp": [at(nmea_rx)]}
+        publish_one(apply_overrides(Config(), {**cfg, "output.stdout": True}))
+        wait_for(lambda: json_rx.lines and len(nmea_rx.lines) >= 2, "the datagrams")
+        assert [json.loads(x) for x in capfd.readouterr().out.splitlines()] == [STEP]
+        publish_one(apply_overrides(Config(), {"output.udp": [at(json_rx)]}))
+        wait_for(lambda: len(json_rx.lines) >= 2, "the second datagram")
+        assert capfd.readouterr().out == ""  # no stdout then
+    finally:
+        json_rx.close()
+        nmea_rx.close()
+    assert [json.loads(x) for x in json_rx.lines] == [STEP, STEP]
+    assert [x.split(",")[0] for x in nmea_rx.lines] == ["$HNHDT", "$HNROT"]
 
 
 @pytest.fixture
@@ -261,15 +290,21 @@ def test_a_reload_that_fails_keeps_the_running_configuration() -> None:
     assert d.cfg is cfg and d.where == "old.yaml" and d.pipeline.config == pipeline_config
 
 
-def test_a_reload_with_other_outputs_makes_new_publishers(udp: Receiver) -> None:
-    port = udp.sock.getsockname()[1]
-    new = apply_overrides(Config(), {"output.udp": [f"127.0.0.1:{port}"]})
+def test_a_reload_with_other_outputs_makes_new_publishers(
+    udp: Receiver, capfd: pytest.CaptureFixture[str]
+) -> None:
+    new = apply_overrides(Config(), {"output.udp": [at(udp)]})
     d = Daemon(Config(), "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
     d.publishers = build_publishers(d.cfg)
     assert [type(p) for p in d.publishers] == [StdoutPublisher]
     d.reload_config()
     try:
-        assert [type(p) for p in d.publishers] == [UdpJsonPublisher]
+        for p in d.publishers:
+            p.on_message(STEP)
+        wait_for(lambda: udp.lines, "the step on the new output")
     finally:
         for p in d.publishers:
             p.stop()
+    assert [json.loads(x) for x in udp.lines] == [STEP]
+    assert [type(p) for p in d.publishers] == [UdpJsonPublisher]
+    assert json.dumps(STEP) not in capfd.readouterr().out  # the old stdout publisher is gone

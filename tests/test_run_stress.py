@@ -21,7 +21,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from hdrd.io.publish import parse_nmea
+from hdrd.io.net.publish import parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Msgs,
@@ -30,8 +30,8 @@ from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtu
     fast_config,
     hdrd,
     receivers,
-    resume_after_device_back,
     run_args,
+    run_on_link,
     steps_of,
     wait_port_open,
 )
@@ -245,26 +245,8 @@ def test_no_hdt_while_the_gyro_is_unplugged(hdrd, receivers, fake_gyro, tmp_path
     ns.bind(("127.0.0.1", 0))
     nm = Receiver(ns, parse_nmea)
     try:
-        d = hdrd(
-            *run_args(
-                "--clock-rate",
-                "4",
-                "--config",
-                str(cfg),
-                "--port",
-                str(link),
-                "--bias",
-                "0",
-                "--udp",
-                rx.addr,
-            ),
-            "--nmea-udp",
-            f"127.0.0.1:{ns.getsockname()[1]}",
-            "--nmea-ths",
-        )
-        resume_after_device_back(g, d)
-        wait_port_open(d, link)
-        g.start()
+        nmea = f"127.0.0.1:{ns.getsockname()[1]}"
+        d = run_on_link(hdrd, g, link, cfg, rx, "--nmea-udp", nmea, "--nmea-ths")
         rx.wait(lambda ms: len(steps_of(ms)) >= 4, what="4 steps")
         g.pull(3.0)
 

@@ -190,7 +190,7 @@ def test_a_taken_default_port_skips_and_leaves_nothing_behind(tmp_path: Path) ->
     """With the default port taken (a running ``hdrd tail``), the test above skips, and its
     teardown finds nothing left behind: pytest, run on it as a user would, reports one skip
     and no error."""
-    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
+    from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN
 
     port = int(DEFAULT_TAIL_LISTEN.rsplit(":", 1)[1])
     test = f"{Path(__file__).resolve()}::test_hdrd_tail_binds_loopback_by_default"
@@ -214,7 +214,7 @@ def tail_on_the_default_port() -> None:
     """``hdrd tail`` with no --listen binds 127.0.0.1 on the default port and prints what it
     receives; skips (leaving nothing behind) when that port is taken on this machine."""
     from hdrd.cli import build_parser
-    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
+    from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN
 
     assert DEFAULT_TAIL_LISTEN.startswith("127.0.0.1:")
     assert build_parser().parse_args(["tail"]).listen == DEFAULT_TAIL_LISTEN
@@ -424,7 +424,7 @@ def test_the_unit_runs_unprivileged_and_writes_only_its_state_directory() -> Non
 def test_the_daemon_finds_its_bias_in_the_units_state_directory(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    from hdrd.io.files import default_bias_path
+    from hdrd.io.files.access import default_bias_path
 
     monkeypatch.setenv("STATE_DIRECTORY", f"{tmp_path}/hdrd")
     assert default_bias_path() == tmp_path / "hdrd" / "bias.yaml"
@@ -436,7 +436,7 @@ def test_the_daemon_finds_its_bias_in_the_units_state_directory(
 
 def test_hdrd_web_listens_on_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.io.webserver import DEFAULT_WEB_LISTEN, is_loopback
+    from hdrd.io.web.webserver import DEFAULT_WEB_LISTEN, is_loopback
 
     args = build_parser().parse_args(["web"])
     for address in (args.listen, args.udp, DEFAULT_WEB_LISTEN):

@@ -1,4 +1,4 @@
-"""hdrd.io.serialport: the raw serial link that reopens itself, on real ptys (a link in a
+"""hdrd.io.wire.serialport: the raw serial link that reopens itself, on real ptys (a link in a
 temporary folder standing for /dev/serial/by-id/...), real TCP sockets on 127.0.0.1
 (``socket://``) and pyserial's ``loop://``; backoff on a manual clock.
 
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.io.clocks import ManualClock
-from hdrd.io.serialport import DeviceBack, DeviceLost, SerialReader
+from hdrd.io.wire.clocks import ManualClock
+from hdrd.io.wire.serialport import DeviceBack, DeviceLost, SerialReader
 from hdrd.sim.profiles import builtin_profile
 
 WAIT_S = 20.0  # upper bound for anything that should happen "soon" (never a timing assertion)

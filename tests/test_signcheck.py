@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hdrd.analysis.signcheck import MIN_TURNS, check_sign, sign_warning
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim.drive import simulate_drive
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hdrd.cli import main
-from hdrd.io.drivelog import DriveLog, read_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive
 from hdrd.sim import count_turns
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate, generate_all, spec_by_name
 

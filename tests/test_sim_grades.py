@@ -12,7 +12,7 @@ import pytest
 from hdrd.cli import build_parser, main
 from hdrd.core.allan import allan_deviation, arw_from_adev
 from hdrd.core.grades import GRADES, Grade
-from hdrd.io.drivelog import read_drive
+from hdrd.io.files.drivelog import read_drive
 from hdrd.sim import simulate_drive
 from hdrd.sim.effects import BiasInstability, StaticBias
 from hdrd.sim.grades import grade_model

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile, profile_frames
 
 

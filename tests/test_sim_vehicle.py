@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hdrd.io.drivelog import DriveLog
+from hdrd.core.angles import wrap180
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim import (
     DRIVE_TYPES,
     CabinTemperature,
@@ -30,10 +31,6 @@ def drive(kind: str, minutes: float = 8.0, seed: int = 1) -> DriveLog:
     if key not in _cache:
         _cache[key] = simulate_drive(kind, minutes, seed)
     return _cache[key]
-
-
-def wrap180(d: np.ndarray) -> np.ndarray:
-    return (d + 180.0) % 360.0 - 180.0
 
 
 def stops(log: DriveLog) -> int:

@@ -1,4 +1,4 @@
-"""hdrd.io.sources: serial (loop://, real ptys, cable pulls) and simulated sources: frames and
+"""hdrd.io.wire.sources: serial (loop://, real ptys, cable pulls) and simulated sources: frames and
 link events. The raw link underneath (reopening, backoff, sockets): test_serialport.py."""
 
 from __future__ import annotations
@@ -12,18 +12,12 @@ import numpy as np
 import pytest
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import decode_capture
-from hdrd.io.clocks import ManualClock
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    Frame,
-    ParserStats,
-    array_to_frames,
-    encode,
-    encode_bin,
-)
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.clocks import ManualClock
+from hdrd.io.wire.codec import FRAME_DTYPE, Frame, array_to_frames, encode, encode_bin
+from hdrd.io.wire.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
+from hdrd.io.wire.tracker import ParserStats
 from hdrd.sim.profiles import ProfileError, builtin_profile, load_profile
 from hdrd.sim.source import SimulatedSource
 
@@ -214,7 +208,7 @@ def test_end_to_end_real_pty_written_by_the_fake_gyro(fake_gyro) -> None:
         assert st.garbage_bytes == inj.garbage_bytes + 16 * inj.crc_errors
         assert st.lost_frames == inj.dropped + inj.crc_errors
     # The counts decode to the profile's truth: 12.5 deg/s (+ bias) after the lead-in.
-    omega = SensorModel().to_dps(np.array([f.rate for f in got]))
+    omega = SensorModel().to_dps_array(np.array([f.rate for f in got]), 0)
     t = np.array([f.t_us for f in got]) / 1e6
     moving = omega[t >= 30.0].mean() - omega[t < 30.0].mean()
     assert moving == pytest.approx(12.5, abs=0.02)

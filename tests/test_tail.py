@@ -18,8 +18,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.datagrams import TailFormatter
-from hdrd.io.publish import format_json, nmea_sentences
+from hdrd.io.net.datagrams import TailFormatter
+from hdrd.io.net.publish import format_json, nmea_sentences
 
 GUARD_S = 30.0  # generous guards against a hang; no test asserts a duration
 
@@ -356,7 +356,7 @@ def test_tail_port_in_use() -> None:
 
 
 def test_row_never_prints_heading_360():
-    from hdrd.io.datagrams import TailFormatter
+    from hdrd.io.net.datagrams import TailFormatter
 
     row = TailFormatter.row({"class": "HDR", "step": 1, "status": "ok", "heading": 359.996})
     assert "360.00" not in row and "0.00" in row
@@ -386,7 +386,7 @@ def test_a_huge_number_fits_its_column(key: str, value: float) -> None:
 def test_any_number_fits_every_column(x: float, i: int) -> None:
     """Each cell within its column, or (a column too narrow for any exponent form, W's one
     character) within the 7 characters of ``-1e+300``."""
-    from hdrd.io.datagrams import _COLUMNS
+    from hdrd.io.net.datagrams import _COLUMNS
 
     msg = dict(hdr(1), yaw=x, omega=x, I=x, bias=x, heading=x, step=i, r=i, samples=i, W=i)
     header, row = TailFormatter().lines(format_json(msg))[0]
@@ -504,7 +504,7 @@ def test_the_readmes_run_and_tail_commands_work(tmp_path: Any) -> None:
     10110 (which is tail's default: the substitution changes nothing else)."""
     from pathlib import Path
 
-    from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN
+    from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     run_cmd = "hdrd run --simulate --speedup 20 --udp 127.0.0.1:10110"

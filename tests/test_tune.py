@@ -27,7 +27,7 @@ from hdrd.cli import main as cli_main
 from hdrd.config import parse_config
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import write_drive
+from hdrd.io.files.drivelog import write_drive
 from tests.test_evaluate import CITY_TURNS, make_drive
 
 
@@ -52,7 +52,7 @@ def train() -> list:
 
 
 @pytest.fixture(scope="module")
-def test_set() -> list:
+def held_out() -> list:
     return [prepare_drive(d) for d in _drives(2, 50)]
 
 
@@ -100,8 +100,8 @@ def test_chunking_does_not_change_scores(train: list, monkeypatch: pytest.Monkey
     assert np.array_equal(score_candidates(train, c), whole)
 
 
-def test_tune_is_no_worse_than_its_start_and_reports_both(train: list, test_set: list) -> None:
-    r = tune(train, test_set, n_candidates=300, seed=3)
+def test_tune_is_no_worse_than_its_start_and_reports_both(train: list, held_out: list) -> None:
+    r = tune(train, held_out, n_candidates=300, seed=3)
     assert r.n_evaluated == 300
     assert r.objective_best <= r.objective_baseline
     base_ne = np.mean([d.ne_psi["hdr"] for d in r.train["baseline"]])

@@ -1,4 +1,4 @@
-"""The unit's state file beside the bias file (hdrd/io/unitstate.py): what its trips showed,
+"""The unit's state file beside the bias file (hdrd/io/files/unitstate.py): what its trips showed,
 written atomically, versioned, refused in one line when it cannot be used."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from hdrd.core.selfcheck import FROZEN, REDUCED, OutageRecord
-from hdrd.io.unitstate import (
+from hdrd.io.files.unitstate import (
     VERSION,
     UnitState,
     UnitStateError,

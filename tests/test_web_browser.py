@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.publish import format_json
+from hdrd.io.net.publish import format_json
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -311,8 +311,12 @@ def test_a_heading_that_rounds_to_360_is_shown_as_0(page: Page, web: Web) -> Non
     assert page.page.locator("#dial").get_attribute("data-heading") == "359.96"
     assert page.text("gps") == "0.0\u00b0 at 3.0 m/s"
     web.send(heading=359.996)
-    page.wait_text("heading", "0.0")
+    # the heading already reads 0.0: wait for this message by the dial, which rounds it
+    page.page.wait_for_function(
+        "() => document.getElementById('dial').dataset.heading !== '359.96'", timeout=GUARD_MS
+    )
     assert page.page.locator("#dial").get_attribute("data-heading") == "0.00"
+    assert page.text("heading") == "0.0"
     assert page.errors == []
 
 

@@ -1,4 +1,4 @@
-"""hdrd.io.webserver without a browser: the page and nothing else (read only), the stream,
+"""hdrd.io.web.webserver without a browser: the page and nothing else (read only), the stream,
 validation of what reaches it, the bound on clients, a stalled client, and ``hdrd web`` as a
 process. The server runs on real sockets (in a thread of this process, or as ``hdrd web``);
 clients are plain sockets. The page in a real browser: tests/test_web_browser.py."""
@@ -22,8 +22,8 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.publish import format_json
-from hdrd.io.webserver import (
+from hdrd.io.net.publish import format_json
+from hdrd.io.web.webserver import (
     ASSETS,
     DEFAULT_MAX_CLIENTS,
     EXTRA_CONNECTIONS,
@@ -35,10 +35,10 @@ from hdrd.io.webserver import (
     parse_request,
     peer_key,
 )
-from hdrd.io.webstate import TRACE_STEP_S
+from hdrd.io.web.webstate import TRACE_STEP_S
 
 GUARD_S = 30.0  # a guard against a hang; no test asserts a duration
-PAGE = Path(__file__).resolve().parents[1] / "hdrd" / "io" / "webpage"
+PAGE = Path(__file__).resolve().parents[1] / "hdrd" / "io" / "web" / "webpage"
 
 
 def hdr(step: int, **over: Any) -> dict[str, Any]:
@@ -639,7 +639,7 @@ def test_streams_are_fitted_to_the_descriptors_the_unit_allows() -> None:
     assert fitted_max_clients(16, 1024, 8) == 16
     assert fitted_max_clients(10_000, 1024, 8) == 1024 - 8 - 16 - 2 * EXTRA_CONNECTIONS
     assert fitted_max_clients(16, 40, 6) == 1  # never none
-    unit = (PAGE.parents[2] / "systemd" / "hdrd-web.service").read_text()
+    unit = (PAGE.parents[3] / "systemd" / "hdrd-web.service").read_text()
     m = re.search(r"^LimitNOFILE=(\d+)$", unit, re.MULTILINE)
     assert m, "systemd/hdrd-web.service sets no LimitNOFILE"
     # the unit's limit serves the default, with room for what systemd leaves open

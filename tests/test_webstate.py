@@ -1,4 +1,4 @@
-"""hdrd.io.webstate (pure): what ``hdrd web`` keeps and pushes. The server around it:
+"""hdrd.io.web.webstate (pure): what ``hdrd web`` keeps and pushes. The server around it:
 tests/test_webserver.py; the page in a real browser: tests/test_web_browser.py."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.publish import format_json, nmea_sentences
-from hdrd.io.webstate import (
+from hdrd.io.net.publish import format_json, nmea_sentences
+from hdrd.io.web.webstate import (
     HISTORY_S,
     MAX_EVENT_BYTES,
     TRACE_STEP_S,

@@ -151,7 +151,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.io.drivelog import DriveLog, write_drive
+from hdrd.io.files.drivelog import DriveLog, write_drive
 
 FloatArray = npt.NDArray[np.float64]
 

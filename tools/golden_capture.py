@@ -31,9 +31,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hdrd.io.capture import decode_capture
-from hdrd.io.frames import array_to_frames
-from hdrd.io.protocol import CLOCK_WRAP_US
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.codec import array_to_frames
+from hdrd.io.wire.protocol import CLOCK_WRAP_US
 from hdrd.sim import simulate_drive
 from hdrd.sim.fakegyro import FakeGyro
 from hdrd.sim.profiles import builtin_profile, profile_frames

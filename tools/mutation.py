@@ -44,11 +44,11 @@ LAYERS = ("core", "io", "daemon")
 
 # module -> test files run beside its own, and the mutants in scope (mutmut names, fnmatch
 # patterns; None: all of the module). calibrate: the pure estimation only; its bias file's I/O
-# (atomic writes, save_bias, load_bias) is hdrd/io/biasfile.py and hdrd/io/files.py's, tested
+# (atomic writes, save_bias, load_bias) is hdrd/io/files/biasfile.py and hdrd/io/files/access.py's, tested
 # through real files in tests/test_biasfile.py and tests/test_files.py.
 EXTRA: dict[str, tuple[list[str], list[str] | None]] = {
     "clocks": (["tests/test_resample.py"], None),  # the device clock under the resampler
-    "capture": (["tests/test_frames.py"], None),  # the decoder beside the push parser
+    "capture": (["tests/test_parser.py"], None),  # the decoder beside the push parser
     "standstill": (["tests/test_zupt.py"], None),  # the detector inside HDR+
     "calibrate": (
         [],
@@ -69,7 +69,7 @@ def find_modules(root: Path = ROOT) -> dict[str, str]:
     every module of :data:`LAYERS` that has its own test file."""
     found: dict[str, str] = {}
     for layer in LAYERS:
-        for src in sorted((root / "hdrd" / layer).glob("*.py")):
+        for src in sorted((root / "hdrd" / layer).rglob("*.py")):
             if src.stem != "__init__" and (root / "tests" / f"test_{src.stem}.py").exists():
                 found[src.stem] = src.relative_to(root).as_posix()
     return found

@@ -20,15 +20,10 @@ static void put_le16(uint8_t *p, uint16_t v)
 
 uint8_t hdr_encode_bin(const hdr_sample_t *s, uint8_t *out)
 {
-    out[0] = 0xA5;
-    out[1] = 0x5A;
-    put_le16(out + 2, s->seq);
-    put_le16(out + 4, (uint16_t)s->t_us);
-    put_le16(out + 6, (uint16_t)(s->t_us >> 16));
-    put_le16(out + 8, s->rate);
-    put_le16(out + 10, s->ref);
-    put_le16(out + 12, (uint16_t)s->temp_cc);
-    put_le16(out + 14, hdr_crc16_ccitt_false(out + 2, 12));
+    out[0] = HDR_SYNC0;
+    out[1] = HDR_SYNC1;
+    hdr_put_fields(s, out);
+    put_le16(out + HDR_CRC_AT, hdr_crc16_ccitt_false(out + HDR_PAYLOAD_AT, HDR_PAYLOAD_LEN));
     return HDR_BIN_LEN;
 }
 
@@ -50,7 +45,7 @@ static const char HEX[] = "0123456789ABCDEF";
 
 uint8_t hdr_encode_text(const hdr_sample_t *s, char *out)
 {
-    static const char head[] = "$HDRG,";
+    static const char head[] = HDR_TEXT_SYNC;
     char *p = out;
     for (const char *h = head; *h; h++)
         *p++ = *h;
@@ -63,8 +58,8 @@ uint8_t hdr_encode_text(const hdr_sample_t *s, char *out)
     if (s->ref) /* 0 = no supply monitor: sent as an empty field */
         p = put_u32(p, s->ref);
     *p++ = ',';
-    if (s->temp_cc != HDR_TEMP_ABSENT) {
-        int32_t t = s->temp_cc;
+    if (s->temp != HDR_TEMP_ABSENT) {
+        int32_t t = s->temp;
         if (t < 0) {
             *p++ = '-';
             t = -t;

@@ -8,20 +8,12 @@
 
 #include <stdint.h>
 
-#define HDR_BIN_LEN 16u
+#include "wire.h" /* the layout and hdr_sample_t, generated from hdrd's field table */
+
 /* Longest hdr-text line this encoder writes, CR LF included:
  * "$HDRG," + 65535 + "," + 4294967295 + "," + 65535 + "," + 65535 + "," + -327.68 + "*HH\r\n"
  * = 6 + 5 + 1 + 10 + 1 + 5 + 1 + 5 + 1 + 7 + 5 = 47. */
 #define HDR_TEXT_MAX 47u
-#define HDR_TEMP_ABSENT INT16_MIN /* temp field value meaning "no temperature sensor" */
-
-typedef struct {
-    uint16_t seq;     /* frame counter, +1 per frame, wraps at 2**16 */
-    uint32_t t_us;    /* device clock, microseconds, wraps at 2**32 */
-    uint16_t rate;    /* ADC counts of the gyro output (16-bit scale) */
-    uint16_t ref;     /* ADC counts of the supply monitor, 0 = not wired */
-    int16_t temp_cc;  /* temperature in 0.01 degC, HDR_TEMP_ABSENT = none */
-} hdr_sample_t;
 
 /* CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor). */
 uint16_t hdr_crc16_ccitt_false(const uint8_t *p, uint8_t n);

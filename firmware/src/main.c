@@ -191,7 +191,7 @@ ISR(TIMER1_COMPA_vect)
                 out.t_us = frame_t_us;
                 out.rate = rate_sum;
                 out.ref = HDR_REF_WIRED ? (uint16_t)(ref_sum * REF_SCALE) : 0;
-                out.temp_cc = HDR_TEMP_ABSENT;
+                out.temp = HDR_TEMP_ABSENT;
                 frame_ready = 1;
             } else {
                 frames_dropped++; /* its seq is skipped: the receiver counts it lost */

@@ -54,8 +54,8 @@ from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.methods import MethodSetup, StepInputs
-from hdrd.io.drivefiles import DriveRef
-from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
+from hdrd.io.files.drivefiles import DriveRef
+from hdrd.io.files.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
 __all__ = [
     "DriveResult",
@@ -164,7 +164,7 @@ PLUS = "hdr+"
 
 
 def plus_model(prep: PreparedDrive, setup: MethodSetup = DEFAULTS) -> str:
-    """The error model HDR+'s settings were fitted to on this drive (``HdrPlusParams.model``:
+    """The error model HDR+'s settings were fitted to on this drive (``PlusParams.model``:
     ``defaults``, ``calibration``, ``grade NAME``, ``recorded``, ``config``)."""
     return str(getattr(method_settings(prep, PLUS, setup), "model", ""))
 
@@ -441,15 +441,15 @@ def drive_refs(
     strict: bool = False,
     yaml_option: str | None = None,
 ) -> list[DriveRef]:
-    """The drives named (:func:`hdrd.io.drivefiles.find_drives`: files, directories, globs; CSV
+    """The drives named (:func:`hdrd.io.files.drivefiles.find_drives`: files, directories, globs; CSV
     or Parquet), in order, each once. EvaluationError for a missing path, a directory without
     logs, or a YAML file (a configuration or a model given where a drive goes: the message
     asks whether ``yaml_option`` was meant). What was left out is added to ``notes``: what a
     directory's scan could not read (with ``strict``: EvaluationError), and a drive named
     more than once (scored once)."""
-    from hdrd.io.drivefiles import find_drives
-    from hdrd.io.drivelog import DriveLogError
-    from hdrd.io.files import shown_path
+    from hdrd.io.files.access import shown_path
+    from hdrd.io.files.drivefiles import find_drives
+    from hdrd.io.files.drivelog import DriveLogError
 
     for p in paths:
         if p.lower().endswith(YAML_SUFFIXES) and Path(p).is_file():
@@ -483,17 +483,17 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
-    from hdrd.io.drivelog import DriveLogError
+    from hdrd.io.files.drivelog import DriveLogError
 
     try:
         return ref.read(limits)
     except FileNotFoundError:
-        from hdrd.io.files import shown_path
+        from hdrd.io.files.access import shown_path
 
         raise EvaluationError(f"{shown_path(ref.path)}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
         from hdrd.errors import clipped
-        from hdrd.io.files import printable, shown_path
+        from hdrd.io.files.access import printable, shown_path
 
         why = getattr(e, "strerror", None) or clipped(printable(" ".join(str(e).split())), 200)
         raise EvaluationError(f"{shown_path(ref.path)}: cannot be read: {why}") from None

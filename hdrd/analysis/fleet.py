@@ -223,7 +223,7 @@ TLS_HELP = (
 
 def _one_line(e: BaseException) -> str:
     from hdrd.errors import clipped
-    from hdrd.io.files import printable
+    from hdrd.io.files.access import printable
 
     text = " ".join(str(e).split())
     return clipped(printable(text), 200) or type(e).__name__

@@ -1,7 +1,7 @@
 """The per-drive work of ``hdrd evaluate``, ``hdrd tune`` and ``hdrd gap`` on a fleet, and the
 client side that puts the results together, for either runner of :mod:`hdrd.analysis.fleet`.
 
-The functions a worker runs take a drive's :class:`~hdrd.io.drivefiles.DriveRef` (a path: the
+The functions a worker runs take a drive's :class:`~hdrd.io.files.drivefiles.DriveRef` (a path: the
 worker reads the drive itself) and a small frozen job (the settings), and return small results:
 a drive's Table II row without its traces, a gap report. They call exactly what the
 single-process commands call, with the same arguments, so the numbers are the same bit for bit
@@ -58,8 +58,8 @@ from hdrd.analysis.tune import (
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivefiles import DriveRef
-from hdrd.io.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
+from hdrd.io.files.drivefiles import DriveRef
+from hdrd.io.files.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
 
 __all__ = [
     "PLOT_PANELS_MAX",
@@ -110,7 +110,7 @@ def why_skipped(name: str, e: Exception) -> str:
     error (it names the file and row, or the drive); for anything else, the drive and what
     went wrong, so that one bad drive never stops a fleet with a traceback."""
     from hdrd.errors import HdrdError, clipped
-    from hdrd.io.files import printable
+    from hdrd.io.files.access import printable
 
     if isinstance(e, HdrdError):
         msg = str(e)

@@ -31,6 +31,8 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.angles import wrap180
+
 __all__ = [
     "abs_wrap180",
     "align_index",
@@ -42,16 +44,10 @@ __all__ = [
     "reference",
     "ne_psi",
     "truth_at",
-    "wrap180",
     "wrap360",
 ]
 
 FloatArray = npt.NDArray[np.float64]
-
-
-def wrap180(d: npt.ArrayLike) -> FloatArray:
-    """Angle difference(s) in degrees wrapped to [-180, 180)."""
-    return np.mod(np.asarray(d, dtype=np.float64) + 180.0, 360.0) - 180.0
 
 
 def wrap360(h: npt.ArrayLike) -> FloatArray:

@@ -38,12 +38,13 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.analysis.prepare import DEFAULTS, PAPER_PARAMS, EvaluationError, PreparedDrive
+from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.methods import MethodSetup
 from hdrd.core.resample import Block
-from hdrd.daemon.aiding import AidingConfig, GpsAiding, wrap180
+from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.daemon.stepper import PipelineConfig, Stepper
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "FROZEN",

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from hdrd.analysis.metrics import align_index, truth_at
 from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
+from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import (
     BiasRecord,
     MotionDetected,
@@ -49,7 +50,7 @@ from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.standstill import quantization_step
 from hdrd.daemon.stepper import PipelineConfig, Stepper
 from hdrd.errors import HdrdError
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "DEFAULTS",
@@ -514,7 +515,7 @@ def alignment(
     ok = np.isfinite(truth)
     if speed is not None:
         ok &= np.nan_to_num(speed, nan=-1.0) >= ALIGN_MIN_SPEED_MPS
-    turn = np.abs((np.diff(truth) + 180.0) % 360.0 - 180.0) <= ALIGN_MAX_TURN_DPS * T
+    turn = np.abs(wrap180(np.diff(truth))) <= ALIGN_MAX_TURN_DPS * T
     good = ok[1:] & ok[:-1] & turn  # step j+1 straight after step j
     run = 0
     for j in range(first, good.shape[0]):

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.angles import wrap180
+
 __all__ = [
     "FIX_GAP_S",
     "MIN_TURNS",
@@ -104,7 +106,7 @@ def check_sign(t_s: FloatArray, omega_dps: FloatArray, heading_deg: FloatArray) 
     yaw = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))))
     a, b = fixes[:-1], fixes[1:]
     dt = t[b] - t[a]
-    dh = (h[b] - h[a] + 180.0) % 360.0 - 180.0  # clockwise, the short way round
+    dh = wrap180(h[b] - h[a])  # clockwise, the short way round
     dg = yaw[b] - yaw[a]
     turn = (dt > 0) & (dt <= FIX_GAP_S) & (np.abs(dh) >= TURN_DPS * dt)
     n = int(np.count_nonzero(turn))

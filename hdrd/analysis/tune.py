@@ -46,7 +46,7 @@ from hdrd.analysis.metrics import e_psi
 from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.core.hdr import HdrParams, run_many
 from hdrd.core.methods import MethodSetup
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "CHUNK_ELEMENTS",

@@ -3,7 +3,7 @@
 The edge around :class:`hdrd.core.calibrate.StartupWindow`, the start-up window the daemon's
 pipeline and ``hdrd evaluate`` measure through too: it opens the port (exclusively, as the
 daemon does: a port in use is an error at once), gathers the samples in the window, times it
-by the device clock (:class:`hdrd.io.clocks.SampleClock`, which a glitched timestamp cannot end
+by the device clock (:class:`hdrd.io.wire.clocks.SampleClock`, which a glitched timestamp cannot end
 early), gives up when no frame comes for ``calibration.no_data_timeout_s``, and writes the
 file atomically. Progress goes to stdout; a reader that goes away (``| head -1``) does not stop
 the measurement, and the result is then said on stderr.
@@ -27,12 +27,12 @@ from hdrd.daemon.inputs import open_source
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.daemon.signals import Signals
 from hdrd.errors import EX_CONFIG
-from hdrd.io.biasfile import save_bias
-from hdrd.io.clocks import SampleClock
-from hdrd.io.files import default_bias_path
-from hdrd.io.frames import Frame
+from hdrd.io.files.access import default_bias_path
+from hdrd.io.files.biasfile import save_bias
 from hdrd.io.logs import log, setup_logging
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
+from hdrd.io.wire.clocks import SampleClock
+from hdrd.io.wire.codec import Frame
+from hdrd.io.wire.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source
 
 __all__ = ["main"]
 

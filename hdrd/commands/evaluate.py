@@ -131,11 +131,11 @@ def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) ->
 
 def _write_traces(folder: str, results: list[DriveResult]) -> int:
     """--trace DIR: DIR/<drive>.csv for each drive (its name from the data, kept inside DIR:
-    :func:`hdrd.io.files.path_inside`; a name that cannot is said and left out), and with
+    :func:`hdrd.io.files.access.path_inside`; a name that cannot is said and left out), and with
     --outages DIR/<drive>.outages.csv (the aided run through the outages,
     :class:`hdrd.analysis.outages.OutageResult`'s trace); the exit status."""
     from hdrd.analysis.evaluate import trace_csv
-    from hdrd.io.files import (
+    from hdrd.io.files.access import (
         UnsafeNameError,
         atomic_write_text,
         path_inside,
@@ -166,7 +166,7 @@ def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: b
     the exit status."""
     if args.json:
         try:
-            from hdrd.io.files import atomic_write_json, shown_path
+            from hdrd.io.files.access import atomic_write_json, shown_path
 
             atomic_write_json(args.json, to_json(results))
         except OSError as e:

@@ -12,7 +12,7 @@ from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet_jobs import GapOutcome
-    from hdrd.io.drivefiles import DriveRef
+    from hdrd.io.files.drivefiles import DriveRef
 
 __all__ = ["main", "parse_period"]
 
@@ -55,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     from hdrd.analysis.fleet import FleetError, open_runner
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
-    from hdrd.io.drivelog import DriveLogError
+    from hdrd.io.files.drivelog import DriveLogError
 
     start = _start_model(args)
     if start is None:
@@ -148,7 +148,7 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
     gyro_out = getattr(args, "gyro_out", None)
     try:
         if args.report:
-            from hdrd.io.files import atomic_write_json
+            from hdrd.io.files.access import atomic_write_json
 
             atomic_write_json(args.report, res.report)
         if args.out:
@@ -156,7 +156,7 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
         if gyro_out:
             # the name goes into a YAML comment: one printable line, whatever the file is called
             from hdrd.analysis.gap.report import gyro_section
-            from hdrd.io.files import atomic_write_text, shown_path
+            from hdrd.io.files.access import atomic_write_text, shown_path
 
             atomic_write_text(
                 gyro_out, gyro_section(res.model, shown_path(measured[0]), res.report)

@@ -1,4 +1,4 @@
-"""``hdrd import``: a user's own CSV as a drive log (:mod:`hdrd.io.csvimport` maps the columns,
+"""``hdrd import``: a user's own CSV as a drive log (:mod:`hdrd.io.files.csvimport` maps the columns,
 units and sign), with a warning when the rate's sign disagrees with the truth heading."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import argparse
 import sys
 
 from hdrd.errors import clipped
-from hdrd.io.csvimport import Mapping, import_csv, unit_warnings
-from hdrd.io.drivelog import DriveLog, DriveLogError
-from hdrd.io.files import printable, shown_path
+from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.csvimport import Mapping, import_csv, unit_warnings
+from hdrd.io.files.drivelog import DriveLog, DriveLogError
 
 __all__ = ["main"]
 
@@ -19,7 +19,7 @@ def main(args: argparse.Namespace) -> int:
     one line on stderr (a source that cannot be read or converted, an output that cannot be
     written)."""
     from hdrd.cliconfig import drive_log_outputs_ok, read_limits_from_args
-    from hdrd.io.drivefiles import log_format, write_log
+    from hdrd.io.files.drivefiles import log_format, write_log
 
     fmt = log_format(args.out, getattr(args, "format", None))
     say = lambda msg: print(f"hdrd import: error: {msg}", file=sys.stderr)  # noqa: E731

@@ -2,7 +2,7 @@
 
 Every byte read is written as read (no parsing, so a capture keeps garbage and bad frames
 for replay and fault analysis); the file is flushed every second and fsynced at the end.
-A pulled cable is survived: the port is reopened by :class:`hdrd.io.serialport.SerialReader`
+A pulled cable is survived: the port is reopened by :class:`hdrd.io.wire.serialport.SerialReader`
 (the same reconnect loop as the daemon) and the loss noted on stderr. SIGINT/SIGTERM, or
 ``--seconds``, end the recording after draining what the port still holds; exit status 0.
 
@@ -20,8 +20,8 @@ import signal
 import sys
 from typing import Any
 
-from hdrd.io.record import record
-from hdrd.io.serialport import SerialReader
+from hdrd.io.wire.record import record
+from hdrd.io.wire.serialport import SerialReader
 
 __all__ = ["main"]
 

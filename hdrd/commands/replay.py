@@ -6,7 +6,7 @@ the same bytes, except ``time`` (the UNIX time of publication), which a recordin
 have and replay leaves out.
 
 Memory follows the file: its bytes (read whole, a regular file of at most
-:data:`hdrd.io.files.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
+:data:`hdrd.io.files.access.MAX_CAPTURE_BYTES`), 12 bytes per frame decoded, and the messages of
 one chunk of frames at a time; never the device time the capture spans
 (bench/replay_memory.py). A file with no valid frame is an error (exit 1), not an empty run.
 """
@@ -24,7 +24,7 @@ from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.replay import replay_steps
 from hdrd.errors import EX_CONFIG, EX_USAGE
-from hdrd.io.biasfile import BiasFileError, load_bias
+from hdrd.io.files.biasfile import BiasFileError, load_bias
 
 __all__ = ["convert_main", "main"]
 
@@ -35,7 +35,7 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
     from hdrd.cliconfig import check_bias_arg, config_from_args
-    from hdrd.io.files import MAX_CAPTURE_BYTES, InputFileError, read_limited
+    from hdrd.io.files.access import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:
         cfg, _ = config_from_args(args)
@@ -55,8 +55,8 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
     """A file that holds no valid frame (a drive log; not a capture; another --protocol):
     exit 1."""
-    from hdrd.io.drivelog import SNIFF_BYTES, drive_log_kind
-    from hdrd.io.files import shown_path
+    from hdrd.io.files.access import shown_path
+    from hdrd.io.files.drivelog import SNIFF_BYTES, drive_log_kind
 
     try:
         with open(capture, "rb") as f:  # a regular file: read_limited took it whole
@@ -84,8 +84,8 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.io.capture import decode_capture
-    from hdrd.io.publish import format_json
+    from hdrd.io.net.publish import format_json
+    from hdrd.io.wire.capture import decode_capture
 
     loaded = _config_and_capture(args, "replay")
     if isinstance(loaded, int):
@@ -145,12 +145,12 @@ def convert_main(args: argparse.Namespace) -> int:
     import numpy as np
 
     from hdrd.cliconfig import drive_log_outputs_ok
-    from hdrd.io.capture import decode_capture
-    from hdrd.io.clocks import DeviceClock
-    from hdrd.io.drivefiles import log_format, write_log
-    from hdrd.io.drivelog import DriveLog, DriveLogError, converted_name
-    from hdrd.io.files import shown_path
-    from hdrd.io.protocol import TEMP_NOT_FITTED
+    from hdrd.io.files.access import shown_path
+    from hdrd.io.files.drivefiles import log_format, write_log
+    from hdrd.io.files.drivelog import DriveLog, DriveLogError, converted_name
+    from hdrd.io.wire.capture import decode_capture
+    from hdrd.io.wire.clocks import DeviceClock
+    from hdrd.io.wire.protocol import TEMP_NOT_FITTED
 
     if _is_the_capture(args.out, args.capture):
         print(

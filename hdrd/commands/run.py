@@ -12,7 +12,7 @@ from hdrd.config import Config, ConfigError
 from hdrd.daemon.run import Daemon, choose_bias
 from hdrd.daemon.signals import Signals
 from hdrd.errors import EX_CONFIG, EX_FAILURE
-from hdrd.io.biasfile import BiasFileError
+from hdrd.io.files.biasfile import BiasFileError
 from hdrd.io.logs import log, setup_logging
 
 __all__ = ["main"]

@@ -2,8 +2,8 @@
 
 It binds a UDP socket, prints the table's header and says on stderr where it waits, then
 prints a table row per HDR step, or the JSON lines and NMEA sentences as received
-(``--raw``). The validation and formatting are :mod:`hdrd.io.datagrams`'s (pure,
-:class:`~hdrd.io.datagrams.TailFormatter`: printable text only); this is the edge.
+(``--raw``). The validation and formatting are :mod:`hdrd.io.net.datagrams`'s (pure,
+:class:`~hdrd.io.net.datagrams.TailFormatter`: printable text only); this is the edge.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import threading
 from collections.abc import Sequence
 from typing import TextIO
 
-from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN, TailFormatter, udp_listener
+from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN, TailFormatter, udp_listener
 
 __all__ = ["main"]
 
@@ -80,8 +80,8 @@ def main(args: argparse.Namespace) -> int:
 
 def _in_use(listen: str) -> str:
     """Why ``listen`` cannot be bound, when another socket holds it: which process, where
-    this user can see it (:func:`hdrd.io.portowner.udp_port_holders`)."""
-    from hdrd.io.portowner import udp_port_holders
+    this user can see it (:func:`hdrd.io.net.portowner.udp_port_holders`)."""
+    from hdrd.io.net.portowner import udp_port_holders
 
     try:
         holders = udp_port_holders(int(listen.rpartition(":")[2]))

@@ -30,7 +30,7 @@ from hdrd.analysis.tune import (
     tune,
 )
 from hdrd.cliconfig import outputs_ok, read_limits_from_args, where_from_args
-from hdrd.io.drivefiles import DriveRef
+from hdrd.io.files.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
 
@@ -131,7 +131,7 @@ def _comment(result: TuneResult, seed: int) -> list[str]:
 def _interrupted(args: argparse.Namespace, e: Interrupted) -> int:
     """Ctrl-C: the best set so far on stdout (and in --out, --json), said in one line on
     stderr; exit 130. The set is not checked on the test drives."""
-    from hdrd.io.files import atomic_write_json, atomic_write_text
+    from hdrd.io.files.access import atomic_write_json, atomic_write_text
 
     best = e.best(PAPER_PARAMS)
     if best is None:
@@ -195,7 +195,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _write(args: argparse.Namespace, result: TuneResult, seconds: float) -> int:
     """--out and --json; the exit status."""
-    from hdrd.io.files import atomic_write_json, atomic_write_text, shown_path
+    from hdrd.io.files.access import atomic_write_json, atomic_write_text, shown_path
 
     path = args.out
     try:

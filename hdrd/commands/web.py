@@ -1,7 +1,7 @@
 """``hdrd web``: a live, read-only page of the heading, its mode and health (docs/web.md).
 
 Parses the options, binds the page's TCP address and the UDP address the daemon sends to,
-and runs :class:`hdrd.io.webserver.WebServer` until SIGTERM or SIGINT (status 0). A bad
+and runs :class:`hdrd.io.web.webserver.WebServer` until SIGTERM or SIGINT (status 0). A bad
 address is a usage error (2); one that cannot be bound (in use, not this host's) a failure
 (1).
 """
@@ -14,9 +14,9 @@ import socket
 import sys
 
 from hdrd import __version__
-from hdrd.io.datagrams import DEFAULT_TAIL_LISTEN, udp_listener
 from hdrd.io.logs import log, setup_logging
-from hdrd.io.webserver import (
+from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN, udp_listener
+from hdrd.io.web.webserver import (
     DEFAULT_MAX_CLIENTS,
     DEFAULT_WEB_LISTEN,
     WebServer,

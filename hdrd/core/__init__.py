@@ -1,8 +1,9 @@
 """The core: what hdrd computes, pure (no port, socket, file or clock).
 
 The drift reducers (:mod:`~hdrd.core.hdr`, the paper's HDR; :mod:`~hdrd.core.hdrplus`, HDR+,
-with its bias filters :mod:`~hdrd.core.biasbank` and stop detection
-:mod:`~hdrd.core.standstill`), the method registry (:mod:`~hdrd.core.methods`) and what a step
+one estimator of heading and bias over a bank of Kalman filters :mod:`~hdrd.core.kalman`, its
+settings :mod:`~hdrd.core.plusparams`, its self-check :mod:`~hdrd.core.selfcheck` and stop
+detection :mod:`~hdrd.core.standstill`), the method registry (:mod:`~hdrd.core.methods`) and what a step
 sees (:mod:`~hdrd.core.steps`); counts to deg/s (:mod:`~hdrd.core.sensor`), block means
 (:mod:`~hdrd.core.resample`), the static bias and the standstill test
 (:mod:`~hdrd.core.calibrate`); the gyro's error model (:mod:`~hdrd.core.gyronoise`), the grade

@@ -1,7 +1,7 @@
 """Static bias eps0: the mean gyro rate at standstill over Tbias (paper Sec. 2, Eq. 2).
 
 Pure estimation (:func:`estimate_bias`, :class:`StartupWindow`); the bias file that keeps a
-record is :mod:`hdrd.io.biasfile`. The paper averages Tbias = 30 s "with the gyro held
+record is :mod:`hdrd.io.files.biasfile`. The paper averages Tbias = 30 s "with the gyro held
 completely motionless" (20 s in its drives) and notes that "just one second ... is
 sufficient" for usable results (Sec. 6).
 

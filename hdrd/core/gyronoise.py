@@ -3,7 +3,7 @@
 Pure data and arithmetic, no I/O. One vocabulary for the three places it comes from: a grade
 preset (:func:`grade_noise`), the config's ``gyro.*`` keys, and the noise
 parameters ``hdrd calibrate`` records beside the bias (:meth:`GyroNoise.to_dict` /
-:meth:`GyroNoise.from_mapping`). :meth:`hdrd.core.hdrplus.HdrPlusParams.fitted` turns it into the
+:meth:`GyroNoise.from_mapping`). :meth:`hdrd.core.plusparams.PlusParams.fitted` turns it into the
 bias model's process noise (docs/hdrplus.md).
 
 Units: rates deg/s, + = counter-clockwise seen from above; white noise deg/s/sqrt(Hz); rate
@@ -276,7 +276,7 @@ def noise_in_force(
     3. the grade preset ``grade`` (source ``grade NAME``); ``none``: no grade.
 
     The unit's motion offset is the one known best: ``learned`` (what the daemon's trips
-    taught, :mod:`hdrd.io.unitstate`) when its sd is below the configuration's (source
+    taught, :mod:`hdrd.io.files.unitstate`) when its sd is below the configuration's (source
     ``learned``). None when nothing is known: HDR+ starts from the bank of a fresh unit.
     ValueError for an unknown grade."""
     merged, source = _configured(grade, dict(given or {}))
@@ -319,7 +319,7 @@ a recorded error model."""
 
 
 def grade_noise(name: str) -> GyroNoise:
-    """The grade's error model as HDR+ uses it (:meth:`hdrd.core.hdrplus.HdrPlusParams.fitted`)."""
+    """The grade's error model as HDR+ uses it (:meth:`hdrd.core.plusparams.PlusParams.fitted`)."""
     g = Grade.from_table(name)
     return GyroNoise(
         white_dps_per_rthz=g.white_dps_per_rthz,

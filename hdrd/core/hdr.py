@@ -63,7 +63,7 @@ class HdrParams:
 
     ``lowpass``, ``turn_switch`` and ``attenuator`` switch the three enhancements of
     Sec. 4.2 on or off (all off = "basic HDR", Sec. 3.1); ``enabled=False`` freezes I at 0,
-    the "no HDR" baseline (static bias removal only).
+    the "no HDR" baseline (static bias removal only: the ``none`` method).
     """
 
     i_c: float = I_C_DPS
@@ -89,16 +89,6 @@ class HdrParams:
         for f in fields(self):
             kind = bool if f.type in ("bool", bool) else float
             object.__setattr__(self, f.name, kind(getattr(self, f.name)))
-
-    @classmethod
-    def basic(cls, **kw: float) -> HdrParams:
-        """Basic HDR (Sec. 3.1): the binary I-controller alone, no enhancements."""
-        return cls(lowpass=False, turn_switch=False, attenuator=False, **kw)  # type: ignore[arg-type]
-
-    @classmethod
-    def off(cls, **kw: float) -> HdrParams:
-        """No HDR: I stays 0, so omega = u (static bias removal only)."""
-        return cls(enabled=False, **kw)  # type: ignore[arg-type]
 
     def as_dict(self) -> dict[str, float | bool]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

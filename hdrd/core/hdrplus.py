@@ -21,7 +21,7 @@ weighs the members by how well each predicted it:
   BIAS + OFFSET + STOP (+ TEMP dT);
 - a step of *driving* that is not a stop measures BIAS + ROAD (+ TEMP dT) -- the paper's
   heuristic that roads are mostly straight, as a likelihood that knows roads curve: a
-  straight step (``Road.p_straight``) or a curve, each step weighted by which it looks like;
+  straight step (``ROAD_MODEL.p_straight``) or a curve, each step weighted by which it looks like;
 - a *GPS course* (from the aiding stage, at the end of the step before) measures YAW; the
   heading aligned anew restarts YAW's error at the course's variance.
 
@@ -45,7 +45,17 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.core.kalman import Bank, Filter, Row, log_likelihood
-from hdrd.core.plusparams import DEFAULTS, PlusParams
+from hdrd.core.plusparams import (
+    DEFAULTS,
+    EVIDENCE_WEIGHT,
+    GATE_FLOOR_DPS,
+    ROAD_MODEL,
+    STOP_FLOOR_DPS,
+    STOP_GATE_SIGMA,
+    SWITCH_P,
+    TURN_ERR,
+    PlusParams,
+)
 from hdrd.core.standstill import block_mean_variance, standstill_candidate
 from hdrd.core.steps import StepInput, per_step
 
@@ -138,7 +148,7 @@ def prior_filters(p: PlusParams, yaw: float = 0.0) -> list[Filter]:
         P[OFFSET][OFFSET] = vc
         P[BIAS][BIAS] = vc + p.bias_p0
         P[BIAS][OFFSET] = P[OFFSET][BIAS] = -vc
-        P[ROAD][ROAD] = p.road.sd_dps**2
+        P[ROAD][ROAD] = ROAD_MODEL.sd_dps**2
         P[TEMP][TEMP] = p.temp_coeff_sd**2
         out.append(Filter(x, P))
     return out
@@ -160,15 +170,15 @@ class _Estimator:
             total = sum(mu)
             mu = [w / total for w in mu]
         self.tilt = [h.share / h.prior for h in p.bank]  # decision -> population weights
-        s = p.switch_p if m > 1 else 0.0
+        s = SWITCH_P if m > 1 else 0.0
         M = [[1.0 - s if i == j else s / (m - 1) for j in range(m)] for i in range(m)]
         self.bank = Bank(fs, mu, M)
         self.still, self.in_stop = state.still, state.in_stop
         self.t_ref, self.u_prev = state.t_ref, state.u_prev
         self.yaw, self.aided = state.yaw, state.aided
         self.stop_n, self.stop_mean, self.stop_m2 = state.stop_n, state.stop_mean, state.stop_m2
-        self.road_a = math.exp(-p.T / p.road.tau_s)
-        self.road_q = p.road.sd_dps**2 * (1.0 - self.road_a**2)
+        self.road_a = math.exp(-p.T / ROAD_MODEL.tau_s)
+        self.road_q = ROAD_MODEL.sd_dps**2 * (1.0 - self.road_a**2)
 
     def state(self) -> PlusState:
         fs = self.bank.filters
@@ -217,7 +227,7 @@ class _Estimator:
             self.stop_update(u, spread, dtemp, loglik)
         elif not measured and self.p.measure:
             straight = self.road_update(u, dtemp, loglik)
-        ew = self.p.evidence_weight
+        ew = EVIDENCE_WEIGHT
         self.bank.weigh([ew * ll for ll in loglik])
         self.u_prev = u
         return self.output(u, dtemp, zero, straight)
@@ -254,19 +264,19 @@ class _Estimator:
 
     def standstill_test(self, level: float, spread: float, speed: float, dtemp: float) -> bool:
         """A zero-rate update? A standstill candidate (:func:`hdrd.core.standstill.
-        standstill_candidate`) whose corrected level is within ``stop_gate_sigma`` of what the
+        standstill_candidate`) whose corrected level is within ``STOP_GATE_SIGMA`` of what the
         bank allows at rest, for ``steps_speed`` (or ``steps_gyro``) steps running."""
         p = self.p
         cand, need = standstill_candidate(level, spread, speed, p.standstill)
-        if cand and p.stop_gate_sigma > 0.0:
+        if cand:
             rest = ((BIAS, 1.0), (OFFSET, 1.0), (TEMP, dtemp))
-            allow = self.bank.var(rest) + p.stop_scatter_dps**2 + p.gate_floor_dps**2
+            allow = self.bank.var(rest) + p.stop_scatter_dps**2 + GATE_FLOOR_DPS**2
             bvar = (
                 p.block_var
                 if p.block_var == p.block_var
                 else block_mean_variance(spread, p.standstill)
             )
-            cand = abs(level - self.bank.mean(_H_OFFSET)) <= p.stop_gate_sigma * math.sqrt(
+            cand = abs(level - self.bank.mean(_H_OFFSET)) <= STOP_GATE_SIGMA * math.sqrt(
                 allow + bvar
             )
         self.still = self.still + 1 if cand else 0
@@ -279,8 +289,8 @@ class _Estimator:
         -- unless the vehicle stands -- the yaw integrating u minus the bias, with the noise
         of what the bias does not explain (module docstring)."""
         p = self.p
-        a = self.road_a if T == p.T else math.exp(-T / p.road.tau_s)
-        q_road = self.road_q if T == p.T else p.road.sd_dps**2 * (1.0 - a * a)
+        a = self.road_a if T == p.T else math.exp(-T / ROAD_MODEL.tau_s)
+        q_road = self.road_q if T == p.T else ROAD_MODEL.sd_dps**2 * (1.0 - a * a)
         rows: dict[int, Row] = {ROAD: ((ROAD, a),)}
         q_yaw = 0.0
         if not zero:
@@ -317,14 +327,14 @@ class _Estimator:
 
     def heading_noise(self, u_corr: float, u: float, spread: float, T: float) -> float:
         """What a step of driving adds to the yaw's variance beside the bias, deg^2: the rate
-        noise integrated (a step's variance at rest x T^2), ``turn_err`` of the angle turned,
+        noise integrated (a step's variance at rest x T^2), ``TURN_ERR`` of the angle turned,
         a turn's onset between samples that a point-sampled gyro misses (the rate's change
         x T / (2 x samples per step)), and a bias wander too fast to follow."""
         p = self.p
         bvar = p.block_var
         if bvar != bvar:
             bvar = block_mean_variance(spread, p.standstill) if spread == spread else 0.0
-        turned = p.turn_err * u_corr * T
+        turned = TURN_ERR * u_corr * T
         q = bvar * T * T + turned * turned + p.heading_q * T
         if self.u_prev == self.u_prev:
             onset = (u - self.u_prev) * T / (2.0 * p.standstill.samples_per_step)
@@ -336,14 +346,14 @@ class _Estimator:
         dtemp), of a step's variance at rest: the largest of the calibration's, the step's own
         spread's, how the stop's readings scatter from step to step so far (the samples of a
         band-limited gyro and an idling engine's vibration are correlated within a step), and
-        ``stop_floor_dps``^2 -- which a stop's first steps, before they show their scatter,
+        ``STOP_FLOOR_DPS``^2 -- which a stop's first steps, before they show their scatter,
         take times four."""
         p = self.p
         self.stop_n += 1
         d = u - self.stop_mean
         self.stop_mean += d / self.stop_n
         self.stop_m2 += d * (u - self.stop_mean)
-        floor = p.stop_floor_dps**2
+        floor = STOP_FLOOR_DPS**2
         r_var = max(
             block_mean_variance(spread, p.standstill), floor if self.stop_n >= 3 else 4.0 * floor
         )
@@ -361,7 +371,7 @@ class _Estimator:
         ``sway_var``; a curve adds ``curve_var``. Each member weighs the two by its own
         innovation and updates as far as the step looks straight; the mixture's likelihood
         is its evidence. Returns the bank's weight of "straight"."""
-        road = self.p.road
+        road = ROAD_MODEL
         h = ((BIAS, 1.0), (ROAD, 1.0), (TEMP, dtemp))
         ls0 = math.log(road.p_straight)
         lc0 = math.log(1.0 - road.p_straight) if road.p_straight < 1.0 else -math.inf

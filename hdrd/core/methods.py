@@ -102,7 +102,7 @@ class MethodSetup:
     measured); quant_step_dps, the gyro's output step, deg/s (the ADC's LSB; for a recorded
     log, the lattice of its values), None = unknown; samples_per_step, samples averaged in
     one step (the gyro's sample rate times T; None = unknown). learned: what the unit's trips
-    taught of it (the daemon's unit state file, :mod:`hdrd.io.unitstate`; None: nothing).
+    taught of it (the daemon's unit state file, :mod:`hdrd.io.files.unitstate`; None: nothing).
     """
 
     hdr: HdrParams = HdrParams()

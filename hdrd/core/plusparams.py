@@ -22,6 +22,7 @@ __all__ = [
     "FRESH_BANK",
     "Hypothesis",
     "PlusParams",
+    "ROAD_MODEL",
     "Road",
     "unit_bank",
 ]
@@ -83,7 +84,7 @@ stops. bench/RESULTS.md says which data chose these numbers."""
 PROFILE_OFFSET_SD_DPS = 0.02
 """How far a unit's motion offset may differ from one drive to the next, deg/s (1 sigma,
 beside the profile's own standard error): a profile is learned on an earlier drive, whose
-warm-up and stops added to what it read. Chosen on the tuning units (bench/profile.py)."""
+warm-up and stops added to what it read. Chosen on the tuning units (bench/unit_profile.py)."""
 
 
 def unit_bank(
@@ -147,6 +148,29 @@ def _check(obj: object, nan_ok: tuple[str, ...] = ()) -> None:
         object.__setattr__(obj, f.name, v)
 
 
+EVIDENCE_WEIGHT = 0.6
+"""How much one step's measurements count as evidence between the members (a tempered
+likelihood): the road's sway and a stop's noise are correlated over several steps, which a
+filter that takes each step as independent would count many times over, in favour of
+whichever member predicts most loosely. Tuned (bench/RESULTS.md)."""
+SWITCH_P = 1e-6
+"""Probability per step that the unit turns out to be of another kind: a Markov transition
+between the members, so that no member's probability is ever stuck at 0."""
+ROAD_MODEL = Road()
+"""The road the straight-road measurement assumes. Tuned (bench/RESULTS.md)."""
+STOP_FLOOR_DPS = 0.01
+"""No step at a stop is trusted to better than this, deg/s (1 sigma): the samples of a
+band-limited gyro, and a stop's vibration, are correlated within a step."""
+TURN_ERR = 0.02
+"""The heading error a turn adds, as a share of the angle turned (1 sigma: a scale factor's
+error; a CRS03-04's is within 3 %). Tuned on the tuning sets' outages (bench/RESULTS.md)."""
+STOP_GATE_SIGMA = 4.0
+"""A stop's corrected level must be within this many sd of what the bank allows at rest: a
+turn that a stale speed calls standstill is not taken for the bias."""
+GATE_FLOOR_DPS = 0.03
+"""The stop gate allows at least this much bias error, deg/s."""
+
+
 @dataclass(frozen=True, slots=True)
 class PlusParams:
     """HDR+'s settings (module docstring). The defaults are a CRS03-04's before any fit."""
@@ -155,20 +179,8 @@ class PlusParams:
     """Step period, s."""
     bank: tuple[Hypothesis, ...] = FRESH_BANK
     """The hypotheses."""
-    evidence_weight: float = 0.6
-    """How much one step's measurements count as evidence between the members (a tempered
-    likelihood): the road's sway and a stop's noise are correlated over several steps, which a
-    filter that takes each step as independent would count many times over, in favour of
-    whichever member predicts most loosely."""
-    switch_p: float = 1e-6
-    """Probability per step that the unit turns out to be of another kind: a Markov
-    transition between the members, so that no member's probability is ever stuck at 0."""
-    road: Road = Road()
     standstill: StandstillParams = field(default_factory=StandstillParams)
     """Standstill detection; a stop is a zero-rate update."""
-    stop_floor_dps: float = 0.01
-    """No step at a stop is trusted to better than this, deg/s (1 sigma): the samples of a
-    band-limited gyro, and a stop's vibration, are correlated within a step."""
     stop_scatter_dps: float = 0.01
     """How far a later stop may read from the calibration's rest bias, deg/s (1 sigma, each
     stop its own: idling, a slope, the engine's vibration)."""
@@ -190,14 +202,6 @@ class PlusParams:
     heading_q: float = 0.0
     """A wander of the bias too fast to follow (correlation time within a couple of minutes),
     as the heading's random walk, deg^2/s."""
-    turn_err: float = 0.02
-    """The heading error a turn adds, as a share of the angle turned (1 sigma: a scale
-    factor's error)."""
-    stop_gate_sigma: float = 4.0
-    """A stop's corrected level must be within this many sd of what the bank allows at rest
-    (0: off): a turn that a stale speed calls standstill is not taken for the bias."""
-    gate_floor_dps: float = 0.03
-    """The stop gate allows at least this much bias error, deg/s."""
     measure: bool = True
     """False: no stop or road measurement, the yaw integrates every step (the ``frozen``
     outage policy, :mod:`hdrd.core.selfcheck`: the driving bias the courses taught, held)."""

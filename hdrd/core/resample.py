@@ -4,7 +4,7 @@ Pure. Blocks are cut by the device's timestamps, not by counting frames: step i 
 the samples whose device time falls in [t0 + i*T, t0 + (i+1)*T), t0 being the first sample's
 time. A dropped frame only shortens its block; a block without samples is reported as
 :class:`Missing`, never as a zero rate. The device clock is a 32-bit microsecond counter that
-wraps every 2**32 us (71.6 min); :class:`hdrd.io.clocks.DeviceClock` unwraps it into a monotonic integer
+wraps every 2**32 us (71.6 min); :class:`hdrd.io.wire.clocks.DeviceClock` unwraps it into a monotonic integer
 count so block edges are exact integers.
 
 One block mean, in two forms that give bit-identical results: :meth:`BlockAverager.feed`
@@ -78,7 +78,7 @@ class BlockAverager:
 
     A block closes when the first sample of a later block arrives (that sample's arrival is
     the moment the step can be published). Times are unwrapped device microseconds
-    (see :class:`hdrd.io.clocks.DeviceClock`); ``T_s`` is the step period (paper: 1 s).
+    (see :class:`hdrd.io.wire.clocks.DeviceClock`); ``T_s`` is the step period (paper: 1 s).
     A sample flagged saturated or faulty is counted in its block, not averaged: it still
     makes its block a block (of n = 0 when nothing else came), never a :class:`Missing`.
     """

@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
+from hdrd.core.angles import wrap180
 from hdrd.core.hdrplus import PlusState, step
 from hdrd.core.plusparams import PlusParams
 from hdrd.core.steps import StepInput
@@ -205,7 +206,7 @@ class SelfCheck:
             if v.left > 1:
                 still.append(_Virtual(v.policy, state, v.left - 1))
             elif aided:
-                err = (out.yaw - aided_yaw + 180.0) % 360.0 - 180.0
+                err = wrap180(out.yaw - aided_yaw)
                 self.record = self.record.add(v.policy, err)
         self._running = still
 

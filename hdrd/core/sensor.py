@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import overload
 
 import numpy as np
 import numpy.typing as npt
@@ -133,17 +132,9 @@ class SensorModel:
             jump = np.abs(v - prev) > self.supply_max_step_v
         return wired & (out_of_range | jump)
 
-    @overload
-    def to_dps(self, rate_counts: int, ref_counts: int = 0) -> float: ...
-    @overload
-    def to_dps(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike = 0) -> FloatArray: ...
-    def to_dps(self, rate_counts, ref_counts=0):
-        """Yaw rate in deg/s (+ = CCW) from ADC counts; ref_counts 0 = supply not monitored."""
-        omega = self.to_dps_array(rate_counts, ref_counts)
-        return float(omega) if omega.ndim == 0 else omega
-
     def to_dps_scalar(self, rate_counts: int, ref_counts: int = 0) -> float:
-        """:meth:`to_dps` for one sample in plain floats (the live daemon's hot path).
+        """Yaw rate in deg/s (+ = CCW) of one sample, from ADC counts (ref_counts 0: the supply
+        is not monitored), in plain floats (the live daemon's hot path).
 
         Same operations in the same order as :meth:`to_dps_array`, so bit-identical to it.
         """
@@ -156,7 +147,7 @@ class SensorModel:
         return self.polarity * (volts - self.null_v * k) / (self.scale_v_per_dps * k)
 
     def to_dps_array(self, rate_counts: npt.ArrayLike, ref_counts: npt.ArrayLike) -> FloatArray:
-        """:meth:`to_dps` over arrays (whole captures); bit-identical to :meth:`to_dps_scalar`."""
+        """:meth:`to_dps_scalar` over arrays (whole captures), bit-identical to it."""
         scale = 1 << self.adc_bits
         rate = np.asarray(rate_counts, dtype=np.float64)
         ref = np.asarray(ref_counts, dtype=np.float64)
@@ -177,7 +168,8 @@ class SensorModel:
     def to_counts(
         self, omega_dps: npt.ArrayLike, supply_v: float | None = None
     ) -> npt.NDArray[np.int64]:
-        """ADC counts a yaw rate produces (rounded, clipped to the ADC's rails); inverse of to_dps."""
+        """ADC counts a yaw rate produces (rounded, clipped to the ADC's rails): the inverse of
+        :meth:`to_dps_scalar`."""
         k = (self.supply_nominal_v if supply_v is None else supply_v) / self.supply_nominal_v
         omega = np.asarray(omega_dps, dtype=np.float64)
         volts = self.null_v * k + self.polarity * omega * self.scale_v_per_dps * k

@@ -10,13 +10,11 @@ Pieces that HDR+ (:mod:`hdrd.core.hdrplus`) combines, usable on their own:
   mean must both be small, and :class:`StandstillParams` asks for more consecutive steps
   (``steps_gyro``) than with a speed (``steps_speed``). A gyro alone cannot tell a stop from a
   perfectly straight, smooth stretch of road; that is why speed is preferred.
-- The bias model these stops feed, a Kalman filter of the bias, the standstill offset, the
-  temperature coefficient, the road's curvature and the heading error, is
-  :mod:`hdrd.core.biasbank`.
+- The estimator these stops feed (a zero-rate update of its bank) is :mod:`hdrd.core.hdrplus`.
 - :class:`CalibrationNoise` and :func:`calibration_noise`: what a start-up calibration window
   says about the gyro's noise (the variance of eps0 and of one step's mean at standstill, the
-  quantisation step, the samples per step), for HDR+'s settings (:meth:`hdrd.core.hdrplus.
-  HdrPlusParams.fitted`).
+  quantisation step, the samples per step), for HDR+'s settings (:meth:`hdrd.core.plusparams.
+  PlusParams.fitted`).
 
 Units: rates deg/s, + = counter-clockwise seen from above; temperature degC; time s.
 """

@@ -1,7 +1,7 @@
 """GPS aiding of the HDR heading, pure: mode, heading alignment and bias learning.
 
 hdrd's heading is dead reckoning: heading = (heading0 - yaw) mod 360, yaw the integral of the
-drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.gpsd`) the course over
+drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.net.gpsd`) the course over
 ground is an absolute heading whenever the vehicle moves fast enough for it to mean
 something. :class:`GpsAiding` uses it two ways, and says which mode it is in:
 
@@ -86,6 +86,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
+from hdrd.core.angles import compass, wrap180
+
 __all__ = [
     "AIDED",
     "DEAD_RECKONING",
@@ -95,21 +97,10 @@ __all__ = [
     "GpsAiding",
     "HeadingFix",
     "StepView",
-    "wrap180",
 ]
 
 AIDED = "aided"
 DEAD_RECKONING = "dead-reckoning"
-
-
-def wrap180(deg: float) -> float:
-    """An angle difference wrapped to [-180, 180), deg."""
-    return (deg + 180.0) % 360.0 - 180.0
-
-
-def _compass(deg: float) -> float:
-    h = deg % 360.0
-    return 0.0 if h >= 360.0 else h
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +116,7 @@ class _NoFix:
 
 
 class FixLike(Protocol):
-    """What aiding reads from a gpsd fix (:class:`hdrd.io.gpsd.Fix`)."""
+    """What aiding reads from a gpsd fix (:class:`hdrd.io.net.gpsd.Fix`)."""
 
     @property
     def mode(self) -> int: ...
@@ -574,7 +565,7 @@ class GpsAiding:
         delta = self._learn(view, course) if view.step and not owner else 0.0
         return Aid(
             mode=self.mode,
-            heading_deg=None if self.offset_deg is None else _compass(h_hdr + self.offset_deg),
+            heading_deg=None if self.offset_deg is None else compass(h_hdr + self.offset_deg),
             offset_deg=self.offset_deg,
             course_deg=fix.track_deg if fix is not None else None,
             course_age_s=round(max(0.0, now - self._course_at), 3)
@@ -613,7 +604,7 @@ class GpsAiding:
         if fix is not None:
             assert fix.track_deg is not None
             age = max(0.0, now - self._course_at)
-            course = _compass(fix.track_deg - omega * age)
+            course = compass(fix.track_deg - omega * age)
             if self._judged_seq != self._course_seq:
                 self._judged_seq = self._course_seq
                 self._course_ok = self._judge(fix, course, h_hdr, omega, now)

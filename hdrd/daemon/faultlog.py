@@ -14,7 +14,7 @@ import math
 
 from hdrd.core.sensor import SensorModel
 from hdrd.io.logs import log
-from hdrd.io.protocol import Message
+from hdrd.io.wire.protocol import Message
 
 __all__ = ["FaultLog"]
 

@@ -1,5 +1,5 @@
 """The daemon's GPS link (``hdrd run --gpsd``): the gpsd client, the aiding, and the pipeline's
-hooks, wired together. An edge: it reads gpsd's socket (through :class:`hdrd.io.gpsd.GpsdClient`),
+hooks, wired together. An edge: it reads gpsd's socket (through :class:`hdrd.io.net.gpsd.GpsdClient`),
 stamps fixes with the monotonic clock and logs state changes; the aiding itself is pure
 (:class:`hdrd.daemon.aiding.GpsAiding`).
 """
@@ -12,9 +12,9 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
-from hdrd.io.gpsd import GpsdClient
 from hdrd.io.logs import log
-from hdrd.io.protocol import Message
+from hdrd.io.net.gpsd import GpsdClient
+from hdrd.io.wire.protocol import Message
 
 if TYPE_CHECKING:
     from hdrd.config import GpsdConfig

@@ -4,7 +4,7 @@ gyro (``hdrd run``, ``hdrd calibrate``)."""
 from __future__ import annotations
 
 from hdrd.config import Config
-from hdrd.io.sources import SerialSource, Source
+from hdrd.io.wire.sources import SerialSource, Source
 
 __all__ = ["open_source"]
 

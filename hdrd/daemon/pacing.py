@@ -31,7 +31,7 @@ __all__ = ["ReadPacer"]
 
 class ReadPacer:
     """Pauses between reads of the port (see the module doc). Times in seconds: ``now`` on
-    the host's monotonic clock, device times unwrapped (:class:`hdrd.io.clocks.DeviceClock`).
+    the host's monotonic clock, device times unwrapped (:class:`hdrd.io.wire.clocks.DeviceClock`).
 
     max_pause_s: longest pause. guard_s: margin before the closing frame's earliest arrival.
     drift: how fast (s/s) the delay estimate may grow between observations. max_frames: most

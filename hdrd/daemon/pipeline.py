@@ -17,7 +17,7 @@ of a message is passed in, and ``None`` leaves it out (as replay does, having no
 recorded bytes).
 
 Message fields are documented in docs/protocol.md ("Published messages"); their names, order
-and schema version are in :mod:`hdrd.io.protocol`. An unknown value
+and schema version are in :mod:`hdrd.io.wire.protocol`. An unknown value
 is left out, never sent as null or 0.
 """
 
@@ -36,12 +36,12 @@ from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.selfcheck import OutageRecord
 from hdrd.daemon.aiding import GpsAiding
 from hdrd.daemon.stepper import PipelineConfig, Stepper, heading_from_yaw
-from hdrd.io.clocks import DeviceClock
-from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
+from hdrd.io.wire.clocks import DeviceClock
+from hdrd.io.wire.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 
 if TYPE_CHECKING:
     from hdrd.config import Config
-    from hdrd.io.unitstate import UnitState
+    from hdrd.io.files.unitstate import UnitState
 
 __all__ = [
     "Pipeline",
@@ -51,7 +51,7 @@ __all__ = [
 
 
 class FrameLike(Protocol):
-    """What the pipeline reads of a frame (hdrd.io.frames.Frame, or a capture row)."""
+    """What the pipeline reads of a frame (hdrd.io.wire.codec.Frame, or a capture row)."""
 
     @property
     def t_us(self) -> int: ...
@@ -139,18 +139,9 @@ class Pipeline:
         return self.stepper.speed_mps
 
     @property
-    def calibration_attempts(self) -> int:
-        return self.stepper.window.attempts
-
-    @property
     def calibrating(self) -> bool:
         """True until the static bias is known."""
         return self.stepper.bias is None
-
-    @property
-    def method_state(self) -> Any:
-        """The drift reducer's state (its method's own type)."""
-        return self.stepper.state
 
     @property
     def heading(self) -> float:
@@ -225,7 +216,7 @@ class Pipeline:
         bad_before: npt.ArrayLike | None = None,
     ) -> list[Message]:
         """A whole capture: a structured array with fields t_us, rate, ref, temp (0.01 degC,
-        -32768 = not fitted), as :func:`hdrd.io.capture.decode_capture` gives.
+        -32768 = not fitted), as :func:`hdrd.io.wire.capture.decode_capture` gives.
 
         Same messages as :meth:`feed` frame by frame. bad_before[i]: corrupt frames seen
         before frame i in the byte stream.

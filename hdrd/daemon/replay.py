@@ -1,7 +1,7 @@
 """A recorded capture through the daemon's pipeline, as fast as possible (``hdrd replay``,
 :mod:`hdrd.commands.replay`, is its command line).
 
-The capture is decoded whole (:func:`hdrd.io.capture.decode_capture`) and fed to the same
+The capture is decoded whole (:func:`hdrd.io.wire.capture.decode_capture`) and fed to the same
 :class:`hdrd.daemon.pipeline.Pipeline` the daemon uses; the messages are bit-identical to what
 ``hdrd run`` publishes for the same bytes, except ``time`` (the UNIX time of publication),
 which a recording does not have and replay leaves out. Pure.
@@ -63,7 +63,7 @@ def replay_capture(
 ) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure.
     bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from hdrd.io.capture import decode_capture
+    from hdrd.io.wire.capture import decode_capture
 
     frames, stats = decode_capture(data, cfg.device.protocol)
     out: list[dict[str, Any]] = []

@@ -32,13 +32,10 @@ from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
 from hdrd.daemon.signals import Signals
 from hdrd.daemon.unitkeeper import UnitKeeper
-from hdrd.io.biasfile import BiasFileError, load_bias
-from hdrd.io.clocks import WallClockCheck
-from hdrd.io.files import default_bias_path
-from hdrd.io.frames import Frame
+from hdrd.io.files.access import default_bias_path
+from hdrd.io.files.biasfile import BiasFileError, load_bias
 from hdrd.io.logs import log
-from hdrd.io.protocol import Message
-from hdrd.io.publish import (
+from hdrd.io.net.publish import (
     OutputClosed,
     Publisher,
     StdoutPublisher,
@@ -48,7 +45,17 @@ from hdrd.io.publish import (
     parse_hostport,
 )
 from hdrd.io.resolve import Resolver, default_resolver
-from hdrd.io.sources import DeviceBack, DeviceLost, EndOfInput, SerialSource, Source, SourceEvent
+from hdrd.io.wire.clocks import WallClockCheck
+from hdrd.io.wire.codec import Frame
+from hdrd.io.wire.protocol import Message
+from hdrd.io.wire.sources import (
+    DeviceBack,
+    DeviceLost,
+    EndOfInput,
+    SerialSource,
+    Source,
+    SourceEvent,
+)
 
 if TYPE_CHECKING:
     from hdrd.daemon.gpslink import GpsdLink
@@ -358,7 +365,7 @@ class Daemon:
         if item is None:
             self.watchdog.progress()  # all input handled: idle, not stuck
         if self.gps is not None:
-            # never blocks; bounded work per turn (hdrd.io.gpsd.LINES_PER_POLL)
+            # never blocks; bounded work per turn (hdrd.io.net.gpsd.LINES_PER_POLL)
             self.gps.poll(self.pipeline)
         now = time.monotonic()
         bad = src.bad_frames  # not src.stats: that copies every counter, per frame
@@ -586,7 +593,7 @@ class Daemon:
 
     def _frame_drops(self, src: Source) -> dict[str, int]:
         """Frames dropped as not new or with a clock that disagrees, by reason: the parser's
-        (:class:`hdrd.io.frames.FrameTracker`) and the host clock's (:attr:`wallclock`)."""
+        (:class:`hdrd.io.wire.tracker.FrameTracker`) and the host clock's (:attr:`wallclock`)."""
         st = src.stats
         return {
             "seq_repeats": int(getattr(st, "seq_repeats", 0)),

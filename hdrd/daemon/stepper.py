@@ -7,7 +7,7 @@ outages (:mod:`hdrd.analysis.outages`) all step through :class:`Stepper`. It rea
 static bias eps0 and the method's correction) and one heading (the method's yaw; with GPS, the
 aiding's alignment), and builds every message, of a step or of a report that is not one (stale,
 a sensor fault), in one place. Message fields: docs/protocol.md ("Published messages"); their
-names and order: :mod:`hdrd.io.protocol`. An unknown value is left out, never sent as null.
+names and order: :mod:`hdrd.io.wire.protocol`. An unknown value is left out, never sent as null.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hdrd.core import methods
+from hdrd.core.angles import compass
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import PlusOutput
@@ -26,7 +27,7 @@ from hdrd.core.selfcheck import FROZEN, OutageRecord, SelfCheck, frozen_params
 from hdrd.core.sensor import SensorModel
 from hdrd.core.steps import StepInput
 from hdrd.daemon.aiding import DEAD_RECKONING, Aid, GpsAiding, HeadingFix, StepView
-from hdrd.io.protocol import MESSAGE_CLASS, SCHEMA_VERSION, Message
+from hdrd.io.wire.protocol import MESSAGE_CLASS, SCHEMA_VERSION, Message
 
 __all__ = [
     "HELD_KEYS",
@@ -57,8 +58,7 @@ heading's sd, the motion offset, the outage policy)."""
 
 def heading_from_yaw(heading0_deg: float, yaw_deg: float) -> float:
     """Compass heading (deg clockwise from north, [0, 360)) from yaw (deg CCW since start)."""
-    h = (heading0_deg - yaw_deg) % 360.0
-    return 0.0 if h >= 360.0 else h
+    return compass(heading0_deg - yaw_deg)
 
 
 @dataclass(frozen=True)

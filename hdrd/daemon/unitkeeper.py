@@ -1,5 +1,5 @@
 """What the daemon learns of its unit, kept across trips: the unit state file beside the bias
-file (:mod:`hdrd.io.unitstate`) read at start and written as the trip goes on.
+file (:mod:`hdrd.io.files.unitstate`) read at start and written as the trip goes on.
 
 Used only when the static bias comes from a bias file (``hdrd calibrate``'s, the service's):
 the unit is then the one that file belongs to. A state file that cannot be used is said in
@@ -17,7 +17,7 @@ from pathlib import Path
 import structlog
 
 from hdrd.daemon.stepper import Stepper
-from hdrd.io.unitstate import (
+from hdrd.io.files.unitstate import (
     UnitState,
     UnitStateError,
     load_unit_state,

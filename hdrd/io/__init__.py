@@ -1,11 +1,9 @@
 """Input and output: bytes, files and sockets in and out, on top of the core.
 
-The wire format (:mod:`~hdrd.io.protocol`), frames and captures (:mod:`~hdrd.io.frames`,
-:mod:`~hdrd.io.capture`), the serial port and the sources built on it
-(:mod:`~hdrd.io.serialport`, :mod:`~hdrd.io.sources`), the outputs (:mod:`~hdrd.io.publish`,
-:mod:`~hdrd.io.display`), their readers (:mod:`~hdrd.io.datagrams`: validation and ``hdrd
-tail``'s table; :mod:`~hdrd.io.webstate`, :mod:`~hdrd.io.webserver`: ``hdrd web``), the gpsd client (:mod:`~hdrd.io.gpsd`), drive logs
-(:mod:`~hdrd.io.drivelog`, :mod:`~hdrd.io.parquetlog`, :mod:`~hdrd.io.drivefiles`,
-:mod:`~hdrd.io.csvimport`), the bias file (:mod:`~hdrd.io.biasfile`) and bounded, atomic file
-access (:mod:`~hdrd.io.files`).
+Four rooms, each importing only the rooms before it (tests/test_layout.py): the wire
+(:mod:`hdrd.io.wire`: frames from the serial port), files (:mod:`hdrd.io.files.access`: file access,
+drive logs, the unit's files), the network (:mod:`hdrd.io.net`: the published messages out and
+back, gpsd) and the web page (:mod:`hdrd.io.web`). Beside them, two modules every room may use:
+logging (:mod:`~hdrd.io.logs`) and host names looked up without waiting
+(:mod:`~hdrd.io.resolve`).
 """

@@ -1,6 +1,6 @@
 """Seeded simulation of drives and of the gyro's errors (docs/gyro-model.md).
 
-- :func:`simulate_drive`: a drive log (hdrd.io.drivelog) of a road type, with the raw gyro output
+- :func:`simulate_drive`: a drive log (hdrd.io.files.drivelog) of a road type, with the raw gyro output
   from a :class:`GyroModel`, the true rate, 1 Hz GPS course, speed and cabin temperature.
 - :mod:`hdrd.sim.gyro`: the error model of named effects (static_bias, white_noise, ...).
 - :mod:`hdrd.sim.vehicle`: road types and the true motion; :mod:`hdrd.sim.gps`: GPS truth.

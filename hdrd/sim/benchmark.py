@@ -4,7 +4,7 @@ Pure and fixed by seed: each :class:`DriveSpec` names its road-type legs, its du
 distance as in the paper's Table II, its cabin temperature profile (the paper's Sec. 5
 discussion: some drives started in near-freezing weather and the heater warmed the cabin,
 which moved the bias far more than the gyro's nominal drift) and its seed. ``generate`` turns
-a spec into a :class:`~hdrd.io.drivelog.DriveLog`; nothing is shipped as data.
+a spec into a :class:`~hdrd.io.files.drivelog.DriveLog`; nothing is shipped as data.
 
 The paper's numbers (Table II, Eq. 12/13: Eψ in deg without and with HDR) are kept beside each
 spec so that reports can show them next to ours.
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.drive import simulate_legs
 from hdrd.sim.gyro import GyroModel
 from hdrd.sim.recordings import FittedErrors

@@ -15,7 +15,7 @@ from dataclasses import asdict
 import numpy as np
 
 from hdrd import __version__
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.gyro import GyroModel, crs03_default_model
 from hdrd.sim.vehicle import DRIVE_TYPES, PROFILES, CabinTemperature, RoadProfile, generate_motion

@@ -46,11 +46,11 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.capture import encode_array
-from hdrd.io.clocks import device_seconds
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE, Frame, array_to_frames, encode_text
-from hdrd.io.protocol import PROTOCOLS, SYNC
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.capture import encode_array
+from hdrd.io.wire.clocks import device_seconds
+from hdrd.io.wire.codec import FRAME_DTYPE, Frame, array_to_frames, encode_text
+from hdrd.io.wire.protocol import PROTOCOLS, SYNC
 from hdrd.sim.profiles import profile_frames
 
 __all__ = ["FakeGyro", "Injected"]
@@ -109,8 +109,8 @@ class _Tally:
 class FakeGyro:
     """A fake ADC on a pty, writing the frames of ``profile`` (see the module doc).
 
-    profile: a drive (:class:`hdrd.io.drivelog.DriveLog`, its raw ``omega`` turned into counts
-    by ``sensor``) or frames (:data:`hdrd.io.frames.FRAME_DTYPE` array). Pacing follows the
+    profile: a drive (:class:`hdrd.io.files.drivelog.DriveLog`, its raw ``omega`` turned into counts
+    by ``sensor``) or frames (:data:`hdrd.io.wire.codec.FRAME_DTYPE` array). Pacing follows the
     frames' device clock. Use as a context manager (``open``/``close``); ``start()`` begins
     writing; ``wait(timeout)`` until all is written; ``stop()`` ends early.
     """

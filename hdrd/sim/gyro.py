@@ -234,10 +234,10 @@ DEFAULT_START_MODEL = GyroModel((StaticBias(bias_dps=1.0), WhiteNoise(density_dp
 def load_model(path: str | os.PathLike[str]) -> GyroModel:
     """Read a model YAML ``{effects: [{name: static_bias, bias_dps: 0.3}, ...]}``.
 
-    Read as hdrd reads its configuration (:mod:`hdrd.io.files`): a regular file of at most
+    Read as hdrd reads its configuration (:mod:`hdrd.io.files.access`): a regular file of at most
     1 MiB, YAML nested at most 32 deep. Raises ValueError naming the file and what is wrong,
     in one line (OSError if it cannot be read)."""
-    from hdrd.io.files import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
+    from hdrd.io.files.access import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")
@@ -250,7 +250,7 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
     except InputFileError as exc:
         at = f" at {exc.where}" if exc.where else ""
         raise ValueError(f"{path}: not valid YAML{at}: {exc}") from None
-    from hdrd.io.yamlkeys import duplicate_key
+    from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:
         raise ValueError(f"{path}: {dup}")
@@ -276,8 +276,8 @@ def save_model(
     inside: str | os.PathLike[str] | None = None,
 ) -> None:
     """Write a model YAML that :func:`load_model` reads back equal, whole or not at all
-    (:func:`hdrd.io.files.atomic_write_text`; ``inside``: a drive's model in a folder the
+    (:func:`hdrd.io.files.access.atomic_write_text`; ``inside``: a drive's model in a folder the
     user named, as its ``inside``)."""
-    from hdrd.io.files import atomic_write_text
+    from hdrd.io.files.access import atomic_write_text
 
     atomic_write_text(path, model_text(model), inside=inside)

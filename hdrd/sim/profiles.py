@@ -19,9 +19,9 @@ import numpy.typing as npt
 
 from hdrd.core.sensor import SensorModel
 from hdrd.errors import HdrdError
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import FRAME_DTYPE
-from hdrd.io.protocol import CLOCK_WRAP_US, TEMP_NOT_FITTED
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.codec import FRAME_DTYPE
+from hdrd.io.wire.protocol import CLOCK_WRAP_US, TEMP_NOT_FITTED
 from hdrd.sim.drive import simulate_drive
 
 __all__ = [
@@ -152,7 +152,7 @@ def profile_frames(
     t0_us: int = 0,
     seq0: int = 0,
 ) -> npt.NDArray[np.void]:
-    """The frames the ADC sends for a drive: a :data:`hdrd.io.frames.FRAME_DTYPE` array.
+    """The frames the ADC sends for a drive: a :data:`hdrd.io.wire.codec.FRAME_DTYPE` array.
 
     rate = ``sensor.to_counts(log.omega, supply_v)`` (rounded, clipped to the rails); ref =
     the supply monitor's counts for ``supply_v``, 0 (not wired) when None; temp from

@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from hdrd import __version__
 from hdrd.errors import HdrdError
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.effects import MotionOffset
 from hdrd.sim.gps import GpsModel, gps_course, heading_from_rate
 from hdrd.sim.grades import grade_model

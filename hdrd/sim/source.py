@@ -1,6 +1,6 @@
 """The built-in simulated gyro as a frame source (``hdrd run --simulate``, ``hdrd calibrate
 --simulate``, ``hdrd fakegyro``'s drives): a drive's raw rate as ADC frames, paced in
-(optionally accelerated) real time on a clock (:class:`hdrd.io.sources.Source`)."""
+(optionally accelerated) real time on a clock (:class:`hdrd.io.wire.sources.Source`)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ from collections import deque
 import numpy as np
 
 from hdrd.core.sensor import SensorModel
-from hdrd.io.clocks import Clock, RealClock
-from hdrd.io.drivelog import DriveLog
-from hdrd.io.frames import Frame, ParserStats, array_to_frames
-from hdrd.io.sources import EndOfInput, SourceBase, SourceEvent
+from hdrd.io.files.drivelog import DriveLog
+from hdrd.io.wire.clocks import Clock, RealClock
+from hdrd.io.wire.codec import Frame, array_to_frames
+from hdrd.io.wire.sources import EndOfInput, SourceBase, SourceEvent
+from hdrd.io.wire.tracker import ParserStats
 from hdrd.sim.profiles import load_profile, profile_frames
 
 __all__ = ["SimulatedSource"]
@@ -23,7 +24,7 @@ __all__ = ["SimulatedSource"]
 class SimulatedSource(SourceBase):
     """Frames of a simulated gyro, paced in (optionally accelerated) real time.
 
-    The drive is ``profile`` if given (any :class:`hdrd.io.drivelog.DriveLog`, e.g. from
+    The drive is ``profile`` if given (any :class:`hdrd.io.files.drivelog.DriveLog`, e.g. from
     ``hdrd.sim.simulate_drive``; its raw ``omega`` becomes ADC counts through ``sensor``),
     else :func:`hdrd.sim.profiles.load_profile` (drive, minutes, seed, hz, rate_dps, grade).
     Frame k is handed out at ``start + (t_k - t_0) / speedup`` on ``clock``; ``speedup`` 0 =

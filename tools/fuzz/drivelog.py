@@ -3,7 +3,7 @@
 
 Two surfaces:
 
-- ``drivecsv``: a drive log CSV (a short simulated drive written by :func:`hdrd.io.drivelog.
+- ``drivecsv``: a drive log CSV (a short simulated drive written by :func:`hdrd.io.files.drivelog.
   write_drive`) with its cells, header, metadata, times and rows mutated (hostile numbers,
   ``1_000``, digits of other scripts, giant cells, time jumps, a flipped or scaled rate, a
   ``valid`` column of anything), its bytes damaged, or another file entirely (random bytes, a
@@ -100,7 +100,7 @@ def base_logs() -> tuple[Any, ...]:
 
 
 def _csv_text(log: Any) -> str:
-    from hdrd.io.drivelog import write_drive
+    from hdrd.io.files.drivelog import write_drive
 
     buf = io.StringIO()
     write_drive(buf, log)
@@ -455,8 +455,8 @@ class DriveLogTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.analysis.gap.fleet import model_paths
-        from hdrd.io.drivefiles import find_drives
-        from hdrd.io.drivelog import DriveLogError
+        from hdrd.io.files.drivefiles import find_drives
+        from hdrd.io.files.drivelog import DriveLogError
 
         self.count += 1
         target = self._layout(data)

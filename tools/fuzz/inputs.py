@@ -30,8 +30,9 @@ import numpy.typing as npt
 
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
-from hdrd.io.capture import encode_array
-from hdrd.io.frames import FRAME_DTYPE, SYNC
+from hdrd.io.wire.capture import encode_array
+from hdrd.io.wire.codec import FRAME_DTYPE
+from hdrd.io.wire.protocol import SYNC
 
 from .mutate import Tok, emit_json, emit_yaml, hostile_value, mutate_bytes, mutate_tree
 
@@ -390,7 +391,7 @@ def _hdr_messages() -> tuple[str, ...]:
     """Real per-step messages (JSON lines) of the daemon's pipeline, and a stale report."""
     from hdrd.daemon.pipeline import Pipeline
     from hdrd.daemon.stepper import PipelineConfig
-    from hdrd.io.publish import format_json
+    from hdrd.io.net.publish import format_json
 
     arr = stress_frames(random.Random(1), 3000)
     arr["t_us"] = np.arange(3000) * 10_000
@@ -401,7 +402,7 @@ def _hdr_messages() -> tuple[str, ...]:
 
 
 def _nmea(rng: random.Random) -> str:
-    from hdrd.io.publish import nmea_checksum
+    from hdrd.io.net.publish import nmea_checksum
 
     kind = rng.choice(("HNHDT", "HNROT", "HNTHS", "HCHDT", "GPRMC", "IIHDT"))
     fields_ = rng.choice((["123.45", "T"], ["-12.3", "A"], ["", "V"], ["359.99", "E"]))

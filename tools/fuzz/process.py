@@ -280,7 +280,7 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
     try:
         os.set_blocking(master, False)
         # clean frames until the first step: the daemon is past its start before the fuzz
-        from hdrd.io.frames import Frame, encode
+        from hdrd.io.wire.codec import Frame, encode
 
         k = 0
         deadline = time.monotonic() + 30.0
@@ -715,7 +715,7 @@ def _bias(seed: int, n: int, workdir: Path) -> ProcResult:
     t0 = time.monotonic()
     bias = workdir / "bias.yaml"
     cap = workdir / "ok.bin"
-    from hdrd.io.frames import Frame, encode_bin
+    from hdrd.io.wire.codec import Frame, encode_bin
 
     cap.write_bytes(b"".join(encode_bin(Frame(i, i * 100_000, 32768, 0, None)) for i in range(50)))
     udp = _Udp()

@@ -14,12 +14,12 @@ A seeded generator writes a stream of ``--bytes`` bytes made of
 - random garbage (any byte values, so also stray sync patterns), and garbage that starts
   with a sync pattern.
 
-It is fed to the push parser (:class:`hdrd.io.frames.Parser`) in random chunks of 1..4096 bytes
-and, whole, to the vectorised decoder (:func:`hdrd.io.capture.decode_capture`); the recovered
+It is fed to the push parser (:class:`hdrd.io.wire.parser.Parser`) in random chunks of 1..4096 bytes
+and, whole, to the vectorised decoder (:func:`hdrd.io.wire.capture.decode_capture`); the recovered
 frames then go through the pipeline (:meth:`hdrd.daemon.pipeline.Pipeline.feed_array`).
 
 What is expected is known from the construction: the frames recovered are exactly the intact
-frames sent that the sequence and clock rule keeps (:class:`hdrd.io.frames.FrameTracker`, run
+frames sent that the sequence and clock rule keeps (:class:`hdrd.io.wire.tracker.FrameTracker`, run
 over the list of them at once: a repeat, a frame whose clock disagrees with its sequence
 number are dropped; docs/protocol.md, "Sequence and clock"); the bad frames counted are exactly the sync patterns outside the intact frames
 (the parser's documented rule: every sync pattern that does not start a good frame is one bad
@@ -54,17 +54,12 @@ from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.capture import crc16_ccitt_false_rows, decode_capture, encode_array
-from hdrd.io.clocks import unwrap_us
-from hdrd.io.frames import (
-    FRAME_DTYPE,
-    FrameTracker,
-    Parser,
-    ParserStats,
-    array_to_frames,
-    encode_text,
-)
-from hdrd.io.protocol import BIN_FRAME_LEN
+from hdrd.io.wire.capture import crc16_ccitt_false_rows, decode_capture, encode_array
+from hdrd.io.wire.clocks import unwrap_us
+from hdrd.io.wire.codec import FRAME_DTYPE, array_to_frames, encode_text
+from hdrd.io.wire.parser import Parser
+from hdrd.io.wire.protocol import BIN_FRAME_LEN
+from hdrd.io.wire.tracker import FrameTracker, ParserStats
 
 TEXT_SYNC = b"$HDRG,"
 

@@ -7,23 +7,23 @@ across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes o
 :class:`Broken`:
 
 - every published message: every number finite, heading in [0, 360), one line of JSON from
-  :func:`hdrd.io.publish.format_json`, NMEA sentences that :func:`hdrd.io.publish.parse_nmea`
+  :func:`hdrd.io.net.publish.format_json`, NMEA sentences that :func:`hdrd.io.net.publish.parse_nmea`
   reads back (the talker configured);
 - a refused file: one printable line (:class:`hdrd.config.ConfigError` for a configuration,
-  :class:`hdrd.io.biasfile.BiasFileError` for a bias file, a capture command's stderr);
+  :class:`hdrd.io.files.biasfile.BiasFileError` for a bias file, a capture command's stderr);
 - ``hdrd tail``: every line it would print is printable text;
 - gpsd: the client stays in step with the peer (a marker line sent after each input is
   read) and the aiding publishes only finite values.
 
-Surfaces and paths: serial, the push parser (:class:`hdrd.io.frames.Parser`) in random chunks
+Surfaces and paths: serial, the push parser (:class:`hdrd.io.wire.parser.Parser`) in random chunks
 and the live pipeline a frame at a time (:meth:`hdrd.daemon.pipeline.Pipeline.feed`, ``resync``,
 ``stale_message``, ``finish``); clock, the same parser and the run loop's frame edge
-(:meth:`hdrd.daemon.run.Daemon.take_frame`) at each frame's arrival time (:class:`ClockTarget`); gpsd, a :class:`hdrd.io.gpsd.GpsdLink` (client and aiding) over
+(:meth:`hdrd.daemon.run.Daemon.take_frame`) at each frame's arrival time (:class:`ClockTarget`); gpsd, a :class:`hdrd.io.net.gpsd.GpsdLink` (client and aiding) over
 a real loopback TCP connection, its aid applied to the pipeline's steps; tail,
-:meth:`hdrd.io.datagrams.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
+:meth:`hdrd.io.net.datagrams.TailFormatter.lines`; config, ``config_from_args`` (what start-up and
 SIGHUP read), a :class:`hdrd.daemon.run.Daemon` built from the result and a running one
 reloaded with it (the SIGHUP handler's body), then the daemon's pipeline stepped;
-bias, :func:`hdrd.io.biasfile.load_bias` and the daemon's :func:`hdrd.daemon.run.choose_bias`
+bias, :func:`hdrd.io.files.biasfile.load_bias` and the daemon's :func:`hdrd.daemon.run.choose_bias`
 (both ``on_bad_bias_file`` settings), an accepted record replayed; capture, ``hdrd replay``'s
 and ``hdrd convert``'s own entry points (file checks, decode, replay pipeline, output).
 """
@@ -57,7 +57,7 @@ __all__ = ["Broken", "Target"]
 
 def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: bool = True) -> int:
     """The published messages keep their promises (module doc); returns how many."""
-    from hdrd.io.publish import format_json, nmea_sentences, parse_nmea
+    from hdrd.io.net.publish import format_json, nmea_sentences, parse_nmea
 
     n = 0
     for m in msgs:
@@ -122,7 +122,7 @@ class SerialTarget(Target):
 
     def _new(self) -> None:
         from hdrd.daemon.pipeline import Pipeline
-        from hdrd.io.frames import Parser
+        from hdrd.io.wire.parser import Parser
 
         k = (self.count // self.RESTART_EVERY) % len(self.variants)
         self.pipeline = Pipeline(self.variants[k])
@@ -194,8 +194,9 @@ class ClockTarget(Target):
         self.rng = random.Random(f"{seed}:clock-target")
 
     def run(self, data: bytes) -> str:
-        from hdrd.io.capture import decode_capture, encode_array
-        from hdrd.io.frames import Parser, array_to_frames
+        from hdrd.io.wire.capture import decode_capture, encode_array
+        from hdrd.io.wire.codec import array_to_frames
+        from hdrd.io.wire.parser import Parser
 
         from .inputs import CLOCK_ROW
 
@@ -268,7 +269,7 @@ MARKER = b'{"class":"VERSION","release":"fuzz-%d"}\n'
 
 
 class GpsdTarget(Target):
-    """A :class:`hdrd.io.gpsd.GpsdLink` connected to a loopback peer that this target plays:
+    """A :class:`hdrd.io.net.gpsd.GpsdLink` connected to a loopback peer that this target plays:
     each input is sent (without blocking), then a newline and a marker line; the link is
     polled as the daemon's loop does until the marker is read. Between polls the pipeline
     gets a step's worth of frames, and each step goes through the link's aid."""
@@ -281,7 +282,7 @@ class GpsdTarget(Target):
         from hdrd.daemon.gpslink import GpsdLink
         from hdrd.daemon.pipeline import Pipeline
         from hdrd.daemon.stepper import PipelineConfig
-        from hdrd.io.gpsd import GpsdClient
+        from hdrd.io.net.gpsd import GpsdClient
 
         self.rng = random.Random(f"{seed}:gpsd-target")
         self.server = socket.create_server(("127.0.0.1", 0))
@@ -316,7 +317,7 @@ class GpsdTarget(Target):
         raise Broken("the gpsd client did not finish connecting")
 
     def _step_frames(self) -> list[Any]:
-        from hdrd.io.frames import Frame
+        from hdrd.io.wire.codec import Frame
 
         out = []
         for k in range(10):
@@ -326,7 +327,7 @@ class GpsdTarget(Target):
         return out
 
     def run(self, data: bytes) -> str:
-        from hdrd.io.gpsd import Version
+        from hdrd.io.net.gpsd import Version
 
         assert self.peer is not None
         self.count += 1
@@ -373,7 +374,7 @@ class TailTarget(Target):
     surface = "tail"
 
     def __init__(self, seed: int) -> None:
-        from hdrd.io.datagrams import TailFormatter
+        from hdrd.io.net.datagrams import TailFormatter
 
         self.formatters = [TailFormatter(raw=False), TailFormatter(raw=True)]
         self.count = 0
@@ -426,7 +427,7 @@ def quiet_logging() -> _Events:
 
 def stress_capture(seed: int) -> bytes:
     """A short hdr-bin capture that drives the pipeline's corners (rails, clock jumps)."""
-    from hdrd.io.capture import encode_array
+    from hdrd.io.wire.capture import encode_array
 
     arr = stress_frames(random.Random(f"{seed}:capture"), 600)
     arr["t_us"] = (np.arange(600) * 10_000 + 2**32 - 2_000_000) % 2**32
@@ -503,7 +504,7 @@ class ConfigTarget(Target):
         msgs: list[dict[str, Any]] = []
         for _ in range(12):
             self.t_us = (self.t_us + 100_000) % 2**32
-            from hdrd.io.frames import Frame
+            from hdrd.io.wire.codec import Frame
 
             msgs += d.pipeline.feed(Frame(0, self.t_us, 32900, 0, None), 0, 1.7e9)
         if d.gps is not None:
@@ -551,7 +552,7 @@ class BiasTarget(Target):
     def run(self, data: bytes) -> str:
         from hdrd.daemon.replay import replay_capture
         from hdrd.daemon.run import choose_bias
-        from hdrd.io.biasfile import BiasFileError, load_bias
+        from hdrd.io.files.biasfile import BiasFileError, load_bias
 
         self.count += 1
         _write(self.path, data)

@@ -25,7 +25,7 @@ from hdrd.analysis.gap.truth import (
     standing_rows,
     truth_rate_from_heading,
 )
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.effects import MotionOffset
 from hdrd.sim.gyro import GyroModel
 

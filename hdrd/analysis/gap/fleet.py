@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from hdrd.analysis.fleet import Runner
 from hdrd.analysis.fleet_jobs import DriveOutcome, GapJob, gap_refs
-from hdrd.io.drivefiles import DriveRef
+from hdrd.io.files.drivefiles import DriveRef
 
 if TYPE_CHECKING:
     from hdrd.analysis.progress import ProgressBar
@@ -214,11 +214,11 @@ def model_paths(
     refs: Sequence[DriveRef], out: str
 ) -> tuple[list[DriveRef], dict[str, Path], list[str]]:
     """Where each drive's fitted model goes, ``OUT/NAME.yaml``: the drives whose name can be
-    such a file (:func:`hdrd.io.files.path_inside`: never outside OUT), their paths, and why each
+    such a file (:func:`hdrd.io.files.access.path_inside`: never outside OUT), their paths, and why each
     other drive is left out (a name that would lead out of OUT; a file another drive already
     takes, or that would be a folder of another drive's file or hold it, ``a.yaml/b`` and
     ``a``; a folder already where the file goes, or a file where a folder must be)."""
-    from hdrd.io.files import UnsafeNameError, path_inside
+    from hdrd.io.files.access import UnsafeNameError, path_inside
 
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}
@@ -248,7 +248,7 @@ def _clash(
 ) -> str | None:
     """Why a drive's model cannot be ``path`` (None if it can), given the files and folders
     the drives before it take."""
-    from hdrd.io.files import shown_path
+    from hdrd.io.files.access import shown_path
 
     shown = shown_path(path)
     if path in taken or named:

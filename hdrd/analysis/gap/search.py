@@ -25,7 +25,7 @@ from hdrd.analysis.gap.data import GapData, GapError, moving_indicator, prepare
 from hdrd.analysis.gap.diagnose import REGRESSOR, diagnostics, where_phrase
 from hdrd.analysis.gap.fit import Fit, Fitter, fit_model
 from hdrd.analysis.gap.metric import GapMeasure, gap_metric
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.effects import EFFECTS, Effect
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 

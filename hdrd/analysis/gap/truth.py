@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd.errors import HdrdError
-from hdrd.io.drivelog import DriveLog
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "STOP_MARGIN_S",
