@@ -455,7 +455,10 @@ def test_bias_source_says_what_last_changed_the_bias() -> None:
     p.reconfigure(
         PipelineConfig(startup_s=1.0, setup=MethodSetup(bias=given_bias(0.3)))
     )  # a new bias from the config
-    assert p.stale_message(1.0e9, 3.0)["bias_source"] == "calibration"
+    held = p.stale_message(1.0e9, 3.0)  # no step since: the last step's bias and its source
+    assert (held["bias"], held["bias_source"]) == (measured + 0.01, "gps")
+    after = p.feed_array(to_array(make_frames(omega, t0_us=20_000_000)))
+    assert after and {(m["bias"], m["bias_source"]) for m in after} == {(0.3, "calibration")}
     # HDR+ standing still: its zero-rate updates move the bias
     plus = Pipeline(PipelineConfig(setup=MethodSetup(method="hdr+", bias=given_bias(0.5))))
     plus.set_speed(0.0)

@@ -163,6 +163,7 @@ class Stepper:
         the gyro's sample rate times T)."""
         self._settings: Any = None  # derived at the first step (methods.Method.settings)
         self.held: dict[str, Any] | None = None
+        self._held_source = self.bias_source  # the last step's bias_source
         """What the last step published of the heading and the bias (:data:`HELD_KEYS`; None
         before the first step with a heading): a report that is not a step holds these."""
         self.selfcheck: SelfCheck | None = None
@@ -184,9 +185,10 @@ class Stepper:
         """The held heading's keys of a report that is not a step (stale, a sensor fault):
         ``yaw``, ``heading`` (the method's, before the aiding aligns it) and ``bias``, as the
         last step published them; before the first step, as they stand (none while
-        calibrating)."""
+        calibrating), ``bias_source`` with them."""
         if self.held is not None:
             msg.update(self.held)
+            msg["bias_source"] = self._held_source
         elif self.bias is not None:
             msg["yaw"] = self.yaw
             msg["heading"] = heading_from_yaw(self.config.heading0_deg, self.yaw)
@@ -429,6 +431,7 @@ class Stepper:
         if math.isfinite(pub.heading_sd_deg):
             msg["heading_sd"] = pub.heading_sd_deg
         self.held = {k: msg[k] for k in HELD_KEYS if k in msg}
+        self._held_source = self.bias_source
         return "standstill" if pub.standstill else ("ok" if core["W"] else "turning")
 
     def _aid(self, view: StepView) -> Aid | None:
@@ -463,7 +466,7 @@ class Stepper:
             self.calibrated_at = now
         if "bias" not in msg:
             return
-        msg["bias_source"] = self.bias_source
+        msg["bias_source"] = msg.pop("bias_source", self.bias_source)  # held: the step's
         if now is not None and self.calibrated_at is not None and now >= self.calibrated_at:
             msg["calib_age_s"] = round(now - self.calibrated_at, 3)
 
