@@ -336,7 +336,7 @@ def test_thousands_of_udp_destinations_are_summed_up_at_stop() -> None:
 
     from structlog.testing import capture_logs
 
-    from hdrd.daemon import run as daemon_mod
+    from hdrd.daemon import listeners as daemon_mod
     from hdrd.io.net.publish import UdpJsonPublisher, UdpNmeaPublisher
 
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -20,7 +20,8 @@ import pytest
 
 from hdrd.config import Config, ConfigError, apply_overrides
 from hdrd.core.calibrate import BiasRecord
-from hdrd.daemon.run import BiasChoice, Daemon, build_publishers, choose_bias
+from hdrd.daemon.listeners import Outputs, build_publishers
+from hdrd.daemon.run import BiasChoice, Daemon, choose_bias
 from hdrd.io.files.biasfile import BiasFileError, save_bias
 from hdrd.io.net.publish import StdoutPublisher, UdpJsonPublisher
 
@@ -225,7 +226,7 @@ def test_a_run_on_the_simulated_gyro_publishes_every_step(
     msgs = [json.loads(x) for x in out if x.startswith("{")]  # not the log lines (structlog's)
     steps = [m["step"] for m in msgs if m["class"] == "HDR"]
     # the drive's 1,230 s (a 30 s lead-in and 20 minutes) at 10 Hz: a step a second
-    assert d.steps == len(steps) == 1230
+    assert d.liveness.steps == len(steps) == 1230
     assert steps == list(range(steps[0], steps[0] + len(steps)))  # none lost, none twice
     status = [m["status"] for m in msgs if m["class"] == "HDR"]
     assert status[0] == "calibrating" and set(status[1:]) == {"ok"}  # the first step measures
@@ -253,7 +254,7 @@ def test_a_stop_request_ends_the_run_cleanly_and_systemd_is_told(
         assert d.run() == 0
     finally:
         stopper.join(WAIT_S)
-    assert d.signals.stop and 3 <= d.steps < 1230  # ended by the request, not by the drive
+    assert d.signals.stop and 3 <= d.liveness.steps < 1230  # ended by the request, not by the drive
     wait_for(lambda: "STOPPING=1" in notify.lines, "STOPPING=1")
     said = notify.lines
     assert said[0] == "STATUS=calibrating: measuring the bias over 1 s at standstill"
@@ -295,16 +296,16 @@ def test_a_reload_with_other_outputs_makes_new_publishers(
 ) -> None:
     new = apply_overrides(Config(), {"output.udp": [at(udp)]})
     d = Daemon(Config(), "old.yaml", lambda: (new, "new.yaml"), BiasChoice(None, "startup"))
-    d.publishers = build_publishers(d.cfg)
-    assert [type(p) for p in d.publishers] == [StdoutPublisher]
+    d.outputs = Outputs.from_config(d.cfg)
+    assert [type(p) for p in d.outputs.publishers] == [StdoutPublisher]
     d.reload_config()
     try:
-        for p in d.publishers:
+        for p in d.outputs.publishers:
             p.on_message(STEP)
         wait_for(lambda: udp.lines, "the step on the new output")
     finally:
-        for p in d.publishers:
+        for p in d.outputs.publishers:
             p.stop()
     assert [json.loads(x) for x in udp.lines] == [STEP]
-    assert [type(p) for p in d.publishers] == [UdpJsonPublisher]
+    assert [type(p) for p in d.outputs.publishers] == [UdpJsonPublisher]
     assert json.dumps(STEP) not in capfd.readouterr().out  # the old stdout publisher is gone

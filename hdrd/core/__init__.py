@@ -7,6 +7,7 @@ detection :mod:`~hdrd.core.standstill`), the method registry (:mod:`~hdrd.core.m
 sees (:mod:`~hdrd.core.steps`); counts to deg/s (:mod:`~hdrd.core.sensor`), block means
 (:mod:`~hdrd.core.resample`), the static bias and the standstill test
 (:mod:`~hdrd.core.calibrate`); the gyro's error model (:mod:`~hdrd.core.gyronoise`), the grade
-table (:mod:`~hdrd.core.grades`) and the Allan deviation (:mod:`~hdrd.core.allan`).
+table (:mod:`~hdrd.core.grades`), the Allan deviation (:mod:`~hdrd.core.allan`), angles
+(:mod:`~hdrd.core.angles`) and the one rate limit of logged events (:mod:`~hdrd.core.throttle`).
 It imports nothing of hdrd's other layers (tests/test_layout.py).
 """

@@ -1,4 +1,5 @@
-"""The daemon: ``hdrd run``'s loop (:mod:`~hdrd.daemon.run`) and what it wires.
+"""The daemon: ``hdrd run``'s loop (:mod:`~hdrd.daemon.run`), which hands what it publishes to
+its listeners (:mod:`~hdrd.daemon.listeners`), and what it wires.
 
 The pipeline from frames to messages (:mod:`~hdrd.daemon.pipeline`, pure: replay and evaluate
 run it too), paced reads (:mod:`~hdrd.daemon.pacing`), clocks (:mod:`~hdrd.io.wire.clocks`),

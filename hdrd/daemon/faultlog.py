@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from hdrd.core.sensor import SensorModel
+from hdrd.core.throttle import Throttle
 from hdrd.io.logs import log
 from hdrd.io.wire.protocol import Message
 
@@ -25,17 +26,26 @@ class FaultLog:
 
     def __init__(self, sensor: SensorModel, interval_s: float) -> None:
         self.sensor = sensor
-        self.interval_s = interval_s
+        self._supply, self._sat = Throttle(interval_s), Throttle(interval_s)
         self.supply_faults = 0
         """Samples with a supply fault since start."""
         self.saturated = 0
         """Saturated samples since start."""
         self._supply_new = self._sat_new = 0  # since the last warning of each kind
         self._worst_v = math.nan  # the supply reading farthest from nominal, since then
-        self._supply_at = self._sat_at = -math.inf
 
-    def note(self, msgs: list[Message], now: float) -> None:
-        """The faults of published messages; a warning for each kind that is due."""
+    @property
+    def interval_s(self) -> float:
+        """At most one warning of each kind per this many seconds."""
+        return self._supply.interval_s
+
+    @interval_s.setter
+    def interval_s(self, value: float) -> None:
+        self._supply.interval_s = self._sat.interval_s = value
+
+    def on_messages(self, msgs: list[Message], now: float, steps: bool = True) -> None:
+        """The faults of published messages (a listener of the loop,
+        :mod:`hdrd.daemon.listeners`); a warning for each kind that is due."""
         for m in msgs:
             n = m.get("supply_faults", 0)
             if n:
@@ -45,7 +55,7 @@ class FaultLog:
             s = m.get("saturated", 0)
             self.saturated += s
             self._sat_new += s
-        if self._supply_new and now - self._supply_at >= self.interval_s:
+        if self._supply_new and self._supply.due(now):
             s = self.sensor
             log.warning(
                 "supply_fault",
@@ -58,8 +68,8 @@ class FaultLog:
                 "gyro runs on: these samples are not a rate and were left out; check the "
                 "divider and the supply wiring",
             )
-            self._supply_new, self._worst_v, self._supply_at = 0, math.nan, now
-        if self._sat_new and now - self._sat_at >= self.interval_s:
+            self._supply_new, self._worst_v = 0, math.nan
+        if self._sat_new and self._sat.due(now):
             log.warning(
                 "samples_saturated",
                 samples=self._sat_new,
@@ -68,7 +78,7 @@ class FaultLog:
                 reason="at an ADC rail or beyond sensor.range_dps: not a rate the gyro "
                 "measures; left out",
             )
-            self._sat_new, self._sat_at = 0, now
+            self._sat_new = 0
 
     def _worse(self, a: float, b: float) -> float:
         """Of two supply readings (V, NaN: none) the one farther from the nominal supply."""

@@ -6,11 +6,11 @@ stamps fixes with the monotonic clock and logs state changes; the aiding itself 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
+from hdrd.core.throttle import Throttle
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.io.logs import log
 from hdrd.io.net.gpsd import GpsdClient
@@ -66,12 +66,10 @@ class GpsdLink:
         self.aiding = aiding
         self._clock = clock
         self._mode: str | None = None
-        self._bad_logged = 0
-        self._bad_log_at = -math.inf
+        self._bad = Throttle(self.BAD_LOG_INTERVAL_S)
         # The events that come with each fix or step, as many as a receiver sends: at most
-        # one warning each per BAD_LOG_INTERVAL_S, with the count since the last (the
-        # aiding's counter of each, and what it was when last logged, and when).
-        self._counted_logged: dict[str, tuple[int, float]] = {}
+        # one warning each per BAD_LOG_INTERVAL_S, with the count since the last.
+        self._counted = {name: Throttle(self.BAD_LOG_INTERVAL_S) for name in self.COUNTED}
 
     @classmethod
     def from_config(cls, gpsd_cfg: GpsdConfig, step_s: float = 1.0) -> GpsdLink:
@@ -90,15 +88,10 @@ class GpsdLink:
         self._log_events(now)
         pipeline.set_speed(self.aiding.speed(now))
         bad = self.client.stats.bad_lines
-        if bad > self._bad_logged and now - self._bad_log_at >= self.BAD_LOG_INTERVAL_S:
+        new = self._bad.count(bad, now)
+        if new:
             errors = self.client.stats.errors
-            log.warning(
-                "gpsd_bad_lines",
-                total=bad,
-                new=bad - self._bad_logged,
-                last=errors[-1] if errors else None,
-            )
-            self._bad_logged, self._bad_log_at = bad, now
+            log.warning("gpsd_bad_lines", total=bad, new=new, last=errors[-1] if errors else None)
 
     def log_mode(self, msgs: list[Message], now: float | None = None) -> None:
         """Log a change of the aiding's mode (``gps_mode``) in the published messages, and the
@@ -111,6 +104,10 @@ class GpsdLink:
                 fields_ = {k: m[k] for k in ("heading", "gps_course", "gps_speed") if k in m}
                 log.info("gps_mode", mode=mode, **fields_)
         self._log_events(now)
+
+    def on_messages(self, msgs: list[Message], now: float, steps: bool = True) -> None:
+        """As a listener of the loop (:mod:`hdrd.daemon.listeners`): :meth:`log_mode`."""
+        self.log_mode(msgs, now)
 
     COUNTED = {
         "gps_course_rejected": "courses_rejected",
@@ -129,10 +126,9 @@ class GpsdLink:
                 (log.warning if name == "gps_realigned" else log.info)(name, **fields_)
                 continue
             total = getattr(a, counter)
-            logged, at = self._counted_logged.get(name, (0, -math.inf))
-            if now - at >= self.BAD_LOG_INTERVAL_S:
-                log.warning(name, total=total, new=total - logged, **fields_)
-                self._counted_logged[name] = (total, now)
+            new = self._counted[name].count(total, now)
+            if new:
+                log.warning(name, total=total, new=new, **fields_)
         a.events.clear()
 
     def close(self) -> None:

@@ -16,7 +16,6 @@ Only the commands import this module.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -25,8 +24,10 @@ from typing import TYPE_CHECKING
 
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
+from hdrd.core.throttle import Throttle
 from hdrd.daemon.faultlog import FaultLog
 from hdrd.daemon.inputs import open_source
+from hdrd.daemon.listeners import Listener, Liveness, Outputs
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
@@ -35,16 +36,7 @@ from hdrd.daemon.unitkeeper import UnitKeeper
 from hdrd.io.files.access import default_bias_path
 from hdrd.io.files.biasfile import BiasFileError, load_bias
 from hdrd.io.logs import log
-from hdrd.io.net.publish import (
-    OutputClosed,
-    Publisher,
-    StdoutPublisher,
-    UdpJsonPublisher,
-    UdpNmeaPublisher,
-    UdpPublisher,
-    parse_hostport,
-)
-from hdrd.io.resolve import Resolver, default_resolver
+from hdrd.io.net.publish import OutputClosed
 from hdrd.io.wire.clocks import WallClockCheck
 from hdrd.io.wire.codec import Frame
 from hdrd.io.wire.protocol import Message
@@ -60,7 +52,7 @@ from hdrd.io.wire.sources import (
 if TYPE_CHECKING:
     from hdrd.daemon.gpslink import GpsdLink
 
-__all__ = ["BiasChoice", "Daemon", "build_publishers", "choose_bias"]
+__all__ = ["BiasChoice", "Daemon", "choose_bias"]
 
 
 def _clock_rate(cfg: Config, simulate: bool) -> float:
@@ -113,79 +105,6 @@ def _gps_link(cfg: Config) -> GpsdLink | None:
     return GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
 
 
-def build_publishers(cfg: Config, resolver: Resolver | None = None) -> list[Publisher]:
-    """Publishers for the configured outputs; stdout when nothing else is configured. Host
-    names are looked up by ``resolver`` (the process's), never waiting on DNS: an address it
-    already knows (before a SIGHUP) is used while the name is looked up again."""
-    o = cfg.output
-    pubs: list[Publisher] = []
-    res = resolver or default_resolver()
-    if o.udp:
-        pubs.append(UdpJsonPublisher([parse_hostport(a) for a in o.udp], resolver=res))
-    if o.nmea_udp:
-        pubs.append(
-            UdpNmeaPublisher(
-                [parse_hostport(a) for a in o.nmea_udp],
-                ths=o.nmea_ths,
-                talker=o.nmea_talker,
-                resolver=res,
-            )
-        )
-    if o.stdout or not pubs:
-        pubs.append(StdoutPublisher())
-    return pubs
-
-
-UDP_STATS_LINES = 10
-"""At stop, up to this many UDP destinations of an output get a log line each; more are
-summed up in one line (``output_udp_summary``) plus a line for each of the
-``UDP_STATS_LINES`` that failed most."""
-
-
-def stop_publishers(pubs: list[Publisher]) -> None:
-    """Stop every publisher (each flushes), then log the UDP destinations' counters: what
-    was sent, and what failed and why (a peer that refused, a name that never resolved). One
-    line per destination, or, for an output with more than :data:`UDP_STATS_LINES`, one
-    summary line and the lines of those that failed most."""
-    for p in pubs:
-        try:
-            p.stop()
-        except Exception as e:  # noqa: BLE001 - shutting down: report, never raise
-            log.warning("publisher_stop_failed", publisher=type(p).__name__, error=str(e))
-    for p in pubs:
-        if isinstance(p, UdpPublisher):
-            _log_udp_stats(p)
-
-
-def _log_udp_stats(p: UdpPublisher) -> None:
-    """Log one UDP output's destinations as :func:`stop_publishers` says."""
-    output = "nmea_udp" if isinstance(p, UdpNmeaPublisher) else "udp"
-    stats = p.stats()
-    shown = stats
-    if len(stats) > UDP_STATS_LINES:
-        failing = [d for d in stats if d.errors or d.dropped]
-        by_error: dict[str, int] = {}
-        for d in failing:
-            for kind, n in d.by_error.items():
-                by_error[kind] = by_error.get(kind, 0) + n
-        (log.warning if failing else log.info)(
-            "output_udp_summary",
-            output=output,
-            destinations=len(stats),
-            sent=sum(d.sent for d in stats),
-            errors=sum(d.errors for d in stats),
-            dropped=sum(d.dropped for d in stats),
-            failing=len(failing),
-            by_error=by_error,
-        )
-        failing.sort(key=lambda d: d.errors + d.dropped, reverse=True)
-        shown = failing[:UDP_STATS_LINES]
-    for d in shown:
-        (log.warning if d.errors or d.dropped else log.info)(
-            "output_udp_stats", output=output, **d.to_dict()
-        )
-
-
 class Daemon:
     """The run loop. Construct, then :meth:`run` (returns the exit status).
 
@@ -232,19 +151,19 @@ class Daemon:
         """The samples the gyro cannot have given, said in the log (rate-limited)."""
         self.signals = signals or Signals()
         self.notifier = SdNotifier()
-        self.publishers: list[Publisher] = []
+        self.outputs = Outputs([])  # opened by _start
         self.ready = False
         self.status = ""
-        self.steps = 0
         self.reconnects = 0
         self.watchdog = WatchdogGate(self.notifier.watchdog_s)
+        self.liveness = Liveness(self.watchdog)
+        """The watchdog told of each published message; the steps counted, and when."""
         self.wallclock = WallClockCheck(_clock_rate(cfg, simulate))
         """The device clock against the host's: a frame whose clock disagrees is dropped."""
-        self._drops_logged = 0  # frames dropped (not new, clock disagrees) as last logged
-        self._drops_log_at = -math.inf
+        interval = cfg.log.bad_frame_interval_s
+        self._drops_log = Throttle(interval)  # frames dropped (not new, clock disagrees)
         self._drops_at_step = 0  # ... when the last step was published
-        self._dropped_logged = 0
-        self._dropped_log_at = -math.inf
+        self._dropped_log = Throttle(self.DROP_LOG_INTERVAL_S)  # messages the outputs dropped
         self.gps = _gps_link(cfg)  # GPS aiding through gpsd: a stage of the pipeline
         self._aid_pipeline()
         # Set by _start: the input, its name, and the pacing of a serial port's reads.
@@ -254,13 +173,11 @@ class Daemon:
         self.pacer: ReadPacer | None = None
         # The loop's clocks (time.monotonic, s) and counters between turns.
         self._last_data = 0.0  # the last frame kept
-        self._last_step_at = 0.0  # the last step published
         self._lost_at: float | None = None
-        self._last_stale = 0.0
-        self._last_bad = 0
-        self._last_bad_log = 0.0
+        self._stale = Throttle(cfg.hdr.params.T, last=0.0)  # a stale report per step at most
+        self._bad_log = Throttle(interval, last=0.0)  # bad frames
         self._waiting_since: float | None = None  # the device has not been there since then
-        self._waiting_logged_at = 0.0
+        self._waiting_log = Throttle(self.WAITING_LOG_INTERVAL_S, last=0.0)
 
     def run(self) -> int:
         src = self._start()
@@ -278,7 +195,7 @@ class Daemon:
     def _start(self) -> Source:
         """Signals, publishers, the ``start`` event, the input opened."""
         self.signals.install()
-        self.publishers = build_publishers(self.cfg)
+        self.outputs = Outputs.from_config(self.cfg)
         self.src_name = "simulated gyro" if self.simulate else self.cfg.device.port
         log.info(
             "start",
@@ -298,7 +215,7 @@ class Daemon:
         if isinstance(src, SerialSource):
             self.serial = src
             self.pacer = ReadPacer(self.READ_BATCH_S, self.READ_GUARD_S)
-        self._last_data = self._last_step_at = time.monotonic()
+        self._last_data = self.liveness.last_step_at = time.monotonic()
         T = self.cfg.hdr.params.T
         wd = self.notifier.watchdog_s
         if wd is not None and T > wd:
@@ -324,14 +241,14 @@ class Daemon:
         src.close()
         if self.gps is not None:
             self.gps.close()
-        stop_publishers(self.publishers)
+        self.outputs.stop()
         log.info(
             "stop",
-            steps=self.steps,
+            steps=self.liveness.steps,
             bad_frames=int(src.stats.bad_frames),
             frames_dropped=self._frame_drops(src),
             reconnects=self.reconnects,
-            output_dropped=self._dropped(),
+            output_dropped=self.outputs.dropped,
             supply_faults=self.faults.supply_faults,
             saturated=self.faults.saturated,
         )
@@ -410,7 +327,7 @@ class Daemon:
         if isinstance(item, DeviceBack):
             gap = now - (self._lost_at if self._lost_at is not None else self._last_data)
             self.wallclock.reset()  # a new connection: a new reference for the device clock
-            self._last_step_at = now
+            self.liveness.last_step_at = now
             if self._waiting_since is not None:  # it appeared: opened for the first time
                 log.info("device_open", port=self.src_name, waited_s=round(gap, 3))
                 self._waiting_since = None
@@ -493,7 +410,7 @@ class Daemon:
             f"{s.reconnect_min_s:g} s, backing off to {s.reconnect_max_s:g} s)",
             waited_s=round(now - (self._waiting_since or now), 1),
         )
-        self._waiting_logged_at = now
+        self._waiting_log.last = now
 
     def _status_after(self, last: Message, bad: int) -> None:
         """systemd's status line after publishing steps (once the bias is known)."""
@@ -510,27 +427,20 @@ class Daemon:
         """Every turn: a stale report while no frame is kept or no step comes (the device
         silent, or its frames dropped), the bad-frames and dropped-frames warnings, the
         watchdog ping, the output-dropped warning, each at most as often as allowed."""
-        silent = max(now - self._last_data, now - self._last_step_at - self.cfg.hdr.params.T)
-        if (
-            silent > self.cfg.device.stale_after_s
-            and now - self._last_stale >= self.cfg.hdr.params.T
-        ):
-            self._last_stale = now
+        last_step = self.liveness.last_step_at
+        silent = max(now - self._last_data, now - last_step - self.cfg.hdr.params.T)
+        if silent > self.cfg.device.stale_after_s and self._stale.due(now):
             self._publish_stale(silent, bad)
-        if bad > self._last_bad and now - self._last_bad_log >= self.cfg.log.bad_frame_interval_s:
-            log.warning("bad_frames", total=bad, new=bad - self._last_bad)
-            self._last_bad, self._last_bad_log = bad, now
+        new_bad = self._bad_log.count(bad, now)
+        if new_bad:
+            log.warning("bad_frames", total=bad, new=new_bad)
         if self.watchdog.due(now):
             self.notifier.notify("WATCHDOG=1")
-        if self.unit.due(now) and self.steps:
+        if self.unit.due(now) and self.liveness.steps:
             self.unit.save(self.pipeline.stepper, now, time.time())
         self._log_frame_drops(now)
         self._log_drops(now)
-        if (
-            self._waiting_since is not None
-            and now - self._waiting_logged_at >= self.WAITING_LOG_INTERVAL_S
-            and self._never_opened()
-        ):
+        if self._waiting_since is not None and self._never_opened() and self._waiting_log.due(now):
             assert self.serial is not None
             self._log_waiting(now, self.serial.reader.last_error)
 
@@ -562,24 +472,17 @@ class Daemon:
             self.status = text
             self.notifier.notify(f"STATUS={text}")
 
+    def listeners(self) -> list[Listener]:
+        """Who gets each published batch, in order: the GPS link (the aiding is the
+        pipeline's: its mode and events in the log), the sensor faults, the outputs, and
+        last the loop's liveness (:mod:`hdrd.daemon.listeners`)."""
+        gps: list[Listener] = [self.gps] if self.gps is not None else []
+        return [*gps, self.faults, self.outputs, self.liveness]
+
     def _publish(self, msgs: list[Message], steps: bool = True) -> None:
-        if msgs:
-            self.watchdog.progress()  # a step, or a stale report on time: the loop does its job
-            if steps:
-                self._last_step_at = time.monotonic()
-        if self.gps is not None:  # the aiding is the pipeline's: log its mode and events
-            self.gps.log_mode(msgs)
-        self.faults.note(msgs, time.monotonic())
-        for m in msgs:
-            for p in self.publishers:
-                try:
-                    p.on_message(m)
-                except OutputClosed:
-                    raise
-                except Exception as e:  # noqa: BLE001 - one bad sink must not stop the others
-                    log.warning("publish_failed", publisher=type(p).__name__, error=str(e))
-        if steps:
-            self.steps += len(msgs)
+        now = time.monotonic()
+        for listener in self.listeners():
+            listener.on_messages(msgs, now, steps)
 
     def _publish_stale(self, silent: float, bad: int) -> None:
         msg = self.pipeline.stale_message(time.time(), round(silent, 3), bad)
@@ -603,12 +506,12 @@ class Daemon:
 
     def _log_frame_drops(self, now: float) -> None:
         """``frames_dropped`` at most every ``log.bad_frame_interval_s``, with the counts."""
-        if now - self._drops_log_at < self.cfg.log.bad_frame_interval_s or self.src is None:
-            return
-        self._drops_log_at = now  # looked at no more often than that (src.stats copies)
+        if self.src is None or not self._drops_log.due(now):
+            return  # looked at no more often than that (src.stats copies)
         drops = self._frame_drops(self.src)
         total = sum(drops.values())
-        if total <= self._drops_logged:
+        new = total - self._drops_log.said
+        if new <= 0:
             return
         extra = {}
         if drops["wall_clock_mismatch"]:
@@ -616,28 +519,22 @@ class Daemon:
                 "the device clock disagrees with the wall clock; a feed faster than real time "
                 "needs device.clock_rate (--clock-rate)"
             )
-        log.warning("frames_dropped", total=total, new=total - self._drops_logged, **drops, **extra)
-        self._drops_logged = total
-
-    def _dropped(self) -> int:
-        """Messages dropped by the publishers so far (stdout with a stalled reader)."""
-        return sum(int(getattr(p, "dropped", 0)) for p in self.publishers)
+        log.warning("frames_dropped", total=total, new=new, **drops, **extra)
+        self._drops_log.said = total
 
     def _log_drops(self, now: float) -> None:
-        if now - self._dropped_log_at < self.DROP_LOG_INTERVAL_S:
-            return
-        total = self._dropped()
-        if total < self._dropped_logged:  # the publishers were rebuilt (SIGHUP)
-            self._dropped_logged = 0
-        if total > self._dropped_logged:
+        total = self.outputs.dropped
+        if total < self._dropped_log.said:  # the publishers were rebuilt (SIGHUP)
+            self._dropped_log.restart()
+        new = self._dropped_log.count(total, now)
+        if new:
             log.warning(
                 "output_dropped",
                 output="stdout",
                 reason="the reader does not keep up",
                 total=total,
-                new=total - self._dropped_logged,
+                new=new,
             )
-            self._dropped_logged, self._dropped_log_at = total, now
 
     def _drain_events(self) -> None:
         for name, fields in self.pipeline.events:
@@ -686,10 +583,12 @@ class Daemon:
             )
             cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias, self.unit.state))
-        self.faults.sensor, self.faults.interval_s = cfg.sensor, cfg.log.bad_frame_interval_s
+        interval = cfg.log.bad_frame_interval_s
+        self.faults.sensor, self.faults.interval_s = cfg.sensor, interval
+        self._bad_log.interval_s = self._drops_log.interval_s = interval
         if cfg.output != old.output:
-            stop_publishers(self.publishers)
-            self.publishers = build_publishers(cfg)
+            self.outputs.stop()
+            self.outputs = Outputs.from_config(cfg)
         if cfg.gpsd != old.gpsd:  # a new gpsd connection and aiding state, or none
             if self.gps is not None:
                 self.gps.close()

@@ -445,7 +445,8 @@ class ConfigTarget(Target):
 
     def __init__(self, seed: int, workdir: Path) -> None:
         from hdrd.cliconfig import config_from_args
-        from hdrd.daemon.run import BiasChoice, Daemon, build_publishers
+        from hdrd.daemon.listeners import Outputs
+        from hdrd.daemon.run import BiasChoice, Daemon
 
         self.events = quiet_logging()  # its events: did a reload fail?
         self.path = workdir / "hdrd.yaml"
@@ -456,7 +457,7 @@ class ConfigTarget(Target):
         self.bias = BiasChoice(None, "startup")
         self.reload = lambda: config_from_args(self.args)
         self.daemon = Daemon(Config(), "built-in defaults", self.reload, self.bias)
-        self.daemon.publishers = build_publishers(self.daemon.cfg)
+        self.daemon.outputs = Outputs.from_config(self.daemon.cfg)
         self.capture = stress_capture(seed)
         self.t_us = 0
         self.count = 0
@@ -512,9 +513,7 @@ class ConfigTarget(Target):
         check_messages(msgs, talker=d.cfg.output.nmea_talker, ths=d.cfg.output.nmea_ths)
 
     def close(self) -> None:
-        from hdrd.daemon.run import stop_publishers
-
-        stop_publishers(self.daemon.publishers)
+        self.daemon.outputs.stop()
         if self.daemon.gps is not None:
             self.daemon.gps.close()
 

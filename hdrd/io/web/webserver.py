@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Any
 
+from hdrd.core.throttle import Throttle
 from hdrd.io.logs import log
 from hdrd.io.net.datagrams import shown_address
 from hdrd.io.net.publish import parse_hostport
@@ -313,20 +314,6 @@ def descriptors(asked: int) -> tuple[int, int, int]:
 # -- the server ------------------------------------------------------------------------------
 
 
-class _Throttle:
-    """Says yes at most once per :data:`LOG_INTERVAL_S` (monotonic clock)."""
-
-    def __init__(self) -> None:
-        self._at = -LOG_INTERVAL_S
-
-    def due(self) -> bool:
-        now = time.monotonic()
-        if now - self._at < LOG_INTERVAL_S:
-            return False
-        self._at = now
-        return True
-
-
 class WebServer:
     """Serves the page and the stream from the sockets given (see the module doc).
 
@@ -363,7 +350,8 @@ class WebServer:
         self.closed_waiting = 0
         self._ignored_logged = 0
         self._throttles = {
-            k: _Throttle() for k in ("ignored", "refused", "dropped", "waiting", "descriptors")
+            k: Throttle(LOG_INTERVAL_S)
+            for k in ("ignored", "refused", "dropped", "waiting", "descriptors")
         }
         self._enforcing: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -405,7 +393,7 @@ class WebServer:
         not a traceback per retry; anything else as asyncio reports it."""
         exc = context.get("exception")
         if isinstance(exc, OSError) and exc.errno in _OUT_OF:
-            if self._throttles["descriptors"].due():
+            if self._throttles["descriptors"].due(time.monotonic()):
                 log.warning(
                     "web_descriptors_exhausted",
                     reason="no descriptor for a new connection: new ones wait, retried every "
@@ -446,7 +434,7 @@ class WebServer:
         self.unwait(conn)
         conn.transport.abort()
         self.closed_waiting += 1
-        if self._throttles["waiting"].due():
+        if self._throttles["waiting"].due(time.monotonic()):
             log.warning(
                 "web_connections_closed",
                 reason="too many connections waiting for a request (idle or slow)",
@@ -469,7 +457,7 @@ class WebServer:
         """A new stream: sent the snapshot, or refused (False) when ``max_clients`` are in."""
         if len(self.clients) >= self.settings.max_clients:
             self.refused += 1
-            if self._throttles["refused"].due():
+            if self._throttles["refused"].due(time.monotonic()):
                 log.warning(
                     "web_client_refused",
                     reason="max_clients reached",
@@ -489,7 +477,7 @@ class WebServer:
             if c.transport.get_write_buffer_size() > limit:
                 self.clients.discard(c)
                 self.dropped += 1
-                if self._throttles["dropped"].due():
+                if self._throttles["dropped"].due(time.monotonic()):
                     log.warning(
                         "web_client_dropped",
                         reason="too slow: its queue is full",
@@ -511,7 +499,7 @@ class WebServer:
         for event in self.state.take(data, sender, time.time()):
             self.broadcast(event)
         ignored = self.state.ignored
-        if ignored > self._ignored_logged and self._throttles["ignored"].due():
+        if ignored > self._ignored_logged and self._throttles["ignored"].due(time.monotonic()):
             log.warning(
                 "web_datagrams_ignored",
                 total=ignored,
