@@ -436,7 +436,8 @@ def test_the_daemon_finds_its_bias_in_the_units_state_directory(
 
 def test_hdrd_web_listens_on_loopback_by_default() -> None:
     from hdrd.cli import build_parser
-    from hdrd.io.web.webserver import DEFAULT_WEB_LISTEN, is_loopback
+    from hdrd.io.web.http import is_loopback
+    from hdrd.io.web.webserver import DEFAULT_WEB_LISTEN
 
     args = build_parser().parse_args(["web"])
     for address in (args.listen, args.udp, DEFAULT_WEB_LISTEN):

@@ -23,6 +23,7 @@ from typing import Any
 import pytest
 
 from hdrd.io.net.publish import format_json
+from hdrd.io.web.http import host_allowed, parse_request, peer_key
 from hdrd.io.web.webserver import (
     ASSETS,
     DEFAULT_MAX_CLIENTS,
@@ -31,9 +32,6 @@ from hdrd.io.web.webserver import (
     WebServer,
     WebSettings,
     fitted_max_clients,
-    host_allowed,
-    parse_request,
-    peer_key,
 )
 from hdrd.io.web.webstate import TRACE_STEP_S
 

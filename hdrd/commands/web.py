@@ -16,13 +16,13 @@ import sys
 from hdrd import __version__
 from hdrd.io.logs import log, setup_logging
 from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN, udp_listener
+from hdrd.io.web.http import is_loopback
 from hdrd.io.web.webserver import (
     DEFAULT_MAX_CLIENTS,
     DEFAULT_WEB_LISTEN,
     WebServer,
     WebSettings,
     descriptors,
-    is_loopback,
     run_server,
     tcp_listener,
 )
