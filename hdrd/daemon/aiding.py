@@ -1,83 +1,16 @@
-"""GPS aiding of the HDR heading, pure: mode, heading alignment and bias learning.
+"""GPS aiding of the heading, pure: the mode, the heading's alignment to the GPS course, and
+the bias learned from it (docs/gps-aiding.md is the reference).
 
-hdrd's heading is dead reckoning: heading = (heading0 - yaw) mod 360, yaw the integral of the
-drift-reduced rate (paper Eq. 3). With a GPS (through gpsd, :mod:`hdrd.io.net.gpsd`) the course over
-ground is an absolute heading whenever the vehicle moves fast enough for it to mean
-something. :class:`GpsAiding` uses it two ways, and says which mode it is in:
-
-``"aided"`` while the latest fix is good: 2D/3D (``mode >= 2``), a course and a speed of at
-least ``min_speed_mps``, a course error estimate (``epd``, when sent) within
-``max_epd_deg``, and fresh (received within ``max_fix_age_s``). Then
-
-- **alignment**: the published heading is the HDR heading plus an offset, compass degrees,
-  ``heading = (heading_hdr + offset) mod 360``. The first good fix sets the offset at once;
-  afterwards each step moves it by ``align_gain`` times the heading error (wrapped to
-  [-180, 180)), and only while the rate is below ``align_max_rate_dps`` (in a turn the
-  fix's course lags by its latency). The course is carried forward to the step by the
-  gyro over the fix's age: ``course - omega * age`` (omega + CCW turns the compass
-  course down).
-- **bias learning**: over windows of ``bias_window_s`` of straight driving (|omega| at
-  each step and the window's mean GPS course rate within ``straight_max_dps``, no course
-  jump over ``max_course_step_deg``), the gyro's yaw change with only
-  the static bias removed, ``sum((omega_raw - bias) * dt)`` (deg, CCW), is compared with
-  the GPS's, ``-(course change)`` (compass course is CW): the difference over the window's
-  length is the error of the static bias eps0 (deg/s, paper Eq. 2). ``bias_gain`` times it
-  (at most ``max_bias_step_dps``) is returned (``Aid.bias_delta_dps``) for the pipeline to
-  add to the static bias; a window whose estimate exceeds ``max_residual_dps`` is discarded
-  (a GPS glitch, a skid). Learning eps0 rather than correcting HDR's output leaves the
-  I-controller (Eqs. 4, 9) to do its job during outages with the best static bias known.
-
-  That is for the baselines, ``none`` and paper ``hdr``. A method that estimates the bias
-  and the heading error itself (HDR+, :class:`hdrd.core.methods.Method` ``owns_heading``) is
-  their one owner: the aiding aligns its heading once (and again on a realignment, below),
-  then hands it each good course as a measurement (:class:`HeadingFix`: the published
-  heading minus the course, its variance from the course's error and, in a turn, its
-  latency), and neither moves the offset nor learns a bias itself.
-
-``"dead-reckoning"`` otherwise (no fix, a tunnel, standing at a light, gpsd gone, a course
-the gate rejected): the heading continues from the last alignment, carried by the HDR yaw,
-and nothing is learned.
-
-**The gate.** Each new course is tested against the heading the gyro predicts (the HDR
-heading plus the offset) before it is used: the innovation ``wrap180(course - predicted)``
-must be within ``gate_deg`` (:meth:`GpsAiding.gate_deg`): the fix's own course error (95 %:
-gpsd's ``epd``; else from the speed error, ``atan(eps / speed)``; else
-``default_course_err_deg``), plus what the gyro may have drifted since the last course
-accepted (``max_drift_dps`` times that time), plus the fix's latency in a turn
-(``|omega| * latency_s``), at least ``gate_min_deg`` and at most ``gate_max_deg``. A fix
-whose course error (however it is known) exceeds ``max_epd_deg`` gives no course at all. A
-course outside the gate is rejected (a multipath glitch, a reversed course, another
-receiver): that step is dead reckoning. ``realign_after`` rejections in a row that agree with
-one another (their implied offsets within each one's own gate) mean the gyro's heading is what
-is wrong (a wrong start, a long outage): the offset is set to the GPS course at once (a
-``gps_realigned`` event). After a long gap (no course accepted for ``gate_max_deg /
-max_drift_dps``, when the gate has stopped widening) no single course is taken, inside the
-gate or not: the heading is re-acquired only on ``realign_after`` courses in a row that agree.
-
-**One witness a step.** The gate judges one course a step (the latest), so a run of
-rejections is counted in steps: agreement across time, not across one step's fixes. The
-courses received within one step are held against each other (:meth:`GpsAiding._compare_in_step`):
-two further apart than a car turns between them (``max_lateral_mps2`` at the lower of their
-speeds) plus twice their errors, and at least ``gate_max_deg``, contradict each other, and
-the step takes no course (a ``gps_courses_disagree`` event) and the run starts again. A TPV
-whose speed is beyond ``max_speed_mps`` (no car's) is refused as a fix (``gps_fix_refused``).
-
-**One receiver.** gpsd reports every receiver it reads, each TPV naming its ``device``.
-Aiding follows one: ``device`` when configured (``gpsd.device``), else the first that
-reports a 2D/3D fix; the others' reports are ignored (counted in ``fixes_ignored``). A
-followed receiver (not a configured one) that has had no fix for ``device_timeout_s``
-hands over to the next receiver with a fix (a ``gps_device`` event).
-
-Events for the log are appended to :attr:`GpsAiding.events` as ``(name, fields)``, for the
-caller to log and clear (:class:`hdrd.daemon.gpslink.GpsdLink` does).
-
-A stage of the pipeline (:class:`hdrd.daemon.pipeline.Stepper`): it sees each step as a
-typed :class:`StepView` before the message is built and answers with an :class:`Aid`, from
-which the message takes ``mode``, the aligned ``heading``, ``heading_offset`` (deg, once
-aligned), ``gps_course`` (deg, while aided), ``gps_age_s`` (s since the last course was
-received) and ``gps_speed`` (m/s, with a fresh fix), docs/protocol.md. A step that is still
-calibrating has no heading and is not shown to it. Time ``now`` is any monotonic clock in
-seconds, passed in by the caller; fixes are stamped with it when received.
+:class:`GpsAiding` is ``"aided"`` while the latest fix is good (2D/3D, fast enough, its
+course error within bounds, fresh) and ``"dead-reckoning"`` otherwise. Aided, the published
+heading is the method's plus an offset aligned to the course, and for ``none`` and paper
+``hdr`` the static bias is learned over straight windows; a method that owns the heading
+(HDR+) is instead handed each good course as a measurement (:class:`HeadingFix`). Every
+course passes a gate around the heading the gyro predicts; rejections that agree, across
+steps, realign; one receiver is followed. A stage of the pipeline
+(:class:`hdrd.daemon.stepper.Stepper`): it sees each step as a :class:`StepView` and answers
+with an :class:`Aid`. Time ``now`` is any monotonic clock (s) the caller passes; events for
+the log go to :attr:`GpsAiding.events` for the caller to log and clear.
 """
 
 from __future__ import annotations
@@ -87,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
 from hdrd.core.angles import compass, wrap180
+from hdrd.daemon.biaswindow import StraightWindows
 
 __all__ = [
     "AIDED",
@@ -319,11 +253,8 @@ class GpsAiding:
         self.offset_deg: float | None = None
         """Added to the HDR heading (compass deg), None until the first alignment."""
         self.mode = DEAD_RECKONING
-        self.bias_learned_dps = 0.0
-        """Sum of the corrections returned so far, deg/s."""
-        self.windows = 0
-        """Bias windows completed (applied or discarded)."""
-        self.windows_discarded = 0
+        self.learning = StraightWindows()
+        """The baselines' bias learning over windows of straight driving."""
         self.device: str | None = config.device
         """The receiver followed (TPV ``device``); None until one has reported a fix."""
         self._following = config.device is not None
@@ -345,11 +276,6 @@ class GpsAiding:
         self._streak: list[float] = []  # the implied offsets of the rejections in a row
         self.events: list[tuple[str, dict[str, Any]]] = []
         """``(name, fields)`` for the log: gps_device, gps_course_rejected, gps_realigned."""
-        self._prev_t: float | None = None
-        self._prev_course: float | None = None
-        self._win_dt = 0.0
-        self._win_yaw = 0.0  # gyro yaw change, static bias removed, deg CCW
-        self._win_course = 0.0  # GPS course change, unwrapped, deg CW
 
     # -- inputs --
     def _follows(self, fix: FixLike, now: float) -> bool:
@@ -562,7 +488,8 @@ class GpsAiding:
         if reset and owner:  # the heading's error restarts, known to the course's
             var = self.course_var(fix, view.omega_dps) if fix is not None else math.nan
             heading_fix = HeadingFix(0.0, var, True)
-        delta = self._learn(view, course) if view.step and not owner else 0.0
+        learn = view.step and not owner
+        delta = self.learning.learn(view, course, self.config) if learn else 0.0
         return Aid(
             mode=self.mode,
             heading_deg=None if self.offset_deg is None else compass(h_hdr + self.offset_deg),
@@ -633,44 +560,17 @@ class GpsAiding:
         )
         return True
 
-    # -- bias learning --
-    def _restart_window(self, t: float | None, course: float | None) -> None:
-        self._prev_t, self._prev_course = t, course
-        self._win_dt = self._win_yaw = self._win_course = 0.0
+    # the bias learning's counters, read by tests and tools
+    @property
+    def windows(self) -> int:
+        """Bias windows completed (applied or discarded)."""
+        return self.learning.windows
 
-    def _learn(self, view: StepView, course: float | None) -> float:
-        """The static bias error a window of straight driving shows, times ``bias_gain``
-        (deg/s; 0.0 until a window completes): see the module doc."""
-        c = self.config
-        t = view.t
-        if course is None or view.gap:
-            self._restart_window(None, None)
-            return 0.0
-        if self._prev_t is None or self._prev_course is None:
-            self._restart_window(t, course)
-            return 0.0
-        dt = t - self._prev_t
-        dcourse = wrap180(course - self._prev_course)
-        straight = (
-            abs(view.omega_dps) <= c.straight_max_dps and abs(dcourse) <= c.max_course_step_deg
-        )
-        if not (abs(dt - c.step_s) <= 0.5 * c.step_s and straight):
-            self._restart_window(t, course)
-            return 0.0
-        self._prev_t, self._prev_course = t, course
-        self._win_dt += dt
-        self._win_yaw += (view.raw_dps - view.bias_dps) * dt
-        self._win_course += dcourse
-        if self._win_dt < c.bias_window_s - 1e-9:
-            return 0.0
-        # gyro yaw change (CCW) minus the true one (-course change): the static bias error
-        window_s, course_rate = self._win_dt, self._win_course / self._win_dt
-        residual = (self._win_yaw + self._win_course) / window_s
-        self._restart_window(t, course)
-        self.windows += 1
-        if abs(residual) > c.max_residual_dps or abs(course_rate) > c.straight_max_dps:
-            self.windows_discarded += 1
-            return 0.0
-        delta = float(max(-c.max_bias_step_dps, min(c.max_bias_step_dps, c.bias_gain * residual)))
-        self.bias_learned_dps += delta
-        return delta
+    @property
+    def windows_discarded(self) -> int:
+        return self.learning.discarded
+
+    @property
+    def bias_learned_dps(self) -> float:
+        """Sum of the corrections returned so far, deg/s."""
+        return self.learning.learned_dps

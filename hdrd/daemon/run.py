@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,6 +30,7 @@ from hdrd.daemon.inputs import open_source
 from hdrd.daemon.listeners import Listener, Liveness, Outputs
 from hdrd.daemon.pacing import ReadPacer
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
+from hdrd.daemon.reload import kept_until_restart
 from hdrd.daemon.sdnotify import SdNotifier, WatchdogGate
 from hdrd.daemon.signals import Signals
 from hdrd.daemon.unitkeeper import UnitKeeper
@@ -556,32 +557,7 @@ class Daemon:
             log.error("config_reload_failed", error=str(e), kept=self.where)
             return
         old = self.cfg
-        if cfg.device != old.device and not self.simulate:
-            log.warning(
-                "config_reload_partial",
-                key="device",
-                reason="device settings need a restart",
-                kept=str(old.device.port),
-            )
-            cfg = replace(cfg, device=old.device)
-        if cfg.hdr.params.T != old.hdr.params.T:
-            log.warning(
-                "config_reload_partial",
-                key="hdr.T",
-                reason="hdr.T needs a restart",
-                kept=old.hdr.params.T,
-            )
-            cfg = replace(
-                cfg, hdr=replace(cfg.hdr, params=replace(cfg.hdr.params, T=old.hdr.params.T))
-            )
-        if cfg.output.heading0_deg != old.output.heading0_deg:
-            log.warning(
-                "config_reload_partial",
-                key="output.heading0_deg",
-                reason="the heading at start: a reload keeps the heading (restart to set it)",
-                kept=old.output.heading0_deg,
-            )
-            cfg = replace(cfg, output=replace(cfg.output, heading0_deg=old.output.heading0_deg))
+        cfg = kept_until_restart(old, cfg, self.simulate)
         self.pipeline.reconfigure(pipeline_config(cfg, self.pipeline.bias, self.unit.state))
         interval = cfg.log.bad_frame_interval_s
         self.faults.sensor, self.faults.interval_s = cfg.sensor, interval
