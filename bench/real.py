@@ -370,11 +370,11 @@ setting of that design was switched off because of them, then 2.886 with the ban
 form of evidence), so they are not untouched; the present evidence (each filter's prediction
 of every straight step and stop) and `drift_prior` 0.3 were chosen without looking at them
 again. This round: `hdr.i_c: auto`'s 30 s window was chosen on simulated tuning routes
-(bench/grades.py's tuning set), the other ideas tried on tuning data only (bench/ablate.py);
+(bench/grades.py's tuning set), the other ideas tried on tuning data only (bench/ablate.py, retired: "Retired results");
 then the judging drives were run once (the run above; oan_20201121_152755 joined them).
 
-These figures against the targets, read by hand: "Heading that holds: what tuned what, and where
-the targets stand", in this part.
+These figures against the targets, read by hand: "A heading that knows its gyro: what tuned
+what, and where the targets stand", in this part.
 """
 
 
