@@ -509,6 +509,35 @@ def test_lead_in_and_speed_standstill_set_the_window(tmp_path: Path) -> None:
         prepare_drive(never)
 
 
+def test_a_lead_in_that_shows_motion_gives_way_to_a_later_stop() -> None:
+    """A phone handled while the car stood (its lead-in turns at 20 deg/s for 5 s): the lead-in
+    cannot give the bias; the first later stop by the speed whose gyro is still does, and the
+    drive is scored from there. A window the user gave is not second-guessed."""
+    # driving: a short turn every 10 s (no start-up window the daemon would retry passes)
+    weave = [(a, 3.0, 10.0 if a % 20 else -10.0) for a in range(25, 360, 10) if a != 65]
+    log = make_drive(drift_dps=0.1, calib_s=20.0, turns=[(5.0, 5.0, 20.0), *weave])
+    rel = log.t - log.t[0]
+    speed = np.where((rel < 20.0) | ((rel >= 60.0) & (rel < 75.0)), 0.0, 12.0)
+    handled = dataclasses.replace(log, speed=speed, meta={"lead_in_s": "20"}, name="handled")
+    prep = prepare_drive(handled)
+    assert prep.bias_source == "speed standstill 15 s at 60 s; the lead-in 20 s showed motion"
+    assert prep.start_s == 75.0
+    # the bias measured where the gyro was still: bias0 and the drift that started at 20 s
+    assert prep.steps.bias_dps == pytest.approx(float(np.mean(handled.omega[600:750])), rel=1e-12)
+    assert abs(prep.steps.bias_dps - 0.9) < 0.01
+    with pytest.raises(EvaluationError, match="showed motion"):
+        prepare_drive(handled, calibrate_seconds=20.0)
+    # a stop whose gyro moves too (a car turning on the spot) is no better: the lead-in's error
+    rel_turn = [(5.0, 5.0, 20.0), *weave, (62.0, 5.0, 20.0)]
+    turning = dataclasses.replace(
+        make_drive(drift_dps=0.1, calib_s=20.0, turns=rel_turn),
+        speed=speed,
+        meta={"lead_in_s": "20"},
+    )
+    with pytest.raises(EvaluationError, match="lead-in 20 s.*showed motion"):
+        prepare_drive(turning)
+
+
 def test_cli_directory_of_mixed_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     sub = tmp_path / "phone"
     sub.mkdir()

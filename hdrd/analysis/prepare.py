@@ -182,17 +182,25 @@ def _whole_steps(seconds: float, T: float) -> float:
 def _standstill_from_speed(log: DriveLog, T: float) -> tuple[int, float] | None:
     """(first sample, window s) of the first run of samples at standstill by the speed that
     holds at least STANDSTILL_MIN_S of whole steps; None if there is none."""
+    runs = _still_runs(log, T)
+    return runs[0] if runs else None
+
+
+def _still_runs(log: DriveLog, T: float) -> list[tuple[int, float]]:
+    """(first sample, window s) of every run of samples at standstill by the speed that holds
+    at least STANDSTILL_MIN_S of whole steps (at most STANDSTILL_MAX_S of it), in order."""
     assert log.speed is not None
     still = np.isfinite(log.speed) & (log.speed <= STANDSTILL_SPEED_MPS)
     t = log.t
     dt = float(np.median(np.diff(t))) if len(log) > 1 else 0.0
     edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
+    out = []
     for i, j in zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True):
         covered = float(t[j - 1] - t[i]) + dt  # the last sample stands for one interval
         window = _whole_steps(min(covered, STANDSTILL_MAX_S), T)
         if window >= STANDSTILL_MIN_S:
-            return i, window
-    return None
+            out.append((i, window))
+    return out
 
 
 def _standstill_from_gyro(
@@ -353,6 +361,36 @@ def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None
     return out
 
 
+def _later_standstills(
+    log: DriveLog, plan: CalibrationPlan, T: float, limits: StandstillLimits
+) -> list[CalibrationPlan]:
+    """Where else the bias may be measured when the planned window showed motion (a phone
+    handled while the car stood, a car manoeuvring slowly in its lead-in): each later stop by
+    the speed whose raw rate passes the standstill test, in order; without a speed, the
+    first window the gyro alone passes. None for a window the user gave
+    (``--calibrate-seconds``) or a bias given."""
+    if plan.bias_dps is not None or plan.source.startswith("first "):
+        return []
+    has_speed = log.speed is not None and bool(np.isfinite(log.speed).any())
+    if not has_speed:
+        found = _standstill_from_gyro(log, T, limits)
+        runs = [found] if found is not None and found[0] > plan.start else []
+    else:
+        runs = [(i, w) for i, w in _still_runs(log, T) if i > plan.start]
+    out = []
+    for i, window in runs:
+        j = int(np.searchsorted(log.t, log.t[i] + window, side="left"))
+        try:
+            estimate_bias(log.omega[i:j], limits=limits)
+        except MotionDetected:
+            continue
+        at = float(log.t[i] - log.t[0])
+        kind = "speed" if has_speed else "gyro"
+        why = f"{kind} standstill {window:g} s at {at:g} s; the {plan.source} showed motion"
+        out.append(CalibrationPlan(None, i, window, why))
+    return out
+
+
 def _calibration_failure(name: str, plan: CalibrationPlan, stepper: Stepper) -> str:
     window = f"the {plan.window_s:g} s start-up window"
     if stepper.window.attempts == 0:
@@ -412,6 +450,23 @@ def _stepped_after_calibration(
     return stepped, offset
 
 
+def _calibrated(
+    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: StandstillLimits
+) -> tuple[CalibrationPlan, _Stepped, float]:
+    """:func:`_stepped_after_calibration` on the plan, else on the first of
+    :func:`_later_standstills` whose bias can be measured (the plan used returned with it);
+    the plan's error if none."""
+    try:
+        return (plan, *_stepped_after_calibration(log, name, plan, T, limits))
+    except EvaluationError as first:
+        for later in _later_standstills(log, plan, T, limits):
+            try:
+                return (later, *_stepped_after_calibration(log, name, later, T, limits))
+            except EvaluationError:
+                continue
+        raise first from None
+
+
 def _step_inputs(
     log: DriveLog,
     stepped: _Stepped,
@@ -453,7 +508,7 @@ def prepare_drive(
     name = log.name or "drive"
     log, heading_truth = _usable_rows(log, name, T)
     plan = plan_calibration(log, bias, calibrate_seconds, T, limits)
-    stepped, offset = _stepped_after_calibration(log, name, plan, T, limits)
+    plan, stepped, offset = _calibrated(log, name, plan, T, limits)
     stepper = stepped.stepper
     rec = stepper.bias
     assert rec is not None
