@@ -119,7 +119,10 @@ def cut_at_stop(log: DriveLog) -> tuple[DriveLog, DriveLog] | None:
         if a >= first and log.duration_s - a >= LATER_MIN_S:
             head = log.slice(0, int(np.searchsorted(t, b, side="right")))
             tail = log.slice(int(np.searchsorted(t, a)))
-            return replace(head, name=f"{log.name}-first"), replace(tail, name=f"{log.name}-later")
+            # the later part starts at the stop: that is its lead-in, not the drive's
+            meta = {**tail.meta, "lead_in_s": repr(float(b - a))}
+            later = replace(tail, name=f"{log.name}-later", meta=meta)
+            return replace(head, name=f"{log.name}-first"), later
     return None
 
 
