@@ -17,7 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hdrd.config import Config, ConfigError, apply_overrides, load_config
+from hdrd.config import Config, ConfigError
+from hdrd.configload import apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where

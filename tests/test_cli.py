@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from hdrd import config
+from hdrd import config, configload
 from hdrd.cli import COMMANDS, DRIVES, build_parser, main
 
 
@@ -54,8 +54,8 @@ def test_the_drives_are_the_simulators_own_list() -> None:
 
     assert tuple(DRIVES) == tuple(DRIVE_TYPES) and "moon" not in DRIVES
     with pytest.raises(config.ConfigError, match="one of " + ", ".join(DRIVE_TYPES)):
-        config.parse_config({"simulate": {"drive": "moon"}})
-    assert config.parse_config({"simulate": {"drive": "city"}}).simulate.drive == "city"
+        configload.parse_config({"simulate": {"drive": "moon"}})
+    assert configload.parse_config({"simulate": {"drive": "city"}}).simulate.drive == "city"
 
 
 def test_every_option_says_what_it_is() -> None:

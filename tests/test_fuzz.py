@@ -163,7 +163,8 @@ def test_a_config_is_valid_or_one_config_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.config import ConfigError, load_config
+    from hdrd.config import ConfigError
+    from hdrd.configload import load_config
     from hdrd.daemon.replay import replay_capture
 
     p = tmp_path_factory.mktemp("cfg") / "hdrd.yaml"
@@ -244,7 +245,8 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
 @FUZZ
 @given(data=st.binary(max_size=2000), protocol=st.sampled_from(["hdr-bin", "hdr-text"]))
 def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
-    from hdrd.config import Config, apply_overrides
+    from hdrd.config import Config
+    from hdrd.configload import apply_overrides
     from hdrd.daemon.replay import replay_capture
 
     cfg = apply_overrides(Config(), {"device.protocol": protocol, "hdr.method": "hdr+"})

@@ -122,16 +122,28 @@ LAYERS: dict[str, set[str]] = {
     "io": {"core"},
     "sim": {"core", "io"},
     "config": {"core", "io", "sim"},
+    # ... and reading one: each key's rule, a file, the command line's overrides
+    "configload": {"core", "io", "sim", "config"},
     "daemon": {"core", "io", "sim", "config"},
     "analysis": {"core", "io", "sim", "config", "daemon"},
-    "commands": {"core", "io", "sim", "config", "daemon", "analysis", "cli", "cliconfig"},
+    "commands": {
+        "core",
+        "io",
+        "sim",
+        "config",
+        "configload",
+        "daemon",
+        "analysis",
+        "cli",
+        "cliconfig",
+    },
     # The command line: signals held from the start, the wire formats, and lazily the method
     # registry and the simulator's drives (for choices); a command only by name, when it runs.
     "cli": {"core", "sim", "daemon", "io", "commands", "cliargs"},
     # ... and its shared option groups (light: choices read lazily)
     "cliargs": {"core", "sim", "io"},
     # ... and the one reading of a configuration from the flags, for every command
-    "cliconfig": {"core", "io", "sim", "config", "daemon", "analysis"},
+    "cliconfig": {"core", "io", "sim", "config", "configload", "daemon", "analysis"},
     "__main__": {"cli", "daemon"},
 }
 
