@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.net.publish import format_json
+from hdrd.io.net.formats import format_json
 from hdrd.io.web.webserver import (
     ASSETS,
     DEFAULT_MAX_CLIENTS,

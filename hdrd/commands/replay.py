@@ -84,7 +84,7 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.io.net.publish import format_json
+    from hdrd.io.net.formats import format_json
     from hdrd.io.wire.capture import decode_capture
 
     loaded = _config_and_capture(args, "replay")
