@@ -102,14 +102,8 @@ def where_from_args(args: argparse.Namespace, prog: str) -> Where:
     scheduler reached by plain TCP from another machine is warned about on stderr."""
     import os
 
-    from hdrd.analysis.fleet import (
-        MIN_CLUSTER_WORK_S,
-        MIN_WORK_ENV,
-        FleetError,
-        TlsFiles,
-        Where,
-        scheduler_warning,
-    )
+    from hdrd.analysis.cluster import FleetError, TlsFiles, scheduler_warning
+    from hdrd.analysis.fleet import MIN_CLUSTER_WORK_S, MIN_WORK_ENV, Where
 
     g = lambda name: getattr(args, name, None)  # noqa: E731
     tls = TlsFiles(g("tls_ca_file"), g("tls_cert"), g("tls_key"))

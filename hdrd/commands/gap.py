@@ -53,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as e:
         _err(str(e))
         return 1
-    from hdrd.analysis.fleet import FleetError, open_runner
+    from hdrd.analysis.cluster import FleetError
+    from hdrd.analysis.fleet import open_runner
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
     from hdrd.io.files.drivelog import DriveLogError
 
