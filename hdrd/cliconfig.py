@@ -22,7 +22,7 @@ from hdrd.configload import apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
-    from hdrd.io.files.drivelog import ReadLimits
+    from hdrd.io.files.drivecolumns import ReadLimits
 
 __all__ = [
     "check_bias_arg",
@@ -247,9 +247,9 @@ def drive_log_outputs_ok(
 
 
 def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
-    """The :class:`~hdrd.io.files.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    """The :class:`~hdrd.io.files.drivecolumns.ReadLimits` a command line asks for (``--max-rows``,
     ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.files.drivelog import ReadLimits
+    from hdrd.io.files.drivecolumns import ReadLimits
 
     given = {
         "max_rows": getattr(args, "max_rows", None),

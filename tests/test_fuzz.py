@@ -277,7 +277,8 @@ def test_a_drive_log_csv_is_read_or_one_drive_log_error(
 ) -> None:
     import io
 
-    from hdrd.io.files.drivelog import DriveLogError, read_drive
+    from hdrd.io.files.drivecolumns import DriveLogError
+    from hdrd.io.files.drivelog import read_drive
 
     text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
     try:

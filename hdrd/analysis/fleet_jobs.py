@@ -58,8 +58,9 @@ from hdrd.analysis.tune import (
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
-from hdrd.io.files.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "PLOT_PANELS_MAX",

@@ -56,7 +56,7 @@ def main(args: argparse.Namespace) -> int:
     from hdrd.analysis.cluster import FleetError
     from hdrd.analysis.fleet import open_runner
     from hdrd.analysis.fleet_jobs import GapJob, gap_refs
-    from hdrd.io.files.drivelog import DriveLogError
+    from hdrd.io.files.drivecolumns import DriveLogError
 
     start = _start_model(args)
     if start is None:
