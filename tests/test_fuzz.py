@@ -89,7 +89,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     cls: str, body: dict[str, Any], tail: bytes
 ) -> None:
     from hdrd.daemon.aiding import GpsAiding
-    from hdrd.io.net.gpsd import Fix, GpsdProtocolError, parse_line
+    from hdrd.io.net.gpsdjson import Fix, GpsdProtocolError, parse_line
 
     for key in ("mode", "track", "speed", "epd"):  # the fields aiding reads, made hostile too
         body.setdefault(key, body.get(key))

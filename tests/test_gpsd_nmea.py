@@ -46,7 +46,8 @@ from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.files.drivelog import DriveLog
 from hdrd.io.net.formats import nmea_checksum, parse_nmea
-from hdrd.io.net.gpsd import WATCH_COMMAND, Fix, GpsdClient
+from hdrd.io.net.gpsd import GpsdClient
+from hdrd.io.net.gpsdjson import WATCH_COMMAND, Fix
 from hdrd.io.net.publish import UdpNmeaPublisher
 from tests.test_aiding import on_message
 

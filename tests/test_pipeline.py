@@ -541,7 +541,7 @@ def test_a_stale_report_publishes_the_last_steps_values(method: str, speed: floa
 def test_an_aided_stale_report_publishes_the_last_steps_values(method: str) -> None:
     """The same with GPS aiding: the held heading is the aligned one, the fix still fresh."""
     from hdrd.daemon.aiding import GpsAiding
-    from hdrd.io.net.gpsd import Fix
+    from hdrd.io.net.gpsdjson import Fix
 
     clock = [0.0]
     aiding = GpsAiding()

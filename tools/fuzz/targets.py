@@ -327,7 +327,7 @@ class GpsdTarget(Target):
         return out
 
     def run(self, data: bytes) -> str:
-        from hdrd.io.net.gpsd import Version
+        from hdrd.io.net.gpsdjson import Version
 
         assert self.peer is not None
         self.count += 1
