@@ -9,7 +9,9 @@ import sys
 import pytest
 
 from hdrd import config, configload
-from hdrd.cli import COMMANDS, DRIVES, build_parser, main
+from hdrd.cli import build_parser, main
+from hdrd.cliargs import DRIVES
+from hdrd.clicommands import COMMANDS
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:
