@@ -227,6 +227,31 @@ def test_each_room_of_io_imports_only_the_rooms_below_it() -> None:
     ]
 
 
+def analysis_climbing(graph: dict[str, set[str]]) -> list[str]:
+    """Arrows from analysis/'s shared modules (the package and the modules directly in it) to a
+    module of one of its sub-folders (gap/, which sits above them)."""
+    subs = {f"hdrd.analysis.{p.name}" for p in (PKG / "analysis").iterdir() if p.is_dir()}
+    subs.discard("hdrd.analysis.__pycache__")
+    wrong = []
+    for name, deps in graph.items():
+        shared = name.count(".") == 2 and name.startswith("hdrd.analysis.") and name not in subs
+        if name == "hdrd.analysis" or shared:
+            up = {d for d in deps if any(d == s or d.startswith(s + ".") for s in subs)}
+            wrong += [f"{name} -> {d}" for d in up]
+    return sorted(wrong)
+
+
+def test_analysis_shared_modules_never_import_a_sub_folder() -> None:
+    graph = import_graph()
+    assert any(m.startswith("hdrd.analysis.gap.") for m in graph)
+    assert (PKG / "analysis" / "gap").is_dir()
+    assert analysis_climbing(graph) == []
+    # the rule sees an arrow up, lazy or not: a fleet job reaching for gap's search
+    lazy = ast.parse("def f():\n    from hdrd.analysis.gap.search import run_gap\n")
+    graph["hdrd.analysis.fleet_jobs"] = imports(lazy, set(graph))
+    assert analysis_climbing(graph) == ["hdrd.analysis.fleet_jobs -> hdrd.analysis.gap.search"]
+
+
 def test_the_web_page_ships_as_package_data() -> None:
     """pyproject.toml's package data names every file of the page the server reads."""
     import tomllib

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 
 if TYPE_CHECKING:
-    from hdrd.analysis.fleet_jobs import GapOutcome
+    from hdrd.analysis.gap.fleet import GapOutcome
     from hdrd.io.files.drivefiles import DriveRef
 
 __all__ = ["main", "parse_period"]
@@ -55,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     from hdrd.analysis.cluster import FleetError
     from hdrd.analysis.fleet import open_runner
-    from hdrd.analysis.fleet_jobs import GapJob, gap_refs
+    from hdrd.analysis.gap.fleet import GapJob, gap_refs
     from hdrd.io.files.drivecolumns import DriveLogError
 
     start = _start_model(args)
