@@ -60,7 +60,8 @@ from units import DRIVES, FIRST_SEED, Unit, draw_unit, unit_logs, unit_model
 
 from hdrd.analysis.evaluate import EvaluationError, evaluate_prepared
 from hdrd.analysis.prepare import prepare_drive
-from hdrd.config import ConfigError, load_config, method_setup
+from hdrd.config import ConfigError, method_setup
+from hdrd.configload import load_config
 from hdrd.core.grades import Grade
 from hdrd.io.files.drivelog import DriveLog, write_drive
 from hdrd.sim.drive import simulate_drive

@@ -17,11 +17,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hdrd.config import Config, ConfigError, apply_overrides, load_config
+from hdrd.config import Config, ConfigError
+from hdrd.configload import apply_overrides, load_config
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
-    from hdrd.io.files.drivelog import ReadLimits
+    from hdrd.io.files.drivecolumns import ReadLimits
 
 __all__ = [
     "check_bias_arg",
@@ -101,14 +102,8 @@ def where_from_args(args: argparse.Namespace, prog: str) -> Where:
     scheduler reached by plain TCP from another machine is warned about on stderr."""
     import os
 
-    from hdrd.analysis.fleet import (
-        MIN_CLUSTER_WORK_S,
-        MIN_WORK_ENV,
-        FleetError,
-        TlsFiles,
-        Where,
-        scheduler_warning,
-    )
+    from hdrd.analysis.cluster import FleetError, TlsFiles, scheduler_warning
+    from hdrd.analysis.fleet import MIN_CLUSTER_WORK_S, MIN_WORK_ENV, Where
 
     g = lambda name: getattr(args, name, None)  # noqa: E731
     tls = TlsFiles(g("tls_ca_file"), g("tls_cert"), g("tls_key"))
@@ -252,9 +247,9 @@ def drive_log_outputs_ok(
 
 
 def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
-    """The :class:`~hdrd.io.files.drivelog.ReadLimits` a command line asks for (``--max-rows``,
+    """The :class:`~hdrd.io.files.drivecolumns.ReadLimits` a command line asks for (``--max-rows``,
     ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.files.drivelog import ReadLimits
+    from hdrd.io.files.drivecolumns import ReadLimits
 
     given = {
         "max_rows": getattr(args, "max_rows", None),

@@ -37,8 +37,9 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from hdrd.analysis.cluster import FleetError
 from hdrd.analysis.evaluate import to_json
-from hdrd.analysis.fleet import DaskRunner, FleetError, LocalRunner
+from hdrd.analysis.fleet import DaskRunner, LocalRunner
 from hdrd.analysis.fleet_jobs import DriveOutcome, EvaluateJob, evaluate_one, evaluate_refs
 from hdrd.io.files.drivefiles import DriveRef, find_drives
 

@@ -21,7 +21,7 @@ from hdrd.core.sensor import SensorModel
 from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding, HeadingFix, StepView
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig, add_aid
-from hdrd.io.net.gpsd import Fix
+from hdrd.io.net.gpsdjson import Fix
 
 KNOT = 0.514444
 

@@ -8,8 +8,10 @@ import sys
 
 import pytest
 
-from hdrd import config
-from hdrd.cli import COMMANDS, DRIVES, build_parser, main
+from hdrd import config, configload
+from hdrd.cli import build_parser, main
+from hdrd.cliargs import DRIVES
+from hdrd.clicommands import COMMANDS
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -54,8 +56,8 @@ def test_the_drives_are_the_simulators_own_list() -> None:
 
     assert tuple(DRIVES) == tuple(DRIVE_TYPES) and "moon" not in DRIVES
     with pytest.raises(config.ConfigError, match="one of " + ", ".join(DRIVE_TYPES)):
-        config.parse_config({"simulate": {"drive": "moon"}})
-    assert config.parse_config({"simulate": {"drive": "city"}}).simulate.drive == "city"
+        configload.parse_config({"simulate": {"drive": "moon"}})
+    assert configload.parse_config({"simulate": {"drive": "city"}}).simulate.drive == "city"
 
 
 def test_every_option_says_what_it_is() -> None:

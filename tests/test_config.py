@@ -18,14 +18,9 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd import config as config_mod
-from hdrd.config import (
-    Config,
-    ConfigError,
-    apply_overrides,
-    load_config,
-    parse_config,
-)
+from hdrd import configload
+from hdrd.config import Config, ConfigError
+from hdrd.configload import apply_overrides, load_config, parse_config
 from hdrd.core.hdr import HdrParams
 from hdrd.errors import EX_CONFIG, HdrdError
 from hdrd.io.net.publish import parse_hostport
@@ -368,11 +363,11 @@ def test_unreadable_file(tmp_path: Path) -> None:
 def test_no_path_uses_etc_or_builtin_defaults(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(config_mod, "DEFAULT_CONFIG_PATH", tmp_path / "absent.yaml")
+    monkeypatch.setattr(configload, "DEFAULT_CONFIG_PATH", tmp_path / "absent.yaml")
     assert load_config() == (Config(), "built-in defaults")
     etc = tmp_path / "hdrd.yaml"
     etc.write_text("hdr:\n  method: none\n")
-    monkeypatch.setattr(config_mod, "DEFAULT_CONFIG_PATH", etc)
+    monkeypatch.setattr(configload, "DEFAULT_CONFIG_PATH", etc)
     cfg, source = load_config()
     assert cfg.hdr.method == "none" and source == str(etc)
 
@@ -693,7 +688,7 @@ def test_top_level_method_errors_name_the_key(data: dict[str, Any], why: str) ->
 
 def _edges(key: str) -> list[Any]:
     """The extreme values a numeric key accepts (an open end nudged one ulp inside)."""
-    lo, hi, lo_open, hi_open = config_mod.RULES[key][0].bounds  # type: ignore[attr-defined]
+    lo, hi, lo_open, hi_open = configload.RULES[key][0].bounds  # type: ignore[attr-defined]
     integer = isinstance(get(Config(), key), int) and not isinstance(get(Config(), key), bool)
     out: list[Any] = []
     for end, is_open, inward in ((lo, lo_open, math.inf), (hi, hi_open, -math.inf)):
@@ -708,7 +703,7 @@ def _edges(key: str) -> list[Any]:
 
 NUMERIC = [
     k
-    for k, (check, _) in config_mod.RULES.items()
+    for k, (check, _) in configload.RULES.items()
     if hasattr(check, "bounds") and not k.startswith("gpsd.")  # gpsd: tests/test_aiding.py
 ]
 EDGES = [(k, v) for k in NUMERIC for v in _edges(k)]
@@ -817,7 +812,7 @@ def test_docs_state_the_ranges_the_code_checks() -> None:
     table = docs_key_table()
     for key in config_field_keys():
         shown = table[key][3]
-        rule = config_mod.RULES.get(key)
+        rule = configload.RULES.get(key)
         if rule is None:
             if isinstance(get(Config(), key), bool):
                 assert shown == "true or false", key
@@ -835,6 +830,6 @@ def test_docs_state_the_ranges_the_code_checks() -> None:
         "calibration.max_trend_dps",
         "calibration.max_excursion_dps",
     )
-    for key, (check, _) in config_mod.RULES.items():
+    for key, (check, _) in configload.RULES.items():
         if hasattr(check, "bounds") and not key.startswith("gpsd.") and key not in shared:
             assert f"| `{key}` |" in why, key

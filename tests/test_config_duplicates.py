@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.config import ConfigError, load_config
+from hdrd.config import ConfigError
+from hdrd.configload import load_config
 from hdrd.errors import EX_CONFIG
 from hdrd.io.files.biasfile import BiasFileError, load_bias
 

@@ -23,7 +23,7 @@ from hdrd.io.files.csvimport import (
     Mapping,
     import_csv,
 )
-from hdrd.io.files.drivelog import DriveLogError, ReadLimits
+from hdrd.io.files.drivecolumns import DriveLogError, ReadLimits
 
 NO_GAP_LIMIT = ReadLimits(max_gap_s=math.inf)
 

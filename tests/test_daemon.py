@@ -24,7 +24,7 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.files.drivelog import DriveLog
-from hdrd.io.net.publish import nmea_checksum
+from hdrd.io.net.formats import nmea_checksum
 from hdrd.io.wire.codec import frames_to_array
 from hdrd.sim.profiles import builtin_profile
 from tests.test_calibrate_cmd import calibrate

@@ -319,8 +319,8 @@ def test_a_tiny_file_of_40_million_rows_is_refused_before_it_is_read(tmp_path: P
 
 
 def test_the_row_limit_holds_for_every_layout(good: DriveLog, tmp_path: Path) -> None:
+    from hdrd.io.files.drivecolumns import ReadLimits
     from hdrd.io.files.drivefiles import find_drives
-    from hdrd.io.files.drivelog import ReadLimits
     from hdrd.io.files.parquetlog import write_dataset_drive, write_parquet_drive
 
     write_drive(tmp_path / "a.csv", good)

@@ -86,7 +86,7 @@ def test_gap_out_leaves_out_a_second_drive_with_the_same_file(tmp_path: Path) ->
 
 
 def test_a_dataset_partition_stays_inside_its_folder(tmp_path: Path) -> None:
-    from hdrd.io.files.drivelog import DriveLogError
+    from hdrd.io.files.drivecolumns import DriveLogError
     from hdrd.io.files.parquetlog import partition_value, write_dataset_drive
 
     log = simulate_drive("standstill", 0.2, 1)

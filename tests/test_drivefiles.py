@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hdrd.io.files.drivecolumns import DriveLogError
 from hdrd.io.files.drivefiles import (
     MAX_NAME_CHARS,
     DriveRef,
@@ -21,7 +22,7 @@ from hdrd.io.files.drivefiles import (
     log_format,
     write_log,
 )
-from hdrd.io.files.drivelog import DriveLog, DriveLogError, read_drive, write_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 from hdrd.sim.drive import simulate_drive
 
 

@@ -11,14 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrd.io.files.drivelog import (
-    COLUMNS,
-    OPTIONAL,
-    DriveLog,
-    DriveLogError,
-    read_drive,
-    write_drive,
-)
+from hdrd.io.files.drivecolumns import COLUMNS, OPTIONAL, DriveLogError
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
 
 DIGITS = {
     "t": 4,

@@ -423,7 +423,8 @@ def test_nonfinite_improvement_is_null_in_json() -> None:
 def test_evaluate_applies_the_config_standstill_keys_to_hdr_plus(tmp_path: Path) -> None:
     # A downtown drive with stops: `standstill.enabled: false` in the config must change
     # what `hdrd evaluate --method hdr+` reports, exactly as HDR+ without stops would.
-    from hdrd.config import method_setup, parse_config
+    from hdrd.config import method_setup
+    from hdrd.configload import parse_config
     from hdrd.sim.benchmark import TRAIN_DRIVES, generate
 
     path = tmp_path / "city1.csv"

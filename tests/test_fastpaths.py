@@ -33,7 +33,7 @@ from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.net.publish import _format_clean, format_json
+from hdrd.io.net.formats import _format_clean, format_json
 from hdrd.io.wire.capture import decode_capture
 from hdrd.io.wire.codec import Frame, array_to_frames
 from hdrd.io.wire.parser import Parser

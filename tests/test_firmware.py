@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from hdrd.config import load_config
+from hdrd.configload import load_config
 from hdrd.core.angles import wrap180
 from hdrd.core.sensor import SensorModel
 from hdrd.io.wire.capture import decode_capture, encode_array

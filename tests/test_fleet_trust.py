@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.analysis.fleet import scheduler_warning
+from hdrd.analysis.cluster import scheduler_warning
 from hdrd.io.files.drivelog import write_drive
 from hdrd.sim.drive import simulate_drive
 

@@ -89,7 +89,7 @@ def test_gpsd_lines_are_reports_or_protocol_errors(
     cls: str, body: dict[str, Any], tail: bytes
 ) -> None:
     from hdrd.daemon.aiding import GpsAiding
-    from hdrd.io.net.gpsd import Fix, GpsdProtocolError, parse_line
+    from hdrd.io.net.gpsdjson import Fix, GpsdProtocolError, parse_line
 
     for key in ("mode", "track", "speed", "epd"):  # the fields aiding reads, made hostile too
         body.setdefault(key, body.get(key))
@@ -163,7 +163,8 @@ def test_a_config_is_valid_or_one_config_error(
     raw: bytes,
     at: int,
 ) -> None:
-    from hdrd.config import ConfigError, load_config
+    from hdrd.config import ConfigError
+    from hdrd.configload import load_config
     from hdrd.daemon.replay import replay_capture
 
     p = tmp_path_factory.mktemp("cfg") / "hdrd.yaml"
@@ -244,7 +245,8 @@ def test_serial_bytes_through_the_live_path(data: bytes, splice: int, protocol: 
 @FUZZ
 @given(data=st.binary(max_size=2000), protocol=st.sampled_from(["hdr-bin", "hdr-text"]))
 def test_a_capture_replays_or_has_no_frames(data: bytes, protocol: str) -> None:
-    from hdrd.config import Config, apply_overrides
+    from hdrd.config import Config
+    from hdrd.configload import apply_overrides
     from hdrd.daemon.replay import replay_capture
 
     cfg = apply_overrides(Config(), {"device.protocol": protocol, "hdr.method": "hdr+"})
@@ -275,7 +277,8 @@ def test_a_drive_log_csv_is_read_or_one_drive_log_error(
 ) -> None:
     import io
 
-    from hdrd.io.files.drivelog import DriveLogError, read_drive
+    from hdrd.io.files.drivecolumns import DriveLogError
+    from hdrd.io.files.drivelog import read_drive
 
     text = f"# {meta}\n" + ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows)
     try:

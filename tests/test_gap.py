@@ -539,7 +539,8 @@ def test_a_step_that_raises_the_gap_is_not_added(
 
 def test_the_fitted_model_becomes_hdr_plus_configuration(tmp_path: Path) -> None:
     from hdrd.analysis.gap.report import gyro_section
-    from hdrd.config import load_config, method_setup
+    from hdrd.config import method_setup
+    from hdrd.configload import load_config
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.sim.effects import BiasInstability, StaticBias, TemperatureBias, WhiteNoise
     from hdrd.sim.gyro import GyroModel

@@ -125,7 +125,8 @@ def test_the_profile_is_a_whole_config_file_that_hdr_plus_uses(tmp_path: Path) -
     """``--config unit.yaml``: the profile loads as a whole configuration, and HDR+'s bank
     takes its motion offset as every member's mean, the steady member's sd the profile's
     together with how far an offset may move between drives (a negative offset too)."""
-    from hdrd.config import Config, load_config, method_setup
+    from hdrd.config import Config, method_setup
+    from hdrd.configload import load_config
     from hdrd.core.plusparams import FRESH_BANK, PROFILE_OFFSET_SD_DPS
 
     def bank(c: Config) -> tuple[Hypothesis, ...]:

@@ -18,12 +18,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.daemon.aiding import GpsAiding
-from hdrd.io.net.gpsd import (
+from hdrd.io.net.gpsd import GpsdClient
+from hdrd.io.net.gpsdjson import (
     WATCH_COMMAND,
     Device,
     Devices,
     Fix,
-    GpsdClient,
     GpsdError,
     GpsdProtocolError,
     Version,

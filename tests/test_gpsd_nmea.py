@@ -45,8 +45,10 @@ from hdrd.daemon.aiding import AIDED, DEAD_RECKONING, AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
 from hdrd.io.files.drivelog import DriveLog
-from hdrd.io.net.gpsd import WATCH_COMMAND, Fix, GpsdClient
-from hdrd.io.net.publish import UdpNmeaPublisher, nmea_checksum, parse_nmea
+from hdrd.io.net.formats import nmea_checksum, parse_nmea
+from hdrd.io.net.gpsd import GpsdClient
+from hdrd.io.net.gpsdjson import WATCH_COMMAND, Fix
+from hdrd.io.net.publish import UdpNmeaPublisher
 from tests.test_aiding import on_message
 
 WAIT = 30.0  # upper bound for anything to happen; only a hung peer reaches it
@@ -727,7 +729,7 @@ def test_gpsd_reports_hdrd_run_heading_as_att(need_gpsd, procs, fake_gyro, udp, 
 
 
 def test_ths_mode_follows_the_aiding_mode_and_the_talker_is_configurable():
-    from hdrd.io.net.publish import nmea_sentences
+    from hdrd.io.net.formats import nmea_sentences
 
     base = {"class": "HDR", "v": 1, "omega": -0.5, "heading": 359.996, "status": "ok"}
 

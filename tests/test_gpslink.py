@@ -104,7 +104,8 @@ def test_link_feeds_speed_and_the_pipeline_aids_its_steps(peer):
 
 
 def test_link_from_config_takes_the_aiding_keys():
-    from hdrd.config import Config, apply_overrides
+    from hdrd.config import Config
+    from hdrd.configload import apply_overrides
 
     cfg = apply_overrides(
         Config(),

@@ -89,7 +89,8 @@ def test_a_short_window_shows_only_white_noise_and_the_step() -> None:
 
 
 def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
-    from hdrd.config import method_setup, parse_config
+    from hdrd.config import method_setup
+    from hdrd.configload import parse_config
     from hdrd.core.calibrate import BiasRecord
     from hdrd.core.gyronoise import noise_in_force
     from hdrd.core.methods import plus_settings
@@ -128,7 +129,7 @@ def test_the_error_model_in_force_recorded_then_config_then_grade() -> None:
 def test_replay_publishes_the_error_model_of_the_bias_file_and_the_config() -> None:
     # `hdrd replay --bias-file F` (and `hdrd run`) fits HDR+ to the noise recorded in F,
     # else to gyro.grade, and says which in every step.
-    from hdrd.config import parse_config
+    from hdrd.configload import parse_config
     from hdrd.core.calibrate import BiasRecord
     from hdrd.daemon.replay import replay_capture
     from hdrd.io.wire.capture import encode_array

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from hdrd.cli import main
-from hdrd.config import ConfigError, load_config
+from hdrd.config import ConfigError
+from hdrd.configload import load_config
 from hdrd.io.files.access import InputFileError, load_yaml
 from hdrd.io.files.biasfile import BiasFileError, load_bias
 
@@ -65,7 +66,8 @@ def test_bias_file_with_a_control_character_is_refused_in_one_line(
 
 
 def test_sighup_with_a_control_character_keeps_the_running_configuration(tmp_path: Path) -> None:
-    from hdrd.config import Config, load_config
+    from hdrd.config import Config
+    from hdrd.configload import load_config
     from hdrd.daemon.run import BiasChoice, Daemon
 
     p = tmp_path / "hdrd.yaml"
@@ -295,9 +297,9 @@ def test_nmea_talker_docs_recommend_what_protocol_md_recommends() -> None:
     shipped = (root / "config" / "hdrd.yaml").read_text()
     comment = shipped[: shipped.index("nmea_talker:")].rsplit("nmea_ths", 1)[1]
     assert f"for gpsd use {talker}" in " ".join(comment.replace("#", " ").split())
-    from hdrd import config as config_mod
+    from hdrd import configload
 
-    assert talker in str(config_mod.RULES["output.nmea_talker"][1])
+    assert talker in str(configload.RULES["output.nmea_talker"][1])
 
 
 def test_a_yaml_problem_quoting_a_huge_tag_is_still_a_short_line(tmp_path: Path) -> None:

@@ -221,10 +221,10 @@ def test_a_file_name_cannot_put_a_metadata_line_in_the_log(tmp_path: Path) -> No
 
 
 def test_the_command_lines_units_are_the_modules() -> None:
-    from hdrd import cli
+    from hdrd import cliargs
     from hdrd.io.files import csvimport as importcsv
 
-    assert cli.TIME_UNITS == tuple(importcsv.TIME_UNITS)
-    assert cli.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)
-    assert cli.HEADING_UNITS == tuple(importcsv.HEADING_UNITS)
-    assert cli.SPEED_UNITS == tuple(importcsv.SPEED_UNITS)
+    assert cliargs.TIME_UNITS == tuple(importcsv.TIME_UNITS)
+    assert cliargs.OMEGA_UNITS == tuple(importcsv.OMEGA_UNITS)
+    assert cliargs.HEADING_UNITS == tuple(importcsv.HEADING_UNITS)
+    assert cliargs.SPEED_UNITS == tuple(importcsv.SPEED_UNITS)

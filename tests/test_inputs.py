@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hdrd.config import Config, apply_overrides
+from hdrd.config import Config
+from hdrd.configload import apply_overrides
 from hdrd.daemon.inputs import open_source
 from hdrd.io.wire.codec import Frame, encode_text
 from hdrd.io.wire.sources import SerialSource

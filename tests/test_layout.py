@@ -122,16 +122,30 @@ LAYERS: dict[str, set[str]] = {
     "io": {"core"},
     "sim": {"core", "io"},
     "config": {"core", "io", "sim"},
+    # ... and reading one: each key's rule, a file, the command line's overrides
+    "configload": {"core", "io", "sim", "config"},
     "daemon": {"core", "io", "sim", "config"},
     "analysis": {"core", "io", "sim", "config", "daemon"},
-    "commands": {"core", "io", "sim", "config", "daemon", "analysis", "cli", "cliconfig"},
+    "commands": {
+        "core",
+        "io",
+        "sim",
+        "config",
+        "configload",
+        "daemon",
+        "analysis",
+        "cli",
+        "cliconfig",
+    },
     # The command line: signals held from the start, the wire formats, and lazily the method
     # registry and the simulator's drives (for choices); a command only by name, when it runs.
-    "cli": {"core", "sim", "daemon", "io", "commands", "cliargs"},
+    "cli": {"core", "sim", "daemon", "io", "commands", "cliargs", "clicommands"},
+    # ... and its table of commands, each with its options (light, as the command line is)
+    "clicommands": {"core", "sim", "io", "cliargs"},
     # ... and its shared option groups (light: choices read lazily)
     "cliargs": {"core", "sim", "io"},
     # ... and the one reading of a configuration from the flags, for every command
-    "cliconfig": {"core", "io", "sim", "config", "daemon", "analysis"},
+    "cliconfig": {"core", "io", "sim", "config", "configload", "daemon", "analysis"},
     "__main__": {"cli", "daemon"},
 }
 
@@ -213,6 +227,31 @@ def test_each_room_of_io_imports_only_the_rooms_below_it() -> None:
     ]
 
 
+def analysis_climbing(graph: dict[str, set[str]]) -> list[str]:
+    """Arrows from analysis/'s shared modules (the package and the modules directly in it) to a
+    module of one of its sub-folders (gap/, which sits above them)."""
+    subs = {f"hdrd.analysis.{p.name}" for p in (PKG / "analysis").iterdir() if p.is_dir()}
+    subs.discard("hdrd.analysis.__pycache__")
+    wrong = []
+    for name, deps in graph.items():
+        shared = name.count(".") == 2 and name.startswith("hdrd.analysis.") and name not in subs
+        if name == "hdrd.analysis" or shared:
+            up = {d for d in deps if any(d == s or d.startswith(s + ".") for s in subs)}
+            wrong += [f"{name} -> {d}" for d in up]
+    return sorted(wrong)
+
+
+def test_analysis_shared_modules_never_import_a_sub_folder() -> None:
+    graph = import_graph()
+    assert any(m.startswith("hdrd.analysis.gap.") for m in graph)
+    assert (PKG / "analysis" / "gap").is_dir()
+    assert analysis_climbing(graph) == []
+    # the rule sees an arrow up, lazy or not: a fleet job reaching for gap's search
+    lazy = ast.parse("def f():\n    from hdrd.analysis.gap.search import run_gap\n")
+    graph["hdrd.analysis.fleet_jobs"] = imports(lazy, set(graph))
+    assert analysis_climbing(graph) == ["hdrd.analysis.fleet_jobs -> hdrd.analysis.gap.search"]
+
+
 def test_the_web_page_ships_as_package_data() -> None:
     """pyproject.toml's package data names every file of the page the server reads."""
     import tomllib
@@ -281,7 +320,7 @@ def test_only_the_run_command_imports_the_run_loop() -> None:
                     importers.append(str(p.relative_to(ROOT)))
     assert sorted(set(importers)) == DAEMON_TESTERS
     # The command line reaches it by name, when `hdrd run` runs.
-    from hdrd.cli import COMMANDS
+    from hdrd.clicommands import COMMANDS
 
     assert COMMANDS["run"][0] == "hdrd.commands.run:main"
 
@@ -332,7 +371,7 @@ def test_each_command_importer_exemption_is_still_needed() -> None:
 
 
 def test_every_command_is_a_module_of_its_own() -> None:
-    from hdrd.cli import COMMANDS
+    from hdrd.clicommands import COMMANDS
 
     for name, (target, _, _) in COMMANDS.items():
         module, _, func = target.partition(":")
@@ -387,8 +426,9 @@ def test_each_shared_constant_is_defined_once() -> None:
 
 
 def test_the_command_lines_light_copies_equal_their_homes() -> None:
-    """hdrd/cli.py imports nothing heavy (``hdrd --help`` loads no numpy), so it repeats a
-    few defaults instead of importing their modules; they must stay equal."""
+    """hdrd/cli.py and its table of commands, hdrd/clicommands.py, import nothing heavy
+    (``hdrd --help`` loads no numpy), so the table repeats a few defaults instead of importing
+    their modules; they must stay equal."""
     from hdrd.cli import build_parser
     from hdrd.io.net import datagrams, gpsd
     from hdrd.io.web import webserver

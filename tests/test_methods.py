@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd import config as config_mod
-from hdrd.config import ConfigError, parse_config
+from hdrd.config import ConfigError
+from hdrd.configload import parse_config
 from hdrd.core import methods
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.hdr import HdrParams

@@ -16,7 +16,8 @@ import pytest
 
 from hdrd.analysis.evaluate import evaluate_prepared, method_yaw, prepare_drive
 from hdrd.analysis.metrics import e_psi
-from hdrd.config import Config, method_setup, parse_config
+from hdrd.config import Config, method_setup
+from hdrd.configload import parse_config
 from hdrd.core.calibrate import BiasRecord, given_bias
 from hdrd.core.methods import MethodSetup, names
 from hdrd.core.sensor import SensorModel

@@ -19,15 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrd.cli import main as cli
+from hdrd.io.files.drivecolumns import NO_LIMITS, DriveLogError
 from hdrd.io.files.drivefiles import find_drives
-from hdrd.io.files.drivelog import (
-    NO_LIMITS,
-    DriveLog,
-    DriveLogError,
-    csv_values,
-    read_drive,
-    write_drive,
-)
+from hdrd.io.files.drivelog import DriveLog, csv_values, read_drive, write_drive
 from hdrd.io.files.parquetlog import (
     DRIVE_META_KEY,
     META_KEY,

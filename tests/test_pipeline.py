@@ -314,7 +314,7 @@ def test_hdr_plus_publishes_the_error_model_it_is_fitted_to() -> None:
 def test_standstill_from_gyro_alone_is_a_config_switch(from_gyro: bool, enabled: bool) -> None:
     # No speed source: a stop can only be seen in the gyro's own statistics, and only when
     # the config says so (standstill.from_gyro); standstill.enabled false switches stops off.
-    from hdrd.config import parse_config
+    from hdrd.configload import parse_config
     from hdrd.daemon.pipeline import pipeline_config
 
     cfg = parse_config(
@@ -541,7 +541,7 @@ def test_a_stale_report_publishes_the_last_steps_values(method: str, speed: floa
 def test_an_aided_stale_report_publishes_the_last_steps_values(method: str) -> None:
     """The same with GPS aiding: the held heading is the aligned one, the fix still fresh."""
     from hdrd.daemon.aiding import GpsAiding
-    from hdrd.io.net.gpsd import Fix
+    from hdrd.io.net.gpsdjson import Fix
 
     clock = [0.0]
     aiding = GpsAiding()

@@ -16,7 +16,7 @@ from hdrd.core.methods import MethodSetup
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.net.gpsd import Fix
+from hdrd.io.net.gpsdjson import Fix
 from hdrd.io.wire import protocol
 from hdrd.io.wire.codec import BIN_BODY, FRAME_DTYPE, Frame, encode_bin
 from tests.test_aiding import on_message

@@ -21,17 +21,19 @@ from hypothesis import strategies as st
 
 from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
+from hdrd.io.net.formats import (
+    format_json,
+    nmea_checksum,
+    nmea_sentence,
+    nmea_sentences,
+    parse_nmea,
+)
 from hdrd.io.net.publish import (
     OutputClosed,
     StdoutPublisher,
     UdpJsonPublisher,
     UdpNmeaPublisher,
     UdpPublisher,
-    format_json,
-    nmea_checksum,
-    nmea_sentence,
-    nmea_sentences,
-    parse_nmea,
 )
 from hdrd.io.resolve import Resolver
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from hdrd.config import Config, ConfigError, apply_overrides
+from hdrd.config import Config, ConfigError
+from hdrd.configload import apply_overrides
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.listeners import Outputs, build_publishers
 from hdrd.daemon.run import BiasChoice, Daemon, choose_bias

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from hdrd.io.net.publish import parse_nmea
+from hdrd.io.net.formats import parse_nmea
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     WAIT,
     Msgs,

@@ -31,7 +31,7 @@ from hdrd.core.methods import MethodSetup
 from hdrd.core.sensor import SensorModel
 from hdrd.daemon.pipeline import Pipeline
 from hdrd.daemon.stepper import PipelineConfig
-from hdrd.io.net.publish import nmea_sentences, parse_nmea
+from hdrd.io.net.formats import nmea_sentences, parse_nmea
 from hdrd.io.wire.codec import FRAME_DTYPE, array_to_frames
 from tests.test_rel_daemon import (  # noqa: F401 - hdrd and receivers are fixtures
     Receiver,

@@ -19,7 +19,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdrd.io.net.datagrams import TailFormatter
-from hdrd.io.net.publish import format_json, nmea_sentences
+from hdrd.io.net.formats import format_json, nmea_sentences
 
 GUARD_S = 30.0  # generous guards against a hang; no test asserts a duration
 

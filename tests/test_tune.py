@@ -24,7 +24,7 @@ from hdrd.analysis.tune import (
     tune,
 )
 from hdrd.cli import main as cli_main
-from hdrd.config import parse_config
+from hdrd.configload import parse_config
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
 from hdrd.io.files.drivelog import write_drive

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.net.publish import format_json
+from hdrd.io.net.formats import format_json
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [

@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from hdrd.io.net.publish import format_json
+from hdrd.io.net.formats import format_json
 from hdrd.io.web.http import host_allowed, parse_request, peer_key
 from hdrd.io.web.webserver import (
     ASSETS,

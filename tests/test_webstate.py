@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdrd.io.net.publish import format_json, nmea_sentences
+from hdrd.io.net.formats import format_json, nmea_sentences
 from hdrd.io.web.webstate import (
     HISTORY_S,
     MAX_EVENT_BYTES,

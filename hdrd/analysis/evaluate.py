@@ -54,8 +54,9 @@ from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.methods import MethodSetup, StepInputs
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
-from hdrd.io.files.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "DriveResult",
@@ -448,8 +449,8 @@ def drive_refs(
     directory's scan could not read (with ``strict``: EvaluationError), and a drive named
     more than once (scored once)."""
     from hdrd.io.files.access import shown_path
+    from hdrd.io.files.drivecolumns import DriveLogError
     from hdrd.io.files.drivefiles import find_drives
-    from hdrd.io.files.drivelog import DriveLogError
 
     for p in paths:
         if p.lower().endswith(YAML_SUFFIXES) and Path(p).is_file():
@@ -483,7 +484,7 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
-    from hdrd.io.files.drivelog import DriveLogError
+    from hdrd.io.files.drivecolumns import DriveLogError
 
     try:
         return ref.read(limits)

@@ -19,41 +19,42 @@ if that worker dies) and :meth:`share` sends one value to every worker once.
 
 A worker that dies mid-run loses its tasks; the scheduler runs them again elsewhere (up to
 ``distributed.scheduler.allowed-failures`` times, then :class:`FleetError`). The functions
-run are pure, so a task run twice gives the same result.
+run are pure, so a task run twice gives the same result. Reaching the cluster (its address,
+TLS, a local cluster's start) is :mod:`hdrd.analysis.cluster`'s.
 """
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import functools
-import logging
-import signal
 import threading
 import weakref
 from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from hdrd.errors import HdrdError
+from hdrd.analysis.cluster import (
+    INSTALL,
+    FleetError,
+    TlsFiles,
+    connect,
+    import_distributed,
+    local_cluster,
+    sigint_ignored,
+    start_forkserver,
+)
 
 __all__ = [
-    "INSTALL",
     "MIN_CLUSTER_WORK_S",
     "MIN_WORK_ENV",
     "DaskRunner",
-    "FleetError",
     "LocalRunner",
     "Runner",
-    "TlsFiles",
     "Where",
     "batches",
     "open_runner",
     "run_batch",
-    "scheduler_warning",
 ]
 
-INSTALL = "pip install 'hdrd[fleet]'"
 GUIDE = 4
 """A task takes 1/(GUIDE x threads) of the items not yet sent (guided self-scheduling): large
 tasks first, where the per-task cost matters, then ever smaller ones, so that the workers
@@ -67,11 +68,6 @@ MIN_WINDOW = 8
 
 Progress = Callable[[int, int], None]
 R = TypeVar("R", bound="Runner")
-
-
-class FleetError(HdrdError, RuntimeError):
-    """The cluster could not do the work (Dask missing, the scheduler unreachable, a task's
-    worker died too often); the message says what, in one line."""
 
 
 MIN_CLUSTER_WORK_S = 4.0
@@ -194,270 +190,6 @@ class LocalRunner(Runner):
         return value
 
 
-@dataclass(frozen=True)
-class TlsFiles:
-    """The client's TLS files for a ``tls://`` scheduler (PEM paths): the cluster's CA
-    certificate, this client's certificate and its key (None: the key is in the certificate's
-    file). Any left None comes from the Dask configuration (``distributed.comm.tls.ca-file``,
-    ``distributed.comm.tls.client.cert``, ``distributed.comm.tls.client.key``)."""
-
-    ca_file: str | None = None
-    cert: str | None = None
-    key: str | None = None
-
-    def given(self) -> dict[str, str]:
-        """The files given, as ``distributed.security.Security`` takes them."""
-        fields = {"tls_ca_file": self.ca_file, "tls_client_cert": self.cert}
-        fields["tls_client_key"] = self.key
-        return {k: v for k, v in fields.items() if v is not None}
-
-
-SCHEMES = ("tcp", "tls")
-"""The scheduler addresses hdrd connects to: plain TCP, or TLS (docs/fleet.md, "Trust")."""
-TLS_HELP = (
-    "--tls-ca-file CA.pem --tls-cert CLIENT.pem [--tls-key CLIENT.key], or "
-    "distributed.comm.tls.ca-file and distributed.comm.tls.client.cert/key in the Dask "
-    "configuration"
-)
-
-
-def _one_line(e: BaseException) -> str:
-    from hdrd.errors import clipped
-    from hdrd.io.files.access import printable
-
-    text = " ".join(str(e).split())
-    return clipped(printable(text), 200) or type(e).__name__
-
-
-def _scheme(address: str) -> tuple[str, str]:
-    """(scheme, host) of a scheduler's address (no scheme: tcp); FleetError for an address
-    that is not one, or a scheme hdrd does not connect to."""
-    from distributed.comm.addressing import parse_address, parse_host_port
-
-    try:
-        scheme, loc = parse_address(address, strict=False)
-    except (ValueError, TypeError) as e:
-        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
-    if scheme not in SCHEMES:
-        raise FleetError(
-            f"--scheduler {address}: the {scheme}:// scheme is not supported; give "
-            "tcp://HOST:PORT or tls://HOST:PORT"
-        )
-    try:
-        host, _ = parse_host_port(loc, 8786)
-    except (ValueError, TypeError) as e:
-        raise FleetError(f"--scheduler {address}: not an address ({_one_line(e)})") from None
-    return scheme, host
-
-
-def scheduler_warning(address: str | None) -> str | None:
-    """The warning a scheduler's address deserves: plain TCP to another machine than this one
-    (no encryption, no proof of whom it reaches; docs/fleet.md, "Trust"), else None."""
-    if not address:
-        return None
-    try:
-        scheme, host = _scheme(address)
-    except FleetError:
-        return None  # said as an error when it is used
-    if scheme != "tcp" or host == "localhost" or _loopback(host):
-        return None
-    return (
-        f"{address} is plain TCP to another machine: no encryption, and no proof that the "
-        "scheduler there is yours (a scheduler runs code in this process); use tls:// "
-        '(docs/fleet.md, "Trust")'
-    )
-
-
-def _loopback(host: str) -> bool:
-    import ipaddress
-
-    try:
-        return ipaddress.ip_address(host.strip("[]")).is_loopback
-    except ValueError:
-        return False
-
-
-def _security(distributed: Any, address: str, scheme: str, tls: TlsFiles) -> Any:
-    """The client's ``Security`` for ``scheme``: TLS from ``tls`` and the Dask configuration;
-    FleetError when TLS files are given for a tcp:// address, are missing for a tls:// one, or
-    cannot be loaded."""
-    given = tls.given()
-    if scheme != "tls":
-        if given:
-            raise FleetError(f"--tls-* options need a tls:// scheduler address, not {address}")
-        return None
-    sec = distributed.Security(**given)
-    if not (sec.tls_ca_file and sec.tls_client_cert):
-        raise FleetError(
-            f"{address}: TLS needs the cluster's CA certificate and a client certificate: "
-            + TLS_HELP
-        )
-    try:
-        sec.get_connection_args("client")  # loads the files now: an error says which
-    except (OSError, ValueError) as e:  # ssl.SSLError is an OSError
-        used = f"CA {sec.tls_ca_file}, certificate {sec.tls_client_cert}, key "
-        used += sec.tls_client_key or "(in the certificate's file)"
-        raise FleetError(f"{address}: cannot load the TLS files ({used}): {_one_line(e)}") from None
-    return sec
-
-
-def connect_timeout() -> float:
-    """Seconds to reach a scheduler and finish the handshake with it: Dask's
-    ``distributed.comm.timeouts.connect`` (30 s by default)."""
-    import dask
-    from dask.utils import parse_timedelta
-
-    return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s"))
-
-
-def _connect(distributed: Any, address: str, tls: TlsFiles) -> Any:
-    """A client of the scheduler at ``address``, connected and past the handshake within
-    :func:`connect_timeout` (a listener that accepts and says nothing included); FleetError
-    in one line for anything else."""
-    scheme, _ = _scheme(address)
-    security = _security(distributed, address, scheme, tls)
-    deadline = connect_timeout()
-
-    class Bounded(distributed.Client):
-        failed = False
-
-        def start(self, **kwargs: Any) -> None:
-            # Dask bounds the connection, not the handshake after it: the whole start is.
-            kwargs.setdefault("callback_timeout", deadline)
-            try:
-                super().start(**kwargs)
-            except BaseException:
-                self.failed = True  # closed here, not again (with a traceback) at exit
-                with contextlib.suppress(Exception):
-                    self.close(timeout=1)
-                raise
-
-        def __del__(self) -> None:
-            if not self.failed:
-                super().__del__()
-
-    try:
-        return Bounded(address, security=security, timeout=deadline)
-    except (TimeoutError, asyncio.TimeoutError):
-        raise FleetError(
-            f"cannot reach the Dask scheduler at {address}: no answer within {deadline:g} s "
-            "(distributed.comm.timeouts.connect)"
-        ) from None
-    except OSError as e:  # refused, closed, TLS refused (ssl.SSLError)
-        raise FleetError(f"cannot reach the Dask scheduler at {address}: {_one_line(e)}") from None
-    except Exception as e:  # noqa: BLE001 - whatever answered, one line, never a traceback
-        raise FleetError(
-            f"what answered at {address} is not a Dask scheduler this client can use "
-            f"({type(e).__name__}: {_one_line(e)})"
-        ) from None
-
-
-def _dask() -> Any:
-    try:
-        import distributed
-    except ImportError:
-        raise FleetError(f"--workers and --scheduler need Dask: {INSTALL}") from None
-    return distributed
-
-
-def dask_setup(worker: Any) -> None:
-    """Dask's preload hook, run in each worker process of a local cluster (``--workers``) as
-    it starts, a restarted one included. Ctrl-C at a terminal sends SIGINT to every process of
-    the command; the command says "interrupted" in one line and closes its cluster, so its
-    workers ignore SIGINT (else each prints a traceback)."""
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
-    # What a local cluster of one-thread workers running coarse tasks does not need; each
-    # costs CPU that the work would otherwise have (bench/fleet.py, bench/RESULTS.md).
-    "distributed.worker.profile.enabled": False,  # a stack sample of the task every 10 ms
-    "distributed.scheduler.work-stealing": False,  # the client sizes and spreads the tasks
-    "distributed.admin.tick.interval": "1s",  # every server's event-loop check, 20 ms
-    "distributed.admin.system-monitor.interval": "5s",  # psutil in every server, 500 ms
-    "distributed.admin.system-monitor.disk": False,
-    "distributed.worker.memory.monitor-interval": "1s",  # the nannies' psutil, 100 ms
-}
-FORKSERVER_PRELOAD = ("distributed", "numpy", "hdrd.analysis.fleet_jobs")
-"""What a local cluster's workers import once, in the fork server they are forked from
-(where there is one, as on Linux), instead of each importing it: a worker starts in a tenth
-of the time and CPU."""
-
-
-def _start_forkserver() -> None:
-    """The fork server a local cluster's workers are forked from (where there is one, as on
-    Linux), started now, having imported :data:`FORKSERVER_PRELOAD` (its start returns at
-    once; it imports while this process goes on)."""
-    import multiprocessing
-
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return
-    from multiprocessing import forkserver
-
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
-    forkserver.ensure_running()
-
-
-def _local_cluster(distributed: Any, workers: int) -> tuple[Any, Any]:
-    """(client, cluster): a local cluster of ``workers`` one-thread worker processes with
-    :data:`LOCAL_CLUSTER_CONFIG`, forked from the fork server (:func:`_start_forkserver`),
-    their environment without Dask's ``MALLOC_TRIM_THRESHOLD_`` (which hands freed memory
-    back to the system at once, and makes every large numpy array a fresh mapping).
-    FleetError if it cannot be started."""
-    import multiprocessing
-
-    import dask
-
-    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
-    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-    conf = {**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        conf["distributed.worker.multiprocessing-method"] = "forkserver"
-        _start_forkserver()  # (Dask's preload list does not name hdrd's module)
-    cluster = None
-    try:
-        with dask.config.set(conf):
-            cluster = distributed.LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                # its HTTP routes (health, metrics) on a free port of localhost, not 8787:
-                # two fleets at once neither collide nor warn
-                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                silence_logs=logging.CRITICAL,  # its shutdown races are not the user's
-                preload=[__name__],  # dask_setup, in every worker process
-            )
-        return distributed.Client(cluster), cluster
-    except BaseException as e:
-        if cluster is not None:
-            cluster.close()
-        if isinstance(e, (OSError, TimeoutError, RuntimeError)):
-            raise FleetError(
-                f"cannot start a local Dask cluster of {workers} workers: {_one_line(e)}"
-            ) from None
-        raise
-
-
-@contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """SIGINT ignored meanwhile (in the main thread; elsewhere nothing changes): the processes
-    started meanwhile (the fork server, and so every worker forked from it) inherit it, and
-    Python leaves a SIGINT ignored at its start ignored. A Ctrl-C meanwhile is lost (a signal
-    cannot be both ignored by them and caught here): the fork server's start, milliseconds,
-    with :meth:`DaskRunner.start`; the whole cluster's with :meth:`DaskRunner.open`."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 class DaskRunner(Runner):
     """A ``dask.distributed`` client (and the local cluster it started, if any).
 
@@ -487,13 +219,13 @@ class DaskRunner(Runner):
         scheduler is at ``scheduler`` (``tcp://host:8786``, ``tls://host:8786`` with ``tls``
         or the Dask configuration's TLS files), up when this returns. FleetError if it cannot
         be had."""
-        distributed = _dask()
+        distributed = import_distributed()
         if scheduler:
-            return cls(_connect(distributed, scheduler, tls or TlsFiles()))
+            return cls(connect(distributed, scheduler, tls or TlsFiles()))
         if workers is None or workers < 1:
             raise FleetError(f"--workers must be >= 1, got {workers}")
-        with _sigint_ignored():  # the worker processes inherit it (and see dask_setup)
-            client, cluster = _local_cluster(distributed, workers)
+        with sigint_ignored():  # the worker processes inherit it (and see dask_setup)
+            client, cluster = local_cluster(distributed, workers)
         return cls(client, cluster)
 
     @classmethod
@@ -506,9 +238,9 @@ class DaskRunner(Runner):
         import importlib.util
 
         if importlib.util.find_spec("distributed") is None:
-            _dask()  # the one-line error, now
-        with _sigint_ignored():  # the fork server, and so every worker, inherits it
-            _start_forkserver()
+            import_distributed()  # the one-line error, now
+        with sigint_ignored():  # the fork server, and so every worker, inherits it
+            start_forkserver()
         runner = cls(threads=workers)
         runner._starting = threading.Thread(
             target=runner._start, args=(workers,), name="hdrd-cluster-start", daemon=True
@@ -518,7 +250,7 @@ class DaskRunner(Runner):
 
     def _start(self, workers: int) -> None:
         try:
-            self.client, self.cluster = _local_cluster(_dask(), workers)
+            self.client, self.cluster = local_cluster(import_distributed(), workers)
         except BaseException as e:  # noqa: BLE001 - raised where the cluster is needed
             self._start_error = e
         finally:
@@ -545,7 +277,7 @@ class DaskRunner(Runner):
                 self.cluster.close()
 
     def _result(self, fut: Any, what: Callable[[], str]) -> Any:
-        distributed = _dask()
+        distributed = import_distributed()
         try:
             return fut.result()
         except distributed.KilledWorker as e:
@@ -592,7 +324,7 @@ class DaskRunner(Runner):
             return
         self._ready()
         done, items, w, n = sum(w[:first]), items[first:], w[first:], len(items) - first
-        distributed = _dask()
+        distributed = import_distributed()
         chunks = [range(a, min(n, a + batch)) for a in range(0, n, batch)] if batch else []
         chunks = chunks or batches(n, self.threads)
         window = max(MIN_WINDOW, WINDOW_PER_THREAD * self.threads)

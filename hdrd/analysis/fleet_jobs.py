@@ -1,9 +1,10 @@
-"""The per-drive work of ``hdrd evaluate``, ``hdrd tune`` and ``hdrd gap`` on a fleet, and the
-client side that puts the results together, for either runner of :mod:`hdrd.analysis.fleet`.
+"""The per-drive work of ``hdrd evaluate`` and ``hdrd tune`` on a fleet, and the client side that
+puts the results together, for either runner of :mod:`hdrd.analysis.fleet` (``hdrd gap``'s job
+is :mod:`hdrd.analysis.gap.fleet`'s: gap sits above these shared modules).
 
 The functions a worker runs take a drive's :class:`~hdrd.io.files.drivefiles.DriveRef` (a path: the
 worker reads the drive itself) and a small frozen job (the settings), and return small results:
-a drive's Table II row without its traces, a gap report. They call exactly what the
+a drive's Table II row without its traces. They call exactly what the
 single-process commands call, with the same arguments, so the numbers are the same bit for bit
 (tests/test_fleet.py).
 
@@ -58,21 +59,18 @@ from hdrd.analysis.tune import (
 from hdrd.core.calibrate import StandstillLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
-from hdrd.io.files.drivelog import DEFAULT_READ_LIMITS, DriveLog, ReadLimits
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
     "PLOT_PANELS_MAX",
     "DriveOutcome",
     "EvaluateJob",
-    "GapJob",
-    "GapOutcome",
     "PrepareJob",
     "evaluate_one",
     "estimated_work_s",
     "evaluate_refs",
-    "gap_one",
-    "gap_refs",
     "parameter_blocks",
     "run_evaluate",
     "slim",
@@ -477,51 +475,3 @@ def _per_set(batches: Iterator[list[list[DriveResult]]], n_sets: int) -> list[li
             for i, r in enumerate(per_drive):
                 out[i].append(r)
     return out
-
-
-# -- hdrd gap -----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class GapJob:
-    """The settings of ``hdrd gap``; result: also return the whole GapResult (to plot it)."""
-
-    start: Any
-    standstill: bool = False
-    exclude: tuple[tuple[float, float], ...] = ()
-    seed: int = 0
-    result: bool = False
-    read_limits: ReadLimits = DEFAULT_READ_LIMITS
-
-
-@dataclass(frozen=True)
-class GapOutcome:
-    """What ``hdrd gap`` prints and writes of one drive: the summary, the report JSON, the
-    fitted model (and the whole result when asked for)."""
-
-    summary: str
-    report: dict[str, Any]
-    model: Any
-    result: Any = None
-
-
-def gap_one(ref: DriveRef, job: GapJob) -> DriveOutcome:
-    """Read one drive and run the model-gap workflow on it; skipped (with the reason,
-    :func:`why_skipped`) if it cannot be read or analysed."""
-    from hdrd.analysis.gap.report import summary, to_report
-    from hdrd.analysis.gap.search import run_gap
-
-    try:
-        log = read_ref(ref, job.read_limits)
-        res = run_gap(log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed)
-    except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
-        return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
-    out = GapOutcome(summary(res), to_report(res), res.final_model, res if job.result else None)
-    return DriveOutcome(ref.name, out)
-
-
-def gap_refs(
-    refs: Sequence[DriveRef], job: GapJob, runner: Runner, progress: Progress | None = None
-) -> Iterator[DriveOutcome]:
-    """Each drive's gap outcome, in the drives' order, as they come in."""
-    yield from runner.map(gap_one, refs, job, progress=progress)

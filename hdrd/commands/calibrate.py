@@ -105,7 +105,7 @@ def main(args: argparse.Namespace) -> int:
     calibration.max_bias_dps, a busy port, no data for calibration.no_data_timeout_s, the
     input ended, an unwritable file), with one line saying why; 78 for a bad value.
     """
-    from hdrd.config import RULES
+    from hdrd.configload import RULES
 
     try:
         cfg, _ = config_from_args(args)

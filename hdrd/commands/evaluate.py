@@ -40,7 +40,7 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
     [--json FILE] [--plot FILE.png] [--outages SPEC] [--config PATH] [--method METHOD] [--strict]
     [--workers N | --scheduler ADDRESS] [--no-progress]``."""
-    from hdrd.analysis.fleet import FleetError
+    from hdrd.analysis.cluster import FleetError
 
     try:
         cfg, _ = config_from_args(args)  # --config, and --method over hdr.method

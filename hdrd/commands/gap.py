@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
 
 if TYPE_CHECKING:
-    from hdrd.analysis.fleet_jobs import GapOutcome
+    from hdrd.analysis.gap.fleet import GapOutcome
     from hdrd.io.files.drivefiles import DriveRef
 
 __all__ = ["main", "parse_period"]
@@ -53,9 +53,10 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as e:
         _err(str(e))
         return 1
-    from hdrd.analysis.fleet import FleetError, open_runner
-    from hdrd.analysis.fleet_jobs import GapJob, gap_refs
-    from hdrd.io.files.drivelog import DriveLogError
+    from hdrd.analysis.cluster import FleetError
+    from hdrd.analysis.fleet import open_runner
+    from hdrd.analysis.gap.fleet import GapJob, gap_refs
+    from hdrd.io.files.drivecolumns import DriveLogError
 
     start = _start_model(args)
     if start is None:

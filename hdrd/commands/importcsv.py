@@ -9,7 +9,8 @@ import sys
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
 from hdrd.io.files.csvimport import Mapping, import_csv, unit_warnings
-from hdrd.io.files.drivelog import DriveLog, DriveLogError
+from hdrd.io.files.drivecolumns import DriveLogError
+from hdrd.io.files.drivelog import DriveLog
 
 __all__ = ["main"]
 

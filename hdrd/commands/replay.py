@@ -84,7 +84,7 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.io.net.publish import format_json
+    from hdrd.io.net.formats import format_json
     from hdrd.io.wire.capture import decode_capture
 
     loaded = _config_and_capture(args, "replay")
@@ -146,8 +146,9 @@ def convert_main(args: argparse.Namespace) -> int:
 
     from hdrd.cliconfig import drive_log_outputs_ok
     from hdrd.io.files.access import shown_path
+    from hdrd.io.files.drivecolumns import DriveLogError
     from hdrd.io.files.drivefiles import log_format, write_log
-    from hdrd.io.files.drivelog import DriveLog, DriveLogError, converted_name
+    from hdrd.io.files.drivelog import DriveLog, converted_name
     from hdrd.io.wire.capture import decode_capture
     from hdrd.io.wire.clocks import DeviceClock
     from hdrd.io.wire.protocol import TEMP_NOT_FITTED

@@ -24,8 +24,9 @@ from hdrd.cliconfig import drive_log_outputs_ok
 from hdrd.core.grades import DEFAULT_GRADE, GRADES, Grade
 from hdrd.errors import EX_CONFIG, EX_USAGE
 from hdrd.io.files.access import shown_path
+from hdrd.io.files.drivecolumns import DriveLogError
 from hdrd.io.files.drivefiles import log_format, write_log
-from hdrd.io.files.drivelog import DriveLogError, write_drive
+from hdrd.io.files.drivelog import write_drive
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
 from hdrd.sim.drive import simulate_drive
 from hdrd.sim.grades import grade_model

@@ -9,12 +9,13 @@ import sys
 import time
 from collections.abc import Sequence
 
+from hdrd.analysis.cluster import FleetError
 from hdrd.analysis.evaluate import (
     EvaluationError,
     PreparedDrive,
     drive_refs,
 )
-from hdrd.analysis.fleet import FleetError, open_runner
+from hdrd.analysis.fleet import open_runner
 from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
 from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.analysis.progress import ProgressBar

@@ -455,8 +455,8 @@ class DriveLogTarget(Target):
 
     def run(self, data: bytes) -> str:
         from hdrd.analysis.gap.fleet import model_paths
+        from hdrd.io.files.drivecolumns import DriveLogError
         from hdrd.io.files.drivefiles import find_drives
-        from hdrd.io.files.drivelog import DriveLogError
 
         self.count += 1
         target = self._layout(data)

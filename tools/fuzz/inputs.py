@@ -391,7 +391,7 @@ def _hdr_messages() -> tuple[str, ...]:
     """Real per-step messages (JSON lines) of the daemon's pipeline, and a stale report."""
     from hdrd.daemon.pipeline import Pipeline
     from hdrd.daemon.stepper import PipelineConfig
-    from hdrd.io.net.publish import format_json
+    from hdrd.io.net.formats import format_json
 
     arr = stress_frames(random.Random(1), 3000)
     arr["t_us"] = np.arange(3000) * 10_000
@@ -402,7 +402,7 @@ def _hdr_messages() -> tuple[str, ...]:
 
 
 def _nmea(rng: random.Random) -> str:
-    from hdrd.io.net.publish import nmea_checksum
+    from hdrd.io.net.formats import nmea_checksum
 
     kind = rng.choice(("HNHDT", "HNROT", "HNTHS", "HCHDT", "GPRMC", "IIHDT"))
     fields_ = rng.choice((["123.45", "T"], ["-12.3", "A"], ["", "V"], ["359.99", "E"]))

@@ -7,7 +7,7 @@ across inputs, as a running daemon does; ``target.run(data) -> outcome`` takes o
 :class:`Broken`:
 
 - every published message: every number finite, heading in [0, 360), one line of JSON from
-  :func:`hdrd.io.net.publish.format_json`, NMEA sentences that :func:`hdrd.io.net.publish.parse_nmea`
+  :func:`hdrd.io.net.formats.format_json`, NMEA sentences that :func:`hdrd.io.net.formats.parse_nmea`
   reads back (the talker configured);
 - a refused file: one printable line (:class:`hdrd.config.ConfigError` for a configuration,
   :class:`hdrd.io.files.biasfile.BiasFileError` for a bias file, a capture command's stderr);
@@ -57,7 +57,7 @@ __all__ = ["Broken", "Target"]
 
 def check_messages(msgs: Iterable[Mapping[str, Any]], talker: str = "HN", ths: bool = True) -> int:
     """The published messages keep their promises (module doc); returns how many."""
-    from hdrd.io.net.publish import format_json, nmea_sentences, parse_nmea
+    from hdrd.io.net.formats import format_json, nmea_sentences, parse_nmea
 
     n = 0
     for m in msgs:
@@ -327,7 +327,7 @@ class GpsdTarget(Target):
         return out
 
     def run(self, data: bytes) -> str:
-        from hdrd.io.net.gpsd import Version
+        from hdrd.io.net.gpsdjson import Version
 
         assert self.peer is not None
         self.count += 1

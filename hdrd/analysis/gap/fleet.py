@@ -1,4 +1,5 @@
-"""``hdrd gap`` on many drives: each analysed on its own (in this process or on a cluster),
+"""``hdrd gap`` on many drives: each analysed on its own (in this process or on a cluster: the
+job, :func:`gap_one`, runs on the workers as :mod:`hdrd.analysis.fleet_jobs`' jobs do),
 one line each as they come in, in order; how often each effect was found; the reports in one
 JSON file and the fitted models in a directory, written as the drives come in (the client
 never holds the fleet's reports)."""
@@ -10,27 +11,77 @@ import os
 import sys
 import tempfile
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from hdrd.analysis.fleet import Runner
-from hdrd.analysis.fleet_jobs import DriveOutcome, GapJob, gap_refs
+from hdrd.analysis.evaluate import read_ref
+from hdrd.analysis.fleet import Progress, Runner
+from hdrd.analysis.fleet_jobs import DriveOutcome, why_skipped
+from hdrd.analysis.gap.report import summary, to_report
+from hdrd.analysis.gap.search import run_gap
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
 
 if TYPE_CHECKING:
     from hdrd.analysis.progress import ProgressBar
 
 __all__ = [
+    "GapJob",
+    "GapOutcome",
     "GapOutputs",
     "ReportStream",
     "gap_fleet",
     "gap_fleet_summary",
+    "gap_one",
+    "gap_refs",
     "gap_row",
     "gap_table_head",
 ]
+
+
+@dataclass(frozen=True)
+class GapJob:
+    """The settings of ``hdrd gap``; result: also return the whole GapResult (to plot it)."""
+
+    start: Any
+    standstill: bool = False
+    exclude: tuple[tuple[float, float], ...] = ()
+    seed: int = 0
+    result: bool = False
+    read_limits: ReadLimits = DEFAULT_READ_LIMITS
+
+
+@dataclass(frozen=True)
+class GapOutcome:
+    """What ``hdrd gap`` prints and writes of one drive: the summary, the report JSON, the
+    fitted model (and the whole result when asked for)."""
+
+    summary: str
+    report: dict[str, Any]
+    model: Any
+    result: Any = None
+
+
+def gap_one(ref: DriveRef, job: GapJob) -> DriveOutcome:
+    """Read one drive and run the model-gap workflow on it; skipped (with the reason,
+    :func:`why_skipped`) if it cannot be read or analysed."""
+    try:
+        log = read_ref(ref, job.read_limits)
+        res = run_gap(log, job.start, standstill=job.standstill, exclude=job.exclude, seed=job.seed)
+    except Exception as e:  # noqa: BLE001 - a drive's trouble is that drive's, said in one line
+        return DriveOutcome(ref.name, skipped=why_skipped(ref.name, e))
+    out = GapOutcome(summary(res), to_report(res), res.final_model, res if job.result else None)
+    return DriveOutcome(ref.name, out)
+
+
+def gap_refs(
+    refs: Sequence[DriveRef], job: GapJob, runner: Runner, progress: Progress | None = None
+) -> Iterator[DriveOutcome]:
+    """Each drive's gap outcome, in the drives' order, as they come in."""
+    yield from runner.map(gap_one, refs, job, progress=progress)
 
 
 def gap_table_head(name_w: int) -> str:

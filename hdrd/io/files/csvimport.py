@@ -28,18 +28,14 @@ import numpy.typing as npt
 from hdrd.core.angles import compass
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
-from hdrd.io.files.drivelog import (
+from hdrd.io.files.drivecolumns import (
     DEFAULT_READ_LIMITS,
     HEADING_LIMIT_DEG,
-    DriveLog,
     DriveLogError,
     ReadLimits,
     check_columns,
-    csv_values,
-    open_regular,
-    parse_cell,
-    text_lines,
 )
+from hdrd.io.files.drivelog import DriveLog, csv_values, open_regular, parse_cell, text_lines
 
 __all__ = [
     "HEADING_UNITS",

@@ -15,13 +15,8 @@ from typing import Any
 
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
-from hdrd.io.files.drivelog import (
-    DEFAULT_READ_LIMITS,
-    DriveLog,
-    DriveLogError,
-    ReadLimits,
-    read_drive,
-)
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, DriveLogError, ReadLimits
+from hdrd.io.files.drivelog import DriveLog, read_drive
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 

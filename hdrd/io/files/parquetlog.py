@@ -8,7 +8,7 @@ object of strings. The writer keeps the CSV's decimals (:func:`hdrd.io.files.dri
 a drive written as CSV and as Parquet reads back bit for bit the same.
 
 pyarrow is imported only here, and only when a Parquet file is read or written; without it a
-one-line :class:`~hdrd.io.files.drivelog.DriveLogError` says how to install it.
+one-line :class:`~hdrd.io.files.drivecolumns.DriveLogError` says how to install it.
 """
 
 from __future__ import annotations
@@ -25,16 +25,15 @@ import numpy as np
 
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path, size_text
-from hdrd.io.files.drivelog import (
+from hdrd.io.files.drivecolumns import (
     COLUMNS,
     DEFAULT_READ_LIMITS,
     REQUIRED,
-    DriveLog,
     DriveLogError,
     ReadLimits,
     check_columns,
-    csv_values,
 )
+from hdrd.io.files.drivelog import DriveLog, csv_values
 
 __all__ = [
     "DRIVE_COLUMN",

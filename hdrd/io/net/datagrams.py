@@ -3,7 +3,7 @@ and ``hdrd tail``'s printing of them.
 
 :func:`read_datagram` is the one validation of a received datagram (pure, never raises): its
 lines that are UTF-8 and either an NMEA 0183 sentence with a good checksum
-(:func:`hdrd.io.net.publish.parse_nmea`) or a JSON object; a note for each other line (not UTF-8,
+(:func:`hdrd.io.net.formats.parse_nmea`) or a JSON object; a note for each other line (not UTF-8,
 malformed, a number of more than 4,300 digits, nesting too deep, a JSON value that is not an
 object). :func:`implausible` says why an HDR message holds a value no hdrd can send (``hdrd
 web`` refuses such a message). :func:`udp_listener` binds the UDP socket both read from.
@@ -26,7 +26,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdrd.io.net.display import fit, for_display
-from hdrd.io.net.publish import heading_field, parse_hostport, parse_nmea
+from hdrd.io.net.formats import heading_field, parse_nmea
+from hdrd.io.net.publish import parse_hostport
 from hdrd.io.wire.protocol import ADDED_KEYS, MESSAGE_CLASS, STEP_KEYS
 
 __all__ = [

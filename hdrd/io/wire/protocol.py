@@ -3,8 +3,8 @@
 Data only, and no numpy (the command line reads the format names for its choices): the codecs
 are :mod:`hdrd.io.wire.codec`, :mod:`hdrd.io.wire.parser` and :mod:`hdrd.io.wire.capture`,
 the device clock's unwrapping :mod:`hdrd.io.wire.clocks`; the messages are built by
-:mod:`hdrd.daemon.pipeline` (and :mod:`hdrd.daemon.aiding`) and sent by
-:mod:`hdrd.io.net.publish`.
+:mod:`hdrd.daemon.pipeline` (and :mod:`hdrd.daemon.aiding`) formatted by
+:mod:`hdrd.io.net.formats` and sent by :mod:`hdrd.io.net.publish`.
 
 Units and signs of the message fields: yaw rates deg/s, + = counter-clockwise seen from above
 (a left turn); yaw deg CCW since start; heading compass deg, clockwise from north, [0, 360).
