@@ -60,7 +60,7 @@ monotone on the real drives (0.01: 9.51 deg, 0.02: 9.57, 0.05, the first guess: 
 9.93), and 0.02 deg/s was taken, what a 30 s calibration of the 1 Hz logger's samples (0.13
 deg/s apart) knows, rather than the edge (the calibration's own standard error is a floor). Not the peer's settings and not tuned: a course's variance and the speed from
 which a course is used (the daemon's aiding: ``course_var``, ``AidingConfig.min_speed_mps``),
-the standstill test (``StandstillParams``). The figures: bench/RESULTS.md, "GNSS outages ...
+the standstill test (``StopDetection``). The figures: bench/RESULTS.md, "GNSS outages ...
 (tune)".
 
 Sets (docs/real-data.md, "The split"): ``tune`` (bench/holds.py's tune set: the real tuning

@@ -51,7 +51,7 @@ from hdrd.analysis.outages import (
 from hdrd.analysis.prepare import EvaluationError, PreparedDrive
 from hdrd.core.angles import wrap180
 from hdrd.core.methods import MethodSetup
-from hdrd.core.standstill import StandstillParams, standstill_candidate
+from hdrd.core.standstill import StopDetection, standstill_candidate
 from hdrd.daemon.aiding import AidingConfig, GpsAiding
 from hdrd.io.files.drivelog import DriveLog
 
@@ -205,7 +205,7 @@ def _run(
     b0_var = max(p.bias0_sd_dps**2, s.bias_var if math.isfinite(s.bias_var) else 0.0)
     noise = _step_noise(prep, p)
     aiding = GpsAiding(AidingConfig(step_s=T))
-    stop = StandstillParams()
+    stop = StopDetection()
     speed = s.speed if s.speed is not None else np.full(n, math.nan)
     spread_dps = s.omega_std if s.omega_std is not None else np.full(n, math.nan)
     f = _Filter(s.bias_dps, b0_var, p)

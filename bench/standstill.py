@@ -35,16 +35,16 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from hdrd.core.calibrate import MotionDetected, StandstillLimits, estimate_bias
+from hdrd.core.calibrate import CalibrationLimits, MotionDetected, estimate_bias
 
 DATA = REPO.parent / "shared" / "data"
 SECTION = "## Start-up standstill test: real standstills and a 1 Hz turn start"
-ABSOLUTE = StandstillLimits(max_shift_se=0.0)
-ALL = StandstillLimits()
+ABSOLUTE = CalibrationLimits(max_shift_se=0.0)
+ALL = CalibrationLimits()
 Windows = dict[str, list[np.ndarray]]
 
 
-def passes(w: np.ndarray, limits: StandstillLimits) -> bool:
+def passes(w: np.ndarray, limits: CalibrationLimits) -> bool:
     try:
         estimate_bias(w, limits=limits)
     except MotionDetected:

@@ -14,8 +14,8 @@ from hdrd.core import calibrate
 from hdrd.core.calibrate import (
     T_BIAS_S,
     BiasRecord,
+    CalibrationLimits,
     MotionDetected,
-    StandstillLimits,
     estimate_bias,
 )
 
@@ -89,7 +89,7 @@ def test_limits_are_configurable() -> None:
     w, t = standstill(sigma=0.3)
     estimate_bias(w, t)
     with pytest.raises(MotionDetected, match="spread"):
-        estimate_bias(w, t, limits=StandstillLimits(max_std_dps=0.1))
+        estimate_bias(w, t, limits=CalibrationLimits(max_std_dps=0.1))
 
 
 @pytest.mark.parametrize("w", [[], [0.5], [0.1, float("nan"), 0.2], [0.1, float("inf")]])
@@ -130,7 +130,7 @@ def test_a_steady_rotation_is_not_a_bias() -> None:
     with pytest.raises(MotionDetected, match="beyond"):
         estimate_bias(-w, t)
     # The limit is configurable, and a bias inside it passes.
-    assert estimate_bias(w, t, limits=StandstillLimits(max_bias_dps=12.0)).bias_dps > 9.9
+    assert estimate_bias(w, t, limits=CalibrationLimits(max_bias_dps=12.0)).bias_dps > 9.9
     assert estimate_bias(*standstill(bias=2.9)).bias_dps == pytest.approx(2.9, abs=0.02)
 
 
@@ -149,7 +149,7 @@ def phone_window() -> np.ndarray:
 def test_the_start_of_a_turn_at_1_hz_is_not_a_standstill() -> None:
     w = phone_window()
     # The absolute limits alone (as before) take it, and measure a bias 7x too large.
-    old = StandstillLimits(max_shift_se=0.0)
+    old = CalibrationLimits(max_shift_se=0.0)
     assert estimate_bias(w, limits=old).bias_dps == pytest.approx(0.07, abs=0.01)
     with pytest.raises(MotionDetected, match=r"1 of 6 samples pull the mean by \+0\.05\d+ deg/s"):
         estimate_bias(w)
@@ -159,7 +159,7 @@ def test_the_start_of_a_turn_at_1_hz_is_not_a_standstill() -> None:
 def test_a_slow_creep_is_caught_relative_to_the_noise() -> None:
     w, t = standstill(sigma=0.05)
     w = w + np.linspace(0.0, 0.15, w.shape[0])  # a trend of 0.1 deg/s: under the absolute 0.2
-    assert estimate_bias(w, t, limits=StandstillLimits(max_shift_se=0.0)).n == 300
+    assert estimate_bias(w, t, limits=CalibrationLimits(max_shift_se=0.0)).n == 300
     with pytest.raises(MotionDetected, match="rate trend .* standard errors"):
         estimate_bias(w, t)
 
@@ -196,7 +196,7 @@ def test_gaussian_standstill_passes_the_noise_scaled_tests(
     w = bias + sigma * np.random.default_rng(seed).standard_normal(n)
     absolute_only: BiasRecord | None
     try:
-        absolute_only = estimate_bias(w, limits=StandstillLimits(max_shift_se=0.0))
+        absolute_only = estimate_bias(w, limits=CalibrationLimits(max_shift_se=0.0))
     except MotionDetected:
         absolute_only = None
     assume(absolute_only is not None)  # the absolute limits refused it: nothing to compare
@@ -210,7 +210,7 @@ def test_few_samples_rarely_fail_the_noise_scaled_tests(n: int, at_most: float) 
     # Few samples tell little of their own noise: with 6 (1 Hz, 6 s) the tests refuse about
     # 3 in 1000 Gaussian windows; below 6 they are not applied.
     rng = np.random.default_rng(n)
-    loose = StandstillLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
+    loose = CalibrationLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
     refused = 0
     for _ in range(4000):
         try:
@@ -264,9 +264,9 @@ def test_spread_exactly_at_its_limit_passes() -> None:
     w, _ = standstill(3.0, sigma=0.3)
     std = float(np.std(w, ddof=1))
     at = {**LOOSE, "max_std_dps": std}
-    assert estimate_bias(w, limits=StandstillLimits(**at)).std_dps == std
+    assert estimate_bias(w, limits=CalibrationLimits(**at)).std_dps == std
     with pytest.raises(MotionDetected, match="rate spread"):
-        estimate_bias(w, limits=StandstillLimits(**{**at, "max_std_dps": _below(std)}))
+        estimate_bias(w, limits=CalibrationLimits(**{**at, "max_std_dps": _below(std)}))
 
 
 def test_trend_exactly_at_its_limit_passes() -> None:
@@ -274,48 +274,48 @@ def test_trend_exactly_at_its_limit_passes() -> None:
     w = w + np.linspace(0.0, 0.3, w.shape[0])
     trend = float(np.mean(w[-10:]) - np.mean(w[:10]))
     at = {**LOOSE, "max_trend_dps": trend}
-    estimate_bias(w, limits=StandstillLimits(**at))
+    estimate_bias(w, limits=CalibrationLimits(**at))
     with pytest.raises(MotionDetected, match="rate trend"):
-        estimate_bias(w, limits=StandstillLimits(**{**at, "max_trend_dps": _below(trend)}))
+        estimate_bias(w, limits=CalibrationLimits(**{**at, "max_trend_dps": _below(trend)}))
     # a falling trend is held to the same limit, by its size
     r = w[::-1]
     fall = float(np.mean(r[-10:]) - np.mean(r[:10]))
     assert fall < 0
-    estimate_bias(r, limits=StandstillLimits(**{**at, "max_trend_dps": -fall}))
+    estimate_bias(r, limits=CalibrationLimits(**{**at, "max_trend_dps": -fall}))
     with pytest.raises(MotionDetected, match="rate trend -"):
-        estimate_bias(r, limits=StandstillLimits(**{**at, "max_trend_dps": _below(-fall)}))
+        estimate_bias(r, limits=CalibrationLimits(**{**at, "max_trend_dps": _below(-fall)}))
 
 
 def test_excursion_exactly_at_its_limit_passes() -> None:
     w = np.array([0.5, 0.5, 0.5, 0.5, 2.0, 0.5, 0.5])
     at = {**LOOSE, "max_excursion_dps": 1.5}
-    estimate_bias(w, limits=StandstillLimits(**at))
+    estimate_bias(w, limits=CalibrationLimits(**at))
     with pytest.raises(MotionDetected, match="a sample 1.50 deg/s from the median"):
-        estimate_bias(w, limits=StandstillLimits(**{**at, "max_excursion_dps": _below(1.5)}))
+        estimate_bias(w, limits=CalibrationLimits(**{**at, "max_excursion_dps": _below(1.5)}))
     with pytest.raises(MotionDetected, match="from the median"):
-        estimate_bias(-w, limits=StandstillLimits(**{**at, "max_excursion_dps": _below(1.5)}))
+        estimate_bias(-w, limits=CalibrationLimits(**{**at, "max_excursion_dps": _below(1.5)}))
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_a_bias_exactly_at_its_limit_passes(sign: float) -> None:
     w = sign * np.full(12, 2.5)
     at = {**LOOSE, "max_bias_dps": 2.5}
-    assert estimate_bias(w, limits=StandstillLimits(**at)).bias_dps == sign * 2.5
+    assert estimate_bias(w, limits=CalibrationLimits(**at)).bias_dps == sign * 2.5
     with pytest.raises(MotionDetected, match="beyond the"):
-        estimate_bias(w, limits=StandstillLimits(**{**at, "max_bias_dps": _below(2.5)}))
+        estimate_bias(w, limits=CalibrationLimits(**{**at, "max_bias_dps": _below(2.5)}))
 
 
 def test_the_noise_scaled_tests_start_at_six_samples() -> None:
     # A window whose last sample jumps: refused by the shift test from 6 samples on, not
     # looked at with 5 (too few to know their own noise).
     w = np.array([0.0, 0.001, -0.001, 0.0005, 0.2, 0.0, 0.0015, -0.0005, 0.2])
-    loose = StandstillLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
+    loose = CalibrationLimits(max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9)
     assert calibrate.NOISE_TEST_MIN_SAMPLES == 6
     estimate_bias(w[:5], limits=loose)
     with pytest.raises(MotionDetected, match="pull the mean"):
         estimate_bias(np.append(w[:4], [0.0, 0.2]), limits=loose)
     # max_shift_se 0 switches both off, whatever the window
-    estimate_bias(w, limits=StandstillLimits(**LOOSE))
+    estimate_bias(w, limits=CalibrationLimits(**LOOSE))
 
 
 def _shift_and_se(w: np.ndarray, floor: float = 0.01) -> tuple[float, float, int]:
@@ -341,9 +341,9 @@ def test_shift_exactly_at_its_limit_passes() -> None:
         limit = _above(limit)
     base = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9, "max_trend_se": 1e9}
     assert limit * se == shift  # there is one for this window
-    estimate_bias(w, limits=StandstillLimits(**base, max_shift_se=limit))
+    estimate_bias(w, limits=CalibrationLimits(**base, max_shift_se=limit))
     with pytest.raises(MotionDetected, match="1 of 40 samples pull the mean"):
-        estimate_bias(w, limits=StandstillLimits(**base, max_shift_se=_below(limit)))
+        estimate_bias(w, limits=CalibrationLimits(**base, max_shift_se=_below(limit)))
 
 
 def test_a_sample_exactly_four_sigmas_out_is_in_the_core() -> None:
@@ -353,7 +353,7 @@ def test_a_sample_exactly_four_sigmas_out_is_in_the_core() -> None:
     sigma = calibrate.noise_sigma(w, 0.1)
     assert sigma == 0.1 and float(np.median(w)) == 0.0
     assert _shift_and_se(w, 0.1)[2] == 10
-    limits = StandstillLimits(
+    limits = CalibrationLimits(
         max_std_dps=1e9, max_trend_dps=1e9, max_excursion_dps=1e9, max_trend_se=1e9,
         noise_floor_dps=0.1, max_shift_se=1e-9,
     )  # fmt: skip
@@ -371,20 +371,20 @@ def test_scaled_trend_limit_and_its_floor() -> None:
     trend = 0.1
     base = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9, "max_shift_se": 1e9}
     # the floor alone: a trend below trend_floor_dps is never refused
-    estimate_bias(w, limits=StandstillLimits(**base, max_trend_se=0.0, trend_floor_dps=trend))
+    estimate_bias(w, limits=CalibrationLimits(**base, max_trend_se=0.0, trend_floor_dps=trend))
     with pytest.raises(MotionDetected, match=r"rate trend \+0\.1000 deg/s .* standard errors"):
         estimate_bias(
-            w, limits=StandstillLimits(**base, max_trend_se=0.0, trend_floor_dps=_below(trend))
+            w, limits=CalibrationLimits(**base, max_trend_se=0.0, trend_floor_dps=_below(trend))
         )
     # the scaled limit: trend / se_trend standard errors exactly
     k = trend / se_trend
     while k * se_trend < trend:
         k = _above(k)
     assert k * se_trend == trend
-    estimate_bias(w, limits=StandstillLimits(**base, max_trend_se=k, trend_floor_dps=0.0))
+    estimate_bias(w, limits=CalibrationLimits(**base, max_trend_se=k, trend_floor_dps=0.0))
     with pytest.raises(MotionDetected, match="standard errors"):
         estimate_bias(
-            w, limits=StandstillLimits(**base, max_trend_se=_below(k), trend_floor_dps=0.0)
+            w, limits=CalibrationLimits(**base, max_trend_se=_below(k), trend_floor_dps=0.0)
         )
 
 
@@ -466,7 +466,7 @@ def test_what_a_failed_scaled_trend_says() -> None:
     se_trend = sigma * math.sqrt(2.0 / 4)
     loose = {"max_std_dps": 1e9, "max_trend_dps": 1e9, "max_excursion_dps": 1e9}
     with pytest.raises(MotionDetected) as e:
-        estimate_bias(w, limits=StandstillLimits(**loose, max_shift_se=1e9, max_trend_se=1.0))
+        estimate_bias(w, limits=CalibrationLimits(**loose, max_shift_se=1e9, max_trend_se=1.0))
     assert (
         f"rate trend +0.1000 deg/s between the window's first and last thirds, "
         f"{0.1 / se_trend:.1f} standard errors (noise {sigma:.4f} deg/s) > 1 allowed"

@@ -26,7 +26,7 @@ from hdrd.core.plusparams import (
     Road,
     unit_bank,
 )
-from hdrd.core.standstill import CalibrationNoise, StandstillParams
+from hdrd.core.standstill import CalibrationNoise, StopDetection
 from hdrd.core.steps import StepInput
 
 NAN = math.nan
@@ -77,7 +77,7 @@ def plus_params(draw: st.DrawFn) -> PlusParams:
     return PlusParams(
         T=draw(st.sampled_from([0.5, 1.0, 2.0])),
         bank=bank,
-        standstill=StandstillParams(
+        standstill=StopDetection(
             enabled=draw(st.booleans()),
             gyro_only=draw(st.booleans()),
             samples_per_step=draw(st.sampled_from([1.0, 10.0, 100.0])),

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from hdrd.core import standstill as zupt
-from hdrd.core.standstill import StandstillParams, block_mean_variance, standstill_candidate
+from hdrd.core.standstill import StopDetection, block_mean_variance, standstill_candidate
 
 NAN = math.nan
-SS = StandstillParams()
+SS = StopDetection()
 
 
 def test_stopped_and_quiet_with_speed_is_a_candidate() -> None:
@@ -43,23 +43,23 @@ def test_unknown_spread_is_not_checked_when_speed_is_known() -> None:
 
 
 def test_gyro_only_needs_its_switch_quiet_and_several_steps() -> None:
-    off = StandstillParams(gyro_only=False)
+    off = StopDetection(gyro_only=False)
     assert standstill_candidate(0.0, 0.05, NAN, off)[0] is False
-    on = StandstillParams(gyro_only=True, steps_gyro=7)
+    on = StopDetection(gyro_only=True, steps_gyro=7)
     assert standstill_candidate(0.0, 0.05, NAN, on) == (True, 7)
     assert standstill_candidate(0.0, on.gyro_spread_dps * 1.5, NAN, on)[0] is False  # not quiet
     assert standstill_candidate(on.gyro_level_dps * 2, 0.05, NAN, on)[0] is False  # rotating
     assert standstill_candidate(0.0, NAN, NAN, on)[0] is False  # nothing to judge by
-    assert standstill_candidate(0.0, 0.0, 0.0, StandstillParams(enabled=False))[0] is False
+    assert standstill_candidate(0.0, 0.0, 0.0, StopDetection(enabled=False))[0] is False
 
 
 def test_params_are_checked() -> None:
     with pytest.raises(ValueError, match="speed_mps"):
-        StandstillParams(speed_mps=-1.0)
+        StopDetection(speed_mps=-1.0)
     with pytest.raises(ValueError, match="steps_gyro"):
-        StandstillParams(steps_gyro=0)
+        StopDetection(steps_gyro=0)
     with pytest.raises(ValueError, match="samples_per_step"):
-        StandstillParams(samples_per_step=0.0)
+        StopDetection(samples_per_step=0.0)
 
 
 def test_quantization_step_hand_cases() -> None:
@@ -89,7 +89,7 @@ def test_calibration_noise_of_white_noise_at_100_hz() -> None:
 
 
 def test_every_standstill_limit_is_inclusive() -> None:
-    at = StandstillParams(gyro_only=True)
+    at = StopDetection(gyro_only=True)
     assert standstill_candidate(0.0, at.spread_dps, 0.0, at)[0] is True
     assert standstill_candidate(at.level_dps, 0.1, 0.0, at)[0] is True
     assert standstill_candidate(-at.level_dps, 0.1, 0.0, at)[0] is True
@@ -100,14 +100,14 @@ def test_every_standstill_limit_is_inclusive() -> None:
 
 def test_one_sample_per_step_is_allowed() -> None:
     # a 1 Hz log averages one sample per step of 1 s
-    assert StandstillParams(samples_per_step=1.0).samples_per_step == 1.0
-    assert StandstillParams(samples_per_step=0.5).samples_per_step == 0.5
+    assert StopDetection(samples_per_step=1.0).samples_per_step == 1.0
+    assert StopDetection(samples_per_step=0.5).samples_per_step == 0.5
     with pytest.raises(ValueError, match="samples_per_step must be > 0"):
-        StandstillParams(samples_per_step=0.0)
+        StopDetection(samples_per_step=0.0)
 
 
 def test_block_mean_variance_adds_the_floor_in_quadrature() -> None:
-    ss = StandstillParams(samples_per_step=4.0, noise_floor_dps=0.5, spread_dps=2.0)
+    ss = StopDetection(samples_per_step=4.0, noise_floor_dps=0.5, spread_dps=2.0)
     assert block_mean_variance(1.0, ss) == (1.0 + 0.25) / 4.0
     assert block_mean_variance(NAN, ss) == (4.0 + 0.25) / 4.0  # unknown: the largest allowed
 

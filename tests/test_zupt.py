@@ -16,11 +16,11 @@ import pytest
 
 from hdrd.core.hdrplus import INITIAL_PLUS_STATE, run_batch, step
 from hdrd.core.plusparams import Hypothesis, PlusParams
-from hdrd.core.standstill import StandstillParams
+from hdrd.core.standstill import StopDetection
 from hdrd.core.steps import StepInput
 
 NAN = math.nan
-SS = StandstillParams()
+SS = StopDetection()
 
 
 def one(q: float = 0.0, **kw: object) -> PlusParams:
@@ -46,7 +46,7 @@ def test_a_stationary_block_sequence_is_detected_with_speed() -> None:
     n, k = 20, SS.steps_speed
     still = _run([0.01] * n, [0.15] * n, [0.0] * n, PlusParams())
     assert still.tolist() == [False] * (k - 1) + [True] * (n - k + 1)
-    one = PlusParams(standstill=StandstillParams(steps_speed=1))
+    one = PlusParams(standstill=StopDetection(steps_speed=1))
     assert _run([0.01] * n, [0.15] * n, [0.0] * n, one).all()
 
 
@@ -67,7 +67,7 @@ def test_a_slow_straight_drive_is_not_detected() -> None:
 
 
 def test_gyro_only_detection_requires_quiet_for_several_steps() -> None:
-    p = PlusParams(standstill=StandstillParams(gyro_only=True, steps_gyro=5))
+    p = PlusParams(standstill=StopDetection(gyro_only=True, steps_gyro=5))
     quiet = [0.02] * 12
     still = _run(quiet, [0.1] * 12, [NAN] * 12, p)
     assert still.tolist() == [False] * 4 + [True] * 8
@@ -104,7 +104,7 @@ def test_yaw_does_not_integrate_at_standstill() -> None:
 
 def test_zero_rate_update_through_step_publishes_standstill() -> None:
     # A start-up bias known to +-1 deg/s only; stops count from their first step.
-    vague = one(standstill=StandstillParams(steps_speed=1))
+    vague = one(standstill=StopDetection(steps_speed=1))
     s = INITIAL_PLUS_STATE
     s, o = step(s, StepInput(0.5, 0.1, 0.0, NAN, 1.0), vague)
     assert o.standstill and o.omega == 0.0 and o.yaw == 0.0 and o.straight == 0.0

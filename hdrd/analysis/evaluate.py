@@ -52,7 +52,7 @@ from hdrd.analysis.prepare import (
 )
 from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
-from hdrd.core.calibrate import StandstillLimits
+from hdrd.core.calibrate import CalibrationLimits
 from hdrd.core.methods import MethodSetup, StepInputs
 from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
@@ -514,7 +514,7 @@ def evaluate_logs(
     setup: MethodSetup = DEFAULTS,
     bias: float | None = None,
     calibrate_seconds: float | None = None,
-    limits: StandstillLimits = DEFAULT_LIMITS,
+    limits: CalibrationLimits = DEFAULT_LIMITS,
     truth_max_gap_s: float = TRUTH_MAX_GAP_S,
 ) -> tuple[list[DriveResult], list[str]]:
     """Every drive that can be evaluated, and why each other one cannot (one line each).

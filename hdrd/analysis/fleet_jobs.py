@@ -56,7 +56,7 @@ from hdrd.analysis.tune import (
     score_candidates,
     search_outcome,
 )
-from hdrd.core.calibrate import StandstillLimits
+from hdrd.core.calibrate import CalibrationLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
 from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
@@ -143,7 +143,7 @@ class EvaluateJob:
     setup: MethodSetup = DEFAULTS
     bias: float | None = None
     calibrate_seconds: float | None = None
-    limits: StandstillLimits = DEFAULT_LIMITS
+    limits: CalibrationLimits = DEFAULT_LIMITS
     truth_max_gap_s: float = TRUTH_MAX_GAP_S
     traces: bool = False
     strict: bool = False

@@ -39,8 +39,8 @@ from hdrd.analysis.signcheck import NO_CHECK, SignCheck, check_sign
 from hdrd.core.angles import wrap180
 from hdrd.core.calibrate import (
     BiasRecord,
+    CalibrationLimits,
     MotionDetected,
-    StandstillLimits,
     estimate_bias,
     given_bias,
 )
@@ -89,7 +89,7 @@ ALIGN_MIN_SPEED_MPS = 5.0
 """... at or above this speed, m/s (the GPS aiding's: a course below it is noise) ..."""
 ALIGN_MAX_TURN_DPS = 1.0
 """... with the truth turning by at most this from step to step, deg/s."""
-DEFAULT_LIMITS = StandstillLimits()
+DEFAULT_LIMITS = CalibrationLimits()
 """The standstill test's default thresholds (the daemon's ``calibration.*`` defaults)."""
 PAPER_PARAMS = HdrParams()
 """The paper's Table III parameters (HDR's defaults)."""
@@ -204,7 +204,7 @@ def _still_runs(log: DriveLog, T: float) -> list[tuple[int, float]]:
 
 
 def _standstill_from_gyro(
-    log: DriveLog, T: float, limits: StandstillLimits
+    log: DriveLog, T: float, limits: CalibrationLimits
 ) -> tuple[int, float] | None:
     """(first sample, window s) of the first window that passes the standstill test on the
     raw rate alone: from each step edge in turn, the longest of 30, 20, 10 and 6 s (whole
@@ -253,7 +253,7 @@ def plan_calibration(
     bias: float | None = None,
     calibrate_seconds: float | None = None,
     T: float = 1.0,
-    limits: StandstillLimits = DEFAULT_LIMITS,
+    limits: CalibrationLimits = DEFAULT_LIMITS,
 ) -> CalibrationPlan:
     """Where the drive's static bias comes from: ``bias``, else ``calibrate_seconds``, else
     the log's ``lead_in_s``, else the first standstill found from the speed, else (no speed
@@ -362,7 +362,7 @@ def step_log(log: DriveLog, config: PipelineConfig, t_us: IntArray | None = None
 
 
 def _later_standstills(
-    log: DriveLog, plan: CalibrationPlan, T: float, limits: StandstillLimits
+    log: DriveLog, plan: CalibrationPlan, T: float, limits: CalibrationLimits
 ) -> list[CalibrationPlan]:
     """Where else the bias may be measured when the planned window showed motion (a phone
     handled while the car stood, a car manoeuvring slowly in its lead-in): each later stop by
@@ -426,7 +426,7 @@ def _usable_rows(log: DriveLog, name: str, T: float) -> tuple[DriveLog, FloatArr
 
 
 def _stepped_after_calibration(
-    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: StandstillLimits
+    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: CalibrationLimits
 ) -> tuple[_Stepped, float]:
     """The drive stepped from the plan's start, with its bias measured or given (else
     EvaluationError: why not, or too few steps left), and where it starts after the log's
@@ -451,7 +451,7 @@ def _stepped_after_calibration(
 
 
 def _calibrated(
-    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: StandstillLimits
+    log: DriveLog, name: str, plan: CalibrationPlan, T: float, limits: CalibrationLimits
 ) -> tuple[CalibrationPlan, _Stepped, float]:
     """:func:`_stepped_after_calibration` on the plan, else on the first of
     :func:`_later_standstills` whose bias can be measured (the plan used returned with it);
@@ -496,7 +496,7 @@ def prepare_drive(
     calibrate_seconds: float | None = None,
     T: float = 1.0,
     truth_max_gap_s: float = TRUTH_MAX_GAP_S,
-    limits: StandstillLimits = DEFAULT_LIMITS,
+    limits: CalibrationLimits = DEFAULT_LIMITS,
 ) -> PreparedDrive:
     """Bias, steps and truth at step ends for one drive (see the module docstring).
 

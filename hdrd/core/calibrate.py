@@ -46,7 +46,7 @@ __all__ = [
     "T_BIAS_S",
     "BiasRecord",
     "MotionDetected",
-    "StandstillLimits",
+    "CalibrationLimits",
     "StartupWindow",
     "estimate_bias",
     "given_bias",
@@ -68,9 +68,10 @@ class MotionDetected(HdrdError, ValueError):
 
 
 @dataclass(frozen=True, slots=True)
-class StandstillLimits:
-    """Thresholds of the standstill test, deg/s. A parked car with its engine running shows
-    vibration well below these; any turn or a drive through a bend exceeds them."""
+class CalibrationLimits:
+    """Thresholds of the start-up calibration's standstill test, deg/s. A parked car with its
+    engine running shows vibration well below these; any turn or a drive through a bend
+    exceeds them."""
 
     max_std_dps: float = 0.5
     max_trend_dps: float = 0.2
@@ -132,7 +133,7 @@ def estimate_bias(
     t_s: npt.ArrayLike | None = None,
     *,
     temp_c: npt.ArrayLike | None = None,
-    limits: StandstillLimits = StandstillLimits(),
+    limits: CalibrationLimits = CalibrationLimits(),
     when: float = 0.0,
 ) -> BiasRecord:
     """Static bias eps0 from raw standstill samples (deg/s); raises MotionDetected on motion.
@@ -199,7 +200,7 @@ def noise_sigma(w: npt.NDArray[np.float64], floor_dps: float = 0.0) -> float:
     return max(mad_sigma, loo, floor_dps)
 
 
-def _check_noise_scaled(w: npt.NDArray[np.float64], limits: StandstillLimits) -> None:
+def _check_noise_scaled(w: npt.NDArray[np.float64], limits: CalibrationLimits) -> None:
     """The shift and scaled-trend tests (module docstring); raises MotionDetected."""
     n = int(w.shape[0])
     if not limits.max_shift_se > 0 or n < NOISE_TEST_MIN_SAMPLES:
@@ -247,7 +248,7 @@ class StartupWindow:
     __slots__ = ("_omega", "_temp", "attempts", "block_s", "blocks", "closed", "limits")
 
     def __init__(
-        self, blocks: int = 1, limits: StandstillLimits = StandstillLimits(), block_s: float = 0.0
+        self, blocks: int = 1, limits: CalibrationLimits = CalibrationLimits(), block_s: float = 0.0
     ) -> None:
         if blocks < 1:
             raise ValueError(f"a calibration window needs at least 1 step, got {blocks}")
@@ -264,7 +265,7 @@ class StartupWindow:
 
     @classmethod
     def for_seconds(
-        cls, seconds: float, T: float, limits: StandstillLimits = StandstillLimits()
+        cls, seconds: float, T: float, limits: CalibrationLimits = CalibrationLimits()
     ) -> StartupWindow:
         """A window of the whole steps of T s within ``seconds`` (rounded down: no sample past
         ``seconds`` is taken in), and at least one (a window shorter than a step is one

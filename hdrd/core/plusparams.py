@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from hdrd.core.gyronoise import GyroNoise
-from hdrd.core.standstill import CalibrationNoise, StandstillParams
+from hdrd.core.standstill import CalibrationNoise, StopDetection
 
 __all__ = [
     "DEFAULTS",
@@ -179,7 +179,7 @@ class PlusParams:
     """Step period, s."""
     bank: tuple[Hypothesis, ...] = FRESH_BANK
     """The hypotheses."""
-    standstill: StandstillParams = field(default_factory=StandstillParams)
+    standstill: StopDetection = field(default_factory=StopDetection)
     """Standstill detection; a stop is a zero-rate update."""
     stop_scatter_dps: float = 0.01
     """How far a later stop may read from the calibration's rest bias, deg/s (1 sigma, each

@@ -7,7 +7,7 @@ Pieces that HDR+ (:mod:`hdrd.core.hdrplus`) combines, usable on their own:
   ``speed_mps`` *and* the gyro agrees (a car cannot rotate on the spot, so a block that
   rotates means the speed is stale). Without a speed, only the gyro's statistics are left:
   the spread of the raw samples within the step and the level of the bias-corrected block
-  mean must both be small, and :class:`StandstillParams` asks for more consecutive steps
+  mean must both be small, and :class:`StopDetection` asks for more consecutive steps
   (``steps_gyro``) than with a speed (``steps_speed``). A gyro alone cannot tell a stop from a
   perfectly straight, smooth stretch of road; that is why speed is preferred.
 - The estimator these stops feed (a zero-rate update of its bank) is :mod:`hdrd.core.hdrplus`.
@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 __all__ = [
     "CalibrationNoise",
-    "StandstillParams",
+    "StopDetection",
     "block_mean_variance",
     "calibration_noise",
     "quantization_step",
@@ -38,8 +38,10 @@ __all__ = [
 
 
 @dataclass(frozen=True, slots=True)
-class StandstillParams:
-    """When a step counts as standstill (see :func:`standstill_candidate`)."""
+class StopDetection:
+    """HDR+'s stop detection: when a step counts as standstill (see
+    :func:`standstill_candidate`). Not the start-up calibration's test
+    (:class:`hdrd.core.calibrate.CalibrationLimits`)."""
 
     enabled: bool = True
     """False: never standstill (no zero-rate update, no bias refinement at stops)."""
@@ -91,7 +93,7 @@ class StandstillParams:
 
 
 def standstill_candidate(
-    level_dps: float, spread_dps: float, speed_mps: float, params: StandstillParams
+    level_dps: float, spread_dps: float, speed_mps: float, params: StopDetection
 ) -> tuple[bool, int]:
     """(is this step a standstill candidate, consecutive candidates needed).
 
@@ -114,7 +116,7 @@ def standstill_candidate(
     return False, params.steps_gyro
 
 
-def block_mean_variance(spread_dps: float, params: StandstillParams) -> float:
+def block_mean_variance(spread_dps: float, params: StopDetection) -> float:
     """Variance of a block mean, (deg/s)^2: (spread^2 + floor^2) / samples per step.
 
     An unknown spread (NaN) counts as the largest one a standstill step may have.

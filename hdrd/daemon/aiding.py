@@ -50,7 +50,7 @@ class _NoFix:
 
 
 class FixLike(Protocol):
-    """What aiding reads from a gpsd fix (:class:`hdrd.io.net.gpsd.Fix`)."""
+    """What aiding reads from a gpsd fix (:class:`hdrd.io.net.gpsdjson.Fix`)."""
 
     @property
     def mode(self) -> int: ...

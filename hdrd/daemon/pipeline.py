@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from hdrd.core.calibrate import BiasRecord, StandstillLimits
+from hdrd.core.calibrate import BiasRecord, CalibrationLimits
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.selfcheck import OutageRecord
 from hdrd.daemon.aiding import GpsAiding
@@ -66,10 +66,10 @@ class FrameLike(Protocol):
 # -- from a configuration ---------------------------------------------------------------------
 
 
-def standstill_limits(cfg: Config) -> StandstillLimits:
+def standstill_limits(cfg: Config) -> CalibrationLimits:
     """The standstill test's thresholds from the calibration section (deg/s)."""
     c = cfg.calibration
-    return StandstillLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
+    return CalibrationLimits(c.max_std_dps, c.max_trend_dps, c.max_excursion_dps, c.max_bias_dps)
 
 
 def pipeline_config(

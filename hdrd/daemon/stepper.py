@@ -19,7 +19,7 @@ from typing import Any
 
 from hdrd.core import methods
 from hdrd.core.angles import compass
-from hdrd.core.calibrate import BiasRecord, MotionDetected, StandstillLimits, StartupWindow
+from hdrd.core.calibrate import BiasRecord, CalibrationLimits, MotionDetected, StartupWindow
 from hdrd.core.hdr import HdrParams
 from hdrd.core.hdrplus import PlusOutput
 from hdrd.core.resample import Block
@@ -77,7 +77,7 @@ class PipelineConfig:
     startup_s: float = 1.0
     """Start-up calibration window, s, rounded down to whole steps (at least one; paper
     Sec. 6: 1 s)."""
-    limits: StandstillLimits = StandstillLimits()
+    limits: CalibrationLimits = CalibrationLimits()
     heading0_deg: float = 0.0
     """Compass heading at start, deg."""
     outage_record: OutageRecord = OutageRecord()
