@@ -13,6 +13,7 @@ from hdrd.daemon.signals import hold_hangup_for
 def main() -> int:
     """The ``hdrd`` command."""
     hold_hangup_for(sys.argv[1:])
+    # signals are held before the command line is imported
     from hdrd.cli import main as cli_main
 
     return cli_main()

@@ -108,12 +108,14 @@ class LazyChoices:
 
 
 def method_names() -> Sequence[str]:
+    # the command line stays light: `hdrd --help` loads no numpy
     from hdrd.core.methods import names
 
     return names()
 
 
 def drive_names() -> Sequence[str]:
+    # the command line stays light: `hdrd --help` loads no numpy
     from hdrd.sim.vehicle import DRIVE_TYPES
 
     return tuple(DRIVE_TYPES)

@@ -17,8 +17,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hdrd.analysis.plots import plotting_unavailable
 from hdrd.config import Config, ConfigError
 from hdrd.configload import apply_overrides, load_config
+from hdrd.io.files.access import shown_path, write_problem
+from hdrd.io.files.drivecolumns import ReadLimits
+from hdrd.io.net.gpsd import parse_address
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet import Where
@@ -58,8 +62,6 @@ def config_overrides(args: argparse.Namespace) -> dict[str, Any]:
     if g("nmea_udp"):
         o["output.nmea_udp"] = tuple(args.nmea_udp)
     if g("gpsd"):
-        from hdrd.io.net.gpsd import parse_address
-
         try:
             host, port = parse_address(args.gpsd)
         except ValueError as e:
@@ -102,6 +104,7 @@ def where_from_args(args: argparse.Namespace, prog: str) -> Where:
     scheduler reached by plain TCP from another machine is warned about on stderr."""
     import os
 
+    # asyncio comes with the cluster's modules: a replay's fast path loads none (test_fastpaths)
     from hdrd.analysis.cluster import FleetError, TlsFiles, scheduler_warning
     from hdrd.analysis.fleet import MIN_CLUSTER_WORK_S, MIN_WORK_ENV, Where
 
@@ -145,8 +148,6 @@ def output_problem(flag: str, path: str, folder: str | None = None) -> str | Non
     import os
     from pathlib import Path
 
-    from hdrd.io.files.access import shown_path, write_problem
-
     target = Path(path)
     shown = f"{flag} {shown_path(path)}"
     if folder is not None:
@@ -170,8 +171,6 @@ def _name_problem(target: Path, in_place: bool) -> str | None:
     file, a name longer than the file system takes (with a temporary file's decoration,
     unless the file is written ``in_place``); None if it can."""
     import os
-
-    from hdrd.io.files.access import shown_path
 
     def exists(p: Path) -> bool:
         try:
@@ -219,8 +218,6 @@ def outputs_ok(
             continue
         problem = None
         if flag == "--plot":  # said first: no folder made for a plot that cannot be drawn
-            from hdrd.analysis.plots import plotting_unavailable
-
             problem = plotting_unavailable(path)
         if problem is None:
             problem = output_problem(flag, path, folder)
@@ -249,8 +246,6 @@ def drive_log_outputs_ok(
 def read_limits_from_args(args: argparse.Namespace) -> ReadLimits:
     """The :class:`~hdrd.io.files.drivecolumns.ReadLimits` a command line asks for (``--max-rows``,
     ``--max-rate``, ``--max-gap``); the defaults for what it does not give."""
-    from hdrd.io.files.drivecolumns import ReadLimits
-
     given = {
         "max_rows": getattr(args, "max_rows", None),
         "max_rate_dps": getattr(args, "max_rate", None),

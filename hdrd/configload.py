@@ -20,6 +20,7 @@ from hdrd.core import methods
 from hdrd.core.grades import GRADES
 from hdrd.core.hdr import HdrParams
 from hdrd.errors import clipped
+from hdrd.io.files.access import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 from hdrd.io.net.publish import parse_hostport
 from hdrd.io.wire.protocol import PROTOCOLS
 
@@ -76,6 +77,7 @@ def _drive() -> tuple[Check, Callable[[], str]]:
     simulator is not loaded with the configuration)."""
 
     def drives() -> tuple[str, ...]:
+        # the simulator is not loaded with the configuration (a drive type is checked lazily)
         from hdrd.sim.vehicle import DRIVE_TYPES
 
         return tuple(DRIVE_TYPES)
@@ -402,7 +404,6 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
             return Config(), "built-in defaults"
         path = DEFAULT_CONFIG_PATH
     p = Path(path)
-    from hdrd.io.files.access import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
 
     try:
         text = read_limited(p, MAX_CONFIG_BYTES).decode("utf-8")
@@ -418,6 +419,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> tuple[Config, str
         data = load_yaml(text)
     except InputFileError as e:
         raise ConfigError("(yaml)", e.where or "?", e.problem, str(p)) from None
+    # yaml only where a file is read: a replay with --bias loads none (tests/test_fastpaths.py)
     from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:

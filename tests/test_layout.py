@@ -102,6 +102,41 @@ def test_no_import_cycle() -> None:
     assert cycles == []
 
 
+def unexplained_inner_imports(name: str, text: str) -> list[str]:
+    """hdrd imports inside a function without a comment on the line before (or on the line)
+    saying why they are not at the module's top."""
+    lines = text.splitlines()
+    out = []
+    for fn in ast.walk(ast.parse(text)):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hdrd"):
+                k = node.lineno - 2  # the comment may head a block of imports
+                while k > 0 and lines[k].strip().startswith(("from ", "import ")):
+                    k -= 1
+                if "#" not in lines[node.lineno - 1] and not lines[k].strip().startswith("#"):
+                    out.append(f"{name}:{node.lineno} {node.module}")
+    return sorted(set(out))
+
+
+def test_an_import_inside_a_function_says_why() -> None:
+    """An hdrd module imported inside a function breaks a real cost (a fast path that must not
+    load it) or a cycle, and says which; the others are at the module's top."""
+    found = [
+        x
+        for p in sorted(PKG.rglob("*.py"))
+        for x in unexplained_inner_imports(module_name(p), p.read_text())
+    ]
+    assert found == []
+    bare = "def f():\n    x = 1\n    from hdrd.cli import main\n"
+    said = "def f():\n    # why: a cycle\n    from hdrd.cli import main\n"
+    assert unexplained_inner_imports("m", bare) == ["m:3 hdrd.cli"]
+    assert unexplained_inner_imports("m", said) == []
+    block = said.replace("main\n", "main\n    from hdrd.errors import HdrdError\n")
+    assert unexplained_inner_imports("m", block) == []
+
+
 def test_no_private_name_crosses_a_module() -> None:
     assert private_importers() - PRIVATE_IMPORTERS == set()
 

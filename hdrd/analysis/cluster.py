@@ -15,7 +15,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from hdrd.errors import HdrdError
+from hdrd.errors import HdrdError, clipped
+from hdrd.io.files.access import printable
 
 __all__ = [
     "INSTALL",
@@ -66,8 +67,6 @@ TLS_HELP = (
 
 
 def one_line(e: BaseException) -> str:
-    from hdrd.errors import clipped
-    from hdrd.io.files.access import printable
 
     text = " ".join(str(e).split())
     return clipped(printable(text), 200) or type(e).__name__

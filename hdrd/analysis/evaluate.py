@@ -54,8 +54,10 @@ from hdrd.analysis.signcheck import sign_warning
 from hdrd.core import methods as registry
 from hdrd.core.calibrate import CalibrationLimits
 from hdrd.core.methods import MethodSetup, StepInputs
-from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
-from hdrd.io.files.drivefiles import DriveRef
+from hdrd.errors import clipped
+from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, DriveLogError, ReadLimits
+from hdrd.io.files.drivefiles import DriveRef, find_drives
 from hdrd.io.files.drivelog import DriveLog
 
 __all__ = [
@@ -448,10 +450,6 @@ def drive_refs(
     asks whether ``yaml_option`` was meant). What was left out is added to ``notes``: what a
     directory's scan could not read (with ``strict``: EvaluationError), and a drive named
     more than once (scored once)."""
-    from hdrd.io.files.access import shown_path
-    from hdrd.io.files.drivecolumns import DriveLogError
-    from hdrd.io.files.drivefiles import find_drives
-
     for p in paths:
         if p.lower().endswith(YAML_SUFFIXES) and Path(p).is_file():
             hint = f"; did you mean {yaml_option} {p}?" if yaml_option else ""
@@ -484,18 +482,11 @@ def drive_paths(paths: Sequence[str]) -> list[tuple[Path, str]]:
 
 def read_ref(ref: DriveRef, limits: ReadLimits = DEFAULT_READ_LIMITS) -> DriveLog:
     """Read one drive; EvaluationError with a one-line message if it cannot be read."""
-    from hdrd.io.files.drivecolumns import DriveLogError
-
     try:
         return ref.read(limits)
     except FileNotFoundError:
-        from hdrd.io.files.access import shown_path
-
         raise EvaluationError(f"{shown_path(ref.path)}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
-        from hdrd.errors import clipped
-        from hdrd.io.files.access import printable, shown_path
-
         why = getattr(e, "strerror", None) or clipped(printable(" ".join(str(e).split())), 200)
         raise EvaluationError(f"{shown_path(ref.path)}: cannot be read: {why}") from None
     except DriveLogError as e:

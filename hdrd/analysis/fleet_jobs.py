@@ -44,6 +44,7 @@ from hdrd.analysis.evaluate import (
 from hdrd.analysis.fleet import Progress, Runner, Where, batches, open_runner
 from hdrd.analysis.outages import OutageSpec, run_outages
 from hdrd.analysis.prepare import DEFAULT_LIMITS, PAPER_PARAMS, TRUTH_MAX_GAP_S
+from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import (
     CHUNK_ELEMENTS,
     PARAM_NAMES,
@@ -59,6 +60,8 @@ from hdrd.analysis.tune import (
 from hdrd.core.calibrate import CalibrationLimits
 from hdrd.core.hdr import HdrParams
 from hdrd.core.methods import MethodSetup
+from hdrd.errors import HdrdError, clipped
+from hdrd.io.files.access import printable
 from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
 from hdrd.io.files.drivelog import DriveLog
@@ -107,9 +110,6 @@ def why_skipped(name: str, e: Exception) -> str:
     """The one line that says why drive ``name`` could not be used: the message of hdrd's own
     error (it names the file and row, or the drive); for anything else, the drive and what
     went wrong, so that one bad drive never stops a fleet with a traceback."""
-    from hdrd.errors import HdrdError, clipped
-    from hdrd.io.files.access import printable
-
     if isinstance(e, HdrdError):
         msg = str(e)
         return msg if name in msg else f"{name}: {msg}"
@@ -224,8 +224,6 @@ def run_evaluate(
     cluster would not pay for itself: :func:`hdrd.analysis.fleet.open_runner`, ``say`` told),
     with a progress bar on stderr (``progress``) for a fleet (more than
     :data:`PLOT_PANELS_MAX` drives) or a cluster."""
-    from hdrd.analysis.progress import ProgressBar
-
     with open_runner(where, estimated_work_s(refs), say) as runner:
         show = progress and (runner.distributed or len(refs) > PLOT_PANELS_MAX)
         bar = ProgressBar(f"evaluate {len(refs)} drives") if show else None

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hdrd.analysis.evaluate import DriveResult, method_key
+from hdrd.analysis.plots import pyplot
 
 __all__ = ["QUANTILES", "fleet_summary", "plot_fleet"]
 
@@ -59,7 +60,6 @@ def fleet_summary(results: Sequence[DriveResult], skipped: int = 0) -> str:
 def plot_fleet(results: Sequence[DriveResult], path: str | os.PathLike[str]) -> None:
     """One PNG: (a) the histogram of NEψ over the drives per method, logarithmic bins, and
     (b) its box plot per method (median, quartiles, 5th-95th percentile whiskers)."""
-    from hdrd.analysis.plots import pyplot
 
     plt = pyplot()
     ms = results[0].methods

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hdrd.errors import HdrdError
+from hdrd.io.files.access import shown_path
 
 if TYPE_CHECKING:  # pragma: no cover
     from hdrd.analysis.evaluate import DriveResult
@@ -37,8 +38,6 @@ def plot_to_file(draw: Callable[[str], None], path: str) -> str | None:
     """Run ``draw(path)``; None on success, else the one-line error for the user (matplotlib
     missing, the file not writable, a format matplotlib cannot write). The command-line edges
     share this."""
-    from hdrd.io.files.access import shown_path
-
     try:
         os.makedirs(os.path.dirname(path) or ".", exist_ok=True)  # as every output's folder
         draw(path)
@@ -61,8 +60,6 @@ def plotting_unavailable(path: str | None = None) -> str | None:
     if path is None:
         return None
     from matplotlib.backend_bases import FigureCanvasBase
-
-    from hdrd.io.files.access import shown_path
 
     suffix = os.path.splitext(path)[1].lstrip(".").lower()
     formats = FigureCanvasBase.get_supported_filetypes()

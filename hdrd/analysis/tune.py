@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from hdrd.analysis.evaluate import (
     DriveResult,
+    EvaluationError,
     PreparedDrive,
     Summary,
     evaluate_prepared,
@@ -540,8 +541,6 @@ def check_held_out(train: Sequence[tuple[str, str]], test: Sequence[tuple[str, s
     """EvaluationError if a test drive is also a training drive, by content
     (:func:`content_key`; each drive given as (name, key)): the test column would claim a
     held-out score it is not."""
-    from hdrd.analysis.evaluate import EvaluationError
-
     seen = {key: name for name, key in train}
     both = [(name, seen[key]) for name, key in test if key in seen]
     if not both:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from hdrd.cliconfig import config_from_args
 from hdrd.config import Config, ConfigError
+from hdrd.configload import RULES
 from hdrd.core.calibrate import BiasRecord, MotionDetected, StartupWindow
 from hdrd.core.gyronoise import ALLAN_MIN_S, GyroNoise, measure_noise
 from hdrd.daemon.inputs import open_source
@@ -105,8 +106,6 @@ def main(args: argparse.Namespace) -> int:
     calibration.max_bias_dps, a busy port, no data for calibration.no_data_timeout_s, the
     input ended, an unwritable file), with one line saying why; 78 for a bad value.
     """
-    from hdrd.configload import RULES
-
     try:
         cfg, _ = config_from_args(args)
         seconds = args.seconds if args.seconds is not None else cfg.calibration.t_bias_s

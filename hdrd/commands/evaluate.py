@@ -7,6 +7,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
+from hdrd.analysis.cluster import FleetError
 from hdrd.analysis.evaluate import (
     DriveResult,
     EvaluationError,
@@ -14,16 +15,30 @@ from hdrd.analysis.evaluate import (
     evaluated_methods,
     format_table,
     to_json,
+    trace_csv,
 )
+from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
+from hdrd.analysis.fleet_report import fleet_summary, plot_fleet
+from hdrd.analysis.outages import OutageSpec, format_outages
+from hdrd.analysis.plots import plot_evaluation, plot_to_file
 from hdrd.cliconfig import (
     check_bias_arg,
     config_from_args,
     outputs_ok,
     read_limits_from_args,
+    where_from_args,
 )
 from hdrd.config import Config, ConfigError, method_setup
 from hdrd.daemon.pipeline import standstill_limits
 from hdrd.errors import EX_CONFIG, EX_USAGE
+from hdrd.io.files.access import (
+    UnsafeNameError,
+    atomic_write_json,
+    atomic_write_text,
+    path_inside,
+    printable,
+    shown_path,
+)
 
 if TYPE_CHECKING:
     from hdrd.analysis.fleet_jobs import EvaluateJob
@@ -40,7 +55,6 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd evaluate DRIVE.csv|DRIVE.parquet|DIR|GLOB... [--calibrate-seconds S | --bias DPS]
     [--json FILE] [--plot FILE.png] [--outages SPEC] [--config PATH] [--method METHOD] [--strict]
     [--workers N | --scheduler ADDRESS] [--no-progress]``."""
-    from hdrd.analysis.cluster import FleetError
 
     try:
         cfg, _ = config_from_args(args)  # --config, and --method over hdr.method
@@ -54,8 +68,6 @@ def main(args: argparse.Namespace) -> int:
     trace = getattr(args, "trace", None)
     outages = None
     if getattr(args, "outages", None):
-        from hdrd.analysis.outages import OutageSpec
-
         try:
             outages = OutageSpec.parse(args.outages, cfg.hdr.params.T)
         except ValueError as e:
@@ -76,8 +88,6 @@ def _evaluate(
 ) -> tuple[list[DriveResult], list[str], EvaluateJob]:
     """The drives' results, why each drive left out was skipped (both said on stderr, with
     each drive's warnings) and the job; EvaluationError when no drive can be evaluated."""
-    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX, EvaluateJob, run_evaluate
-    from hdrd.cliconfig import where_from_args
 
     method = cfg.hdr.method
     # HDR+ is shown beside the paper's HDR it improves on.
@@ -115,14 +125,10 @@ def _evaluate(
 
 def _print_results(results: list[DriveResult], n_skipped: int, outages: bool) -> None:
     """The table; with ``outages``, the outages' table; for a fleet, its summary."""
-    from hdrd.analysis.fleet_jobs import PLOT_PANELS_MAX
-    from hdrd.analysis.fleet_report import fleet_summary
 
     print(format_table(results))
     runs = [r.outages for r in results if r.outages is not None]
     if outages:
-        from hdrd.analysis.outages import format_outages
-
         print()
         print(format_outages(runs) if runs else "GNSS outages: none could be scored")
     if len(results) > PLOT_PANELS_MAX:
@@ -134,15 +140,6 @@ def _write_traces(folder: str, results: list[DriveResult]) -> int:
     :func:`hdrd.io.files.access.path_inside`; a name that cannot is said and left out), and with
     --outages DIR/<drive>.outages.csv (the aided run through the outages,
     :class:`hdrd.analysis.outages.OutageResult`'s trace); the exit status."""
-    from hdrd.analysis.evaluate import trace_csv
-    from hdrd.io.files.access import (
-        UnsafeNameError,
-        atomic_write_text,
-        path_inside,
-        printable,
-        shown_path,
-    )
-
     for r in results:
         files = [(".csv", r.trace)]
         if r.outages is not None:
@@ -166,16 +163,11 @@ def _write_files(args: argparse.Namespace, results: list[DriveResult], traces: b
     the exit status."""
     if args.json:
         try:
-            from hdrd.io.files.access import atomic_write_json, shown_path
-
             atomic_write_json(args.json, to_json(results))
         except OSError as e:
             _err(f"cannot write {shown_path(args.json)}: {e.strerror or e}")
             return 1
     if args.plot:
-        from hdrd.analysis.fleet_report import plot_fleet
-        from hdrd.analysis.plots import plot_evaluation, plot_to_file
-
         draw = plot_evaluation if traces else plot_fleet  # a fleet: NEpsi's distribution
         problem = plot_to_file(lambda path: draw(results, path), args.plot)
         if problem:

@@ -8,7 +8,16 @@ import math
 import sys
 from typing import TYPE_CHECKING
 
-from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel
+from hdrd.analysis.cluster import FleetError
+from hdrd.analysis.evaluate import EvaluationError, drive_refs
+from hdrd.analysis.fleet import open_runner
+from hdrd.analysis.gap.fleet import GapJob, GapOutputs, gap_fleet, gap_refs
+from hdrd.analysis.gap.plots import plot_gap
+from hdrd.analysis.plots import plot_to_file
+from hdrd.cliconfig import outputs_ok, read_limits_from_args, where_from_args
+from hdrd.io.files.access import atomic_write_json, atomic_write_text, shown_path
+from hdrd.io.files.drivecolumns import DriveLogError
+from hdrd.sim.gyro import DEFAULT_START_MODEL, GyroModel, load_model, save_model
 
 if TYPE_CHECKING:
     from hdrd.analysis.gap.fleet import GapOutcome
@@ -53,10 +62,6 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as e:
         _err(str(e))
         return 1
-    from hdrd.analysis.cluster import FleetError
-    from hdrd.analysis.fleet import open_runner
-    from hdrd.analysis.gap.fleet import GapJob, gap_refs
-    from hdrd.io.files.drivecolumns import DriveLogError
 
     start = _start_model(args)
     if start is None:
@@ -65,13 +70,11 @@ def main(args: argparse.Namespace) -> int:
     refs = _drives(args, measured)
     if refs is None:
         return 1
-    from hdrd.cliconfig import outputs_ok
 
     flags = ("--report", "--gyro-out", "--plot") + (("--out",) if len(refs) == 1 else ())
     folders = {} if len(refs) == 1 else {"--out": FLEET_OUT}
     if not outputs_ok(args, _err, flags, folders):  # said before the work, not after it
         return 1
-    from hdrd.cliconfig import read_limits_from_args
 
     job = GapJob(
         start,
@@ -81,13 +84,10 @@ def main(args: argparse.Namespace) -> int:
         bool(args.plot),
         read_limits_from_args(args),
     )
-    from hdrd.cliconfig import where_from_args
 
     try:
         with open_runner(where_from_args(args, "hdrd gap")) as runner:
             if len(refs) > 1:
-                from hdrd.analysis.gap.fleet import GapOutputs, gap_fleet
-
                 strict = bool(getattr(args, "strict", False))
                 progress = not getattr(args, "no_progress", False)
                 outputs = GapOutputs(args.out, args.report, strict, progress)
@@ -106,8 +106,6 @@ def main(args: argparse.Namespace) -> int:
 def _start_model(args: argparse.Namespace) -> GyroModel | None:
     """The model the fit starts from (--model, else the default); None when it cannot be
     read (why said on stderr)."""
-    from hdrd.sim.gyro import load_model
-
     if not args.model:
         return DEFAULT_START_MODEL
     try:
@@ -122,8 +120,6 @@ def _start_model(args: argparse.Namespace) -> GyroModel | None:
 def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | None:
     """The drives named; None when they cannot be found or are too many for --plot or
     --gyro-out, which describe one drive (why said on stderr)."""
-    from hdrd.analysis.evaluate import EvaluationError, drive_refs
-
     notes: list[str] = []
     try:
         strict = bool(getattr(args, "strict", False))
@@ -144,20 +140,15 @@ def _drives(args: argparse.Namespace, measured: list[str]) -> list[DriveRef] | N
 
 def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str]) -> int:
     """One drive's --report, --out, --gyro-out and --plot; the exit status."""
-    from hdrd.sim.gyro import save_model
-
     gyro_out = getattr(args, "gyro_out", None)
     try:
         if args.report:
-            from hdrd.io.files.access import atomic_write_json
-
             atomic_write_json(args.report, res.report)
         if args.out:
             save_model(res.model, args.out)
         if gyro_out:
             # the name goes into a YAML comment: one printable line, whatever the file is called
             from hdrd.analysis.gap.report import gyro_section
-            from hdrd.io.files.access import atomic_write_text, shown_path
 
             atomic_write_text(
                 gyro_out, gyro_section(res.model, shown_path(measured[0]), res.report)
@@ -166,9 +157,6 @@ def _write_files(args: argparse.Namespace, res: GapOutcome, measured: list[str])
         _err(f"cannot write: {e.strerror or e}" + (f" ({e.filename})" if e.filename else ""))
         return 1
     if args.plot:
-        from hdrd.analysis.gap.plots import plot_gap
-        from hdrd.analysis.plots import plot_to_file
-
         problem = plot_to_file(lambda path: plot_gap(res.result, path), args.plot)
         if problem:
             _err(problem)

@@ -6,10 +6,13 @@ from __future__ import annotations
 import argparse
 import sys
 
+from hdrd.analysis.signcheck import check_sign, sign_warning
+from hdrd.cliconfig import drive_log_outputs_ok, read_limits_from_args
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
 from hdrd.io.files.csvimport import Mapping, import_csv, unit_warnings
 from hdrd.io.files.drivecolumns import DriveLogError
+from hdrd.io.files.drivefiles import log_format, write_log
 from hdrd.io.files.drivelog import DriveLog
 
 __all__ = ["main"]
@@ -19,8 +22,6 @@ def main(args: argparse.Namespace) -> int:
     """``hdrd import SOURCE.csv --out DRIVE.csv --t COL --omega COL [...]``: exit 0, or 1 with
     one line on stderr (a source that cannot be read or converted, an output that cannot be
     written)."""
-    from hdrd.cliconfig import drive_log_outputs_ok, read_limits_from_args
-    from hdrd.io.files.drivefiles import log_format, write_log
 
     fmt = log_format(args.out, getattr(args, "format", None))
     say = lambda msg: print(f"hdrd import: error: {msg}", file=sys.stderr)  # noqa: E731
@@ -68,8 +69,6 @@ def main(args: argparse.Namespace) -> int:
 
 def _warn_of_the_sign(log: DriveLog, mapping: Mapping) -> None:
     """A warning on stderr when the rate's sign disagrees with the truth heading's turns."""
-    from hdrd.analysis.signcheck import check_sign, sign_warning
-
     if log.heading_truth is None:
         return
     check = check_sign(log.t, log.omega, log.heading_truth)

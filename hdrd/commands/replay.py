@@ -20,11 +20,20 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hdrd.cliconfig import check_bias_arg, config_from_args, drive_log_outputs_ok
 from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
 from hdrd.daemon.replay import replay_steps
 from hdrd.errors import EX_CONFIG, EX_USAGE
+from hdrd.io.files.access import MAX_CAPTURE_BYTES, InputFileError, read_limited, shown_path
 from hdrd.io.files.biasfile import BiasFileError, load_bias
+from hdrd.io.files.drivecolumns import DriveLogError
+from hdrd.io.files.drivefiles import log_format, write_log
+from hdrd.io.files.drivelog import SNIFF_BYTES, DriveLog, converted_name, drive_log_kind
+from hdrd.io.net.formats import format_json
+from hdrd.io.wire.capture import decode_capture
+from hdrd.io.wire.clocks import DeviceClock
+from hdrd.io.wire.protocol import TEMP_NOT_FITTED
 
 __all__ = ["convert_main", "main"]
 
@@ -34,8 +43,6 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 
     The capture must be a regular file of at most MAX_CAPTURE_BYTES (a FIFO or a device
     would block or never end)."""
-    from hdrd.cliconfig import check_bias_arg, config_from_args
-    from hdrd.io.files.access import MAX_CAPTURE_BYTES, InputFileError, read_limited
 
     try:
         cfg, _ = config_from_args(args)
@@ -55,9 +62,6 @@ def _config_and_capture(args: argparse.Namespace, command: str) -> tuple[Config,
 def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
     """A file that holds no valid frame (a drive log; not a capture; another --protocol):
     exit 1."""
-    from hdrd.io.files.access import shown_path
-    from hdrd.io.files.drivelog import SNIFF_BYTES, drive_log_kind
-
     try:
         with open(capture, "rb") as f:  # a regular file: read_limited took it whole
             kind = drive_log_kind(f.read(SNIFF_BYTES))
@@ -84,9 +88,6 @@ def _no_frames(command: str, capture: str, protocol: str, stats: Any) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hdrd replay FILE``: one JSON line per step on stdout, written as the steps come."""
-    from hdrd.io.net.formats import format_json
-    from hdrd.io.wire.capture import decode_capture
-
     loaded = _config_and_capture(args, "replay")
     if isinstance(loaded, int):
         return loaded
@@ -143,15 +144,6 @@ def convert_main(args: argparse.Namespace) -> int:
     """``hdrd convert CAPTURE --out DRIVE.csv|DRIVE.parquet|DIR [--format F]``: every frame as a
     drive-log row (raw deg/s)."""
     import numpy as np
-
-    from hdrd.cliconfig import drive_log_outputs_ok
-    from hdrd.io.files.access import shown_path
-    from hdrd.io.files.drivecolumns import DriveLogError
-    from hdrd.io.files.drivefiles import log_format, write_log
-    from hdrd.io.files.drivelog import DriveLog, converted_name
-    from hdrd.io.wire.capture import decode_capture
-    from hdrd.io.wire.clocks import DeviceClock
-    from hdrd.io.wire.protocol import TEMP_NOT_FITTED
 
     if _is_the_capture(args.out, args.capture):
         print(

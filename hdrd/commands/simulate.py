@@ -28,7 +28,7 @@ from hdrd.io.files.drivecolumns import DriveLogError
 from hdrd.io.files.drivefiles import log_format, write_log
 from hdrd.io.files.drivelog import write_drive
 from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES, generate
-from hdrd.sim.drive import simulate_drive
+from hdrd.sim.drive import simulate_drive, too_big
 from hdrd.sim.grades import grade_model
 from hdrd.sim.gyro import GyroModel, load_model
 from hdrd.sim.recordings import FittedErrors, errors_from
@@ -187,8 +187,6 @@ def _benchmark(
 def _too_big(args: argparse.Namespace) -> str | None:
     """Why the drive(s) asked for cannot be made (a seed below 0, too many samples:
     :func:`hdrd.sim.drive.too_big`), or None."""
-    from hdrd.sim.drive import too_big
-
     if not args.benchmark and args.seed < 0:
         return f"--seed must be >= 0, got {args.seed}"
     specs = TRAIN_DRIVES if args.benchmark == "train" else TEST_DRIVES

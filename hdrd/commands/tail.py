@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from typing import TextIO
 
 from hdrd.io.net.datagrams import DEFAULT_TAIL_LISTEN, TailFormatter, udp_listener
+from hdrd.io.net.portowner import udp_port_holders
 
 __all__ = ["main"]
 
@@ -81,8 +82,6 @@ def main(args: argparse.Namespace) -> int:
 def _in_use(listen: str) -> str:
     """Why ``listen`` cannot be bound, when another socket holds it: which process, where
     this user can see it (:func:`hdrd.io.net.portowner.udp_port_holders`)."""
-    from hdrd.io.net.portowner import udp_port_holders
-
     try:
         holders = udp_port_holders(int(listen.rpartition(":")[2]))
     except (ValueError, OSError):

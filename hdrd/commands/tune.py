@@ -16,7 +16,7 @@ from hdrd.analysis.evaluate import (
     drive_refs,
 )
 from hdrd.analysis.fleet import open_runner
-from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared
+from hdrd.analysis.fleet_jobs import PrepareJob, read_prepared, tune_fleet
 from hdrd.analysis.prepare import PAPER_PARAMS
 from hdrd.analysis.progress import ProgressBar
 from hdrd.analysis.tune import (
@@ -31,6 +31,7 @@ from hdrd.analysis.tune import (
     tune,
 )
 from hdrd.cliconfig import outputs_ok, read_limits_from_args, where_from_args
+from hdrd.io.files.access import atomic_write_json, atomic_write_text, shown_path
 from hdrd.io.files.drivefiles import DriveRef
 
 __all__ = ["NAMES_IN_COMMENT", "main"]
@@ -61,7 +62,6 @@ def _prepared(
 
 
 def _run(args: argparse.Namespace, bar: ProgressBar | None, skipped: list[str]) -> TuneResult:
-    from hdrd.analysis.fleet_jobs import tune_fleet
 
     strict = bool(getattr(args, "strict", False))
     notes: list[str] = []
@@ -132,8 +132,6 @@ def _comment(result: TuneResult, seed: int) -> list[str]:
 def _interrupted(args: argparse.Namespace, e: Interrupted) -> int:
     """Ctrl-C: the best set so far on stdout (and in --out, --json), said in one line on
     stderr; exit 130. The set is not checked on the test drives."""
-    from hdrd.io.files.access import atomic_write_json, atomic_write_text
-
     best = e.best(PAPER_PARAMS)
     if best is None:
         print("hdrd tune: interrupted before any parameter set was scored", file=sys.stderr)
@@ -196,8 +194,6 @@ def main(args: argparse.Namespace) -> int:
 
 def _write(args: argparse.Namespace, result: TuneResult, seconds: float) -> int:
     """--out and --json; the exit status."""
-    from hdrd.io.files.access import atomic_write_json, atomic_write_text, shown_path
-
     path = args.out
     try:
         if args.out:

@@ -19,7 +19,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.core.allan import allan_deviation, arw_from_adev, default_taus, gauss_markov_adev
 from hdrd.core.grades import GM_PEAK, Grade
+from hdrd.core.standstill import quantization_step
 
 __all__ = [
     "ALLAN_MIN_S",
@@ -189,9 +191,6 @@ def measure_noise(omega_dps: npt.ArrayLike, rate_hz: float, source: str = "recor
     temperature coefficient is not seen at one temperature: unknown. ValueError for fewer
     than 2 finite samples or a rate that is not > 0.
     """
-    from hdrd.core.allan import allan_deviation, arw_from_adev, default_taus
-    from hdrd.core.standstill import quantization_step
-
     w = np.asarray(omega_dps, dtype=np.float64)
     w = w[np.isfinite(w)]
     if w.shape[0] < 2 or not (math.isfinite(rate_hz) and rate_hz > 0.0):
@@ -230,8 +229,6 @@ def _fit_adev(
     relative terms; the tau_c with the smallest residual. None when the curve has fewer than
     6 points or neither a Gauss-Markov nor a random-walk term is found."""
     from itertools import combinations
-
-    from hdrd.core.allan import gauss_markov_adev
 
     if taus.shape[0] < 6:
         return None

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.config import method_setup
 from hdrd.core.calibrate import BiasRecord, CalibrationLimits
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.selfcheck import OutageRecord
@@ -79,8 +80,6 @@ def pipeline_config(
     method's setup (:func:`hdrd.config.method_setup`) with the static bias of ``bias`` (None:
     measured at start-up) and what the unit's trips taught (``unit``, its state file), start-up
     window and standstill test, heading0."""
-    from hdrd.config import method_setup
-
     return PipelineConfig(
         sensor=cfg.sensor,
         setup=method_setup(cfg, bias, unit.profile() if unit is not None else None),

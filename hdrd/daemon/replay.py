@@ -13,7 +13,9 @@ from collections.abc import Iterator
 from typing import Any
 
 from hdrd.config import Config
-from hdrd.core.calibrate import BiasRecord
+from hdrd.core.calibrate import BiasRecord, given_bias
+from hdrd.daemon.pipeline import Pipeline, pipeline_config
+from hdrd.io.wire.capture import decode_capture
 
 __all__ = ["STEP_CHUNK_FRAMES", "replay_capture", "replay_steps"]
 
@@ -38,9 +40,6 @@ def replay_steps(
     file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
     from dataclasses import replace
 
-    from hdrd.core.calibrate import given_bias
-    from hdrd.daemon.pipeline import Pipeline, pipeline_config
-
     # the record also brings the noise parameters it holds (HDR+'s error model); a bias
     # given without one is a bare given bias, None is measured at start-up
     rec = bias_record if bias_record is not None and bias_record.bias_dps == bias_dps else None
@@ -63,8 +62,6 @@ def replay_capture(
 ) -> list[dict[str, Any]]:
     """Every message the daemon would publish for these bytes (without ``time``). Pure.
     bias_record: the bias file's record behind bias_dps (HDR+'s prior), as the daemon has it."""
-    from hdrd.io.wire.capture import decode_capture
-
     frames, stats = decode_capture(data, cfg.device.protocol)
     out: list[dict[str, Any]] = []
     for msgs in replay_steps(

@@ -26,6 +26,7 @@ from hdrd.config import Config, ConfigError
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.throttle import Throttle
 from hdrd.daemon.faultlog import FaultLog
+from hdrd.daemon.gpslink import GpsdLink
 from hdrd.daemon.inputs import open_source
 from hdrd.daemon.listeners import Listener, Liveness, Outputs
 from hdrd.daemon.pacing import ReadPacer
@@ -101,7 +102,6 @@ def _gps_link(cfg: Config) -> GpsdLink | None:
     """The GPS aiding link that ``cfg.gpsd`` asks for, or None."""
     if not cfg.gpsd.enabled:
         return None
-    from hdrd.daemon.gpslink import GpsdLink
 
     return GpsdLink.from_config(cfg.gpsd, step_s=cfg.hdr.params.T)
 

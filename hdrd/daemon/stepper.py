@@ -21,7 +21,7 @@ from hdrd.core import methods
 from hdrd.core.angles import compass
 from hdrd.core.calibrate import BiasRecord, CalibrationLimits, MotionDetected, StartupWindow
 from hdrd.core.hdr import HdrParams
-from hdrd.core.hdrplus import PlusOutput
+from hdrd.core.hdrplus import PlusOutput, motion_offset
 from hdrd.core.resample import Block
 from hdrd.core.selfcheck import FROZEN, OutageRecord, SelfCheck, frozen_params
 from hdrd.core.sensor import SensorModel
@@ -224,7 +224,6 @@ class Stepper:
         offset is observable then); None otherwise."""
         if not self.method.owns_heading or self.aided_stops < self.LEARN_MIN_STOPS:
             return None
-        from hdrd.core.hdrplus import motion_offset
 
         m, sd = motion_offset(self.state)
         return (m, sd) if math.isfinite(m) and math.isfinite(sd) else None

@@ -20,6 +20,13 @@ import yaml
 
 from hdrd.core.sensor import SensorModel
 from hdrd.errors import clipped
+from hdrd.io.files.access import (
+    MAX_CONFIG_BYTES,
+    InputFileError,
+    atomic_write_text,
+    load_yaml,
+    read_limited,
+)
 from hdrd.sim.effects import (
     EFFECT_NAMES,
     EFFECTS,
@@ -237,8 +244,6 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
     Read as hdrd reads its configuration (:mod:`hdrd.io.files.access`): a regular file of at most
     1 MiB, YAML nested at most 32 deep. Raises ValueError naming the file and what is wrong,
     in one line (OSError if it cannot be read)."""
-    from hdrd.io.files.access import MAX_CONFIG_BYTES, InputFileError, load_yaml, read_limited
-
     try:
         text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")
     except InputFileError as exc:
@@ -250,6 +255,7 @@ def load_model(path: str | os.PathLike[str]) -> GyroModel:
     except InputFileError as exc:
         at = f" at {exc.where}" if exc.where else ""
         raise ValueError(f"{path}: not valid YAML{at}: {exc}") from None
+    # yaml only where a file is read: a replay with --bias loads none (tests/test_fastpaths.py)
     from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:
@@ -278,6 +284,4 @@ def save_model(
     """Write a model YAML that :func:`load_model` reads back equal, whole or not at all
     (:func:`hdrd.io.files.access.atomic_write_text`; ``inside``: a drive's model in a folder the
     user named, as its ``inside``)."""
-    from hdrd.io.files.access import atomic_write_text
-
     atomic_write_text(path, model_text(model), inside=inside)

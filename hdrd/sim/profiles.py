@@ -23,6 +23,7 @@ from hdrd.io.files.drivelog import DriveLog
 from hdrd.io.wire.codec import FRAME_DTYPE
 from hdrd.io.wire.protocol import CLOCK_WRAP_US, TEMP_NOT_FITTED
 from hdrd.sim.drive import simulate_drive
+from hdrd.sim.grades import grade_model
 
 __all__ = [
     "BUILTIN_DRIVES",
@@ -137,8 +138,6 @@ def load_profile(
     try:
         model = None
         if grade is not None:
-            from hdrd.sim.grades import grade_model
-
             model = grade_model(grade, seed)
         return simulate_drive(drive, minutes, seed, hz=hz, model=model)
     except ValueError as e:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from hdrd.errors import clipped
-from hdrd.io.files.access import printable
+from hdrd.io.files.access import InputFileError, printable, read_limited, shown_path
 from hdrd.sim.gyro import GyroModel
 
 __all__ = [
@@ -78,8 +78,6 @@ def errors_from(source: str | os.PathLike[str] | dict[str, Any]) -> FittedErrors
     """The gyro errors of an ``hdrd gap --report`` file (one drive's report, or a fleet's
     ``{"drives": [...], "skipped": [...]}``), or of that JSON already read. Raises ValueError
     naming the file and what is wrong (one line), OSError if it cannot be read."""
-    from hdrd.io.files.access import InputFileError, read_limited, shown_path
-
     if isinstance(source, dict):
         doc: Any = source
         where = "the report"

@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hdrd import __version__
+from hdrd.core.grades import Grade
 from hdrd.errors import HdrdError
 from hdrd.io.files.drivelog import DriveLog
 from hdrd.sim.effects import MotionOffset
@@ -186,8 +187,6 @@ def grade_on_road(
     (deg/s, read while the vehicle moves; 0: none), sampled at ``hz`` (None: the grade's own
     rate), from ``start_s`` of the route. Named ``<route>-<grade>[-mo]-<seed>`` (and
     ``-at<start_s>`` when it is not 0)."""
-    from hdrd.core.grades import Grade
-
     model = grade_model(grade, seed)
     if motion_offset_dps != 0.0:
         model = model.with_effect(MotionOffset(offset_dps=motion_offset_dps))

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from hdrd.analysis.gap.lowpass import noise_share
 from hdrd.sim.effects import Bandwidth, WhiteNoise
 from hdrd.sim.gyro import GyroModel
 
@@ -51,8 +52,6 @@ def fast_noise_sd(model: GyroModel, fs_hz: float) -> float:
     var = float(white.density_dps_per_rthz) ** 2 * fs_hz if isinstance(white, WhiteNoise) else 0.0
     bw = model.get("bandwidth")
     if isinstance(bw, Bandwidth):
-        from hdrd.analysis.gap.lowpass import noise_share
-
         a = math.exp(-2.0 * math.pi * bw.section_hz() / fs_hz)
         var = var * noise_share(a, bw.sections) + bw.output_noise_dps_per_rthz**2 * fs_hz
     return math.sqrt(var)

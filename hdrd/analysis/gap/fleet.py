@@ -22,8 +22,11 @@ from hdrd.analysis.fleet import Progress, Runner
 from hdrd.analysis.fleet_jobs import DriveOutcome, why_skipped
 from hdrd.analysis.gap.report import summary, to_report
 from hdrd.analysis.gap.search import run_gap
+from hdrd.analysis.progress import ProgressBar
+from hdrd.io.files.access import UnsafeNameError, path_inside, shown_path
 from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, ReadLimits
 from hdrd.io.files.drivefiles import DriveRef
+from hdrd.sim.gyro import save_model
 
 if TYPE_CHECKING:
     from hdrd.analysis.progress import ProgressBar
@@ -177,8 +180,6 @@ def gap_fleet(outputs: GapOutputs, refs: Sequence[DriveRef], job: GapJob, runner
     """Run ``hdrd gap`` on every drive; print and write as the drives come in. Exit status 0,
     or 1 if no drive could be analysed or a file could not be written. Raises DriveLogError
     (a drive cannot be read) and FleetError."""
-    from hdrd.analysis.progress import ProgressBar
-
     name_w = max(12, *(len(r.name) for r in refs))
     skipped: list[str] = []
     n_given = len(refs)
@@ -239,8 +240,6 @@ class _FleetRun:
     def take(self, o: DriveOutcome, report: ReportStream | _NoReport) -> bool:
         """Print and write one drive's outcome (its row, report and model); False when a
         drive skipped stops the run (--strict)."""
-        from hdrd.sim.gyro import save_model
-
         if o.skipped is not None:
             if self.outputs.strict:
                 self.close_bar()
@@ -269,8 +268,6 @@ def model_paths(
     other drive is left out (a name that would lead out of OUT; a file another drive already
     takes, or that would be a folder of another drive's file or hold it, ``a.yaml/b`` and
     ``a``; a folder already where the file goes, or a file where a folder must be)."""
-    from hdrd.io.files.access import UnsafeNameError, path_inside
-
     kept: list[DriveRef] = []
     paths: dict[str, Path] = {}
     taken: dict[Path, str] = {}
@@ -299,8 +296,6 @@ def _clash(
 ) -> str | None:
     """Why a drive's model cannot be ``path`` (None if it can), given the files and folders
     the drives before it take."""
-    from hdrd.io.files.access import shown_path
-
     shown = shown_path(path)
     if path in taken or named:
         return f"its model would be {shown}, as that of an earlier drive"

@@ -8,9 +8,11 @@ from typing import Any
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN
 from hdrd.analysis.gap.data import GapData
+from hdrd.analysis.gap.dither import DITHERED, fast_noise_sd
 from hdrd.analysis.gap.metric import GAP_METRIC
 from hdrd.analysis.gap.search import Ambiguity, GapResult, Step, sig4
 from hdrd.sim.effects import MotionOffset, Quantization
+from hdrd.sim.grades import model_noise
 from hdrd.sim.gyro import GyroModel
 
 __all__ = ["PROFILE_ORDER", "gyro_section", "summary", "to_report"]
@@ -199,8 +201,6 @@ def gyro_section(model: GyroModel, drive: str, report: Mapping[str, Any] | None 
     the temperature coefficient (its size: the profile's is >= 0). ``report``
     (:func:`to_report`) also gives the sample rate at which a comment says whether the noise
     dithers the ADC at rest."""
-    from hdrd.sim.grades import model_noise
-
     known = model_noise(model, source="config").to_dict()
     if "bias_instability_dps" in known:  # its correlation time; the config takes 1 .. 1e6 s
         known["bias_tau_s"] = min(max(known["bias_tau_s"], 1.0), 1e6)
@@ -233,8 +233,6 @@ def gyro_section(model: GyroModel, drive: str, report: Mapping[str, Any] | None 
 def _dither_note(model: GyroModel, rate_hz: float) -> list[str]:
     """A comment on whether the noise at the ADC's input dithers it at rest (docs/model-gap.md,
     "Quantization and dither"): [] without a quantization or a sample rate."""
-    from hdrd.analysis.gap.dither import DITHERED, fast_noise_sd
-
     q = model.get("quantization")
     if not (isinstance(q, Quantization) and math.isfinite(rate_hz) and rate_hz > 0):
         return []

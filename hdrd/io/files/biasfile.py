@@ -14,7 +14,13 @@ from pathlib import Path
 from hdrd.core.calibrate import BiasRecord
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.files.access import atomic_write_text
+from hdrd.io.files.access import (
+    MAX_BIAS_BYTES,
+    InputFileError,
+    atomic_write_text,
+    load_yaml,
+    read_limited,
+)
 
 __all__ = ["MAX_BIAS_N", "MAX_BIAS_STD_DPS", "BiasFileError", "load_bias", "save_bias"]
 
@@ -81,8 +87,6 @@ def load_bias(path: str | os.PathLike[str], max_abs_bias_dps: float | None = Non
 
 def _mapping(p: Path) -> dict[str, object]:
     """The bias file's text, whole (ending in ``# end``), read as a YAML mapping."""
-    from hdrd.io.files.access import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
-
     try:
         text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
     except FileNotFoundError:
@@ -98,6 +102,7 @@ def _mapping(p: Path) -> dict[str, object]:
     except InputFileError as e:
         at = f" at {e.where}" if e.where else ""
         raise BiasFileError(f"bias file {p}: not valid YAML{at}: {e}") from None
+    # yaml only where a file is read: a replay with --bias loads none (tests/test_fastpaths.py)
     from hdrd.io.files.yamlkeys import duplicate_key
 
     if (dup := duplicate_key(text)) is not None:

@@ -16,7 +16,14 @@ from typing import Any
 from hdrd.errors import clipped
 from hdrd.io.files.access import printable, shown_path
 from hdrd.io.files.drivecolumns import DEFAULT_READ_LIMITS, DriveLogError, ReadLimits
-from hdrd.io.files.drivelog import DriveLog, read_drive
+from hdrd.io.files.drivelog import DriveLog, read_drive, write_drive
+from hdrd.io.files.parquetlog import (
+    drives_in_file,
+    partition_value,
+    read_parquet_drive,
+    write_dataset_drive,
+    write_parquet_drive,
+)
 
 __all__ = ["FORMATS", "DriveRef", "find_drives", "log_format", "write_log"]
 
@@ -67,8 +74,6 @@ class DriveRef:
         if self.problem is not None:
             raise DriveLogError(self.problem)
         if self.parquet:
-            from hdrd.io.files.parquetlog import read_parquet_drive
-
             return read_parquet_drive(self.path, self.name, self.key, limits)
         return read_drive(self.path, self.name, limits)
 
@@ -78,8 +83,6 @@ def _in_file(path: Path, name: str) -> list[DriveRef]:
     ``drive`` column (named ``NAME/VALUE``, or VALUE when the file was named itself: ``name``
     empty)."""
     if path.suffix == PARQUET_SUFFIX:
-        from hdrd.io.files.parquetlog import drives_in_file
-
         try:
             keys = drives_in_file(path)
         except (DriveLogError, OSError) as e:
@@ -138,7 +141,6 @@ def _scan(root: Path, problems: list[str]) -> list[Path]:
 
 def _partition(path: Path, parent: str = ".") -> DriveRef:
     """A partition directory ``drive=NAME``: named NAME, under the directories above it."""
-    from hdrd.io.files.parquetlog import partition_value
 
     value = partition_value(path)
     return DriveRef(str(path), drive_name(value if parent == "." else f"{parent}/{value}"))
@@ -212,15 +214,10 @@ def write_log(
     dataset's partitions are always). Returns what was written (the file). OSError if it
     cannot be written."""
     if fmt == "csv":
-        from hdrd.io.files.drivelog import write_drive
-
         write_drive(out, log, inside)
         return out
     if fmt == "parquet":
-        from hdrd.io.files.parquetlog import write_parquet_drive
-
         write_parquet_drive(out, log, inside)
         return out
-    from hdrd.io.files.parquetlog import write_dataset_drive
 
     return str(write_dataset_drive(out, log, name))

@@ -37,7 +37,7 @@ from typing import BinaryIO
 import numpy as np
 
 from hdrd.errors import clipped
-from hdrd.io.files.access import printable, shown_path
+from hdrd.io.files.access import atomic_output, printable, shown_path
 from hdrd.io.files.drivecolumns import (
     COLUMNS,
     DEFAULT_READ_LIMITS,
@@ -47,6 +47,7 @@ from hdrd.io.files.drivecolumns import (
     ReadLimits,
     check_columns,
 )
+from hdrd.io.wire.capture import decode_capture
 
 __all__ = [
     "DriveLog",
@@ -201,7 +202,6 @@ def _not_a_drive_log(path: str | os.PathLike[str], label: str) -> str | None:
             head = f.read(SNIFF_BYTES)
     except (OSError, DriveLogError):
         return None
-    from hdrd.io.wire.capture import decode_capture
 
     for protocol in ("hdr-bin", "hdr-text"):
         frames, _ = decode_capture(head, protocol)
@@ -468,8 +468,6 @@ def write_drive(
     character device or a FIFO is written through; ``inside``: a file hdrd names in that
     folder, only a regular file replaced); OSError if it cannot be."""
     if isinstance(path, (str, os.PathLike)):
-        from hdrd.io.files.access import atomic_output
-
         with atomic_output(path, make_parents=True, inside=inside) as raw:
             f = io.TextIOWrapper(raw, "utf-8", newline="")
             _write(f, log)

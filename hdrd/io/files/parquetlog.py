@@ -24,7 +24,14 @@ from typing import Any
 import numpy as np
 
 from hdrd.errors import clipped
-from hdrd.io.files.access import printable, shown_path, size_text
+from hdrd.io.files.access import (
+    UnsafeNameError,
+    atomic_output,
+    path_inside,
+    printable,
+    shown_path,
+    size_text,
+)
 from hdrd.io.files.drivecolumns import (
     COLUMNS,
     DEFAULT_READ_LIMITS,
@@ -89,8 +96,6 @@ def partition_dir(root: str | os.PathLike[str], name: str) -> Path:
     """The partition directory of drive ``name`` in the dataset at ``root``: ``drive=NAME``
     with NAME URI-encoded (a ``/`` is ``%2F``), always directly inside ``root``
     (:func:`hdrd.io.files.access.path_inside`); DriveLogError for an empty name or one too long."""
-    from hdrd.io.files.access import UnsafeNameError, path_inside
-
     if not name:
         raise DriveLogError(f"{root}: a drive needs a name to be a partition of the dataset")
     try:
@@ -469,8 +474,6 @@ def write_parquet_drive(
     (:func:`hdrd.io.files.access.atomic_output`: its missing folders made; a character device or a
     FIFO is written through; ``inside``: a file hdrd names in that folder, only a regular file
     replaced); OSError if it cannot be."""
-    from hdrd.io.files.access import atomic_output
-
     _, _, pq = _pyarrow()
     with atomic_output(path, make_parents=True, inside=inside) as f:
         pq.write_table(_table(log), f, compression="zstd")

@@ -20,7 +20,13 @@ from pathlib import Path
 from hdrd.core.gyronoise import GyroNoise
 from hdrd.core.selfcheck import OutageRecord
 from hdrd.errors import HdrdError, clipped
-from hdrd.io.files.access import atomic_write_text
+from hdrd.io.files.access import (
+    MAX_BIAS_BYTES,
+    InputFileError,
+    atomic_write_text,
+    load_yaml,
+    read_limited,
+)
 
 __all__ = [
     "MAX_OFFSET_DPS",
@@ -94,8 +100,6 @@ def save_unit_state(path: str | os.PathLike[str], state: UnitState) -> None:
 def load_unit_state(path: str | os.PathLike[str]) -> UnitState | None:
     """Read a state file; None when there is none yet; UnitStateError (one line naming the
     file and the problem) when it cannot be used."""
-    from hdrd.io.files.access import MAX_BIAS_BYTES, InputFileError, load_yaml, read_limited
-
     p = Path(path)
     try:
         text = read_limited(p, MAX_BIAS_BYTES).decode("utf-8")
