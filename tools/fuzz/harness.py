@@ -22,7 +22,8 @@ bytes, unicode, giant strings, truncation, YAML anchors and tags, frames whose c
 or whose counts sit at the rails) or random bytes; input *i* of a surface is made from
 (seed, surface, i) alone (tools/fuzz/inputs.py), so ``--show SURFACE:I`` writes it to
 stdout again. In process, each surface's inputs go through the code the daemon runs
-(tools/fuzz/targets.py) in a worker process of its own, which the parent watches:
+(tools/fuzz/targets.py, tools/fuzz/filetargets.py) in a worker process of its own, which the
+parent watches:
 
 - a **traceback** is any exception the code raises, or a broken promise (a non-finite number
   or a heading outside [0, 360) published, a refusal that is not one printable line, tail
@@ -66,7 +67,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import targets
+from . import filetargets, targets
 from .drivelog import DriveLogTarget
 from .surfaces import SURFACES, generate
 from .targets import Broken
@@ -88,11 +89,11 @@ def make_target(surface: str, seed: int, workdir: Path) -> targets.Target:
     if surface == "tail":
         return targets.TailTarget(seed)
     if surface == "config":
-        return targets.ConfigTarget(seed, workdir)
+        return filetargets.ConfigTarget(seed, workdir)
     if surface == "bias":
-        return targets.BiasTarget(seed, workdir)
+        return filetargets.BiasTarget(seed, workdir)
     if surface == "capture":
-        return targets.CaptureTarget(seed, workdir)
+        return filetargets.CaptureTarget(seed, workdir)
     if surface in ("drivecsv", "driveparquet"):
         return DriveLogTarget(surface, seed, workdir)
     raise ValueError(f"unknown surface {surface!r}")
