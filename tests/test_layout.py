@@ -429,8 +429,6 @@ UNSPLIT: set[str] = {
     "tools/fuzz/harness.py:_worker",
     "tools/fuzz/harness.py:run_surface",
     "tools/fuzz/harness.py:main",
-    "tools/fuzz/inputs.py:_clock_break",
-    "tools/fuzz/inputs.py:_gpsd_templates",
     "tools/fuzz/process.py:_serial",
     "tools/fuzz/process.py:_gpsd",
     "tools/fuzz/procinput.py:config_sighup",

@@ -1,12 +1,13 @@
 """The input surfaces of tools/fuzz and each one's generator: tools/fuzz/inputs.py holds the
-daemon's surfaces, tools/fuzz/driveinputs.py the drive logs'."""
+daemon's surfaces, tools/fuzz/clockinputs.py the clock's, tools/fuzz/driveinputs.py the drive
+logs'."""
 
 from __future__ import annotations
 
 import random
 from collections.abc import Callable
 
-from . import driveinputs, inputs
+from . import clockinputs, driveinputs, inputs
 
 __all__ = ["SURFACES", "generate"]
 
@@ -24,7 +25,7 @@ SURFACES = (
 
 _GENERATORS: dict[str, Callable[[random.Random], bytes]] = {
     "serial": inputs.serial_input,
-    "clock": inputs.clock_input,
+    "clock": clockinputs.clock_input,
     "gpsd": inputs.gpsd_input,
     "tail": inputs.tail_input,
     "config": inputs.config_input,

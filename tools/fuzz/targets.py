@@ -170,7 +170,7 @@ class SerialTarget(Target):
 
 class ClockTarget(Target):
     """A healthy stream broken by its sequence numbers and device clock
-    (:func:`tools.fuzz.inputs.clock_input`), through what the daemon runs: the push parser
+    (:func:`tools.fuzz.clockinputs.clock_input`), through what the daemon runs: the push parser
     (frame by frame, and in random chunks: the same as the vectorised decoder) and the run
     loop's frame edge (:meth:`hdrd.daemon.run.Daemon.take_frame`: the device clock against
     the host's, then the pipeline), each frame in hand at its arrival time. Promises: a frame
@@ -190,7 +190,7 @@ class ClockTarget(Target):
         from hdrd.io.wire.codec import array_to_frames
         from hdrd.io.wire.parser import Parser
 
-        from .inputs import CLOCK_ROW
+        from .clockinputs import CLOCK_ROW
 
         rows = np.frombuffer(data, CLOCK_ROW)
         wire = encode_array(rows["frame"])
