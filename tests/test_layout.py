@@ -432,8 +432,6 @@ UNSPLIT: set[str] = {
     "tools/fuzz/process.py:_serial",
     "tools/fuzz/process.py:_gpsd",
     "tools/fuzz/procinput.py:config_sighup",
-    "tools/fuzz/stream.py:build_stream",
-    "tools/fuzz/stream.py:run",
     "tools/golden_capture.py:main",
 }
 
