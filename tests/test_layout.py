@@ -425,7 +425,6 @@ UNSPLIT: set[str] = {
     "bench/real.py:main",
     "bench/replay.py:main",
     "bench/tune.py:main",
-    "tools/fuzz/drivelog.py:run",
     "tools/fuzz/harness.py:_worker",
     "tools/fuzz/harness.py:run_surface",
     "tools/fuzz/harness.py:main",

@@ -124,15 +124,13 @@ class DriveLogTarget(Target):
         if cmd == "evaluate" and rc == 0 and " nan " in f" {out} ".lower():
             raise Broken(f"hdrd evaluate printed NaN: {out[:400]!r}")
 
-    def run(self, data: bytes) -> str:
+    def _model_paths(self, given: str, out_dir: Path) -> None:
+        """The paths ``hdrd gap --out`` would write the drives' models to: inside it, each
+        refusal one line."""
         from hdrd.analysis.gap.fleet import model_paths
         from hdrd.io.files.drivefiles import find_drives
         from hdrd.io.files.drivelog import DriveLogError
 
-        self.count += 1
-        target = self._layout(data)
-        out_dir = self.root / "out"
-        given = str(target)
         try:
             refs = find_drives([given])
         except DriveLogError as e:
@@ -144,9 +142,10 @@ class DriveLogTarget(Target):
                 raise Broken(f"a model path outside --out: {p}")
         for w in why:
             one_line(w, "model path refusal")
-        before = _files_under(self.root)
+
+    def _evaluate(self, given: str, out_dir: Path, extra: list[str]) -> int:
+        """``hdrd evaluate`` (a method by turn): its exit status; its ``--json`` finite."""
         method = ("none", "hdr", "hdr+")[self.count % 3]
-        extra = ["--strict"] if self.count % 5 == 0 else []
         rc, out, err = self._run(["evaluate", given, "--method", method, "--no-progress",
                                   "--json", str(out_dir / "e.json"), *extra])  # fmt: skip
         self._check("evaluate", rc, out, err)
@@ -156,6 +155,17 @@ class DriveLogTarget(Target):
                 for k, v in row.items():
                     if isinstance(v, float) and not math.isfinite(v):
                         raise Broken(f"--json {k} = {v!r}")
+        return rc
+
+    def run(self, data: bytes) -> str:
+        self.count += 1
+        target = self._layout(data)
+        out_dir = self.root / "out"
+        given = str(target)
+        self._model_paths(given, out_dir)
+        before = _files_under(self.root)
+        extra = ["--strict"] if self.count % 5 == 0 else []
+        rc = self._evaluate(given, out_dir, extra)
         outcome = "scored" if rc == 0 else "refused"
         if self.count % 8 == 0 or self.every_command:
             rc, out, err = self._run(["tune", given, "--candidates", "6", "--no-progress", *extra])
