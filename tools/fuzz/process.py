@@ -62,21 +62,10 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
     path = os.ttyname(slave)
     udp = Udp()
     t0 = time.monotonic()
+    cmd = [*HDRD, "run", "--port", path, "--protocol", protocol, "--bias", "0.1", "--udp",
+           udp.addr, "--log-format", "json"]  # fmt: skip
     p = subprocess.Popen(
-        [
-            *HDRD,
-            "run",
-            "--port",
-            path,
-            "--protocol",
-            protocol,
-            "--bias",
-            "0.1",
-            "--udp",
-            udp.addr,
-            "--log-format",
-            "json",
-        ],
+        cmd,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -86,45 +75,14 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
     err = Lines(p.stderr)
     try:
         os.set_blocking(master, False)
-        # clean frames until the first step: the daemon is past its start before the fuzz
-        from hdrd.io.wire.codec import Frame, encode
-
-        k = 0
-        deadline = time.monotonic() + 30.0
-        while not udp.steps and p.poll() is None and time.monotonic() < deadline:
-            clean = b"".join(
-                encode(Frame(j & 0xFFFF, j * 10_000, 32768, 0, None), protocol)
-                for j in range(k, k + 20)
-            )
-            k += 20
-            try:
-                os.write(master, clean)
-            except BlockingIOError:
-                pass
-            time.sleep(0.02)
-            udp.drain()
-        if not udp.steps:
+        if not _clean_start(master, p, udp, protocol):
             res.fail(f"no step from clean frames: {err.tail[-3:]}")
             return res
         i = 0
         end = t0 + seconds
         while i < max_inputs and time.monotonic() < end:
             data = generate("serial", seed, i)[1:]
-            view = memoryview(data)
-            while view:
-                _, w, _ = select.select([], [master], [], 1.0)
-                if w:
-                    try:
-                        n = os.write(master, view[:4096])
-                    except BlockingIOError:
-                        n = 0
-                    view = view[n:]
-                try:
-                    os.read(master, 65536)  # whatever the line discipline echoes
-                except (BlockingIOError, OSError):
-                    pass
-                if p.poll() is not None:
-                    break
+            _write_all(master, data, p)
             udp.drain()
             i += 1
             if p.poll() is not None:
@@ -151,6 +109,47 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
     return res
 
 
+def _clean_start(master: int, p: subprocess.Popen[bytes], udp: Udp, protocol: str) -> bool:
+    """Clean frames until the first step (at most 30 s): the daemon is past its start before
+    the fuzz. Whether it stepped."""
+    from hdrd.io.wire.codec import Frame, encode
+
+    k = 0
+    deadline = time.monotonic() + 30.0
+    while not udp.steps and p.poll() is None and time.monotonic() < deadline:
+        clean = b"".join(
+            encode(Frame(j & 0xFFFF, j * 10_000, 32768, 0, None), protocol)
+            for j in range(k, k + 20)
+        )
+        k += 20
+        try:
+            os.write(master, clean)
+        except BlockingIOError:
+            pass
+        time.sleep(0.02)
+        udp.drain()
+    return bool(udp.steps)
+
+
+def _write_all(master: int, data: bytes, p: subprocess.Popen[bytes]) -> None:
+    """``data`` written to the pty as fast as the daemon reads it (until it exits)."""
+    view = memoryview(data)
+    while view:
+        _, w, _ = select.select([], [master], [], 1.0)
+        if w:
+            try:
+                n = os.write(master, view[:4096])
+            except BlockingIOError:
+                n = 0
+            view = view[n:]
+        try:
+            os.read(master, 65536)  # whatever the line discipline echoes
+        except (BlockingIOError, OSError):
+            pass
+        if p.poll() is not None:
+            break
+
+
 # -- gpsd ----------------------------------------------------------------------------------------
 
 
@@ -168,22 +167,10 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
     port = server.getsockname()[1]
     udp = Udp()
     t0 = time.monotonic()
+    cmd = [*HDRD, "run", "--simulate", "--config", str(cfg), "--bias", "0.1", "--udp", udp.addr,
+           "--gpsd", f"127.0.0.1:{port}", "--log-format", "json"]  # fmt: skip
     p = subprocess.Popen(
-        [
-            *HDRD,
-            "run",
-            "--simulate",
-            "--config",
-            str(cfg),
-            "--bias",
-            "0.1",
-            "--udp",
-            udp.addr,
-            "--gpsd",
-            f"127.0.0.1:{port}",
-            "--log-format",
-            "json",
-        ],
+        cmd,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -191,7 +178,6 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
     )
     res.processes = 1
     err = Lines(p.stderr)
-    conns = 0
     longest_gap = 0.0
     try:
         if not wait_started(p, udp):
@@ -199,37 +185,11 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
             return res
         i = 0
         end = t0 + seconds
-        conn: socket.socket | None = None
-        pending = memoryview(b"")
+        peer = _GpsdPeer(server, seed, res)
         while i < max_inputs and time.monotonic() < end and p.poll() is None:
-            if conn is None:
-                r, _, _ = select.select([server], [], [], 0.5)
-                udp.drain()
-                if not r:
-                    continue
-                conn, _ = server.accept()
-                conn.setblocking(False)
-                conns += 1
-                pending = memoryview(b'{"class":"VERSION","release":"3.25","proto_major":3}\n')
-            if not pending:
-                if i and i % 5000 == 0 and conns < 20:  # the peer goes away now and then
-                    conn.close()
-                    conn = None
-                    i += 1
-                    continue
-                pending = memoryview(generate("gpsd", seed, i))
-                i += 1
-            _, w, _ = select.select([], [conn], [], 0.2)
-            if w:
-                try:
-                    pending = pending[conn.send(pending[:65536]) :]
-                except OSError:  # the daemon closed (it never should)
-                    res.fail(f"the daemon closed the gpsd connection at input {i}")
-                    conn.close()
-                    conn = None
-                    pending = memoryview(b"")
-            udp.drain()
-            longest_gap = max(longest_gap, time.monotonic() - udp.last_step)
+            i, sent = peer.turn(i, udp)
+            if sent:
+                longest_gap = max(longest_gap, time.monotonic() - udp.last_step)
         res.inputs = i
         if p.poll() is not None:
             res.dead += 1
@@ -240,10 +200,10 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
             res.fail(f"no step for {longest_gap:.1f} s while the peer sent")
         res.notes.append(
             f"{udp.steps:,} steps received; longest wait for a step {longest_gap:.2f} s "
-            f"(a step every 0.5 s); {conns} connection(s)"
+            f"(a step every 0.5 s); {peer.conns} connection(s)"
         )
-        if conn is not None:
-            conn.close()
+        if peer.conn is not None:
+            peer.conn.close()
         stop_daemon(p, res)
     finally:
         if p.poll() is None:
@@ -255,6 +215,55 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
         udp.close()
         res.seconds = time.monotonic() - t0
     return res
+
+
+class _GpsdPeer:
+    """The fuzzing gpsd: one connection at a time, VERSION first, then input after input; now
+    and then it goes away."""
+
+    def __init__(self, server: socket.socket, seed: int, res: ProcResult) -> None:
+        self.server = server
+        self.seed = seed
+        self.res = res
+        self.conn: socket.socket | None = None
+        self.pending = memoryview(b"")
+        self.conns = 0
+
+    def turn(self, i: int, udp: Udp) -> tuple[int, bool]:
+        """One turn: a connection accepted, or some of input ``i`` sent. The next input's
+        number, and whether the turn counts for the wait for a step (it does not while no
+        daemon is connected, nor when the peer goes away)."""
+        if self.conn is None:
+            r, _, _ = select.select([self.server], [], [], 0.5)
+            udp.drain()
+            if not r:
+                return i, False
+            self.conn, _ = self.server.accept()
+            self.conn.setblocking(False)
+            self.conns += 1
+            self.pending = memoryview(b'{"class":"VERSION","release":"3.25","proto_major":3}\n')
+        if not self.pending:
+            if i and i % 5000 == 0 and self.conns < 20:  # the peer goes away now and then
+                self.conn.close()
+                self.conn = None
+                return i + 1, False
+            self.pending = memoryview(generate("gpsd", self.seed, i))
+            i += 1
+        self._send(i)
+        udp.drain()
+        return i, True
+
+    def _send(self, i: int) -> None:
+        assert self.conn is not None
+        _, w, _ = select.select([], [self.conn], [], 0.2)
+        if w:
+            try:
+                self.pending = self.pending[self.conn.send(self.pending[:65536]) :]
+            except OSError:  # the daemon closed (it never should)
+                self.res.fail(f"the daemon closed the gpsd connection at input {i}")
+                self.conn.close()
+                self.conn = None
+                self.pending = memoryview(b"")
 
 
 # -- tail ----------------------------------------------------------------------------------------
