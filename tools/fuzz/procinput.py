@@ -121,29 +121,74 @@ def config_startup(seed: int, n: int, workdir: Path) -> ProcResult:
     return res
 
 
+class _Watchdog:
+    """The daemon's ``WATCHDOG=1`` pings on a NOTIFY_SOCKET: how many, and the longest gap (s)."""
+
+    def __init__(self, path: Path) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(str(path))
+        self.sock.setblocking(False)
+        self.pings = 0
+        self.last_ping = time.monotonic()
+        self.longest = 0.0
+
+    def read(self) -> None:
+        while True:
+            try:
+                msg = self.sock.recv(4096)
+            except BlockingIOError:
+                return
+            if b"WATCHDOG=1" in msg:
+                now = time.monotonic()
+                self.longest = max(self.longest, now - self.last_ping)
+                self.pings += 1
+                self.last_ping = now
+
+    def wait_ping(self, timeout: float, p: subprocess.Popen[bytes]) -> bool:
+        """Whether a ping came within ``timeout`` s (while the daemon runs)."""
+        n0 = self.pings
+        end = time.monotonic() + timeout
+        while self.pings == n0 and time.monotonic() < end and p.poll() is None:
+            self.read()
+            time.sleep(0.05)
+        return self.pings != n0
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def _reload(
+    p: subprocess.Popen[bytes], err: Lines, path: Path, data: bytes, i: int, res: ProcResult
+) -> str | None:
+    """Input ``i`` as the configuration, and SIGHUP: the daemon's answer (None: none, a
+    failure noted), its error checked to be one line."""
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+    n = len(err.reloads)
+    p.send_signal(signal.SIGHUP)
+    ev = err.wait_reload(n, SILENCE_S)
+    if ev is None:
+        res.fail(f"no answer to SIGHUP at input {i}: {err.tail[-3:]}")
+        return None
+    if ev["event"] == "config_reload_failed":
+        e = str(ev.get("error", ""))
+        if "\n" in e or not e.isprintable():
+            res.fail(f"input {i}: config_reload_failed error not one line: {e[:200]!r}")
+    return str(ev["event"])
+
+
 def config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResult:
     res = ProcResult("config", "SIGHUP: one daemon reloaded with input after input")
     path = workdir / "reload.yaml"
     path.write_text("hdr:\n  method: hdr\n")
     notify_path = workdir / "notify.sock"
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify.bind(str(notify_path))
-    notify.setblocking(False)
+    dog = _Watchdog(notify_path)
     t0 = time.monotonic()
+    cmd = [*HDRD, "run", "--simulate", "--speedup", "10", "--bias", "0.1", "--config",
+           str(path), "--log-format", "json"]  # fmt: skip
     p = subprocess.Popen(
-        [
-            *HDRD,
-            "run",
-            "--simulate",
-            "--speedup",
-            "10",
-            "--bias",
-            "0.1",
-            "--config",
-            str(path),
-            "--log-format",
-            "json",
-        ],
+        cmd,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -151,69 +196,30 @@ def config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) -> 
     )
     res.processes = 1
     err = Lines(p.stderr)
-    pings = 0
-    last_ping = time.monotonic()
-    longest = 0.0
     outcomes: Counter[str] = Counter()
-
-    def read_pings() -> None:
-        nonlocal pings, last_ping, longest
-        while True:
-            try:
-                msg = notify.recv(4096)
-            except BlockingIOError:
-                return
-            if b"WATCHDOG=1" in msg:
-                now = time.monotonic()
-                longest = max(longest, now - last_ping)
-                pings += 1
-                last_ping = now
-
     try:
-        # READY=1 first
-        end = time.monotonic() + 30
-        while pings == 0 and time.monotonic() < end and p.poll() is None:
-            read_pings()
-            time.sleep(0.05)
-        last_ping = time.monotonic()
+        dog.wait_ping(30, p)  # READY=1 first
+        dog.last_ping = time.monotonic()
         i = 0
         end = t0 + seconds
         while i < max_inputs and time.monotonic() < end and p.poll() is None:
-            tmp = path.with_suffix(".tmp")
-            tmp.write_bytes(generate("config", seed, i))
-            os.replace(tmp, path)
-            n = len(err.reloads)
-            p.send_signal(signal.SIGHUP)
-            ev = err.wait_reload(n, SILENCE_S)
+            answer = _reload(p, err, path, generate("config", seed, i), i, res)
             i += 1
-            read_pings()
-            if ev is None:
-                res.fail(f"no answer to SIGHUP at input {i - 1}: {err.tail[-3:]}")
-                if p.poll() is not None:
-                    break
-                continue
-            outcomes[ev["event"]] += 1
-            if ev["event"] == "config_reload_failed":
-                e = str(ev.get("error", ""))
-                if "\n" in e or not e.isprintable():
-                    res.fail(f"input {i - 1}: config_reload_failed error not one line: {e[:200]!r}")
+            dog.read()
+            if answer is not None:
+                outcomes[answer] += 1
         res.inputs = i
         if p.poll() is not None:
             res.dead += 1
             res.fail(f"the daemon exited ({p.returncode}) at input {i}: {err.tail[-3:]}")
-        else:
-            end = time.monotonic() + SILENCE_S
-            n0 = pings
-            while time.monotonic() < end and pings == n0:
-                read_pings()
-                time.sleep(0.05)
-            if pings == n0:
-                res.dead += 1
-                res.fail(f"no WATCHDOG=1 for {SILENCE_S:g} s after the last reload")
-        if longest > SILENCE_S:
-            res.fail(f"WATCHDOG=1 stopped for {longest:.1f} s during the reloads")
+        elif not dog.wait_ping(SILENCE_S, p):
+            res.dead += 1
+            res.fail(f"no WATCHDOG=1 for {SILENCE_S:g} s after the last reload")
+        if dog.longest > SILENCE_S:
+            res.fail(f"WATCHDOG=1 stopped for {dog.longest:.1f} s during the reloads")
         res.notes.append(
-            f"answers: {dict(outcomes)}; {pings:,} WATCHDOG=1 received, longest gap {longest:.2f} s"
+            f"answers: {dict(outcomes)}; {dog.pings:,} WATCHDOG=1 received, longest gap "
+            f"{dog.longest:.2f} s"
         )
         stop_daemon(p, res)
     finally:
@@ -222,7 +228,7 @@ def config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) -> 
         p.wait()
         err.join(5)
         res.tracebacks += err.tracebacks
-        notify.close()
+        dog.close()
         res.seconds = time.monotonic() - t0
     return res
 
