@@ -425,7 +425,6 @@ UNSPLIT: set[str] = {
     "bench/real.py:main",
     "bench/replay.py:main",
     "bench/tune.py:main",
-    "tools/golden_capture.py:main",
 }
 
 
