@@ -418,11 +418,8 @@ UNSPLIT: set[str] = {
     "bench/gap_standins.py:main",
     "bench/gap_stops.py:case",
     "bench/grades.py:main",
-    "bench/holds.py:real_table",
     "bench/live.py:measure",
     "bench/peer.py:_run",
-    "bench/real.py:table",
-    "bench/real.py:main",
     "bench/replay.py:main",
     "bench/tune.py:main",
 }
