@@ -416,10 +416,8 @@ UNSPLIT: set[str] = {
     "bench/firmware.py:main",
     "bench/gap_libraries.py:main",
     "bench/gap_standins.py:main",
-    "bench/gap_stops.py:case",
     "bench/grades.py:main",
     "bench/live.py:measure",
-    "bench/peer.py:_run",
     "bench/replay.py:main",
     "bench/tune.py:main",
 }
