@@ -418,8 +418,6 @@ UNSPLIT: set[str] = {
     "bench/gap_standins.py:main",
     "bench/grades.py:main",
     "bench/live.py:measure",
-    "bench/replay.py:main",
-    "bench/tune.py:main",
 }
 
 
