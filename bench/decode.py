@@ -23,6 +23,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -43,6 +44,52 @@ from hdrd.io.wire.parser import Parser
 PUSH_TARGET = 500_000
 VECTOR_TARGET = 5_000_000
 CHUNK = 64
+
+
+def _lines(
+    repeats: int,
+    meta: dict[str, Any],
+    n: int,
+    rows: list[tuple[str, Any, int]],
+    first_cpu: float,
+    bad_frames: int,
+    same: bool,
+) -> list[str]:
+    """The section's lines: the command, the capture, each decoder's rate (frames/s) against
+    its target and the wire, the first call's, and whether the two decoders agree (each
+    decoder's rate printed too)."""
+    lines = [
+        f"`python bench/decode.py --repeats {repeats}` on {machine_line()}.",
+        "",
+        (
+            f"Capture: {capture_line(meta)}. Best of the runs, in this process; frames/s from wall "
+            "clock (and from CPU time); ratios > 1 are inside the target. The wire's limit: a 3 Mbaud "
+            f"link carries at most {WIRE_FRAMES_PER_S:,.0f} hdr-bin frames/s."
+        ),
+        "",
+        "| decoder | best wall | frames/s (wall) | frames/s (CPU) | target | vs target | vs wire |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, t, target in rows:
+        fps_wall = n / t.best_wall
+        fps_cpu = n / t.best_cpu
+        lines.append(
+            f"| {name} | {t.best_wall * 1e3:.0f} ms | {fps_wall:,.0f} | {fps_cpu:,.0f} | "
+            f">= {target:,} | {ratio(fps_wall, target, True)} | {fps_wall / WIRE_FRAMES_PER_S:,.0f}x |"
+        )
+        print(
+            f"{name}: {fps_wall:,.0f} frames/s wall, {fps_cpu:,.0f} CPU ({t.best_wall * 1e3:.1f} ms best)",
+            flush=True,
+        )
+    lines += [
+        "",
+        (
+            f"The vectorised decoder's first call in a process (fresh memory, as in `hdrd replay`): "
+            f"{first_cpu * 1e3:.0f} ms CPU, {n / first_cpu:,.0f} frames/s. Frames decoded: {n:,}; bad frames "
+            f"{bad_frames:,}; push parser == vectorised (frames and every counter): {'yes' if same else 'NO'}."
+        ),
+    ]
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,37 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         ("push parser, 64-byte chunks", push_t, PUSH_TARGET),
         ("vectorised decode_capture", vec, VECTOR_TARGET),
     ]
-    lines = [
-        f"`python bench/decode.py --repeats {a.repeats}` on {machine_line()}.",
-        "",
-        (
-            f"Capture: {capture_line(meta)}. Best of the runs, in this process; frames/s from wall "
-            "clock (and from CPU time); ratios > 1 are inside the target. The wire's limit: a 3 Mbaud "
-            f"link carries at most {WIRE_FRAMES_PER_S:,.0f} hdr-bin frames/s."
-        ),
-        "",
-        "| decoder | best wall | frames/s (wall) | frames/s (CPU) | target | vs target | vs wire |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for name, t, target in rows:
-        fps_wall = n / t.best_wall
-        fps_cpu = n / t.best_cpu
-        lines.append(
-            f"| {name} | {t.best_wall * 1e3:.0f} ms | {fps_wall:,.0f} | {fps_cpu:,.0f} | "
-            f">= {target:,} | {ratio(fps_wall, target, True)} | {fps_wall / WIRE_FRAMES_PER_S:,.0f}x |"
-        )
-        print(
-            f"{name}: {fps_wall:,.0f} frames/s wall, {fps_cpu:,.0f} CPU ({t.best_wall * 1e3:.1f} ms best)",
-            flush=True,
-        )
-    lines += [
-        "",
-        (
-            f"The vectorised decoder's first call in a process (fresh memory, as in `hdrd replay`): "
-            f"{first_cpu * 1e3:.0f} ms CPU, {n / first_cpu:,.0f} frames/s. Frames decoded: {n:,}; bad frames "
-            f"{cst.bad_frames:,}; push parser == vectorised (frames and every counter): {'yes' if same else 'NO'}."
-        ),
-    ]
+    lines = _lines(a.repeats, meta, n, rows, first_cpu, cst.bad_frames, same)
     text = "\n".join(lines)
     title = "Decoding: the push parser and the vectorised decoder"
     write_section("speed", title, text, write=not a.no_write)

@@ -90,6 +90,92 @@ def measure(run: tf.BoardRun, ref_wired: bool) -> dict[str, Any]:
     }
 
 
+def _speed_lines(repeats: int, header: str, sim_s: float, timings: dict[str, Any]) -> list[str]:
+    """How fast the harness ran the default build: simulated time / wall time and CPU time."""
+    lines = [
+        f"`python bench/firmware.py --repeats {repeats}` on {header}.",
+        "",
+        f"The default build (hdr-bin, 100 Hz, supply monitor) in simavr {_simavr_version()} on "
+        f"{sim_s / 60:.1f} simulated minutes (hdrd's city drive, seed {SEED}, through its "
+        "CRS03-04-like gyro model; 0.5 LSB rms converter noise). Harness wall time from spawn "
+        "to exit, best and median of the runs, the child's CPU time, and simulated time / wall "
+        "time (from the best wall time, and from the CPU time, which moves less with the "
+        "machine's load):",
+        "",
+        "| run | best wall | median wall | CPU | x real time (wall) | x real time (CPU) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, tm in timings.items():
+        lines.append(
+            f"| {label} | {tm.best_wall:.2f} s | {statistics.median(tm.wall):.2f} s | "
+            f"{tm.best_cpu:.2f} s | {sim_s / tm.best_wall:.0f}x | {sim_s / tm.best_cpu:.0f}x |"
+        )
+    return lines
+
+
+def _board_lines(mb: dict[str, Any], ma: dict[str, Any]) -> list[str]:
+    """What the board sent, wiring B beside wiring A, against the waveform."""
+    lines: list[str] = []
+    lines += [
+        "",
+        "What the board sent, decoded with docs/firmware.md's configuration (`hdrd replay "
+        "--bias 0 --method none`: the heading is the plain integral of the decoded rate). "
+        "Wiring B: the gyro on its own supply, wandering inside 4.75 .. 5.25 V, corrected "
+        "through A1; wiring A: the gyro on the board's 5 V, which is also the ADC's reference "
+        "and wanders the same way, `REF=0`. Errors against the waveform: per frame (10 ms), "
+        "per hdrd step (1 s), and hdrd's yaw after its last full step against the waveform's "
+        "integral.",
+        "",
+        "| | wiring B (default build) | wiring A (`REF=0`, `--vcc supply`) |",
+        "|---|---|---|",
+    ]
+
+    def row(name: str, fmt: Any) -> None:
+        lines.append(f"| {name} | {fmt(mb)} | {fmt(ma)} |")
+
+    row("frames (CRC errors, lost)", lambda m: f"{m['frames']:,} ({m['bad']}, {m['lost']})")
+    row("t_us step (all frames)", lambda m: ", ".join(f"{x} us" for x in m["dt_us"]))
+    row(
+        "first conversion's lag behind t_us (min .. max, vs the simulator's clock)",
+        lambda m: f"{m['lag_us'][0]:.2f} .. {m['lag_us'][1]:.2f} us",
+    )
+    row("rate/ref fields = sums of the ADC's codes", lambda m: "all" if m["sums_equal"] else "NO")
+    row("frame error, max (1 LSB = 0.488 deg/s)", lambda m: f"{m['err_max']:.3f} deg/s")
+    row(
+        "frame error, rms (predicted by the noise model)",
+        lambda m: f"{m['err_rms']:.4f} ({m['predicted_rms']:.4f}) deg/s",
+    )
+    row("frame error, mean", lambda m: f"{m['err_mean']:+.5f} deg/s")
+    row(
+        "1 s step error, rms / max",
+        lambda m: f"{m['step_rms']:.4f} / {m['step_max']:.4f} deg/s",
+    )
+    row(
+        "yaw after the run (error vs the waveform)",
+        lambda m: f"{m['yaw']:.2f} deg after {m['steps']} s ({m['yaw_err']:+.3f} deg)",
+    )
+    return lines
+
+
+def _noise_lines(mb: dict[str, Any]) -> list[str]:
+    """The ADC's noise as an angle random walk (wiring B), and what is assumed."""
+    lines: list[str] = []
+    arw = mb["predicted_rms"] * math.sqrt(tf.FRAME_US / 1e6)
+    lines += [
+        "",
+        f"The ADC's noise as an angle random walk (wiring B): {arw:.4f} deg/sqrt(s) = "
+        f"{arw * 60:.2f} deg/sqrt(h), beside the CRS03-04's own ~3 deg/sqrt(h). The heading "
+        "errors are one draw of that random walk (about "
+        f"{arw * math.sqrt(mb['steps']):.2f} deg rms over {mb['steps']} s).",
+        "",
+        "Nothing here is tuned. The converter noise (0.5 LSB rms) is the harness's default, an "
+        "assumption about the real chip; the tolerances of tests/test_firmware.py come from "
+        "the same noise model (4 to 5 sigma, plus the dither bias bound), not from these "
+        "figures.",
+    ]
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -129,75 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     run_a = tf.run_board(a_dir, harness, noref_elf, wave, "--vcc", "supply", ref_wired=False)
     mb, ma = measure(run_b, True), measure(run_a, False)
 
-    lines = [
-        f"`python bench/firmware.py --repeats {a.repeats}` on {header}.",
-        "",
-        f"The default build (hdr-bin, 100 Hz, supply monitor) in simavr {_simavr_version()} on "
-        f"{sim_s / 60:.1f} simulated minutes (hdrd's city drive, seed {SEED}, through its "
-        "CRS03-04-like gyro model; 0.5 LSB rms converter noise). Harness wall time from spawn "
-        "to exit, best and median of the runs, the child's CPU time, and simulated time / wall "
-        "time (from the best wall time, and from the CPU time, which moves less with the "
-        "machine's load):",
-        "",
-        "| run | best wall | median wall | CPU | x real time (wall) | x real time (CPU) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for label, tm in timings.items():
-        lines.append(
-            f"| {label} | {tm.best_wall:.2f} s | {statistics.median(tm.wall):.2f} s | "
-            f"{tm.best_cpu:.2f} s | {sim_s / tm.best_wall:.0f}x | {sim_s / tm.best_cpu:.0f}x |"
-        )
-    lines += [
-        "",
-        "What the board sent, decoded with docs/firmware.md's configuration (`hdrd replay "
-        "--bias 0 --method none`: the heading is the plain integral of the decoded rate). "
-        "Wiring B: the gyro on its own supply, wandering inside 4.75 .. 5.25 V, corrected "
-        "through A1; wiring A: the gyro on the board's 5 V, which is also the ADC's reference "
-        "and wanders the same way, `REF=0`. Errors against the waveform: per frame (10 ms), "
-        "per hdrd step (1 s), and hdrd's yaw after its last full step against the waveform's "
-        "integral.",
-        "",
-        "| | wiring B (default build) | wiring A (`REF=0`, `--vcc supply`) |",
-        "|---|---|---|",
-    ]
-
-    def row(name: str, fmt: Any) -> None:
-        lines.append(f"| {name} | {fmt(mb)} | {fmt(ma)} |")
-
-    row("frames (CRC errors, lost)", lambda m: f"{m['frames']:,} ({m['bad']}, {m['lost']})")
-    row("t_us step (all frames)", lambda m: ", ".join(f"{x} us" for x in m["dt_us"]))
-    row(
-        "first conversion's lag behind t_us (min .. max, vs the simulator's clock)",
-        lambda m: f"{m['lag_us'][0]:.2f} .. {m['lag_us'][1]:.2f} us",
-    )
-    row("rate/ref fields = sums of the ADC's codes", lambda m: "all" if m["sums_equal"] else "NO")
-    row("frame error, max (1 LSB = 0.488 deg/s)", lambda m: f"{m['err_max']:.3f} deg/s")
-    row(
-        "frame error, rms (predicted by the noise model)",
-        lambda m: f"{m['err_rms']:.4f} ({m['predicted_rms']:.4f}) deg/s",
-    )
-    row("frame error, mean", lambda m: f"{m['err_mean']:+.5f} deg/s")
-    row(
-        "1 s step error, rms / max",
-        lambda m: f"{m['step_rms']:.4f} / {m['step_max']:.4f} deg/s",
-    )
-    row(
-        "yaw after the run (error vs the waveform)",
-        lambda m: f"{m['yaw']:.2f} deg after {m['steps']} s ({m['yaw_err']:+.3f} deg)",
-    )
-    arw = mb["predicted_rms"] * math.sqrt(tf.FRAME_US / 1e6)
-    lines += [
-        "",
-        f"The ADC's noise as an angle random walk (wiring B): {arw:.4f} deg/sqrt(s) = "
-        f"{arw * 60:.2f} deg/sqrt(h), beside the CRS03-04's own ~3 deg/sqrt(h). The heading "
-        "errors are one draw of that random walk (about "
-        f"{arw * math.sqrt(mb['steps']):.2f} deg rms over {mb['steps']} s).",
-        "",
-        "Nothing here is tuned. The converter noise (0.5 LSB rms) is the harness's default, an "
-        "assumption about the real chip; the tolerances of tests/test_firmware.py come from "
-        "the same noise model (4 to 5 sigma, plus the dither bias bound), not from these "
-        "figures.",
-    ]
+    lines = _speed_lines(a.repeats, header, sim_s, timings)
+    lines += _board_lines(mb, ma) + _noise_lines(mb)
     text = "\n".join(lines) + "\n"
     print(text)
     title = "The USB ADC in simavr: speed, and what the board sends"

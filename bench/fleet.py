@@ -300,19 +300,32 @@ def cpu_of(root: str, workers: int) -> dict[str, Any]:
 
 def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
     """The work per drive on 1 and 2 workers, memory, tune, the projection (module docstring)."""
-    from hdrd.analysis.evaluate import to_json
-    from hdrd.analysis.fleet import DaskRunner, LocalRunner, batches
-    from hdrd.analysis.fleet_jobs import EvaluateJob, evaluate_refs, tune_fleet
+    from hdrd.analysis.fleet_jobs import EvaluateJob
     from hdrd.io.files.drivefiles import find_drives
-    from hdrd.io.files.drivelog import read_drive, write_drive
 
     root = make_fleet(a.drives, a.minutes)
     refs = find_drives([str(root)])
     assert len(refs) == a.drives, len(refs)
-    n = len(refs)
     job = EvaluateJob()
+    w_local, want, reads = _one_process(a, refs, job, say)
+    walls, speedup = _on_workers(refs, job, w_local, want, reads, say)
+    _memory(a, refs, job, say)
+    tune_walls = {} if a.skip_tune else _tune(a, refs, say)
+    _projection(len(refs), walls, tune_walls, speedup, say)
 
-    # -- the work per drive, one process ---------------------------------------------------
+
+def _one_process(
+    a: argparse.Namespace, refs: list[Any], job: Any, say: Callable[..., None]
+) -> tuple[float, str, tuple[float, float, int]]:
+    """The work per drive in one process, and reading Parquet against CSV: the wall time (s),
+    the results' JSON (for the workers' to match) and the reads (s per drive from Parquet, from
+    CSV, of how many drives); says the evaluate table's head and first row."""
+    from hdrd.analysis.evaluate import to_json
+    from hdrd.analysis.fleet import LocalRunner, batches
+    from hdrd.analysis.fleet_jobs import evaluate_refs
+    from hdrd.io.files.drivelog import read_drive, write_drive
+
+    n = len(refs)
     w_local, c_local, (res, skipped) = timed(lambda: evaluate_refs(refs, job, LocalRunner()))
     assert not skipped, skipped[:3]
     want = json.dumps(to_json(res))
@@ -334,8 +347,24 @@ def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
     say("| evaluate | wall, s | per drive, ms | speed-up | overhead per drive |")
     say("|---|---|---|---|---|")
     say(f"| one process | {w_local:.2f} | {1000 * per:.2f} (CPU {1000 * c_local / n:.2f}) | | |")
+    return w_local, want, (w_pq / len(sample), w_csv / len(sample), len(sample))
 
-    # -- evaluate on 1 and 2 workers -------------------------------------------------------
+
+def _on_workers(
+    refs: list[Any],
+    job: Any,
+    w_local: float,
+    want: str,
+    reads: tuple[float, float, int],
+    say: Callable[..., None],
+) -> tuple[dict[int, float], float]:
+    """Evaluate on 1 and 2 workers, each result checked against one process's: the wall
+    times (s) by workers and the speed-up of 2 over 1."""
+    from hdrd.analysis.evaluate import to_json
+    from hdrd.analysis.fleet import DaskRunner, batches
+    from hdrd.analysis.fleet_jobs import evaluate_refs
+
+    n = len(refs)
     walls: dict[int, float] = {}
     starts: dict[int, float] = {}
     per_task = 0.0
@@ -359,8 +388,8 @@ def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
     say(f"| 2 workers | {walls[2]:.2f} | {1000 * walls[2] / n:.2f} | {speedup:.2f}x | |")
     say()
     say(
-        f"Read per drive: Parquet {1000 * w_pq / len(sample):.1f} ms, CSV "
-        f"{1000 * w_csv / len(sample):.1f} ms (the same {len(sample)} drives). A local cluster "
+        f"Read per drive: Parquet {1000 * reads[0]:.1f} ms, CSV "
+        f"{1000 * reads[1]:.1f} ms (the same {reads[2]} drives). A local cluster "
         f"starts in {starts[1]:.1f} s (1 worker), {starts[2]:.1f} s (2), not counted above. "
         f"An empty task's round trip through the scheduler, one at a time in a window of "
         f"tasks in flight: {1000 * per_task:.2f} ms, i.e. "
@@ -370,8 +399,15 @@ def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
         f"{'met' if speedup >= TARGET_SPEEDUP else 'NOT met'}); overhead {100 * over:.1f} % "
         f"(<= {100 * TARGET_OVERHEAD:.0f} %: {'met' if over <= TARGET_OVERHEAD else 'NOT met'})."
     )
+    return walls, speedup
 
-    # -- worker memory ----------------------------------------------------------------------
+
+def _memory(a: argparse.Namespace, refs: list[Any], job: Any, say: Callable[..., None]) -> None:
+    """Worker memory (MB) after ``--memory-drives`` and after all drives, and its growth."""
+    from hdrd.analysis.fleet import DaskRunner
+    from hdrd.analysis.fleet_jobs import evaluate_refs
+
+    n = len(refs)
     mems: dict[int, list[tuple[float, float]]] = {}
     for k in sorted({min(a.memory_drives, n), n}):
         with DaskRunner.open(workers=2) as runner:
@@ -391,40 +427,58 @@ def library(a: argparse.Namespace, say: Callable[..., None]) -> None:
         f"Client (this process) peak RSS: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB."
     )
 
-    # -- tune -------------------------------------------------------------------------------
-    tune_walls: dict[int, float] = {}
-    if not a.skip_tune:
-        w_t, _, best = timed(lambda: tune_fleet(LocalRunner(), refs, (), a.candidates, 0))
-        for workers in (1, 2):
-            with DaskRunner.open(workers=workers) as runner:
-                w, _, got_t = timed(partial(tune_fleet, runner, refs, (), a.candidates, 0))
-                if workers == 2:
-                    tune_mem = worker_memory(runner)
-            assert got_t.best == best.best and got_t.top == best.top, "tune differs"
-            tune_walls[workers] = w
-        t_over = (tune_walls[1] - w_t) / w_t
-        say()
-        say(f"| tune, {a.candidates} sets | wall, s | per drive, ms | speed-up | overhead |")
-        say("|---|---|---|---|---|")
-        say(f"| one process | {w_t:.1f} | {1000 * w_t / n:.1f} | | |")
-        say(
-            f"| 1 worker | {tune_walls[1]:.1f} | {1000 * tune_walls[1] / n:.1f} | | "
-            f"{100 * t_over:+.1f} % |"
-        )
-        say(
-            f"| 2 workers | {tune_walls[2]:.1f} | {1000 * tune_walls[2] / n:.1f} | "
-            f"{tune_walls[1] / tune_walls[2]:.2f}x | |"
-        )
-        say()
-        say(f"The same best parameters on every runner: {best.best}.")
-        say(
-            "Worker memory after the tune (2 workers; peak / current RSS, MB): "
-            + ", ".join(f"{p:.0f} / {r:.0f}" for p, r in tune_mem)
-            + f": the prepared drives stay on the workers for the search's rounds "
-            f"(about {n / 2:.0f} drives each)."
-        )
 
-    # -- projection -------------------------------------------------------------------------
+def _tune(a: argparse.Namespace, refs: list[Any], say: Callable[..., None]) -> dict[int, float]:
+    """``tune`` in one process and on 1 and 2 workers, the same best set on each: the
+    workers' wall times (s) by workers."""
+    from hdrd.analysis.fleet import DaskRunner, LocalRunner
+    from hdrd.analysis.fleet_jobs import tune_fleet
+
+    n = len(refs)
+    tune_walls: dict[int, float] = {}
+    w_t, _, best = timed(lambda: tune_fleet(LocalRunner(), refs, (), a.candidates, 0))
+    for workers in (1, 2):
+        with DaskRunner.open(workers=workers) as runner:
+            w, _, got_t = timed(partial(tune_fleet, runner, refs, (), a.candidates, 0))
+            if workers == 2:
+                tune_mem = worker_memory(runner)
+        assert got_t.best == best.best and got_t.top == best.top, "tune differs"
+        tune_walls[workers] = w
+    t_over = (tune_walls[1] - w_t) / w_t
+    say()
+    say(f"| tune, {a.candidates} sets | wall, s | per drive, ms | speed-up | overhead |")
+    say("|---|---|---|---|---|")
+    say(f"| one process | {w_t:.1f} | {1000 * w_t / n:.1f} | | |")
+    say(
+        f"| 1 worker | {tune_walls[1]:.1f} | {1000 * tune_walls[1] / n:.1f} | | "
+        f"{100 * t_over:+.1f} % |"
+    )
+    say(
+        f"| 2 workers | {tune_walls[2]:.1f} | {1000 * tune_walls[2] / n:.1f} | "
+        f"{tune_walls[1] / tune_walls[2]:.2f}x | |"
+    )
+    say()
+    say(f"The same best parameters on every runner: {best.best}.")
+    say(
+        "Worker memory after the tune (2 workers; peak / current RSS, MB): "
+        + ", ".join(f"{p:.0f} / {r:.0f}" for p, r in tune_mem)
+        + f": the prepared drives stay on the workers for the search's rounds "
+        f"(about {n / 2:.0f} drives each)."
+    )
+    return tune_walls
+
+
+def _projection(
+    n: int,
+    walls: dict[int, float],
+    tune_walls: dict[int, float],
+    speedup: float,
+    say: Callable[..., None],
+) -> None:
+    """The time for 100,000 drives on N workers, from one worker's time per drive and the
+    efficiency at 2."""
+    from hdrd.analysis.fleet import batches
+
     eff = speedup / 2
     say()
     say(

@@ -430,23 +430,14 @@ def bench_allan() -> list[Row]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--no-write", action="store_true", help="print only")
-    a = ap.parse_args(argv)
-    missing = [m for m in ("scipy", "allantools") if importlib.util.find_spec(m) is None]
-    if missing:
-        print(
-            f"bench/gap_libraries.py compares against {' and '.join(missing)}, not installed: "
-            "pip install scipy allantools",
-            file=sys.stderr,
-        )
-        return 1
-    print(machine_line(), flush=True)
-    noise = bench_noise()
-    det = bench_det()
-    chi = bench_chi2()
-    allan = bench_allan()
+def _lines(
+    noise: list[dict[str, Any]],
+    det: list[dict[str, Any]],
+    chi: dict[str, Any],
+    allan: list[dict[str, Any]],
+) -> list[str]:
+    """The section's lines: the command and versions, then the noise fits, the least squares,
+    chi2_sf and the Allan deviation, each against its library."""
     lines = [
         "Command: `python bench/gap_libraries.py` (scipy "
         + __import__("scipy").__version__
@@ -489,6 +480,27 @@ def main(argv: list[str] | None = None) -> int:
         f"| {r['case']} | {r['rel_diff']:.1e} | {r['ours_s']:.3f} | allantools.{r['lib']} | {r['lib_s']:.3f} |"
         for r in allan
     ]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    a = ap.parse_args(argv)
+    missing = [m for m in ("scipy", "allantools") if importlib.util.find_spec(m) is None]
+    if missing:
+        print(
+            f"bench/gap_libraries.py compares against {' and '.join(missing)}, not installed: "
+            "pip install scipy allantools",
+            file=sys.stderr,
+        )
+        return 1
+    print(machine_line(), flush=True)
+    noise = bench_noise()
+    det = bench_det()
+    chi = bench_chi2()
+    allan = bench_allan()
+    lines = _lines(noise, det, chi, allan)
     text = "\n".join(lines)
     print(text)
     if not a.no_write:

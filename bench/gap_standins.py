@@ -176,13 +176,9 @@ def null_cases(quick: bool) -> tuple[int, int, list[str]]:
     return total - len(named), total, named
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="one seed of each, 4 null logs")
-    ap.add_argument("--no-write", action="store_true", help="print only")
-    a = ap.parse_args(argv)
-    print(machine_line(), flush=True)
-    seeds = [10] if a.quick else [10, 11, 12, 13, 14]
+def _cases(quick: bool) -> list[Row]:
+    """The IMU and phone stand-ins (``quick``: one seed of each), each printed as it ends."""
+    seeds = [10] if quick else [10, 11, 12, 13, 14]
     rows: list[Row] = []
     for s in seeds:
         rows.append(imu_case("IMU 23 h, 1 Hz", s))
@@ -196,24 +192,34 @@ def main(argv: list[str] | None = None) -> int:
         ("IMU, no thermal lag", {"thermal_lag_s": 0.0}),
         ("IMU, white 0.003: undithered", {"white_dps_per_rthz": 0.003}),
     ]
-    for label, kw in variants[: 1 if a.quick else 4]:
+    for label, kw in variants[: 1 if quick else 4]:
         rows.append(imu_case(label, 15, **kw))
         print(rows[-1], flush=True)
     for s in seeds:
         rows.append(phone_case("phone 6 h, first-order 0.2 Hz", s))
         print(rows[-1], flush=True)
-    if not a.quick:
+    if not quick:
         rows.append(phone_case("phone 6 h, two sections", 15, filter_order=2))
         print(rows[-1], flush=True)
         for s in seeds[:2]:
             rows.append(phone_case("phone 6 h, output noise 0.02", s, output_sd_dps=0.02))
             print(rows[-1], flush=True)
-    for s in seeds[:1] if a.quick else seeds[:3]:
+    for s in seeds[:1] if quick else seeds[:3]:
         rows.append(phone50_case("phone 6 h at 50 Hz, two sections, ADC first", s))
         print(rows[-1], flush=True)
-    if not a.quick:
+    if not quick:
         rows.append(phone50_case("phone 6 h at 50 Hz, ADC after: undithered", 10, False))
         print(rows[-1], flush=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="one seed of each, 4 null logs")
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    a = ap.parse_args(argv)
+    print(machine_line(), flush=True)
+    rows = _cases(a.quick)
     null_ok, null_n, named = null_cases(a.quick)
     lines = [
         "Command: `python bench/gap_standins.py`. " + machine_line(),

@@ -25,6 +25,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -66,20 +67,25 @@ def case(kind: str, seed: int, j: int) -> tuple[bool, str, float, float]:
         hidden = UNDITHERED
     res = run_gap(gps_drive(seed, hidden))
     names = [s.effect for s in res.steps]
-    shown = " -> ".join(names) or "nothing"
+    ok, figure = _judged(kind, j, res.steps, names)
+    shown = (" -> ".join(names) or "nothing") + figure
+    return ok, shown, res.initial_sim.gap, res.final_sim.gap
+
+
+def _judged(kind: str, j: int, steps: Any, names: list[str]) -> tuple[bool, str]:
+    """Whether ``hdrd gap`` found what was hidden (the offset within 25 %, the ADC step within
+    10 % and no offset beside it; nothing at all when nothing was), and the figure it named."""
     if kind == "motion_offset":
         true = OFFSETS[j % len(OFFSETS)]
-        got = next((s.params["offset_dps"] for s in res.steps if s.effect == kind), None)
+        got = next((s.params["offset_dps"] for s in steps if s.effect == kind), None)
         ok = got is not None and abs(got / true - 1.0) <= 0.25
-        shown += f" ({got if got is None else f'{got:+.4f}'} of {true:+.2f})"
-    elif kind == "quantization":
-        got = next((s.params["step_dps"] for s in res.steps if s.effect == kind), None)
+        return ok, f" ({got if got is None else f'{got:+.4f}'} of {true:+.2f})"
+    if kind == "quantization":
+        got = next((s.params["step_dps"] for s in steps if s.effect == kind), None)
         ok = got is not None and abs(got / STEP_DPS - 1.0) <= 0.10
         ok = ok and "motion_offset" not in names
-        shown += f" (step {got if got is None else f'{got:.4g}'})"
-    else:
-        ok = not names
-    return ok, shown, res.initial_sim.gap, res.final_sim.gap
+        return ok, f" (step {got if got is None else f'{got:.4g}'})"
+    return not names, ""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -361,25 +361,26 @@ def real_table(rows: Sequence[Scored]) -> str:
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     real = [r for r in rows if r.group == "real"]
-    for r in real:
-        if not (r.e or r.outages):
-            continue
-        e = ["–"] * len(METHODS)
-        if r.e:
-            e = [fmt(r.e[m], 2) + ("*" if harmed(r.e[m], r.e["none"]) else "") for m in METHODS]
-        o = ["–"] * (len(cols) + 1)
-        if r.outages:
-            ok, f = r.scored_outages(), r.out_mean(FROZEN)
-            o = [f"{int(ok.sum())}/{ok.shape[0]}"] + [
-                fmt(r.out_mean(m), 2) + ("*" if harmed(r.out_mean(m), f) else "") for m in cols
-            ]
-        lines.append(
-            f"| {r.name} | {fmt(r.td_min, 1)} | " + " | ".join(e) + " | " + " | ".join(o) + " |"
-        )
+    lines += [_real_row(r, cols) for r in real if r.e or r.outages]
     notes = [f"{r.name} ({'; '.join(r.notes)})" for r in real if r.notes]
     if notes:
         lines += ["", "Left out, or in part: " + "; ".join(notes) + "."]
     return "\n".join(lines)
+
+
+def _real_row(r: Scored, cols: tuple[str, ...]) -> str:
+    """One real drive's row: Td, Eψ per method, the outages scored and their ends' mean
+    |error| per method (harmed marked *; "–" where the drive has none)."""
+    e = ["–"] * len(METHODS)
+    if r.e:
+        e = [fmt(r.e[m], 2) + ("*" if harmed(r.e[m], r.e["none"]) else "") for m in METHODS]
+    o = ["–"] * (len(cols) + 1)
+    if r.outages:
+        ok, f = r.scored_outages(), r.out_mean(FROZEN)
+        o = [f"{int(ok.sum())}/{ok.shape[0]}"] + [
+            fmt(r.out_mean(m), 2) + ("*" if harmed(r.out_mean(m), f) else "") for m in cols
+        ]
+    return f"| {r.name} | {fmt(r.td_min, 1)} | " + " | ".join(e) + " | " + " | ".join(o) + " |"
 
 
 def to_json(rows: Sequence[Scored]) -> dict[str, Any]:

@@ -181,27 +181,14 @@ def measure(hz: float, seconds: float, seed: int = 1) -> LiveResult:
         g = TimedFakeGyro(profile, speedup=1.0, link=tmpd / "gyro", seed=seed)
         rx = Receiver()
         rx.start()
-        env = dict(os.environ, STATE_DIRECTORY=str(tmpd))
-        for name in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
-            env.pop(name, None)
+        env = _daemon_env(tmpd)
         proc: subprocess.Popen[bytes] | None = None
         try:
             g.open()
+            cmd = [*hdrd_command(), "run", "--config", str(cfg), "--port", str(g.link), "--bias",
+                   str(BIAS_DPS), "--udp", rx.addr, "--log-format", "json"]  # fmt: skip
             proc = subprocess.Popen(
-                [
-                    *hdrd_command(),
-                    "run",
-                    "--config",
-                    str(cfg),
-                    "--port",
-                    str(g.link),
-                    "--bias",
-                    str(BIAS_DPS),
-                    "--udp",
-                    rx.addr,
-                    "--log-format",
-                    "json",
-                ],
+                cmd,
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
                 env=env,
@@ -228,6 +215,31 @@ def measure(hz: float, seconds: float, seed: int = 1) -> LiveResult:
             rx.close()
     tick = os.sysconf("SC_CLK_TCK")
     cpu_s = (c1 - c0) / tick
+    lat, samples_ok = _latencies(g, rx)
+    return LiveResult(
+        hz=hz,
+        window_s=w1 - w0,
+        cpu_s=cpu_s,
+        cpu_share=cpu_s / (w1 - w0),
+        rss_peak_mb=peak / 1024,
+        rss_end_mb=rss_end / 1024,
+        steps=len(lat),
+        latencies_ms=lat,
+        samples_ok=samples_ok,
+    )
+
+
+def _daemon_env(state: Path) -> dict[str, str]:
+    """The environment of the daemon: its state in ``state``, no systemd notification."""
+    env = dict(os.environ, STATE_DIRECTORY=str(state))
+    for name in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"):
+        env.pop(name, None)
+    return env
+
+
+def _latencies(g: TimedFakeGyro, rx: Receiver) -> tuple[list[float], bool]:
+    """Each step's latency (ms) from the write of the frame that closed its block to the
+    datagram's arrival, and whether every step holds the samples of its block."""
     # Block edges from the first frame the daemon read: every frame was written to an open port.
     written = np.flatnonzero(g.write_ns >= 0)
     t_us, _ = unwrap_us(g.frames["t_us"][written])
@@ -243,17 +255,7 @@ def measure(hz: float, seconds: float, seed: int = 1) -> LiveResult:
         expected = int(np.count_nonzero((rel >= i * T_us) & (rel < (i + 1) * T_us)))
         samples_ok &= int(m["samples"]) == expected
         lat.append((arrived - int(g.write_ns[written[k]])) / 1e6)
-    return LiveResult(
-        hz=hz,
-        window_s=w1 - w0,
-        cpu_s=cpu_s,
-        cpu_share=cpu_s / (w1 - w0),
-        rss_peak_mb=peak / 1024,
-        rss_end_mb=rss_end / 1024,
-        steps=len(lat),
-        latencies_ms=lat,
-        samples_ok=samples_ok,
-    )
+    return lat, samples_ok
 
 
 def report(results: list[LiveResult], seconds: float, load: int = 0) -> str:

@@ -227,17 +227,30 @@ def _run(
             f.predict(float(raw[i]), T, float(noise[i]))
         t_prev = t
         k, j = _fix_of_step(fix_t, t - T, t, j)
-        fix = fixes[k] if k >= 0 else None
-        if (
-            fix is not None
-            and fix.track_deg is not None
-            and fix.speed_mps is not None
-            and fix.speed_mps >= aiding.config.min_speed_mps
-            and not any(a <= fix_t[k] <= c for a, c in windows)
-        ):
-            f.course(fix.track_deg, aiding.course_var(fix, float(raw[i]) - f.b))
+        track = _course(fixes, fix_t, k, windows, aiding.config.min_speed_mps)
+        if track is not None:
+            f.course(track, aiding.course_var(fixes[k], float(raw[i]) - f.b))
         heading[i] = f.psi
     return heading
+
+
+def _course(
+    fixes: Sequence[LogFix],
+    fix_t: np.ndarray,
+    k: int,
+    windows: list[tuple[float, float]],
+    min_speed_mps: float,
+) -> float | None:
+    """Fix ``k``'s course (compass deg) when it aids: a fix of the step (``k`` >= 0) with a
+    course, fast enough, outside the outages; else None."""
+    if k < 0:
+        return None
+    fix = fixes[k]
+    if fix.track_deg is None or fix.speed_mps is None or not fix.speed_mps >= min_speed_mps:
+        return None  # (a speed of NaN does not aid)
+    if any(a <= fix_t[k] <= c for a, c in windows):
+        return None
+    return fix.track_deg
 
 
 # -- the outages judged on ---------------------------------------------------------------------

@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import (
     REPO,
+    Timing,
     capture_bench_setup,
     capture_line,
     hdrd_command,
@@ -48,7 +49,7 @@ from hdrd.core.calibrate import given_bias
 from hdrd.io.wire.capture import decode_capture
 from hdrd.config import load_config
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
-from hdrd.io.net.publish import format_json
+from hdrd.io.net.formats import format_json
 t.append(time.perf_counter())
 args = build_parser().parse_args(["replay", sys.argv[1], "--bias", sys.argv[2]])
 cfg, _ = load_config(args.config)  # replay's flags here override no key
@@ -71,11 +72,11 @@ print(json.dumps({n: b - a for n, a, b in zip(names, t, t[1:])}))
 """
 
 
-def main(argv: list[str] | None = None) -> int:
-    a, cap, meta = capture_bench_setup(__doc__, argv)
-    work = cap.parent
-    hdrd = hdrd_command()
-    cmd = [*hdrd, "replay", str(cap), "--bias", BIAS]
+def _measure(
+    cmd: list[str], cap: Path, work: Path, repeats: int
+) -> tuple[int, Timing, Timing, Timing, dict[str, float]]:
+    """``cmd`` (the replay) timed to a file and to /dev/null, the interpreter's start alone,
+    and the phases of one more run (s): with the JSON lines it writes."""
     out_file = work / "replay.jsonl"
     with open(out_file, "wb") as f:
         subprocess.run(
@@ -83,9 +84,9 @@ def main(argv: list[str] | None = None) -> int:
         )  # warm the page cache; also the output checked below
     lines = out_file.read_bytes().count(b"\n")
     with open(out_file, "wb") as f:
-        to_file = time_process(cmd, a.repeats, stdout=f)
-    to_null = time_process(cmd, a.repeats)
-    python_alone = time_process([sys.executable, "-c", "pass"], a.repeats)
+        to_file = time_process(cmd, repeats, stdout=f)
+    to_null = time_process(cmd, repeats)
+    python_alone = time_process([sys.executable, "-c", "pass"], repeats)
     phases = json.loads(
         subprocess.run(
             [sys.executable, "-c", PHASES, str(cap), BIAS],
@@ -95,6 +96,15 @@ def main(argv: list[str] | None = None) -> int:
             cwd=REPO,
         ).stdout
     )
+    return lines, to_file, to_null, python_alone, phases
+
+
+def main(argv: list[str] | None = None) -> int:
+    a, cap, meta = capture_bench_setup(__doc__, argv)
+    work = cap.parent
+    hdrd = hdrd_command()
+    cmd = [*hdrd, "replay", str(cap), "--bias", BIAS]
+    lines, to_file, to_null, python_alone, phases = _measure(cmd, cap, work, a.repeats)
     dev_s = meta["device_s"]
     how = "the console script" if len(hdrd) == 1 else "python -m hdrd"
     rows = [("> a file", to_file), ("> /dev/null", to_null)]

@@ -195,6 +195,149 @@ def expected_steps(g: FakeGyro, T_s: float = 1.0) -> int:
     return total
 
 
+def _pull_times(profile: Any, pull_every_min: float) -> list[float]:
+    """Device times (s) of the cable pulls: every ``pull_every_min`` minutes, none in the last
+    minute, none at all for 0."""
+    if pull_every_min <= 0:
+        return []
+    first_pull = pull_every_min * 60.0
+    return list(np.arange(first_pull, profile.t[-1] - 60.0, pull_every_min * 60.0))
+
+
+def _daemon_command(tmpd: Path, link: Path, udp: str, speedup: float) -> list[str]:
+    """``python -m hdrd run`` on the fake's port, publishing to ``udp``, with a configuration
+    (short reconnect delays) and a state folder in ``tmpd``."""
+    (tmpd / "state").mkdir()
+    cfg = tmpd / "hdrd.yaml"
+    cfg.write_text(
+        "device:\n  stale_after_s: 0.5\n  reconnect_min_s: 0.1\n  reconnect_max_s: 1.0\nlog:\n  bad_frame_interval_s: 5.0\n"
+    )
+    return [
+        sys.executable, "-m", "hdrd", "run", "--clock-rate", str(speedup), "--config", str(cfg),
+        "--port", str(link), "--udp", udp, "--log-format", "json",
+    ]  # fmt: skip
+
+
+def _watch(
+    g: FakeGyro, proc: subprocess.Popen[bytes], rx: _Receiver, rss: list[int], progress: bool
+) -> None:
+    """Until the fake has written everything (or the daemon is gone): the daemon's RSS (kB)
+    every 2 s once it publishes, and the progress line."""
+    next_rss = 0.0
+    n_frames = g.frames.shape[0]
+    while not g.wait(0.5):
+        if proc.poll() is not None:
+            break
+        now = time.monotonic()
+        if len(rx.messages) >= 60 and now >= next_rss:
+            rss.append(rss_kb(proc.pid))
+            next_rss = now + 2.0
+        if progress:
+            done = int(g.delivered.sum())
+            print(
+                f"\r  {done / n_frames:6.1%} of {n_frames:,} frames, {len(rx.messages):,} steps, RSS {rss[-1] if rss else 0} kB",
+                end="",
+                file=sys.stderr,
+                flush=True,
+            )
+
+
+def _run_daemon(
+    g: FakeGyro, rx: _Receiver, argv: list[str], env: dict[str, str], progress: bool
+) -> tuple[int, _Log, list[int]]:
+    """The daemon run on the fake's data to its end: its exit status, its log, its RSS
+    samples (kB). The fake and the receiver are closed after it."""
+    proc: subprocess.Popen[bytes] | None = None
+    log: _Log | None = None
+    rss: list[int] = []
+    try:
+        g.open()
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+        log = _Log(proc.stderr)
+        log.start()
+        reopened = log
+
+        def resume_after_reconnect() -> None:
+            # Runs in the fake's writer thread once the new pty is up: hold the next
+            # write until the daemon has reopened the port (and flushed its input).
+            reopened.wait_count("device_back", g.injected.pulls)
+
+        g.on_pull_end = resume_after_reconnect  # type: ignore[method-assign]
+        if not rx.stale.wait(WAIT):  # the port is open: the loop is running, no data yet
+            raise RuntimeError("the daemon sent no stale report before data")
+        g.start()
+        _watch(g, proc, rx, rss, progress)
+        if g.error is not None:
+            raise RuntimeError(f"the fake gyro failed: {g.error!r}")
+        # Everything written and read: the daemon goes stale once it has parsed it all.
+        rx.stale.clear()
+        rx.stale.wait(WAIT)
+        if proc.poll() is None:
+            rss.append(rss_kb(proc.pid))
+            proc.terminate()
+        exit_code = proc.wait(timeout=WAIT)
+        log.join(timeout=10)
+    finally:
+        _stop(proc, log)
+        g.close()
+        rx.close()
+    return exit_code, log, rss
+
+
+def _stop(proc: subprocess.Popen[bytes] | None, log: _Log | None) -> None:
+    """The daemon killed if it still runs, its log read to its end and our end of the pipe
+    closed."""
+    if proc is not None and proc.poll() is None:
+        proc.kill()
+        proc.wait()
+    if proc is not None and proc.stderr is not None:
+        if log is not None:
+            log.join(timeout=10)  # the log is read to its end: close our end of the pipe
+        proc.stderr.close()
+
+
+def _result(
+    g: FakeGyro, rx: _Receiver, log: _Log, rss: list[int], exit_code: int, wall: float,
+    speedup: float, hz: float,
+) -> SoakResult:  # fmt: skip
+    """What was measured, beside what the fake delivered and injected."""
+    msgs = rx.messages
+    steps = [m["step"] for m in msgs]
+    stop: dict[str, Any] = next((e for e in reversed(log.events) if e.get("event") == "stop"), {})
+    names: dict[str, int] = {}
+    for e in log.events:
+        names[e["event"]] = names.get(e["event"], 0) + 1
+    pairs = list(itertools.pairwise(steps))
+    return SoakResult(
+        device_hours=float(g.t_s[-1]) / 3600.0,
+        speedup=speedup,
+        hz=hz,
+        wall_s=wall,
+        frames_total=int(g.frames.shape[0]),
+        frames_delivered=int(g.delivered.sum()),
+        samples_published=sum(int(m["samples"]) for m in msgs),
+        steps_expected=expected_steps(g),
+        steps_published=len(msgs),
+        steps_in_order=all(b > a for a, b in pairs)
+        and sum(b - a > 1 for a, b in pairs) <= g.injected.pulls,
+        stale_reports=rx.stale_count,
+        bad_injected=g.injected.expected_bad_frames,
+        bad_counted=int(stop.get("bad_frames", -1)),
+        garbage_events=g.injected.garbage_events,
+        dropped=g.injected.dropped,
+        pulls=g.injected.pulls,
+        reconnects=int(stop.get("reconnects", -1)),
+        device_lost_events=names.get("device_lost", 0),
+        exit_code=exit_code,
+        rss_start_kb=rss[0] if rss else 0,
+        rss_end_kb=rss[-1] if rss else 0,
+        rss_max_kb=max(rss) if rss else 0,
+        traceback=any("Traceback" in line for line in log.other),
+        bias_dps=next((m["bias"] for m in msgs if "bias" in m), None),
+        events=names,
+    )
+
+
 def soak(
     hours: float = 6.0,
     speedup: float = 200.0,
@@ -212,23 +355,10 @@ def soak(
     """Run one soak (see the module doc) and return what it measured."""
     from hdrd.sim import simulate_drive
 
-    minutes = hours * 60.0
-    profile = simulate_drive(drive, minutes, seed, hz=hz)
-    first_pull = pull_every_min * 60.0
-    pull_at = (
-        list(np.arange(first_pull, profile.t[-1] - 60.0, pull_every_min * 60.0))
-        if pull_every_min > 0
-        else []
-    )
+    profile = simulate_drive(drive, hours * 60.0, seed, hz=hz)
     with tempfile.TemporaryDirectory(prefix="hdrd-soak-", dir=workdir) as tmp:
         tmpd = Path(tmp)
         link = tmpd / "gyro"
-        state = tmpd / "state"
-        state.mkdir()
-        cfg = tmpd / "hdrd.yaml"
-        cfg.write_text(
-            "device:\n  stale_after_s: 0.5\n  reconnect_min_s: 0.1\n  reconnect_max_s: 1.0\nlog:\n  bad_frame_interval_s: 5.0\n"
-        )
         g = FakeGyro(
             profile,
             speedup=speedup,
@@ -236,129 +366,21 @@ def soak(
             garbage=garbage,
             crc_errors=crc_errors,
             drop=drop,
-            pull_at=pull_at,
+            pull_at=_pull_times(profile, pull_every_min),
             pull_for=pull_for_s,
             seed=seed,
         )
         rx = _Receiver()
         rx.start()
-        env = dict(os.environ, STATE_DIRECTORY=str(state))
+        argv = _daemon_command(tmpd, link, rx.addr, speedup)
+        env = dict(os.environ, STATE_DIRECTORY=str(tmpd / "state"))
         env.pop("NOTIFY_SOCKET", None)
         env.pop("WATCHDOG_USEC", None)
-        proc: subprocess.Popen[bytes] | None = None
-        rss: list[int] = []
         t_wall = time.monotonic()
-        try:
-            g.open()
-            proc = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "hdrd",
-                    "run",
-                    "--clock-rate",
-                    str(speedup),
-                    "--config",
-                    str(cfg),
-                    "--port",
-                    str(link),
-                    "--udp",
-                    rx.addr,
-                    "--log-format",
-                    "json",
-                ],
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.PIPE,
-                env=env,
-            )
-            log = _Log(proc.stderr)
-            log.start()
-
-            def resume_after_reconnect() -> None:
-                # Runs in the fake's writer thread once the new pty is up: hold the next
-                # write until the daemon has reopened the port (and flushed its input).
-                log.wait_count("device_back", g.injected.pulls)
-
-            g.on_pull_end = resume_after_reconnect  # type: ignore[method-assign]
-            if not rx.stale.wait(WAIT):  # the port is open: the loop is running, no data yet
-                raise RuntimeError("the daemon sent no stale report before data")
-            g.start()
-            next_rss = 0.0
-            n_frames = g.frames.shape[0]
-            while not g.wait(0.5):
-                if proc.poll() is not None:
-                    break
-                now = time.monotonic()
-                if len(rx.messages) >= 60 and now >= next_rss:
-                    rss.append(rss_kb(proc.pid))
-                    next_rss = now + 2.0
-                if progress:
-                    done = int(g.delivered.sum())
-                    print(
-                        f"\r  {done / n_frames:6.1%} of {n_frames:,} frames, {len(rx.messages):,} steps, RSS {rss[-1] if rss else 0} kB",
-                        end="",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-            if g.error is not None:
-                raise RuntimeError(f"the fake gyro failed: {g.error!r}")
-            # Everything written and read: the daemon goes stale once it has parsed it all.
-            rx.stale.clear()
-            rx.stale.wait(WAIT)
-            if proc.poll() is None:
-                rss.append(rss_kb(proc.pid))
-                proc.terminate()
-            exit_code = proc.wait(timeout=WAIT)
-            log.join(timeout=10)
-        finally:
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            if proc is not None and proc.stderr is not None:
-                log.join(timeout=10)  # the log is read to its end: close our end of the pipe
-                proc.stderr.close()
-            g.close()
-            rx.close()
+        exit_code, log, rss = _run_daemon(g, rx, argv, env, progress)
         if progress:
             print(file=sys.stderr)
-        wall = time.monotonic() - t_wall
-        msgs = rx.messages
-        steps = [m["step"] for m in msgs]
-        stop: dict[str, Any] = next(
-            (e for e in reversed(log.events) if e.get("event") == "stop"), {}
-        )
-        names: dict[str, int] = {}
-        for e in log.events:
-            names[e["event"]] = names.get(e["event"], 0) + 1
-        bias = next((m["bias"] for m in msgs if "bias" in m), None)
-        return SoakResult(
-            device_hours=float(g.t_s[-1]) / 3600.0,
-            speedup=speedup,
-            hz=hz,
-            wall_s=wall,
-            frames_total=int(g.frames.shape[0]),
-            frames_delivered=int(g.delivered.sum()),
-            samples_published=sum(int(m["samples"]) for m in msgs),
-            steps_expected=expected_steps(g),
-            steps_published=len(msgs),
-            steps_in_order=all(b > a for a, b in itertools.pairwise(steps))
-            and sum(b - a > 1 for a, b in itertools.pairwise(steps)) <= g.injected.pulls,
-            stale_reports=rx.stale_count,
-            bad_injected=g.injected.expected_bad_frames,
-            bad_counted=int(stop.get("bad_frames", -1)),
-            garbage_events=g.injected.garbage_events,
-            dropped=g.injected.dropped,
-            pulls=g.injected.pulls,
-            reconnects=int(stop.get("reconnects", -1)),
-            device_lost_events=names.get("device_lost", 0),
-            exit_code=exit_code,
-            rss_start_kb=rss[0] if rss else 0,
-            rss_end_kb=rss[-1] if rss else 0,
-            rss_max_kb=max(rss) if rss else 0,
-            traceback=any("Traceback" in line for line in log.other),
-            bias_dps=bias,
-            events=names,
-        )
+        return _result(g, rx, log, rss, exit_code, time.monotonic() - t_wall, speedup, hz)
 
 
 def report(r: SoakResult) -> str:

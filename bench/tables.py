@@ -89,7 +89,7 @@ def time_tune(candidates: int, seed: int, repeats: int) -> list[float]:
     return times
 
 
-def main() -> int:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workdir", default="/tmp/hdrd-tables", help="where drive logs and outputs go")
     ap.add_argument("--candidates", type=int, default=10000)
@@ -104,30 +104,22 @@ def main() -> int:
         help="gyro grade of the simulated drives (hdrd simulate --grade); a grade other than "
         "crs03 gets its own section, without the real recordings and the discussion",
     )
-    a = ap.parse_args()
-    global SECTION
-    paper_grade = a.grade == "crs03"
-    if not paper_grade:
-        SECTION = f"## Table II analogue (simulated, {a.grade} grade)"
-    grade_args = [] if paper_grade else ["--grade", a.grade]
+    return ap.parse_args()
 
-    from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES
 
-    W = Path(a.workdir)
-    W.mkdir(parents=True, exist_ok=True)
-    cmds: list[str] = []
+def _simulated(
+    a: argparse.Namespace, W: Path, cmds: list[str], tr_s: list[str], te_s: list[str]
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """Steps 1-4 (module doc) as recorded commands: the drives simulated, evaluated and
+    tuned; their documents (train, test, test with the tuned set, tune)."""
     hdrd = ["hdrd"]
-    py = [sys.executable]
+    grade_args = [] if a.grade == "crs03" else ["--grade", a.grade]
     run_recorded(
         hdrd + ["simulate", "--benchmark", "train", "--out", f"{W}/train", *grade_args], cmds
     )
     run_recorded(
         hdrd + ["simulate", "--benchmark", "test", "--out", f"{W}/test", *grade_args], cmds
     )
-    train = [W / "train" / f"{s.name}.csv" for s in TRAIN_DRIVES]  # the paper's order
-    test = [W / "test" / f"{s.name}.csv" for s in TEST_DRIVES]
-    tr_s = [str(p) for p in train]
-    te_s = [str(p) for p in test]
     run_recorded(
         hdrd + ["evaluate", *tr_s, "--json", f"{W}/train.json", "--plot", f"{W}/train.png"], cmds
     )
@@ -157,39 +149,65 @@ def main() -> int:
         hdrd + ["evaluate", *te_s, "--config", f"{W}/tuned.yaml", "--json", f"{W}/test_tuned.json"],
         cmds,
     )
-    ev_train = json.loads((W / "train.json").read_text())
-    ev_test = json.loads((W / "test.json").read_text())
-    ev_test_tuned = json.loads((W / "test_tuned.json").read_text())
-    tj = json.loads((W / "tune.json").read_text())
+    docs = [json.loads((W / f"{n}.json").read_text()) for n in ("train", "test", "test_tuned")]
+    return docs[0], docs[1], docs[2], json.loads((W / "tune.json").read_text())
+
+
+def _real(W: Path, cmds: list[str]) -> list[tuple[str, str, dict[str, Any], str]]:
+    """Step 5 (module doc): the real recordings converted and evaluated, each as (label, bias
+    deg/s, its ``--json`` document, its printed table)."""
+    hdrd = ["hdrd"]
+    real: list[tuple[str, str, dict[str, Any], str]] = []
+    run_recorded([sys.executable, "tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
+    from hdrd.io.files.drivelog import read_drive
+
+    comma = W / "real" / "comma2k19.csv"
+    android = float(read_drive(comma).meta["android_bias_dps"])
+    smart = W / "real" / "smartloc_berlin.csv"
+    cases = [
+        (smart, "0", "smartLoc Berlin, bias 0 (the car's sensor taken as zeroed)"),
+        (
+            smart,
+            f"{SMARTLOC_FIT_BIAS_DPS}",
+            "smartLoc Berlin, bias +0.053 deg/s (best static bias in hindsight)",
+        ),
+        (comma, f"{android}", "comma2k19, bias = Android's estimate"),
+    ]
+    for i, (path, bias, label) in enumerate(cases):
+        out = W / "real" / f"eval{i}.json"
+        p = run_recorded(
+            hdrd
+            + ["evaluate", str(path), "--bias", bias, "--json", str(out)]
+            + (["--plot", f"{W}/real/eval{i}.png"] if i != 1 else []),
+            cmds,
+        )
+        real.append((label, bias, json.loads(out.read_text()), p.stdout))
+    # A calibration over comma2k19's first second (the car moving) is refused now: the
+    # start-up standstill test sees the rate's trend (docs/evaluation.md).
+    return real
+
+
+def main() -> int:
+    a = _arguments()
+    global SECTION
+    paper_grade = a.grade == "crs03"
+    if not paper_grade:
+        SECTION = f"## Table II analogue (simulated, {a.grade} grade)"
+
+    from hdrd.sim.benchmark import TEST_DRIVES, TRAIN_DRIVES
+
+    W = Path(a.workdir)
+    W.mkdir(parents=True, exist_ok=True)
+    cmds: list[str] = []
+    train = [W / "train" / f"{s.name}.csv" for s in TRAIN_DRIVES]  # the paper's order
+    test = [W / "test" / f"{s.name}.csv" for s in TEST_DRIVES]
+    tr_s = [str(p) for p in train]
+    te_s = [str(p) for p in test]
+    ev_train, ev_test, ev_test_tuned, tj = _simulated(a, W, cmds, tr_s, te_s)
 
     real: list[tuple[str, str, dict[str, Any], str]] = []
     if DATA.is_dir() and paper_grade:
-        run_recorded(py + ["tools/convert_real.py", "all", "--out-dir", f"{W}/real"], cmds)
-        from hdrd.io.files.drivelog import read_drive
-
-        comma = W / "real" / "comma2k19.csv"
-        android = float(read_drive(comma).meta["android_bias_dps"])
-        smart = W / "real" / "smartloc_berlin.csv"
-        cases = [
-            (smart, "0", "smartLoc Berlin, bias 0 (the car's sensor taken as zeroed)"),
-            (
-                smart,
-                f"{SMARTLOC_FIT_BIAS_DPS}",
-                "smartLoc Berlin, bias +0.053 deg/s (best static bias in hindsight)",
-            ),
-            (comma, f"{android}", "comma2k19, bias = Android's estimate"),
-        ]
-        for i, (path, bias, label) in enumerate(cases):
-            out = W / "real" / f"eval{i}.json"
-            p = run_recorded(
-                hdrd
-                + ["evaluate", str(path), "--bias", bias, "--json", str(out)]
-                + (["--plot", f"{W}/real/eval{i}.png"] if i != 1 else []),
-                cmds,
-            )
-            real.append((label, bias, json.loads(out.read_text()), p.stdout))
-        # A calibration over comma2k19's first second (the car moving) is refused now: the
-        # start-up standstill test sees the rate's trend (docs/evaluation.md).
+        real = _real(W, cmds)
     else:
         print(f"no real recordings at {DATA}: skipped", file=sys.stderr)
 
@@ -197,22 +215,10 @@ def main() -> int:
     times = time_tune(10000, a.seed, a.repeats)
     cont_train = continuous_errors(train)
     cont_test = continuous_errors(test)
-
     section = render(
-        a,
-        W,
-        cmds,
-        ev_train,
-        ev_test,
-        ev_test_tuned,
-        tj,
-        real,
-        times,
-        cont_train,
-        cont_test,
-        tr_s,
-        te_s,
-    )
+        a, W, cmds, ev_train, ev_test, ev_test_tuned, tj, real, times, cont_train, cont_test,
+        tr_s, te_s,
+    )  # fmt: skip
     print(section)
     if not a.no_write:
         put_section("sim", section)
@@ -253,36 +259,11 @@ def _commands_and_definitions(
     return L
 
 
-def render(
-    a: argparse.Namespace,
-    W: Path,
-    cmds: list[str],
-    ev_train: dict[str, Any],
-    ev_test: dict[str, Any],
-    ev_test_tuned: dict[str, Any],
-    tj: dict[str, Any],
-    real: list[tuple[str, str, dict[str, Any], str]],
-    times: list[float],
-    cont_train: dict[str, tuple[float, float]],
-    cont_test: dict[str, tuple[float, float]],
-    train_s: list[str],
-    test_s: list[str],
-) -> str:
-    L: list[str] = [SECTION, ""]
-    if a.grade != "crs03":  # the commands and definitions are the crs03 section's: said once
-        L.append(
-            f"Generated by `python bench/tables.py --grade {a.grade}` ({time.strftime('%Y-%m-%d')}, "
-            f'on {machine_line()}). It runs the commands of "{CRS03_SECTION[3:]}" with '
-            f"`--grade {a.grade}` on `hdrd simulate` and without the real recordings (outputs in "
-            f"`{W}`); the definitions are that section's."
-        )
-        L.append("")
-    else:
-        L += _commands_and_definitions(W, cmds, train_s, test_s)
-
-    # -- training nine ------------------------------------------------------------------
-    L.append("### The nine training drives (paper's Table III parameters)")
-    L.append("")
+def _training_rows(
+    ev_train: dict[str, Any], cont_train: dict[str, tuple[float, float]]
+) -> list[str]:
+    """The nine training drives beside the paper's Table II, with the mean and the weak ones."""
+    L = ["### The nine training drives (paper's Table III parameters)", ""]
     L.append(
         "| drive | Td min | paper Eψ without → with | ours Eψ without → with | paper NEψ | ours NEψ | "
         "paper impr. | ours impr. | ours, continuous Eψ without → with (impr.) |"
@@ -299,20 +280,31 @@ def render(
             f"{fmt(d['E_psi_hdr'], 1)}° | {pn} | {fmt(d['NE_psi_raw'], 2)} → {fmt(d['NE_psi_hdr'], 3)} | "
             f"{pi} | {fmt(d['improvement'], 1)}× | {ce[0]:.1f}° → {ce[1]:.1f}° ({ce[0] / ce[1]:.1f}×) |"
         )
+    L.append(_training_mean(ev_train, cont_train))
+    L.append("")
+    L.append(_training_weak(ev_train))
+    L.append("")
+    return L
+
+
+def _training_mean(ev_train: dict[str, Any], cont_train: dict[str, tuple[float, float]]) -> str:
     m = ev_train["mean"]
     imps = [d["improvement"] for d in ev_train["drives"] if d["improvement"] is not None]
     sd = statistics.stdev(imps) if len(imps) > 1 else math.nan
     c_imps = [v[0] / v[1] for v in cont_train.values()]
     c_raw = statistics.mean(v[0] for v in cont_train.values())
     c_hdr = statistics.mean(v[1] for v in cont_train.values())
-    L.append(
+    return (
         f"| **mean** | {sum(d['duration_min'] for d in ev_train['drives']) / 60:.2f} h total | "
         f"{PAPER_MEAN[0]:g}° → {PAPER_MEAN[1]:.1f}° | {fmt(m['E_psi_raw'], 1)}° → {fmt(m['E_psi_hdr'], 1)}° | "
         f"{PAPER_MEAN[2]:.2f} → {PAPER_MEAN[3]:.2f} | {fmt(m['NE_psi_raw'], 2)} → {fmt(m['NE_psi_hdr'], 3)} | "
         f"{PAPER_MEAN[4]:g}× (σ {PAPER_MEAN[5]:g}) | {fmt(m['improvement'], 1)}× (σ {fmt(sd, 2)}) | "
         f"{c_raw:.1f}° → {c_hdr:.1f}° ({statistics.mean(c_imps):.1f}×, σ {statistics.stdev(c_imps):.2f}) |"
     )
-    L.append("")
+
+
+def _training_weak(ev_train: dict[str, Any]) -> str:
+    """The drives HDR made worse, and those it improved less than 2.5×."""
     worse = [
         d["name"]
         for d in ev_train["drives"]
@@ -323,15 +315,19 @@ def render(
         for d in ev_train["drives"]
         if d["improvement"] is not None and 1 <= d["improvement"] < 2.5
     ]
-    L.append(
+    return (
         f"- HDR worse than no HDR on: {', '.join(worse) if worse else 'none of the nine'}; "
         f"less than 2.5× better on: {', '.join(weak) if weak else 'none'}."
     )
-    L.append("")
 
-    # -- test five -------------------------------------------------------------------------
-    L.append("### The five test drives, and tuning on the nine")
-    L.append("")
+
+def _test_rows(
+    ev_test: dict[str, Any],
+    ev_test_tuned: dict[str, Any],
+    cont_test: dict[str, tuple[float, float]],
+) -> list[str]:
+    """The five test drives with the paper's parameters and the tuned ones."""
+    L = ["### The five test drives, and tuning on the nine", ""]
     L.append(
         "| drive | Td min | Eψ without | Eψ HDR (Table III) | Eψ HDR (tuned) | NEψ without | "
         "NEψ Table III | NEψ tuned | impr. Table III | impr. tuned | continuous Eψ without → Table III |"
@@ -354,13 +350,18 @@ def render(
         f"{fmt(m['improvement'], 1)}× | {fmt(mt['improvement'], 1)}× | |"
     )
     L.append("")
+    return L
+
+
+def _tuning_rows(tj: dict[str, Any]) -> list[str]:
+    """``hdrd tune``'s answer, training and test side by side."""
     tr, te = tj["train"], tj["test"]
-    L.append(
+    L = [
         f"`hdrd tune` ({tj['candidates']} parameter sets, seed {tj['seed']}, "
         f"{tj['seconds']:.1f} s for the whole command) — training and test side by side; the "
         "paper's own answer to this question was 9.2× on its training drives and "
         f"{PAPER_TEST[0]:g}× (σ {PAPER_TEST[1]:g}) on its five test drives:"
-    )
+    ]
     L.append("")
     L.append(
         "| parameters | i_c | τ | Θw | c1 | c2 | train mean NEψ | train impr. | test mean NEψ | test impr. |"
@@ -377,11 +378,13 @@ def render(
             f"{te[key]['mean_NE_psi']:.3f} | {te[key]['improvement']:.2f}× (σ {fmt(te[key]['improvement_std'], 2)}) |"
         )
     L.append("")
+    return L
 
-    # -- real ------------------------------------------------------------------------------
-    L.append("### Real recordings (`../shared/data/`, converted by `tools/convert_real.py`)")
-    L.append("")
-    if a.grade != "crs03":
+
+def _real_rows(grade: str, real: list[tuple[str, str, dict[str, Any], str]]) -> list[str]:
+    """The real recordings (crs03 only), each from its ``--json`` or else its printed table."""
+    L = ["### Real recordings (`../shared/data/`, converted by `tools/convert_real.py`)", ""]
+    if grade != "crs03":
         L.append("Not part of a grade's run: see the crs03 section and bench/real.py's.")
     elif not real:
         L.append("Skipped: the recordings were not found.")
@@ -390,38 +393,80 @@ def render(
             "| recording | bias | Td min | Eψ without | Eψ with HDR | NEψ without | NEψ with | improvement |"
         )
         L.append("|---|---|---|---|---|---|---|---|")
-        for label, bias, doc, text in real:
-            if doc:
-                d = doc["drives"][0]
-                L.append(
-                    f"| {label} | {bias} | {d['duration_min']:.1f} | {fmt(d['E_psi_raw'], 2)}° | "
-                    f"{fmt(d['E_psi_hdr'], 2)}° | {fmt(d['NE_psi_raw'], 2)} | {fmt(d['NE_psi_hdr'], 2)} | "
-                    f"{fmt(d['improvement'], 1)}× |"
-                )
-            else:
-                row = [ln for ln in text.splitlines() if ln.startswith("comma2k19")]
-                cells = row[0].split() if row else []
-                if len(cells) >= 8:
-                    L.append(
-                        f"| {label} | {cells[2]} | {cells[1]} | {cells[3]}° | {cells[4]}° | {cells[5]} | "
-                        f"{cells[6]} | {cells[7].replace('x', '×')} |"
-                    )
+        L += [row for label, bias, doc, text in real for row in _real_row(label, bias, doc, text)]
     L.append("")
+    return L
 
-    # -- speed ---------------------------------------------------------------------------------
+
+def _real_row(label: str, bias: str, doc: dict[str, Any], text: str) -> list[str]:
+    """One recording's row, or none when neither its document nor its text has one."""
+    if doc:
+        d = doc["drives"][0]
+        return [
+            f"| {label} | {bias} | {d['duration_min']:.1f} | {fmt(d['E_psi_raw'], 2)}° | "
+            f"{fmt(d['E_psi_hdr'], 2)}° | {fmt(d['NE_psi_raw'], 2)} | {fmt(d['NE_psi_hdr'], 2)} | "
+            f"{fmt(d['improvement'], 1)}× |"
+        ]
+    row = [ln for ln in text.splitlines() if ln.startswith("comma2k19")]
+    cells = row[0].split() if row else []
+    if len(cells) < 8:
+        return []
+    return [
+        f"| {label} | {cells[2]} | {cells[1]} | {cells[3]}° | {cells[4]}° | {cells[5]} | "
+        f"{cells[6]} | {cells[7].replace('x', '×')} |"
+    ]
+
+
+def _speed_rows(times: list[float], tj: dict[str, Any]) -> list[str]:
+    """How long ``tune()`` and ``hdrd tune`` took (s)."""
     best = min(times)
-    L.append("### Tuning speed")
-    L.append("")
-    L.append(
+    return [
+        "### Tuning speed",
+        "",
         f"`tune()` with 10,000 parameter sets on the nine drives (4.45 h, "
         f"{round(sum(PAPER_TABLE_II[k][0] for k in PAPER_TABLE_II) * 60)} steps of 1 s), "
         f"in-process, {len(times)} runs: best {best:.1f} s, median {statistics.median(times):.1f} s "
         f"(target ≤ 30 s: {30 / best:.1f}× inside it). Most of it (about 70 % in a profile) is "
         "`hdrd.core.hdr.run_many` stepping all sets together, the rest is Eψ of every set. "
         f"`hdrd tune` as a command, reading the nine and five CSV files and evaluating the "
-        f"winner on both: {tj['seconds']:.1f} s."
-    )
-    L.append("")
+        f"winner on both: {tj['seconds']:.1f} s.",
+        "",
+    ]
+
+
+def render(
+    a: argparse.Namespace,
+    W: Path,
+    cmds: list[str],
+    ev_train: dict[str, Any],
+    ev_test: dict[str, Any],
+    ev_test_tuned: dict[str, Any],
+    tj: dict[str, Any],
+    real: list[tuple[str, str, dict[str, Any], str]],
+    times: list[float],
+    cont_train: dict[str, tuple[float, float]],
+    cont_test: dict[str, tuple[float, float]],
+    train_s: list[str],
+    test_s: list[str],
+) -> str:
+    """The section: how it was made, the training nine, the test five and tuning, the real
+    recordings, the speed, and (crs03) the discussion."""
+    L: list[str] = [SECTION, ""]
+    if a.grade != "crs03":  # the commands and definitions are the crs03 section's: said once
+        L.append(
+            f"Generated by `python bench/tables.py --grade {a.grade}` ({time.strftime('%Y-%m-%d')}, "
+            f'on {machine_line()}). It runs the commands of "{CRS03_SECTION[3:]}" with '
+            f"`--grade {a.grade}` on `hdrd simulate` and without the real recordings (outputs in "
+            f"`{W}`); the definitions are that section's."
+        )
+        L.append("")
+    else:
+        L += _commands_and_definitions(W, cmds, train_s, test_s)
+    L += _training_rows(ev_train, cont_train)
+    L += _test_rows(ev_test, ev_test_tuned, cont_test)
+    L += _tuning_rows(tj)
+    L += _real_rows(a.grade, real)
+    L += _speed_rows(times, tj)
     if a.grade == "crs03":
         L.append(DISCUSSION.strip())
         L.append("")

@@ -1,7 +1,7 @@
-"""tools/convert_real.py: geodesy and the start-up standstill on hand cases, and the real
-recordings (each skipped when its folder under ../shared/data, or $HDRD_REAL_DATA, is absent;
-the public sources' when no clone is named by $HDRD_MIRRORS) with their sign conventions
-checked against the reference."""
+"""tools/convert_real.py and tools/convert_shared.py: geodesy and the start-up standstill on
+hand cases, and the real recordings (each skipped when its folder under ../shared/data, or
+$HDRD_REAL_DATA, is absent; the public sources' when no clone is named by $HDRD_MIRRORS) with
+their sign conventions checked against the reference."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import pytest
 
 from hdrd.core.angles import wrap180
 from hdrd.io.files.drivelog import DriveLog, read_drive
+from tools import convert_shared as shared
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "convert_real.py"
 
@@ -53,17 +54,17 @@ def mean_heading_error(log: DriveLog, bias_dps: float, sign: float = 1.0) -> tup
 
 
 def test_geodetic_hand_cases() -> None:
-    lat, lon = cr.geodetic_lat_lon(cr._A, 0.0, 0.0)
+    lat, lon = shared.geodetic_lat_lon(shared.WGS84_A, 0.0, 0.0)
     assert lat == pytest.approx(0.0, abs=1e-12) and lon == pytest.approx(0.0, abs=1e-12)
     # 45 deg N, 90 deg E on the ellipsoid surface.
     phi, lam = math.radians(45.0), math.radians(90.0)
-    n = cr._A / math.sqrt(1 - cr._E2 * math.sin(phi) ** 2)
+    n = shared.WGS84_A / math.sqrt(1 - shared.WGS84_E2 * math.sin(phi) ** 2)
     p = (
         n * math.cos(phi) * math.cos(lam),
         n * math.cos(phi) * math.sin(lam),
-        n * (1 - cr._E2) * math.sin(phi),
+        n * (1 - shared.WGS84_E2) * math.sin(phi),
     )
-    lat, lon = cr.geodetic_lat_lon(*p)
+    lat, lon = shared.geodetic_lat_lon(*p)
     assert math.degrees(lat) == pytest.approx(45.0, abs=1e-9) and math.degrees(
         lon
     ) == pytest.approx(90.0)
@@ -71,15 +72,15 @@ def test_geodetic_hand_cases() -> None:
 
 def test_course_from_positions_is_compass() -> None:
     origin = np.array([3785108.0, 899901.0, 5037234.0])  # Berlin
-    east, north = cr.enu_axes(*cr.geodetic_lat_lon(*origin))
+    east, north = shared.enu_axes(*shared.geodetic_lat_lon(*origin))
     t = np.arange(20.0)
     for course, (de, dn) in {90.0: (1, 0), 0.0: (0, 1), 225.0: (-1, -1)}.items():
         v = 10.0 * (de * east + dn * north) / math.hypot(de, dn)
         pos = origin + t[:, None] * v
-        hdg, speed = cr.course_from_positions(t, pos)
+        hdg, speed = shared.course_from_positions(t, pos)
         np.testing.assert_allclose(speed, 10.0, rtol=0.01)
         np.testing.assert_allclose(wrap180(hdg - course), 0.0, atol=1e-6)
-    slow, _ = cr.course_from_positions(t, origin + t[:, None] * east)
+    slow, _ = shared.course_from_positions(t, origin + t[:, None] * east)
     assert np.all(np.isnan(slow))  # 1 m/s < 2 m/s
 
 

@@ -25,9 +25,10 @@ from hdrd.core.calibrate import given_bias
 from hdrd.core.methods import MethodSetup
 from tests.test_aiding import on_message
 from tools.fuzz import harness as fuzz
+from tools.fuzz.contract import one_line
 from tools.fuzz.mutate import Tok, emit_json, emit_yaml
 from tools.fuzz.surfaces import SURFACES, generate
-from tools.fuzz.targets import check_messages, one_line
+from tools.fuzz.targets import check_messages
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -213,7 +214,7 @@ def test_a_bias_file_is_valid_or_one_bias_file_error(
 
 
 def _capture() -> bytes:
-    from tools.fuzz.targets import stress_capture
+    from tools.fuzz.filetargets import stress_capture
 
     return stress_capture(0)
 

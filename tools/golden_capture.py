@@ -42,6 +42,34 @@ OUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "drive
 WAIT_S = 120.0
 
 
+def _record(out: Path, link: Path, a: FakeGyro, b: FakeGyro) -> tuple[int, str]:
+    """``hdrd record`` on the fakes' ``link``: ``a`` to its end, its cable pulled, then ``b``,
+    then SIGINT. Its exit status and stderr."""
+    with a:
+        rec = subprocess.Popen(
+            [sys.executable, "-m", "hdrd", "record", "--port", str(link), "--out", str(out)],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            a.start()
+            if not a.wait(WAIT_S) or a.error is not None:
+                raise SystemExit(f"the first fake gyro did not finish: {a.error}")
+        except BaseException:
+            rec.kill()
+            raise
+    # `a` closed: its pty and link are gone (the cable pulled); `b` is a new device there.
+    with b:
+        try:
+            b.start()
+            if not b.wait(WAIT_S) or b.error is not None:
+                raise SystemExit(f"the second fake gyro did not finish: {b.error}")
+        finally:
+            rec.send_signal(signal.SIGINT)
+            _, err = rec.communicate(timeout=WAIT_S)
+    return rec.returncode, err
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=OUT)
@@ -62,39 +90,9 @@ def main(argv: list[str] | None = None) -> int:
             pull_at=[100.0], pull_for=2.0, seed=7,
         )  # fmt: skip
         b = FakeGyro(second, speedup=0, link=link, garbage=0.02, crc_errors=0.02, seed=8)
-        with a:
-            rec = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "hdrd",
-                    "record",
-                    "--port",
-                    str(link),
-                    "--out",
-                    str(args.out),
-                ],
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-            try:
-                a.start()
-                if not a.wait(WAIT_S) or a.error is not None:
-                    raise SystemExit(f"the first fake gyro did not finish: {a.error}")
-            except BaseException:
-                rec.kill()
-                raise
-        # `a` closed: its pty and link are gone (the cable pulled); `b` is a new device there.
-        with b:
-            try:
-                b.start()
-                if not b.wait(WAIT_S) or b.error is not None:
-                    raise SystemExit(f"the second fake gyro did not finish: {b.error}")
-            finally:
-                rec.send_signal(signal.SIGINT)
-                _, err = rec.communicate(timeout=WAIT_S)
-    if rec.returncode != 0:
-        raise SystemExit(f"hdrd record failed ({rec.returncode}): {err}")
+        rc, err = _record(args.out, link, a, b)
+    if rc != 0:
+        raise SystemExit(f"hdrd record failed ({rc}): {err}")
     arr, stats = decode_capture(args.out.read_bytes())
     if array_to_frames(arr) != a.sent_frames() + b.sent_frames():
         raise SystemExit("the recording is not exactly the frames the fakes delivered")

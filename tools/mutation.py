@@ -159,7 +159,63 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return mid - half, mid + half
 
 
-def main(argv: list[str] | None = None) -> int:
+def _in_scope(names: list[str] | dict[str, str], scope: list[str]) -> list[str]:
+    """The mutant names that match one of the scope's patterns."""
+    return [k for k in names if any(fnmatch.fnmatch(k, p) for p in scope)]
+
+
+def _scope(
+    args: argparse.Namespace, module: str, work: Path, mutmut: str, env: dict[str, str]
+) -> list[str] | None:
+    """The mutants to run: the module's scope, or with ``--sample`` a seeded random sample of
+    it (None: all)."""
+    scope = scope_of(module)
+    if not args.sample:
+        return scope
+    names = all_mutants(work, module, mutmut, env)
+    if scope is not None:
+        names = _in_scope(names, scope)
+    return random.Random(args.seed).sample(names, min(args.sample, len(names)))
+
+
+def _report(
+    args: argparse.Namespace,
+    module: str,
+    work: Path,
+    st: dict[str, str],
+    scope: list[str] | None,
+) -> None:
+    """One module's counts and kill rate (%), other statuses, and the survivors if asked."""
+    count: dict[str, int] = {}
+    for status in st.values():
+        count[status] = count.get(status, 0) + 1
+    tested = len(st) - count.get("skipped", 0)
+    killed = count.get("killed", 0) + count.get("timeout", 0)
+    rate = 100.0 * killed / tested if tested else 0.0
+    part = "" if scope is None else " (in scope)"
+    if args.sample:
+        lo, hi = wilson(killed, tested)
+        part = (
+            f" (a random sample, seed {args.seed}; 95 % interval {100 * lo:.0f}-{100 * hi:.0f} %)"
+        )
+    print(
+        f"{module}: {len(st)} mutants{part}, {count.get('killed', 0)} killed, "
+        f"{count.get('timeout', 0)} timed out, {count.get('survived', 0)} survived, "
+        f"{count.get('no tests', 0)} with no test; kill rate {rate:.1f} %  ({work})",
+        flush=True,
+    )
+    rest = {
+        k: v for k, v in count.items() if k not in ("killed", "timeout", "survived", "no tests")
+    }
+    if rest:
+        print(f"  also: {rest}")
+    if args.survivors:
+        for name, status in sorted(st.items()):
+            if status not in ("killed", "timeout"):
+                print(f"  {status}: {name}")
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("modules", nargs="+", choices=sorted(MODULES))
     ap.add_argument("--max-children", type=int, default=1, help="mutants tested at once")
@@ -172,7 +228,11 @@ def main(argv: list[str] | None = None) -> int:
         default=Path(tempfile.gettempdir()) / "hdrd-mutation",
         help="where the copies are made (default: $TMPDIR/hdrd-mutation)",
     )
-    args = ap.parse_args(argv)
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
     mutmut = shutil.which("mutmut")
     if mutmut is None:
         print("tools/mutation.py: mutmut is not installed (pip install mutmut)", file=sys.stderr)
@@ -181,12 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     env.pop("PYTHONPATH", None)  # the copy's hdrd, as mutmut sets up sys.path, nothing else
     for module in args.modules:
         work = prepare(module, args.workdir)
-        scope = scope_of(module)
-        if args.sample:
-            names = all_mutants(work, module, mutmut, env)
-            if scope is not None:
-                names = [k for k in names if any(fnmatch.fnmatch(k, p) for p in scope)]
-            scope = random.Random(args.seed).sample(names, min(args.sample, len(names)))
+        scope = _scope(args, module, work, mutmut, env)
         run = subprocess.run(
             [mutmut, "run", "--max-children", str(args.max_children), *(scope or [])],
             cwd=work,
@@ -200,32 +255,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         st = statuses(work, mutmut, env)
         if scope is not None:
-            st = {k: v for k, v in st.items() if any(fnmatch.fnmatch(k, p) for p in scope)}
-        count: dict[str, int] = {}
-        for status in st.values():
-            count[status] = count.get(status, 0) + 1
-        tested = len(st) - count.get("skipped", 0)
-        killed = count.get("killed", 0) + count.get("timeout", 0)
-        rate = 100.0 * killed / tested if tested else 0.0
-        part = "" if scope is None else " (in scope)"
-        if args.sample:
-            lo, hi = wilson(killed, tested)
-            part = f" (a random sample, seed {args.seed}; 95 % interval {100 * lo:.0f}-{100 * hi:.0f} %)"
-        print(
-            f"{module}: {len(st)} mutants{part}, {count.get('killed', 0)} killed, "
-            f"{count.get('timeout', 0)} timed out, {count.get('survived', 0)} survived, "
-            f"{count.get('no tests', 0)} with no test; kill rate {rate:.1f} %  ({work})",
-            flush=True,
-        )
-        rest = {
-            k: v for k, v in count.items() if k not in ("killed", "timeout", "survived", "no tests")
-        }
-        if rest:
-            print(f"  also: {rest}")
-        if args.survivors:
-            for name, status in sorted(st.items()):
-                if status not in ("killed", "timeout"):
-                    print(f"  {status}: {name}")
+            st = {k: st[k] for k in _in_scope(st, scope)}
+        _report(args, module, work, st, scope)
     return 0
 
 

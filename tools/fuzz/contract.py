@@ -1,5 +1,5 @@
 """What every fuzz target of tools/fuzz promises and how a broken promise is raised: the base
-of tools/fuzz/targets.py and tools/fuzz/drivelog.py (the module docs there say what each
+of tools/fuzz/targets.py, filetargets.py and drivelog.py (the module docs there say what each
 surface checks)."""
 
 from __future__ import annotations

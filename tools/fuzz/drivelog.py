@@ -16,11 +16,12 @@ Two surfaces:
   laid out as a file, a file of many drives or a dataset partition ``drive=NAME`` (NAME from
   the input), its bytes sometimes damaged.
 
-An input is an envelope (:func:`pack`): the layout, a name, the files' bytes. The target
+An input (made in tools/fuzz/driveinputs.py) is an envelope
+(:func:`tools.fuzz.driveinputs.pack`): the layout, a name, the files' bytes. The target
 (:class:`DriveLogTarget`) lays it out in a fresh folder and runs the commands through their
-own entry point (``hdrd.cli.main``, stdout and stderr
-captured): ``hdrd evaluate`` every input, ``hdrd tune`` every 8th, ``hdrd gap --out DIR
---report`` every 16th; every input, the fitted-model paths ``hdrd gap --out`` would take.
+own entry point (``hdrd.cli.main``, stdout and stderr captured): ``hdrd evaluate`` every
+input, ``hdrd tune`` every 8th, ``hdrd gap --out DIR --report`` every 16th; every input, the
+fitted-model paths ``hdrd gap --out`` would take.
 
 Promises checked (else :class:`tools.fuzz.targets.Broken`): exit status 0 or 1; every line on
 stderr is one printable line of the command (``hdrd evaluate: ...``), never an internal error
@@ -36,344 +37,14 @@ import io
 import json
 import math
 import os
-import random
 import shutil
-import struct
-from functools import cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .contract import Broken, Target, one_line
-from .inputs import serial_input
-from .mutate import giant_string, mutate_bytes
+from .driveinputs import base_logs, unpack
 
-__all__ = ["DriveLogTarget", "drivecsv_input", "driveparquet_input", "pack", "unpack"]
-
-
-# -- the envelope -----------------------------------------------------------------------------
-
-
-def pack(layout: str, name: str, files: list[bytes]) -> bytes:
-    """``layout`` (one letter), a name (UTF-8, surrogates kept), then each file's bytes with
-    its length."""
-    nb = name.encode("utf-8", "surrogatepass")[:600]
-    out = [layout.encode(), struct.pack("<H", len(nb)), nb, struct.pack("<B", len(files))]
-    for f in files:
-        out += [struct.pack("<I", len(f)), f]
-    return b"".join(out)
-
-
-def unpack(data: bytes) -> tuple[str, bytes, list[bytes]]:
-    layout = data[:1].decode("latin-1") or "F"
-    (n,) = struct.unpack_from("<H", data, 1)
-    name = data[3 : 3 + n]
-    at = 3 + n
-    (k,) = struct.unpack_from("<B", data, at)
-    at += 1
-    files = []
-    for _ in range(k):
-        (m,) = struct.unpack_from("<I", data, at)
-        files.append(data[at + 4 : at + 4 + m])
-        at += 4 + m
-    return layout, name, files
-
-
-# -- the drives the inputs start from ---------------------------------------------------------
-
-
-@cache
-def base_logs() -> tuple[Any, ...]:
-    """Short simulated drives (a few hundred rows): city at 2 Hz, suburbs at 5 Hz with a
-    ``valid`` column, a standstill (no heading)."""
-    from dataclasses import replace
-
-    from hdrd.sim.drive import simulate_drive
-
-    city = simulate_drive("city", 1.5, 1, hz=2.0)
-    sub = simulate_drive("suburbs", 1.0, 2, hz=5.0)
-    valid = np.ones(len(sub))
-    valid[200:230] = 0.0
-    still = simulate_drive("standstill", 1.0, 3, hz=2.0)
-    return (city, replace(sub, valid=valid), still)
-
-
-def _csv_text(log: Any) -> str:
-    from hdrd.io.files.drivelog import write_drive
-
-    buf = io.StringIO()
-    write_drive(buf, log)
-    return buf.getvalue()
-
-
-HOSTILE_CELLS = (
-    "", "nan", "NaN", "inf", "-inf", "Infinity", "1e308", "1e309", "-1e400", "1_000", "1_0.5",
-    "\u0661\u0662", "\uff11", "0x10", "1e200", "-1e200", "  5 ", "+", "-", ".", "1e", "999",
-    "725", "-361", "360", "-360", "1.7976931348623157e308", "5e-324", "1" + "0" * 310,
-    "9007199254740993", "\x00", "\x1b[2J", '"', '"a,b"', "\u202e12", "1e-400", "0", "-0",
-    "1001", "-1000.5", "3600", "1e9", "true", "None", "\ufeff1",
-)  # fmt: skip
-
-HOSTILE_NAMES = (
-    "../../x", "/abs/x", "/etc/hdrd/hdrd", "..", ".", "", "a\x00b", "a\x1b[2Jb", "\u202eevil",
-    "x" * 300, "\u00e9" * 150, "a/../../y", "drive=..%2Fz", "a//b", "a/", "ok", "sub/ok",
-    "%2F..%2F", "\n", "CON", "0", "-1",
-)  # fmt: skip
-
-
-def _mutate_lines(rng: random.Random, lines: list[str]) -> None:
-    if not lines:  # cut to nothing by an earlier mutation
-        lines.append(rng.choice(("", "t,omega", "#")))
-        return
-    head = next((i for i, x in enumerate(lines) if x and not x.startswith("#")), 0)
-    cols = lines[head].split(",")
-    data = list(range(head + 1, len(lines)))
-    r = rng.randrange(12)
-    if r <= 3 and data:  # a cell
-        i = rng.choice(data)
-        cells = lines[i].split(",")
-        cells[rng.randrange(len(cells))] = (
-            giant_string(rng) if rng.random() < 0.05 else rng.choice(HOSTILE_CELLS)
-        )
-        lines[i] = ",".join(cells)
-    elif r == 4:  # the header
-        j = rng.randrange(len(cols))
-        cols[j] = rng.choice(
-            ("tt", "omega", "t", "", "valid", "\ufefft", "heading_truth", "drive", "T", "x" * 70)
-        )
-        if rng.random() < 0.3:
-            cols.append(rng.choice(("valid", "speed", "omega")))
-        lines[head] = ",".join(cols)
-    elif r == 5 and data and "t" in cols:  # time: a jump, back, the same, tiny steps
-        k = cols.index("t")
-        i = rng.choice(data)
-        step = rng.choice((1e9, 3601.0, 1e300, -5.0, 0.0, 1e-9, 1e15))
-        for j in range(i, len(lines)):
-            cells = lines[j].split(",")
-            if len(cells) == len(cols):
-                try:
-                    cells[k] = repr(float(cells[k]) + step)
-                except ValueError:
-                    pass
-                lines[j] = ",".join(cells)
-    elif r == 6 and data:  # rows: removed, repeated, swapped, blank, a comment among them
-        i = rng.choice(data)
-        op = rng.randrange(5)
-        if op == 0:
-            del lines[i : i + rng.randint(1, 50)]
-        elif op == 1:
-            lines.insert(i, lines[i])
-        elif op == 2:
-            j = rng.choice(data)
-            lines[i], lines[j] = lines[j], lines[i]
-        elif op == 3:
-            lines.insert(i, rng.choice(("", " ", "# a: b", ",,,", "t,omega")))
-        else:
-            lines[i] += "," + rng.choice(HOSTILE_CELLS)
-    elif r == 7:  # metadata
-        key = rng.choice(("lead_in_s", "source", "x", "drive", ""))
-        value = rng.choice(
-            ("1e308", "-5", "nan", "1e9", "30", "0.1", giant_string(rng)[:5000], "\x1b")
-        )
-        lines.insert(0, f"# {key}: {value}")
-    elif r == 8 and data and "omega" in cols:  # the whole rate: flipped, scaled, absurd
-        k = cols.index("omega")
-        factor = rng.choice((-1.0, math.pi / 180, 57.29577951308232, 1e6, 0.0))
-        for j in data:
-            cells = lines[j].split(",")
-            if len(cells) == len(cols):
-                try:
-                    cells[k] = f"{float(cells[k]) * factor:.7f}"
-                except ValueError:
-                    pass
-                lines[j] = ",".join(cells)
-    elif r == 9:  # a valid column of anything
-        lines[head] += ",valid"
-        for j in data:
-            lines[j] += "," + rng.choice(("1", "1", "1", "0", "2", "", "0.5", "nan"))
-    elif r == 10:  # cut short
-        del lines[rng.randrange(len(lines) + 1) :]
-    else:  # a heading beyond a turn, or a day-long pause
-        if data and "heading_truth" in cols:
-            k = cols.index("heading_truth")
-            i = rng.choice(data)
-            cells = lines[i].split(",")
-            if len(cells) == len(cols):
-                cells[k] = rng.choice(("725", "-721", "1e6", "360.0001", "-360"))
-                lines[i] = ",".join(cells)
-
-
-def drivecsv_input(rng: random.Random) -> bytes:
-    """A drive log CSV to read (module doc), in the envelope: layout ``C`` (the file given)
-    or ``S`` (its folder given: the name comes from the file name), a file name."""
-    name = rng.choice(("drive", "drive", "a\x1b[2Jb", "\u202eevil", "x" * 200, "sp ace", "d\u00e9"))
-    layout = rng.choice("CCS")
-    r = rng.random()
-    if r < 0.04:
-        body = rng.randbytes(rng.randint(0, 5000))
-    elif r < 0.07:
-        body = serial_input(rng, 300)[1:]
-    elif r < 0.08:
-        body = _parquet_bytes(rng, base_logs()[0], plain=True)
-    else:
-        log = rng.choice(base_logs())
-        lines = _csv_text(log).split("\n")
-        for _ in range(rng.choice((1, 1, 2, 3, 4))):
-            _mutate_lines(rng, lines)
-        text = rng.choice(("\n", "\n", "\r\n")).join(lines)
-        if rng.random() < 0.05:
-            text = "\ufeff" + text
-        body = text.encode("utf-8", "surrogatepass")
-        if rng.random() < 0.1:
-            body = mutate_bytes(body, rng, (b",", b"\n", b"#", b"_", b"\xff", b"\x00"))
-    return pack(layout, name, [body])
-
-
-# -- Parquet -----------------------------------------------------------------------------------
-
-
-def _retyped(kind: int, v: Any, n: int) -> Any:
-    """A column's values as another Arrow type: int64 beyond 2^53, uint64's top, float32,
-    strings, nulls, lists, timestamps, booleans, int32."""
-    import pyarrow as pa
-
-    if kind == 0:
-        return pa.array((np.arange(n) + 2**53).astype(np.int64))
-    if kind == 1:
-        return pa.array(np.full(n, 2**64 - 1, dtype=np.uint64))
-    if kind == 2:
-        return pa.array(v.astype(np.float32))
-    if kind == 3:
-        return pa.array([str(x) for x in v.tolist()])
-    if kind == 4:
-        return pa.array([None] * n, type=pa.null())
-    if kind == 5:
-        return pa.array([[x] for x in v.tolist()])
-    if kind == 6:
-        return pa.array(np.arange(n, dtype="datetime64[s]"))
-    if kind == 7:
-        return pa.array(np.arange(n) % 2 == 0)
-    return pa.array(np.nan_to_num(np.rint(v * 1000)).astype(np.int32))
-
-
-def _parquet_bytes(rng: random.Random, log: Any, plain: bool = False) -> bytes:
-    """A Parquet file of one drive (or, with a ``drive`` column, of several), its columns,
-    types, metadata and row groups mutated unless ``plain``."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    cols: dict[str, Any] = {c: pa.array(getattr(log, c)) for c in log.columns()}
-    meta: dict[bytes, bytes] = {b"hdrd.meta": json.dumps(log.meta).encode()}
-    kw: dict[str, Any] = {}
-    for _ in range(0 if plain else rng.choice((1, 1, 2, 3))):
-        r = rng.randrange(12)
-        n = len(log)
-        if r == 0:  # a column's type
-            c = rng.choice(list(cols))
-            cols[c] = _retyped(rng.randrange(9), np.asarray(getattr(log, c)), n)
-        elif r == 1:  # a column twice, one unknown, one missing
-            op = rng.randrange(3)
-            if op == 0:
-                c = rng.choice(list(cols))
-                cols[c + "\x00dup"] = cols[c]
-            elif op == 1:
-                cols[rng.choice(("x", "__index_level_0__", "Omega", "omega_truth", ""))] = cols["t"]
-            else:
-                cols.pop(rng.choice(list(cols)), None)
-        elif r == 2:  # a drive column: many drives, names that could become paths
-            names = [rng.choice(HOSTILE_NAMES) for _ in range(rng.randint(1, 4))]
-            if rng.random() < 0.2:
-                per_row: Any = [rng.choice((7, -1, 2**63 - 1, 0)) for _ in range(n)]
-            else:
-                per_row = [names[i * len(names) // n] for i in range(n)]
-                if rng.random() < 0.1:
-                    per_row[rng.randrange(n)] = None
-            cols["drive"] = pa.array(per_row)
-            if rng.random() < 0.1:
-                cols["drive"] = pa.array([[x] for x in per_row])
-            kw["row_group_size"] = rng.choice((7, 50, 100_000))
-        elif r == 3:  # metadata
-            key = rng.choice((b"hdrd.meta", b"hdrd.drive_meta"))
-            meta[key] = rng.choice(
-                (
-                    b"[" * 100_000 + b"]" * 100_000,
-                    b"not json",
-                    b"[1, 2]",
-                    b'{"a": 1}',
-                    b'{"a": {"b": "c"}}',
-                    b'{"lead_in_s": "1e308"}',
-                    json.dumps({"x": "y" * 1_000_000}).encode(),
-                    b'{"ok": {"lead_in_s": 5}}',
-                    b"\xff\xfe",
-                )
-            )
-        elif r == 4:  # rows: none, one, time jumps, absurd rates
-            if rng.random() < 0.3:
-                cols = {k: v.slice(0, rng.choice((0, 1, 2))) for k, v in cols.items()}
-            else:
-                t = np.asarray(log.t, dtype=np.float64).copy()
-                t[rng.randrange(n) :] += rng.choice((1e9, 3601.0, -1.0, 0.0))
-                cols["t"] = pa.array(t)
-        elif r == 5 and "omega" in cols:
-            w = np.asarray(log.omega, dtype=np.float64).copy()
-            w[rng.randrange(n)] = rng.choice((1e200, -1e200, 1001.0, math.nan, math.inf))
-            cols["omega"] = pa.array(w)
-        elif r == 6:  # row groups
-            kw["row_group_size"] = rng.choice((1, 3, 64))
-        elif r == 7 and rng.random() < 0.05:  # ten million rows in a few KB
-            big = 10_000_001
-            cols = {
-                "t": pa.array(np.arange(big, dtype=np.int64)),
-                "omega": pa.array(np.zeros(big, dtype=np.int32)),
-            }
-            kw["column_encoding"] = {"t": "DELTA_BINARY_PACKED", "omega": "DELTA_BINARY_PACKED"}
-            kw["use_dictionary"] = False
-        elif r == 8 and "heading_truth" in cols:
-            h = np.asarray(log.heading_truth, dtype=np.float64).copy()
-            h[rng.randrange(n)] = rng.choice((725.0, -721.0, 1e6))
-            cols["heading_truth"] = pa.array(h)
-        elif r == 9 and "omega" in cols:
-            cols["omega"] = pa.array(-np.asarray(log.omega))
-        elif r == 10:  # a string bomb: two names of megabytes, in a few KB of zstd
-            big = rng.choice((70_000, 1 << 20, 8 << 20))
-            names = pa.array(["a" * big, "b" * big])
-            half = (np.arange(n) >= n // 2).astype(np.int32)
-            cols["drive"] = pa.DictionaryArray.from_arrays(pa.array(half), names)
-            kw["use_dictionary"] = True  # each name stored once, however many rows
-            kw["compression"] = "zstd"
-        else:
-            kw["compression"] = rng.choice(("zstd", "snappy", "none", "gzip"))
-    lengths = {len(v) for v in cols.values()}
-    if len(lengths) > 1:  # the columns of one table: as long as the shortest
-        m = min(lengths)
-        cols = {k: v.slice(0, m) for k, v in cols.items()}
-    names = list(cols)
-    names = [x.split("\x00")[0] for x in names]  # a duplicate's name back to its original
-    table = pa.Table.from_arrays(list(cols.values()), names=names).replace_schema_metadata(meta)
-    if table.num_rows > 100_000:  # ten million rows in row groups of one: gigabytes of footer
-        kw.pop("row_group_size", None)
-    buf = io.BytesIO()
-    pq.write_table(table, buf, **kw)
-    return buf.getvalue()
-
-
-def driveparquet_input(rng: random.Random) -> bytes:
-    """A Parquet drive to read (module doc), in the envelope: layout ``F`` (a file), ``D``
-    (a dataset partition ``drive=NAME``, one or two files), ``S`` (the file's folder given),
-    NAME from :data:`HOSTILE_NAMES` or the input."""
-    log = rng.choice(base_logs())
-    layout = rng.choice("FFDS")
-    name = rng.choice(HOSTILE_NAMES) if rng.random() < 0.8 else giant_string(rng)[:300]
-    try:
-        files = [_parquet_bytes(rng, log)]
-        if layout == "D" and rng.random() < 0.3:
-            files.append(_parquet_bytes(rng, rng.choice(base_logs()), plain=rng.random() < 0.5))
-    except Exception:  # noqa: BLE001 - pyarrow refused to write this table: a plain one instead
-        files = [_parquet_bytes(rng, log, plain=True)]
-    if rng.random() < 0.1:
-        files[0] = mutate_bytes(files[0], rng, (b"PAR1", b"\x00" * 8, b"\xff" * 4))
-    return pack(layout, name, files)
+__all__ = ["DriveLogTarget"]
 
 
 # -- the target --------------------------------------------------------------------------------
@@ -453,15 +124,13 @@ class DriveLogTarget(Target):
         if cmd == "evaluate" and rc == 0 and " nan " in f" {out} ".lower():
             raise Broken(f"hdrd evaluate printed NaN: {out[:400]!r}")
 
-    def run(self, data: bytes) -> str:
+    def _model_paths(self, given: str, out_dir: Path) -> None:
+        """The paths ``hdrd gap --out`` would write the drives' models to: inside it, each
+        refusal one line."""
         from hdrd.analysis.gap.fleet import model_paths
         from hdrd.io.files.drivecolumns import DriveLogError
         from hdrd.io.files.drivefiles import find_drives
 
-        self.count += 1
-        target = self._layout(data)
-        out_dir = self.root / "out"
-        given = str(target)
         try:
             refs = find_drives([given])
         except DriveLogError as e:
@@ -473,9 +142,10 @@ class DriveLogTarget(Target):
                 raise Broken(f"a model path outside --out: {p}")
         for w in why:
             one_line(w, "model path refusal")
-        before = _files_under(self.root)
+
+    def _evaluate(self, given: str, out_dir: Path, extra: list[str]) -> int:
+        """``hdrd evaluate`` (a method by turn): its exit status; its ``--json`` finite."""
         method = ("none", "hdr", "hdr+")[self.count % 3]
-        extra = ["--strict"] if self.count % 5 == 0 else []
         rc, out, err = self._run(["evaluate", given, "--method", method, "--no-progress",
                                   "--json", str(out_dir / "e.json"), *extra])  # fmt: skip
         self._check("evaluate", rc, out, err)
@@ -485,6 +155,17 @@ class DriveLogTarget(Target):
                 for k, v in row.items():
                     if isinstance(v, float) and not math.isfinite(v):
                         raise Broken(f"--json {k} = {v!r}")
+        return rc
+
+    def run(self, data: bytes) -> str:
+        self.count += 1
+        target = self._layout(data)
+        out_dir = self.root / "out"
+        given = str(target)
+        self._model_paths(given, out_dir)
+        before = _files_under(self.root)
+        extra = ["--strict"] if self.count % 5 == 0 else []
+        rc = self._evaluate(given, out_dir, extra)
         outcome = "scored" if rc == 0 else "refused"
         if self.count % 8 == 0 or self.every_command:
             rc, out, err = self._run(["tune", given, "--candidates", "6", "--no-progress", *extra])

@@ -22,7 +22,8 @@ bytes, unicode, giant strings, truncation, YAML anchors and tags, frames whose c
 or whose counts sit at the rails) or random bytes; input *i* of a surface is made from
 (seed, surface, i) alone (tools/fuzz/inputs.py), so ``--show SURFACE:I`` writes it to
 stdout again. In process, each surface's inputs go through the code the daemon runs
-(tools/fuzz/targets.py) in a worker process of its own, which the parent watches:
+(tools/fuzz/targets.py, tools/fuzz/filetargets.py) in a worker process of its own, which the
+parent watches:
 
 - a **traceback** is any exception the code raises, or a broken promise (a non-finite number
   or a heading outside [0, 360) published, a refusal that is not one printable line, tail
@@ -62,12 +63,13 @@ import tempfile
 import time
 import traceback
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from . import targets
+from . import filetargets, targets
 from .drivelog import DriveLogTarget
+from .results import SurfaceResult, describe, markdown
 from .surfaces import SURFACES, generate
 from .targets import Broken
 
@@ -88,11 +90,11 @@ def make_target(surface: str, seed: int, workdir: Path) -> targets.Target:
     if surface == "tail":
         return targets.TailTarget(seed)
     if surface == "config":
-        return targets.ConfigTarget(seed, workdir)
+        return filetargets.ConfigTarget(seed, workdir)
     if surface == "bias":
-        return targets.BiasTarget(seed, workdir)
+        return filetargets.BiasTarget(seed, workdir)
     if surface == "capture":
-        return targets.CaptureTarget(seed, workdir)
+        return filetargets.CaptureTarget(seed, workdir)
     if surface in ("drivecsv", "driveparquet"):
         return DriveLogTarget(surface, seed, workdir)
     raise ValueError(f"unknown surface {surface!r}")
@@ -107,50 +109,6 @@ def _status_kb(field_: str, pid: int | str = "self") -> int:
     except OSError:
         pass
     return 0
-
-
-@dataclass
-class Defect:
-    kind: str  # "traceback", "broken", "hang", "death"
-    signature: str
-    first_input: int
-    count: int = 1
-    detail: str = ""
-    input_bytes: int = 0
-
-
-@dataclass
-class SurfaceResult:
-    surface: str
-    seed: int
-    inputs: int = 0
-    seconds: float = 0.0
-    outcomes: dict[str, int] = field(default_factory=dict)
-    defects: list[Defect] = field(default_factory=list)
-    hangs: int = 0
-    deaths: int = 0
-    tracebacks: int = 0
-    slowest_s: float = 0.0
-    slowest_input: int = -1
-    largest_input_bytes: int = 0
-    rss_start_mb: float = 0.0
-    rss_end_mb: float = 0.0
-    peak_rss_mb: float = 0.0
-    peak_rise_mb: float = 0.0
-    peak_rise_input: int = -1
-    peak_rise_input_bytes: int = 0
-
-    @property
-    def ok(self) -> bool:
-        return not self.defects
-
-    def add_defect(self, kind: str, signature: str, i: int, detail: str, nbytes: int) -> None:
-        for d in self.defects:
-            if d.kind == kind and d.signature == signature:
-                d.count += 1
-                return
-        if len(self.defects) < 50:
-            self.defects.append(Defect(kind, signature, i, 1, detail[-3000:], nbytes))
 
 
 # -- the worker ---------------------------------------------------------------------------------
@@ -211,23 +169,33 @@ def _worker(
         dt = time.process_time() - t0  # CPU: the machine's load does not move it
         if dt > res.slowest_s:
             res.slowest_s, res.slowest_input = dt, i
-        h = _status_kb("VmHWM")
-        if h > hwm:
-            if (h - hwm) / 1024 > res.peak_rise_mb:
-                res.peak_rise_mb = (h - hwm) / 1024
-                res.peak_rise_input, res.peak_rise_input_bytes = i, len(data)
-            hwm = h
+        hwm = _note_peak(res, hwm, i, len(data))
         res.inputs += 1
         now = time.monotonic()
         if now - last_send > 2.0:
-            res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
-            res.rss_end_mb = _status_kb("VmRSS") / 1024
+            _snapshot(res, outcomes, hwm)
             conn.send(("progress", i, res))
             last_send = now
     target.close()
+    _snapshot(res, outcomes, hwm)
+    conn.send(("done", i, res))
+
+
+def _note_peak(res: SurfaceResult, hwm: int, i: int, n_bytes: int) -> int:
+    """The process's peak RSS (kB) after input ``i``; its largest rise noted in ``res``."""
+    h = _status_kb("VmHWM")
+    if h > hwm:
+        if (h - hwm) / 1024 > res.peak_rise_mb:
+            res.peak_rise_mb = (h - hwm) / 1024
+            res.peak_rise_input, res.peak_rise_input_bytes = i, n_bytes
+        hwm = h
+    return hwm
+
+
+def _snapshot(res: SurfaceResult, outcomes: Counter[str], hwm: int) -> None:
+    """The outcomes so far and the memory (MB) into ``res``, to send."""
     res.outcomes, res.peak_rss_mb = dict(outcomes), hwm / 1024
     res.rss_end_mb = _status_kb("VmRSS") / 1024
-    conn.send(("done", i, res))
 
 
 def _merge(total: SurfaceResult, part: SurfaceResult) -> None:
@@ -321,41 +289,7 @@ def run_surface(
             send.close()
             pid = w.pid
             assert pid is not None
-            last: SurfaceResult | None = None
-            done_at: int | None = None
-            seen, seen_at, seen_cpu = progress.value, time.monotonic(), 0.0
-            hung = ""
-            while True:
-                if recv.poll(0.25):
-                    try:
-                        kind, at, res = recv.recv()
-                    except EOFError:
-                        kind = ""
-                    else:
-                        last = res
-                        if kind == "done":
-                            done_at = at
-                            break
-                        if not quiet:
-                            print(
-                                f"  {surface}: {at + 1:,} inputs",
-                                end="\r",
-                                file=sys.stderr,
-                                flush=True,
-                            )
-                        continue
-                if not w.is_alive():
-                    break
-                cur = progress.value
-                if cur != seen:
-                    seen, seen_at, seen_cpu = cur, time.monotonic(), _cpu_s(pid)
-                elif _cpu_s(pid) - seen_cpu > hang_s:
-                    hung = f"{hang_s:g} s of CPU on one input"
-                elif time.monotonic() - seen_at > WALL_FACTOR * hang_s:
-                    hung = f"no progress for {WALL_FACTOR * hang_s:g} s (waiting)"
-                if hung:
-                    w.kill()
-                    break
+            last, done_at, hung = _watch(w, pid, recv, progress, surface, hang_s, quiet)
             w.join()
             recv.close()
             cur = progress.value
@@ -366,15 +300,7 @@ def run_surface(
                 start = inputs
                 break
             # killed (a hang) or died: the input it was on is the culprit; go on after it
-            data = generate(surface, seed, cur)
-            if hung:
-                total.hangs += 1
-                total.add_defect("hang", hung, cur, "", len(data))
-            else:
-                total.deaths += 1
-                total.add_defect("death", f"worker exit {w.exitcode}", cur, "", len(data))
-            counted = (last.inputs if last is not None else 0) + start
-            total.inputs += max(0, cur - counted) + 1  # the inputs after the last report
+            _count_lost(total, surface, seed, cur, hung, w.exitcode, last, start)
             start = cur + 1
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
@@ -382,55 +308,65 @@ def run_surface(
     return total
 
 
-# -- reports ------------------------------------------------------------------------------------
+def _watch(
+    w: Any, pid: int, recv: Any, progress: SharedIndex, surface: str, hang_s: float, quiet: bool
+) -> tuple[SurfaceResult | None, int | None, str]:
+    """A worker watched until it is done, dies or hangs (then killed): its last report, the
+    input it finished at (None unless done), why it was killed ("" unless it hung)."""
+    last: SurfaceResult | None = None
+    seen, seen_at, seen_cpu = progress.value, time.monotonic(), 0.0
+    while True:
+        if recv.poll(0.25):
+            try:
+                kind, at, res = recv.recv()
+            except EOFError:
+                kind = ""
+            else:
+                last = res
+                if kind == "done":
+                    return last, at, ""
+                if not quiet:
+                    print(f"  {surface}: {at + 1:,} inputs", end="\r", file=sys.stderr, flush=True)
+                continue
+        if not w.is_alive():
+            return last, None, ""
+        cur = progress.value
+        hung = ""
+        if cur != seen:
+            seen, seen_at, seen_cpu = cur, time.monotonic(), _cpu_s(pid)
+        elif _cpu_s(pid) - seen_cpu > hang_s:
+            hung = f"{hang_s:g} s of CPU on one input"
+        elif time.monotonic() - seen_at > WALL_FACTOR * hang_s:
+            hung = f"no progress for {WALL_FACTOR * hang_s:g} s (waiting)"
+        if hung:
+            w.kill()
+            return last, None, hung
 
 
-def describe(r: SurfaceResult) -> str:
-    rate = r.inputs / r.seconds if r.seconds else 0.0
-    outcomes = ", ".join(f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1]))
-    lines = [
-        f"{r.surface}: {r.inputs:,} inputs in {r.seconds:.0f} s ({rate:,.0f}/s), seed {r.seed}",
-        f"  outcomes: {outcomes}",
-        f"  tracebacks {r.tracebacks}, hangs {r.hangs}, deaths {r.deaths}; costliest input "
-        f"{r.slowest_s:.3f} s of CPU (#{r.slowest_input}); largest input "
-        f"{r.largest_input_bytes:,} bytes",
-        f"  RSS: {r.rss_start_mb:.0f} MB before the first input, peak {r.peak_rss_mb:.0f} MB "
-        f"(largest rise +{r.peak_rise_mb:.1f} MB at #{r.peak_rise_input}, "
-        f"{r.peak_rise_input_bytes:,} bytes), {r.rss_end_mb:.0f} MB at the end",
-    ]
-    for d in r.defects:
-        lines.append(
-            f"  DEFECT {d.kind} x{d.count}: {d.signature} (first: --show {r.surface}:{d.first_input}, "
-            f"{d.input_bytes:,} bytes)"
-        )
-        if d.detail:
-            lines.extend("    " + x for x in d.detail.rstrip().splitlines()[-6:])
-    lines.append(f"  {'OK' if r.ok else 'FAILED'}")
-    return "\n".join(lines)
+def _count_lost(
+    total: SurfaceResult,
+    surface: str,
+    seed: int,
+    cur: int,
+    hung: str,
+    exitcode: int | None,
+    last: SurfaceResult | None,
+    start: int,
+) -> None:
+    """A worker killed (a hang) or dead on input ``cur``: the defect, and the inputs after
+    its last report counted."""
+    data = generate(surface, seed, cur)
+    if hung:
+        total.hangs += 1
+        total.add_defect("hang", hung, cur, "", len(data))
+    else:
+        total.deaths += 1
+        total.add_defect("death", f"worker exit {exitcode}", cur, "", len(data))
+    counted = (last.inputs if last is not None else 0) + start
+    total.inputs += max(0, cur - counted) + 1  # the inputs after the last report
 
 
-def markdown(results: list[SurfaceResult]) -> str:
-    head = (
-        "| surface | inputs | seconds | tracebacks | hangs | deaths | costliest input, CPU s | "
-        "peak RSS, MB (before the first input; largest rise by one input) | largest input, bytes "
-        "| outcomes |\n"
-        "|---|---|---|---|---|---|---|---|---|---|\n"
-    )
-    rows = []
-    for r in results:
-        outcomes = ", ".join(
-            f"{k} {v:,}" for k, v in sorted(r.outcomes.items(), key=lambda kv: -kv[1])
-        )
-        rows.append(
-            f"| {r.surface} | {r.inputs:,} | {r.seconds:.0f} | {r.tracebacks} | {r.hangs} | "
-            f"{r.deaths} | {r.slowest_s:.2f} | {r.peak_rss_mb:.0f} ({r.rss_start_mb:.0f}; "
-            f"+{r.peak_rise_mb:.1f}) | "
-            f"{r.largest_input_bytes:,} | {outcomes} |"
-        )
-    return head + "\n".join(rows) + "\n"
-
-
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument(
         "--surface",
@@ -465,6 +401,23 @@ def main(argv: list[str] | None = None) -> int:
         default=4096,
         help="address-space limit of a worker, MiB (default 4096; 0: none)",
     )
+    _process_options(ap)
+    ap.add_argument("--bytes", type=int, default=10_000_000, help="stream: length per protocol")
+    ap.add_argument(
+        "--protocol",
+        choices=("hdr-bin", "hdr-text", "both"),
+        default="both",
+        help="stream: which protocol (default both)",
+    )
+    ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    ap.add_argument(
+        "--show", metavar="SURFACE:I", help="write input I of SURFACE to stdout, and exit"
+    )
+    return ap
+
+
+def _process_options(ap: argparse.ArgumentParser) -> None:
+    """The options of the process-level runs."""
     ap.add_argument("--process", action="store_true", help="also the process-level runs")
     ap.add_argument("--process-only", action="store_true", help="only the process-level runs")
     ap.add_argument(
@@ -485,19 +438,54 @@ def main(argv: list[str] | None = None) -> int:
         default=100_000,
         help="at most this many inputs per long-running process (default 100000)",
     )
-    ap.add_argument("--bytes", type=int, default=10_000_000, help="stream: length per protocol")
-    ap.add_argument(
-        "--protocol",
-        choices=("hdr-bin", "hdr-text", "both"),
-        default="both",
-        help="stream: which protocol (default both)",
-    )
-    ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
-    ap.add_argument(
-        "--show", metavar="SURFACE:I", help="write input I of SURFACE to stdout, and exit"
-    )
-    args = ap.parse_args(argv)
 
+
+def _in_process(args: argparse.Namespace, surfaces: tuple[str, ...], doc: dict[str, Any]) -> bool:
+    """Every surface's inputs in process (the stream surface by tools/fuzz/stream.py), each
+    described; the results into ``doc``; whether all were OK."""
+    ok = True
+    results: list[SurfaceResult] = []
+    for s in surfaces:
+        if s == "stream":
+            from . import stream as fuzz_stream
+
+            argv_s = ["--bytes", str(args.bytes), "--seed", str(args.seed), "--protocol",
+                      args.protocol]  # fmt: skip
+            ok &= fuzz_stream.main(argv_s) == 0
+            continue
+        r = run_surface(
+            s, args.inputs, args.seconds, args.seed, args.hang_s, args.max_vm_mb, first=args.first
+        )
+        results.append(r)
+        ok &= r.ok
+        print(describe(r), flush=True)
+        doc["in_process"].append(asdict(r))
+    if results:
+        print("\n" + markdown(results))
+    return ok
+
+
+def _as_processes(args: argparse.Namespace, surfaces: tuple[str, ...], doc: dict[str, Any]) -> bool:
+    """The process-level runs of every surface but the stream, each described; the results
+    into ``doc``; whether all were OK."""
+    from . import process as fuzz_process
+
+    ok = True
+    for s in surfaces:
+        if s == "stream":
+            continue
+        for pr in fuzz_process.run(
+            s, args.seed, args.process_inputs, args.process_seconds, args.process_stream_inputs
+        ):
+            ok &= pr.ok
+            print(pr.describe(), flush=True)
+            doc["process"].append(asdict(pr))
+    return ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = _parser()
+    args = ap.parse_args(argv)
     if args.show:
         surface, _, i = args.show.partition(":")
         if surface not in SURFACES or not i.isdigit():
@@ -514,49 +502,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     ok = True
     doc: dict[str, Any] = {"seed": args.seed, "in_process": [], "process": []}
-    results: list[SurfaceResult] = []
     if not args.process_only:
-        for s in surfaces:
-            if s == "stream":
-                from . import stream as fuzz_stream
-
-                argv_s = [
-                    "--bytes",
-                    str(args.bytes),
-                    "--seed",
-                    str(args.seed),
-                    "--protocol",
-                    args.protocol,
-                ]
-                ok &= fuzz_stream.main(argv_s) == 0
-                continue
-            r = run_surface(
-                s,
-                args.inputs,
-                args.seconds,
-                args.seed,
-                args.hang_s,
-                args.max_vm_mb,
-                first=args.first,
-            )
-            results.append(r)
-            ok &= r.ok
-            print(describe(r), flush=True)
-            doc["in_process"].append(asdict(r))
-        if results:
-            print("\n" + markdown(results))
+        ok &= _in_process(args, surfaces, doc)
     if args.process or args.process_only:
-        from . import process as fuzz_process
-
-        for s in surfaces:
-            if s == "stream":
-                continue
-            for pr in fuzz_process.run(
-                s, args.seed, args.process_inputs, args.process_seconds, args.process_stream_inputs
-            ):
-                ok &= pr.ok
-                print(pr.describe(), flush=True)
-                doc["process"].append(asdict(pr))
+        ok &= _as_processes(args, surfaces, doc)
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=2) + "\n")
     print("OK" if ok else "FAILED")

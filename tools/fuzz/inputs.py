@@ -10,9 +10,9 @@ Surfaces: ``serial`` (bytes from the gyro's ADC, hdr-bin or hdr-text, as the dae
 them), ``gpsd`` (what a gpsd peer sends, one or more lines), ``tail`` (one UDP datagram for
 ``hdrd tail``), ``config`` (a configuration file), ``bias`` (a bias file), ``capture`` (a
 capture file for ``hdrd replay``/``convert``), ``drivecsv`` and ``driveparquet`` (drive logs
-for ``hdrd evaluate``/``tune``/``gap``: tools/fuzz/drivelog.py), ``clock`` (a healthy frame
-stream whose sequence numbers and device clock are broken now and then, with the host time
-each frame arrives: :func:`clock_input`). A serial or capture input starts with one byte
+for ``hdrd evaluate``/``tune``/``gap``: tools/fuzz/driveinputs.py), ``clock`` (a healthy
+frame stream whose sequence numbers and device clock are broken now and then, with the host
+time each frame arrives: tools/fuzz/clockinputs.py). A serial or capture input starts with one byte
 naming its protocol (``B`` hdr-bin, ``T`` hdr-text); the rest is the stream.
 """
 
@@ -172,99 +172,6 @@ def serial_input(rng: random.Random, max_frames: int = 400) -> bytes:
     return (b"B" if protocol == "hdr-bin" else b"T") + data
 
 
-CLOCK_QUIET_S = 12.0
-"""After a break that moves the device clock against the host's, the frames of this many host
-seconds may be dropped or kept (the tracker confirms a break, the host-clock check waits
-5 s before it follows a jump)."""
-CLOCK_ROW = np.dtype([("frame", FRAME_DTYPE), ("arrival", "<f8"), ("label", "u1")])
-"""A clock input's rows: the frame (its ``rate`` is its row number), the host time it is in
-hand (s), and what the daemon must do with it: 0 integrate, 1 drop, 2 either."""
-
-
-def _clock_break(rng: random.Random, st: dict[str, Any], rows: list[tuple[Any, ...]]) -> None:
-    """One break of a healthy stream (``st``: seq, t, wall, interval), appended to ``rows``.
-    Frames that must be dropped are labelled 1, but 2 while the checks have not settled
-    since the last break (``st["quiet"]``): then anything may be."""
-    step = st["interval"]
-    kind = rng.choice(("repeat", "frozen", "rate", "random", "restart", "jump", "gap", "late"))
-    m = rng.choice((1, 2, 3, 5, 12))  # fewer than BREAK_REBASE_FRAMES: a new rate is not taken
-    drop = 1 if st["wall"] > st["quiet"] else 2
-    if kind == "repeat":  # the last frame again and again; the device's own go unheard
-        seq, t = st["seq"], st["t"]
-        for _ in range(m):
-            st["seq"] += 1
-            st["t"] += step
-            st["wall"] += step / 1e6
-            rows.append((seq, t, st["wall"], drop))
-    elif kind in ("frozen", "rate"):  # the sequence advancing, the clock frozen, slow or fast
-        factor = 0.0 if kind == "frozen" else rng.choice((0.01, 0.3, 3.0, 100.0))
-        for j in range(m):
-            st["seq"] += 1
-            st["t"] += int(step * factor)
-            st["wall"] += step / 1e6
-            # the last one's clock is where the device's runs on from: a jump, believed
-            rows.append((st["seq"], st["t"], st["wall"], drop if j < m - 1 else 2))
-    elif kind == "random":  # a random frame that passed the CRC
-        rows.append((rng.getrandbits(16), rng.getrandbits(32), st["wall"], drop))
-    elif kind == "restart":
-        st["seq"], st["t"] = rng.randrange(10), rng.getrandbits(20)
-    elif kind == "jump":
-        st["t"] += rng.choice((10**7, 10**9, 2**31 - 1))
-    elif kind == "gap":  # frames lost, the clock agreeing: kept
-        st["seq"] += m * 5
-        st["t"] += m * 5 * step
-        st["wall"] += m * 5 * step / 1e6
-        if drop == 2:  # the checks had not settled: they start again
-            st["quiet"] = st["wall"] + CLOCK_QUIET_S
-        return
-    else:  # a stalled reader: a burst read at once, up to 2 s late (within the tolerance)
-        n = max(1, int(rng.choice((0.05, 0.5, 2.0)) / (step / 1e6)))
-        label = 0 if drop == 1 else 2
-        for _ in range(n):
-            st["seq"] += 1
-            st["t"] += step
-            rows.append((st["seq"], st["t"], st["wall"] + n * step / 1e6, label))
-        st["wall"] += n * step / 1e6
-        if label == 2:  # the host clock's check had not settled: it starts again
-            st["quiet"] = st["wall"] + CLOCK_QUIET_S
-        return
-    if kind not in ("random", "repeat") or drop == 2:
-        st["quiet"] = st["wall"] + CLOCK_QUIET_S
-
-
-def clock_input(rng: random.Random) -> bytes:
-    """A healthy stream (10 Hz, 100 Hz or 1 kHz; each frame in hand a millisecond or two
-    after its device time) broken now and then: the last frame repeated, the sequence
-    advancing while the clock is frozen or runs 100x slow or fast, a random frame, a device
-    restart, a jump of the clock, frames lost, a burst delivered late. Rows of
-    :data:`CLOCK_ROW`."""
-    st: dict[str, Any] = {
-        "interval": rng.choice((1_000, 10_000, 100_000)),
-        "seq": rng.getrandbits(16),
-        "t": rng.getrandbits(32),
-        "wall": 1000.0,
-        "quiet": 0.0,
-    }
-    rows: list[tuple[Any, ...]] = []
-
-    def healthy(n: int) -> None:
-        for _ in range(n):
-            st["seq"] += 1
-            st["t"] += st["interval"]
-            st["wall"] += st["interval"] / 1e6
-            label = 0 if st["wall"] > st["quiet"] else 2
-            rows.append((st["seq"], st["t"], st["wall"] + rng.random() * 0.002, label))
-
-    healthy(rng.randint(5, 60))
-    for _ in range(rng.randint(0, 8)):
-        _clock_break(rng, st, rows)
-        healthy(rng.randint(5, 60))
-    out = np.zeros(len(rows), CLOCK_ROW)
-    for i, (seq, t, wall, label) in enumerate(rows):
-        out[i] = ((seq & 0xFFFF, t % 2**32, i & 0xFFFF, 0, 2500), wall, label)
-    return out.tobytes()
-
-
 def capture_input(rng: random.Random) -> bytes:
     if rng.random() < 0.02:  # a larger capture, now and then (up to ~1 MB)
         return serial_input(rng, max_frames=60_000)
@@ -288,43 +195,53 @@ def _gpsd_templates(rng: random.Random) -> dict[str, Any]:
         }
         for _ in range(rng.randint(0, 12))
     ]
+    tpv = _gpsd_tpv(rng, t)
+    sky = {
+        "class": "SKY",
+        "device": "/dev/ttyACM0",
+        "time": t,
+        "hdop": 0.9,
+        "pdop": 1.5,
+        "nSat": len(sats),
+        "uSat": 4,
+        "satellites": sats,
+    }
+    att = {
+        "class": "ATT",
+        "device": "/dev/ttyACM0",
+        "time": t,
+        "heading": rng.uniform(0, 360),
+        "pitch": 1.0,
+        "roll": -2.0,
+    }
+    return {"TPV": tpv, "SKY": sky, "ATT": att, **_gpsd_fixed(t)}
+
+
+def _gpsd_tpv(rng: random.Random, t: str) -> dict[str, Any]:
+    """A TPV report at time ``t``: a random mode, position, track (compass deg) and speed (m/s)."""
     return {
-        "TPV": {
-            "class": "TPV",
-            "device": "/dev/ttyACM0",
-            "mode": rng.choice((0, 1, 2, 3)),
-            "status": 1,
-            "time": t,
-            "ept": 0.005,
-            "lat": rng.uniform(-90, 90),
-            "lon": rng.uniform(-180, 180),
-            "altMSL": 30.1,
-            "alt": 31.2,
-            "epx": 3.2,
-            "track": rng.uniform(0, 360),
-            "speed": rng.uniform(0, 40),
-            "climb": 0.1,
-            "epd": rng.uniform(0, 30),
-            "eps": 0.4,
-        },
-        "SKY": {
-            "class": "SKY",
-            "device": "/dev/ttyACM0",
-            "time": t,
-            "hdop": 0.9,
-            "pdop": 1.5,
-            "nSat": len(sats),
-            "uSat": 4,
-            "satellites": sats,
-        },
-        "ATT": {
-            "class": "ATT",
-            "device": "/dev/ttyACM0",
-            "time": t,
-            "heading": rng.uniform(0, 360),
-            "pitch": 1.0,
-            "roll": -2.0,
-        },
+        "class": "TPV",
+        "device": "/dev/ttyACM0",
+        "mode": rng.choice((0, 1, 2, 3)),
+        "status": 1,
+        "time": t,
+        "ept": 0.005,
+        "lat": rng.uniform(-90, 90),
+        "lon": rng.uniform(-180, 180),
+        "altMSL": 30.1,
+        "alt": 31.2,
+        "epx": 3.2,
+        "track": rng.uniform(0, 360),
+        "speed": rng.uniform(0, 40),
+        "climb": 0.1,
+        "epd": rng.uniform(0, 30),
+        "eps": 0.4,
+    }
+
+
+def _gpsd_fixed(t: str) -> dict[str, Any]:
+    """The reports without a random field: VERSION, DEVICES, DEVICE, WATCH, ERROR, PPS."""
+    return {
         "VERSION": {
             "class": "VERSION",
             "release": "3.25",

@@ -43,6 +43,7 @@ import json
 import platform
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -102,65 +103,87 @@ def make_frames(n: int, rng: np.random.Generator) -> npt.NDArray[np.void]:
     return arr
 
 
+def _wires(protocol: str, frames: Any, n: int) -> list[bytes]:
+    """Each frame as the wire carries it."""
+    if protocol == "hdr-bin":
+        wire_all = np.frombuffer(encode_array(frames, "hdr-bin"), np.uint8).reshape(
+            -1, BIN_FRAME_LEN
+        )
+        return [wire_all[i].tobytes() for i in range(n)]
+    return [encode_text(f) for f in array_to_frames(frames)]
+
+
+def _corrupted(protocol: str, w: bytes, rng: np.random.Generator) -> bytes:
+    """A frame with one bit flipped (hdr-bin) or one digit changed (hdr-text)."""
+    bb = bytearray(w)
+    if protocol == "hdr-bin":
+        bb[int(rng.integers(2, 16))] ^= 1 << int(rng.integers(0, 8))
+    else:
+        star = bb.rindex(b"*")
+        digits = [j for j in range(6, star) if 0x30 <= bb[j] <= 0x39]
+        j = digits[int(rng.integers(0, len(digits)))]
+        bb[j] = 0x30 + (bb[j] - 0x30 + int(rng.integers(1, 10))) % 10
+    return bytes(bb)
+
+
+def _truncated(protocol: str, w: bytes, rng: np.random.Generator) -> bytes:
+    """Cut after the sync pattern's first bytes and before the end of the payload (a text
+    line cut just before its line end would be made whole by a junk "\\r\\n")."""
+    end = len(w) - 1 if protocol == "hdr-bin" else w.rindex(b"*")
+    return w[: int(rng.integers(2, end))]
+
+
+def _garbage(protocol: str, w: bytes, rng: np.random.Generator) -> bytes:
+    b = rng.integers(0, 256, int(rng.integers(1, 41)), dtype=np.uint8).tobytes()
+    if protocol == "hdr-text":
+        b = b.replace(b"$", b"#")  # text sync patterns are injected explicitly below
+    return b
+
+
+def _sync_garbage(protocol: str, w: bytes, rng: np.random.Generator) -> bytes:
+    tail = rng.integers(0, 256, int(rng.integers(0, 21)), dtype=np.uint8).tobytes()
+    if protocol == "hdr-bin":
+        return b"\xa5\x5a" + tail
+    return TEXT_SYNC + tail.replace(b"$", b"#")
+
+
+def _intact(protocol: str, w: bytes, rng: np.random.Generator) -> bytes:
+    return w
+
+
+# By kind: a piece of the stream made from the next frame's wire bytes.
+_PIECES: tuple[tuple[str, Callable[[str, bytes, np.random.Generator], bytes]], ...] = (
+    ("intact", _intact),
+    ("corrupted", _corrupted),
+    ("truncated", _truncated),
+    ("garbage", _garbage),
+    ("sync_garbage", _sync_garbage),
+)
+
+
 def build_stream(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
     """The stream, the intact frames in it (and where they start), and what was injected."""
     rng = np.random.default_rng(seed)
     n_pieces = nbytes // (10 if protocol == "hdr-bin" else 25) + 16  # more than enough
     frames = make_frames(n_pieces, rng)
-    if protocol == "hdr-bin":
-        wire_all = np.frombuffer(encode_array(frames, "hdr-bin"), np.uint8).reshape(
-            -1, BIN_FRAME_LEN
-        )
-        wires = [wire_all[i].tobytes() for i in range(n_pieces)]
-    else:
-        wires = [encode_text(f) for f in array_to_frames(frames)]
+    wires = _wires(protocol, frames, n_pieces)
     kinds = rng.choice(
         5, n_pieces, p=[0.80, 0.06, 0.04, 0.06, 0.04]
     )  # good, corrupt, truncated, junk, sync junk
     parts: list[bytes] = []
     good_idx: list[int] = []
     good_pos: list[int] = []
-    injected = {"intact": 0, "corrupted": 0, "truncated": 0, "garbage": 0, "sync_garbage": 0}
+    injected = {name: 0 for name, _ in _PIECES}
     pos = 0
     for i in range(n_pieces):
         if pos >= nbytes:
             break
-        k = int(kinds[i])
-        w = wires[i]
-        if k == 0:
+        name, piece = _PIECES[int(kinds[i])]
+        if name == "intact":
             good_idx.append(i)
             good_pos.append(pos)
-            b = w
-            injected["intact"] += 1
-        elif k == 1:
-            bb = bytearray(w)
-            if protocol == "hdr-bin":
-                bb[int(rng.integers(2, 16))] ^= 1 << int(rng.integers(0, 8))
-            else:
-                star = bb.rindex(b"*")
-                digits = [j for j in range(6, star) if 0x30 <= bb[j] <= 0x39]
-                j = digits[int(rng.integers(0, len(digits)))]
-                bb[j] = 0x30 + (bb[j] - 0x30 + int(rng.integers(1, 10))) % 10
-            b = bytes(bb)
-            injected["corrupted"] += 1
-        elif k == 2:
-            # Cut after the sync pattern's first bytes and before the end of the payload (a
-            # text line cut just before its line end would be made whole by a junk "\r\n").
-            end = len(w) - 1 if protocol == "hdr-bin" else w.rindex(b"*")
-            b = w[: int(rng.integers(2, end))]
-            injected["truncated"] += 1
-        elif k == 3:
-            b = rng.integers(0, 256, int(rng.integers(1, 41)), dtype=np.uint8).tobytes()
-            if protocol == "hdr-text":
-                b = b.replace(b"$", b"#")  # text sync patterns are injected explicitly below
-            injected["garbage"] += 1
-        else:
-            tail = rng.integers(0, 256, int(rng.integers(0, 21)), dtype=np.uint8).tobytes()
-            if protocol == "hdr-bin":
-                b = b"\xa5\x5a" + tail
-            else:
-                b = TEXT_SYNC + tail.replace(b"$", b"#")
-            injected["sync_garbage"] += 1
+        b = piece(protocol, wires[i], rng)
+        injected[name] += 1
         parts.append(b)
         pos += len(b)
     data = b"".join(parts)
@@ -260,34 +283,30 @@ def push(
     return out, p.stats, time.perf_counter() - t0
 
 
-def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
-    t_gen = time.perf_counter()
-    s = build_stream(protocol, nbytes, seed)
-    t_gen = time.perf_counter() - t_gen
-    data, sent = s["data"], s["sent"]
-    frames, stats, t_push = push(protocol, data, np.random.default_rng(seed + 1))
-    t0 = time.perf_counter()
-    arr, vstats = decode_capture(data, protocol)
-    t_vec = time.perf_counter() - t0
-    got = array_to_frames(arr)
-    same_push_vec = got == frames and vstats == stats
-    sent_frames = array_to_frames(kept(sent))
+def _against_reference(
+    protocol: str, s: dict[str, Any], arr: Any, stats: Any, frames: list[Any], sent: list[Any]
+) -> tuple[int, int, int, int, int, bool]:
+    """The push parser's result against the reference: bad frames expected (and how many of
+    them still pending at the end), CRC coincidences (and those set aside), intact frames
+    recovered, and whether it is the reference's."""
     if protocol == "hdr-bin":
-        ref = reference_bin(data, s["good_pos"])
-        want_bad, pending, coincidences = ref["bad"], 0, ref["coincidences"]
-        set_aside = ref["coincidences_set_aside"]
-        intact = ref["intact_recovered"]
-        as_reference = np.array_equal(arr, kept(ref["frames"])) and stats.bad_frames == want_bad
-    else:
-        # Text: garbage cannot form a line (no '$' in it; a cut line keeps no checksum).
-        want_bad, pending = expected_bad_text(data, s["good_pos"])
-        coincidences = set_aside = 0
-        intact = len(sent_frames) if frames == sent_frames else 0
-        as_reference = (
-            intact == len(sent_frames) and want_bad - pending <= stats.bad_frames <= want_bad
-        )
-    exact = frames == sent_frames
-    # The pipeline on what was recovered: rails and out-of-range samples flagged, no crash.
+        ref = reference_bin(s["data"], s["good_pos"])
+        as_reference = np.array_equal(arr, kept(ref["frames"])) and stats.bad_frames == ref["bad"]
+        return (
+            ref["bad"], 0, ref["coincidences"], ref["coincidences_set_aside"],
+            ref["intact_recovered"], as_reference,
+        )  # fmt: skip
+    # Text: garbage cannot form a line (no '$' in it; a cut line keeps no checksum).
+    want_bad, pending = expected_bad_text(s["data"], s["good_pos"])
+    intact = len(sent) if frames == sent else 0
+    as_reference = intact == len(sent) and want_bad - pending <= stats.bad_frames <= want_bad
+    return want_bad, pending, 0, 0, intact, as_reference
+
+
+def _through_the_pipeline(arr: Any, vstats: Any) -> tuple[list[Any], float, int, int, int, int]:
+    """The pipeline on what was recovered (rails and out-of-range samples flagged, no crash):
+    its messages, its seconds, the saturated samples sent and flagged, the supply faults sent
+    and flagged."""
     t0 = time.perf_counter()
     pipe = Pipeline(PipelineConfig(setup=MethodSetup(bias=given_bias(0.0))))
     msgs = pipe.feed_array(arr, vstats.bad_before) + pipe.finish(vstats.bad_frames)
@@ -301,6 +320,28 @@ def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
     sat_sent = int(np.count_nonzero(~fault & np.asarray(sensor.saturated(rate, omega))))
     sat_flagged = sum(int(m.get("saturated", 0)) for m in msgs)
     faults_flagged = sum(int(m.get("supply_faults", 0)) for m in msgs)
+    return msgs, t_pipe, sat_sent, sat_flagged, int(np.count_nonzero(fault)), faults_flagged
+
+
+def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
+    t_gen = time.perf_counter()
+    s = build_stream(protocol, nbytes, seed)
+    t_gen = time.perf_counter() - t_gen
+    data, sent = s["data"], s["sent"]
+    frames, stats, t_push = push(protocol, data, np.random.default_rng(seed + 1))
+    t0 = time.perf_counter()
+    arr, vstats = decode_capture(data, protocol)
+    t_vec = time.perf_counter() - t0
+    got = array_to_frames(arr)
+    same_push_vec = got == frames and vstats == stats
+    sent_frames = array_to_frames(kept(sent))
+    want_bad, pending, coincidences, set_aside, intact, as_reference = _against_reference(
+        protocol, s, arr, stats, frames, sent_frames
+    )
+    exact = frames == sent_frames
+    msgs, t_pipe, sat_sent, sat_flagged, faults_sent, faults_flagged = _through_the_pipeline(
+        arr, vstats
+    )
     steps = [m["step"] for m in msgs]
     steps_ok = steps == sorted(set(steps))
     ok = (
@@ -308,7 +349,7 @@ def run(protocol: str, nbytes: int, seed: int) -> dict[str, Any]:
         and as_reference
         and steps_ok
         and sat_flagged == sat_sent
-        and faults_flagged == int(np.count_nonzero(fault))
+        and faults_flagged == faults_sent
     )
     return {
         "protocol": protocol,

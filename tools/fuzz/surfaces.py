@@ -1,12 +1,13 @@
 """The input surfaces of tools/fuzz and each one's generator: tools/fuzz/inputs.py holds the
-daemon's surfaces, tools/fuzz/drivelog.py the drive logs'."""
+daemon's surfaces, tools/fuzz/clockinputs.py the clock's, tools/fuzz/driveinputs.py the drive
+logs'."""
 
 from __future__ import annotations
 
 import random
 from collections.abc import Callable
 
-from . import drivelog, inputs
+from . import clockinputs, driveinputs, inputs
 
 __all__ = ["SURFACES", "generate"]
 
@@ -24,14 +25,14 @@ SURFACES = (
 
 _GENERATORS: dict[str, Callable[[random.Random], bytes]] = {
     "serial": inputs.serial_input,
-    "clock": inputs.clock_input,
+    "clock": clockinputs.clock_input,
     "gpsd": inputs.gpsd_input,
     "tail": inputs.tail_input,
     "config": inputs.config_input,
     "bias": inputs.bias_input,
     "capture": inputs.capture_input,
-    "drivecsv": drivelog.drivecsv_input,
-    "driveparquet": drivelog.driveparquet_input,
+    "drivecsv": driveinputs.drivecsv_input,
+    "driveparquet": driveinputs.driveparquet_input,
 }
 
 
