@@ -3,10 +3,9 @@ explains it, and how much the gap shrinks once that effect is fitted. The refere
 likelihood, fits, choice of effects, the gap, the report) is docs/model-gap.md.
 
 Pure: :func:`prepare` readies a log, :func:`run_gap` runs the loop, :func:`to_report` and
-:func:`summary` give its result; one module per stage (lattice, truth, data, noise, lowpass,
-dither, predict, white, optimize, bounds, fit, candidates, choose, metric, diagnose, search,
-report); :mod:`.plots` draws the figure; the command is :mod:`hdrd.commands.gap`. Rates deg/s,
-+ = CCW; effect names and parameters those of :mod:`hdrd.sim.gyro`.
+:func:`summary` give its result; one module per stage (listed in the doc), :mod:`.plots` the
+figure, :mod:`hdrd.commands.gap` the command. Rates deg/s, + = CCW; effect names and
+parameters those of :mod:`hdrd.sim.gyro`.
 """
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN, CANDIDATES
