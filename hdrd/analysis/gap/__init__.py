@@ -1,51 +1,11 @@
 """The model-gap workflow: where a gyro error model and a measured log disagree, which effect
-explains it, and how much the gap shrinks once that effect is fitted (docs/model-gap.md).
+explains it, and how much the gap shrinks once that effect is fitted. The reference (truth,
+likelihood, fits, choice of effects, the gap, the report) is docs/model-gap.md.
 
-Pure core (:func:`prepare`, :func:`run_gap`, :func:`to_report`, :func:`summary` and the
-statistics they use; the ``hdrd gap`` command is :mod:`hdrd.commands.gap`), one module per
-stage:
-
-=============== =================================================================================
-lattice         the log's recording resolution and the ADC lattice its values sit on
-truth           the true rate: omega_truth, a heading's fixes, zero wherever the vehicle stands
-data            truth rate, blocks: a drive log made ready (:func:`prepare`, :class:`GapData`)
-noise           Allan deviation with gaps; the block noise model and its whitening Kalman filter
-lowpass         the sensor low-pass seen in neighbouring differences (Whittle likelihood)
-dither          a quantizer's mean over the noise that dithers it; that noise read at rest
-predict         the deterministic prediction D (with the quantizer's mean where it applies)
-white           the white noise's level at the sensor's input and after its low-pass
-optimize        Levenberg-Marquardt, Nelder-Mead, chi-squared tail
-fit             likelihood, BIC, fitting a model (:class:`Fit`)
-candidates      which effects the log can inform, fitting and scoring each candidate
-choose          deterministic before stochastic, nested forms, rivals, backward revisions
-metric          the gap number: the model simulated under the log's conditions
-diagnose        the discrepancy measures and the "where" sentence
-search          the loop: choose, refit, revise (:func:`run_gap`)
-report          the report JSON and the printed summary
-plots           the figure (matplotlib, lazily)
-=============== =================================================================================
- Rates deg/s, + = CCW (left
-turn); heading compass deg, clockwise from north; time s since the first sample; temperature
-deg C. The effect names and parameters are those of :mod:`hdrd.sim.gyro`.
-
-The loop, each step visible in the report:
-
-1. The residual r = omega - truth (truth: ``omega_truth``, else the derivative of the GPS
-   course ``heading_truth``, else zero with ``standstill``; zero wherever the vehicle stands)
-   is split into the current model's
-   *deterministic* prediction D (its bias, gain, lag, clipping effects applied to the true
-   rate, noise off) and an unexplained part e = r - D.
-2. The model is simulated under the log's conditions (same t, truth, temp_c, speed; several
-   seeds) and compared with the measurement: Allan deviation of e against that of the
-   simulated e over tau; e against time, temp_c, moving or standing, the true rate and its
-   sign, the rate's derivative; the histogram of omega (ADC lattice, clipping rails). The gap (:func:`gap_metric`) condenses it.
-3. Every candidate effect not in the model is fitted (Gaussian likelihood of the block-averaged
-   residual, whitened by a Kalman filter for the correlated noise effects; lattice likelihood
-   for quantization), scored by BIC, and the best one is added only if BIC falls by more than
-   :data:`BIC_MARGIN` and the likelihood-ratio test rejects "no such effect" at :data:`ALPHA`.
-   Candidates the data cannot tell apart from the best one are reported as ambiguous.
-4. The enlarged model is refitted as a whole and re-simulated; repeat until nothing is
-   significant.
+Pure: :func:`prepare` readies a log, :func:`run_gap` runs the loop, :func:`to_report` and
+:func:`summary` give its result; one module per stage (listed in the doc), :mod:`.plots` the
+figure, :mod:`hdrd.commands.gap` the command. Rates deg/s, + = CCW; effect names and
+parameters those of :mod:`hdrd.sim.gyro`.
 """
 
 from hdrd.analysis.gap.candidates import ALPHA, BIC_MARGIN, CANDIDATES

@@ -1,30 +1,9 @@
 """The sample-level side of the noise: a sensor low-pass (bandwidth) seen in the differences of
-neighbouring samples, fitted by the Whittle likelihood of their spectrum. Pure.
-
-At rest the unexplained residual e (omega - truth - D, deg/s) is white noise of variance W per
-sample and slow processes (a Gauss-Markov bias g, a random walk r) seen through the sensor's
-low-pass, n equal sections y[k] = a y[k-1] + (1 - a) x[k] (the simulator's ``bandwidth`` with
-``sections`` n; for one, a = exp(-2 pi f_c dt)), plus a white level s**2 after it. First
-differences within contiguous valid runs have the spectrum
-
-    S(w) = H(w)**n [(2 - 2 cos w) (W + G(w)) + R] + (2 - 2 cos w) s**2,
-    H(w) = (1 - a)**2 / (1 - 2 a cos w + a**2),  G(w) = sigma**2 (1 - p**2) / (1 - 2 p cos w + p**2)
-
-per sample (w in rad per sample; p = exp(-dt / tau_c) and sigma the Gauss-Markov bias's, R =
-K**2 dt the walk's variance per step), s**2 the white noise after the low-pass (the ADC's
-q**2/12, or more), fitted; the slow processes' part is known (:class:`Slow`, from the block
-likelihood's fit). A bias of tau_c a few blocks long still has much of its power above the
-block frequency: left out, it pulled the cutoff down and the white noise up (a phone's bias of
-tau_c 20 s under a white noise of 0.004 deg/s/sqrt(Hz): 0.11 Hz for 0.2, 1.8x the noise). The
-Whittle log-likelihood ln L = -sum_k [ln S(w_k) + I_k / S(w_k)] over the periodogram I_k of
-the differences is the Gaussian one to O(1) for a long series; it is summed over narrow
-frequency bins (the spectrum is smooth across each), from the block frequency up: below it
-the slow processes dominate, and the block likelihood speaks for those frequencies. The white
-model is the same with a = 0 (one white level).
-
-Seen through the low-pass, neighbouring differences understate the white noise: their
-variance is 2 W (1 - a)**2 / (1 + a) + 2 q**2 / 12, so W is (1 + a) / (1 - a)**2 times what
-white noise alone would give (:func:`white_factor`; 130x at a = 0.88).
+neighbouring samples at rest, which block means cannot see, fitted by the Whittle likelihood of
+their spectrum (one or two equal sections, a white level after them; the slow processes' part
+known from the block fit: :class:`Slow`). The spectrum and the fit: docs/model-gap.md, section
+3. Through the low-pass, neighbouring differences understate the white noise by
+(1 - a)**2 / (1 + a) (:func:`white_factor`). Rates deg/s, variances per sample. Pure.
 """
 
 from __future__ import annotations
