@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "hdrd"
-MAX_LINES = 800
+MAX_LINES = 600
 
 # Known defects, each exempt from one rule. The lists may only shrink:
 # test_each_exemption_is_still_needed fails once an entry no longer breaks its rule.
@@ -75,7 +75,7 @@ def private_importers() -> set[str]:
     return found
 
 
-def test_no_module_is_over_800_lines() -> None:
+def test_no_module_is_over_600_lines() -> None:
     assert too_long() - TOO_LONG == set()
 
 
