@@ -10,6 +10,7 @@ leads out of it."""
 from __future__ import annotations
 
 import os
+import shutil
 import stat
 from pathlib import Path
 
@@ -170,6 +171,18 @@ NOWHERE = "/proc/hdrd-nowhere"
 """A folder no one can make, root included (/proc takes no new entries)."""
 
 
+@pytest.fixture(scope="module")
+def work_inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two simulated drive logs and a capture, made once (by the commands a user runs) for
+    the cases below, which copy them: each case's own folder stays its own."""
+    folder = tmp_path_factory.mktemp("inputs")
+    for made in (("simulate", "--drive", "city", "--minutes", "1", "--out", "c.csv"),
+                 ("simulate", "--drive", "city", "--minutes", "1", "--out", "c2.csv"),
+                 ("fakegyro", "--drive", "city", "--minutes", "0.5", "--out", "drive.cap")):  # fmt: skip
+        assert hdrd(*made, cwd=folder).returncode == 0
+    return folder
+
+
 @pytest.mark.parametrize(
     "args",
     [
@@ -190,15 +203,13 @@ NOWHERE = "/proc/hdrd-nowhere"
     ids=lambda a: " ".join(a[:1] + a[-2:-1]),
 )
 def test_an_output_that_cannot_be_written_is_said_before_the_work(
-    tmp_path: Path, args: tuple[str, ...]
+    tmp_path: Path, args: tuple[str, ...], work_inputs: Path
 ) -> None:
     # Was: evaluate printed its table, gap ran its search, then "cannot write".
     if not os.path.isdir("/proc/self"):
         pytest.skip("no /proc here: the folder no one can make is /proc's")
-    for made in (("simulate", "--drive", "city", "--minutes", "1", "--out", "c.csv"),
-                 ("simulate", "--drive", "city", "--minutes", "1", "--out", "c2.csv"),
-                 ("fakegyro", "--drive", "city", "--minutes", "0.5", "--out", "drive.cap")):  # fmt: skip
-        assert hdrd(*made, cwd=tmp_path).returncode == 0
+    for name in ("c.csv", "c2.csv", "drive.cap"):
+        shutil.copy(work_inputs / name, tmp_path / name)
     p = hdrd(*args, "--no-progress", cwd=tmp_path) if args[0] in ("evaluate", "tune", "gap") \
         else hdrd(*args, cwd=tmp_path)  # fmt: skip
     assert p.returncode == 1, p.stderr
