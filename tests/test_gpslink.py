@@ -86,16 +86,16 @@ def test_link_feeds_speed_and_the_pipeline_aids_its_steps(peer):
             link.poll(p)
         peer.send(REAL_TPV + "\n")
         clock.now = 1.0
-        while p.speed_mps is None and time.monotonic() < deadline:
+        while p.stepper.speed_mps is None and time.monotonic() < deadline:
             link.poll(p)
-        assert p.speed_mps == pytest.approx(10.289)
+        assert p.stepper.speed_mps == pytest.approx(10.289)
         clock.now = 1.2
         (out,) = _steps(p, 0, 1)
         assert out["mode"] == AIDED and out["heading"] == pytest.approx(31.0)
         assert out["gps_course"] == 31.0
         clock.now = 10.0
         link.poll(p)  # the fix is stale now
-        assert p.speed_mps is None
+        assert p.stepper.speed_mps is None
         (out,) = _steps(p, 1, 1)
         assert out["mode"] == "dead-reckoning" and out["heading"] == pytest.approx(31.0)
     finally:
@@ -171,7 +171,7 @@ def test_each_change_of_mode_is_logged_once(peer) -> None:
             peer.send(REAL_TPV + "\n")
             deadline = time.monotonic() + WAIT
             clock.now = 1.0
-            while p.speed_mps is None and time.monotonic() < deadline:
+            while p.stepper.speed_mps is None and time.monotonic() < deadline:
                 link.poll(p)
             for k, now in enumerate((1.2, 1.4, 1.6)):
                 clock.now = now

@@ -181,7 +181,7 @@ def test_stale_message_holds_heading_without_a_step():
     run_live(p, make_frames(np.full(30, -3.0)))
     m = p.stale_message(now=1234.5, silent_s=4.2, bad_frames=3)
     assert m["status"] == "stale" and m["stale_s"] == 4.2 and m["time"] == 1234.5
-    assert m["heading"] == p.heading
+    assert m["heading"] == heading_from_yaw(p.config.heading0_deg, p.stepper.yaw)
     assert "omega" not in m
 
 

@@ -36,7 +36,7 @@ from hdrd.core.calibrate import BiasRecord, CalibrationLimits
 from hdrd.core.resample import Block, BlockAverager, Missing
 from hdrd.core.selfcheck import OutageRecord
 from hdrd.daemon.aiding import GpsAiding
-from hdrd.daemon.stepper import PipelineConfig, Stepper, heading_from_yaw
+from hdrd.daemon.stepper import PipelineConfig, Stepper
 from hdrd.io.wire.clocks import DeviceClock
 from hdrd.io.wire.protocol import MESSAGE_CLASS, SCHEMA_VERSION, TEMP_NOT_FITTED, Message
 
@@ -134,20 +134,6 @@ class Pipeline:
         return self.stepper.events
 
     @property
-    def speed_mps(self) -> float | None:
-        return self.stepper.speed_mps
-
-    @property
-    def calibrating(self) -> bool:
-        """True until the static bias is known."""
-        return self.stepper.bias is None
-
-    @property
-    def heading(self) -> float:
-        """Current compass heading, deg."""
-        return heading_from_yaw(self.config.heading0_deg, self.stepper.yaw)
-
-    @property
     def clock(self) -> DeviceClock:
         return self._clock
 
@@ -167,11 +153,6 @@ class Pipeline:
         """A GPS aiding stage (None: none) and its clock, from the next step on (a new gpsd
         connection after SIGHUP)."""
         self.stepper.aiding, self.stepper.aid_clock = aiding, aid_clock
-
-    @property
-    def aiding(self) -> GpsAiding | None:
-        """The GPS aiding stage, if any."""
-        return self.stepper.aiding
 
     def set_speed(self, speed_mps: float | None) -> None:
         """Vehicle speed (m/s, None = unknown) from an outside source (gpsd, CAN), used by
