@@ -47,7 +47,7 @@ t.append(time.perf_counter())
 from hdrd.cli import build_parser
 from hdrd.core.calibrate import given_bias
 from hdrd.io.wire.capture import decode_capture
-from hdrd.config import load_config
+from hdrd.configload import load_config
 from hdrd.daemon.pipeline import Pipeline, pipeline_config
 from hdrd.io.net.formats import format_json
 t.append(time.perf_counter())
