@@ -35,6 +35,7 @@ __all__ = [
     "MAX_MAGNITUDE",
     "Received",
     "TailFormatter",
+    "bound_socket",
     "implausible",
     "printable",
     "read_datagram",
@@ -158,25 +159,35 @@ def shown_address(host: str, port: int) -> str:
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
-def udp_listener(listen: str) -> tuple[socket.socket, str]:
-    """A UDP socket bound to ``listen`` (HOST:PORT, :func:`hdrd.io.net.publish.parse_hostport`;
-    the first address the host resolves to), and that address as shown to a user.
+def bound_socket(listen: str, kind: int) -> tuple[socket.socket, str, Any]:
+    """A socket of ``kind`` (``SOCK_DGRAM``, ``SOCK_STREAM``: with ``SO_REUSEADDR``) bound to
+    ``listen`` (HOST:PORT, :func:`hdrd.io.net.publish.parse_hostport`; the first address the
+    host resolves to), that address as shown to a user, and the socket address bound.
 
     ValueError: the address is malformed or does not resolve. OSError: it cannot be bound
     (in use, not this host's)."""
     try:
         host, port = parse_hostport(listen)
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE)
+        infos = socket.getaddrinfo(host, port, type=kind, flags=socket.AI_PASSIVE)
     except (ValueError, OSError, UnicodeError) as e:
         raise ValueError(str(e)) from None
     family, _, _, _, sockaddr = infos[0]
-    sock = socket.socket(family, socket.SOCK_DGRAM)
+    sock = socket.socket(family, kind)
     try:
+        if kind == socket.SOCK_STREAM:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(sockaddr)
     except OSError:
         sock.close()
         raise
-    return sock, shown_address(host, port)
+    return sock, shown_address(host, port), sockaddr
+
+
+def udp_listener(listen: str) -> tuple[socket.socket, str]:
+    """A UDP socket bound to ``listen`` and that address as shown to a user
+    (:func:`bound_socket`)."""
+    sock, shown, _ = bound_socket(listen, socket.SOCK_DGRAM)
+    return sock, shown
 
 
 # -- printing (hdrd tail) ----------------------------------------------------------------------

@@ -42,8 +42,7 @@ from typing import Any
 
 from hdrd.core.throttle import Throttle
 from hdrd.io.logs import log
-from hdrd.io.net.datagrams import shown_address
-from hdrd.io.net.publish import parse_hostport
+from hdrd.io.net.datagrams import bound_socket, shown_address
 from hdrd.io.web.http import (
     STREAM_HEAD,
     Request,
@@ -132,25 +131,17 @@ def load_assets() -> dict[str, tuple[bytes, str]]:
 
 
 def tcp_listener(listen: str) -> tuple[socket.socket, str, bool]:
-    """A listening TCP socket on ``listen`` (HOST:PORT; the first address the host resolves
-    to), that address as shown to a user, and whether it is a loopback address.
+    """A listening TCP socket on ``listen`` (:func:`hdrd.io.net.datagrams.bound_socket`), that
+    address as shown to a user, and whether it is a loopback address.
 
     ValueError: malformed or not resolved. OSError: it cannot be bound."""
+    sock, shown, sockaddr = bound_socket(listen, socket.SOCK_STREAM)
     try:
-        host, port = parse_hostport(listen)
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-    except (ValueError, OSError, UnicodeError) as e:
-        raise ValueError(str(e)) from None
-    family, _, _, _, sockaddr = infos[0]
-    sock = socket.socket(family, socket.SOCK_STREAM)
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind(sockaddr)
         sock.listen(64)
     except OSError:
         sock.close()
         raise
-    return sock, shown_address(host, port), is_loopback(str(sockaddr[0]))
+    return sock, shown, is_loopback(str(sockaddr[0]))
 
 
 def fitted_max_clients(asked: int, nofile: int, in_use: int) -> int:
