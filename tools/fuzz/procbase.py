@@ -28,6 +28,7 @@ __all__ = [
     "Udp",
     "hdrd_env",
     "hwm_mb",
+    "reap",
     "still_publishing",
     "stop_daemon",
     "wait_started",
@@ -200,6 +201,16 @@ def stop_daemon(p: subprocess.Popen[bytes], res: ProcResult, timeout: float = SI
     res.exit(rc)
     if rc != 0:
         res.fail(f"exit {rc} after SIGTERM")
+
+
+def reap(p: subprocess.Popen[bytes], err: Lines, res: ProcResult) -> None:
+    """A run's end, however it went: the process killed if it still runs and waited for, its
+    stderr read to the end and its tracebacks counted."""
+    if p.poll() is None:
+        p.kill()
+    p.wait()
+    err.join(5)
+    res.tracebacks += err.tracebacks
 
 
 def still_publishing(p: subprocess.Popen[bytes], udp: Udp, res: ProcResult, what: str) -> None:

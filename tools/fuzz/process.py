@@ -42,6 +42,7 @@ from .procbase import (
     Udp,
     hdrd_env,
     hwm_mb,
+    reap,
     still_publishing,
     stop_daemon,
     wait_started,
@@ -97,11 +98,7 @@ def _serial(seed: int, protocol: str, max_inputs: int, seconds: float) -> ProcRe
         res.notes.append(f"{udp.steps:,} steps and {udp.stale:,} stale reports received")
         stop_daemon(p, res)
     finally:
-        if p.poll() is None:
-            p.kill()
-        p.wait()
-        err.join(5)
-        res.tracebacks += err.tracebacks
+        reap(p, err, res)
         os.close(master)
         os.close(slave)
         udp.close()
@@ -206,11 +203,7 @@ def _gpsd(seed: int, max_inputs: int, seconds: float, workdir: Path) -> ProcResu
             peer.conn.close()
         stop_daemon(p, res)
     finally:
-        if p.poll() is None:
-            p.kill()
-        p.wait()
-        err.join(5)
-        res.tracebacks += err.tracebacks
+        reap(p, err, res)
         server.close()
         udp.close()
         res.seconds = time.monotonic() - t0

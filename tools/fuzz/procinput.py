@@ -15,7 +15,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from .procbase import HDRD, SILENCE_S, Lines, ProcResult, Udp, hdrd_env, stop_daemon
+from .procbase import HDRD, SILENCE_S, Lines, ProcResult, Udp, hdrd_env, reap, stop_daemon
 from .surfaces import generate
 
 __all__ = ["bias_runs", "capture_runs", "config_sighup", "config_startup"]
@@ -223,11 +223,7 @@ def config_sighup(seed: int, max_inputs: int, seconds: float, workdir: Path) -> 
         )
         stop_daemon(p, res)
     finally:
-        if p.poll() is None:
-            p.kill()
-        p.wait()
-        err.join(5)
-        res.tracebacks += err.tracebacks
+        reap(p, err, res)
         dog.close()
         res.seconds = time.monotonic() - t0
     return res
