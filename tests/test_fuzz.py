@@ -406,3 +406,18 @@ def test_the_harness_reports_a_hang_and_goes_on(monkeypatch: pytest.MonkeyPatch)
     r = fuzz.run_surface("tail", 10, seconds=60, seed=0, hang_s=1.0, quiet=True)
     assert r.hangs == 1 and r.inputs == 10, fuzz.describe(r)
     assert r.defects[0].kind == "hang" and r.defects[0].first_input == 2
+
+
+def test_the_process_runs_skip_the_surfaces_fuzzed_only_in_process() -> None:
+    """``--process-only`` over every surface: the surfaces without a process-level run (the
+    clock, the drive logs) are skipped, not an "unknown surface" traceback."""
+    from tools.fuzz import process
+
+    assert set(process.PROCESS_SURFACES) < set(SURFACES)
+    for s in set(SURFACES) - set(process.PROCESS_SURFACES):
+        with pytest.raises(ValueError, match="unknown surface"):
+            process.run(s, 0, 1, 0.1)
+    ns = fuzz._parser().parse_args(["--process-only"])  # every surface, as a user runs it
+    doc: dict[str, Any] = {"process": []}
+    skipped = tuple(s for s in SURFACES if s not in process.PROCESS_SURFACES)
+    assert fuzz._as_processes(ns, skipped, doc) and doc["process"] == []

@@ -50,7 +50,7 @@ from .procbase import (
 from .procinput import bias_runs, capture_runs, config_sighup, config_startup
 from .surfaces import generate
 
-__all__ = ["ProcResult", "run"]
+__all__ = ["PROCESS_SURFACES", "ProcResult", "run"]
 
 
 # -- serial --------------------------------------------------------------------------------------
@@ -313,6 +313,10 @@ def _tail(seed: int, raw: bool, max_inputs: int, seconds: float) -> ProcResult:
         res.notes.append(f"{out.lines:,} lines on stdout, {err.lines:,} notes on stderr")
         res.seconds = time.monotonic() - t0
     return res
+
+
+PROCESS_SURFACES = ("serial", "gpsd", "tail", "config", "bias", "capture")
+"""The surfaces that have process-level runs (:func:`run`); the others are fuzzed in process."""
 
 
 def run(
